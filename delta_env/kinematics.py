@@ -1,0 +1,178 @@
+"""Delta robot kinematics on the equivalent robot with a point platform (DESIGN.md section 2).
+
+Conventions: base frame at the centre of the motor axes, z up; theta_i > 0 turns arm i down.
+Every function accepts a leading batch shape ``(...)`` so that whole trajectories are evaluated at
+once; joint and Cartesian vectors have a last axis of length 3, matrices end in ``(3, 3)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from delta_env.geometry import CHAIN_AZIMUTHS, DeltaGeometry
+
+_COS_ALPHA = np.cos(CHAIN_AZIMUTHS)
+_SIN_ALPHA = np.sin(CHAIN_AZIMUTHS)
+
+
+def _as_vectors(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    array = np.asarray(value, dtype=float)
+    if array.ndim == 0 or array.shape[-1] != 3:
+        raise ValueError(f"{name} must have a last axis of length 3, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {array}")
+    return array
+
+
+def elbow_points(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
+    """Elbows J'_i of the equivalent robot (m), shape ``(..., 3 chains, 3 xyz)``."""
+    theta = _as_vectors("theta", theta)
+    radial = geometry.r + geometry.l1 * np.cos(theta)
+    return np.stack((radial * _COS_ALPHA, radial * _SIN_ALPHA, -geometry.l1 * np.sin(theta)), axis=-1)
+
+
+def _elbow_derivatives(geometry: DeltaGeometry, theta: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+    """dJ'_i/dtheta_i and d^2J'_i/dtheta_i^2 (m/rad, m/rad^2), each ``(..., 3, 3)``."""
+    c, s = np.cos(theta), np.sin(theta)
+    l1 = geometry.l1
+    first = np.stack((-l1 * s * _COS_ALPHA, -l1 * s * _SIN_ALPHA, -l1 * c), axis=-1)
+    second = np.stack((-l1 * c * _COS_ALPHA, -l1 * c * _SIN_ALPHA, l1 * s), axis=-1)
+    return first, second
+
+
+def forward(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
+    """Platform position (m) from motor angles (rad): the lower intersection of three spheres.
+
+    Raises:
+        ValueError: if the forearms cannot reach a common point (no real solution).
+    """
+    elbows = elbow_points(geometry, theta)
+    p1, p2, p3 = elbows[..., 0, :], elbows[..., 1, :], elbows[..., 2, :]
+    a, b = p1 - p3, p2 - p3
+    normal = np.cross(a, b)
+    normal_sq = np.sum(normal * normal, axis=-1)
+    if np.any(normal_sq < 1e-18):
+        raise ValueError(f"forward kinematics is undefined: elbows are collinear for theta={np.asarray(theta)}")
+    numerator = np.cross(np.sum(a * a, axis=-1)[..., None] * b - np.sum(b * b, axis=-1)[..., None] * a, normal)
+    centre = p3 + numerator / (2.0 * normal_sq[..., None])
+    height_sq = geometry.l2**2 - np.sum((centre - p3) ** 2, axis=-1)
+    if np.any(height_sq < 0.0):
+        raise ValueError(
+            f"forward kinematics has no real solution for theta={np.asarray(theta)}: the forearms "
+            f"(l2={geometry.l2} m) cannot reach a common point"
+        )
+    unit_normal = normal / np.sqrt(normal_sq)[..., None]
+    unit_normal = np.where(unit_normal[..., 2:3] > 0.0, -unit_normal, unit_normal)
+    return centre + np.sqrt(height_sq)[..., None] * unit_normal
+
+
+def inverse(geometry: DeltaGeometry, xyz: ArrayLike) -> NDArray[np.float64]:
+    """Motor angles (rad) of the elbow-out branch for a platform position (m).
+
+    Raises:
+        ValueError: naming the point if it lies outside the reachable workspace.
+    """
+    xyz = _as_vectors("xyz", xyz)
+    x, y, z = xyz[..., 0:1], xyz[..., 1:2], xyz[..., 2:3]
+    x_local = x * _COS_ALPHA + y * _SIN_ALPHA - geometry.r
+    y_local = -x * _SIN_ALPHA + y * _COS_ALPHA
+    p = -2.0 * geometry.l1 * x_local
+    q = 2.0 * geometry.l1 * np.broadcast_to(z, x_local.shape)
+    c = geometry.l2**2 - geometry.l1**2 - x_local**2 - y_local**2 - z**2
+    ratio = c / np.hypot(p, q)
+    if np.any(np.abs(ratio) > 1.0) or np.any(~np.isfinite(ratio)):
+        bad = np.argwhere(np.any(~(np.abs(ratio) <= 1.0), axis=-1))
+        point = xyz[tuple(bad[0])] if bad.size else xyz
+        raise ValueError(f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}")
+    return np.arctan2(q, p) + np.arccos(ratio)
+
+
+def constraint_terms(
+    geometry: DeltaGeometry, xyz: ArrayLike, theta: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Terms of the velocity constraint ``A xd + K thd = 0``, K = diag(k).
+
+    Returns:
+        A with rows a_i = x - J'_i (m), ``(..., 3, 3)``, and k_i = -a_i . dJ'_i/dtheta_i (m^2/rad),
+        ``(..., 3)``; k_i < 0 on the elbow-out branch.
+    """
+    xyz = _as_vectors("xyz", xyz)
+    theta = _as_vectors("theta", theta)
+    a = xyz[..., None, :] - elbow_points(geometry, theta)
+    first, _ = _elbow_derivatives(geometry, theta)
+    k = -np.sum(a * first, axis=-1)
+    return a, k
+
+
+def jacobian(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
+    """Jacobian J (m/rad) with xd = J thd, ``(..., 3, 3)``; J = -A^{-1} K."""
+    xyz = forward(geometry, theta)
+    a, k = constraint_terms(geometry, xyz, theta)
+    return np.linalg.solve(a, -k[..., None, :] * np.eye(3))
+
+
+def joint_to_cartesian(
+    geometry: DeltaGeometry, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Platform position (m), velocity (m/s), acceleration (m/s^2) from joint motion."""
+    theta = _as_vectors("theta", theta)
+    theta_dot = _as_vectors("theta_dot", theta_dot)
+    theta_ddot = _as_vectors("theta_ddot", theta_ddot)
+    xyz = forward(geometry, theta)
+    a, k = constraint_terms(geometry, xyz, theta)
+    xyz_dot = np.linalg.solve(a, (-k * theta_dot)[..., None])[..., 0]
+    first, second = _elbow_derivatives(geometry, theta)
+    v = xyz_dot[..., None, :] - first * theta_dot[..., None]
+    # A xdd = -|v_i|^2 + a_i . J'_thth,i thd_i^2 - k_i thdd_i  (second derivative of the constraint)
+    rhs = -np.sum(v * v, axis=-1) + np.sum(a * second, axis=-1) * theta_dot**2 - k * theta_ddot
+    xyz_ddot = np.linalg.solve(a, rhs[..., None])[..., 0]
+    return xyz, xyz_dot, xyz_ddot
+
+
+def cartesian_to_joint(
+    geometry: DeltaGeometry, xyz: ArrayLike, xyz_dot: ArrayLike, xyz_ddot: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Joint angles (rad), rates (rad/s), accelerations (rad/s^2) from platform motion."""
+    xyz = _as_vectors("xyz", xyz)
+    xyz_dot = _as_vectors("xyz_dot", xyz_dot)
+    xyz_ddot = _as_vectors("xyz_ddot", xyz_ddot)
+    theta = inverse(geometry, xyz)
+    a, k = constraint_terms(geometry, xyz, theta)
+    theta_dot = -np.sum(a * xyz_dot[..., None, :], axis=-1) / k
+    first, second = _elbow_derivatives(geometry, theta)
+    v = xyz_dot[..., None, :] - first * theta_dot[..., None]
+    # k_i thdd_i = -|v_i|^2 - a_i . (xdd - J'_thth,i thd_i^2)
+    relative_acc = xyz_ddot[..., None, :] - second * (theta_dot**2)[..., None]
+    theta_ddot = (-np.sum(v * v, axis=-1) - np.sum(a * relative_acc, axis=-1)) / k
+    return theta, theta_dot, theta_ddot
+
+
+@dataclass(frozen=True)
+class SingularityMeasures:
+    """Distance to singularity at one or many poses.
+
+    Attributes:
+        det_a: det A (m^3); zero at parallel-type singularities (forearms coplanar).
+        min_abs_k: min_i |k_i| (m^2/rad); zero at serial-type singularities (arm and forearm aligned).
+        jacobian_condition: 2-norm condition number of J (dimensionless; inf when singular).
+    """
+
+    det_a: NDArray[np.float64]
+    min_abs_k: NDArray[np.float64]
+    jacobian_condition: NDArray[np.float64]
+
+
+def singularity_measures(geometry: DeltaGeometry, theta: ArrayLike) -> SingularityMeasures:
+    """Singularity measures at motor angles ``theta`` (rad)."""
+    xyz = forward(geometry, theta)
+    a, k = constraint_terms(geometry, xyz, theta)
+    # J = -A^{-1} K; the pseudo-inverse keeps this finite at det A = 0, where the ratio becomes inf.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        singular_values = np.linalg.svd(np.linalg.pinv(a) @ (k[..., None, :] * np.eye(3)), compute_uv=False)
+        condition = singular_values[..., 0] / singular_values[..., -1]
+    return SingularityMeasures(
+        det_a=np.linalg.det(a), min_abs_k=np.min(np.abs(k), axis=-1), jacobian_condition=condition
+    )
