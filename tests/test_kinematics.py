@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from delta_env import NOMINAL_GEOMETRY, DeltaGeometry
-from delta_env import kinematics
+from delta_env import NOMINAL_GEOMETRY, DeltaGeometry, kinematics
 
 GEOMETRIES = [NOMINAL_GEOMETRY, DeltaGeometry(ra=0.12, rb=0.04, l1=0.25, l2=0.6)]
 
