@@ -1,0 +1,231 @@
+"""Inverse dynamics (MKH and identified forms): two derivations, energy, payload, regressors, MuJoCo."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy.integrate import cumulative_simpson
+
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, kinematics
+
+IDENTIFIED = ModelParameters(rho1=1.35, rho2=1.12, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
+PARAMETER_SETS = [None, IDENTIFIED]
+BATCH_SHAPES = [(), (7,), (4, 5)]
+
+
+def random_joint_states(n: int | tuple[int, ...], seed: int = 0) -> tuple[np.ndarray, ...]:
+    """Angles (rad) in the work zone, rates (rad/s) and accelerations (rad/s^2) of pick cycles."""
+    shape = (n,) if isinstance(n, int) else n
+    rng = np.random.default_rng(seed)
+    theta = rng.uniform(-0.4, 1.0, (*shape, 3))
+    return theta, rng.normal(0.0, 3.0, theta.shape), rng.normal(0.0, 100.0, theta.shape)
+
+
+def joint_min_jerk_move(
+    theta_start: np.ndarray, theta_end: np.ndarray, duration: float, dt: float
+) -> tuple[np.ndarray, ...]:
+    """A rest-to-rest minimum-jerk move in joint space: angles, rates, accelerations, ``(N, 3)``."""
+    s = np.arange(round(duration / dt) + 1)[:, None] * dt / duration
+    delta = np.asarray(theta_end) - np.asarray(theta_start)
+    theta = theta_start + delta * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    theta_dot = delta * (30 * s**2 - 60 * s**3 + 30 * s**4) / duration
+    theta_ddot = delta * (60 * s - 180 * s**2 + 120 * s**3) / duration**2
+    return theta, theta_dot, theta_ddot
+
+
+def fast_move(dt: float) -> tuple[np.ndarray, ...]:
+    """A 0.64 m platform move in 0.25 s: peaks of 6.2 g, 83 rad/s^2 and 6.8 rad/s at the joints."""
+    return joint_min_jerk_move(np.array([-0.3, 0.5, 0.2]), np.array([0.6, -0.2, 0.9]), 0.25, dt)
+
+
+def per_joint_parameters(parameters: ModelParameters) -> np.ndarray:
+    """(rho1, rho2, fv_i, fc_i) for each joint, ``(3, 4)``."""
+    rho = np.broadcast_to([parameters.rho1, parameters.rho2], (3, 2))
+    return np.column_stack((rho, parameters.viscous, parameters.coulomb))
+
+
+@pytest.mark.parametrize("parameters", PARAMETER_SETS)
+@pytest.mark.parametrize("shape", BATCH_SHAPES)
+@pytest.mark.parametrize("payload", [0.0, 3.8])
+def test_lagrange_form_equals_virtual_work_form(parameters, shape, payload) -> None:
+    model = DeltaDynamics.nominal(parameters)
+    states = random_joint_states(shape, seed=len(shape))
+    torque = model.inverse_dynamics(*states, payload=payload)
+    assert torque.shape == (*shape, 3)
+    assert_allclose(torque, model.inverse_dynamics_virtual_work(*states, payload=payload), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("payload", [0.0, 3.8])
+def test_lagrange_multipliers_balance_the_platform_and_give_the_torques(payload) -> None:
+    # Paper eqs. (4) and (5): Mt (xdd + g e_z) = 2 A^T lambda and tau = I thdd + G - 2 K lambda.
+    model = DeltaDynamics.nominal()
+    theta, theta_dot, theta_ddot = random_joint_states(30, seed=8)
+    multipliers = model.lagrange_multipliers(theta, theta_dot, theta_ddot, payload=payload)
+    xyz, _, xyz_ddot = kinematics.joint_to_cartesian(NOMINAL_GEOMETRY, theta, theta_dot, theta_ddot)
+    a, k = kinematics.constraint_terms(NOMINAL_GEOMETRY, xyz, theta)
+    m = NOMINAL_MASSES
+    total_mass = m.m0 + payload + 3 * m.m2
+    gravity = np.array([0.0, 0.0, 9.81])
+    assert_allclose(2 * np.einsum("nij,ni->nj", a, multipliers), total_mass * (xyz_ddot + gravity), atol=1e-9)
+    inertia, weight = (
+        (m.m1 / 3 + m.m2) * NOMINAL_GEOMETRY.l1**2,
+        (m.m1 / 2 + m.m2) * 9.81 * NOMINAL_GEOMETRY.l1,
+    )
+    expected = inertia * theta_ddot - weight * np.cos(theta) - 2 * k * multipliers
+    assert_allclose(
+        model.inverse_dynamics(theta, theta_dot, theta_ddot, payload=payload), expected, atol=1e-9
+    )
+
+
+@pytest.mark.parametrize(
+    ("payload", "rho2", "expected"),
+    # -g l1 (rho2 (m1/2 + m2) + Mt/3) = -3.6297 N m/kg x (rho2 1.2 + (1.4 + payload)/3) kg
+    [(0.0, 1.0, -6.0495), (3.8, 1.0, -10.64712), (0.0, 1.2, -6.920628)],
+)
+def test_static_holding_torque_at_home(payload, rho2, expected) -> None:
+    # Arms horizontal: by symmetry each forearm pair carries Mt g / 3 vertically at the lever l1
+    # (its horizontal part points along the arm); the arm's weight acts at l1/2 and m2 at l1.
+    model = DeltaDynamics.nominal(ModelParameters(rho1=1.5, rho2=rho2))
+    torque = model.inverse_dynamics(np.zeros(3), np.zeros(3), np.zeros(3), payload=payload)
+    assert_allclose(torque, np.full(3, expected), rtol=1e-6)
+
+
+@pytest.mark.parametrize("parameters", PARAMETER_SETS)
+@pytest.mark.parametrize("payload", [0.5, 3.8, np.linspace(0.0, 4.0, 50)])
+def test_torque_is_linear_in_payload(parameters, payload) -> None:
+    model = DeltaDynamics.nominal(parameters)
+    states = random_joint_states(50, seed=3)
+    phi = model.payload_regressor(*states)
+    difference = model.inverse_dynamics(*states, payload=payload) - model.inverse_dynamics(*states)
+    assert_allclose(difference, np.asarray(payload)[..., None] * phi, rtol=1e-12, atol=1e-11)
+    # phi = J^T (xdd + g e_z), built here from the public Jacobian
+    _, _, xyz_ddot = kinematics.joint_to_cartesian(NOMINAL_GEOMETRY, *states)
+    expected = np.einsum(
+        "nji,nj->ni", kinematics.jacobian(NOMINAL_GEOMETRY, states[0]), xyz_ddot + np.array([0.0, 0.0, 9.81])
+    )
+    assert_allclose(phi, expected, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_identification_regressor_reproduces_inverse_dynamics(seed) -> None:
+    rng = np.random.default_rng(seed)
+    parameters = ModelParameters(
+        rho1=rng.uniform(0.8, 1.6),
+        rho2=rng.uniform(0.8, 1.4),
+        viscous=tuple(rng.uniform(0.0, 3.0, 3)),
+        coulomb=tuple(rng.uniform(0.0, 6.0, 3)),
+    )
+    states = random_joint_states(100, seed=seed)
+    payload = rng.uniform(0.0, 4.0, 100)
+    rows, known = DeltaDynamics.nominal().identification_regressor(*states, payload=payload)
+    assert rows.shape == (100, 3, 4)
+    predicted = np.einsum("nik,ik->ni", rows, per_joint_parameters(parameters)) + known
+    expected = DeltaDynamics.nominal(parameters).inverse_dynamics(*states, payload=payload)
+    assert_allclose(predicted, expected, rtol=1e-12, atol=1e-10)
+
+
+@pytest.mark.parametrize("parameters", PARAMETER_SETS)
+@pytest.mark.parametrize("payload", [0.0, 3.8])
+def test_power_balances_energy_along_a_fast_move(parameters, payload) -> None:
+    # Independent of the multipliers: MId is MKH with the arm's kinetic energy scaled by rho1 and
+    # its potential energy by rho2, so int tau . thd dt = d(T + V) + friction losses.
+    dt = 1e-4
+    theta, theta_dot, theta_ddot = fast_move(dt)
+    model = DeltaDynamics.nominal(parameters)
+    p, m, g, l1 = model.parameters, NOMINAL_MASSES, 9.81, NOMINAL_GEOMETRY.l1
+    total_mass = m.m0 + payload + 3 * m.m2
+    xyz, xyz_dot, _ = kinematics.joint_to_cartesian(NOMINAL_GEOMETRY, theta, theta_dot, theta_ddot)
+    kinetic = 0.5 * total_mass * np.sum(xyz_dot**2, axis=1) + 0.5 * p.rho1 * (
+        m.m1 / 3 + m.m2
+    ) * l1**2 * np.sum(theta_dot**2, axis=1)
+    potential = total_mass * g * xyz[:, 2] - p.rho2 * (m.m1 / 2 + m.m2) * g * l1 * np.sum(
+        np.sin(theta), axis=1
+    )
+    dissipated = np.sum(
+        np.multiply(p.viscous, theta_dot**2) + np.multiply(p.coulomb, np.abs(theta_dot)), axis=1
+    )
+    power = np.sum(model.inverse_dynamics(theta, theta_dot, theta_ddot, payload=payload) * theta_dot, axis=1)
+    work = cumulative_simpson(power - dissipated, dx=dt, initial=0.0)
+    energy = kinetic + potential
+    swing = np.ptp(energy)
+    assert swing > 20.0, "the move must exchange a lot of energy for the check to mean something"
+    assert_allclose(work, energy - energy[0], rtol=0, atol=1e-9 * swing)
+
+
+METHODS = [
+    "inverse_dynamics",
+    "inverse_dynamics_virtual_work",
+    "lagrange_multipliers",
+    "payload_regressor",
+    "identification_regressor",
+]
+
+
+def evaluate(model: DeltaDynamics, method: str, states: tuple, payload) -> tuple[np.ndarray, ...]:
+    """A public method of the model on ``states``, its result as a tuple of arrays."""
+    function = getattr(model, method)
+    result = function(*states) if method == "payload_regressor" else function(*states, payload=payload)
+    return result if isinstance(result, tuple) else (result,)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_batch_equals_per_sample_loop(method) -> None:
+    model = DeltaDynamics.nominal(IDENTIFIED)
+    states = random_joint_states(20, seed=5)
+    payload = np.linspace(0.0, 4.0, 20)
+    batch = evaluate(model, method, states, payload)
+    singles = [evaluate(model, method, tuple(s[n] for s in states), float(payload[n])) for n in range(20)]
+    for part, single_parts in zip(batch, zip(*singles, strict=True), strict=True):
+        assert_allclose(part, np.stack(single_parts), rtol=1e-13, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", [m for m in METHODS if m != "payload_regressor"])
+@pytest.mark.parametrize(
+    "payload",
+    [-0.1, float("nan"), np.array([1.0, -1.0])],
+    ids=["negative", "nan", "negative-in-array"],
+)
+def test_bad_payload_raises(method, payload) -> None:
+    states = random_joint_states(2, seed=7)
+    with pytest.raises(ValueError, match="payload"):
+        evaluate(DeltaDynamics.nominal(), method, states, payload)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize(
+    ("theta", "message"),
+    [
+        (np.zeros(2), "theta must have a last axis of length 3"),
+        (np.array([0.0, np.nan, 0.0]), "theta must be finite"),
+        (np.array([0.0, 0.0, 3.0]), "no real solution"),
+    ],
+    ids=["two-joints", "nan", "unreachable"],
+)
+def test_bad_angles_raise(method, theta, message) -> None:
+    zeros = np.zeros_like(theta)
+    with pytest.raises(ValueError, match=message):
+        evaluate(DeltaDynamics.nominal(), method, (theta, zeros, zeros), 0.0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"rho1": 0.0}, "rho1"),
+        ({"rho2": -1.0}, "rho2"),
+        ({"rho1": float("nan")}, "rho1"),
+        ({"viscous": (1.0, 2.0)}, "viscous"),
+        ({"coulomb": (1.0, -2.0, 1.0)}, r"coulomb\[2\]"),
+    ],
+)
+def test_bad_model_parameters_raise(kwargs, name) -> None:
+    with pytest.raises(ValueError, match=name):
+        ModelParameters(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"), [({"m1": -2.0}, "m1"), ({"m0": 0.0}, "m0"), ({"g": np.inf}, "g")]
+)
+def test_bad_masses_raise(kwargs, name) -> None:
+    arguments = {"geometry": DeltaGeometry(), "m1": 2.0, "m2": 0.2, "m0": 0.8} | kwargs
+    with pytest.raises(ValueError, match=name):
+        DeltaDynamics(**arguments)
