@@ -9,7 +9,9 @@ position, velocity and acceleration are continuous (C2) everywhere and the jerk 
   ``lift_fraction * T`` and a quintic down over the last ``lift_fraction * T``, overlapping the
   horizontal one. The vertical motion leads, so the object leaves the conveyor before it is
   dragged sideways. ``lift_height = 0`` with ``lift_fraction = 1`` is a straight line.
-- A *dwell* holds the platform at rest.
+- A *dwell* holds the platform at rest. In pick cycles the suction gripper closes in the middle of
+  the dwell at the pick point and opens in the middle of the dwell at the place point, so the
+  robot is at rest (zero velocity and acceleration) before, at and after every event.
 
 Each move is timed from a peak Cartesian acceleration |xdd| (vector norm): the peak of the move's
 shape is found numerically at T = 1 and T is rescaled by sqrt(peak / target), since the
