@@ -1,0 +1,59 @@
+"""The controller protocol and the PD joint controller.
+
+A controller sees only the environment's observation (measured joints, the reference, the gripper
+state) and nominal parameters; it never reads the plant's truth (the oracle row excepted).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+Observation = Mapping[str, NDArray[np.float64]]
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """A torque controller called once per control step (1 kHz)."""
+
+    name: str
+
+    def reset(self) -> None:
+        """Forget all state; called at the start of every episode."""
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        """Motor torques (N m), shape (3,), for this control step."""
+
+
+class PDController:
+    """Joint PD feedback: tau = Kp (th_ref - th) + Kd (thd_ref - thd).
+
+    Args:
+        kp: Proportional gain (N m/rad), per joint or scalar.
+        kd: Derivative gain (N m s/rad), per joint or scalar.
+    """
+
+    name = "PD"
+
+    def __init__(self, kp: float = 3000.0, kd: float = 60.0) -> None:
+        if not (np.isfinite(kp) and kp >= 0.0):
+            raise ValueError(f"kp must be a finite gain >= 0 N m/rad, got {kp!r}")
+        if not (np.isfinite(kd) and kd >= 0.0):
+            raise ValueError(f"kd must be a finite gain >= 0 N m s/rad, got {kd!r}")
+        self.kp = float(kp)
+        self.kd = float(kd)
+
+    def reset(self) -> None:
+        """PD has no state."""
+
+    def feedback(self, observation: Observation) -> NDArray[np.float64]:
+        """The PD torque (N m), (3,)."""
+        angle_error = observation["reference_angles"] - observation["joint_angles"]
+        rate_error = observation["reference_velocities"] - observation["joint_velocities"]
+        return self.kp * angle_error + self.kd * rate_error
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        return self.feedback(observation)
