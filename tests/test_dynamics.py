@@ -179,6 +179,25 @@ def test_batch_equals_per_sample_loop(method) -> None:
         assert_allclose(part, np.stack(single_parts), rtol=1e-13, atol=1e-12)
 
 
+@pytest.mark.parametrize("payload", [0.0, 3.8])
+def test_mkh_matches_mujoco_oracle_on_the_ideal_plant(payload) -> None:
+    # Imported here so that the rest of this file runs without the plant (another engineer's files).
+    from delta_env.model import PlantConfig
+    from delta_env.oracle import InverseDynamicsOracle
+
+    config = PlantConfig.ideal()
+    m = config.masses
+    model = DeltaDynamics(config.geometry, m1=m.m1, m2=m.m2, m0=m.m0)
+    theta, theta_dot, theta_ddot = (
+        np.concatenate(pair)
+        for pair in zip(random_joint_states(20, seed=6), fast_move(dt=0.005), strict=True)
+    )
+    expected = InverseDynamicsOracle(config).torques(theta, theta_dot, theta_ddot, payload)
+    assert np.abs(expected).max() > 100.0, "the states must load the robot"
+    torque = model.inverse_dynamics(theta, theta_dot, theta_ddot, payload=payload)
+    assert_allclose(torque, expected, rtol=0, atol=1e-6)
+
+
 @pytest.mark.parametrize("method", [m for m in METHODS if m != "payload_regressor"])
 @pytest.mark.parametrize(
     "payload",
