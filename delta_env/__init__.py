@@ -1,5 +1,13 @@
-"""A MuJoCo Delta robot that picks and places payloads of unknown mass."""
+"""A MuJoCo Delta robot that picks and places payloads of unknown mass.
 
-from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+``import delta_env`` registers ``DeltaPickPlace-v0`` with Gymnasium.
+"""
 
-__all__ = ["NOMINAL_GEOMETRY", "NOMINAL_MASSES", "DeltaGeometry", "DeltaMasses"]
+import gymnasium as gym
+
+from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
+
+__all__ = ["NOMINAL_GEOMETRY", "NOMINAL_MASSES", "TORQUE_LIMIT", "DeltaGeometry", "DeltaMasses"]
+
+# The episode ends with its reference trajectory (truncated), so no TimeLimit is needed.
+gym.register(id="DeltaPickPlace-v0", entry_point="delta_env.env:DeltaPickPlaceEnv")

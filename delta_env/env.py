@@ -1,0 +1,406 @@
+"""DeltaPickPlace-v0: a Delta robot picks objects of unknown mass and places them (DESIGN.md section 5)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from delta_env.geometry import GRAVITY, TORQUE_LIMIT
+from delta_env.model import (
+    DEFAULT_PAYLOAD_SIZE,
+    MAX_PAYLOAD_MASS,
+    SUCTION_CUP_OFFSET,
+    DeltaPlant,
+    PlantConfig,
+    RandomizationRanges,
+)
+from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
+
+CONTROL_PERIOD = 1e-3
+"""Control period (s): a 1 kHz drive loop, as on an EtherCAT Delta."""
+
+DIVERGENCE_LOOP_GAP = 1e-3
+"""Loop gap (m) beyond which the simulation counts as diverged."""
+
+
+DEFAULT_CAMERA = {
+    "distance": 2.4,
+    "azimuth": 135.0,
+    "elevation": -20.0,
+    "lookat": np.array([0.0, 0.0, -0.55]),
+}
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the reward -(tracking * |e|^2 + torque * |tau|^2).
+
+    Attributes:
+        tracking: Weight per mm^2 of squared Cartesian tracking error e (mm).
+        torque: Weight per (N m)^2 of squared motor torque.
+    """
+
+    tracking: float = 1.0
+    torque: float = 1e-5
+
+
+class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
+    """A 3-DOF Delta robot in MuJoCo picks and places objects whose masses it is never told.
+
+    Each episode is a sequence of pick-and-place cycles along a C2 reference path (lift 25 mm,
+    travel, descend 25 mm, dwell, and back to the next pick point). At each pick point a suction
+    gripper (a weld) attaches a new object whose mass is drawn at random; it is released at the
+    place point. The plant is the ``realistic`` MuJoCo model by default: true parallelograms,
+    distributed masses, armature, friction, torque ripple and actuator lag that no analytical model
+    in this project knows.
+
+    ## Action Space
+    ``Box(-400, 400, (3,))``: motor torques (N m) at the three joints. Values beyond the limit are
+    saturated by the motor (MuJoCo ``ctrlrange``) and flagged in ``info["torque_saturated"]``;
+    NaN or inf raises a ValueError.
+
+    ## Observation Space
+    A ``Dict`` of float64 arrays, all measured or known to a real drive:
+
+    | key | shape | unit | meaning |
+    |---|---|---|---|
+    | ``joint_angles`` | (3,) | rad | encoder angles (quantized, 17 bit by default) |
+    | ``joint_velocities`` | (3,) | rad/s | backward difference of the encoder angles over one control period (exact joint rates when the encoder is ideal) |
+    | ``joint_torques`` | (3,) | N m | measured motor torque (actuator output plus white noise) |
+    | ``reference_angles`` | (3,) | rad | reference theta of this step |
+    | ``reference_velocities`` | (3,) | rad/s | reference theta_dot of this step |
+    | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
+    | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
+
+    The payload mass is never observed.
+
+    ## Rewards
+    ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
+    in mm and tau the commanded (saturated) torque; the terms are in ``info["reward_tracking"]`` and
+    ``info["reward_torque"]``.
+
+    ## Starting State
+    At rest at the first pick point, loops assembled exactly, the first object under the gripper.
+
+    ## Episode End
+    Truncated at the end of the reference (``n_cycles`` cycles). Terminated if the simulation
+    diverges (non-finite state or a loop gap over 1 mm): ``info["diverged"] = True``, the last
+    finite observation is returned and the reward is ``-divergence_penalty``.
+
+    ## Info
+    Truth for evaluation, never for controllers: ``payload_mass`` (kg, 0 when nothing is held),
+    ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
+    ``applied_torque`` (N m), ``cycle``, ``diverged``, ``torque_saturated`` and the reward terms.
+
+    ## Arguments
+    Args:
+        plant: MuJoCo plant configuration (variant, realism, masses, geometry).
+        n_cycles: Pick-and-place cycles per episode.
+        cycle: ``"conveyor"`` (random pick and place points on two conveyor zones) or
+            ``"standard"`` (the 25/305/25 mm cycle).
+        peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2); 3 g by default.
+        payload_mass_range: Masses (kg) are drawn per object from U[low, high].
+        domain_randomization: Per-episode perturbation of the plant, off (None) by default.
+        reward_weights: Weights of the reward terms.
+        divergence_penalty: Reward (negated) of the step on which the simulation diverges.
+        render_mode: ``"rgb_array"``, ``"human"`` or None.
+        width: Render width (pixels).
+        height: Render height (pixels).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
+
+    def __init__(
+        self,
+        plant: PlantConfig | None = None,
+        n_cycles: int = 3,
+        cycle: Literal["conveyor", "standard"] = "conveyor",
+        peak_acceleration: float = 3.0 * GRAVITY,
+        payload_mass_range: tuple[float, float] = (0.0, 4.0),
+        domain_randomization: RandomizationRanges | None = None,
+        reward_weights: RewardWeights | None = None,
+        divergence_penalty: float = 1e3,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        if not (isinstance(n_cycles, int | np.integer) and n_cycles >= 1):
+            raise ValueError(f"n_cycles must be an integer >= 1, got {n_cycles!r}")
+        if cycle not in ("conveyor", "standard"):
+            raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
+        low, high = payload_mass_range
+        if not (0.0 <= low <= high <= MAX_PAYLOAD_MASS):
+            raise ValueError(
+                f"payload_mass_range must satisfy 0 <= low <= high <= {MAX_PAYLOAD_MASS} kg, got {payload_mass_range}"
+            )
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
+            )
+
+        self.plant_config = plant if plant is not None else PlantConfig()
+        self.plant = DeltaPlant(self.plant_config)
+        self.n_cycles = int(n_cycles)
+        self.cycle = cycle
+        self.peak_acceleration = float(peak_acceleration)
+        self.payload_mass_range = (float(low), float(high))
+        self.domain_randomization = domain_randomization
+        self.reward_weights = reward_weights if reward_weights is not None else RewardWeights()
+        self.divergence_penalty = float(divergence_penalty)
+
+        timestep = self.plant.model.opt.timestep
+        self.n_substeps = round(CONTROL_PERIOD / timestep)
+        if not np.isclose(self.n_substeps * timestep, CONTROL_PERIOD):
+            raise ValueError(
+                f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s"
+            )
+        realism = self.plant_config.realism
+        self._encoder_step = None if realism.encoder_bits is None else 2.0 * np.pi / 2**realism.encoder_bits
+        self._torque_noise_std = realism.torque_noise_std
+
+        self.action_space = spaces.Box(-TORQUE_LIMIT, TORQUE_LIMIT, shape=(3,), dtype=np.float64)
+        unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
+        self.observation_space = spaces.Dict(
+            {
+                "joint_angles": spaces.Box(**unbounded),
+                "joint_velocities": spaces.Box(**unbounded),
+                "joint_torques": spaces.Box(**unbounded),
+                "reference_angles": spaces.Box(**unbounded),
+                "reference_velocities": spaces.Box(**unbounded),
+                "reference_accelerations": spaces.Box(**unbounded),
+                "gripper": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float64),
+            }
+        )
+
+        self.render_mode = render_mode
+        self._renderer = None
+        if render_mode is not None:
+            from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+            self._renderer = MujocoRenderer(
+                self.plant.model, self.plant.data, DEFAULT_CAMERA, width=width, height=height
+            )
+        self._render_every = max(1, round(1.0 / (self.metadata["render_fps"] * CONTROL_PERIOD)))
+
+        self.trajectory: Trajectory | None = None
+        self.payload_masses = np.zeros(self.n_cycles)
+        self._events: dict[int, tuple[str, int]] = {}
+        self._step_index = 0
+        self._cycle = 0
+        self._holding = False
+        self._measured_angles = np.zeros(3)
+        self._last_observation: dict[str, NDArray[np.float64]] | None = None
+        self._torque_noise = np.zeros((1, 3))
+        self._step_duration = self.n_substeps * timestep
+        self._time_tolerance = 0.25 * timestep
+        self._expected_time = 0.0
+
+    # -- episode --------------------------------------------------------------------------------
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, NDArray[np.float64]], dict[str, Any]]:
+        """Start a new episode.
+
+        Args:
+            seed: Seeds ``self.np_random``; the same seed gives the same episode.
+            options: ``"payload_masses"``: the object masses (kg, each in [0, MAX_PAYLOAD_MASS]), one per pick,
+                replacing the drawn ones without changing any other random draw of the episode.
+                ``"reference"``: a :class:`~delta_env.trajectories.Trajectory` to follow instead of
+                the generated cycles (e.g. an identification excitation without picks).
+        """
+        super().reset(seed=seed)
+        options = options or {}
+        unknown = set(options) - {"payload_masses", "reference"}
+        if unknown:
+            raise ValueError(
+                f"unknown reset options {sorted(unknown)}; allowed: ['payload_masses', 'reference']"
+            )
+        reference = options.get("reference")
+        if reference is not None and not isinstance(reference, Trajectory):
+            raise ValueError(
+                f"options['reference'] must be a delta_env.trajectories.Trajectory, got {type(reference)}"
+            )
+
+        # Draw everything in a fixed order so that overriding the masses changes nothing else.
+        n_objects = self.n_cycles if reference is None else len(reference.pick_indices)
+        drawn_masses = self.np_random.uniform(*self.payload_mass_range, size=n_objects)
+        if reference is not None:
+            trajectory = reference
+        elif self.cycle == "conveyor":
+            trajectory = conveyor_cycles(
+                self.plant_config.geometry,
+                self.np_random,
+                self.n_cycles,
+                peak_acceleration=self.peak_acceleration,
+            )
+        else:
+            trajectory = standard_cycle(
+                self.plant_config.geometry, self.peak_acceleration, n_cycles=self.n_cycles
+            )
+        if self.domain_randomization is not None:
+            self.plant.randomize(self.np_random, self.domain_randomization)
+        self.payload_masses = self._payload_masses(options.get("payload_masses"), drawn_masses)
+
+        self.trajectory = trajectory
+        self._events = {int(i): ("pick", c) for c, i in enumerate(trajectory.pick_indices)}
+        self._events.update({int(i): ("place", c) for c, i in enumerate(trajectory.place_indices)})
+        self._step_index = 0
+        self._cycle = 0
+        self._holding = False
+
+        if self.plant.payload_attached:
+            self.plant.release_payload()
+        self.plant.assemble(trajectory.theta[0])
+        first_pick = trajectory.pick_indices[0] if n_objects else 0
+        self._place_object(trajectory.xyz[first_pick], self.payload_masses[0] if n_objects else 0.0)
+        self._expected_time = self.plant.data.time
+        self._torque_noise = self.np_random.normal(0.0, self._torque_noise_std, size=(len(trajectory), 3))
+        self._measured_angles = self._encoder(self.plant.joint_angles())
+        observation = self._observation(self.plant.joint_velocities())
+        self._last_observation = observation
+        if self.render_mode == "human":
+            self.render()
+        return observation, {"payload_masses": self.payload_masses.copy()}
+
+    def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
+        if requested is None:
+            return drawn
+        masses = np.asarray(requested, dtype=float)
+        if masses.shape != drawn.shape:
+            raise ValueError(
+                f"options['payload_masses'] must hold one mass per pick ({drawn.size}), got shape {masses.shape}"
+            )
+        if not np.all((masses >= 0.0) & (masses <= MAX_PAYLOAD_MASS)):
+            raise ValueError(f"payload masses must lie in [0, {MAX_PAYLOAD_MASS}] kg, got {masses.tolist()}")
+        return masses.copy()
+
+    def step(
+        self, action: NDArray[np.float64]
+    ) -> tuple[dict[str, NDArray[np.float64]], float, bool, bool, dict[str, Any]]:
+        # This is the 1 kHz hot path: scalar math and few NumPy calls, so that the env costs at most
+        # about its own physics (measured by scripts/bench.py).
+        if self.trajectory is None:
+            raise RuntimeError("call reset() before step()")
+        torque = np.asarray(action, dtype=float)
+        if torque.shape != (3,) or not math.isfinite(torque.sum()):
+            raise ValueError(f"action must be 3 finite motor torques (N m) in [-400, 400], got {action!r}")
+        saturated = max(abs(torque.item(0)), abs(torque.item(1)), abs(torque.item(2))) > TORQUE_LIMIT
+        if saturated:
+            torque = np.clip(torque, -TORQUE_LIMIT, TORQUE_LIMIT)
+
+        plant = self.plant
+        plant.step(torque, self.n_substeps)
+        self._step_index += 1
+        k = self._step_index
+        event = self._events.get(k)
+        if event is not None:
+            self._gripper_event(*event)
+
+        data = plant.data
+        platform = plant.platform_position()
+        reference = self.trajectory.xyz[k]
+        loop_gap = plant.loop_gap()
+        # MuJoCo resets the data (time included) when the state blows up; NaN fails the comparison.
+        self._expected_time += self._step_duration
+        diverged = (
+            abs(data.time - self._expected_time) > self._time_tolerance or not loop_gap <= DIVERGENCE_LOOP_GAP
+        )
+        truncated = k >= len(self.trajectory) - 1
+
+        error = platform - reference
+        squared_error = float(error @ error)
+        if diverged:
+            observation = self._last_observation
+            reward_tracking = reward_torque = 0.0
+            reward = -self.divergence_penalty
+        else:
+            observation = self._observation(self._measure_joints())
+            self._last_observation = observation
+            reward_tracking = -self.reward_weights.tracking * squared_error * 1e6
+            reward_torque = -self.reward_weights.torque * float(torque @ torque)
+            reward = reward_tracking + reward_torque
+
+        info = {
+            "payload_mass": self.payload_masses.item(self._cycle) if self._holding else 0.0,
+            "platform_position": platform,
+            "reference_position": reference,
+            "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
+            "loop_gap": loop_gap,
+            "applied_torque": data.actuator_force.copy(),
+            "cycle": self._cycle,
+            "diverged": diverged,
+            "torque_saturated": saturated,
+            "reward_tracking": reward_tracking,
+            "reward_torque": reward_torque,
+        }
+        if self.render_mode == "human" and k % self._render_every == 0:
+            self.render()
+        return observation, reward, diverged, truncated, info
+
+    def _gripper_event(self, kind: str, cycle: int) -> None:
+        if kind == "pick":
+            self.plant.attach_payload()
+            self._holding = True
+            self._cycle = cycle
+        else:
+            self.plant.release_payload()
+            self._holding = False
+            if cycle + 1 < len(self.payload_masses):
+                # The next object waits at the next pick point (the same body, a new mass).
+                next_pick = self.trajectory.xyz[self.trajectory.pick_indices[cycle + 1]]
+                self._place_object(next_pick, self.payload_masses[cycle + 1])
+
+    def _place_object(self, pick_point: NDArray[np.float64], mass: float) -> None:
+        """Put the object (kg) on the conveyor so its top face meets the suction cup at ``pick_point``."""
+        below = SUCTION_CUP_OFFSET + 0.5 * DEFAULT_PAYLOAD_SIZE[2]
+        self.plant.place_payload(pick_point - np.array([0.0, 0.0, below]), mass)
+
+    # -- measurement ----------------------------------------------------------------------------
+
+    def _encoder(self, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self._encoder_step is None:
+            return angles.copy()
+        return np.round(angles / self._encoder_step) * self._encoder_step
+
+    def _measure_joints(self) -> NDArray[np.float64]:
+        """Sample the encoders; return the measured joint rates (rad/s)."""
+        previous = self._measured_angles
+        self._measured_angles = self._encoder(self.plant.joint_angles())
+        if self._encoder_step is None:
+            return self.plant.joint_velocities()
+        return (self._measured_angles - previous) / CONTROL_PERIOD
+
+    def _observation(self, joint_velocities: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+        k = self._step_index
+        trajectory = self.trajectory
+        # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
+        return {
+            "joint_angles": self._measured_angles,
+            "joint_velocities": joint_velocities,
+            "joint_torques": self.plant.data.actuator_force + self._torque_noise[k],
+            "reference_angles": trajectory.theta[k],
+            "reference_velocities": trajectory.theta_dot[k],
+            "reference_accelerations": trajectory.theta_ddot[k],
+            "gripper": np.array([1.0 if self._holding else 0.0]),
+        }
+
+    # -- rendering ------------------------------------------------------------------------------
+
+    def render(self) -> NDArray[np.uint8] | None:
+        if self._renderer is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        # Body poses lag the state by one physics step (0.5 ms) after mj_step: invisible in a frame.
+        return self._renderer.render(self.render_mode)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,170 @@
+"""DeltaPickPlace-v0: API checkers, determinism, hidden payload, bad input, divergence, rendering."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from numpy.testing import assert_array_equal
+
+import delta_env
+from controllers.base import PDController
+from delta_env.env import DeltaPickPlaceEnv
+
+
+def rollout(env: gym.Env, seed: int, masses: list[float] | None = None, steps: int = 400) -> list:
+    """(observation, reward, info) of the first `steps` PD steps."""
+    options = None if masses is None else {"payload_masses": masses}
+    observation, _ = env.reset(seed=seed, options=options)
+    controller = PDController()
+    records = []
+    for _ in range(steps):
+        observation, reward, terminated, truncated, info = env.step(controller(observation))
+        records.append((observation, reward, info))
+        if terminated or truncated:
+            break
+    return records
+
+
+@pytest.fixture(scope="module")
+def env() -> DeltaPickPlaceEnv:
+    return DeltaPickPlaceEnv(n_cycles=1)
+
+
+def test_registered_with_gymnasium() -> None:
+    made = gym.make("DeltaPickPlace-v0", n_cycles=1)
+    assert isinstance(made.unwrapped, DeltaPickPlaceEnv)
+    assert delta_env.TORQUE_LIMIT == made.action_space.high[0]
+
+
+def test_gymnasium_env_checker(env: DeltaPickPlaceEnv) -> None:
+    gym_check_env(env, skip_render_check=True)
+
+
+def test_stable_baselines3_env_checker(env: DeltaPickPlaceEnv) -> None:
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    sb3_check_env(env, warn=True)
+
+
+def test_same_seed_same_rollout(env: DeltaPickPlaceEnv) -> None:
+    first, second = rollout(env, seed=3), rollout(env, seed=3)
+    for (obs_a, reward_a, info_a), (obs_b, reward_b, info_b) in zip(first, second, strict=True):
+        for key in obs_a:
+            assert_array_equal(obs_a[key], obs_b[key])
+        assert reward_a == reward_b
+        assert_array_equal(info_a["platform_position"], info_b["platform_position"])
+
+
+def test_different_seeds_differ(env: DeltaPickPlaceEnv) -> None:
+    first, _ = env.reset(seed=1)
+    second, _ = env.reset(seed=2)
+    assert not np.array_equal(first["reference_angles"], second["reference_angles"])
+
+
+def test_payload_mass_changes_nothing_but_the_physics(env: DeltaPickPlaceEnv) -> None:
+    """Same seed, different masses: same first observation and reference, then different motion."""
+    light, _ = env.reset(seed=5, options={"payload_masses": [0.2]})
+    heavy, _ = env.reset(seed=5, options={"payload_masses": [3.9]})
+    for key in light:
+        assert_array_equal(light[key], heavy[key])
+    light_run = rollout(env, seed=5, masses=[0.2], steps=len(env.trajectory) - 1)
+    heavy_run = rollout(env, seed=5, masses=[3.9], steps=len(env.trajectory) - 1)
+    assert light_run[-1][2]["cycle"] == 0
+    carrying = [i for i, (_, _, info) in enumerate(heavy_run) if info["payload_mass"] > 0.0]
+    assert carrying, "the object is never carried"
+    assert heavy_run[carrying[0]][2]["payload_mass"] == pytest.approx(3.9)
+    late = carrying[len(carrying) // 2]
+    assert not np.array_equal(light_run[late][0]["joint_torques"], heavy_run[late][0]["joint_torques"])
+
+
+def test_observation_carries_no_payload_truth(env: DeltaPickPlaceEnv) -> None:
+    observation, _ = env.reset(seed=0)
+    assert set(observation) == {
+        "joint_angles",
+        "joint_velocities",
+        "joint_torques",
+        "reference_angles",
+        "reference_velocities",
+        "reference_accelerations",
+        "gripper",
+    }
+
+
+def test_encoder_quantizes_angles(env: DeltaPickPlaceEnv) -> None:
+    observation, _ = env.reset(seed=0)
+    counts = observation["joint_angles"] / (2.0 * np.pi / 2**17)
+    assert_array_equal(counts, np.round(counts))
+
+
+@pytest.mark.parametrize(
+    ("action", "message"),
+    [([np.nan, 0.0, 0.0], "finite"), ([0.0, np.inf, 0.0], "finite"), ([0.0, 0.0], "3 finite")],
+)
+def test_bad_action_raises(env: DeltaPickPlaceEnv, action: list[float], message: str) -> None:
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step(np.array(action))
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"payload_masses": [1.0, 2.0]}, "one mass per pick"),
+        ({"payload_masses": [-1.0]}, "must lie in"),
+        ({"payload": 1.0}, "unknown reset options"),
+        ({"reference": "25/305/25"}, "Trajectory"),
+    ],
+)
+def test_bad_reset_options_raise(env: DeltaPickPlaceEnv, options: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        env.reset(seed=0, options=options)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"n_cycles": 0}, "n_cycles"),
+        ({"cycle": "adept"}, "cycle"),
+        ({"payload_mass_range": (2.0, 1.0)}, "payload_mass_range"),
+        ({"render_mode": "ascii"}, "render_mode"),
+    ],
+)
+def test_bad_constructor_arguments_raise(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        DeltaPickPlaceEnv(**kwargs)
+
+
+def test_torque_beyond_limit_is_saturated_and_flagged(env: DeltaPickPlaceEnv) -> None:
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([1000.0, 0.0, -1000.0]))
+    assert info["torque_saturated"]
+    assert np.all(np.abs(env.plant.data.ctrl) <= delta_env.TORQUE_LIMIT)
+    _, _, _, _, info = env.step(np.zeros(3))
+    assert not info["torque_saturated"]
+
+
+def test_divergence_terminates_with_flag_and_finite_observation(env: DeltaPickPlaceEnv) -> None:
+    observation, _ = env.reset(seed=0)
+    env.plant.data.qvel[:] = 1e12  # a blow-up, as a far too stiff controller would cause
+    observation, reward, terminated, _, info = env.step(np.zeros(3))
+    assert terminated and info["diverged"]
+    assert np.isfinite(reward)
+    assert all(np.all(np.isfinite(value)) for value in observation.values())
+
+
+def test_episode_truncates_at_end_of_reference() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1, cycle="standard")
+    records = rollout(env, seed=0, steps=10_000)
+    assert len(records) == len(env.trajectory) - 1
+    assert max(info["loop_gap"] for _, _, info in records) < 1e-4
+
+
+def test_rgb_array_render_returns_an_image() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1, render_mode="rgb_array", width=96, height=64)
+    try:
+        env.reset(seed=0)
+        image = env.render()
+    finally:
+        env.close()
+    assert image.shape == (64, 96, 3) and image.dtype == np.uint8
+    assert image.std() > 5.0, "the frame is blank"
