@@ -71,14 +71,15 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | key | shape | unit | meaning |
     |---|---|---|---|
     | ``joint_angles`` | (3,) | rad | encoder angles (quantized, 17 bit by default) |
-    | ``joint_velocities`` | (3,) | rad/s | backward difference of the encoder angles over one control period (exact joint rates when the encoder is ideal) |
+    | ``joint_velocities`` | (3,) | rad/s | encoder backward difference over one control period |
     | ``joint_torques`` | (3,) | N m | measured motor torque (actuator output plus white noise) |
     | ``reference_angles`` | (3,) | rad | reference theta of this step |
     | ``reference_velocities`` | (3,) | rad/s | reference theta_dot of this step |
     | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
     | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
 
-    The payload mass is never observed.
+    The joint rates are exact when the encoder is ideal (``encoder_bits=None``). The payload mass is
+    never observed.
 
     ## Rewards
     ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
@@ -140,9 +141,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
                 f"payload_mass_range must satisfy 0 <= low <= high <= {MAX_PAYLOAD_MASS} kg, got {payload_mass_range}"
             )
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
-            )
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
         self.plant_config = plant if plant is not None else PlantConfig()
         self.plant = DeltaPlant(self.plant_config)
@@ -157,9 +156,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         timestep = self.plant.model.opt.timestep
         self.n_substeps = round(CONTROL_PERIOD / timestep)
         if not np.isclose(self.n_substeps * timestep, CONTROL_PERIOD):
-            raise ValueError(
-                f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s"
-            )
+            raise ValueError(f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s")
         realism = self.plant_config.realism
         self._encoder_step = None if realism.encoder_bits is None else 2.0 * np.pi / 2**realism.encoder_bits
         self._torque_noise_std = realism.torque_noise_std
@@ -219,14 +216,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         options = options or {}
         unknown = set(options) - {"payload_masses", "reference"}
         if unknown:
-            raise ValueError(
-                f"unknown reset options {sorted(unknown)}; allowed: ['payload_masses', 'reference']"
-            )
+            raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: ['payload_masses', 'reference']")
         reference = options.get("reference")
         if reference is not None and not isinstance(reference, Trajectory):
-            raise ValueError(
-                f"options['reference'] must be a delta_env.trajectories.Trajectory, got {type(reference)}"
-            )
+            raise ValueError(f"options['reference'] must be a delta_env.trajectories.Trajectory, got {type(reference)}")
 
         # Draw everything in a fixed order so that overriding the masses changes nothing else.
         n_objects = self.n_cycles if reference is None else len(reference.pick_indices)
@@ -241,9 +234,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
                 peak_acceleration=self.peak_acceleration,
             )
         else:
-            trajectory = standard_cycle(
-                self.plant_config.geometry, self.peak_acceleration, n_cycles=self.n_cycles
-            )
+            trajectory = standard_cycle(self.plant_config.geometry, self.peak_acceleration, n_cycles=self.n_cycles)
         if self.domain_randomization is not None:
             self.plant.randomize(self.np_random, self.domain_randomization)
         self.payload_masses = self._payload_masses(options.get("payload_masses"), drawn_masses)
@@ -309,9 +300,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         loop_gap = plant.loop_gap()
         # MuJoCo resets the data (time included) when the state blows up; NaN fails the comparison.
         self._expected_time += self._step_duration
-        diverged = (
-            abs(data.time - self._expected_time) > self._time_tolerance or not loop_gap <= DIVERGENCE_LOOP_GAP
-        )
+        diverged = abs(data.time - self._expected_time) > self._time_tolerance or not loop_gap <= DIVERGENCE_LOOP_GAP
         truncated = k >= len(self.trajectory) - 1
 
         error = platform - reference

@@ -33,7 +33,7 @@ def env() -> DeltaPickPlaceEnv:
 def test_registered_with_gymnasium() -> None:
     made = gym.make("DeltaPickPlace-v0", n_cycles=1)
     assert isinstance(made.unwrapped, DeltaPickPlaceEnv)
-    assert delta_env.TORQUE_LIMIT == made.action_space.high[0]
+    assert made.action_space.high[0] == delta_env.TORQUE_LIMIT
 
 
 def test_gymnasium_env_checker(env: DeltaPickPlaceEnv) -> None:
