@@ -1,0 +1,144 @@
+"""Exact closed-chain inverse dynamics of the MuJoCo plant: ground truth and the "exact feedforward" bound.
+
+``mj_inverse`` alone does not distribute load through closed chains: with the loop constraints on, it
+attributes ~0 force to them. The oracle therefore (DESIGN.md section 4):
+
+1. makes the state consistent: motor angles and rates fixed, passive coordinates assembled so every loop
+   closes, J_c qvel = 0, and J_c qacc = -Jdot_c qvel with the motor accelerations fixed
+   (Jdot_c qvel from ``mj_jacDot`` of the connected sites);
+2. runs ``mj_inverse`` with the constraint solver disabled, which gives M qacc + c - qfrc_passive
+   (armature, gravity, Coriolis, viscous friction included);
+3. adds back what MuJoCo models as constraints or applied forces: Coulomb frictionloss
+   (fc_i sign(theta_dot_i)) and the Stribeck excess and ripple that :class:`DeltaPlant` applies;
+4. solves the square system [S  J_c^T] [tau; lambda] = rhs for the three motor torques (S selects
+   the motor dofs; lambda are the loop forces).
+
+The actuator lag is not part of the oracle: it returns the torque that must act at the joints, not the
+command that a lagging current loop would need to produce it. The payload is a point mass added to the
+platform's CoM, which is exact for the motor torques whenever the payload is carried rigidly by a platform
+that only translates (a moment on the platform does no virtual work), so on the ideal variant the
+analytical MKH model with the same payload matches the oracle to round-off.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from delta_env.model import MAX_PAYLOAD_MASS, DeltaPlant, PhysicalParameters, PlantConfig
+
+
+class InverseDynamicsOracle:
+    """Motor torques that produce a given joint motion on the MuJoCo plant of ``config``.
+
+    The oracle owns a plant built from ``config`` without a payload body and with the constraint solver
+    disabled; :meth:`set_physical_parameters` keeps it in step with a randomized plant.
+
+    Args:
+        config: The plant configuration (variant, geometry, masses, realism) to invert.
+    """
+
+    def __init__(self, config: PlantConfig | None = None) -> None:
+        config = PlantConfig() if config is None else config
+        if not isinstance(config, PlantConfig):
+            raise ValueError(f"config must be a PlantConfig, got {type(config).__name__}")
+        self.plant = DeltaPlant(replace(config, payload_body=False))
+        self.config = self.plant.config
+        model = self.plant.model
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+        self._platform_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "platform")
+        self._platform_mass = float(model.body_mass[self._platform_body])
+        motor_dofs = self.plant.motor_dofs
+        self._motor_dofs = motor_dofs
+        self._passive_dofs = np.setdiff1d(np.arange(model.nv), motor_dofs)
+        self._frictionloss = model.dof_frictionloss[motor_dofs].copy()
+        # Columns of the square system [S  J_c^T]: the first three select the motor dofs.
+        self._system = np.zeros((model.nv, model.nv))
+        self._system[motor_dofs, np.arange(3)] = 1.0
+
+    def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
+        """Use the same (e.g. randomized) masses and friction as a plant; see DeltaPlant.set_physical_parameters."""
+        self.plant.set_physical_parameters(parameters)
+        self._platform_mass = float(self.plant.model.body_mass[self._platform_body])
+        self._frictionloss = self.plant.model.dof_frictionloss[self._motor_dofs].copy()
+
+    def torques(
+        self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
+    ) -> NDArray[np.float64]:
+        """Motor torques (N m) that give ``theta_ddot`` at (``theta``, ``theta_dot``) with ``payload`` carried.
+
+        Args:
+            theta: Motor angles (rad), shape (3,) or (N, 3).
+            theta_dot: Motor rates (rad/s), same shape.
+            theta_ddot: Motor accelerations (rad/s^2), same shape.
+            payload: Carried payload mass (kg) in [0, MAX_PAYLOAD_MASS], a scalar or shape (N,).
+
+        Returns:
+            Torques at the joints, shape (3,) or (N, 3).
+
+        Raises:
+            ValueError: for mismatched shapes, non-finite values, a bad payload or unreachable angles.
+        """
+        theta, theta_dot, theta_ddot = (np.asarray(value, dtype=float) for value in (theta, theta_dot, theta_ddot))
+        if theta.ndim not in (1, 2) or theta.shape[-1] != 3:
+            raise ValueError(f"theta must have shape (3,) or (N, 3), got {theta.shape}")
+        for name, value in (("theta_dot", theta_dot), ("theta_ddot", theta_ddot)):
+            if value.shape != theta.shape:
+                raise ValueError(f"{name} must have the shape of theta {theta.shape}, got {value.shape}")
+        for name, value in (("theta", theta), ("theta_dot", theta_dot), ("theta_ddot", theta_ddot)):
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"{name} must be finite")
+        payload = np.asarray(payload, dtype=float)
+        if payload.ndim > theta.ndim - 1:
+            raise ValueError(f"payload must be a scalar or have shape (N,), got shape {payload.shape}")
+        payloads = np.broadcast_to(payload, theta.shape[:-1]).reshape(-1)
+        if not (np.all(np.isfinite(payloads)) and np.all((payloads >= 0.0) & (payloads <= MAX_PAYLOAD_MASS))):
+            raise ValueError(f"payload must be a finite mass in [0, {MAX_PAYLOAD_MASS}] kg, got {payload}")
+        # Kinematics for the whole batch at once; the MuJoCo part runs sample by sample.
+        platform, elbows = self.plant.assembly_coordinates(theta)
+        samples = zip(
+            theta.reshape(-1, 3),
+            theta_dot.reshape(-1, 3),
+            theta_ddot.reshape(-1, 3),
+            payloads,
+            platform.reshape(-1, 3),
+            elbows.reshape(-1, 3, 2),
+            strict=True,
+        )
+        tau = np.stack([self._torques_one(*sample) for sample in samples])
+        return tau.reshape(theta.shape)
+
+    def _torques_one(
+        self,
+        theta: NDArray,
+        theta_dot: NDArray,
+        theta_ddot: NDArray,
+        payload: float,
+        platform: NDArray,
+        elbows: NDArray,
+    ) -> NDArray[np.float64]:
+        plant = self.plant
+        model, data = plant.model, plant.data
+        # The payload rides at the platform's CoM: mass only (a translating body's inertia does no work).
+        model.body_mass[self._platform_body] = self._platform_mass + payload
+        jac = plant._assemble(theta, theta_dot, platform, elbows)
+
+        # J_c qacc = -Jdot_c qvel with the motor accelerations fixed.
+        bias = plant.loop_bias_acceleration()
+        data.qacc[self._motor_dofs] = theta_ddot
+        data.qacc[self._passive_dofs] = np.linalg.solve(
+            jac[:, self._passive_dofs], -bias - jac[:, self._motor_dofs] @ theta_ddot
+        )
+        mujoco.mj_inverse(model, data)
+
+        # Forces MuJoCo keeps outside qfrc_inverse: Coulomb (a constraint) and the plant's qfrc_applied.
+        rhs = data.qfrc_inverse.copy()
+        rhs[self._motor_dofs] += self._frictionloss * np.sign(theta_dot)
+        rhs[self._motor_dofs] -= plant.motor_disturbance(theta, theta_dot)
+        self._system[:, 3:] = jac.T
+        solution = np.linalg.solve(self._system, rhs)
+        model.body_mass[self._platform_body] = self._platform_mass
+        return solution[:3]
