@@ -141,7 +141,8 @@ def test_two_seconds_of_pick_and_place_raise_no_warnings(variant: str) -> None:
     for k in range(2000):
         s = min(1.0, k / 800.0)
         target = pick + (place - pick) * (10 * s**3 - 15 * s**4 + 6 * s**5)
-        plant.step(3000.0 * (target - plant.joint_angles()) - 60.0 * plant.joint_velocities() - 50.0, 2)
+        hold = -50.0  # N m, about the gravity-holding torque
+        plant.step(3000.0 * (target - plant.joint_angles()) - 60.0 * plant.joint_velocities() + hold, 2)
         if k == 1000:
             plant.release_payload()
         worst_gap = max(worst_gap, plant.loop_gap())
@@ -306,9 +307,24 @@ def test_mass_changes_reach_the_dynamics() -> None:
     platform_x = plant.model.joint("platform_x").dofadr[0]
     assert_allclose(inertia[platform_x, platform_x], 2.0 * NOMINAL_MASSES.m0, rtol=1e-14)
     plant.place_payload(plant.platform_position() + np.array([0.5, 0.0, 0.0]), 2.5)
-    payload_x = plant.model.joint("payload").dofadr[0]
+    payload = plant.model.body("payload").id
     mujoco.mj_fullM(plant.model, plant.data, inertia)
-    assert_allclose(inertia[payload_x, payload_x], 2.5, rtol=1e-14)
+    assert_allclose(inertia[plant.model.body_dofadr[payload], plant.model.body_dofadr[payload]], 2.5, rtol=1e-14)
+    # The suction weld's softness scales with the payload's inverse mass, refreshed by mj_setConst.
+    assert_allclose(plant.model.body_invweight0[payload, 0], 1.0 / 2.5, rtol=1e-12)
+
+
+def test_randomizing_while_carrying_keeps_the_released_payload_floating() -> None:
+    """mj_setConst derives the gravity-compensation flag; a carried payload has gravcomp 0 at that moment."""
+    plant = DeltaPlant(CONFIGS["realistic"])
+    plant.place_payload(plant.suction_cup_position() - np.array([0.0, 0.0, 0.05]), 2.0)
+    plant.attach_payload()
+    plant.randomize(np.random.default_rng(9))
+    plant.release_payload()
+    released = plant.payload_position()
+    for _ in range(200):
+        plant.step(np.zeros(3), 2)
+    assert_allclose(plant.payload_position(), released, atol=1e-12)
 
 
 def _bad_calls() -> dict[str, tuple[Callable[[], object], str]]:
