@@ -103,7 +103,9 @@ class PlantRealism:
         stribeck_velocity: Decay speed of the Stribeck excess (rad/s).
         ripple_amplitude: Position-dependent torque ripple (gear / cogging) amplitude (N m).
         ripple_periods: Ripple periods per joint revolution.
-        actuator_lag: Time constant of the first-order current loop (s); 0 means direct torque.
+        actuator_lag: Time constant of the first-order current loop (s); 0 means direct torque. MuJoCo
+            ``dyntype="filterexact"`` (the exact discretization of ``filter``: Euler would turn a 0.5 ms
+            lag at a 0.5 ms timestep into a one-step delay).
         torque_noise_std: Measured-torque white noise (N m); observation side, used by the env.
         encoder_bits: Absolute encoder resolution on the joint (bits), or None for exact angles;
             observation side, used by the env.
@@ -401,22 +403,24 @@ def _write_upper_arm_inertia(x: _Mjcf, config: PlantConfig, label: str) -> None:
         "tube": ((0.12 * g.l1, 0.0, 0.0, 0.96 * g.l1, 0.0, 0.0), 0.025),
         "bar": ((g.l1, -FOREARM_SPACING / 2.0 - 0.015, 0.0, g.l1, FOREARM_SPACING / 2.0 + 0.015, 0.0), 0.018),
     }
-    if config.variant == "ideal":
+    ideal = config.variant == "ideal"
+    if ideal:
         mass, com, inertia = ideal_upper_arm_inertial(g, m)
-        x.comment("MKH: rod m1 plus the elbow half m2 of the forearm pair, lumped exactly.")
+        x.comment("MKH: rod m1 plus the elbow half m2 of the forearm pair, lumped exactly; the geoms are visual.")
         x.element("inertial", pos=(com, 0.0, 0.0), mass=mass, diaginertia=(_POINT_INERTIA, inertia, inertia))
-        for part, (fromto, radius) in parts.items():
-            x.element(
-                "geom", name=f"upper_arm_{label}_{part}", class_="visual", type="cylinder", fromto=fromto,
-                size=radius, material="arm",
-            )  # fmt: skip
     else:
         x.comment("Hub + tube + elbow bar: total m1, CoM and inertia unlike the MKH homogeneous rod.")
-        for part, (fromto, radius) in parts.items():
-            x.element(
-                "geom", name=f"upper_arm_{label}_{part}", type="cylinder", fromto=fromto, size=radius,
-                mass=_UPPER_ARM_SPLIT[part] * m.m1, material="arm",
-            )  # fmt: skip
+    for part, (fromto, radius) in parts.items():
+        role = {"class_": "visual"} if ideal else {"mass": _UPPER_ARM_SPLIT[part] * m.m1}
+        x.element(
+            "geom",
+            name=f"upper_arm_{label}_{part}",
+            type="cylinder",
+            fromto=fromto,
+            size=radius,
+            material="arm",
+            **role,
+        )
 
 
 def _write_chain(x: _Mjcf, config: PlantConfig, index: int) -> None:
@@ -426,14 +430,22 @@ def _write_chain(x: _Mjcf, config: PlantConfig, index: int) -> None:
     x.comment(f"Chain {label}: local x = u_{label} (outward), y = t_{label} (motor axis), z up.")
     x.open("body", name=f"upper_arm_{label}", pos=g.ra * u, quat=_quat_z(alpha))
     x.element(
-        "joint", name=f"motor_{label}", class_="motor", damping=realism.viscous_per_joint[index],
+        "joint",
+        name=f"motor_{label}",
+        class_="motor",
+        damping=realism.viscous_per_joint[index],
         frictionloss=realism.coulomb_per_joint[index],
-    )  # fmt: skip
+    )
     x.home_qpos.append(0.0)
     x.element(
-        "geom", name=f"motor_{label}_housing", class_="visual", type="cylinder", fromto=(0, -0.08, 0, 0, 0.08, 0),
-        size=0.07, material="base",
-    )  # fmt: skip
+        "geom",
+        name=f"motor_{label}_housing",
+        class_="visual",
+        type="cylinder",
+        fromto=(0, -0.08, 0, 0, 0.08, 0),
+        size=0.07,
+        material="base",
+    )
     _write_upper_arm_inertia(x, config, label)
     for rod, offset in _rods(config):
         name = f"{label}{rod}"
@@ -443,17 +455,18 @@ def _write_chain(x: _Mjcf, config: PlantConfig, index: int) -> None:
         x.home_qpos.extend([0.0, 0.0])
         rod_line = (0.0, 0.0, 0.0, 0.0, 0.0, -g.l2)
         if config.variant == "ideal":
-            x.comment("MKH: the platform half m2 of the pair, a point at the lower end.")
+            x.comment("MKH: the platform half m2 of the pair, a point at the lower end; the geom is visual.")
             x.element("inertial", pos=(0.0, 0.0, -g.l2), mass=m.m2, diaginertia=(_POINT_INERTIA,) * 3)
-            x.element(
-                "geom", name=f"forearm_{name}_rod", class_="visual", type="cylinder", fromto=rod_line,
-                size=_FOREARM_ROD_RADIUS, material="rod",
-            )  # fmt: skip
-        else:
-            x.element(
-                "geom", name=f"forearm_{name}_rod", type="cylinder", fromto=rod_line, size=_FOREARM_ROD_RADIUS,
-                mass=m.m2, material="rod",
-            )  # fmt: skip
+        role = {"class_": "visual"} if config.variant == "ideal" else {"mass": m.m2}
+        x.element(
+            "geom",
+            name=f"forearm_{name}_rod",
+            type="cylinder",
+            fromto=rod_line,
+            size=_FOREARM_ROD_RADIUS,
+            material="rod",
+            **role,
+        )
         x.element("site", name=f"forearm_{name}_end", pos=(0.0, 0.0, -g.l2))
         x.close("body")
     x.close("body")
@@ -482,9 +495,13 @@ def _write_header(x: _Mjcf, config: PlantConfig) -> None:
         "Jacobians: MuJoCo 4.0.0's sparse Cholesky gave the Newton solver wrong factors (#3767, fixed in 4.0.1)."
     )
     x.element(
-        "option", timestep=dt, integrator="implicitfast", gravity=(0.0, 0.0, -GRAVITY), solver="Newton",
+        "option",
+        timestep=dt,
+        integrator="implicitfast",
+        gravity=(0.0, 0.0, -GRAVITY),
+        solver="Newton",
         jacobian="dense",
-    )  # fmt: skip
+    )
     x.open("visual")
     x.element("global", offwidth="1280", offheight="720")
     x.close("visual")
@@ -512,9 +529,15 @@ def _write_header(x: _Mjcf, config: PlantConfig) -> None:
     x.close("default")
     x.open("asset")
     x.element(
-        "texture", name="grid", type="2d", builtin="checker", width="512", height="512", rgb1=(0.25, 0.27, 0.3),
+        "texture",
+        name="grid",
+        type="2d",
+        builtin="checker",
+        width="512",
+        height="512",
+        rgb1=(0.25, 0.27, 0.3),
         rgb2=(0.3, 0.32, 0.35),
-    )  # fmt: skip
+    )
     x.element("material", name="floor", texture="grid", texrepeat="8 8", reflectance="0.1")
     for name, rgba in _MATERIALS.items():
         x.element("material", name=name, rgba=rgba)
@@ -547,9 +570,16 @@ def _write_constraints_and_actuators(x: _Mjcf, config: PlantConfig) -> None:
         dynamics = {"dyntype": "none"}
     for label in CHAIN_LABELS:
         x.element(
-            "general", name=f"motor_{label}", joint=f"motor_{label}", **dynamics, gaintype="fixed", gainprm=1.0,
-            biastype="none", ctrllimited="true", ctrlrange=(-TORQUE_LIMIT, TORQUE_LIMIT),
-        )  # fmt: skip
+            "general",
+            name=f"motor_{label}",
+            joint=f"motor_{label}",
+            **dynamics,
+            gaintype="fixed",
+            gainprm=1.0,
+            biastype="none",
+            ctrllimited="true",
+            ctrlrange=(-TORQUE_LIMIT, TORQUE_LIMIT),
+        )
     x.close("actuator")
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, kinematics
+from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses, kinematics
 from delta_env.geometry import CHAIN_AZIMUTHS
 from delta_env.model import (
     FOREARM_SPACING,
@@ -38,7 +38,8 @@ def reachable_angles(n: int, seed: int) -> np.ndarray:
     return kinematics.inverse(NOMINAL_GEOMETRY, xyz)
 
 
-def loop_rows(data: mujoco.MjData) -> np.ndarray:
+def equality_rows(data: mujoco.MjData) -> np.ndarray:
+    """Mask of the equality-constraint rows (loops, and the suction weld when active) of efc_*."""
     return data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
 
 
@@ -55,10 +56,10 @@ def test_assembled_plant_matches_kinematics(plant: DeltaPlant) -> None:
         assert plant.loop_gap() < 1e-12
         assert_allclose(plant.joint_angles(), theta, atol=0.0)
         # Each forearm hangs from the elbow F_i + l1 (u_i cos th - e_z sin th), offset along t_i.
-        for (label, rod, offset), (alpha, th) in zip(_forearms(plant), _chain_angles(theta, plant), strict=True):
+        for label, offset, alpha, th in forearms(plant, theta):
             u, t = np.array([np.cos(alpha), np.sin(alpha), 0.0]), np.array([-np.sin(alpha), np.cos(alpha), 0.0])
             elbow = g.ra * u + g.l1 * (np.cos(th) * u - np.sin(th) * np.array([0.0, 0.0, 1.0])) + offset * t
-            assert_allclose(data.xpos[model.body(f"forearm_{label}{rod}").id], elbow, atol=1e-12)
+            assert_allclose(data.xpos[model.body(f"forearm_{label}").id], elbow, atol=1e-12)
         # Velocities: loops closed to first order and the platform moves with J theta_dot.
         assert_allclose(plant.loop_jacobian() @ data.qvel, 0.0, atol=1e-12)
         velocity = np.zeros(6)
@@ -67,15 +68,27 @@ def test_assembled_plant_matches_kinematics(plant: DeltaPlant) -> None:
         assert_allclose(velocity[:3], 0.0, atol=1e-12)
 
 
-def _forearms(plant: DeltaPlant) -> list[tuple[str, str, float]]:
-    rods = [("", 0.0)] if plant.config.variant == "ideal" else [("a", 0.05), ("b", -0.05)]
-    assert FOREARM_SPACING == 0.10
-    return [(label, rod, offset) for label in "123" for rod, offset in rods]
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_other_geometry_and_masses_assemble_closed(variant: str) -> None:
+    """The MJCF is generated from parameters (design optimization): a smaller, lighter robot."""
+    geometry, masses = DeltaGeometry(ra=0.12, rb=0.04, l1=0.25, l2=0.6), DeltaMasses(m1=1.5, m2=0.1, m0=0.5)
+    plant = DeltaPlant(replace(CONFIGS[variant], geometry=geometry, masses=masses))
+    assert_allclose(plant.platform_position(), kinematics.forward(geometry, np.zeros(3)), atol=1e-15)
+    robot = [b for b in range(1, plant.model.nbody) if plant.model.body(b).name != "payload"]
+    assert_allclose(plant.model.body_mass[robot].sum(), 3 * masses.m1 + 6 * masses.m2 + masses.m0, rtol=1e-14)
+    for theta in np.random.default_rng(12).uniform(-0.3, 1.0, (10, 3)):
+        plant.assemble(theta)
+        assert_allclose(
+            plant.data.xpos[plant.model.body("platform").id], kinematics.forward(geometry, theta), atol=1e-12
+        )
+        assert plant.loop_gap() < 1e-12
 
 
-def _chain_angles(theta: np.ndarray, plant: DeltaPlant) -> list[tuple[float, float]]:
-    per_chain = 1 if plant.config.variant == "ideal" else 2
-    return [(CHAIN_AZIMUTHS[i], theta[i]) for i in range(3) for _ in range(per_chain)]
+def forearms(plant: DeltaPlant, theta: np.ndarray) -> list[tuple[str, float, float, float]]:
+    """(name suffix, offset along t_i in m, alpha_i, theta_i) of every forearm rod."""
+    half = FOREARM_SPACING / 2.0
+    rods = [("", 0.0)] if plant.config.variant == "ideal" else [("a", half), ("b", -half)]
+    return [(f"{i + 1}{rod}", offset, CHAIN_AZIMUTHS[i], theta[i]) for i in range(3) for rod, offset in rods]
 
 
 def test_platform_follows_forward_kinematics_in_simulation(plant: DeltaPlant) -> None:
@@ -146,6 +159,7 @@ def test_two_seconds_of_pick_and_place_raise_no_warnings(variant: str) -> None:
         if k == 1000:
             plant.release_payload()
         worst_gap = max(worst_gap, plant.loop_gap())
+        assert plant.data.ncon == 0, "robot parts and the payload must not collide"
     assert [w.number for w in plant.data.warning] == [0] * mujoco.mjtWarning.mjNWARNING
     assert np.all(np.isfinite(plant.data.qpos))
     assert worst_gap < 1e-4
@@ -177,7 +191,7 @@ def test_degrees_of_freedom_and_independent_loop_rows(
 def _equality_jacobian(plant: DeltaPlant) -> np.ndarray:
     model, data = plant.model, plant.data
     jacobian = data.efc_J.reshape(data.nefc, model.nv)
-    return jacobian[loop_rows(data)]
+    return jacobian[equality_rows(data)]
 
 
 def test_sign_of_motor_torque_lifts_the_arm() -> None:
@@ -195,9 +209,8 @@ def test_payload_floats_free_and_follows_when_attached() -> None:
     spot = np.array([0.4, -0.3, -1.0])
     plant.place_payload(spot, 0.0, (0.2, 0.1, 0.05))
     assert plant.payload_mass == MIN_PAYLOAD_MASS
-    assert_allclose(plant.model.body_inertia[plant.model.body("payload").id], MIN_PAYLOAD_MASS / 12 * np.array(
-        [0.1**2 + 0.05**2, 0.2**2 + 0.05**2, 0.2**2 + 0.1**2]
-    ))  # fmt: skip
+    box_inertia = MIN_PAYLOAD_MASS / 12 * np.array([0.1**2 + 0.05**2, 0.2**2 + 0.05**2, 0.2**2 + 0.1**2])
+    assert_allclose(plant.model.body_inertia[plant.model.body("payload").id], box_inertia, rtol=1e-14)
     for _ in range(100):
         plant.step(np.zeros(3), 2)
     assert_allclose(plant.payload_position(), spot, atol=0.0)
@@ -227,7 +240,7 @@ def test_assemble_carries_an_attached_payload() -> None:
     offset = plant.payload_position() - plant.platform_position()
     theta_dot = np.array([1.0, -2.0, 0.5])
     plant.assemble(reachable_angles(1, seed=6)[0], theta_dot)
-    weld = plant.data.efc_pos[loop_rows(plant.data)][-6:]
+    weld = plant.data.efc_pos[equality_rows(plant.data)][-6:]
     assert_allclose(weld, 0.0, atol=1e-12)
     assert_allclose(plant.payload_position() - plant.platform_position(), offset, atol=1e-12)
     payload_velocity = plant.data.qvel[plant.model.jnt_dofadr[plant.model.joint("payload").id] :][:3]
