@@ -14,10 +14,15 @@ attributes ~0 force to them. The oracle therefore (DESIGN.md section 4):
    the motor dofs; lambda are the loop forces).
 
 The actuator lag is not part of the oracle: it returns the torque that must act at the joints, not the
-command that a lagging current loop would need to produce it. The payload is a point mass added to the
-platform's CoM, which is exact for the motor torques whenever the payload is carried rigidly by a platform
-that only translates (a moment on the platform does no virtual work), so on the ideal variant the
-analytical MKH model with the same payload matches the oracle to round-off.
+command that a lagging current loop would need to produce it. Coulomb friction enters as
+fc_i sign(theta_dot_i), so at exactly zero rate (sticking, where friction is indeterminate) it is 0.
+Stribeck and ripple are those of the instantaneous state, whereas the plant holds them over a control
+step.
+
+The payload is a point mass added to the platform's CoM. That is exact for the motor torques wherever the
+payload is carried rigidly by a platform that only translates (a moment on the platform does no virtual
+work), so on the ideal variant the analytical MKH model with the same payload matches the oracle to
+round-off, and on the realistic one a payload hanging under the suction cup needs the same torques.
 """
 
 from __future__ import annotations
@@ -124,21 +129,21 @@ class InverseDynamicsOracle:
         model, data = plant.model, plant.data
         # The payload rides at the platform's CoM: mass only (a translating body's inertia does no work).
         model.body_mass[self._platform_body] = self._platform_mass + payload
-        jac = plant._assemble(theta, theta_dot, platform, elbows)
-
-        # J_c qacc = -Jdot_c qvel with the motor accelerations fixed.
-        bias = plant.loop_bias_acceleration()
-        data.qacc[self._motor_dofs] = theta_ddot
-        data.qacc[self._passive_dofs] = np.linalg.solve(
-            jac[:, self._passive_dofs], -bias - jac[:, self._motor_dofs] @ theta_ddot
-        )
-        mujoco.mj_inverse(model, data)
+        try:
+            jac = plant._assemble(theta, theta_dot, platform, elbows)
+            # J_c qacc = -Jdot_c qvel with the motor accelerations fixed.
+            bias = plant.loop_bias_acceleration()
+            data.qacc[self._motor_dofs] = theta_ddot
+            data.qacc[self._passive_dofs] = np.linalg.solve(
+                jac[:, self._passive_dofs], -bias - jac[:, self._motor_dofs] @ theta_ddot
+            )
+            mujoco.mj_inverse(model, data)
+        finally:
+            model.body_mass[self._platform_body] = self._platform_mass
 
         # Forces MuJoCo keeps outside qfrc_inverse: Coulomb (a constraint) and the plant's qfrc_applied.
         rhs = data.qfrc_inverse.copy()
         rhs[self._motor_dofs] += self._frictionloss * np.sign(theta_dot)
         rhs[self._motor_dofs] -= plant.motor_disturbance(theta, theta_dot)
         self._system[:, 3:] = jac.T
-        solution = np.linalg.solve(self._system, rhs)
-        model.body_mass[self._platform_body] = self._platform_mass
-        return solution[:3]
+        return np.linalg.solve(self._system, rhs)[:3]
