@@ -152,6 +152,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.domain_randomization = domain_randomization
         self.reward_weights = reward_weights if reward_weights is not None else RewardWeights()
         self.divergence_penalty = float(divergence_penalty)
+        self._tracking_weight_m2 = self.reward_weights.tracking * 1e6  # the weight is per mm^2
+        self._torque_weight = self.reward_weights.torque
 
         timestep = self.plant.model.opt.timestep
         self.n_substeps = round(CONTROL_PERIOD / timestep)
@@ -191,7 +193,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._step_index = 0
         self._cycle = 0
         self._holding = False
-        self._measured_angles = np.zeros(3)
+        self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
         self._torque_noise = np.zeros((1, 3))
         self._step_duration = self.n_substeps * timestep
@@ -280,11 +282,15 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if self.trajectory is None:
             raise RuntimeError("call reset() before step()")
         torque = np.asarray(action, dtype=float)
-        if torque.shape != (3,) or not math.isfinite(torque.sum()):
+        if torque.shape != (3,):
+            raise ValueError(f"action must be 3 motor torques (N m) in [-400, 400], got shape {torque.shape}")
+        t0, t1, t2 = torque.tolist()
+        if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
             raise ValueError(f"action must be 3 finite motor torques (N m) in [-400, 400], got {action!r}")
-        saturated = max(abs(torque.item(0)), abs(torque.item(1)), abs(torque.item(2))) > TORQUE_LIMIT
+        saturated = max(abs(t0), abs(t1), abs(t2)) > TORQUE_LIMIT
         if saturated:
             torque = np.clip(torque, -TORQUE_LIMIT, TORQUE_LIMIT)
+            t0, t1, t2 = torque.tolist()
 
         plant = self.plant
         plant.step(torque, self.n_substeps)
@@ -303,8 +309,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         diverged = abs(data.time - self._expected_time) > self._time_tolerance or not loop_gap <= DIVERGENCE_LOOP_GAP
         truncated = k >= len(self.trajectory) - 1
 
-        error = platform - reference
-        squared_error = float(error @ error)
+        px, py, pz = platform.tolist()
+        rx, ry, rz = reference.tolist()
+        squared_error = (px - rx) ** 2 + (py - ry) ** 2 + (pz - rz) ** 2
         if diverged:
             observation = self._last_observation
             reward_tracking = reward_torque = 0.0
@@ -312,8 +319,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         else:
             observation = self._observation(self._measure_joints())
             self._last_observation = observation
-            reward_tracking = -self.reward_weights.tracking * squared_error * 1e6
-            reward_torque = -self.reward_weights.torque * float(torque @ torque)
+            reward_tracking = -self._tracking_weight_m2 * squared_error
+            reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
 
         info = {
@@ -353,25 +360,29 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     # -- measurement ----------------------------------------------------------------------------
 
-    def _encoder(self, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _encoder(self, angles: NDArray[np.float64]) -> list[float]:
+        """Encoder reading (rad) of joint angles: rounded to whole counts when quantized."""
         if self._encoder_step is None:
-            return angles.copy()
-        return np.round(angles / self._encoder_step) * self._encoder_step
+            return angles.tolist()
+        step = self._encoder_step
+        a0, a1, a2 = angles.tolist()
+        return [round(a0 / step) * step, round(a1 / step) * step, round(a2 / step) * step]
 
     def _measure_joints(self) -> NDArray[np.float64]:
         """Sample the encoders; return the measured joint rates (rad/s)."""
-        previous = self._measured_angles
-        self._measured_angles = self._encoder(self.plant.joint_angles())
+        p0, p1, p2 = self._measured_angles
+        self._measured_angles = m0, m1, m2 = self._encoder(self.plant.joint_angles())
         if self._encoder_step is None:
             return self.plant.joint_velocities()
-        return (self._measured_angles - previous) / CONTROL_PERIOD
+        rate = 1.0 / CONTROL_PERIOD
+        return np.array([(m0 - p0) * rate, (m1 - p1) * rate, (m2 - p2) * rate])
 
     def _observation(self, joint_velocities: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
         k = self._step_index
         trajectory = self.trajectory
         # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
         return {
-            "joint_angles": self._measured_angles,
+            "joint_angles": np.array(self._measured_angles),
             "joint_velocities": joint_velocities,
             "joint_torques": self.plant.data.actuator_force + self._torque_noise[k],
             "reference_angles": trajectory.theta[k],

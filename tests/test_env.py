@@ -98,7 +98,7 @@ def test_encoder_quantizes_angles(env: DeltaPickPlaceEnv) -> None:
 
 @pytest.mark.parametrize(
     ("action", "message"),
-    [([np.nan, 0.0, 0.0], "finite"), ([0.0, np.inf, 0.0], "finite"), ([0.0, 0.0], "3 finite")],
+    [([np.nan, 0.0, 0.0], "finite"), ([0.0, np.inf, 0.0], "finite"), ([0.0, 0.0], "got shape")],
 )
 def test_bad_action_raises(env: DeltaPickPlaceEnv, action: list[float], message: str) -> None:
     env.reset(seed=0)
