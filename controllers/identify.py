@@ -1,0 +1,316 @@
+"""``python -m controllers.identify``: identify MId and MId+F on the plant and write a validation report.
+
+Runs :func:`controllers.identification.run_identification`, writes the parameter file into the run
+folder and (unless ``--no-install``) to the default path the controllers load, the resolved
+configuration and the command, the held-out validation data, a Markdown report and the figures
+(made from the saved data), and prints the report.
+
+The report compares the identified friction with the plant's true values: the only place that reads
+the plant's truth, labelled as ground truth for the report; the identification never sees it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controllers.dynamics import DeltaDynamics
+from controllers.identification import (
+    DEFAULT_DURATION,
+    DEFAULT_PARAMETER_PATH,
+    DEFAULT_TRAJECTORIES,
+    FRICTION_VELOCITY_THRESHOLD,
+    JOINT_PARAMETER_NAMES,
+    VALIDATION_DURATION,
+    IdentificationRun,
+    run_identification,
+    save_result,
+)
+from delta_env.geometry import GRAVITY
+from delta_env.model import PlantConfig
+
+TABLE_MODELS = ("MKH", "MId (paper)", "MId+F (paper)", "MId (LS)", "MId+F (joint LS)")
+"""Rows of the Table 1 analogue, in order."""
+
+FIGURES = {
+    "fig3_mkh.png": "MKH",
+    "fig4_mid_paper.png": "MId (paper)",
+    "fig5_mid_f_paper.png": "MId+F (paper)",
+    "fig5b_mid_f_joint_ls.png": "MId+F (joint LS)",
+}
+"""Torque-profile figures like the paper's Fig. 3-5, by file name."""
+
+SPEED_BANDS = (
+    (0.0, 0.0, "at rest"),
+    (0.0, FRICTION_VELOCITY_THRESHOLD, f"0-{FRICTION_VELOCITY_THRESHOLD:g} rad/s"),
+    (FRICTION_VELOCITY_THRESHOLD, np.inf, f"> {FRICTION_VELOCITY_THRESHOLD:g} rad/s"),
+)
+"""Speed bands (low, high, label) of |theta_dot_i| for the error breakdown; (0, 0) means exactly 0."""
+
+TARGET_STD_RATIO = 0.25
+"""Goal: std of the MId+F error <= this x std of the MKH error on every joint (the paper's Table 1)."""
+
+
+def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m controllers.identify", description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
+    parser.add_argument("--trajectories", type=int, default=DEFAULT_TRAJECTORIES, help="excitation trajectories")
+    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION, help="length of each trajectory (s)")
+    parser.add_argument(
+        "--validation-duration", type=float, default=VALIDATION_DURATION, help="held-out stress trajectory (s)"
+    )
+    parser.add_argument("--workers", type=int, default=None, help="processes (default: up to 2 cores)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="run folder (default runs/identification/<UTC time>_seed<seed>)"
+    )
+    parser.add_argument(
+        "--parameters", type=Path, default=DEFAULT_PARAMETER_PATH, help="parameter file the controllers load"
+    )
+    parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    return parser.parse_args(argv)
+
+
+def _ground_truth() -> dict[str, list[float]]:
+    """The default plant's true friction (ground truth for this report only)."""
+    realism = PlantConfig().realism
+    return {"viscous": realism.viscous_per_joint.tolist(), "coulomb": realism.coulomb_per_joint.tolist()}
+
+
+def save_validation_data(run: IdentificationRun, path: Path) -> None:
+    """The held-out samples and every model's torque along them, for the figures (npz)."""
+    data = run.validation
+    torques = {
+        f"model_{index}": DeltaDynamics.nominal(run.models[name]).inverse_dynamics(
+            data.theta, data.theta_dot, data.theta_ddot
+        )
+        for index, name in enumerate(TABLE_MODELS)
+    }
+    np.savez_compressed(
+        path,
+        dt=run.result.provenance["method"]["sample_period_s"],
+        theta=data.theta,
+        theta_dot=data.theta_dot,
+        theta_ddot=data.theta_ddot,
+        torque=data.torque,
+        model_names=np.array(TABLE_MODELS),
+        **torques,
+    )
+
+
+def plot_figures(validation_file: Path, folder: Path) -> list[Path]:
+    """Torque profiles (the paper's Fig. 3-5) and error bars (Fig. 6a) from the saved validation data."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    saved = np.load(validation_file)
+    names = [str(name) for name in saved["model_names"]]
+    time = np.arange(len(saved["torque"])) * float(saved["dt"])
+    written = []
+    for file_name, model in FIGURES.items():
+        estimate = saved[f"model_{names.index(model)}"]
+        figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 7), constrained_layout=True)
+        for joint, axis in enumerate(axes):
+            axis.plot(time, saved["torque"][:, joint], color="0.3", linewidth=0.8, label="measured tau")
+            axis.plot(time, estimate[:, joint], color="tab:red", linewidth=0.8, label=f"{model} tau_hat")
+            axis.set_ylabel(f"tau{joint + 1} (N m)")
+            axis.grid(alpha=0.3)
+        axes[0].legend(loc="upper right")
+        axes[0].set_title(f"Held-out stress trajectory: measured torque vs {model}")
+        axes[-1].set_xlabel("time (s)")
+        figure.savefig(folder / file_name, dpi=110)
+        plt.close(figure)
+        written.append(folder / file_name)
+
+    figure, axis = plt.subplots(figsize=(9, 4), constrained_layout=True)
+    width = 0.8 / len(names)
+    for index, name in enumerate(names):
+        errors = saved["torque"] - saved[f"model_{index}"]
+        positions = np.arange(3) + (index - (len(names) - 1) / 2) * width
+        axis.bar(positions, errors.mean(axis=0), width, yerr=errors.std(axis=0), capsize=3, label=name)
+    axis.set_xticks(np.arange(3), [f"tau{joint + 1}" for joint in range(3)])
+    axis.set_ylabel("tau - tau_hat (N m): mean and std")
+    axis.axhline(0.0, color="black", linewidth=0.6)
+    axis.legend(fontsize=8)
+    axis.set_title("Held-out stress trajectory (the paper's Fig. 6a)")
+    figure.savefig(folder / "fig6a_error_bars.png", dpi=110)
+    plt.close(figure)
+    written.append(folder / "fig6a_error_bars.png")
+    return written
+
+
+def _table1(table: dict[str, Any]) -> list[str]:
+    header = "| joint | " + " | ".join(f"{name} mu | {name} sigma" for name in TABLE_MODELS) + " |"
+    lines = [header, "|---" * (1 + 2 * len(TABLE_MODELS)) + "|"]
+    for joint in range(3):
+        cells = [f"{table[name]['mean'][joint]:.2f} | {table[name]['std'][joint]:.2f}" for name in TABLE_MODELS]
+        lines.append(f"| tau{joint + 1} (N m) | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _std_ratio_lines(table: dict[str, Any]) -> list[str]:
+    lines = ["| model | sigma / sigma_MKH, joints 1-3 | goal <= 0.25 on every joint |", "|---|---|---|"]
+    reference = np.array(table["MKH"]["std"])
+    for name in ("MId+F (paper)", "MId+F (joint LS)"):
+        ratio = np.array(table[name]["std"]) / reference
+        verdict = "met" if np.all(ratio <= TARGET_STD_RATIO) else "NOT met"
+        lines.append(f"| {name} | {', '.join(f'{r:.3f}' for r in ratio)} | {verdict} |")
+    return lines
+
+
+def _speed_band_lines(validation_file: Path) -> list[str]:
+    saved = np.load(validation_file)
+    names = [str(name) for name in saved["model_names"]]
+    speed = np.abs(saved["theta_dot"])
+    bands = []
+    for low, high, label in SPEED_BANDS:
+        inside = speed == 0.0 if high == 0.0 else (speed > low) & (speed <= high)
+        bands.append((label, inside))
+    header = "| model | " + " | ".join(f"{label} ({inside.mean():.0%})" for label, inside in bands) + " |"
+    lines = [header, "|---" * (1 + len(bands)) + "|"]
+    for index, name in enumerate(names):
+        errors = saved["torque"] - saved[f"model_{index}"]
+        cells = [f"{np.sqrt(np.mean(errors[inside] ** 2)):.2f}" for _, inside in bands]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> list[str]:
+    result = run.result
+    spread = result.provenance["mid_f_between_trajectories"]["standard_error_of_mean"]
+    lines = [
+        "| parameter | MId (LS) | MId+F joint LS +- SE (between-trajectory SE) | paper MId | paper MId+F "
+        "| ground truth | joint LS error | paper error |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for index, name in enumerate(JOINT_PARAMETER_NAMES):
+        if index < 2:
+            ours, paper = getattr(result.mid_f, name), getattr(result.paper_mid_f, name)
+            mid, paper_mid, true = f"{getattr(result.mid, name):.4f}", f"{getattr(result.paper_mid, name):.4f}", None
+        else:
+            kind, joint = name.rsplit("_", 1)
+            j = int(joint) - 1
+            ours, paper = getattr(result.mid_f, kind)[j], getattr(result.paper_mid_f, kind)[j]
+            mid = paper_mid = "-"
+            true = truth[kind][j]
+        error = result.standard_errors[f"mid_f.{name}"]
+        between = spread[name]
+        between_text = "n/a" if between is None else f"{between:.4f}"
+        if true is None:
+            truth_cells = "(no physical truth) | - | -"
+        else:
+            truth_cells = f"{true:.3f} | {100 * (ours - true) / true:+.1f} % | {100 * (paper - true) / true:+.1f} %"
+        lines.append(
+            f"| {name} | {mid} | {ours:.4f} +- {error:.4f} ({between_text}) | {paper_mid} | {paper:.4f} "
+            f"| {truth_cells} |"
+        )
+    return lines
+
+
+def render_report(run: IdentificationRun, validation_file: Path, command: str, figures: list[Path]) -> str:
+    """The Markdown validation report."""
+    provenance = run.result.provenance
+    table = provenance["torque_error_validation"]
+    times = provenance["run_time_s"]
+    residuals = provenance["residuals"]
+    held_out = provenance["validation_trajectory"]
+    truth = _ground_truth()
+    peak_g = held_out["peak_acceleration"] / GRAVITY
+    lines = [
+        "# Identification report",
+        "",
+        f"`{command}` on {provenance['date']}: {len(provenance['trajectories'])} excitation trajectories "
+        f"({provenance['samples']['total']} samples after trimming), seed {provenance['seed']}.",
+        f"Held-out free-motion stress trajectory (the paper's upsilon_F): episode seed {held_out['seed']}, "
+        f"{held_out['duration']:g} s, fast moves of {peak_g * held_out['min_acceleration_fraction']:g} to "
+        f"{peak_g:g} g, "
+        f"{held_out['edge_fraction']:.0%} to the workspace edge ({provenance['samples']['validation']} samples).",
+        "",
+        "## Table 1 analogue: tau - tau_hat on the held-out trajectory (N m)",
+        "",
+        *_table1(table),
+        "",
+        *_std_ratio_lines(table),
+        "",
+        "RMS error (N m, all joints) by joint speed |theta_dot_i| on the held-out trajectory:",
+        "",
+        *_speed_band_lines(validation_file),
+        "",
+        "## Identified parameters",
+        "",
+        "Ground truth: the default plant's friction (`PlantConfig().realism`), read by this report only. "
+        "rho1 and rho2 have no physical truth (they absorb armature, the real arm and forearm inertia).",
+        "SE = sigma^2 (X^T X)^-1 over rows 1 ms apart whose residuals are correlated: optimistic. "
+        "The between-trajectory SE (spread of per-trajectory fits / sqrt(n)) is the honest one.",
+        "",
+        *_parameter_lines(run, truth),
+        "",
+        f"Joint LS residual RMS {residuals['mid_f']['residual_rms']:.3f} N m over "
+        f"{sum(residuals['mid_f']['rows_per_joint'])} rows (per joint "
+        f"{', '.join(f'{v:.3f}' for v in residuals['mid_f']['residual_rms_per_joint'])}); "
+        f"rows with 0 < |theta_dot_i| <= {provenance['method']['velocity_threshold_rad_s']} rad/s left out.",
+        "",
+        "## Run time (s)",
+        "",
+        "| data collection + smoothing | joint LS (both fits) | paper method (grid + friction LS) | total |",
+        "|---|---|---|---|",
+        f"| {times['data_collection_and_smoothing']:.2f} | {times['joint_least_squares']:.3f} | "
+        f"{times['paper_method']:.3f} | {times['total']:.2f} |",
+        "",
+        f"Fits {times['fits_timed_as']}; {provenance['workers']} worker process(es).",
+        "",
+        "## Figures",
+        "",
+        *[f"![{path.stem}]({path.name})" for path in figures],
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    arguments = parse_arguments(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    folder = arguments.out or Path("runs/identification") / f"{stamp}_seed{arguments.seed}"
+    folder.mkdir(parents=True, exist_ok=True)
+    command = shlex.join(["python", "-m", "controllers.identify", *(sys.argv[1:] if argv is None else argv)])
+
+    run = run_identification(
+        arguments.trajectories,
+        arguments.seed,
+        arguments.duration,
+        validation_duration=arguments.validation_duration,
+        progress=not arguments.no_progress,
+        workers=arguments.workers,
+    )
+    save_result(run.result, folder / "parameters.json")
+    if not arguments.no_install:
+        save_result(run.result, arguments.parameters)
+    configuration = {key: str(value) if isinstance(value, Path) else value for key, value in vars(arguments).items()}
+    configuration["out"] = str(folder)
+    configuration["method"] = run.result.provenance["method"]
+    (folder / "config.json").write_text(json.dumps(configuration, indent=2) + "\n")
+    (folder / "command.txt").write_text(command + "\n")
+
+    validation_file = folder / "validation.npz"
+    save_validation_data(run, validation_file)
+    figures = plot_figures(validation_file, folder)
+    report = render_report(run, validation_file, command, figures)
+    (folder / "report.md").write_text(report)
+    print(report)
+    installed = "" if arguments.no_install else f" and {arguments.parameters}"
+    print(f"Wrote {folder}/ (parameters.json, config.json, command.txt, report.md, figures){installed}.")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,339 @@
+"""Identification against known truth: joint LS, the paper's grid method, data preparation, file I/O."""
+
+import dataclasses
+import json
+import logging
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from controllers import identification
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.estimation import ENCODER_RESOLUTION
+from controllers.identification import (
+    JOINT_PARAMETER_NAMES,
+    ExcitationRecord,
+    ExcitationSpec,
+    IdentificationResult,
+    MotionData,
+    ParameterFileError,
+    collect_excitation_data,
+    fit_joint_least_squares,
+    fit_least_squares,
+    fit_paper_method,
+    fit_rho_least_squares,
+    grid_search_rho,
+    identify,
+    load_or_identify,
+    load_result,
+    prepare_motion,
+    save_result,
+)
+
+TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
+OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
+
+
+def as_vector(parameters: ModelParameters) -> np.ndarray:
+    """The parameters in the order of JOINT_PARAMETER_NAMES."""
+    return np.array([parameters.rho1, parameters.rho2, *parameters.viscous, *parameters.coulomb])
+
+
+@pytest.fixture(scope="module")
+def motions() -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Exact joint motions of three 3 s excitation trajectories (rad, rad/s, rad/s^2)."""
+    references = [ExcitationSpec(seed=seed, duration=3.0).reference() for seed in (11, 12, 13)]
+    return [(r.theta, r.theta_dot, r.theta_ddot) for r in references]
+
+
+def synthetic(motion: tuple[np.ndarray, ...], parameters: ModelParameters, noise_std: float = 0.0, seed: int = 0):
+    """MotionData whose torque is DeltaDynamics with ``parameters`` plus white noise (N m)."""
+    torque = DeltaDynamics.nominal(parameters).inverse_dynamics(*motion)
+    torque = torque + np.random.default_rng(seed).normal(0.0, noise_std, torque.shape)
+    return MotionData(*motion, torque=torque)
+
+
+@pytest.mark.parametrize("parameters", [TRUTH, OFF_GRID])
+@pytest.mark.parametrize("threshold", [0.0, 1.0])
+def test_joint_least_squares_recovers_parameters_from_noise_free_data(motions, parameters, threshold) -> None:
+    data = [synthetic(motion, parameters) for motion in motions]
+    fit = fit_joint_least_squares(data, velocity_threshold=threshold)
+    assert fit.names == JOINT_PARAMETER_NAMES
+    assert_allclose(fit.estimate, as_vector(parameters), rtol=1e-9)
+    assert_allclose(as_vector(fit.parameters), as_vector(parameters), rtol=1e-9)
+    assert fit.residual_rms_total < 1e-9
+    # rows: every moving sample above the threshold plus the samples at rest
+    theta_dot = np.concatenate([motion[1] for motion in motions])
+    expected_rows = np.sum((np.abs(theta_dot) > threshold) | (theta_dot == 0.0), axis=0)
+    assert fit.rows == tuple(expected_rows)
+
+
+def test_joint_least_squares_is_unbiased_and_its_standard_errors_hold_under_white_noise(motions) -> None:
+    # White torque noise and exact motion: the estimate is unbiased and sigma^2 (X^T X)^-1 is its covariance.
+    noise_std, draws = 0.5, 40
+    fits = [
+        fit_joint_least_squares(
+            [synthetic(motion, TRUTH, noise_std, seed=len(motions) * draw + k) for k, motion in enumerate(motions)]
+        )
+        for draw in range(draws)
+    ]
+    estimates = np.array([fit.estimate for fit in fits])
+    reported = np.mean([fit.standard_errors for fit in fits], axis=0)
+    assert np.all(np.abs(estimates.mean(axis=0) - as_vector(TRUTH)) < 4.0 * reported / math.sqrt(draws))
+    # the spread over draws matches the reported standard errors (11 % sampling error at 40 draws)
+    assert_allclose(estimates.std(axis=0, ddof=1), reported, rtol=0.35)
+    assert_allclose([fit.residual_rms_total for fit in fits], noise_std, rtol=0.05)
+
+
+def test_rho_least_squares_recovers_rho_without_friction(motions) -> None:
+    parameters = ModelParameters(rho1=2.05, rho2=0.81)
+    fit = fit_rho_least_squares([synthetic(motion, parameters) for motion in motions])
+    assert fit.names == ("rho1", "rho2")
+    assert_allclose(fit.estimate, [2.05, 0.81], rtol=1e-9)
+    assert fit.parameters == ModelParameters(rho1=fit.estimate[0], rho2=fit.estimate[1])
+
+
+def test_fit_least_squares_equals_the_two_separate_fits(motions) -> None:
+    data = [synthetic(motion, TRUTH, noise_std=0.5, seed=3) for motion in motions]
+    rho_fit, joint_fit = fit_least_squares(data)
+    assert rho_fit == fit_rho_least_squares(data)
+    assert joint_fit == fit_joint_least_squares(data)
+
+
+@pytest.mark.parametrize(
+    ("rho1", "rho2", "tolerance"),
+    [(1.73, 0.91, 1e-12), (0.95, 1.37, 1e-12), (1.7654, 0.9321, 0.01)],
+    ids=["on-grid", "on-grid-2", "off-grid"],
+)
+def test_grid_search_finds_rho_to_the_grid_resolution(motions, rho1, rho2, tolerance) -> None:
+    data = synthetic(motions[0], ModelParameters(rho1=rho1, rho2=rho2))
+    found = grid_search_rho(data)
+    assert_allclose(found, (rho1, rho2), atol=tolerance)
+
+
+def test_grid_search_minimises_the_rms_torque_error_over_the_grid(motions) -> None:
+    # eq. (7) by brute force on a coarse grid: recompute the torques for every grid point
+    data = synthetic(motions[1], TRUTH, noise_std=2.0, seed=5)
+    grid1, grid2 = (1.5, 2.0, 0.05), (0.7, 1.2, 0.05)
+    best = grid_search_rho(data, rho1_grid=grid1, rho2_grid=grid2)
+    rms = {
+        (r1, r2): np.sqrt(np.mean(identification.torque_errors(ModelParameters(rho1=r1, rho2=r2), data) ** 2))
+        for r1 in identification.rho_grid(grid1)
+        for r2 in identification.rho_grid(grid2)
+    }
+    assert best == min(rms, key=rms.get)
+
+
+def test_paper_method_without_friction_finds_rho_and_no_friction(motions) -> None:
+    data = [synthetic(motion, ModelParameters(rho1=1.73, rho2=0.91)) for motion in motions]
+    paper = fit_paper_method(data)
+    assert_allclose(paper.rho, np.tile([1.73, 0.91], (3, 1)), atol=1e-12)
+    assert_allclose(as_vector(paper.mid), [1.73, 0.91, 0, 0, 0, 0, 0, 0], atol=1e-12)
+    assert_allclose(as_vector(paper.mid_f), as_vector(paper.mid), atol=1e-9)
+
+
+def test_paper_friction_least_squares_recovers_friction_at_the_true_rho(motions) -> None:
+    data = synthetic(motions[2], TRUTH)
+    viscous, coulomb = identification.fit_friction_per_joint(data, TRUTH.rho1, TRUTH.rho2)
+    assert_allclose(viscous, TRUTH.viscous, rtol=1e-9)
+    assert_allclose(coulomb, TRUTH.coulomb, rtol=1e-9)
+
+
+def test_paper_grid_is_biased_by_friction_that_the_joint_fit_models(motions) -> None:
+    # Why ours fits everything at once: the grid ignores friction, which leaks into each trajectory's rho.
+    data = [synthetic(motion, TRUTH) for motion in motions]
+    paper = fit_paper_method(data)
+    assert np.max(np.abs(paper.rho - [TRUTH.rho1, TRUTH.rho2])) > 0.1
+    assert_allclose(fit_joint_least_squares(data).estimate, as_vector(TRUTH), rtol=1e-9)
+
+
+def test_negative_friction_estimates_are_clipped_with_a_warning(motions, caplog) -> None:
+    without_viscous_2 = dataclasses.replace(TRUTH, viscous=(2.0, 0.0, 1.7))
+    data = []
+    for motion in motions:
+        torque = DeltaDynamics.nominal(without_viscous_2).inverse_dynamics(*motion)
+        torque[:, 1] -= 0.7 * motion[1][:, 1]  # fv_2 = -0.7 N m s/rad
+        data.append(MotionData(*motion, torque=torque))
+    with caplog.at_level(logging.WARNING, logger="controllers.identification"):
+        fit = fit_joint_least_squares(data)
+    assert fit.estimate[3] == pytest.approx(-0.7, rel=1e-9)
+    assert fit.parameters.viscous == pytest.approx((2.0, 0.0, 1.7), rel=1e-9)
+    assert "negative viscous friction [-0.7] on joint(s) [2] clipped to 0" in caplog.text
+
+
+def test_prepare_motion_smooths_aligns_trims_and_zeroes_rest_rates() -> None:
+    reference = ExcitationSpec(seed=21, duration=2.0).reference()
+    torques = np.arange(3.0 * len(reference)).reshape(-1, 3)
+    record = ExcitationRecord(ExcitationSpec(seed=21, duration=2.0), 1e-3, reference.theta, torques)
+    raw = prepare_motion(record, trim=50, torque_delay=0.25e-3, rest_velocity=0.0)
+    assert len(raw) == len(reference) - 100
+    assert_allclose(raw.torque, torques[50:-50], rtol=0, atol=0)
+    # the motion at t_k - 0.25 ms: the smoother is within 1.3e-5 rad and 4.7e-3 rad/s of it, a delay of 0 or
+    # 0.5 ms would be off by 2.1e-3 rad and 0.03 rad/s
+    time = np.arange(len(reference)) * 1e-3
+    for smoothed, exact, tolerance in (
+        (raw.theta, reference.theta, 3e-5),
+        (raw.theta_dot, reference.theta_dot, 1e-2),
+    ):
+        delayed = np.column_stack([np.interp(time - 0.25e-3, time, column) for column in exact.T])
+        assert_allclose(smoothed, delayed[50:-50], rtol=0, atol=tolerance)
+    data = prepare_motion(record, trim=50, torque_delay=0.25e-3, rest_velocity=0.02)
+    assert_allclose(data.theta_dot, np.where(np.abs(raw.theta_dot) < 0.02, 0.0, raw.theta_dot), rtol=0, atol=0)
+    at_rest = reference.theta_dot[50:-50] == 0.0
+    assert np.mean(data.theta_dot[at_rest] == 0.0) > 0.9
+
+
+def test_collect_excitation_data_records_encoder_angles_and_measured_torques() -> None:
+    (record,) = collect_excitation_data([ExcitationSpec(seed=5, duration=0.3)])
+    assert record.angles.shape == record.torques.shape == (301, 3)
+    # 17-bit encoder readings, not the simulator's continuous angles
+    assert_allclose(record.angles / ENCODER_RESOLUTION, np.round(record.angles / ENCODER_RESOLUTION), atol=1e-6)
+    # 0.5 N m white noise on the measured torque: large sample-to-sample jumps at rest at the start
+    assert np.std(np.diff(record.torques[1:100], axis=0)) > 0.5
+
+
+RESULT = IdentificationResult(
+    mid=ModelParameters(rho1=1.79, rho2=0.94),
+    mid_f=TRUTH,
+    paper_mid=ModelParameters(rho1=1.8, rho2=0.935),
+    paper_mid_f=OFF_GRID,
+    standard_errors={name: 0.001 * (k + 1) for k, name in enumerate(f"mid_f.{n}" for n in JOINT_PARAMETER_NAMES)},
+    provenance={"seed": 7, "trajectories": [{"seed": 1, "duration": 8.0}], "date": "2026-01-01T00:00:00+00:00"},
+)
+
+
+def test_save_load_round_trip(tmp_path) -> None:
+    path = save_result(RESULT, tmp_path / "nested" / "parameters.json")
+    assert path == tmp_path / "nested" / "parameters.json"
+    assert load_result(path) == RESULT
+    assert list(path.parent.iterdir()) == [path]  # no temporary file left behind
+
+
+def test_save_converts_numpy_values_in_the_provenance(tmp_path) -> None:
+    result = dataclasses.replace(RESULT, provenance={"rms": np.float64(1.5), "rows": np.array([3, 4])})
+    assert load_result(save_result(result, tmp_path / "p.json")).provenance == {"rms": 1.5, "rows": [3, 4]}
+
+
+def _set(*keys_and_value):
+    *keys, value = keys_and_value
+
+    def mutate(document):
+        target = document
+        for key in keys[:-1]:
+            target = target[key]
+        target[keys[-1]] = value
+        return document
+
+    return mutate
+
+
+def _delete(*keys):
+    def mutate(document):
+        target = document
+        for key in keys[:-1]:
+            target = target[key]
+        del target[keys[-1]]
+        return document
+
+    return mutate
+
+
+CORRUPTIONS = {
+    "missing model": (_delete("mid_f"), "missing key 'mid_f' in the file"),
+    "missing rho1": (_delete("mid", "rho1"), "missing key 'rho1' in mid"),
+    "rho as text": (_set("paper_mid", "rho2", "0.9"), "paper_mid.rho2 must be a number"),
+    "rho as bool": (_set("mid", "rho1", True), "mid.rho1 must be a number"),
+    "rho not finite": (_set("mid", "rho2", math.nan), "mid.rho2 must be finite"),
+    "rho zero": (_set("paper_mid_f", "rho1", 0.0), "paper_mid_f: rho1 must be a finite number > 0"),
+    "two joints": (_set("mid_f", "viscous", [1.0, 2.0]), "mid_f.viscous must be a list of 3 numbers"),
+    "negative coulomb": (_set("mid_f", "coulomb", [4.0, 3.4, -1.0]), "mid_f: coulomb[3] must be a finite number >= 0"),
+    "friction as text": (_set("mid_f", "coulomb", [4.0, "3.4", 4.6]), "mid_f.coulomb[1] must be a number"),
+    "negative standard error": (
+        _set("standard_errors", "mid_f.rho1", -0.1),
+        "standard_errors['mid_f.rho1'] must be >= 0",
+    ),
+    "standard errors not an object": (_set("standard_errors", [0.1]), "standard_errors must be a JSON object"),
+    "provenance not an object": (_set("provenance", "none"), "provenance must be a JSON object"),
+    "missing provenance": (_delete("provenance"), "missing key 'provenance'"),
+    "wrong version": (_set("format_version", 2), "format_version 2 is not 1"),
+    "top level list": (lambda document: [document], "the file must be a JSON object"),
+}
+
+
+@pytest.mark.parametrize(("mutate", "message"), CORRUPTIONS.values(), ids=CORRUPTIONS.keys())
+def test_load_rejects_a_corrupt_file_naming_path_and_problem(tmp_path, mutate, message) -> None:
+    path = save_result(RESULT, tmp_path / "parameters.json")
+    path.write_text(json.dumps(mutate(json.loads(path.read_text()))))
+    with pytest.raises(ParameterFileError) as error:
+        load_result(path)
+    assert str(path) in str(error.value)
+    assert message in str(error.value)
+
+
+@pytest.mark.parametrize(
+    "text", ["", "{not json", '{"format_version": 1,', "\xff\xfe"], ids=["empty", "garbage", "truncated", "binary"]
+)
+def test_load_rejects_text_that_is_not_json(tmp_path, text) -> None:
+    path = tmp_path / "parameters.json"
+    path.write_bytes(text.encode("latin-1"))
+    with pytest.raises(ParameterFileError, match="not valid JSON") as error:
+        load_result(path)
+    assert str(path) in str(error.value)
+
+
+def test_load_of_a_missing_file_says_how_to_create_it(tmp_path) -> None:
+    path = tmp_path / "absent.json"
+    with pytest.raises(FileNotFoundError) as error:
+        load_result(path)
+    assert str(path) in str(error.value) and "python -m controllers.identify" in str(error.value)
+
+
+def test_load_or_identify_loads_an_existing_file_without_identifying(tmp_path, monkeypatch) -> None:
+    path = save_result(RESULT, tmp_path / "parameters.json")
+    monkeypatch.setattr(identification, "identify", pytest.fail)
+    assert load_or_identify(path) == RESULT
+
+
+def test_load_or_identify_identifies_and_saves_when_the_file_is_missing(tmp_path, monkeypatch) -> None:
+    calls = []
+
+    def fake_identify(**kwargs):
+        calls.append(kwargs)
+        return RESULT
+
+    monkeypatch.setattr(identification, "identify", fake_identify)
+    path = tmp_path / "runs" / "parameters.json"
+    assert load_or_identify(path, seed=4, n_trajectories=3) == RESULT
+    assert calls == [{"seed": 4, "n_trajectories": 3}]
+    assert load_result(path) == RESULT
+
+
+def test_load_or_identify_never_replaces_a_corrupt_file(tmp_path, monkeypatch) -> None:
+    path = tmp_path / "parameters.json"
+    path.write_text("{corrupt")
+    monkeypatch.setattr(identification, "identify", pytest.fail)
+    with pytest.raises(ParameterFileError):
+        load_or_identify(path)
+    assert path.read_text() == "{corrupt"
+
+
+def test_identify_end_to_end_on_two_short_trajectories(tmp_path) -> None:
+    result = identify(n_trajectories=2, seed=3, duration=2.5, progress=False, workers=2, validation_duration=2.5)
+    provenance = result.provenance
+    seeds = [spec["seed"] for spec in provenance["trajectories"]] + [provenance["validation_trajectory"]["seed"]]
+    assert len(set(seeds)) == 3
+    assert provenance["samples"]["per_trajectory"] == [2401, 2401]
+    assert set(result.standard_errors) == {
+        f"{m}.{n}" for m in ("mid", "mid_f") for n in JOINT_PARAMETER_NAMES[: 2 if m == "mid" else 8]
+    }
+    table = provenance["torque_error_validation"]
+    assert np.all(np.array(table["MId+F (joint LS)"]["std"]) < 0.5 * np.array(table["MKH"]["std"]))
+    assert np.all(np.array(table["MId+F (paper)"]["std"]) < 0.5 * np.array(table["MKH"]["std"]))
+    # 5 s of data: friction within 25 % of the plant's, rho near what 96 s of data give (1.76, 0.92)
+    assert_allclose(result.mid_f.viscous, (2.0, 2.4, 1.7), rtol=0.25)
+    assert_allclose(result.mid_f.coulomb, (4.0, 3.4, 4.6), rtol=0.25)
+    assert result.mid_f.rho1 == pytest.approx(1.76, rel=0.1)
+    assert result.mid_f.rho2 == pytest.approx(0.92, rel=0.2)
+    assert load_result(save_result(result, tmp_path / "parameters.json")) == result
