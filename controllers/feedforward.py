@@ -1,0 +1,129 @@
+"""Model-based feedforward plus PD feedback, and the oracle bound (DESIGN.md section 6; the paper's Fig. 9).
+
+tau = model(th_ref, thd_ref, thdd_ref; m_hat) + Kp (th_ref - th) + Kd (thd_ref - thd)
+
+- :class:`FeedforwardController` with an MKH, MId or MId+F :class:`~controllers.dynamics.DeltaDynamics`
+  built from the nominal geometry and masses: m_hat = 0 without an estimator, or the online estimate of a
+  :class:`~controllers.payload.PayloadEstimator` (MId+F + RLS).
+- :class:`OracleController`: exact closed-chain inverse dynamics of the plant with the true payload. It is
+  the one controller that knows the truth (the plant configuration and the payload masses): an upper
+  bound for comparison, never a controller a real robot could run. Its name says so.
+
+Controllers see only the observation and nominal or identified parameters; none takes an env or a plant.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Observation, PDController
+from controllers.dynamics import DeltaDynamics
+from controllers.payload import PayloadEstimator
+from delta_env.model import PlantConfig
+from delta_env.oracle import InverseDynamicsOracle
+
+
+class FeedforwardController:
+    """PD plus the feedforward of an analytical model at the reference, with an optional payload estimate.
+
+    Args:
+        name: Label in tables and plots (e.g. ``"MId+F+PD"``).
+        dynamics: The model; use ``DeltaDynamics.nominal(parameters)`` for nominal geometry and masses.
+        pd: The feedback part; ``PDController()`` (Kp 3000 N m/rad, Kd 60 N m s/rad) when None.
+        estimator: Online payload estimator; None feeds forward mp = 0.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        dynamics: DeltaDynamics,
+        *,
+        pd: PDController | None = None,
+        estimator: PayloadEstimator | None = None,
+    ) -> None:
+        if estimator is not None and estimator.dynamics is not dynamics:
+            raise ValueError("the estimator must use the controller's model (the same DeltaDynamics)")
+        self.name = name
+        self.dynamics = dynamics
+        self.pd = PDController() if pd is None else pd
+        self.estimator = estimator
+
+    @property
+    def payload_estimate(self) -> float:
+        """The payload mass (kg) fed forward at the last call: 0 without an estimator."""
+        return 0.0 if self.estimator is None else self.estimator.mass
+
+    def reset(self) -> None:
+        self.pd.reset()
+        if self.estimator is not None:
+            self.estimator.reset()
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        tau0, phi = self.dynamics.torque_and_payload_regressor(
+            observation["reference_angles"],
+            observation["reference_velocities"],
+            observation["reference_accelerations"],
+        )
+        feedback = self.pd.feedback(observation)
+        if self.estimator is None:
+            return tau0 + feedback
+        mass = self.estimator.update(observation, tau0, phi)
+        return tau0 + mass * phi + feedback
+
+
+class OracleController:
+    """PD plus exact inverse dynamics of the plant at the reference with the true payload: an upper bound.
+
+    Knows the truth, unlike every other controller: the plant configuration (passed in) and the mass of
+    each object (:meth:`set_payload_masses`, given by the evaluation after ``env.reset``). The object
+    held is counted from the gripper's closing edges. The actuator lag is not compensated (the oracle
+    gives the torque that must act at the joints, DESIGN.md section 4).
+
+    Args:
+        plant: The configuration of the plant to invert (the env's ``plant_config``).
+        pd: The feedback part; ``PDController()`` when None.
+    """
+
+    name = "Oracle+PD (bound)"
+
+    def __init__(self, plant: PlantConfig, *, pd: PDController | None = None) -> None:
+        self.oracle = InverseDynamicsOracle(plant)
+        self.pd = PDController() if pd is None else pd
+        self.payload_masses: tuple[float, ...] = ()
+        self._picks = 0
+        self._holding = False
+
+    def set_payload_masses(self, masses: Sequence[float]) -> None:
+        """The true masses (kg) of the objects of the next episode, in pick order (the truth)."""
+        self.payload_masses = tuple(float(m) for m in masses)
+
+    @property
+    def payload_estimate(self) -> float:
+        """The true mass (kg) of the object held, 0 when none."""
+        return self.payload_masses[self._picks - 1] if self._holding else 0.0
+
+    def reset(self) -> None:
+        self.pd.reset()
+        self._picks = 0
+        self._holding = False
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        holding = observation["gripper"].item(0) > 0.5
+        if holding and not self._holding:
+            self._picks += 1
+            if self._picks > len(self.payload_masses):
+                raise RuntimeError(
+                    f"pick {self._picks} but only {len(self.payload_masses)} masses were given: call "
+                    "set_payload_masses(info['payload_masses']) after env.reset"
+                )
+        self._holding = holding
+        tau = self.oracle.torques(
+            observation["reference_angles"],
+            observation["reference_velocities"],
+            observation["reference_accelerations"],
+            payload=self.payload_estimate,
+        )
+        return tau + self.pd.feedback(observation)

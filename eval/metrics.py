@@ -1,0 +1,159 @@
+"""Evaluation metrics: pure functions of recorded episodes (DESIGN.md section 8).
+
+Definitions (units in the names):
+
+- tracking: Cartesian distance between the platform and the reference, RMS and max over the episode (mm);
+- torque: the motor torque that acts (after saturation and the current loop), RMS over time and joints
+  and peak |tau_i| (N m);
+- energy: the absolute mechanical work of the three motors, sum_i integral |tau_i theta_dot_i| dt (J):
+  every joule a motor delivers or absorbs counts, since the drives of a Delta do not regenerate into each
+  other;
+- payload: per carry, the estimate's relative error at the end of the carry (%) and the settling time to
+  +-5 %, the time after the pick from which the estimate stays inside the band until the release (ms);
+- torque error statistics of a model: mean and standard deviation of tau_measured - tau_model per joint
+  (N m), the paper's Tables 1 and 2.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+PAYLOAD_BAND = 0.05
+"""Relative band (5 %) of the payload settling time."""
+
+MIN_RELATIVE_MASS = 0.5
+"""Smallest payload (kg) whose relative estimate error is scored: relative errors of near-empty grippers
+say nothing about the estimator."""
+
+
+def tracking_metrics(tracking_error: ArrayLike) -> tuple[float, float]:
+    """RMS and max (mm) of Cartesian tracking errors given in m, ``(N,)``; NaN samples are excluded."""
+    error = np.asarray(tracking_error, dtype=float)
+    error = error[np.isfinite(error)]
+    if error.size == 0:
+        return math.nan, math.nan
+    return 1e3 * float(np.sqrt(np.mean(error**2))), 1e3 * float(np.max(error))
+
+
+def torque_metrics(torque: ArrayLike) -> tuple[float, float]:
+    """RMS over time and joints and peak |tau_i| (N m) of motor torques ``(N, 3)``."""
+    torque = np.asarray(torque, dtype=float)
+    return float(np.sqrt(np.mean(torque**2))), float(np.max(np.abs(torque)))
+
+
+def mechanical_energy(torque: ArrayLike, joint_velocity: ArrayLike, dt: float) -> float:
+    """Absolute mechanical work (J) of the motors: sum_i integral |tau_i theta_dot_i| dt, rectangle rule.
+
+    Args:
+        torque: Motor torques (N m), ``(N, 3)``, each held over one period.
+        joint_velocity: Joint rates (rad/s), ``(N, 3)``, over the same periods.
+        dt: Period (s).
+    """
+    power = np.abs(np.asarray(torque, dtype=float) * np.asarray(joint_velocity, dtype=float))
+    return float(np.sum(power) * dt)
+
+
+@dataclass(frozen=True)
+class CarryMetrics:
+    """How well a payload estimate followed one carried object.
+
+    Attributes:
+        mass: True mass (kg).
+        end_estimate: Estimate at the last sample of the carry (kg).
+        end_error_percent: 100 (end_estimate - mass) / mass (%); NaN for a 0 kg object.
+        settling_time_ms: Time after the pick from which the estimate stays within +-5 % until the release
+            (ms); NaN if it is outside at the end of the carry.
+    """
+
+    mass: float
+    end_estimate: float
+    end_error_percent: float
+    settling_time_ms: float
+
+    @property
+    def end_error_kg(self) -> float:
+        """end_estimate - mass (kg)."""
+        return self.end_estimate - self.mass
+
+
+def carry_metrics(
+    estimates: ArrayLike,
+    pick_indices: Sequence[int],
+    place_indices: Sequence[int],
+    masses: Sequence[float],
+    dt: float,
+    band: float = PAYLOAD_BAND,
+) -> list[CarryMetrics]:
+    """Per-carry payload metrics of an estimate sampled every ``dt`` (s).
+
+    Args:
+        estimates: Payload estimate (kg) that the controller used at each step, ``(N,)``.
+        pick_indices: First step of each carry (the gripper holds from there).
+        place_indices: First step after each carry.
+        masses: True mass of each carried object (kg).
+        dt: Sample period (s).
+        band: Relative half-width of the settling band.
+    """
+    estimates = np.asarray(estimates, dtype=float)
+    results = []
+    for pick, place, mass in zip(pick_indices, place_indices, masses, strict=True):
+        carry = estimates[pick:place]
+        if carry.size == 0:
+            raise ValueError(f"empty carry from step {pick} to {place}")
+        outside = np.flatnonzero(~(np.abs(carry - mass) <= band * mass))
+        if outside.size == 0:
+            settling = 0.0
+        elif outside[-1] == carry.size - 1:
+            settling = math.nan
+        else:
+            settling = 1e3 * dt * (outside[-1] + 1)
+        end = float(carry[-1])
+        error = 100.0 * (end - mass) / mass if mass > 0.0 else math.nan
+        results.append(CarryMetrics(float(mass), end, error, settling))
+    return results
+
+
+def torque_error_statistics(
+    torque_measured: ArrayLike, torque_model: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean and standard deviation per joint (N m) of tau_measured - tau_model, each ``(3,)``."""
+    error = np.asarray(torque_measured, dtype=float) - np.asarray(torque_model, dtype=float)
+    return error.mean(axis=0), error.std(axis=0)
+
+
+def mean_std(values: ArrayLike) -> tuple[float, float, int]:
+    """Mean, sample standard deviation and count of the finite values (NaN, NaN, 0 when none)."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return math.nan, math.nan, 0
+    std = float(np.std(values, ddof=1)) if values.size > 1 else 0.0
+    return float(np.mean(values)), std, int(values.size)
+
+
+def format_mean_std(values: ArrayLike, digits: int = 2) -> str:
+    """``"mean ± std"`` of the finite values, ``"n/a"`` when there are none."""
+    mean, std, count = mean_std(values)
+    if count == 0:
+        return "n/a"
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A GitHub Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines.extend("| " + " | ".join(row) + " |" for row in rows)
+    return "\n".join(lines)
+
+
+def group_by(rows: Sequence[Mapping[str, object]], key: str) -> dict[object, list[Mapping[str, object]]]:
+    """Rows grouped by the value of ``key``, in first-seen order."""
+    groups: dict[object, list[Mapping[str, object]]] = {}
+    for row in rows:
+        groups.setdefault(row[key], []).append(row)
+    return groups
