@@ -1,0 +1,143 @@
+"""Figures of an evaluation run, made from the files it saved (never from live objects).
+
+- ``torque_profiles.png``: motor torques of every controller over the first episode (the paper's Figs. 3-5);
+- ``table2_torques.png``: measured torques against MId+F with mp = 0 and mp = m_hat in the 3.8 kg run
+  (Fig. 7);
+- ``payload_estimate.png``: payload estimate against the true payload over time (Fig. 8);
+- ``error_bars.png``: Table 2 means with standard deviations per joint (Fig. 6 (b)) and the tracking RMS
+  of each controller with its spread over episodes.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
+"""EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""
+
+_JOINTS = ("joint 1", "joint 2", "joint 3")
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path) -> None:
+    """Applied motor torque of each controller over the first episode, one panel per joint."""
+    dt = float(traces["dt"])
+    figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
+    for key, label in zip(traces["keys"], traces["labels"], strict=True):
+        torque = traces[f"{key}.torque"]
+        time = np.arange(len(torque)) * dt
+        for joint, axis in enumerate(axes):
+            axis.plot(time, torque[:, joint], linewidth=0.8, label=label)
+    for joint, axis in enumerate(axes):
+        axis.set_ylabel(f"tau {joint + 1} (N m)")
+        axis.grid(alpha=0.3)
+    axes[0].legend(fontsize="small", ncol=2)
+    axes[-1].set_xlabel("time (s)")
+    figure.suptitle("Motor torques, first episode")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def table2_torques(run: np.lib.npyio.NpzFile, path: Path) -> None:
+    """Measured torque against MId+F with and without the estimated payload (the paper's Fig. 7)."""
+    figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
+    time = run["time"]
+    for joint, axis in enumerate(axes):
+        axis.plot(time, run["measured"][:, joint], color="k", linewidth=0.8, label="tau measured")
+        axis.plot(time, run["mp_0"][:, joint], linewidth=0.8, label="MId+F, mp = 0")
+        axis.plot(time, run["mp_hat"][:, joint], linewidth=0.8, label="MId+F, mp = m_hat")
+        axis.set_ylabel(f"tau {joint + 1} (N m)")
+        axis.grid(alpha=0.3)
+    axes[0].legend(fontsize="small")
+    axes[-1].set_xlabel("time (s)")
+    figure.suptitle("Measured and model torques, every object 3.8 kg")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, path: Path) -> None:
+    """Payload estimate and true payload over time: first episode and the 3.8 kg run (the paper's Fig. 8)."""
+    dt = float(traces["dt"])
+    # The estimate formed from observation n and the true mass at observation n (one more at the end).
+    panels = [
+        (f"{label}, first episode", traces[f"{key}.payload_estimate"], traces[f"{key}.payload_mass"])
+        for key, label in zip(traces["keys"], traces["labels"], strict=True)
+        if np.any(traces[f"{key}.payload_estimate"]) and "Oracle" not in str(label)
+    ]
+    figure, axes = plt.subplots(len(panels) + 1, 1, sharex=False, figsize=(10, 2.6 * (len(panels) + 1)))
+    axes = np.atleast_1d(axes)
+    for axis, (title, estimate, mass) in zip(axes, panels, strict=False):
+        time = np.arange(len(estimate)) * dt
+        axis.plot(time, mass[: len(estimate)], color="k", label="m_p (true)")
+        axis.plot(time, estimate, label="m_hat")
+        axis.set_title(title, fontsize="medium")
+    axes[-1].plot(run["time"], run["mass"], color="k", label="m_p (true)")
+    axes[-1].plot(run["time"], run["estimate"], label="m_hat")
+    axes[-1].set_title("Table 2 run, every object 3.8 kg", fontsize="medium")
+    for axis in axes:
+        axis.set_ylabel("mass (kg)")
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize="small", loc="upper right")
+    axes[-1].set_xlabel("time (s)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def error_bars(table2: list[dict[str, str]], episodes: list[dict[str, str]], path: Path) -> None:
+    """Mean torque errors with standard deviations (Fig. 6 (b)) and tracking RMS per controller."""
+    figure, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
+    positions = np.arange(3)
+    for offset, (name, label) in zip((-0.15, 0.15), (("mp_0", "mp = 0"), ("mp_hat", "mp = m_hat")), strict=True):
+        means = [float(row[f"{name}_mean"]) for row in table2]
+        stds = [float(row[f"{name}_std"]) for row in table2]
+        left.errorbar(positions + offset, means, yerr=stds, fmt="o", capsize=4, label=label)
+    left.axhline(0.0, color="k", linewidth=0.6)
+    left.set_xticks(positions, ["tau1", "tau2", "tau3"])
+    left.set_ylabel("tau measured - tau MId+F (N m)")
+    left.set_title("Table 2 analogue: mean ± std", fontsize="medium")
+    left.legend(fontsize="small")
+    left.grid(alpha=0.3)
+
+    labels = list(dict.fromkeys(row["controller"] for row in episodes))
+    rms = [
+        [float(row["tracking_rms_mm"]) for row in episodes if row["controller"] == label and row["diverged"] == "False"]
+        for label in labels
+    ]
+    means = [np.mean(values) if values else np.nan for values in rms]
+    stds = [np.std(values, ddof=1) if len(values) > 1 else 0.0 for values in rms]
+    right.bar(np.arange(len(labels)), means, yerr=stds, capsize=4, color="tab:blue", alpha=0.8)
+    right.set_xticks(np.arange(len(labels)), labels, rotation=30, ha="right", fontsize="small")
+    right.set_yscale("log")
+    right.set_ylabel("tracking RMS (mm)")
+    right.set_title("Tracking error: mean ± std over episodes", fontsize="medium")
+    right.grid(alpha=0.3, axis="y")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def make_plots(run_dir: Path) -> list[Path]:
+    """All figures of the run in ``run_dir``, from its saved files; returns their paths."""
+    run_dir = Path(run_dir)
+    paths = [run_dir / name for name in ("torque_profiles.png", "table2_torques.png", "payload_estimate.png")]
+    paths.append(run_dir / "error_bars.png")
+    with np.load(run_dir / "traces.npz") as traces, np.load(run_dir / "table2_run.npz") as run:
+        torque_profiles(traces, paths[0])
+        table2_torques(run, paths[1])
+        payload_estimate(traces, run, paths[2])
+    error_bars(_read_csv(run_dir / "table2.csv"), _read_csv(run_dir / "episodes.csv"), paths[3])
+    return paths

@@ -1,0 +1,124 @@
+"""Evaluation: metric definitions on known signals, and ``python -m eval`` end to end on a tiny run."""
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+from controllers.identification import load_or_identify
+from eval import metrics
+from eval.__main__ import _controller_table, main
+
+DT = 1e-3
+
+
+def estimate_with_excursions(mass: float, inside_from: int, excursion: tuple[int, int], length: int = 100) -> list:
+    """An estimate (kg) outside +-5 % before ``inside_from`` and within ``excursion``, inside elsewhere."""
+    estimate = np.full(length, mass)
+    estimate[:inside_from] = 0.5 * mass
+    estimate[excursion[0] : excursion[1]] = 1.1 * mass
+    return estimate.tolist()
+
+
+@pytest.mark.parametrize(
+    ("inside_from", "excursion", "expected_ms"),
+    [
+        (30, (0, 0), 30.0),  # enters at 30 ms and stays
+        (30, (50, 60), 60.0),  # leaves again from 50 to 59 ms: settled at 60 ms
+        (0, (0, 0), 0.0),  # inside from the start
+        (30, (90, 100), math.nan),  # outside at the end of the carry: never settled
+    ],
+)
+def test_settling_time_is_the_last_entry_into_the_band(inside_from, excursion, expected_ms) -> None:
+    estimate = [0.0] * 10 + estimate_with_excursions(2.0, inside_from, excursion) + [0.0] * 10
+    (carry,) = metrics.carry_metrics(estimate, [10], [110], [2.0], DT)
+    assert carry.settling_time_ms == pytest.approx(expected_ms, nan_ok=True)
+    assert carry.end_estimate == estimate[109]
+    assert carry.end_error_percent == pytest.approx(100.0 * (estimate[109] - 2.0) / 2.0)
+
+
+def test_energy_counts_motor_work_in_both_directions() -> None:
+    # 1 s at 10 N m and 2 rad/s driving on joint 1, braking (negative power) on joint 2: 20 J each.
+    steps = 1000
+    torque = np.tile([10.0, -10.0, 5.0], (steps, 1))
+    velocity = np.tile([2.0, 2.0, 0.0], (steps, 1))
+    assert metrics.mechanical_energy(torque, velocity, DT) == pytest.approx(40.0)
+
+
+def test_tracking_and_torque_metrics() -> None:
+    rms, peak = metrics.tracking_metrics([3e-3, -4e-3, math.nan])  # NaN: the step a simulation diverged
+    assert (rms, peak) == pytest.approx((1e3 * math.sqrt(12.5e-6), 3.0))
+    assert metrics.torque_metrics([[3.0, -4.0, 0.0]]) == pytest.approx((math.sqrt(25.0 / 3.0), 4.0))
+
+
+def test_torque_error_statistics_are_per_joint() -> None:
+    measured = np.array([[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]])
+    mean, std = metrics.torque_error_statistics(measured, np.ones((2, 3)))
+    np.testing.assert_allclose(mean, [1.0, 1.0, 1.0])
+    np.testing.assert_allclose(std, [1.0, 0.0, 1.0])
+
+
+def test_diverged_episodes_are_counted_and_left_out_of_the_means() -> None:
+    rows = [
+        {"controller": "PD", "diverged": False, "tracking_rms_mm": 1.0},
+        {"controller": "PD", "diverged": True, "tracking_rms_mm": 100.0},
+        {"controller": "PD", "diverged": False, "tracking_rms_mm": 3.0},
+    ]
+    for row in rows:
+        row.update(tracking_max_mm=1.0, torque_rms_nm=1.0, torque_peak_nm=1.0, energy_j=1.0)
+    table = _controller_table(rows, [])
+    line = table.splitlines()[2]
+    assert line.startswith("| PD | 3 (1) | 2.00 ± 1.41 |")
+
+
+@pytest.fixture(scope="module")
+def parameter_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A parameter file from a tiny identification (one short trajectory): fast, not accurate."""
+    path = tmp_path_factory.mktemp("identification") / "parameters.json"
+    load_or_identify(path, n_trajectories=1, duration=2.0, validation_duration=2.0, progress=False, workers=1)
+    return path
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "run"
+    argv = ["--episodes", "1", "--cycles", "1", "--controllers", "pd,mid_f_rls", "--out", str(out)]
+    argv += ["--parameters", str(parameter_file), "--calibration-episodes", "1", "--seed", "4"]
+    assert main(argv) == 0
+
+    printed = capsys.readouterr().out
+    assert "| Controller |" in printed and "| PD | 1 (0) |" in printed and "| MId+F+RLS+PD | 1 (0) |" in printed
+    assert "Table 2 analogue" in printed
+    assert (out / "summary.md").read_text() == printed
+
+    episodes = read_csv(out / "episodes.csv")
+    assert [row["key"] for row in episodes] == ["pd", "mid_f_rls"]
+    assert all(row["seed"] == "4" and row["diverged"] == "False" for row in episodes)
+    rms = {row["key"]: float(row["tracking_rms_mm"]) for row in episodes}
+    assert rms["mid_f_rls"] < rms["pd"]
+    (carry,) = read_csv(out / "carries.csv")
+    assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) > 0.0
+    table2 = read_csv(out / "table2.csv")
+    assert [row["joint"] for row in table2] == ["1", "2", "3"]
+    assert all(float(row["mp_hat_std"]) < float(row["mp_0_std"]) for row in table2)
+
+    config = json.loads((out / "config.json").read_text())
+    assert config["command"].endswith("-m eval " + " ".join(argv))
+    assert config["arguments"]["controllers"] == ["pd", "mid_f_rls"]
+    assert config["episode_seeds"] == [4] and config["identification"]["path"] == str(parameter_file)
+    assert set(config["tare_kg"]) == {"mid_f_rls"}
+
+    with np.load(out / "traces.npz") as traces:
+        assert list(traces["keys"]) == ["pd", "mid_f_rls"]
+        assert traces["mid_f_rls.torque"].shape[1] == 3
+    for name in ("torque_profiles", "table2_torques", "payload_estimate", "error_bars"):
+        image = plt.imread(out / f"{name}.png")
+        assert image.ndim == 3 and min(image.shape[:2]) > 200
