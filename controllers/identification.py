@@ -119,6 +119,8 @@ JOINT_PARAMETER_NAMES = (
 MODEL_FIELDS = ("mid", "mid_f", "paper_mid", "paper_mid_f")
 """The parameter sets of an :class:`IdentificationResult`, in the order of the JSON file."""
 
+_MAX_CONDITION = 1e10  # of the scaled normal equations; beyond it the data do not determine the parameters
+
 _Item = TypeVar("_Item")
 _Output = TypeVar("_Output")
 
@@ -333,16 +335,6 @@ def _regressor(data: MotionData, dynamics: DeltaDynamics | None) -> tuple[NDArra
     return rows, data.torque - known
 
 
-def _joint_design(rows: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The (M, 3, 8) design of the joint least squares: shared rho columns, per-joint friction columns."""
-    design = np.zeros((*rows.shape[:2], len(JOINT_PARAMETER_NAMES)))
-    design[..., :2] = rows[..., :2]
-    joints = np.arange(3)
-    design[:, joints, 2 + joints] = rows[..., 2]
-    design[:, joints, 5 + joints] = rows[..., 3]
-    return design
-
-
 def torque_errors(
     parameters: ModelParameters, data: MotionData, dynamics: DeltaDynamics | None = None
 ) -> NDArray[np.float64]:
@@ -441,38 +433,71 @@ class LeastSquaresFit:
         }
 
 
+def _parameter_columns(k: int) -> NDArray[np.int_]:
+    """Per joint, the parameters its first ``k`` regressor columns [I thdd, G, thd, sign thd] multiply, ``(3, k)``.
+
+    rho1 and rho2 are shared by the joints, fv_i and fc_i belong to joint i (JOINT_PARAMETER_NAMES order).
+    """
+    joints = np.arange(3)
+    return np.column_stack((np.zeros(3, int), np.ones(3, int), 2 + joints, 5 + joints))[:, :k]
+
+
 def _least_squares(
-    design: NDArray[np.float64],
+    rows: NDArray[np.float64],
     target: NDArray[np.float64],
     used: NDArray[np.bool_],
     names: tuple[str, ...],
     method: str,
 ) -> LeastSquaresFit:
-    """Solve target[used] = design[used] p for p = (rho1, rho2[, fv_1..3, fc_1..3])."""
-    x, y = design[used], target[used]
-    if len(y) <= x.shape[1]:
-        raise ValueError(f"{method}: {len(y)} rows cannot determine {x.shape[1]} parameters {names}")
-    estimate, _, rank, _ = np.linalg.lstsq(x, y, rcond=None)
-    if rank < x.shape[1]:
-        raise ValueError(f"{method}: the data do not determine {names}: regressor rank {rank} < {x.shape[1]}")
-    residual = y - x @ estimate
-    sigma2 = residual @ residual / (len(y) - x.shape[1])
-    covariance = sigma2 * np.linalg.inv(x.T @ x)
-    # `used` is (M, 3); its True entries in row-major order are the rows of `residual`
-    joint = np.broadcast_to(np.arange(3), used.shape)[used]
-    counts = np.bincount(joint, minlength=3)
+    """Least squares of target[used] = X p over the used (sample, joint) rows, p named ``names``.
+
+    X has one row per used (sample, joint): the first ``k`` regressor columns of that joint placed at the
+    parameters of :func:`_parameter_columns` (k = 2 for rho alone, 4 with friction). It is never built:
+    its normal equations are sums over the samples of per-joint 5 x 5 moment matrices of
+    [regressor, target], one batched matrix product; the residuals are then computed explicitly.
+    """
+    k = 4 if len(names) > 2 else 2
+    columns = _parameter_columns(k)
+    z = np.concatenate((rows[..., :k], target[..., None]), axis=-1)  # (M, 3, k + 1)
+    weighted = z * used[..., None]
+    moments = np.matmul(weighted.transpose(1, 2, 0), z.transpose(1, 0, 2))  # (3, k + 1, k + 1)
+    gram, projection = np.zeros((len(names), len(names))), np.zeros(len(names))
+    for joint in range(3):
+        index = columns[joint]
+        gram[np.ix_(index, index)] += moments[joint, :k, :k]
+        projection[index] += moments[joint, :k, k]
+    n_rows = int(used.sum())
+    if n_rows <= len(names):
+        raise ValueError(f"{method}: {n_rows} rows cannot determine {len(names)} parameters {names}")
+    scale = np.sqrt(np.diag(gram))
+    if np.any(scale == 0.0):
+        missing = [name for name, norm in zip(names, scale, strict=True) if norm == 0.0]
+        raise ValueError(f"{method}: the data do not excite {missing}")
+    # Jacobi scaling: the scaled Gram matrix of excitation data has a condition number near 1e2.
+    scaled = gram / np.outer(scale, scale)
+    condition = np.linalg.cond(scaled)
+    if condition > _MAX_CONDITION:
+        raise ValueError(f"{method}: the data do not determine {names} (condition number {condition:.3g})")
+    inverse = np.linalg.inv(scaled) / np.outer(scale, scale)  # (X^T X)^-1
+    estimate = inverse @ projection
+
+    residual = target - np.sum(rows[..., :k] * estimate[columns], axis=-1)  # (M, 3)
+    counts = used.sum(axis=0)
     if np.any(counts == 0):
         raise ValueError(f"{method}: no rows left for joint(s) {(np.flatnonzero(counts == 0) + 1).tolist()}")
-    friction = (estimate[2:5], estimate[5:8]) if len(names) > 2 else (np.zeros(3), np.zeros(3))
+    residual_sums = np.sum(residual * used, axis=0)
+    squares = np.sum(residual**2 * used, axis=0)
+    sigma2 = squares.sum() / (n_rows - len(names))
+    friction = (estimate[2:5], estimate[5:8]) if k == 4 else (np.zeros(3), np.zeros(3))
     return LeastSquaresFit(
         parameters=_friction_parameters(estimate[0], estimate[1], *friction, method),
         names=names,
         estimate=tuple(float(v) for v in estimate),
-        standard_errors=tuple(float(v) for v in np.sqrt(np.diag(covariance))),
+        standard_errors=tuple(float(v) for v in np.sqrt(sigma2 * np.diag(inverse))),
         rows=tuple(int(c) for c in counts),
-        residual_mean=tuple(float(v) for v in np.bincount(joint, residual, 3) / counts),
-        residual_rms=tuple(float(v) for v in np.sqrt(np.bincount(joint, residual**2, 3) / counts)),
-        residual_rms_total=float(np.sqrt(np.mean(residual**2))),
+        residual_mean=tuple(float(v) for v in residual_sums / counts),
+        residual_rms=tuple(float(v) for v in np.sqrt(squares / counts)),
+        residual_rms_total=float(np.sqrt(squares.sum() / n_rows)),
     )
 
 
@@ -485,12 +510,12 @@ def _fit_joint(
     rows: NDArray[np.float64], target: NDArray[np.float64], theta_dot: NDArray[np.float64], velocity_threshold: float
 ) -> LeastSquaresFit:
     used = (np.abs(theta_dot) > velocity_threshold) | (theta_dot == 0.0)
-    return _least_squares(_joint_design(rows), target, used, JOINT_PARAMETER_NAMES, "joint least squares")
+    return _least_squares(rows, target, used, JOINT_PARAMETER_NAMES, "joint least squares")
 
 
 def _fit_rho(rows: NDArray[np.float64], target: NDArray[np.float64]) -> LeastSquaresFit:
     used = np.ones(target.shape, dtype=bool)
-    return _least_squares(rows[..., :2], target, used, JOINT_PARAMETER_NAMES[:2], "rho least squares")
+    return _least_squares(rows, target, used, JOINT_PARAMETER_NAMES[:2], "rho least squares")
 
 
 def fit_joint_least_squares(
@@ -670,11 +695,13 @@ class IdentificationRun:
 
     Attributes:
         result: The identified parameters.
+        data: Samples of the identification trajectories.
         validation: Samples of the held-out free-motion stress trajectory.
         models: The models compared on it (Table 1 rows), by name.
     """
 
     result: IdentificationResult
+    data: tuple[MotionData, ...]
     validation: MotionData
     models: dict[str, ModelParameters]
 
@@ -847,7 +874,7 @@ def run_identification(
         standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit}),
         provenance=provenance,
     )
-    return IdentificationRun(result=result, validation=validation, models=models)
+    return IdentificationRun(result=result, data=tuple(data), validation=validation, models=models)
 
 
 def identify(

@@ -149,6 +149,16 @@ def test_paper_grid_is_biased_by_friction_that_the_joint_fit_models(motions) -> 
     assert_allclose(fit_joint_least_squares(data).estimate, as_vector(TRUTH), rtol=1e-9)
 
 
+@pytest.mark.parametrize("threshold", [1.0, 100.0], ids=["at rest", "threshold above every rate"])
+def test_joint_least_squares_refuses_data_that_do_not_excite_friction(motions, threshold) -> None:
+    theta, theta_dot, theta_ddot = motions[0]
+    if threshold == 1.0:  # the robot held at each sample's pose
+        theta_dot, theta_ddot = np.zeros_like(theta_dot), np.zeros_like(theta_ddot)
+    data = synthetic((theta, theta_dot, theta_ddot), TRUTH)
+    with pytest.raises(ValueError, match=r"joint least squares: the data do not excite \['rho1', 'viscous_1'"):
+        fit_joint_least_squares([data], velocity_threshold=threshold)
+
+
 def test_negative_friction_estimates_are_clipped_with_a_warning(motions, caplog) -> None:
     without_viscous_2 = dataclasses.replace(TRUTH, viscous=(2.0, 0.0, 1.7))
     data = []
