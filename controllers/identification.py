@@ -314,9 +314,8 @@ def prepare_motion(
     return MotionData(theta[kept], theta_dot[kept], theta_ddot[kept], torque=record.torques[kept])
 
 
-def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> tuple[ExcitationRecord, MotionData]:
-    record = _run_excitation(spec, plant)
-    return record, prepare_motion(record)
+def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> MotionData:
+    return prepare_motion(_run_excitation(spec, plant))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -369,13 +368,13 @@ def _concatenate(data: Sequence[MotionData]) -> MotionData:
     return MotionData(*(np.concatenate([getattr(d, name) for d in data]) for name in fields))
 
 
-def _friction_parameters(
+def _clipped_parameters(
     rho1: float, rho2: float, viscous: NDArray[np.float64], coulomb: NDArray[np.float64], method: str
 ) -> ModelParameters:
     """ModelParameters with negative friction estimates clipped at 0 (with a warning)."""
-    for name, values in (("rho1", rho1), ("rho2", rho2)):
-        if not (math.isfinite(values) and values > 0.0):
-            raise ValueError(f"{method}: identified {name} = {values!r} is not > 0; the data cannot support MId")
+    for name, value in (("rho1", rho1), ("rho2", rho2)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"{method}: identified {name} = {value!r} is not > 0; the data cannot support MId")
     clipped = {}
     for name, values in (("viscous", viscous), ("coulomb", coulomb)):
         negative = np.flatnonzero(values < 0.0)
@@ -490,7 +489,7 @@ def _least_squares(
     sigma2 = squares.sum() / (n_rows - len(names))
     friction = (estimate[2:5], estimate[5:8]) if k == 4 else (np.zeros(3), np.zeros(3))
     return LeastSquaresFit(
-        parameters=_friction_parameters(estimate[0], estimate[1], *friction, method),
+        parameters=_clipped_parameters(estimate[0], estimate[1], *friction, method),
         names=names,
         estimate=tuple(float(v) for v in estimate),
         standard_errors=tuple(float(v) for v in np.sqrt(sigma2 * np.diag(inverse))),
@@ -654,7 +653,7 @@ def fit_paper_method(
     coulomb = np.array([fc for _, fc in friction])
     return PaperFit(
         mid=ModelParameters(rho1=rho1, rho2=rho2),
-        mid_f=_friction_parameters(rho1, rho2, viscous.mean(axis=0), coulomb.mean(axis=0), "paper method"),
+        mid_f=_clipped_parameters(rho1, rho2, viscous.mean(axis=0), coulomb.mean(axis=0), "paper method"),
         rho=rho,
         viscous=viscous,
         coulomb=coulomb,
@@ -763,12 +762,21 @@ def _between_trajectory_errors(data: Sequence[MotionData]) -> dict[str, Any]:
 
     The honest uncertainty of the pooled estimate, unlike sigma^2 (X^T X)^-1 over correlated rows.
     """
-    estimates = np.array([fit_joint_least_squares([d]).estimate for d in data])
-    spread = estimates.std(axis=0, ddof=1) / math.sqrt(len(data)) if len(data) > 1 else np.full(8, math.nan)
+    estimates = np.full((len(data), len(JOINT_PARAMETER_NAMES)), math.nan)
+    for index, samples in enumerate(data):
+        try:
+            estimates[index] = fit_joint_least_squares([samples]).estimate
+        except ValueError as error:  # a short trajectory alone may not determine every parameter
+            logger.info("trajectory %d left out of the between-trajectory spread: %s", index, error)
+    fitted = estimates[~np.isnan(estimates).any(axis=1)]
+    spread = (
+        fitted.std(axis=0, ddof=1) / math.sqrt(len(fitted)) if len(fitted) > 1 else [None] * len(JOINT_PARAMETER_NAMES)
+    )
     return {
-        "per_trajectory": estimates.tolist(),
+        "per_trajectory": [[None if math.isnan(v) else v for v in row] for row in estimates.tolist()],
         "standard_error_of_mean": {
-            name: (None if math.isnan(v) else float(v)) for name, v in zip(JOINT_PARAMETER_NAMES, spread, strict=True)
+            name: None if value is None else float(value)
+            for name, value in zip(JOINT_PARAMETER_NAMES, spread, strict=True)
         },
     }
 
@@ -798,9 +806,7 @@ def run_identification(
     specs.append(ExcitationSpec.stress(validation_seed, validation_duration))
 
     run = functools.partial(_collect_and_prepare, plant=plant)
-    collected = _parallel_map(run, specs, workers, progress, "excitation runs")
-    data = [motion for _, motion in collected[:-1]]
-    validation = collected[-1][1]
+    *data, validation = _parallel_map(run, specs, workers, progress, "excitation runs")
     data_time = time.perf_counter() - start
 
     (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data))

@@ -231,7 +231,11 @@ def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
         "|---|---|---|---|---|",
     ]
     for threshold in THRESHOLD_SWEEP:
-        parameters = fit_joint_least_squares(run.data, velocity_threshold=threshold).parameters
+        try:
+            parameters = fit_joint_least_squares(run.data, velocity_threshold=threshold).parameters
+        except ValueError as failure:
+            lines.append(f"| {threshold:g} | not identifiable: {failure} | | | |")
+            continue
         error = 100.0 * (np.array([*parameters.viscous, *parameters.coulomb]) - true) / true
         sigma = np.array(error_table({"ls": parameters}, run.validation)["ls"]["std"])
         marker = " (default)" if threshold == FRICTION_VELOCITY_THRESHOLD else ""

@@ -347,3 +347,21 @@ def test_identify_end_to_end_on_two_short_trajectories(tmp_path) -> None:
     assert result.mid_f.rho1 == pytest.approx(1.76, rel=0.1)
     assert result.mid_f.rho2 == pytest.approx(0.92, rel=0.2)
     assert load_result(save_result(result, tmp_path / "parameters.json")) == result
+
+
+def test_command_line_writes_parameters_configuration_report_and_figures(tmp_path, capsys) -> None:
+    from controllers import identify as cli
+
+    folder, installed = tmp_path / "run", tmp_path / "installed" / "parameters.json"
+    arguments = ["--trajectories", "2", "--duration", "2", "--validation-duration", "2", "--seed", "5"]
+    cli.main([*arguments, "--out", str(folder), "--parameters", str(installed), "--no-progress", "--workers", "1"])
+    expected = {"parameters.json", "config.json", "command.txt", "report.md", "validation.npz"}
+    expected |= {*cli.FIGURES, "fig6a_error_bars.png"}
+    assert {path.name for path in folder.iterdir()} == expected
+    assert load_result(folder / "parameters.json") == load_result(installed)
+    assert json.loads((folder / "config.json").read_text())["trajectories"] == 2
+    assert (folder / "command.txt").read_text().startswith("python -m controllers.identify --trajectories 2")
+    report = (folder / "report.md").read_text()
+    assert report in capsys.readouterr().out
+    for heading in ("## Table 1 analogue", "## Identified parameters", "## Run time", "coulomb_3"):
+        assert heading in report
