@@ -109,14 +109,20 @@ def test_payload_rls_tracks_within_targets(key: str, records: dict[str, EpisodeR
 
 
 @pytest.mark.parametrize(
-    ("variant", "masses"),
+    ("variant", "masses", "deadline_ms"),
     [
-        ("realistic", (3.8, 1.0)),
-        ("ideal", (2.0, 0.5)),
+        # Measured: 84 and 130 ms, end errors +0.96 and -0.78 %.
+        ("realistic", (3.8, 1.0), 150.0),
+        # The known gap: +-5 % of 0.5 kg is 25 g, the size of MId+F's path-dependent error along phi after
+        # the tare. Measured over 24 carries of 0.5 kg: median 321 ms, max 406 ms (1 kg: 23/24 by 150 ms).
+        ("realistic", (0.5,), 450.0),
+        # MKH is exact on the ideal plant: no tare, no friction. Measured: 80 and 125 ms, -0.02 and +0.2 %.
+        ("ideal", (2.0, 0.5), 150.0),
     ],
 )
-def test_rls_converges_to_the_true_payload_on_the_plant(variant: str, masses: tuple[float, ...]) -> None:
-    # Ideal plant: MKH is exact there, so the estimator needs no tare and no friction band.
+def test_rls_converges_to_the_true_payload_on_the_plant(
+    variant: str, masses: tuple[float, ...], deadline_ms: float
+) -> None:
     if variant == "ideal":
         env = DeltaPickPlaceEnv(plant=PlantConfig.ideal(), n_cycles=len(masses))
         dynamics = DeltaDynamics.nominal()
@@ -131,9 +137,7 @@ def test_rls_converges_to_the_true_payload_on_the_plant(variant: str, masses: tu
     assert [carry.mass for carry in carries] == list(masses)
     for carry in carries:
         assert abs(carry.end_error_percent) < 100.0 * tolerance
-        # Measured: 84 and 130 ms, end errors +0.96 and -0.78 % on the realistic plant; 80 and 125 ms,
-        # -0.02 and +0.2 % on the ideal one.
-        assert carry.settling_time_ms <= 150.0
+        assert carry.settling_time_ms <= deadline_ms
     empty = record.payload_mass[:-1] == 0.0
     assert np.all(record.payload_estimate[empty] == 0.0), "0 kg with the gripper open"
 
