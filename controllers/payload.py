@@ -15,9 +15,9 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   of error. Each joint's equation is therefore weighted by a standard deviation that grows as |thd_i|
   falls (:func:`residual_std`): the nominal residual plus the static friction band fc_i, fading as
   exp(-(thd_i / v_w)^2). That error is one constant per stop, not white noise, so its variance is
-  inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured run,
-  50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by whitening (dividing phi_i and
-  y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
+  inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured
+  run, 50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by
+  whitening (dividing phi_i and y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
 - **Lag between the model and the measurement.** The causal Kalman filter
   (:class:`~controllers.estimation.JointStateFilter`) estimates angle and rate without lag but the
   acceleration about 3 ms late (:func:`acceleration_lag`; a 10 rad/s^2 error at the 3 g jerk, several

@@ -69,6 +69,8 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
         setup: Identified parameters, tares and gains.
         env: Needed for the oracle only, which inverts the env's plant; never given to the others.
     """
+    if key not in CONTROLLER_LABELS:
+        raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
     pd = PDController(*setup.pd_gains)
     if key == "pd":
         return pd
@@ -77,8 +79,6 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
             raise ValueError("the oracle needs the env whose plant it inverts")
         return OracleController(env.plant_config, pd=pd)
     parameters = {"mkh": None, "mid": setup.mid}.get(key, setup.mid_f)
-    if key not in CONTROLLER_LABELS:
-        raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
     dynamics = DeltaDynamics.nominal(parameters)
     estimator = None
     if key in ESTIMATOR_REGRESSORS:
