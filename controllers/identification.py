@@ -85,16 +85,14 @@ default excitation), whose sign would switch the models' Coulomb term fc sign(th
 feedforward sees the reference's exact zero rate, so sign 0 is also how the models are used there.
 """
 
-FRICTION_VELOCITY_THRESHOLD = 1.0
+FRICTION_VELOCITY_THRESHOLD = 0.2
 """Smallest |theta_dot_i| (rad/s) of a moving joint-i row in the joint least squares.
 
 Between rest (exactly 0 after :data:`REST_VELOCITY`) and this speed the model fv thd + fc sign(thd)
-does not describe the plant's friction: the Stribeck excess (+50 % of Coulomb) decays over ~0.15 rad/s,
-and MuJoCo's Coulomb friction (``frictionloss``, a soft constraint that pulls the velocity towards zero
-at ~100 1/s) reverses sign while a joint brakes harder than ~100 |thd| rad/s^2. Measured on the
-default plant: 6 to 8 % of the samples between 0.05 and 1 rad/s carry the friction with the wrong sign,
-none above 2 rad/s; with a 0.2 rad/s threshold the Coulomb estimates come out 3 to 8 % low, with
-1 rad/s they are within 4 %. Rows at rest stay in with zero friction regressors: they carry the
+does not describe the plant's friction: the Stribeck excess (+50 % of Coulomb) decays over ~0.15 rad/s.
+(With MuJoCo's default friction solref the plant's Coulomb friction was a soft constraint that reversed
+sign while a joint braked below ~1 rad/s; the plant now uses the stiffest safe solreffriction, which
+made 0.2 rad/s a valid threshold.) Rows at rest stay in with zero friction regressors: they carry the
 gravity torque (rho2), and the models' friction term is zero there too.
 """
 

@@ -515,7 +515,12 @@ def _write_header(x: _Mjcf, config: PlantConfig) -> None:
     x.element("geom", contype="0", conaffinity="0", group="1")
     x.element("site", size="0.008", group="4", rgba="1 0.3 0.1 1")
     x.open("default", class_="motor")
-    x.element("joint", type="hinge", axis=(0, 1, 0), armature=realism.armature)
+    x.comment(
+        "Coulomb friction (frictionloss) is a constraint too: at MuJoCo's default solref (20 ms) it acts as a "
+        "stiff viscous term below ~1 rad/s and even reverses while a joint brakes; the refsafe minimum "
+        "2 x timestep makes it behave like Coulomb friction down to ~0.1 rad/s."
+    )
+    x.element("joint", type="hinge", axis=(0, 1, 0), armature=realism.armature, solreffriction=(2.0 * dt, 1.0))
     x.close("default")
     x.open("default", class_="elbow")
     x.element("joint", type="hinge")
