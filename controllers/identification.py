@@ -92,8 +92,9 @@ Between rest (exactly 0 after :data:`REST_VELOCITY`) and this speed the model fv
 does not describe the plant's friction: the Stribeck excess (+50 % of Coulomb) decays over ~0.15 rad/s.
 (With MuJoCo's default friction solref the plant's Coulomb friction was a soft constraint that reversed
 sign while a joint braked below ~1 rad/s; the plant now uses the stiffest safe solreffriction, which
-made 0.2 rad/s a valid threshold.) Rows at rest stay in with zero friction regressors: they carry the
-gravity torque (rho2), and the models' friction term is zero there too.
+made 0.2 rad/s a valid threshold.) Rows at rest are left out too: there the plant's static friction
+holds any torque up to its breakaway value (~1.5 fc), which no model of the rate can predict; keeping
+them biased rho2 and made it vary 9x more between trajectories.
 """
 
 RHO1_GRID = (0.5, 3.0, 0.01)
@@ -506,7 +507,7 @@ def _require_threshold(velocity_threshold: float) -> None:
 def _fit_joint(
     rows: NDArray[np.float64], target: NDArray[np.float64], theta_dot: NDArray[np.float64], velocity_threshold: float
 ) -> LeastSquaresFit:
-    used = (np.abs(theta_dot) > velocity_threshold) | (theta_dot == 0.0)
+    used = np.abs(theta_dot) > velocity_threshold
     return _least_squares(rows, target, used, JOINT_PARAMETER_NAMES, "joint least squares")
 
 
@@ -524,8 +525,9 @@ def fit_joint_least_squares(
     """MId+F by one linear least squares of [rho1, rho2, fv_1..3, fc_1..3] over all trajectories.
 
     Every (sample, joint) pair is a row of tau_i + 2 k_i lambda_i = rho1 I thdd_i + rho2 G_i + fv_i thd_i
-    + fc_i sign(thd_i). Rows with 0 < |thd_i| <= ``velocity_threshold`` are left out: there the friction
-    model is not valid (:data:`FRICTION_VELOCITY_THRESHOLD`). Rows at rest (thd_i = 0) stay in.
+    + fc_i sign(thd_i). Rows with |thd_i| <= ``velocity_threshold`` are left out: there the friction
+    model is not valid (:data:`FRICTION_VELOCITY_THRESHOLD`), and so are rows at rest, where static friction
+    takes an unknown share of the load.
 
     Args:
         data: Samples of one or more trajectories.
@@ -825,7 +827,7 @@ def run_identification(
             "and measured motor torques from the observations; Kalman RTS smoother for rates and accelerations",
             "mid": "linear least squares of (rho1, rho2), all samples",
             "mid_f": "joint linear least squares of [rho1, rho2, fv_1..3, fc_1..3]; rows with "
-            f"0 < |theta_dot_i| <= {FRICTION_VELOCITY_THRESHOLD} rad/s left out (friction model not valid)",
+            f"|theta_dot_i| <= {FRICTION_VELOCITY_THRESHOLD} rad/s left out (static and Stribeck friction)",
             "paper_mid": "per-trajectory grid search of (rho1, rho2) minimising RMS torque error (eq. 7), averaged",
             "paper_mid_f": "paper_mid rho + per-trajectory, per-joint LS of (fv, fc) on the remaining error, averaged",
             "sample_period_s": CONTROL_PERIOD,

@@ -288,11 +288,11 @@ def render_report(run: IdentificationRun, validation_file: Path, command: str, f
         f"Joint LS residual RMS {residuals['mid_f']['residual_rms']:.3f} N m over "
         f"{sum(residuals['mid_f']['rows_per_joint'])} rows (per joint "
         f"{', '.join(f'{v:.3f}' for v in residuals['mid_f']['residual_rms_per_joint'])}); "
-        f"rows with 0 < |theta_dot_i| <= {provenance['method']['velocity_threshold_rad_s']} rad/s left out.",
+        f"rows with |theta_dot_i| <= {provenance['method']['velocity_threshold_rad_s']} rad/s left out.",
         "",
         "### Friction velocity threshold: truth of the friction vs held-out accuracy",
         "",
-        "Joint LS refitted with other thresholds (rows with 0 < |theta_dot_i| <= threshold left out). Below "
+        "Joint LS refitted with other thresholds (rows with |theta_dot_i| <= threshold left out). Below "
         "about 1 rad/s the plant's friction is not fv thd + fc sign(thd) (Stribeck excess; MuJoCo's soft "
         "Coulomb friction reverses while a joint brakes hard at low speed): lower thresholds pull fc down, "
         "which fits those samples better and the true friction worse.",

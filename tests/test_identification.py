@@ -64,9 +64,9 @@ def test_joint_least_squares_recovers_parameters_from_noise_free_data(motions, p
     assert_allclose(fit.estimate, as_vector(parameters), rtol=1e-9)
     assert_allclose(as_vector(fit.parameters), as_vector(parameters), rtol=1e-9)
     assert fit.residual_rms_total < 1e-9
-    # rows: every moving sample above the threshold plus the samples at rest
+    # rows: the samples moving faster than the threshold (rest is left out: static friction)
     theta_dot = np.concatenate([motion[1] for motion in motions])
-    expected_rows = np.sum((np.abs(theta_dot) > threshold) | (theta_dot == 0.0), axis=0)
+    expected_rows = np.sum(np.abs(theta_dot) > threshold, axis=0)
     assert fit.rows == tuple(expected_rows)
 
 
@@ -149,13 +149,24 @@ def test_paper_grid_is_biased_by_friction_that_the_joint_fit_models(motions) -> 
     assert_allclose(fit_joint_least_squares(data).estimate, as_vector(TRUTH), rtol=1e-9)
 
 
-@pytest.mark.parametrize("threshold", [1.0, 100.0], ids=["at rest", "threshold above every rate"])
-def test_joint_least_squares_refuses_data_that_do_not_excite_friction(motions, threshold) -> None:
+@pytest.mark.parametrize(
+    ("moving_joints", "threshold", "message"),
+    [
+        ((), 1.0, r"0 rows cannot determine 8 parameters"),
+        ((0, 1, 2), 100.0, r"0 rows cannot determine 8 parameters"),
+        ((0,), 0.0, r"the data do not excite \['viscous_2', 'viscous_3', 'coulomb_2', 'coulomb_3'\]"),
+    ],
+    ids=["at rest", "threshold above every rate", "joints 2 and 3 held"],
+)
+def test_joint_least_squares_refuses_data_that_do_not_excite_friction(
+    motions, moving_joints, threshold, message
+) -> None:
     theta, theta_dot, theta_ddot = motions[0]
-    if threshold == 1.0:  # the robot held at each sample's pose
-        theta_dot, theta_ddot = np.zeros_like(theta_dot), np.zeros_like(theta_ddot)
+    held = [joint for joint in range(3) if joint not in moving_joints]
+    theta_dot, theta_ddot = theta_dot.copy(), theta_ddot.copy()
+    theta_dot[:, held] = theta_ddot[:, held] = 0.0
     data = synthetic((theta, theta_dot, theta_ddot), TRUTH)
-    with pytest.raises(ValueError, match=r"joint least squares: the data do not excite \['rho1', 'viscous_1'"):
+    with pytest.raises(ValueError, match=f"joint least squares: {message}"):
         fit_joint_least_squares([data], velocity_threshold=threshold)
 
 
