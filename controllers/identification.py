@@ -28,11 +28,9 @@ import logging
 import math
 import multiprocessing
 import os
-import platform
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -42,6 +40,7 @@ from numpy.typing import NDArray
 from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD, smooth_joint_motion
+from controllers.provenance import package_versions
 from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
 from delta_env.model import PlantConfig, build_mjcf
@@ -715,16 +714,6 @@ def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
     return seeds, validation_seed
 
 
-def _package_versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for package in ("numpy", "scipy", "filterpy", "mujoco", "gymnasium"):
-        try:
-            versions[package] = metadata.version(package)
-        except metadata.PackageNotFoundError:
-            versions[package] = "not installed"
-    return versions
-
-
 def _plant_summary(plant: PlantConfig) -> dict[str, Any]:
     """What a test-bench log would state about the robot: no friction or mass values (those are truth)."""
     return {
@@ -869,7 +858,7 @@ def run_identification(
             "total": time.perf_counter() - start,
         },
         "workers": workers,
-        "versions": _package_versions(),
+        "versions": package_versions(),
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
     result = IdentificationResult(

@@ -15,8 +15,6 @@ import argparse
 import datetime
 import json
 import logging
-import shlex
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +34,7 @@ from controllers.identification import (
     run_identification,
     save_result,
 )
+from controllers.provenance import command_line
 from delta_env.geometry import GRAVITY
 from delta_env.model import PlantConfig
 
@@ -322,7 +321,7 @@ def main(argv: list[str] | None = None) -> None:
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     folder = arguments.out or Path("runs/identification") / f"{stamp}_seed{arguments.seed}"
     folder.mkdir(parents=True, exist_ok=True)
-    command = shlex.join(["python", "-m", "controllers.identify", *(sys.argv[1:] if argv is None else argv)])
+    command = command_line("controllers.identify", argv)
 
     run = run_identification(
         arguments.trajectories,

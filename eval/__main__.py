@@ -28,13 +28,10 @@ import json
 import math
 import multiprocessing
 import os
-import platform
-import shlex
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +40,7 @@ import numpy as np
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import DEFAULT_PARAMETER_PATH, load_or_identify
 from controllers.payload import tare_from_observations
+from controllers.provenance import command_line, package_versions
 from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
 from eval import metrics, plots
 from eval.episodes import (
@@ -151,16 +149,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.out is None:
         args.out = Path("runs/eval") / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     return args
-
-
-def _versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for package in ("numpy", "mujoco", "gymnasium", "filterpy", "matplotlib"):
-        try:
-            versions[package] = metadata.version(package)
-        except metadata.PackageNotFoundError:
-            versions[package] = "not installed"
-    return versions
 
 
 def _write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
@@ -379,7 +367,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     total_time = time.perf_counter() - started
     env = DeltaPickPlaceEnv(n_cycles=args.cycles)
     config = {
-        "command": shlex.join([Path(sys.executable).name, "-m", "eval", *(sys.argv[1:] if argv is None else argv)]),
+        "command": command_line("eval", argv),
         "arguments": {key: str(value) if isinstance(value, Path) else value for key, value in vars(args).items()},
         "episode_seeds": [args.seed + i for i in range(args.episodes)],
         "calibration_seeds": [args.seed + CALIBRATION_SEED_OFFSET + j for j in range(args.calibration_episodes)],
@@ -403,7 +391,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "tare_spread_kg": tare_spreads,
         "table2": {"controller": CONTROLLER_LABELS[TABLE2_KEY], "seed": args.seed, "payload_kg": TABLE2_PAYLOAD},
         "seconds": {"identification_or_load": identified_time, "total": total_time},
-        "versions": _versions(),
+        "versions": package_versions(),
     }
     (out / "config.json").write_text(json.dumps(config, indent=2, default=float) + "\n")
 
