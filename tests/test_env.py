@@ -9,6 +9,7 @@ from numpy.testing import assert_array_equal
 import delta_env
 from controllers.base import PDController
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.model import RandomizationRanges
 
 
 def rollout(env: gym.Env, seed: int, masses: list[float] | None = None, steps: int = 400) -> list:
@@ -168,3 +169,15 @@ def test_rgb_array_render_returns_an_image() -> None:
         env.close()
     assert image.shape == (64, 96, 3) and image.dtype == np.uint8
     assert image.std() > 5.0, "the frame is blank"
+
+
+def test_domain_randomization_draws_a_plant_per_seeded_episode() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1, domain_randomization=RandomizationRanges())
+    env.reset(seed=1)
+    first = env.plant.parameters
+    env.reset(seed=2)
+    assert env.plant.parameters != first
+    records = rollout(env, seed=1, steps=300)
+    assert env.plant.parameters == first
+    assert first != env.plant.nominal_parameters
+    assert not any(info["diverged"] for _, _, info in records)
