@@ -1,0 +1,571 @@
+"""Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (DESIGN.md section 6).
+
+    python -m controllers.train_residual --seed 0 --timesteps 300000 --n-envs 2 --max-minutes 55
+
+SAC by default (``--algo ppo`` selectable). Every run folder (``--out``, default
+``runs/residual/<timestamp>``) holds:
+
+- ``config.json``: the resolved configuration (arguments, hyperparameters, residual settings, base
+  controller parameters, seeds, versions) and the command line, written before training starts;
+- ``checkpoints/``: periodic checkpoints (and the SAC replay buffer) for ``--resume``;
+- ``evaluations.npz`` and ``best_model/``: SB3's EvalCallback on held-out seeds (validation), distinct
+  from every training seed, and its best model;
+- ``progress.csv`` (and TensorBoard event files when tensorboard is installed): training curves;
+- ``final_policy.zip`` and ``best_policy.zip``: loadable by :func:`controllers.residual.load_residual_controller`;
+- ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training.
+
+Seeds: training episodes draw their env seeds from ``TRAINING_SEEDS`` (per worker, from ``--seed``),
+validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the tare calibration
+``CALIBRATION_SEEDS``: four disjoint sets, all disjoint from ``python -m eval``'s defaults (seeds 0-9 and
+its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
+ever trained on.
+
+The base controller is the eval's ``mid_f_rls`` row: MId+F + PD with the payload RLS, its parameters from
+``controllers.identification.load_or_identify()`` and its tare calibrated like the eval does
+(``controllers.payload.tare_from_observations`` on payload-free episodes). Both are saved in the policy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import subprocess
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+from tqdm import tqdm
+
+from controllers.base import Controller
+from controllers.dynamics import ModelParameters
+from controllers.payload import tare_from_observations
+from controllers.provenance import command_line, package_versions
+from controllers.residual import (
+    ALGORITHMS,
+    BaseSetup,
+    DeltaResidualEnv,
+    ResidualConfig,
+    ResidualController,
+    algorithm_class,
+    load_residual_policy,
+    save_residual_policy,
+)
+from delta_env.env import DeltaPickPlaceEnv
+
+TRAINING_SEEDS = range(10_000_000, 20_000_000)
+"""Env seeds of the training episodes (drawn at random per worker)."""
+
+VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
+"""Held-out episodes of the EvalCallback during training (model selection)."""
+
+TEST_SEEDS = tuple(range(2_000_000, 2_000_010))
+"""Held-out episodes of the final scores: never seen in training nor in model selection."""
+
+CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_003))
+"""Payload-free episodes of the base controller's tare (three, like the eval)."""
+
+TEST_PAYLOADS = (0.0, 1.0, 2.5, 3.8, 4.0)
+"""Fixed payload masses (kg) of the extra test episodes (3.8 kg is the paper's test)."""
+
+CHECKPOINT_PREFIX = "residual"
+"""CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
+
+HAS_RICH = importlib.util.find_spec("rich") is not None
+"""SB3's progress bar needs tqdm and rich; without rich a plain tqdm bar is used."""
+
+HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
+"""TensorBoard logs are written only when tensorboard is installed."""
+
+HYPERPARAMETERS: dict[str, dict[str, Any]] = {
+    # gamma 0.95 at 100 Hz looks ~0.2 s ahead: a residual acts on the tracking error within tens of ms.
+    "sac": {
+        "learning_rate": 3e-4,
+        "buffer_size": 300_000,
+        "learning_starts": 5_000,
+        "batch_size": 256,
+        "gamma": 0.95,
+        "tau": 0.005,
+        "train_freq": 1,
+        "gradient_steps": 1,
+        "ent_coef": "auto",
+        "policy_kwargs": {"net_arch": [256, 256]},
+    },
+    # log_std_init -2: exploration noise of 0.14 * residual_limit (about 5 N m) instead of 40 N m.
+    "ppo": {
+        "learning_rate": 3e-4,
+        "n_steps": 1024,
+        "batch_size": 256,
+        "n_epochs": 10,
+        "gamma": 0.95,
+        "gae_lambda": 0.9,
+        "clip_range": 0.2,
+        "policy_kwargs": {"net_arch": [256, 256], "log_std_init": -2.0},
+    },
+}
+
+
+class EpisodeSeeds(gym.Wrapper):
+    """Resets the wrapped env with seeds from a schedule, so that episode sets are disjoint by construction.
+
+    ``seeds`` given: episodes cycle through them (held-out evaluation; :meth:`restart` rewinds).
+    Otherwise episode seeds are drawn from ``TRAINING_SEEDS`` by a generator seeded with
+    (``seed``, ``rank``); a reset with an explicit seed re-seeds that generator.
+    """
+
+    def __init__(self, env: gym.Env, *, seed: int = 0, rank: int = 0, seeds: Sequence[int] | None = None) -> None:
+        super().__init__(env)
+        if seeds is not None and len(seeds) == 0:
+            raise ValueError("seeds must not be empty")
+        self.fixed_seeds = None if seeds is None else tuple(int(s) for s in seeds)
+        self.rank = int(rank)
+        self._index = 0
+        self._generator = np.random.default_rng([int(seed), self.rank])
+        self.episode_seed: int | None = None
+
+    def restart(self) -> None:
+        """Start the fixed seed list again from its first seed."""
+        self._index = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        if self.fixed_seeds is not None:
+            self.episode_seed = self.fixed_seeds[self._index % len(self.fixed_seeds)]
+            self._index += 1
+        else:
+            if seed is not None:
+                self._generator = np.random.default_rng([int(seed), self.rank])
+            self.episode_seed = int(self._generator.integers(TRAINING_SEEDS.start, TRAINING_SEEDS.stop))
+        observation, info = self.env.reset(seed=self.episode_seed, options=options)
+        info["episode_seed"] = self.episode_seed
+        return observation, info
+
+
+def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = None) -> BaseSetup:
+    """The default base controller's setup: identified MId+F parameters and its calibrated tare.
+
+    Args:
+        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`.
+        parameters: Identified parameters; None loads them with ``load_or_identify()``.
+    """
+    if parameters is None:
+        from controllers.identification import load_or_identify
+
+        parameters = load_or_identify().mid_f
+    untared = BaseSetup(parameters)
+    observed = []
+    for seed in CALIBRATION_SEEDS:
+        env = DeltaPickPlaceEnv(**env_kwargs)
+        observation, _ = env.reset(seed=seed, options={"payload_masses": [0.0] * env.n_cycles})
+        controller = untared.controller()
+        controller.reset()
+        episode = [observation]
+        while True:
+            observation, _, terminated, truncated, _ = env.step(controller(observation))
+            episode.append(observation)
+            if terminated or truncated:
+                break
+        observed.append(episode)
+    tare, _ = tare_from_observations(controller.estimator, observed)
+    return BaseSetup(parameters, tare)
+
+
+def make_env(
+    *,
+    config: ResidualConfig,
+    env_kwargs: dict[str, Any],
+    base: BaseSetup | None,
+    seed: int = 0,
+    rank: int = 0,
+    seeds: Sequence[int] | None = None,
+    base_factory: Callable[[], Controller] | None = None,
+) -> Callable[[], gym.Env]:
+    """A picklable env factory for SB3 vector envs (one torch thread per worker: the machine is shared).
+
+    Args:
+        config: Residual settings.
+        env_kwargs: Keyword arguments of :class:`DeltaPickPlaceEnv`.
+        base: Setup of the default base controller (None: ``base_factory`` must be given).
+        seed: Seed of the training episode seeds.
+        rank: Worker index.
+        seeds: Fixed held-out seeds instead of drawn training seeds.
+        base_factory: Builds the base controller instead of the default MId+F + RLS (tests).
+    """
+
+    def factory() -> gym.Env:
+        torch.set_num_threads(1)
+        controller = base_factory() if base_factory is not None else base.controller()
+        env = DeltaResidualEnv(base=controller, config=config, env=DeltaPickPlaceEnv(**env_kwargs))
+        return Monitor(EpisodeSeeds(env, seed=seed, rank=rank, seeds=seeds))
+
+    return factory
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    path.write_text(json.dumps(data, indent=2, default=str) + "\n")
+
+
+def _git_commit() -> str | None:
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=Path(__file__).parent
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+class LatestReplayCheckpoint(CheckpointCallback):
+    """CheckpointCallback that keeps only the newest replay buffer (each is ~100 MB; models are kept)."""
+
+    def _on_step(self) -> bool:
+        result = super()._on_step()
+        if self.save_replay_buffer and self.n_calls % self.save_freq == 0:
+            newest = Path(self._checkpoint_path("replay_buffer_", extension="pkl"))
+            for path in newest.parent.glob(f"{self.name_prefix}_replay_buffer_*_steps.pkl"):
+                if path != newest:
+                    path.unlink()
+        return result
+
+
+class HeldOutEvalCallback(EvalCallback):
+    """EvalCallback that replays the same held-out episodes (``EpisodeSeeds.restart``) at every evaluation."""
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            self.eval_env.env_method("restart")
+        return super()._on_step()
+
+
+class WallTimeLimit(BaseCallback):
+    """Stops training once a wall-time budget (minutes) is spent."""
+
+    def __init__(self, minutes: float) -> None:
+        super().__init__()
+        self.minutes = minutes
+        self.deadline = math.inf
+
+    def _on_training_start(self) -> None:
+        self.deadline = time.monotonic() + 60.0 * self.minutes
+
+    def _on_step(self) -> bool:
+        return time.monotonic() < self.deadline
+
+
+class TqdmProgress(BaseCallback):
+    """Plain-tqdm progress bar, for when rich (which SB3's ``progress_bar=True`` needs) is not installed."""
+
+    def _on_training_start(self) -> None:
+        self.bar = tqdm(total=self.locals["total_timesteps"] - self.model.num_timesteps, unit="step")
+
+    def _on_step(self) -> bool:
+        self.bar.update(self.training_env.num_envs)
+        return True
+
+    def _on_training_end(self) -> None:
+        self.bar.close()
+
+
+def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[BaseCallback]:
+    n_envs = args.n_envs
+    callbacks: list[BaseCallback] = [
+        LatestReplayCheckpoint(
+            save_freq=max(args.checkpoint_freq // n_envs, 1),
+            save_path=str(out / "checkpoints"),
+            name_prefix=CHECKPOINT_PREFIX,
+            save_replay_buffer=args.algo == "sac",
+        ),
+        HeldOutEvalCallback(
+            eval_env,
+            n_eval_episodes=len(VALIDATION_SEEDS),
+            eval_freq=max(args.eval_freq // n_envs, 1),
+            log_path=str(out),
+            best_model_save_path=str(out / "best_model"),
+            deterministic=True,
+            verbose=int(args.verbose),
+        ),
+    ]
+    if args.max_minutes is not None:
+        callbacks.append(WallTimeLimit(args.max_minutes))
+    if args.progress and not HAS_RICH:
+        callbacks.append(TqdmProgress())
+    return callbacks
+
+
+def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | None = None) -> Path:
+    """Train per ``args`` (see :func:`parse_args`); returns the run folder.
+
+    Args:
+        args: Parsed command-line arguments.
+        base_factory: Builds the base controller instead of the default MId+F + RLS (tests).
+    """
+    torch.set_num_threads(args.torch_threads)
+    out = Path(args.out) if args.out is not None else Path("runs/residual") / datetime.now().strftime("%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    config = ResidualConfig(
+        residual_limit=args.residual_limit,
+        action_period=args.action_period,
+        reward_scale=args.reward_scale,
+    )
+    env_kwargs = {"n_cycles": args.n_cycles}
+    base = base_setup(env_kwargs) if base_factory is None else None
+    hyperparameters = json.loads(json.dumps(HYPERPARAMETERS[args.algo]))
+    for name in ("learning_rate", "gamma", "batch_size", "learning_starts", "buffer_size"):
+        value = getattr(args, name)
+        if value is not None:
+            if name in ("learning_starts", "buffer_size") and args.algo != "sac":
+                raise ValueError(f"--{name.replace('_', '-')} applies to SAC only")
+            hyperparameters[name] = value
+    if args.net_arch is not None:
+        hyperparameters["policy_kwargs"]["net_arch"] = list(args.net_arch)
+
+    resolved = {
+        "command": command_line("controllers.train_residual"),
+        "arguments": vars(args),
+        "residual_config": asdict(config),
+        "env_kwargs": env_kwargs,
+        "hyperparameters": hyperparameters,
+        "base_controller": "custom (base_factory)" if base is None else base.to_dict(),
+        "seeds": {
+            "training": f"per worker from default_rng([seed, rank]) in {TRAINING_SEEDS}",
+            "calibration": list(CALIBRATION_SEEDS),
+            "validation": list(VALIDATION_SEEDS),
+            "test": list(TEST_SEEDS),
+            "test_payloads": list(TEST_PAYLOADS),
+        },
+        "versions": package_versions(),
+        "git_commit": _git_commit(),
+        "started": datetime.now().isoformat(timespec="seconds"),
+    }
+    _write_json(out / "config.json", resolved)
+
+    set_random_seed(args.seed)
+    factories = [
+        make_env(
+            config=config,
+            env_kwargs=env_kwargs,
+            base=base,
+            seed=args.seed,
+            rank=rank,
+            base_factory=base_factory,
+        )
+        for rank in range(args.n_envs)
+    ]
+    vec_env = SubprocVecEnv(factories) if args.n_envs > 1 else DummyVecEnv(factories)
+    eval_env = DummyVecEnv(
+        [
+            make_env(
+                config=config,
+                env_kwargs=env_kwargs,
+                base=base,
+                seeds=VALIDATION_SEEDS,
+                base_factory=base_factory,
+            )
+        ]
+    )
+    algorithm = algorithm_class(args.algo)
+    formats = ["stdout", "csv"] if args.verbose else ["csv"]
+    if HAS_TENSORBOARD:
+        formats.append("tensorboard")
+    if args.resume is not None:
+        model = algorithm.load(args.resume, env=vec_env, device="cpu")
+        replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
+        if args.algo == "sac" and replay.is_file():
+            model.load_replay_buffer(replay)
+        elif args.algo == "sac":
+            # Only the newest replay buffer is kept: an older checkpoint restarts with an empty one.
+            warnings.warn(f"no replay buffer at {replay}: resuming with an empty one", stacklevel=1)
+            replay = None
+        resolved["resumed_from"] = {
+            "checkpoint": str(args.resume),
+            "num_timesteps": model.num_timesteps,
+            "replay_buffer": None if args.algo != "sac" else replay,
+        }
+        _write_json(out / "config.json", resolved)
+    else:
+        model = algorithm("MlpPolicy", vec_env, seed=args.seed, device="cpu", verbose=0, **hyperparameters)
+    model.set_logger(configure(str(out), formats))
+
+    callbacks = _callbacks(args, out, eval_env)
+    # SubprocVecEnv for training, DummyVecEnv for the held-out episodes: intended, not worth a warning.
+    warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
+    remaining = max(args.timesteps - model.num_timesteps, 0)
+    start = time.monotonic()
+    model.learn(
+        total_timesteps=remaining,
+        callback=callbacks,
+        reset_num_timesteps=args.resume is None,
+        progress_bar=args.progress and HAS_RICH,
+    )
+    wall_time = time.monotonic() - start
+    notes = {"command": resolved["command"], "seed": args.seed, "timesteps": model.num_timesteps}
+    notes["wall_time_s"] = round(wall_time, 1)
+    save_residual_policy(model, out / "final_policy.zip", config, args.algo, base=base, extra=notes)
+    best = out / "best_model" / "best_model.zip"
+    if best.is_file():
+        best_model = algorithm.load(best, device="cpu")
+        save_residual_policy(best_model, out / "best_policy.zip", config, args.algo, base=base, extra=notes)
+    vec_env.close()
+    eval_env.close()
+    resolved["finished"] = datetime.now().isoformat(timespec="seconds")
+    resolved["wall_time_s"] = round(wall_time, 1)
+    resolved["num_timesteps"] = model.num_timesteps
+    _write_json(out / "config.json", resolved)
+    if args.score:
+        policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
+        scores = score_policy(policy, env_kwargs, base_factory=base_factory)
+        _write_json(out / "scores.json", scores)
+        print(json.dumps(scores["summary"], indent=2))
+    return out
+
+
+def _rollout(controller: Controller, env_kwargs: dict[str, Any], seed: int, masses: Sequence[float] | None):
+    """Tracking errors (m) and commanded torques (N m) of one episode in a fresh plant env."""
+    env = DeltaPickPlaceEnv(**env_kwargs)
+    options = None if masses is None else {"payload_masses": list(masses)}
+    observation, _ = env.reset(seed=seed, options=options)
+    controller.reset()
+    errors, torques = [], []
+    while True:
+        torque = controller(observation)
+        observation, _, terminated, truncated, info = env.step(torque)
+        errors.append(info["tracking_error"])
+        torques.append(torque)
+        if terminated or truncated:
+            break
+    env.close()
+    return np.array(errors), np.array(torques), bool(terminated)
+
+
+def score_policy(
+    path: str | Path,
+    env_kwargs: dict[str, Any] | None = None,
+    *,
+    seeds: Sequence[int] = TEST_SEEDS,
+    payloads: Sequence[float] = TEST_PAYLOADS,
+    base_factory: Callable[[], Controller] | None = None,
+) -> dict[str, Any]:
+    """Base controller vs base + residual on held-out episodes (the same episodes for both).
+
+    Episodes: one per seed with its drawn payloads, and one per fixed payload mass (every object of
+    the episode that mass) on the first seed. Tracking RMS (mm) is pooled over all control steps of all
+    episodes, torque RMS (N m) over all commanded torques; per-episode values are listed too. The base is
+    the one stored in the policy file unless ``base_factory`` is given.
+    """
+    env_kwargs = {"n_cycles": 3} if env_kwargs is None else env_kwargs
+    policy = load_residual_policy(path)
+    if base_factory is None and policy.base is None:
+        raise ValueError(f"{path} was trained on a custom base controller: pass base_factory")
+
+    def base() -> Controller:
+        return base_factory() if base_factory is not None else policy.base.controller()
+
+    residual = ResidualController(base(), policy, policy.config)
+    plain = base()
+    n_cycles = env_kwargs.get("n_cycles", 3)
+    episodes = [(seed, None) for seed in seeds] + [(seeds[0], [mass] * n_cycles) for mass in payloads]
+    rows: dict[str, dict[str, list]] = {"base": {}, "residual": {}}
+    per_episode = []
+    start = time.monotonic()
+    for seed, masses in episodes:
+        entry: dict[str, Any] = {"seed": seed, "payload_masses": masses}
+        for name, controller in (("base", plain), ("residual", residual)):
+            errors, torques, diverged = _rollout(controller, env_kwargs, seed, masses)
+            rows[name].setdefault("errors", []).append(errors)
+            rows[name].setdefault("torques", []).append(torques)
+            entry[name] = {
+                "tracking_rms_mm": 1e3 * math.sqrt(float(np.mean(errors**2))),
+                "torque_rms_Nm": math.sqrt(float(np.mean(torques**2))),
+                "diverged": diverged,
+            }
+        per_episode.append(entry)
+    summary: dict[str, Any] = {}
+    for name, row in rows.items():
+        errors = np.concatenate(row["errors"])
+        torques = np.concatenate(row["torques"])
+        summary[name] = {
+            "tracking_rms_mm": 1e3 * math.sqrt(float(np.mean(errors**2))),
+            "tracking_max_mm": 1e3 * float(np.max(errors)),
+            "torque_rms_Nm": math.sqrt(float(np.mean(torques**2))),
+        }
+    summary["tracking_rms_change"] = summary["residual"]["tracking_rms_mm"] / summary["base"]["tracking_rms_mm"] - 1
+    summary["torque_rms_change"] = summary["residual"]["torque_rms_Nm"] / summary["base"]["torque_rms_Nm"] - 1
+    episode_changes = [e["residual"]["tracking_rms_mm"] / e["base"]["tracking_rms_mm"] - 1 for e in per_episode]
+    summary["episodes_improved"] = f"{sum(c < 0 for c in episode_changes)}/{len(episode_changes)}"
+    return {
+        "policy": str(path),
+        "base": plain.name,
+        "residual": residual.name,
+        "env_kwargs": env_kwargs,
+        "seeds": list(seeds),
+        "payloads": list(payloads),
+        "summary": summary,
+        "episodes": per_episode,
+        "wall_time_s": round(time.monotonic() - start, 1),
+    }
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m controllers.train_residual",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--algo", choices=ALGORITHMS, default="sac")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the model and of the training episodes")
+    parser.add_argument("--timesteps", type=int, default=300_000, help="total policy steps (100 Hz by default)")
+    parser.add_argument("--n-envs", type=int, default=2, help="parallel envs; SubprocVecEnv when > 1")
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/residual/<timestamp>)")
+    parser.add_argument("--resume", type=Path, default=None, help="checkpoint zip to continue from")
+    parser.add_argument("--max-minutes", type=float, default=None, help="stop training after this wall time")
+    parser.add_argument("--checkpoint-freq", type=int, default=50_000, help="policy steps between checkpoints")
+    parser.add_argument("--eval-freq", type=int, default=20_000, help="policy steps between held-out evaluations")
+    parser.add_argument("--n-cycles", type=int, default=3, help="pick-and-place cycles per episode")
+    parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
+    parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
+    parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
+    parser.add_argument("--learning-rate", type=float, default=None)
+    parser.add_argument("--gamma", type=float, default=None)
+    parser.add_argument("--batch-size", type=int, default=None)
+    parser.add_argument("--learning-starts", type=int, default=None, help="SAC only")
+    parser.add_argument("--buffer-size", type=int, default=None, help="SAC only")
+    parser.add_argument("--net-arch", type=int, nargs="+", default=None, help="hidden layer sizes")
+    parser.add_argument("--torch-threads", type=int, default=1)
+    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    parser.add_argument("--no-score", dest="score", action="store_false", help="skip the final test scores")
+    parser.add_argument("--verbose", action="store_true", help="print SB3 logs to stdout")
+    parser.add_argument(
+        "--score-only", type=Path, default=None, help="no training: score this policy zip on the test seeds"
+    )
+    args = parser.parse_args(argv)
+    if args.n_envs < 1 or args.timesteps < 1:
+        parser.error("--n-envs and --timesteps must be >= 1")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.score_only is None:
+        train(args)
+        return
+    out = args.out if args.out is not None else args.score_only.parent
+    out.mkdir(parents=True, exist_ok=True)
+    scores = score_policy(args.score_only, {"n_cycles": args.n_cycles})
+    scores["command"] = command_line("controllers.train_residual")
+    _write_json(out / "scores.json", scores)
+    print(json.dumps(scores["summary"], indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,302 @@
+"""The residual env, controller, policy files and training CLI (controllers.residual, controllers.train_residual)."""
+
+from __future__ import annotations
+
+import json
+import warnings
+import zipfile
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+from stable_baselines3 import SAC
+from stable_baselines3.common.env_checker import check_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+import delta_env  # noqa: F401  (registers the env ids)
+from controllers.dynamics import ModelParameters
+from controllers.residual import (
+    BaseSetup,
+    DeltaResidualEnv,
+    ResidualConfig,
+    ResidualController,
+    ResidualFeatures,
+    default_base_controller,
+    load_residual_controller,
+    load_residual_policy,
+    save_residual_policy,
+)
+from controllers.train_residual import (
+    CALIBRATION_SEEDS,
+    TEST_SEEDS,
+    TRAINING_SEEDS,
+    VALIDATION_SEEDS,
+    EpisodeSeeds,
+    base_setup,
+    make_env,
+    parse_args,
+    train,
+)
+from delta_env.env import DeltaPickPlaceEnv
+
+# Close to what identification finds on the default plant; fixed here so tests need no parameter file.
+PARAMETERS = ModelParameters(rho1=1.76, rho2=0.88, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
+SEED = 3
+CONTROL_STEPS = 400
+
+
+def make_base():
+    """The default base controller (MId+F + RLS) with fixed parameters."""
+    return default_base_controller(PARAMETERS)
+
+
+def linear_policy(observation: np.ndarray) -> np.ndarray:
+    """A fixed, non-trivial policy: every feature matters, actions stay inside (-1, 1)."""
+    weights = np.sin(np.arange(3 * ResidualFeatures.size, dtype=np.float32)).reshape(3, ResidualFeatures.size)
+    return np.tanh(0.1 * weights @ observation)
+
+
+def zero_policy(observation: np.ndarray) -> np.ndarray:
+    return np.zeros(3, dtype=np.float32)
+
+
+def controller_rollout(controller, steps: int = CONTROL_STEPS) -> tuple[np.ndarray, np.ndarray]:
+    """Commanded torques (N m) and tracking errors (m) of a Controller in a fresh plant env."""
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    observation, _ = env.reset(seed=SEED)
+    controller.reset()
+    torques, errors = [], []
+    for _ in range(steps):
+        torque = controller(observation)
+        observation, _, terminated, truncated, info = env.step(torque)
+        torques.append(torque)
+        errors.append(info["tracking_error"])
+        assert not (terminated or truncated)
+    return np.array(torques), np.array(errors)
+
+
+def residual_env_rollout(policy, config: ResidualConfig, steps: int = CONTROL_STEPS):
+    """Commanded and base torques (N m) and tracking errors (m) of the residual env (fresh) driven by ``policy``."""
+    env = DeltaResidualEnv(base=make_base(), config=config, n_cycles=1)
+    observation, _ = env.reset(seed=SEED)
+    torques, base_torques, errors = [], [], []
+    while sum(len(e) for e in errors) < steps:
+        observation, _, terminated, truncated, info = env.step(policy(observation))
+        torques.append(info["commanded_torques"])
+        base_torques.append(info["base_torques"])
+        errors.append(info["tracking_errors"])
+        assert not (terminated or truncated)
+    return np.concatenate(torques)[:steps], np.concatenate(base_torques)[:steps], np.concatenate(errors)[:steps]
+
+
+def test_zero_action_reproduces_the_base_controller_exactly() -> None:
+    base_torques, base_errors = controller_rollout(make_base())
+    env_torques, _, env_errors = residual_env_rollout(zero_policy, ResidualConfig())
+    assert_array_equal(env_torques, base_torques)
+    assert_array_equal(env_errors, base_errors)
+    controller = ResidualController(make_base(), zero_policy, ResidualConfig())
+    controller_torques, controller_errors = controller_rollout(controller)
+    assert_array_equal(controller_torques, base_torques)
+    assert_array_equal(controller_errors, base_errors)
+
+
+@pytest.mark.parametrize("action_period", [1, 7])
+def test_controller_runs_the_same_loop_as_the_env(action_period: int) -> None:
+    config = ResidualConfig(residual_limit=20.0, action_period=action_period)
+    env_torques, env_base_torques, env_errors = residual_env_rollout(linear_policy, config)
+    controller = ResidualController(make_base(), linear_policy, config)
+    torques, errors = controller_rollout(controller)
+    assert_array_equal(torques, env_torques)
+    assert_array_equal(errors, env_errors)
+    residual = env_torques - env_base_torques
+    assert np.max(np.abs(residual)) > 1.0, "the policy should change the torques"
+    assert np.max(np.abs(residual)) <= config.residual_limit + 1e-9
+    # Held between policy steps: constant within each window of action_period control steps.
+    windows = residual.reshape(-1, action_period, 3) if CONTROL_STEPS % action_period == 0 else None
+    if windows is None:
+        windows = residual[: CONTROL_STEPS // action_period * action_period].reshape(-1, action_period, 3)
+    assert np.allclose(windows, windows[:, :1], rtol=0.0, atol=1e-9)
+    env = DeltaResidualEnv(base=make_base(), config=config, n_cycles=1)
+    env.reset(seed=SEED)
+    _, _, _, _, info = env.step(np.array([0.5, -1.0, 0.25], dtype=np.float32))
+    assert info["control_steps"] == action_period
+    expected = np.tile([10.0, -20.0, 5.0], (action_period, 1))
+    assert_array_equal(info["commanded_torques"] - info["base_torques"], expected)
+
+
+def test_sb3_check_env_passes_without_warnings() -> None:
+    env = DeltaResidualEnv(base=make_base(), n_cycles=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env, warn=True)
+
+
+def test_gym_make_and_spaces() -> None:
+    env = gym.make("DeltaPickPlaceResidual-v0", base=make_base(), n_cycles=1)
+    observation, info = env.reset(seed=0)
+    assert observation.dtype == np.float32 and observation.shape == (ResidualFeatures.size,)
+    assert env.action_space == gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
+    assert env.observation_space.contains(observation)
+    assert len(info["payload_masses"]) == 1
+    _, reward, _, _, info = env.step(env.action_space.sample())
+    assert reward == pytest.approx(info["reward_tracking"] + info["reward_torque"])
+    assert reward < 0.0
+    env.close()
+
+
+def test_episode_ends_with_the_reference() -> None:
+    env = DeltaResidualEnv(base=make_base(), n_cycles=1)
+    env.reset(seed=SEED)
+    length = len(env.plant_env.trajectory)
+    steps = 0
+    truncated = False
+    while not truncated:
+        _, _, terminated, truncated, info = env.step(np.zeros(3, dtype=np.float32))
+        assert not terminated
+        steps += info["control_steps"]
+    assert steps == length - 1
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(3, dtype=np.float32))
+
+
+@pytest.mark.parametrize("action", [np.zeros(2), np.array([0.0, np.nan, 0.0]), np.array([np.inf, 0.0, 0.0])])
+def test_bad_actions_raise(action: np.ndarray) -> None:
+    env = DeltaResidualEnv(base=make_base(), n_cycles=1)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        env.step(action)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"residual_limit": 0.0}, {"residual_limit": 401.0}, {"action_period": 0}, {"reward_scale": -1.0}],
+)
+def test_config_rejects_bad_values(kwargs: dict) -> None:
+    with pytest.raises(ValueError):
+        ResidualConfig(**kwargs)
+
+
+def test_vector_envs() -> None:
+    config = ResidualConfig()
+    base = BaseSetup(PARAMETERS)
+    factories = [make_env(config=config, env_kwargs={"n_cycles": 1}, base=base, rank=r) for r in range(2)]
+    for vec_cls in (DummyVecEnv, SubprocVecEnv):
+        vec_env = vec_cls(factories)
+        vec_env.seed(0)
+        observations = vec_env.reset()
+        assert observations.shape == (2, ResidualFeatures.size)
+        observations, rewards, dones, _ = vec_env.step(np.zeros((2, 3), dtype=np.float32))
+        assert observations.shape == (2, ResidualFeatures.size) and rewards.shape == (2,)
+        assert np.all(rewards < 0.0) and not np.any(dones)
+        seeds = [info["episode_seed"] for info in vec_env.reset_infos]
+        assert seeds[0] != seeds[1], "workers must draw different training episodes"
+        vec_env.close()
+
+
+def test_training_and_held_out_seeds_are_disjoint() -> None:
+    env = EpisodeSeeds(DeltaResidualEnv(base=make_base(), n_cycles=1), seed=0, rank=1)
+    training = set()
+    for _ in range(20):
+        _, info = env.reset()
+        training.add(info["episode_seed"])
+    assert all(s in TRAINING_SEEDS for s in training)
+    eval_defaults = set(range(10)) | set(range(100_000, 100_003))  # python -m eval: seeds and tare seeds
+    held_out = [set(VALIDATION_SEEDS), set(TEST_SEEDS), set(CALIBRATION_SEEDS), eval_defaults]
+    for i, seeds in enumerate(held_out):
+        assert not any(s in TRAINING_SEEDS for s in seeds)
+        assert all(not seeds & other for other in held_out[i + 1 :])
+    held_out = EpisodeSeeds(DeltaResidualEnv(base=make_base(), n_cycles=1), seeds=VALIDATION_SEEDS[:2])
+    seeds = [held_out.reset()[1]["episode_seed"] for _ in range(3)]
+    held_out.restart()
+    seeds.append(held_out.reset()[1]["episode_seed"])
+    assert seeds == [VALIDATION_SEEDS[0], VALIDATION_SEEDS[1], VALIDATION_SEEDS[0], VALIDATION_SEEDS[0]]
+
+
+def tiny_training_args(out: Path, seed: int, *extra: str):
+    return parse_args(
+        [
+            "--seed", str(seed), "--timesteps", "60", "--n-envs", "1", "--n-cycles", "1",
+            "--learning-starts", "30", "--batch-size", "16", "--buffer-size", "500", "--net-arch", "16", "16",
+            "--eval-freq", "60", "--checkpoint-freq", "30", "--no-progress", "--no-score", "--out", str(out),
+            *extra,
+        ]
+    )  # fmt: skip
+
+
+def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path) -> None:
+    runs = [train(tiny_training_args(tmp_path / name, seed), base_factory=make_base) for name, seed in
+            (("a", 0), ("b", 0), ("c", 1))]  # fmt: skip
+    policies = [load_residual_policy(run / "final_policy.zip") for run in runs]
+    parameters = [policy.model.policy.state_dict() for policy in policies]
+    for name, tensor in parameters[0].items():
+        assert_array_equal(tensor.numpy(), parameters[1][name].numpy(), err_msg=name)
+    assert any(not np.array_equal(t.numpy(), parameters[2][n].numpy()) for n, t in parameters[0].items())
+    observations = np.random.default_rng(0).uniform(-2, 2, (8, ResidualFeatures.size)).astype(np.float32)
+    assert_array_equal(policies[0](observations), policies[1](observations))
+    for name in ("config.json", "progress.csv", "evaluations.npz", "best_policy.zip"):
+        assert (runs[0] / name).is_file(), name
+    assert policies[0].metadata["extra"]["seed"] == 0
+    # Resume from the last checkpoint (with its replay buffer, the only one kept) and train further.
+    checkpoints = sorted(p.name for p in (runs[0] / "checkpoints").iterdir())
+    assert checkpoints == ["residual_30_steps.zip", "residual_60_steps.zip", "residual_replay_buffer_60_steps.pkl"]
+    args = tiny_training_args(tmp_path / "resumed", 0, "--resume", str(runs[0] / "checkpoints" / checkpoints[1]))
+    args.timesteps = 90
+    resumed = train(args, base_factory=make_base)
+    model = load_residual_policy(resumed / "final_policy.zip").model
+    assert model.num_timesteps == 90
+    resumed_from = json.loads((resumed / "config.json").read_text())["resumed_from"]
+    assert resumed_from["num_timesteps"] == 60
+    assert resumed_from["replay_buffer"].endswith("residual_replay_buffer_60_steps.pkl")
+
+
+def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
+    config = ResidualConfig(residual_limit=25.0, action_period=5)
+    base = BaseSetup(PARAMETERS, tare=-0.1)
+    env = DeltaResidualEnv(base=base.controller(), config=config, n_cycles=1)
+    model = SAC("MlpPolicy", env, seed=1, policy_kwargs={"net_arch": [32, 32]}, device="cpu")
+    path = save_residual_policy(model, tmp_path / "policy.zip", config, "sac", base=base, extra={"note": "untrained"})
+    policy = load_residual_policy(path)
+    assert policy.config == config and policy.base == base and policy.metadata["extra"] == {"note": "untrained"}
+    observations = np.random.default_rng(1).uniform(-3, 3, (16, ResidualFeatures.size)).astype(np.float32)
+    assert_array_equal(policy(observations), model.predict(observations, deterministic=True)[0])
+    # Without a base, the controller rebuilds the one stored in the file.
+    reloaded = load_residual_controller(path)
+    assert reloaded.config == config and reloaded.base.estimator.tare == -0.1
+    direct = ResidualController(base.controller(), lambda o: model.predict(o, deterministic=True)[0], config)
+    torques = controller_rollout(reloaded, 100)[0]
+    assert_array_equal(torques, controller_rollout(direct, 100)[0])
+    assert not np.array_equal(torques, controller_rollout(base.controller(), 100)[0])
+
+
+def test_base_setup_calibrates_a_small_tare() -> None:
+    setup = base_setup({"n_cycles": 1}, PARAMETERS)
+    assert setup.parameters == PARAMETERS
+    assert 0.0 < abs(setup.tare) < 0.5, "the tare is the model's small error along phi (kg)"
+    assert BaseSetup.from_dict(setup.to_dict()) == setup
+
+
+def test_missing_or_corrupt_policy_files_raise_naming_the_path(tmp_path: Path) -> None:
+    missing = tmp_path / "missing.zip"
+    with pytest.raises(FileNotFoundError, match=r"missing\.zip"):
+        load_residual_controller(missing, base=make_base())
+    garbage = tmp_path / "garbage.zip"
+    garbage.write_bytes(b"not a zip file at all")
+    with pytest.raises(ValueError, match=r"garbage\.zip"):
+        load_residual_controller(garbage, base=make_base())
+    plain = tmp_path / "plain_sb3.zip"
+    SAC("MlpPolicy", DeltaResidualEnv(base=make_base(), n_cycles=1), policy_kwargs={"net_arch": [8]}).save(plain)
+    with pytest.raises(ValueError, match=r"plain_sb3\.zip"):
+        load_residual_controller(plain, base=make_base())
+    truncated = tmp_path / "truncated.zip"
+    config = ResidualConfig()
+    model = SAC("MlpPolicy", DeltaResidualEnv(base=make_base(), n_cycles=1), policy_kwargs={"net_arch": [8]})
+    save_residual_policy(model, truncated, config, "sac")
+    with zipfile.ZipFile(truncated) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    with zipfile.ZipFile(truncated, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, data[: len(data) // 2] if name == "policy.pth" else data)
+    with pytest.raises(ValueError, match=r"truncated\.zip"):
+        load_residual_controller(truncated, base=make_base())
