@@ -598,13 +598,16 @@ def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPoli
     return ResidualPolicy(model=model, config=config, algo=algo, base=base, metadata=metadata)
 
 
-def load_residual_controller(path: str | Path = DEFAULT_POLICY_PATH, base: Controller | None = None) -> Controller:
+def load_residual_controller(
+    path: str | Path = DEFAULT_POLICY_PATH, base: Controller | None = None, name: str | None = None
+) -> Controller:
     """The shipped (or any saved) residual policy on top of ``base`` as a 1 kHz Controller.
 
     Args:
         path: A policy zip written by :func:`save_residual_policy`.
         base: The base controller the policy corrects. None rebuilds the base it was trained on from the
             file (MId+F + RLS with the stored identified parameters and tare), so no parameter file is needed.
+        name: Row name; by default ``"<base name> + residual"``.
 
     Raises:
         FileNotFoundError: if ``path`` does not exist.
@@ -616,4 +619,4 @@ def load_residual_controller(path: str | Path = DEFAULT_POLICY_PATH, base: Contr
         if policy.base is None:
             raise ValueError(f"{path} was trained on a custom base controller: pass base=")
         base = policy.base.controller()
-    return ResidualController(base, policy, policy.config)
+    return ResidualController(base, policy, policy.config, name=name)
