@@ -18,6 +18,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 import delta_env  # noqa: F401  (registers the env ids)
 from controllers.dynamics import ModelParameters
 from controllers.residual import (
+    DEFAULT_POLICY_PATH,
     BaseSetup,
     DeltaResidualEnv,
     ResidualConfig,
@@ -300,3 +301,29 @@ def test_missing_or_corrupt_policy_files_raise_naming_the_path(tmp_path: Path) -
             archive.writestr(name, data[: len(data) // 2] if name == "policy.pth" else data)
     with pytest.raises(ValueError, match=r"truncated\.zip"):
         load_residual_controller(truncated, base=make_base())
+
+
+def test_shipped_policy_loads_and_beats_its_base_on_a_held_out_episode() -> None:
+    assert DEFAULT_POLICY_PATH.is_file(), f"the shipped policy is missing: {DEFAULT_POLICY_PATH}"
+    assert DEFAULT_POLICY_PATH.stat().st_size < 5_000_000
+    policy = load_residual_policy()
+    assert policy.algo == "sac" and policy.base is not None
+    controller = load_residual_controller(name="residual")
+    assert controller.name == "residual"
+    # A test seed of the training CLI, one cycle: never trained on, never used for model selection.
+    env_kwargs = {"n_cycles": 1}
+    seed = TEST_SEEDS[-1]
+    rms = {}
+    for key, candidate in (("base", policy.base.controller()), ("residual", controller)):
+        env = DeltaPickPlaceEnv(**env_kwargs)
+        observation, _ = env.reset(seed=seed)
+        candidate.reset()
+        errors = []
+        while True:
+            observation, _, terminated, truncated, info = env.step(candidate(observation))
+            errors.append(info["tracking_error"])
+            if terminated or truncated:
+                break
+        assert not terminated
+        rms[key] = float(np.sqrt(np.mean(np.square(errors))))
+    assert rms["residual"] < 0.85 * rms["base"], rms
