@@ -134,6 +134,12 @@ def test_sb3_check_env_passes_without_warnings() -> None:
         check_env(env, warn=True)
 
 
+def test_gymnasium_env_checker_including_reset_determinism() -> None:
+    from gymnasium.utils.env_checker import check_env as gym_check_env
+
+    gym_check_env(DeltaResidualEnv(base=make_base(), n_cycles=1), skip_render_check=True)
+
+
 def test_gym_make_and_spaces() -> None:
     env = gym.make("DeltaPickPlaceResidual-v0", base=make_base(), n_cycles=1)
     observation, info = env.reset(seed=0)
