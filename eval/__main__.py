@@ -7,6 +7,8 @@
    is measured (``controllers.payload.tare_from_observations``).
 3. Runs every controller on episodes ``seed, seed + 1, ...`` of the default env (realistic plant, 3 g
    conveyor cycles, objects drawn from U[0, 4] kg): the same paths and objects for all.
+   The ``residual`` row is the learned residual policy (``--residual``, by default the shipped one) on
+   top of the ``mid_f_rls`` controller of this run, tare included.
 4. Runs the Table 2 analogue: MId+F+RLS on the path of the first episode with every object 3.8 kg; the
    measured torques against MId+F with mp = 0 and with mp = m_hat.
 5. Writes the run folder (``--out``): ``config.json`` (resolved configuration and command),
@@ -41,10 +43,12 @@ from controllers.dynamics import DeltaDynamics
 from controllers.identification import DEFAULT_PARAMETER_PATH, load_or_identify
 from controllers.payload import tare_from_observations
 from controllers.provenance import command_line, package_versions
+from controllers.residual import DEFAULT_POLICY_PATH, load_residual_policy
 from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
 from eval import metrics, plots
 from eval.episodes import (
     CONTROLLER_LABELS,
+    ESTIMATING_KEYS,
     ESTIMATOR_REGRESSORS,
     ControllerSetup,
     EpisodeRecord,
@@ -136,6 +140,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--calibration-episodes", type=int, default=3, help="payload-free episodes of the tare (default 3)"
     )
+    parser.add_argument(
+        "--residual",
+        type=Path,
+        default=DEFAULT_POLICY_PATH,
+        help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
+    )
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
     keys = [key.strip() for key in args.controllers.split(",") if key.strip()]
@@ -146,6 +156,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     for name in ("episodes", "cycles", "calibration_episodes", "workers"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
+    if "residual" in args.controllers:
+        try:  # fail now, not after the other controllers have run
+            load_residual_policy(args.residual)
+        except (FileNotFoundError, ValueError) as error:
+            parser.error(f"--residual: {error}")
     if args.out is None:
         args.out = Path("runs/eval") / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     return args
@@ -225,15 +240,25 @@ def _table2(table2_rows: list[dict[str, Any]]) -> str:
 def _checks(episode_rows: list[dict[str, Any]], carry_rows: list[dict[str, Any]], table2_rows: list) -> list[str]:
     """One line per target of the issue, with the measured values."""
     lines = []
-    means = {
-        label: metrics.mean_std([row["tracking_rms_mm"] for row in group if not row["diverged"]])[0]
-        for label, group in metrics.group_by(episode_rows, "controller").items()
-    }
-    rls, pd, oracle = (CONTROLLER_LABELS[key] for key in ("mid_f_rls", "pd", "oracle"))
+    groups = metrics.group_by(episode_rows, "controller")
+    means, torque_means = (
+        {
+            label: metrics.mean_std([row[name] for row in group if not row["diverged"]])[0]
+            for label, group in groups.items()
+        }
+        for name in ("tracking_rms_mm", "torque_rms_nm")
+    )
+    rls, pd, oracle, residual = (CONTROLLER_LABELS[key] for key in ("mid_f_rls", "pd", "oracle", "residual"))
     if rls in means and pd in means:
         lines.append(f"- tracking RMS {rls} / {pd} = {means[rls] / means[pd]:.3f} (target <= 0.2)")
     if rls in means and oracle in means:
         lines.append(f"- tracking RMS {rls} / {oracle} = {means[rls] / means[oracle]:.2f} (target <= 2)")
+    if rls in means and residual in means:
+        tracking, torque = means[residual] / means[rls] - 1.0, torque_means[residual] / torque_means[rls] - 1.0
+        lines.append(
+            f"- {residual} vs {rls}: tracking RMS {100 * tracking:+.1f} % (target <= -15 %), "
+            f"torque RMS {100 * torque:+.1f} % (target <= +5 %)"
+        )
     for label, group in metrics.group_by(carry_rows, "controller").items():
         scored = [row for row in group if row["mass_kg"] >= metrics.MIN_RELATIVE_MASS]
         settled = sum(row["settling_time_ms"] <= SETTLING_DEADLINE_MS for row in scored)
@@ -259,7 +284,7 @@ def run_all(
 
     keys = args.controllers
     tared = sorted({key for key in keys if key in ESTIMATOR_REGRESSORS} | {TABLE2_KEY})
-    untared = [key for key in keys if key not in ESTIMATOR_REGRESSORS]
+    untared = [key for key in keys if key not in ESTIMATING_KEYS]
 
     def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
         return [
@@ -303,7 +328,7 @@ def tabulate(
         label = CONTROLLER_LABELS[task.key]
         identity = {"controller": label, "key": task.key, "episode": task.index, "seed": task.seed}
         episode_rows.append({**identity, **record.metrics()})
-        if task.key in ESTIMATOR_REGRESSORS:
+        if task.key in ESTIMATING_KEYS:
             for n, carry in enumerate(record.carries()):
                 carry_rows.append(
                     {
@@ -343,7 +368,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     identification = load_or_identify(args.parameters)
     identified_time = time.perf_counter() - started
-    setup = ControllerSetup(mid=identification.mid, mid_f=identification.mid_f)
+    setup = ControllerSetup(mid=identification.mid, mid_f=identification.mid_f, residual_policy=args.residual)
     keys = args.controllers
     results, tares, tare_spreads = run_all(args, setup)
     episode_rows, carry_rows, traces = tabulate(results, keys)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import smooth_joint_motion
 from controllers.feedforward import FeedforwardController, OracleController
 from controllers.payload import PayloadEstimator
+from controllers.residual import DEFAULT_POLICY_PATH, load_residual_controller
 from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
 from eval import metrics
 
@@ -32,16 +34,24 @@ CONTROLLER_LABELS = {
     "mid_f_rls": "MId+F+RLS+PD",
     "mid_f_rls_ref": "MId+F+RLS(ref)+PD",
     "oracle": "Oracle+PD (bound)",
+    "residual": "MId+F+RLS+PD + residual",
 }
 """Controller keys of ``--controllers`` and their labels. ``mid_f_rls`` estimates the payload on the
 Kalman-filtered joint states (the default estimator); ``mid_f_rls_ref`` on the reference, for comparison.
-The oracle knows the plant and the true payloads: an upper bound, not a controller."""
+The oracle knows the plant and the true payloads: an upper bound, not a controller. ``residual`` adds the
+learned residual policy (``controllers.residual``) to the ``mid_f_rls`` controller of the same run."""
 
 SMOOTHER_TRIM = 50
 """Samples dropped at each end of a smoothed record (50 ms): the RTS smoother sees one side only there."""
 
 ESTIMATOR_REGRESSORS = {"mid_f_rls": "filtered", "mid_f_rls_ref": "reference"}
 """The payload estimator variant of each RLS controller key."""
+
+ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
+"""Controllers that estimate the payload (and so need a tare): the RLS rows and the residual on top of one."""
+
+RESIDUAL_BASE_KEY = "mid_f_rls"
+"""The row whose controller the residual policy corrects."""
 
 
 @dataclass(frozen=True)
@@ -53,12 +63,14 @@ class ControllerSetup:
         mid_f: Identified MId+F parameters (rho1, rho2, friction).
         tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
+        residual_policy: The residual policy file of the ``residual`` row.
     """
 
     mid: ModelParameters
     mid_f: ModelParameters
     tares: Mapping[str, float] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (3000.0, 60.0)
+    residual_policy: Path = DEFAULT_POLICY_PATH
 
 
 def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
@@ -74,6 +86,8 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
     pd = PDController(*setup.pd_gains)
     if key == "pd":
         return pd
+    if key == "residual":
+        return load_residual_controller(setup.residual_policy, base=build_controller(RESIDUAL_BASE_KEY, setup))
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")
