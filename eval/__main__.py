@@ -28,12 +28,10 @@ import dataclasses
 import datetime
 import json
 import math
-import multiprocessing
 import os
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -52,10 +50,9 @@ from eval.episodes import (
     ESTIMATOR_REGRESSORS,
     ControllerSetup,
     EpisodeRecord,
-    build_controller,
     payload_estimator,
-    run_episode,
 )
+from eval.tasks import Task, run_tasks
 
 CALIBRATION_SEED_OFFSET = 100_000
 """Calibration (tare) episodes use seeds seed + 100000 + j: paths and noise unlike the evaluation's."""
@@ -68,54 +65,6 @@ TABLE2_PAYLOAD = 3.8
 
 SETTLING_DEADLINE_MS = 150.0
 """The payload estimate should be within 5 % this long after each pick (ms)."""
-
-
-@dataclass(frozen=True)
-class Task:
-    """One episode to run.
-
-    Attributes:
-        kind: ``"episode"``, ``"calibration"`` (0 kg objects, observations kept) or ``"table2"``.
-        key: Controller key.
-        index: Episode index within its kind.
-        seed: Episode seed.
-        n_cycles: Pick-and-place cycles.
-        setup: What the controller may know.
-        masses: Object masses (kg) overriding the drawn ones, or None.
-    """
-
-    kind: str
-    key: str
-    index: int
-    seed: int
-    n_cycles: int
-    setup: ControllerSetup
-    masses: tuple[float, ...] | None = None
-
-
-def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
-    """Run one task in a fresh env (picklable: the unit of work of the process pool)."""
-    env = DeltaPickPlaceEnv(n_cycles=task.n_cycles)
-    controller = build_controller(task.key, task.setup, env)
-    record = run_episode(env, controller, task.seed, task.masses, keep_observations=task.kind == "calibration")
-    env.close()
-    return task, record
-
-
-def run_tasks(tasks: Sequence[Task], workers: int, progress: Any) -> list[tuple[Task, EpisodeRecord]]:
-    """Run ``tasks`` on ``workers`` processes (in this one if 1), updating the tqdm bar ``progress``."""
-    results = []
-    if workers == 1:
-        for task in tasks:
-            results.append(run_task(task))
-            progress.update()
-        return results
-    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-    with context.Pool(workers) as pool:
-        for result in pool.imap_unordered(run_task, tasks):
-            results.append(result)
-            progress.update()
-    return results
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:

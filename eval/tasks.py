@@ -1,0 +1,65 @@
+"""The unit of work of ``python -m eval``: one episode of one controller, run in a process pool.
+
+It lives in an importable module (not ``eval.__main__``) so that forkserver / spawn workers can unpickle it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from delta_env.env import DeltaPickPlaceEnv
+from eval.episodes import ControllerSetup, EpisodeRecord, build_controller, run_episode
+
+
+@dataclass(frozen=True)
+class Task:
+    """One episode to run.
+
+    Attributes:
+        kind: ``"episode"``, ``"calibration"`` (0 kg objects, observations kept) or ``"table2"``.
+        key: Controller key.
+        index: Episode index within its kind.
+        seed: Episode seed.
+        n_cycles: Pick-and-place cycles.
+        setup: What the controller may know.
+        masses: Object masses (kg) overriding the drawn ones, or None.
+    """
+
+    kind: str
+    key: str
+    index: int
+    seed: int
+    n_cycles: int
+    setup: ControllerSetup
+    masses: tuple[float, ...] | None = None
+
+
+def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
+    """Run one task in a fresh env (picklable: the unit of work of the process pool)."""
+    env = DeltaPickPlaceEnv(n_cycles=task.n_cycles)
+    controller = build_controller(task.key, task.setup, env)
+    record = run_episode(env, controller, task.seed, task.masses, keep_observations=task.kind == "calibration")
+    env.close()
+    return task, record
+
+
+def run_tasks(tasks: Sequence[Task], workers: int, progress: Any) -> list[tuple[Task, EpisodeRecord]]:
+    """Run ``tasks`` on ``workers`` processes (in this one if 1), updating the tqdm bar ``progress``."""
+    results = []
+    if workers == 1:
+        for task in tasks:
+            results.append(run_task(task))
+            progress.update()
+        return results
+    # Not fork: a forked child of a process that has loaded torch (the residual policy) can deadlock in
+    # torch's thread pool. Forkserver children start clean and import what a task needs.
+    methods = multiprocessing.get_all_start_methods()
+    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    with context.Pool(workers) as pool:
+        for result in pool.imap_unordered(run_task, tasks):
+            results.append(result)
+            progress.update()
+    return results
