@@ -112,8 +112,7 @@ class DeltaDynamics:
     def __repr__(self) -> str:
         m = self.masses
         return (
-            f"DeltaDynamics({self.geometry}, m1={m.m1}, m2={m.m2}, m0={m.m0}, g={self.g}, "
-            f"parameters={self.parameters})"
+            f"DeltaDynamics({self.geometry}, m1={m.m1}, m2={m.m2}, m0={m.m0}, g={self.g}, parameters={self.parameters})"
         )
 
     def inverse_dynamics(
@@ -169,9 +168,7 @@ class DeltaDynamics:
         solution, _ = self._multiplier_basis(*_as_floats(theta, theta_dot, theta_ddot))
         return 0.5 * total_mass * solution
 
-    def payload_regressor(
-        self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike
-    ) -> NDArray[np.float64]:
+    def payload_regressor(self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike) -> NDArray[np.float64]:
         """phi = J^T (xdd + g e_z) (N m/kg), ``(..., 3)``, so that tau(mp) = tau(0) + mp phi.
 
         This is the paper's eq. (10) without dividing by K, which blows up near serial singularities.

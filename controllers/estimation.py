@@ -72,9 +72,7 @@ def _joint_kalman_filter(
     kf = KalmanFilter(dim_x=9, dim_z=3)
     kf.F = np.kron(kinematic_state_transition(order=2, dt=dt), np.eye(3))
     # White jerk of standard deviation jerk_std at the sample rate has the spectral density jerk_std^2 dt.
-    kf.Q = Q_continuous_white_noise(
-        dim=3, dt=dt, spectral_density=jerk_std**2 * dt, block_size=3, order_by_dim=False
-    )
+    kf.Q = Q_continuous_white_noise(dim=3, dt=dt, spectral_density=jerk_std**2 * dt, block_size=3, order_by_dim=False)
     kf.H = np.hstack((np.eye(3), np.zeros((3, 6))))
     kf.R = measurement_std**2 * np.eye(3)
     kf.x = np.concatenate((theta0, np.zeros(6)))
@@ -168,9 +166,7 @@ class JointStateFilter:
         self.kf.P = self._steady_state_P.copy()
         self._is_reset = True
 
-    def update(
-        self, theta_measured: ArrayLike
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    def update(self, theta_measured: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Advance one period and fuse the measured angles (rad), ``(3,)``.
 
         Returns:

@@ -45,13 +45,9 @@ class DeltaGeometry:
         for name in ("ra", "rb", "l1", "l2"):
             _require_positive(name, getattr(self, name))
         if self.rb >= self.ra:
-            raise ValueError(
-                f"rb must be < ra (the platform sits inside the base), got rb={self.rb}, ra={self.ra}"
-            )
+            raise ValueError(f"rb must be < ra (the platform sits inside the base), got rb={self.rb}, ra={self.ra}")
         if self.l2 <= self.l1:
-            raise ValueError(
-                f"l2 must be > l1 for a reachable elbow-out workspace, got l1={self.l1}, l2={self.l2}"
-            )
+            raise ValueError(f"l2 must be > l1 for a reachable elbow-out workspace, got l1={self.l1}, l2={self.l2}")
 
     @property
     def r(self) -> float:

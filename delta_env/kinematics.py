@@ -55,12 +55,8 @@ def forward(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
     normal = np.cross(a, b)
     normal_sq = np.sum(normal * normal, axis=-1)
     if np.any(normal_sq < 1e-18):
-        raise ValueError(
-            f"forward kinematics is undefined: elbows are collinear for theta={np.asarray(theta)}"
-        )
-    numerator = np.cross(
-        np.sum(a * a, axis=-1)[..., None] * b - np.sum(b * b, axis=-1)[..., None] * a, normal
-    )
+        raise ValueError(f"forward kinematics is undefined: elbows are collinear for theta={np.asarray(theta)}")
+    numerator = np.cross(np.sum(a * a, axis=-1)[..., None] * b - np.sum(b * b, axis=-1)[..., None] * a, normal)
     centre = p3 + numerator / (2.0 * normal_sq[..., None])
     height_sq = geometry.l2**2 - np.sum((centre - p3) ** 2, axis=-1)
     if np.any(height_sq < 0.0):
@@ -90,9 +86,7 @@ def inverse(geometry: DeltaGeometry, xyz: ArrayLike) -> NDArray[np.float64]:
     if np.any(np.abs(ratio) > 1.0) or np.any(~np.isfinite(ratio)):
         bad = np.argwhere(np.any(~(np.abs(ratio) <= 1.0), axis=-1))
         point = xyz[tuple(bad[0])] if bad.size else xyz
-        raise ValueError(
-            f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}"
-        )
+        raise ValueError(f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}")
     return np.arctan2(q, p) + np.arccos(ratio)
 
 

@@ -252,9 +252,7 @@ WORKSPACE_LIMITS = WorkspaceLimits()
 """Default workspace limits for the nominal geometry."""
 
 
-def admissible(
-    geometry: DeltaGeometry, xyz: ArrayLike, limits: WorkspaceLimits = WORKSPACE_LIMITS
-) -> NDArray:
+def admissible(geometry: DeltaGeometry, xyz: ArrayLike, limits: WorkspaceLimits = WORKSPACE_LIMITS) -> NDArray:
     """Whether platform positions lie inside ``limits`` (reachable, within margins).
 
     Args:
@@ -671,35 +669,25 @@ def _why_not_admissible(geometry: DeltaGeometry, point: np.ndarray, limits: Work
     if measures.min_abs_k < limits.min_abs_k:
         return f"near a serial singularity: min |k_i| = {measures.min_abs_k:.3g} m^2/rad < {limits.min_abs_k}"
     if abs(measures.det_a) < limits.min_abs_det_a:
-        return (
-            f"near a parallel singularity: |det A| = {abs(measures.det_a):.3g} m^3 < {limits.min_abs_det_a}"
-        )
+        return f"near a parallel singularity: |det A| = {abs(measures.det_a):.3g} m^3 < {limits.min_abs_det_a}"
     return ""
 
 
-def _require_admissible(
-    geometry: DeltaGeometry, points: np.ndarray, limits: WorkspaceLimits, what: str
-) -> None:
+def _require_admissible(geometry: DeltaGeometry, points: np.ndarray, limits: WorkspaceLimits, what: str) -> None:
     inside = admissible(geometry, points, limits).reshape(-1)
     if not np.all(inside):
         point = points.reshape(-1, 3)[np.argmin(inside)]
         reason = _why_not_admissible(geometry, point, limits)
-        raise ValueError(
-            f"{what} {(np.round(point, 4) + 0.0).tolist()} m is not admissible: {reason} ({limits})"
-        )
+        raise ValueError(f"{what} {(np.round(point, 4) + 0.0).tolist()} m is not admissible: {reason} ({limits})")
 
 
-def _segment_admissible(
-    geometry: DeltaGeometry, start: np.ndarray, end: np.ndarray, limits: WorkspaceLimits
-) -> bool:
+def _segment_admissible(geometry: DeltaGeometry, start: np.ndarray, end: np.ndarray, limits: WorkspaceLimits) -> bool:
     count = max(2, math.ceil(float(np.linalg.norm(end - start)) / _CHECK_SPACING) + 1)
     points = start + np.linspace(0.0, 1.0, count)[:, None] * (end - start)
     return bool(np.all(admissible(geometry, points, limits)))
 
 
-def _edge_point(
-    geometry: DeltaGeometry, rng: np.random.Generator, limits: WorkspaceLimits
-) -> np.ndarray | None:
+def _edge_point(geometry: DeltaGeometry, rng: np.random.Generator, limits: WorkspaceLimits) -> np.ndarray | None:
     """A point on the boundary of ``limits`` along a random horizontal ray from the z axis, or None."""
     z = rng.uniform(limits.z_min, limits.z_max)
     direction = np.array([*_unit_circle(rng.uniform(0.0, 2.0 * math.pi)), 0.0])
@@ -738,9 +726,7 @@ def _fast_target(
             and _segment_admissible(geometry, point, target, limits)
         ):
             return target
-    raise ValueError(
-        f"found no admissible move from {point.tolist()} m in {_MAX_DRAWS} draws; limits {limits}"
-    )
+    raise ValueError(f"found no admissible move from {point.tolist()} m in {_MAX_DRAWS} draws; limits {limits}")
 
 
 def _slow_target(

@@ -72,9 +72,7 @@ def test_lagrange_multipliers_balance_the_platform_and_give_the_torques(payload)
         (m.m1 / 2 + m.m2) * 9.81 * NOMINAL_GEOMETRY.l1,
     )
     expected = inertia * theta_ddot - weight * np.cos(theta) - 2 * k * multipliers
-    assert_allclose(
-        model.inverse_dynamics(theta, theta_dot, theta_ddot, payload=payload), expected, atol=1e-9
-    )
+    assert_allclose(model.inverse_dynamics(theta, theta_dot, theta_ddot, payload=payload), expected, atol=1e-9)
 
 
 @pytest.mark.parametrize(
@@ -135,15 +133,11 @@ def test_power_balances_energy_along_a_fast_move(parameters, payload) -> None:
     p, m, g, l1 = model.parameters, NOMINAL_MASSES, 9.81, NOMINAL_GEOMETRY.l1
     total_mass = m.m0 + payload + 3 * m.m2
     xyz, xyz_dot, _ = kinematics.joint_to_cartesian(NOMINAL_GEOMETRY, theta, theta_dot, theta_ddot)
-    kinetic = 0.5 * total_mass * np.sum(xyz_dot**2, axis=1) + 0.5 * p.rho1 * (
-        m.m1 / 3 + m.m2
-    ) * l1**2 * np.sum(theta_dot**2, axis=1)
-    potential = total_mass * g * xyz[:, 2] - p.rho2 * (m.m1 / 2 + m.m2) * g * l1 * np.sum(
-        np.sin(theta), axis=1
+    kinetic = 0.5 * total_mass * np.sum(xyz_dot**2, axis=1) + 0.5 * p.rho1 * (m.m1 / 3 + m.m2) * l1**2 * np.sum(
+        theta_dot**2, axis=1
     )
-    dissipated = np.sum(
-        np.multiply(p.viscous, theta_dot**2) + np.multiply(p.coulomb, np.abs(theta_dot)), axis=1
-    )
+    potential = total_mass * g * xyz[:, 2] - p.rho2 * (m.m1 / 2 + m.m2) * g * l1 * np.sum(np.sin(theta), axis=1)
+    dissipated = np.sum(np.multiply(p.viscous, theta_dot**2) + np.multiply(p.coulomb, np.abs(theta_dot)), axis=1)
     power = np.sum(model.inverse_dynamics(theta, theta_dot, theta_ddot, payload=payload) * theta_dot, axis=1)
     work = cumulative_simpson(power - dissipated, dx=dt, initial=0.0)
     energy = kinetic + potential
@@ -189,8 +183,7 @@ def test_mkh_matches_mujoco_oracle_on_the_ideal_plant(payload) -> None:
     m = config.masses
     model = DeltaDynamics(config.geometry, m1=m.m1, m2=m.m2, m0=m.m0)
     theta, theta_dot, theta_ddot = (
-        np.concatenate(pair)
-        for pair in zip(random_joint_states(20, seed=6), fast_move(dt=0.005), strict=True)
+        np.concatenate(pair) for pair in zip(random_joint_states(20, seed=6), fast_move(dt=0.005), strict=True)
     )
     expected = InverseDynamicsOracle(config).torques(theta, theta_dot, theta_ddot, payload)
     assert np.abs(expected).max() > 100.0, "the states must load the robot"
@@ -241,9 +234,7 @@ def test_bad_model_parameters_raise(kwargs, name) -> None:
         ModelParameters(**kwargs)
 
 
-@pytest.mark.parametrize(
-    ("kwargs", "name"), [({"m1": -2.0}, "m1"), ({"m0": 0.0}, "m0"), ({"g": np.inf}, "g")]
-)
+@pytest.mark.parametrize(("kwargs", "name"), [({"m1": -2.0}, "m1"), ({"m0": 0.0}, "m0"), ({"g": np.inf}, "g")])
 def test_bad_masses_raise(kwargs, name) -> None:
     arguments = {"geometry": DeltaGeometry(), "m1": 2.0, "m2": 0.2, "m0": 0.8} | kwargs
     with pytest.raises(ValueError, match=name):

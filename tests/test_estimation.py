@@ -16,9 +16,7 @@ from tests.test_dynamics import joint_min_jerk_move, random_joint_states
 DT = 1e-3
 
 
-def textbook_rls(
-    regressors: np.ndarray, outputs: np.ndarray, forgetting_factor: float, p0: float
-) -> np.ndarray:
+def textbook_rls(regressors: np.ndarray, outputs: np.ndarray, forgetting_factor: float, p0: float) -> np.ndarray:
     """Exponentially weighted RLS (Ljung), vector outputs: the estimate after each sample."""
     estimate, p, estimates = np.zeros(1), np.array([[p0]]), []
     for phi, y in zip(regressors, outputs, strict=True):
@@ -73,9 +71,7 @@ def test_payload_rls_is_textbook_rls_with_forgetting(forgetting_factor) -> None:
     rls = PayloadRLS(forgetting_factor=forgetting_factor, noise_std=2.0, initial_variance=4.0)
     estimates = run_rls(rls, phi, y)
     # The Kalman filter's P is the RLS matrix P scaled by the noise variance.
-    assert_allclose(
-        estimates, textbook_rls(phi, y, forgetting_factor, p0=4.0 / 2.0**2), rtol=1e-10, atol=1e-12
-    )
+    assert_allclose(estimates, textbook_rls(phi, y, forgetting_factor, p0=4.0 / 2.0**2), rtol=1e-10, atol=1e-12)
 
 
 @pytest.mark.parametrize("mass", [0.5, 3.8])
@@ -127,9 +123,7 @@ def test_smoother_beats_central_differences(duration) -> None:
     difference_dot = (angles[2:] - angles[:-2]) / (2 * DT)
     difference_ddot = (angles[2:] - 2 * angles[1:-1] + angles[:-2]) / DT**2
     velocity_factor = rms(difference_dot - theta_dot[inner]) / rms(smooth_dot[inner] - theta_dot[inner])
-    acceleration_factor = rms(difference_ddot - theta_ddot[inner]) / rms(
-        smooth_ddot[inner] - theta_ddot[inner]
-    )
+    acceleration_factor = rms(difference_ddot - theta_ddot[inner]) / rms(smooth_ddot[inner] - theta_ddot[inner])
     # Measured: about 9 and 90 (0.002 rad/s and 0.75 rad/s^2 against 0.02 rad/s and 67 rad/s^2).
     assert velocity_factor > 5.0
     assert acceleration_factor > 40.0

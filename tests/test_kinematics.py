@@ -43,8 +43,7 @@ def test_jacobian_matches_finite_differences(geometry: DeltaGeometry) -> None:
     theta = kinematics.inverse(geometry, reachable_points(geometry, 50, seed=1))
     step = 1e-6
     columns = [
-        (kinematics.forward(geometry, theta + step * e) - kinematics.forward(geometry, theta - step * e))
-        / (2 * step)
+        (kinematics.forward(geometry, theta + step * e) - kinematics.forward(geometry, theta - step * e)) / (2 * step)
         for e in np.eye(3)
     ]
     assert_allclose(kinematics.jacobian(geometry, theta), np.stack(columns, axis=-1), atol=1e-8)

@@ -19,9 +19,7 @@ EXCITATION_SECONDS = 4.0
 
 
 @functools.cache
-def build(
-    kind: str, peak_acceleration: float = tr.STANDARD_PEAK_ACCELERATION, dt: float = 1e-3, seed: int = 0
-):
+def build(kind: str, peak_acceleration: float = tr.STANDARD_PEAK_ACCELERATION, dt: float = 1e-3, seed: int = 0):
     """One trajectory of each kind, cached: the tests only read them."""
     rng = np.random.default_rng(seed)
     if kind == "standard":
@@ -268,9 +266,7 @@ def test_concatenate_joins_at_the_shared_rest_sample() -> None:
     joined = tr.concatenate([first, second])
     assert len(joined) == len(first) + len(second) - 1
     assert_array_equal(joined.theta[len(first) :], second.theta[1:])
-    assert_array_equal(
-        joined.pick_indices, np.concatenate((first.pick_indices, second.pick_indices + len(first) - 1))
-    )
+    assert_array_equal(joined.pick_indices, np.concatenate((first.pick_indices, second.pick_indices + len(first) - 1)))
     assert_array_equal(joined.xyz[joined.place_indices[-1]], second.xyz[second.place_indices[0]])
     assert joined.gripper.sum() == first.gripper.sum() + second.gripper.sum()
 
