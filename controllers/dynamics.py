@@ -10,6 +10,18 @@ G_i = -(m1/2 + m2) g l1 cos th_i (theta > 0 turns an arm down, so holding torque
 with A, k from ``delta_env.kinematics.constraint_terms``. MKH is rho1 = rho2 = 1 without friction;
 MId fits (rho1, rho2) and MId+F adds the friction (the paper's eqs. (6) and (8)).
 
+Beyond the paper, ``forearm_rods=True`` treats each forearm pair as homogeneous thin rods of mass 2 m2
+instead of two end points. Both give the same centre-of-mass motion and gravity; the rods have a third of
+the rotational inertia about their centre (2 m2 l2^2 / 12 instead of 2 m2 l2^2 / 4), so the lumped model
+over-counts it by 2 m2 l2^2 / 6. With u_i = x - J'_i (the forearm, |u_i| = l2) that difference adds
+
+    tau_rods = -(m2 / 3) sum_i (d u_dot_i / d thd)^T (u_ddot_i - u_i (u_i . u_ddot_i) / l2^2),
+    d u_dot_i / d thd = J - dJ'_i/dth_i e_i^T,
+
+the virtual work of the missing angular momentum rate of each pair (J: platform Jacobian). This is what
+rho1 cannot absorb: it depends on the platform's motion, not on the joint's alone; on the realistic plant
+it is the largest model error along the payload regressor (the payload estimator's tare).
+
 Every function takes a leading batch shape ``(...)``: joint vectors are ``(..., 3)``.
 """
 
@@ -74,6 +86,8 @@ class DeltaDynamics:
         m0: Platform mass without payload (kg).
         g: Gravitational acceleration (m/s^2), along -z.
         parameters: Identified (rho1, rho2, fv, fc); None gives plain MKH.
+        forearm_rods: Forearm pairs as homogeneous rods rather than lumped end masses (the module
+            docstring); False is the paper's model.
     """
 
     def __init__(
@@ -84,6 +98,8 @@ class DeltaDynamics:
         m0: float,
         g: float = GRAVITY,
         parameters: ModelParameters | None = None,
+        *,
+        forearm_rods: bool = False,
     ) -> None:
         self.geometry = geometry
         self.masses = DeltaMasses(m1=m1, m2=m2, m0=m0)  # validates the masses
@@ -102,17 +118,28 @@ class DeltaDynamics:
         self._coulomb = np.array(self.parameters.coulomb)
         self._has_friction = bool(np.any(self._viscous) or np.any(self._coulomb))
         self._gravity_vector = np.array([0.0, 0.0, self.g])
+        self.forearm_rods = bool(forearm_rods)
+        self._rod_coefficient = -m2 / 3.0 if self.forearm_rods else 0.0
+        """-(2 m2) / 6 (kg): the inertia the lumped pair over-counts, per l2^2."""
 
     @classmethod
-    def nominal(cls, parameters: ModelParameters | None = None) -> DeltaDynamics:
+    def nominal(cls, parameters: ModelParameters | None = None, *, forearm_rods: bool = False) -> DeltaDynamics:
         """The model with the datasheet geometry and masses (DESIGN.md section 4)."""
         m = NOMINAL_MASSES
-        return cls(NOMINAL_GEOMETRY, m1=m.m1, m2=m.m2, m0=m.m0, parameters=parameters)
+        return cls(NOMINAL_GEOMETRY, m1=m.m1, m2=m.m2, m0=m.m0, parameters=parameters, forearm_rods=forearm_rods)
+
+    def with_parameters(self, parameters: ModelParameters | None) -> DeltaDynamics:
+        """The same analytical model (geometry, masses, forearms) with other identified parameters."""
+        m = self.masses
+        return DeltaDynamics(
+            self.geometry, m1=m.m1, m2=m.m2, m0=m.m0, g=self.g, parameters=parameters, forearm_rods=self.forearm_rods
+        )
 
     def __repr__(self) -> str:
         m = self.masses
         return (
-            f"DeltaDynamics({self.geometry}, m1={m.m1}, m2={m.m2}, m0={m.m0}, g={self.g}, parameters={self.parameters})"
+            f"DeltaDynamics({self.geometry}, m1={m.m1}, m2={m.m2}, m0={m.m0}, g={self.g}, "
+            f"parameters={self.parameters}, forearm_rods={self.forearm_rods})"
         )
 
     def inverse_dynamics(
@@ -136,7 +163,11 @@ class DeltaDynamics:
         theta, theta_dot, theta_ddot = _as_floats(theta, theta_dot, theta_ddot)
         solution, k = self._multiplier_basis(theta, theta_dot, theta_ddot)
         # -2 K lambda with lambda = Mt w / 2
-        return self._joint_space_torque(theta, theta_dot, theta_ddot) - total_mass * k * solution
+        return (
+            self._joint_space_torque(theta, theta_dot, theta_ddot)
+            - total_mass * k * solution
+            + self._rods(theta, theta_dot, theta_ddot)
+        )
 
     def inverse_dynamics_virtual_work(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
@@ -152,8 +183,10 @@ class DeltaDynamics:
         _, _, xyz_ddot = kinematics.joint_to_cartesian(self.geometry, theta, theta_dot, theta_ddot)
         jac = kinematics.jacobian(self.geometry, theta)
         platform_force = total_mass * (xyz_ddot + self._gravity_vector)  # N
-        return self._joint_space_torque(theta, theta_dot, theta_ddot) + np.einsum(
-            "...ji,...j->...i", jac, platform_force
+        return (
+            self._joint_space_torque(theta, theta_dot, theta_ddot)
+            + np.einsum("...ji,...j->...i", jac, platform_force)
+            + self._rods(theta, theta_dot, theta_ddot)
         )
 
     def lagrange_multipliers(
@@ -186,12 +219,13 @@ class DeltaDynamics:
 
         Returns:
             rows: ``(..., 3, 4)``, per joint [I thdd_i (N m), G_i (N m), thd_i (rad/s), sign thd_i].
-            known: -2 k_i lambda_i (N m), ``(..., 3)``, the platform's share, which is not scaled.
+            known: -2 k_i lambda_i (N m), ``(..., 3)``, the platform's share, plus the rod correction with
+                ``forearm_rods``: what is not scaled.
         """
         total_mass = self._total_mass(payload)
         theta, theta_dot, theta_ddot = _as_floats(theta, theta_dot, theta_ddot)
         solution, k = self._multiplier_basis(theta, theta_dot, theta_ddot)
-        known = -total_mass * k * solution
+        known = -total_mass * k * solution + self._rods(theta, theta_dot, theta_ddot)
         shape = known.shape
         rows = np.stack(
             (
@@ -303,6 +337,31 @@ class DeltaDynamics:
         tau1 = inertia * u1 + gravity * c1 + fv1 * w1 + fc1 * ((w1 > 0.0) - (w1 < 0.0)) + mass * phi1
         tau2 = inertia * u2 + gravity * c2 + fv2 * w2 + fc2 * ((w2 > 0.0) - (w2 < 0.0)) + mass * phi2
         tau3 = inertia * u3 + gravity * c3 + fv3 * w3 + fc3 * ((w3 > 0.0) - (w3 < 0.0)) + mass * phi3
+
+        if self.forearm_rods:
+            # u_ddot_i = xdd - J'_thth,i thd_i^2 - J'_th,i thdd_i, its part across the rod, then the virtual work
+            # through d u_dot_i / d thd = J - J'_th,i e_i^T (module docstring).
+            ax_, ay_, az_ = fx, fy, fz - self.g
+            inv_l2_sq = 1.0 / (geometry.l2 * geometry.l2)
+            sx = sy = sz = 0.0
+            own = []
+            for (px, py, pz), (cx, cy, cz), (dx, dy, dz), w, u in (
+                ((a1x, a1y, a1z), (c1 * ca1, c1 * sa1, -s1), (s1 * ca1, s1 * sa1, c1), w1, u1),
+                ((a2x, a2y, a2z), (c2 * ca2, c2 * sa2, -s2), (s2 * ca2, s2 * sa2, c2), w2, u2),
+                ((a3x, a3y, a3z), (c3 * ca3, c3 * sa3, -s3), (s3 * ca3, s3 * sa3, c3), w3, u3),
+            ):
+                # J'_thth = -l1 (c ca, c sa, -s) and J'_th = -l1 (s ca, s sa, c).
+                ww, uu = l1 * w * w, l1 * u
+                ux, uy, uz = ax_ + ww * cx + uu * dx, ay_ + ww * cy + uu * dy, az_ + ww * cz + uu * dz
+                along = (px * ux + py * uy + pz * uz) * inv_l2_sq
+                ux, uy, uz = ux - along * px, uy - along * py, uz - along * pz
+                sx, sy, sz = sx + ux, sy + uy, sz + uz
+                own.append(-l1 * (dx * ux + dy * uy + dz * uz))  # J'_th,i . u_ddot_perp_i
+            rod = self._rod_coefficient
+            # J^T s = -K A^{-T} s, as phi.
+            tau1 += rod * (-k1 * inv_det * (g1x * sx + g1y * sy + g1z * sz) - own[0])
+            tau2 += rod * (-k2 * inv_det * (g2x * sx + g2y * sy + g2z * sz) - own[1])
+            tau3 += rod * (-k3 * inv_det * (g3x * sx + g3y * sy + g3z * sz) - own[2])
         return np.array((tau1, tau2, tau3)), np.array((phi1, phi2, phi3))
 
     def _total_mass(self, payload: ArrayLike) -> float | NDArray[np.float64]:
@@ -325,6 +384,28 @@ class DeltaDynamics:
         a, k = kinematics.constraint_terms(self.geometry, xyz, theta)
         rhs = (xyz_ddot + self._gravity_vector)[..., None]
         return np.linalg.solve(np.swapaxes(a, -1, -2), rhs)[..., 0], k
+
+    def _rods(
+        self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64], theta_ddot: NDArray[np.float64]
+    ) -> NDArray[np.float64] | float:
+        """tau_rods (N m), ``(..., 3)``, of the module docstring; 0 for lumped forearms."""
+        if not self.forearm_rods:
+            return 0.0
+        geometry = self.geometry
+        xyz, _, xyz_ddot = kinematics.joint_to_cartesian(geometry, theta, theta_dot, theta_ddot)
+        forearm = xyz[..., None, :] - kinematics.elbow_points(geometry, theta)  # u_i, (..., 3, 3)
+        c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+        azimuth = np.stack((np.cos(CHAIN_AZIMUTHS), np.sin(CHAIN_AZIMUTHS), np.zeros(3)), axis=-1)
+        vertical = np.array([0.0, 0.0, 1.0])
+        elbow_rate = -geometry.l1 * (s * azimuth + c * vertical)  # dJ'_i/dth_i
+        elbow_curvature = -geometry.l1 * (c * azimuth - s * vertical)  # d^2J'_i/dth_i^2
+        forearm_ddot = (
+            xyz_ddot[..., None, :] - elbow_curvature * theta_dot[..., None] ** 2 - elbow_rate * theta_ddot[..., None]
+        )
+        across = forearm_ddot - forearm * (np.sum(forearm * forearm_ddot, axis=-1) / geometry.l2**2)[..., None]
+        jac = kinematics.jacobian(geometry, theta)
+        torque = np.einsum("...ji,...j->...i", jac, across.sum(axis=-2)) - np.sum(elbow_rate * across, axis=-1)
+        return self._rod_coefficient * torque
 
     def _joint_space_torque(
         self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64], theta_ddot: NDArray[np.float64]
