@@ -11,7 +11,9 @@ the same samples:
   per joint the least squares of (fv, fc) on the remaining error, averaged (MId+F);
 - ours: one linear least squares of all parameters [rho1, rho2, fv_1..3, fc_1..3] at once with the
   regressor of ``DeltaDynamics.identification_regressor``, with residual statistics and standard
-  errors; plus a least squares of (rho1, rho2) alone for the MId row.
+  errors; plus a least squares of (rho1, rho2) alone for the MId row;
+- beyond the paper, the same joint least squares on the model with the forearms as rods
+  (``DeltaDynamics(forearm_rods=True)``, MId+F+R), which the payload estimator uses.
 
 The result is a JSON file with provenance, :data:`DEFAULT_PARAMETER_PATH`, that the controllers load
 through :func:`load_or_identify`.
@@ -51,7 +53,7 @@ logger = logging.getLogger(__name__)
 DEFAULT_PARAMETER_PATH = Path("runs/identification/parameters.json")
 """Where :func:`load_or_identify` (and so ``python -m eval``) looks for identified parameters."""
 
-FILE_FORMAT_VERSION = 1
+FILE_FORMAT_VERSION = 2
 """Version of the JSON parameter file; bumped on incompatible changes."""
 
 DEFAULT_TRAJECTORIES = 12
@@ -114,7 +116,7 @@ JOINT_PARAMETER_NAMES = (
 )
 """Order of the parameters of the joint least squares (units: -, -, N m s/rad x3, N m x3)."""
 
-MODEL_FIELDS = ("mid", "mid_f", "paper_mid", "paper_mid_f")
+MODEL_FIELDS = ("mid", "mid_f", "mid_f_rods", "paper_mid", "paper_mid_f")
 """The parameter sets of an :class:`IdentificationResult`, in the order of the JSON file."""
 
 _MAX_CONDITION = 1e10  # of the scaled normal equations; beyond it the data do not determine the parameters
@@ -321,9 +323,7 @@ def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> Mot
 
 
 def _model(dynamics: DeltaDynamics | None, parameters: ModelParameters | None = None) -> DeltaDynamics:
-    base = DeltaDynamics.nominal() if dynamics is None else dynamics
-    m = base.masses
-    return DeltaDynamics(base.geometry, m1=m.m1, m2=m.m2, m0=m.m0, g=base.g, parameters=parameters)
+    return (DeltaDynamics.nominal() if dynamics is None else dynamics).with_parameters(parameters)
 
 
 def _regressor(data: MotionData, dynamics: DeltaDynamics | None) -> tuple[NDArray, NDArray]:
@@ -670,6 +670,8 @@ class IdentificationResult:
     Attributes:
         mid: MId by least squares of (rho1, rho2) alone (no friction).
         mid_f: MId+F by the joint least squares of all parameters (ours).
+        mid_f_rods: MId+F+R: the same least squares on the model with rod forearms
+            (``DeltaDynamics.nominal(mid_f_rods, forearm_rods=True)``).
         paper_mid: MId by the paper's grid search, averaged over trajectories.
         paper_mid_f: MId+F by the paper's method (grid rho + per-joint friction LS, averaged).
         standard_errors: Standard errors of the least-squares estimates, keyed ``"mid.rho1"``,
@@ -681,6 +683,7 @@ class IdentificationResult:
 
     mid: ModelParameters
     mid_f: ModelParameters
+    mid_f_rods: ModelParameters
     paper_mid: ModelParameters
     paper_mid_f: ModelParameters
     standard_errors: dict[str, float]
@@ -695,13 +698,15 @@ class IdentificationRun:
         result: The identified parameters.
         data: Samples of the identification trajectories.
         validation: Samples of the held-out free-motion stress trajectory.
-        models: The models compared on it (Table 1 rows), by name.
+        models: The paper's model (lumped forearms) with the parameters compared on it (Table 1 rows), by name.
+        rod_models: The same for the model with rod forearms.
     """
 
     result: IdentificationResult
     data: tuple[MotionData, ...]
     validation: MotionData
     models: dict[str, ModelParameters]
+    rod_models: dict[str, ModelParameters]
 
 
 def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
@@ -800,6 +805,8 @@ def run_identification(
 
     (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data))
     paper, paper_time = _best_time(lambda: fit_paper_method(data))
+    rods = DeltaDynamics.nominal(forearm_rods=True)
+    rod_fit = fit_joint_least_squares(data, dynamics=rods)
 
     models = {
         "MKH": ModelParameters(),
@@ -808,8 +815,9 @@ def run_identification(
         "MId (LS)": rho_fit.parameters,
         "MId+F (joint LS)": joint_fit.parameters,
     }
-    validation_table = error_table(models, validation)
-    training_table = error_table(models, _concatenate(data))
+    rod_models = {"MId+F+R (joint LS)": rod_fit.parameters}
+    validation_table = error_table(models, validation) | error_table(rod_models, validation, rods)
+    training_table = error_table(models, _concatenate(data)) | error_table(rod_models, _concatenate(data), rods)
     provenance = {
         "method": {
             "data": "excitation trajectories in closed loop (PD + MKH feedforward) on the plant; encoder angles "
@@ -819,6 +827,7 @@ def run_identification(
             f"|theta_dot_i| <= {FRICTION_VELOCITY_THRESHOLD} rad/s left out (static and Stribeck friction)",
             "paper_mid": "per-trajectory grid search of (rho1, rho2) minimising RMS torque error (eq. 7), averaged",
             "paper_mid_f": "paper_mid rho + per-trajectory, per-joint LS of (fv, fc) on the remaining error, averaged",
+            "mid_f_rods": "the mid_f least squares on the model with homogeneous rod forearms (forearm_rods=True)",
             "sample_period_s": CONTROL_PERIOD,
             "velocity_threshold_rad_s": FRICTION_VELOCITY_THRESHOLD,
             "rest_velocity_rad_s": REST_VELOCITY,
@@ -838,10 +847,11 @@ def run_identification(
             "total": sum(len(d) for d in data),
             "validation": len(validation),
         },
-        "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary()},
+        "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary(), "mid_f_rods": rod_fit.summary()},
         "mid_f_between_trajectories": _between_trajectory_errors(data),
         "raw_estimates": {
             "mid_f": dict(zip(joint_fit.names, joint_fit.estimate, strict=True)),
+            "mid_f_rods": dict(zip(rod_fit.names, rod_fit.estimate, strict=True)),
             "paper_per_trajectory": {
                 "rho": paper.rho.tolist(),
                 "viscous": paper.viscous.tolist(),
@@ -864,12 +874,15 @@ def run_identification(
     result = IdentificationResult(
         mid=rho_fit.parameters,
         mid_f=joint_fit.parameters,
+        mid_f_rods=rod_fit.parameters,
         paper_mid=paper.mid,
         paper_mid_f=paper.mid_f,
-        standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit}),
+        standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
         provenance=provenance,
     )
-    return IdentificationRun(result=result, data=tuple(data), validation=validation, models=models)
+    return IdentificationRun(
+        result=result, data=tuple(data), validation=validation, models=models, rod_models=rod_models
+    )
 
 
 def identify(
@@ -994,7 +1007,10 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     document = _require_mapping(path, document, "the file")
     version = _require_key(path, document, "format_version", "the file")
     if version != FILE_FORMAT_VERSION:
-        raise ParameterFileError(f"{path}: format_version {version!r} is not {FILE_FORMAT_VERSION}")
+        raise ParameterFileError(
+            f"{path}: format_version {version!r} is not {FILE_FORMAT_VERSION}; delete the file or run "
+            "`python -m controllers.identify` to identify again"
+        )
     models = {name: _model_from_json(path, document, name) for name in MODEL_FIELDS}
     errors = _require_mapping(path, _require_key(path, document, "standard_errors", "the file"), "standard_errors")
     standard_errors = {}
