@@ -1,6 +1,6 @@
 """``python -m eval``: every controller on the same seeded pick-and-place episodes (DESIGN.md section 8).
 
-1. Loads the identified MId and MId+F parameters (``controllers.identification.load_or_identify``; it
+1. Loads the identified MId, MId+F and MId+F+R parameters (``controllers.identification.load_or_identify``; it
    identifies and caches them when the file is missing, about a minute).
 2. Tares each payload estimator: its controller runs ``--calibration-episodes`` pick-and-place episodes
    with nothing to pick (0 kg objects, seeds of their own), and the apparent payload of the empty gripper
@@ -8,9 +8,9 @@
 3. Runs every controller on episodes ``seed, seed + 1, ...`` of the default env (realistic plant, 3 g
    conveyor cycles, objects drawn from U[0, 4] kg): the same paths and objects for all.
    The ``residual`` row is the learned residual policy (``--residual``, by default the shipped one) on
-   top of the ``mid_f_rls`` controller of this run, tare included.
-4. Runs the Table 2 analogue: MId+F+RLS on the path of the first episode with every object 3.8 kg; the
-   measured torques against MId+F with mp = 0 and with mp = m_hat.
+   the base it was trained on, rebuilt from the policy file.
+4. Runs the Table 2 analogue: MId+F+R+RLS on the path of the first episode with every object 3.8 kg; the
+   measured torques against MId+F+R with mp = 0 and with mp = m_hat.
 5. Writes the run folder (``--out``): ``config.json`` (resolved configuration and command),
    ``episodes.csv`` and ``carries.csv`` (per episode and per carried object), ``table2.csv``,
    ``traces.npz`` and ``table2_run.npz`` (time series), ``summary.md`` and the plots made from these
@@ -37,7 +37,6 @@ from typing import Any
 
 import numpy as np
 
-from controllers.dynamics import DeltaDynamics
 from controllers.identification import DEFAULT_PARAMETER_PATH, load_or_identify
 from controllers.payload import tare_from_observations
 from controllers.provenance import command_line, package_versions
@@ -50,6 +49,7 @@ from eval.episodes import (
     ESTIMATOR_REGRESSORS,
     ControllerSetup,
     EpisodeRecord,
+    estimation_model,
     payload_estimator,
 )
 from eval.tasks import Task, run_tasks
@@ -58,7 +58,7 @@ CALIBRATION_SEED_OFFSET = 100_000
 """Calibration (tare) episodes use seeds seed + 100000 + j: paths and noise unlike the evaluation's."""
 
 TABLE2_KEY = "mid_f_rls"
-"""The controller of the Table 2 run: MId+F with the default payload estimator."""
+"""The controller of the Table 2 run: MId+F+R with the default payload estimator."""
 
 TABLE2_PAYLOAD = 3.8
 """Mass of every object in the Table 2 run (kg), the paper's test payload."""
@@ -251,11 +251,11 @@ def run_all(
     total = len(first) + args.episodes * (len(keys) - len(untared)) + 1
     with tqdm(total=total, desc="episodes", unit="ep") as progress:
         results = run_tasks(first, args.workers, progress)
-        mid_f = DeltaDynamics.nominal(setup.mid_f)
+        model = estimation_model(setup)
         tares, spreads = {}, {}
         for key in tared:
             observed = [rec.observations for task, rec in results if task.kind == "calibration" and task.key == key]
-            tares[key], spreads[key] = tare_from_observations(payload_estimator(key, mid_f), observed)
+            tares[key], spreads[key] = tare_from_observations(payload_estimator(key, model), observed)
         tared_setup = dataclasses.replace(setup, tares=tares)
         table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, (TABLE2_PAYLOAD,) * args.cycles)
         second = [*episodes([key for key in keys if key not in untared], tared_setup), table2]
@@ -317,12 +317,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     identification = load_or_identify(args.parameters)
     identified_time = time.perf_counter() - started
-    setup = ControllerSetup(mid=identification.mid, mid_f=identification.mid_f, residual_policy=args.residual)
+    setup = ControllerSetup(
+        mid=identification.mid,
+        mid_f=identification.mid_f,
+        mid_f_rods=identification.mid_f_rods,
+        residual_policy=args.residual,
+    )
     keys = args.controllers
     results, tares, tare_spreads = run_all(args, setup)
     episode_rows, carry_rows, traces = tabulate(results, keys)
     table2_record = next(record for task, record in results if task.kind == "table2")
-    model_torques = table2_record.model_torques(DeltaDynamics.nominal(identification.mid_f), tares[TABLE2_KEY])
+    model_torques = table2_record.model_torques(estimation_model(setup), tares[TABLE2_KEY])
     table2_rows = table2_statistics(model_torques)
 
     _write_csv(out / "episodes.csv", episode_rows)
@@ -359,6 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "path": str(args.parameters),
             "mid": dataclasses.asdict(identification.mid),
             "mid_f": dataclasses.asdict(identification.mid_f),
+            "mid_f_rods": dataclasses.asdict(identification.mid_f_rods),
             "provenance": identification.provenance,
         },
         "tare_kg": tares,
@@ -380,7 +386,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             _controller_table(episode_rows, carry_rows),
             "",
             f"## Table 2 analogue: {CONTROLLER_LABELS[TABLE2_KEY]}, every object {TABLE2_PAYLOAD} kg, "
-            "tau_measured - tau_MId+F",
+            "tau_measured - tau_MId+F+R",
             "",
             _table2(table2_rows),
             "",

@@ -31,15 +31,18 @@ CONTROLLER_LABELS = {
     "mkh": "MKH+PD",
     "mid": "MId+PD",
     "mid_f": "MId+F+PD",
-    "mid_f_rls": "MId+F+RLS+PD",
-    "mid_f_rls_ref": "MId+F+RLS(ref)+PD",
+    "mid_f_r": "MId+F+R+PD",
+    "mid_f_rls": "MId+F+R+RLS+PD",
+    "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
     "oracle": "Oracle+PD (bound)",
     "residual": "MId+F+RLS+PD + residual",
 }
-"""Controller keys of ``--controllers`` and their labels. ``mid_f_rls`` estimates the payload on the
-Kalman-filtered joint states (the default estimator); ``mid_f_rls_ref`` on the reference, for comparison.
-The oracle knows the plant and the true payloads: an upper bound, not a controller. ``residual`` adds the
-learned residual policy (``controllers.residual``) to the ``mid_f_rls`` controller of the same run."""
+"""Controller keys of ``--controllers`` and their labels. ``+R``: the identified model with rod forearms
+(``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
+estimates the payload on the Kalman-filtered joint states (the default estimator); ``mid_f_rls_ref`` on the
+reference, for comparison. The oracle knows the plant and the true payloads: an upper bound, not a
+controller. ``residual`` is the learned residual policy (``controllers.residual``) on the base it was
+trained on, rebuilt from the policy file: MId+F (lumped forearms) + RLS with the stored parameters and tare."""
 
 SMOOTHER_TRIM = 50
 """Samples dropped at each end of a smoothed record (50 ms): the RTS smoother sees one side only there."""
@@ -50,9 +53,6 @@ ESTIMATOR_REGRESSORS = {"mid_f_rls": "filtered", "mid_f_rls_ref": "reference"}
 ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
 """Controllers that estimate the payload (and so need a tare): the RLS rows and the residual on top of one."""
 
-RESIDUAL_BASE_KEY = "mid_f_rls"
-"""The row whose controller the residual policy corrects."""
-
 
 @dataclass(frozen=True)
 class ControllerSetup:
@@ -61,6 +61,7 @@ class ControllerSetup:
     Attributes:
         mid: Identified MId parameters (rho1, rho2).
         mid_f: Identified MId+F parameters (rho1, rho2, friction).
+        mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
         tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
         residual_policy: The residual policy file of the ``residual`` row.
@@ -68,6 +69,7 @@ class ControllerSetup:
 
     mid: ModelParameters
     mid_f: ModelParameters
+    mid_f_rods: ModelParameters
     tares: Mapping[str, float] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (3000.0, 60.0)
     residual_policy: Path = DEFAULT_POLICY_PATH
@@ -87,17 +89,24 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
     if key == "pd":
         return pd
     if key == "residual":
-        return load_residual_controller(setup.residual_policy, base=build_controller(RESIDUAL_BASE_KEY, setup))
+        return load_residual_controller(setup.residual_policy, name=CONTROLLER_LABELS[key])
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")
         return OracleController(env.plant_config, pd=pd)
-    parameters = {"mkh": None, "mid": setup.mid}.get(key, setup.mid_f)
-    dynamics = DeltaDynamics.nominal(parameters)
+    if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
+        dynamics = estimation_model(setup)
+    else:
+        dynamics = DeltaDynamics.nominal({"mkh": None, "mid": setup.mid}.get(key, setup.mid_f))
     estimator = None
     if key in ESTIMATOR_REGRESSORS:
         estimator = payload_estimator(key, dynamics, setup.tares.get(key, 0.0))
     return FeedforwardController(CONTROLLER_LABELS[key], dynamics, pd=pd, estimator=estimator)
+
+
+def estimation_model(setup: ControllerSetup) -> DeltaDynamics:
+    """MId+F+R: the identified model with rod forearms, of the payload estimators and their feedforward."""
+    return DeltaDynamics.nominal(setup.mid_f_rods, forearm_rods=True)
 
 
 def payload_estimator(key: str, dynamics: DeltaDynamics, tare: float = 0.0) -> PayloadEstimator:

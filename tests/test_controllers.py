@@ -22,15 +22,17 @@ from eval.episodes import (
     ControllerSetup,
     EpisodeRecord,
     build_controller,
+    estimation_model,
     payload_estimator,
     run_episode,
 )
 from tests.test_dynamics import IDENTIFIED, random_joint_states
 
 
+@pytest.mark.parametrize("forearm_rods", [False, True])
 @pytest.mark.parametrize("parameters", [None, IDENTIFIED])
-def test_single_sample_model_equals_the_batched_model(parameters: ModelParameters | None) -> None:
-    model = DeltaDynamics.nominal(parameters)
+def test_single_sample_model_equals_the_batched_model(parameters: ModelParameters | None, forearm_rods: bool) -> None:
+    model = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
     theta, theta_dot, theta_ddot = random_joint_states(300, seed=11)
     theta_dot[:10, 1] = 0.0  # sign(0) = 0 in both paths
     tau0 = model.inverse_dynamics(theta, theta_dot, theta_ddot)
@@ -62,7 +64,8 @@ def test_single_sample_model_rejects_bad_states(l2: float, theta: list[float], m
 # MId and MId+F as identified on the default realistic plant (python -m controllers.identify, seed 0),
 # rounded: the tests do not wait a minute for the identification.
 MID_F = ModelParameters(rho1=1.76, rho2=0.877, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46))
-SETUP = ControllerSetup(mid=ModelParameters(rho1=1.80, rho2=0.936), mid_f=MID_F)
+MID_F_RODS = ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59))
+SETUP = ControllerSetup(mid=ModelParameters(rho1=1.80, rho2=0.936), mid_f=MID_F, mid_f_rods=MID_F_RODS)
 EPISODE_SEED, CALIBRATION_SEED = 3, 1003
 RLS_KEYS = sorted(ESTIMATOR_REGRESSORS)
 
@@ -71,7 +74,7 @@ def tare(key: str, n_cycles: int = 1) -> float:
     """The estimator's tare from one payload-free calibration episode."""
     env = DeltaPickPlaceEnv(n_cycles=n_cycles)
     record = run_episode(env, build_controller(key, SETUP), CALIBRATION_SEED, [0.0] * n_cycles, keep_observations=True)
-    value, _ = tare_from_observations(payload_estimator(key, DeltaDynamics.nominal(MID_F)), [record.observations])
+    value, _ = tare_from_observations(payload_estimator(key, estimation_model(SETUP)), [record.observations])
     return value
 
 
@@ -111,11 +114,11 @@ def test_payload_rls_tracks_within_targets(key: str, records: dict[str, EpisodeR
 @pytest.mark.parametrize(
     ("variant", "masses", "deadline_ms"),
     [
-        # Measured: 84 and 130 ms, end errors +0.96 and -0.78 %.
+        # Measured: 77 and 76 ms, end errors -0.76 and -1.56 %.
         ("realistic", (3.8, 1.0), 150.0),
-        # The known gap: +-5 % of 0.5 kg is 25 g, the size of MId+F's path-dependent error along phi after
-        # the tare. Measured over 24 carries of 0.5 kg: median 321 ms, max 406 ms (1 kg: 23/24 by 150 ms).
-        ("realistic", (0.5,), 450.0),
+        # Measured: 139 ms, -2.2 %. +-5 % of 0.5 kg is 25 g: over 24 seeded carries of 0.5 kg, 20 settle by
+        # 150 ms (median 126 ms, max 304 ms); 1 kg: 24/24 (max 141 ms).
+        ("realistic", (0.5,), 150.0),
         # MKH is exact on the ideal plant: no tare, no friction. Measured: 80 and 125 ms, -0.02 and +0.2 %.
         ("ideal", (2.0, 0.5), 150.0),
     ],
@@ -129,7 +132,7 @@ def test_rls_converges_to_the_true_payload_on_the_plant(
         estimator, tolerance = PayloadEstimator(dynamics), 0.01
     else:
         env = DeltaPickPlaceEnv(n_cycles=len(masses))
-        dynamics = DeltaDynamics.nominal(MID_F)
+        dynamics = estimation_model(SETUP)
         estimator, tolerance = PayloadEstimator(dynamics, tare=tare("mid_f_rls")), 0.05
     controller = FeedforwardController("MId+F+RLS", dynamics, estimator=estimator)
     record = run_episode(env, controller, seed=8, payload_masses=masses)
