@@ -18,22 +18,25 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured
   run, 50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by
   whitening (dividing phi_i and y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
-- **Lag between the model and the measurement.** The causal Kalman filter
-  (:class:`~controllers.estimation.JointStateFilter`) estimates angle and rate without lag but the
-  acceleration about 3 ms late (:func:`acceleration_lag`; a 10 rad/s^2 error at the 3 g jerk, several
-  N m of inertia torque), and the torque of observation k is measured half a period before its encoder
-  sample. With ``regressor="filtered"`` (the default) the model is evaluated at the consistent state
-  (theta_{k-D}, theta_dot_{k-D}, theta_ddot_k), D = the acceleration lag in samples, and compared with the
-  torque measured with sample k - D: measured over pick cycles this cut the scatter of the first 150 ms
-  estimate from carry to carry from 0.066 to 0.013 kg, as good as the plant's exact states.
+- **Joint states.** With ``regressor="smoothed"`` (the default) tau0 and phi are evaluated on the
+  fixed-lag Kalman smoother's estimate of sample k - L (:class:`~controllers.estimation.JointStateSmoother`,
+  L = 5 ms) and compared with the torque measured with that sample. ``regressor="filtered"`` uses the
+  causal Kalman filter (:class:`~controllers.estimation.JointStateFilter`) instead, which estimates angle
+  and rate without lag but the acceleration about 3 ms late (:func:`acceleration_lag`): the model is
+  evaluated at (theta_{k-D}, theta_dot_{k-D}, theta_ddot_k), D = that lag in samples, with the torque of
+  sample k - D. That alignment is exact for a constant jerk only; where the jerk changes, the filter's
+  acceleration error has another shape, which biased 0.5 kg estimates by up to 6 % for 100 ms and more in
+  the middle of a carry (over 24 seeded carries, 20 settled to +-5 % by 150 ms, the worst at 304 ms; with
+  the smoother 23, the worst at 157 ms).
   ``regressor="reference"`` evaluates tau0 and phi on the reference instead (interpolated half a period
   back to the torque sample): no lag and no noise, but it silently assumes the robot is where the
   reference is, so the tracking transient right after a pick (the payload not yet fed forward) biases
   the estimate when it matters most; ``python -m eval`` runs both.
-- **Model error along phi (the tare).** MId+F has no platform parameter, and it lumps each forearm pair
-  into two point masses (more inertia than two rods): even at the plant's exact states it needs about
-  -0.1 kg of payload to match the plant with an empty gripper, on every pick path (scatter 0.013 kg from
-  carry to carry). Like a scale, the estimator is tared: the apparent
+- **Model error along phi (the tare).** The model should have the forearm pairs as rods (MId+F+R,
+  ``DeltaDynamics(forearm_rods=True)``): MId+F lumps each pair into two point masses, more inertia than two
+  rods, so even at the plant's exact states it needs -0.1 kg of payload to match the plant with an empty
+  gripper, and how much depends on the path (+0.3 kg in the first 30 ms of a lift). With MId+F+R the tare
+  is 0.00 to -0.03 kg. Like a scale, the estimator is tared all the same: the apparent
   payload with nothing picked is measured on payload-free pick cycles (:func:`tare_from_observations`)
   and subtracted from the estimate; the feedforward keeps the apparent mass, which is what the model
   needs.
@@ -59,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import CONTROL_PERIOD, JointStateFilter, PayloadRLS
+from controllers.estimation import CONTROL_PERIOD, JointStateFilter, JointStateSmoother, PayloadRLS
 
 RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
@@ -134,9 +137,10 @@ class PayloadEstimator:
 
     Args:
         dynamics: The identified model (MId+F) whose torque at mp = 0 is subtracted.
-        regressor: ``"filtered"`` evaluates tau0 and phi on the :class:`JointStateFilter` estimate of the
-            measured joints, aligned with its acceleration lag; ``"reference"`` on the reference
-            interpolated to the torque sample (see the module docstring).
+        regressor: ``"smoothed"`` evaluates tau0 and phi on the :class:`JointStateSmoother` estimate of
+            the measured joints; ``"filtered"`` on the :class:`JointStateFilter` estimate, aligned with its
+            acceleration lag; ``"reference"`` on the reference interpolated to the torque sample (see the
+            module docstring).
         tare: Apparent payload of the empty gripper (kg), from :func:`tare_from_observations` on
             payload-free pick cycles; 0 trusts the model.
         nominal_std: Residual standard deviation while moving (N m).
@@ -149,15 +153,17 @@ class PayloadEstimator:
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
-        joint_filter: The :class:`JointStateFilter` (``regressor="filtered"`` only, else None).
-        delay: D, the filter's acceleration lag in control periods (0 with ``regressor="reference"``).
+        joint_filter: The :class:`JointStateSmoother` or :class:`JointStateFilter` of the measured joints
+            (None with ``regressor="reference"``).
+        delay: Control periods between the newest observation and the sample whose equation is formed: the
+            smoother's lag, the filter's acceleration lag, or 0 with ``regressor="reference"``.
     """
 
     def __init__(
         self,
         dynamics: DeltaDynamics,
         *,
-        regressor: Literal["filtered", "reference"] = "filtered",
+        regressor: Literal["smoothed", "filtered", "reference"] = "smoothed",
         tare: float = 0.0,
         nominal_std: float = RESIDUAL_STD,
         static_friction: tuple[float, float, float] | None = None,
@@ -166,8 +172,8 @@ class PayloadEstimator:
         forgetting_factor: float = 0.999,
         prior_variance: float = PICK_PRIOR_VARIANCE,
     ) -> None:
-        if regressor not in ("reference", "filtered"):
-            raise ValueError(f"regressor must be 'reference' or 'filtered', got {regressor!r}")
+        if regressor not in ("smoothed", "filtered", "reference"):
+            raise ValueError(f"regressor must be 'smoothed', 'filtered' or 'reference', got {regressor!r}")
         positive = (
             ("nominal_std", nominal_std),
             ("friction_velocity", friction_velocity),
@@ -191,10 +197,16 @@ class PayloadEstimator:
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
-        self.joint_filter = JointStateFilter() if regressor == "filtered" else None
-        self.delay = 0 if self.joint_filter is None else round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
-        # (theta, theta_dot, measured torque, gripper holding) of the last D + 1 samples.
-        self._history: collections.deque[tuple[NDArray, NDArray, NDArray, bool]] = collections.deque(
+        self.joint_filter: JointStateSmoother | JointStateFilter | None = None
+        self.delay = 0
+        if regressor == "smoothed":
+            self.joint_filter = JointStateSmoother()
+            self.delay = self.joint_filter.lag
+        elif regressor == "filtered":
+            self.joint_filter = JointStateFilter()
+            self.delay = round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
+        # (joint-state estimate, measured torque, gripper holding) of the last D + 1 samples.
+        self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray], NDArray, bool]] = collections.deque(
             maxlen=self.delay + 1
         )
         # Hot-path constants as Python floats: the band's standard deviation sqrt(n_c) f_i.
@@ -286,12 +298,19 @@ class PayloadEstimator:
             if not self._filter_started:
                 self.joint_filter.reset(angles)
                 self._filter_started = True
-            theta, theta_dot, theta_ddot = self.joint_filter.update(angles)
-            self._history.append((theta, theta_dot, np.array(observation["joint_torques"]), holding))
-            # The acceleration estimate of now belongs to the angles, rates and torque of D samples ago.
-            theta, theta_dot, torque, held = self._history[0]
-            if not (holding and held) or len(self._history) <= self.delay:
+            estimate = self.joint_filter.update(angles)
+            self._history.append((estimate, np.array(observation["joint_torques"]), holding))
+            if len(self._history) <= self.delay:
                 return None
+            # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
+            # estimate with its angles and rates of D samples ago, and the torque measured then.
+            delayed, torque, held = self._history[0]
+            if not (holding and held):
+                return None
+            if self.regressor == "smoothed":
+                theta, theta_dot, theta_ddot = estimate
+            else:
+                (theta, theta_dot, _), theta_ddot = delayed, estimate[2]
             tau0, phi = self.dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
             rates = theta_dot.tolist()
 

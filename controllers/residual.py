@@ -1,6 +1,6 @@
 """Residual policy on top of a model-based controller (DESIGN.md section 6, issue 5).
 
-A base controller (by default MId+F feedforward + PD with the payload RLS) runs at 1 kHz; a learned
+A base controller (by default MId+F+R feedforward + PD with the payload RLS) runs at 1 kHz; a learned
 policy adds ``residual_limit * a`` with ``a`` in [-1, 1]^3, chosen every ``action_period`` control
 steps and held in between (100 Hz by default).
 
@@ -22,7 +22,7 @@ import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -245,20 +245,30 @@ class ResidualFeatures:
         return np.clip(vector, -_FEATURE_CLIP, _FEATURE_CLIP).astype(np.float32)
 
 
-BASE_NAME = "MId+F+RLS+PD"
-"""Label of the default base controller, as in ``python -m eval``'s ``mid_f_rls`` row."""
+def base_name(forearm_rods: bool) -> str:
+    """Label of the default base controller, as the ``mid_f_rls`` row of ``python -m eval`` names it."""
+    return "MId+F+R+RLS+PD" if forearm_rods else "MId+F+RLS+PD"
 
 
-def default_base_controller(parameters: ModelParameters | None = None, tare: float = 0.0) -> Controller:
-    """The base controller of the residual: MId+F feedforward + PD with the online payload RLS.
+def default_base_controller(
+    parameters: ModelParameters | None = None,
+    tare: float = 0.0,
+    *,
+    forearm_rods: bool = True,
+    regressor: Literal["smoothed", "filtered", "reference"] = "smoothed",
+) -> Controller:
+    """The base controller of the residual: identified-model feedforward + PD with the online payload RLS.
 
-    The eval's ``mid_f_rls`` row: PD gains 3000 N m/rad and 60 N m s/rad, the payload estimated on the
-    Kalman-filtered joint states.
+    By default the eval's ``mid_f_rls`` row: MId+F+R, PD gains 3000 N m/rad and 60 N m s/rad, the payload
+    estimated on the fixed-lag smoothed joint states. Policies trained before MId+F+R existed used
+    ``forearm_rods=False, regressor="filtered"`` (their files say so, see :class:`BaseSetup`).
 
     Args:
-        parameters: Identified MId+F parameters; None loads them with
+        parameters: Identified parameters of the model; None loads them with
             ``controllers.identification.load_or_identify()`` (the project's parameter file).
         tare: Apparent payload of the empty gripper (kg), see ``controllers.payload.tare_from_observations``.
+        forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
+        regressor: Joint states of the payload estimator (``controllers.payload.PayloadEstimator``).
     """
     from controllers.feedforward import FeedforwardController
     from controllers.payload import PayloadEstimator
@@ -266,11 +276,11 @@ def default_base_controller(parameters: ModelParameters | None = None, tare: flo
     if parameters is None:
         from controllers.identification import load_or_identify
 
-        parameters = load_or_identify().mid_f
-    dynamics = DeltaDynamics.nominal(parameters)
-    return FeedforwardController(
-        BASE_NAME, dynamics, pd=PDController(), estimator=PayloadEstimator(dynamics, tare=tare)
-    )
+        identified = load_or_identify()
+        parameters = identified.mid_f_rods if forearm_rods else identified.mid_f
+    dynamics = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
+    estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare)
+    return FeedforwardController(base_name(forearm_rods), dynamics, pd=PDController(), estimator=estimator)
 
 
 class DeltaResidualEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -309,7 +319,7 @@ class DeltaResidualEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     ## Arguments
     Args:
-        base: The base controller; None builds :func:`default_base_controller` (MId+F + RLS).
+        base: The base controller; None builds :func:`default_base_controller` (MId+F+R + RLS).
         config: Residual settings; None uses :class:`ResidualConfig` defaults.
         env: The plant env to wrap; None builds ``DeltaPickPlaceEnv(**env_kwargs)``.
         **env_kwargs: Keyword arguments of :class:`~delta_env.env.DeltaPickPlaceEnv` (only without ``env``).
@@ -517,22 +527,34 @@ def save_residual_policy(
 
 @dataclass(frozen=True)
 class BaseSetup:
-    """What the default base controller was built from: identified MId+F parameters and the RLS tare.
+    """What the default base controller was built from: model, identified parameters, estimator and tare.
 
     Attributes:
-        parameters: Identified MId+F parameters.
+        parameters: Identified parameters of the model.
         tare: Apparent payload of the empty gripper (kg).
+        forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
+        regressor: Joint states of the payload estimator.
     """
 
     parameters: ModelParameters
     tare: float = 0.0
+    forearm_rods: bool = True
+    regressor: Literal["smoothed", "filtered", "reference"] = "smoothed"
 
     def controller(self) -> Controller:
-        """A fresh :func:`default_base_controller` with these parameters and tare."""
-        return default_base_controller(self.parameters, self.tare)
+        """A fresh :func:`default_base_controller` with these settings."""
+        return default_base_controller(
+            self.parameters, self.tare, forearm_rods=self.forearm_rods, regressor=self.regressor
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": BASE_NAME, "parameters": asdict(self.parameters), "tare": self.tare}
+        return {
+            "name": base_name(self.forearm_rods),
+            "parameters": asdict(self.parameters),
+            "tare": self.tare,
+            "forearm_rods": self.forearm_rods,
+            "regressor": self.regressor,
+        }
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> BaseSetup:
@@ -545,6 +567,9 @@ class BaseSetup:
                 coulomb=tuple(parameters["coulomb"]),
             ),
             tare=float(values["tare"]),
+            # Files written before these keys existed were trained on the lumped model and the causal filter.
+            forearm_rods=bool(values.get("forearm_rods", False)),
+            regressor=values.get("regressor", "filtered"),
         )
 
 
@@ -606,7 +631,7 @@ def load_residual_controller(
     Args:
         path: A policy zip written by :func:`save_residual_policy`.
         base: The base controller the policy corrects. None rebuilds the base it was trained on from the
-            file (MId+F + RLS with the stored identified parameters and tare), so no parameter file is needed.
+            file (model, identified parameters, estimator and tare), so no parameter file is needed.
         name: Row name; by default ``"<base name> + residual"``.
 
     Raises:

@@ -20,7 +20,7 @@ validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the ta
 its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
 ever trained on.
 
-The base controller is the eval's ``mid_f_rls`` row: MId+F + PD with the payload RLS, its parameters from
+The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters from
 ``controllers.identification.load_or_identify()`` and its tare calibrated like the eval does
 (``controllers.payload.tare_from_observations`` on payload-free episodes). Both are saved in the policy.
 """
@@ -154,16 +154,16 @@ class EpisodeSeeds(gym.Wrapper):
 
 
 def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = None) -> BaseSetup:
-    """The default base controller's setup: identified MId+F parameters and its calibrated tare.
+    """The default base controller's setup: identified MId+F+R parameters and its calibrated tare.
 
     Args:
         env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`.
-        parameters: Identified parameters; None loads them with ``load_or_identify()``.
+        parameters: Identified MId+F+R parameters; None loads them with ``load_or_identify()``.
     """
     if parameters is None:
         from controllers.identification import load_or_identify
 
-        parameters = load_or_identify().mid_f
+        parameters = load_or_identify().mid_f_rods
     untared = BaseSetup(parameters)
     observed = []
     for seed in CALIBRATION_SEEDS:
@@ -201,7 +201,7 @@ def make_env(
         seed: Seed of the training episode seeds.
         rank: Worker index.
         seeds: Fixed held-out seeds instead of drawn training seeds.
-        base_factory: Builds the base controller instead of the default MId+F + RLS (tests).
+        base_factory: Builds the base controller instead of the default MId+F+R + RLS (tests).
     """
 
     def factory() -> gym.Env:
@@ -308,7 +308,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
 
     Args:
         args: Parsed command-line arguments.
-        base_factory: Builds the base controller instead of the default MId+F + RLS (tests).
+        base_factory: Builds the base controller instead of the default MId+F+R + RLS (tests).
     """
     torch.set_num_threads(args.torch_threads)
     out = Path(args.out) if args.out is not None else Path("runs/residual") / datetime.now().strftime("%Y%m%d-%H%M%S")

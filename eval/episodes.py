@@ -47,7 +47,7 @@ trained on, rebuilt from the policy file: MId+F (lumped forearms) + RLS with the
 SMOOTHER_TRIM = 50
 """Samples dropped at each end of a smoothed record (50 ms): the RTS smoother sees one side only there."""
 
-ESTIMATOR_REGRESSORS = {"mid_f_rls": "filtered", "mid_f_rls_ref": "reference"}
+ESTIMATOR_REGRESSORS = {"mid_f_rls": "smoothed", "mid_f_rls_ref": "reference"}
 """The payload estimator variant of each RLS controller key."""
 
 ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")

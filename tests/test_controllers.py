@@ -98,7 +98,8 @@ def test_each_controller_tracks_a_seeded_episode(key: str, records: dict[str, Ep
     assert not record.diverged and record.saturated_steps == 0
     rms = record.metrics()["tracking_rms_mm"]
     pd_rms = records["pd"].metrics()["tracking_rms_mm"]
-    # Measured: PD 6.1 mm; MKH 3.8, MId 3.5, MId+F 3.0; RLS 0.36 (on the reference 0.47); oracle 0.27 mm.
+    # Measured: PD 6.0 mm; MKH 3.8, MId 3.5, MId+F 2.9, MId+F+R 3.1; RLS 0.32 (on the reference 0.40);
+    # oracle 0.30 mm; residual 0.08 mm.
     assert rms < 10.0
     if key != "pd":
         assert rms < 0.8 * pd_rms, "feedforward must beat PD alone"
@@ -114,10 +115,10 @@ def test_payload_rls_tracks_within_targets(key: str, records: dict[str, EpisodeR
 @pytest.mark.parametrize(
     ("variant", "masses", "deadline_ms"),
     [
-        # Measured: 77 and 76 ms, end errors -0.76 and -1.56 %.
+        # Measured: 66 and 96 ms, end errors +0.32 and -1.16 %.
         ("realistic", (3.8, 1.0), 150.0),
-        # Measured: 139 ms, -2.2 %. +-5 % of 0.5 kg is 25 g: over 24 seeded carries of 0.5 kg, 20 settle by
-        # 150 ms (median 126 ms, max 304 ms); 1 kg: 24/24 (max 141 ms).
+        # Measured: 134 ms, -0.73 %. +-5 % of 0.5 kg is 25 g: over 24 seeded carries of 0.5 kg, 23 settle by
+        # 150 ms (median 111 ms, max 154 ms); 1 kg: 24/24 (max 115 ms).
         ("realistic", (0.5,), 150.0),
         # MKH is exact on the ideal plant: no tare, no friction. Measured: 80 and 125 ms, -0.02 and +0.2 %.
         ("ideal", (2.0, 0.5), 150.0),

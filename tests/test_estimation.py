@@ -2,12 +2,17 @@
 
 import numpy as np
 import pytest
+from filterpy.common import Q_continuous_white_noise, kinematic_state_transition
+from filterpy.kalman import KalmanFilter
 from numpy.testing import assert_allclose
 
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import (
+    ENCODER_NOISE_STD,
     ENCODER_RESOLUTION,
+    SMOOTHER_JERK_STD,
     JointStateFilter,
+    JointStateSmoother,
     PayloadRLS,
     smooth_joint_motion,
 )
@@ -161,6 +166,38 @@ def test_joint_state_filter_tracks_a_pick_move() -> None:
     assert rms(estimates[:, 6:] - theta_ddot) < 0.1 * np.abs(theta_ddot).max()
 
 
+def test_joint_state_smoother_is_filterpys_rts_smoother_over_its_window() -> None:
+    smoother = JointStateSmoother(lag=4, history=12)
+    window = 17
+    readings = 0.2 + np.cumsum(np.random.default_rng(6).normal(0.0, 1e-3, (window + 9, 3)), axis=0)
+    smoother.reset(readings[0])
+    for z in readings[1:]:
+        estimate = np.array(smoother.update(z))  # (derivative, joint)
+    # The same smoother written out with filterpy on the last `window` readings, joint by joint.
+    kf = KalmanFilter(dim_x=3, dim_z=1)
+    kf.F = kinematic_state_transition(order=2, dt=DT)
+    kf.Q = Q_continuous_white_noise(dim=3, dt=DT, spectral_density=SMOOTHER_JERK_STD**2 * DT)
+    kf.H, kf.R = np.array([[1.0, 0.0, 0.0]]), np.array([[ENCODER_NOISE_STD**2]])
+    for joint in range(3):
+        kf.x, kf.P = np.zeros(3), np.diag([1.0, 1.0 / DT**2, 1.0 / DT**4])
+        means, covariances, _, _ = kf.batch_filter(readings[-window:, joint])
+        expected = kf.rts_smoother(means, covariances)[0][12]
+        assert_allclose(estimate[:, joint], expected, rtol=1e-7, atol=1e-9)
+
+
+def test_joint_state_smoother_beats_the_causal_filter_on_a_pick_move() -> None:
+    theta, theta_dot, theta_ddot = pick_move(0.25)
+    angles = encoder_readings(theta, seed=5)
+    smoother = JointStateSmoother()
+    smoother.reset(angles[0])
+    smoothed = np.array([np.concatenate(smoother.update(z)) for z in angles])[smoother.lag :]
+    truth = slice(0, len(angles) - smoother.lag)  # estimate n belongs to sample n - lag
+    filtered = filter_estimates(angles)
+    # Measured: 0.0015 rad/s and 1.1 rad/s^2 RMS against the filter's 0.014 rad/s and 5 rad/s^2.
+    assert rms(smoothed[:, 3:6] - theta_dot[truth]) < 0.3 * rms(filtered[:, 3:6] - theta_dot)
+    assert rms(smoothed[:, 6:] - theta_ddot[truth]) < 0.4 * rms(filtered[:, 6:] - theta_ddot)
+
+
 def test_joint_state_filter_needs_a_reset() -> None:
     with pytest.raises(RuntimeError, match="reset"):
         JointStateFilter().update(np.zeros(3))
@@ -219,3 +256,17 @@ def test_bad_smoother_inputs_raise(angles, kwargs, name) -> None:
 def test_bad_filter_inputs_raise(kwargs, theta, name) -> None:
     with pytest.raises(ValueError, match=name):
         JointStateFilter(**kwargs).reset(theta)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [({"lag": -1}, "lag"), ({"lag": 2.0}, "lag"), ({"history": 1}, "history"), ({"jerk_std": 0.0}, "jerk_std")],
+)
+def test_bad_smoother_settings_raise(kwargs, name) -> None:
+    with pytest.raises(ValueError, match=name):
+        JointStateSmoother(**kwargs)
+
+
+def test_joint_state_smoother_needs_a_reset() -> None:
+    with pytest.raises(RuntimeError, match="reset"):
+        JointStateSmoother().update(np.zeros(3))

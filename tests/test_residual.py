@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 import zipfile
@@ -275,6 +276,16 @@ def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
     torques = controller_rollout(reloaded, 100)[0]
     assert_array_equal(torques, controller_rollout(direct, 100)[0])
     assert not np.array_equal(torques, controller_rollout(base.controller(), 100)[0])
+
+
+def test_policy_files_from_before_the_rod_model_keep_their_base() -> None:
+    legacy = {"name": "MId+F+RLS+PD", "parameters": dataclasses.asdict(PARAMETERS), "tare": -0.1}
+    setup = BaseSetup.from_dict(legacy)
+    assert (setup.forearm_rods, setup.regressor) == (False, "filtered")
+    controller = setup.controller()
+    assert controller.name == "MId+F+RLS+PD" and not controller.dynamics.forearm_rods
+    assert controller.estimator.regressor == "filtered"
+    assert BaseSetup.from_dict(setup.to_dict()) == setup
 
 
 def test_base_setup_calibrates_a_small_tare() -> None:
