@@ -115,10 +115,10 @@ def test_payload_rls_tracks_within_targets(key: str, records: dict[str, EpisodeR
 @pytest.mark.parametrize(
     ("variant", "masses", "deadline_ms"),
     [
-        # Measured: 66 and 96 ms, end errors +0.32 and -1.16 %.
+        # Measured: 82 and 105 ms, end errors -0.02 and -0.64 %.
         ("realistic", (3.8, 1.0), 150.0),
-        # Measured: 134 ms, -0.73 %. +-5 % of 0.5 kg is 25 g: over 24 seeded carries of 0.5 kg, 23 settle by
-        # 150 ms (median 111 ms, max 154 ms); 1 kg: 24/24 (max 115 ms).
+        # Measured: 100 ms, +0.61 %. +-5 % of 0.5 kg is 25 g; over 24 seeded carries of 0.5 kg the worst
+        # settles in 124 ms (1 kg: 109 ms).
         ("realistic", (0.5,), 150.0),
         # MKH is exact on the ideal plant: no tare, no friction. Measured: 80 and 125 ms, -0.02 and +0.2 %.
         ("ideal", (2.0, 0.5), 150.0),
