@@ -9,15 +9,16 @@ equations in the one unknown mp,
 solved by recursive least squares with forgetting (:class:`~controllers.estimation.PayloadRLS`, filterpy's
 fading-memory Kalman filter). What biases the estimate on this plant, and what is done about it:
 
-- **Friction near zero speed.** At rest the Coulomb friction is a constraint force anywhere in
-  [-fc_i, fc_i] and the plant adds a Stribeck excess near zero speed, while MId+F predicts fc_i sign(thd_i)
-  (0 at rest). With phi_i of a few N m/kg at rest (gravity alone), 4 N m of unknown friction is a kilogram
-  of error. Each joint's equation is therefore weighted by a standard deviation that grows as |thd_i|
-  falls (:func:`residual_std`): the nominal residual plus the static friction band fc_i, fading as
-  exp(-(thd_i / v_w)^2). That error is one constant per stop, not white noise, so its variance is
-  inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured
-  run, 50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by
-  whitening (dividing phi_i and y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
+- **Friction near zero speed.** At rest the Coulomb friction is a constraint force anywhere in [-fc_i, fc_i]
+  and the plant adds a Stribeck excess near zero speed, while the model predicts fc_i sign(thd_i) (0 at rest);
+  while a joint starts or stops, its friction is not the model's either. With phi_i of a few N m/kg at rest
+  (gravity alone), 4 N m of unknown friction is a kilogram of error. Each joint's equation is therefore
+  weighted by a standard deviation that grows as |thd_i| falls (:func:`residual_std`): the nominal residual
+  plus the static friction band fc_i, fading as exp(-(thd_i / v_w)^2) with v_w = 1 rad/s
+  (:data:`FRICTION_VELOCITY`). That error is one constant per stop, not white noise, so its variance is
+  inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured run,
+  50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by whitening
+  (dividing phi_i and y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
 - **Joint states.** With ``regressor="smoothed"`` (the default) tau0 and phi are evaluated on the
   fixed-lag Kalman smoother's estimate of sample k - L (:class:`~controllers.estimation.JointStateSmoother`,
   L = 5 ms) and compared with the torque measured with that sample. ``regressor="filtered"`` uses the
@@ -67,8 +68,10 @@ from controllers.estimation import CONTROL_PERIOD, JointStateFilter, JointStateS
 
 RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
-ripple (1 N m amplitude, 0.7 N m RMS) and the model error of MId+F on the plant (about 1 N m RMS of
-tau_plant - tau_MId+F over excitation data at exact states), added in quadrature."""
+ripple (1 N m amplitude, 0.7 N m RMS) and the model's error on the plant (about 1 N m RMS of
+tau_plant - tau_MId+F over excitation data at exact states), added in quadrature. MId+F+R's smaller error
+(0.06 N m at exact states, 0.8 N m RMS on smoothed measured data) would make it 1.2 N m; 0.7, 1.0 and
+1.5 N m settled the same 43 of 48 replayed 0.5 kg carries (with v_w = 0.1 rad/s), so it stays."""
 
 FRICTION_VELOCITY = 1.0
 """Speed (rad/s) below which the friction of a joint is not the model's fv thd + fc sign(thd).
