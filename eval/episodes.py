@@ -35,14 +35,15 @@ CONTROLLER_LABELS = {
     "mid_f_rls": "MId+F+R+RLS+PD",
     "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
     "oracle": "Oracle+PD (bound)",
-    "residual": "MId+F+RLS+PD + residual",
+    "residual": "MId+F+R+RLS+PD + residual",
 }
 """Controller keys of ``--controllers`` and their labels. ``+R``: the identified model with rod forearms
 (``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
 estimates the payload on the Kalman-filtered joint states (the default estimator); ``mid_f_rls_ref`` on the
 reference, for comparison. The oracle knows the plant and the true payloads: an upper bound, not a
 controller. ``residual`` is the learned residual policy (``controllers.residual``) on the base it was
-trained on, rebuilt from the policy file: MId+F (lumped forearms) + RLS with the stored parameters and tare."""
+trained on, rebuilt from the policy file; for the shipped policy that is the ``mid_f_rls`` controller with the
+identified parameters and the tare of its training run."""
 
 SMOOTHER_TRIM = 50
 """Samples dropped at each end of a smoothed record (50 ms): the RTS smoother sees one side only there."""
