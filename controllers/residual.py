@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from controllers.base import Controller, Observation, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.payload import FRICTION_VELOCITY
 from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
 from delta_env.geometry import TORQUE_LIMIT
 
@@ -256,6 +257,7 @@ def default_base_controller(
     *,
     forearm_rods: bool = True,
     regressor: Literal["smoothed", "filtered", "reference"] = "smoothed",
+    friction_velocity: float = FRICTION_VELOCITY,
 ) -> Controller:
     """The base controller of the residual: identified-model feedforward + PD with the online payload RLS.
 
@@ -269,6 +271,7 @@ def default_base_controller(
         tare: Apparent payload of the empty gripper (kg), see ``controllers.payload.tare_from_observations``.
         forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
         regressor: Joint states of the payload estimator (``controllers.payload.PayloadEstimator``).
+        friction_velocity: Speed (rad/s) below which the estimator down-weights a joint's equation.
     """
     from controllers.feedforward import FeedforwardController
     from controllers.payload import PayloadEstimator
@@ -279,7 +282,7 @@ def default_base_controller(
         identified = load_or_identify()
         parameters = identified.mid_f_rods if forearm_rods else identified.mid_f
     dynamics = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
-    estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare)
+    estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
     return FeedforwardController(base_name(forearm_rods), dynamics, pd=PDController(), estimator=estimator)
 
 
@@ -534,17 +537,23 @@ class BaseSetup:
         tare: Apparent payload of the empty gripper (kg).
         forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
         regressor: Joint states of the payload estimator.
+        friction_velocity: The estimator's friction band (rad/s).
     """
 
     parameters: ModelParameters
     tare: float = 0.0
     forearm_rods: bool = True
     regressor: Literal["smoothed", "filtered", "reference"] = "smoothed"
+    friction_velocity: float = FRICTION_VELOCITY
 
     def controller(self) -> Controller:
         """A fresh :func:`default_base_controller` with these settings."""
         return default_base_controller(
-            self.parameters, self.tare, forearm_rods=self.forearm_rods, regressor=self.regressor
+            self.parameters,
+            self.tare,
+            forearm_rods=self.forearm_rods,
+            regressor=self.regressor,
+            friction_velocity=self.friction_velocity,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -554,6 +563,7 @@ class BaseSetup:
             "tare": self.tare,
             "forearm_rods": self.forearm_rods,
             "regressor": self.regressor,
+            "friction_velocity": self.friction_velocity,
         }
 
     @classmethod
@@ -567,9 +577,11 @@ class BaseSetup:
                 coulomb=tuple(parameters["coulomb"]),
             ),
             tare=float(values["tare"]),
-            # Files written before these keys existed were trained on the lumped model and the causal filter.
+            # Files written before these keys existed were trained on the lumped model, the causal filter and
+            # a 0.1 rad/s friction band.
             forearm_rods=bool(values.get("forearm_rods", False)),
             regressor=values.get("regressor", "filtered"),
+            friction_velocity=float(values.get("friction_velocity", 0.1)),
         )
 
 

@@ -281,10 +281,10 @@ def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
 def test_policy_files_from_before_the_rod_model_keep_their_base() -> None:
     legacy = {"name": "MId+F+RLS+PD", "parameters": dataclasses.asdict(PARAMETERS), "tare": -0.1}
     setup = BaseSetup.from_dict(legacy)
-    assert (setup.forearm_rods, setup.regressor) == (False, "filtered")
+    assert (setup.forearm_rods, setup.regressor, setup.friction_velocity) == (False, "filtered", 0.1)
     controller = setup.controller()
     assert controller.name == "MId+F+RLS+PD" and not controller.dynamics.forearm_rods
-    assert controller.estimator.regressor == "filtered"
+    assert (controller.estimator.regressor, controller.estimator.friction_velocity) == ("filtered", 0.1)
     assert BaseSetup.from_dict(setup.to_dict()) == setup
 
 
@@ -325,6 +325,8 @@ def test_shipped_policy_loads_and_beats_its_base_on_a_held_out_episode() -> None
     assert DEFAULT_POLICY_PATH.stat().st_size < 5_000_000
     policy = load_residual_policy()
     assert policy.algo == "sac" and policy.base is not None
+    # Trained on the eval's mid_f_rls controller: MId+F+R, smoothed joint states, 1 rad/s friction band.
+    assert (policy.base.forearm_rods, policy.base.regressor, policy.base.friction_velocity) == (True, "smoothed", 1.0)
     controller = load_residual_controller(name="residual")
     assert controller.name == "residual"
     # A test seed of the training CLI, one cycle: never trained on, never used for model selection.
