@@ -39,7 +39,7 @@ CONTROLLER_LABELS = {
 }
 """Controller keys of ``--controllers`` and their labels. ``+R``: the identified model with rod forearms
 (``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
-estimates the payload on the Kalman-filtered joint states (the default estimator); ``mid_f_rls_ref`` on the
+estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
 reference, for comparison. The oracle knows the plant and the true payloads: an upper bound, not a
 controller. ``residual`` is the learned residual policy (``controllers.residual``) on the base it was
 trained on, rebuilt from the policy file; for the shipped policy that is the ``mid_f_rls`` controller with the
