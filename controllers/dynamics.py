@@ -161,13 +161,9 @@ class DeltaDynamics:
         """
         total_mass = self._total_mass(payload)
         theta, theta_dot, theta_ddot = _as_floats(theta, theta_dot, theta_ddot)
-        solution, k = self._multiplier_basis(theta, theta_dot, theta_ddot)
+        solution, k, rods = self._multiplier_basis(theta, theta_dot, theta_ddot)
         # -2 K lambda with lambda = Mt w / 2
-        return (
-            self._joint_space_torque(theta, theta_dot, theta_ddot)
-            - total_mass * k * solution
-            + self._rods(theta, theta_dot, theta_ddot)
-        )
+        return self._joint_space_torque(theta, theta_dot, theta_ddot) - total_mass * k * solution + rods
 
     def inverse_dynamics_virtual_work(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
@@ -180,14 +176,19 @@ class DeltaDynamics:
         """
         total_mass = self._total_mass(payload)
         theta, theta_dot, theta_ddot = _as_floats(theta, theta_dot, theta_ddot)
-        _, _, xyz_ddot = kinematics.joint_to_cartesian(self.geometry, theta, theta_dot, theta_ddot)
+        xyz, _, xyz_ddot = kinematics.joint_to_cartesian(self.geometry, theta, theta_dot, theta_ddot)
         jac = kinematics.jacobian(self.geometry, theta)
         platform_force = total_mass * (xyz_ddot + self._gravity_vector)  # N
-        return (
-            self._joint_space_torque(theta, theta_dot, theta_ddot)
-            + np.einsum("...ji,...j->...i", jac, platform_force)
-            + self._rods(theta, theta_dot, theta_ddot)
+        torque = self._joint_space_torque(theta, theta_dot, theta_ddot) + np.einsum(
+            "...ji,...j->...i", jac, platform_force
         )
+        if self.forearm_rods:
+            forearm = xyz[..., None, :] - kinematics.elbow_points(self.geometry, theta)
+            elbow_rate, across = self._forearm_acceleration_across(forearm, theta, theta_dot, theta_ddot, xyz_ddot)
+            torque = torque + self._rod_coefficient * (
+                np.einsum("...ji,...j->...i", jac, across.sum(axis=-2)) - np.sum(elbow_rate * across, axis=-1)
+            )
+        return torque
 
     def lagrange_multipliers(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
@@ -198,7 +199,7 @@ class DeltaDynamics:
         Arguments as in :meth:`inverse_dynamics`.
         """
         total_mass = self._total_mass(payload)
-        solution, _ = self._multiplier_basis(*_as_floats(theta, theta_dot, theta_ddot))
+        solution, _, _ = self._multiplier_basis(*_as_floats(theta, theta_dot, theta_ddot))
         return 0.5 * total_mass * solution
 
     def payload_regressor(self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike) -> NDArray[np.float64]:
@@ -206,7 +207,7 @@ class DeltaDynamics:
 
         This is the paper's eq. (10) without dividing by K, which blows up near serial singularities.
         """
-        solution, k = self._multiplier_basis(*_as_floats(theta, theta_dot, theta_ddot))
+        solution, k, _ = self._multiplier_basis(*_as_floats(theta, theta_dot, theta_ddot))
         # J^T = -K A^{-T}
         return -k * solution
 
@@ -224,8 +225,8 @@ class DeltaDynamics:
         """
         total_mass = self._total_mass(payload)
         theta, theta_dot, theta_ddot = _as_floats(theta, theta_dot, theta_ddot)
-        solution, k = self._multiplier_basis(theta, theta_dot, theta_ddot)
-        known = -total_mass * k * solution + self._rods(theta, theta_dot, theta_ddot)
+        solution, k, rods = self._multiplier_basis(theta, theta_dot, theta_ddot)
+        known = -total_mass * k * solution + rods
         shape = known.shape
         rows = np.stack(
             (
@@ -325,7 +326,8 @@ class DeltaDynamics:
         r1, r2, r3 = r1 * inv_det, r2 * inv_det, r3 * inv_det
         fx = r1 * g1x + r2 * g2x + r3 * g3x
         fy = r1 * g1y + r2 * g2y + r3 * g3y
-        fz = r1 * g1z + r2 * g2z + r3 * g3z + self.g  # xdd + g e_z
+        xdd_z = r1 * g1z + r2 * g2z + r3 * g3z
+        fz = xdd_z + self.g  # xdd + g e_z
         # phi = J^T (xdd + g e_z) = -K A^{-T} (xdd + g e_z); row i of A^{-T} is g_i / det A.
         phi1 = -k1 * inv_det * (g1x * fx + g1y * fy + g1z * fz)
         phi2 = -k2 * inv_det * (g2x * fx + g2y * fy + g2z * fz)
@@ -341,7 +343,7 @@ class DeltaDynamics:
         if self.forearm_rods:
             # u_ddot_i = xdd - J'_thth,i thd_i^2 - J'_th,i thdd_i, its part across the rod, then the virtual work
             # through d u_dot_i / d thd = J - J'_th,i e_i^T (module docstring).
-            ax_, ay_, az_ = fx, fy, fz - self.g
+            ax_, ay_, az_ = fx, fy, xdd_z
             inv_l2_sq = 1.0 / (geometry.l2 * geometry.l2)
             sx = sy = sz = 0.0
             own = []
@@ -377,35 +379,39 @@ class DeltaDynamics:
 
     def _multiplier_basis(
         self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64], theta_ddot: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """w = A^{-T} (xdd + g e_z) (1/s^2) and k (m^2/rad): lambda = Mt w / 2 and phi = -k w."""
-        # One forward kinematics; constraint_terms only re-evaluates the elbows.
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | float]:
+        """w = A^{-T} (xdd + g e_z) (1/s^2), k (m^2/rad) and tau_rods (N m; 0 for lumped forearms).
+
+        lambda = Mt w / 2 and phi = -k w. One forward kinematics and one solve with A^T serve both the
+        platform and, with rod forearms, the pairs' angular momentum: J^T s = -K A^{-T} s.
+        """
         xyz, _, xyz_ddot = kinematics.joint_to_cartesian(self.geometry, theta, theta_dot, theta_ddot)
         a, k = kinematics.constraint_terms(self.geometry, xyz, theta)
-        rhs = (xyz_ddot + self._gravity_vector)[..., None]
-        return np.linalg.solve(np.swapaxes(a, -1, -2), rhs)[..., 0], k
-
-    def _rods(
-        self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64], theta_ddot: NDArray[np.float64]
-    ) -> NDArray[np.float64] | float:
-        """tau_rods (N m), ``(..., 3)``, of the module docstring; 0 for lumped forearms."""
+        a_transposed = np.swapaxes(a, -1, -2)
+        platform = xyz_ddot + self._gravity_vector
         if not self.forearm_rods:
-            return 0.0
-        geometry = self.geometry
-        xyz, _, xyz_ddot = kinematics.joint_to_cartesian(geometry, theta, theta_dot, theta_ddot)
-        forearm = xyz[..., None, :] - kinematics.elbow_points(geometry, theta)  # u_i, (..., 3, 3)
-        c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
-        azimuth = np.stack((np.cos(CHAIN_AZIMUTHS), np.sin(CHAIN_AZIMUTHS), np.zeros(3)), axis=-1)
-        vertical = np.array([0.0, 0.0, 1.0])
-        elbow_rate = -geometry.l1 * (s * azimuth + c * vertical)  # dJ'_i/dth_i
-        elbow_curvature = -geometry.l1 * (c * azimuth - s * vertical)  # d^2J'_i/dth_i^2
+            return np.linalg.solve(a_transposed, platform[..., None])[..., 0], k, 0.0
+        # The rows of A are the forearms u_i = x - J'_i.
+        elbow_rate, across = self._forearm_acceleration_across(a, theta, theta_dot, theta_ddot, xyz_ddot)
+        solution = np.linalg.solve(a_transposed, np.stack((platform, across.sum(axis=-2)), axis=-1))
+        rods = self._rod_coefficient * (-k * solution[..., 1] - np.sum(elbow_rate * across, axis=-1))
+        return solution[..., 0], k, rods
+
+    def _forearm_acceleration_across(
+        self,
+        forearm: NDArray[np.float64],
+        theta: NDArray[np.float64],
+        theta_dot: NDArray[np.float64],
+        theta_ddot: NDArray[np.float64],
+        xyz_ddot: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """dJ'_i/dth_i (m/rad) and u_ddot_i across the forearm u_i (m/s^2), each ``(..., 3 chains, 3)``."""
+        elbow_rate, elbow_curvature = kinematics.elbow_derivatives(self.geometry, theta)
         forearm_ddot = (
             xyz_ddot[..., None, :] - elbow_curvature * theta_dot[..., None] ** 2 - elbow_rate * theta_ddot[..., None]
         )
-        across = forearm_ddot - forearm * (np.sum(forearm * forearm_ddot, axis=-1) / geometry.l2**2)[..., None]
-        jac = kinematics.jacobian(geometry, theta)
-        torque = np.einsum("...ji,...j->...i", jac, across.sum(axis=-2)) - np.sum(elbow_rate * across, axis=-1)
-        return self._rod_coefficient * torque
+        along = np.sum(forearm * forearm_ddot, axis=-1) / self.geometry.l2**2
+        return elbow_rate, forearm_ddot - forearm * along[..., None]
 
     def _joint_space_torque(
         self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64], theta_ddot: NDArray[np.float64]

@@ -34,7 +34,7 @@ def elbow_points(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float6
     return np.stack((radial * _COS_ALPHA, radial * _SIN_ALPHA, -geometry.l1 * np.sin(theta)), axis=-1)
 
 
-def _elbow_derivatives(geometry: DeltaGeometry, theta: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+def elbow_derivatives(geometry: DeltaGeometry, theta: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
     """dJ'_i/dtheta_i and d^2J'_i/dtheta_i^2 (m/rad, m/rad^2), each ``(..., 3, 3)``."""
     c, s = np.cos(theta), np.sin(theta)
     l1 = geometry.l1
@@ -102,7 +102,7 @@ def constraint_terms(
     xyz = _as_vectors("xyz", xyz)
     theta = _as_vectors("theta", theta)
     a = xyz[..., None, :] - elbow_points(geometry, theta)
-    first, _ = _elbow_derivatives(geometry, theta)
+    first, _ = elbow_derivatives(geometry, theta)
     k = -np.sum(a * first, axis=-1)
     return a, k
 
@@ -124,7 +124,7 @@ def joint_to_cartesian(
     xyz = forward(geometry, theta)
     a, k = constraint_terms(geometry, xyz, theta)
     xyz_dot = np.linalg.solve(a, (-k * theta_dot)[..., None])[..., 0]
-    first, second = _elbow_derivatives(geometry, theta)
+    first, second = elbow_derivatives(geometry, theta)
     v = xyz_dot[..., None, :] - first * theta_dot[..., None]
     # A xdd = -|v_i|^2 + a_i . J'_thth,i thd_i^2 - k_i thdd_i  (second derivative of the constraint)
     rhs = -np.sum(v * v, axis=-1) + np.sum(a * second, axis=-1) * theta_dot**2 - k * theta_ddot
@@ -142,7 +142,7 @@ def cartesian_to_joint(
     theta = inverse(geometry, xyz)
     a, k = constraint_terms(geometry, xyz, theta)
     theta_dot = -np.sum(a * xyz_dot[..., None, :], axis=-1) / k
-    first, second = _elbow_derivatives(geometry, theta)
+    first, second = elbow_derivatives(geometry, theta)
     v = xyz_dot[..., None, :] - first * theta_dot[..., None]
     # k_i thdd_i = -|v_i|^2 - a_i . (xdd - J'_thth,i thd_i^2)
     relative_acc = xyz_ddot[..., None, :] - second * (theta_dot**2)[..., None]
