@@ -67,18 +67,21 @@ def _joint_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
 def _joint_kalman_filter(
     dt: float, measurement_std: float, jerk_std: float, theta0: NDArray[np.float64]
 ) -> KalmanFilter:
-    """The 9-state constant-acceleration filter of the three joints, at rest at ``theta0`` (rad)."""
+    """The constant-acceleration filter of ``len(theta0)`` joints (3 states each), at rest at ``theta0`` (rad)."""
     _require_positive("dt", dt)
     _require_positive("measurement_std", measurement_std)
     _require_positive("jerk_std", jerk_std)
-    kf = KalmanFilter(dim_x=9, dim_z=3)
-    kf.F = np.kron(kinematic_state_transition(order=2, dt=dt), np.eye(3))
+    joints = len(theta0)
+    kf = KalmanFilter(dim_x=3 * joints, dim_z=joints)
+    kf.F = np.kron(kinematic_state_transition(order=2, dt=dt), np.eye(joints))
     # White jerk of standard deviation jerk_std at the sample rate has the spectral density jerk_std^2 dt.
-    kf.Q = Q_continuous_white_noise(dim=3, dt=dt, spectral_density=jerk_std**2 * dt, block_size=3, order_by_dim=False)
-    kf.H = np.hstack((np.eye(3), np.zeros((3, 6))))
-    kf.R = measurement_std**2 * np.eye(3)
-    kf.x = np.concatenate((theta0, np.zeros(6)))
-    kf.P = np.diag(np.repeat([measurement_std**2, _INITIAL_RATE_STD**2, _INITIAL_ACCELERATION_STD**2], 3))
+    kf.Q = Q_continuous_white_noise(
+        dim=3, dt=dt, spectral_density=jerk_std**2 * dt, block_size=joints, order_by_dim=False
+    )
+    kf.H = np.hstack((np.eye(joints), np.zeros((joints, 2 * joints))))
+    kf.R = measurement_std**2 * np.eye(joints)
+    kf.x = np.concatenate((theta0, np.zeros(2 * joints)))
+    kf.P = np.diag(np.repeat([measurement_std**2, _INITIAL_RATE_STD**2, _INITIAL_ACCELERATION_STD**2], joints))
     return kf
 
 
@@ -238,17 +241,10 @@ class JointStateSmoother:
             raise ValueError(f"lag must be an integer >= 0 samples, got {lag!r}")
         if isinstance(history, bool) or not isinstance(history, int) or history < 2:
             raise ValueError(f"history must be an integer >= 2 samples, got {history!r}")
-        _require_positive("dt", dt)
-        _require_positive("measurement_std", measurement_std)
-        _require_positive("jerk_std", jerk_std)
         self.lag, self.history = lag, history
         window = history + lag + 1
         # One joint of the block model; the diffuse prior leaves the window's readings alone to decide.
-        kf = KalmanFilter(dim_x=3, dim_z=1)
-        kf.F = kinematic_state_transition(order=2, dt=dt)
-        kf.Q = Q_continuous_white_noise(dim=3, dt=dt, spectral_density=jerk_std**2 * dt)
-        kf.H = np.array([[1.0, 0.0, 0.0]])
-        kf.R = np.array([[measurement_std**2]])
+        kf = _joint_kalman_filter(dt, measurement_std, jerk_std, np.zeros(1))
         diffuse = np.diag([1.0, 1.0 / dt**2, 1.0 / dt**4])
         self.weights = np.empty((3, window))
         for reading in range(window):
@@ -359,3 +355,8 @@ class PayloadRLS:
     def reset_covariance(self) -> None:
         """Restore the prior variance, keeping the estimate: call it at a pick or a release."""
         self.kf.P = np.array([[self.initial_variance]])
+
+    def reset(self, mass: float) -> None:
+        """Restart from a known mass (kg) with the prior variance."""
+        self.kf.x[:] = mass
+        self.reset_covariance()
