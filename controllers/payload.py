@@ -64,7 +64,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import CONTROL_PERIOD, JointStateFilter, JointStateSmoother, PayloadRLS
+from controllers.estimation import (
+    CONTROL_PERIOD,
+    JointStateFilter,
+    JointStateSmoother,
+    PayloadRLS,
+    _require_positive,
+)
 
 RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
@@ -141,8 +147,8 @@ class PayloadEstimator:
 
     The RLS state is the *apparent* payload: what the model needs at its platform to match the measured
     torques. With an empty gripper it is not 0 but the tare, the model's own error along phi (about
-    -0.1 kg for MId+F on this plant). The estimate of the object is the apparent mass minus the tare; the
-    feedforward uses the apparent mass.
+    -0.1 kg for MId+F on this plant, -0.005 to 0 kg for MId+F+R). The estimate of the object is the
+    apparent mass minus the tare; the feedforward uses the apparent mass.
 
     Args:
         dynamics: The identified model (MId+F) whose torque at mp = 0 is subtracted.
@@ -183,14 +189,9 @@ class PayloadEstimator:
     ) -> None:
         if regressor not in ("smoothed", "filtered", "reference"):
             raise ValueError(f"regressor must be 'smoothed', 'filtered' or 'reference', got {regressor!r}")
-        positive = (
-            ("nominal_std", nominal_std),
-            ("friction_velocity", friction_velocity),
-            ("correlation_samples", correlation_samples),
-        )
-        for name, value in positive:
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        _require_positive("nominal_std", nominal_std)
+        _require_positive("friction_velocity", friction_velocity)
+        _require_positive("correlation_samples", correlation_samples)
         if not math.isfinite(tare):
             raise ValueError(f"tare must be a finite mass (kg), got {tare!r}")
         friction = dynamics.parameters.coulomb if static_friction is None else tuple(static_friction)
@@ -227,19 +228,13 @@ class PayloadEstimator:
         self._previous_reference: tuple[NDArray[np.float64], NDArray[np.float64], list[float]] | None = None
 
     @property
-    def apparent_mass(self) -> float:
-        """The payload the model needs at its platform (kg): the tare while the gripper is open."""
-        return self.rls.mass
-
-    @property
     def mass(self) -> float:
         """Estimated mass of the object held (kg): apparent mass minus tare; 0 while the gripper is open."""
         return self.rls.mass - self.tare if self._holding else 0.0
 
     def reset(self) -> None:
         """Start an episode: nothing held, apparent mass at the tare, joint filter restarted at the next reading."""
-        self.rls.kf.x[:] = self.tare
-        self.rls.reset_covariance()
+        self.rls.reset(self.tare)
         self._filter_started = False
         self._holding = False
         self._previous_reference = None
@@ -258,9 +253,10 @@ class PayloadEstimator:
         holding = observation["gripper"].item(0) > 0.5
         if holding != self._holding:
             self._holding = holding
-            if not holding:
-                self.rls.kf.x[:] = self.tare  # released: the object is known to be gone
-            self.rls.reset_covariance()
+            if holding:
+                self.rls.reset_covariance()
+            else:
+                self.rls.reset(self.tare)  # released: the object is known to be gone
         equation = self.measurement(observation, reference_torque, reference_regressor)
         if equation is None:
             return self.rls.mass
