@@ -28,7 +28,6 @@ import hashlib
 import json
 import logging
 import math
-import multiprocessing
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -42,6 +41,7 @@ from numpy.typing import NDArray
 from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD, smooth_joint_motion
+from controllers.processes import pool_context
 from controllers.provenance import package_versions
 from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
@@ -253,7 +253,7 @@ def _parallel_map(
     bar = functools.partial(tqdm, total=len(items), desc=description, disable=not progress, unit="run")
     if workers == 1 or len(items) == 1:
         return list(bar(map(function, items)))
-    with multiprocessing.get_context().Pool(min(workers, len(items))) as pool:
+    with pool_context().Pool(min(workers, len(items))) as pool:
         return list(bar(pool.imap(function, items)))
 
 

@@ -5,11 +5,11 @@ It lives in an importable module (not ``eval.__main__``) so that forkserver / sp
 
 from __future__ import annotations
 
-import multiprocessing
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from controllers.processes import pool_context
 from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import ControllerSetup, EpisodeRecord, build_controller, run_episode
 
@@ -54,11 +54,7 @@ def run_tasks(tasks: Sequence[Task], workers: int, progress: Any) -> list[tuple[
             results.append(run_task(task))
             progress.update()
         return results
-    # Not fork: a forked child of a process that has loaded torch (the residual policy) can deadlock in
-    # torch's thread pool. Forkserver children start clean and import what a task needs.
-    methods = multiprocessing.get_all_start_methods()
-    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    with context.Pool(workers) as pool:
+    with pool_context().Pool(workers) as pool:
         for result in pool.imap_unordered(run_task, tasks):
             results.append(result)
             progress.update()
