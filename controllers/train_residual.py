@@ -28,6 +28,7 @@ The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the paylo
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import json
 import math
@@ -65,6 +66,7 @@ from controllers.residual import (
     save_residual_policy,
 )
 from delta_env.env import DeltaPickPlaceEnv
+from eval.episodes import run_episode
 
 TRAINING_SEEDS = range(10_000_000, 20_000_000)
 """Env seeds of the training episodes (drawn at random per worker)."""
@@ -168,18 +170,10 @@ def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = 
     observed = []
     for seed in CALIBRATION_SEEDS:
         env = DeltaPickPlaceEnv(**env_kwargs)
-        observation, _ = env.reset(seed=seed, options={"payload_masses": [0.0] * env.n_cycles})
-        controller = untared.controller()
-        controller.reset()
-        episode = [observation]
-        while True:
-            observation, _, terminated, truncated, _ = env.step(controller(observation))
-            episode.append(observation)
-            if terminated or truncated:
-                break
-        observed.append(episode)
-    tare, _ = tare_from_observations(controller.estimator, observed)
-    return BaseSetup(parameters, tare)
+        empty = [0.0] * env.n_cycles
+        observed.append(run_episode(env, untared.controller(), seed, empty, keep_observations=True).observations)
+    tare, _ = tare_from_observations(untared.controller().estimator, observed)
+    return dataclasses.replace(untared, tare=tare)
 
 
 def make_env(
