@@ -233,7 +233,7 @@ def run_all(
 
     keys = args.controllers
     tared = sorted({key for key in keys if key in ESTIMATOR_REGRESSORS} | {TABLE2_KEY})
-    untared = [key for key in keys if key not in ESTIMATING_KEYS]
+    untared = [key for key in keys if key not in ESTIMATOR_REGRESSORS]
 
     def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
         return [

@@ -52,7 +52,8 @@ ESTIMATOR_REGRESSORS = {"mid_f_rls": "smoothed", "mid_f_rls_ref": "reference"}
 """The payload estimator variant of each RLS controller key."""
 
 ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
-"""Controllers that estimate the payload (and so need a tare): the RLS rows and the residual on top of one."""
+"""Controllers that estimate the payload, whose carries are scored: the RLS rows (which ``python -m eval`` tares)
+and the residual (its base's tare comes with the policy file)."""
 
 
 @dataclass(frozen=True)

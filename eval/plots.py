@@ -19,6 +19,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from eval.episodes import ESTIMATING_KEYS
+
 TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
 """EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""
 
@@ -75,7 +77,7 @@ def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, pa
     panels = [
         (f"{label}, first episode", traces[f"{key}.payload_estimate"], traces[f"{key}.payload_mass"])
         for key, label in zip(traces["keys"], traces["labels"], strict=True)
-        if np.any(traces[f"{key}.payload_estimate"]) and "Oracle" not in str(label)
+        if str(key) in ESTIMATING_KEYS
     ]
     figure, axes = plt.subplots(len(panels) + 1, 1, sharex=False, figsize=(10, 2.6 * (len(panels) + 1)))
     axes = np.atleast_1d(axes)
