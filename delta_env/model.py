@@ -846,8 +846,6 @@ class DeltaPlant:
             self._match_payload_velocity()
         if model.na:
             data.act[:] = 0.0
-        # The solver's warm start is state too: clear it so an assembled episode repeats bit for bit.
-        data.qacc_warmstart[:] = 0.0
         mujoco.mj_forward(model, data)
         return jac
 
