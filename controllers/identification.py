@@ -340,17 +340,15 @@ def torque_errors(
     return data.torque - model.inverse_dynamics(data.theta, data.theta_dot, data.theta_ddot)
 
 
-def error_table(
-    models: Mapping[str, ModelParameters], data: MotionData, dynamics: DeltaDynamics | None = None
-) -> dict[str, dict[str, list[float]]]:
-    """The paper's Table 1: per model the mean and std of tau - tau_hat per joint (N m).
+def error_table(models: Mapping[str, DeltaDynamics], data: MotionData) -> dict[str, dict[str, list[float]]]:
+    """The paper's Table 1: per model (with its parameters) the mean and std of tau - tau_hat per joint (N m).
 
     Returns:
-        ``{name: {"mean": [3], "std": [3], "rms": [3]}}``.
+        ``{name: {"mean": [3], "std": [3], "rms": [3]}}``, in the order of ``models``.
     """
     table = {}
-    for name, parameters in models.items():
-        errors = torque_errors(parameters, data, dynamics)
+    for name, model in models.items():
+        errors = data.torque - model.inverse_dynamics(data.theta, data.theta_dot, data.theta_ddot)
         table[name] = {
             "mean": errors.mean(axis=0).tolist(),
             "std": errors.std(axis=0).tolist(),
@@ -698,15 +696,13 @@ class IdentificationRun:
         result: The identified parameters.
         data: Samples of the identification trajectories.
         validation: Samples of the held-out free-motion stress trajectory.
-        models: The paper's model (lumped forearms) with the parameters compared on it (Table 1 rows), by name.
-        rod_models: The same for the model with rod forearms.
+        models: The models compared on it, with their parameters (Table 1 rows), by name.
     """
 
     result: IdentificationResult
     data: tuple[MotionData, ...]
     validation: MotionData
-    models: dict[str, ModelParameters]
-    rod_models: dict[str, ModelParameters]
+    models: dict[str, DeltaDynamics]
 
 
 def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
@@ -805,19 +801,19 @@ def run_identification(
 
     (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data))
     paper, paper_time = _best_time(lambda: fit_paper_method(data))
-    rods = DeltaDynamics.nominal(forearm_rods=True)
+    lumped, rods = DeltaDynamics.nominal(), DeltaDynamics.nominal(forearm_rods=True)
     rod_fit = fit_joint_least_squares(data, dynamics=rods)
 
     models = {
-        "MKH": ModelParameters(),
-        "MId (paper)": paper.mid,
-        "MId+F (paper)": paper.mid_f,
-        "MId (LS)": rho_fit.parameters,
-        "MId+F (joint LS)": joint_fit.parameters,
+        "MKH": lumped,
+        "MId (paper)": lumped.with_parameters(paper.mid),
+        "MId+F (paper)": lumped.with_parameters(paper.mid_f),
+        "MId (LS)": lumped.with_parameters(rho_fit.parameters),
+        "MId+F (joint LS)": lumped.with_parameters(joint_fit.parameters),
+        "MId+F+R (joint LS)": rods.with_parameters(rod_fit.parameters),
     }
-    rod_models = {"MId+F+R (joint LS)": rod_fit.parameters}
-    validation_table = error_table(models, validation) | error_table(rod_models, validation, rods)
-    training_table = error_table(models, _concatenate(data)) | error_table(rod_models, _concatenate(data), rods)
+    validation_table = error_table(models, validation)
+    training_table = error_table(models, _concatenate(data))
     provenance = {
         "method": {
             "data": "excitation trajectories in closed loop (PD + MKH feedforward) on the plant; encoder angles "
@@ -880,9 +876,7 @@ def run_identification(
         standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
         provenance=provenance,
     )
-    return IdentificationRun(
-        result=result, data=tuple(data), validation=validation, models=models, rod_models=rod_models
-    )
+    return IdentificationRun(result=result, data=tuple(data), validation=validation, models=models)
 
 
 def identify(

@@ -38,9 +38,6 @@ from controllers.provenance import command_line
 from delta_env.geometry import GRAVITY
 from delta_env.model import PlantConfig
 
-TABLE_MODELS = ("MKH", "MId (paper)", "MId+F (paper)", "MId (LS)", "MId+F (joint LS)", "MId+F+R (joint LS)")
-"""Rows of the Table 1 analogue, in order; the last is the model with rod forearms (beyond the paper)."""
-
 FIGURES = {
     "fig3_mkh.png": "MKH",
     "fig4_mid_paper.png": "MId (paper)",
@@ -89,19 +86,12 @@ def _ground_truth() -> dict[str, list[float]]:
     return {"viscous": realism.viscous_per_joint.tolist(), "coulomb": realism.coulomb_per_joint.tolist()}
 
 
-def _table_model(run: IdentificationRun, name: str) -> DeltaDynamics:
-    """The analytical model of a Table 1 row with its parameters."""
-    if name in run.rod_models:
-        return DeltaDynamics.nominal(run.rod_models[name], forearm_rods=True)
-    return DeltaDynamics.nominal(run.models[name])
-
-
 def save_validation_data(run: IdentificationRun, path: Path) -> None:
     """The held-out samples and every model's torque along them, for the figures (npz)."""
     data = run.validation
     torques = {
-        f"model_{index}": _table_model(run, name).inverse_dynamics(data.theta, data.theta_dot, data.theta_ddot)
-        for index, name in enumerate(TABLE_MODELS)
+        f"model_{index}": model.inverse_dynamics(data.theta, data.theta_dot, data.theta_ddot)
+        for index, model in enumerate(run.models.values())
     }
     np.savez_compressed(
         path,
@@ -110,7 +100,7 @@ def save_validation_data(run: IdentificationRun, path: Path) -> None:
         theta_dot=data.theta_dot,
         theta_ddot=data.theta_ddot,
         torque=data.torque,
-        model_names=np.array(TABLE_MODELS),
+        model_names=np.array(list(run.models)),
         **torques,
     )
 
@@ -159,10 +149,10 @@ def plot_figures(validation_file: Path, folder: Path) -> list[Path]:
 
 
 def _table1(table: dict[str, Any]) -> list[str]:
-    header = "| joint | " + " | ".join(f"{name} mu | {name} sigma" for name in TABLE_MODELS) + " |"
-    lines = [header, "|---" * (1 + 2 * len(TABLE_MODELS)) + "|"]
+    header = "| joint | " + " | ".join(f"{name} mu | {name} sigma" for name in table) + " |"
+    lines = [header, "|---" * (1 + 2 * len(table)) + "|"]
     for joint in range(3):
-        cells = [f"{table[name]['mean'][joint]:.2f} | {table[name]['std'][joint]:.2f}" for name in TABLE_MODELS]
+        cells = [f"{row['mean'][joint]:.2f} | {row['std'][joint]:.2f}" for row in table.values()]
         lines.append(f"| tau{joint + 1} (N m) | " + " | ".join(cells) + " |")
     return lines
 
@@ -229,7 +219,7 @@ def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
 def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> list[str]:
     """Joint LS at other friction velocity thresholds: friction error vs held-out accuracy."""
     true = np.array([*truth["viscous"], *truth["coulomb"]])
-    paper_std = np.array(error_table({"paper": run.result.paper_mid_f}, run.validation)["paper"]["std"])
+    paper_std = np.array(run.result.provenance["torque_error_validation"]["MId+F (paper)"]["std"])
     lines = [
         "| threshold (rad/s) | fv error (%) | fc error (%) | held-out sigma (N m) | sigma / paper MId+F sigma |",
         "|---|---|---|---|---|",
@@ -241,7 +231,7 @@ def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
             lines.append(f"| {threshold:g} | not identifiable: {failure} | | | |")
             continue
         error = 100.0 * (np.array([*parameters.viscous, *parameters.coulomb]) - true) / true
-        sigma = np.array(error_table({"ls": parameters}, run.validation)["ls"]["std"])
+        sigma = np.array(error_table({"ls": DeltaDynamics.nominal(parameters)}, run.validation)["ls"]["std"])
         marker = " (default)" if threshold == FRICTION_VELOCITY_THRESHOLD else ""
         lines.append(
             f"| {threshold:g}{marker} | {', '.join(f'{e:+.1f}' for e in error[:3])} | "
