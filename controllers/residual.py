@@ -251,39 +251,22 @@ def base_name(forearm_rods: bool) -> str:
     return "MId+F+R+RLS+PD" if forearm_rods else "MId+F+RLS+PD"
 
 
-def default_base_controller(
-    parameters: ModelParameters | None = None,
-    tare: float = 0.0,
-    *,
-    forearm_rods: bool = True,
-    regressor: Literal["smoothed", "filtered", "reference"] = "smoothed",
-    friction_velocity: float = FRICTION_VELOCITY,
-) -> Controller:
-    """The base controller of the residual: identified-model feedforward + PD with the online payload RLS.
+def default_base_controller(parameters: ModelParameters | None = None, tare: float = 0.0) -> Controller:
+    """The base controller of the residual: the eval's ``mid_f_rls`` row, :class:`BaseSetup`'s defaults.
 
-    By default the eval's ``mid_f_rls`` row: MId+F+R, PD gains 3000 N m/rad and 60 N m s/rad, the payload
-    estimated on the fixed-lag smoothed joint states. Policies trained before MId+F+R existed used
-    ``forearm_rods=False, regressor="filtered"`` (their files say so, see :class:`BaseSetup`).
+    MId+F+R feedforward + PD (3000 N m/rad, 60 N m s/rad) with the payload RLS on the fixed-lag smoothed
+    joint states; other bases (those of older policy files) are built by :meth:`BaseSetup.controller`.
 
     Args:
-        parameters: Identified parameters of the model; None loads them with
+        parameters: Identified MId+F+R parameters; None loads them with
             ``controllers.identification.load_or_identify()`` (the project's parameter file).
         tare: Apparent payload of the empty gripper (kg), see ``controllers.payload.tare_from_observations``.
-        forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
-        regressor: Joint states of the payload estimator (``controllers.payload.PayloadEstimator``).
-        friction_velocity: Speed (rad/s) below which the estimator down-weights a joint's equation.
     """
-    from controllers.feedforward import FeedforwardController
-    from controllers.payload import PayloadEstimator
-
     if parameters is None:
         from controllers.identification import load_or_identify
 
-        identified = load_or_identify()
-        parameters = identified.mid_f_rods if forearm_rods else identified.mid_f
-    dynamics = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
-    estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
-    return FeedforwardController(base_name(forearm_rods), dynamics, pd=PDController(), estimator=estimator)
+        parameters = load_or_identify().mid_f_rods
+    return BaseSetup(parameters, tare).controller()
 
 
 class DeltaResidualEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -528,6 +511,11 @@ def save_residual_policy(
     return path
 
 
+_LEGACY_BASE = {"forearm_rods": False, "regressor": "filtered", "friction_velocity": 0.1}
+"""The base settings of policy files written before these keys existed: the lumped model, the causal
+filter and a 0.1 rad/s friction band."""
+
+
 @dataclass(frozen=True)
 class BaseSetup:
     """What the default base controller was built from: model, identified parameters, estimator and tare.
@@ -547,14 +535,15 @@ class BaseSetup:
     friction_velocity: float = FRICTION_VELOCITY
 
     def controller(self) -> Controller:
-        """A fresh :func:`default_base_controller` with these settings."""
-        return default_base_controller(
-            self.parameters,
-            self.tare,
-            forearm_rods=self.forearm_rods,
-            regressor=self.regressor,
-            friction_velocity=self.friction_velocity,
+        """A fresh base controller with these settings: model feedforward + PD with the payload RLS."""
+        from controllers.feedforward import FeedforwardController
+        from controllers.payload import PayloadEstimator
+
+        dynamics = DeltaDynamics.nominal(self.parameters, forearm_rods=self.forearm_rods)
+        estimator = PayloadEstimator(
+            dynamics, regressor=self.regressor, tare=self.tare, friction_velocity=self.friction_velocity
         )
+        return FeedforwardController(base_name(self.forearm_rods), dynamics, pd=PDController(), estimator=estimator)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -568,6 +557,7 @@ class BaseSetup:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> BaseSetup:
+        values = {**_LEGACY_BASE, **values}
         parameters = values["parameters"]
         return cls(
             parameters=ModelParameters(
@@ -577,11 +567,9 @@ class BaseSetup:
                 coulomb=tuple(parameters["coulomb"]),
             ),
             tare=float(values["tare"]),
-            # Files written before these keys existed were trained on the lumped model, the causal filter and
-            # a 0.1 rad/s friction band.
-            forearm_rods=bool(values.get("forearm_rods", False)),
-            regressor=values.get("regressor", "filtered"),
-            friction_velocity=float(values.get("friction_velocity", 0.1)),
+            forearm_rods=bool(values["forearm_rods"]),
+            regressor=values["regressor"],
+            friction_velocity=float(values["friction_velocity"]),
         )
 
 
