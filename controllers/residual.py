@@ -164,7 +164,7 @@ class ResidualFeatures:
         self._window = 0
         self._observation: Observation | None = None
         self._base_torque = np.zeros(3)
-        self._jerk = np.zeros(3)
+        self._acceleration = np.zeros(3)
         self._previous_acceleration = np.zeros(3)
         self._payload = 0.0
         self._payload_at_last_policy_step = 0.0
@@ -176,7 +176,7 @@ class ResidualFeatures:
         self._angle_error_sum[:] = 0.0
         self._rate_error_sum[:] = 0.0
         self._window = 0
-        self._previous_acceleration = np.asarray(observation["reference_accelerations"], dtype=float).copy()
+        self._acceleration = np.asarray(observation["reference_accelerations"], dtype=float).copy()
         self._payload_at_last_policy_step = payload
         self._gripper = float(observation["gripper"][0])
         # Nothing happened before the episode: as long ago as the features can tell.
@@ -196,9 +196,9 @@ class ResidualFeatures:
         self._add(observation, base_torque, payload)
 
     def _add(self, observation: Observation, base_torque: NDArray[np.float64], payload: float) -> None:
-        acceleration = observation["reference_accelerations"]
-        self._jerk = (acceleration - self._previous_acceleration) / CONTROL_PERIOD
-        self._previous_acceleration = np.array(acceleration, dtype=float)
+        # The jerk is formed at policy steps only, from the last two reference accelerations.
+        self._previous_acceleration = self._acceleration
+        self._acceleration = np.array(observation["reference_accelerations"], dtype=float)
         self._angle_error_sum += observation["reference_angles"] - observation["joint_angles"]
         self._rate_error_sum += observation["reference_velocities"] - observation["joint_velocities"]
         self._window += 1
@@ -225,7 +225,7 @@ class ResidualFeatures:
                 reference_angles / _ANGLE_SCALE,
                 reference_rates / _RATE_SCALE,
                 observation["reference_accelerations"] / _ACCELERATION_SCALE,
-                self._jerk / _JERK_SCALE,
+                (self._acceleration - self._previous_acceleration) / (CONTROL_PERIOD * _JERK_SCALE),
                 np.tanh(reference_rates * self._inverse_stribeck),
                 np.sin(ripple_phase),
                 np.cos(ripple_phase),
