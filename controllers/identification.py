@@ -477,9 +477,7 @@ def _least_squares(
     estimate = inverse @ projection
 
     residual = target - np.sum(rows[..., :k] * estimate[columns], axis=-1)  # (M, 3)
-    counts = used.sum(axis=0)
-    if np.any(counts == 0):
-        raise ValueError(f"{method}: no rows left for joint(s) {(np.flatnonzero(counts == 0) + 1).tolist()}")
+    counts = used.sum(axis=0)  # > 0: a joint without rows leaves its friction unexcited (raised above)
     residual_sums = np.sum(residual * used, axis=0)
     squares = np.sum(residual**2 * used, axis=0)
     sigma2 = squares.sum() / (n_rows - len(names))
