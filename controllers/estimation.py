@@ -23,14 +23,7 @@ from filterpy.common import Q_continuous_white_noise, kinematic_state_transition
 from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-ENCODER_RESOLUTION = 2.0 * math.pi / 2**17
-"""Step of the 17-bit absolute joint encoders (rad), DESIGN.md section 4."""
-
-ENCODER_NOISE_STD = ENCODER_RESOLUTION / math.sqrt(12.0)
-"""Standard deviation of the quantization error, uniform over one step (rad)."""
-
-CONTROL_PERIOD = 1e-3
-"""Sample period of the encoders and of the controller (s): 1 kHz."""
+from delta_env.sensors import CONTROL_PERIOD, ENCODER_NOISE_STD
 
 SMOOTHER_JERK_STD = 1000.0
 """Default jerk standard deviation (rad/s^3) of the smoother's model, white at the sample rate.

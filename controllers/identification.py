@@ -43,9 +43,10 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD, smooth_joint_motion
 from controllers.processes import pool_context
 from controllers.provenance import package_versions
-from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
+from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
 from delta_env.model import PlantConfig, build_mjcf
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.trajectories import Trajectory, excitation_trajectory
 
 logger = logging.getLogger(__name__)
@@ -68,15 +69,6 @@ VALIDATION_DURATION = 10.0
 TRIM_SAMPLES = 50
 """Samples dropped at each end of a record (50 ms): the RTS smoother has data on one side only there
 (its estimates are poor for ~20 samples) and the first torque reading precedes the first command."""
-
-TORQUE_SAMPLE_DELAY = 0.25e-3
-"""Age (s) of the measured torque relative to the encoder angles of the same observation.
-
-The drive reports the motor torque of the last physics substep (0.5 ms at 1 kHz control with two
-substeps); it acted over [t_k - 0.5 ms, t_k] while the encoder reads the angle at t_k, so the smoothed
-motion is interpolated to the middle of that substep before it is compared with torque sample k. The
-data agree: the training residual changes by 0.3 % from 0 to 0.5 ms and grows beyond.
-"""
 
 REST_VELOCITY = 0.02
 """Smoothed rates below this (rad/s) are set to exactly 0: the joint is at rest.
@@ -177,7 +169,7 @@ class ExcitationRecord:
         spec: The trajectory that was run.
         dt: Sample period (s).
         angles: Encoder angles (rad), ``(N, 3)``.
-        torques: Measured motor torques (N m), ``(N, 3)``; sample k is :data:`TORQUE_SAMPLE_DELAY` older
+        torques: Measured motor torques (N m), ``(N, 3)``; sample k is :data:`MEASURED_TORQUE_DELAY` older
             than angle sample k.
     """
 
@@ -294,7 +286,7 @@ def prepare_motion(
     record: ExcitationRecord,
     *,
     trim: int = TRIM_SAMPLES,
-    torque_delay: float = TORQUE_SAMPLE_DELAY,
+    torque_delay: float = MEASURED_TORQUE_DELAY,
     rest_velocity: float = REST_VELOCITY,
 ) -> MotionData:
     """Identification samples of a record: smoothed motion aligned with the torques, edges trimmed.
@@ -302,7 +294,7 @@ def prepare_motion(
     Args:
         record: Encoder angles and measured torques.
         trim: Samples dropped at each end (:data:`TRIM_SAMPLES`).
-        torque_delay: Age of the torque readings (s), :data:`TORQUE_SAMPLE_DELAY`.
+        torque_delay: Age of the torque readings (s), :data:`MEASURED_TORQUE_DELAY`.
         rest_velocity: Rates below this (rad/s) are set to 0 (:data:`REST_VELOCITY`).
     """
     if len(record.angles) <= 2 * trim + 1:
@@ -826,7 +818,7 @@ def run_identification(
             "velocity_threshold_rad_s": FRICTION_VELOCITY_THRESHOLD,
             "rest_velocity_rad_s": REST_VELOCITY,
             "trim_samples": TRIM_SAMPLES,
-            "torque_sample_delay_s": TORQUE_SAMPLE_DELAY,
+            "torque_sample_delay_s": MEASURED_TORQUE_DELAY,
             "smoother": {"jerk_std": SMOOTHER_JERK_STD, "measurement_std": ENCODER_NOISE_STD},
             "rho1_grid": list(RHO1_GRID),
             "rho2_grid": list(RHO2_GRID),

@@ -32,8 +32,9 @@ from numpy.typing import NDArray
 from controllers.base import Controller, Observation, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY
-from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
+from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import TORQUE_LIMIT
+from delta_env.sensors import CONTROL_PERIOD
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm

@@ -21,10 +21,8 @@ from delta_env.model import (
     PlantConfig,
     RandomizationRanges,
 )
+from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
-
-CONTROL_PERIOD = 1e-3
-"""Control period (s): a 1 kHz drive loop, as on an EtherCAT Delta."""
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""

@@ -32,15 +32,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
 from delta_env.geometry import GRAVITY, DeltaGeometry
+from delta_env.sensors import CONTROL_PERIOD
 
 STANDARD_PEAK_ACCELERATION = 3.0 * GRAVITY
 """Default peak Cartesian acceleration of pick cycles (m/s^2), 3 g (DESIGN.md section 5)."""
 
 STRESS_PEAK_ACCELERATION = 6.0 * GRAVITY
 """Stress preset and default for excitation trajectories (m/s^2), 6 g (DESIGN.md sections 4, 7)."""
-
-CONTROL_PERIOD = 1e-3
-"""Default sample period (s): the 1 kHz control loop of DESIGN.md section 4."""
 
 WORKING_HEIGHT = -0.9
 """Height of the conveyors (m), in the middle of the work zone (DESIGN.md section 4)."""

@@ -41,7 +41,8 @@ from controllers.identification import DEFAULT_PARAMETER_PATH, load_or_identify
 from controllers.payload import tare_from_observations
 from controllers.provenance import command_line, package_versions
 from controllers.residual import DEFAULT_POLICY_PATH, load_residual_policy
-from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots
 from eval.episodes import (
     CONTROLLER_LABELS,

@@ -23,7 +23,8 @@ from controllers.estimation import smooth_joint_motion
 from controllers.feedforward import FeedforwardController, OracleController
 from controllers.payload import PayloadEstimator
 from controllers.residual import DEFAULT_POLICY_PATH, load_residual_controller
-from delta_env.env import CONTROL_PERIOD, DeltaPickPlaceEnv
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
 
 CONTROLLER_LABELS = {

@@ -8,14 +8,13 @@ from numpy.testing import assert_allclose
 
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import (
-    ENCODER_NOISE_STD,
-    ENCODER_RESOLUTION,
     SMOOTHER_JERK_STD,
     JointStateFilter,
     JointStateSmoother,
     PayloadRLS,
     smooth_joint_motion,
 )
+from delta_env.sensors import ENCODER_NOISE_STD, ENCODER_RESOLUTION
 from tests.test_dynamics import joint_min_jerk_move, random_joint_states
 
 DT = 1e-3

@@ -11,7 +11,6 @@ from numpy.testing import assert_allclose
 
 from controllers import identification
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.estimation import ENCODER_RESOLUTION
 from controllers.identification import (
     JOINT_PARAMETER_NAMES,
     ExcitationRecord,
@@ -31,6 +30,7 @@ from controllers.identification import (
     prepare_motion,
     save_result,
 )
+from delta_env.sensors import ENCODER_RESOLUTION
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
