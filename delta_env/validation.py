@@ -1,0 +1,75 @@
+"""Argument checks shared by every package: each error names the value and the allowed range."""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def _interval(low: float, high: float, low_open: bool, high_open: bool) -> str:
+    return f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+
+
+def require_in(
+    name: str,
+    value: float,
+    low: float = -math.inf,
+    high: float = math.inf,
+    *,
+    unit: str = "",
+    low_open: bool = False,
+    high_open: bool = False,
+) -> float:
+    """``value`` as a float if it is a finite real number in the interval, else ``ValueError``.
+
+    Args:
+        name: What the value is, as the caller's user knows it (an argument or field name).
+        value: The number to check.
+        low, high: Bounds of the allowed interval (closed unless ``low_open`` / ``high_open``).
+        unit: Unit shown after the interval in the message, e.g. ``"m"``.
+    """
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    if ok:
+        ok = (value > low if low_open else value >= low) and (value < high if high_open else value <= high)
+    if not ok:
+        suffix = f" {unit}" if unit else ""
+        interval = _interval(low, high, low_open, high_open)
+        raise ValueError(f"{name} must be a finite number in {interval}{suffix}, got {value!r}")
+    return float(value)
+
+
+def require_positive(name: str, value: float, unit: str = "") -> float:
+    """``value`` as a float if it is finite and > 0, else ``ValueError``."""
+    return require_in(name, value, 0.0, math.inf, unit=unit, low_open=True)
+
+
+def require_count(name: str, value: int, minimum: int = 1) -> int:
+    """``value`` if it is an integer >= ``minimum`` (bools refused), else ``ValueError``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def require_interval(
+    name: str, value: tuple[float, float], low: float = -math.inf, high: float = math.inf, *, unit: str = ""
+) -> tuple[float, float]:
+    """A pair ``(a, b)`` with ``low <= a <= b <= high``, both finite, else ``ValueError``."""
+    try:
+        a, b = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (min, max), got {value!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b) and low <= a <= b <= high):
+        suffix = f" {unit}" if unit else ""
+        raise ValueError(f"{name} must be a pair {low:g} <= min <= max <= {high:g}{suffix}, got {value!r}")
+    return a, b
+
+
+def require_joint_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """``value`` as a float array of shape (3,) (one entry per joint) if every entry is finite."""
+    array = np.asarray(value, dtype=float)
+    if array.shape != (3,) or not np.isfinite(array).all():
+        raise ValueError(f"{name} must be 3 finite values (one per joint), got {value!r}")
+    return array
