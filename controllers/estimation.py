@@ -1,11 +1,11 @@
 """Estimators on filterpy: joint rates and accelerations from encoders, payload mass by RLS.
 
 - :func:`smooth_joint_motion`: offline Kalman RTS smoother over recorded encoder angles, for the
-  identification (DESIGN.md section 7; the paper smooths with Kalman smoothers too).
+  identification (docs/design.md section 7; the paper smooths with Kalman smoothers too).
 - :class:`JointStateSmoother`: the fixed-lag RTS smoother of the same model for the 1 kHz payload
   estimator: a few milliseconds late, but without the causal filter's lag and shape errors.
 - :class:`JointStateFilter`: the causal Kalman filter of the same model.
-- :class:`PayloadRLS`: recursive least squares of the payload mass with forgetting (DESIGN.md
+- :class:`PayloadRLS`: recursive least squares of the payload mass with forgetting (docs/design.md
   section 6), as filterpy's KalmanFilter with F = I, Q = 0 and fading memory.
 
 Joint model: per joint a constant-acceleration model driven by white jerk; the three joints form
@@ -24,6 +24,7 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_NOISE_STD
+from delta_env.validation import require_joint_vector, require_positive
 
 SMOOTHER_JERK_STD = 1000.0
 """Default jerk standard deviation (rad/s^3) of the smoother's model, white at the sample rate.
@@ -45,25 +46,13 @@ _INITIAL_RATE_STD = 10.0  # rad/s: the first rate is unknown until a few samples
 _INITIAL_ACCELERATION_STD = 1000.0  # rad/s^2
 
 
-def _require_positive(name: str, value: float) -> None:
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-
-
-def _joint_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    array = np.asarray(value, dtype=float)
-    if array.shape != (3,) or not np.isfinite(array).all():
-        raise ValueError(f"{name} must be 3 finite values, got {value!r}")
-    return array
-
-
 def _joint_kalman_filter(
     dt: float, measurement_std: float, jerk_std: float, theta0: NDArray[np.float64]
 ) -> KalmanFilter:
     """The constant-acceleration filter of ``len(theta0)`` joints (3 states each), at rest at ``theta0`` (rad)."""
-    _require_positive("dt", dt)
-    _require_positive("measurement_std", measurement_std)
-    _require_positive("jerk_std", jerk_std)
+    require_positive("dt", dt)
+    require_positive("measurement_std", measurement_std)
+    require_positive("jerk_std", jerk_std)
     joints = len(theta0)
     kf = KalmanFilter(dim_x=3 * joints, dim_z=joints)
     kf.F = np.kron(kinematic_state_transition(order=2, dt=dt), np.eye(joints))
@@ -160,7 +149,7 @@ class JointStateFilter:
 
     def reset(self, theta0: ArrayLike) -> None:
         """Start at rest at the measured angles ``theta0`` (rad), ``(3,)``."""
-        self.kf.x = np.concatenate((_joint_vector("theta0", theta0), np.zeros(6)))
+        self.kf.x = np.concatenate((require_joint_vector("theta0", theta0), np.zeros(6)))
         self.kf.P = self._steady_state_P.copy()
         self._is_reset = True
 
@@ -175,7 +164,7 @@ class JointStateFilter:
         """
         if not self._is_reset:
             raise RuntimeError("JointStateFilter.reset(theta0) must be called before update()")
-        z = _joint_vector("theta_measured", theta_measured)
+        z = require_joint_vector("theta_measured", theta_measured)
         self.kf.predict()
         self.kf.update(z)
         state = self.kf.x.copy()
@@ -254,7 +243,7 @@ class JointStateSmoother:
 
     def reset(self, theta0: ArrayLike) -> None:
         """Start at rest at the measured angles ``theta0`` (rad), ``(3,)``: the window is filled with them."""
-        self._readings[:] = _joint_vector("theta0", theta0)
+        self._readings[:] = require_joint_vector("theta0", theta0)
         self._next = 0
         self._is_reset = True
 
@@ -269,7 +258,7 @@ class JointStateSmoother:
         """
         if not self._is_reset:
             raise RuntimeError("JointStateSmoother.reset(theta0) must be called before update()")
-        z = _joint_vector("theta_measured", theta_measured)
+        z = require_joint_vector("theta_measured", theta_measured)
         window = self.weights.shape[1]
         slot = self._next
         self._readings[slot] = self._readings[slot + window] = z
@@ -284,7 +273,7 @@ class PayloadRLS:
     y = tau_measured - tau_model(mp = 0) (N m) and phi = J^T (xdd + g e_z) (N m/kg, from
     ``DeltaDynamics.payload_regressor``), three rows per sample. filterpy's KalmanFilter with
     F = 1, Q = 0, H = phi, R = noise_std^2 I and fading memory alpha = 1/sqrt(lambda) is exactly RLS
-    with forgetting factor lambda (DESIGN.md section 6): the prior P / lambda discounts old data.
+    with forgetting factor lambda (docs/design.md section 6): the prior P / lambda discounts old data.
 
     Args:
         forgetting_factor: lambda in (0, 1]; the memory is about 1 / (1 - lambda) samples
@@ -307,8 +296,8 @@ class PayloadRLS:
     ) -> None:
         if not (math.isfinite(forgetting_factor) and 0.0 < forgetting_factor <= 1.0):
             raise ValueError(f"forgetting_factor must be in (0, 1], got {forgetting_factor!r}")
-        _require_positive("noise_std", noise_std)
-        _require_positive("initial_variance", initial_variance)
+        require_positive("noise_std", noise_std)
+        require_positive("initial_variance", initial_variance)
         if not math.isfinite(initial_mass):
             raise ValueError(f"initial_mass must be finite, got {initial_mass!r}")
         self.forgetting_factor = float(forgetting_factor)
@@ -339,8 +328,8 @@ class PayloadRLS:
             phi: Payload regressor (N m/kg), ``(3,)``.
             y: Torque residual tau_measured - tau_model(mp = 0) (N m), ``(3,)``.
         """
-        H = _joint_vector("phi", phi).reshape(3, 1)
-        z = _joint_vector("y", y)
+        H = require_joint_vector("phi", phi).reshape(3, 1)
+        z = require_joint_vector("y", y)
         self.kf.predict()
         self.kf.update(z, H=H)
         return float(self.kf.x[0])

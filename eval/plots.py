@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from eval.episodes import ESTIMATING_KEYS
+from controllers.registry import ESTIMATING_KEYS
 
 TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
 """EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""

@@ -11,6 +11,17 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from controllers.train_residual import (
+    CALIBRATION_SEEDS,
+    TEST_SEEDS,
+    TRAINING_SEEDS,
+    VALIDATION_SEEDS,
+    EpisodeSeeds,
+    base_setup,
+    make_env,
+    parse_args,
+    train,
+)
 from numpy.testing import assert_array_equal
 from stable_baselines3 import SAC
 from stable_baselines3.common.env_checker import check_env
@@ -29,17 +40,6 @@ from controllers.residual import (
     load_residual_controller,
     load_residual_policy,
     save_residual_policy,
-)
-from controllers.train_residual import (
-    CALIBRATION_SEEDS,
-    TEST_SEEDS,
-    TRAINING_SEEDS,
-    VALIDATION_SEEDS,
-    EpisodeSeeds,
-    base_setup,
-    make_env,
-    parse_args,
-    train,
 )
 from delta_env.env import DeltaPickPlaceEnv
 
