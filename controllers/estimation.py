@@ -29,17 +29,16 @@ from delta_env.validation import require_joint_vector, require_positive
 SMOOTHER_JERK_STD = 1000.0
 """Default jerk standard deviation (rad/s^3) of the smoother's model, white at the sample rate.
 
-Tuned on 3 g and 6 g minimum-jerk pick moves (peak joint jerk 2e3 to 6e3 rad/s^3) sampled at 1 kHz
-by 17-bit encoders: its RMS acceleration error is within 1.5x of the best value over 500 to 50000
-at both speeds (0.3 and 0.4 rad/s^2, against 28 rad/s^2 by central differences).
+Below the peak joint jerk of 3 g and 6 g minimum-jerk pick moves (2e3 to 6e3 rad/s^3): on such moves
+sampled by 17-bit encoders the smoother's acceleration error is flat over a wide range of this value and
+two orders of magnitude below central differences.
 """
 
 FILTER_JERK_STD = 3000.0
 """Default jerk standard deviation (rad/s^3) of the causal filter's model.
 
 Higher than the smoother's because the causal filter's error is dominated by lag (about 3 ms on
-the acceleration). On the same moves its RMS acceleration error is within 1.1x of the best value
-(2.3 rad/s^2 at 3 g, 4.4 rad/s^2 at 6 g, peaks of 9 and 17 rad/s^2 at the jerk steps).
+the acceleration), which a stiffer model shortens at the price of noise.
 """
 
 _INITIAL_RATE_STD = 10.0  # rad/s: the first rate is unknown until a few samples are in
@@ -173,13 +172,12 @@ class JointStateFilter:
 
 SMOOTHER_LAG = 5
 """Default delay (samples) of :class:`JointStateSmoother`'s estimates: the readings after the estimated
-sample that it uses. On 0.5 kg pick-and-place carries replayed through the payload RLS, 5 to 15 samples
-remove the late bias of the causal filter (worst settling to +-5 % 154 to 165 ms against 304 ms) and 5 is
-the earliest; with 3 the bias is back."""
+sample that it uses: the shortest delay at which the payload RLS loses the causal filter's bias (with 3
+samples the bias is back)."""
 
 SMOOTHER_HISTORY = 20
-"""Default readings (samples) before the estimated one that :class:`JointStateSmoother` uses; 40 gives the
-same payload estimates."""
+"""Default readings (samples) before the estimated one that :class:`JointStateSmoother` uses: longer
+windows give the same payload estimates."""
 
 
 class JointStateSmoother:
@@ -189,9 +187,8 @@ class JointStateSmoother:
     :func:`smooth_joint_motion`'s model (filterpy's ``batch_filter`` and ``rts_smoother``) over the window
     of the last ``history + lag + 1`` readings, with a diffuse prior at the window start. That estimate is
     linear in the window's readings, so the smoother is computed once, at construction, as the weights of
-    each reading (filterpy's smoother run on unit readings), and each update is one small matrix product:
-    7 to 13 us on this machine, against 60 to 70 us for :class:`JointStateFilter`'s filterpy predict and
-    update.
+    each reading (filterpy's smoother run on unit readings), and each update is one small matrix product,
+    several times cheaper than :class:`JointStateFilter`'s filterpy predict and update.
 
     Unlike :class:`JointStateFilter`, whose acceleration lags about 3 ms behind a constant jerk and has a
     different shape error wherever the jerk changes, the smoother is unbiased within the model; the price

@@ -16,8 +16,8 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   weighted by a standard deviation that grows as |thd_i| falls (:func:`residual_std`): the nominal residual
   plus the static friction band fc_i, fading as exp(-(thd_i / v_w)^2) with v_w = 1 rad/s
   (:data:`FRICTION_VELOCITY`). That error is one constant per stop, not white noise, so its variance is
-  inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured run,
-  50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by whitening
+  inflated by the samples of a dwell: a whole stop counts as one equation, instead of outweighing the
+  moving samples of the carry that follows it. Weighting is done by whitening
   (dividing phi_i and y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
 - **Torque timing.** A measured torque is ``delta_env.sensors.MEASURED_TORQUE_DELAY`` older than the
   encoder sample it comes with; every regressor below evaluates the model at the joint state interpolated
@@ -29,10 +29,8 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   and rate without lag but the acceleration about 3 ms late (:func:`acceleration_lag`): the model is
   evaluated at (theta_{k-D}, theta_dot_{k-D}, theta_ddot_k), D = that lag in samples, with the torque of
   sample k - D. That alignment is exact for a constant jerk only; where the jerk changes, the filter's
-  acceleration error has another shape, which biased 0.5 kg estimates by up to 6 % for 100 ms and more in
-  the middle of a carry (over 24 seeded carries, 20 settled to +-5 % by 150 ms, the worst at 304 ms; with
-  the smoother 23, the worst at 157 ms, and 24, the worst at 124 ms, once :data:`FRICTION_VELOCITY` was
-  widened to 1 rad/s).
+  acceleration error has another shape, which biases light payload estimates by several percent for
+  100 ms and more in the middle of a carry; the smoother has no such bias within its model.
   ``regressor="reference"`` evaluates tau0 and phi on the reference instead: no lag and no noise, but it
   silently assumes the robot is where the reference is, so the tracking transient right after a pick (the
   payload not yet fed forward) biases the estimate when it matters most; ``python -m eval`` runs both.
@@ -74,8 +72,8 @@ RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
 ripple (1 N m amplitude, 0.7 N m RMS) and the model's error on the plant (about 1 N m RMS of
 tau_plant - tau_MId+F over excitation data at exact states), added in quadrature. MId+F+R's smaller error
-(0.06 N m at exact states, 0.8 N m RMS on smoothed measured data) would make it 1.2 N m; 0.7, 1.0 and
-1.5 N m settled the same 43 of 48 replayed 0.5 kg carries (with v_w = 0.1 rad/s), so it stays."""
+(0.06 N m at exact states, 0.8 N m RMS on smoothed measured data) would make it 1.2 N m; the estimates
+hardly depend on this value between 0.7 and 1.5 N m."""
 
 FRICTION_VELOCITY = 1.0
 """Speed (rad/s) below which the friction of a joint is not the model's fv thd + fc sign(thd).
@@ -83,9 +81,8 @@ FRICTION_VELOCITY = 1.0
 On a geared drive that covers the Stribeck region (0.01 to 0.1 rad/s is typical) and, more widely, the
 start and the end of every move, where the friction builds up or falls away while the joint accelerates
 or brakes: on the plant, the identification's held-out torque error is 1.45 N m RMS between 0 and
-0.2 rad/s against 0.80 N m above. Chosen by replaying 48 seeded 0.5 kg carries through the estimator
-(0.1, 0.2, 0.3, 0.5, 1.0 and 2.0 rad/s settled 43, 45, 45, 47, 48 and 45 to +-5 % within 150 ms) and
-checked on 48 other carries of 0.5 to 3.8 kg (48/48, worst 129 ms; 45/48 with 0.1 rad/s)."""
+0.2 rad/s against 0.80 N m above. A narrower band lets that friction error into light payload estimates
+after each stop; a wider one discards the samples of the lift that determine the mass."""
 
 FRICTION_CORRELATION_SAMPLES = 100
 """Samples over which the friction error of a joint at rest stays the same: a station dwell (100 ms at

@@ -369,7 +369,7 @@ def run_identification(
         },
         "workers": workers,
         "versions": package_versions(),
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }
     result = IdentificationResult(
         mid=rho_fit.parameters,

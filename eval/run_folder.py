@@ -108,7 +108,7 @@ def write_config(folder: Path, command: str, config: Mapping[str, Any], **extra:
         "config": dict(config),
         "versions": package_versions(),
         "git_commit": git_commit(),
-        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         **extra,
     }
     return write_json(folder / "config.json", document)

@@ -36,6 +36,7 @@ import importlib.util
 import json
 import math
 import time
+import tomllib
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
@@ -45,7 +46,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import tomllib
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 from stable_baselines3.common.logger import configure

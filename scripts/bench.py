@@ -22,8 +22,8 @@ import numpy as np
 
 from controllers.base import PDController
 from controllers.dynamics import ModelParameters
-from delta_env.env import DeltaPickPlaceEnv
 from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, ControllerSetup, build_controller
+from delta_env.env import DeltaPickPlaceEnv
 
 # Representative identified values (python -m eval.identify on the default plant, rounded).
 SETUP = ControllerSetup(

@@ -266,7 +266,10 @@ CORRUPTIONS = {
     "rho not finite": (_set("mid", "rho2", math.nan), "mid.rho2 must be a finite number"),
     "rho zero": (_set("paper_mid_f", "rho1", 0.0), "paper_mid_f: rho1 must be a finite number in (0, inf]"),
     "two joints": (_set("mid_f", "viscous", [1.0, 2.0]), "mid_f.viscous must be a list of 3 numbers"),
-    "negative coulomb": (_set("mid_f", "coulomb", [4.0, 3.4, -1.0]), "mid_f: coulomb[3] must be a finite number in [0, inf]"),
+    "negative coulomb": (
+        _set("mid_f", "coulomb", [4.0, 3.4, -1.0]),
+        "mid_f: coulomb[3] must be a finite number in [0, inf]",
+    ),
     "friction as text": (_set("mid_f", "coulomb", [4.0, "3.4", 4.6]), "mid_f.coulomb[1] must be a finite number"),
     "negative standard error": (
         _set("standard_errors", "mid_f.rho1", -0.1),
