@@ -24,7 +24,7 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_NOISE_STD
-from delta_env.validation import require_joint_vector, require_positive
+from delta_env.validation import require_in, require_joint_vector, require_positive
 
 SMOOTHER_JERK_STD = 1000.0
 """Default jerk standard deviation (rad/s^3) of the smoother's model, white at the sample rate.
@@ -291,12 +291,10 @@ class PayloadRLS:
         initial_variance: float = 4.0,
         initial_mass: float = 0.0,
     ) -> None:
-        if not (math.isfinite(forgetting_factor) and 0.0 < forgetting_factor <= 1.0):
-            raise ValueError(f"forgetting_factor must be in (0, 1], got {forgetting_factor!r}")
+        require_in("forgetting_factor", forgetting_factor, 0.0, 1.0, low_open=True)
         require_positive("noise_std", noise_std)
         require_positive("initial_variance", initial_variance)
-        if not math.isfinite(initial_mass):
-            raise ValueError(f"initial_mass must be finite, got {initial_mass!r}")
+        require_in("initial_mass", initial_mass, unit="kg")
         self.forgetting_factor = float(forgetting_factor)
         self.initial_variance = float(initial_variance)
         self.kf = KalmanFilter(dim_x=1, dim_z=3)

@@ -389,3 +389,10 @@ def test_hyperparameters_come_from_the_toml_file() -> None:
     assert load_hyperparameters("sac")["gamma"] == 0.95
     with pytest.raises(ValueError, match=r"no \[a2c\] table"):
         load_hyperparameters("a2c")
+
+
+def test_residual_features_use_the_drives_datasheet_values() -> None:
+    from delta_env.model import PlantRealism
+
+    realism, config = PlantRealism(), ResidualConfig()
+    assert (config.ripple_periods, config.stribeck_velocity) == (realism.ripple_periods, realism.stribeck_velocity)

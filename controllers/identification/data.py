@@ -117,11 +117,13 @@ def prepare_motion(
 
 
 def model_with(dynamics: DeltaDynamics | None, parameters: ModelParameters | None = None) -> DeltaDynamics:
+    """``dynamics`` (the nominal lumped model if None) with ``parameters`` (plain MKH if None)."""
     return (DeltaDynamics.nominal() if dynamics is None else dynamics).with_parameters(parameters)
 
 
 def regressor(data: MotionData, dynamics: DeltaDynamics | None) -> tuple[NDArray, NDArray]:
-    """Rows (M, 3, 4) [I thdd, G, thd, sign thd] and the target tau + 2 K lambda (M, 3), N m."""
+    """The identification regressor of ``data``: rows (M, 3, 4) [I thdd, G, thd, sign thd] and the target
+    tau + 2 K lambda (M, 3), N m, of the model ``dynamics`` (nominal lumped if None)."""
     rows, known = model_with(dynamics).identification_regressor(data.theta, data.theta_dot, data.theta_ddot)
     return rows, data.torque - known
 
@@ -152,6 +154,7 @@ def error_table(models: Mapping[str, DeltaDynamics], data: MotionData) -> dict[s
 
 
 def concatenate(data: Sequence[MotionData]) -> MotionData:
+    """The samples of several records as one :class:`MotionData`."""
     if not data:
         raise ValueError("need at least one MotionData")
     fields = ("theta", "theta_dot", "theta_ddot", "torque")

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-import numpy as np
-
 from delta_env.geometry import TORQUE_LIMIT
 from delta_env.model import PlantRealism
+from delta_env.validation import require_count, require_in, require_positive
 
 _DATASHEET = PlantRealism()
 """The drive's datasheet values that the policy's features are built from (ripple order, Stribeck speed)."""
@@ -40,16 +38,11 @@ class ResidualConfig:
     stribeck_velocity: float = field(default=_DATASHEET.stribeck_velocity)
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.residual_limit) and 0.0 < self.residual_limit <= TORQUE_LIMIT):
-            raise ValueError(f"residual_limit must be in (0, {TORQUE_LIMIT}] N m, got {self.residual_limit!r}")
-        if not (isinstance(self.action_period, int | np.integer) and self.action_period >= 1):
-            raise ValueError(f"action_period must be an integer >= 1 control steps, got {self.action_period!r}")
-        if not (math.isfinite(self.reward_scale) and self.reward_scale > 0.0):
-            raise ValueError(f"reward_scale must be a finite number > 0, got {self.reward_scale!r}")
-        if not (isinstance(self.ripple_periods, int | np.integer) and self.ripple_periods >= 0):
-            raise ValueError(f"ripple_periods must be an integer >= 0, got {self.ripple_periods!r}")
-        if not (math.isfinite(self.stribeck_velocity) and self.stribeck_velocity > 0.0):
-            raise ValueError(f"stribeck_velocity must be a finite speed > 0 rad/s, got {self.stribeck_velocity!r}")
+        require_in("residual_limit", self.residual_limit, 0.0, TORQUE_LIMIT, unit="N m", low_open=True)
+        require_count("action_period", self.action_period)
+        require_positive("reward_scale", self.reward_scale)
+        require_count("ripple_periods", self.ripple_periods, minimum=0)
+        require_positive("stribeck_velocity", self.stribeck_velocity, unit="rad/s")
         object.__setattr__(self, "action_period", int(self.action_period))
         object.__setattr__(self, "ripple_periods", int(self.ripple_periods))
 
