@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from controllers.registry import CONTROLLER_LABELS, ControllerSetup, estimation_model
-from controllers.residual import DEFAULT_POLICY_PATH, read_policy_metadata
+from controllers.residual import DEFAULT_POLICY_PATH, load_residual_policy
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import plots
@@ -84,7 +84,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
     if "residual" in args.controllers:
         try:  # fail now, not after the other controllers have run
-            read_policy_metadata(args.residual)
+            load_residual_policy(args.residual)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
     return args
