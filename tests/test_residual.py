@@ -396,3 +396,8 @@ def test_residual_features_use_the_drives_datasheet_values() -> None:
 
     realism, config = PlantRealism(), ResidualConfig()
     assert (config.ripple_periods, config.stribeck_velocity) == (realism.ripple_periods, realism.stribeck_velocity)
+
+
+def test_a_missing_shipped_policy_says_how_to_get_a_base(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match=r"pass base=.*python -m eval\.identify"):
+        shipped_base_setup(tmp_path / "absent.zip")

@@ -241,7 +241,13 @@ def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> BaseSetup:
         FileNotFoundError: if ``path`` does not exist.
         ValueError: if it is not a policy file or its policy was trained on a custom base.
     """
-    metadata = read_policy_metadata(path)
+    try:
+        metadata = read_policy_metadata(path)
+    except FileNotFoundError as error:
+        raise FileNotFoundError(
+            f"{error}: it holds the default base controller of DeltaPickPlaceResidual-v0; reinstall the package or "
+            "pass base= (e.g. controllers.registry.model_controller with parameters from `python -m eval.identify`)"
+        ) from None
     if metadata.get("base") is None:
         raise ValueError(
             f"{path} records no base controller; pass base= (e.g. controllers.registry.model_controller with "
