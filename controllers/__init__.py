@@ -1,0 +1,49 @@
+"""Controllers of the Delta robot: the algorithms, never the experiments (docs/design.md section 6).
+
+A controller sees only the env's observation and nominal or identified parameters (the oracle bound
+excepted). ``import controllers`` registers ``DeltaPickPlaceResidual-v0`` (the residual-policy env) with
+Gymnasium; SB3 and torch are imported only when a policy is loaded or trained.
+"""
+
+import gymnasium as gym
+
+from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PDController
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
+from controllers.feedforward import FeedforwardController, OracleController
+from controllers.payload import PayloadEstimator, tare_from_observations
+from controllers.registry import (
+    CONTROLLER_LABELS,
+    ESTIMATING_KEYS,
+    ESTIMATOR_REGRESSORS,
+    ControllerSetup,
+    build_controller,
+    model_controller,
+)
+
+__all__ = [
+    "CONTROLLER_LABELS",
+    "DEFAULT_KD",
+    "DEFAULT_KP",
+    "ESTIMATING_KEYS",
+    "ESTIMATOR_REGRESSORS",
+    "Controller",
+    "ControllerSetup",
+    "DeltaDynamics",
+    "FeedforwardController",
+    "JointStateFilter",
+    "JointStateSmoother",
+    "ModelParameters",
+    "Observation",
+    "OracleController",
+    "PDController",
+    "PayloadEstimator",
+    "PayloadRLS",
+    "build_controller",
+    "model_controller",
+    "smooth_joint_motion",
+    "tare_from_observations",
+]
+
+# The env wraps DeltaPickPlace-v0 with a base controller; its module is imported when the env is made.
+gym.register(id="DeltaPickPlaceResidual-v0", entry_point="controllers.residual.env:DeltaResidualEnv")

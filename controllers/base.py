@@ -12,7 +12,16 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from delta_env.validation import require_in
+
 Observation = Mapping[str, NDArray[np.float64]]
+"""The env's observation dict (see ``delta_env.env.DeltaPickPlaceEnv``)."""
+
+DEFAULT_KP = 3000.0
+"""Proportional gain (N m/rad) of every controller's joint PD feedback."""
+
+DEFAULT_KD = 60.0
+"""Derivative gain (N m s/rad) of every controller's joint PD feedback."""
 
 
 @runtime_checkable
@@ -38,13 +47,9 @@ class PDController:
 
     name = "PD"
 
-    def __init__(self, kp: float = 3000.0, kd: float = 60.0) -> None:
-        if not (np.isfinite(kp) and kp >= 0.0):
-            raise ValueError(f"kp must be a finite gain >= 0 N m/rad, got {kp!r}")
-        if not (np.isfinite(kd) and kd >= 0.0):
-            raise ValueError(f"kd must be a finite gain >= 0 N m s/rad, got {kd!r}")
-        self.kp = float(kp)
-        self.kd = float(kd)
+    def __init__(self, kp: float = DEFAULT_KP, kd: float = DEFAULT_KD) -> None:
+        self.kp = require_in("kp", kp, 0.0, unit="N m/rad")
+        self.kd = require_in("kd", kd, 0.0, unit="N m s/rad")
 
     def reset(self) -> None:
         """PD has no state."""

@@ -1,6 +1,6 @@
 """Inverse dynamics of the Delta robot: the Kuo & Huang model (MKH) and its identified forms.
 
-DESIGN.md section 3. Active arm: homogeneous rod m1; each forearm pair: m2 at the elbow and m2 at the
+docs/design.md section 3. Active arm: homogeneous rod m1; each forearm pair: m2 at the elbow and m2 at the
 platform; platform m0 plus payload mp. With Mt = m0 + mp + 3 m2, I = (m1/3 + m2) l1^2 and
 G_i = -(m1/2 + m2) g l1 cos th_i (theta > 0 turns an arm down, so holding torques are negative):
 
@@ -35,22 +35,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
 from delta_env.geometry import CHAIN_AZIMUTHS, GRAVITY, NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+from delta_env.validation import require_in, require_positive
 
 # cos and sin of the chain azimuths as Python floats, for the scalar single-sample path.
 _COS_ALPHA = tuple(math.cos(alpha) for alpha in CHAIN_AZIMUTHS.tolist())
 _SIN_ALPHA = tuple(math.sin(alpha) for alpha in CHAIN_AZIMUTHS.tolist())
 
 
-def _require_finite(name: str, value: float, *, minimum: float, strict: bool) -> None:
-    ok = math.isfinite(value) and (value > minimum if strict else value >= minimum)
-    if not ok:
-        relation = ">" if strict else ">="
-        raise ValueError(f"{name} must be a finite number {relation} {minimum}, got {value!r}")
-
-
 @dataclass(frozen=True)
 class ModelParameters:
-    """Identified corrections to MKH (DESIGN.md sections 3 and 7); the defaults give plain MKH.
+    """Identified corrections to MKH (docs/design.md sections 3 and 7); the defaults give plain MKH.
 
     Attributes:
         rho1: Scale of the joint inertia I (dimensionless, > 0): the forearms' missing inertia.
@@ -65,14 +59,14 @@ class ModelParameters:
     coulomb: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        _require_finite("rho1", self.rho1, minimum=0.0, strict=True)
-        _require_finite("rho2", self.rho2, minimum=0.0, strict=True)
+        require_positive("rho1", self.rho1)
+        require_positive("rho2", self.rho2)
         for name in ("viscous", "coulomb"):
             values = tuple(float(v) for v in getattr(self, name))
             if len(values) != 3:
                 raise ValueError(f"{name} must have one value per joint (3), got {getattr(self, name)!r}")
             for joint, value in enumerate(values, start=1):
-                _require_finite(f"{name}[{joint}]", value, minimum=0.0, strict=False)
+                require_in(f"{name}[{joint}]", value, 0.0)
             object.__setattr__(self, name, values)
 
 
@@ -103,7 +97,7 @@ class DeltaDynamics:
     ) -> None:
         self.geometry = geometry
         self.masses = DeltaMasses(m1=m1, m2=m2, m0=m0)  # validates the masses
-        _require_finite("g", g, minimum=0.0, strict=False)
+        require_in("g", g, 0.0, unit="m/s^2")
         self.g = float(g)
         self.parameters = ModelParameters() if parameters is None else parameters
         l1 = geometry.l1
@@ -124,7 +118,7 @@ class DeltaDynamics:
 
     @classmethod
     def nominal(cls, parameters: ModelParameters | None = None, *, forearm_rods: bool = False) -> DeltaDynamics:
-        """The model with the datasheet geometry and masses (DESIGN.md section 4)."""
+        """The model with the datasheet geometry and masses (docs/design.md section 4)."""
         m = NOMINAL_MASSES
         return cls(NOMINAL_GEOMETRY, m1=m.m1, m2=m.m2, m0=m.m0, parameters=parameters, forearm_rods=forearm_rods)
 
@@ -214,7 +208,7 @@ class DeltaDynamics:
     def identification_regressor(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Regressor of the model, linear in the identified parameters (DESIGN.md section 3).
+        """Regressor of the model, linear in the identified parameters (docs/design.md section 3).
 
         tau_i = rows[..., i, :] . (rho1, rho2, fv_i, fc_i) + known[..., i]
 
@@ -271,7 +265,7 @@ class DeltaDynamics:
         (ca1, ca2, ca3), (sa1, sa2, sa3) = _COS_ALPHA, _SIN_ALPHA
         c1, c2, c3 = math.cos(t1), math.cos(t2), math.cos(t3)
         s1, s2, s3 = math.sin(t1), math.sin(t2), math.sin(t3)
-        # Elbows J'_i (DESIGN.md section 2), written out: this runs at 1 kHz in Python.
+        # Elbows J'_i (docs/design.md section 2), written out: this runs at 1 kHz in Python.
         e1, e2, e3 = r + l1 * c1, r + l1 * c2, r + l1 * c3
         p1x, p1y, p1z = e1 * ca1, e1 * sa1, -l1 * s1
         p2x, p2y, p2z = e2 * ca2, e2 * sa2, -l1 * s2

@@ -1,11 +1,11 @@
 """Estimators on filterpy: joint rates and accelerations from encoders, payload mass by RLS.
 
 - :func:`smooth_joint_motion`: offline Kalman RTS smoother over recorded encoder angles, for the
-  identification (DESIGN.md section 7; the paper smooths with Kalman smoothers too).
+  identification (docs/design.md section 7; the paper smooths with Kalman smoothers too).
 - :class:`JointStateSmoother`: the fixed-lag RTS smoother of the same model for the 1 kHz payload
   estimator: a few milliseconds late, but without the causal filter's lag and shape errors.
 - :class:`JointStateFilter`: the causal Kalman filter of the same model.
-- :class:`PayloadRLS`: recursive least squares of the payload mass with forgetting (DESIGN.md
+- :class:`PayloadRLS`: recursive least squares of the payload mass with forgetting (docs/design.md
   section 6), as filterpy's KalmanFilter with F = I, Q = 0 and fading memory.
 
 Joint model: per joint a constant-acceleration model driven by white jerk; the three joints form
@@ -24,46 +24,34 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_NOISE_STD
+from delta_env.validation import require_in, require_joint_vector, require_positive
 
 SMOOTHER_JERK_STD = 1000.0
 """Default jerk standard deviation (rad/s^3) of the smoother's model, white at the sample rate.
 
-Tuned on 3 g and 6 g minimum-jerk pick moves (peak joint jerk 2e3 to 6e3 rad/s^3) sampled at 1 kHz
-by 17-bit encoders: its RMS acceleration error is within 1.5x of the best value over 500 to 50000
-at both speeds (0.3 and 0.4 rad/s^2, against 28 rad/s^2 by central differences).
+Below the peak joint jerk of 3 g and 6 g minimum-jerk pick moves (2e3 to 6e3 rad/s^3): on such moves
+sampled by 17-bit encoders the smoother's acceleration error is flat over a wide range of this value and
+two orders of magnitude below central differences.
 """
 
 FILTER_JERK_STD = 3000.0
 """Default jerk standard deviation (rad/s^3) of the causal filter's model.
 
 Higher than the smoother's because the causal filter's error is dominated by lag (about 3 ms on
-the acceleration). On the same moves its RMS acceleration error is within 1.1x of the best value
-(2.3 rad/s^2 at 3 g, 4.4 rad/s^2 at 6 g, peaks of 9 and 17 rad/s^2 at the jerk steps).
+the acceleration), which a stiffer model shortens at the price of noise.
 """
 
 _INITIAL_RATE_STD = 10.0  # rad/s: the first rate is unknown until a few samples are in
 _INITIAL_ACCELERATION_STD = 1000.0  # rad/s^2
 
 
-def _require_positive(name: str, value: float) -> None:
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-
-
-def _joint_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    array = np.asarray(value, dtype=float)
-    if array.shape != (3,) or not np.isfinite(array).all():
-        raise ValueError(f"{name} must be 3 finite values, got {value!r}")
-    return array
-
-
 def _joint_kalman_filter(
     dt: float, measurement_std: float, jerk_std: float, theta0: NDArray[np.float64]
 ) -> KalmanFilter:
     """The constant-acceleration filter of ``len(theta0)`` joints (3 states each), at rest at ``theta0`` (rad)."""
-    _require_positive("dt", dt)
-    _require_positive("measurement_std", measurement_std)
-    _require_positive("jerk_std", jerk_std)
+    require_positive("dt", dt)
+    require_positive("measurement_std", measurement_std)
+    require_positive("jerk_std", jerk_std)
     joints = len(theta0)
     kf = KalmanFilter(dim_x=3 * joints, dim_z=joints)
     kf.F = np.kron(kinematic_state_transition(order=2, dt=dt), np.eye(joints))
@@ -160,7 +148,7 @@ class JointStateFilter:
 
     def reset(self, theta0: ArrayLike) -> None:
         """Start at rest at the measured angles ``theta0`` (rad), ``(3,)``."""
-        self.kf.x = np.concatenate((_joint_vector("theta0", theta0), np.zeros(6)))
+        self.kf.x = np.concatenate((require_joint_vector("theta0", theta0), np.zeros(6)))
         self.kf.P = self._steady_state_P.copy()
         self._is_reset = True
 
@@ -175,7 +163,7 @@ class JointStateFilter:
         """
         if not self._is_reset:
             raise RuntimeError("JointStateFilter.reset(theta0) must be called before update()")
-        z = _joint_vector("theta_measured", theta_measured)
+        z = require_joint_vector("theta_measured", theta_measured)
         self.kf.predict()
         self.kf.update(z)
         state = self.kf.x.copy()
@@ -184,13 +172,12 @@ class JointStateFilter:
 
 SMOOTHER_LAG = 5
 """Default delay (samples) of :class:`JointStateSmoother`'s estimates: the readings after the estimated
-sample that it uses. On 0.5 kg pick-and-place carries replayed through the payload RLS, 5 to 15 samples
-remove the late bias of the causal filter (worst settling to +-5 % 154 to 165 ms against 304 ms) and 5 is
-the earliest; with 3 the bias is back."""
+sample that it uses: the shortest delay at which the payload RLS loses the causal filter's bias (with 3
+samples the bias is back)."""
 
 SMOOTHER_HISTORY = 20
-"""Default readings (samples) before the estimated one that :class:`JointStateSmoother` uses; 40 gives the
-same payload estimates."""
+"""Default readings (samples) before the estimated one that :class:`JointStateSmoother` uses: longer
+windows give the same payload estimates."""
 
 
 class JointStateSmoother:
@@ -200,9 +187,8 @@ class JointStateSmoother:
     :func:`smooth_joint_motion`'s model (filterpy's ``batch_filter`` and ``rts_smoother``) over the window
     of the last ``history + lag + 1`` readings, with a diffuse prior at the window start. That estimate is
     linear in the window's readings, so the smoother is computed once, at construction, as the weights of
-    each reading (filterpy's smoother run on unit readings), and each update is one small matrix product:
-    7 to 13 us on this machine, against 60 to 70 us for :class:`JointStateFilter`'s filterpy predict and
-    update.
+    each reading (filterpy's smoother run on unit readings), and each update is one small matrix product,
+    several times cheaper than :class:`JointStateFilter`'s filterpy predict and update.
 
     Unlike :class:`JointStateFilter`, whose acceleration lags about 3 ms behind a constant jerk and has a
     different shape error wherever the jerk changes, the smoother is unbiased within the model; the price
@@ -254,7 +240,7 @@ class JointStateSmoother:
 
     def reset(self, theta0: ArrayLike) -> None:
         """Start at rest at the measured angles ``theta0`` (rad), ``(3,)``: the window is filled with them."""
-        self._readings[:] = _joint_vector("theta0", theta0)
+        self._readings[:] = require_joint_vector("theta0", theta0)
         self._next = 0
         self._is_reset = True
 
@@ -269,7 +255,7 @@ class JointStateSmoother:
         """
         if not self._is_reset:
             raise RuntimeError("JointStateSmoother.reset(theta0) must be called before update()")
-        z = _joint_vector("theta_measured", theta_measured)
+        z = require_joint_vector("theta_measured", theta_measured)
         window = self.weights.shape[1]
         slot = self._next
         self._readings[slot] = self._readings[slot + window] = z
@@ -284,7 +270,7 @@ class PayloadRLS:
     y = tau_measured - tau_model(mp = 0) (N m) and phi = J^T (xdd + g e_z) (N m/kg, from
     ``DeltaDynamics.payload_regressor``), three rows per sample. filterpy's KalmanFilter with
     F = 1, Q = 0, H = phi, R = noise_std^2 I and fading memory alpha = 1/sqrt(lambda) is exactly RLS
-    with forgetting factor lambda (DESIGN.md section 6): the prior P / lambda discounts old data.
+    with forgetting factor lambda (docs/design.md section 6): the prior P / lambda discounts old data.
 
     Args:
         forgetting_factor: lambda in (0, 1]; the memory is about 1 / (1 - lambda) samples
@@ -305,12 +291,10 @@ class PayloadRLS:
         initial_variance: float = 4.0,
         initial_mass: float = 0.0,
     ) -> None:
-        if not (math.isfinite(forgetting_factor) and 0.0 < forgetting_factor <= 1.0):
-            raise ValueError(f"forgetting_factor must be in (0, 1], got {forgetting_factor!r}")
-        _require_positive("noise_std", noise_std)
-        _require_positive("initial_variance", initial_variance)
-        if not math.isfinite(initial_mass):
-            raise ValueError(f"initial_mass must be finite, got {initial_mass!r}")
+        require_in("forgetting_factor", forgetting_factor, 0.0, 1.0, low_open=True)
+        require_positive("noise_std", noise_std)
+        require_positive("initial_variance", initial_variance)
+        require_in("initial_mass", initial_mass, unit="kg")
         self.forgetting_factor = float(forgetting_factor)
         self.initial_variance = float(initial_variance)
         self.kf = KalmanFilter(dim_x=1, dim_z=3)
@@ -339,8 +323,8 @@ class PayloadRLS:
             phi: Payload regressor (N m/kg), ``(3,)``.
             y: Torque residual tau_measured - tau_model(mp = 0) (N m), ``(3,)``.
         """
-        H = _joint_vector("phi", phi).reshape(3, 1)
-        z = _joint_vector("y", y)
+        H = require_joint_vector("phi", phi).reshape(3, 1)
+        z = require_joint_vector("y", y)
         self.kf.predict()
         self.kf.update(z, H=H)
         return float(self.kf.x[0])

@@ -1,4 +1,4 @@
-"""Model-based feedforward plus PD feedback, and the oracle bound (DESIGN.md section 6; the paper's Fig. 9).
+"""Model-based feedforward plus PD feedback, and the oracle bound (docs/design.md section 6; the paper's Fig. 9).
 
 tau = model(th_ref, thd_ref, thdd_ref; m_hat) + Kp (th_ref - th) + Kd (thd_ref - thd)
 
@@ -80,7 +80,7 @@ class OracleController:
     Knows the truth, unlike every other controller: the plant configuration (passed in) and the mass of
     each object (:meth:`set_payload_masses`, given by the evaluation after ``env.reset``). The object
     held is counted from the gripper's closing edges. The actuator lag is not compensated (the oracle
-    gives the torque that must act at the joints, DESIGN.md section 4).
+    gives the torque that must act at the joints, docs/design.md section 4).
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).

@@ -1,4 +1,4 @@
-"""Online payload mass estimation for the feedforward controllers (the paper's section 5, DESIGN.md section 6).
+"""Online payload mass estimation for the feedforward controllers (the paper's section 5, docs/design.md section 6).
 
 The payload enters the identified model linearly, tau(mp) = tau0 + mp phi with tau0 = tau_model(mp = 0) and
 phi = J^T (xdd + g e_z) (``DeltaDynamics.torque_and_payload_regressor``), so each control step gives three
@@ -16,9 +16,12 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   weighted by a standard deviation that grows as |thd_i| falls (:func:`residual_std`): the nominal residual
   plus the static friction band fc_i, fading as exp(-(thd_i / v_w)^2) with v_w = 1 rad/s
   (:data:`FRICTION_VELOCITY`). That error is one constant per stop, not white noise, so its variance is
-  inflated by the samples of a dwell: a whole stop counts as one equation (without this, in one measured run,
-  50 ms at rest after a pick pulled the estimate of a 0.5 kg object to 2.6 kg). Weighting is done by whitening
+  inflated by the samples of a dwell: a whole stop counts as one equation, instead of outweighing the
+  moving samples of the carry that follows it. Weighting is done by whitening
   (dividing phi_i and y_i by sigma_i), which is exactly RLS with R = diag(sigma_i^2) per update.
+- **Torque timing.** A measured torque is ``delta_env.sensors.MEASURED_TORQUE_DELAY`` older than the
+  encoder sample it comes with; every regressor below evaluates the model at the joint state interpolated
+  linearly back to that instant, between the sample and the one before.
 - **Joint states.** With ``regressor="smoothed"`` (the default) tau0 and phi are evaluated on the
   fixed-lag Kalman smoother's estimate of sample k - L (:class:`~controllers.estimation.JointStateSmoother`,
   L = 5 ms) and compared with the torque measured with that sample. ``regressor="filtered"`` uses the
@@ -26,14 +29,11 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   and rate without lag but the acceleration about 3 ms late (:func:`acceleration_lag`): the model is
   evaluated at (theta_{k-D}, theta_dot_{k-D}, theta_ddot_k), D = that lag in samples, with the torque of
   sample k - D. That alignment is exact for a constant jerk only; where the jerk changes, the filter's
-  acceleration error has another shape, which biased 0.5 kg estimates by up to 6 % for 100 ms and more in
-  the middle of a carry (over 24 seeded carries, 20 settled to +-5 % by 150 ms, the worst at 304 ms; with
-  the smoother 23, the worst at 157 ms, and 24, the worst at 124 ms, once :data:`FRICTION_VELOCITY` was
-  widened to 1 rad/s).
-  ``regressor="reference"`` evaluates tau0 and phi on the reference instead (interpolated half a period
-  back to the torque sample): no lag and no noise, but it silently assumes the robot is where the
-  reference is, so the tracking transient right after a pick (the payload not yet fed forward) biases
-  the estimate when it matters most; ``python -m eval`` runs both.
+  acceleration error has another shape, which biases light payload estimates by several percent for
+  100 ms and more in the middle of a carry; the smoother has no such bias within its model.
+  ``regressor="reference"`` evaluates tau0 and phi on the reference instead: no lag and no noise, but it
+  silently assumes the robot is where the reference is, so the tracking transient right after a pick (the
+  payload not yet fed forward) biases the estimate when it matters most; ``python -m eval`` runs both.
 - **Model error along phi (the tare).** The model should have the forearm pairs as rods (MId+F+R,
   ``DeltaDynamics(forearm_rods=True)``): MId+F lumps each pair into two point masses, more inertia than two
   rods, so even at the plant's exact states it needs -0.1 kg of payload to match the plant with an empty
@@ -64,20 +64,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import (
-    CONTROL_PERIOD,
-    JointStateFilter,
-    JointStateSmoother,
-    PayloadRLS,
-    _require_positive,
-)
+from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.validation import require_in, require_positive
 
 RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
 ripple (1 N m amplitude, 0.7 N m RMS) and the model's error on the plant (about 1 N m RMS of
 tau_plant - tau_MId+F over excitation data at exact states), added in quadrature. MId+F+R's smaller error
-(0.06 N m at exact states, 0.8 N m RMS on smoothed measured data) would make it 1.2 N m; 0.7, 1.0 and
-1.5 N m settled the same 43 of 48 replayed 0.5 kg carries (with v_w = 0.1 rad/s), so it stays."""
+(0.06 N m at exact states, 0.8 N m RMS on smoothed measured data) would make it 1.2 N m; the estimates
+hardly depend on this value between 0.7 and 1.5 N m."""
 
 FRICTION_VELOCITY = 1.0
 """Speed (rad/s) below which the friction of a joint is not the model's fv thd + fc sign(thd).
@@ -85,15 +81,18 @@ FRICTION_VELOCITY = 1.0
 On a geared drive that covers the Stribeck region (0.01 to 0.1 rad/s is typical) and, more widely, the
 start and the end of every move, where the friction builds up or falls away while the joint accelerates
 or brakes: on the plant, the identification's held-out torque error is 1.45 N m RMS between 0 and
-0.2 rad/s against 0.80 N m above. Chosen by replaying 48 seeded 0.5 kg carries through the estimator
-(0.1, 0.2, 0.3, 0.5, 1.0 and 2.0 rad/s settled 43, 45, 45, 47, 48 and 45 to +-5 % within 150 ms) and
-checked on 48 other carries of 0.5 to 3.8 kg (48/48, worst 129 ms; 45/48 with 0.1 rad/s)."""
+0.2 rad/s against 0.80 N m above. A narrower band lets that friction error into light payload estimates
+after each stop; a wider one discards the samples of the lift that determine the mass."""
 
 FRICTION_CORRELATION_SAMPLES = 100
 """Samples over which the friction error of a joint at rest stays the same: a station dwell (100 ms at
 1 kHz). Static friction is not white noise but one unknown constant per stop; inflating its variance
 by the number of correlated samples makes a whole dwell count as about one independent equation
 (the usual effective-sample-size correction of least squares with correlated errors)."""
+
+_TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
+"""How long (in control periods) a measured torque precedes the encoder sample it comes with: the
+payload equation of a sample is formed at the state interpolated this far back towards the previous one."""
 
 PICK_PRIOR_VARIANCE = 16.0 / 3.0
 """Variance (kg^2) restored at a pick: the mean square of a mass uniform on [0, 4] kg (the rating)
@@ -189,11 +188,10 @@ class PayloadEstimator:
     ) -> None:
         if regressor not in ("smoothed", "filtered", "reference"):
             raise ValueError(f"regressor must be 'smoothed', 'filtered' or 'reference', got {regressor!r}")
-        _require_positive("nominal_std", nominal_std)
-        _require_positive("friction_velocity", friction_velocity)
-        _require_positive("correlation_samples", correlation_samples)
-        if not math.isfinite(tare):
-            raise ValueError(f"tare must be a finite mass (kg), got {tare!r}")
+        require_positive("nominal_std", nominal_std)
+        require_positive("friction_velocity", friction_velocity)
+        require_positive("correlation_samples", correlation_samples)
+        require_in("tare", tare, unit="kg")
         friction = dynamics.parameters.coulomb if static_friction is None else tuple(static_friction)
         if len(friction) != 3 or not all(math.isfinite(f) and f >= 0.0 for f in friction):
             raise ValueError(f"static_friction must be 3 finite values >= 0 N m, got {static_friction!r}")
@@ -226,6 +224,7 @@ class PayloadEstimator:
         self._filter_started = False
         self._holding = False
         self._previous_reference: tuple[NDArray[np.float64], NDArray[np.float64], list[float]] | None = None
+        self._previous_state: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
 
     @property
     def mass(self) -> float:
@@ -238,6 +237,7 @@ class PayloadEstimator:
         self._filter_started = False
         self._holding = False
         self._previous_reference = None
+        self._previous_state = None
         self._history.clear()
 
     def update(
@@ -293,10 +293,10 @@ class PayloadEstimator:
             self._previous_reference = current
             if not holding:
                 return None
-            # The torque was measured half a period before the encoders and the reference of this step.
-            tau0 = 0.5 * (previous[0] + reference_torque)
-            phi = 0.5 * (previous[1] + reference_regressor)
-            rates = [0.5 * (a + b) for a, b in zip(previous[2], rates, strict=True)]
+            # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
+            tau0 = reference_torque - _TORQUE_AGE * (reference_torque - previous[0])
+            phi = reference_regressor - _TORQUE_AGE * (reference_regressor - previous[1])
+            rates = [b - _TORQUE_AGE * (b - a) for a, b in zip(previous[2], rates, strict=True)]
             torque = observation["joint_torques"]
         else:
             angles = observation["joint_angles"]
@@ -310,12 +310,15 @@ class PayloadEstimator:
             # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
             # estimate with its angles and rates of D samples ago, and the torque measured then.
             delayed, torque, held = self._history[0]
+            state = estimate if self.regressor == "smoothed" else (delayed[0], delayed[1], estimate[2])
+            previous_state = self._previous_state if self._previous_state is not None else state
+            self._previous_state = state
             if not (holding and held):
                 return None
-            if self.regressor == "smoothed":
-                theta, theta_dot, theta_ddot = estimate
-            else:
-                (theta, theta_dot, _), theta_ddot = delayed, estimate[2]
+            # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
+            theta, theta_dot, theta_ddot = (
+                x - _TORQUE_AGE * (x - p) for x, p in zip(state, previous_state, strict=True)
+            )
             tau0, phi = self.dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
             rates = theta_dot.tolist()
 

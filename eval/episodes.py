@@ -1,120 +1,30 @@
-"""The controllers under evaluation and the episodes they run (DESIGN.md section 8).
+"""The one closed-loop episode runner of every experiment, and what it records (docs/design.md section 8).
 
-Every controller is built from the nominal geometry and masses and the identified parameters only; the
-oracle row is the labelled exception that knows the plant and the payloads. An episode is a seeded
-``DeltaPickPlaceEnv`` run: the same seed gives every controller the same path and the same objects.
-The evaluator itself reads the truth (``info`` and the plant's joint state) to score the run.
+An episode is a seeded ``DeltaPickPlaceEnv`` run of a :class:`~controllers.base.Controller`: the same seed
+gives every controller the same path, the same objects and the same sensor noise. :func:`run_episode`
+runs the comparison's episodes, the tare calibrations, the residual policy's scores and the
+identification's excitation runs. The runner reads the truth (``info`` and the plant's joint state) to
+score the run; the controller sees only the observations.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, Observation, PDController
-from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.estimation import smooth_joint_motion
-from controllers.feedforward import FeedforwardController, OracleController
-from controllers.payload import PayloadEstimator
-from controllers.residual import DEFAULT_POLICY_PATH, load_residual_controller
+from controllers.base import Controller, Observation
+from controllers.dynamics import DeltaDynamics
+from controllers.feedforward import OracleController
+from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.trajectories import Trajectory
 from eval import metrics
-
-CONTROLLER_LABELS = {
-    "pd": "PD",
-    "mkh": "MKH+PD",
-    "mid": "MId+PD",
-    "mid_f": "MId+F+PD",
-    "mid_f_r": "MId+F+R+PD",
-    "mid_f_rls": "MId+F+R+RLS+PD",
-    "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
-    "oracle": "Oracle+PD (bound)",
-    "residual": "MId+F+R+RLS+PD + residual",
-}
-"""Controller keys of ``--controllers`` and their labels. ``+R``: the identified model with rod forearms
-(``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
-estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
-reference, for comparison. The oracle knows the plant and the true payloads: an upper bound, not a
-controller. ``residual`` is the learned residual policy (``controllers.residual``) on the base it was
-trained on, rebuilt from the policy file; for the shipped policy that is the ``mid_f_rls`` controller with the
-identified parameters and the tare of its training run."""
-
-SMOOTHER_TRIM = 50
-"""Samples dropped at each end of a smoothed record (50 ms): the RTS smoother sees one side only there."""
-
-ESTIMATOR_REGRESSORS = {"mid_f_rls": "smoothed", "mid_f_rls_ref": "reference"}
-"""The payload estimator variant of each RLS controller key."""
-
-ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
-"""Controllers that estimate the payload, whose carries are scored: the RLS rows (which ``python -m eval`` tares)
-and the residual (its base's tare comes with the policy file)."""
-
-
-@dataclass(frozen=True)
-class ControllerSetup:
-    """What the controllers may know besides the observation.
-
-    Attributes:
-        mid: Identified MId parameters (rho1, rho2).
-        mid_f: Identified MId+F parameters (rho1, rho2, friction).
-        mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
-        tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
-        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
-        residual_policy: The residual policy file of the ``residual`` row.
-    """
-
-    mid: ModelParameters
-    mid_f: ModelParameters
-    mid_f_rods: ModelParameters
-    tares: Mapping[str, float] = field(default_factory=dict)
-    pd_gains: tuple[float, float] = (3000.0, 60.0)
-    residual_policy: Path = DEFAULT_POLICY_PATH
-
-
-def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
-    """The controller of ``key`` (see :data:`CONTROLLER_LABELS`).
-
-    Args:
-        key: Controller key.
-        setup: Identified parameters, tares and gains.
-        env: Needed for the oracle only, which inverts the env's plant; never given to the others.
-    """
-    if key not in CONTROLLER_LABELS:
-        raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
-    pd = PDController(*setup.pd_gains)
-    if key == "pd":
-        return pd
-    if key == "residual":
-        return load_residual_controller(setup.residual_policy, name=CONTROLLER_LABELS[key])
-    if key == "oracle":
-        if env is None:
-            raise ValueError("the oracle needs the env whose plant it inverts")
-        return OracleController(env.plant_config, pd=pd)
-    if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
-        dynamics = estimation_model(setup)
-    else:
-        dynamics = DeltaDynamics.nominal({"mkh": None, "mid": setup.mid}.get(key, setup.mid_f))
-    estimator = None
-    if key in ESTIMATOR_REGRESSORS:
-        estimator = payload_estimator(key, dynamics, setup.tares.get(key, 0.0))
-    return FeedforwardController(CONTROLLER_LABELS[key], dynamics, pd=pd, estimator=estimator)
-
-
-def estimation_model(setup: ControllerSetup) -> DeltaDynamics:
-    """MId+F+R: the identified model with rod forearms, of the payload estimators and their feedforward."""
-    return DeltaDynamics.nominal(setup.mid_f_rods, forearm_rods=True)
-
-
-def payload_estimator(key: str, dynamics: DeltaDynamics, tare: float = 0.0) -> PayloadEstimator:
-    """The payload estimator of the RLS controller ``key``."""
-    return PayloadEstimator(dynamics, regressor=ESTIMATOR_REGRESSORS[key], tare=tare)
 
 
 @dataclass
@@ -172,16 +82,16 @@ class EpisodeRecord:
         }
 
     def model_torques(
-        self, dynamics: DeltaDynamics, tare: float = 0.0, trim: int = SMOOTHER_TRIM
+        self, dynamics: DeltaDynamics, tare: float = 0.0, trim: int = TRIM_SAMPLES
     ) -> dict[str, NDArray[np.float64]]:
         """Measured torques and the model's torques at the motion recorded, for the paper's Table 2.
 
-        The motion is the RTS-smoothed encoder record (offline, as the paper's recorded data), interpolated
-        half a period back to the torque samples, which the drive takes half a period before its encoder
-        sample; ``trim`` samples are dropped at each end, where the smoother sees one side only.
+        The motion is the RTS-smoothed encoder record (offline, as the paper's recorded data) at the instants
+        the torques were measured (:func:`controllers.identification.motion_at_torque_samples`), as in the
+        identification; ``trim`` samples are dropped at each end, where the smoother sees one side only.
 
         Args:
-            dynamics: The model (MId+F).
+            dynamics: The model (MId+F+R).
             tare: The estimator's tare (kg), for the ``"apparent"`` torque.
             trim: Samples dropped at each end.
 
@@ -190,14 +100,12 @@ class EpisodeRecord:
             held, 0 with an empty gripper), ``"apparent"`` (with the tare added, as fed forward), each
             ``(M, 3)`` N m, and ``"time"`` (s), ``"estimate"`` and ``"mass"`` (kg), each ``(M,)``.
         """
-        theta, theta_dot, theta_ddot = smooth_joint_motion(self.encoder_angles, CONTROL_PERIOD)
-        states = [0.5 * (x[1:] + x[:-1]) for x in (theta, theta_dot, theta_ddot)]
-        kept = slice(1 + trim, len(self.encoder_angles) - trim)
+        motion = motion_at_torque_samples(self.encoder_angles, CONTROL_PERIOD)
+        kept = slice(trim, len(self.encoder_angles) - trim)
         # Estimate used with observation k is payload_estimate[k]; the last observation has none.
         estimate = np.append(self.payload_estimate, self.payload_estimate[-1])[kept]
-        mass = self.payload_mass[kept]
-        tau0 = dynamics.inverse_dynamics(*(x[kept.start - 1 : kept.stop - 1] for x in states))
-        phi = dynamics.payload_regressor(*(x[kept.start - 1 : kept.stop - 1] for x in states))
+        states = [x[kept] for x in motion]
+        tau0, phi = dynamics.inverse_dynamics(*states), dynamics.payload_regressor(*states)
         return {
             "time": np.arange(len(self.encoder_angles))[kept] * CONTROL_PERIOD,
             "measured": self.measured_torque[kept],
@@ -205,7 +113,7 @@ class EpisodeRecord:
             "mp_hat": tau0 + estimate[:, None] * phi,
             "apparent": tau0 + (estimate + tare)[:, None] * phi,
             "estimate": estimate,
-            "mass": mass,
+            "mass": self.payload_mass[kept],
         }
 
     def carries(self) -> list[metrics.CarryMetrics]:
@@ -226,6 +134,7 @@ def run_episode(
     seed: int,
     payload_masses: Sequence[float] | None = None,
     *,
+    reference: Trajectory | None = None,
     keep_observations: bool = False,
 ) -> EpisodeRecord:
     """Run one seeded episode to its end (or divergence) and record it.
@@ -235,10 +144,15 @@ def run_episode(
         controller: Called with each observation; reset here.
         seed: Episode seed.
         payload_masses: Override of the drawn object masses (kg), one per cycle.
+        reference: A reference to follow instead of the env's pick-and-place cycles (e.g. an excitation).
         keep_observations: Keep every observation (for the tare calibration).
     """
-    options = None if payload_masses is None else {"payload_masses": list(payload_masses)}
-    observation, info = env.reset(seed=seed, options=options)
+    options: dict[str, Any] = {}
+    if payload_masses is not None:
+        options["payload_masses"] = list(payload_masses)
+    if reference is not None:
+        options["reference"] = reference
+    observation, info = env.reset(seed=seed, options=options or None)
     if isinstance(controller, OracleController):
         controller.set_payload_masses(info["payload_masses"])  # the oracle's privilege
     controller.reset()

@@ -1,4 +1,4 @@
-"""Evaluation metrics: pure functions of recorded episodes (DESIGN.md section 8).
+"""Evaluation metrics: pure functions of recorded episodes (docs/design.md section 8).
 
 Definitions (units in the names):
 

@@ -1,7 +1,7 @@
 """Figures of an evaluation run, made from the files it saved (never from live objects).
 
 - ``torque_profiles.png``: motor torques of every controller over the first episode (the paper's Figs. 3-5);
-- ``table2_torques.png``: measured torques against MId+F with mp = 0 and mp = m_hat in the 3.8 kg run
+- ``table2_torques.png``: measured torques against MId+F+R with mp = 0 and mp = m_hat in the 3.8 kg run
   (Fig. 7);
 - ``payload_estimate.png``: payload estimate against the true payload over time (Fig. 8);
 - ``error_bars.png``: Table 2 means with standard deviations per joint (Fig. 6 (b)) and the tracking RMS
@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from eval.episodes import ESTIMATING_KEYS
+from controllers.registry import ESTIMATING_KEYS
 
 TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
 """EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""

@@ -1,4 +1,4 @@
-"""The unit of work of ``python -m eval``: one episode of one controller, run in a process pool.
+"""The unit of work of the experiments: one episode of one registered controller, run in a process pool.
 
 It lives in an importable module (not ``eval.__main__``) so that forkserver / spawn workers can unpickle it.
 """
@@ -9,9 +9,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from controllers.processes import pool_context
+from controllers.registry import ControllerSetup, build_controller
 from delta_env.env import DeltaPickPlaceEnv
-from eval.episodes import ControllerSetup, EpisodeRecord, build_controller, run_episode
+from eval.episodes import EpisodeRecord, run_episode
+from eval.processes import parallel_map
 
 
 @dataclass(frozen=True)
@@ -46,16 +47,6 @@ def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     return task, record
 
 
-def run_tasks(tasks: Sequence[Task], workers: int, progress: Any) -> list[tuple[Task, EpisodeRecord]]:
-    """Run ``tasks`` on ``workers`` processes (in this one if 1), updating the tqdm bar ``progress``."""
-    results = []
-    if workers == 1:
-        for task in tasks:
-            results.append(run_task(task))
-            progress.update()
-        return results
-    with pool_context().Pool(workers) as pool:
-        for result in pool.imap_unordered(run_task, tasks):
-            results.append(result)
-            progress.update()
-    return results
+def run_tasks(tasks: Sequence[Task], workers: int, progress: Any = None) -> list[tuple[Task, EpisodeRecord]]:
+    """Run ``tasks`` in order on ``workers`` processes (in this one if 1), advancing the tqdm bar ``progress``."""
+    return parallel_map(run_task, tasks, workers, progress)

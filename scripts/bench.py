@@ -22,10 +22,10 @@ import numpy as np
 
 from controllers.base import PDController
 from controllers.dynamics import ModelParameters
+from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, ControllerSetup, build_controller
 from delta_env.env import DeltaPickPlaceEnv
-from eval.episodes import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, ControllerSetup, build_controller
 
-# Representative identified values (python -m controllers.identify on the default plant, rounded).
+# Representative identified values (python -m eval.identify on the default plant, rounded).
 SETUP = ControllerSetup(
     mid=ModelParameters(rho1=1.80, rho2=0.94),
     mid_f=ModelParameters(rho1=1.76, rho2=0.88, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46)),

@@ -1,5 +1,78 @@
-"""Shared test set-up: headless rendering through EGL unless the caller chose a backend."""
+"""Shared test set-up: headless rendering through EGL unless the caller chose a backend, and shared fixtures."""
 
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from controllers.dynamics import ModelParameters
+from controllers.registry import ControllerSetup
+
+# ---------------------------------------------------------------------------------------------
+# Fixtures of the controllers and eval tests
+
+
+IDENTIFIED_EXAMPLE = ModelParameters(rho1=1.35, rho2=1.12, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
+"""Identified-looking parameters far enough from MKH that every term of the identified model matters."""
+
+
+def _random_joint_states(n: int | tuple[int, ...], seed: int = 0) -> tuple[np.ndarray, ...]:
+    """Angles (rad) in the work zone, rates (rad/s) and accelerations (rad/s^2) of pick cycles."""
+    shape = (n,) if isinstance(n, int) else n
+    rng = np.random.default_rng(seed)
+    theta = rng.uniform(-0.4, 1.0, (*shape, 3))
+    return theta, rng.normal(0.0, 3.0, theta.shape), rng.normal(0.0, 100.0, theta.shape)
+
+
+def _joint_min_jerk_move(
+    theta_start: np.ndarray, theta_end: np.ndarray, duration: float, dt: float
+) -> tuple[np.ndarray, ...]:
+    """A rest-to-rest minimum-jerk move in joint space: angles, rates, accelerations, ``(N, 3)``."""
+    s = np.arange(round(duration / dt) + 1)[:, None] * dt / duration
+    delta = np.asarray(theta_end) - np.asarray(theta_start)
+    theta = theta_start + delta * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    theta_dot = delta * (30 * s**2 - 60 * s**3 + 30 * s**4) / duration
+    theta_ddot = delta * (60 * s - 180 * s**2 + 120 * s**3) / duration**2
+    return theta, theta_dot, theta_ddot
+
+
+@pytest.fixture(scope="session")
+def identified_parameters() -> ModelParameters:
+    """:data:`IDENTIFIED_EXAMPLE`."""
+    return IDENTIFIED_EXAMPLE
+
+
+@pytest.fixture(params=[None, IDENTIFIED_EXAMPLE], ids=["MKH", "identified"])
+def model_parameters(request: pytest.FixtureRequest) -> ModelParameters | None:
+    """Each parameter set a model is tested with: None (plain MKH) and :data:`IDENTIFIED_EXAMPLE`."""
+    return request.param
+
+
+@pytest.fixture(scope="session")
+def random_joint_states() -> Callable[..., tuple[np.ndarray, ...]]:
+    """``random_joint_states(n, seed=0)``: random joint angles, rates and accelerations, ``(n, 3)`` each."""
+    return _random_joint_states
+
+
+@pytest.fixture(scope="session")
+def joint_min_jerk_move() -> Callable[..., tuple[np.ndarray, ...]]:
+    """``joint_min_jerk_move(theta_start, theta_end, duration, dt)``: a rest-to-rest minimum-jerk move."""
+    return _joint_min_jerk_move
+
+
+@pytest.fixture(scope="session")
+def controller_setup() -> ControllerSetup:
+    """The parameters identified on the default realistic plant (``python -m eval.identify``, seed 0), rounded:
+    the tests do not wait a minute for the identification."""
+    return ControllerSetup(
+        mid=ModelParameters(rho1=1.80, rho2=0.936),
+        mid_f=ModelParameters(rho1=1.76, rho2=0.877, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46)),
+        mid_f_rods=ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59)),
+    )
+
+
+# ---------------------------------------------------------------------------------------------

@@ -12,27 +12,27 @@ from numpy.testing import assert_allclose, assert_array_equal
 from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController
-from controllers.payload import PICK_PRIOR_VARIANCE, PayloadEstimator, residual_std, tare_from_observations
-from delta_env import NOMINAL_MASSES, DeltaGeometry
-from delta_env.env import DeltaPickPlaceEnv
-from delta_env.model import PlantConfig
-from eval.episodes import (
+from controllers.payload import PICK_PRIOR_VARIANCE, PayloadEstimator, residual_std
+from controllers.registry import (
     CONTROLLER_LABELS,
     ESTIMATOR_REGRESSORS,
     ControllerSetup,
-    EpisodeRecord,
     build_controller,
     estimation_model,
-    payload_estimator,
-    run_episode,
 )
-from tests.test_dynamics import IDENTIFIED, random_joint_states
+from delta_env import NOMINAL_MASSES, DeltaGeometry
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.model import PlantConfig
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from eval.calibration import calibrate_tares
+from eval.episodes import EpisodeRecord, run_episode
 
 
 @pytest.mark.parametrize("forearm_rods", [False, True])
-@pytest.mark.parametrize("parameters", [None, IDENTIFIED])
-def test_single_sample_model_equals_the_batched_model(parameters: ModelParameters | None, forearm_rods: bool) -> None:
-    model = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
+def test_single_sample_model_equals_the_batched_model(
+    random_joint_states, model_parameters: ModelParameters | None, forearm_rods: bool
+) -> None:
+    model = DeltaDynamics.nominal(model_parameters, forearm_rods=forearm_rods)
     theta, theta_dot, theta_ddot = random_joint_states(300, seed=11)
     theta_dot[:10, 1] = 0.0  # sign(0) = 0 in both paths
     tau0 = model.inverse_dynamics(theta, theta_dot, theta_ddot)
@@ -61,26 +61,15 @@ def test_single_sample_model_rejects_bad_states(l2: float, theta: list[float], m
 # ------------------------------------------------------------------------------------------------
 # Controllers on the plant
 
-# MId and MId+F as identified on the default realistic plant (python -m controllers.identify, seed 0),
-# rounded: the tests do not wait a minute for the identification.
-MID_F = ModelParameters(rho1=1.76, rho2=0.877, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46))
-MID_F_RODS = ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59))
-SETUP = ControllerSetup(mid=ModelParameters(rho1=1.80, rho2=0.936), mid_f=MID_F, mid_f_rods=MID_F_RODS)
 EPISODE_SEED, CALIBRATION_SEED = 3, 1003
 RLS_KEYS = sorted(ESTIMATOR_REGRESSORS)
 
 
-def tare(key: str, n_cycles: int = 1) -> float:
-    """The estimator's tare from one payload-free calibration episode."""
-    env = DeltaPickPlaceEnv(n_cycles=n_cycles)
-    record = run_episode(env, build_controller(key, SETUP), CALIBRATION_SEED, [0.0] * n_cycles, keep_observations=True)
-    value, _ = tare_from_observations(payload_estimator(key, estimation_model(SETUP)), [record.observations])
-    return value
-
-
 @pytest.fixture(scope="module")
-def tared_setup() -> ControllerSetup:
-    return dataclasses.replace(SETUP, tares={key: tare(key) for key in RLS_KEYS})
+def tared_setup(controller_setup: ControllerSetup) -> ControllerSetup:
+    """The setup with each RLS controller's tare from one payload-free calibration episode."""
+    tares, _ = calibrate_tares(RLS_KEYS, controller_setup, [CALIBRATION_SEED], n_cycles=1)
+    return dataclasses.replace(controller_setup, tares=tares)
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +114,7 @@ def test_payload_rls_tracks_within_targets(key: str, records: dict[str, EpisodeR
     ],
 )
 def test_rls_converges_to_the_true_payload_on_the_plant(
-    variant: str, masses: tuple[float, ...], deadline_ms: float
+    tared_setup: ControllerSetup, variant: str, masses: tuple[float, ...], deadline_ms: float
 ) -> None:
     if variant == "ideal":
         env = DeltaPickPlaceEnv(plant=PlantConfig.ideal(), n_cycles=len(masses))
@@ -133,8 +122,8 @@ def test_rls_converges_to_the_true_payload_on_the_plant(
         estimator, tolerance = PayloadEstimator(dynamics), 0.01
     else:
         env = DeltaPickPlaceEnv(n_cycles=len(masses))
-        dynamics = estimation_model(SETUP)
-        estimator, tolerance = PayloadEstimator(dynamics, tare=tare("mid_f_rls")), 0.05
+        dynamics = estimation_model(tared_setup)
+        estimator, tolerance = PayloadEstimator(dynamics, tare=tared_setup.tares["mid_f_rls"]), 0.05
     controller = FeedforwardController("MId+F+RLS", dynamics, estimator=estimator)
     record = run_episode(env, controller, seed=8, payload_masses=masses)
     carries = record.carries()
@@ -146,9 +135,9 @@ def test_rls_converges_to_the_true_payload_on_the_plant(
     assert np.all(record.payload_estimate[empty] == 0.0), "0 kg with the gripper open"
 
 
-def test_whitened_rls_is_rls_with_per_joint_noise() -> None:
+def test_whitened_rls_is_rls_with_per_joint_noise(random_joint_states, controller_setup) -> None:
     # Dividing row i by sigma_i is the weighted least squares with R = diag(sigma_i^2), here through filterpy.
-    dynamics = DeltaDynamics.nominal(MID_F)
+    dynamics = DeltaDynamics.nominal(controller_setup.mid_f)
     estimator = PayloadEstimator(dynamics, regressor="reference")
     estimator.reset()
     theta, theta_dot, theta_ddot = random_joint_states(200, seed=4)
@@ -168,12 +157,15 @@ def test_whitened_rls_is_rls_with_per_joint_noise() -> None:
         }
         mass = estimator.update(observation)
         current = (*dynamics.torque_and_payload_regressor(theta[n], theta_dot[n], theta_ddot[n]), theta_dot[n])
-        # The model is taken half a period back, between this step's reference and the previous one.
+        # The model is taken at the torque's instant, MEASURED_TORQUE_DELAY back towards the previous reference.
         earlier = current if previous is None else previous
-        tau0, phi, rate = (0.5 * (a + b) for a, b in zip(earlier, current, strict=True))
+        age = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
+        tau0, phi, rate = ((1.0 - age) * b + age * a for a, b in zip(earlier, current, strict=True))
         previous = current
         reference.predict()
-        reference.update(torques[n] - tau0, R=np.diag(residual_std(rate, MID_F.coulomb) ** 2), H=phi[:, None])
+        reference.update(
+            torques[n] - tau0, R=np.diag(residual_std(rate, controller_setup.mid_f.coulomb) ** 2), H=phi[:, None]
+        )
         assert mass == pytest.approx(float(reference.x[0]), rel=1e-9, abs=1e-12)
 
 
@@ -219,7 +211,7 @@ def test_controller_constructors_take_no_env_or_plant(constructor: type) -> None
 
 
 @pytest.mark.parametrize("key", [key for key in CONTROLLER_LABELS if key != "oracle"])
-def test_actions_depend_on_the_observations_only(key: str, recorded_observations: list) -> None:
+def test_actions_depend_on_the_observations_only(controller_setup, key: str, recorded_observations: list) -> None:
     # The same observations, replayed while a live plant in this process carries another hidden payload,
     # give bit-identical actions: the controller has no way to the truth but the observation.
     reads: set[str] = set()
@@ -227,7 +219,7 @@ def test_actions_depend_on_the_observations_only(key: str, recorded_observations
     for hidden_payload in (0.0, 4.0):
         env = DeltaPickPlaceEnv(n_cycles=1)
         env.reset(seed=EPISODE_SEED, options={"payload_masses": [hidden_payload]})
-        controller = build_controller(key, SETUP)  # no env
+        controller = build_controller(key, controller_setup)  # no env
         controller.reset()
         episode = []
         for observation in recorded_observations[:-1]:
@@ -240,9 +232,9 @@ def test_actions_depend_on_the_observations_only(key: str, recorded_observations
         assert {"joint_torques", "gripper"} <= reads
 
 
-def test_oracle_is_a_labelled_bound_that_must_be_told_the_truth() -> None:
+def test_oracle_is_a_labelled_bound_that_must_be_told_the_truth(controller_setup) -> None:
     env = DeltaPickPlaceEnv(n_cycles=1)
-    oracle = build_controller("oracle", SETUP, env)
+    oracle = build_controller("oracle", controller_setup, env)
     assert "bound" in oracle.name and "bound" in CONTROLLER_LABELS["oracle"]
     observation, _ = env.reset(seed=EPISODE_SEED)
     oracle.reset()

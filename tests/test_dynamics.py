@@ -8,34 +8,17 @@ from scipy.integrate import cumulative_simpson
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, kinematics
 
-IDENTIFIED = ModelParameters(rho1=1.35, rho2=1.12, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
-PARAMETER_SETS = [None, IDENTIFIED]
 BATCH_SHAPES = [(), (7,), (4, 5)]
 
 
-def random_joint_states(n: int | tuple[int, ...], seed: int = 0) -> tuple[np.ndarray, ...]:
-    """Angles (rad) in the work zone, rates (rad/s) and accelerations (rad/s^2) of pick cycles."""
-    shape = (n,) if isinstance(n, int) else n
-    rng = np.random.default_rng(seed)
-    theta = rng.uniform(-0.4, 1.0, (*shape, 3))
-    return theta, rng.normal(0.0, 3.0, theta.shape), rng.normal(0.0, 100.0, theta.shape)
+@pytest.fixture(scope="module")
+def fast_move(joint_min_jerk_move):
+    """``fast_move(dt)``: a 0.64 m platform move in 0.25 s: peaks of 6.2 g, 83 rad/s^2 and 6.8 rad/s at the joints."""
 
+    def move(dt: float) -> tuple[np.ndarray, ...]:
+        return joint_min_jerk_move(np.array([-0.3, 0.5, 0.2]), np.array([0.6, -0.2, 0.9]), 0.25, dt)
 
-def joint_min_jerk_move(
-    theta_start: np.ndarray, theta_end: np.ndarray, duration: float, dt: float
-) -> tuple[np.ndarray, ...]:
-    """A rest-to-rest minimum-jerk move in joint space: angles, rates, accelerations, ``(N, 3)``."""
-    s = np.arange(round(duration / dt) + 1)[:, None] * dt / duration
-    delta = np.asarray(theta_end) - np.asarray(theta_start)
-    theta = theta_start + delta * (10 * s**3 - 15 * s**4 + 6 * s**5)
-    theta_dot = delta * (30 * s**2 - 60 * s**3 + 30 * s**4) / duration
-    theta_ddot = delta * (60 * s - 180 * s**2 + 120 * s**3) / duration**2
-    return theta, theta_dot, theta_ddot
-
-
-def fast_move(dt: float) -> tuple[np.ndarray, ...]:
-    """A 0.64 m platform move in 0.25 s: peaks of 6.2 g, 83 rad/s^2 and 6.8 rad/s at the joints."""
-    return joint_min_jerk_move(np.array([-0.3, 0.5, 0.2]), np.array([0.6, -0.2, 0.9]), 0.25, dt)
+    return move
 
 
 def per_joint_parameters(parameters: ModelParameters) -> np.ndarray:
@@ -45,11 +28,12 @@ def per_joint_parameters(parameters: ModelParameters) -> np.ndarray:
 
 
 @pytest.mark.parametrize("forearm_rods", [False, True])
-@pytest.mark.parametrize("parameters", PARAMETER_SETS)
 @pytest.mark.parametrize("shape", BATCH_SHAPES)
 @pytest.mark.parametrize("payload", [0.0, 3.8])
-def test_lagrange_form_equals_virtual_work_form(parameters, shape, payload, forearm_rods) -> None:
-    model = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
+def test_lagrange_form_equals_virtual_work_form(
+    random_joint_states, model_parameters, shape, payload, forearm_rods
+) -> None:
+    model = DeltaDynamics.nominal(model_parameters, forearm_rods=forearm_rods)
     states = random_joint_states(shape, seed=len(shape))
     torque = model.inverse_dynamics(*states, payload=payload)
     assert torque.shape == (*shape, 3)
@@ -57,7 +41,7 @@ def test_lagrange_form_equals_virtual_work_form(parameters, shape, payload, fore
 
 
 @pytest.mark.parametrize("payload", [0.0, 3.8])
-def test_lagrange_multipliers_balance_the_platform_and_give_the_torques(payload) -> None:
+def test_lagrange_multipliers_balance_the_platform_and_give_the_torques(random_joint_states, payload) -> None:
     # Paper eqs. (4) and (5): Mt (xdd + g e_z) = 2 A^T lambda and tau = I thdd + G - 2 K lambda.
     model = DeltaDynamics.nominal()
     theta, theta_dot, theta_ddot = random_joint_states(30, seed=8)
@@ -89,10 +73,9 @@ def test_static_holding_torque_at_home(payload, rho2, expected) -> None:
     assert_allclose(torque, np.full(3, expected), rtol=1e-6)
 
 
-@pytest.mark.parametrize("parameters", PARAMETER_SETS)
 @pytest.mark.parametrize("payload", [0.5, 3.8, np.linspace(0.0, 4.0, 50)])
-def test_torque_is_linear_in_payload(parameters, payload) -> None:
-    model = DeltaDynamics.nominal(parameters)
+def test_torque_is_linear_in_payload(random_joint_states, model_parameters, payload) -> None:
+    model = DeltaDynamics.nominal(model_parameters)
     states = random_joint_states(50, seed=3)
     phi = model.payload_regressor(*states)
     difference = model.inverse_dynamics(*states, payload=payload) - model.inverse_dynamics(*states)
@@ -106,7 +89,7 @@ def test_torque_is_linear_in_payload(parameters, payload) -> None:
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_identification_regressor_reproduces_inverse_dynamics(seed) -> None:
+def test_identification_regressor_reproduces_inverse_dynamics(random_joint_states, seed) -> None:
     rng = np.random.default_rng(seed)
     parameters = ModelParameters(
         rho1=rng.uniform(0.8, 1.6),
@@ -123,14 +106,13 @@ def test_identification_regressor_reproduces_inverse_dynamics(seed) -> None:
     assert_allclose(predicted, expected, rtol=1e-12, atol=1e-10)
 
 
-@pytest.mark.parametrize("parameters", PARAMETER_SETS)
 @pytest.mark.parametrize("payload", [0.0, 3.8])
-def test_power_balances_energy_along_a_fast_move(parameters, payload) -> None:
+def test_power_balances_energy_along_a_fast_move(fast_move, model_parameters, payload) -> None:
     # Independent of the multipliers: MId is MKH with the arm's kinetic energy scaled by rho1 and
     # its potential energy by rho2, so int tau . thd dt = d(T + V) + friction losses.
     dt = 1e-4
     theta, theta_dot, theta_ddot = fast_move(dt)
-    model = DeltaDynamics.nominal(parameters)
+    model = DeltaDynamics.nominal(model_parameters)
     p, m, g, l1 = model.parameters, NOMINAL_MASSES, 9.81, NOMINAL_GEOMETRY.l1
     total_mass = m.m0 + payload + 3 * m.m2
     xyz, xyz_dot, _ = kinematics.joint_to_cartesian(NOMINAL_GEOMETRY, theta, theta_dot, theta_ddot)
@@ -164,8 +146,8 @@ def evaluate(model: DeltaDynamics, method: str, states: tuple, payload) -> tuple
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_batch_equals_per_sample_loop(method) -> None:
-    model = DeltaDynamics.nominal(IDENTIFIED)
+def test_batch_equals_per_sample_loop(random_joint_states, identified_parameters, method) -> None:
+    model = DeltaDynamics.nominal(identified_parameters)
     states = random_joint_states(20, seed=5)
     payload = np.linspace(0.0, 4.0, 20)
     batch = evaluate(model, method, states, payload)
@@ -175,7 +157,7 @@ def test_batch_equals_per_sample_loop(method) -> None:
 
 
 @pytest.mark.parametrize("payload", [0.0, 3.8])
-def test_mkh_matches_mujoco_oracle_on_the_ideal_plant(payload) -> None:
+def test_mkh_matches_mujoco_oracle_on_the_ideal_plant(random_joint_states, fast_move, payload) -> None:
     # Imported here so that the rest of this file runs without the plant (another engineer's files).
     from delta_env.model import PlantConfig
     from delta_env.oracle import InverseDynamicsOracle
@@ -193,7 +175,7 @@ def test_mkh_matches_mujoco_oracle_on_the_ideal_plant(payload) -> None:
 
 
 @pytest.mark.parametrize("payload", [0.0, 2.0])
-def test_rod_forearms_match_mujoco_on_the_realistic_mechanism(payload) -> None:
+def test_rod_forearms_match_mujoco_on_the_realistic_mechanism(random_joint_states, fast_move, payload) -> None:
     # The realistic plant without drive effects: two thin 0.2 kg rods per chain and a hub-tube-bar upper arm.
     # With rod forearms only the upper arm is unknown, and it is exactly rho1 I thdd + rho2 G: a least squares
     # of (rho1, rho2) on MuJoCo's exact inverse dynamics must leave nothing. The lumped model cannot.
@@ -222,7 +204,7 @@ def test_rod_forearms_match_mujoco_on_the_realistic_mechanism(payload) -> None:
     [-0.1, float("nan"), np.array([1.0, -1.0])],
     ids=["negative", "nan", "negative-in-array"],
 )
-def test_bad_payload_raises(method, payload) -> None:
+def test_bad_payload_raises(random_joint_states, method, payload) -> None:
     states = random_joint_states(2, seed=7)
     with pytest.raises(ValueError, match="payload"):
         evaluate(DeltaDynamics.nominal(), method, states, payload)

@@ -15,7 +15,6 @@ from controllers.estimation import (
     smooth_joint_motion,
 )
 from delta_env.sensors import ENCODER_NOISE_STD, ENCODER_RESOLUTION
-from tests.test_dynamics import joint_min_jerk_move, random_joint_states
 
 DT = 1e-3
 
@@ -32,7 +31,7 @@ def textbook_rls(regressors: np.ndarray, outputs: np.ndarray, forgetting_factor:
     return np.array(estimates)
 
 
-def payload_data(mass: np.ndarray, noise_std: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def payload_data(random_joint_states, mass: np.ndarray, noise_std: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """phi at random pick-cycle states and y = mp phi + white noise, one sample per entry of ``mass``."""
     phi = DeltaDynamics.nominal().payload_regressor(*random_joint_states(len(mass), seed=seed))
     noise = np.random.default_rng(seed + 1000).normal(0.0, noise_std, phi.shape)
@@ -55,7 +54,7 @@ def encoder_readings(theta: np.ndarray, seed: int) -> np.ndarray:
     return np.round((theta + noise) / ENCODER_RESOLUTION) * ENCODER_RESOLUTION
 
 
-def pick_move(duration: float) -> tuple[np.ndarray, ...]:
+def pick_move(joint_min_jerk_move, duration: float) -> tuple[np.ndarray, ...]:
     """A fast joint move of 0.9 rad with 100 ms at rest before and after, sampled at 1 kHz."""
     theta, theta_dot, theta_ddot = joint_min_jerk_move(
         np.array([-0.3, 0.5, 0.2]), np.array([0.6, -0.2, 0.9]), duration, DT
@@ -80,9 +79,9 @@ def test_payload_rls_is_textbook_rls_with_forgetting(forgetting_factor) -> None:
 
 @pytest.mark.parametrize("mass", [0.5, 3.8])
 @pytest.mark.parametrize("forgetting_factor", [1.0, 0.999])
-def test_payload_rls_converges_to_the_mass(mass, forgetting_factor) -> None:
+def test_payload_rls_converges_to_the_mass(random_joint_states, mass, forgetting_factor) -> None:
     noise_std = 2.0
-    phi, y = payload_data(np.full(2000, mass), noise_std, seed=1)
+    phi, y = payload_data(random_joint_states, np.full(2000, mass), noise_std, seed=1)
     rls = PayloadRLS(forgetting_factor=forgetting_factor, noise_std=noise_std, initial_variance=4.0)
     run_rls(rls, phi, y)
     assert abs(rls.mass - mass) < 4.0 * np.sqrt(rls.variance)
@@ -92,11 +91,11 @@ def test_payload_rls_converges_to_the_mass(mass, forgetting_factor) -> None:
         assert_allclose(rls.variance, 1.0 / (1.0 / 4.0 + np.sum(phi**2) / noise_std**2), rtol=1e-9)
 
 
-def test_payload_rls_variance_describes_its_error() -> None:
+def test_payload_rls_variance_describes_its_error(random_joint_states) -> None:
     noise_std, runs = 2.0, 40
     z_scores = []
     for seed in range(runs):
-        phi, y = payload_data(np.full(200, 2.0), noise_std, seed=seed)
+        phi, y = payload_data(random_joint_states, np.full(200, 2.0), noise_std, seed=seed)
         rls = PayloadRLS(forgetting_factor=1.0, noise_std=noise_std, initial_variance=4.0)
         run_rls(rls, phi, y)
         z_scores.append((rls.mass - 2.0) / np.sqrt(rls.variance))
@@ -104,9 +103,9 @@ def test_payload_rls_variance_describes_its_error() -> None:
     assert 0.7 < np.std(z_scores) < 1.3
 
 
-def test_reset_covariance_tracks_a_pick_faster_than_forgetting() -> None:
+def test_reset_covariance_tracks_a_pick_faster_than_forgetting(random_joint_states) -> None:
     mass = np.repeat([0.0, 3.8], 1000)
-    phi, y = payload_data(mass, noise_std=2.0, seed=2)
+    phi, y = payload_data(random_joint_states, mass, noise_std=2.0, seed=2)
 
     def samples_to_within_5_percent(reset_at: int | None) -> int:
         estimates = run_rls(PayloadRLS(forgetting_factor=0.999), phi, y, reset_at=reset_at)
@@ -119,8 +118,8 @@ def test_reset_covariance_tracks_a_pick_faster_than_forgetting() -> None:
 
 
 @pytest.mark.parametrize("duration", [0.25, 0.4])
-def test_smoother_beats_central_differences(duration) -> None:
-    theta, theta_dot, theta_ddot = pick_move(duration)
+def test_smoother_beats_central_differences(joint_min_jerk_move, duration) -> None:
+    theta, theta_dot, theta_ddot = pick_move(joint_min_jerk_move, duration)
     angles = encoder_readings(theta, seed=3)
     smooth, smooth_dot, smooth_ddot = smooth_joint_motion(angles, DT)
     inner = slice(1, -1)
@@ -157,8 +156,10 @@ def test_joint_state_filter_converges_to_the_true_rates() -> None:
     assert rms(estimates[settled, 6:] - theta_ddot[settled]) < 0.1 * np.abs(theta_ddot).max()
 
 
-def test_joint_state_filter_tracks_a_pick_move() -> None:
-    theta, theta_dot, theta_ddot = pick_move(0.25)
+def test_joint_state_filter_tracks_a_pick_move(
+    joint_min_jerk_move,
+) -> None:
+    theta, theta_dot, theta_ddot = pick_move(joint_min_jerk_move, 0.25)
     estimates = filter_estimates(encoder_readings(theta, seed=5))
     # Measured: 0.014 rad/s and 5 rad/s^2 RMS, lag (3 ms on the acceleration) and noise together.
     assert rms(estimates[:, 3:6] - theta_dot) < 0.005 * np.abs(theta_dot).max()
@@ -184,8 +185,10 @@ def test_joint_state_smoother_is_filterpys_rts_smoother_over_its_window() -> Non
         assert_allclose(estimate[:, joint], expected, rtol=1e-7, atol=1e-9)
 
 
-def test_joint_state_smoother_beats_the_causal_filter_on_a_pick_move() -> None:
-    theta, theta_dot, theta_ddot = pick_move(0.25)
+def test_joint_state_smoother_beats_the_causal_filter_on_a_pick_move(
+    joint_min_jerk_move,
+) -> None:
+    theta, theta_dot, theta_ddot = pick_move(joint_min_jerk_move, 0.25)
     angles = encoder_readings(theta, seed=5)
     smoother = JointStateSmoother()
     smoother.reset(angles[0])

@@ -1,6 +1,7 @@
 """Evaluation: metric definitions on known signals, and ``python -m eval`` end to end on a tiny run."""
 
 import csv
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -9,12 +10,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from controllers.identification import load_or_identify
+from controllers.registry import build_controller, estimation_model
 from delta_env.env import DeltaPickPlaceEnv
 from eval import metrics
-from eval.__main__ import TABLE2_KEY, _controller_table, main, table2_statistics
-from eval.episodes import ControllerSetup, build_controller, estimation_model, run_episode
-from tests.test_controllers import MID_F, MID_F_RODS
+from eval.__main__ import main
+from eval.comparison import TABLE2_KEY, table2_statistics
+from eval.episodes import run_episode
+from eval.identification import load_or_identify
+from eval.tables import controller_table
 
 DT = 1e-3
 
@@ -73,14 +76,14 @@ def test_diverged_episodes_are_counted_and_left_out_of_the_means() -> None:
     ]
     for row in rows:
         row.update(tracking_max_mm=1.0, torque_rms_nm=1.0, torque_peak_nm=1.0, energy_j=1.0)
-    table = _controller_table(rows, [])
+    table = controller_table(rows, [])
     line = table.splitlines()[2]
     assert line.startswith("| PD | 3 (1) | 2.00 ± 1.41 |")
 
 
-def test_table2_analogue_payload_estimate_shrinks_the_torque_error_spread() -> None:
+def test_table2_analogue_payload_estimate_shrinks_the_torque_error_spread(controller_setup) -> None:
     # MId+F+R+RLS (untared) carrying 3.8 kg: the paper's Table 2, tau_model at mp = 0 against mp = m_hat.
-    setup = ControllerSetup(mid=MID_F, mid_f=MID_F, mid_f_rods=MID_F_RODS)
+    setup = dataclasses.replace(controller_setup, mid=controller_setup.mid_f)
     env = DeltaPickPlaceEnv(n_cycles=1)
     record = run_episode(env, build_controller(TABLE2_KEY, setup), seed=2, payload_masses=[3.8])
     rows = table2_statistics(record.model_torques(estimation_model(setup)))
@@ -126,11 +129,13 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert [row["joint"] for row in table2] == ["1", "2", "3"]
     assert all(float(row["mp_hat_std"]) < float(row["mp_0_std"]) for row in table2)
 
-    config = json.loads((out / "config.json").read_text())
-    assert config["command"].endswith("-m eval " + " ".join(argv))
+    written = json.loads((out / "config.json").read_text())
+    assert written["command"].endswith("-m eval " + " ".join(argv))
+    assert {"versions", "git_commit", "started"} <= set(written)
+    config = written["config"]
     assert config["arguments"]["controllers"] == ["pd", "mid_f_rls"]
     assert config["episode_seeds"] == [4] and config["identification"]["path"] == str(parameter_file)
-    assert set(config["tare_kg"]) == {"mid_f_rls"}
+    assert set(written["results"]["tare_kg"]) == {"mid_f_rls"}
 
     with np.load(out / "traces.npz") as traces:
         assert list(traces["keys"]) == ["pd", "mid_f_rls"]
@@ -138,3 +143,36 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     for name in ("torque_profiles", "table2_torques", "payload_estimate", "error_bars"):
         image = plt.imread(out / f"{name}.png")
         assert image.ndim == 3 and min(image.shape[:2]) > 200
+
+
+@pytest.mark.slow
+def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The acceptance targets of the controller comparison, on 3 default episodes after a 4-trajectory identification.
+
+    Targets: the RLS controller tracks within 0.2 x PD and 2 x the oracle bound; the residual policy cuts the
+    RLS controller's tracking RMS by at least 15 % for at most +5 % torque RMS; every estimate of an object of
+    0.5 kg or more is within +-5 % by 150 ms after its pick; the payload estimate cuts the spread of
+    tau_measured - tau_model to at most 0.6 of its value with mp = 0 on every joint (the paper's Table 2).
+    """
+    folder = tmp_path_factory.mktemp("comparison")
+    parameters = folder / "parameters.json"
+    load_or_identify(parameters, n_trajectories=4, progress=False)
+    out = folder / "run"
+    main(["--episodes", "3", "--parameters", str(parameters), "--out", str(out)])
+
+    episodes = read_csv(out / "episodes.csv")
+    assert all(row["diverged"] == "False" for row in episodes)
+
+    def mean(key: str, column: str) -> float:
+        return float(np.mean([float(row[column]) for row in episodes if row["key"] == key]))
+
+    tracking = {key: mean(key, "tracking_rms_mm") for key in ("pd", "mid_f_rls", "oracle", "residual")}
+    assert tracking["mid_f_rls"] <= 0.2 * tracking["pd"]
+    assert tracking["mid_f_rls"] <= 2.0 * tracking["oracle"]
+    assert tracking["residual"] <= 0.85 * tracking["mid_f_rls"]
+    assert mean("residual", "torque_rms_nm") <= 1.05 * mean("mid_f_rls", "torque_rms_nm")
+    carries = [row for row in read_csv(out / "carries.csv") if row["key"] in ("mid_f_rls", "residual")]
+    scored = [row for row in carries if float(row["mass_kg"]) >= metrics.MIN_RELATIVE_MASS]
+    assert scored and all(float(row["settling_time_ms"]) <= 150.0 for row in scored)
+    for row in read_csv(out / "table2.csv"):
+        assert float(row["mp_hat_std"]) <= 0.6 * float(row["mp_0_std"])

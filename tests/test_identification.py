@@ -13,24 +13,21 @@ from controllers import identification
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.identification import (
     JOINT_PARAMETER_NAMES,
-    ExcitationRecord,
-    ExcitationSpec,
     IdentificationResult,
     MotionData,
     ParameterFileError,
-    collect_excitation_data,
     fit_joint_least_squares,
     fit_least_squares,
     fit_paper_method,
     fit_rho_least_squares,
     grid_search_rho,
-    identify,
-    load_or_identify,
     load_result,
     prepare_motion,
     save_result,
 )
 from delta_env.sensors import ENCODER_RESOLUTION
+from eval import identification as experiment
+from eval.identification import ExcitationSpec, collect_excitation_data, identify, load_or_identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
@@ -187,8 +184,7 @@ def test_negative_friction_estimates_are_clipped_with_a_warning(motions, caplog)
 def test_prepare_motion_smooths_aligns_trims_and_zeroes_rest_rates() -> None:
     reference = ExcitationSpec(seed=21, duration=2.0).reference()
     torques = np.arange(3.0 * len(reference)).reshape(-1, 3)
-    record = ExcitationRecord(ExcitationSpec(seed=21, duration=2.0), 1e-3, reference.theta, torques)
-    raw = prepare_motion(record, trim=50, torque_delay=0.25e-3, rest_velocity=0.0)
+    raw = prepare_motion(reference.theta, torques, 1e-3, trim=50, torque_delay=0.25e-3, rest_velocity=0.0)
     assert len(raw) == len(reference) - 100
     assert_allclose(raw.torque, torques[50:-50], rtol=0, atol=0)
     # the motion at t_k - 0.25 ms: the smoother is within 1.3e-5 rad and 4.7e-3 rad/s of it, a delay of 0 or
@@ -200,7 +196,7 @@ def test_prepare_motion_smooths_aligns_trims_and_zeroes_rest_rates() -> None:
     ):
         delayed = np.column_stack([np.interp(time - 0.25e-3, time, column) for column in exact.T])
         assert_allclose(smoothed, delayed[50:-50], rtol=0, atol=tolerance)
-    data = prepare_motion(record, trim=50, torque_delay=0.25e-3, rest_velocity=0.02)
+    data = prepare_motion(reference.theta, torques, 1e-3, trim=50, torque_delay=0.25e-3, rest_velocity=0.02)
     assert_allclose(data.theta_dot, np.where(np.abs(raw.theta_dot) < 0.02, 0.0, raw.theta_dot), rtol=0, atol=0)
     at_rest = reference.theta_dot[50:-50] == 0.0
     assert np.mean(data.theta_dot[at_rest] == 0.0) > 0.9
@@ -265,16 +261,19 @@ def _delete(*keys):
 CORRUPTIONS = {
     "missing model": (_delete("mid_f"), "missing key 'mid_f' in the file"),
     "missing rho1": (_delete("mid", "rho1"), "missing key 'rho1' in mid"),
-    "rho as text": (_set("paper_mid", "rho2", "0.9"), "paper_mid.rho2 must be a number"),
-    "rho as bool": (_set("mid", "rho1", True), "mid.rho1 must be a number"),
-    "rho not finite": (_set("mid", "rho2", math.nan), "mid.rho2 must be finite"),
-    "rho zero": (_set("paper_mid_f", "rho1", 0.0), "paper_mid_f: rho1 must be a finite number > 0"),
+    "rho as text": (_set("paper_mid", "rho2", "0.9"), "paper_mid.rho2 must be a finite number"),
+    "rho as bool": (_set("mid", "rho1", True), "mid.rho1 must be a finite number"),
+    "rho not finite": (_set("mid", "rho2", math.nan), "mid.rho2 must be a finite number"),
+    "rho zero": (_set("paper_mid_f", "rho1", 0.0), "paper_mid_f: rho1 must be a finite number in (0, inf]"),
     "two joints": (_set("mid_f", "viscous", [1.0, 2.0]), "mid_f.viscous must be a list of 3 numbers"),
-    "negative coulomb": (_set("mid_f", "coulomb", [4.0, 3.4, -1.0]), "mid_f: coulomb[3] must be a finite number >= 0"),
-    "friction as text": (_set("mid_f", "coulomb", [4.0, "3.4", 4.6]), "mid_f.coulomb[1] must be a number"),
+    "negative coulomb": (
+        _set("mid_f", "coulomb", [4.0, 3.4, -1.0]),
+        "mid_f: coulomb[3] must be a finite number in [0, inf]",
+    ),
+    "friction as text": (_set("mid_f", "coulomb", [4.0, "3.4", 4.6]), "mid_f.coulomb[1] must be a finite number"),
     "negative standard error": (
         _set("standard_errors", "mid_f.rho1", -0.1),
-        "standard_errors['mid_f.rho1'] must be >= 0",
+        "standard_errors['mid_f.rho1'] must be a finite number in [0, inf]",
     ),
     "standard errors not an object": (_set("standard_errors", [0.1]), "standard_errors must be a JSON object"),
     "provenance not an object": (_set("provenance", "none"), "provenance must be a JSON object"),
@@ -309,12 +308,12 @@ def test_load_of_a_missing_file_says_how_to_create_it(tmp_path) -> None:
     path = tmp_path / "absent.json"
     with pytest.raises(FileNotFoundError) as error:
         load_result(path)
-    assert str(path) in str(error.value) and "python -m controllers.identify" in str(error.value)
+    assert str(path) in str(error.value) and "python -m eval.identify" in str(error.value)
 
 
 def test_load_or_identify_loads_an_existing_file_without_identifying(tmp_path, monkeypatch) -> None:
     path = save_result(RESULT, tmp_path / "parameters.json")
-    monkeypatch.setattr(identification, "identify", pytest.fail)
+    monkeypatch.setattr(experiment, "identify", pytest.fail)
     assert load_or_identify(path) == RESULT
 
 
@@ -325,7 +324,7 @@ def test_load_or_identify_identifies_and_saves_when_the_file_is_missing(tmp_path
         calls.append(kwargs)
         return RESULT
 
-    monkeypatch.setattr(identification, "identify", fake_identify)
+    monkeypatch.setattr(experiment, "identify", fake_identify)
     path = tmp_path / "runs" / "parameters.json"
     assert load_or_identify(path, seed=4, n_trajectories=3) == RESULT
     assert calls == [{"seed": 4, "n_trajectories": 3}]
@@ -335,7 +334,7 @@ def test_load_or_identify_identifies_and_saves_when_the_file_is_missing(tmp_path
 def test_load_or_identify_never_replaces_a_corrupt_file(tmp_path, monkeypatch) -> None:
     path = tmp_path / "parameters.json"
     path.write_text("{corrupt")
-    monkeypatch.setattr(identification, "identify", pytest.fail)
+    monkeypatch.setattr(experiment, "identify", pytest.fail)
     with pytest.raises(ParameterFileError):
         load_or_identify(path)
     assert path.read_text() == "{corrupt"
@@ -365,17 +364,18 @@ def test_identify_end_to_end_on_two_short_trajectories(tmp_path) -> None:
 
 
 def test_command_line_writes_parameters_configuration_report_and_figures(tmp_path, capsys) -> None:
-    from controllers import identify as cli
+    from eval import identify as cli
 
     folder, installed = tmp_path / "run", tmp_path / "installed" / "parameters.json"
     arguments = ["--trajectories", "2", "--duration", "2", "--validation-duration", "2", "--seed", "5"]
     cli.main([*arguments, "--out", str(folder), "--parameters", str(installed), "--no-progress", "--workers", "1"])
-    expected = {"parameters.json", "config.json", "command.txt", "report.md", "validation.npz"}
+    expected = {"parameters.json", "config.json", "report.md", "validation.npz"}
     expected |= {*cli.FIGURES, "fig6a_error_bars.png"}
     assert {path.name for path in folder.iterdir()} == expected
     assert load_result(folder / "parameters.json") == load_result(installed)
-    assert json.loads((folder / "config.json").read_text())["trajectories"] == 2
-    assert (folder / "command.txt").read_text().startswith("python -m controllers.identify --trajectories 2")
+    config = json.loads((folder / "config.json").read_text())
+    assert config["config"]["trajectories"] == 2
+    assert config["command"].startswith("python -m eval.identify --trajectories 2")
     report = (folder / "report.md").read_text()
     assert report in capsys.readouterr().out
     for heading in ("## Table 1 analogue", "## Identified parameters", "## Run time", "coulomb_3"):

@@ -1,4 +1,4 @@
-"""The residual env, controller, policy files and training CLI (controllers.residual, controllers.train_residual)."""
+"""The residual env, controller, policy files and training CLI (controllers.residual, eval.train_residual)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,15 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
+
+pytest.importorskip("stable_baselines3", reason="the residual policy needs the rl extra (stable-baselines3)")
+
 from stable_baselines3 import SAC
 from stable_baselines3.common.env_checker import check_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-import delta_env  # noqa: F401  (registers the env ids)
+import controllers  # noqa: F401  (registers DeltaPickPlaceResidual-v0)
+import delta_env  # noqa: F401  (registers DeltaPickPlace-v0)
 from controllers.dynamics import ModelParameters
 from controllers.residual import (
     DEFAULT_POLICY_PATH,
@@ -25,23 +29,25 @@ from controllers.residual import (
     ResidualConfig,
     ResidualController,
     ResidualFeatures,
-    default_base_controller,
     load_residual_controller,
     load_residual_policy,
+    read_policy_metadata,
     save_residual_policy,
+    shipped_base_setup,
 )
-from controllers.train_residual import (
+from delta_env.env import DeltaPickPlaceEnv
+from eval.scoring import TEST_SEEDS
+from eval.train_residual import (
     CALIBRATION_SEEDS,
-    TEST_SEEDS,
     TRAINING_SEEDS,
     VALIDATION_SEEDS,
     EpisodeSeeds,
     base_setup,
+    load_hyperparameters,
     make_env,
     parse_args,
     train,
 )
-from delta_env.env import DeltaPickPlaceEnv
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
 PARAMETERS = ModelParameters(rho1=1.76, rho2=0.88, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
@@ -50,8 +56,8 @@ CONTROL_STEPS = 400
 
 
 def make_base():
-    """The default base controller (MId+F + RLS) with fixed parameters."""
-    return default_base_controller(PARAMETERS)
+    """The default base controller (MId+F+R + RLS) with fixed parameters."""
+    return BaseSetup(PARAMETERS).controller()
 
 
 def linear_policy(observation: np.ndarray) -> np.ndarray:
@@ -254,7 +260,9 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path) -> None:
     resumed = train(args, base_factory=make_base)
     model = load_residual_policy(resumed / "final_policy.zip").model
     assert model.num_timesteps == 90
-    resumed_from = json.loads((resumed / "config.json").read_text())["resumed_from"]
+    written = json.loads((resumed / "config.json").read_text())
+    assert written["command"].startswith("python -m eval.train_residual") and "git_commit" in written
+    resumed_from = written["config"]["resumed_from"]
     assert resumed_from["num_timesteps"] == 60
     assert resumed_from["replay_buffer"].endswith("residual_replay_buffer_60_steps.pkl")
 
@@ -346,3 +354,50 @@ def test_shipped_policy_loads_and_beats_its_base_on_a_held_out_episode() -> None
         assert not terminated
         rms[key] = float(np.sqrt(np.mean(np.square(errors))))
     assert rms["residual"] < 0.85 * rms["base"], rms
+
+
+def test_gym_make_runs_the_shipped_base_without_identifying_or_writing_files(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    env = gym.make("DeltaPickPlaceResidual-v0", n_cycles=1)
+    residual_env = env.get_wrapper_attr("base")
+    shipped = read_policy_metadata(DEFAULT_POLICY_PATH)["base"]
+    assert residual_env.estimator.tare == shipped["tare"]
+    assert residual_env.dynamics.parameters.rho1 == shipped["parameters"]["rho1"]
+    env.reset(seed=0)
+    env.step(np.zeros(3, dtype=np.float32))
+    env.close()
+    assert list(tmp_path.iterdir()) == [], "making and stepping the env wrote files"
+
+
+def test_residual_env_is_a_wrapper_of_the_plant_env() -> None:
+    env = DeltaResidualEnv(base=make_base(), n_cycles=1)
+    assert isinstance(env, gym.Wrapper) and isinstance(env.unwrapped, DeltaPickPlaceEnv)
+    assert env.plant_env is env.env
+
+
+def test_shipped_base_setup_is_the_policy_files_base() -> None:
+    setup = shipped_base_setup()
+    assert setup == load_residual_policy(DEFAULT_POLICY_PATH).base
+    assert setup.controller().name == "MId+F+R+RLS+PD"
+
+
+def test_hyperparameters_come_from_the_toml_file() -> None:
+    sac, ppo = load_hyperparameters("sac"), load_hyperparameters("ppo")
+    assert sac["gamma"] == ppo["gamma"] == 0.95 and sac["policy_kwargs"] == {"net_arch": [256, 256]}
+    assert ppo["policy_kwargs"]["log_std_init"] == -2.0
+    sac["gamma"] = 0.5  # a copy: the next read is unchanged
+    assert load_hyperparameters("sac")["gamma"] == 0.95
+    with pytest.raises(ValueError, match=r"no \[a2c\] table"):
+        load_hyperparameters("a2c")
+
+
+def test_residual_features_use_the_drives_datasheet_values() -> None:
+    from delta_env.model import PlantRealism
+
+    realism, config = PlantRealism(), ResidualConfig()
+    assert (config.ripple_periods, config.stribeck_velocity) == (realism.ripple_periods, realism.stribeck_velocity)
+
+
+def test_a_missing_shipped_policy_says_how_to_get_a_base(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match=r"pass base=.*python -m eval\.identify"):
+        shipped_base_setup(tmp_path / "absent.zip")

@@ -1,18 +1,21 @@
-"""Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (DESIGN.md section 6).
+"""Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (docs/design.md section 6).
 
-    python -m controllers.train_residual --seed 0 --timesteps 300000 --n-envs 2 --max-minutes 55
+    python -m eval.train_residual --seed 0 --timesteps 300000 --n-envs 2 --max-minutes 55
 
-SAC by default (``--algo ppo`` selectable). Every run folder (``--out``, default
+SAC by default (``--algo ppo`` selectable), with the hyperparameters of ``eval/hyperparams/residual.toml``
+(command-line options override them). Every run folder (``--out``, default
 ``runs/residual/<timestamp>``) holds:
 
 - ``config.json``: the resolved configuration (arguments, hyperparameters, residual settings, base
-  controller parameters, seeds, versions) and the command line, written before training starts;
+  controller parameters, seeds) with the command line, versions and git commit
+  (:func:`eval.run_folder.write_config`), written before training starts;
 - ``checkpoints/``: periodic checkpoints (and the SAC replay buffer) for ``--resume``;
 - ``evaluations.npz`` and ``best_model/``: SB3's EvalCallback on held-out seeds (validation), distinct
   from every training seed, and its best model;
 - ``progress.csv`` (and TensorBoard event files when tensorboard is installed): training curves;
 - ``final_policy.zip`` and ``best_policy.zip``: loadable by :func:`controllers.residual.load_residual_controller`;
-- ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training.
+- ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training
+  (:func:`eval.scoring.score_policy`).
 
 Seeds: training episodes draw their env seeds from ``TRAINING_SEEDS`` (per worker, from ``--seed``),
 validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the tare calibration
@@ -21,19 +24,19 @@ its calibration seeds from 100000), so no evaluation episode (reference path, pa
 ever trained on.
 
 The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters from
-``controllers.identification.load_or_identify()`` and its tare calibrated like the eval does
-(``controllers.payload.tare_from_observations`` on payload-free episodes). Both are saved in the policy.
+``eval.identification.load_or_identify()`` and its tare calibrated as the eval does (:mod:`eval.calibration`
+on payload-free episodes). Both are saved in the policy.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import copy
 import importlib.util
 import json
 import math
-import subprocess
 import time
+import tomllib
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
@@ -53,20 +56,22 @@ from tqdm import tqdm
 
 from controllers.base import Controller
 from controllers.dynamics import ModelParameters
-from controllers.payload import tare_from_observations
-from controllers.provenance import command_line, package_versions
+from controllers.registry import ControllerSetup
 from controllers.residual import (
     ALGORITHMS,
     BaseSetup,
     DeltaResidualEnv,
     ResidualConfig,
-    ResidualController,
     algorithm_class,
-    load_residual_policy,
     save_residual_policy,
 )
 from delta_env.env import DeltaPickPlaceEnv
-from eval.episodes import run_episode
+from eval.calibration import calibrate_tares
+from eval.run_folder import command_line, create_run_folder, write_config, write_json
+from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
+
+HYPERPARAMETER_FILE = Path(__file__).resolve().parent / "hyperparams" / "residual.toml"
+"""The SB3 hyperparameters of each algorithm, one TOML table per algorithm."""
 
 TRAINING_SEEDS = range(10_000_000, 20_000_000)
 """Env seeds of the training episodes (drawn at random per worker)."""
@@ -74,14 +79,8 @@ TRAINING_SEEDS = range(10_000_000, 20_000_000)
 VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
 """Held-out episodes of the EvalCallback during training (model selection)."""
 
-TEST_SEEDS = tuple(range(2_000_000, 2_000_010))
-"""Held-out episodes of the final scores: never seen in training nor in model selection."""
-
 CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_003))
 """Payload-free episodes of the base controller's tare (three, like the eval)."""
-
-TEST_PAYLOADS = (0.0, 1.0, 2.5, 3.8, 4.0)
-"""Fixed payload masses (kg) of the extra test episodes (3.8 kg is the paper's test)."""
 
 CHECKPOINT_PREFIX = "residual"
 """CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
@@ -92,32 +91,14 @@ HAS_RICH = importlib.util.find_spec("rich") is not None
 HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
 """TensorBoard logs are written only when tensorboard is installed."""
 
-HYPERPARAMETERS: dict[str, dict[str, Any]] = {
-    # gamma 0.95 at 100 Hz looks ~0.2 s ahead: a residual acts on the tracking error within tens of ms.
-    "sac": {
-        "learning_rate": 3e-4,
-        "buffer_size": 300_000,
-        "learning_starts": 5_000,
-        "batch_size": 256,
-        "gamma": 0.95,
-        "tau": 0.005,
-        "train_freq": 1,
-        "gradient_steps": 1,
-        "ent_coef": "auto",
-        "policy_kwargs": {"net_arch": [256, 256]},
-    },
-    # log_std_init -2: exploration noise of 0.14 * residual_limit (about 5 N m) instead of 40 N m.
-    "ppo": {
-        "learning_rate": 3e-4,
-        "n_steps": 1024,
-        "batch_size": 256,
-        "n_epochs": 10,
-        "gamma": 0.95,
-        "gae_lambda": 0.9,
-        "clip_range": 0.2,
-        "policy_kwargs": {"net_arch": [256, 256], "log_std_init": -2.0},
-    },
-}
+
+def load_hyperparameters(algo: str, path: Path = HYPERPARAMETER_FILE) -> dict[str, Any]:
+    """The SB3 keyword arguments of ``algo`` (``"sac"`` or ``"ppo"``) from the hyperparameter file."""
+    with path.open("rb") as file:
+        tables = tomllib.load(file)
+    if algo not in tables:
+        raise ValueError(f"{path} has no [{algo}] table; it has {sorted(tables)}")
+    return copy.deepcopy(tables[algo])
 
 
 class EpisodeSeeds(gym.Wrapper):
@@ -159,21 +140,20 @@ def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = 
     """The default base controller's setup: identified MId+F+R parameters and its calibrated tare.
 
     Args:
-        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`.
+        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: only
+            ``n_cycles`` (the tare is measured on the default plant).
         parameters: Identified MId+F+R parameters; None loads them with ``load_or_identify()``.
     """
+    if set(env_kwargs) != {"n_cycles"}:
+        raise ValueError(f"the tare calibration takes n_cycles only, got {sorted(env_kwargs)}")
     if parameters is None:
-        from controllers.identification import load_or_identify
+        from eval.identification import load_or_identify
 
         parameters = load_or_identify().mid_f_rods
-    untared = BaseSetup(parameters)
-    observed = []
-    for seed in CALIBRATION_SEEDS:
-        env = DeltaPickPlaceEnv(**env_kwargs)
-        empty = [0.0] * env.n_cycles
-        observed.append(run_episode(env, untared.controller(), seed, empty, keep_observations=True).observations)
-    tare, _ = tare_from_observations(untared.controller().estimator, observed)
-    return dataclasses.replace(untared, tare=tare)
+    # The registry's mid_f_rls controller is this base; the lumped parameter sets are not used by it.
+    setup = ControllerSetup(mid=parameters, mid_f=parameters, mid_f_rods=parameters)
+    tares, _ = calibrate_tares(["mid_f_rls"], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"])
+    return BaseSetup(parameters, tare=tares["mid_f_rls"])
 
 
 def make_env(
@@ -205,19 +185,6 @@ def make_env(
         return Monitor(EpisodeSeeds(env, seed=seed, rank=rank, seeds=seeds))
 
     return factory
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    path.write_text(json.dumps(data, indent=2, default=str) + "\n")
-
-
-def _git_commit() -> str | None:
-    try:
-        return subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=Path(__file__).parent
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 class LatestReplayCheckpoint(CheckpointCallback):
@@ -305,8 +272,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
         base_factory: Builds the base controller instead of the default MId+F+R + RLS (tests).
     """
     torch.set_num_threads(args.torch_threads)
-    out = Path(args.out) if args.out is not None else Path("runs/residual") / datetime.now().strftime("%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
+    out = create_run_folder("residual", args.out)
     config = ResidualConfig(
         residual_limit=args.residual_limit,
         action_period=args.action_period,
@@ -314,7 +280,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
     )
     env_kwargs = {"n_cycles": args.n_cycles}
     base = base_setup(env_kwargs) if base_factory is None else None
-    hyperparameters = json.loads(json.dumps(HYPERPARAMETERS[args.algo]))
+    hyperparameters = load_hyperparameters(args.algo)
     for name in ("learning_rate", "gamma", "batch_size", "learning_starts", "buffer_size"):
         value = getattr(args, name)
         if value is not None:
@@ -324,9 +290,10 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
     if args.net_arch is not None:
         hyperparameters["policy_kwargs"]["net_arch"] = list(args.net_arch)
 
+    command = command_line("eval.train_residual")
     resolved = {
-        "command": command_line("controllers.train_residual"),
         "arguments": vars(args),
+        "hyperparameter_file": HYPERPARAMETER_FILE.name,
         "residual_config": asdict(config),
         "env_kwargs": env_kwargs,
         "hyperparameters": hyperparameters,
@@ -338,11 +305,8 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
             "test": list(TEST_SEEDS),
             "test_payloads": list(TEST_PAYLOADS),
         },
-        "versions": package_versions(),
-        "git_commit": _git_commit(),
-        "started": datetime.now().isoformat(timespec="seconds"),
     }
-    _write_json(out / "config.json", resolved)
+    write_config(out, command, resolved)
 
     set_random_seed(args.seed)
     factories = [
@@ -386,7 +350,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
             "num_timesteps": model.num_timesteps,
             "replay_buffer": None if args.algo != "sac" else replay,
         }
-        _write_json(out / "config.json", resolved)
+        write_config(out, command, resolved)
     else:
         model = algorithm("MlpPolicy", vec_env, seed=args.seed, device="cpu", verbose=0, **hyperparameters)
     model.set_logger(configure(str(out), formats))
@@ -403,7 +367,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
         progress_bar=args.progress and HAS_RICH,
     )
     wall_time = time.monotonic() - start
-    notes = {"command": resolved["command"], "seed": args.seed, "timesteps": model.num_timesteps}
+    notes = {"command": command, "seed": args.seed, "timesteps": model.num_timesteps}
     notes["wall_time_s"] = round(wall_time, 1)
     save_residual_policy(model, out / "final_policy.zip", config, args.algo, base=base, extra=notes)
     best = out / "best_model" / "best_model.zip"
@@ -412,107 +376,23 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
         save_residual_policy(best_model, out / "best_policy.zip", config, args.algo, base=base, extra=notes)
     vec_env.close()
     eval_env.close()
-    resolved["finished"] = datetime.now().isoformat(timespec="seconds")
-    resolved["wall_time_s"] = round(wall_time, 1)
-    resolved["num_timesteps"] = model.num_timesteps
-    _write_json(out / "config.json", resolved)
+    finished = {
+        "finished": datetime.now().isoformat(timespec="seconds"),
+        "wall_time_s": round(wall_time, 1),
+        "num_timesteps": model.num_timesteps,
+    }
+    write_config(out, command, resolved, training=finished)
     if args.score:
         policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
         scores = score_policy(policy, env_kwargs, base_factory=base_factory)
-        _write_json(out / "scores.json", scores)
+        write_json(out / "scores.json", scores)
         print(json.dumps(scores["summary"], indent=2))
     return out
 
 
-def _rollout(controller: Controller, env_kwargs: dict[str, Any], seed: int, masses: Sequence[float] | None):
-    """Tracking errors (m) and commanded torques (N m) of one episode in a fresh plant env."""
-    env = DeltaPickPlaceEnv(**env_kwargs)
-    options = None if masses is None else {"payload_masses": list(masses)}
-    observation, _ = env.reset(seed=seed, options=options)
-    controller.reset()
-    errors, torques = [], []
-    while True:
-        torque = controller(observation)
-        observation, _, terminated, truncated, info = env.step(torque)
-        errors.append(info["tracking_error"])
-        torques.append(torque)
-        if terminated or truncated:
-            break
-    env.close()
-    return np.array(errors), np.array(torques), bool(terminated)
-
-
-def score_policy(
-    path: str | Path,
-    env_kwargs: dict[str, Any] | None = None,
-    *,
-    seeds: Sequence[int] = TEST_SEEDS,
-    payloads: Sequence[float] = TEST_PAYLOADS,
-    base_factory: Callable[[], Controller] | None = None,
-) -> dict[str, Any]:
-    """Base controller vs base + residual on held-out episodes (the same episodes for both).
-
-    Episodes: one per seed with its drawn payloads, and one per fixed payload mass (every object of
-    the episode that mass) on the first seed. Tracking RMS (mm) is pooled over all control steps of all
-    episodes, torque RMS (N m) over all commanded torques; per-episode values are listed too. The base is
-    the one stored in the policy file unless ``base_factory`` is given.
-    """
-    env_kwargs = {"n_cycles": 3} if env_kwargs is None else env_kwargs
-    policy = load_residual_policy(path)
-    if base_factory is None and policy.base is None:
-        raise ValueError(f"{path} was trained on a custom base controller: pass base_factory")
-
-    def base() -> Controller:
-        return base_factory() if base_factory is not None else policy.base.controller()
-
-    residual = ResidualController(base(), policy, policy.config)
-    plain = base()
-    n_cycles = env_kwargs.get("n_cycles", 3)
-    episodes = [(seed, None) for seed in seeds] + [(seeds[0], [mass] * n_cycles) for mass in payloads]
-    rows: dict[str, dict[str, list]] = {"base": {}, "residual": {}}
-    per_episode = []
-    start = time.monotonic()
-    for seed, masses in episodes:
-        entry: dict[str, Any] = {"seed": seed, "payload_masses": masses}
-        for name, controller in (("base", plain), ("residual", residual)):
-            errors, torques, diverged = _rollout(controller, env_kwargs, seed, masses)
-            rows[name].setdefault("errors", []).append(errors)
-            rows[name].setdefault("torques", []).append(torques)
-            entry[name] = {
-                "tracking_rms_mm": 1e3 * math.sqrt(float(np.mean(errors**2))),
-                "torque_rms_Nm": math.sqrt(float(np.mean(torques**2))),
-                "diverged": diverged,
-            }
-        per_episode.append(entry)
-    summary: dict[str, Any] = {}
-    for name, row in rows.items():
-        errors = np.concatenate(row["errors"])
-        torques = np.concatenate(row["torques"])
-        summary[name] = {
-            "tracking_rms_mm": 1e3 * math.sqrt(float(np.mean(errors**2))),
-            "tracking_max_mm": 1e3 * float(np.max(errors)),
-            "torque_rms_Nm": math.sqrt(float(np.mean(torques**2))),
-        }
-    summary["tracking_rms_change"] = summary["residual"]["tracking_rms_mm"] / summary["base"]["tracking_rms_mm"] - 1
-    summary["torque_rms_change"] = summary["residual"]["torque_rms_Nm"] / summary["base"]["torque_rms_Nm"] - 1
-    episode_changes = [e["residual"]["tracking_rms_mm"] / e["base"]["tracking_rms_mm"] - 1 for e in per_episode]
-    summary["episodes_improved"] = f"{sum(c < 0 for c in episode_changes)}/{len(episode_changes)}"
-    return {
-        "policy": str(path),
-        "base": plain.name,
-        "residual": residual.name,
-        "env_kwargs": env_kwargs,
-        "seeds": list(seeds),
-        "payloads": list(payloads),
-        "summary": summary,
-        "episodes": per_episode,
-        "wall_time_s": round(time.monotonic() - start, 1),
-    }
-
-
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python -m controllers.train_residual",
+        prog="python -m eval.train_residual",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -548,18 +428,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def main(argv: Sequence[str] | None = None) -> None:
+def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     if args.score_only is None:
         train(args)
-        return
-    out = args.out if args.out is not None else args.score_only.parent
-    out.mkdir(parents=True, exist_ok=True)
+        return 0
+    out = create_run_folder("residual", args.out if args.out is not None else args.score_only.parent)
     scores = score_policy(args.score_only, {"n_cycles": args.n_cycles})
-    scores["command"] = command_line("controllers.train_residual")
-    _write_json(out / "scores.json", scores)
+    scores["command"] = command_line("eval.train_residual")
+    write_json(out / "scores.json", scores)
     print(json.dumps(scores["summary"], indent=2))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -1,6 +1,6 @@
-"""``python -m controllers.identify``: identify MId and MId+F on the plant and write a validation report.
+"""``python -m eval.identify``: identify MId, MId+F and MId+F+R on the plant and write a validation report.
 
-Runs :func:`controllers.identification.run_identification`, writes the parameter file into the run
+Runs :func:`eval.identification.run_identification`, writes the parameter file into the run
 folder and (unless ``--no-install``) to the default path the controllers load, the resolved
 configuration and the command, the held-out validation data, a Markdown report and the figures
 (made from the saved data), and prints the report.
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -22,21 +22,23 @@ import numpy as np
 
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import (
+    FRICTION_VELOCITY_THRESHOLD,
+    JOINT_PARAMETER_NAMES,
+    error_table,
+    fit_joint_least_squares,
+    save_result,
+)
+from delta_env.geometry import GRAVITY
+from delta_env.model import PlantConfig
+from eval.identification import (
     DEFAULT_DURATION,
     DEFAULT_PARAMETER_PATH,
     DEFAULT_TRAJECTORIES,
-    FRICTION_VELOCITY_THRESHOLD,
-    JOINT_PARAMETER_NAMES,
     VALIDATION_DURATION,
     IdentificationRun,
-    error_table,
-    fit_joint_least_squares,
     run_identification,
-    save_result,
 )
-from controllers.provenance import command_line
-from delta_env.geometry import GRAVITY
-from delta_env.model import PlantConfig
+from eval.run_folder import command_line, create_run_folder, write_config
 
 FIGURES = {
     "fig3_mkh.png": "MKH",
@@ -61,7 +63,7 @@ TARGET_STD_RATIO = 0.25
 
 
 def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m controllers.identify", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
     parser.add_argument("--trajectories", type=int, default=DEFAULT_TRAJECTORIES, help="excitation trajectories")
     parser.add_argument("--duration", type=float, default=DEFAULT_DURATION, help="length of each trajectory (s)")
@@ -70,7 +72,7 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--workers", type=int, default=None, help="processes (default: up to 2 cores)")
     parser.add_argument(
-        "--out", type=Path, default=None, help="run folder (default runs/identification/<UTC time>_seed<seed>)"
+        "--out", type=Path, default=None, help="run folder (default runs/identification/<time>_seed<seed>)"
     )
     parser.add_argument(
         "--parameters", type=Path, default=DEFAULT_PARAMETER_PATH, help="parameter file the controllers load"
@@ -310,13 +312,12 @@ def render_report(run: IdentificationRun, validation_file: Path, command: str, f
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     arguments = parse_arguments(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    folder = arguments.out or Path("runs/identification") / f"{stamp}_seed{arguments.seed}"
-    folder.mkdir(parents=True, exist_ok=True)
-    command = command_line("controllers.identify", argv)
+    stamp = f"{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}_seed{arguments.seed}"
+    folder = create_run_folder("identification", arguments.out, stamp=stamp)
+    command = command_line("eval.identify", argv)
 
     run = run_identification(
         arguments.trajectories,
@@ -329,11 +330,7 @@ def main(argv: list[str] | None = None) -> None:
     save_result(run.result, folder / "parameters.json")
     if not arguments.no_install:
         save_result(run.result, arguments.parameters)
-    configuration = {key: str(value) if isinstance(value, Path) else value for key, value in vars(arguments).items()}
-    configuration["out"] = str(folder)
-    configuration["method"] = run.result.provenance["method"]
-    (folder / "config.json").write_text(json.dumps(configuration, indent=2) + "\n")
-    (folder / "command.txt").write_text(command + "\n")
+    write_config(folder, command, {**vars(arguments), "out": folder}, method=run.result.provenance["method"])
 
     validation_file = folder / "validation.npz"
     save_validation_data(run, validation_file)
@@ -342,8 +339,9 @@ def main(argv: list[str] | None = None) -> None:
     (folder / "report.md").write_text(report)
     print(report)
     installed = "" if arguments.no_install else f" and {arguments.parameters}"
-    print(f"Wrote {folder}/ (parameters.json, config.json, command.txt, report.md, figures){installed}.")
+    print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){installed}.")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

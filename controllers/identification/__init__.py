@@ -1,0 +1,80 @@
+"""Offline identification of MId, MId+F and MId+F+R from recorded joint motion (docs/design.md section 7).
+
+The algorithms, on samples of encoder angles and measured motor torques (the experiment that records them
+is ``eval.identification``):
+
+- :mod:`~controllers.identification.data`: smoothed motion aligned with the torque samples (:class:`MotionData`);
+- :mod:`~controllers.identification.paper`: the paper's method, replicated (grid search of rho1, rho2 per
+  trajectory, then per-joint friction least squares, averaged);
+- :mod:`~controllers.identification.least_squares`: ours, one joint least squares of all parameters, on the
+  paper's lumped model or the model with rod forearms (MId+F+R);
+- :mod:`~controllers.identification.parameter_file`: the JSON parameter file with provenance.
+"""
+
+from controllers.identification.data import (
+    REST_VELOCITY,
+    TRIM_SAMPLES,
+    MotionData,
+    concatenate,
+    error_table,
+    motion_at_torque_samples,
+    prepare_motion,
+    torque_errors,
+)
+from controllers.identification.least_squares import (
+    FRICTION_VELOCITY_THRESHOLD,
+    JOINT_PARAMETER_NAMES,
+    LeastSquaresFit,
+    between_trajectory_spread,
+    fit_joint_least_squares,
+    fit_least_squares,
+    fit_rho_least_squares,
+)
+from controllers.identification.paper import (
+    RHO1_GRID,
+    RHO2_GRID,
+    PaperFit,
+    fit_friction_per_joint,
+    fit_paper_method,
+    grid_search_rho,
+    rho_grid,
+)
+from controllers.identification.parameter_file import (
+    FILE_FORMAT_VERSION,
+    MODEL_FIELDS,
+    IdentificationResult,
+    ParameterFileError,
+    load_result,
+    save_result,
+)
+
+__all__ = [
+    "FILE_FORMAT_VERSION",
+    "FRICTION_VELOCITY_THRESHOLD",
+    "JOINT_PARAMETER_NAMES",
+    "MODEL_FIELDS",
+    "REST_VELOCITY",
+    "RHO1_GRID",
+    "RHO2_GRID",
+    "TRIM_SAMPLES",
+    "IdentificationResult",
+    "LeastSquaresFit",
+    "MotionData",
+    "PaperFit",
+    "ParameterFileError",
+    "between_trajectory_spread",
+    "concatenate",
+    "error_table",
+    "fit_friction_per_joint",
+    "fit_joint_least_squares",
+    "fit_least_squares",
+    "fit_paper_method",
+    "fit_rho_least_squares",
+    "grid_search_rho",
+    "load_result",
+    "motion_at_torque_samples",
+    "prepare_motion",
+    "rho_grid",
+    "save_result",
+    "torque_errors",
+]

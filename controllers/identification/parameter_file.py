@@ -1,0 +1,163 @@
+"""The identified-parameter file: a JSON document with every parameter set and its provenance."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controllers.dynamics import ModelParameters
+from delta_env.validation import require_in
+
+FILE_FORMAT_VERSION = 2
+"""Version of the JSON parameter file; bumped on incompatible changes."""
+
+MODEL_FIELDS = ("mid", "mid_f", "mid_f_rods", "paper_mid", "paper_mid_f")
+"""The parameter sets of an :class:`IdentificationResult`, in the order of the JSON file."""
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Identified parameter sets with their provenance.
+
+    Attributes:
+        mid: MId by least squares of (rho1, rho2) alone (no friction).
+        mid_f: MId+F by the joint least squares of all parameters (ours).
+        mid_f_rods: MId+F+R: the same least squares on the model with rod forearms
+            (``DeltaDynamics.nominal(mid_f_rods, forearm_rods=True)``).
+        paper_mid: MId by the paper's grid search, averaged over trajectories.
+        paper_mid_f: MId+F by the paper's method (grid rho + per-joint friction LS, averaged).
+        standard_errors: Standard errors of the least-squares estimates, keyed ``"mid.rho1"``,
+            ``"mid_f.viscous_2"``, ... (units of the parameter); optimistic, see
+            :attr:`controllers.identification.least_squares.LeastSquaresFit.standard_errors`.
+        provenance: JSON-ready record of how the parameters were obtained: method, trajectories, plant
+            summary, sample counts, residual statistics, held-out validation, run times, versions, date.
+    """
+
+    mid: ModelParameters
+    mid_f: ModelParameters
+    mid_f_rods: ModelParameters
+    paper_mid: ModelParameters
+    paper_mid_f: ModelParameters
+    standard_errors: dict[str, float]
+    provenance: dict[str, Any]
+
+
+class ParameterFileError(ValueError):
+    """An identified-parameter file that cannot be used; the message names the path and the problem."""
+
+
+def _model_to_json(parameters: ModelParameters) -> dict[str, Any]:
+    return {
+        "rho1": parameters.rho1,
+        "rho2": parameters.rho2,
+        "viscous": list(parameters.viscous),
+        "coulomb": list(parameters.coulomb),
+    }
+
+
+def _json_ready(value: Any) -> Any:
+    """Numpy scalars and arrays inside ``value`` as plain Python numbers and lists."""
+    if isinstance(value, Mapping):
+        return {str(key): _json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return _json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def save_result(result: IdentificationResult, path: str | os.PathLike[str]) -> Path:
+    """Write ``result`` as JSON to ``path`` (parent folders are created; the write is atomic).
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    document = {"format_version": FILE_FORMAT_VERSION}
+    document.update({name: _model_to_json(getattr(result, name)) for name in MODEL_FIELDS})
+    document["standard_errors"] = dict(result.standard_errors)
+    document["provenance"] = result.provenance
+    text = json.dumps(_json_ready(document), indent=2, allow_nan=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    temporary.write_text(text + "\n")
+    os.replace(temporary, path)
+    return path
+
+
+def _number(path: Path, where: str, value: Any, low: float = -math.inf) -> float:
+    """A JSON number of the file in [low, inf), else :class:`ParameterFileError` naming the path."""
+    try:
+        return require_in(where, value, low)
+    except ValueError as error:
+        raise ParameterFileError(f"{path}: {error}") from None
+
+
+def _entry(path: Path, mapping: Mapping[str, Any], key: str, where: str) -> Any:
+    if key not in mapping:
+        raise ParameterFileError(f"{path}: missing key {key!r} in {where}")
+    return mapping[key]
+
+
+def _json_object(path: Path, value: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ParameterFileError(f"{path}: {where} must be a JSON object, got {type(value).__name__}")
+    return value
+
+
+def _model_from_json(path: Path, document: Mapping[str, Any], name: str) -> ModelParameters:
+    entry = _json_object(path, _entry(path, document, name, "the file"), name)
+    values: dict[str, Any] = {}
+    for key in ("rho1", "rho2"):
+        values[key] = _number(path, f"{name}.{key}", _entry(path, entry, key, name))
+    for key in ("viscous", "coulomb"):
+        joints = _entry(path, entry, key, name)
+        if not isinstance(joints, list) or len(joints) != 3:
+            raise ParameterFileError(f"{path}: {name}.{key} must be a list of 3 numbers, got {joints!r}")
+        values[key] = tuple(_number(path, f"{name}.{key}[{i}]", v) for i, v in enumerate(joints))
+    try:
+        return ModelParameters(**values)
+    except ValueError as error:
+        raise ParameterFileError(f"{path}: {name}: {error}") from error
+
+
+def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
+    """Read a file written by :func:`save_result`.
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        ParameterFileError: if it is not valid JSON, has missing keys, wrong types or out-of-range values;
+            the message names the path and the problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"identified parameter file {path} does not exist; run `python -m eval.identify` to create it"
+        )
+    try:
+        document = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ParameterFileError(f"{path}: not valid JSON ({error})") from error
+    document = _json_object(path, document, "the file")
+    version = _entry(path, document, "format_version", "the file")
+    if version != FILE_FORMAT_VERSION:
+        raise ParameterFileError(
+            f"{path}: format_version {version!r} is not {FILE_FORMAT_VERSION}; delete the file or run "
+            "`python -m eval.identify` to identify again"
+        )
+    models = {name: _model_from_json(path, document, name) for name in MODEL_FIELDS}
+    errors = _json_object(path, _entry(path, document, "standard_errors", "the file"), "standard_errors")
+    standard_errors = {}
+    for key, value in errors.items():
+        standard_errors[key] = _number(path, f"standard_errors[{key!r}]", value, low=0.0)
+    provenance = _json_object(path, _entry(path, document, "provenance", "the file"), "provenance")
+    return IdentificationResult(**models, standard_errors=standard_errors, provenance=dict(provenance))

@@ -1,0 +1,153 @@
+"""The controllers of the comparison, by key, and the one factory that builds them (docs/design.md section 6).
+
+Every controller is built from the nominal geometry and masses and the identified parameters only; the
+oracle row is the labelled exception that knows the plant (and, from the evaluation, the payloads).
+:func:`model_controller` is the one builder of a model-based controller: :func:`build_controller` uses it
+for every model row, and the residual policy file rebuilds its base controller with it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.feedforward import FeedforwardController, OracleController
+from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
+from delta_env.env import DeltaPickPlaceEnv
+
+CONTROLLER_LABELS = {
+    "pd": "PD",
+    "mkh": "MKH+PD",
+    "mid": "MId+PD",
+    "mid_f": "MId+F+PD",
+    "mid_f_r": "MId+F+R+PD",
+    "mid_f_rls": "MId+F+R+RLS+PD",
+    "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
+    "oracle": "Oracle+PD (bound)",
+    "residual": "MId+F+R+RLS+PD + residual",
+}
+"""Controller keys and their labels. ``+R``: the identified model with rod forearms
+(``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
+estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
+reference, for comparison. The oracle knows the plant and the true payloads: an upper bound, not a
+controller. ``residual`` is the learned residual policy (:mod:`controllers.residual`) on the base it was
+trained on, rebuilt from the policy file."""
+
+ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
+    "mid_f_rls": "smoothed",
+    "mid_f_rls_ref": "reference",
+}
+"""The payload estimator variant of each RLS controller key."""
+
+ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
+"""Controllers that estimate the payload: the RLS rows (tared by the experiment that runs them) and the
+residual (its base's tare comes with the policy file)."""
+
+Regressor = Literal["smoothed", "filtered", "reference"]
+
+
+def controller_name(forearm_rods: bool, estimates_payload: bool) -> str:
+    """Label of a model-based controller: MId+F or MId+F+R feedforward + PD, with or without the RLS."""
+    return ("MId+F+R" if forearm_rods else "MId+F") + ("+RLS" if estimates_payload else "") + "+PD"
+
+
+def model_controller(
+    parameters: ModelParameters | None,
+    *,
+    forearm_rods: bool = False,
+    regressor: Regressor | None = None,
+    tare: float = 0.0,
+    friction_velocity: float = FRICTION_VELOCITY,
+    pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD),
+    name: str | None = None,
+) -> FeedforwardController:
+    """A model feedforward + PD controller, optionally with the online payload estimator.
+
+    Args:
+        parameters: Identified parameters of the nominal model; None is plain MKH.
+        forearm_rods: The model with rod forearms (MId+F+R) instead of the paper's lumped forearms.
+        regressor: Joint states of the payload estimator; None feeds forward mp = 0 (no estimator).
+        tare: Apparent payload of the empty gripper (kg), subtracted by the estimator.
+        friction_velocity: The estimator's friction band v_w (rad/s).
+        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
+        name: Label; by default :func:`controller_name`.
+    """
+    dynamics = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
+    estimator = None
+    if regressor is not None:
+        estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
+    label = name if name is not None else controller_name(forearm_rods, regressor is not None)
+    return FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)
+
+
+@dataclass(frozen=True)
+class ControllerSetup:
+    """What the controllers may know besides the observation.
+
+    Attributes:
+        mid: Identified MId parameters (rho1, rho2).
+        mid_f: Identified MId+F parameters (rho1, rho2, friction).
+        mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
+        tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
+        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
+        residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
+    """
+
+    mid: ModelParameters
+    mid_f: ModelParameters
+    mid_f_rods: ModelParameters
+    tares: Mapping[str, float] = field(default_factory=dict)
+    pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
+    residual_policy: Path | None = None
+
+
+def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
+    """The controller of ``key`` (see :data:`CONTROLLER_LABELS`).
+
+    Args:
+        key: Controller key.
+        setup: Identified parameters, tares and gains.
+        env: Needed for the oracle only, which inverts the env's plant; never given to the others.
+    """
+    if key not in CONTROLLER_LABELS:
+        raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
+    label = CONTROLLER_LABELS[key]
+    if key == "pd":
+        return PDController(*setup.pd_gains)
+    if key == "residual":
+        from controllers.residual import DEFAULT_POLICY_PATH, load_residual_controller
+
+        path = DEFAULT_POLICY_PATH if setup.residual_policy is None else setup.residual_policy
+        return load_residual_controller(path, name=label)
+    if key == "oracle":
+        if env is None:
+            raise ValueError("the oracle needs the env whose plant it inverts")
+        return OracleController(env.plant_config, pd=PDController(*setup.pd_gains))
+    if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
+        return model_controller(
+            setup.mid_f_rods,
+            forearm_rods=True,
+            regressor=ESTIMATOR_REGRESSORS.get(key),
+            tare=setup.tares.get(key, 0.0),
+            pd_gains=setup.pd_gains,
+            name=label,
+        )
+    parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
+    return model_controller(parameters, pd_gains=setup.pd_gains, name=label)
+
+
+def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
+    """A fresh, untared payload estimator of the RLS controller ``key`` (the one its controller runs)."""
+    if key not in ESTIMATOR_REGRESSORS:
+        raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
+    return build_controller(key, dataclasses.replace(setup, tares={})).estimator
+
+
+def estimation_model(setup: ControllerSetup) -> DeltaDynamics:
+    """MId+F+R: the identified model with rod forearms, of the payload estimators and their feedforward."""
+    return DeltaDynamics.nominal(setup.mid_f_rods, forearm_rods=True)

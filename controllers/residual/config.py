@@ -1,0 +1,56 @@
+"""Settings shared by the residual env and controller, saved with every trained policy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from delta_env.geometry import TORQUE_LIMIT
+from delta_env.model import PlantRealism
+from delta_env.validation import require_count, require_in, require_positive
+
+_DATASHEET = PlantRealism()
+"""The drive's datasheet values that the policy's features are built from (ripple order, Stribeck speed)."""
+
+
+@dataclass(frozen=True)
+class ResidualConfig:
+    """Settings shared by the residual env and controller; saved with every trained policy.
+
+    Attributes:
+        residual_limit: Torque (N m) added per joint at a = +-1; 40 N m is 10 % of the 400 N m motor
+            limit, against feedforward errors of a few N m (identified model, 3 g cycles).
+        action_period: Control steps (1 ms each) per policy step; the action is held in between.
+        reward_scale: Factor on the policy-step reward, the sum of the env's per-step rewards over the
+            ``action_period`` control steps (dimensionless). With 1.0 a policy step of a base
+            controller tracking within 0.4 mm RMS with 20 N m RMS torque scores about -2 at
+            ``action_period`` 10.
+        ripple_periods: Torque-ripple periods per joint revolution (gear datasheet, docs/design.md
+            section 4): the policy sees the ripple phase sin / cos(ripple_periods * theta).
+        stribeck_velocity: Speed (rad/s) under which Stribeck friction rises (docs/design.md section 4):
+            the policy sees tanh(theta_dot_ref / stribeck_velocity).
+    """
+
+    residual_limit: float = 0.1 * TORQUE_LIMIT
+    action_period: int = 10
+    reward_scale: float = 1.0
+    ripple_periods: int = field(default=_DATASHEET.ripple_periods)
+    stribeck_velocity: float = field(default=_DATASHEET.stribeck_velocity)
+
+    def __post_init__(self) -> None:
+        require_in("residual_limit", self.residual_limit, 0.0, TORQUE_LIMIT, unit="N m", low_open=True)
+        require_count("action_period", self.action_period)
+        require_positive("reward_scale", self.reward_scale)
+        require_count("ripple_periods", self.ripple_periods, minimum=0)
+        require_positive("stribeck_velocity", self.stribeck_velocity, unit="rad/s")
+        object.__setattr__(self, "action_period", int(self.action_period))
+        object.__setattr__(self, "ripple_periods", int(self.ripple_periods))
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> ResidualConfig:
+        """The config from :func:`dataclasses.asdict` output; unknown keys are an error."""
+        names = {f.name for f in fields(cls)}
+        unknown = set(values) - names
+        if unknown:
+            raise ValueError(f"unknown ResidualConfig fields {sorted(unknown)}; known: {sorted(names)}")
+        return cls(**values)

@@ -1,0 +1,82 @@
+"""Base controller + residual policy at 1 kHz, from observations only: the evaluation's "residual" row."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Controller, Observation
+from controllers.residual.config import ResidualConfig
+from controllers.residual.features import ResidualFeatures
+
+PolicyFunction = Callable[[NDArray[np.float32]], NDArray[np.float32]]
+"""Maps one policy observation (float32, (ResidualFeatures.size,)) to an action in [-1, 1]^3."""
+
+
+def payload_estimate(controller: Controller) -> float:
+    """The controller's payload estimate (kg), or 0 if it does not estimate the payload.
+
+    Estimating controllers expose it as ``payload_estimate`` (kg).
+    """
+    estimate = getattr(controller, "payload_estimate", None)
+    return 0.0 if estimate is None else float(estimate)
+
+
+class ResidualController:
+    """Base controller + residual policy at 1 kHz, from observations only: the "residual" row.
+
+    Runs exactly the loop of :class:`DeltaResidualEnv`: the base torque every control step, a new
+    policy action every ``config.action_period`` steps (the first at the episode's first step),
+    held in between.
+
+    Args:
+        base: The base controller.
+        policy: Policy observation (float32, (43,)) -> action in [-1, 1]^3.
+        config: The settings the policy was trained with.
+        name: Row name; by default ``"<base name> + residual"``.
+    """
+
+    def __init__(
+        self, base: Controller, policy: PolicyFunction, config: ResidualConfig, name: str | None = None
+    ) -> None:
+        if not isinstance(base, Controller):
+            raise ValueError(f"base must implement the Controller protocol, got {type(base).__name__}")
+        self.base = base
+        self.policy = policy
+        self.config = config
+        self.name = name if name is not None else f"{base.name} + residual"
+        self._features = ResidualFeatures(config)
+        self._step = 0
+        self._action = np.zeros(3)
+
+    def reset(self) -> None:
+        """Reset the base controller and start a new episode."""
+        self.base.reset()
+        self._step = 0
+        self._action = np.zeros(3)
+
+    @property
+    def payload_estimate(self) -> float:
+        """The base controller's payload estimate (kg)."""
+        return payload_estimate(self.base)
+
+    @property
+    def residual_torque(self) -> NDArray[np.float64]:
+        """The residual torque (N m) added in this control step, (3,)."""
+        return self.config.residual_limit * self._action
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        base_torque = self.base(observation)
+        if self._step == 0:
+            self._features.reset(observation, base_torque, payload_estimate(self.base))
+        else:
+            self._features.update(observation, base_torque, payload_estimate(self.base))
+        if self._step % self.config.action_period == 0:
+            action = np.asarray(self.policy(self._features.policy_observation(self._action)), dtype=float)
+            if action.shape != (3,) or not np.all(np.isfinite(action)):
+                raise ValueError(f"the residual policy must return 3 finite values, got {action!r}")
+            self._action = np.clip(action, -1.0, 1.0)
+        self._step += 1
+        return base_torque + self.config.residual_limit * self._action

@@ -1,0 +1,143 @@
+"""``DeltaPickPlaceResidual-v0``: the plant env with a base controller inside; the agent adds a torque residual."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from controllers.base import Controller
+from controllers.residual.config import ResidualConfig
+from controllers.residual.controller import payload_estimate
+from controllers.residual.features import FEATURE_CLIP, ResidualFeatures
+from controllers.residual.policy_file import shipped_base_setup
+from delta_env.env import DeltaPickPlaceEnv
+
+
+class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dict[str, Any], NDArray[np.float64]]):
+    """DeltaPickPlace-v0 with a base controller inside; the agent adds a bounded, held torque residual.
+
+    Every policy step runs ``action_period`` control steps (1 ms each) of the plant. At each one the
+    base controller computes its torque from the latest observation and the env applies
+    ``base + residual_limit * a``. A zero action reproduces the base controller exactly.
+
+    ## Action Space
+    ``Box(-1, 1, (3,), float32)``: the residual torque in units of ``residual_limit`` (N m), held for
+    ``action_period`` control steps. Values beyond +-1 are clipped; non-finite values raise.
+
+    ## Observation Space
+    ``Box(-10, 10, (43,), float32)``: :class:`ResidualFeatures` (tracking errors and their window
+    means, reference angles / rates / accelerations / jerk, Stribeck and ripple features, base torque,
+    payload estimate and its change, gripper and time since its last event, previous action), all
+    from measurements and the reference; never the plant's truth.
+
+    ## Rewards
+    ``reward_scale`` times the sum of the plant env's rewards over the control steps of this policy
+    step: -(tracking error in mm^2 + 1e-5 (N m)^-2 torque^2) per control step by default. ``info``
+    holds the summed terms ``reward_tracking`` and ``reward_torque``.
+
+    ## Starting State
+    The plant env's: at rest at the first pick point. The base controller is reset with it.
+
+    ## Episode End
+    As the plant env: truncated at the end of the reference (the last policy step may run fewer
+    control steps), terminated on divergence.
+
+    ## Info
+    The plant env's info of the last control step (truth, for evaluation only) plus, over the control
+    steps of this policy step: ``tracking_errors`` (m, (n,)), ``commanded_torques`` (N m, (n, 3)),
+    ``base_torques`` (N m, (n, 3)), ``residual_torque`` (N m, (3,)), ``control_steps`` (n).
+
+    ## Arguments
+    Args:
+        base: The base controller; None builds the base of the shipped policy (MId+F+R + RLS with the
+            identified parameters and tare recorded in ``controllers/policies/residual_sac.zip``), so that
+            ``gym.make("DeltaPickPlaceResidual-v0")`` neither identifies nor writes files.
+        config: Residual settings; None uses :class:`ResidualConfig` defaults.
+        env: The plant env to wrap; None builds ``DeltaPickPlaceEnv(**env_kwargs)``.
+        **env_kwargs: Keyword arguments of :class:`~delta_env.env.DeltaPickPlaceEnv` (only without ``env``).
+    """
+
+    def __init__(
+        self,
+        base: Controller | None = None,
+        config: ResidualConfig | None = None,
+        env: DeltaPickPlaceEnv | None = None,
+        **env_kwargs: Any,
+    ) -> None:
+        if env is not None and env_kwargs:
+            raise ValueError(f"pass either env or DeltaPickPlaceEnv keyword arguments, not both: {sorted(env_kwargs)}")
+        super().__init__(env if env is not None else DeltaPickPlaceEnv(**env_kwargs))
+        self.base = base if base is not None else shipped_base_setup().controller()
+        if not isinstance(self.base, Controller):
+            raise ValueError(f"base must implement the Controller protocol, got {type(self.base).__name__}")
+        self.config = config if config is not None else ResidualConfig()
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self.observation_space = spaces.Box(
+            -FEATURE_CLIP, FEATURE_CLIP, shape=(ResidualFeatures.size,), dtype=np.float32
+        )
+        self._features = ResidualFeatures(self.config)
+        self._base_torque = np.zeros(3)
+        self._previous_action = np.zeros(3)
+        self._needs_reset = True
+
+    @property
+    def plant_env(self) -> DeltaPickPlaceEnv:
+        """The wrapped plant env (``self.env``)."""
+        return self.env
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Reset the plant env (same seed and options) and the base controller."""
+        observation, info = self.env.reset(seed=seed, options=options)
+        self.base.reset()
+        self._base_torque = self.base(observation)
+        self._features.reset(observation, self._base_torque, payload_estimate(self.base))
+        self._previous_action = np.zeros(3)
+        self._needs_reset = False
+        return self._features.policy_observation(self._previous_action), info
+
+    def step(self, action: NDArray[np.float32]) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        if self._needs_reset:
+            raise RuntimeError("call reset() before step() (and after an episode ends)")
+        action = np.asarray(action, dtype=float).reshape(-1)
+        if action.shape != (3,) or not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be 3 finite values in [-1, 1], got {action!r}")
+        action = np.clip(action, -1.0, 1.0)
+        residual = self.config.residual_limit * action
+        n = self.config.action_period
+        errors, commanded, base_torques = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3))
+        reward_sum = reward_tracking = reward_torque = 0.0
+        terminated = truncated = False
+        info: dict[str, Any] = {}
+        steps = 0
+        while steps < n and not (terminated or truncated):
+            torque = self._base_torque + residual
+            base_torques[steps] = self._base_torque
+            commanded[steps] = torque
+            observation, reward, terminated, truncated, info = self.env.step(torque)
+            errors[steps] = info["tracking_error"]
+            reward_sum += reward
+            reward_tracking += info["reward_tracking"]
+            reward_torque += info["reward_torque"]
+            steps += 1
+            self._base_torque = self.base(observation)
+            self._features.update(observation, self._base_torque, payload_estimate(self.base))
+        self._previous_action = action
+        self._needs_reset = terminated or truncated
+        scale = self.config.reward_scale
+        info.update(
+            reward_tracking=scale * reward_tracking,
+            reward_torque=scale * reward_torque,
+            tracking_errors=errors[:steps],
+            commanded_torques=commanded[:steps],
+            base_torques=base_torques[:steps],
+            residual_torque=residual,
+            control_steps=steps,
+        )
+        observation = self._features.policy_observation(self._previous_action)
+        return observation, scale * reward_sum, terminated, truncated, info

@@ -1,0 +1,259 @@
+"""The residual policy file: an SB3 zip with the settings and the base controller it was trained with.
+
+:func:`save_residual_policy` adds a member ``residual.json`` to the SB3 zip: the algorithm, the feature
+layout version, the :class:`~controllers.residual.config.ResidualConfig` and the :class:`BaseSetup` of the
+base controller (identified parameters, estimator, tare). :func:`load_residual_controller` rebuilds the
+whole 1 kHz controller from the file alone. SB3 (and torch) are imported only when a model is loaded.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Controller
+from controllers.dynamics import ModelParameters
+from controllers.payload import FRICTION_VELOCITY
+from controllers.registry import controller_name, model_controller
+from controllers.residual.config import ResidualConfig
+from controllers.residual.controller import ResidualController
+from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+DEFAULT_POLICY_PATH = Path(__file__).resolve().parent.parent / "policies" / "residual_sac.zip"
+"""The shipped residual policy (SAC), resolved inside the package."""
+
+METADATA_NAME = "residual.json"
+"""Member of a policy zip that holds its :class:`ResidualConfig`, algorithm and feature version."""
+
+ALGORITHMS = ("sac", "ppo")
+
+
+def algorithm_class(algo: str) -> type[BaseAlgorithm]:
+    """The SB3 class of ``algo`` (``"sac"`` or ``"ppo"``); SB3 is imported only when a policy is used."""
+    from stable_baselines3 import PPO, SAC
+
+    classes: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "ppo": PPO}
+    if algo not in classes:
+        raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
+    return classes[algo]
+
+
+def save_residual_policy(
+    model: BaseAlgorithm,
+    path: str | Path,
+    config: ResidualConfig,
+    algo: str,
+    *,
+    base: BaseSetup | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Save an SB3 model with its residual settings inside the zip (member ``residual.json``).
+
+    Args:
+        model: The trained SAC or PPO model.
+        path: Target ``.zip`` path.
+        config: The settings the model was trained with.
+        algo: ``"sac"`` or ``"ppo"``.
+        base: The default base controller's setup it was trained on (None: a custom base).
+        extra: JSON-serializable notes stored beside the settings (e.g. the training command).
+
+    Returns:
+        The path written.
+    """
+    algorithm_class(algo)
+    path = Path(path)
+    if path.suffix != ".zip":
+        raise ValueError(f"a residual policy is a .zip file, got {path}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model.save(path)
+    metadata = {
+        "algo": algo,
+        "feature_version": FEATURE_VERSION,
+        "config": asdict(config),
+        "base": None if base is None else base.to_dict(),
+        "extra": extra or {},
+    }
+    with zipfile.ZipFile(path, "a") as archive:
+        archive.writestr(METADATA_NAME, json.dumps(metadata, indent=2))
+    return path
+
+
+_LEGACY_BASE = {"forearm_rods": False, "regressor": "filtered", "friction_velocity": 0.1}
+"""The base settings of policy files written before these keys existed: the lumped model, the causal
+filter and a 0.1 rad/s friction band."""
+
+
+@dataclass(frozen=True)
+class BaseSetup:
+    """What the default base controller was built from: model, identified parameters, estimator and tare.
+
+    Attributes:
+        parameters: Identified parameters of the model.
+        tare: Apparent payload of the empty gripper (kg).
+        forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
+        regressor: Joint states of the payload estimator.
+        friction_velocity: The estimator's friction band (rad/s).
+    """
+
+    parameters: ModelParameters
+    tare: float = 0.0
+    forearm_rods: bool = True
+    regressor: Literal["smoothed", "filtered", "reference"] = "smoothed"
+    friction_velocity: float = FRICTION_VELOCITY
+
+    def controller(self) -> Controller:
+        """A fresh base controller with these settings: model feedforward + PD with the payload RLS."""
+        return model_controller(
+            self.parameters,
+            forearm_rods=self.forearm_rods,
+            regressor=self.regressor,
+            tare=self.tare,
+            friction_velocity=self.friction_velocity,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": controller_name(self.forearm_rods, estimates_payload=True),
+            "parameters": asdict(self.parameters),
+            "tare": self.tare,
+            "forearm_rods": self.forearm_rods,
+            "regressor": self.regressor,
+            "friction_velocity": self.friction_velocity,
+        }
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> BaseSetup:
+        values = {**_LEGACY_BASE, **values}
+        parameters = values["parameters"]
+        return cls(
+            parameters=ModelParameters(
+                rho1=parameters["rho1"],
+                rho2=parameters["rho2"],
+                viscous=tuple(parameters["viscous"]),
+                coulomb=tuple(parameters["coulomb"]),
+            ),
+            tare=float(values["tare"]),
+            forearm_rods=bool(values["forearm_rods"]),
+            regressor=values["regressor"],
+            friction_velocity=float(values["friction_velocity"]),
+        )
+
+
+@dataclass(frozen=True)
+class ResidualPolicy:
+    """A loaded residual policy: the SB3 model, the settings and the base it was trained with."""
+
+    model: BaseAlgorithm
+    config: ResidualConfig
+    algo: str
+    base: BaseSetup | None
+    metadata: dict[str, Any]
+
+    def __call__(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The deterministic action (mean of the policy) for one observation."""
+        action, _ = self.model.predict(observation, deterministic=True)
+        return action
+
+
+def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPolicy:
+    """Load a policy written by :func:`save_residual_policy` (on the CPU).
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        ValueError: if ``path`` is not a valid residual policy (corrupt zip, missing or incompatible
+            settings, unreadable model); the message names the path.
+    """
+    metadata = read_policy_metadata(path)
+    try:
+        if metadata["feature_version"] != FEATURE_VERSION:
+            raise ValueError(f"feature version {metadata['feature_version']}, this code reads {FEATURE_VERSION}")
+        config = ResidualConfig.from_dict(metadata["config"])
+        base = None if metadata["base"] is None else BaseSetup.from_dict(metadata["base"])
+        algo = metadata["algo"]
+        model = algorithm_class(algo).load(path, device="cpu")
+    except Exception as error:  # SB3 and torch raise many kinds on a damaged archive
+        raise ValueError(f"could not load the residual policy {path}: {error}") from error
+    expected = (ResidualFeatures.size,)
+    if model.observation_space.shape != expected or model.action_space.shape != (3,):
+        raise ValueError(
+            f"{path}: policy spaces {model.observation_space.shape} -> {model.action_space.shape} do not match "
+            f"the residual observation {expected} -> (3,)"
+        )
+    return ResidualPolicy(model=model, config=config, algo=algo, base=base, metadata=metadata)
+
+
+def load_residual_controller(
+    path: str | Path = DEFAULT_POLICY_PATH, base: Controller | None = None, name: str | None = None
+) -> Controller:
+    """The shipped (or any saved) residual policy on top of ``base`` as a 1 kHz Controller.
+
+    Args:
+        path: A policy zip written by :func:`save_residual_policy`.
+        base: The base controller the policy corrects. None rebuilds the base it was trained on from the
+            file (model, identified parameters, estimator and tare), so no parameter file is needed.
+        name: Row name; by default ``"<base name> + residual"``.
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        ValueError: if the file is not a valid residual policy (the message names the path), or if
+            ``base`` is None for a policy trained on a custom base.
+    """
+    policy = load_residual_policy(path)
+    if base is None:
+        if policy.base is None:
+            raise ValueError(f"{path} was trained on a custom base controller: pass base=")
+        base = policy.base.controller()
+    return ResidualController(base, policy, policy.config, name=name)
+
+
+def read_policy_metadata(path: str | Path = DEFAULT_POLICY_PATH) -> dict[str, Any]:
+    """The settings stored in a policy zip (member ``residual.json``), without loading the model (no torch).
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        ValueError: if it is not a policy written by :func:`save_residual_policy`; the message names the path.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"residual policy file not found: {path}")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return json.loads(archive.read(METADATA_NAME))
+    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not a residual policy written by save_residual_policy: {error}") from error
+
+
+def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> BaseSetup:
+    """The base controller the policy at ``path`` was trained on: identified parameters and tare as recorded.
+
+    The default env of ``DeltaPickPlaceResidual-v0`` runs this base, so making it needs no parameter file.
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        ValueError: if it is not a policy file or its policy was trained on a custom base.
+    """
+    try:
+        metadata = read_policy_metadata(path)
+    except FileNotFoundError as error:
+        raise FileNotFoundError(
+            f"{error}: it holds the default base controller of DeltaPickPlaceResidual-v0; reinstall the package or "
+            "pass base= (e.g. controllers.registry.model_controller with parameters from `python -m eval.identify`)"
+        ) from None
+    if metadata.get("base") is None:
+        raise ValueError(
+            f"{path} records no base controller; pass base= (e.g. controllers.registry.model_controller with "
+            "parameters from `python -m eval.identify`)"
+        )
+    try:
+        return BaseSetup.from_dict(metadata["base"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{path}: unreadable base controller settings: {error}") from error

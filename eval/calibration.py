@@ -1,0 +1,59 @@
+"""Taring the payload estimators: the apparent payload of the empty gripper, measured like a scale's.
+
+Each RLS controller runs pick-and-place episodes with nothing to pick (0 kg objects, the gripper still
+closes and opens) on seeds of their own; :func:`controllers.payload.tare_from_observations` turns their
+observations into the tare (kg) and its spread over the carries. ``python -m eval`` and the residual
+training tare their estimators with these functions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from controllers.payload import tare_from_observations
+from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, payload_estimator
+from eval.episodes import EpisodeRecord
+from eval.tasks import Task, run_tasks
+
+DEFAULT_CALIBRATION_EPISODES = 3
+"""Payload-free episodes per tare."""
+
+
+def calibration_tasks(keys: Iterable[str], setup: ControllerSetup, seeds: Sequence[int], n_cycles: int) -> list[Task]:
+    """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed."""
+    tasks = []
+    for key in keys:
+        if key not in ESTIMATOR_REGRESSORS:
+            raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
+        empty = (0.0,) * n_cycles
+        tasks += [Task("calibration", key, j, seed, n_cycles, setup, empty) for j, seed in enumerate(seeds)]
+    return tasks
+
+
+def tares_from_results(
+    results: Iterable[tuple[Task, EpisodeRecord]], setup: ControllerSetup
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Tare (kg) and its carry-to-carry spread (kg) per RLS controller, from its calibration episodes."""
+    observed: dict[str, list] = {}
+    for task, record in results:
+        if task.kind == "calibration":
+            observed.setdefault(task.key, []).append(record.observations)
+    tares, spreads = {}, {}
+    for key, episodes in observed.items():
+        tares[key], spreads[key] = tare_from_observations(payload_estimator(key, setup), episodes)
+    return tares, spreads
+
+
+def calibrate_tares(
+    keys: Iterable[str],
+    setup: ControllerSetup,
+    seeds: Sequence[int],
+    n_cycles: int,
+    *,
+    workers: int = 1,
+    progress: Any = None,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Run the calibration episodes of ``keys`` and return their tares and spreads (kg) by key."""
+    tasks = calibration_tasks(keys, setup, seeds, n_cycles)
+    return tares_from_results(run_tasks(tasks, workers, progress), setup)

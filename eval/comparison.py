@@ -1,0 +1,128 @@
+"""The controller comparison of ``python -m eval``: every controller on the same seeded episodes.
+
+1. Tares each payload estimator (:mod:`eval.calibration`): its controller runs payload-free pick-and-place
+   episodes on seeds of their own.
+2. Runs every controller on episodes ``seed, seed + 1, ...`` of the default env (realistic plant, 3 g
+   conveyor cycles, objects drawn from U[0, 4] kg): the same paths and objects for all.
+3. Runs the Table 2 analogue: MId+F+R+RLS on the path of the first episode with every object 3.8 kg; the
+   measured torques against MId+F+R with mp = 0 and with mp = m_hat.
+4. Tabulates per episode and per carried object (:func:`tabulate`, :func:`table2_statistics`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from controllers.registry import CONTROLLER_LABELS, ESTIMATING_KEYS, ESTIMATOR_REGRESSORS, ControllerSetup
+from eval import metrics
+from eval.calibration import calibration_tasks, tares_from_results
+from eval.episodes import EpisodeRecord
+from eval.tasks import Task, run_tasks
+
+CALIBRATION_SEED_OFFSET = 100_000
+"""Calibration (tare) episodes use seeds seed + 100000 + j: paths and noise unlike the evaluation's."""
+
+TABLE2_KEY = "mid_f_rls"
+"""The controller of the Table 2 run: MId+F+R with the default payload estimator."""
+
+TABLE2_PAYLOAD = 3.8
+"""Mass of every object in the Table 2 run (kg), the paper's test payload."""
+
+SETTLING_DEADLINE_MS = 150.0
+"""Deadline (ms after each pick) of the table's "settled" count: estimates within +-5 % by then."""
+
+
+def calibration_seeds(seed: int, episodes: int) -> list[int]:
+    """Seeds of the tare calibration of a comparison starting at ``seed``: ``seed + 100000 + j``."""
+    return [seed + CALIBRATION_SEED_OFFSET + j for j in range(episodes)]
+
+
+def run_all(
+    args: argparse.Namespace, setup: ControllerSetup
+) -> tuple[list[tuple[Task, EpisodeRecord]], dict[str, float], dict[str, float]]:
+    """Calibrate the tares, then run every episode and the Table 2 run.
+
+    Args:
+        args: The parsed command line of ``python -m eval`` (seed, episodes, cycles, controllers,
+            calibration_episodes, workers).
+        setup: What the controllers may know (identified parameters, gains, residual policy).
+
+    Returns:
+        The (task, record) of every run, and the tare (kg) and its spread (kg) per estimating controller.
+    """
+    from tqdm.auto import tqdm
+
+    keys = args.controllers
+    tared = sorted({key for key in keys if key in ESTIMATOR_REGRESSORS} | {TABLE2_KEY})
+    untared = [key for key in keys if key not in ESTIMATOR_REGRESSORS]
+
+    def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
+        return [
+            Task("episode", key, i, args.seed + i, args.cycles, task_setup)
+            for key in selected
+            for i in range(args.episodes)
+        ]
+
+    calibrations = calibration_tasks(tared, setup, calibration_seeds(args.seed, args.calibration_episodes), args.cycles)
+    first = calibrations + episodes(untared, setup)
+    total = len(first) + args.episodes * (len(keys) - len(untared)) + 1
+    with tqdm(total=total, desc="episodes", unit="ep") as progress:
+        results = run_tasks(first, args.workers, progress)
+        tares, spreads = tares_from_results(results, setup)
+        tared_setup = dataclasses.replace(setup, tares=tares)
+        table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, (TABLE2_PAYLOAD,) * args.cycles)
+        second = [*episodes([key for key in keys if key not in untared], tared_setup), table2]
+        results += run_tasks(second, args.workers, progress)
+    return results, tares, spreads
+
+
+def tabulate(
+    results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, EpisodeRecord]]:
+    """Per-episode rows, per-carry rows (estimating controllers) and the first episode of each controller."""
+    order = {key: n for n, key in enumerate(keys)}
+    episodes = sorted(
+        ((task, record) for task, record in results if task.kind == "episode"),
+        key=lambda item: (order[item[0].key], item[0].index),
+    )
+    episode_rows, carry_rows, first = [], [], {}
+    for task, record in episodes:
+        label = CONTROLLER_LABELS[task.key]
+        identity = {"controller": label, "key": task.key, "episode": task.index, "seed": task.seed}
+        episode_rows.append({**identity, **record.metrics()})
+        if task.key in ESTIMATING_KEYS:
+            for n, carry in enumerate(record.carries()):
+                carry_rows.append(
+                    {
+                        **identity,
+                        "carry": n,
+                        "mass_kg": carry.mass,
+                        "end_estimate_kg": carry.end_estimate,
+                        "end_error_kg": carry.end_error_kg,
+                        "end_error_percent": carry.end_error_percent,
+                        "settling_time_ms": carry.settling_time_ms,
+                    }
+                )
+        if task.index == 0:
+            first[task.key] = record
+    return episode_rows, carry_rows, first
+
+
+def table2_statistics(model_torques: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    """Mean and std of tau_measured - tau_model per joint for each payload hypothesis, one row per joint."""
+    statistics = {
+        name: metrics.torque_error_statistics(model_torques["measured"], model_torques[name])
+        for name in ("mp_0", "mp_hat", "apparent")
+    }
+    rows = []
+    for joint in range(3):
+        row: dict[str, Any] = {"joint": joint + 1}
+        for name, (mean, std) in statistics.items():
+            row[f"{name}_mean"], row[f"{name}_std"] = float(mean[joint]), float(std[joint])
+        rows.append(row)
+    return rows

@@ -1,0 +1,425 @@
+"""The identification experiment: excitation runs on the plant, then every fit (docs/design.md section 7).
+
+Data: excitation trajectories (:func:`delta_env.trajectories.excitation_trajectory`, 6 g, workspace
+edges, slow moves) run in closed loop on the plant (PD plus MKH feedforward along the reference) by the
+episode runner :func:`eval.episodes.run_episode`; only the observations are kept: encoder angles and
+measured motor torques. The algorithms of :mod:`controllers.identification` then fit, on the same
+samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod forearms,
+beyond the paper), and compare every model on a held-out stress trajectory.
+
+The result is a JSON parameter file with provenance (:data:`DEFAULT_PARAMETER_PATH`), which
+:func:`load_or_identify` reads, or creates when it is missing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import functools
+import hashlib
+import logging
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Observation, PDController
+from controllers.dynamics import DeltaDynamics
+from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
+from controllers.identification import (
+    FRICTION_VELOCITY_THRESHOLD,
+    REST_VELOCITY,
+    RHO1_GRID,
+    RHO2_GRID,
+    TRIM_SAMPLES,
+    IdentificationResult,
+    LeastSquaresFit,
+    MotionData,
+    between_trajectory_spread,
+    concatenate,
+    error_table,
+    fit_joint_least_squares,
+    fit_least_squares,
+    fit_paper_method,
+    load_result,
+    prepare_motion,
+    save_result,
+)
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
+from delta_env.model import PlantConfig, build_mjcf
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.trajectories import Trajectory, excitation_trajectory
+from delta_env.validation import require_count
+from eval.episodes import run_episode
+from eval.processes import parallel_map
+from eval.run_folder import package_versions
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_PARAMETER_PATH = Path("runs/identification/parameters.json")
+"""Where :func:`load_or_identify` (and so ``python -m eval``) looks for identified parameters."""
+
+DEFAULT_TRAJECTORIES = 12
+"""Excitation trajectories of the identification, as in the paper."""
+
+DEFAULT_DURATION = 8.0
+"""Length of each excitation trajectory (s)."""
+
+VALIDATION_DURATION = 10.0
+"""Length of the held-out free-motion stress trajectory (s), the paper's upsilon_F."""
+
+_Output = TypeVar("_Output")
+
+
+@dataclass(frozen=True)
+class ExcitationSpec:
+    """One excitation trajectory: the arguments of ``excitation_trajectory`` and the episode seed.
+
+    Attributes:
+        seed: Seeds the trajectory's generator and the env's reset (its torque noise).
+        duration: Length (s).
+        peak_acceleration: Largest peak Cartesian |xdd| of a move (m/s^2).
+        min_acceleration_fraction: Smallest peak |xdd| of a fast move, relative to the largest.
+        edge_fraction: Probability that a fast move ends on the workspace edge.
+        slow_fraction: Probability that a move is slow (friction near zero speed).
+    """
+
+    seed: int
+    duration: float = DEFAULT_DURATION
+    peak_acceleration: float = 6.0 * GRAVITY
+    min_acceleration_fraction: float = 0.2
+    edge_fraction: float = 0.3
+    slow_fraction: float = 0.2
+
+    @classmethod
+    def stress(cls, seed: int, duration: float = VALIDATION_DURATION) -> ExcitationSpec:
+        """The held-out free-motion stress trajectory (the paper's upsilon_F): fast moves only (3 to 6 g),
+        half of them to the workspace edge, with the excitation's short dwells (0 to 0.1 s)."""
+        return cls(seed=seed, duration=duration, min_acceleration_fraction=0.5, edge_fraction=0.5, slow_fraction=0.0)
+
+    def reference(self) -> Trajectory:
+        """The reference :class:`~delta_env.trajectories.Trajectory` (nominal geometry, 1 kHz)."""
+        return excitation_trajectory(
+            NOMINAL_GEOMETRY,
+            np.random.default_rng(self.seed),
+            self.duration,
+            self.peak_acceleration,
+            min_acceleration_fraction=self.min_acceleration_fraction,
+            edge_fraction=self.edge_fraction,
+            slow_fraction=self.slow_fraction,
+            dt=CONTROL_PERIOD,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class ExcitationRecord:
+    """What the drive recorded along one excitation run: observations only, never the plant's truth.
+
+    Attributes:
+        spec: The trajectory that was run.
+        dt: Sample period (s).
+        angles: Encoder angles (rad), ``(N, 3)``.
+        torques: Measured motor torques (N m), ``(N, 3)``; sample k is :data:`MEASURED_TORQUE_DELAY` older
+            than angle sample k.
+    """
+
+    spec: ExcitationSpec
+    dt: float
+    angles: NDArray[np.float64]
+    torques: NDArray[np.float64]
+
+
+class ReferenceFeedforward:
+    """PD plus a feedforward torque computed beforehand along the reference, one row per control step.
+
+    Args:
+        feedforward: Torques (N m), ``(N, 3)``: row k is added at the k-th call after :meth:`reset`.
+        pd: The feedback; ``PDController()`` when None.
+    """
+
+    name = "MKH (precomputed)+PD"
+
+    def __init__(self, feedforward: NDArray[np.float64], pd: PDController | None = None) -> None:
+        self.feedforward = feedforward
+        self.pd = PDController() if pd is None else pd
+        self._step = 0
+
+    def reset(self) -> None:
+        self._step = 0
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        torque = self.feedforward[self._step] + self.pd(observation)
+        self._step += 1
+        return torque
+
+
+def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> ExcitationRecord:
+    """Run ``spec`` with PD + MKH feedforward on the plant; record encoder angles and measured torques.
+
+    Raises:
+        RuntimeError: if the plant diverges.
+    """
+    reference = spec.reference()
+    # MKH feedforward along the reference, in one batch (the batched model is much faster than single samples).
+    feedforward = DeltaDynamics.nominal().inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
+    env = DeltaPickPlaceEnv(plant=plant)
+    record = run_episode(env, ReferenceFeedforward(feedforward), spec.seed, reference=reference)
+    env.close()
+    if record.diverged:
+        steps = len(record.tracking_error)
+        raise RuntimeError(f"the plant diverged at step {steps} of excitation seed {spec.seed}")
+    return ExcitationRecord(spec=spec, dt=CONTROL_PERIOD, angles=record.encoder_angles, torques=record.measured_torque)
+
+
+def _progress_bar(total: int, show: bool) -> Any:
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="excitation runs", disable=not show, unit="run")
+
+
+def collect_excitation_data(
+    specs: Sequence[ExcitationSpec],
+    *,
+    plant: PlantConfig | None = None,
+    workers: int = 1,
+    progress: bool = False,
+) -> list[ExcitationRecord]:
+    """Run excitation trajectories in closed loop on the plant and record the observations.
+
+    Each run: ``DeltaPickPlaceEnv(plant)`` reset with the trajectory as reference (no picks),
+    ``PDController()`` plus MKH feedforward precomputed along the reference. Recorded: the encoder
+    angles and the measured motor torques of the observations (with the plant's sensor noise and
+    quantization), never the simulator's state.
+
+    Args:
+        specs: The trajectories.
+        plant: Plant configuration; None is the default realistic plant.
+        workers: Processes running trajectories in parallel.
+        progress: Show a tqdm progress bar.
+
+    Raises:
+        RuntimeError: if the plant diverges.
+    """
+    specs = list(specs)
+    with _progress_bar(len(specs), progress) as bar:
+        return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)
+
+
+def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> MotionData:
+    record = run_excitation(spec, plant)
+    return prepare_motion(record.angles, record.torques, record.dt)
+
+
+@dataclass(frozen=True)
+class IdentificationRun:
+    """An identification with its held-out validation data, for reports.
+
+    Attributes:
+        result: The identified parameters.
+        data: Samples of the identification trajectories.
+        validation: Samples of the held-out free-motion stress trajectory.
+        models: The models compared on it, with their parameters (Table 1 rows), by name.
+    """
+
+    result: IdentificationResult
+    data: tuple[MotionData, ...]
+    validation: MotionData
+    models: dict[str, DeltaDynamics]
+
+
+def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
+    """Distinct episode seeds of the identification trajectories and of the held-out one."""
+    training, held_out = np.random.SeedSequence(seed).spawn(2)
+    seeds = [int(s) for s in training.generate_state(n_trajectories)]
+    validation_seed = int(held_out.generate_state(1)[0])
+    if len({*seeds, validation_seed}) != n_trajectories + 1:
+        raise RuntimeError(f"seed {seed} gave repeated trajectory seeds {seeds} + {validation_seed}")
+    return seeds, validation_seed
+
+
+def _plant_summary(plant: PlantConfig) -> dict[str, Any]:
+    """What a test-bench log would state about the robot: no friction or mass values (those are truth)."""
+    return {
+        "variant": plant.variant,
+        "mjcf_sha256": hashlib.sha256(build_mjcf(plant).encode()).hexdigest(),
+        "control_period_s": CONTROL_PERIOD,
+        "encoder_bits": plant.realism.encoder_bits,
+        "torque_noise_std_Nm": plant.realism.torque_noise_std,
+    }
+
+
+def _standard_errors(fits: Mapping[str, LeastSquaresFit]) -> dict[str, float]:
+    return {
+        f"{label}.{name}": error
+        for label, fit in fits.items()
+        for name, error in zip(fit.names, fit.standard_errors, strict=True)
+    }
+
+
+def _best_time(function: Callable[[], _Output], repeats: int = 3) -> tuple[_Output, float]:
+    """The result of ``function()`` and its shortest wall time (s) over ``repeats`` calls.
+
+    The shortest of a few runs is the least disturbed by other processes on the machine.
+    """
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        output = function()
+        times.append(time.perf_counter() - started)
+    return output, min(times)
+
+
+def run_identification(
+    n_trajectories: int = DEFAULT_TRAJECTORIES,
+    seed: int = 0,
+    duration: float = DEFAULT_DURATION,
+    *,
+    validation_duration: float = VALIDATION_DURATION,
+    progress: bool = True,
+    workers: int | None = None,
+    plant: PlantConfig | None = None,
+) -> IdentificationRun:
+    """Collect data, identify with both methods and validate on a held-out stress trajectory.
+
+    Arguments as in :func:`identify`; ``validation_duration`` is the length (s) of the held-out
+    trajectory.
+    """
+    start = time.perf_counter()
+    require_count("n_trajectories", n_trajectories)
+    workers = min(2, os.cpu_count() or 1) if workers is None else workers
+    plant = PlantConfig() if plant is None else plant
+    seeds, validation_seed = _trajectory_seeds(seed, n_trajectories)
+    specs = [ExcitationSpec(seed=s, duration=duration) for s in seeds]
+    specs.append(ExcitationSpec.stress(validation_seed, validation_duration))
+
+    run = functools.partial(_collect_and_prepare, plant=plant)
+    with _progress_bar(len(specs), progress) as bar:
+        *data, validation = parallel_map(run, specs, workers, bar)
+    data_time = time.perf_counter() - start
+
+    (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data))
+    paper, paper_time = _best_time(lambda: fit_paper_method(data))
+    lumped, rods = DeltaDynamics.nominal(), DeltaDynamics.nominal(forearm_rods=True)
+    rod_fit = fit_joint_least_squares(data, dynamics=rods)
+
+    models = {
+        "MKH": lumped,
+        "MId (paper)": lumped.with_parameters(paper.mid),
+        "MId+F (paper)": lumped.with_parameters(paper.mid_f),
+        "MId (LS)": lumped.with_parameters(rho_fit.parameters),
+        "MId+F (joint LS)": lumped.with_parameters(joint_fit.parameters),
+        "MId+F+R (joint LS)": rods.with_parameters(rod_fit.parameters),
+    }
+    validation_table = error_table(models, validation)
+    training_table = error_table(models, concatenate(data))
+    provenance = {
+        "method": {
+            "data": "excitation trajectories in closed loop (PD + MKH feedforward) on the plant; encoder angles "
+            "and measured motor torques from the observations; Kalman RTS smoother for rates and accelerations",
+            "mid": "linear least squares of (rho1, rho2), all samples",
+            "mid_f": "joint linear least squares of [rho1, rho2, fv_1..3, fc_1..3]; rows with "
+            f"|theta_dot_i| <= {FRICTION_VELOCITY_THRESHOLD} rad/s left out (static and Stribeck friction)",
+            "paper_mid": "per-trajectory grid search of (rho1, rho2) minimising RMS torque error (eq. 7), averaged",
+            "paper_mid_f": "paper_mid rho + per-trajectory, per-joint LS of (fv, fc) on the remaining error, averaged",
+            "mid_f_rods": "the mid_f least squares on the model with homogeneous rod forearms (forearm_rods=True)",
+            "sample_period_s": CONTROL_PERIOD,
+            "velocity_threshold_rad_s": FRICTION_VELOCITY_THRESHOLD,
+            "rest_velocity_rad_s": REST_VELOCITY,
+            "trim_samples": TRIM_SAMPLES,
+            "torque_sample_delay_s": MEASURED_TORQUE_DELAY,
+            "smoother": {"jerk_std": SMOOTHER_JERK_STD, "measurement_std": ENCODER_NOISE_STD},
+            "rho1_grid": list(RHO1_GRID),
+            "rho2_grid": list(RHO2_GRID),
+            "controller": {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH, nominal"},
+        },
+        "seed": seed,
+        "trajectories": [dataclasses.asdict(spec) for spec in specs[:-1]],
+        "validation_trajectory": dataclasses.asdict(specs[-1]),
+        "plant": _plant_summary(plant),
+        "samples": {
+            "per_trajectory": [len(d) for d in data],
+            "total": sum(len(d) for d in data),
+            "validation": len(validation),
+        },
+        "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary(), "mid_f_rods": rod_fit.summary()},
+        "mid_f_between_trajectories": between_trajectory_spread(data),
+        "raw_estimates": {
+            "mid_f": dict(zip(joint_fit.names, joint_fit.estimate, strict=True)),
+            "mid_f_rods": dict(zip(rod_fit.names, rod_fit.estimate, strict=True)),
+            "paper_per_trajectory": {
+                "rho": paper.rho.tolist(),
+                "viscous": paper.viscous.tolist(),
+                "coulomb": paper.coulomb.tolist(),
+            },
+        },
+        "torque_error_training": training_table,
+        "torque_error_validation": validation_table,
+        "run_time_s": {
+            "data_collection_and_smoothing": data_time,
+            "joint_least_squares": ours_time,
+            "paper_method": paper_time,
+            "fits_timed_as": "best of 3 runs, from smoothed samples to parameters",
+            "total": time.perf_counter() - start,
+        },
+        "workers": workers,
+        "versions": package_versions(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+    result = IdentificationResult(
+        mid=rho_fit.parameters,
+        mid_f=joint_fit.parameters,
+        mid_f_rods=rod_fit.parameters,
+        paper_mid=paper.mid,
+        paper_mid_f=paper.mid_f,
+        standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
+        provenance=provenance,
+    )
+    return IdentificationRun(result=result, data=tuple(data), validation=validation, models=models)
+
+
+def identify(
+    n_trajectories: int = DEFAULT_TRAJECTORIES,
+    seed: int = 0,
+    duration: float = DEFAULT_DURATION,
+    progress: bool = True,
+    workers: int | None = None,
+    **kwargs: Any,
+) -> IdentificationResult:
+    """Identify MId and MId+F on the default realistic plant, by the paper's method and ours.
+
+    Args:
+        n_trajectories: Excitation trajectories (distinct seeds derived from ``seed``), >= 1.
+        seed: Seed of the whole identification (trajectories and sensor noise).
+        duration: Length of each excitation trajectory (s).
+        progress: Show a tqdm progress bar.
+        workers: Processes simulating trajectories; None uses up to 2 cores.
+        **kwargs: ``validation_duration`` (s) and ``plant`` (a PlantConfig), see :func:`run_identification`.
+    """
+    return run_identification(n_trajectories, seed, duration, progress=progress, workers=workers, **kwargs).result
+
+
+def load_or_identify(
+    path: str | os.PathLike[str] = DEFAULT_PARAMETER_PATH, **identify_kwargs: Any
+) -> IdentificationResult:
+    """The identified parameters at ``path``; if the file does not exist, identify and save them there.
+
+    Args:
+        path: Parameter file.
+        **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
+
+    Raises:
+        ParameterFileError: if the file exists but is corrupt (it is never silently replaced).
+    """
+    path = Path(path)
+    if path.exists():
+        return load_result(path)
+    logger.info("no identified parameters at %s: identifying (about a minute)", path)
+    result = identify(**identify_kwargs)
+    save_result(result, path)
+    return result
