@@ -45,7 +45,7 @@ from controllers.processes import pool_context
 from controllers.provenance import package_versions
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
-from delta_env.model import PlantConfig, build_mjcf
+from delta_env import PlantConfig, build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.trajectories import Trajectory, excitation_trajectory
 

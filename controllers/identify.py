@@ -36,7 +36,7 @@ from controllers.identification import (
 )
 from controllers.provenance import command_line
 from delta_env.geometry import GRAVITY
-from delta_env.model import PlantConfig
+from delta_env.config import PlantConfig
 
 FIGURES = {
     "fig3_mkh.png": "MKH",

@@ -13,14 +13,14 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from delta_env.geometry import GRAVITY, TORQUE_LIMIT
-from delta_env.model import (
+from delta_env.config import (
     DEFAULT_PAYLOAD_SIZE,
     MAX_PAYLOAD_MASS,
     SUCTION_CUP_OFFSET,
-    DeltaPlant,
     PlantConfig,
     RandomizationRanges,
 )
+from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
 

@@ -9,7 +9,7 @@ from numpy.testing import assert_array_equal
 import delta_env
 from controllers.base import PDController
 from delta_env.env import DeltaPickPlaceEnv
-from delta_env.model import RandomizationRanges
+from delta_env.config import RandomizationRanges
 
 
 def rollout(env: gym.Env, seed: int, masses: list[float] | None = None, steps: int = 400) -> list:

@@ -1,4 +1,4 @@
-"""The MuJoCo plant against the kinematics, its MJCF conventions, payload handling and randomization."""
+"""The MuJoCo plant against the kinematics, its model conventions, payload handling and randomization."""
 
 from collections.abc import Callable
 from dataclasses import replace
@@ -9,17 +9,18 @@ import pytest
 from numpy.testing import assert_allclose
 
 from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses, kinematics
-from delta_env.geometry import CHAIN_AZIMUTHS
-from delta_env.model import (
+from delta_env.config import (
     FOREARM_SPACING,
     MIN_PAYLOAD_MASS,
-    DeltaPlant,
     PhysicalParameters,
     PlantConfig,
     PlantRealism,
     RandomizationRanges,
-    build_mjcf,
 )
+from delta_env.geometry import CHAIN_AZIMUTHS
+from delta_env.plant import DeltaPlant
+from delta_env.robot import robot_spec
+from delta_env.scene import build_mjcf, build_model
 
 CONFIGS = {"ideal": PlantConfig.ideal(), "realistic": PlantConfig()}
 VARIANTS = list(CONFIGS)
@@ -120,9 +121,18 @@ def test_home_keyframe_is_assembled_at_rest(plant: DeltaPlant) -> None:
     assert_allclose(data.qpos, model.qpos0, atol=1e-15)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_every_element_has_a_unique_name(variant: str) -> None:
-    model = mujoco.MjModel.from_xml_string(build_mjcf(CONFIGS[variant]))
+ALL_VARIANTS = {
+    f"{variant}{'' if payload else '_without_payload'}": replace(config, payload_body=payload)
+    for variant, config in CONFIGS.items()
+    for payload in (True, False)
+}
+ALL_VARIANTS["realistic_realism_off"] = PlantConfig(realism=PlantRealism.off())
+
+
+@pytest.mark.parametrize("name", list(ALL_VARIANTS))
+def test_every_element_has_a_unique_name(name: str) -> None:
+    """Menagerie convention: every body, joint, geom, site, equality, actuator, camera, light and key named."""
+    model = build_model(ALL_VARIANTS[name])
     kinds = {
         mujoco.mjtObj.mjOBJ_BODY: model.nbody,
         mujoco.mjtObj.mjOBJ_JOINT: model.njnt,
@@ -133,12 +143,55 @@ def test_every_element_has_a_unique_name(variant: str) -> None:
         mujoco.mjtObj.mjOBJ_CAMERA: model.ncam,
         mujoco.mjtObj.mjOBJ_LIGHT: model.nlight,
         mujoco.mjtObj.mjOBJ_KEY: model.nkey,
+        mujoco.mjtObj.mjOBJ_MATERIAL: model.nmat,
     }
     for kind, count in kinds.items():
+        assert count > 0 or kind == mujoco.mjtObj.mjOBJ_EQUALITY
         first = 1 if kind == mujoco.mjtObj.mjOBJ_BODY else 0  # body 0 is MuJoCo's world
         names = [mujoco.mj_id2name(model, kind, i) for i in range(first, count)]
         assert all(names), f"unnamed {kind.name}: {names}"
         assert len(set(names)) == len(names), f"duplicate {kind.name} names: {names}"
+
+
+@pytest.mark.parametrize("name", list(ALL_VARIANTS))
+def test_every_variant_steps_without_mujoco_warnings(name: str) -> None:
+    """Menagerie-style smoke test: from the home keyframe, one second of torques raises no MuJoCo warning."""
+    model = build_model(ALL_VARIANTS[name])
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    mujoco.mj_forward(model, data)
+    if ALL_VARIANTS[name].payload_body:  # carry a 4 kg payload on the suction weld, at its home offset
+        payload, suction = model.body("payload").id, model.equality("suction").id
+        model.body_mass[payload] = 4.0
+        model.body_gravcomp[payload] = 0.0
+        model.eq_data[suction, 3:6] = data.xpos[payload] - data.xpos[model.body("platform").id]
+        data.eq_active[suction] = 1
+        mujoco.mj_setConst(model, mujoco.MjData(model))
+    motors = [model.joint(f"motor_{label}") for label in ("1", "2", "3")]
+    angles, rates = [joint.qposadr[0] for joint in motors], [joint.dofadr[0] for joint in motors]
+    time = np.arange(2000) * model.opt.timestep
+    swing = np.zeros(3)
+    for k in range(2000):
+        target = 0.2 * np.sin(2.0 * np.pi * np.array([1.0, 1.5, 2.0]) * time[k])
+        data.ctrl[:] = 3000.0 * (target - data.qpos[angles]) - 60.0 * data.qvel[rates] + 60.0
+        mujoco.mj_step(model, data)
+        swing = np.maximum(swing, np.abs(data.qpos[angles]))
+    warnings = {mujoco.mjtWarning(i).name: w.number for i, w in enumerate(data.warning) if w.number}
+    assert not warnings, warnings
+    assert np.all(np.isfinite(data.qpos))
+    assert np.all(swing > 0.1), "the arms must have moved"
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_robot_compiles_on_its_own_and_the_mjcf_text_loads(variant: str) -> None:
+    """The robot spec needs no scene; the scene's MJCF text (6 significant digits) loads into the same model."""
+    robot = robot_spec(CONFIGS[variant]).compile()
+    scene = build_model(CONFIGS[variant])
+    assert robot.nv == scene.nv - 6 and robot.nu == scene.nu == 3
+    assert robot.neq == scene.neq - 1, "the scene adds the suction weld"
+    reloaded = mujoco.MjModel.from_xml_string(build_mjcf(CONFIGS[variant]))
+    for field in ("body_mass", "body_inertia", "body_pos", "jnt_axis", "dof_damping", "eq_solref", "qpos0"):
+        assert_allclose(getattr(reloaded, field), getattr(scene, field), rtol=1e-5, atol=1e-6, err_msg=field)
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
