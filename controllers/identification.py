@@ -43,11 +43,10 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD, smooth_joint_motion
 from controllers.processes import pool_context
 from controllers.provenance import package_versions
+from delta_env import PlantConfig, Trajectory, build_mjcf, excitation_trajectory
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
-from delta_env import PlantConfig, build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from delta_env.trajectories import Trajectory, excitation_trajectory
 
 logger = logging.getLogger(__name__)
 

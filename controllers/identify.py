@@ -35,8 +35,8 @@ from controllers.identification import (
     save_result,
 )
 from controllers.provenance import command_line
-from delta_env.geometry import GRAVITY
 from delta_env.config import PlantConfig
+from delta_env.geometry import GRAVITY
 
 FIGURES = {
     "fig3_mkh.png": "MKH",

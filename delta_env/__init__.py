@@ -14,7 +14,9 @@ from delta_env.config import (
     PlantRealism,
     RandomizationRanges,
 )
+from delta_env.cycles import conveyor_cycles, standard_cycle
 from delta_env.env import DeltaPickPlaceEnv, RewardWeights
+from delta_env.excitation import excitation_trajectory
 from delta_env.geometry import (
     GRAVITY,
     NOMINAL_GEOMETRY,
@@ -26,13 +28,7 @@ from delta_env.geometry import (
 from delta_env.plant import DeltaPlant
 from delta_env.scene import build_mjcf, build_model
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from delta_env.trajectories import (
-    Trajectory,
-    concatenate,
-    conveyor_cycles,
-    excitation_trajectory,
-    standard_cycle,
-)
+from delta_env.trajectories import Trajectory, concatenate
 
 __all__ = [
     "CONTROL_PERIOD",

@@ -6,7 +6,6 @@ itself is built from a :class:`PlantConfig` by :mod:`delta_env.robot` and :mod:`
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -15,7 +14,7 @@ from numpy.typing import NDArray
 
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.sensors import ENCODER_BITS
-from delta_env.validation import require_count, require_in, require_interval, require_joint_vector
+from delta_env.validation import require_count, require_in, require_instance, require_interval, require_joint_vector
 
 FOREARM_SPACING = 0.10
 """Distance (m) between the two rods of a parallelogram, along the motor axis (docs/design.md section 4)."""
@@ -38,11 +37,6 @@ MAX_SCALE = 10.0
 
 MAX_LAG = 0.1
 """Largest current-loop time constant accepted (s)."""
-
-
-def _require_type(name: str, value: object, kind: type) -> None:
-    if not isinstance(value, kind):
-        raise ValueError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
 
 
 @dataclass(frozen=True)
@@ -155,11 +149,11 @@ class PlantConfig:
     payload_body: bool = True
 
     def __post_init__(self) -> None:
-        _require_type("geometry", self.geometry, DeltaGeometry)
-        _require_type("masses", self.masses, DeltaMasses)
+        require_instance("geometry", self.geometry, DeltaGeometry)
+        require_instance("masses", self.masses, DeltaMasses)
         if self.variant not in ("ideal", "realistic"):
             raise ValueError(f"variant must be 'ideal' or 'realistic', got {self.variant!r}")
-        _require_type("realism", self.realism, PlantRealism)
+        require_instance("realism", self.realism, PlantRealism)
         if self.variant == "ideal" and self.realism.acts_on_plant:
             raise ValueError(
                 "the ideal variant must satisfy the MKH assumptions: armature, viscous, coulomb, "
@@ -203,7 +197,7 @@ class PhysicalParameters:
     actuator_lag: float = 0.0
 
     def __post_init__(self) -> None:
-        _require_type("masses", self.masses, DeltaMasses)
+        require_instance("masses", self.masses, DeltaMasses)
         require_joint_vector("friction_scale", self.friction_scale, 0.0, MAX_SCALE, low_open=True)
         require_in("actuator_lag", self.actuator_lag, 0.0, MAX_LAG, unit="s")
 

@@ -12,7 +12,6 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from delta_env.geometry import GRAVITY, TORQUE_LIMIT
 from delta_env.config import (
     DEFAULT_PAYLOAD_SIZE,
     MAX_PAYLOAD_MASS,
@@ -20,9 +19,11 @@ from delta_env.config import (
     PlantConfig,
     RandomizationRanges,
 )
+from delta_env.cycles import conveyor_cycles, standard_cycle
+from delta_env.geometry import GRAVITY, TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
-from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
+from delta_env.trajectories import Trajectory
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -109,17 +110,16 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ## Arguments
     | parameter | type | default | description |
     |---|---|---|---|
-    | ``plant`` | ``PlantConfig`` or None | None: ``PlantConfig()`` | MuJoCo plant (variant, realism, masses, geometry) |
+    | ``plant`` | PlantConfig, None | None = ``PlantConfig()`` | plant variant, realism, masses, geometry |
     | ``n_cycles`` | int | 3 | pick-and-place cycles per episode, >= 1 |
-    | ``cycle`` | str | ``"conveyor"`` | ``"conveyor"`` (random points on two conveyor zones) or ``"standard"`` (the 25/305/25 mm cycle) |
+    | ``cycle`` | str | ``"conveyor"`` | random conveyor points, or ``"standard"`` 25/305/25 mm |
     | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2) |
-    | ``payload_mass_range`` | (float, float) | (0.0, 4.0) | object masses (kg) drawn from U[low, high], within [0, 20] |
-    | ``domain_randomization`` | ``RandomizationRanges`` or None | None | per-episode perturbation of the plant; off by default |
-    | ``reward_weights`` | ``RewardWeights`` or None | None: ``RewardWeights()`` | weights of the reward terms |
+    | ``payload_mass_range`` | (float, float) | (0.0, 4.0) | object masses drawn from U[low, high] (kg), in [0, 20] |
+    | ``domain_randomization`` | RandomizationRanges, None | None (off) | per-episode perturbation of the plant |
+    | ``reward_weights`` | RewardWeights, None | None = ``RewardWeights()`` | weights of the reward terms |
     | ``divergence_penalty`` | float | 1000.0 | reward (negated) of the step on which the simulation diverges |
-    | ``render_mode`` | str or None | None | ``"rgb_array"``, ``"human"`` or None |
-    | ``width`` | int | 480 | render width (pixels) |
-    | ``height`` | int | 480 | render height (pixels) |
+    | ``render_mode`` | str, None | None | ``"rgb_array"``, ``"human"`` or None |
+    | ``width``, ``height`` | int | 480, 480 | render size (pixels) |
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
@@ -299,9 +299,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         # This is the 1 kHz hot path: scalar math and few NumPy calls, so that the env costs at most
         # about its own physics (measured by scripts/bench.py).
         if self._episode_over or self.trajectory is None:
-            raise RuntimeError(
-                "call reset() before step(): " + ("the episode has ended" if self._episode_over else "no episode started")
-            )
+            reason = "the episode has ended" if self._episode_over else "no episode started"
+            raise RuntimeError(f"call reset() before step(): {reason}")
         torque = np.asarray(action, dtype=float)
         if torque.shape != (3,):
             raise ValueError(f"action must be 3 motor torques (N m) in [-400, 400], got shape {torque.shape}")

@@ -340,7 +340,7 @@ class DeltaPlant:
     # Payload
     # --------------------------------------------------------------------------------------------
 
-    def _require_payload(self) -> None:
+    def _check_payload_body(self) -> None:
         if not self.config.payload_body:
             raise RuntimeError("this plant was built with payload_body=False")
 
@@ -352,12 +352,12 @@ class DeltaPlant:
     @property
     def payload_mass(self) -> float:
         """Simulated payload mass (kg); at least MIN_PAYLOAD_MASS."""
-        self._require_payload()
+        self._check_payload_body()
         return float(self.model.body_mass[self._payload_body])
 
     def payload_position(self) -> NDArray[np.float64]:
         """Centre of the payload box (m), shape (3,), from qpos; current."""
-        self._require_payload()
+        self._check_payload_body()
         return self._qpos[self._payload_qpos : self._payload_qpos + 3].copy()
 
     def suction_cup_position(self) -> NDArray[np.float64]:
@@ -377,7 +377,7 @@ class DeltaPlant:
         Raises:
             ValueError: for a bad position, mass or size. RuntimeError: while the payload is attached.
         """
-        self._require_payload()
+        self._check_payload_body()
         if self.payload_attached:
             raise RuntimeError("release the payload before placing it")
         position = require_joint_vector("position", position)
@@ -402,7 +402,7 @@ class DeltaPlant:
         The payload takes the platform's velocity (a suction pick is a short impulse the weld would
         otherwise deliver in one constraint time constant).
         """
-        self._require_payload()
+        self._check_payload_body()
         platform_position, platform_quat = self._platform_pose()
         payload_position = self._qpos[self._payload_qpos : self._payload_qpos + 3]
         payload_quat = self._qpos[self._payload_qpos + 3 : self._payload_qpos + 7]
@@ -418,7 +418,7 @@ class DeltaPlant:
 
     def release_payload(self) -> None:
         """Deactivate the suction weld; the payload stops and floats where it is (gravcomp on)."""
-        self._require_payload()
+        self._check_payload_body()
         self.data.eq_active[self._suction] = 0
         self.model.body_gravcomp[self._payload_body] = 1.0
         self._qvel[self._payload_dof : self._payload_dof + 6] = 0.0
@@ -469,8 +469,8 @@ class DeltaPlant:
         """Edit masses, friction and lag of the model in place (the state is kept).
 
         The new inertial properties come from compiling the model of the modified config, so they are
-        exactly what :func:`~delta_env.scene.build_model` would give; derived constants are refreshed with ``mj_setConst``.
-        It compiles a model: call it between episodes.
+        exactly what :func:`~delta_env.scene.build_model` would give; derived constants are refreshed with
+        ``mj_setConst``. It compiles a model: call it between episodes.
 
         Raises:
             ValueError: for a lag on a plant built without one (or the reverse).
@@ -544,4 +544,3 @@ class DeltaPlant:
             (int(address), int(dof), float(gain))
             for address, dof, gain in zip(self._motor_qpos, self._motor_dofs, self._stribeck_gain, strict=True)
         )
-

@@ -94,3 +94,27 @@ def require_joint_vector(
         for index, entry in enumerate(array.tolist()):
             require_in(f"{name}[{index}]", entry, low, high, unit=unit, low_open=low_open)
     return array
+
+
+def require_vectors(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """``value`` as a float array of shape (..., 3) (joint or Cartesian vectors) if every entry is finite."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim == 0 or array.shape[-1] != 3:
+        raise ValueError(f"{name} must have a last axis of length 3, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {array}")
+    return array
+
+
+def require_generator(rng: object) -> np.random.Generator:
+    """``rng`` if it is a ``numpy.random.Generator``, else ``TypeError`` (a seed is not accepted)."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)), got {rng!r}")
+    return rng
+
+
+def require_instance(name: str, value: object, kind: type) -> object:
+    """``value`` if it is an instance of ``kind``, else ``ValueError`` naming the type it got."""
+    if not isinstance(value, kind):
+        raise ValueError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
+    return value

@@ -7,13 +7,13 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from collections.abc import Callable  # noqa: E402
+from collections.abc import Callable
 
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import mujoco
+import numpy as np
+import pytest
 
-from delta_env import NOMINAL_GEOMETRY, PlantConfig, kinematics  # noqa: E402
+from delta_env import NOMINAL_GEOMETRY, PlantConfig, kinematics
 
 
 @pytest.fixture(scope="session")

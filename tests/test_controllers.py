@@ -14,8 +14,8 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController
 from controllers.payload import PICK_PRIOR_VARIANCE, PayloadEstimator, residual_std, tare_from_observations
 from delta_env import NOMINAL_MASSES, DeltaGeometry
-from delta_env.env import DeltaPickPlaceEnv
 from delta_env.config import PlantConfig
+from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import (
     CONTROLLER_LABELS,
     ESTIMATOR_REGRESSORS,

@@ -8,9 +8,16 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, kinematics
+from delta_env import (
+    NOMINAL_GEOMETRY,
+    NOMINAL_MASSES,
+    DeltaPlant,
+    PlantConfig,
+    PlantRealism,
+    RandomizationRanges,
+    kinematics,
+)
 from delta_env.geometry import GRAVITY
-from delta_env import DeltaPlant, PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.oracle import InverseDynamicsOracle
 
 IDEAL = PlantConfig.ideal()
