@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
-from delta_env.sensors import ENCODER_BITS
+from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP
 from delta_env.validation import require_count, require_in, require_instance, require_interval, require_joint_vector
 
 FOREARM_SPACING = 0.10
@@ -145,7 +145,7 @@ class PlantConfig:
     masses: DeltaMasses = NOMINAL_MASSES
     variant: Literal["ideal", "realistic"] = "realistic"
     realism: PlantRealism = field(default_factory=PlantRealism)
-    timestep: float = 0.0005
+    timestep: float = PHYSICS_TIMESTEP
     payload_body: bool = True
 
     def __post_init__(self) -> None:
