@@ -1,6 +1,6 @@
 """Shared test set-up: headless rendering through EGL unless the caller chose a backend, and fixtures.
 
-Fixtures are named after what they build (``workzone_angles``, ``realistic_config``, ...).
+Fixtures are named after what they build (``workzone_points``, ``workzone_angles``, ``opengl_context``).
 """
 
 import os
@@ -13,17 +13,18 @@ import mujoco
 import numpy as np
 import pytest
 
-from delta_env import NOMINAL_GEOMETRY, PlantConfig, kinematics
+from delta_env import NOMINAL_GEOMETRY, kinematics
 
 
 @pytest.fixture(scope="session")
 def workzone_points() -> Callable[[int, int], np.ndarray]:
     """``points(n, seed)``: n random platform positions (m), (n, 3), in the work zone around z = -0.9 m.
 
-    Uniform over a disc of radius 0.45 m, heights in [-1.1, -0.75] m: well inside the workspace.
+    Uniform over a disc of radius 0.45 m, heights in [-1.1, -0.75] m: well inside the workspace. ``seed``
+    may be a ``numpy.random.Generator``, whose stream then continues.
     """
 
-    def points(n: int, seed: int) -> np.ndarray:
+    def points(n: int, seed: int | np.random.Generator) -> np.ndarray:
         rng = np.random.default_rng(seed)
         radius, azimuth = 0.45 * np.sqrt(rng.uniform(size=n)), rng.uniform(0.0, 2.0 * np.pi, n)
         return np.stack((radius * np.cos(azimuth), radius * np.sin(azimuth), rng.uniform(-1.1, -0.75, n)), -1)
@@ -35,22 +36,10 @@ def workzone_points() -> Callable[[int, int], np.ndarray]:
 def workzone_angles(workzone_points: Callable[[int, int], np.ndarray]) -> Callable[[int, int], np.ndarray]:
     """``angles(n, seed)``: motor angles (rad), (n, 3), of :func:`workzone_points` on the nominal geometry."""
 
-    def angles(n: int, seed: int) -> np.ndarray:
+    def angles(n: int, seed: int | np.random.Generator) -> np.ndarray:
         return kinematics.inverse(NOMINAL_GEOMETRY, workzone_points(n, seed))
 
     return angles
-
-
-@pytest.fixture(scope="session")
-def realistic_config() -> PlantConfig:
-    """The default plant: realistic parallelograms with every drive effect."""
-    return PlantConfig()
-
-
-@pytest.fixture(scope="session")
-def ideal_config() -> PlantConfig:
-    """The MKH-exact plant with every drive effect off."""
-    return PlantConfig.ideal()
 
 
 @pytest.fixture(scope="session")

@@ -31,25 +31,17 @@ def plant(request: pytest.FixtureRequest) -> DeltaPlant:
     return DeltaPlant(CONFIGS[request.param])
 
 
-def reachable_angles(n: int, seed: int) -> np.ndarray:
-    """Motor angles (rad) of random points in the work zone around z = -0.9 m, (n, 3)."""
-    rng = np.random.default_rng(seed)
-    radius, azimuth = 0.45 * np.sqrt(rng.uniform(size=n)), rng.uniform(0.0, 2.0 * np.pi, n)
-    xyz = np.stack((radius * np.cos(azimuth), radius * np.sin(azimuth), rng.uniform(-1.1, -0.75, n)), -1)
-    return kinematics.inverse(NOMINAL_GEOMETRY, xyz)
-
-
 def equality_rows(data: mujoco.MjData) -> np.ndarray:
     """Mask of the equality-constraint rows (loops, and the suction weld when active) of efc_*."""
     return data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
 
 
-def test_assembled_plant_matches_kinematics(plant: DeltaPlant) -> None:
+def test_assembled_plant_matches_kinematics(plant: DeltaPlant, workzone_angles: Callable) -> None:
     """MuJoCo's own kinematics of the assembled model: platform at FK, loops closed, theta > 0 down."""
     model, data, g = plant.model, plant.data, NOMINAL_GEOMETRY
     rng = np.random.default_rng(0)
     platform = model.body("platform").id
-    for theta in reachable_angles(20, seed=1):
+    for theta in workzone_angles(20, seed=1):
         theta_dot = rng.normal(0.0, 2.0, 3)
         plant.assemble(theta, theta_dot)
         assert_allclose(data.xpos[platform], kinematics.forward(g, theta), atol=1e-12)
@@ -92,10 +84,10 @@ def forearms(plant: DeltaPlant, theta: np.ndarray) -> list[tuple[str, float, flo
     return [(f"{i + 1}{rod}", offset, CHAIN_AZIMUTHS[i], theta[i]) for i in range(3) for rod, offset in rods]
 
 
-def test_platform_follows_forward_kinematics_in_simulation(plant: DeltaPlant) -> None:
+def test_platform_follows_forward_kinematics_in_simulation(plant: DeltaPlant, workzone_angles: Callable) -> None:
     """Driven by PD (no assemble), MuJoCo's closed chain keeps the platform at FK(measured angles)."""
     g = NOMINAL_GEOMETRY
-    start, goal = reachable_angles(2, seed=3)
+    start, goal = workzone_angles(2, seed=3)
     plant.reset(start)
     worst = 0.0
     for k in range(300):
@@ -224,12 +216,12 @@ def test_two_seconds_of_pick_and_place_raise_no_warnings(variant: str) -> None:
     [("ideal", False, 12, 9), ("ideal", True, 18, 9), ("realistic", False, 21, 18), ("realistic", True, 27, 18)],
 )
 def test_degrees_of_freedom_and_independent_loop_rows(
-    variant: str, payload_body: bool, nv: int, loop_rows: int
+    variant: str, payload_body: bool, nv: int, loop_rows: int, workzone_angles: Callable
 ) -> None:
     plant = DeltaPlant(replace(CONFIGS[variant], payload_body=payload_body))
     model, data = plant.model, plant.data
     assert model.nv == nv
-    plant.assemble(reachable_angles(1, seed=4)[0])
+    plant.assemble(workzone_angles(1, seed=4)[0])
     rows = _equality_jacobian(plant)
     assert rows.shape[0] == loop_rows == plant.n_loop_rows
     robot_dofs = model.nv - (6 if payload_body else 0)
@@ -255,9 +247,9 @@ def test_sign_of_motor_torque_lifts_the_arm() -> None:
     assert plant.platform_position()[2] > plant.config.home_height
 
 
-def test_payload_floats_free_and_follows_when_attached() -> None:
+def test_payload_floats_free_and_follows_when_attached(workzone_angles: Callable) -> None:
     plant = DeltaPlant(CONFIGS["realistic"])
-    theta = reachable_angles(2, seed=5)
+    theta = workzone_angles(2, seed=5)
     plant.reset(theta[0])
     spot = np.array([0.4, -0.3, -1.0])
     plant.place_payload(spot, 0.0, (0.2, 0.1, 0.05))
@@ -286,13 +278,13 @@ def test_payload_floats_free_and_follows_when_attached() -> None:
     assert not plant.payload_attached
 
 
-def test_assemble_carries_an_attached_payload() -> None:
+def test_assemble_carries_an_attached_payload(workzone_angles: Callable) -> None:
     plant = DeltaPlant(CONFIGS["realistic"])
     plant.place_payload(plant.suction_cup_position() - [0.02, 0.0, 0.05], 2.0, (0.1, 0.1, 0.1))
     plant.attach_payload()
     offset = plant.payload_position() - plant.platform_position()
     theta_dot = np.array([1.0, -2.0, 0.5])
-    plant.assemble(reachable_angles(1, seed=6)[0], theta_dot)
+    plant.assemble(workzone_angles(1, seed=6)[0], theta_dot)
     weld = plant.data.efc_pos[equality_rows(plant.data)][-6:]
     assert_allclose(weld, 0.0, atol=1e-12)
     assert_allclose(plant.payload_position() - plant.platform_position(), offset, atol=1e-12)
@@ -302,9 +294,9 @@ def test_assemble_carries_an_attached_payload() -> None:
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
-def test_step_holds_stribeck_and_ripple_of_the_state_at_the_call(variant: str) -> None:
+def test_step_holds_stribeck_and_ripple_of_the_state_at_the_call(variant: str, workzone_angles: Callable) -> None:
     plant = DeltaPlant(CONFIGS[variant])
-    plant.assemble(reachable_angles(1, seed=7)[0], [0.02, -0.5, 0.0])
+    plant.assemble(workzone_angles(1, seed=7)[0], [0.02, -0.5, 0.0])
     theta = plant.joint_angles()
     expected = plant.motor_disturbance(theta, plant.joint_velocities())
     plant.step(np.zeros(3), 2)
