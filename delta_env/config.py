@@ -159,7 +159,7 @@ class PlantConfig:
                 "the ideal variant must satisfy the MKH assumptions: armature, viscous, coulomb, "
                 "ripple_amplitude and actuator_lag must be 0 (use PlantConfig.ideal() or PlantRealism.off())"
             )
-        self.geometry.home_height  # noqa: B018 (raises if the robot cannot assemble with its arms horizontal)
+        _ = self.geometry.home_height  # raises ValueError if the robot cannot assemble with its arms horizontal
         require_in("timestep", self.timestep, 1e-5, 2e-3, unit="s")
         if not isinstance(self.payload_body, bool):
             raise ValueError(f"payload_body must be a bool, got {self.payload_body!r}")

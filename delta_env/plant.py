@@ -1,3 +1,4 @@
+# Over 500 lines: DeltaPlant is one class, the only code that reads or writes the robot's MuJoCo state.
 """The "real robot": the compiled MuJoCo Delta and the only code that touches its state (docs/design.md section 4).
 
 :class:`DeltaPlant` builds the model of a :class:`~delta_env.config.PlantConfig` (:mod:`delta_env.scene`),
