@@ -55,9 +55,8 @@ ROBOT_MATERIALS = {
 }
 """RGBA of the robot's materials."""
 
-# Loop closures: solref timeconst = 2 x timestep is the refsafe minimum (the stiffest stable closure),
-# solimp 0.9999 makes them nearly hard. MuJoCo's default softness opens the loops by ~8 mm.
-_EQUALITY_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+EQUALITY_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+"""Impedance of the loop closures and the suction weld: nearly hard (MuJoCo's default opens the loops by ~8 mm)."""
 
 _VISUAL_GROUP = 2
 _SITE_GROUP = 4
@@ -66,13 +65,11 @@ _SITE_SIZE = (0.008, 0.005, 0.005)  # radius of the sphere; the rest are MuJoCo'
 
 
 def equality_solref(config: PlantConfig) -> tuple[float, float]:
-    """Reference (time constant s, damping ratio) of the loop closures and the suction weld."""
+    """Reference (time constant s, damping ratio) of the loop closures and the suction weld.
+
+    The time constant 2 x timestep is MuJoCo's refsafe minimum, the stiffest closure that stays stable.
+    """
     return (2.0 * config.timestep, 1.0)
-
-
-def equality_solimp() -> tuple[float, float, float, float, float]:
-    """Impedance of the loop closures and the suction weld: nearly hard."""
-    return _EQUALITY_SOLIMP
 
 
 def forearm_home_tilt(geometry: DeltaGeometry) -> float:
@@ -311,7 +308,7 @@ def _add_loop_closures(spec: mujoco.MjSpec, config: PlantConfig) -> None:
                 name1=f"forearm_{label}{rod}_end",
                 name2=f"platform_{label}{rod}",
                 solref=equality_solref(config),
-                solimp=equality_solimp(),
+                solimp=EQUALITY_SOLIMP,
             )
 
 

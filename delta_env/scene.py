@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 
 from delta_env.config import DEFAULT_PAYLOAD_SIZE, SUCTION_CUP_OFFSET, PlantConfig
-from delta_env.robot import HOME_KEY, equality_solimp, equality_solref, robot_spec
+from delta_env.robot import EQUALITY_SOLIMP, HOME_KEY, equality_solref, robot_spec
 
 FLOOR_HEIGHT = -1.25
 """Height (m) of the floor plane, visual only (no contacts)."""
@@ -87,7 +87,7 @@ def _add_payload(spec: mujoco.MjSpec, config: PlantConfig) -> None:
         name2="payload",
         active=False,
         solref=equality_solref(config),
-        solimp=equality_solimp(),
+        solimp=EQUALITY_SOLIMP,
     )
     # Anchor at the payload's origin; relative pose (position, quaternion) set at the pick.
     suction.data[0:10] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
