@@ -101,7 +101,11 @@ def build_model(config: PlantConfig) -> mujoco.MjModel:
 
 
 def build_mjcf(config: PlantConfig) -> str:
-    """MJCF text of the scene of ``config`` (``MjSpec.to_xml``): loads into the same model."""
+    """MJCF text of the scene of ``config`` (``MjSpec.to_xml``), to read or to record.
+
+    MuJoCo writes numbers with 6 significant digits, so the text reloads into the same model up to
+    that rounding; :func:`build_model` is the exact model.
+    """
     spec = scene_spec(config)
     spec.compile()
     return spec.to_xml()
