@@ -24,6 +24,7 @@ from delta_env.geometry import GRAVITY, TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
+from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -138,15 +139,20 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         width: int = 480,
         height: int = 480,
     ) -> None:
-        if not (isinstance(n_cycles, int | np.integer) and n_cycles >= 1):
-            raise ValueError(f"n_cycles must be an integer >= 1, got {n_cycles!r}")
+        require_count("n_cycles", n_cycles)
         if cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
-        low, high = payload_mass_range
-        if not (0.0 <= low <= high <= MAX_PAYLOAD_MASS):
-            raise ValueError(
-                f"payload_mass_range must satisfy 0 <= low <= high <= {MAX_PAYLOAD_MASS} kg, got {payload_mass_range}"
-            )
+        require_positive("peak_acceleration", peak_acceleration, "m/s^2")
+        low, high = require_interval("payload_mass_range", payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
+        if plant is not None:
+            require_instance("plant", plant, PlantConfig)
+        if domain_randomization is not None:
+            require_instance("domain_randomization", domain_randomization, RandomizationRanges)
+        if reward_weights is not None:
+            require_instance("reward_weights", reward_weights, RewardWeights)
+        require_in("divergence_penalty", divergence_penalty, 0.0)
+        require_count("width", width)
+        require_count("height", height)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 

@@ -127,6 +127,12 @@ def test_bad_reset_options_raise(env: DeltaPickPlaceEnv, options: dict, message:
         ({"cycle": "adept"}, "cycle"),
         ({"payload_mass_range": (2.0, 1.0)}, "payload_mass_range"),
         ({"render_mode": "ascii"}, "render_mode"),
+        ({"n_cycles": True}, "n_cycles must be an integer >= 1, got True"),
+        ({"peak_acceleration": 0.0}, r"peak_acceleration must be a finite number in \(0, inf\] m/s\^2"),
+        ({"payload_mass_range": (0.0, 25.0)}, r"payload_mass_range must be a pair 0 <= min <= max <= 20 kg"),
+        ({"plant": "realistic"}, "plant must be a PlantConfig, got str"),
+        ({"divergence_penalty": -1.0}, "divergence_penalty"),
+        ({"width": 0}, "width must be an integer >= 1"),
     ],
 )
 def test_bad_constructor_arguments_raise(kwargs: dict, message: str) -> None:
