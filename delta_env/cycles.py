@@ -74,7 +74,7 @@ class ConveyorZone:
 
 # Two conveyors on either side of the base's x axis, 0.3 m apart, 0.6 m long and 0.2 m wide, at the
 # working height: their farthest corners are 0.46 m from the axis, well inside the 0.7 m radius
-# where the singularity margins below still hold, so every random cycle is reachable.
+# of WORKSPACE_LIMITS (delta_env.limits) where its singularity margins hold, so every random cycle is reachable.
 PICK_ZONE = ConveyorZone(x_range=(-0.3, 0.3), y_range=(-0.35, -0.15))
 """Default pick conveyor zone (m)."""
 
