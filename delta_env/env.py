@@ -22,7 +22,7 @@ from delta_env.config import (
 from delta_env.cycles import conveyor_cycles, standard_cycle
 from delta_env.geometry import GRAVITY, TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
 
@@ -173,7 +173,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if not np.isclose(self.n_substeps * timestep, CONTROL_PERIOD):
             raise ValueError(f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s")
         realism = self.plant_config.realism
-        self._encoder_step = None if realism.encoder_bits is None else 2.0 * np.pi / 2**realism.encoder_bits
+        self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
         self._torque_noise_std = realism.torque_noise_std
 
         self.action_space = spaces.Box(-TORQUE_LIMIT, TORQUE_LIMIT, shape=(3,), dtype=np.float64)

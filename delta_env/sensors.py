@@ -10,7 +10,13 @@ CONTROL_PERIOD = 1e-3
 ENCODER_BITS = 17
 """Resolution of the absolute joint encoders (bits per revolution)."""
 
-ENCODER_RESOLUTION = 2.0 * math.pi / 2**ENCODER_BITS
+
+def encoder_resolution(bits: int) -> float:
+    """Step (rad) of an absolute encoder with ``bits`` bits per revolution: 2 pi / 2^bits."""
+    return 2.0 * math.pi / 2**bits
+
+
+ENCODER_RESOLUTION = encoder_resolution(ENCODER_BITS)
 """Step of the joint encoders (rad)."""
 
 ENCODER_NOISE_STD = ENCODER_RESOLUTION / math.sqrt(12.0)
