@@ -34,12 +34,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
-from delta_env.geometry import CHAIN_AZIMUTHS, GRAVITY, NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+from delta_env.geometry import (
+    CHAIN_COS,
+    CHAIN_SIN,
+    GRAVITY,
+    NOMINAL_GEOMETRY,
+    NOMINAL_MASSES,
+    DeltaGeometry,
+    DeltaMasses,
+)
 from delta_env.validation import require_in, require_positive
-
-# cos and sin of the chain azimuths as Python floats, for the scalar single-sample path.
-_COS_ALPHA = tuple(math.cos(alpha) for alpha in CHAIN_AZIMUTHS.tolist())
-_SIN_ALPHA = tuple(math.sin(alpha) for alpha in CHAIN_AZIMUTHS.tolist())
 
 
 @dataclass(frozen=True)
@@ -262,7 +266,7 @@ class DeltaDynamics:
             raise ValueError(f"joint states must be finite, got {theta!r}, {theta_dot!r}, {theta_ddot!r}")
         geometry = self.geometry
         l1, r = geometry.l1, geometry.r
-        (ca1, ca2, ca3), (sa1, sa2, sa3) = _COS_ALPHA, _SIN_ALPHA
+        (ca1, ca2, ca3), (sa1, sa2, sa3) = CHAIN_COS, CHAIN_SIN
         c1, c2, c3 = math.cos(t1), math.cos(t2), math.cos(t3)
         s1, s2, s3 = math.sin(t1), math.sin(t2), math.sin(t3)
         # Elbows J'_i (docs/design.md section 2), written out: this runs at 1 kHz in Python.

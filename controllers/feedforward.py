@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from controllers.base import Observation, PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.payload import PayloadEstimator
-from delta_env.model import PlantConfig
+from delta_env.config import PlantConfig
 from delta_env.oracle import InverseDynamicsOracle
 
 

@@ -1,15 +1,60 @@
 """A MuJoCo Delta robot that picks and places payloads of unknown mass.
 
-``import delta_env`` registers ``DeltaPickPlace-v0`` with Gymnasium.
+``import delta_env`` registers ``DeltaPickPlace-v0`` with Gymnasium. The package is the simulated robot
+and its task: geometry and kinematics, the plant (:class:`DeltaPlant`, built with ``mujoco.MjSpec``),
+its sensors, reference trajectories and the environment.
 """
 
 import gymnasium as gym
 
-from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
+from delta_env.config import (
+    MAX_PAYLOAD_MASS,
+    PhysicalParameters,
+    PlantConfig,
+    PlantRealism,
+    RandomizationRanges,
+)
+from delta_env.cycles import conveyor_cycles, standard_cycle
+from delta_env.env import DeltaPickPlaceEnv, RewardWeights
+from delta_env.excitation import excitation_trajectory
+from delta_env.geometry import (
+    GRAVITY,
+    NOMINAL_GEOMETRY,
+    NOMINAL_MASSES,
+    TORQUE_LIMIT,
+    DeltaGeometry,
+    DeltaMasses,
+)
+from delta_env.plant import DeltaPlant
+from delta_env.scene import build_mjcf, build_model
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.trajectories import Trajectory, concatenate
 
-__all__ = ["NOMINAL_GEOMETRY", "NOMINAL_MASSES", "TORQUE_LIMIT", "DeltaGeometry", "DeltaMasses"]
+__all__ = [
+    "CONTROL_PERIOD",
+    "GRAVITY",
+    "MAX_PAYLOAD_MASS",
+    "MEASURED_TORQUE_DELAY",
+    "NOMINAL_GEOMETRY",
+    "NOMINAL_MASSES",
+    "TORQUE_LIMIT",
+    "DeltaGeometry",
+    "DeltaMasses",
+    "DeltaPickPlaceEnv",
+    "DeltaPlant",
+    "PhysicalParameters",
+    "PlantConfig",
+    "PlantRealism",
+    "RandomizationRanges",
+    "RewardWeights",
+    "Trajectory",
+    "build_mjcf",
+    "build_model",
+    "concatenate",
+    "conveyor_cycles",
+    "excitation_trajectory",
+    "standard_cycle",
+]
 
 # The episode ends with its reference trajectory (truncated), so no TimeLimit is needed.
 gym.register(id="DeltaPickPlace-v0", entry_point="delta_env.env:DeltaPickPlaceEnv")
-# The residual-policy env runs a base controller inside; imported lazily so delta_env stays free of controllers.
-gym.register(id="DeltaPickPlaceResidual-v0", entry_point="controllers.residual:DeltaResidualEnv")

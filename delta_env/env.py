@@ -1,4 +1,4 @@
-"""DeltaPickPlace-v0: a Delta robot picks objects of unknown mass and places them (DESIGN.md section 5)."""
+"""DeltaPickPlace-v0: a Delta robot picks objects of unknown mass and places them (docs/design.md section 5)."""
 
 from __future__ import annotations
 
@@ -12,17 +12,19 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from delta_env.geometry import GRAVITY, TORQUE_LIMIT
-from delta_env.model import (
+from delta_env.config import (
     DEFAULT_PAYLOAD_SIZE,
     MAX_PAYLOAD_MASS,
     SUCTION_CUP_OFFSET,
-    DeltaPlant,
     PlantConfig,
     RandomizationRanges,
 )
-from delta_env.sensors import CONTROL_PERIOD
-from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
+from delta_env.cycles import conveyor_cycles, standard_cycle
+from delta_env.geometry import GRAVITY, TORQUE_LIMIT
+from delta_env.plant import DeltaPlant
+from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
+from delta_env.trajectories import Trajectory
+from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -52,16 +54,17 @@ class RewardWeights:
 class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
     """A 3-DOF Delta robot in MuJoCo picks and places objects whose masses it is never told.
 
+    ## Description
     Each episode is a sequence of pick-and-place cycles along a C2 reference path (lift 25 mm,
     travel, descend 25 mm, dwell, and back to the next pick point). At each pick point a suction
     gripper (a weld) attaches a new object whose mass is drawn at random; it is released at the
     place point. The plant is the ``realistic`` MuJoCo model by default: true parallelograms,
     distributed masses, armature, friction, torque ripple and actuator lag that no analytical model
-    in this project knows.
+    in this project knows. One step is one control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
 
     ## Action Space
-    ``Box(-400, 400, (3,))``: motor torques (N m) at the three joints. Values beyond the limit are
-    saturated by the motor (MuJoCo ``ctrlrange``) and flagged in ``info["torque_saturated"]``;
+    ``Box(-400, 400, (3,), float64)``: motor torques (N m) at the three joints. Values beyond the limit
+    are saturated by the motor (MuJoCo ``ctrlrange``) and flagged in ``info["torque_saturated"]``;
     NaN or inf raises a ValueError.
 
     ## Observation Space
@@ -77,21 +80,28 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
     | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
 
-    The joint rates are exact when the encoder is ideal (``encoder_bits=None``). The payload mass is
-    never observed.
+    The joint rates are exact when the encoder is ideal (``encoder_bits=None``). The measured torque is
+    the actuator force of the last physics substep, ``MEASURED_TORQUE_DELAY`` older than the encoder
+    sample (:mod:`delta_env.sensors`). The payload mass is never observed.
 
     ## Rewards
     ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
-    in mm and tau the commanded (saturated) torque; the terms are in ``info["reward_tracking"]`` and
-    ``info["reward_torque"]``.
+    in mm and tau the commanded (saturated) torque in N m; defaults w_tracking = 1 per mm^2 and
+    w_torque = 1e-5 per (N m)^2 (:class:`RewardWeights`). The terms are in ``info["reward_tracking"]``
+    and ``info["reward_torque"]``.
 
     ## Starting State
-    At rest at the first pick point, loops assembled exactly, the first object under the gripper.
+    At rest at the first pick point of the reference, loops assembled exactly, the first object under
+    the gripper. The randomness of an episode (pick and place points, object masses, sensor noise and,
+    if enabled, the plant's parameters) comes from the ``seed`` of :meth:`reset`.
 
     ## Episode End
-    Truncated at the end of the reference (``n_cycles`` cycles). Terminated if the simulation
-    diverges (non-finite state or a loop gap over 1 mm): ``info["diverged"] = True``, the last
-    finite observation is returned and the reward is ``-divergence_penalty``.
+    - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
+    - Termination: the simulation diverges (a MuJoCo instability warning, a non-finite state or a loop
+      gap over 1 mm): ``info["diverged"] = True``, the last finite observation is returned and the
+      reward is ``-divergence_penalty``.
+
+    Stepping after either raises ``RuntimeError``: call :meth:`reset`.
 
     ## Info
     Truth for evaluation, never for controllers: ``payload_mass`` (kg, 0 when nothing is held),
@@ -99,19 +109,18 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ``applied_torque`` (N m), ``cycle``, ``diverged``, ``torque_saturated`` and the reward terms.
 
     ## Arguments
-    Args:
-        plant: MuJoCo plant configuration (variant, realism, masses, geometry).
-        n_cycles: Pick-and-place cycles per episode.
-        cycle: ``"conveyor"`` (random pick and place points on two conveyor zones) or
-            ``"standard"`` (the 25/305/25 mm cycle).
-        peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2); 3 g by default.
-        payload_mass_range: Masses (kg) are drawn per object from U[low, high].
-        domain_randomization: Per-episode perturbation of the plant, off (None) by default.
-        reward_weights: Weights of the reward terms.
-        divergence_penalty: Reward (negated) of the step on which the simulation diverges.
-        render_mode: ``"rgb_array"``, ``"human"`` or None.
-        width: Render width (pixels).
-        height: Render height (pixels).
+    | parameter | type | default | description |
+    |---|---|---|---|
+    | ``plant`` | PlantConfig, None | None = ``PlantConfig()`` | plant variant, realism, masses, geometry |
+    | ``n_cycles`` | int | 3 | pick-and-place cycles per episode, >= 1 |
+    | ``cycle`` | str | ``"conveyor"`` | random conveyor points, or ``"standard"`` 25/305/25 mm |
+    | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2) |
+    | ``payload_mass_range`` | (float, float) | (0.0, 4.0) | object masses drawn from U[low, high] (kg), in [0, 20] |
+    | ``domain_randomization`` | RandomizationRanges, None | None (off) | per-episode perturbation of the plant |
+    | ``reward_weights`` | RewardWeights, None | None = ``RewardWeights()`` | weights of the reward terms |
+    | ``divergence_penalty`` | float | 1000.0 | reward (negated) of the step on which the simulation diverges |
+    | ``render_mode`` | str, None | None | ``"rgb_array"``, ``"human"`` or None |
+    | ``width``, ``height`` | int | 480, 480 | render size (pixels) |
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
@@ -130,15 +139,20 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         width: int = 480,
         height: int = 480,
     ) -> None:
-        if not (isinstance(n_cycles, int | np.integer) and n_cycles >= 1):
-            raise ValueError(f"n_cycles must be an integer >= 1, got {n_cycles!r}")
+        require_count("n_cycles", n_cycles)
         if cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
-        low, high = payload_mass_range
-        if not (0.0 <= low <= high <= MAX_PAYLOAD_MASS):
-            raise ValueError(
-                f"payload_mass_range must satisfy 0 <= low <= high <= {MAX_PAYLOAD_MASS} kg, got {payload_mass_range}"
-            )
+        require_positive("peak_acceleration", peak_acceleration, "m/s^2")
+        low, high = require_interval("payload_mass_range", payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
+        if plant is not None:
+            require_instance("plant", plant, PlantConfig)
+        if domain_randomization is not None:
+            require_instance("domain_randomization", domain_randomization, RandomizationRanges)
+        if reward_weights is not None:
+            require_instance("reward_weights", reward_weights, RewardWeights)
+        require_in("divergence_penalty", divergence_penalty, 0.0)
+        require_count("width", width)
+        require_count("height", height)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
@@ -159,7 +173,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if not np.isclose(self.n_substeps * timestep, CONTROL_PERIOD):
             raise ValueError(f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s")
         realism = self.plant_config.realism
-        self._encoder_step = None if realism.encoder_bits is None else 2.0 * np.pi / 2**realism.encoder_bits
+        self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
         self._torque_noise_std = realism.torque_noise_std
 
         self.action_space = spaces.Box(-TORQUE_LIMIT, TORQUE_LIMIT, shape=(3,), dtype=np.float64)
@@ -187,6 +201,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._render_every = max(1, round(1.0 / (self.metadata["render_fps"] * CONTROL_PERIOD)))
 
         self.trajectory: Trajectory | None = None
+        self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
         self._events: dict[int, tuple[str, int]] = {}
         self._step_index = 0
@@ -204,6 +219,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
                 mujoco.mjtWarning.mjWARN_BADQPOS,
             )
         )
+
+    @property
+    def dt(self) -> float:
+        """Control period (s): the time one :meth:`step` advances, ``n_substeps`` physics timesteps."""
+        return self.n_substeps * self.plant.model.opt.timestep
 
     # -- episode --------------------------------------------------------------------------------
 
@@ -252,6 +272,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._step_index = 0
         self._cycle = 0
         self._holding = False
+        self._episode_over = False
 
         # A fresh mjData state (time, solver warm start, constraint states, applied forces) so that an
         # episode repeats bit for bit whatever ran before it.
@@ -283,8 +304,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ) -> tuple[dict[str, NDArray[np.float64]], float, bool, bool, dict[str, Any]]:
         # This is the 1 kHz hot path: scalar math and few NumPy calls, so that the env costs at most
         # about its own physics (measured by scripts/bench.py).
-        if self.trajectory is None:
-            raise RuntimeError("call reset() before step()")
+        if self._episode_over or self.trajectory is None:
+            reason = "the episode has ended" if self._episode_over else "no episode started"
+            raise RuntimeError(f"call reset() before step(): {reason}")
         torque = np.asarray(action, dtype=float)
         if torque.shape != (3,):
             raise ValueError(f"action must be 3 motor torques (N m) in [-400, 400], got shape {torque.shape}")
@@ -314,6 +336,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         unstable = warnings[bad_qacc].number or warnings[bad_qvel].number or warnings[bad_qpos].number
         diverged = bool(unstable) or not loop_gap <= DIVERGENCE_LOOP_GAP
         truncated = k >= len(self.trajectory) - 1
+        self._episode_over = diverged or truncated
 
         px, py, pz = platform.tolist()
         rx, ry, rz = reference.tolist()

@@ -1,6 +1,6 @@
 """Delta robot parameters: geometry, nominal ("datasheet") masses and limits, in SI units.
 
-The values are the nominal ones of DESIGN.md section 4, the only ones the controllers may know.
+The values are the nominal ones of docs/design.md section 4, the only ones the controllers may know.
 """
 
 from __future__ import annotations
@@ -9,6 +9,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from delta_env.validation import require_positive
 
 GRAVITY = 9.81
 """Gravitational acceleration (m/s^2), acting along -z of the base frame."""
@@ -19,10 +21,11 @@ TORQUE_LIMIT = 400.0
 CHAIN_AZIMUTHS = np.array([0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0])
 """Azimuth alpha_i (rad) of chain i = 1, 2, 3 about the base z axis."""
 
+CHAIN_COS: tuple[float, float, float] = tuple(math.cos(alpha) for alpha in CHAIN_AZIMUTHS.tolist())
+"""cos(alpha_i) of the three chain azimuths: x component of the outward chain direction u_i."""
 
-def _require_positive(name: str, value: float) -> None:
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+CHAIN_SIN: tuple[float, float, float] = tuple(math.sin(alpha) for alpha in CHAIN_AZIMUTHS.tolist())
+"""sin(alpha_i) of the three chain azimuths: y component of the outward chain direction u_i."""
 
 
 @dataclass(frozen=True)
@@ -43,7 +46,7 @@ class DeltaGeometry:
 
     def __post_init__(self) -> None:
         for name in ("ra", "rb", "l1", "l2"):
-            _require_positive(name, getattr(self, name))
+            require_positive(name, getattr(self, name), "m")
         if self.rb >= self.ra:
             raise ValueError(f"rb must be < ra (the platform sits inside the base), got rb={self.rb}, ra={self.ra}")
         if self.l2 <= self.l1:
@@ -53,6 +56,21 @@ class DeltaGeometry:
     def r(self) -> float:
         """Radius ra - rb of the equivalent robot with a point platform (m)."""
         return self.ra - self.rb
+
+    @property
+    def home_height(self) -> float:
+        """Platform height z (m) at home, all arms horizontal (theta = 0): -sqrt(l2^2 - (r + l1)^2).
+
+        Raises:
+            ValueError: if the forearms cannot reach below the base with the arms horizontal.
+        """
+        reach_sq = self.l2**2 - (self.r + self.l1) ** 2
+        if reach_sq <= 0.0:
+            raise ValueError(
+                f"the robot cannot assemble with its arms horizontal: l2={self.l2} must exceed "
+                f"ra - rb + l1={self.r + self.l1} m"
+            )
+        return -math.sqrt(reach_sq)
 
 
 @dataclass(frozen=True)
@@ -71,7 +89,7 @@ class DeltaMasses:
 
     def __post_init__(self) -> None:
         for name in ("m1", "m2", "m0"):
-            _require_positive(name, getattr(self, name))
+            require_positive(name, getattr(self, name), "kg")
 
 
 NOMINAL_GEOMETRY = DeltaGeometry()

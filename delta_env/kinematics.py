@@ -1,4 +1,4 @@
-"""Delta robot kinematics on the equivalent robot with a point platform (DESIGN.md section 2).
+"""Delta robot kinematics on the equivalent robot with a point platform (docs/design.md section 2).
 
 Conventions: base frame at the centre of the motor axes, z up; theta_i > 0 turns arm i down.
 Every function accepts a leading batch shape ``(...)`` so that whole trajectories are evaluated at
@@ -12,24 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env.geometry import CHAIN_AZIMUTHS, DeltaGeometry
+from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaGeometry
+from delta_env.validation import require_vectors
 
-_COS_ALPHA = np.cos(CHAIN_AZIMUTHS)
-_SIN_ALPHA = np.sin(CHAIN_AZIMUTHS)
-
-
-def _as_vectors(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    array = np.asarray(value, dtype=float)
-    if array.ndim == 0 or array.shape[-1] != 3:
-        raise ValueError(f"{name} must have a last axis of length 3, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {array}")
-    return array
+_COS_ALPHA = np.array(CHAIN_COS)
+_SIN_ALPHA = np.array(CHAIN_SIN)
 
 
 def elbow_points(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
     """Elbows J'_i of the equivalent robot (m), shape ``(..., 3 chains, 3 xyz)``."""
-    theta = _as_vectors("theta", theta)
+    theta = require_vectors("theta", theta)
     radial = geometry.r + geometry.l1 * np.cos(theta)
     return np.stack((radial * _COS_ALPHA, radial * _SIN_ALPHA, -geometry.l1 * np.sin(theta)), axis=-1)
 
@@ -75,7 +67,7 @@ def inverse(geometry: DeltaGeometry, xyz: ArrayLike) -> NDArray[np.float64]:
     Raises:
         ValueError: naming the point if it lies outside the reachable workspace.
     """
-    xyz = _as_vectors("xyz", xyz)
+    xyz = require_vectors("xyz", xyz)
     x, y, z = xyz[..., 0:1], xyz[..., 1:2], xyz[..., 2:3]
     x_local = x * _COS_ALPHA + y * _SIN_ALPHA - geometry.r
     y_local = -x * _SIN_ALPHA + y * _COS_ALPHA
@@ -99,8 +91,8 @@ def constraint_terms(
         A with rows a_i = x - J'_i (m), ``(..., 3, 3)``, and k_i = -a_i . dJ'_i/dtheta_i (m^2/rad),
         ``(..., 3)``; k_i < 0 on the elbow-out branch.
     """
-    xyz = _as_vectors("xyz", xyz)
-    theta = _as_vectors("theta", theta)
+    xyz = require_vectors("xyz", xyz)
+    theta = require_vectors("theta", theta)
     a = xyz[..., None, :] - elbow_points(geometry, theta)
     first, _ = elbow_derivatives(geometry, theta)
     k = -np.sum(a * first, axis=-1)
@@ -118,9 +110,9 @@ def joint_to_cartesian(
     geometry: DeltaGeometry, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Platform position (m), velocity (m/s), acceleration (m/s^2) from joint motion."""
-    theta = _as_vectors("theta", theta)
-    theta_dot = _as_vectors("theta_dot", theta_dot)
-    theta_ddot = _as_vectors("theta_ddot", theta_ddot)
+    theta = require_vectors("theta", theta)
+    theta_dot = require_vectors("theta_dot", theta_dot)
+    theta_ddot = require_vectors("theta_ddot", theta_ddot)
     xyz = forward(geometry, theta)
     a, k = constraint_terms(geometry, xyz, theta)
     xyz_dot = np.linalg.solve(a, (-k * theta_dot)[..., None])[..., 0]
@@ -136,9 +128,9 @@ def cartesian_to_joint(
     geometry: DeltaGeometry, xyz: ArrayLike, xyz_dot: ArrayLike, xyz_ddot: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Joint angles (rad), rates (rad/s), accelerations (rad/s^2) from platform motion."""
-    xyz = _as_vectors("xyz", xyz)
-    xyz_dot = _as_vectors("xyz_dot", xyz_dot)
-    xyz_ddot = _as_vectors("xyz_ddot", xyz_ddot)
+    xyz = require_vectors("xyz", xyz)
+    xyz_dot = require_vectors("xyz_dot", xyz_dot)
+    xyz_ddot = require_vectors("xyz_ddot", xyz_ddot)
     theta = inverse(geometry, xyz)
     a, k = constraint_terms(geometry, xyz, theta)
     theta_dot = -np.sum(a * xyz_dot[..., None, :], axis=-1) / k

@@ -33,7 +33,8 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env.model import MAX_PAYLOAD_MASS, DeltaPlant, PhysicalParameters, PlantConfig
+from delta_env.config import MAX_PAYLOAD_MASS, PhysicalParameters, PlantConfig
+from delta_env.plant import DeltaPlant
 
 
 class InverseDynamicsOracle:

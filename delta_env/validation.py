@@ -46,10 +46,14 @@ def require_positive(name: str, value: float, unit: str = "") -> float:
     return require_in(name, value, 0.0, math.inf, unit=unit, low_open=True)
 
 
-def require_count(name: str, value: int, minimum: int = 1) -> int:
-    """``value`` if it is an integer >= ``minimum`` (bools refused), else ``ValueError``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+def require_count(name: str, value: int, minimum: int = 1, maximum: int | None = None) -> int:
+    """``value`` if it is an integer in [``minimum``, ``maximum``] (bools refused), else ``ValueError``."""
+    ok = not isinstance(value, bool) and isinstance(value, numbers.Integral) and value >= minimum
+    if maximum is None:
+        if not ok:
+            raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    elif not (ok and value <= maximum):
+        raise ValueError(f"{name} must be an integer in [{minimum}, {maximum}], got {value!r}")
     return int(value)
 
 
@@ -67,9 +71,50 @@ def require_interval(
     return a, b
 
 
-def require_joint_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    """``value`` as a float array of shape (3,) (one entry per joint) if every entry is finite."""
-    array = np.asarray(value, dtype=float)
+def require_joint_vector(
+    name: str,
+    value: ArrayLike,
+    low: float = -math.inf,
+    high: float = math.inf,
+    *,
+    unit: str = "",
+    low_open: bool = False,
+) -> NDArray[np.float64]:
+    """``value`` as a float array of shape (3,) (one entry per joint) if every entry is finite.
+
+    With ``low`` / ``high``, each entry must also lie in the interval; the error names the entry.
+    """
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 3 finite values (one per joint), got {value!r}") from None
     if array.shape != (3,) or not np.isfinite(array).all():
         raise ValueError(f"{name} must be 3 finite values (one per joint), got {value!r}")
+    if low > -math.inf or high < math.inf:
+        for index, entry in enumerate(array.tolist()):
+            require_in(f"{name}[{index}]", entry, low, high, unit=unit, low_open=low_open)
     return array
+
+
+def require_vectors(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """``value`` as a float array of shape (..., 3) (joint or Cartesian vectors) if every entry is finite."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim == 0 or array.shape[-1] != 3:
+        raise ValueError(f"{name} must have a last axis of length 3, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {array}")
+    return array
+
+
+def require_generator(rng: object) -> np.random.Generator:
+    """``rng`` if it is a ``numpy.random.Generator``, else ``TypeError`` (a seed is not accepted)."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)), got {rng!r}")
+    return rng
+
+
+def require_instance(name: str, value: object, kind: type) -> object:
+    """``value`` if it is an instance of ``kind``, else ``ValueError`` naming the type it got."""
+    if not isinstance(value, kind):
+        raise ValueError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
+    return value

@@ -50,11 +50,13 @@ from controllers.identification import (
     prepare_motion,
     save_result,
 )
+from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.excitation import excitation_trajectory
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
-from delta_env.model import PlantConfig, build_mjcf
+from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from delta_env.trajectories import Trajectory, excitation_trajectory
+from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from eval.episodes import run_episode
 from eval.processes import parallel_map

@@ -28,8 +28,8 @@ from controllers.identification import (
     fit_joint_least_squares,
     save_result,
 )
+from delta_env.config import PlantConfig
 from delta_env.geometry import GRAVITY
-from delta_env.model import PlantConfig
 from eval.identification import (
     DEFAULT_DURATION,
     DEFAULT_PARAMETER_PATH,

@@ -159,7 +159,7 @@ def test_batch_equals_per_sample_loop(random_joint_states, identified_parameters
 @pytest.mark.parametrize("payload", [0.0, 3.8])
 def test_mkh_matches_mujoco_oracle_on_the_ideal_plant(random_joint_states, fast_move, payload) -> None:
     # Imported here so that the rest of this file runs without the plant (another engineer's files).
-    from delta_env.model import PlantConfig
+    from delta_env.config import PlantConfig
     from delta_env.oracle import InverseDynamicsOracle
 
     config = PlantConfig.ideal()
@@ -179,7 +179,7 @@ def test_rod_forearms_match_mujoco_on_the_realistic_mechanism(random_joint_state
     # The realistic plant without drive effects: two thin 0.2 kg rods per chain and a hub-tube-bar upper arm.
     # With rod forearms only the upper arm is unknown, and it is exactly rho1 I thdd + rho2 G: a least squares
     # of (rho1, rho2) on MuJoCo's exact inverse dynamics must leave nothing. The lumped model cannot.
-    from delta_env.model import PlantConfig, PlantRealism
+    from delta_env.config import PlantConfig, PlantRealism
     from delta_env.oracle import InverseDynamicsOracle
 
     states = tuple(

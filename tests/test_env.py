@@ -8,8 +8,7 @@ from numpy.testing import assert_array_equal
 
 import delta_env
 from controllers.base import PDController
-from delta_env.env import DeltaPickPlaceEnv
-from delta_env.model import RandomizationRanges
+from delta_env import DeltaPickPlaceEnv, RandomizationRanges
 
 
 def rollout(env: gym.Env, seed: int, masses: list[float] | None = None, steps: int = 400) -> list:
@@ -128,6 +127,12 @@ def test_bad_reset_options_raise(env: DeltaPickPlaceEnv, options: dict, message:
         ({"cycle": "adept"}, "cycle"),
         ({"payload_mass_range": (2.0, 1.0)}, "payload_mass_range"),
         ({"render_mode": "ascii"}, "render_mode"),
+        ({"n_cycles": True}, "n_cycles must be an integer >= 1, got True"),
+        ({"peak_acceleration": 0.0}, r"peak_acceleration must be a finite number in \(0, inf\] m/s\^2"),
+        ({"payload_mass_range": (0.0, 25.0)}, r"payload_mass_range must be a pair 0 <= min <= max <= 20 kg"),
+        ({"plant": "realistic"}, "plant must be a PlantConfig, got str"),
+        ({"divergence_penalty": -1.0}, "divergence_penalty"),
+        ({"width": 0}, "width must be an integer >= 1"),
     ],
 )
 def test_bad_constructor_arguments_raise(kwargs: dict, message: str) -> None:
@@ -154,13 +159,40 @@ def test_divergence_terminates_with_flag_and_finite_observation() -> None:
     assert all(np.all(np.isfinite(value)) for value in observation.values())
 
 
-def test_episode_truncates_at_end_of_reference() -> None:
+def test_episode_truncates_at_end_of_reference_and_refuses_further_steps() -> None:
     env = DeltaPickPlaceEnv(n_cycles=1, cycle="standard")
     records = rollout(env, seed=0, steps=10_000)
     assert len(records) == len(env.trajectory) - 1
     assert max(info["loop_gap"] for _, _, info in records) < 1e-4
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\): the episode has ended"):
+        env.step(np.zeros(3))
+    env.reset(seed=0)
+    env.step(np.zeros(3))
 
 
+def test_step_after_divergence_or_before_reset_raises() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    with pytest.raises(RuntimeError, match="no episode started"):
+        env.step(np.zeros(3))
+    env.reset(seed=0)
+    env.plant.data.qvel[:] = 1e12
+    _, _, terminated, _, _ = env.step(np.zeros(3))
+    assert terminated
+    with pytest.raises(RuntimeError, match="the episode has ended"):
+        env.step(np.zeros(3))
+
+
+def test_dt_is_the_control_period_of_one_step(env: DeltaPickPlaceEnv) -> None:
+    """Gymnasium MuJoCo convention: dt = physics timestep x substeps, the time one step advances."""
+    assert env.dt == env.n_substeps * env.plant.model.opt.timestep == delta_env.CONTROL_PERIOD
+    env.reset(seed=0)
+    env.step(np.zeros(3))
+    assert env.plant.data.time == pytest.approx(env.dt, abs=1e-15)
+    coarse = DeltaPickPlaceEnv(n_cycles=1, plant=delta_env.PlantConfig(timestep=0.001))
+    assert coarse.n_substeps == 1 and coarse.dt == delta_env.CONTROL_PERIOD
+
+
+@pytest.mark.usefixtures("opengl_context")
 def test_rgb_array_render_returns_an_image() -> None:
     env = DeltaPickPlaceEnv(n_cycles=1, render_mode="rgb_array", width=96, height=64)
     try:

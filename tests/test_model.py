@@ -1,4 +1,4 @@
-"""The MuJoCo plant against the kinematics, its MJCF conventions, payload handling and randomization."""
+"""The MuJoCo plant against the kinematics, its model conventions, payload handling and randomization."""
 
 from collections.abc import Callable
 from dataclasses import replace
@@ -9,17 +9,18 @@ import pytest
 from numpy.testing import assert_allclose
 
 from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses, kinematics
-from delta_env.geometry import CHAIN_AZIMUTHS
-from delta_env.model import (
+from delta_env.config import (
     FOREARM_SPACING,
     MIN_PAYLOAD_MASS,
-    DeltaPlant,
     PhysicalParameters,
     PlantConfig,
     PlantRealism,
     RandomizationRanges,
-    build_mjcf,
 )
+from delta_env.geometry import CHAIN_AZIMUTHS
+from delta_env.plant import DeltaPlant
+from delta_env.robot import robot_spec
+from delta_env.scene import build_mjcf, build_model
 
 CONFIGS = {"ideal": PlantConfig.ideal(), "realistic": PlantConfig()}
 VARIANTS = list(CONFIGS)
@@ -30,25 +31,17 @@ def plant(request: pytest.FixtureRequest) -> DeltaPlant:
     return DeltaPlant(CONFIGS[request.param])
 
 
-def reachable_angles(n: int, seed: int) -> np.ndarray:
-    """Motor angles (rad) of random points in the work zone around z = -0.9 m, (n, 3)."""
-    rng = np.random.default_rng(seed)
-    radius, azimuth = 0.45 * np.sqrt(rng.uniform(size=n)), rng.uniform(0.0, 2.0 * np.pi, n)
-    xyz = np.stack((radius * np.cos(azimuth), radius * np.sin(azimuth), rng.uniform(-1.1, -0.75, n)), -1)
-    return kinematics.inverse(NOMINAL_GEOMETRY, xyz)
-
-
 def equality_rows(data: mujoco.MjData) -> np.ndarray:
     """Mask of the equality-constraint rows (loops, and the suction weld when active) of efc_*."""
     return data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
 
 
-def test_assembled_plant_matches_kinematics(plant: DeltaPlant) -> None:
+def test_assembled_plant_matches_kinematics(plant: DeltaPlant, workzone_angles: Callable) -> None:
     """MuJoCo's own kinematics of the assembled model: platform at FK, loops closed, theta > 0 down."""
     model, data, g = plant.model, plant.data, NOMINAL_GEOMETRY
     rng = np.random.default_rng(0)
     platform = model.body("platform").id
-    for theta in reachable_angles(20, seed=1):
+    for theta in workzone_angles(20, seed=1):
         theta_dot = rng.normal(0.0, 2.0, 3)
         plant.assemble(theta, theta_dot)
         assert_allclose(data.xpos[platform], kinematics.forward(g, theta), atol=1e-12)
@@ -91,10 +84,10 @@ def forearms(plant: DeltaPlant, theta: np.ndarray) -> list[tuple[str, float, flo
     return [(f"{i + 1}{rod}", offset, CHAIN_AZIMUTHS[i], theta[i]) for i in range(3) for rod, offset in rods]
 
 
-def test_platform_follows_forward_kinematics_in_simulation(plant: DeltaPlant) -> None:
+def test_platform_follows_forward_kinematics_in_simulation(plant: DeltaPlant, workzone_angles: Callable) -> None:
     """Driven by PD (no assemble), MuJoCo's closed chain keeps the platform at FK(measured angles)."""
     g = NOMINAL_GEOMETRY
-    start, goal = reachable_angles(2, seed=3)
+    start, goal = workzone_angles(2, seed=3)
     plant.reset(start)
     worst = 0.0
     for k in range(300):
@@ -120,9 +113,18 @@ def test_home_keyframe_is_assembled_at_rest(plant: DeltaPlant) -> None:
     assert_allclose(data.qpos, model.qpos0, atol=1e-15)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_every_element_has_a_unique_name(variant: str) -> None:
-    model = mujoco.MjModel.from_xml_string(build_mjcf(CONFIGS[variant]))
+ALL_VARIANTS = {
+    f"{variant}{'' if payload else '_without_payload'}": replace(config, payload_body=payload)
+    for variant, config in CONFIGS.items()
+    for payload in (True, False)
+}
+ALL_VARIANTS["realistic_realism_off"] = PlantConfig(realism=PlantRealism.off())
+
+
+@pytest.mark.parametrize("name", list(ALL_VARIANTS))
+def test_every_element_has_a_unique_name(name: str) -> None:
+    """Menagerie convention: every body, joint, geom, site, equality, actuator, camera, light and key named."""
+    model = build_model(ALL_VARIANTS[name])
     kinds = {
         mujoco.mjtObj.mjOBJ_BODY: model.nbody,
         mujoco.mjtObj.mjOBJ_JOINT: model.njnt,
@@ -133,12 +135,55 @@ def test_every_element_has_a_unique_name(variant: str) -> None:
         mujoco.mjtObj.mjOBJ_CAMERA: model.ncam,
         mujoco.mjtObj.mjOBJ_LIGHT: model.nlight,
         mujoco.mjtObj.mjOBJ_KEY: model.nkey,
+        mujoco.mjtObj.mjOBJ_MATERIAL: model.nmat,
     }
     for kind, count in kinds.items():
+        assert count > 0 or kind == mujoco.mjtObj.mjOBJ_EQUALITY
         first = 1 if kind == mujoco.mjtObj.mjOBJ_BODY else 0  # body 0 is MuJoCo's world
         names = [mujoco.mj_id2name(model, kind, i) for i in range(first, count)]
         assert all(names), f"unnamed {kind.name}: {names}"
         assert len(set(names)) == len(names), f"duplicate {kind.name} names: {names}"
+
+
+@pytest.mark.parametrize("name", list(ALL_VARIANTS))
+def test_every_variant_steps_without_mujoco_warnings(name: str) -> None:
+    """Menagerie-style smoke test: from the home keyframe, one second of torques raises no MuJoCo warning."""
+    model = build_model(ALL_VARIANTS[name])
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    mujoco.mj_forward(model, data)
+    if ALL_VARIANTS[name].payload_body:  # carry a 4 kg payload on the suction weld, at its home offset
+        payload, suction = model.body("payload").id, model.equality("suction").id
+        model.body_mass[payload] = 4.0
+        model.body_gravcomp[payload] = 0.0
+        model.eq_data[suction, 3:6] = data.xpos[payload] - data.xpos[model.body("platform").id]
+        data.eq_active[suction] = 1
+        mujoco.mj_setConst(model, mujoco.MjData(model))
+    motors = [model.joint(f"motor_{label}") for label in ("1", "2", "3")]
+    angles, rates = [joint.qposadr[0] for joint in motors], [joint.dofadr[0] for joint in motors]
+    time = np.arange(2000) * model.opt.timestep
+    swing = np.zeros(3)
+    for k in range(2000):
+        target = 0.2 * np.sin(2.0 * np.pi * np.array([1.0, 1.5, 2.0]) * time[k])
+        data.ctrl[:] = 3000.0 * (target - data.qpos[angles]) - 60.0 * data.qvel[rates] + 60.0
+        mujoco.mj_step(model, data)
+        swing = np.maximum(swing, np.abs(data.qpos[angles]))
+    warnings = {mujoco.mjtWarning(i).name: w.number for i, w in enumerate(data.warning) if w.number}
+    assert not warnings, warnings
+    assert np.all(np.isfinite(data.qpos))
+    assert np.all(swing > 0.1), "the arms must have moved"
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_robot_compiles_on_its_own_and_the_mjcf_text_loads(variant: str) -> None:
+    """The robot spec needs no scene; the scene's MJCF text (6 significant digits) loads into the same model."""
+    robot = robot_spec(CONFIGS[variant]).compile()
+    scene = build_model(CONFIGS[variant])
+    assert robot.nv == scene.nv - 6 and robot.nu == scene.nu == 3
+    assert robot.neq == scene.neq - 1, "the scene adds the suction weld"
+    reloaded = mujoco.MjModel.from_xml_string(build_mjcf(CONFIGS[variant]))
+    for field in ("body_mass", "body_inertia", "body_pos", "jnt_axis", "dof_damping", "eq_solref", "qpos0"):
+        assert_allclose(getattr(reloaded, field), getattr(scene, field), rtol=1e-5, atol=1e-6, err_msg=field)
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
@@ -171,12 +216,12 @@ def test_two_seconds_of_pick_and_place_raise_no_warnings(variant: str) -> None:
     [("ideal", False, 12, 9), ("ideal", True, 18, 9), ("realistic", False, 21, 18), ("realistic", True, 27, 18)],
 )
 def test_degrees_of_freedom_and_independent_loop_rows(
-    variant: str, payload_body: bool, nv: int, loop_rows: int
+    variant: str, payload_body: bool, nv: int, loop_rows: int, workzone_angles: Callable
 ) -> None:
     plant = DeltaPlant(replace(CONFIGS[variant], payload_body=payload_body))
     model, data = plant.model, plant.data
     assert model.nv == nv
-    plant.assemble(reachable_angles(1, seed=4)[0])
+    plant.assemble(workzone_angles(1, seed=4)[0])
     rows = _equality_jacobian(plant)
     assert rows.shape[0] == loop_rows == plant.n_loop_rows
     robot_dofs = model.nv - (6 if payload_body else 0)
@@ -202,9 +247,9 @@ def test_sign_of_motor_torque_lifts_the_arm() -> None:
     assert plant.platform_position()[2] > plant.config.home_height
 
 
-def test_payload_floats_free_and_follows_when_attached() -> None:
+def test_payload_floats_free_and_follows_when_attached(workzone_angles: Callable) -> None:
     plant = DeltaPlant(CONFIGS["realistic"])
-    theta = reachable_angles(2, seed=5)
+    theta = workzone_angles(2, seed=5)
     plant.reset(theta[0])
     spot = np.array([0.4, -0.3, -1.0])
     plant.place_payload(spot, 0.0, (0.2, 0.1, 0.05))
@@ -233,13 +278,13 @@ def test_payload_floats_free_and_follows_when_attached() -> None:
     assert not plant.payload_attached
 
 
-def test_assemble_carries_an_attached_payload() -> None:
+def test_assemble_carries_an_attached_payload(workzone_angles: Callable) -> None:
     plant = DeltaPlant(CONFIGS["realistic"])
     plant.place_payload(plant.suction_cup_position() - [0.02, 0.0, 0.05], 2.0, (0.1, 0.1, 0.1))
     plant.attach_payload()
     offset = plant.payload_position() - plant.platform_position()
     theta_dot = np.array([1.0, -2.0, 0.5])
-    plant.assemble(reachable_angles(1, seed=6)[0], theta_dot)
+    plant.assemble(workzone_angles(1, seed=6)[0], theta_dot)
     weld = plant.data.efc_pos[equality_rows(plant.data)][-6:]
     assert_allclose(weld, 0.0, atol=1e-12)
     assert_allclose(plant.payload_position() - plant.platform_position(), offset, atol=1e-12)
@@ -249,9 +294,9 @@ def test_assemble_carries_an_attached_payload() -> None:
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
-def test_step_holds_stribeck_and_ripple_of_the_state_at_the_call(variant: str) -> None:
+def test_step_holds_stribeck_and_ripple_of_the_state_at_the_call(variant: str, workzone_angles: Callable) -> None:
     plant = DeltaPlant(CONFIGS[variant])
-    plant.assemble(reachable_angles(1, seed=7)[0], [0.02, -0.5, 0.0])
+    plant.assemble(workzone_angles(1, seed=7)[0], [0.02, -0.5, 0.0])
     theta = plant.joint_angles()
     expected = plant.motor_disturbance(theta, plant.joint_velocities())
     plant.step(np.zeros(3), 2)

@@ -1,5 +1,6 @@
 """The closed-chain inverse-dynamics oracle against MuJoCo's forward dynamics and the MKH model."""
 
+from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
 
@@ -8,9 +9,16 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from delta_env import NOMINAL_GEOMETRY, NOMINAL_MASSES, kinematics
+from delta_env import (
+    NOMINAL_GEOMETRY,
+    NOMINAL_MASSES,
+    DeltaPlant,
+    PlantConfig,
+    PlantRealism,
+    RandomizationRanges,
+    kinematics,
+)
 from delta_env.geometry import GRAVITY
-from delta_env.model import DeltaPlant, PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.oracle import InverseDynamicsOracle
 
 IDEAL = PlantConfig.ideal()
@@ -18,25 +26,29 @@ IDEAL = PlantConfig.ideal()
 REALISTIC = PlantConfig(realism=replace(PlantRealism(), actuator_lag=0.0))
 
 
-def random_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reachable angles (rad), rates (rad/s) and accelerations (rad/s^2), each (n, 3).
+@pytest.fixture(scope="module")
+def oracle_states(workzone_points: Callable) -> Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``states(n, seed)``: reachable angles (rad), rates (rad/s) and accelerations (rad/s^2), each (n, 3).
 
     Rates are at least 0.03 rad/s (Stribeck active, frictionloss sliding) and accelerations share their
     sign, so MuJoCo's frictionloss constraint sits at its bound and equals Coulomb friction.
     """
-    rng = np.random.default_rng(seed)
-    radius, azimuth = 0.45 * np.sqrt(rng.uniform(size=n)), rng.uniform(0.0, 2.0 * np.pi, n)
-    xyz = np.stack((radius * np.cos(azimuth), radius * np.sin(azimuth), rng.uniform(-1.1, -0.75, n)), -1)
-    sign = rng.choice([-1.0, 1.0], size=(n, 3))
-    return (
-        kinematics.inverse(NOMINAL_GEOMETRY, xyz),
-        sign * rng.uniform(0.03, 3.0, (n, 3)),
-        sign * rng.uniform(5.0, 80.0, (n, 3)),
-    )
+
+    def states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rng = np.random.default_rng(seed)
+        xyz = workzone_points(n, rng)
+        sign = rng.choice([-1.0, 1.0], size=(n, 3))
+        return (
+            kinematics.inverse(NOMINAL_GEOMETRY, xyz),
+            sign * rng.uniform(0.03, 3.0, (n, 3)),
+            sign * rng.uniform(5.0, 80.0, (n, 3)),
+        )
+
+    return states
 
 
 def mkh_torques(theta: np.ndarray, theta_dot: np.ndarray, theta_ddot: np.ndarray, payload: float) -> np.ndarray:
-    """The paper's model by virtual work: tau = I thdd + G + J^T Mt (xdd + g e_z) (DESIGN.md section 3)."""
+    """The paper's model by virtual work: tau = I thdd + G + J^T Mt (xdd + g e_z) (docs/design.md section 3)."""
     g, m = NOMINAL_GEOMETRY, NOMINAL_MASSES
     _, _, xyz_ddot = kinematics.joint_to_cartesian(g, theta, theta_dot, theta_ddot)
     inertia = (m.m1 / 3.0 + m.m2) * g.l1**2
@@ -47,8 +59,8 @@ def mkh_torques(theta: np.ndarray, theta_dot: np.ndarray, theta_ddot: np.ndarray
 
 
 @pytest.mark.parametrize("payload", [0.0, 3.8])
-def test_oracle_equals_mkh_on_the_ideal_variant(payload: float) -> None:
-    states = random_states(200, seed=0)
+def test_oracle_equals_mkh_on_the_ideal_variant(payload: float, oracle_states: Callable) -> None:
+    states = oracle_states(200, seed=0)
     torque = InverseDynamicsOracle(IDEAL).torques(*states, payload=payload)
     expected = mkh_torques(*states, payload)
     assert np.max(np.abs(expected)) > 50.0
@@ -73,7 +85,9 @@ def hard_constraint_acceleration(plant: DeltaPlant) -> np.ndarray:
 
 @pytest.mark.parametrize("randomized", [False, True], ids=["nominal", "randomized"])
 @pytest.mark.parametrize("config", [IDEAL, REALISTIC], ids=["ideal", "realistic"])
-def test_oracle_torques_give_the_commanded_acceleration(config: PlantConfig, randomized: bool) -> None:
+def test_oracle_torques_give_the_commanded_acceleration(
+    config: PlantConfig, randomized: bool, oracle_states: Callable
+) -> None:
     """Apply the oracle's torques (and the plant's Stribeck + ripple) to the plant, run mj_forward."""
     plant = DeltaPlant(replace(config, payload_body=False))
     oracle = InverseDynamicsOracle(config)
@@ -81,7 +95,7 @@ def test_oracle_torques_give_the_commanded_acceleration(config: PlantConfig, ran
         parameters = plant.randomize(np.random.default_rng(1), RandomizationRanges(actuator_lag=None))
         oracle.set_physical_parameters(parameters)
     model, data = plant.model, plant.data
-    for theta, theta_dot, theta_ddot in zip(*random_states(25, seed=2), strict=True):
+    for theta, theta_dot, theta_ddot in zip(*oracle_states(25, seed=2), strict=True):
         torque = oracle.torques(theta, theta_dot, theta_ddot)
         plant.assemble(theta, theta_dot)
         data.ctrl[:] = torque
@@ -166,9 +180,9 @@ def test_loops_stay_closed_carrying_4kg_through_a_fast_motion() -> None:
     assert error.max() < 0.01, "feedforward + PD should track within 10 mrad despite the 1 ms lag"
 
 
-def test_batches_equal_single_samples_and_leave_no_trace() -> None:
+def test_batches_equal_single_samples_and_leave_no_trace(oracle_states: Callable) -> None:
     oracle = InverseDynamicsOracle(REALISTIC)
-    theta, theta_dot, theta_ddot = random_states(6, seed=5)
+    theta, theta_dot, theta_ddot = oracle_states(6, seed=5)
     payload = np.linspace(0.0, 4.0, 6)
     batch = oracle.torques(theta, theta_dot, theta_ddot, payload=payload)
     assert batch.shape == (6, 3)

@@ -392,7 +392,7 @@ def test_hyperparameters_come_from_the_toml_file() -> None:
 
 
 def test_residual_features_use_the_drives_datasheet_values() -> None:
-    from delta_env.model import PlantRealism
+    from delta_env.config import PlantRealism
 
     realism, config = PlantRealism(), ResidualConfig()
     assert (config.ripple_periods, config.stribeck_velocity) == (realism.ripple_periods, realism.stribeck_velocity)

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import functools
 import math
-import time
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from delta_env import NOMINAL_GEOMETRY, kinematics
+from delta_env import NOMINAL_GEOMETRY, cycles, excitation, kinematics
+from delta_env import limits as workspace_limits
 from delta_env import trajectories as tr
 from delta_env.geometry import GRAVITY
 
@@ -23,17 +23,17 @@ def build(kind: str, peak_acceleration: float = tr.STANDARD_PEAK_ACCELERATION, d
     """One trajectory of each kind, cached: the tests only read them."""
     rng = np.random.default_rng(seed)
     if kind == "standard":
-        return tr.standard_cycle(G, peak_acceleration, n_cycles=2, dt=dt)
+        return cycles.standard_cycle(G, peak_acceleration, n_cycles=2, dt=dt)
     if kind == "conveyor":
-        return tr.conveyor_cycles(G, rng, 3, peak_acceleration, dt=dt)
+        return cycles.conveyor_cycles(G, rng, 3, peak_acceleration, dt=dt)
     if kind == "excitation":
-        return tr.excitation_trajectory(G, rng, EXCITATION_SECONDS, peak_acceleration, dt=dt)
+        return excitation.excitation_trajectory(G, rng, EXCITATION_SECONDS, peak_acceleration, dt=dt)
     raise AssertionError(kind)
 
 
 @functools.cache
 def long_excitation() -> tr.Trajectory:
-    return tr.excitation_trajectory(G, np.random.default_rng(3), 20.0)
+    return excitation.excitation_trajectory(G, np.random.default_rng(3), 20.0)
 
 
 ALL_KINDS = [
@@ -139,7 +139,7 @@ def test_excitation_includes_slow_and_fast_moves() -> None:
 @pytest.mark.parametrize("peak", [tr.STANDARD_PEAK_ACCELERATION, tr.STRESS_PEAK_ACCELERATION])
 @pytest.mark.parametrize(("center", "heading"), [((0.0, 0.0, -0.9), math.pi / 2), ((0.1, -0.05, -0.95), 0.4)])
 def test_standard_cycle_is_25_305_25_mm(peak: float, center: tuple, heading: float) -> None:
-    trajectory = tr.standard_cycle(G, peak, center=center, heading=heading)
+    trajectory = cycles.standard_cycle(G, peak, center=center, heading=heading)
     pick, place = trajectory.xyz[trajectory.pick_indices[0]], trajectory.xyz[trajectory.place_indices[0]]
     assert_allclose(place - pick, 0.305 * np.array([math.cos(heading), math.sin(heading), 0.0]), atol=1e-12)
     assert_allclose((pick + place) / 2.0, center, atol=1e-12)
@@ -186,8 +186,8 @@ def test_pick_and_place_events_are_at_rest_at_the_stations(kind: str, peak: floa
 
 
 def test_conveyor_events_lie_on_their_zones() -> None:
-    trajectory = tr.conveyor_cycles(G, np.random.default_rng(5), 20)
-    for zone, indices in ((tr.PICK_ZONE, trajectory.pick_indices), (tr.PLACE_ZONE, trajectory.place_indices)):
+    trajectory = cycles.conveyor_cycles(G, np.random.default_rng(5), 20)
+    for zone, indices in ((cycles.PICK_ZONE, trajectory.pick_indices), (cycles.PLACE_ZONE, trajectory.place_indices)):
         points = trajectory.xyz[indices]
         assert np.all((points[:, 0] >= zone.x_range[0]) & (points[:, 0] <= zone.x_range[1]))
         assert np.all((points[:, 1] >= zone.y_range[0]) & (points[:, 1] <= zone.y_range[1]))
@@ -195,7 +195,7 @@ def test_conveyor_events_lie_on_their_zones() -> None:
         assert len(np.unique(points, axis=0)) == len(points)  # a new object each cycle
     assert np.max(trajectory.xyz[:, 2]) == pytest.approx(tr.WORKING_HEIGHT + 0.025, abs=1e-9)
     # documented draws: n_cycles + 1 pick points first; it ends at rest on the last, unpicked one
-    picks = tr.PICK_ZONE.sample(np.random.default_rng(5), 21)
+    picks = cycles.PICK_ZONE.sample(np.random.default_rng(5), 21)
     assert_allclose(trajectory.xyz[trajectory.pick_indices], picks[:-1], atol=1e-12)
     assert_allclose(trajectory.xyz[-1], picks[-1], atol=1e-12)
     assert_array_equal(trajectory.xyz_dot[-1], 0.0)
@@ -204,16 +204,16 @@ def test_conveyor_events_lie_on_their_zones() -> None:
 @pytest.mark.parametrize(("kind", "peak"), ALL_KINDS)
 def test_all_samples_keep_singularity_margins(kind: str, peak: float) -> None:
     trajectory = build(kind, peak)
-    limits = tr.WORKSPACE_LIMITS
+    limits = workspace_limits.WORKSPACE_LIMITS
     measures = kinematics.singularity_measures(G, trajectory.theta)
     assert np.min(measures.min_abs_k) >= limits.min_abs_k
     assert np.min(np.abs(measures.det_a)) >= limits.min_abs_det_a
     assert np.max(measures.jacobian_condition) < 10.0
-    assert np.all(tr.admissible(G, trajectory.xyz))
+    assert np.all(workspace_limits.admissible(G, trajectory.xyz))
 
 
 def test_excitation_covers_the_workspace_up_to_its_edges() -> None:
-    limits = tr.WORKSPACE_LIMITS
+    limits = workspace_limits.WORKSPACE_LIMITS
     trajectory = long_excitation()
     measures = kinematics.singularity_measures(G, trajectory.theta)
     radius = np.hypot(trajectory.xyz[:, 0], trajectory.xyz[:, 1])
@@ -232,146 +232,3 @@ def test_excitation_lasts_exactly_the_requested_duration_and_ends_at_rest() -> N
     assert trajectory.duration == pytest.approx(EXCITATION_SECONDS)
     assert_array_equal(trajectory.xyz_dot[[0, -1]], 0.0)
     assert_allclose(trajectory.xyz[0], (0.0, 0.0, tr.WORKING_HEIGHT))
-
-
-@pytest.mark.parametrize(
-    "make",
-    [
-        lambda seed: tr.conveyor_cycles(G, np.random.default_rng(seed), 3),
-        lambda seed: tr.excitation_trajectory(G, np.random.default_rng(seed), 3.0),
-    ],
-    ids=["conveyor", "excitation"],
-)
-def test_same_seed_same_trajectory_different_seed_differs(make) -> None:
-    first, again, other = make(7), make(7), make(8)
-    for name in ("xyz", "theta_ddot", "gripper", "pick_indices"):
-        assert_array_equal(getattr(first, name), getattr(again, name))
-    length = min(len(first), len(other))
-    assert np.max(np.abs(first.xyz[:length] - other.xyz[:length])) > 0.01
-
-
-def test_trajectory_arrays_are_read_only_and_timed() -> None:
-    trajectory = build("standard")
-    with pytest.raises(ValueError, match="read-only"):
-        trajectory.xyz[0, 0] = 1.0
-    assert_allclose(trajectory.time[[0, -1]], [0.0, trajectory.duration])
-    assert len(trajectory.time) == len(trajectory) == len(trajectory.gripper)
-
-
-def test_concatenate_joins_at_the_shared_rest_sample() -> None:
-    first = tr.conveyor_cycles(G, np.random.default_rng(1), 2)
-    pick = first.xyz[-1]
-    # a standard cycle starting where the conveyor cycles end
-    second = tr.standard_cycle(G, center=tuple(pick + np.array([0.0, 0.305 / 2, 0.0])))
-    joined = tr.concatenate([first, second])
-    assert len(joined) == len(first) + len(second) - 1
-    assert_array_equal(joined.theta[len(first) :], second.theta[1:])
-    assert_array_equal(joined.pick_indices, np.concatenate((first.pick_indices, second.pick_indices + len(first) - 1)))
-    assert_array_equal(joined.xyz[joined.place_indices[-1]], second.xyz[second.place_indices[0]])
-    assert joined.gripper.sum() == first.gripper.sum() + second.gripper.sum()
-
-
-def test_concatenate_rejects_a_jump() -> None:
-    standard = build("standard")
-    with pytest.raises(ValueError, match="junction xyz differs"):
-        tr.concatenate([standard, tr.standard_cycle(G, center=(0.05, 0.0, -0.9))])
-    with pytest.raises(ValueError, match="at least one"):
-        tr.concatenate([])
-
-
-def test_admissible_marks_unreachable_and_singular_points_without_raising() -> None:
-    points = [(0.0, 0.0, -0.9), (0.0, 0.0, -2.0), (0.65, 0.0, -1.05), (0.8, 0.0, -0.9)]
-    assert_array_equal(tr.admissible(G, points), [True, False, False, False])
-
-
-@pytest.mark.parametrize(
-    ("call", "message"),
-    [
-        (
-            lambda: tr.standard_cycle(G, 0.0),
-            r"peak_acceleration must be a finite number > 0 \(m/s\^2\), got 0.0",
-        ),
-        (lambda: tr.standard_cycle(G, -9.81), "peak_acceleration .* got -9.81"),
-        (lambda: tr.standard_cycle(G, math.inf), "peak_acceleration .* got inf"),
-        (lambda: tr.standard_cycle(G, n_cycles=0), "n_cycles must be an integer >= 1, got 0"),
-        (lambda: tr.standard_cycle(G, dwell=0.0), r"dwell must be .* >= 2 dt = 0.002 s, got 0.0"),
-        (lambda: tr.standard_cycle(G, lift_fraction=0.7), r"lift_fraction must lie in \(0, 0.5\], got 0.7"),
-        (lambda: tr.standard_cycle(G, dt=0.0), r"dt must lie in \(0, 0.01\] s, got 0.0"),
-        (lambda: tr.standard_cycle(G, center=(0.0, 0.0, -1.5)), r"pick point \[0.0, -0.1525, -1.5\] m"),
-        (
-            lambda: tr.standard_cycle(G, center=(0.6, 0.0, -0.9), heading=0.0),
-            r"place point \[0.7525, 0.0, -0.9\]",
-        ),
-        (
-            lambda: tr.conveyor_cycles(G, np.random.default_rng(0), 0),
-            "n_cycles must be an integer >= 1, got 0",
-        ),
-        (
-            lambda: tr.conveyor_cycles(
-                G, np.random.default_rng(0), 2, pick_zone=tr.ConveyorZone((-0.3, 0.3), (-0.9, -0.7), -0.9)
-            ),
-            r"pick zone corner \[-0.3, -0.9, -0.9\] m is not admissible: farther than 0.7 m",
-        ),
-        (
-            lambda: tr.conveyor_cycles(
-                G, np.random.default_rng(0), 2, place_zone=tr.ConveyorZone((0.0, 0.1), (0.1, 0.2), -1.12)
-            ),
-            r"place zone corner \[0.0, 0.1, -1.12\] m is not admissible: outside z in \[-1.1, -0.7\] m",
-        ),
-        (
-            lambda: tr.standard_cycle(G, center=(0.5, 0.0, -1.0), heading=0.0),
-            r"place point \[0.6525, 0.0, -1.0\] m is not admissible: near a serial singularity",
-        ),
-        (
-            lambda: tr.conveyor_cycles(G, np.random.default_rng(0), 2, lift_height=-0.01),
-            "lift_height .* got -0.01",
-        ),
-        (
-            lambda: tr.excitation_trajectory(G, np.random.default_rng(0), 0.0),
-            r"duration must be .* > 0 \(s\), got 0.0",
-        ),
-        (
-            lambda: tr.excitation_trajectory(G, np.random.default_rng(0), 1.0, -1.0),
-            "peak_acceleration .* got -1.0",
-        ),
-        (
-            lambda: tr.excitation_trajectory(G, np.random.default_rng(0), 1.0, start=(0.0, 0.0, -1.4)),
-            r"start point \[0.0, 0.0, -1.4\] m is not admissible",
-        ),
-        (
-            lambda: tr.excitation_trajectory(G, np.random.default_rng(0), 1.0, slow_speed_range=(0.0, 0.1)),
-            "slow_speed_range must be",
-        ),
-        (
-            lambda: tr.excitation_trajectory(G, np.random.default_rng(0), 1.0, slow_fraction=1.5),
-            r"slow_fraction .* \[0, 1\]",
-        ),
-        (lambda: tr.WorkspaceLimits(min_abs_k=0.0), r"min_abs_k must be a finite number > 0 \(m\^2/rad\)"),
-        (
-            lambda: tr.ConveyorZone((0.3, -0.3), (0.1, 0.2)),
-            r"x_range must be finite \(min, max\) with min <= max",
-        ),
-    ],
-)
-def test_bad_input_raises_value_error_naming_value_and_range(call, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        call()
-
-
-def test_rng_must_be_a_generator() -> None:
-    with pytest.raises(TypeError, match=r"numpy\.random\.Generator"):
-        tr.conveyor_cycles(G, 0, 1)
-
-
-@pytest.mark.parametrize(
-    "make",
-    [
-        lambda: tr.conveyor_cycles(G, np.random.default_rng(0), 10),
-        lambda: tr.excitation_trajectory(G, np.random.default_rng(0), 20.0),
-    ],
-    ids=["10 cycles", "20 s excitation"],
-)
-def test_building_is_fast(make) -> None:
-    start = time.perf_counter()
-    make()
-    assert time.perf_counter() - start < 1.0

@@ -5,7 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from delta_env.validation import require_count, require_in, require_interval, require_joint_vector, require_positive
+from delta_env.validation import (
+    require_count,
+    require_generator,
+    require_in,
+    require_instance,
+    require_interval,
+    require_joint_vector,
+    require_positive,
+    require_vectors,
+)
 
 
 @pytest.mark.parametrize("value", [0.0, 1.0, 2.5])
@@ -53,3 +62,25 @@ def test_require_joint_vector() -> None:
     for bad in ([1.0, 2.0], [1.0, np.nan, 2.0]):
         with pytest.raises(ValueError, match=r"q must be 3 finite values \(one per joint\)"):
             require_joint_vector("q", bad)
+
+
+def test_bounded_checks_name_the_entry_and_the_range() -> None:
+    assert require_count("bits", 17, 8, 32) == 17
+    with pytest.raises(ValueError, match=r"bits must be an integer in \[8, 32\], got 33"):
+        require_count("bits", 33, 8, 32)
+    np.testing.assert_array_equal(require_joint_vector("scale", (1, 2, 3), 0.0, 10.0, low_open=True), [1, 2, 3])
+    with pytest.raises(ValueError, match=r"scale\[1\] must be a finite number in \(0, 10\], got 0.0"):
+        require_joint_vector("scale", (1.0, 0.0, 1.0), 0.0, 10.0, low_open=True)
+
+
+def test_vectors_generator_and_instance() -> None:
+    assert require_vectors("xyz", np.zeros((4, 2, 3))).shape == (4, 2, 3)
+    for bad, message in ((np.zeros((4, 2)), "last axis of length 3"), ([0.0, np.inf, 0.0], "must be finite")):
+        with pytest.raises(ValueError, match=message):
+            require_vectors("xyz", bad)
+    rng = np.random.default_rng(0)
+    assert require_generator(rng) is rng
+    with pytest.raises(TypeError, match=r"rng must be a numpy\.random\.Generator"):
+        require_generator(0)
+    with pytest.raises(ValueError, match="config must be a dict, got list"):
+        require_instance("config", [], dict)

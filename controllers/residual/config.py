@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from delta_env.config import PlantRealism
 from delta_env.geometry import TORQUE_LIMIT
-from delta_env.model import PlantRealism
 from delta_env.validation import require_count, require_in, require_positive
 
 _DATASHEET = PlantRealism()

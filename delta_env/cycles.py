@@ -1,0 +1,224 @@
+"""Pick-and-place reference cycles: the industry's 25/305/25 mm cycle and random conveyor cycles.
+
+Every cycle dwells at the pick point (the gripper closes mid-dwell), arches to the place point, dwells
+(the gripper opens mid-dwell) and arches back (docs/design.md section 5).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from delta_env.geometry import DeltaGeometry
+from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits, require_admissible
+from delta_env.sensors import CONTROL_PERIOD
+from delta_env.trajectories import (
+    STANDARD_PEAK_ACCELERATION,
+    WORKING_HEIGHT,
+    Segment,
+    Trajectory,
+    require_sample_period,
+    sample_segments,
+)
+from delta_env.validation import require_count, require_generator, require_in, require_interval, require_positive
+
+STANDARD_LIFT = 0.025
+"""Lift and descent of the industry's 25/305/25 mm test cycle (m)."""
+
+STANDARD_TRAVEL = 0.305
+"""Horizontal travel of the industry's 25/305/25 mm test cycle (m)."""
+
+
+def _check_cycle_arguments(
+    peak_acceleration: float, lift_height: float, lift_fraction: float, dwell: float, dt: float
+) -> None:
+    require_sample_period(dt)
+    require_positive("peak_acceleration", peak_acceleration, "m/s^2")
+    require_in("lift_height", lift_height, 0.0, unit="m")
+    require_in("lift_fraction", lift_fraction, 0.0, 0.5, low_open=True)
+    require_in("dwell", dwell, 2.0 * dt, unit="s (2 dt and up)")
+
+
+@dataclass(frozen=True)
+class ConveyorZone:
+    """A horizontal rectangle where objects are picked or placed (m, base frame).
+
+    Attributes:
+        x_range: (min, max) of x.
+        y_range: (min, max) of y.
+        z: Height of the conveyor surface the platform touches.
+    """
+
+    x_range: tuple[float, float]
+    y_range: tuple[float, float]
+    z: float = WORKING_HEIGHT
+
+    def __post_init__(self) -> None:
+        for name in ("x_range", "y_range"):
+            require_interval(name, getattr(self, name), unit="m")
+        require_in("z", self.z, unit="m")
+
+    def sample(self, rng: np.random.Generator, count: int) -> NDArray[np.float64]:
+        """Points drawn uniformly on the zone (m), ``(count, 3)``."""
+        low = (self.x_range[0], self.y_range[0], self.z)
+        high = (self.x_range[1], self.y_range[1], self.z)
+        return rng.uniform(low, high, size=(count, 3))
+
+    def corners(self) -> NDArray[np.float64]:
+        """The four corners (m), ``(4, 3)``."""
+        return np.array([(x, y, self.z) for x in self.x_range for y in self.y_range])
+
+
+# Two conveyors on either side of the base's x axis, 0.3 m apart, 0.6 m long and 0.2 m wide, at the
+# working height: their farthest corners are 0.46 m from the axis, well inside the 0.7 m radius
+# of WORKSPACE_LIMITS (delta_env.limits) where its singularity margins hold, so every random cycle is reachable.
+PICK_ZONE = ConveyorZone(x_range=(-0.3, 0.3), y_range=(-0.35, -0.15))
+"""Default pick conveyor zone (m)."""
+
+PLACE_ZONE = ConveyorZone(x_range=(-0.3, 0.3), y_range=(0.15, 0.35))
+"""Default place conveyor zone (m)."""
+
+
+def standard_cycle(
+    geometry: DeltaGeometry,
+    peak_acceleration: float = STANDARD_PEAK_ACCELERATION,
+    *,
+    n_cycles: int = 1,
+    center: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT),
+    heading: float = math.pi / 2,
+    dwell: float = 0.1,
+    lift_fraction: float = 0.3,
+    limits: WorkspaceLimits = WORKSPACE_LIMITS,
+    dt: float = CONTROL_PERIOD,
+) -> Trajectory:
+    """The industry's 25/305/25 mm pick cycle: up 25 mm, across 305 mm, down 25 mm, and back.
+
+    One cycle: dwell at the pick point (the gripper closes mid-dwell), arch to the place point,
+    dwell (the gripper opens mid-dwell), arch back to the pick point. The trajectory starts and ends
+    at rest at the pick point.
+
+    Args:
+        geometry: Robot geometry.
+        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
+        n_cycles: Number of pick-and-place cycles, >= 1.
+        center: Midpoint between the pick and the place point (m).
+        heading: Direction of travel from pick to place in the xy plane (rad from +x); the default
+            travels along +y, from the pick conveyor side to the place side.
+        dwell: Rest at each pick and place point (s), >= 2 dt.
+        lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
+        limits: Region and singularity margins every sample must respect.
+        dt: Sample period (s).
+
+    Raises:
+        ValueError: on a bad argument or a point outside ``limits`` (named in the message).
+    """
+    require_count("n_cycles", n_cycles)
+    _check_cycle_arguments(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt)
+    center_xyz = np.asarray(center, dtype=float)
+    half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
+    pick, place = center_xyz - half_travel, center_xyz + half_travel
+    return _cycles(
+        geometry,
+        np.tile(pick, (n_cycles + 1, 1)),
+        np.tile(place, (n_cycles, 1)),
+        peak_acceleration=peak_acceleration,
+        lift_height=STANDARD_LIFT,
+        lift_fraction=lift_fraction,
+        dwell=dwell,
+        limits=limits,
+        dt=dt,
+    )
+
+
+def conveyor_cycles(
+    geometry: DeltaGeometry,
+    rng: np.random.Generator,
+    n_cycles: int,
+    peak_acceleration: float = STANDARD_PEAK_ACCELERATION,
+    *,
+    pick_zone: ConveyorZone = PICK_ZONE,
+    place_zone: ConveyorZone = PLACE_ZONE,
+    lift_height: float = STANDARD_LIFT,
+    lift_fraction: float = 0.3,
+    dwell: float = 0.1,
+    limits: WorkspaceLimits = WORKSPACE_LIMITS,
+    dt: float = CONTROL_PERIOD,
+) -> Trajectory:
+    """Pick-and-place cycles between random points on a pick and a place conveyor.
+
+    Cycle k picks a new object at pick point k and places it at place point k (both uniform on
+    their zones). Every cycle has the shape of `standard_cycle`, except that it returns to the next
+    pick point; the trajectory starts at rest at pick point 0 and ends at rest at pick point
+    ``n_cycles`` (drawn like the others, not picked), ready for another cycle.
+
+    Args:
+        geometry: Robot geometry.
+        rng: Source of all randomness; draws n_cycles + 1 pick points, then n_cycles place points.
+        n_cycles: Number of pick-and-place cycles, >= 1.
+        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
+        pick_zone: Where objects are picked.
+        place_zone: Where objects are placed.
+        lift_height: Lift above the higher of the two stations of a move (m), >= 0.
+        lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
+        dwell: Rest at each pick and place point (s), >= 2 dt; the gripper switches mid-dwell.
+        limits: Region and singularity margins every sample must respect.
+        dt: Sample period (s).
+
+    Raises:
+        ValueError: on a bad argument or a point outside ``limits`` (named in the message).
+    """
+    require_generator(rng)
+    require_count("n_cycles", n_cycles)
+    _check_cycle_arguments(peak_acceleration, lift_height, lift_fraction, dwell, dt)
+    lifted = np.array([0.0, 0.0, lift_height])
+    for name, zone in (("pick zone corner", pick_zone), ("place zone corner", place_zone)):
+        require_admissible(geometry, zone.corners(), limits, name)
+        require_admissible(geometry, zone.corners() + lifted, limits, f"lifted {name}")
+    picks = pick_zone.sample(rng, n_cycles + 1)
+    places = place_zone.sample(rng, n_cycles)
+    return _cycles(
+        geometry,
+        picks,
+        places,
+        peak_acceleration=peak_acceleration,
+        lift_height=lift_height,
+        lift_fraction=lift_fraction,
+        dwell=dwell,
+        limits=limits,
+        dt=dt,
+    )
+
+
+def _cycles(
+    geometry: DeltaGeometry,
+    picks: np.ndarray,
+    places: np.ndarray,
+    *,
+    peak_acceleration: float,
+    lift_height: float,
+    lift_fraction: float,
+    dwell: float,
+    limits: WorkspaceLimits,
+    dt: float,
+) -> Trajectory:
+    """Dwell, arch to place k, dwell, arch to pick k + 1, for every k; events mid-dwell."""
+    lifted = np.array([0.0, 0.0, lift_height])
+    for name, points in (("pick point", picks), ("place point", places)):
+        require_admissible(geometry, points, limits, name)
+        require_admissible(geometry, points + lifted, limits, f"lifted {name}")
+
+    segments: list[Segment] = []
+    events: list[tuple[float, float]] = []
+    elapsed = 0.0
+    for pick, place, next_pick in zip(picks[:-1], places, picks[1:], strict=True):
+        there = Segment(pick, place, 1.0, lift_height, lift_fraction).timed(peak_acceleration)
+        back = Segment(place, next_pick, 1.0, lift_height, lift_fraction).timed(peak_acceleration)
+        segments += [Segment.line(pick, pick, dwell), there, Segment.line(place, place, dwell), back]
+        events.append((elapsed + 0.5 * dwell, elapsed + dwell + there.duration + 0.5 * dwell))
+        elapsed += 2.0 * dwell + there.duration + back.duration
+    trajectory = sample_segments(geometry, segments, dt, events)
+    require_admissible(geometry, trajectory.xyz, limits, "path point")
+    return trajectory

@@ -1,0 +1,547 @@
+# Over 500 lines: DeltaPlant is one class, the only code that reads or writes the robot's MuJoCo state.
+"""The "real robot": the compiled MuJoCo Delta and the only code that touches its state (docs/design.md section 4).
+
+:class:`DeltaPlant` builds the model of a :class:`~delta_env.config.PlantConfig` (:mod:`delta_env.scene`),
+caches every id and address once, assembles closed-loop states, steps the 1 kHz hot path, handles the
+payload and applies domain randomization.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from delta_env import kinematics
+from delta_env.config import (
+    DEFAULT_PAYLOAD_SIZE,
+    MAX_PAYLOAD_MASS,
+    MIN_PAYLOAD_MASS,
+    SUCTION_CUP_OFFSET,
+    PhysicalParameters,
+    PlantConfig,
+    PlantRealism,
+    RandomizationRanges,
+)
+from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaMasses
+from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
+from delta_env.scene import build_model
+from delta_env.validation import require_in, require_joint_vector
+
+STRIBECK_SIGN_SLOPE = 4.0
+"""Slope factor of the smooth sign tanh(4 v / v_s) of the Stribeck term: stays explicit-stable at 1 kHz."""
+
+
+def _quat_conjugate(quat: NDArray[np.float64]) -> NDArray[np.float64]:
+    return quat * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _quat_multiply(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    result = np.empty(4)
+    mujoco.mju_mulQuat(result, a, b)
+    return result
+
+
+def _quat_to_matrix(quat: NDArray[np.float64]) -> NDArray[np.float64]:
+    matrix = np.empty(9)
+    mujoco.mju_quat2Mat(matrix, quat)
+    return matrix.reshape(3, 3)
+
+
+class DeltaPlant:
+    """MuJoCo model and data of the Delta, with named access and the 1 kHz stepping hot path.
+
+    Every id and address is cached once here (dm_control style); the env and the oracle read and write
+    MuJoCo state only through this class. Freshness of the measurements after :meth:`step`:
+
+    - ``joint_angles``, ``joint_velocities``, ``platform_position``, ``payload_position`` read qpos/qvel:
+      always current.
+    - ``loop_gap`` reads ``site_xpos``, which ``mj_step`` computes before integrating: after
+      :meth:`step` it is one physics step (``timestep``) stale unless ``refresh=True``.
+
+    Attributes:
+        config: The configuration the model was built from.
+        model: ``mujoco.MjModel``.
+        data: ``mujoco.MjData``.
+    """
+
+    def __init__(self, config: PlantConfig | None = None) -> None:
+        self.config = PlantConfig() if config is None else config
+        if not isinstance(self.config, PlantConfig):
+            raise ValueError(f"config must be a PlantConfig, got {type(self.config).__name__}")
+        self.model = build_model(self.config)
+        self.data = mujoco.MjData(self.model)
+        self._scratch = mujoco.MjData(self.model)  # mj_setConst overwrites the state of the data it gets
+        model, data = self.model, self.data
+
+        def ident(kind: mujoco.mjtObj, name: str) -> int:
+            return mujoco.mj_name2id(model, kind, name)
+
+        joint, body, site = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_SITE
+        motor_joints = [ident(joint, f"motor_{label}") for label in CHAIN_LABELS]
+        self._motor_qpos = model.jnt_qposadr[motor_joints].copy()
+        self._motor_dofs = model.jnt_dofadr[motor_joints].copy()
+        self._platform_body = ident(body, "platform")
+        first_platform_joint = model.body_jntadr[self._platform_body]
+        self._platform_qpos = int(model.jnt_qposadr[first_platform_joint])
+        self._platform_dof = int(model.jnt_dofadr[first_platform_joint])
+        self._platform_free = self.config.variant == "realistic"
+        # Ideal: slides measure the displacement from the body's home position.
+        self._platform_offset = np.zeros(3) if self._platform_free else model.body_pos[self._platform_body].copy()
+
+        rods = [""] if self.config.variant == "ideal" else list(ROD_LABELS)
+        self._loop_sites = np.array(
+            [
+                (ident(site, f"forearm_{label}{rod}_end"), ident(site, f"platform_{label}{rod}"))
+                for label in CHAIN_LABELS
+                for rod in rods
+            ]
+        )
+        self._loop_bodies = model.site_bodyid[self._loop_sites]
+        self._elbow_qpos = np.array(
+            [
+                [model.jnt_qposadr[ident(joint, f"elbow_{label}{rod}_{axis}")] for axis in ("pitch", "roll")]
+                for label in CHAIN_LABELS
+                for rod in rods
+            ]
+        )
+        self._rods_per_chain = len(rods)
+        self._tilt = forearm_home_tilt(self.config.geometry)
+        self._cos_alpha, self._sin_alpha = np.array(CHAIN_COS), np.array(CHAIN_SIN)
+
+        # Degrees of freedom of the robot (the payload's free joint excluded), split into motors and the
+        # passive ones that assemble() solves for.
+        self._payload_body = ident(body, "payload") if self.config.payload_body else -1
+        robot_dofs = np.array([dof for dof in range(model.nv) if model.dof_bodyid[dof] != self._payload_body])
+        self._passive_dofs = np.setdiff1d(robot_dofs, self._motor_dofs)
+        n_rows = 3 * len(self._loop_sites)
+        if n_rows != len(self._passive_dofs):
+            raise RuntimeError(f"model has {n_rows} loop rows for {len(self._passive_dofs)} passive dofs")
+        self._jac_a = np.zeros((3, model.nv))
+        self._jac_b = np.zeros((3, model.nv))
+        self._loop_jac = np.zeros((n_rows, model.nv))
+        self._loop_jac_dot = np.zeros((n_rows, model.nv))
+
+        if self.config.payload_body:
+            self._payload_qpos = int(model.jnt_qposadr[model.body_jntadr[self._payload_body]])
+            self._payload_dof = int(model.jnt_dofadr[model.body_jntadr[self._payload_body]])
+            self._payload_geom = int(model.body_geomadr[self._payload_body])
+            self._suction = ident(mujoco.mjtObj.mjOBJ_EQUALITY, "suction")
+
+        # Domain-randomizable parameters: the nominal ones come from the config.
+        self._robot_bodies = np.array([b for b in range(1, model.nbody) if b != self._payload_body])
+        self._has_lag = self.config.realism.actuator_lag > 0.0
+        self._parameters = self.nominal_parameters
+        self._set_disturbance_coefficients(self.config.realism)
+
+        # Views into mjData for the hot path (the buffers never move).
+        self._qpos, self._qvel = data.qpos, data.qvel
+        self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
+        self._loop_points = [(data.site_xpos[a], data.site_xpos[b]) for a, b in self._loop_sites]
+        self.reset()
+
+    # --------------------------------------------------------------------------------------------
+    # State
+    # --------------------------------------------------------------------------------------------
+
+    @property
+    def n_loop_rows(self) -> int:
+        """Number of loop-closure constraint rows (3 per connect)."""
+        return 3 * len(self._loop_sites)
+
+    @property
+    def motor_dofs(self) -> NDArray[np.int_]:
+        """Addresses of the three motor joints in qvel (read-only copy), shape (3,)."""
+        return self._motor_dofs.copy()
+
+    @property
+    def motor_qpos_addresses(self) -> NDArray[np.int_]:
+        """Addresses of the three motor joints in qpos (read-only copy), shape (3,)."""
+        return self._motor_qpos.copy()
+
+    def reset(self, theta: ArrayLike | None = None) -> None:
+        """Reset the data (time 0, no forces), detach and float the payload, and assemble at ``theta``.
+
+        Args:
+            theta: Motor angles (rad), shape (3,); home (arms horizontal) when None.
+        """
+        mujoco.mj_resetData(self.model, self.data)
+        if self.config.payload_body:
+            self.model.body_gravcomp[self._payload_body] = 1.0
+        self.assemble(np.zeros(3) if theta is None else theta)
+
+    def assemble(self, theta: ArrayLike, theta_dot: ArrayLike | None = None) -> None:
+        """Put the robot at motor angles ``theta`` with every loop closed, moving at ``theta_dot``.
+
+        Positions are analytic (:meth:`assembly_coordinates`), so the loops close to round-off; velocities
+        solve J_c qvel = 0 with the motor rates fixed. A carried payload follows the platform rigidly; a
+        free one is left where it is. Actuator states are zeroed and ``mj_forward`` brings every derived
+        quantity up to date.
+
+        Args:
+            theta: Motor angles (rad), shape (3,).
+            theta_dot: Motor rates (rad/s), shape (3,); zero when None.
+
+        Raises:
+            ValueError: if the angles are not finite or the forearms cannot reach a common point.
+        """
+        theta = require_joint_vector("theta", theta)
+        theta_dot = np.zeros(3) if theta_dot is None else require_joint_vector("theta_dot", theta_dot)
+        platform, elbows = self.assembly_coordinates(theta)
+        self._assemble(theta, theta_dot, platform, elbows)
+
+    def assembly_coordinates(self, theta: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Platform position (m) and elbow (pitch, roll) angles (rad) that close every loop at ``theta``.
+
+        Vectorized over a leading batch shape: ``theta`` (..., 3) gives (..., 3) and (..., 3 chains, 2).
+        The platform is the forward kinematics; both rods of a parallelogram are parallel to x - J'_i.
+
+        Raises:
+            ValueError: if the forearms cannot reach a common point, or one would lie along its motor axis.
+        """
+        theta = np.asarray(theta, dtype=float)
+        g = self.config.geometry
+        xyz = kinematics.forward(g, theta)
+        direction = (xyz[..., None, :] - kinematics.elbow_points(g, theta)) / g.l2
+        # In the arm frame (x = u_i, y = t_i), then in the forearm body's frame at zero elbow angles,
+        # which is the arm frame turned by R_y(theta + tilt); there the rod points along -z and the two
+        # hinges give the direction (-sin p cos r, sin r, -cos p cos r).
+        radial = direction[..., 0] * self._cos_alpha + direction[..., 1] * self._sin_alpha
+        tangential = -direction[..., 0] * self._sin_alpha + direction[..., 1] * self._cos_alpha
+        turn = theta + self._tilt
+        local_x = np.cos(turn) * radial - np.sin(turn) * direction[..., 2]
+        local_z = np.sin(turn) * radial + np.cos(turn) * direction[..., 2]
+        if np.any(np.abs(tangential) >= 1.0 - 1e-9):
+            raise ValueError(f"theta={theta.tolist()} puts a forearm along its motor axis (gimbal lock)")
+        elbows = np.stack((np.arctan2(-local_x, -local_z), np.arcsin(tangential)), axis=-1)
+        return xyz, elbows
+
+    def _assemble(self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
+        """Write a configuration from :meth:`assembly_coordinates` and solve the velocities (no checks).
+
+        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`).
+        """
+        model, data = self.model, self.data
+        data.qpos[self._motor_qpos] = theta
+        if self._platform_free:
+            data.qpos[self._platform_qpos : self._platform_qpos + 7] = [*platform, 1.0, 0.0, 0.0, 0.0]
+        else:
+            data.qpos[self._platform_qpos : self._platform_qpos + 3] = platform - self._platform_offset
+        data.qpos[self._elbow_qpos] = np.repeat(elbows, self._rods_per_chain, axis=0)
+        carried = self.payload_attached
+        if carried:
+            self._put_payload_on_platform()
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        jac = self.loop_jacobian()
+        data.qvel[self._motor_dofs] = theta_dot
+        data.qvel[self._passive_dofs] = np.linalg.solve(
+            jac[:, self._passive_dofs], -jac[:, self._motor_dofs] @ theta_dot
+        )
+        if carried:
+            self._match_payload_velocity()
+        if model.na:
+            data.act[:] = 0.0
+        mujoco.mj_forward(model, data)
+        return jac
+
+    def loop_jacobian(self) -> NDArray[np.float64]:
+        """Jacobian (n_loop_rows, nv) of the loop residuals (forearm end minus platform point, m).
+
+        Uses the current ``site_xpos`` and ``cdof``: call after ``mj_kinematics`` and ``mj_comPos``
+        (``mj_forward`` does both). The returned array is reused by the next call.
+        """
+        for k, (rod_site, platform_site) in enumerate(self._loop_sites):
+            mujoco.mj_jacSite(self.model, self.data, self._jac_a, None, rod_site)
+            mujoco.mj_jacSite(self.model, self.data, self._jac_b, None, platform_site)
+            np.subtract(self._jac_a, self._jac_b, out=self._loop_jac[3 * k : 3 * k + 3])
+        return self._loop_jac
+
+    def loop_bias_acceleration(self) -> NDArray[np.float64]:
+        """Jdot_c qvel (m/s^2) of the loop residuals, shape (n_loop_rows,), from ``mj_jacDot``.
+
+        Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``.
+        """
+        model, data = self.model, self.data
+        for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
+            zip(self._loop_sites, self._loop_bodies, strict=True)
+        ):
+            mujoco.mj_jacDot(model, data, self._jac_a, None, data.site_xpos[rod_site], rod_body)
+            mujoco.mj_jacDot(model, data, self._jac_b, None, data.site_xpos[platform_site], platform_body)
+            np.subtract(self._jac_a, self._jac_b, out=self._loop_jac_dot[3 * k : 3 * k + 3])
+        return self._loop_jac_dot @ data.qvel
+
+    def joint_angles(self) -> NDArray[np.float64]:
+        """Motor angles theta (rad), shape (3,); current."""
+        return self._qpos[self._motor_qpos]
+
+    def joint_velocities(self) -> NDArray[np.float64]:
+        """Motor rates theta_dot (rad/s), shape (3,); current."""
+        return self._qvel[self._motor_dofs]
+
+    def platform_position(self) -> NDArray[np.float64]:
+        """Platform centre E0 (m), shape (3,), from qpos; current."""
+        return self._qpos[self._platform_qpos : self._platform_qpos + 3] + self._platform_offset
+
+    def loop_gap(self, refresh: bool = False) -> float:
+        """Largest distance (m) between the two points of any loop-closure connect.
+
+        Args:
+            refresh: Recompute the kinematics first (``mj_kinematics``). Without it
+                the value is that of ``site_xpos``: after :meth:`step`, the state one physics step ago.
+        """
+        if refresh:
+            mujoco.mj_kinematics(self.model, self.data)
+        gap = 0.0
+        for rod_end, platform_point in self._loop_points:  # a scalar loop: cheaper than NumPy for six points
+            distance = mujoco.mju_dist3(rod_end, platform_point)
+            if distance > gap:
+                gap = distance
+        return gap
+
+    # --------------------------------------------------------------------------------------------
+    # Stepping (1 kHz hot path)
+    # --------------------------------------------------------------------------------------------
+
+    def motor_disturbance(self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> NDArray:
+        """Stribeck excess and torque ripple (N m) on the motor joints, shape (3,).
+
+        Stribeck: -excess * fc_i * exp(-(v / v_s)^2) * tanh(4 v / v_s); the tanh is a smooth sign whose
+        slope at zero speed (4 excess fc_i / v_s, 160 N m s/rad by default) stays well inside the explicit
+        stability limit of a 1 kHz zero-order hold, so it does not chatter. Ripple:
+        amplitude * sin(periods * theta). Accepts any leading batch shape ``(..., 3)``.
+        """
+        v = np.asarray(theta_dot) * self._inv_stribeck_velocity
+        ripple = self._ripple_amplitude * np.sin(self._ripple_periods * np.asarray(theta))
+        return ripple - self._stribeck_gain * np.exp(-v * v) * np.tanh(v * STRIBECK_SIGN_SLOPE)
+
+    def step(self, torque_command: NDArray[np.float64], n_substeps: int) -> None:
+        """Command motor torques (N m, shape (3,)) and advance ``n_substeps`` physics steps.
+
+        MuJoCo clips the command to +-TORQUE_LIMIT and passes it through the current-loop lag, if any.
+        Stribeck excess and ripple (:meth:`motor_disturbance`) are computed once from the state at the call
+        and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
+        ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path, so the
+        disturbance is written out with scalar math (cheaper than the NumPy form).
+        """
+        self._ctrl[:] = torque_command
+        if self._has_disturbance:
+            qpos, qvel, applied = self._qpos, self._qvel, self._qfrc_applied
+            amplitude, periods = self._ripple_amplitude, self._ripple_periods
+            for qpos_address, dof, gain in self._disturbance_terms:
+                v = qvel.item(dof) * self._inv_stribeck_velocity
+                ripple = amplitude * math.sin(periods * qpos.item(qpos_address))
+                applied[dof] = ripple - gain * math.exp(-v * v) * math.tanh(v * STRIBECK_SIGN_SLOPE)
+        mujoco.mj_step(self.model, self.data, n_substeps)
+
+    # --------------------------------------------------------------------------------------------
+    # Payload
+    # --------------------------------------------------------------------------------------------
+
+    def _check_payload_body(self) -> None:
+        if not self.config.payload_body:
+            raise RuntimeError("this plant was built with payload_body=False")
+
+    @property
+    def payload_attached(self) -> bool:
+        """True while the suction weld holds the payload (False without a payload body)."""
+        return self.config.payload_body and bool(self.data.eq_active[self._suction])
+
+    @property
+    def payload_mass(self) -> float:
+        """Simulated payload mass (kg); at least MIN_PAYLOAD_MASS."""
+        self._check_payload_body()
+        return float(self.model.body_mass[self._payload_body])
+
+    def payload_position(self) -> NDArray[np.float64]:
+        """Centre of the payload box (m), shape (3,), from qpos; current."""
+        self._check_payload_body()
+        return self._qpos[self._payload_qpos : self._payload_qpos + 3].copy()
+
+    def suction_cup_position(self) -> NDArray[np.float64]:
+        """Suction cup face (m), SUCTION_CUP_OFFSET below E0 (the platform stays level), shape (3,)."""
+        return self.platform_position() - np.array([0.0, 0.0, SUCTION_CUP_OFFSET])
+
+    def place_payload(self, position: ArrayLike, mass: float, size: ArrayLike = DEFAULT_PAYLOAD_SIZE) -> None:
+        """Teleport the (released) payload to ``position`` at rest, with a new mass and box size.
+
+        The box gets the homogeneous inertia of its size; gravity compensation makes it float there.
+
+        Args:
+            position: Centre of the box (m), shape (3,).
+            mass: Payload mass (kg) in [0, MAX_PAYLOAD_MASS]; simulated as at least MIN_PAYLOAD_MASS.
+            size: Edge lengths of the box (m), shape (3,), each in (0, 1].
+
+        Raises:
+            ValueError: for a bad position, mass or size. RuntimeError: while the payload is attached.
+        """
+        self._check_payload_body()
+        if self.payload_attached:
+            raise RuntimeError("release the payload before placing it")
+        position = require_joint_vector("position", position)
+        mass = require_in("mass", mass, 0.0, MAX_PAYLOAD_MASS, unit="kg")
+        size = require_joint_vector("size", size, 0.0, 1.0, unit="m", low_open=True)
+        model, data = self.model, self.data
+        simulated_mass = max(float(mass), MIN_PAYLOAD_MASS)
+        model.body_mass[self._payload_body] = simulated_mass
+        squares = size**2
+        model.body_inertia[self._payload_body] = simulated_mass / 12.0 * (squares.sum() - squares)
+        model.geom_size[self._payload_geom] = size / 2.0
+        model.geom_rbound[self._payload_geom] = float(np.linalg.norm(size / 2.0))
+        model.body_gravcomp[self._payload_body] = 1.0
+        self._set_const()
+        data.qpos[self._payload_qpos : self._payload_qpos + 7] = [*position, 1.0, 0.0, 0.0, 0.0]
+        data.qvel[self._payload_dof : self._payload_dof + 6] = 0.0
+        mujoco.mj_forward(model, data)
+
+    def attach_payload(self) -> None:
+        """Activate the suction weld at the current relative pose; gravity compensation off.
+
+        The payload takes the platform's velocity (a suction pick is a short impulse the weld would
+        otherwise deliver in one constraint time constant).
+        """
+        self._check_payload_body()
+        platform_position, platform_quat = self._platform_pose()
+        payload_position = self._qpos[self._payload_qpos : self._payload_qpos + 3]
+        payload_quat = self._qpos[self._payload_qpos + 3 : self._payload_qpos + 7]
+        relative_position = _quat_to_matrix(platform_quat).T @ (payload_position - platform_position)
+        relative_quat = _quat_multiply(_quat_conjugate(platform_quat), payload_quat)
+        eq_data = self.model.eq_data[self._suction]
+        eq_data[0:3] = 0.0  # anchor: the payload's origin, in the payload frame
+        eq_data[3:6] = relative_position  # where that anchor sits in the platform frame
+        eq_data[6:10] = relative_quat
+        self.data.eq_active[self._suction] = 1
+        self.model.body_gravcomp[self._payload_body] = 0.0
+        self._match_payload_velocity()
+
+    def release_payload(self) -> None:
+        """Deactivate the suction weld; the payload stops and floats where it is (gravcomp on)."""
+        self._check_payload_body()
+        self.data.eq_active[self._suction] = 0
+        self.model.body_gravcomp[self._payload_body] = 1.0
+        self._qvel[self._payload_dof : self._payload_dof + 6] = 0.0
+
+    def _platform_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        if self._platform_free:
+            quat = self._qpos[self._platform_qpos + 3 : self._platform_qpos + 7].copy()
+            return self.platform_position(), quat / np.linalg.norm(quat)
+        return self.platform_position(), np.array([1.0, 0.0, 0.0, 0.0])
+
+    def _put_payload_on_platform(self) -> None:
+        platform_position, platform_quat = self._platform_pose()
+        eq_data = self.model.eq_data[self._suction]
+        position = platform_position + _quat_to_matrix(platform_quat) @ eq_data[3:6]
+        quat = _quat_multiply(platform_quat, eq_data[6:10])
+        self._qpos[self._payload_qpos : self._payload_qpos + 7] = [*position, *quat]
+
+    def _match_payload_velocity(self) -> None:
+        """Give the payload the rigid-body velocity of the platform at its position."""
+        platform_position, platform_quat = self._platform_pose()
+        if self._platform_free:
+            linear = self._qvel[self._platform_dof : self._platform_dof + 3]
+            angular = _quat_to_matrix(platform_quat) @ self._qvel[self._platform_dof + 3 : self._platform_dof + 6]
+        else:
+            linear = self._qvel[self._platform_dof : self._platform_dof + 3]
+            angular = np.zeros(3)
+        payload_position = self._qpos[self._payload_qpos : self._payload_qpos + 3]
+        payload_quat = self._qpos[self._payload_qpos + 3 : self._payload_qpos + 7]
+        velocity = linear + np.cross(angular, payload_position - platform_position)
+        self._qvel[self._payload_dof : self._payload_dof + 3] = velocity
+        self._qvel[self._payload_dof + 3 : self._payload_dof + 6] = _quat_to_matrix(payload_quat).T @ angular
+
+    # --------------------------------------------------------------------------------------------
+    # Domain randomization: every per-episode model edit happens here
+    # --------------------------------------------------------------------------------------------
+
+    @property
+    def nominal_parameters(self) -> PhysicalParameters:
+        """The parameters of ``config`` (what :meth:`restore_nominal` sets)."""
+        return PhysicalParameters(masses=self.config.masses, actuator_lag=self.config.realism.actuator_lag)
+
+    @property
+    def parameters(self) -> PhysicalParameters:
+        """The parameters the model currently has."""
+        return self._parameters
+
+    def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
+        """Edit masses, friction and lag of the model in place (the state is kept).
+
+        The new inertial properties come from compiling the model of the modified config, so they are
+        exactly what :func:`~delta_env.scene.build_model` would give; derived constants are refreshed with
+        ``mj_setConst``. It compiles a model: call it between episodes.
+
+        Raises:
+            ValueError: for a lag on a plant built without one (or the reverse).
+        """
+        if not isinstance(parameters, PhysicalParameters):
+            raise ValueError(f"parameters must be PhysicalParameters, got {type(parameters).__name__}")
+        if (parameters.actuator_lag > 0.0) != self._has_lag:
+            raise ValueError(
+                f"actuator_lag must be {'> 0' if self._has_lag else '0'} for this plant "
+                f"(built with actuator_lag={self.config.realism.actuator_lag}), got {parameters.actuator_lag}"
+            )
+        nominal = self.config.realism
+        scale = np.asarray(parameters.friction_scale)
+        realism = replace(
+            nominal,
+            viscous_scale=tuple(float(v) for v in np.asarray(nominal.viscous_scale) * scale),
+            coulomb_scale=tuple(float(v) for v in np.asarray(nominal.coulomb_scale) * scale),
+            actuator_lag=parameters.actuator_lag,
+        )
+        edited = build_model(replace(self.config, masses=parameters.masses, realism=realism))
+        model, bodies = self.model, self._robot_bodies
+        for name in ("body_mass", "body_inertia", "body_ipos", "body_iquat"):
+            getattr(model, name)[bodies] = getattr(edited, name)[bodies]
+        for name in ("dof_damping", "dof_frictionloss", "dof_armature"):
+            getattr(model, name)[self._motor_dofs] = getattr(edited, name)[self._motor_dofs]
+        model.actuator_dynprm[:] = edited.actuator_dynprm
+        self._set_const()
+        self._set_disturbance_coefficients(realism)
+        self._parameters = parameters
+
+    def randomize(self, rng: np.random.Generator, ranges: RandomizationRanges | None = None) -> PhysicalParameters:
+        """Draw and set new physical parameters (docs/design.md section 4 ranges by default); returns them."""
+        ranges = RandomizationRanges() if ranges is None else ranges
+        nominal = self.config.masses
+
+        def draw(fraction: float, size: int | None = None) -> NDArray[np.float64]:
+            return rng.uniform(1.0 - fraction, 1.0 + fraction, size)
+
+        m1, m2, m0 = (nominal.m1, nominal.m2, nominal.m0) * draw(ranges.mass_fraction, 3)
+        lag = self.config.realism.actuator_lag
+        if ranges.actuator_lag is not None:
+            if not self._has_lag:
+                raise ValueError("this plant has no actuator lag to randomize: use actuator_lag=None")
+            lag = float(rng.uniform(*ranges.actuator_lag))
+        parameters = PhysicalParameters(
+            masses=DeltaMasses(m1=float(m1), m2=float(m2), m0=float(m0)),
+            friction_scale=tuple(float(v) for v in draw(ranges.friction_fraction, 3)),
+            actuator_lag=lag,
+        )
+        self.set_physical_parameters(parameters)
+        return parameters
+
+    def restore_nominal(self) -> None:
+        """Undo :meth:`randomize`: the parameters of ``config`` again."""
+        self.set_physical_parameters(self.nominal_parameters)
+
+    def _set_const(self) -> None:
+        """Refresh the model constants derived from masses (mass matrix of simple bodies, constraint
+        softness through body_invweight0) after an edit."""
+        mujoco.mj_setConst(self.model, self._scratch)
+        # mj_setConst derives flg_gravcomp from body_gravcomp, which is 0 while the payload is carried.
+        self.model.flg_gravcomp = self.config.payload_body
+
+    def _set_disturbance_coefficients(self, realism: PlantRealism) -> None:
+        self._stribeck_gain = realism.stribeck_excess * realism.coulomb_per_joint
+        self._inv_stribeck_velocity = 1.0 / realism.stribeck_velocity
+        self._ripple_amplitude = realism.ripple_amplitude
+        self._ripple_periods = float(realism.ripple_periods)
+        self._has_disturbance = bool(np.any(self._stribeck_gain > 0.0) or realism.ripple_amplitude > 0.0)
+        self._disturbance_terms = tuple(
+            (int(address), int(dof), float(gain))
+            for address, dof, gain in zip(self._motor_qpos, self._motor_dofs, self._stribeck_gain, strict=True)
+        )

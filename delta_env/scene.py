@@ -1,0 +1,111 @@
+"""The scene around the robot: floor, light, camera and the pick-and-place payload with its suction weld.
+
+:func:`scene_spec` starts from the robot of :func:`delta_env.robot.robot_spec` and adds the scene to it,
+as a MuJoCo Menagerie ``scene.xml`` includes its robot; :func:`build_model` compiles it and
+:func:`build_mjcf` writes it as MJCF text (``MjSpec.to_xml``).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from delta_env.config import DEFAULT_PAYLOAD_SIZE, SUCTION_CUP_OFFSET, PlantConfig
+from delta_env.robot import EQUALITY_SOLIMP, HOME_KEY, equality_solref, robot_spec
+
+FLOOR_HEIGHT = -1.25
+"""Height (m) of the floor plane, visual only (no contacts)."""
+
+PAYLOAD_RGBA = (0.75, 0.6, 0.4, 1.0)
+"""Colour of the payload box."""
+
+_CAMERA_POSITION = np.array([2.2, -2.2, 0.4])
+_CAMERA_TARGET = np.array([0.0, 0.0, -0.7])
+
+
+def scene_spec(config: PlantConfig) -> mujoco.MjSpec:
+    """The robot of ``config`` in its scene, with the payload body if ``config.payload_body``.
+
+    Raises:
+        ValueError: if ``config`` is not a :class:`~delta_env.config.PlantConfig`.
+    """
+    spec = robot_spec(config)
+    spec.visual.global_.offwidth = 1280
+    spec.visual.global_.offheight = 720
+    spec.add_texture(
+        name="grid",
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+        width=512,
+        height=512,
+        rgb1=(0.25, 0.27, 0.3),
+        rgb2=(0.3, 0.32, 0.35),
+    )
+    floor_material = spec.add_material(name="floor", texrepeat=(8.0, 8.0), reflectance=0.1)
+    floor_material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
+    spec.add_material(name="payload", rgba=PAYLOAD_RGBA)
+    world = spec.worldbody
+    world.add_light(
+        name="key", pos=(0.0, -1.0, 2.0), dir=(0.0, 0.4, -1.0), type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+    )
+    forward = _CAMERA_TARGET - _CAMERA_POSITION
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    up = np.cross(right, forward)
+    camera = world.add_camera(name="overview", pos=_CAMERA_POSITION)
+    camera.alt.type = mujoco.mjtOrientation.mjORIENTATION_XYAXES
+    camera.alt.xyaxes = np.concatenate((right / np.linalg.norm(right), up / np.linalg.norm(up)))
+    world.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        pos=(0.0, 0.0, FLOOR_HEIGHT),
+        size=(2.0, 2.0, 0.05),
+        material="floor",
+    )
+    if config.payload_body:
+        _add_payload(spec, config)
+    return spec
+
+
+def _add_payload(spec: mujoco.MjSpec, config: PlantConfig) -> None:
+    """The pick-and-place object and the suction gripper's weld (inactive until a pick).
+
+    Mass and size are set at run time (:meth:`DeltaPlant.place_payload`). Gravity compensation 1 floats
+    the object where it is put while not carried (0 while carried); not "simple", so its mass can change.
+    The weld's relative pose is set to the pose at the pick by :meth:`DeltaPlant.attach_payload`.
+    """
+    half = np.asarray(DEFAULT_PAYLOAD_SIZE) / 2.0
+    position = (0.0, 0.0, config.home_height - SUCTION_CUP_OFFSET - half[2])
+    payload = spec.worldbody.add_body(name="payload", pos=position, gravcomp=1.0)
+    payload.simple = 0
+    payload.add_freejoint(name="payload")
+    payload.add_geom(name="payload_box", type=mujoco.mjtGeom.mjGEOM_BOX, size=half, mass=1.0, material="payload")
+    suction = spec.add_equality(
+        name="suction",
+        type=mujoco.mjtEq.mjEQ_WELD,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        name1="platform",
+        name2="payload",
+        active=False,
+        solref=equality_solref(config),
+        solimp=EQUALITY_SOLIMP,
+    )
+    # Anchor at the payload's origin; relative pose (position, quaternion) set at the pick.
+    suction.data[0:10] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    home = spec.key(HOME_KEY)
+    home.qpos = np.concatenate((home.qpos, [*position, 1.0, 0.0, 0.0, 0.0]))
+
+
+def build_model(config: PlantConfig) -> mujoco.MjModel:
+    """Compile the scene of ``config`` into an ``MjModel``."""
+    return scene_spec(config).compile()
+
+
+def build_mjcf(config: PlantConfig) -> str:
+    """MJCF text of the scene of ``config`` (``MjSpec.to_xml``), to read or to record.
+
+    MuJoCo writes numbers with 6 significant digits, so the text reloads into the same model up to
+    that rounding; :func:`build_model` is the exact model.
+    """
+    spec = scene_spec(config)
+    spec.compile()
+    return spec.to_xml()
