@@ -98,7 +98,7 @@ def measured_lag_response(
     pole = math.exp(-period / time_constant)
     to_sample = math.exp(-(period - sample_delay) / time_constant)
     # Output at the instants: out_{k+1} = pole out_k + (1 - pole) u_k, a one-pole filter.
-    outputs, _ = lfilter([0.0, 1.0 - pole], [1.0, -pole], commands, zi=[pole * initial])
+    outputs, _ = lfilter([1.0 - pole], [1.0, -pole], commands, zi=[pole * initial])
     at_instants = np.concatenate(([initial], outputs[:-1]))
     return to_sample * at_instants + (1.0 - to_sample) * commands
 

@@ -20,9 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Observation, PDController
+from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics
 from controllers.payload import PayloadEstimator
-from controllers.drive import ReferencePredictor
 from delta_env.drive import SampledLag
 from delta_env.model import PhysicalParameters, PlantConfig
 from delta_env.oracle import InverseDynamicsOracle
