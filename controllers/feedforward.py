@@ -141,5 +141,5 @@ class OracleController:
                     "set_payload_masses(info['payload_masses']) after env.reset"
                 )
         self._holding = holding
-        torque_next = self.oracle.torques(*self.reference.next(observation), payload=self.payload_estimate)
+        torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
         return self.drive.command(torque_next) + self.pd.feedback(observation)

@@ -96,7 +96,7 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")
-        return OracleController(env.plant_config, pd=pd)
+        return OracleController(env.plant_config)  # its own feedback gains: see OracleController
     if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
         dynamics = estimation_model(setup)
     else:
@@ -241,6 +241,7 @@ def run_episode(
     observation, info = env.reset(seed=seed, options=options)
     if isinstance(controller, OracleController):
         controller.set_payload_masses(info["payload_masses"])  # the oracle's privilege
+        controller.set_physical_parameters(env.plant.parameters)
     controller.reset()
     plant = env.plant
     estimate = getattr(controller, "payload_estimate", None)

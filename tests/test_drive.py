@@ -79,7 +79,6 @@ def run(env: DeltaPickPlaceEnv, controller: object, seed: int) -> tuple[float, n
     return 1e3 * float(np.sqrt(np.mean(np.square(errors)))), np.array(commands), np.array(reported)
 
 
-@pytest.mark.slow
 def test_identified_lag_and_its_compensation_on_the_simulator() -> None:
     """The lag is found from a closed-loop run of the default plant (exact encoders, so that the PD's reaction to
     the rate quantization does not hide what the lag costs), and leading it lowers the tracking error of the same

@@ -187,6 +187,11 @@ def test_batches_equal_single_samples_and_leave_no_trace() -> None:
     assert_allclose(
         oracle.torques(theta, theta_dot, theta_ddot, 2.0)[0], oracle.torques(theta[0], theta_dot[0], theta_ddot[0], 2.0)
     )
+    # The unchecked single-sample path (scalar kinematics) agrees to round-off.
+    fast = [
+        oracle.torque(*sample, float(mass)) for *sample, mass in zip(theta, theta_dot, theta_ddot, payload, strict=True)
+    ]
+    assert_allclose(np.stack(fast), batch, rtol=0.0, atol=1e-9)
 
 
 @pytest.mark.parametrize(
@@ -250,7 +255,6 @@ def bound_tracking_mm(realism: PlantRealism, controller: OracleController, seed:
     return 1e3 * float(np.sqrt(np.mean(np.square(errors))))
 
 
-@pytest.mark.slow
 def test_bound_tracks_a_lagging_plant_to_the_integration_limit() -> None:
     """Lag on, sensor noise, ripple and Stribeck off: what is left is the integration error of the ZOH.
 
