@@ -127,7 +127,7 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")
-        return OracleController(env.plant_config, pd=PDController(*setup.pd_gains))
+        return OracleController(env.plant_config)  # its own feedback gains: see OracleController
     if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
         return model_controller(
             setup.mid_f_rods,

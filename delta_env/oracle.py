@@ -13,11 +13,13 @@ attributes ~0 force to them. The oracle therefore (DESIGN.md section 4):
 4. solves the square system [S  J_c^T] [tau; lambda] = rhs for the three motor torques (S selects
    the motor dofs; lambda are the loop forces).
 
-The actuator lag is not part of the oracle: it returns the torque that must act at the joints, not the
-command that a lagging current loop would need to produce it. Coulomb friction enters as
-fc_i sign(theta_dot_i), so at exactly zero rate (sticking, where friction is indeterminate) it is 0.
-Stribeck and ripple are those of the instantaneous state, whereas the plant holds them over a control
-step.
+This class returns the torque that must act at the joints. The drive's first-order lag is inverted on top of
+it, exactly at the control instants, by :class:`delta_env.drive.SampledLag` (the bound controller,
+``controllers.feedforward.OracleController``, does both). Coulomb friction enters as fc_i sign(theta_dot_i),
+so at exactly zero rate (sticking, where friction is indeterminate) it is 0. The ripple is a known function of
+the angle and is inverted at the reference angle: off the reference by delta it errs by amplitude * periods *
+delta (0.02 N m for 0.1 mrad). Stribeck and ripple are those of the instantaneous state, whereas the plant
+holds them over a control step.
 
 The payload is a point mass added to the platform's CoM. That is exact for the motor torques wherever the
 payload is carried rigidly by a platform that only translates (a moment on the platform does no virtual
@@ -27,6 +29,7 @@ round-off, and on the realistic one a payload hanging under the suction cup need
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import mujoco
@@ -34,7 +37,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env.config import MAX_PAYLOAD_MASS, PhysicalParameters, PlantConfig
+from delta_env.geometry import CHAIN_COS, CHAIN_SIN
 from delta_env.plant import DeltaPlant
+from delta_env.robot import forearm_home_tilt
 
 
 class InverseDynamicsOracle:
@@ -64,6 +69,12 @@ class InverseDynamicsOracle:
         # Columns of the square system [S  J_c^T]: the first three select the motor dofs.
         self._system = np.zeros((model.nv, model.nv))
         self._system[motor_dofs, np.arange(3)] = 1.0
+        geometry = self.config.geometry
+        self._r, self._l1, self._l2 = geometry.r, geometry.l1, geometry.l2
+        self._tilt = forearm_home_tilt(geometry)
+        self._azimuths = tuple(zip(CHAIN_COS, CHAIN_SIN, strict=True))
+        self._platform = np.empty(3)
+        self._elbows = np.empty((3, 2))
 
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
         """Use the same (e.g. randomized) masses and friction as a plant; see DeltaPlant.set_physical_parameters."""
@@ -116,6 +127,48 @@ class InverseDynamicsOracle:
         )
         tau = np.stack([self._torques_one(*sample) for sample in samples])
         return tau.reshape(theta.shape)
+
+    def torque(self, theta: NDArray, theta_dot: NDArray, theta_ddot: NDArray, payload: float) -> NDArray[np.float64]:
+        """:meth:`torques` of one sample without input checks: the 1 kHz path of the bound controller.
+
+        Same result as :meth:`torques` to round-off; the loop-closing coordinates come from scalar
+        kinematics (:meth:`_assembly_one`) instead of the batched NumPy form, which costs more than the
+        MuJoCo part for a single sample. The inputs must be reachable, finite (3,) arrays.
+        """
+        self._assembly_one(theta)
+        return self._torques_one(theta, theta_dot, theta_ddot, payload, self._platform, self._elbows)
+
+    def _assembly_one(self, theta: NDArray) -> None:
+        """:meth:`DeltaPlant.assembly_coordinates` of one sample in scalar math, into the oracle's buffers."""
+        r, l1, l2 = self._r, self._l1, self._l2
+        elbows = []
+        for (cos_a, sin_a), angle in zip(self._azimuths, theta.tolist(), strict=True):
+            radial = r + l1 * math.cos(angle)
+            elbows.append((radial * cos_a, radial * sin_a, -l1 * math.sin(angle)))
+        (x1, y1, z1), (x2, y2, z2), (x3, y3, z3) = elbows
+        # Lower intersection of the three spheres of radius l2 around the elbows (kinematics.forward).
+        ax, ay, az, bx, by, bz = x1 - x3, y1 - y3, z1 - z3, x2 - x3, y2 - y3, z2 - z3
+        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        normal_sq = nx * nx + ny * ny + nz * nz
+        aa, bb = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz
+        vx, vy, vz = aa * bx - bb * ax, aa * by - bb * ay, aa * bz - bb * az
+        scale = 0.5 / normal_sq
+        cx, cy, cz = (vy * nz - vz * ny) * scale, (vz * nx - vx * nz) * scale, (vx * ny - vy * nx) * scale
+        height = math.sqrt(l2 * l2 - (cx * cx + cy * cy + cz * cz)) / math.sqrt(normal_sq)
+        if nz > 0.0:
+            height = -height
+        px, py, pz = x3 + cx + height * nx, y3 + cy + height * ny, z3 + cz + height * nz
+        self._platform[:] = (px, py, pz)
+        # Elbow angles of each forearm (DeltaPlant.assembly_coordinates).
+        for chain, ((cos_a, sin_a), angle, (ex, ey, ez)) in enumerate(
+            zip(self._azimuths, theta.tolist(), elbows, strict=True)
+        ):
+            dx, dy, dz = (px - ex) / l2, (py - ey) / l2, (pz - ez) / l2
+            radial, tangential = dx * cos_a + dy * sin_a, -dx * sin_a + dy * cos_a
+            turn = angle + self._tilt
+            local_x = math.cos(turn) * radial - math.sin(turn) * dz
+            local_z = math.sin(turn) * radial + math.cos(turn) * dz
+            self._elbows[chain] = (math.atan2(-local_x, -local_z), math.asin(tangential))
 
     def _torques_one(
         self,

@@ -155,6 +155,7 @@ def run_episode(
     observation, info = env.reset(seed=seed, options=options or None)
     if isinstance(controller, OracleController):
         controller.set_payload_masses(info["payload_masses"])  # the oracle's privilege
+        controller.set_physical_parameters(env.plant.parameters)
     controller.reset()
     plant = env.plant
     estimate = getattr(controller, "payload_estimate", None)

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from controllers.drive import measured_lag_response
+from controllers.feedforward import OracleController
 from delta_env import (
     NOMINAL_GEOMETRY,
     NOMINAL_MASSES,
@@ -18,8 +20,11 @@ from delta_env import (
     RandomizationRanges,
     kinematics,
 )
+from delta_env.drive import SampledLag
+from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY
 from delta_env.oracle import InverseDynamicsOracle
+from delta_env.sensors import CONTROL_PERIOD
 
 IDEAL = PlantConfig.ideal()
 # Realistic, without the current-loop lag: the oracle returns the joint torque, not a lagged command.
@@ -196,6 +201,11 @@ def test_batches_equal_single_samples_and_leave_no_trace(oracle_states: Callable
     assert_allclose(
         oracle.torques(theta, theta_dot, theta_ddot, 2.0)[0], oracle.torques(theta[0], theta_dot[0], theta_ddot[0], 2.0)
     )
+    # The unchecked single-sample path (scalar kinematics) agrees to round-off.
+    fast = [
+        oracle.torque(*sample, float(mass)) for *sample, mass in zip(theta, theta_dot, theta_ddot, payload, strict=True)
+    ]
+    assert_allclose(np.stack(fast), batch, rtol=0.0, atol=1e-9)
 
 
 @pytest.mark.parametrize(
@@ -213,3 +223,65 @@ def test_batches_equal_single_samples_and_leave_no_trace(oracle_states: Callable
 def test_bad_input_raises_a_clear_error(arguments: tuple, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         InverseDynamicsOracle(IDEAL).torques(*arguments)
+
+
+def test_sampled_lag_is_mujocos_filterexact_under_a_held_command() -> None:
+    """Per control period (two physics steps) the drive's output obeys the sampled lag and its inverse to round-off.
+
+    MuJoCo updates act after the force of the step is formed, so the force of the last physics step of a period
+    (what the env reports as the measured torque) is the output h before the control instant.
+    """
+    lag = 0.0013
+    plant = DeltaPlant(PlantConfig(realism=replace(PlantRealism(), actuator_lag=lag)))
+    n_substeps = round(CONTROL_PERIOD / plant.model.opt.timestep)
+    assert n_substeps == 2
+    rng = np.random.default_rng(7)
+    commands = rng.uniform(-30.0, 30.0, (40, 3)) + np.array([0.0, 40.0, -20.0])
+    drive = SampledLag(lag, CONTROL_PERIOD)
+    assert_allclose(drive.pole, np.exp(-CONTROL_PERIOD / lag), rtol=1e-15)
+    reported = np.empty_like(commands)
+    for k, command in enumerate(commands):
+        plant.step(command, n_substeps)
+        reported[k] = plant.data.actuator_force
+        assert_allclose(plant.data.act, drive.advance(command), rtol=0.0, atol=1e-12)
+    for joint in range(3):
+        assert_allclose(measured_lag_response(commands[:, joint], lag), reported[:, joint], rtol=0.0, atol=1e-12)
+    # The inverse: commands that put the output on arbitrary targets at the next instants.
+    targets = rng.uniform(-50.0, 50.0, (10, 3))
+    drive.reset(plant.data.act)
+    for target in targets:
+        plant.step(drive.command(target), n_substeps)
+        assert_allclose(plant.data.act, target, rtol=0.0, atol=1e-12)
+
+
+def bound_tracking_mm(realism: PlantRealism, controller: OracleController, seed: int) -> float:
+    """Tracking RMS (mm) of one 2-cycle conveyor episode of ``controller`` on a realistic plant with ``realism``."""
+    env = DeltaPickPlaceEnv(plant=PlantConfig(realism=realism), n_cycles=2)
+    observation, info = env.reset(seed=seed)
+    controller.set_payload_masses(info["payload_masses"])
+    controller.reset()
+    errors = []
+    truncated = False
+    while not truncated:
+        observation, _, terminated, truncated, info = env.step(controller(observation))
+        assert not terminated
+        errors.append(info["tracking_error"])
+    return 1e3 * float(np.sqrt(np.mean(np.square(errors))))
+
+
+def test_bound_tracks_a_lagging_plant_to_the_integration_limit() -> None:
+    """Lag on, sensor noise, ripple and Stribeck off: what is left is the integration error of the ZOH.
+
+    Measured 0.017 and 0.022 mm (seeds 0, 1; 0.028 and 0.031 mm with every effect of the default plant on);
+    the same controller with the lag ignored (a direct-torque drive model) 0.078 mm.
+    """
+    realism = replace(
+        PlantRealism(), stribeck_excess=0.0, ripple_amplitude=0.0, torque_noise_std=0.0, encoder_bits=None
+    )
+    config = PlantConfig(realism=realism)
+    bound = [bound_tracking_mm(realism, OracleController(config), seed) for seed in (0, 1)]
+    unaware = OracleController(config)
+    unaware.drive = SampledLag(0.0)
+    ignoring_lag = bound_tracking_mm(realism, unaware, 0)
+    assert max(bound) < 0.03, bound
+    assert ignoring_lag > 2.0 * bound[0], (ignoring_lag, bound)

@@ -1,0 +1,199 @@
+"""The drive's current-loop lag: its identification from excitation data, and a feedforward that leads it.
+
+The plant's drive is a first-order lag T dtau/dt = u - tau per joint (:mod:`delta_env.drive`). A command u_k
+held over the control period Delta gives tau(t_k + s) = e^{-s/T} tau(t_k) + (1 - e^{-s/T}) u_k for s in
+[0, Delta]; the torque the drive reports at instant k + 1 is the output one physics step h before it
+(the force MuJoCo held over the last physics step, ``delta_env.sensors.PHYSICS_TIMESTEP``), i.e. at
+s = Delta - h.
+
+Identification (:func:`identify_lag`) is an output-error fit per joint: the commands alone are run through
+that exact sampled model for a trial T, and T minimizes the squared difference to the measured torques
+(``scipy.optimize.minimize_scalar``, bounded). Only the measurements carry noise, so the fit is consistent;
+an equation-error least squares on tau[k+1] = a tau[k] + (1 - a) u[k] would have the noisy torque as its
+regressor and be biased towards a faster drive.
+
+Control (:class:`LagCompensatedController`): the feedforward of a model-based controller is evaluated at
+the reference one period ahead and passed through the exact inverse of the sampled lag, so the drive
+delivers it at the next control instant; the PD feedback is added unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import minimize_scalar
+from scipy.signal import lfilter
+
+from controllers.base import Observation
+from delta_env.drive import MAX_TIME_CONSTANT, SampledLag
+from delta_env.sensors import CONTROL_PERIOD, PHYSICS_TIMESTEP
+
+if TYPE_CHECKING:
+    from controllers.feedforward import FeedforwardController
+
+MIN_TIME_CONSTANT = 1e-5
+"""Smallest lag (s) the fit considers; below it the drive is a direct torque source at 1 kHz."""
+
+
+class ReferencePredictor:
+    """The joint reference one control period ahead, from the reference of this step and the last one.
+
+    A cubic Taylor step: the jerk is the backward difference of the reference accelerations (0 at the first
+    step). The error is of order period^2 times the reference's snap, or period times a jump of its jerk.
+
+    Args:
+        period: Control period (s), in (0, 0.1].
+    """
+
+    def __init__(self, period: float = CONTROL_PERIOD) -> None:
+        if not (math.isfinite(period) and 0.0 < period <= 0.1):
+            raise ValueError(f"period must lie in (0, 0.1] s, got {period}")
+        self.period = float(period)
+        self._last_acceleration: NDArray[np.float64] | None = None
+
+    def reset(self) -> None:
+        """Forget the last reference (a new episode)."""
+        self._last_acceleration = None
+
+    def next(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Reference angles (rad), rates (rad/s) and accelerations (rad/s^2) at the next control instant."""
+        dt = self.period
+        theta = observation["reference_angles"]
+        theta_dot = observation["reference_velocities"]
+        theta_ddot = observation["reference_accelerations"]
+        last = self._last_acceleration
+        jerk_dt = 0.0 if last is None else theta_ddot - last  # jerk * dt
+        self._last_acceleration = theta_ddot.copy()
+        return (
+            theta + dt * (theta_dot + dt * (0.5 * theta_ddot + jerk_dt / 6.0)),
+            theta_dot + dt * (theta_ddot + 0.5 * jerk_dt),
+            theta_ddot + jerk_dt,
+        )
+
+
+def measured_lag_response(
+    commands: ArrayLike,
+    time_constant: float,
+    initial: float = 0.0,
+    period: float = CONTROL_PERIOD,
+    sample_delay: float = PHYSICS_TIMESTEP,
+) -> NDArray[np.float64]:
+    """The torques a drive with lag ``time_constant`` reports for a sequence of held commands.
+
+    Args:
+        commands: Command u_k (N m) held over period k, shape (N,).
+        time_constant: Lag T (s), >= 0.
+        initial: Drive output (N m) at the first control instant.
+        period: Control period (s).
+        sample_delay: How long before the control instant the reported torque is taken (s), in [0, period).
+
+    Returns:
+        The torque reported at instants 1 ... N (N m), shape (N,): the output at t_{k+1} - sample_delay.
+    """
+    commands = np.asarray(commands, dtype=float)
+    if time_constant <= 0.0:
+        return commands.copy()
+    pole = math.exp(-period / time_constant)
+    to_sample = math.exp(-(period - sample_delay) / time_constant)
+    # Output at the instants: out_{k+1} = pole out_k + (1 - pole) u_k, a one-pole filter.
+    outputs, _ = lfilter([1.0 - pole], [1.0, -pole], commands, zi=[pole * initial])
+    at_instants = np.concatenate(([initial], outputs[:-1]))
+    return to_sample * at_instants + (1.0 - to_sample) * commands
+
+
+def identify_lag(
+    commands: ArrayLike,
+    measured: ArrayLike,
+    period: float = CONTROL_PERIOD,
+    sample_delay: float = PHYSICS_TIMESTEP,
+    skip: int = 20,
+) -> NDArray[np.float64]:
+    """Per-joint drive lag (s) from held commands and the torques the drive reported.
+
+    Output-error fit (module docstring): the drive's output at the first instant is taken as the first
+    measurement, and the first ``skip`` samples, where that guess still matters (its weight decays as
+    e^{-k period / T}), are left out of the cost.
+
+    Args:
+        commands: Commands u_k (N m) as the plant applied them (after the torque limit), shape (N, 3).
+        measured: Torque reported at the instant after each command (N m), shape (N, 3): the
+            ``joint_torques`` of the observation that ``env.step(u_k)`` returns.
+        period: Control period (s).
+        sample_delay: How long before the control instant the reported torque is taken (s).
+        skip: Leading samples left out of the cost, >= 0 and < N - 10.
+
+    Returns:
+        Lag time constants T (s), shape (3,), each in [1e-5, 0.1].
+
+    Raises:
+        ValueError: for mismatched shapes, non-finite values, too few samples or a command that never moves.
+    """
+    commands, measured = np.asarray(commands, dtype=float), np.asarray(measured, dtype=float)
+    if commands.ndim != 2 or commands.shape[1] != 3:
+        raise ValueError(f"commands must have shape (N, 3), got {commands.shape}")
+    if measured.shape != commands.shape:
+        raise ValueError(f"measured must have the shape of commands {commands.shape}, got {measured.shape}")
+    if not (np.all(np.isfinite(commands)) and np.all(np.isfinite(measured))):
+        raise ValueError("commands and measured torques must be finite")
+    if not (isinstance(skip, int) and 0 <= skip < len(commands) - 10):
+        raise ValueError(f"skip must be an int in [0, {len(commands) - 10}), got {skip!r}")
+    if np.any(np.ptp(commands[skip:], axis=0) <= 0.0):
+        raise ValueError("every joint's command must vary: a constant command does not show the lag")
+    lags = np.empty(3)
+    for joint in range(3):
+        u, y = commands[:, joint], measured[:, joint]
+
+        def cost(log_lag: float, u: NDArray = u, y: NDArray = y) -> float:
+            predicted = measured_lag_response(u, math.exp(log_lag), y[0], period, sample_delay)
+            return float(np.sum((predicted[skip:] - y[skip:]) ** 2))
+
+        result = minimize_scalar(
+            cost,
+            bounds=(math.log(MIN_TIME_CONSTANT), math.log(MAX_TIME_CONSTANT)),
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
+        lags[joint] = math.exp(result.x)
+    return lags
+
+
+class LagCompensatedController:
+    """A model-based feedforward controller whose feedforward leads the drive's identified lag.
+
+    command_k = SampledLag^-1(feedforward at the reference of t_{k+1}) + PD_k. The base controller runs as
+    usual (its payload estimator, if any, updates on this step's observation); its feedforward is then
+    evaluated at the reference one period ahead with the current payload estimate.
+
+    Args:
+        name: Label in tables (e.g. ``"MId+F+R+RLS+lag+PD"``).
+        base: The feedforward controller to compensate.
+        time_constant: Identified lag per joint (s), shape (3,) or a scalar.
+        period: Control period (s).
+    """
+
+    def __init__(
+        self, name: str, base: FeedforwardController, time_constant: ArrayLike, period: float = CONTROL_PERIOD
+    ) -> None:
+        self.name = name
+        self.base = base
+        self.drive = SampledLag(time_constant, period)
+        self.reference = ReferencePredictor(period)
+
+    @property
+    def payload_estimate(self) -> float:
+        """The base's payload estimate (kg) at the last call."""
+        return self.base.payload_estimate
+
+    def reset(self) -> None:
+        self.base.reset()
+        self.drive.reset()
+        self.reference.reset()
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        feedback = self.base.pd.feedback(observation)
+        self.base(observation)  # updates the payload estimate from this step's observation
+        tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
+        return self.drive.command(tau0 + self.base.payload_estimate * phi) + feedback

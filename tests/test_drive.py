@@ -1,0 +1,99 @@
+"""Drive lag identification and the lag-compensated feedforward controller."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from controllers.drive import LagCompensatedController, ReferencePredictor, identify_lag, measured_lag_response
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.feedforward import FeedforwardController
+from delta_env.config import PlantConfig, PlantRealism
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.sensors import CONTROL_PERIOD
+
+
+def test_lag_is_identified_from_noisy_synthetic_data() -> None:
+    """Known lags, commands of a few N m per step, 0.5 N m white noise on the reported torque."""
+    rng = np.random.default_rng(0)
+    truth = np.array([0.0007, 0.001, 0.0016])
+    commands = np.cumsum(rng.normal(0.0, 3.0, (4000, 3)), axis=0)
+    measured = np.stack([measured_lag_response(commands[:, j], truth[j], 0.0) for j in range(3)], axis=1)
+    noisy = measured + rng.normal(0.0, 0.5, measured.shape)
+    assert_allclose(identify_lag(commands, measured), truth, rtol=1e-5)
+    assert_allclose(identify_lag(commands, noisy), truth, rtol=0.03)
+    # The equation-error least squares the module rejects is biased by the noise on its regressor.
+    x, y = noisy[:-1] - commands[1:], noisy[1:] - commands[1:]
+    equation_error = -CONTROL_PERIOD / np.log(np.sum(x * y, axis=0) / np.sum(x * x, axis=0))
+    assert np.all(np.abs(equation_error / truth - 1.0) > 0.05)
+
+
+@pytest.mark.parametrize(
+    ("commands", "measured", "message"),
+    [
+        (np.zeros((100, 2)), np.zeros((100, 2)), "commands"),
+        (np.ones((100, 3)), np.ones((99, 3)), "measured"),
+        (np.full((100, 3), np.nan), np.zeros((100, 3)), "finite"),
+        (np.ones((100, 3)), np.ones((100, 3)), "vary"),
+        (np.zeros((20, 3)), np.zeros((20, 3)), "skip"),
+    ],
+)
+def test_bad_identification_input_raises(commands: np.ndarray, measured: np.ndarray, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        identify_lag(commands, measured)
+
+
+def test_reference_predictor_is_a_cubic_step() -> None:
+    """On a cubic reference the prediction is exact from the second step on."""
+    t = np.array([0.0, CONTROL_PERIOD, 2.0 * CONTROL_PERIOD])[:, None]
+    c = np.array([[0.1, -0.2, 0.3], [1.0, 2.0, -1.0], [5.0, -3.0, 2.0], [40.0, 10.0, -20.0]])
+    theta = c[0] + c[1] * t + c[2] * t**2 + c[3] * t**3
+    theta_dot = c[1] + 2.0 * c[2] * t + 3.0 * c[3] * t**2
+    theta_ddot = 2.0 * c[2] + 6.0 * c[3] * t
+    predictor = ReferencePredictor()
+    for k in range(2):
+        observation = {
+            "reference_angles": theta[k],
+            "reference_velocities": theta_dot[k],
+            "reference_accelerations": theta_ddot[k],
+        }
+        predicted = predictor.next(observation)
+    for value, expected in zip(predicted, (theta[2], theta_dot[2], theta_ddot[2]), strict=True):
+        assert_allclose(value, expected, rtol=0.0, atol=1e-12)
+
+
+def run(env: DeltaPickPlaceEnv, controller: object, seed: int) -> tuple[float, np.ndarray, np.ndarray]:
+    """Tracking RMS (mm), the commands sent (N m, (N, 3)) and the torques reported after each (N m)."""
+    observation, _ = env.reset(seed=seed, options={"payload_masses": [0.0, 0.0]})
+    controller.reset()
+    errors, commands, reported = [], [], []
+    truncated = False
+    while not truncated:
+        command = controller(observation)
+        observation, _, terminated, truncated, info = env.step(command)
+        assert not terminated
+        errors.append(info["tracking_error"])
+        commands.append(command)
+        reported.append(observation["joint_torques"])
+    return 1e3 * float(np.sqrt(np.mean(np.square(errors)))), np.array(commands), np.array(reported)
+
+
+def test_identified_lag_and_its_compensation_on_the_simulator() -> None:
+    """The lag is found from a closed-loop run of the default plant (exact encoders, so that the PD's reaction to
+    the rate quantization does not hide what the lag costs), and leading it lowers the tracking error of the same
+    identified-model feedforward (empty gripper, so that the model is all the feedforward needs).
+
+    Measured: 1.002, 1.061, 0.965 ms for the true 1 ms; tracking 0.157 -> 0.118 mm.
+    """
+    env = DeltaPickPlaceEnv(plant=PlantConfig(realism=replace(PlantRealism(), encoder_bits=None)), n_cycles=2)
+    parameters = ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59))
+
+    def base() -> FeedforwardController:
+        return FeedforwardController("MId+F+R+PD", DeltaDynamics.nominal(parameters, forearm_rods=True))
+
+    plain_rms, commands, reported = run(env, base(), seed=3)
+    identified = identify_lag(commands, reported)
+    assert_allclose(identified, env.plant_config.realism.actuator_lag, rtol=0.08)
+    compensated_rms, *_ = run(env, LagCompensatedController("lag", base(), identified), seed=3)
+    assert compensated_rms < 0.85 * plain_rms, (compensated_rms, plain_rms)
