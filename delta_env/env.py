@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -12,7 +13,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from delta_env.geometry import GRAVITY, TORQUE_LIMIT
+from delta_env.geometry import TORQUE_LIMIT
 from delta_env.model import (
     DEFAULT_PAYLOAD_SIZE,
     MAX_PAYLOAD_MASS,
@@ -21,6 +22,7 @@ from delta_env.model import (
     PlantConfig,
     RandomizationRanges,
 )
+from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
 
@@ -100,13 +102,18 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     ## Arguments
     Args:
-        plant: MuJoCo plant configuration (variant, realism, masses, geometry).
-        n_cycles: Pick-and-place cycles per episode.
-        cycle: ``"conveyor"`` (random pick and place points on two conveyor zones) or
+        plant: MuJoCo plant configuration (variant, realism, masses, geometry); replaces the
+            scenario's plant and its condition.
+        n_cycles: Pick-and-place cycles per episode; 3 by default.
+        cycle: ``"conveyor"`` (random pick and place points on two conveyor zones, the default) or
             ``"standard"`` (the 25/305/25 mm cycle).
         peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2); 3 g by default.
-        payload_mass_range: Masses (kg) are drawn per object from U[low, high].
+        payload_mass_range: Masses (kg) are drawn per object from U[low, high]; U[0, 4] by default.
         domain_randomization: Per-episode perturbation of the plant, off (None) by default.
+        scenario: A preset name (``delta_env.scenario.preset_names()``), a scenario TOML file or a
+            :class:`~delta_env.scenario.Scenario`; it supplies every argument above that is None, and an
+            explicit argument overrides the scenario's field (the defaults above are the ``nominal``
+            scenario's). With a scenario, ``domain_randomization=None`` keeps the scenario's.
         reward_weights: Weights of the reward terms.
         divergence_penalty: Reward (negated) of the step on which the simulation diverges.
         render_mode: ``"rgb_array"``, ``"human"`` or None.
@@ -119,17 +126,32 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def __init__(
         self,
         plant: PlantConfig | None = None,
-        n_cycles: int = 3,
-        cycle: Literal["conveyor", "standard"] = "conveyor",
-        peak_acceleration: float = 3.0 * GRAVITY,
-        payload_mass_range: tuple[float, float] = (0.0, 4.0),
+        n_cycles: int | None = None,
+        cycle: Literal["conveyor", "standard"] | None = None,
+        peak_acceleration: float | None = None,
+        payload_mass_range: tuple[float, float] | None = None,
         domain_randomization: RandomizationRanges | None = None,
+        scenario: str | os.PathLike[str] | Scenario | None = None,
         reward_weights: RewardWeights | None = None,
         divergence_penalty: float = 1e3,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
     ) -> None:
+        # Explicit keywords override the scenario's fields; the scenario's defaults are the env's defaults.
+        base = Scenario() if scenario is None else resolve_scenario(scenario)
+        overrides = {
+            "n_cycles": n_cycles,
+            "cycle": cycle,
+            "peak_acceleration": peak_acceleration,
+            "payload_mass_range": payload_mass_range,
+            "domain_randomization": domain_randomization,
+        }
+        task = base.task
+        plant = base.effective_plant if plant is None else plant
+        n_cycles, cycle, peak_acceleration, payload_mass_range, domain_randomization = (
+            getattr(task, name) if value is None else value for name, value in overrides.items()
+        )
         if not (isinstance(n_cycles, int | np.integer) and n_cycles >= 1):
             raise ValueError(f"n_cycles must be an integer >= 1, got {n_cycles!r}")
         if cycle not in ("conveyor", "standard"):
@@ -142,7 +164,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
-        self.plant_config = plant if plant is not None else PlantConfig()
+        self.plant_config = plant
         self.plant = DeltaPlant(self.plant_config)
         self.n_cycles = int(n_cycles)
         self.cycle = cycle
