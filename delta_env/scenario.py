@@ -284,10 +284,10 @@ def _describe(hint: Any) -> str:
     if origin in (typing.Union, types.UnionType):
         return " or ".join(_describe(a) if a is not type(None) else f'"{NONE_MARKER}"' for a in args)
     if origin is tuple:
-        return f"an array of {len(args)} {_describe(args[0])}s"
+        return f"an array of {len(args)} {_describe(args[0]).split()[-1]}s"
     if hint in _TABLE_TYPES:
         return "a table"
-    return {float: "number", int: "integer", bool: "boolean", str: "string"}.get(hint, str(hint))
+    return {float: "a number", int: "an integer", bool: "a boolean", str: "a string"}.get(hint, str(hint))
 
 
 def _convert(path: str, hint: Any, value: Any) -> Any:
@@ -297,7 +297,12 @@ def _convert(path: str, hint: Any, value: Any) -> Any:
         if type(None) in args and value == NONE_MARKER:
             return None
         (inner,) = (a for a in args if a is not type(None))
-        return _convert(path, inner, value)
+        if isinstance(value, dict):  # a table: its own fields name the error
+            return _convert(path, inner, value)
+        try:
+            return _convert(path, inner, value)
+        except ValueError:
+            raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}") from None
     ok = True
     if hint is float:
         ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
