@@ -11,11 +11,10 @@ from pathlib import Path
 import pytest
 
 from delta_env.scenario import Scenario, preset
-from eval.episodes import ControllerSetup
 from eval.sweep import __main__ as sweep_cli
 from eval.sweep import report
 from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
-from eval.sweep.work import METRIC_FIELDS, WorkUnit, run_unit
+from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
 from tests.test_controllers import SETUP
 
 CODE, DIGEST = "code-under-test", "setup-under-test"

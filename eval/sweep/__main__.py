@@ -32,13 +32,20 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from controllers.identification import DEFAULT_PARAMETER_PATH
 from controllers.provenance import command_line, package_versions
-from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import Scenario, preset_names, resolve_scenario
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
-from eval.sweep.work import CONTROLLERS, IDENTIFIED_KEYS, WorkUnit, code_version, controller_setup, setup_digest
+from eval.sweep.work import (
+    CONTROLLERS,
+    DEFAULT_PARAMETER_PATH,
+    DEFAULT_POLICY_PATH,
+    IDENTIFIED_KEYS,
+    WorkUnit,
+    code_version,
+    controller_setup,
+    setup_digest,
+)
 
 
 def parse_seeds(text: str) -> list[int]:

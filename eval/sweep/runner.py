@@ -35,8 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from controllers.processes import pool_context
-from eval.episodes import ControllerSetup
-from eval.sweep.work import CONTROLLERS, METRIC_FIELDS, WorkUnit, run_unit
+from eval.sweep.work import CONTROLLERS, METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
 
 IDENTITY_FIELDS = (
     "key",
@@ -198,8 +197,8 @@ def run_ray(
             import delta_env
             import eval as eval_package
 
-            modules = [controllers, delta_env, eval_package]
-            ray.init(address=address, runtime_env={"py_modules": modules}, log_to_driver=False)
+            folders = [str(Path(package.__file__).parent) for package in (controllers, delta_env, eval_package)]
+            ray.init(address=address, runtime_env={"py_modules": folders}, log_to_driver=False)
     try:
         remote = ray.remote(num_cpus=1, max_retries=max_attempts - 1)(work)
         setup_ref = ray.put(setup)

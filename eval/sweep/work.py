@@ -21,12 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from controllers.identification import load_or_identify
+from controllers.identification import DEFAULT_PARAMETER_PATH, load_or_identify
 from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from eval import metrics
 from eval.episodes import CONTROLLER_LABELS, ESTIMATING_KEYS, ControllerSetup, build_controller, run_episode
+
+__all__ = ["DEFAULT_PARAMETER_PATH", "DEFAULT_POLICY_PATH", "ControllerSetup"]  # re-exported for the sweep
 
 CONTROLLERS = CONTROLLER_LABELS
 """Controller keys of ``--controllers`` and their labels."""
