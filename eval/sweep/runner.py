@@ -191,7 +191,8 @@ def run_ray(
     started_here = not ray.is_initialized()
     if started_here:
         if address is None:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+            # "local": a new instance even when the machine runs (or ran) another cluster.
+            ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
         else:
             import controllers
             import delta_env
