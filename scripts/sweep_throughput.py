@@ -2,9 +2,11 @@
 
 Runs the same grid (one scenario, PD and MId+F+R+RLS+PD, ``--seeds`` seeds) into a fresh results table
 for each (backend, workers) and prints, per configuration: the wall time including start-up (pool or Ray),
-the start-up time (until the first episode is written) and the steady rate after it, with ratios to the
-local backend with one worker (episodes run in this process). The projection takes the measured steady
-rate per worker and the Ray start-up and scales to ``--nodes`` nodes of ``--cpus-per-node`` workers.
+the start-up time (until the first episode is written), the steady rate after it, with ratios to the
+local backend with one worker (episodes run in this process), and the mean CPU time of an episode. On a
+machine shared with other jobs the wall rates carry their load; the CPU time does not. The projection
+scales to ``--nodes`` nodes of ``--cpus-per-node`` workers twice: from the measured steady rate per Ray
+worker, and from the CPU time per episode (one idle core per worker), each plus the Ray start-up.
 
 Usage: python scripts/sweep_throughput.py [--seeds 20] [--scenario nominal] [--nodes 10 --cpus-per-node 2]
 """
@@ -12,6 +14,8 @@ Usage: python scripts/sweep_throughput.py [--seeds 20] [--scenario nominal] [--n
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 import sys
 import tempfile
 import time
@@ -43,6 +47,7 @@ def measure(units: list[WorkUnit], backend: str, workers: int, setup, version: s
         started = time.perf_counter()
         counts = run_sweep(units, setup, table, version, digest, backend=backend, workers=workers, progress=clock)
         wall = time.perf_counter() - started
+        cpu = statistics.fmean(float(row["cpu_seconds"]) for row in table.load())
     if counts["failed"]:
         raise RuntimeError(f"{counts['failed']} episodes failed in the {backend} x {workers} run")
     finished = clock.times
@@ -52,6 +57,7 @@ def measure(units: list[WorkUnit], backend: str, workers: int, setup, version: s
         "startup_s": first - started,
         "rate_total": len(units) / wall,
         "rate_steady": (len(finished) - 1) / (last - first),
+        "cpu_s": cpu,
     }
 
 
@@ -71,25 +77,30 @@ def main() -> int:
     version, digest = code_version(), setup_digest(setup, controllers)
     units = [WorkUnit(scenario, key, seed) for key in controllers for seed in range(args.seeds)]
     print(f"{len(units)} episodes of {scenario.name} ({scenario.task.n_cycles} cycles), PD and MId+F+R+RLS+PD")
+    load_before = f"{os.getloadavg()[0]:.2f}"
     results = {}
     for backend, workers in CONFIGURATIONS:
         results[backend, workers] = measure(units, backend, workers, setup, version, digest)
     base = results["local", 1]["rate_steady"]
-    print("| backend | workers | wall (s) | start-up (s) | episodes/s incl. start-up | steady episodes/s | ratio |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"load average before / after: {load_before} / {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    print(
+        "| backend | workers | wall (s) | start-up (s) | episodes/s incl. start-up | steady episodes/s | ratio "
+        "| CPU s/episode |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for (backend, workers), r in results.items():
         print(
             f"| {backend} | {workers} | {r['wall_s']:.1f} | {r['startup_s']:.1f} | {r['rate_total']:.2f} "
-            f"| {r['rate_steady']:.2f} | {r['rate_steady'] / base:.2f} |"
+            f"| {r['rate_steady']:.2f} | {r['rate_steady'] / base:.2f} | {r['cpu_s']:.3f} |"
         )
-    per_worker = results["ray", 2]["rate_steady"] / 2
+    ray2 = results["ray", 2]
     workers = args.nodes * args.cpus_per_node
-    seconds = results["ray", 2]["startup_s"] + args.episodes / (per_worker * workers)
-    print(
-        f"Projection: {args.episodes} episodes on {args.nodes} nodes x {args.cpus_per_node} workers at the measured "
-        f"{per_worker:.2f} episodes/s per Ray worker: {seconds / 60:.1f} min "
-        f"(this machine, Ray with 2 workers: {args.episodes / results['ray', 2]['rate_steady'] / 60:.1f} min)"
-    )
+    for basis, per_worker in (("measured steady rate", ray2["rate_steady"] / 2), ("CPU time", 1.0 / ray2["cpu_s"])):
+        minutes = (ray2["startup_s"] + args.episodes / (per_worker * workers)) / 60
+        print(
+            f"Projection from the {basis} ({per_worker:.2f} episodes/s per worker): {args.episodes} episodes on "
+            f"{args.nodes} nodes x {args.cpus_per_node} workers take {minutes:.1f} min"
+        )
     return 0
 
 

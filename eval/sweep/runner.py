@@ -48,7 +48,7 @@ IDENTITY_FIELDS = (
     "code_version",
     "setup_digest",
 )
-RESULT_FIELDS = (*IDENTITY_FIELDS, "status", "error", *METRIC_FIELDS, "seconds", "host", "pid")
+RESULT_FIELDS = (*IDENTITY_FIELDS, "status", "error", *METRIC_FIELDS, "seconds", "cpu_seconds", "host", "pid")
 """Columns of ``results.csv``."""
 
 DEFAULT_MAX_ATTEMPTS = 3
@@ -125,7 +125,7 @@ class ResultsTable:
 
 def failed_row(error: str) -> dict[str, Any]:
     """The work-function part of a row for a unit that never returned (its worker died)."""
-    return {"status": "failed", "error": error, **dict.fromkeys(METRIC_FIELDS, math.nan), "seconds": math.nan}
+    return {"status": "failed", "error": error, **dict.fromkeys((*METRIC_FIELDS, "seconds", "cpu_seconds"), math.nan)}
 
 
 def run_local(
