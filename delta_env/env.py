@@ -110,15 +110,15 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2); 3 g by default.
         payload_mass_range: Masses (kg) are drawn per object from U[low, high]; U[0, 4] by default.
         domain_randomization: Per-episode perturbation of the plant, off (None) by default.
-        scenario: A preset name (``delta_env.scenario.preset_names()``), a scenario TOML file or a
-            :class:`~delta_env.scenario.Scenario`; it supplies every argument above that is None, and an
-            explicit argument overrides the scenario's field (the defaults above are the ``nominal``
-            scenario's). With a scenario, ``domain_randomization=None`` keeps the scenario's.
         reward_weights: Weights of the reward terms.
         divergence_penalty: Reward (negated) of the step on which the simulation diverges.
         render_mode: ``"rgb_array"``, ``"human"`` or None.
         width: Render width (pixels).
         height: Render height (pixels).
+        scenario: A preset name (``delta_env.scenario.preset_names()``), a scenario TOML file or a
+            :class:`~delta_env.scenario.Scenario`; it supplies every task and plant argument that is None,
+            and an explicit argument overrides the scenario's field (the defaults above are the
+            ``nominal`` scenario's). With a scenario, ``domain_randomization=None`` keeps the scenario's.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
@@ -131,12 +131,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         peak_acceleration: float | None = None,
         payload_mass_range: tuple[float, float] | None = None,
         domain_randomization: RandomizationRanges | None = None,
-        scenario: str | os.PathLike[str] | Scenario | None = None,
         reward_weights: RewardWeights | None = None,
         divergence_penalty: float = 1e3,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
+        scenario: str | os.PathLike[str] | Scenario | None = None,
     ) -> None:
         # Explicit keywords override the scenario's fields; the scenario's defaults are the env's defaults.
         base = Scenario() if scenario is None else resolve_scenario(scenario)

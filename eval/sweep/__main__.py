@@ -81,7 +81,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--cycles", type=int, default=None, help="override every scenario's cycles per episode")
     parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
     parser.add_argument("--address", default=None, help="Ray cluster to join: auto or ray://host:port (ray only)")
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="local processes (default 2)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(2, os.cpu_count() or 1),
+        help="local processes, or the CPUs of a Ray started here (default 2); a joined cluster uses all its CPUs",
+    )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/sweep/<grid hash>)")
     parser.add_argument("--parameters", type=Path, default=DEFAULT_PARAMETER_PATH, help="identified parameter file")
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
