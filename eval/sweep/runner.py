@@ -118,7 +118,7 @@ class ResultsTable:
         """Write one row (header first if the file is new).
 
         Each row reaches the operating system at once, so it survives the death of this process; the file
-        is synced to the disk at most every ``sync_interval`` seconds (an fsync per row costs milliseconds).
+        is synced to the disk at most every ``sync_interval`` seconds (an fsync per row would cap the row rate).
         """
         new = not self.path.exists() or self.path.stat().st_size == 0
         with self.path.open("a", newline="") as file:
