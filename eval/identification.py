@@ -330,9 +330,9 @@ def run_identification(
         *data, validation = parallel_map(run, specs, workers, bar)
     data_time = time.perf_counter() - start
 
-    (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data))
-    paper, paper_time = _best_time(lambda: fit_paper_method(data))
     lumped, rods = robot_model(plant), robot_model(plant, forearm_rods=True)
+    (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data, dynamics=lumped))
+    paper, paper_time = _best_time(lambda: fit_paper_method(data, dynamics=lumped))
     rod_fit = fit_joint_least_squares(data, dynamics=rods)
 
     models = {
@@ -375,7 +375,7 @@ def run_identification(
             "validation": len(validation),
         },
         "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary(), "mid_f_rods": rod_fit.summary()},
-        "mid_f_between_trajectories": between_trajectory_spread(data),
+        "mid_f_between_trajectories": between_trajectory_spread(data, lumped),
         "raw_estimates": {
             "mid_f": dict(zip(joint_fit.names, joint_fit.estimate, strict=True)),
             "mid_f_rods": dict(zip(rod_fit.names, rod_fit.estimate, strict=True)),

@@ -15,7 +15,7 @@ from eval.sweep import __main__ as sweep_cli
 from eval.sweep import report
 from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
-from tests.test_controllers import SETUP
+from tests.conftest import NOMINAL_SETUP as SETUP
 
 CODE, DIGEST = "code-under-test", "setup-under-test"
 COMPARED = ("status", "tracking_rms_mm", "tracking_max_mm", "torque_rms_nm", "energy_j", "steps", "diverged")
