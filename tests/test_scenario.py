@@ -193,3 +193,23 @@ def test_keywords_override_the_scenario_and_plant_replaces_its_plant() -> None:
     assert (env.cycle, env.payload_mass_range, env.n_cycles) == ("standard", (1.0, 2.0), 3)
     with pytest.raises(ValueError, match="scenario must be a preset name"):
         DeltaPickPlaceEnv(scenario=42)
+
+
+def test_geometry_file_round_trips_and_names_bad_fields(tmp_path) -> None:
+    from delta_env.scenario import load_geometry, save_geometry, with_geometry
+
+    design = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)
+    path = save_geometry(design, tmp_path / "design.toml", extra={"objectives": {"torque_change": -0.1}})
+    assert load_geometry(path) == design
+    moved = with_geometry(preset("worn"), design)
+    assert moved.plant.geometry == design and moved.condition == preset("worn").condition
+    assert moved.robot_identity != preset("worn").robot_identity  # another robot
+    (tmp_path / "short.toml").write_text("[geometry]\nra = 0.2\nrb = 0.05\nl1 = 0.37\n")
+    with pytest.raises(ValueError, match="misses l2"):
+        load_geometry(tmp_path / "short.toml")
+    (tmp_path / "typo.toml").write_text("[geometry]\nra = 0.2\nrb = 0.05\nl1 = 0.37\nl2 = 0.95\nl3 = 1.0\n")
+    with pytest.raises(ValueError, match=r"geometry\.l3"):
+        load_geometry(tmp_path / "typo.toml")
+    (tmp_path / "inverted.toml").write_text("[geometry]\nra = 0.05\nrb = 0.2\nl1 = 0.37\nl2 = 0.95\n")
+    with pytest.raises(ValueError, match="rb"):
+        load_geometry(tmp_path / "inverted.toml")
