@@ -99,9 +99,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
     if "residual" in args.controllers:
         try:  # fail now, not after the other controllers have run
-            load_residual_policy(args.residual)
+            policy = load_residual_policy(args.residual)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
+        robot = args.scenario.plant
+        if policy.base is not None and (policy.base.geometry, policy.base.masses) != (robot.geometry, robot.masses):
+            parser.error(
+                f"--residual: {args.residual} was trained on a robot with {policy.base.geometry} and "
+                f"{policy.base.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
+                "'residual' out of --controllers or train a policy on this robot (python -m eval.train_residual "
+                "--scenario/--geometry)"
+            )
     return args
 
 

@@ -23,9 +23,10 @@ validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the ta
 its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
 ever trained on.
 
-The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters from
-``eval.identification.load_or_identify()`` and its tare calibrated as the eval does (:mod:`eval.calibration`
-on payload-free episodes). Both are saved in the policy.
+The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters
+those of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
+its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
+Both, and the robot's geometry and masses, are saved in the policy.
 """
 
 from __future__ import annotations
