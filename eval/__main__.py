@@ -61,8 +61,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--controllers",
-        default=",".join(CONTROLLER_LABELS),
-        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default: all)",
+        default=None,
+        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default: all; without 'residual' when the "
+        "residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
     parser.add_argument(
@@ -86,7 +87,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
-    keys = [key.strip() for key in args.controllers.split(",") if key.strip()]
+    chosen = args.controllers is not None
+    args.left_out = ""
+    keys = [key.strip() for key in (args.controllers or ",".join(CONTROLLER_LABELS)).split(",") if key.strip()]
     unknown = [key for key in keys if key not in CONTROLLER_LABELS]
     if unknown or not keys:
         parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLER_LABELS)}")
@@ -104,6 +107,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             parser.error(f"--residual: {error}")
         robot = args.scenario.plant
         if policy.base is not None and (policy.base.geometry, policy.base.masses) != (robot.geometry, robot.masses):
+            if not chosen:
+                args.controllers.remove("residual")
+                args.left_out = (
+                    f"The residual row is left out: its policy ({args.residual.name}) was trained on another robot."
+                )
+                return args
             parser.error(
                 f"--residual: {args.residual} was trained on a robot with {policy.base.geometry} and "
                 f"{policy.base.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
@@ -223,6 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             + ", ".join(f"{CONTROLLER_LABELS[k]} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
             "",
             *_bound_section(episode_rows),
+            *([args.left_out, ""] if args.left_out else []),
             f"Run folder: {out} ({total_time:.0f} s)",
         ]
     )
