@@ -33,6 +33,7 @@ from delta_env.sensors import CONTROL_PERIOD, PHYSICS_TIMESTEP
 
 if TYPE_CHECKING:
     from controllers.feedforward import FeedforwardController
+    from controllers.payload import PayloadEstimator
 
 MIN_TIME_CONSTANT = 1e-5
 """Smallest lag (s) the fit considers; below it the drive is a direct torque source at 1 kHz."""
@@ -165,7 +166,8 @@ class LagCompensatedController:
 
     command_k = SampledLag^-1(feedforward at the reference of t_{k+1}) + PD_k. The base controller runs as
     usual (its payload estimator, if any, updates on this step's observation); its feedforward is then
-    evaluated at the reference one period ahead with the current payload estimate.
+    evaluated at the reference one period ahead with the apparent payload it feeds forward (the estimate plus
+    the tare, :attr:`FeedforwardController.feedforward_mass`).
 
     Args:
         name: Label in tables (e.g. ``"MId+F+R+RLS+lag+PD"``).
@@ -187,6 +189,11 @@ class LagCompensatedController:
         """The base's payload estimate (kg) at the last call."""
         return self.base.payload_estimate
 
+    @property
+    def estimator(self) -> PayloadEstimator | None:
+        """The base's payload estimator, if any."""
+        return self.base.estimator
+
     def reset(self) -> None:
         self.base.reset()
         self.drive.reset()
@@ -196,4 +203,4 @@ class LagCompensatedController:
         feedback = self.base.pd.feedback(observation)
         self.base(observation)  # updates the payload estimate from this step's observation
         tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
-        return self.drive.command(tau0 + self.base.payload_estimate * phi) + feedback
+        return self.drive.command(tau0 + self.base.feedforward_mass * phi) + feedback

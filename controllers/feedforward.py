@@ -59,6 +59,12 @@ class FeedforwardController:
         """The payload mass (kg) fed forward at the last call: 0 without an estimator."""
         return 0.0 if self.estimator is None else self.estimator.mass
 
+    @property
+    def feedforward_mass(self) -> float:
+        """The apparent payload (kg) in the feedforward of the last call: the estimate plus the tare, as the
+        model needs it; 0 without an estimator."""
+        return 0.0 if self.estimator is None else self.estimator.rls.mass
+
     def reset(self) -> None:
         self.pd.reset()
         if self.estimator is not None:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Literal
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
+from controllers.drive import LagCompensatedController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, OracleController
 from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
@@ -30,19 +31,22 @@ CONTROLLER_LABELS = {
     "mid_f_r": "MId+F+R+PD",
     "mid_f_rls": "MId+F+R+RLS+PD",
     "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
+    "mid_f_rls_lag": "MId+F+R+RLS+lag+PD",
     "oracle": "Oracle+PD (bound)",
     "residual": "MId+F+R+RLS+PD + residual",
 }
 """Controller keys and their labels. ``+R``: the identified model with rod forearms
 (``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
 estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
-reference, for comparison. The oracle knows the plant and the true payloads: an upper bound, not a
-controller. ``residual`` is the learned residual policy (:mod:`controllers.residual`) on the base it was
-trained on, rebuilt from the policy file."""
+reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforward led through the
+inverse of the identified drive lag (:class:`~controllers.drive.LagCompensatedController`). The oracle
+knows the plant and the true payloads: an upper bound, not a controller. ``residual`` is the learned
+residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file."""
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
     "mid_f_rls": "smoothed",
     "mid_f_rls_ref": "reference",
+    "mid_f_rls_lag": "smoothed",
 }
 """The payload estimator variant of each RLS controller key."""
 
@@ -99,6 +103,7 @@ class ControllerSetup:
         mid: Identified MId parameters (rho1, rho2).
         mid_f: Identified MId+F parameters (rho1, rho2, friction).
         mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
+        drive_lag: Identified drive lag T (s) per joint; None if unknown (then ``mid_f_rls_lag`` cannot be built).
         tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
         residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
@@ -109,6 +114,7 @@ class ControllerSetup:
     mid: ModelParameters
     mid_f: ModelParameters
     mid_f_rods: ModelParameters
+    drive_lag: tuple[float, float, float] | None = None
     tares: Mapping[str, float] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
     residual_policy: Path | None = None
@@ -139,16 +145,21 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
             raise ValueError("the oracle needs the env whose plant it inverts")
         return OracleController(env.plant_config)  # its own feedback gains: see OracleController
     if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
-        return model_controller(
+        controller = model_controller(
             setup.mid_f_rods,
             forearm_rods=True,
             regressor=ESTIMATOR_REGRESSORS.get(key),
             tare=setup.tares.get(key, 0.0),
             pd_gains=setup.pd_gains,
-            name=label,
+            name=CONTROLLER_LABELS["mid_f_rls"] if key == "mid_f_rls_lag" else label,
             geometry=setup.geometry,
             masses=setup.masses,
         )
+        if key != "mid_f_rls_lag":
+            return controller
+        if setup.drive_lag is None:
+            raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
+        return LagCompensatedController(label, controller, setup.drive_lag)
     parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
     return model_controller(
         parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses

@@ -22,6 +22,7 @@ from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import OracleController
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import TORQUE_LIMIT
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from eval import metrics
@@ -34,6 +35,7 @@ class EpisodeRecord:
     Attributes:
         tracking_error: Cartesian tracking error (m), ``(N,)``; NaN after a divergence.
         torque: Motor torque that acted (N m), ``(N, 3)``.
+        command: Command the drive held over each step (N m), ``(N, 3)``: the action within the torque limit.
         joint_velocity: True joint rates (rad/s), ``(N, 3)``.
         joint_error: True joint angle minus reference (rad), ``(N, 3)``.
         payload_mass: True carried mass (kg) at each observation, ``(N + 1,)``, from the reset on.
@@ -51,6 +53,7 @@ class EpisodeRecord:
 
     tracking_error: NDArray[np.float64]
     torque: NDArray[np.float64]
+    command: NDArray[np.float64]
     joint_velocity: NDArray[np.float64]
     joint_error: NDArray[np.float64]
     payload_mass: NDArray[np.float64]
@@ -162,6 +165,7 @@ def run_episode(
     steps = len(env.trajectory) - 1
     tracking = np.full(steps, math.nan)
     torque, velocity, joint_error = np.zeros((steps, 3)), np.zeros((steps, 3)), np.zeros((steps, 3))
+    command = np.zeros((steps, 3))
     estimates = np.zeros(steps)
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
@@ -171,6 +175,7 @@ def run_episode(
         if estimate is not None:
             estimates[n] = controller.payload_estimate
         observation, _, terminated, truncated, info = env.step(action)
+        command[n] = np.clip(action, -TORQUE_LIMIT, TORQUE_LIMIT)  # as the env clips it
         # Truth at the end of the step, against the reference of that instant (the new observation's).
         tracking[n] = info["tracking_error"]
         torque[n] = info["applied_torque"]
@@ -192,6 +197,7 @@ def run_episode(
     return EpisodeRecord(
         tracking_error=tracking[:length],
         torque=torque[:length],
+        command=command[:length],
         joint_velocity=velocity[:length],
         joint_error=joint_error[:length],
         payload_mass=np.array(mass),

@@ -5,7 +5,9 @@ edges, slow moves) run in closed loop on the plant (PD plus MKH feedforward alon
 episode runner :func:`eval.episodes.run_episode`; only the observations are kept: encoder angles and
 measured motor torques. The algorithms of :mod:`controllers.identification` then fit, on the same
 samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod forearms,
-beyond the paper), and compare every model on a held-out stress trajectory.
+beyond the paper), and compare every model on a held-out stress trajectory. The drive's lag is fitted
+separately (:func:`controllers.drive.identify_lag`) to the commands each run held and the torques the drive
+reported, one fit per trajectory; the file keeps the median over the trajectories.
 
 The result is a JSON parameter file with provenance, which :func:`load_or_identify` reads, or creates
 when it is missing. The identification belongs to a robot (its plant), not to the conditions it runs in:
@@ -32,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Observation, PDController
+from controllers.drive import identify_lag
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
@@ -144,12 +147,19 @@ class ExcitationRecord:
         angles: Encoder angles (rad), ``(N, 3)``.
         torques: Measured motor torques (N m), ``(N, 3)``; sample k is :data:`MEASURED_TORQUE_DELAY` older
             than angle sample k.
+        commands: Command the drive held after each sample (N m), ``(N - 1, 3)``: command k, sent with
+            sample k, is followed by the torque reported with sample k + 1.
     """
 
     spec: ExcitationSpec
     dt: float
     angles: NDArray[np.float64]
     torques: NDArray[np.float64]
+    commands: NDArray[np.float64]
+
+    def drive_lag(self) -> NDArray[np.float64]:
+        """The drive lag (s) per joint fitted to this run's commands and reported torques (:func:`identify_lag`)."""
+        return identify_lag(self.commands, self.torques[1:], self.dt)
 
 
 class ReferenceFeedforward:
@@ -193,7 +203,13 @@ def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> Ex
     if record.diverged:
         steps = len(record.tracking_error)
         raise RuntimeError(f"the plant diverged at step {steps} of excitation seed {spec.seed}")
-    return ExcitationRecord(spec=spec, dt=CONTROL_PERIOD, angles=record.encoder_angles, torques=record.measured_torque)
+    return ExcitationRecord(
+        spec=spec,
+        dt=CONTROL_PERIOD,
+        angles=record.encoder_angles,
+        torques=record.measured_torque,
+        commands=record.command,
+    )
 
 
 def robot_model(plant: PlantConfig, *, forearm_rods: bool = False) -> DeltaDynamics:
@@ -235,9 +251,10 @@ def collect_excitation_data(
         return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)
 
 
-def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> MotionData:
+def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> tuple[MotionData, NDArray[np.float64]]:
+    """The smoothed samples of one excitation run and the drive lag (s, per joint) fitted to it."""
     record = run_excitation(spec, plant)
-    return prepare_motion(record.angles, record.torques, record.dt)
+    return prepare_motion(record.angles, record.torques, record.dt), record.drive_lag()
 
 
 @dataclass(frozen=True)
@@ -327,7 +344,10 @@ def run_identification(
 
     run = functools.partial(_collect_and_prepare, plant=plant)
     with _progress_bar(len(specs), progress) as bar:
-        *data, validation = parallel_map(run, specs, workers, bar)
+        *runs, (validation, _) = parallel_map(run, specs, workers, bar)
+    data = [motion for motion, _ in runs]
+    lags_per_trajectory = np.array([lag for _, lag in runs])
+    drive_lag = np.median(lags_per_trajectory, axis=0)
     data_time = time.perf_counter() - start
 
     lumped, rods = robot_model(plant), robot_model(plant, forearm_rods=True)
@@ -355,6 +375,8 @@ def run_identification(
             "paper_mid": "per-trajectory grid search of (rho1, rho2) minimising RMS torque error (eq. 7), averaged",
             "paper_mid_f": "paper_mid rho + per-trajectory, per-joint LS of (fv, fc) on the remaining error, averaged",
             "mid_f_rods": "the mid_f least squares on the model with homogeneous rod forearms (forearm_rods=True)",
+            "drive_lag": "output-error fit per joint and trajectory of the first-order lag from the held commands to "
+            "the reported torques (controllers.drive.identify_lag); median over the trajectories",
             "sample_period_s": CONTROL_PERIOD,
             "velocity_threshold_rad_s": FRICTION_VELOCITY_THRESHOLD,
             "rest_velocity_rad_s": REST_VELOCITY,
@@ -376,6 +398,7 @@ def run_identification(
         },
         "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary(), "mid_f_rods": rod_fit.summary()},
         "mid_f_between_trajectories": between_trajectory_spread(data, lumped),
+        "drive_lag_per_trajectory_s": lags_per_trajectory.tolist(),
         "raw_estimates": {
             "mid_f": dict(zip(joint_fit.names, joint_fit.estimate, strict=True)),
             "mid_f_rods": dict(zip(rod_fit.names, rod_fit.estimate, strict=True)),
@@ -404,6 +427,7 @@ def run_identification(
         mid_f_rods=rod_fit.parameters,
         paper_mid=paper.mid,
         paper_mid_f=paper.mid_f,
+        drive_lag=tuple(float(lag) for lag in drive_lag),
         standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
         provenance=provenance,
     )
@@ -500,6 +524,7 @@ def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs
         mid=result.mid,
         mid_f=result.mid_f,
         mid_f_rods=result.mid_f_rods,
+        drive_lag=result.drive_lag,
         geometry=plant.geometry,
         masses=plant.masses,
         **setup_kwargs,

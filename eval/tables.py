@@ -84,7 +84,7 @@ def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> li
         return []
     bound = means[bound_label]
     return [
-        f"- {label} tracks at {mean:.2f} mm RMS, below {bound_label} at {bound:.2f} mm: the bound does not hold"
+        f"- {label} tracks at {mean:.3f} mm RMS, below {bound_label} at {bound:.3f} mm: the bound does not hold"
         for label, mean in means.items()
         if label != bound_label and mean < bound
     ]

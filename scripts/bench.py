@@ -30,6 +30,7 @@ SETUP = ControllerSetup(
     mid=ModelParameters(rho1=1.80, rho2=0.94),
     mid_f=ModelParameters(rho1=1.76, rho2=0.88, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46)),
     mid_f_rods=ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59)),
+    drive_lag=(0.001, 0.001, 0.001),
     tares=dict.fromkeys(ESTIMATOR_REGRESSORS, -0.02),
 )
 

@@ -180,3 +180,20 @@ def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.
     assert scored and all(float(row["settling_time_ms"]) <= 150.0 for row in scored)
     for row in read_csv(out / "table2.csv"):
         assert float(row["mp_hat_std"]) <= 0.6 * float(row["mp_0_std"])
+
+
+def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverged_episodes() -> None:
+    from eval.__main__ import _bound_section
+
+    def row(label: str, rms: float, diverged: bool = False) -> dict:
+        return {"controller": label, "tracking_rms_mm": rms, "diverged": diverged}
+
+    bound = "Oracle+PD (bound)"
+    holds = [row(bound, 0.03), row(bound, 0.05), row("PD", 6.0), row("MId+F+R+RLS+lag+PD", 0.041)]
+    assert _bound_section(holds) == [f"Bound check: no controller's mean tracking RMS is below {bound}'s.", ""]
+    # Mean 0.035 < 0.04: a violation; a diverged episode's short record does not count in the mean.
+    broken = [*holds, row("A", 0.03), row("A", 0.04), row("A", 0.001, diverged=True)]
+    section = _bound_section(broken)
+    assert section[0] == "## Bound violated" and len(section) == 4
+    assert "A tracks at 0.035 mm RMS, below Oracle+PD (bound) at 0.040 mm" in section[2]
+    assert _bound_section([row("PD", 6.0)]) == []  # no oracle row, nothing to check

@@ -25,6 +25,8 @@ from controllers.identification import (
     prepare_motion,
     save_result,
 )
+from delta_env.config import PlantConfig
+from delta_env.geometry import TORQUE_LIMIT
 from delta_env.sensors import ENCODER_RESOLUTION
 from eval import identification as experiment
 from eval.identification import ExcitationSpec, collect_excitation_data, identify, load_or_identify
@@ -217,6 +219,7 @@ RESULT = IdentificationResult(
     mid_f_rods=ModelParameters(rho1=1.95, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6)),
     paper_mid=ModelParameters(rho1=1.8, rho2=0.935),
     paper_mid_f=OFF_GRID,
+    drive_lag=(0.00101, 0.00098, 0.00104),
     standard_errors={name: 0.001 * (k + 1) for k, name in enumerate(f"mid_f.{n}" for n in JOINT_PARAMETER_NAMES)},
     provenance={"seed": 7, "trajectories": [{"seed": 1, "duration": 8.0}], "date": "2026-01-01T00:00:00+00:00"},
 )
@@ -278,7 +281,11 @@ CORRUPTIONS = {
     "standard errors not an object": (_set("standard_errors", [0.1]), "standard_errors must be a JSON object"),
     "provenance not an object": (_set("provenance", "none"), "provenance must be a JSON object"),
     "missing provenance": (_delete("provenance"), "missing key 'provenance'"),
-    "wrong version": (_set("format_version", 1), "format_version 1 is not 2; delete the file or run"),
+    "wrong version": (_set("format_version", 2), "format_version 2 is not 3; delete the file or run"),
+    "missing lag": (_delete("drive_lag_s"), "missing key 'drive_lag_s' in the file"),
+    "lag of two joints": (_set("drive_lag_s", [0.001, 0.001]), "drive_lag_s must be a list of 3 numbers"),
+    "negative lag": (_set("drive_lag_s", [0.001, -0.001, 0.001]), "drive_lag_s[1] must be a finite number in [0"),
+    "lag too long": (_set("drive_lag_s", [0.001, 0.001, 0.5]), "drive_lag_s[2] must be a finite number in [0"),
     "top level list": (lambda document: [document], "the file must be a JSON object"),
 }
 
@@ -382,3 +389,11 @@ def test_command_line_writes_parameters_configuration_report_and_figures(tmp_pat
     assert report in capsys.readouterr().out
     for heading in ("## Table 1 analogue", "## Identified parameters", "## Run time", "coulomb_3"):
         assert heading in report
+
+
+def test_excitation_record_holds_the_commands_and_fits_the_plants_drive_lag() -> None:
+    (record,) = collect_excitation_data([ExcitationSpec(seed=5, duration=1.5)])
+    assert record.commands.shape == (len(record.torques) - 1, 3)
+    assert np.all(np.abs(record.commands) <= TORQUE_LIMIT)
+    # The plant's current loop: 1 ms on every joint; the fit sees the 0.5 N m torque noise and the ripple.
+    assert_allclose(record.drive_lag(), PlantConfig().realism.actuator_lag, rtol=0.1)

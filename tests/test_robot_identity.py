@@ -26,6 +26,7 @@ def fake_result(plant) -> IdentificationResult:
         mid_f_rods=setup.mid_f_rods,
         paper_mid=setup.mid,
         paper_mid_f=setup.mid_f,
+        drive_lag=setup.drive_lag,
         standard_errors={},
         provenance={"plant": identification._plant_summary(plant)},
     )

@@ -13,10 +13,11 @@ from typing import Any
 import numpy as np
 
 from controllers.dynamics import ModelParameters
+from delta_env.drive import MAX_TIME_CONSTANT
 from delta_env.validation import require_in
 
-FILE_FORMAT_VERSION = 2
-"""Version of the JSON parameter file; bumped on incompatible changes."""
+FILE_FORMAT_VERSION = 3
+"""Version of the JSON parameter file; bumped on incompatible changes (3: the drive lag ``drive_lag_s``)."""
 
 MODEL_FIELDS = ("mid", "mid_f", "mid_f_rods", "paper_mid", "paper_mid_f")
 """The parameter sets of an :class:`IdentificationResult`, in the order of the JSON file."""
@@ -33,6 +34,8 @@ class IdentificationResult:
             (``DeltaDynamics.nominal(mid_f_rods, forearm_rods=True)``).
         paper_mid: MId by the paper's grid search, averaged over trajectories.
         paper_mid_f: MId+F by the paper's method (grid rho + per-joint friction LS, averaged).
+        drive_lag: Time constant T (s) of each joint's first-order drive lag
+            (:func:`controllers.drive.identify_lag`), each in [0, 0.1].
         standard_errors: Standard errors of the least-squares estimates, keyed ``"mid.rho1"``,
             ``"mid_f.viscous_2"``, ... (units of the parameter); optimistic, see
             :attr:`controllers.identification.least_squares.LeastSquaresFit.standard_errors`.
@@ -45,6 +48,7 @@ class IdentificationResult:
     mid_f_rods: ModelParameters
     paper_mid: ModelParameters
     paper_mid_f: ModelParameters
+    drive_lag: tuple[float, float, float]
     standard_errors: dict[str, float]
     provenance: dict[str, Any]
 
@@ -84,6 +88,7 @@ def save_result(result: IdentificationResult, path: str | os.PathLike[str]) -> P
     path = Path(path)
     document = {"format_version": FILE_FORMAT_VERSION}
     document.update({name: _model_to_json(getattr(result, name)) for name in MODEL_FIELDS})
+    document["drive_lag_s"] = list(result.drive_lag)
     document["standard_errors"] = dict(result.standard_errors)
     document["provenance"] = result.provenance
     text = json.dumps(_json_ready(document), indent=2, allow_nan=False)
@@ -94,10 +99,10 @@ def save_result(result: IdentificationResult, path: str | os.PathLike[str]) -> P
     return path
 
 
-def _number(path: Path, where: str, value: Any, low: float = -math.inf) -> float:
-    """A JSON number of the file in [low, inf), else :class:`ParameterFileError` naming the path."""
+def _number(path: Path, where: str, value: Any, low: float = -math.inf, high: float = math.inf) -> float:
+    """A JSON number of the file in [low, high], else :class:`ParameterFileError` naming the path."""
     try:
-        return require_in(where, value, low)
+        return require_in(where, value, low, high)
     except ValueError as error:
         raise ParameterFileError(f"{path}: {error}") from None
 
@@ -155,9 +160,15 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
             "`python -m eval.identify` to identify again"
         )
     models = {name: _model_from_json(path, document, name) for name in MODEL_FIELDS}
+    lags = _entry(path, document, "drive_lag_s", "the file")
+    if not isinstance(lags, list) or len(lags) != 3:
+        raise ParameterFileError(f"{path}: drive_lag_s must be a list of 3 numbers, got {lags!r}")
+    drive_lag = tuple(_number(path, f"drive_lag_s[{i}]", v, 0.0, MAX_TIME_CONSTANT) for i, v in enumerate(lags))
     errors = _json_object(path, _entry(path, document, "standard_errors", "the file"), "standard_errors")
     standard_errors = {}
     for key, value in errors.items():
         standard_errors[key] = _number(path, f"standard_errors[{key!r}]", value, low=0.0)
     provenance = _json_object(path, _entry(path, document, "provenance", "the file"), "provenance")
-    return IdentificationResult(**models, standard_errors=standard_errors, provenance=dict(provenance))
+    return IdentificationResult(
+        **models, drive_lag=drive_lag, standard_errors=standard_errors, provenance=dict(provenance)
+    )
