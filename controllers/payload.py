@@ -47,6 +47,11 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   the gripper is open no object is carried: mp = 0 is known, so on release the estimate goes back to 0
   (the apparent mass to the tare; the object is gone) and the RLS does not run until the next pick (the
   suction cup belongs to m0).
+- **At rest.** While every joint is slower than :data:`REST_RATE` (the dwell in which the gripper closes),
+  static friction holds an unknown share of the load and the equation is not used: the estimate starts
+  from the prior when the lift begins, instead of jumping on friction before it.
+- **Friction of the robot at hand.** The empty moves (mp = 0 known) fit each joint's friction scale error
+  (:data:`FRICTION_SCALE_STD`), which is then removed from the carries' equations.
 - Torque ripple (1 N m, fast in position) and the measured-torque noise are zero-mean over a carry and go
   into the nominal residual standard deviation.
 """
@@ -100,6 +105,16 @@ three joints slower is not used. At rest, static friction (and its Stribeck exce
 load within +-fc_i: the equation bounds the mass instead of measuring it, and its error is not zero-mean
 over the dwell in which the gripper closes. Used, those samples carried a 0.17 kg object's estimate to
 1.3 kg before the lift began; the estimate then starts from the prior when the joints start to move."""
+
+FRICTION_SCALE_STD = 0.3
+"""Prior standard deviation of the relative error of each joint's identified friction on the robot at hand
+(a drive's friction changes by tens of percent with temperature, lubrication and wear). The friction
+torque is odd in the joint rate and the payload regressor is not (gravity dominates it), so a friction
+error biases the apparent payload with opposite signs on the carry and on the empty move back: a tare
+re-measured on the empty moves would double that bias instead of removing it. What the empty moves do
+measure (mp = 0 is known there) is the scale error kappa_i in y_i - phi_i tare = kappa_i f_i(thd_i), with
+f_i the model's friction; it is fitted per episode by least squares with this prior around 0 and
+subtracted from the carries' equations."""
 
 PICK_PRIOR_VARIANCE = 16.0 / 3.0
 """Variance (kg^2) restored at a pick: the mean square of a mass uniform on [0, 4] kg (the rating)
@@ -172,6 +187,9 @@ class PayloadEstimator:
         forgetting_factor: lambda of the RLS within a carry (memory about 1 / (1 - lambda) samples).
         prior_variance: Variance of the mass (kg^2) restored at every pick.
         rest_rate: Samples with every joint slower than this (rad/s) are not used (:data:`REST_RATE`); 0 uses all.
+        friction_scale_std: Prior standard deviation of each joint's friction scale error (dimensionless),
+            fitted on the empty moves and removed from the carries' equations (:data:`FRICTION_SCALE_STD`);
+            None trusts the identified friction.
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
@@ -194,6 +212,7 @@ class PayloadEstimator:
         forgetting_factor: float = 0.999,
         prior_variance: float = PICK_PRIOR_VARIANCE,
         rest_rate: float = REST_RATE,
+        friction_scale_std: float | None = FRICTION_SCALE_STD,
     ) -> None:
         if regressor not in ("smoothed", "filtered", "reference"):
             raise ValueError(f"regressor must be 'smoothed', 'filtered' or 'reference', got {regressor!r}")
@@ -202,6 +221,8 @@ class PayloadEstimator:
         require_positive("correlation_samples", correlation_samples)
         require_in("tare", tare, unit="kg")
         require_in("rest_rate", rest_rate, 0.0, unit="rad/s")
+        if friction_scale_std is not None:
+            require_positive("friction_scale_std", friction_scale_std)
         friction = dynamics.parameters.coulomb if static_friction is None else tuple(static_friction)
         if len(friction) != 3 or not all(math.isfinite(f) and f >= 0.0 for f in friction):
             raise ValueError(f"static_friction must be 3 finite values >= 0 N m, got {static_friction!r}")
@@ -213,6 +234,12 @@ class PayloadEstimator:
         self.friction_velocity = float(friction_velocity)
         self.correlation_samples = float(correlation_samples)
         self.rest_rate = float(rest_rate)
+        self._friction_prior = None if friction_scale_std is None else 1.0 / friction_scale_std**2
+        self._viscous = tuple(dynamics.parameters.viscous)
+        self._coulomb = tuple(dynamics.parameters.coulomb)
+        self._friction_information = np.zeros(3)
+        self._friction_moment = np.zeros(3)
+        self._kappa = np.zeros(3)
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
@@ -242,9 +269,17 @@ class PayloadEstimator:
         """Estimated mass of the object held (kg): apparent mass minus tare; 0 while the gripper is open."""
         return self.rls.mass - self.tare if self._holding else 0.0
 
+    @property
+    def friction_scale_error(self) -> NDArray[np.float64]:
+        """Relative error kappa_i of each joint's identified friction fitted on this episode's empty moves, (3,)."""
+        return self._kappa.copy()
+
     def reset(self) -> None:
         """Start an episode: nothing held, apparent mass at the tare, joint filter restarted at the next reading."""
         self.rls.reset(self.tare)
+        self._friction_information[:] = 0.0
+        self._friction_moment[:] = 0.0
+        self._kappa[:] = 0.0
         self._filter_started = False
         self._holding = False
         self._previous_reference = None
@@ -302,8 +337,7 @@ class PayloadEstimator:
             current = (reference_torque, reference_regressor, rates)
             previous = self._previous_reference if self._previous_reference is not None else current
             self._previous_reference = current
-            if not holding:
-                return None
+            carrying = holding
             # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
             tau0 = reference_torque - _TORQUE_AGE * (reference_torque - previous[0])
             phi = reference_regressor - _TORQUE_AGE * (reference_regressor - previous[1])
@@ -324,8 +358,9 @@ class PayloadEstimator:
             state = estimate if self.regressor == "smoothed" else (delayed[0], delayed[1], estimate[2])
             previous_state = self._previous_state if self._previous_state is not None else state
             self._previous_state = state
-            if not (holding and held):
+            if holding != held:
                 return None
+            carrying = holding
             # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
             theta, theta_dot, theta_ddot = (
                 x - _TORQUE_AGE * (x - p) for x, p in zip(state, previous_state, strict=True)
@@ -343,7 +378,25 @@ class PayloadEstimator:
                 for f, v in zip(self._band, rates, strict=True)
             ]
         )
-        return phi * inverse_std, (torque - tau0) * inverse_std
+        phi_w, y_w = phi * inverse_std, (torque - tau0) * inverse_std
+        if self._friction_prior is None:
+            return (phi_w, y_w) if carrying else None
+        # The model's friction along each joint, whitened: its scale error kappa_i is fitted on the empty moves.
+        friction = (
+            np.array(
+                [
+                    fv * v + fc * math.copysign(1.0, v)
+                    for fv, fc, v in zip(self._viscous, self._coulomb, rates, strict=True)
+                ]
+            )
+            * inverse_std
+        )
+        if not carrying:
+            self._friction_information += friction * friction
+            self._friction_moment += friction * (y_w - phi_w * self.tare)
+            np.divide(self._friction_moment, self._friction_information + self._friction_prior, out=self._kappa)
+            return None
+        return phi_w, y_w - self._kappa * friction
 
 
 def tare_from_observations(

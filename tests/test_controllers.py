@@ -12,7 +12,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController
-from controllers.payload import PICK_PRIOR_VARIANCE, PayloadEstimator, residual_std
+from controllers.payload import FRICTION_SCALE_STD, PICK_PRIOR_VARIANCE, PayloadEstimator, residual_std
 from controllers.registry import (
     CONTROLLER_LABELS,
     ESTIMATOR_REGRESSORS,
@@ -21,7 +21,7 @@ from controllers.registry import (
     estimation_model,
 )
 from delta_env import NOMINAL_MASSES, DeltaGeometry
-from delta_env.config import PlantConfig
+from delta_env.config import PlantConfig, PlantRealism
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from eval.calibration import calibrate_tares
@@ -139,7 +139,7 @@ def test_rls_converges_to_the_true_payload_on_the_plant(
 def test_whitened_rls_is_rls_with_per_joint_noise(random_joint_states, controller_setup) -> None:
     # Dividing row i by sigma_i is the weighted least squares with R = diag(sigma_i^2), here through filterpy.
     dynamics = DeltaDynamics.nominal(controller_setup.mid_f)
-    estimator = PayloadEstimator(dynamics, regressor="reference")
+    estimator = PayloadEstimator(dynamics, regressor="reference", rest_rate=0.0)  # every sample used
     estimator.reset()
     theta, theta_dot, theta_ddot = random_joint_states(200, seed=4)
     theta_dot[::3] *= 0.01  # slow samples, where the friction band weighs in
@@ -250,7 +250,41 @@ def test_lag_compensated_row_tracks_better_than_its_base_and_needs_the_lag(
     controller_setup: ControllerSetup, records: dict[str, EpisodeRecord]
 ) -> None:
     rms = {name: record.metrics()["tracking_rms_mm"] for name, record in records.items()}
-    # Leading the 1 ms drive lag removes most of what the RLS row's feedforward misses (measured 0.32 -> 0.1 mm).
-    assert rms["mid_f_rls_lag"] < 0.7 * rms["mid_f_rls"]
+    # Leading the 1 ms drive lag: measured 0.40 -> 0.29 mm on this 3 kg episode.
+    assert rms["mid_f_rls_lag"] < 0.8 * rms["mid_f_rls"]
     with pytest.raises(ValueError, match="drive lag"):
         build_controller("mid_f_rls_lag", dataclasses.replace(controller_setup, drive_lag=None))
+
+
+def test_friction_scale_fitted_on_the_empty_moves_removes_the_friction_bias_of_light_estimates(
+    tared_setup: ControllerSetup,
+) -> None:
+    """A robot whose friction is 30 % above the identified one (known truth): the empty moves find the scale
+    error, and the 0.3 kg objects carried after them are estimated within 25 g, where the estimator that trusts
+    the identified friction is biased by it."""
+    realism = dataclasses.replace(PlantRealism(), viscous_scale=(1.3, 1.3, 1.3), coulomb_scale=(1.3, 1.3, 1.3))
+    env = DeltaPickPlaceEnv(plant=PlantConfig(realism=realism), n_cycles=3)
+    dynamics = estimation_model(tared_setup)
+    end_errors = {}
+    for prior in (None, FRICTION_SCALE_STD):
+        estimator = PayloadEstimator(dynamics, tare=tared_setup.tares["mid_f_rls"], friction_scale_std=prior)
+        record = run_episode(env, FeedforwardController("RLS", dynamics, estimator=estimator), 8, [0.3, 0.3, 0.3])
+        end_errors[prior] = np.array([carry.end_estimate - carry.mass for carry in record.carries()[1:]])
+        if prior is not None:
+            # The viscous part dominates the friction of a 3 g move; the prior pulls the fit slightly towards 0.
+            kappa = estimator.friction_scale_error
+            assert np.all((kappa > 0.15) & (kappa < 0.4)), kappa
+    assert np.all(np.abs(end_errors[FRICTION_SCALE_STD]) <= 0.025), end_errors
+    assert np.max(np.abs(end_errors[None])) > 2.0 * np.max(np.abs(end_errors[FRICTION_SCALE_STD])), end_errors
+
+
+def test_light_object_estimate_does_not_overshoot_at_lift_off(tared_setup: ControllerSetup) -> None:
+    """While the joints rest in the pick dwell, static friction holds part of the load: those samples are not
+    used, and a 0.17 kg object's estimate stays within 0.2 kg above its mass over the whole carry (it reached
+    1.3 kg before the lift when they were)."""
+    env = DeltaPickPlaceEnv(n_cycles=2)
+    controller = build_controller("mid_f_rls", tared_setup)
+    record = run_episode(env, controller, 3, [0.17, 0.17])
+    for pick, place in zip(record.pick_indices, record.place_indices, strict=True):
+        assert np.max(record.payload_estimate[pick:place]) <= 0.17 + 0.2
+    assert all(abs(carry.end_estimate - 0.17) <= 0.025 for carry in record.carries())
