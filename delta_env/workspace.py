@@ -314,7 +314,7 @@ class CylinderSearch:
         cylinder: The largest admissible cylinder that meets the requirement, or None if none does.
         shortfall: How far the requirement is from being met (m, <= 0 when met): the required radius
             minus the largest admissible radius over the required height band; +inf when that band is not
-            admissible even on the axis.
+            admissible even on the axis or lies beyond the reach.
         heights: The height grid (m), ``(H,)``.
         radii: Largest admissible disc radius at each height (m), ``(H,)``; -inf where the axis point
             itself is not admissible.
@@ -384,8 +384,8 @@ def largest_cylinder(
         shortfall = math.inf if np.all(np.isinf(radii)) else required_radius - float(np.max(radii))
     else:
         band = np.flatnonzero((heights >= band_low - 1e-9) & (heights <= band_high + 1e-9))
-        if band.size == 0:
-            raise ValueError(f"required_band {required_band!r} m lies outside the reach [{z_min:.3f}, {z_max:.3f}] m")
+        if band.size == 0:  # the band lies beyond the reach: nothing can hold it
+            return CylinderSearch(cylinder=None, shortfall=math.inf, heights=heights, radii=radii)
         need_low, need_high = int(band[0]), int(band[-1])
         band_radius = float(np.min(radii[band]))
         shortfall = math.inf if band_radius == -math.inf else required_radius - band_radius

@@ -283,7 +283,7 @@ def pareto_front(
 
     def record(algorithm: object) -> dict[str, float]:
         pop = algorithm.pop
-        feasible = pop.get("feasible").ravel()
+        feasible = pop.get("FEAS").ravel()
         if not feasible.any():
             return {"hypervolume": 0.0}
         return {"hypervolume": float(indicator(pop.get("F")[feasible] / scale))}
@@ -321,7 +321,7 @@ def single_objective(
 
     def record(algorithm: object) -> dict[str, float]:
         pop = algorithm.pop
-        feasible = pop.get("feasible").ravel()
+        feasible = pop.get("FEAS").ravel()
         values = pop.get("F")[feasible, 0]
         if values.size == 0:
             return {"best_cost": math.nan, "mean_cost": math.nan}
