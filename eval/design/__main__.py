@@ -46,7 +46,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--generations", type=int, default=25, help="generations of each optimizer (default 25)")
     parser.add_argument("--episodes", type=int, default=2, help="verification episodes per controller (default 2)")
     parser.add_argument(
-        "--verified-designs", type=int, default=4, help="chosen designs verified besides the nominal (default 4)"
+        "--verified-designs", type=int, default=5, help="chosen designs verified besides the nominal (default 5)"
     )
     parser.add_argument("--quick", action="store_true", help=f"a small run for tests: {QUICK}")
     parser.add_argument("--no-verify", action="store_true", help="skip the closed-loop verification")
