@@ -20,6 +20,7 @@ rows -a_i / k_i, which stay finite everywhere except at serial singularities. So
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -206,7 +207,10 @@ def reach_bounds(geometry: DeltaGeometry, theta_range: tuple[float, float] = THE
 
 
 def monte_carlo_volume(
-    inside: ArrayLike, bounds: tuple[float, float, float], samples: int, seed: int
+    inside: Callable[[NDArray[np.float64]], NDArray[np.bool_]],
+    bounds: tuple[float, float, float],
+    samples: int,
+    seed: int,
 ) -> tuple[float, float]:
     """Volume (m^3) and its standard error of a region inside a vertical cylinder, by Monte Carlo.
 

@@ -214,6 +214,13 @@ def verification_table(verifications: Sequence[Verification]) -> tuple[str, list
                 f"(ratio {plant:.3f} vs {model:.3f}); identified model "
                 f"{'holds' if abs(plant / identified - 1.0) <= TORQUE_CHANGE_TOLERANCE else 'does NOT hold'}"
             )
+    if any("does NOT hold" in line for line in lines):
+        lines.append(
+            "- Why the geometric model can miss: it leaves out the drives' rotor inertia (armature) and friction, "
+            "which do not scale with the lengths. They add about the same torque to every design, so a saving "
+            "is a smaller share of the plant's torque. The identified MId+F+R model includes them (rho1 absorbs "
+            "the armature) and is the one to trust for the plant's change."
+        )
     return markdown_table(header, rows), lines
 
 
