@@ -95,6 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     designs = {"nominal": nominal, **chosen, "GA optimum (weighted cost)": ga_best}
     front = [pareto.archive.performance[i] for i in pareto.front]
 
+    reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=args.seed) for name, p in designs.items()}
     reconfiguration = reconfigure.study(NOMINAL_GEOMETRY)
     seconds["reconfiguration"] = time.perf_counter() - started - seconds["optimization"]
 
@@ -106,7 +107,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         seconds["verification"] = time.perf_counter() - started - sum(seconds.values())
 
     report.write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
-    report.write_csv(out / "designs.csv", [{"design": n, **report.performance_row(p)} for n, p in designs.items()])
+    report.write_csv(
+        out / "designs.csv",
+        [
+            {
+                "design": n,
+                **report.performance_row(p),
+                "reachable_volume_m3": reachable[n][0],
+                "reachable_volume_error_m3": reachable[n][1],
+            }
+            for n, p in designs.items()
+        ],
+    )
     report.write_csv(
         out / "convergence.csv",
         [{"optimizer": "NSGA-II", **row} for row in pareto.convergence]
@@ -134,7 +146,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"# Design study: NSGA-II and GA, population {args.population}, {args.generations} generations, "
         f"seed {args.seed}",
         "",
-        "Objectives relative to the nominal robot. Workspace: the largest dexterous vertical cylinder (1/cond(J) >= "
+        "Objectives relative to the nominal robot. Reachable volume: Monte Carlo over the points with the motor "
+        "range and ball-joint cone (no dexterity threshold), ± its standard error. Workspace: the largest "
+        "dexterous vertical cylinder (1/cond(J) >= "
         f"{workspace.DEXTEROUS_CONDITIONING}, motor range {workspace.THETA_RANGE} rad, ball-joint cone "
         f"{workspace.MAX_FOREARM_TILT:.3f} rad) that holds both conveyor zones and the lift. Peak torque: the "
         f"{performance.PAYLOAD} kg 25/305/25 mm cycles at 3 g in five places of the conveyor region (rod-forearm "
@@ -142,7 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "torque reaches 400 N m; cycle speed is its inverse. Speed at 30 rad/s: the platform speed reachable in "
         "every direction over the conveyor region at that joint speed.",
         "",
-        report.summary_table(designs, nominal),
+        report.summary_table(designs, nominal, reachable),
         "",
         f"Pareto front: {len(front)} designs of {len(pareto.archive.x)} evaluated; GA: {len(single.archive.x)} "
         "evaluated.",

@@ -95,11 +95,20 @@ def _change(value: float, reference: float, *, inverse: bool = False) -> float:
     return 100.0 * (value / reference - 1.0)
 
 
-def summary_table(designs: Mapping[str, Performance], nominal: Performance) -> str:
-    """Designs with their figures and % change against nominal, beside the paper's changes."""
+def summary_table(
+    designs: Mapping[str, Performance], nominal: Performance, reachable: Mapping[str, tuple[float, float]]
+) -> str:
+    """Designs with their figures and % change against nominal, beside the paper's changes.
+
+    Args:
+        designs: Figures by design name, the nominal one included.
+        nominal: The nominal design's figures.
+        reachable: Reachable volume and its standard error (m^3) by design name, nominal under "nominal".
+    """
     header = [
         "Design",
         "ra, rb, l1, l2 (m)",
+        "Reachable volume (m³)",
         "Dexterous cylinder ⌀ x h (m)",
         "Workspace (m³)",
         "Peak torque (N m)",
@@ -111,10 +120,12 @@ def summary_table(designs: Mapping[str, Performance], nominal: Performance) -> s
     rows = []
     for name, p in designs.items():
         g, c, m = p.geometry, p.cylinder, p.masses
+        volume, error = reachable[name]
         rows.append(
             [
                 name,
                 f"{g.ra:.3f}, {g.rb:.3f}, {g.l1:.3f}, {g.l2:.3f}",
+                f"{volume:.3f} ± {error:.3f} ({_change(volume, reachable['nominal'][0]):+.1f} %)",
                 f"{c.diameter:.2f} x {c.height:.3f}" if c else "none",
                 f"{p.workspace_m3:.4f} ({_change(p.workspace_m3, nominal.workspace_m3):+.1f} %)",
                 f"{p.peak_torque_nm:.1f} ({_change(p.peak_torque_nm, nominal.peak_torque_nm):+.1f} %)",
@@ -129,6 +140,7 @@ def summary_table(designs: Mapping[str, Performance], nominal: Performance) -> s
         [
             "paper (Hasanlu & Siavashi 2025)",
             "not printed",
+            "",
             "",
             f"{paper['workspace']:+.0f} %",
             f"{paper['torque']:+.0f} %",
