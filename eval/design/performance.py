@@ -236,7 +236,7 @@ def evaluate(
         payload: Carried mass on the task cycles (kg), >= 0.
         criteria: Dexterity criteria of the workspace.
         task_radius: Radius (m) the dexterous cylinder must have over :data:`TASK_BAND`.
-        cycles: (centre, heading) of the task cycles; must lie within ``task_radius``.
+        cycles: (centre, heading) of the task cycles, inside the task region.
         masses: The design's masses; :func:`delta_env.scaling.scaled_masses` when None.
     """
     require_in("payload", payload, 0.0, math.inf, unit="kg")
