@@ -19,6 +19,7 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, OracleController
 from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 
 CONTROLLER_LABELS = {
     "pd": "PD",
@@ -65,19 +66,25 @@ def model_controller(
     friction_velocity: float = FRICTION_VELOCITY,
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD),
     name: str | None = None,
+    geometry: DeltaGeometry = NOMINAL_GEOMETRY,
+    masses: DeltaMasses = NOMINAL_MASSES,
 ) -> FeedforwardController:
     """A model feedforward + PD controller, optionally with the online payload estimator.
 
     Args:
-        parameters: Identified parameters of the nominal model; None is plain MKH.
+        parameters: Identified parameters of the model of ``geometry`` and ``masses``; None is plain MKH.
         forearm_rods: The model with rod forearms (MId+F+R) instead of the paper's lumped forearms.
         regressor: Joint states of the payload estimator; None feeds forward mp = 0 (no estimator).
         tare: Apparent payload of the empty gripper (kg), subtracted by the estimator.
         friction_velocity: The estimator's friction band v_w (rad/s).
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
         name: Label; by default :func:`controller_name`.
+        geometry: Datasheet lengths of the robot controlled (m).
+        masses: Its datasheet masses (kg).
     """
-    dynamics = DeltaDynamics.nominal(parameters, forearm_rods=forearm_rods)
+    dynamics = DeltaDynamics(
+        geometry, m1=masses.m1, m2=masses.m2, m0=masses.m0, parameters=parameters, forearm_rods=forearm_rods
+    )
     estimator = None
     if regressor is not None:
         estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)

@@ -1,7 +1,7 @@
 """How the masses of a Delta robot follow its geometry: one rule for the model and the plant.
 
 A design study that changed lengths but kept the masses would make a longer arm free, and an optimizer
-would exploit it. The rule, applied to the nominal robot of DESIGN.md section 4:
+would exploit it. The rule, applied to the nominal robot of docs/design.md section 4:
 
 - upper arm: the nominal mass per unit length, m1 = m1_nom * l1 / l1_nom;
 - forearm pair: the nominal mass per unit length, m2 = m2_nom * l2 / l2_nom;

@@ -1,4 +1,4 @@
-"""Workspace, dexterity and singularity analysis of a Delta geometry (DESIGN.md sections 1 and 2).
+"""Workspace, dexterity and singularity analysis of a Delta geometry (docs/design.md sections 1 and 2).
 
 Everything here follows from :class:`~delta_env.geometry.DeltaGeometry` alone and is vectorized over
 points ``(..., 3)`` (m, base frame). A point is *admissible* when
@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env.geometry import CHAIN_AZIMUTHS, DeltaGeometry
+from delta_env import kinematics
+from delta_env.geometry import DeltaGeometry
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
 THETA_RANGE = (-0.6, 1.5)
@@ -53,8 +54,6 @@ CYLINDER_AZIMUTHS = 7
 """Azimuths tested per ring in [0, pi/3] (every 10 deg): the workspace is symmetric under rotations by
 2 pi / 3 and the mirror y -> -y (chain 1's plane), so this sector covers every direction."""
 
-_COS_ALPHA = np.cos(CHAIN_AZIMUTHS)
-_SIN_ALPHA = np.sin(CHAIN_AZIMUTHS)
 _CHUNK = 100_000  # points per vectorized batch: bounds memory at a few tens of MB
 
 
@@ -129,17 +128,11 @@ def _points(xyz: ArrayLike) -> NDArray[np.float64]:
 def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
     """Kinematic measures at platform positions ``xyz`` (m), ``(..., 3)``; unreachable points get NaN."""
     xyz = _points(xyz)
-    l1, l2 = geometry.l1, geometry.l2
-    theta = _elbow_out_angles(geometry, xyz)
+    theta = kinematics.elbow_out_angles(geometry, xyz)
     reachable = np.all(np.isfinite(theta), axis=-1)
     theta = np.where(reachable[..., None], theta, np.nan)
-
-    cos_t, sin_t = np.cos(theta), np.sin(theta)
-    radial = geometry.r + l1 * cos_t
-    elbows = np.stack((radial * _COS_ALPHA, radial * _SIN_ALPHA, -l1 * sin_t), axis=-1)
-    a = xyz[..., None, :] - elbows  # rows a_i = x - J'_i, |a_i| = l2 where reachable
-    elbow_rate = np.stack((-l1 * sin_t * _COS_ALPHA, -l1 * sin_t * _SIN_ALPHA, -l1 * cos_t), axis=-1)
-    k = -np.sum(a * elbow_rate, axis=-1)
+    # rows a_i = x - J'_i (|a_i| = l2 where reachable) and k_i; unreachable points are masked below
+    a, k = kinematics.constraint_terms(geometry, xyz, np.nan_to_num(theta))
     abs_k = np.abs(k)
     with np.errstate(divide="ignore", invalid="ignore"):
         inverse_jacobian = a / k[..., None]  # J^{-1} = -K^{-1} A up to sign
@@ -147,7 +140,7 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
         conditioning = np.where(np.all(abs_k > 0.0, axis=-1), singular[..., -1] / singular[..., 0], 0.0)
         det_a = np.linalg.det(np.nan_to_num(a))
         imi = np.abs(det_a) / np.prod(abs_k, axis=-1)
-        tilt = np.max(np.arccos(np.clip(-a[..., 2] / l2, -1.0, 1.0)), axis=-1)
+        tilt = np.max(np.arccos(np.clip(-a[..., 2] / geometry.l2, -1.0, 1.0)), axis=-1)
     nan = np.where(reachable, 0.0, np.nan)
     return PoseMeasures(
         reachable=reachable,
@@ -171,7 +164,7 @@ def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEX
     low, high = criteria.theta_range
     for start in range(0, len(flat), _CHUNK):
         chunk = flat[start : start + _CHUNK]
-        theta = _elbow_out_angles(geometry, chunk)
+        theta = kinematics.elbow_out_angles(geometry, chunk)
         with np.errstate(invalid="ignore"):
             candidate = np.all((theta >= low) & (theta <= high), axis=-1)
         if np.any(candidate):
@@ -179,18 +172,6 @@ def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEX
                 criteria
             )
     return result.reshape(xyz.shape[:-1])
-
-
-def _elbow_out_angles(geometry: DeltaGeometry, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Elbow-out motor angles (rad), ``(..., 3)``, NaN for chains that cannot reach ``xyz``."""
-    x, y, z = xyz[..., 0:1], xyz[..., 1:2], xyz[..., 2:3]
-    x_local = x * _COS_ALPHA + y * _SIN_ALPHA - geometry.r
-    y_local = -x * _SIN_ALPHA + y * _COS_ALPHA
-    p = -2.0 * geometry.l1 * x_local
-    q = 2.0 * geometry.l1 * np.broadcast_to(z, x_local.shape)
-    c = geometry.l2**2 - geometry.l1**2 - x_local**2 - y_local**2 - z**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.arctan2(q, p) + np.arccos(c / np.hypot(p, q))
 
 
 def reach_bounds(geometry: DeltaGeometry, theta_range: tuple[float, float] = THETA_RANGE) -> tuple[float, float, float]:

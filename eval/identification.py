@@ -53,14 +53,15 @@ from controllers.identification import (
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import excitation_trajectory
-from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY
+from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry
+from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from delta_env.trajectories import Trajectory
+from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_count
 from eval.episodes import run_episode
 from eval.processes import parallel_map
-from eval.run_folder import package_versions
+from eval.run_folder import json_ready, package_versions
 
 logger = logging.getLogger(__name__)
 
@@ -90,6 +91,8 @@ class ExcitationSpec:
         min_acceleration_fraction: Smallest peak |xdd| of a fast move, relative to the largest.
         edge_fraction: Probability that a fast move ends on the workspace edge.
         slow_fraction: Probability that a move is slow (friction near zero speed).
+        start: Platform position (m) where the trajectory starts and ends.
+        limits: Region the trajectory visits; the default suits the nominal geometry.
     """
 
     seed: int
@@ -98,6 +101,8 @@ class ExcitationSpec:
     min_acceleration_fraction: float = 0.2
     edge_fraction: float = 0.3
     slow_fraction: float = 0.2
+    start: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT)
+    limits: WorkspaceLimits = WORKSPACE_LIMITS
 
     @classmethod
     def stress(cls, seed: int, duration: float = VALIDATION_DURATION) -> ExcitationSpec:
@@ -105,16 +110,18 @@ class ExcitationSpec:
         half of them to the workspace edge, with the excitation's short dwells (0 to 0.1 s)."""
         return cls(seed=seed, duration=duration, min_acceleration_fraction=0.5, edge_fraction=0.5, slow_fraction=0.0)
 
-    def reference(self) -> Trajectory:
-        """The reference :class:`~delta_env.trajectories.Trajectory` (nominal geometry, 1 kHz)."""
+    def reference(self, geometry: DeltaGeometry = NOMINAL_GEOMETRY) -> Trajectory:
+        """The reference :class:`~delta_env.trajectories.Trajectory` of a robot with ``geometry`` (1 kHz)."""
         return excitation_trajectory(
-            NOMINAL_GEOMETRY,
+            geometry,
             np.random.default_rng(self.seed),
             self.duration,
             self.peak_acceleration,
+            start=self.start,
             min_acceleration_fraction=self.min_acceleration_fraction,
             edge_fraction=self.edge_fraction,
             slow_fraction=self.slow_fraction,
+            limits=self.limits,
             dt=CONTROL_PERIOD,
         )
 
@@ -129,12 +136,14 @@ class ExcitationRecord:
         angles: Encoder angles (rad), ``(N, 3)``.
         torques: Measured motor torques (N m), ``(N, 3)``; sample k is :data:`MEASURED_TORQUE_DELAY` older
             than angle sample k.
+        max_loop_gap: Largest loop-closure gap of the plant during the run (m), the simulation's health.
     """
 
     spec: ExcitationSpec
     dt: float
     angles: NDArray[np.float64]
     torques: NDArray[np.float64]
+    max_loop_gap: float
 
 
 class ReferenceFeedforward:
@@ -164,19 +173,30 @@ class ReferenceFeedforward:
 def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> ExcitationRecord:
     """Run ``spec`` with PD + MKH feedforward on the plant; record encoder angles and measured torques.
 
+    The reference and the MKH model are those of the plant's geometry and built masses (its datasheet).
+
     Raises:
         RuntimeError: if the plant diverges.
     """
-    reference = spec.reference()
+    plant = PlantConfig() if plant is None else plant
+    reference = spec.reference(plant.geometry)
+    masses = plant.masses
+    model = DeltaDynamics(plant.geometry, m1=masses.m1, m2=masses.m2, m0=masses.m0)
     # MKH feedforward along the reference, in one batch (the batched model is much faster than single samples).
-    feedforward = DeltaDynamics.nominal().inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
+    feedforward = model.inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
     env = DeltaPickPlaceEnv(plant=plant)
     record = run_episode(env, ReferenceFeedforward(feedforward), spec.seed, reference=reference)
     env.close()
     if record.diverged:
         steps = len(record.tracking_error)
         raise RuntimeError(f"the plant diverged at step {steps} of excitation seed {spec.seed}")
-    return ExcitationRecord(spec=spec, dt=CONTROL_PERIOD, angles=record.encoder_angles, torques=record.measured_torque)
+    return ExcitationRecord(
+        spec=spec,
+        dt=CONTROL_PERIOD,
+        angles=record.encoder_angles,
+        torques=record.measured_torque,
+        max_loop_gap=record.max_loop_gap,
+    )
 
 
 def _progress_bar(total: int, show: bool) -> Any:
@@ -341,8 +361,8 @@ def run_identification(
             "controller": {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH, nominal"},
         },
         "seed": seed,
-        "trajectories": [dataclasses.asdict(spec) for spec in specs[:-1]],
-        "validation_trajectory": dataclasses.asdict(specs[-1]),
+        "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
+        "validation_trajectory": json_ready(dataclasses.asdict(specs[-1])),
         "plant": _plant_summary(plant),
         "samples": {
             "per_trajectory": [len(d) for d in data],

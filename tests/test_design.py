@@ -46,12 +46,38 @@ def test_cycle_time_at_the_limit_is_exact_when_retimed(nominal):
     assert retimed.motion_time == pytest.approx(figures.fastest_motion_time, abs=2e-3)
 
 
-def test_fastest_time_scale_solves_the_torque_intervals():
-    static = np.array([10.0, -20.0])
-    dynamic = np.array([5.0, -40.0])
-    scale = performance.fastest_time_scale(static, dynamic, 100.0)
-    assert scale == pytest.approx(2.0)  # joint 2: |-20 - 40 u| = 100 at u = 2
-    assert performance.fastest_time_scale(np.array([150.0]), np.array([1.0]), 100.0) == 0.0
+def test_fastest_speed_up_solves_the_torque_quadratics():
+    zero = np.zeros(2)
+    # joint 2: |-20 - 40 s^2| = 100 at s^2 = 2
+    speed_up = performance.fastest_speed_up(np.array([10.0, -20.0]), zero, np.array([5.0, -40.0]), 100.0)
+    assert speed_up == pytest.approx(math.sqrt(2.0))
+    # viscous only: 10 + 30 s = 100 at s = 3; the quadratic one first: 10 + 30 s + 10 s^2 = 100 at s = 1.85
+    assert performance.fastest_speed_up(np.array([10.0]), np.array([30.0]), np.zeros(1), 100.0) == pytest.approx(3.0)
+    root = (-30.0 + math.sqrt(30.0**2 + 4 * 10.0 * 90.0)) / 20.0
+    assert performance.fastest_speed_up(np.array([10.0]), np.array([30.0]), np.array([10.0]), 100.0) == pytest.approx(
+        root
+    )
+    # a torque that turns back before the limit never binds
+    assert performance.fastest_speed_up(np.array([0.0]), np.array([10.0]), np.array([-1.0]), 100.0) == pytest.approx(
+        (10.0 + math.sqrt(100.0 + 400.0)) / 2.0
+    )
+    assert performance.fastest_speed_up(np.array([150.0]), np.zeros(1), np.array([1.0]), 100.0) == 0.0
+    assert performance.fastest_speed_up(np.zeros(1), np.zeros(1), np.zeros(1), 100.0) == math.inf
+
+
+def test_design_model_adds_the_same_drive_to_every_design():
+    drive = performance.DRIVE
+    for geometry in (NOMINAL_GEOMETRY, DeltaGeometry(0.25, 0.03, 0.32, 1.05)):
+        links = performance.design_model(geometry, drive=None)
+        model = performance.design_model(geometry)
+        assert model.inertia * model.parameters.rho1 == pytest.approx(links.inertia + drive.armature)
+        theta = np.array([[0.3, 0.5, 0.4]])
+        rate, acceleration = np.array([[1.0, -2.0, 0.0]]), np.array([[5.0, 0.0, -3.0]])
+        difference = model.inverse_dynamics(theta, rate, acceleration) - links.inverse_dynamics(
+            theta, rate, acceleration
+        )
+        expected = drive.armature * acceleration + drive.viscous * rate + drive.coulomb * np.sign(rate)
+        np.testing.assert_allclose(difference, expected, atol=1e-9)
 
 
 def test_infeasible_designs_say_why():

@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
-import json
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -27,11 +26,12 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from controllers.provenance import RUN_PACKAGES, command_line, package_versions
 from delta_env import workspace
+from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from eval.design import optimize, performance, reconfigure, report, verify
+from eval.run_folder import command_line, create_run_folder, package_versions, write_config
 
 QUICK = {"population": 12, "generations": 3, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
@@ -50,16 +50,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--quick", action="store_true", help=f"a small run for tests: {QUICK}")
     parser.add_argument("--no-verify", action="store_true", help="skip the closed-loop verification")
+    parser.add_argument(
+        "--workers", type=int, default=None, help="processes of each design's identification runs (default: up to 2)"
+    )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/design/<timestamp>)")
     args = parser.parse_args(argv)
     if args.quick:
         for key, value in QUICK.items():
             setattr(args, key, value)
-    for name, minimum in (("population", 4), ("generations", 1), ("episodes", 1), ("verified_designs", 1)):
+    if args.workers is None:
+        args.workers = min(2, os.cpu_count() or 1)
+    minimums = {"population": 4, "generations": 1, "episodes": 1, "verified_designs": 1, "workers": 1}
+    for name, minimum in minimums.items():
         if getattr(args, name) < minimum:
             parser.error(f"--{name.replace('_', '-')} must be >= {minimum}, got {getattr(args, name)}")
-    if args.out is None:
-        args.out = Path("runs/design") / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     return args
 
 
@@ -73,11 +77,51 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
     return kept
 
 
+def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) -> dict[str, object]:
+    """The run's arguments and every setting of the study, for ``config.json``."""
+    drive = PlantRealism()
+    return {
+        "arguments": vars(args),
+        "bounds": dataclasses.asdict(optimize.DEFAULT_BOUNDS),
+        "criteria": dataclasses.asdict(workspace.DEXTEROUS),
+        "task": {
+            "payload_kg": performance.PAYLOAD,
+            "cycle_acceleration_m_s2": performance.CYCLE_ACCELERATION,
+            "band_m": performance.TASK_BAND,
+            "radius_m": performance.TASK_RADIUS,
+            "cycles": performance.TASK_CYCLES,
+            "joint_speed_limit_rad_s": performance.JOINT_SPEED_LIMIT,
+        },
+        "scaling": {"rule": "m1 ~ l1, m2 ~ l2, m0 = gripper + plate ~ rb^2", "gripper_kg": GRIPPER_MASS},
+        "drive": {
+            "rule": "the same motors on every design: armature and friction of the plant's nominal drive",
+            "armature_kg_m2": drive.armature,
+            "viscous_n_m_s_rad": drive.viscous,
+            "coulomb_n_m": drive.coulomb,
+        },
+        "weights": optimize.WEIGHTS,
+        "reconfiguration": {
+            "travel_m": reconfigure.RA_TRAVEL,
+            "settings": reconfigure.RA_SETTINGS,
+            "profiles": [dataclasses.asdict(p) for p in reconfigure.PROFILES],
+            "fixed_ra_m": fixed_ra,
+        },
+        "verification": {
+            "identification_trajectories": verify.IDENTIFICATION_TRAJECTORIES,
+            "identification_duration_s": verify.IDENTIFICATION_DURATION,
+            "episode_cycles": verify.EPISODE_CYCLES,
+            "loop_gap_limit_m": verify.LOOP_GAP_LIMIT,
+        },
+        "pymoo_version": package_versions(("pymoo",))["pymoo"],
+    }
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    out = create_run_folder("design", args.out)
+    command = command_line("eval.design", argv)
+    write_config(out, command, _resolved_config(args))
     seconds = {}
 
     nominal = performance.evaluate(NOMINAL_GEOMETRY)
@@ -103,7 +147,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.no_verify:
         verified = dict(list(_distinct(designs).items())[: 1 + args.verified_designs])
         for name, design in tqdm(verified.items(), desc="closed-loop verification", unit="design"):
-            verifications.append(verify.verify_design(name, design, seed=args.seed, episodes=args.episodes))
+            verifications.append(
+                verify.verify_design(name, design, seed=args.seed, episodes=args.episodes, workers=args.workers)
+            )
         seconds["verification"] = time.perf_counter() - started - sum(seconds.values())
 
     report.write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
@@ -182,37 +228,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")
 
-    config = {
-        "command": command_line("eval.design", argv),
-        "arguments": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-        "bounds": dataclasses.asdict(optimize.DEFAULT_BOUNDS),
-        "criteria": dataclasses.asdict(workspace.DEXTEROUS),
-        "task": {
-            "payload_kg": performance.PAYLOAD,
-            "cycle_acceleration_m_s2": performance.CYCLE_ACCELERATION,
-            "band_m": performance.TASK_BAND,
-            "radius_m": performance.TASK_RADIUS,
-            "cycles": performance.TASK_CYCLES,
-            "joint_speed_limit_rad_s": performance.JOINT_SPEED_LIMIT,
-        },
-        "scaling": {"rule": "m1 ~ l1, m2 ~ l2, m0 = gripper + plate ~ rb^2", "gripper_kg": GRIPPER_MASS},
-        "weights": optimize.WEIGHTS,
-        "reconfiguration": {
-            "travel_m": reconfigure.RA_TRAVEL,
-            "settings": reconfigure.RA_SETTINGS,
-            "profiles": [dataclasses.asdict(p) for p in reconfigure.PROFILES],
-            "fixed_ra_m": reconfiguration.fixed_ra,
-        },
-        "verification": {
-            "identification_trajectories": verify.IDENTIFICATION_TRAJECTORIES,
-            "identification_duration_s": verify.IDENTIFICATION_DURATION,
-            "episode_cycles": verify.EPISODE_CYCLES,
-            "loop_gap_limit_m": verify.LOOP_GAP_LIMIT,
-        },
-        "seconds": seconds,
-        "versions": package_versions((*RUN_PACKAGES, "pymoo")),
-    }
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=float) + "\n")
+    write_config(out, command, _resolved_config(args, reconfiguration.fixed_ra), seconds=seconds)
     print(summary)
     return 0
 

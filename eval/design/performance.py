@@ -1,15 +1,23 @@
 """The figures of merit of one Delta geometry: workspace, torque on the standard cycle, speed.
 
 Every design carries the masses of :func:`delta_env.scaling.scaled_masses` and is judged by the model with
-rod forearms (``DeltaDynamics(..., forearm_rods=True)``), on the same task: the industry's 25/305/25 mm
-cycle carrying :data:`PAYLOAD` at the places :data:`TASK_CYCLES`, which lie in the pick-and-place region of
-the conveyors.
+rod forearms (``DeltaDynamics(..., forearm_rods=True)``) plus its drives, on the same task: the industry's
+25/305/25 mm cycle carrying :data:`PAYLOAD` at the places :data:`TASK_CYCLES`, which lie in the
+pick-and-place region of the conveyors.
 
-Cycle time at the torque limit: along a fixed path, slowing time by 1/s scales every velocity by s and every
-acceleration by s^2, so the torque is tau = G + s^2 D with G the static (gravity) torque and D = tau - G at
-the reference timing (the rod-forearm terms are quadratic in the rates too). For every sample and joint,
-|G + u D| <= limit is an interval of u = s^2; the largest u in all of them gives the fastest admissible
-timing exactly, with no search.
+The drives are the same motors on every design, so they do not scale with the links: each joint carries the
+rotor inertia (armature) Ia, viscous friction fv and Coulomb friction fc of the motor datasheet
+(:data:`DRIVE`, the plant's nominal drive values without its per-joint scatter). In the model's terms the
+armature is rho1 = 1 + Ia / I, with I = (m1/3 + m2) l1^2 the design's own arm inertia, and the friction
+is its (fv, fc) on every joint.
+
+Cycle time at the torque limit: along a fixed path, speeding time up by s scales every velocity by s and
+every acceleration by s^2, so the torque is exactly tau(s) = a + b s + c s^2 for s > 0: a the gravity and
+Coulomb torque, b the viscous torque and c the inertial and velocity-product torques at the reference
+timing (the rod-forearm terms are quadratic in the rates too). Three evaluations of the model (s = 1, 2,
+3) give a, b and c; the first s at which some sample and joint reaches |tau| = limit is the smallest
+positive root of c s^2 + b s + a = +-limit over all of them: the fastest admissible timing, exactly, with
+no search.
 """
 
 from __future__ import annotations
@@ -20,25 +28,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.dynamics import DeltaDynamics
+from controllers.dynamics import DeltaDynamics, ModelParameters
 from delta_env import kinematics, workspace
+from delta_env.config import PlantRealism
+from delta_env.cycles import PICK_ZONE, PLACE_ZONE, STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry, DeltaMasses
+from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
-from delta_env.trajectories import (
-    PICK_ZONE,
-    PLACE_ZONE,
-    STANDARD_LIFT,
-    STANDARD_PEAK_ACCELERATION,
-    STANDARD_TRAVEL,
-    WORKING_HEIGHT,
-    Trajectory,
-    WorkspaceLimits,
-    standard_cycle,
-)
+from delta_env.trajectories import STANDARD_PEAK_ACCELERATION, WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_in, require_positive
 
 PAYLOAD = 3.8
-"""Payload of the standard cycle (kg): the test payload of the dynamic-model paper (DESIGN.md section 4)."""
+"""Payload of the standard cycle (kg): the test payload of the dynamic-model paper (docs/design.md section 4)."""
 
 CYCLE_ACCELERATION = STANDARD_PEAK_ACCELERATION
 """Peak Cartesian acceleration of the torque-rated cycle (m/s^2): the environment's default 3 g."""
@@ -75,7 +76,10 @@ ASSEMBLY_MARGIN = 0.05
 """The forearm must exceed r + l1 by this much (m): the plant assembles with its arms horizontal, and home
 stays a usable height below the base."""
 
-_STATIC_TORQUE_EPS = 1e-12
+DRIVE = PlantRealism()
+"""The motor datasheet of every design: armature, viscous and Coulomb friction of the plant's nominal drive."""
+
+_QUADRATIC_EPS = 1e-12  # |c| (N m) below which c s^2 + b s + a is solved as linear
 
 
 @dataclass(frozen=True)
@@ -87,7 +91,7 @@ class CycleFigures:
         rms_torque: RMS of tau over samples and joints (N m).
         motion_time: Duration of the two moves at the reference acceleration (s), dwells left out.
         fastest_motion_time: Duration of the two moves at the fastest timing whose peak torque is the
-            motor limit (s); inf when holding the payload at rest already exceeds it.
+            motor limit (s); inf when even the slowest timing (gravity and Coulomb friction) exceeds it.
     """
 
     peak_torque: float
@@ -135,10 +139,28 @@ class Performance:
         return not self.reason
 
 
-def design_model(geometry: DeltaGeometry, masses: DeltaMasses | None = None) -> DeltaDynamics:
-    """The rod-forearm model of a design with its scaled masses (or ``masses``)."""
+def design_model(
+    geometry: DeltaGeometry, masses: DeltaMasses | None = None, drive: PlantRealism | None = DRIVE
+) -> DeltaDynamics:
+    """The rod-forearm model of a design with its scaled masses (or ``masses``) and its drives.
+
+    Args:
+        geometry: The design (m).
+        masses: Its masses (kg); :func:`delta_env.scaling.scaled_masses` when None.
+        drive: The motors (module docstring): ``armature``, ``viscous`` and ``coulomb`` are used, the same on
+            every joint; None leaves the drives out (the links alone).
+    """
     m = scaled_masses(geometry) if masses is None else masses
-    return DeltaDynamics(geometry, m1=m.m1, m2=m.m2, m0=m.m0, forearm_rods=True)
+    links = DeltaDynamics(geometry, m1=m.m1, m2=m.m2, m0=m.m0, forearm_rods=True)
+    if drive is None:
+        return links
+    return links.with_parameters(
+        ModelParameters(
+            rho1=1.0 + drive.armature / links.inertia,
+            viscous=(drive.viscous,) * 3,
+            coulomb=(drive.coulomb,) * 3,
+        )
+    )
 
 
 def path_limits(geometry: DeltaGeometry, criteria: workspace.Criteria = workspace.DEXTEROUS) -> WorkspaceLimits:
@@ -174,21 +196,40 @@ def payload_profile(trajectory: Trajectory, payload: float) -> NDArray[np.float6
     return np.where(trajectory.gripper, payload, 0.0)
 
 
-def fastest_time_scale(static: NDArray[np.float64], dynamic: NDArray[np.float64], limit: float) -> float:
-    """Largest u = s^2 with |static + u dynamic| <= limit everywhere (module docstring); 0 if none.
+def _first_positive_root(
+    quadratic: NDArray[np.float64], linear: NDArray[np.float64], constant: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Smallest root s > 0 of quadratic s^2 + linear s + constant = 0, elementwise; inf where none."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.sqrt(linear**2 - 4.0 * quadratic * constant)  # NaN where there is no real root
+        curved = np.abs(quadratic) > _QUADRATIC_EPS
+        first = np.where(curved, (-linear - root) / (2.0 * quadratic), -constant / linear)
+        second = np.where(curved, (-linear + root) / (2.0 * quadratic), np.nan)
+    candidates = np.stack((first, second))
+    candidates = np.where(np.isfinite(candidates) & (candidates > 0.0), candidates, np.inf)
+    return np.min(candidates, axis=0)
+
+
+def fastest_speed_up(
+    constant: NDArray[np.float64], linear: NDArray[np.float64], quadratic: NDArray[np.float64], limit: float
+) -> float:
+    """Largest s with |constant + s linear + s^2 quadratic| <= limit for every s' in (0, s] (module docstring).
 
     Args:
-        static: Torques at rest (N m), any shape.
-        dynamic: Torques of the motion at the reference timing minus ``static`` (N m), same shape.
+        constant: Torques independent of the timing (N m), any shape: gravity and Coulomb friction.
+        linear: Torques proportional to the speed-up s at s = 1 (N m), same shape: viscous friction.
+        quadratic: Torques proportional to s^2 at s = 1 (N m), same shape: inertia and velocity products.
         limit: Torque limit (N m), > 0.
+
+    Returns:
+        s (dimensionless); 0 if ``constant`` already exceeds the limit, inf if no torque ever reaches it.
     """
     require_positive("limit", limit, "N m")
-    if np.any(np.abs(static) > limit):
+    if np.any(np.abs(constant) > limit):
         return 0.0
-    moving = np.abs(dynamic) > _STATIC_TORQUE_EPS
-    # the binding end of each interval: (limit - G)/D for D > 0, (-limit - G)/D for D < 0
-    bound = np.where(dynamic[moving] > 0.0, limit - static[moving], -limit - static[moving]) / dynamic[moving]
-    return float(np.min(bound)) if bound.size else math.inf
+    upper = _first_positive_root(quadratic, linear, constant - limit)
+    lower = _first_positive_root(quadratic, linear, constant + limit)
+    return float(min(np.min(upper, initial=math.inf), np.min(lower, initial=math.inf)))
 
 
 def cycle_figures(
@@ -196,18 +237,24 @@ def cycle_figures(
 ) -> CycleFigures:
     """Peak and RMS torque along ``trajectory`` and its fastest timing under ``limit``."""
     carried = payload_profile(trajectory, payload)
-    torque = model.inverse_dynamics(trajectory.theta, trajectory.theta_dot, trajectory.theta_ddot, carried)
-    zero = np.zeros_like(trajectory.theta)
-    static = model.inverse_dynamics(trajectory.theta, zero, zero, carried)
+
+    def torque_at(speed_up: float) -> NDArray[np.float64]:
+        rates, accelerations = speed_up * trajectory.theta_dot, speed_up**2 * trajectory.theta_ddot
+        return model.inverse_dynamics(trajectory.theta, rates, accelerations, carried)
+
+    # tau(s) = a + b s + c s^2 through s = 1, 2, 3
+    once, twice, thrice = torque_at(1.0), torque_at(2.0), torque_at(3.0)
+    quadratic = (thrice - 2.0 * twice + once) / 2.0
+    linear = twice - once - 3.0 * quadratic
+    constant = once - linear - quadratic
     moving = np.any(trajectory.theta_dot != 0.0, axis=-1) | np.any(trajectory.theta_ddot != 0.0, axis=-1)
     motion_time = float(np.count_nonzero(moving)) * trajectory.dt
-    scale = fastest_time_scale(static, torque - static, limit)
-    fastest = motion_time / math.sqrt(scale) if scale > 0.0 else math.inf
+    speed_up = fastest_speed_up(constant, linear, quadratic, limit)
     return CycleFigures(
-        peak_torque=float(np.max(np.abs(torque))),
-        rms_torque=float(np.sqrt(np.mean(torque**2))),
+        peak_torque=float(np.max(np.abs(once))),
+        rms_torque=float(np.sqrt(np.mean(once**2))),
         motion_time=motion_time,
-        fastest_motion_time=fastest,
+        fastest_motion_time=motion_time / speed_up if speed_up > 0.0 else math.inf,
     )
 
 
@@ -260,7 +307,7 @@ def evaluate(
         if peak > TORQUE_LIMIT:
             reasons.append(f"peak torque {peak:.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
     elif figures:
-        reasons.append("holding the payload at rest exceeds the torque limit")
+        reasons.append("gravity and Coulomb friction alone exceed the torque limit")
     speed = workspace.isotropic_speed(geometry, task_region_points(task_radius), JOINT_SPEED_LIMIT)
     return Performance(
         geometry=geometry,

@@ -1,14 +1,12 @@
 """Closed-loop verification of a design on its own MuJoCo plant (beyond the paper).
 
-For a geometry: build the realistic plant with the scaled masses, identify MId+F+R on it with the same
-least squares as the nominal robot (excitation runs in closed loop, Kalman RTS smoothing, joint least
-squares on the rod-forearm model of that geometry), tare the payload estimator, then run PD,
-MId+F+R+RLS+PD and the oracle on seeded standard cycles carrying 3.8 kg. A design is infeasible, and
-reported as such, when its plant cannot be assembled, a run diverges, or a loop opens by more than
-:data:`LOOP_GAP_LIMIT`.
-
-This module is the only one of the design study that calls identification, controller building and
-episode running, so that those calls live in one place.
+For a geometry: build the realistic plant with the scaled masses, identify MId+F+R on it by the nominal
+robot's identification (:func:`eval.identification.collect_excitation_data`: excitation runs in closed loop
+inside the design's dexterous cylinder, then the joint least squares of :mod:`controllers.identification`
+on the rod-forearm model of that geometry), tare the payload estimator, then run PD, MId+F+R+RLS+PD and
+the oracle with the episode runner :func:`eval.episodes.run_episode` on seeded standard cycles carrying
+3.8 kg. A design is infeasible, and reported as such, when its plant cannot be assembled, a run diverges,
+or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
 """
 
 from __future__ import annotations
@@ -17,21 +15,24 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
-from controllers.base import PDController
+from controllers.base import Controller, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.feedforward import FeedforwardController, OracleController
-from controllers.identification import ExcitationRecord, ExcitationSpec, fit_joint_least_squares, prepare_motion
-from controllers.payload import PayloadEstimator, tare_from_observations
+from controllers.feedforward import OracleController
+from controllers.identification import fit_joint_least_squares, prepare_motion
+from controllers.payload import tare_from_observations
+from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, model_controller
+from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import DeltaGeometry, DeltaMasses
-from delta_env.model import PlantConfig
+from delta_env.limits import WorkspaceLimits
 from delta_env.sensors import CONTROL_PERIOD
-from delta_env.trajectories import Trajectory, WorkspaceLimits, excitation_trajectory
+from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
+from eval.episodes import EpisodeRecord, run_episode
+from eval.identification import ExcitationSpec, collect_excitation_data
 
 LOOP_GAP_LIMIT = 1e-4
 """Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""
@@ -46,11 +47,17 @@ IDENTIFICATION_DURATION = 6.0
 EPISODE_CYCLES = 2
 """Standard cycles per verification episode."""
 
-CONTROLLERS = ("PD", "MId+F+R+RLS+PD", "Oracle+PD (bound)")
+RLS_KEY = "mid_f_rls"
+"""Registry key of the model-based controller verified: MId+F+R feedforward with the payload RLS."""
+
+CONTROLLERS = (CONTROLLER_LABELS["pd"], CONTROLLER_LABELS[RLS_KEY], CONTROLLER_LABELS["oracle"])
 """The controllers compared on every design."""
 
 EXCITATION_MARGIN = 0.5
 """Excitation paths keep min |k_i| and |det A| above this share of their values at the cylinder's centre."""
+
+CALIBRATION_SEED_OFFSET = 10_000
+"""The tare's payload-free episode runs on seed + this, away from the verification episodes' seeds."""
 
 
 @dataclass(frozen=True)
@@ -141,102 +148,67 @@ def excitation_limits(performance: Performance) -> WorkspaceLimits:
     )
 
 
-def _run(
-    env: DeltaPickPlaceEnv, controller: object, reference: Trajectory, seed: int, masses: list[float] | None
-) -> tuple[EpisodeResult, NDArray, NDArray, list]:
-    """One episode: the result, encoder angles (N, 3), measured torques (N, 3) and the observations."""
-    options = {"reference": reference}
-    if masses is not None:
-        options["payload_masses"] = masses
-    observation, info = env.reset(seed=seed, options=options)
-    if isinstance(controller, OracleController):
-        controller.set_payload_masses(info["payload_masses"])
-    controller.reset()
-    steps = len(reference) - 1
-    angles, measured, observations = [observation["joint_angles"]], [observation["joint_torques"]], [observation]
-    applied, errors, gap, diverged = np.zeros((steps, 3)), np.full(steps, math.nan), 0.0, False
-    for n in range(steps):
-        observation, _, terminated, truncated, info = env.step(controller(observation))
-        applied[n], errors[n] = info["applied_torque"], info["tracking_error"]
-        gap = max(gap, info["loop_gap"]) if math.isfinite(info["loop_gap"]) else math.inf
-        if info["diverged"]:
-            diverged = True
-            break
-        angles.append(observation["joint_angles"])
-        measured.append(observation["joint_torques"])
-        observations.append(observation)
-        if terminated or truncated:
-            break
-    done = applied[: n + 1]
-    result = EpisodeResult(
-        controller=getattr(controller, "name", type(controller).__name__),
+def _result(record: EpisodeRecord, controller: str, seed: int) -> EpisodeResult:
+    figures = record.metrics()
+    return EpisodeResult(
+        controller=controller,
         seed=seed,
-        tracking_rms_mm=1e3 * float(np.sqrt(np.nanmean(errors[: n + 1] ** 2))),
-        torque_peak_nm=float(np.max(np.abs(done))),
-        torque_rms_nm=float(np.sqrt(np.mean(done**2))),
-        max_loop_gap_m=gap,
-        diverged=diverged,
+        tracking_rms_mm=figures["tracking_rms_mm"],
+        torque_peak_nm=figures["torque_peak_nm"],
+        torque_rms_nm=figures["torque_rms_nm"],
+        max_loop_gap_m=record.max_loop_gap,
+        diverged=record.diverged,
     )
-    return result, np.array(angles), np.array(measured), observations
 
 
-def _check(result: EpisodeResult, what: str) -> None:
-    if result.diverged:
+def _check(diverged: bool, loop_gap: float, what: str) -> None:
+    if diverged:
         raise DesignInfeasible(f"{what} diverged")
-    if not result.max_loop_gap_m <= LOOP_GAP_LIMIT:
-        raise DesignInfeasible(f"{what} opened a loop by {1e3 * result.max_loop_gap_m:.3f} mm (> 0.1 mm)")
+    if not loop_gap <= LOOP_GAP_LIMIT:
+        raise DesignInfeasible(f"{what} opened a loop by {1e3 * loop_gap:.3f} mm (> {1e3 * LOOP_GAP_LIMIT} mm)")
+
+
+def excitation_specs(performance: Performance, seed: int) -> list[ExcitationSpec]:
+    """The design's excitation trajectories: seeds from ``seed``, inside its dexterous cylinder."""
+    limits = excitation_limits(performance)
+    start = (0.0, 0.0, performance.cylinder.top - performance.cylinder.height / 2)
+    seeds = np.random.SeedSequence(seed).generate_state(IDENTIFICATION_TRAJECTORIES)
+    return [ExcitationSpec(seed=int(s), duration=IDENTIFICATION_DURATION, start=start, limits=limits) for s in seeds]
 
 
 def identify_design(
-    env: DeltaPickPlaceEnv, model: DeltaDynamics, performance: Performance, seed: int
+    plant: PlantConfig, model: DeltaDynamics, performance: Performance, seed: int, workers: int = 1
 ) -> ModelParameters:
-    """MId+F+R of a design's plant: the nominal robot's joint least squares on the design's own data."""
-    limits = excitation_limits(performance)
-    start = (0.0, 0.0, performance.cylinder.top - performance.cylinder.height / 2)
-    spawned = np.random.SeedSequence(seed).generate_state(IDENTIFICATION_TRAJECTORIES)
-    data = []
-    for index, trajectory_seed in enumerate(int(s) for s in spawned):
-        spec = ExcitationSpec(seed=trajectory_seed, duration=IDENTIFICATION_DURATION)
-        reference = excitation_trajectory(
-            model.geometry,
-            np.random.default_rng(trajectory_seed),
-            spec.duration,
-            spec.peak_acceleration,
-            start=start,
-            min_acceleration_fraction=spec.min_acceleration_fraction,
-            edge_fraction=spec.edge_fraction,
-            slow_fraction=spec.slow_fraction,
-            limits=limits,
-        )
-        feedforward = _PlainFeedforward(model, reference)
-        result, angles, torques, _ = _run(env, feedforward, reference, trajectory_seed, None)
-        _check(result, f"excitation run {index}")
-        data.append(prepare_motion(ExcitationRecord(spec=spec, dt=CONTROL_PERIOD, angles=angles, torques=torques)))
-    return fit_joint_least_squares(data, dynamics=model).parameters
+    """MId+F+R of a design's plant: the nominal robot's excitation runs and joint least squares.
+
+    Args:
+        plant: The design's plant.
+        model: Its rod-forearm model (geometry and scaled masses); its parameters are not used.
+        performance: Its figures (the dexterous cylinder bounds the excitation).
+        seed: Seed of the excitation trajectories and their sensor noise.
+        workers: Processes running the excitation trajectories.
+    """
+    try:
+        records = collect_excitation_data(excitation_specs(performance, seed), plant=plant, workers=workers)
+    except (RuntimeError, ValueError) as error:  # a divergence, or no excitation path fits the cylinder
+        raise DesignInfeasible(f"identification failed: {error}") from error
+    for index, record in enumerate(records):
+        _check(False, record.max_loop_gap, f"excitation run {index}")
+    data = [prepare_motion(record.angles, record.torques, record.dt) for record in records]
+    return fit_joint_least_squares(data, dynamics=model.with_parameters(None)).parameters
 
 
-class _PlainFeedforward:
-    """PD plus the MKH feedforward of the design along a known reference (the identification's controller)."""
-
-    name = "PD+MKH (excitation)"
-
-    def __init__(self, model: DeltaDynamics, reference: Trajectory) -> None:
-        self.torque = model.with_parameters(None).inverse_dynamics(
-            reference.theta, reference.theta_dot, reference.theta_ddot
-        )
-        self.pd = PDController()
-        self.step = 0
-
-    def reset(self) -> None:
-        self.step = 0
-
-    def __call__(self, observation: dict) -> NDArray[np.float64]:
-        torque = self.torque[min(self.step, len(self.torque) - 1)] + self.pd(observation)
-        self.step += 1
-        return torque
+def _reference_torques(model: DeltaDynamics, reference: Trajectory) -> tuple[float, float]:
+    """Peak and RMS torque (N m) of ``model`` along ``reference`` carrying :data:`PAYLOAD` while gripping."""
+    torque = model.inverse_dynamics(
+        reference.theta, reference.theta_dot, reference.theta_ddot, payload_profile(reference, PAYLOAD)
+    )
+    return float(np.max(np.abs(torque))), float(np.sqrt(np.mean(torque**2)))
 
 
-def verify_design(name: str, performance: Performance, *, seed: int = 0, episodes: int = 2) -> Verification:
+def verify_design(
+    name: str, performance: Performance, *, seed: int = 0, episodes: int = 2, workers: int = 1
+) -> Verification:
     """Identify a design's plant and run the controllers on it; never raises for an infeasible plant.
 
     Args:
@@ -244,41 +216,50 @@ def verify_design(name: str, performance: Performance, *, seed: int = 0, episode
         performance: The design's figures (geometry, scaled masses, dexterous cylinder).
         seed: Seed of the identification and of the first episode (episodes ``seed .. seed + episodes - 1``).
         episodes: Episodes per controller, >= 1.
+        workers: Processes running the identification's excitation trajectories.
     """
     require_count("episodes", episodes)
     geometry, masses = performance.geometry, performance.masses
     base = {"name": name, "geometry": geometry, "masses": masses}
     try:
-        env = DeltaPickPlaceEnv(plant=PlantConfig(geometry=geometry, masses=masses), n_cycles=EPISODE_CYCLES)
+        plant = PlantConfig(geometry=geometry, masses=masses)
+        env = DeltaPickPlaceEnv(plant=plant, n_cycles=EPISODE_CYCLES)
     except (ValueError, RuntimeError) as error:
         return Verification(**base, feasible=False, reason=f"plant cannot be assembled: {error}")
     model = design_model(geometry, masses)
     try:
-        parameters = identify_design(env, model, performance, seed)
-        identified = model.with_parameters(parameters)
-        estimator = PayloadEstimator(identified, regressor="smoothed")
-        rls = FeedforwardController(CONTROLLERS[1], identified, pd=PDController(), estimator=estimator)
+        parameters = identify_design(plant, model, performance, seed, workers)
+
+        def rls(tare: float) -> Controller:
+            return model_controller(
+                parameters,
+                forearm_rods=True,
+                regressor=ESTIMATOR_REGRESSORS[RLS_KEY],
+                tare=tare,
+                name=CONTROLLER_LABELS[RLS_KEY],
+                geometry=geometry,
+                masses=masses,
+            )
+
+        untared = rls(0.0)
         empty = [0.0] * EPISODE_CYCLES
-        calibration, *_, observations = _run(env, rls, episode_reference(geometry, seed), seed + 10_000, empty)
-        _check(calibration, "tare calibration")
-        tare, _ = tare_from_observations(estimator, [observations])
-        estimator = PayloadEstimator(identified, regressor="smoothed", tare=tare)
-        controllers = (
-            PDController(),
-            FeedforwardController(CONTROLLERS[1], identified, pd=PDController(), estimator=estimator),
-            OracleController(env.plant_config, pd=PDController()),
+        calibration_seed = seed + CALIBRATION_SEED_OFFSET
+        calibration = run_episode(
+            env, untared, calibration_seed, empty, reference=episode_reference(geometry, seed), keep_observations=True
         )
+        _check(calibration.diverged, calibration.max_loop_gap, "tare calibration")
+        tare, _ = tare_from_observations(untared.estimator, [calibration.observations])
+        controllers = (PDController(), rls(tare), OracleController(plant))
+        identified = model.with_parameters(parameters)
         results, predicted, identified_figures = [], {}, {}
         for episode_seed in range(seed, seed + episodes):
             reference = episode_reference(geometry, episode_seed)
-            carried = payload_profile(reference, PAYLOAD)
-            for dynamics, store in ((model, predicted), (identified, identified_figures)):
-                torque = dynamics.inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot, carried)
-                store[episode_seed] = (float(np.max(np.abs(torque))), float(np.sqrt(np.mean(torque**2))))
-            for controller in controllers:
-                result, *_ = _run(env, controller, reference, episode_seed, [PAYLOAD] * EPISODE_CYCLES)
-                _check(result, f"{result.controller} episode {episode_seed}")
-                results.append(result)
+            predicted[episode_seed] = _reference_torques(model, reference)
+            identified_figures[episode_seed] = _reference_torques(identified, reference)
+            for label, controller in zip(CONTROLLERS, controllers, strict=True):
+                record = run_episode(env, controller, episode_seed, [PAYLOAD] * EPISODE_CYCLES, reference=reference)
+                _check(record.diverged, record.max_loop_gap, f"{label} episode {episode_seed}")
+                results.append(_result(record, label, episode_seed))
     except DesignInfeasible as error:
         env.close()
         return Verification(**base, feasible=False, reason=str(error))
