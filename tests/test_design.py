@@ -172,7 +172,6 @@ def test_model_controller_uses_the_robot_it_is_given():
     assert model_controller(None).dynamics.geometry == NOMINAL_GEOMETRY
 
 
-@pytest.mark.slow
 def test_nominal_verification_runs_every_controller_with_closed_loops(nominal):
     result = verify.verify_design("nominal", nominal, episodes=1)
     assert result.feasible, result.reason
@@ -185,7 +184,6 @@ def test_nominal_verification_runs_every_controller_with_closed_loops(nominal):
     assert result.predicted_mean("predicted", 1) == pytest.approx(oracle_rms, rel=0.05)
 
 
-@pytest.mark.slow
 def test_a_design_is_identified_on_its_own_plant():
     design = performance.evaluate(DeltaGeometry(0.244, 0.030, 0.318, 1.054))
     assert design.feasible, design.reason
@@ -201,10 +199,9 @@ def test_a_design_is_identified_on_its_own_plant():
     assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)
 
 
-@pytest.mark.slow
 def test_quick_cli_writes_the_run_folder(tmp_path):
     out = tmp_path / "run"
-    assert main(["--quick", "--no-verify", "--seed", "3", "--out", str(out)]) == 0
+    assert main(["--quick", "--seed", "3", "--workers", "1", "--out", str(out)]) == 0
     with (out / "pareto.csv").open() as file:
         rows = list(csv.DictReader(file))
     for column in ("ra", "rb", "l1", "l2", "workspace_m3", "peak_torque_nm", "cycle_time_s"):
@@ -215,9 +212,13 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
     for i, a in enumerate(objectives):
         assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
     config = json.loads((out / "config.json").read_text())
-    assert config["command"].startswith("python -m eval.design --quick")
+    assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
     assert config["config"]["drive"]["armature_kg_m2"] == PlantRealism().armature
     assert "git_commit" in config and "versions" in config
-    for name in ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "summary.md"):
+    with (out / "torque_changes.csv").open() as file:
+        changes = list(csv.DictReader(file))
+    assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
+    names = ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "verification.csv")
+    for name in (*names, "summary.md"):
         assert (out / name).stat().st_size > 0
     assert math.isfinite(config["seconds"]["total"])
