@@ -123,8 +123,19 @@ class DeltaDynamics:
     @classmethod
     def nominal(cls, parameters: ModelParameters | None = None, *, forearm_rods: bool = False) -> DeltaDynamics:
         """The model with the datasheet geometry and masses (docs/design.md section 4)."""
-        m = NOMINAL_MASSES
-        return cls(NOMINAL_GEOMETRY, m1=m.m1, m2=m.m2, m0=m.m0, parameters=parameters, forearm_rods=forearm_rods)
+        return cls.of_robot(NOMINAL_GEOMETRY, NOMINAL_MASSES, parameters, forearm_rods=forearm_rods)
+
+    @classmethod
+    def of_robot(
+        cls,
+        geometry: DeltaGeometry,
+        masses: DeltaMasses,
+        parameters: ModelParameters | None = None,
+        *,
+        forearm_rods: bool = False,
+    ) -> DeltaDynamics:
+        """The model of a robot with these lengths (m) and datasheet masses (kg)."""
+        return cls(geometry, m1=masses.m1, m2=masses.m2, m0=masses.m0, parameters=parameters, forearm_rods=forearm_rods)
 
     def with_parameters(self, parameters: ModelParameters | None) -> DeltaDynamics:
         """The same analytical model (geometry, masses, forearms) with other identified parameters."""

@@ -1,6 +1,7 @@
 """The controllers of the comparison, by key, and the one factory that builds them (docs/design.md section 6).
 
-Every controller is built from the nominal geometry and masses and the identified parameters only; the
+Every controller is built from the datasheet geometry and masses of the robot it was identified on
+(:attr:`ControllerSetup.geometry`, :attr:`ControllerSetup.masses`) and the identified parameters only; the
 oracle row is the labelled exception that knows the plant (and, from the evaluation, the payloads).
 :func:`model_controller` is the one builder of a model-based controller: :func:`build_controller` uses it
 for every model row, and the residual policy file rebuilds its base controller with it.
@@ -72,19 +73,17 @@ def model_controller(
     """A model feedforward + PD controller, optionally with the online payload estimator.
 
     Args:
-        parameters: Identified parameters of the model of ``geometry`` and ``masses``; None is plain MKH.
+        parameters: Identified parameters of the robot's model; None is plain MKH.
         forearm_rods: The model with rod forearms (MId+F+R) instead of the paper's lumped forearms.
         regressor: Joint states of the payload estimator; None feeds forward mp = 0 (no estimator).
         tare: Apparent payload of the empty gripper (kg), subtracted by the estimator.
         friction_velocity: The estimator's friction band v_w (rad/s).
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
         name: Label; by default :func:`controller_name`.
-        geometry: Datasheet lengths of the robot controlled (m).
-        masses: Its datasheet masses (kg).
+        geometry: Lengths of the robot (m) the model describes.
+        masses: Datasheet masses of that robot (kg).
     """
-    dynamics = DeltaDynamics(
-        geometry, m1=masses.m1, m2=masses.m2, m0=masses.m0, parameters=parameters, forearm_rods=forearm_rods
-    )
+    dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
     estimator = None
     if regressor is not None:
         estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
@@ -103,6 +102,8 @@ class ControllerSetup:
         tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
         residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
+        geometry: Lengths (m) of the robot the parameters were identified on; the models are of this robot.
+        masses: Datasheet masses (kg) of that robot.
     """
 
     mid: ModelParameters
@@ -111,6 +112,8 @@ class ControllerSetup:
     tares: Mapping[str, float] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
     residual_policy: Path | None = None
+    geometry: DeltaGeometry = NOMINAL_GEOMETRY
+    masses: DeltaMasses = NOMINAL_MASSES
 
 
 def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
@@ -143,9 +146,13 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
             tare=setup.tares.get(key, 0.0),
             pd_gains=setup.pd_gains,
             name=label,
+            geometry=setup.geometry,
+            masses=setup.masses,
         )
     parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
-    return model_controller(parameters, pd_gains=setup.pd_gains, name=label)
+    return model_controller(
+        parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses
+    )
 
 
 def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
@@ -157,4 +164,4 @@ def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
 
 def estimation_model(setup: ControllerSetup) -> DeltaDynamics:
     """MId+F+R: the identified model with rod forearms, of the payload estimators and their feedforward."""
-    return DeltaDynamics.nominal(setup.mid_f_rods, forearm_rods=True)
+    return DeltaDynamics.of_robot(setup.geometry, setup.masses, setup.mid_f_rods, forearm_rods=True)

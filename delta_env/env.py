@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -20,8 +21,9 @@ from delta_env.config import (
     RandomizationRanges,
 )
 from delta_env.cycles import conveyor_cycles, standard_cycle
-from delta_env.geometry import GRAVITY, TORQUE_LIMIT
+from delta_env.geometry import TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
+from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
@@ -121,6 +123,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``divergence_penalty`` | float | 1000.0 | reward (negated) of the step on which the simulation diverges |
     | ``render_mode`` | str, None | None | ``"rgb_array"``, ``"human"`` or None |
     | ``width``, ``height`` | int | 480, 480 | render size (pixels) |
+    | ``scenario`` | str, path, Scenario, None | None = ``nominal`` | preset name, scenario TOML file or value |
+
+    The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
+    argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the
+    scenario's plant and its condition; ``domain_randomization=None`` keeps the scenario's.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
@@ -128,17 +135,30 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def __init__(
         self,
         plant: PlantConfig | None = None,
-        n_cycles: int = 3,
-        cycle: Literal["conveyor", "standard"] = "conveyor",
-        peak_acceleration: float = 3.0 * GRAVITY,
-        payload_mass_range: tuple[float, float] = (0.0, 4.0),
+        n_cycles: int | None = None,
+        cycle: Literal["conveyor", "standard"] | None = None,
+        peak_acceleration: float | None = None,
+        payload_mass_range: tuple[float, float] | None = None,
         domain_randomization: RandomizationRanges | None = None,
         reward_weights: RewardWeights | None = None,
         divergence_penalty: float = 1e3,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
+        scenario: str | os.PathLike[str] | Scenario | None = None,
     ) -> None:
+        base = Scenario() if scenario is None else resolve_scenario(scenario)
+        overrides = {
+            "n_cycles": n_cycles,
+            "cycle": cycle,
+            "peak_acceleration": peak_acceleration,
+            "payload_mass_range": payload_mass_range,
+            "domain_randomization": domain_randomization,
+        }
+        plant = base.effective_plant if plant is None else plant
+        n_cycles, cycle, peak_acceleration, payload_mass_range, domain_randomization = (
+            getattr(base.task, name) if value is None else value for name, value in overrides.items()
+        )
         require_count("n_cycles", n_cycles)
         if cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")

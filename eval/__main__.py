@@ -1,18 +1,25 @@
 """``python -m eval``: every controller on the same seeded pick-and-place episodes (docs/design.md section 8).
 
-1. Loads the identified MId, MId+F and MId+F+R parameters (``eval.identification.load_or_identify``; it
-   identifies and caches them when the file is missing, about a minute).
+The episodes are those of a scenario (``--scenario``, a preset or a TOML file; ``nominal`` by default;
+``paper`` is the paper's experiment: standard cycles with 3.8 kg on every pick), optionally on another
+robot (``--geometry``, a design of the design study).
+
+1. Loads the identified MId, MId+F and MId+F+R parameters of the scenario's robot
+   (``eval.identification.identify_robot``: one file per robot identity, identified when missing, about a
+   minute; ``worn`` and ``randomized`` are the nominal robot and share its file).
 2. Runs the comparison (:mod:`eval.comparison`): tares each payload estimator on ``--calibration-episodes``
    payload-free episodes, runs every controller on episodes ``seed, seed + 1, ...`` and the Table 2 run.
    The ``residual`` row is the learned residual policy (``--residual``, by default the shipped one) on
    the base it was trained on, rebuilt from the policy file.
 3. Writes the run folder (``--out``): ``config.json`` (resolved configuration and command),
+   ``scenario.toml`` (the scenario, every field resolved),
    ``episodes.csv`` and ``carries.csv`` (per episode and per carried object), ``table2.csv``,
    ``traces.npz`` and ``table2_run.npz`` (time series), ``summary.md`` and the plots made from these
    files; prints the summary. Diverged episodes are counted in the table, never dropped silently: their
    metrics cover the steps before the divergence.
 
-Usage: python -m eval [--seed 0] [--episodes 10] [--cycles 3] [--controllers pd,mid_f_rls] [--out DIR]
+Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 0] [--episodes 10] [--cycles 3]
+                      [--controllers pd,mid_f_rls] [--out DIR]
 """
 
 from __future__ import annotations
@@ -29,15 +36,16 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import CONTROLLER_LABELS, ControllerSetup, estimation_model
+from controllers.registry import CONTROLLER_LABELS, estimation_model
 from controllers.residual import DEFAULT_POLICY_PATH, load_residual_policy
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import plots
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.comparison import TABLE2_KEY, TABLE2_PAYLOAD, calibration_seeds, run_all, table2_statistics, tabulate
-from eval.identification import DEFAULT_PARAMETER_PATH, load_or_identify
+from eval.identification import check_identity, identify_robot, load_or_identify, parameter_path, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config
+from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 from eval.tables import bound_violations, controller_table, table2_table
 
 
@@ -45,20 +53,25 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per controller (default 10)")
-    parser.add_argument("--cycles", type=int, default=3, help="pick-and-place cycles per episode (default 3)")
+    parser.add_argument(
+        "--cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
+    )
     parser.add_argument(
         "--controllers",
-        default=",".join(CONTROLLER_LABELS),
-        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default: all)",
+        default=None,
+        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default: all; without 'residual' when the "
+        "residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
     parser.add_argument(
         "--parameters",
         type=Path,
-        default=DEFAULT_PARAMETER_PATH,
-        help=f"identified parameter file, identified when missing (default {DEFAULT_PARAMETER_PATH})",
+        default=None,
+        help="identified parameter file of the scenario's robot (default: runs/identification/<robot identity>/"
+        "parameters.json, identified when missing)",
     )
     parser.add_argument(
         "--calibration-episodes",
@@ -74,19 +87,38 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
-    keys = [key.strip() for key in args.controllers.split(",") if key.strip()]
+    chosen = args.controllers is not None
+    args.left_out = ""
+    keys = [key.strip() for key in (args.controllers or ",".join(CONTROLLER_LABELS)).split(",") if key.strip()]
     unknown = [key for key in keys if key not in CONTROLLER_LABELS]
     if unknown or not keys:
         parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLER_LABELS)}")
     args.controllers = list(dict.fromkeys(keys))
+    args.scenario = scenario_from_arguments(args, parser)
+    if args.cycles is None:
+        args.cycles = args.scenario.task.n_cycles
     for name in ("episodes", "cycles", "calibration_episodes", "workers"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
     if "residual" in args.controllers:
         try:  # fail now, not after the other controllers have run
-            load_residual_policy(args.residual)
+            policy = load_residual_policy(args.residual)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
+        robot = args.scenario.plant
+        if policy.base is not None and (policy.base.geometry, policy.base.masses) != (robot.geometry, robot.masses):
+            if not chosen:
+                args.controllers.remove("residual")
+                args.left_out = (
+                    f"The residual row is left out: its policy ({args.residual.name}) was trained on another robot."
+                )
+                return args
+            parser.error(
+                f"--residual: {args.residual} was trained on a robot with {policy.base.geometry} and "
+                f"{policy.base.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
+                "'residual' out of --controllers or train a policy on this robot (python -m eval.train_residual "
+                "--scenario/--geometry)"
+            )
     return args
 
 
@@ -108,14 +140,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     out = create_run_folder("eval", args.out)
     args.out = out
-    identification = load_or_identify(args.parameters)
+    scenario = args.scenario
+    scenario.save(out / "scenario.toml")
+    robot = scenario.plant
+    if args.parameters is None:
+        args.parameters = parameter_path(robot)
+        identification = identify_robot(robot)
+    else:
+        identification = load_or_identify(args.parameters, plant=robot)
+        check_identity(identification, robot, args.parameters)
     identified_time = time.perf_counter() - started
-    setup = ControllerSetup(
-        mid=identification.mid,
-        mid_f=identification.mid_f,
-        mid_f_rods=identification.mid_f_rods,
-        residual_policy=args.residual,
-    )
+    setup = robot_setup(robot, identification, residual_policy=args.residual)
     keys = args.controllers
     results, tares, tare_spreads = run_all(args, setup)
     episode_rows, carry_rows, traces = tabulate(results, keys)
@@ -137,15 +172,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     np.savez_compressed(out / "table2_run.npz", **model_torques)
 
     total_time = time.perf_counter() - started
-    env = DeltaPickPlaceEnv(n_cycles=args.cycles)
+    env = DeltaPickPlaceEnv(n_cycles=args.cycles, scenario=scenario)
     config = {
-        "arguments": vars(args),
+        "arguments": {**vars(args), "scenario": scenario.name},
+        "scenario": {
+            "name": scenario.name,
+            "file": "scenario.toml",
+            "content_hash": scenario.content_hash,
+            "robot_identity": scenario.robot_identity,
+        },
         "episode_seeds": [args.seed + i for i in range(args.episodes)],
         "calibration_seeds": calibration_seeds(args.seed, args.calibration_episodes),
         "env": {
             "id": "DeltaPickPlace-v0",
             "n_cycles": args.cycles,
-            "cycle": "conveyor",
+            "cycle": env.cycle,
             "peak_acceleration_m_s2": env.peak_acceleration,
             "payload_mass_range_kg": list(env.payload_mass_range),
             "plant": repr(env.plant_config),
@@ -170,7 +211,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     summary = "\n".join(
         [
-            f"# Controller comparison: {args.episodes} episodes x {args.cycles} cycles from seed {args.seed}",
+            f"# Controller comparison, scenario {scenario.name}: {args.episodes} episodes x {args.cycles} cycles "
+            f"from seed {args.seed}",
+            "",
+            f"Scenario {scenario.name} ({scenario.description or 'no description'}); robot {scenario.robot_identity}, "
+            f"identified in {args.parameters}.",
             "",
             "Mean ± std over episodes (diverged ones counted, their metrics cover the steps before divergence and "
             "are left out of the means). Payload columns: objects >= 0.5 kg. The oracle knows the plant and the "
@@ -187,6 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             + ", ".join(f"{CONTROLLER_LABELS[k]} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
             "",
             *_bound_section(episode_rows),
+            *([args.left_out, ""] if args.left_out else []),
             f"Run folder: {out} ({total_time:.0f} s)",
         ]
     )

@@ -13,6 +13,7 @@ from typing import Any
 
 from controllers.payload import tare_from_observations
 from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, payload_estimator
+from delta_env.scenario import Scenario
 from eval.episodes import EpisodeRecord
 from eval.tasks import Task, run_tasks
 
@@ -20,14 +21,21 @@ DEFAULT_CALIBRATION_EPISODES = 3
 """Payload-free episodes per tare."""
 
 
-def calibration_tasks(keys: Iterable[str], setup: ControllerSetup, seeds: Sequence[int], n_cycles: int) -> list[Task]:
-    """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed."""
+def calibration_tasks(
+    keys: Iterable[str],
+    setup: ControllerSetup,
+    seeds: Sequence[int],
+    n_cycles: int,
+    scenario: Scenario | None = None,
+) -> list[Task]:
+    """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed, on
+    ``scenario`` (None: ``nominal``)."""
     tasks = []
     for key in keys:
         if key not in ESTIMATOR_REGRESSORS:
             raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
         empty = (0.0,) * n_cycles
-        tasks += [Task("calibration", key, j, seed, n_cycles, setup, empty) for j, seed in enumerate(seeds)]
+        tasks += [Task("calibration", key, j, seed, n_cycles, setup, empty, scenario) for j, seed in enumerate(seeds)]
     return tasks
 
 
@@ -53,7 +61,9 @@ def calibrate_tares(
     *,
     workers: int = 1,
     progress: Any = None,
+    scenario: Scenario | None = None,
 ) -> tuple[dict[str, float], dict[str, float]]:
-    """Run the calibration episodes of ``keys`` and return their tares and spreads (kg) by key."""
-    tasks = calibration_tasks(keys, setup, seeds, n_cycles)
+    """Run the calibration episodes of ``keys`` on ``scenario`` (None: ``nominal``) and return their tares
+    and spreads (kg) by key."""
+    tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario)
     return tares_from_results(run_tasks(tasks, workers, progress), setup)

@@ -2,9 +2,10 @@
 
 1. Tares each payload estimator (:mod:`eval.calibration`): its controller runs payload-free pick-and-place
    episodes on seeds of their own.
-2. Runs every controller on episodes ``seed, seed + 1, ...`` of the default env (realistic plant, 3 g
-   conveyor cycles, objects drawn from U[0, 4] kg): the same paths and objects for all.
-3. Runs the Table 2 analogue: MId+F+R+RLS on the path of the first episode with every object 3.8 kg; the
+2. Runs every controller on episodes ``seed, seed + 1, ...`` of the scenario (by default ``nominal``:
+   realistic plant, 3 g conveyor cycles, objects drawn from U[0, 4] kg): the same paths and objects for all.
+3. Runs the Table 2 analogue: MId+F+R+RLS on the path of the first episode with every object 3.8 kg (the
+   paper's experiment when the scenario is ``paper``: standard cycles, 3.8 kg on every pick); the
    measured torques against MId+F+R with mp = 0 and with mp = m_hat.
 4. Tabulates per episode and per carried object (:func:`tabulate`, :func:`table2_statistics`).
 """
@@ -49,7 +50,7 @@ def run_all(
 
     Args:
         args: The parsed command line of ``python -m eval`` (seed, episodes, cycles, controllers,
-            calibration_episodes, workers).
+            calibration_episodes, workers, scenario: the resolved Scenario).
         setup: What the controllers may know (identified parameters, gains, residual policy).
 
     Returns:
@@ -63,19 +64,21 @@ def run_all(
 
     def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
         return [
-            Task("episode", key, i, args.seed + i, args.cycles, task_setup)
+            Task("episode", key, i, args.seed + i, args.cycles, task_setup, scenario=args.scenario)
             for key in selected
             for i in range(args.episodes)
         ]
 
-    calibrations = calibration_tasks(tared, setup, calibration_seeds(args.seed, args.calibration_episodes), args.cycles)
+    seeds = calibration_seeds(args.seed, args.calibration_episodes)
+    calibrations = calibration_tasks(tared, setup, seeds, args.cycles, args.scenario)
     first = calibrations + episodes(untared, setup)
     total = len(first) + args.episodes * (len(keys) - len(untared)) + 1
     with tqdm(total=total, desc="episodes", unit="ep") as progress:
         results = run_tasks(first, args.workers, progress)
         tares, spreads = tares_from_results(results, setup)
         tared_setup = dataclasses.replace(setup, tares=tares)
-        table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, (TABLE2_PAYLOAD,) * args.cycles)
+        payloads = (TABLE2_PAYLOAD,) * args.cycles
+        table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, payloads, args.scenario)
         second = [*episodes([key for key in keys if key not in untared], tared_setup), table2]
         results += run_tasks(second, args.workers, progress)
     return results, tares, spreads

@@ -7,8 +7,11 @@ measured motor torques. The algorithms of :mod:`controllers.identification` then
 samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod forearms,
 beyond the paper), and compare every model on a held-out stress trajectory.
 
-The result is a JSON parameter file with provenance (:data:`DEFAULT_PARAMETER_PATH`), which
-:func:`load_or_identify` reads, or creates when it is missing.
+The result is a JSON parameter file with provenance, which :func:`load_or_identify` reads, or creates
+when it is missing. The identification belongs to a robot (its plant), not to the conditions it runs in:
+:func:`identify_robot` keeps one file per robot identity
+(:func:`delta_env.scenario.plant_identity`), ``runs/identification/<identity>/parameters.json``, records
+the identity in the file and checks it on reading; a new robot is identified once, when first needed.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from controllers.identification import (
     IdentificationResult,
     LeastSquaresFit,
     MotionData,
+    ParameterFileError,
     between_trajectory_spread,
     concatenate,
     error_table,
@@ -50,11 +54,13 @@ from controllers.identification import (
     prepare_motion,
     save_result,
 )
+from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import excitation_trajectory
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits
+from delta_env.scenario import plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
@@ -65,8 +71,17 @@ from eval.run_folder import json_ready, package_versions
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_PARAMETER_PATH = Path("runs/identification/parameters.json")
-"""Where :func:`load_or_identify` (and so ``python -m eval``) looks for identified parameters."""
+IDENTIFICATION_ROOT = Path("runs/identification")
+"""Folder of the identifications, one subfolder per robot identity."""
+
+
+def parameter_path(plant: PlantConfig, root: str | os.PathLike[str] = IDENTIFICATION_ROOT) -> Path:
+    """Where the identification of the robot ``plant`` builds is kept: ``root/<identity>/parameters.json``."""
+    return Path(root) / plant_identity(plant) / "parameters.json"
+
+
+DEFAULT_PARAMETER_PATH = parameter_path(PlantConfig())
+"""The nominal robot's identified parameters (what ``python -m eval`` uses by default)."""
 
 DEFAULT_TRAJECTORIES = 12
 """Excitation trajectories of the identification, as in the paper."""
@@ -180,10 +195,9 @@ def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> Ex
     """
     plant = PlantConfig() if plant is None else plant
     reference = spec.reference(plant.geometry)
-    masses = plant.masses
-    model = DeltaDynamics(plant.geometry, m1=masses.m1, m2=masses.m2, m0=masses.m0)
     # MKH feedforward along the reference, in one batch (the batched model is much faster than single samples).
-    feedforward = model.inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
+    mkh = robot_model(plant)
+    feedforward = mkh.inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
     env = DeltaPickPlaceEnv(plant=plant)
     record = run_episode(env, ReferenceFeedforward(feedforward), spec.seed, reference=reference)
     env.close()
@@ -197,6 +211,11 @@ def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> Ex
         torques=record.measured_torque,
         max_loop_gap=record.max_loop_gap,
     )
+
+
+def robot_model(plant: PlantConfig, *, forearm_rods: bool = False) -> DeltaDynamics:
+    """MKH of the robot ``plant`` builds: its lengths and datasheet masses, nothing identified yet."""
+    return DeltaDynamics.of_robot(plant.geometry, plant.masses, forearm_rods=forearm_rods)
 
 
 def _progress_bar(total: int, show: bool) -> Any:
@@ -268,6 +287,9 @@ def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
 def _plant_summary(plant: PlantConfig) -> dict[str, Any]:
     """What a test-bench log would state about the robot: no friction or mass values (those are truth)."""
     return {
+        "identity": plant_identity(plant),
+        "geometry_m": dataclasses.asdict(plant.geometry),
+        "masses_kg": dataclasses.asdict(plant.masses),
         "variant": plant.variant,
         "mjcf_sha256": hashlib.sha256(build_mjcf(plant).encode()).hexdigest(),
         "control_period_s": CONTROL_PERIOD,
@@ -325,9 +347,9 @@ def run_identification(
         *data, validation = parallel_map(run, specs, workers, bar)
     data_time = time.perf_counter() - start
 
-    (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data))
-    paper, paper_time = _best_time(lambda: fit_paper_method(data))
-    lumped, rods = DeltaDynamics.nominal(), DeltaDynamics.nominal(forearm_rods=True)
+    lumped, rods = robot_model(plant), robot_model(plant, forearm_rods=True)
+    (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data, dynamics=lumped))
+    paper, paper_time = _best_time(lambda: fit_paper_method(data, dynamics=lumped))
     rod_fit = fit_joint_least_squares(data, dynamics=rods)
 
     models = {
@@ -358,7 +380,7 @@ def run_identification(
             "smoother": {"jerk_std": SMOOTHER_JERK_STD, "measurement_std": ENCODER_NOISE_STD},
             "rho1_grid": list(RHO1_GRID),
             "rho2_grid": list(RHO2_GRID),
-            "controller": {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH, nominal"},
+            "controller": {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"},
         },
         "seed": seed,
         "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
@@ -370,7 +392,7 @@ def run_identification(
             "validation": len(validation),
         },
         "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary(), "mid_f_rods": rod_fit.summary()},
-        "mid_f_between_trajectories": between_trajectory_spread(data),
+        "mid_f_between_trajectories": between_trajectory_spread(data, lumped),
         "raw_estimates": {
             "mid_f": dict(zip(joint_fit.names, joint_fit.estimate, strict=True)),
             "mid_f_rods": dict(zip(rod_fit.names, rod_fit.estimate, strict=True)),
@@ -413,7 +435,8 @@ def identify(
     workers: int | None = None,
     **kwargs: Any,
 ) -> IdentificationResult:
-    """Identify MId and MId+F on the default realistic plant, by the paper's method and ours.
+    """Identify MId and MId+F on a plant (the default realistic one unless ``plant`` is given), by the paper's
+    method and ours.
 
     Args:
         n_trajectories: Excitation trajectories (distinct seeds derived from ``seed``), >= 1.
@@ -445,3 +468,56 @@ def load_or_identify(
     result = identify(**identify_kwargs)
     save_result(result, path)
     return result
+
+
+def check_identity(result: IdentificationResult, plant: PlantConfig, path: str | os.PathLike[str]) -> None:
+    """Refuse an identification of another robot than ``plant``'s.
+
+    Raises:
+        ParameterFileError: if the file records no robot identity or another one than ``plant``'s.
+    """
+    recorded = result.provenance.get("plant", {}).get("identity")
+    expected = plant_identity(plant)
+    if recorded != expected:
+        raise ParameterFileError(
+            f"{path}: identified on robot {recorded!r}, not on this robot {expected!r} "
+            "(delete the file to identify again, or pass the file of this robot)"
+        )
+
+
+def identify_robot(
+    plant: PlantConfig, root: str | os.PathLike[str] = IDENTIFICATION_ROOT, **identify_kwargs: Any
+) -> IdentificationResult:
+    """The identification of the robot ``plant`` builds, from its file under ``root``; identified there when
+    missing (about a minute per robot).
+
+    Args:
+        plant: The robot as identified (a scenario's ``plant``, without its condition).
+        root: Folder of the identifications (:func:`parameter_path`).
+        **identify_kwargs: Arguments of :func:`identify` other than ``plant``, used only when identifying.
+
+    Raises:
+        ParameterFileError: if the file is corrupt or records another robot.
+    """
+    path = parameter_path(plant, root)
+    result = load_or_identify(path, plant=plant, **identify_kwargs)
+    check_identity(result, plant, path)
+    return result
+
+
+def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs: Any) -> ControllerSetup:
+    """What the controllers know of the robot ``plant`` builds: its lengths, datasheet masses and ``result``.
+
+    Args:
+        plant: The robot the parameters were identified on.
+        result: Its identification.
+        **setup_kwargs: Other fields of :class:`~controllers.registry.ControllerSetup` (tares, gains, policy).
+    """
+    return ControllerSetup(
+        mid=result.mid,
+        mid_f=result.mid_f,
+        mid_f_rods=result.mid_f_rods,
+        geometry=plant.geometry,
+        masses=plant.masses,
+        **setup_kwargs,
+    )

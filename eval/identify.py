@@ -1,7 +1,9 @@
 """``python -m eval.identify``: identify MId, MId+F and MId+F+R on the plant and write a validation report.
 
-Runs :func:`eval.identification.run_identification`, writes the parameter file into the run
-folder and (unless ``--no-install``) to the default path the controllers load, the resolved
+The plant is the robot of ``--scenario`` (and ``--geometry``); its condition (wear) and task do not enter:
+an identification belongs to the robot. Runs :func:`eval.identification.run_identification`, writes the
+parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
+load (``runs/identification/<robot identity>/parameters.json``), the scenario (``scenario.toml``), the resolved
 configuration and the command, the held-out validation data, a Markdown report and the figures
 (made from the saved data), and prints the report.
 
@@ -20,7 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from controllers.dynamics import DeltaDynamics
 from controllers.identification import (
     FRICTION_VELOCITY_THRESHOLD,
     JOINT_PARAMETER_NAMES,
@@ -32,13 +33,14 @@ from delta_env.config import PlantConfig
 from delta_env.geometry import GRAVITY
 from eval.identification import (
     DEFAULT_DURATION,
-    DEFAULT_PARAMETER_PATH,
     DEFAULT_TRAJECTORIES,
     VALIDATION_DURATION,
     IdentificationRun,
+    parameter_path,
     run_identification,
 )
 from eval.run_folder import command_line, create_run_folder, write_config
+from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 
 FIGURES = {
     "fig3_mkh.png": "MKH",
@@ -64,6 +66,7 @@ TARGET_STD_RATIO = 0.25
 
 def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
+    add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
     parser.add_argument("--trajectories", type=int, default=DEFAULT_TRAJECTORIES, help="excitation trajectories")
     parser.add_argument("--duration", type=float, default=DEFAULT_DURATION, help="length of each trajectory (s)")
@@ -75,16 +78,23 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
         "--out", type=Path, default=None, help="run folder (default runs/identification/<time>_seed<seed>)"
     )
     parser.add_argument(
-        "--parameters", type=Path, default=DEFAULT_PARAMETER_PATH, help="parameter file the controllers load"
+        "--parameters",
+        type=Path,
+        default=None,
+        help="parameter file the controllers load (default: runs/identification/<robot identity>/parameters.json)",
     )
     parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    return parser.parse_args(argv)
+    arguments = parser.parse_args(argv)
+    arguments.scenario = scenario_from_arguments(arguments, parser)
+    if arguments.parameters is None:
+        arguments.parameters = parameter_path(arguments.scenario.plant)
+    return arguments
 
 
-def _ground_truth() -> dict[str, list[float]]:
-    """The default plant's true friction (ground truth for this report only)."""
-    realism = PlantConfig().realism
+def _ground_truth(plant: PlantConfig) -> dict[str, list[float]]:
+    """The plant's true friction (ground truth for this report only)."""
+    realism = plant.realism
     return {"viscous": realism.viscous_per_joint.tolist(), "coulomb": realism.coulomb_per_joint.tolist()}
 
 
@@ -228,12 +238,15 @@ def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
     ]
     for threshold in THRESHOLD_SWEEP:
         try:
-            parameters = fit_joint_least_squares(run.data, velocity_threshold=threshold).parameters
+            parameters = fit_joint_least_squares(
+                run.data, dynamics=run.models["MKH"], velocity_threshold=threshold
+            ).parameters
         except ValueError as failure:
             lines.append(f"| {threshold:g} | not identifiable: {failure} | | | |")
             continue
         error = 100.0 * (np.array([*parameters.viscous, *parameters.coulomb]) - true) / true
-        sigma = np.array(error_table({"ls": DeltaDynamics.nominal(parameters)}, run.validation)["ls"]["std"])
+        model = run.models["MKH"].with_parameters(parameters)
+        sigma = np.array(error_table({"ls": model}, run.validation)["ls"]["std"])
         marker = " (default)" if threshold == FRICTION_VELOCITY_THRESHOLD else ""
         lines.append(
             f"| {threshold:g}{marker} | {', '.join(f'{e:+.1f}' for e in error[:3])} | "
@@ -243,14 +256,16 @@ def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
     return lines
 
 
-def render_report(run: IdentificationRun, validation_file: Path, command: str, figures: list[Path]) -> str:
-    """The Markdown validation report."""
+def render_report(
+    run: IdentificationRun, validation_file: Path, command: str, figures: list[Path], plant: PlantConfig
+) -> str:
+    """The Markdown validation report of the identification of ``plant``."""
     provenance = run.result.provenance
     table = provenance["torque_error_validation"]
     times = provenance["run_time_s"]
     residuals = provenance["residuals"]
     held_out = provenance["validation_trajectory"]
-    truth = _ground_truth()
+    truth = _ground_truth(plant)
     peak_g = held_out["peak_acceleration"] / GRAVITY
     lines = [
         "# Identification report",
@@ -274,7 +289,7 @@ def render_report(run: IdentificationRun, validation_file: Path, command: str, f
         "",
         "## Identified parameters",
         "",
-        "Ground truth: the default plant's friction (`PlantConfig().realism`), read by this report only. "
+        "Ground truth: the identified plant's friction (its `PlantConfig.realism`), read by this report only. "
         "rho1 and rho2 have no physical truth (they absorb armature, the real arm and forearm inertia).",
         "SE = sigma^2 (X^T X)^-1 over rows 1 ms apart whose residuals are correlated: optimistic. "
         "The between-trajectory SE (spread of per-trajectory fits / sqrt(n)) is the honest one.",
@@ -318,6 +333,8 @@ def main(argv: list[str] | None = None) -> int:
     stamp = f"{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}_seed{arguments.seed}"
     folder = create_run_folder("identification", arguments.out, stamp=stamp)
     command = command_line("eval.identify", argv)
+    scenario = arguments.scenario
+    scenario.save(folder / "scenario.toml")
 
     run = run_identification(
         arguments.trajectories,
@@ -326,16 +343,18 @@ def main(argv: list[str] | None = None) -> int:
         validation_duration=arguments.validation_duration,
         progress=not arguments.no_progress,
         workers=arguments.workers,
+        plant=scenario.plant,
     )
     save_result(run.result, folder / "parameters.json")
     if not arguments.no_install:
         save_result(run.result, arguments.parameters)
-    write_config(folder, command, {**vars(arguments), "out": folder}, method=run.result.provenance["method"])
+    config = {**vars(arguments), "out": folder, "scenario": scenario.name, "robot_identity": scenario.robot_identity}
+    write_config(folder, command, config, method=run.result.provenance["method"])
 
     validation_file = folder / "validation.npz"
     save_validation_data(run, validation_file)
     figures = plot_figures(validation_file, folder)
-    report = render_report(run, validation_file, command, figures)
+    report = render_report(run, validation_file, command, figures, scenario.plant)
     (folder / "report.md").write_text(report)
     print(report)
     installed = "" if arguments.no_install else f" and {arguments.parameters}"

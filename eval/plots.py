@@ -6,6 +6,8 @@
 - ``payload_estimate.png``: payload estimate against the true payload over time (Fig. 8);
 - ``error_bars.png``: Table 2 means with standard deviations per joint (Fig. 6 (b)) and the tracking RMS
   of each controller with its spread over episodes.
+
+Every figure's title names the scenario of the run (``scenario.toml`` in the run folder).
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
+import tomllib
+
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -32,7 +36,7 @@ def _read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(file))
 
 
-def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path) -> None:
+def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
     """Applied motor torque of each controller over the first episode, one panel per joint."""
     dt = float(traces["dt"])
     figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
@@ -46,13 +50,13 @@ def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path) -> None:
         axis.grid(alpha=0.3)
     axes[0].legend(fontsize="small", ncol=2)
     axes[-1].set_xlabel("time (s)")
-    figure.suptitle("Motor torques, first episode")
+    figure.suptitle(f"Motor torques, first episode (scenario {scenario})")
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
 
 
-def table2_torques(run: np.lib.npyio.NpzFile, path: Path) -> None:
+def table2_torques(run: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
     """Measured torque against MId+F with and without the estimated payload (the paper's Fig. 7)."""
     figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
     time = run["time"]
@@ -64,13 +68,13 @@ def table2_torques(run: np.lib.npyio.NpzFile, path: Path) -> None:
         axis.grid(alpha=0.3)
     axes[0].legend(fontsize="small")
     axes[-1].set_xlabel("time (s)")
-    figure.suptitle("Measured and model torques, every object 3.8 kg")
+    figure.suptitle(f"Measured and model torques, every object 3.8 kg (scenario {scenario})")
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
 
 
-def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, path: Path) -> None:
+def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
     """Payload estimate and true payload over time: first episode and the 3.8 kg run (the paper's Fig. 8)."""
     dt = float(traces["dt"])
     # The estimate formed from observation n and the true mass at observation n (one more at the end).
@@ -94,12 +98,13 @@ def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, pa
         axis.grid(alpha=0.3)
         axis.legend(fontsize="small", loc="upper right")
     axes[-1].set_xlabel("time (s)")
+    figure.suptitle(f"Payload estimate (scenario {scenario})")
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
 
 
-def error_bars(table2: list[dict[str, str]], episodes: list[dict[str, str]], path: Path) -> None:
+def error_bars(table2: list[dict[str, str]], episodes: list[dict[str, str]], path: Path, scenario: str) -> None:
     """Mean torque errors with standard deviations (Fig. 6 (b)) and tracking RMS per controller."""
     figure, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
     positions = np.arange(3)
@@ -127,19 +132,31 @@ def error_bars(table2: list[dict[str, str]], episodes: list[dict[str, str]], pat
     right.set_ylabel("tracking RMS (mm)")
     right.set_title("Tracking error: mean ± std over episodes", fontsize="medium")
     right.grid(alpha=0.3, axis="y")
+    figure.suptitle(f"Scenario {scenario}")
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
 
 
+def scenario_name(run_dir: Path) -> str:
+    """The scenario name recorded in the run folder's ``scenario.toml``.
+
+    Raises:
+        FileNotFoundError: if the run folder has no ``scenario.toml``.
+    """
+    with (Path(run_dir) / "scenario.toml").open("rb") as file:
+        return str(tomllib.load(file)["name"])
+
+
 def make_plots(run_dir: Path) -> list[Path]:
     """All figures of the run in ``run_dir``, from its saved files; returns their paths."""
     run_dir = Path(run_dir)
+    scenario = scenario_name(run_dir)
     paths = [run_dir / name for name in ("torque_profiles.png", "table2_torques.png", "payload_estimate.png")]
     paths.append(run_dir / "error_bars.png")
     with np.load(run_dir / "traces.npz") as traces, np.load(run_dir / "table2_run.npz") as run:
-        torque_profiles(traces, paths[0])
-        table2_torques(run, paths[1])
-        payload_estimate(traces, run, paths[2])
-    error_bars(_read_csv(run_dir / "table2.csv"), _read_csv(run_dir / "episodes.csv"), paths[3])
+        torque_profiles(traces, paths[0], scenario)
+        table2_torques(run, paths[1], scenario)
+        payload_estimate(traces, run, paths[2], scenario)
+    error_bars(_read_csv(run_dir / "table2.csv"), _read_csv(run_dir / "episodes.csv"), paths[3], scenario)
     return paths

@@ -11,6 +11,7 @@ from typing import Any
 
 from controllers.registry import ControllerSetup, build_controller
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.scenario import Scenario
 from eval.episodes import EpisodeRecord, run_episode
 from eval.processes import parallel_map
 
@@ -27,6 +28,7 @@ class Task:
         n_cycles: Pick-and-place cycles.
         setup: What the controller may know.
         masses: Object masses (kg) overriding the drawn ones, or None.
+        scenario: The robot and the work (``n_cycles`` overrides its cycles); None is ``nominal``.
     """
 
     kind: str
@@ -36,11 +38,12 @@ class Task:
     n_cycles: int
     setup: ControllerSetup
     masses: tuple[float, ...] | None = None
+    scenario: Scenario | None = None
 
 
 def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     """Run one task in a fresh env (picklable: the unit of work of the process pool)."""
-    env = DeltaPickPlaceEnv(n_cycles=task.n_cycles)
+    env = DeltaPickPlaceEnv(n_cycles=task.n_cycles, scenario=task.scenario)
     controller = build_controller(task.key, task.setup, env)
     record = run_episode(env, controller, task.seed, task.masses, keep_observations=task.kind == "calibration")
     env.close()

@@ -23,9 +23,10 @@ validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the ta
 its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
 ever trained on.
 
-The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters from
-``eval.identification.load_or_identify()`` and its tare calibrated as the eval does (:mod:`eval.calibration`
-on payload-free episodes). Both are saved in the policy.
+The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters
+those of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
+its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
+Both, and the robot's geometry and masses, are saved in the policy.
 """
 
 from __future__ import annotations
@@ -66,8 +67,10 @@ from controllers.residual import (
     save_residual_policy,
 )
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.scenario import Scenario
 from eval.calibration import calibrate_tares
 from eval.run_folder import command_line, create_run_folder, write_config, write_json
+from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
 
 HYPERPARAMETER_FILE = Path(__file__).resolve().parent / "hyperparams" / "residual.toml"
@@ -137,23 +140,29 @@ class EpisodeSeeds(gym.Wrapper):
 
 
 def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = None) -> BaseSetup:
-    """The default base controller's setup: identified MId+F+R parameters and its calibrated tare.
+    """The default base controller's setup: identified MId+F+R parameters of the scenario's robot and its
+    tare calibrated on the scenario.
 
     Args:
-        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: only
-            ``n_cycles`` (the tare is measured on the default plant).
-        parameters: Identified MId+F+R parameters; None loads them with ``load_or_identify()``.
+        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
+            and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
+        parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
+            with :func:`eval.identification.identify_robot`.
     """
-    if set(env_kwargs) != {"n_cycles"}:
-        raise ValueError(f"the tare calibration takes n_cycles only, got {sorted(env_kwargs)}")
+    if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
+        raise ValueError(f"the tare calibration takes n_cycles and scenario only, got {sorted(env_kwargs)}")
+    scenario = env_kwargs.get("scenario") or Scenario()
+    robot = scenario.plant
     if parameters is None:
-        from eval.identification import load_or_identify
+        from eval.identification import identify_robot
 
-        parameters = load_or_identify().mid_f_rods
+        parameters = identify_robot(robot).mid_f_rods
     # The registry's mid_f_rls controller is this base; the lumped parameter sets are not used by it.
-    setup = ControllerSetup(mid=parameters, mid_f=parameters, mid_f_rods=parameters)
-    tares, _ = calibrate_tares(["mid_f_rls"], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"])
-    return BaseSetup(parameters, tare=tares["mid_f_rls"])
+    setup = ControllerSetup(
+        mid=parameters, mid_f=parameters, mid_f_rods=parameters, geometry=robot.geometry, masses=robot.masses
+    )
+    tares, _ = calibrate_tares(["mid_f_rls"], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
+    return BaseSetup(parameters, tare=tares["mid_f_rls"], geometry=robot.geometry, masses=robot.masses)
 
 
 def make_env(
@@ -278,7 +287,8 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
         action_period=args.action_period,
         reward_scale=args.reward_scale,
     )
-    env_kwargs = {"n_cycles": args.n_cycles}
+    env_kwargs = {"n_cycles": args.n_cycles, "scenario": args.scenario}
+    args.scenario.save(out / "scenario.toml")
     base = base_setup(env_kwargs) if base_factory is None else None
     hyperparameters = load_hyperparameters(args.algo)
     for name in ("learning_rate", "gamma", "batch_size", "learning_starts", "buffer_size"):
@@ -292,10 +302,11 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
 
     command = command_line("eval.train_residual")
     resolved = {
-        "arguments": vars(args),
+        "arguments": {**vars(args), "scenario": args.scenario.name},
         "hyperparameter_file": HYPERPARAMETER_FILE.name,
         "residual_config": asdict(config),
-        "env_kwargs": env_kwargs,
+        "env_kwargs": {**env_kwargs, "scenario": args.scenario.name},
+        "scenario": {"name": args.scenario.name, "file": "scenario.toml", "robot": args.scenario.robot_identity},
         "hyperparameters": hyperparameters,
         "base_controller": "custom (base_factory)" if base is None else base.to_dict(),
         "seeds": {
@@ -405,7 +416,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--max-minutes", type=float, default=None, help="stop training after this wall time")
     parser.add_argument("--checkpoint-freq", type=int, default=50_000, help="policy steps between checkpoints")
     parser.add_argument("--eval-freq", type=int, default=20_000, help="policy steps between held-out evaluations")
-    parser.add_argument("--n-cycles", type=int, default=3, help="pick-and-place cycles per episode")
+    add_scenario_arguments(parser)
+    parser.add_argument(
+        "--n-cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
+    )
     parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
     parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
@@ -423,6 +437,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--score-only", type=Path, default=None, help="no training: score this policy zip on the test seeds"
     )
     args = parser.parse_args(argv)
+    args.scenario = scenario_from_arguments(args, parser)
+    if args.n_cycles is None:
+        args.n_cycles = args.scenario.task.n_cycles
     if args.n_envs < 1 or args.timesteps < 1:
         parser.error("--n-envs and --timesteps must be >= 1")
     return args
@@ -434,7 +451,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         train(args)
         return 0
     out = create_run_folder("residual", args.out if args.out is not None else args.score_only.parent)
-    scores = score_policy(args.score_only, {"n_cycles": args.n_cycles})
+    args.scenario.save(out / "scenario.toml")
+    scores = score_policy(args.score_only, {"n_cycles": args.n_cycles, "scenario": args.scenario})
     scores["command"] = command_line("eval.train_residual")
     write_json(out / "scores.json", scores)
     print(json.dumps(scores["summary"], indent=2))

@@ -69,15 +69,19 @@ def joint_min_jerk_move() -> Callable[..., tuple[np.ndarray, ...]]:
     return _joint_min_jerk_move
 
 
+NOMINAL_SETUP = ControllerSetup(
+    mid=ModelParameters(rho1=1.80, rho2=0.936),
+    mid_f=ModelParameters(rho1=1.76, rho2=0.877, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46)),
+    mid_f_rods=ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59)),
+)
+"""The parameters identified on the default realistic plant (``python -m eval.identify``, seed 0), rounded:
+the tests do not wait a minute for the identification."""
+
+
 @pytest.fixture(scope="session")
 def controller_setup() -> ControllerSetup:
-    """The parameters identified on the default realistic plant (``python -m eval.identify``, seed 0), rounded:
-    the tests do not wait a minute for the identification."""
-    return ControllerSetup(
-        mid=ModelParameters(rho1=1.80, rho2=0.936),
-        mid_f=ModelParameters(rho1=1.76, rho2=0.877, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46)),
-        mid_f_rods=ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59)),
-    )
+    """:data:`NOMINAL_SETUP`."""
+    return NOMINAL_SETUP
 
 
 # ---------------------------------------------------------------------------------------------

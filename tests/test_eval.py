@@ -13,6 +13,7 @@ import pytest
 from controllers.base import PDController
 from controllers.registry import build_controller, estimation_model
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.scenario import Scenario, preset
 from eval import metrics
 from eval.__main__ import main
 from eval.comparison import TABLE2_KEY, table2_statistics
@@ -111,10 +112,12 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "run"
     argv = ["--episodes", "1", "--cycles", "1", "--controllers", "pd,mid_f_rls", "--out", str(out)]
-    argv += ["--parameters", str(parameter_file), "--calibration-episodes", "1", "--seed", "4"]
+    argv += ["--parameters", str(parameter_file), "--calibration-episodes", "1", "--seed", "4", "--scenario", "paper"]
     assert main(argv) == 0
 
     printed = capsys.readouterr().out
+    assert printed.startswith("# Controller comparison, scenario paper:")
+    assert Scenario.load(out / "scenario.toml") == preset("paper")
     assert "| Controller |" in printed and "| PD | 1 (0) |" in printed and "| MId+F+R+RLS+PD | 1 (0) |" in printed
     assert "Table 2 analogue" in printed
     assert (out / "summary.md").read_text() == printed
@@ -125,7 +128,7 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     rms = {row["key"]: float(row["tracking_rms_mm"]) for row in episodes}
     assert rms["mid_f_rls"] < rms["pd"]
     (carry,) = read_csv(out / "carries.csv")
-    assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) > 0.0
+    assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) == 3.8  # the paper's payload on every pick
     table2 = read_csv(out / "table2.csv")
     assert [row["joint"] for row in table2] == ["1", "2", "3"]
     assert all(float(row["mp_hat_std"]) < float(row["mp_0_std"]) for row in table2)
@@ -135,6 +138,7 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert {"versions", "git_commit", "started"} <= set(written)
     config = written["config"]
     assert config["arguments"]["controllers"] == ["pd", "mid_f_rls"]
+    assert config["scenario"]["name"] == "paper" and config["env"]["cycle"] == "standard"
     assert config["episode_seeds"] == [4] and config["identification"]["path"] == str(parameter_file)
     assert set(written["results"]["tare_kg"]) == {"mid_f_rls"}
 

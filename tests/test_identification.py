@@ -374,12 +374,14 @@ def test_command_line_writes_parameters_configuration_report_and_figures(tmp_pat
     folder, installed = tmp_path / "run", tmp_path / "installed" / "parameters.json"
     arguments = ["--trajectories", "2", "--duration", "2", "--validation-duration", "2", "--seed", "5"]
     cli.main([*arguments, "--out", str(folder), "--parameters", str(installed), "--no-progress", "--workers", "1"])
-    expected = {"parameters.json", "config.json", "report.md", "validation.npz"}
+    expected = {"parameters.json", "config.json", "report.md", "validation.npz", "scenario.toml"}
     expected |= {*cli.FIGURES, "fig6a_error_bars.png"}
     assert {path.name for path in folder.iterdir()} == expected
     assert load_result(folder / "parameters.json") == load_result(installed)
     config = json.loads((folder / "config.json").read_text())
     assert config["config"]["trajectories"] == 2
+    assert config["config"]["scenario"] == "nominal"
+    assert load_result(installed).provenance["plant"]["identity"] == config["config"]["robot_identity"]
     assert config["command"].startswith("python -m eval.identify --trajectories 2")
     report = (folder / "report.md").read_text()
     assert report in capsys.readouterr().out

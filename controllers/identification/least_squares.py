@@ -237,15 +237,17 @@ def fit_least_squares(
     return _fit_rho(rows, target), _fit_joint(rows, target, samples.theta_dot, velocity_threshold)
 
 
-def between_trajectory_spread(data: Sequence[MotionData]) -> dict[str, Any]:
+def between_trajectory_spread(data: Sequence[MotionData], dynamics: DeltaDynamics | None = None) -> dict[str, Any]:
     """Joint LS on each trajectory alone: the estimates and the standard error of their mean.
+
+    ``dynamics`` is the model fitted, as in :func:`fit_joint_least_squares` (None: the nominal MKH).
 
     The honest uncertainty of the pooled estimate, unlike sigma^2 (X^T X)^-1 over correlated rows.
     """
     estimates = np.full((len(data), len(JOINT_PARAMETER_NAMES)), math.nan)
     for index, samples in enumerate(data):
         try:
-            estimates[index] = fit_joint_least_squares([samples]).estimate
+            estimates[index] = fit_joint_least_squares([samples], dynamics=dynamics).estimate
         except ValueError as error:  # a short trajectory alone may not determine every parameter
             logger.info("trajectory %d left out of the between-trajectory spread: %s", index, error)
     fitted = estimates[~np.isnan(estimates).any(axis=1)]

@@ -24,6 +24,7 @@ from controllers.registry import controller_name, model_controller
 from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
+from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -102,6 +103,8 @@ class BaseSetup:
         forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
         regressor: Joint states of the payload estimator.
         friction_velocity: The estimator's friction band (rad/s).
+        geometry: Lengths (m) of the robot the parameters were identified on.
+        masses: Datasheet masses (kg) of that robot.
     """
 
     parameters: ModelParameters
@@ -109,6 +112,8 @@ class BaseSetup:
     forearm_rods: bool = True
     regressor: Literal["smoothed", "filtered", "reference"] = "smoothed"
     friction_velocity: float = FRICTION_VELOCITY
+    geometry: DeltaGeometry = NOMINAL_GEOMETRY
+    masses: DeltaMasses = NOMINAL_MASSES
 
     def controller(self) -> Controller:
         """A fresh base controller with these settings: model feedforward + PD with the payload RLS."""
@@ -118,6 +123,8 @@ class BaseSetup:
             regressor=self.regressor,
             tare=self.tare,
             friction_velocity=self.friction_velocity,
+            geometry=self.geometry,
+            masses=self.masses,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -128,6 +135,8 @@ class BaseSetup:
             "forearm_rods": self.forearm_rods,
             "regressor": self.regressor,
             "friction_velocity": self.friction_velocity,
+            "geometry": asdict(self.geometry),
+            "masses": asdict(self.masses),
         }
 
     @classmethod
@@ -145,6 +154,8 @@ class BaseSetup:
             forearm_rods=bool(values["forearm_rods"]),
             regressor=values["regressor"],
             friction_velocity=float(values["friction_velocity"]),
+            geometry=DeltaGeometry(**values.get("geometry", asdict(NOMINAL_GEOMETRY))),
+            masses=DeltaMasses(**values.get("masses", asdict(NOMINAL_MASSES))),
         )
 
 

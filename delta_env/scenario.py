@@ -1,0 +1,413 @@
+"""Scenarios: one value that says everything about the robot and the work it does.
+
+A :class:`Scenario` has three parts:
+
+- ``plant``: the robot, a :class:`~delta_env.config.PlantConfig` (geometry, true masses, drive effects and
+  sensors). Its content hash is the robot's identity (:attr:`Scenario.robot_identity`).
+- ``condition``: how the drive differs today from the robot as identified (wear: more friction, a slower
+  current loop). A condition changes the physics the episode runs on, not which robot it is.
+- ``task``: the work (:class:`PickPlaceTask`): cycle kind, cycles per episode, peak acceleration, payload
+  range and per-episode domain randomization.
+
+Identity rule. ``robot_identity`` hashes the ``plant`` part only. Conditions (wear), payloads and domain
+randomization are left out, so ``worn``, ``heavy`` and ``randomized`` are the nominal robot under other
+conditions and reuse its identification, as a real cell is identified once and then runs under changing
+conditions. A new geometry, new true masses or new drive or sensor hardware is a new robot.
+
+Files are TOML: human-readable with comments, a standard-library reader (``tomllib``, Python >= 3.11), no
+implicit typing surprises (YAML reads ``no`` as False and ``1e-3`` as a string), and nested tables map one
+to one onto the nested dataclasses. A file may give any subset of the fields; the others take the defaults
+of the dataclasses, which are today's default environment. TOML has no null: optional fields take the
+string ``"none"``. Unknown keys are errors, so a typo never falls back to a default silently.
+
+Named presets ship as package data next to this module (``delta_env/scenarios/<name>.toml``).
+
+Geometry files (``--geometry FILE`` of the command lines, written by the design study) are TOML with one
+table of the four lengths in metres; other top-level tables (e.g. the design's objectives) are ignored::
+
+    [geometry]
+    ra = 0.20   # base radius (m)
+    rb = 0.05   # platform radius (m)
+    l1 = 0.37   # upper arm (m)
+    l2 = 0.95   # forearm (m)
+
+:func:`load_geometry` and :func:`save_geometry` are the one reader and writer of that format.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import tomli_w
+
+from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, RandomizationRanges
+from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
+from delta_env.validation import require_count, require_in, require_interval, require_positive
+
+NONE_MARKER = "none"
+"""How a TOML file writes an optional field's None (TOML has no null)."""
+
+
+@dataclass(frozen=True)
+class Condition:
+    """How the drive differs from the robot as identified; not part of the robot's identity.
+
+    Attributes:
+        friction_scale: Multiplier of the plant's viscous and Coulomb friction (dimensionless); the
+            Stribeck excess is a fraction of Coulomb and scales with it. 1 keeps the plant's friction.
+        actuator_lag: Current-loop time constant (s) replacing the plant's, or None to keep it.
+    """
+
+    friction_scale: float = 1.0
+    actuator_lag: float | None = None
+
+    def __post_init__(self) -> None:
+        require_in("friction_scale", self.friction_scale, 0.0, 10.0, low_open=True)
+        if self.actuator_lag is not None:
+            require_in("actuator_lag", self.actuator_lag, 0.0, 0.1, unit="s")
+
+    def apply(self, plant: PlantConfig) -> PlantConfig:
+        """The plant as it runs under this condition."""
+        realism = plant.realism
+        worn = replace(
+            realism,
+            viscous=realism.viscous * self.friction_scale,
+            coulomb=realism.coulomb * self.friction_scale,
+            actuator_lag=realism.actuator_lag if self.actuator_lag is None else self.actuator_lag,
+        )
+        return replace(plant, realism=worn)
+
+
+@dataclass(frozen=True)
+class PickPlaceTask:
+    """The work of one episode (the task arguments of ``DeltaPickPlaceEnv``).
+
+    Attributes:
+        cycle: ``"conveyor"`` (random pick and place points on two conveyor zones) or ``"standard"`` (the
+            25/305/25 mm cycle).
+        n_cycles: Pick-and-place cycles per episode.
+        peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2).
+        payload_mass_range: Object masses (kg) are drawn per pick from U[low, high]; low = high fixes them.
+        domain_randomization: Per-episode perturbation of the plant, or None (off).
+    """
+
+    cycle: Literal["conveyor", "standard"] = "conveyor"
+    n_cycles: int = 3
+    peak_acceleration: float = 3.0 * GRAVITY
+    payload_mass_range: tuple[float, float] = (0.0, 4.0)
+    domain_randomization: RandomizationRanges | None = None
+
+    def __post_init__(self) -> None:
+        if self.cycle not in ("conveyor", "standard"):
+            raise ValueError(f"cycle must be 'conveyor' or 'standard', got {self.cycle!r}")
+        require_count("n_cycles", self.n_cycles)
+        require_positive("peak_acceleration", self.peak_acceleration, unit="m/s^2")
+        require_interval("payload_mass_range", self.payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
+        if self.domain_randomization is not None and not isinstance(self.domain_randomization, RandomizationRanges):
+            raise ValueError(
+                f"domain_randomization must be RandomizationRanges or None, got {type(self.domain_randomization)}"
+            )
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything about the robot and the work; see the module docstring for the three parts.
+
+    Attributes:
+        name: Short name (a preset's name, or the file's).
+        description: One line for people; not part of any hash.
+        plant: The robot as identified.
+        condition: Wear on top of the plant.
+        task: The work.
+    """
+
+    name: str = "custom"
+    description: str = ""
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    condition: Condition = field(default_factory=Condition)
+    task: PickPlaceTask = field(default_factory=PickPlaceTask)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"name must be a non-empty string, got {self.name!r}")
+        if not isinstance(self.description, str):
+            raise ValueError(f"description must be a string, got {self.description!r}")
+        for part, kind in (("plant", PlantConfig), ("condition", Condition), ("task", PickPlaceTask)):
+            if not isinstance(getattr(self, part), kind):
+                raise ValueError(f"{part} must be a {kind.__name__}, got {type(getattr(self, part)).__name__}")
+        self.effective_plant  # noqa: B018 - the worn plant must itself be valid (e.g. Coulomb <= torque limit)
+
+    @property
+    def effective_plant(self) -> PlantConfig:
+        """The plant the episodes run on: ``plant`` under ``condition``."""
+        try:
+            return self.condition.apply(self.plant)
+        except ValueError as error:
+            raise ValueError(f"condition: the worn plant is invalid: {error}") from None
+
+    @property
+    def robot_identity(self) -> str:
+        """Content hash (16 hex digits) of the ``plant`` part: the robot, whatever its condition and task."""
+        return plant_identity(self.plant)
+
+    @property
+    def content_hash(self) -> str:
+        """Content hash (16 hex digits) of plant, condition and task: what decides an episode's physics."""
+        return _digest({part: _to_table(getattr(self, part)) for part in ("plant", "condition", "task")})
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``DeltaPickPlaceEnv`` for this scenario."""
+        task = self.task
+        return {
+            "plant": self.effective_plant,
+            "n_cycles": task.n_cycles,
+            "cycle": task.cycle,
+            "peak_acceleration": task.peak_acceleration,
+            "payload_mass_range": task.payload_mass_range,
+            "domain_randomization": task.domain_randomization,
+        }
+
+    def to_toml(self) -> str:
+        """Every field, resolved, as TOML text (what :meth:`from_toml` reads back to an equal value)."""
+        return tomli_w.dumps(_to_table(self))
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write :meth:`to_toml` to ``path`` (parent folders created); returns the path."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(self.to_toml())
+        return path
+
+    @classmethod
+    def from_toml(cls, text: str, source: str = "<string>") -> Scenario:
+        """Parse and validate TOML text; ``source`` names it in errors.
+
+        Raises:
+            ValueError: for invalid TOML, an unknown key or an invalid field, naming the field.
+        """
+        try:
+            table = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as error:
+            raise ValueError(f"scenario {source}: not valid TOML: {error}") from None
+        try:
+            return _from_table(cls, table, "")
+        except ValueError as error:
+            raise ValueError(f"scenario {source}: {error}") from None
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Scenario:
+        """Read a scenario file; a file without ``name`` is named after its stem."""
+        path = Path(path)
+        text = path.read_text()
+        scenario = cls.from_toml(text, str(path))
+        if "name" not in tomllib.loads(text):
+            scenario = replace(scenario, name=path.stem)
+        return scenario
+
+
+def plant_identity(plant: PlantConfig) -> str:
+    """Content hash (16 hex digits) of a plant: the identity of the robot it builds.
+
+    Raises:
+        ValueError: if ``plant`` is not a PlantConfig.
+    """
+    if not isinstance(plant, PlantConfig):
+        raise ValueError(f"plant must be a PlantConfig, got {type(plant).__name__}")
+    return _digest(_to_table(plant))
+
+
+def with_geometry(scenario: Scenario, geometry: DeltaGeometry, masses: DeltaMasses | None = None) -> Scenario:
+    """``scenario`` on a robot of other lengths: a new robot (new identity), same condition and task.
+
+    Args:
+        scenario: The scenario.
+        geometry: The robot's lengths (m).
+        masses: The robot's masses (kg); None keeps the scenario's.
+    """
+    plant = replace(scenario.plant, geometry=geometry, masses=scenario.plant.masses if masses is None else masses)
+    return replace(scenario, plant=plant)
+
+
+def load_geometry(path: str | os.PathLike[str]) -> DeltaGeometry:
+    """The ``[geometry]`` table (ra, rb, l1, l2 in m) of a geometry file (format in the module docstring).
+
+    Raises:
+        ValueError: for a missing file, invalid TOML, a missing ``[geometry]`` table, an unknown key or an
+            invalid length, naming the file and the field.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"geometry file {path}: no such file")
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"geometry file {path}: not valid TOML: {error}") from None
+    if not isinstance(table.get("geometry"), dict):
+        raise ValueError(f"geometry file {path}: needs a [geometry] table with ra, rb, l1, l2 (m)")
+    missing = sorted({"ra", "rb", "l1", "l2"} - set(table["geometry"]))
+    if missing:
+        raise ValueError(f"geometry file {path}: [geometry] misses {', '.join(missing)} (m)")
+    try:
+        return _from_table(DeltaGeometry, table["geometry"], "geometry")
+    except ValueError as error:
+        raise ValueError(f"geometry file {path}: {error}") from None
+
+
+def save_geometry(geometry: DeltaGeometry, path: str | os.PathLike[str], extra: dict[str, Any] | None = None) -> Path:
+    """Write ``geometry`` as a geometry file (parent folders created); returns the path.
+
+    Args:
+        geometry: The lengths (m).
+        path: The file.
+        extra: Other top-level tables to record beside ``[geometry]`` (e.g. the design's objectives);
+            readers ignore them.
+    """
+    document = {**(extra or {}), "geometry": _to_table(geometry)}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(tomli_w.dumps(document))
+    return path
+
+
+def preset_names() -> list[str]:
+    """Names of the presets shipped with the package, sorted."""
+    return sorted(entry.name[: -len(".toml")] for entry in _preset_dir().iterdir() if entry.name.endswith(".toml"))
+
+
+def preset(name: str) -> Scenario:
+    """The shipped preset ``name``.
+
+    Raises:
+        ValueError: for an unknown name, listing the presets.
+    """
+    entry = _preset_dir() / f"{name}.toml"
+    if not entry.is_file():
+        raise ValueError(f"unknown scenario preset {name!r}; presets: {', '.join(preset_names())}")
+    return Scenario.from_toml(entry.read_text(), f"preset {name!r}")
+
+
+def resolve_scenario(spec: str | os.PathLike[str] | Scenario) -> Scenario:
+    """A Scenario from a preset name, a TOML file path or a Scenario (returned as is).
+
+    A string is a preset name if one ships by that name, otherwise a file path.
+
+    Raises:
+        ValueError: if ``spec`` is neither a preset nor an existing file (the message lists the presets),
+            or if the file is invalid.
+    """
+    if isinstance(spec, Scenario):
+        return spec
+    if isinstance(spec, str) and spec in preset_names():
+        return preset(spec)
+    if isinstance(spec, str | os.PathLike):
+        path = Path(spec)
+        if path.is_file():
+            return Scenario.load(path)
+    raise ValueError(
+        f"scenario must be a preset name ({', '.join(preset_names())}), a TOML file or a Scenario; got {spec!r}"
+        + (" (no such file)" if isinstance(spec, str | os.PathLike) else "")
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Dataclass <-> TOML table, driven by the dataclasses' type hints
+# ------------------------------------------------------------------------------------------------
+
+_TABLE_TYPES = (Scenario, PlantConfig, DeltaGeometry, DeltaMasses, PlantRealism, Condition, PickPlaceTask)
+_TABLE_TYPES += (RandomizationRanges,)
+
+
+def _preset_dir() -> Any:
+    return resources.files("delta_env") / "scenarios"
+
+
+def _digest(table: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(table, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _to_table(value: Any) -> Any:
+    """A dataclass as nested dicts of TOML values (tuples as lists, None as ``"none"``)."""
+    if dataclasses.is_dataclass(value):
+        return {item.name: _to_table(getattr(value, item.name)) for item in dataclasses.fields(value)}
+    if value is None:
+        return NONE_MARKER
+    if isinstance(value, tuple):
+        return [_to_table(item) for item in value]
+    return value
+
+
+def _describe(hint: Any) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) if a is not type(None) else f'"{NONE_MARKER}"' for a in args)
+    if origin is tuple:
+        return f"an array of {len(args)} {_describe(args[0]).split()[-1]}s"
+    if hint in _TABLE_TYPES:
+        return "a table"
+    return {float: "a number", int: "an integer", bool: "a boolean", str: "a string"}.get(hint, str(hint))
+
+
+def _convert(path: str, hint: Any, value: Any) -> Any:
+    """``value`` read from TOML as the Python value of type ``hint``; ValueError naming ``path``."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if type(None) in args and value == NONE_MARKER:
+            return None
+        (inner,) = (a for a in args if a is not type(None))
+        if isinstance(value, dict):  # a table: its own fields name the error
+            return _convert(path, inner, value)
+        try:
+            return _convert(path, inner, value)
+        except ValueError:
+            raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}") from None
+    ok = True
+    if hint is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        value = float(value) if ok else value
+    elif hint is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif hint in (bool, str):
+        ok = isinstance(value, hint)
+    elif origin is Literal:
+        ok = value in args
+    elif origin is tuple:
+        ok = isinstance(value, list) and len(value) == len(args)
+        if ok:
+            return tuple(_convert(f"{path}[{n}]", a, v) for n, (a, v) in enumerate(zip(args, value, strict=True)))
+    elif hint in _TABLE_TYPES:
+        ok = isinstance(value, dict)
+        if ok:
+            return _from_table(hint, value, path)
+    else:  # pragma: no cover - a field type this reader does not know is a programming error
+        raise TypeError(f"{path}: no TOML conversion for {hint!r}")
+    if not ok:
+        raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}")
+    return value
+
+
+def _from_table(cls: type, table: dict[str, Any], path: str) -> Any:
+    """Build dataclass ``cls`` from a TOML table: unknown keys rejected, every field converted and checked."""
+    hints = typing.get_type_hints(cls)
+    names = [item.name for item in dataclasses.fields(cls)]
+    where = f"{path}." if path else ""
+    unknown = sorted(set(table) - set(names))
+    if unknown:
+        raise ValueError(f"unknown key(s) {', '.join(where + k for k in unknown)}; allowed: {', '.join(names)}")
+    values = {key: _convert(where + key, hints[key], value) for key, value in table.items()}
+    try:
+        return cls(**values)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}" if path else str(error)) from None

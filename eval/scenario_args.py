@@ -1,0 +1,36 @@
+"""``--scenario NAME|FILE`` and ``--geometry FILE``: the same two options on every command line."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from delta_env.scenario import Scenario, load_geometry, preset_names, resolve_scenario, with_geometry
+
+
+def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--scenario`` and ``--geometry`` to ``parser``."""
+    parser.add_argument(
+        "--scenario",
+        default="nominal",
+        help=f"preset ({', '.join(preset_names())}) or scenario TOML file (default nominal)",
+    )
+    parser.add_argument(
+        "--geometry",
+        default=None,
+        help="geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
+        "the scenario on a robot of these lengths (a new robot, identified once), with the scenario's masses",
+    )
+
+
+def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Scenario:
+    """The scenario of ``--scenario`` on the robot of ``--geometry``; a bad value is a parser error."""
+    try:
+        scenario = resolve_scenario(args.scenario)
+        if args.geometry is not None:
+            scenario = with_geometry(scenario, load_geometry(args.geometry))
+            scenario = dataclasses.replace(scenario, name=f"{scenario.name}+{Path(args.geometry).stem}")
+    except ValueError as error:
+        parser.error(f"--scenario/--geometry: {error}")
+    return scenario

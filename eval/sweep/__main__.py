@@ -1,0 +1,213 @@
+"""``python -m eval.sweep``: every controller on every scenario over many seeds, locally or on Ray.
+
+The grid is scenarios x controllers x seeds; each cell is one episode (:func:`eval.sweep.work.run_unit`).
+The run folder (``--out``, by default ``runs/sweep/<hash of the grid>`` so that the same arguments find
+the same folder) holds:
+
+- ``results.csv``: one row per episode (scenario, controller, seed, status, error, every metric),
+  appended as each episode finishes; rerun the same command after an interruption and only the missing
+  episodes run;
+- ``summary.csv`` and ``summary.md``: per scenario and controller, mean, std and 95 % interval;
+- ``plots/summary.png``: tracking and torque RMS per scenario and controller;
+- ``config.json`` (resolved configuration, code version, package versions, the command, the tares) and
+  ``commands.log`` (every command that wrote to the folder), ``scenarios/<name>.toml`` (each scenario
+  resolved, every field).
+
+Controllers know the identification of each scenario's robot (one per robot identity, identified once and
+kept in ``runs/identification/<identity>/``; ``worn`` and ``randomized`` share the nominal robot's) and
+the tares of their payload estimators measured on that scenario (:mod:`eval.calibration`, as
+``python -m eval`` measures them), before the grid runs.
+
+Usage: python -m eval.sweep --scenarios nominal,stress-6g,randomized --controllers pd,mid_f_rls --seeds 0-9
+           [--backend local|ray] [--address auto|ray://host:port] [--workers 2] [--cycles N] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from delta_env.scenario import preset_names, resolve_scenario
+from eval.identification import parameter_path
+from eval.run_folder import command_line, write_config
+from eval.sweep import report
+from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
+from eval.sweep.work import (
+    CONTROLLERS,
+    DEFAULT_POLICY_PATH,
+    WorkUnit,
+    code_version,
+    robot_setups,
+    setup_digest,
+    tared_setup,
+)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """Seeds from ``"0-9"``, ``"0,3,7"`` or a mix (``"0-4,10"``), each >= 0, in order, without repeats."""
+    seeds: list[int] = []
+    for part in (p.strip() for p in text.split(",")):
+        try:
+            if "-" in part:
+                first, last = (int(v) for v in part.split("-"))
+                if first > last:
+                    raise ValueError
+                seeds.extend(range(first, last + 1))
+            else:
+                seeds.append(int(part))
+        except ValueError:
+            raise ValueError(f"seeds must look like 0-9 or 0,3,7 (integers >= 0), got {text!r}") from None
+    if any(seed < 0 for seed in seeds):
+        raise ValueError(f"seeds must be >= 0, got {text!r}")
+    return list(dict.fromkeys(seeds))
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m eval.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--scenarios", default="nominal", help=f"comma-separated presets ({', '.join(preset_names())}) or TOML files"
+    )
+    parser.add_argument(
+        "--controllers", default="pd,mid_f_rls", help=f"comma-separated keys from {', '.join(CONTROLLERS)}"
+    )
+    parser.add_argument("--seeds", default="0-9", help="episode seeds, e.g. 0-9 or 0,3,7 (default 0-9)")
+    parser.add_argument("--cycles", type=int, default=None, help="override every scenario's cycles per episode")
+    parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
+    parser.add_argument("--address", default=None, help="Ray cluster to join: auto or ray://host:port (ray only)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(2, os.cpu_count() or 1),
+        help="local processes, or the CPUs of a Ray started here (default 2); a joined cluster uses all its CPUs",
+    )
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/sweep/<grid hash>)")
+    parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
+    args = parser.parse_args(argv)
+    try:
+        args.seeds = parse_seeds(args.seeds)
+        scenarios = [resolve_scenario(spec.strip()) for spec in args.scenarios.split(",") if spec.strip()]
+        if args.cycles is not None:
+            if args.cycles < 1:
+                raise ValueError(f"--cycles must be >= 1, got {args.cycles}")
+            scenarios = [
+                dataclasses.replace(s, task=dataclasses.replace(s.task, n_cycles=args.cycles)) for s in scenarios
+            ]
+    except ValueError as error:
+        parser.error(str(error))
+    names = [scenario.name for scenario in scenarios]
+    if not scenarios or len(set(names)) != len(names):
+        parser.error(f"--scenarios must name distinct scenarios, got {names}")
+    args.scenarios = scenarios
+    keys = [key.strip() for key in args.controllers.split(",") if key.strip()]
+    unknown = [key for key in keys if key not in CONTROLLERS]
+    if unknown or not keys:
+        parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLERS)}")
+    args.controllers = list(dict.fromkeys(keys))
+    if args.workers < 1:
+        parser.error("--workers must be >= 1")
+    if args.address is not None and args.backend != "ray":
+        parser.error("--address needs --backend ray")
+    if args.backend == "ray":
+        try:
+            import_ray()
+        except ImportError as error:
+            parser.error(str(error))
+    if args.out is None:
+        grid = {
+            "scenarios": [s.content_hash for s in scenarios],
+            "controllers": args.controllers,
+            "seeds": args.seeds,
+        }
+        digest = hashlib.sha256(json.dumps(grid, sort_keys=True).encode()).hexdigest()[:10]
+        args.out = Path("runs/sweep") / f"sweep-{digest}"
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from tqdm.auto import tqdm
+
+    args = parse_args(argv)
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    for scenario in args.scenarios:
+        scenario.save(out / "scenarios" / f"{scenario.name}.toml")
+    robots = robot_setups(args.scenarios, args.residual)
+    setups = {
+        s.content_hash: tared_setup(s, robots[s.robot_identity], args.controllers, workers=args.workers)
+        for s in args.scenarios
+    }
+    version = code_version()
+    digests = {content: setup_digest(setup, tuple(args.controllers)) for content, setup in setups.items()}
+    units = [WorkUnit(s, key, seed) for s in args.scenarios for key in args.controllers for seed in args.seeds]
+    command = command_line("eval.sweep", argv)
+    config = {
+        "grid": {
+            "scenarios": {
+                s.name: {
+                    "content_hash": s.content_hash,
+                    "robot_identity": s.robot_identity,
+                    "setup_digest": digests[s.content_hash],
+                    "tares_kg": dict(setups[s.content_hash].tares),
+                }
+                for s in args.scenarios
+            },
+            "controllers": {key: CONTROLLERS[key] for key in args.controllers},
+            "seeds": args.seeds,
+            "episodes": len(units),
+        },
+        "backend": {"name": args.backend, "address": args.address, "workers": args.workers},
+        "code_version": version,
+        "identifications": {s.name: str(parameter_path(s.plant)) for s in args.scenarios},
+        "residual_policy": str(args.residual),
+        "pd_gains": list(next(iter(setups.values())).pd_gains),
+    }
+    write_config(out, command, config)
+    with (out / "commands.log").open("a") as log:
+        log.write(command + "\n")
+
+    table = ResultsTable(out / "results.csv")
+    with tqdm(total=len(units), desc="sweep", unit="ep") as progress:
+        counts = run_sweep(
+            units,
+            setups,
+            table,
+            version,
+            digests,
+            backend=args.backend,
+            workers=args.workers,
+            address=args.address,
+            progress=progress,
+        )
+
+    grid_keys = {unit_key(unit, version, digests[unit.scenario.content_hash]) for unit in units}
+    rows = [row for row in table.load() if row["key"] in grid_keys]
+    summary = report.summarize(rows, [s.name for s in args.scenarios], args.controllers)
+    report.write_csv(out / "summary.csv", summary)
+    text = "\n".join(
+        [
+            f"# Sweep: {len(args.scenarios)} scenarios x {len(args.controllers)} controllers x {len(args.seeds)} seeds",
+            "",
+            "Mean ± 95 % CI half-width over the episodes that neither failed nor diverged.",
+            "",
+            report.markdown(summary),
+            "",
+            f"Ran {counts['ran']} episodes ({counts['failed']} failed), {counts['skipped']} already in the table. "
+            f"Run folder: {out}",
+        ]
+    )
+    (out / "summary.md").write_text(text + "\n")
+    report.plot(summary, out / "plots" / "summary.png")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

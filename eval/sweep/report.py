@@ -1,0 +1,138 @@
+"""Summary table and plots of a sweep, from its results rows.
+
+Per scenario and controller: episodes, failures, divergences, and for each summarized metric the mean,
+the sample standard deviation and the half-width of the 95 % confidence interval of the mean
+(Student t with n - 1 degrees of freedom). Failed and diverged episodes are counted and left out of the
+statistics (a diverged episode's metrics cover only the steps before the divergence).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from eval import metrics
+
+SUMMARY_METRICS = (
+    "tracking_rms_mm",
+    "tracking_max_mm",
+    "torque_rms_nm",
+    "torque_peak_nm",
+    "energy_j",
+    "payload_end_error_percent",
+)
+"""Metrics summarized per scenario and controller."""
+
+PLOTTED_METRICS = {"tracking_rms_mm": "tracking RMS (mm)", "torque_rms_nm": "torque RMS (N m)"}
+
+
+def mean_std_ci95(values: Sequence[float]) -> tuple[float, float, float]:
+    """Mean, sample std (ddof 1) and 95 % CI half-width of the mean; NaN where undefined (n < 1 or 2)."""
+    data = np.asarray([v for v in values if math.isfinite(v)], dtype=float)
+    if data.size == 0:
+        return math.nan, math.nan, math.nan
+    if data.size == 1:
+        return float(data[0]), math.nan, math.nan
+    std = float(np.std(data, ddof=1))
+    half_width = float(stats.t.ppf(0.975, data.size - 1) * std / math.sqrt(data.size))
+    return float(np.mean(data)), std, half_width
+
+
+def _number(value: Any) -> float:
+    return float(value) if value not in ("", None) else math.nan
+
+
+def _is_true(value: Any) -> bool:
+    return str(value) in ("True", "true", "1", "1.0")
+
+
+def summarize(rows: Sequence[dict[str, Any]], scenarios: Sequence[str], controllers: Sequence[str]) -> list[dict]:
+    """One summary row per (scenario, controller) present in ``rows``, in the given orders."""
+    summary = []
+    for scenario in scenarios:
+        for controller in controllers:
+            group = [row for row in rows if row["scenario"] == scenario and row["controller"] == controller]
+            if not group:
+                continue
+            ok = [row for row in group if row["status"] == "ok"]
+            kept = [row for row in ok if not _is_true(row["diverged"])]
+            entry: dict[str, Any] = {
+                "scenario": scenario,
+                "controller": controller,
+                "label": group[0]["label"],
+                "episodes": len(group),
+                "failed": len(group) - len(ok),
+                "diverged": len(ok) - len(kept),
+            }
+            for name in SUMMARY_METRICS:
+                mean, std, half_width = mean_std_ci95([_number(row[name]) for row in kept])
+                entry.update({f"{name}_mean": mean, f"{name}_std": std, f"{name}_ci95": half_width})
+            summary.append(entry)
+    return summary
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Write dict rows with the first row's keys as header."""
+    with Path(path).open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _cell(entry: dict[str, Any], name: str) -> str:
+    mean, half_width = entry[f"{name}_mean"], entry[f"{name}_ci95"]
+    if math.isnan(mean):
+        return "n/a"
+    return f"{mean:.3g} ± {half_width:.2g}" if math.isfinite(half_width) else f"{mean:.3g}"
+
+
+def markdown(summary: Sequence[dict[str, Any]]) -> str:
+    """The summary as a Markdown table: mean ± 95 % CI half-width per metric."""
+    header = ["Scenario", "Controller", "Episodes (failed, diverged)", *SUMMARY_METRICS]
+    rows = [
+        [
+            entry["scenario"],
+            entry["label"],
+            f"{entry['episodes']} ({entry['failed']}, {entry['diverged']})",
+            *(_cell(entry, name) for name in SUMMARY_METRICS),
+        ]
+        for entry in summary
+    ]
+    return metrics.markdown_table(header, rows)
+
+
+def plot(summary: Sequence[dict[str, Any]], path: Path) -> Path:
+    """Grouped bars of tracking and torque RMS per scenario (groups) and controller (bars), 95 % CI whiskers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenarios = list(dict.fromkeys(entry["scenario"] for entry in summary))
+    labels = list(dict.fromkeys(entry["label"] for entry in summary))
+    width = 0.8 / len(labels)
+    figure, axes = plt.subplots(1, len(PLOTTED_METRICS), figsize=(5 + 1.5 * len(scenarios), 4), squeeze=False)
+    for axis, (name, title) in zip(axes[0], PLOTTED_METRICS.items(), strict=True):
+        for n, label in enumerate(labels):
+            entries = {e["scenario"]: e for e in summary if e["label"] == label}
+            x = [i + (n - (len(labels) - 1) / 2) * width for i, s in enumerate(scenarios) if s in entries]
+            means = [entries[s][f"{name}_mean"] for s in scenarios if s in entries]
+            errors = [np.nan_to_num(entries[s][f"{name}_ci95"]) for s in scenarios if s in entries]
+            axis.bar(x, means, width, yerr=errors, capsize=3, label=label)
+        axis.set_xticks(range(len(scenarios)), scenarios)
+        axis.set_ylabel(title)
+        axis.set_title(f"{title}, mean and 95 % CI")
+        axis.grid(axis="y", alpha=0.3)
+    axes[0][0].legend(fontsize="small")
+    figure.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return path

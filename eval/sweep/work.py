@@ -1,0 +1,183 @@
+"""The sweep's unit of work: one episode of one controller on one scenario, reduced to one row of metrics.
+
+Every call of the sweep into the episode runner (:func:`eval.episodes.run_episode`), the identification
+(:func:`eval.identification.identify_robot`) and the tare calibration (:mod:`eval.calibration`) is in this
+module. Both backends run :func:`run_unit`; it never raises for a failing episode: the row says
+``status = "failed"`` with the error, so the failure is recorded, never dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import socket
+import time
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controllers.registry import (
+    CONTROLLER_LABELS,
+    ESTIMATING_KEYS,
+    ESTIMATOR_REGRESSORS,
+    ControllerSetup,
+    build_controller,
+)
+from controllers.residual import DEFAULT_POLICY_PATH
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.scenario import Scenario
+from eval import metrics
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
+from eval.comparison import calibration_seeds
+from eval.episodes import run_episode
+from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
+
+CONTROLLERS = CONTROLLER_LABELS
+"""Controller keys of ``--controllers`` and their labels."""
+
+EPISODE_METRICS = (
+    "tracking_rms_mm",
+    "tracking_max_mm",
+    "joint_error_rms_mrad",
+    "torque_rms_nm",
+    "torque_peak_nm",
+    "energy_j",
+    "diverged",
+    "saturated_steps",
+    "steps",
+)
+"""Metrics of every episode (definitions in :mod:`eval.metrics`)."""
+
+PAYLOAD_METRICS = ("payload_end_error_percent", "payload_settling_ms")
+"""Payload metrics of the estimating controllers over the carries of objects >= 0.5 kg: mean |end error|
+(%) and the worst settling time to +-5 % (ms, NaN if a carry never settles); NaN for the others."""
+
+METRIC_FIELDS = (*EPISODE_METRICS, *PAYLOAD_METRICS)
+
+_CODE_PACKAGES = ("delta_env", "controllers", "eval")
+_CODE_DEPENDENCIES = ("mujoco", "numpy", "scipy", "filterpy", "gymnasium")
+
+
+@dataclass(frozen=True)
+class WorkUnit:
+    """One episode of the grid.
+
+    Attributes:
+        scenario: The robot and the work.
+        controller: Controller key (see :data:`CONTROLLERS`).
+        seed: Episode seed: the same seed gives every controller the same path and objects.
+    """
+
+    scenario: Scenario
+    controller: str
+    seed: int
+
+
+def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
+    """Run one episode and return its row: ``status``, ``error``, the :data:`METRIC_FIELDS`, ``seconds``
+    (wall), ``cpu_seconds`` (this process's CPU time), ``host`` and ``pid``. Exceptions of the episode are
+    caught and recorded in the row."""
+    started, cpu_started = time.perf_counter(), time.process_time()
+    row: dict[str, Any] = {"status": "ok", "error": "", **dict.fromkeys(METRIC_FIELDS, math.nan)}
+    try:
+        env = DeltaPickPlaceEnv(scenario=unit.scenario)
+        try:
+            controller = build_controller(unit.controller, setup, env)
+            record = run_episode(env, controller, unit.seed)
+        finally:
+            env.close()
+        episode = record.metrics()
+        row.update({name: episode[name] for name in EPISODE_METRICS})
+        if unit.controller in ESTIMATING_KEYS:
+            scored = [carry for carry in record.carries() if carry.mass >= metrics.MIN_RELATIVE_MASS]
+            if scored:
+                row["payload_end_error_percent"] = float(np.mean([abs(c.end_error_percent) for c in scored]))
+                row["payload_settling_ms"] = max(c.settling_time_ms for c in scored)
+    except Exception as error:
+        row["status"], row["error"] = "failed", f"{type(error).__name__}: {error}"
+    row.update(
+        seconds=time.perf_counter() - started,
+        cpu_seconds=time.process_time() - cpu_started,
+        host=socket.gethostname(),
+        pid=os.getpid(),
+    )
+    return row
+
+
+def robot_setups(
+    scenarios: list[Scenario],
+    residual_policy: Path = DEFAULT_POLICY_PATH,
+    identification_root: Path = IDENTIFICATION_ROOT,
+) -> dict[str, ControllerSetup]:
+    """One untared setup per robot identity among ``scenarios``: the robot's identification (identified once
+    and kept under ``identification_root`` when missing, about a minute per robot) and the residual policy.
+
+    Returns:
+        The setups by robot identity.
+    """
+    setups = {}
+    for scenario in scenarios:
+        if scenario.robot_identity not in setups:
+            identification = identify_robot(scenario.plant, identification_root)
+            setups[scenario.robot_identity] = robot_setup(
+                scenario.plant, identification, residual_policy=Path(residual_policy)
+            )
+    return setups
+
+
+def tared_setup(
+    scenario: Scenario,
+    setup: ControllerSetup,
+    controllers: list[str],
+    *,
+    seed: int = 0,
+    calibration_episodes: int = DEFAULT_CALIBRATION_EPISODES,
+    workers: int = 1,
+) -> ControllerSetup:
+    """``setup`` with the tares of the RLS controllers among ``controllers``, measured on ``scenario``.
+
+    The tare is measured as ``python -m eval`` measures it (:mod:`eval.calibration`): payload-free
+    episodes of the scenario on the calibration seeds of ``seed``.
+    """
+    keys = [key for key in controllers if key in ESTIMATOR_REGRESSORS]
+    if not keys:
+        return setup
+    seeds = calibration_seeds(seed, calibration_episodes)
+    tares, _ = calibrate_tares(keys, setup, seeds, scenario.task.n_cycles, workers=workers, scenario=scenario)
+    return dataclasses.replace(setup, tares=tares)
+
+
+def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
+    """Content hash (16 hex digits) of what the controllers know: parameters, tares, gains and, if the
+    residual row runs, the policy file's bytes."""
+    known = (setup.mid, setup.mid_f, setup.mid_f_rods, sorted(setup.tares.items()), setup.geometry, setup.masses)
+    digest = hashlib.sha256(repr(known).encode())
+    digest.update(repr(setup.pd_gains).encode())
+    if "residual" in controllers:
+        digest.update(Path(setup.residual_policy).read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def code_version() -> str:
+    """Content hash (16 hex digits) of the project's Python sources and the versions of the libraries that
+    decide an episode's numbers: any change of either gives new work-unit keys."""
+    root = Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for package in _CODE_PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode())
+            digest.update(path.read_bytes())
+    versions = {}
+    for name in _CODE_DEPENDENCIES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    digest.update(json.dumps(versions, sort_keys=True).encode())
+    return digest.hexdigest()[:16]

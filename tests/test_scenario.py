@@ -1,0 +1,215 @@
+"""Scenarios: TOML round trip, field validation, presets, robot identity and the env's scenario argument."""
+
+import dataclasses
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import delta_env  # noqa: F401 - registers DeltaPickPlace-v0
+from controllers.base import PDController
+from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import GRAVITY, DeltaGeometry
+from delta_env.scenario import Condition, PickPlaceTask, Scenario, preset, preset_names, resolve_scenario
+
+PRESETS = ("heavy", "nominal", "paper", "randomized", "stress-6g", "worn")
+
+
+def unusual_scenario() -> Scenario:
+    """Every kind of field away from its default, None included."""
+    return Scenario(
+        name="unusual",
+        description="a shorter forearm, exact encoders, lag not randomized",
+        plant=PlantConfig(
+            geometry=DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.9),
+            realism=dataclasses.replace(PlantRealism(), encoder_bits=None, coulomb_scale=(1.0, 1.1, 0.9)),
+            timestep=0.00025,
+        ),
+        condition=Condition(friction_scale=1.25, actuator_lag=0.0015),
+        task=PickPlaceTask(
+            cycle="standard",
+            n_cycles=2,
+            peak_acceleration=2.5 * GRAVITY,
+            payload_mass_range=(0.5, 1.5),
+            domain_randomization=RandomizationRanges(mass_fraction=0.05, actuator_lag=None),
+        ),
+    )
+
+
+@pytest.mark.parametrize("scenario", [unusual_scenario(), *(preset(name) for name in PRESETS)], ids=lambda s: s.name)
+def test_scenario_round_trips_through_a_toml_file(scenario: Scenario, tmp_path) -> None:
+    path = scenario.save(tmp_path / "sub" / "scenario.toml")
+    loaded = Scenario.load(path)
+    assert loaded == scenario
+    assert loaded.content_hash == scenario.content_hash
+    assert Scenario.from_toml(scenario.to_toml()) == scenario
+
+
+def test_integers_in_a_file_mean_the_same_floats() -> None:
+    written = Scenario.from_toml('name = "n"\n[plant.realism]\ncoulomb = 4\n[task]\npayload_mass_range = [0, 4]\n')
+    assert written.content_hash == Scenario().content_hash
+    assert isinstance(written.plant.realism.coulomb, float)
+
+
+def test_a_file_without_a_name_is_named_after_its_stem(tmp_path) -> None:
+    path = tmp_path / "slow-cell.toml"
+    path.write_text("[task]\npeak_acceleration = 9.81\n")
+    scenario = resolve_scenario(str(path))
+    assert scenario.name == "slow-cell"
+    assert scenario.task.peak_acceleration == 9.81
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[task]\nn_cycle = 3\n", "unknown key(s) task.n_cycle"),
+        ("colour = 1\n", "unknown key(s) colour"),
+        ("[plant.realism]\ncoulomb = -1.0\n", "plant.realism: coulomb must be"),
+        ("[plant.realism]\nencoder_bits = 17.5\n", 'plant.realism.encoder_bits must be an integer or "none"'),
+        ("[plant.realism]\nviscous_scale = [1.0, 1.0]\n", "plant.realism.viscous_scale must be an array of 3"),
+        ("[plant.geometry]\nrb = 0.3\n", "plant.geometry: rb must be < ra"),
+        ("[plant]\nvariant = 'perfect'\n", "plant.variant must be one of 'ideal', 'realistic'"),
+        ("[plant]\ngeometry = 1\n", "plant.geometry must be a table"),
+        ("[task]\nn_cycles = 1.5\n", "task.n_cycles must be an integer"),
+        ("[task]\nn_cycles = 0\n", "task: n_cycles must be an integer >= 1"),
+        ("[task]\ncycle = 'circle'\n", "task.cycle must be one of 'conveyor', 'standard'"),
+        ("[task]\npeak_acceleration = true\n", "task.peak_acceleration must be a number"),
+        ("[task]\npayload_mass_range = [0.0, 30.0]\n", "task: payload_mass_range must be a pair 0 <= min <= max <= 20"),
+        ("[task.domain_randomization]\nmass_fraction = 0.95\n", "task.domain_randomization: mass_fraction must be"),
+        ("[condition]\nfriction_scale = 0.0\n", "condition: friction_scale must be a finite number in (0, 10]"),
+        (
+            "[plant.realism]\ncoulomb = 50.0\n[condition]\nfriction_scale = 9.0\n",
+            "condition: the worn plant is invalid: coulomb",
+        ),
+        ("name = ''\n", "name must be a non-empty string"),
+        ("[task\n", "not valid TOML"),
+    ],
+)
+def test_bad_fields_are_errors_naming_the_field(text: str, message: str) -> None:
+    with pytest.raises(ValueError) as error:
+        Scenario.from_toml(text, "test.toml")
+    assert message in str(error.value)
+    assert str(error.value).startswith("scenario test.toml: ")
+
+
+def test_unknown_preset_lists_the_presets() -> None:
+    assert preset_names() == sorted(PRESETS)
+    with pytest.raises(ValueError, match="heavy, nominal, paper, randomized, stress-6g, worn"):
+        resolve_scenario("nominl")
+    with pytest.raises(ValueError, match="no such file"):
+        resolve_scenario("missing/dir/cell.toml")
+
+
+def test_presets_resolve_next_to_the_module_not_the_working_directory(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scenarios").mkdir()
+    (tmp_path / "scenarios" / "nominal.toml").write_text("[task]\nn_cycles = 9\n")
+    assert resolve_scenario("nominal").task.n_cycles == 3
+
+
+def test_nominal_preset_is_the_default_env() -> None:
+    assert preset("nominal").content_hash == Scenario().content_hash
+    default, nominal = DeltaPickPlaceEnv(), DeltaPickPlaceEnv(scenario="nominal")
+    for env in (default, nominal):
+        assert env.plant_config == PlantConfig()
+        assert (env.n_cycles, env.cycle, env.payload_mass_range) == (3, "conveyor", (0.0, 4.0))
+        assert env.peak_acceleration == pytest.approx(3.0 * GRAVITY)
+        assert env.domain_randomization is None
+
+
+def test_robot_identity_is_the_plant_only() -> None:
+    identities = {preset(name).robot_identity for name in PRESETS}
+    assert identities == {Scenario().robot_identity}  # worn, heavy, randomized: the nominal robot
+    assert len({preset(name).content_hash for name in PRESETS}) == len(PRESETS)
+    other_geometry = Scenario(plant=PlantConfig(geometry=DeltaGeometry(l1=0.4)))
+    other_sensor = Scenario(plant=PlantConfig(realism=dataclasses.replace(PlantRealism(), encoder_bits=20)))
+    assert other_geometry.robot_identity != Scenario().robot_identity
+    assert other_sensor.robot_identity != Scenario().robot_identity
+    renamed = dataclasses.replace(preset("worn"), name="tired", description="")
+    assert (renamed.robot_identity, renamed.content_hash) == (
+        preset("worn").robot_identity,
+        preset("worn").content_hash,
+    )
+
+
+def test_worn_condition_changes_the_physics_not_the_plant() -> None:
+    worn = preset("worn")
+    assert worn.plant == PlantConfig()
+    realism = worn.effective_plant.realism
+    assert realism.viscous == pytest.approx(1.5 * PlantRealism().viscous)
+    assert realism.coulomb == pytest.approx(1.5 * PlantRealism().coulomb)
+    assert realism.actuator_lag == 0.002
+    nominal_env, worn_env = DeltaPickPlaceEnv(), DeltaPickPlaceEnv(scenario=worn)
+    motor_dofs = worn_env.plant._motor_dofs
+    np.testing.assert_allclose(
+        worn_env.plant.model.dof_frictionloss[motor_dofs], 1.5 * nominal_env.plant.model.dof_frictionloss[motor_dofs]
+    )
+    assert worn_env.plant.model.actuator_dynprm[0, 0] == pytest.approx(0.002)
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_every_preset_builds_and_runs_a_short_episode(name: str) -> None:
+    env = gym.make("DeltaPickPlace-v0", scenario=name, n_cycles=1).unwrapped
+    scenario = preset(name)
+    assert env.n_cycles == 1  # the keyword overrides the scenario's field
+    assert (env.cycle, env.peak_acceleration) == (scenario.task.cycle, scenario.task.peak_acceleration)
+    assert env.domain_randomization == scenario.task.domain_randomization
+    controller = PDController(3000.0, 60.0)
+    observation, info = env.reset(seed=3)
+    low, high = scenario.task.payload_mass_range
+    assert np.all((info["payload_masses"] >= low) & (info["payload_masses"] <= high))
+    errors = []
+    while True:
+        observation, _, terminated, truncated, step_info = env.step(controller(observation))
+        errors.append(step_info["tracking_error"])
+        assert not step_info["torque_saturated"]
+        if terminated or truncated:
+            break
+    assert truncated and not terminated
+    assert len(errors) == len(env.trajectory) - 1
+    assert 0.5e-3 < math.sqrt(np.mean(np.square(errors))) < 20e-3  # PD alone: millimetres, not metres
+    if name == "randomized":
+        assert env.plant.parameters != env.plant.nominal_parameters
+    else:
+        assert env.plant.parameters == env.plant.nominal_parameters
+
+
+def test_paper_preset_is_the_standard_cycle_with_3_8_kg_on_every_pick() -> None:
+    env = DeltaPickPlaceEnv(scenario="paper")
+    _, info = env.reset(seed=11)
+    np.testing.assert_array_equal(info["payload_masses"], [3.8, 3.8, 3.8])
+    xyz = env.trajectory.xyz
+    pick, place = env.trajectory.pick_indices[0], env.trajectory.place_indices[0]
+    assert np.linalg.norm(xyz[place, :2] - xyz[pick, :2]) == pytest.approx(0.305, abs=1e-9)
+    assert xyz[:, 2].max() - xyz[pick, 2] == pytest.approx(0.025, abs=1e-9)
+
+
+def test_keywords_override_the_scenario_and_plant_replaces_its_plant() -> None:
+    ideal = PlantConfig.ideal()
+    env = DeltaPickPlaceEnv(plant=ideal, scenario="worn", payload_mass_range=(1.0, 2.0), cycle="standard")
+    assert env.plant_config == ideal
+    assert (env.cycle, env.payload_mass_range, env.n_cycles) == ("standard", (1.0, 2.0), 3)
+    with pytest.raises(ValueError, match="scenario must be a preset name"):
+        DeltaPickPlaceEnv(scenario=42)
+
+
+def test_geometry_file_round_trips_and_names_bad_fields(tmp_path) -> None:
+    from delta_env.scenario import load_geometry, save_geometry, with_geometry
+
+    design = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)
+    path = save_geometry(design, tmp_path / "design.toml", extra={"objectives": {"torque_change": -0.1}})
+    assert load_geometry(path) == design
+    moved = with_geometry(preset("worn"), design)
+    assert moved.plant.geometry == design and moved.condition == preset("worn").condition
+    assert moved.robot_identity != preset("worn").robot_identity  # another robot
+    (tmp_path / "short.toml").write_text("[geometry]\nra = 0.2\nrb = 0.05\nl1 = 0.37\n")
+    with pytest.raises(ValueError, match="misses l2"):
+        load_geometry(tmp_path / "short.toml")
+    (tmp_path / "typo.toml").write_text("[geometry]\nra = 0.2\nrb = 0.05\nl1 = 0.37\nl2 = 0.95\nl3 = 1.0\n")
+    with pytest.raises(ValueError, match=r"geometry\.l3"):
+        load_geometry(tmp_path / "typo.toml")
+    (tmp_path / "inverted.toml").write_text("[geometry]\nra = 0.05\nrb = 0.2\nl1 = 0.37\nl2 = 0.95\n")
+    with pytest.raises(ValueError, match="rb"):
+        load_geometry(tmp_path / "inverted.toml")

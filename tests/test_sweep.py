@@ -1,0 +1,203 @@
+"""Sweeps: one work unit for both backends, resume by content key, failures recorded, worker deaths retried."""
+
+import csv
+import dataclasses
+import functools
+import math
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from delta_env.scenario import Scenario, preset
+from eval.sweep import __main__ as sweep_cli
+from eval.sweep import report
+from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
+from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
+from tests.conftest import NOMINAL_SETUP as SETUP
+
+CODE, DIGEST = "code-under-test", "setup-under-test"
+COMPARED = ("status", "tracking_rms_mm", "tracking_max_mm", "torque_rms_nm", "energy_j", "steps", "diverged")
+
+
+def tiny(name: str):
+    """A preset shortened to one pick-and-place cycle."""
+    scenario = preset(name)
+    return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, n_cycles=1))
+
+
+def grid(controllers=("pd",), seeds=(0, 1), scenarios=("nominal", "worn")) -> list[WorkUnit]:
+    return [WorkUnit(tiny(name), key, seed) for name in scenarios for key in controllers for seed in seeds]
+
+
+def sweep(units: list[WorkUnit], table: ResultsTable, code: str = CODE, **kwargs) -> dict[str, int]:
+    """``run_sweep`` with SETUP (digest :data:`DIGEST`) on every scenario of ``units``."""
+    contents = {unit.scenario.content_hash for unit in units}
+    return run_sweep(units, dict.fromkeys(contents, SETUP), table, code, dict.fromkeys(contents, DIGEST), **kwargs)
+
+
+def rows_by_key(path: Path) -> dict[str, dict[str, str]]:
+    with path.open(newline="") as file:
+        rows = list(csv.DictReader(file))
+    by_key = {row["key"]: row for row in rows}
+    assert len(by_key) == len(rows), "a unit was written twice"
+    return by_key
+
+
+class CountingWork:
+    """The real work function, counting its calls; raises KeyboardInterrupt at call ``interrupt_at``."""
+
+    def __init__(self, interrupt_at: int | None = None) -> None:
+        self.calls: list[WorkUnit] = []
+        self.interrupt_at = interrupt_at
+
+    def __call__(self, unit: WorkUnit, setup: ControllerSetup) -> dict:
+        if self.interrupt_at is not None and len(self.calls) + 1 == self.interrupt_at:
+            raise KeyboardInterrupt
+        self.calls.append(unit)
+        return run_unit(unit, setup)
+
+
+def die_once_then_run(marker_folder: Path, unit: WorkUnit, setup: ControllerSetup) -> dict:
+    """Kill the worker process the first time a seed is run (marker file per seed), then run it normally."""
+    marker = marker_folder / f"seed-{unit.seed}"
+    if unit.seed == 1 and not marker.exists():
+        marker.touch()
+        os._exit(1)
+    return run_unit(unit, setup)
+
+
+def test_a_work_unit_is_one_row_of_metrics_and_repeats_exactly() -> None:
+    unit = WorkUnit(tiny("paper"), "mid_f_rls", 2)
+    row, again = run_unit(unit, SETUP), run_unit(unit, SETUP)
+    assert row["status"] == "ok" and row["error"] == ""
+    assert set(METRIC_FIELDS) <= set(row)
+    assert {name: row[name] for name in METRIC_FIELDS} == {name: again[name] for name in METRIC_FIELDS}
+    assert 0.0 < row["tracking_rms_mm"] < 2.0  # model feedforward with RLS on the 3.8 kg cycle: sub-millimetre
+    assert row["payload_end_error_percent"] < 5.0  # 3.8 kg estimated within 5 % at the end of the carry
+    pd_row = run_unit(dataclasses.replace(unit, controller="pd"), SETUP)
+    assert pd_row["tracking_rms_mm"] > 3.0 * row["tracking_rms_mm"]
+    assert math.isnan(pd_row["payload_end_error_percent"])  # PD estimates nothing
+
+
+def test_a_failing_episode_is_recorded_with_its_error_and_not_rerun(tmp_path: Path) -> None:
+    units = [WorkUnit(tiny("nominal"), "pd", 0), WorkUnit(tiny("nominal"), "no_such_controller", 0)]
+    table = ResultsTable(tmp_path / "results.csv")
+    counts = sweep(units, table)
+    assert counts == {"total": 2, "skipped": 0, "ran": 2, "failed": 1}
+    rows = {row["controller"]: row for row in table.load()}
+    assert rows["pd"]["status"] == "ok"
+    failed = rows["no_such_controller"]
+    assert failed["status"] == "failed"
+    assert failed["error"].startswith("ValueError: unknown controller 'no_such_controller'")
+    assert failed["tracking_rms_mm"] == "nan"
+    work = CountingWork()
+    assert sweep(units, table, work=work)["skipped"] == 2
+    assert work.calls == []
+
+
+def test_resume_after_an_interrupted_sweep_recomputes_nothing_finished(tmp_path: Path) -> None:
+    units = grid()  # 4 units
+    table = ResultsTable(tmp_path / "results.csv")
+    first = CountingWork(interrupt_at=3)
+    with pytest.raises(KeyboardInterrupt):
+        sweep(units, table, work=first)
+    assert len(first.calls) == 2 and len(table.load()) == 2
+    # The process died while writing a third row: the torn line is dropped, that unit runs again.
+    with table.path.open("a") as file:
+        file.write("0123456789abcdef,nominal,trunc")
+    second = CountingWork()
+    counts = sweep(units, table, work=second)
+    assert counts == {"total": 4, "skipped": 2, "ran": 2, "failed": 0}
+    assert {id(unit) for unit in second.calls}.isdisjoint(id(unit) for unit in first.calls)
+    assert len(second.calls) == 2
+    keys = rows_by_key(table.path)
+    assert set(keys) == {unit_key(unit, CODE, DIGEST) for unit in units}
+    # A new code version is a new key: everything runs again.
+    third = CountingWork()
+    assert sweep(units, table, "other-code", work=third)["ran"] == 4
+    assert len(third.calls) == 4
+
+
+@pytest.mark.slow  # starts a process pool twice
+def test_local_pool_retries_a_unit_whose_worker_died(tmp_path: Path) -> None:
+    units = grid(scenarios=("nominal",))  # seeds 0 and 1; seed 1 kills its worker once
+    table = ResultsTable(tmp_path / "results.csv")
+    work = functools.partial(die_once_then_run, tmp_path)
+    counts = sweep(units, table, workers=2, work=work)
+    assert counts["ran"] == 2 and counts["failed"] == 0
+    assert (tmp_path / "seed-1").exists()  # the worker did die
+    reference = {unit.seed: run_unit(unit, SETUP) for unit in units}
+    for row in table.load():
+        assert row["status"] == "ok"
+        assert float(row["tracking_rms_mm"]) == reference[int(row["seed"])]["tracking_rms_mm"]
+        assert int(row["pid"]) != os.getpid()
+
+
+@pytest.mark.slow  # starts Ray
+def test_ray_and_local_backends_give_identical_rows(tmp_path: Path) -> None:
+    pytest.importorskip("ray", reason="Ray is the optional 'distributed' extra")
+    units = grid(controllers=("pd", "mid_f_rls"), seeds=(0,))
+    local, ray = ResultsTable(tmp_path / "local.csv"), ResultsTable(tmp_path / "ray.csv")
+    sweep(units, local, backend="local", workers=1)
+    counts = sweep(units, ray, backend="ray", workers=2)
+    assert counts["ran"] == len(units) and counts["failed"] == 0
+    local_rows, ray_rows = rows_by_key(local.path), rows_by_key(ray.path)
+    assert set(local_rows) == set(ray_rows)
+    for key, row in local_rows.items():
+        assert {name: row[name] for name in COMPARED} == {name: ray_rows[key][name] for name in COMPARED}
+        assert ray_rows[key]["pid"] != str(os.getpid())  # ran in a Ray worker
+
+
+def test_ray_backend_without_ray_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ImportError, match=r"'distributed' extra"):
+        import_ray()
+
+
+def test_summary_statistics_use_the_t_interval_and_leave_out_failed_and_diverged() -> None:
+    base = {"scenario": "s", "controller": "pd", "label": "PD", "status": "ok", "diverged": "False"}
+    values = [1.0, 2.0, 3.0, 4.0]
+    rows = [{**base, **dict.fromkeys(report.SUMMARY_METRICS, ""), "tracking_rms_mm": str(v)} for v in values]
+    rows.append({**rows[0], "tracking_rms_mm": "100.0", "diverged": "True"})
+    rows.append({**rows[0], "tracking_rms_mm": "nan", "status": "failed"})
+    (entry,) = report.summarize(rows, ["s"], ["pd"])
+    assert (entry["episodes"], entry["failed"], entry["diverged"]) == (6, 1, 1)
+    assert entry["tracking_rms_mm_mean"] == pytest.approx(2.5)
+    assert entry["tracking_rms_mm_std"] == pytest.approx(1.2909944)
+    assert entry["tracking_rms_mm_ci95"] == pytest.approx(3.1824463 * 1.2909944 / 2.0)  # t(0.975, 3) s / sqrt(n)
+    assert math.isnan(entry["energy_j_mean"])
+
+
+def test_seed_ranges() -> None:
+    assert sweep_cli.parse_seeds("0-3,7,2") == [0, 1, 2, 3, 7]
+    for bad in ("3-1", "a", "-1", "1,,2"):
+        with pytest.raises(ValueError, match="seeds must"):
+            sweep_cli.parse_seeds(bad)
+
+
+def test_cli_writes_the_run_folder_and_resumes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    monkeypatch.setattr(
+        sweep_cli, "robot_setups", lambda scenarios, *args: {s.robot_identity: SETUP for s in scenarios}
+    )
+    out = tmp_path / "run"
+    argv = ["--scenarios", "nominal,paper", "--controllers", "pd", "--seeds", "0-1", "--cycles", "1"]
+    argv += ["--workers", "1", "--out", str(out)]
+    assert sweep_cli.main(argv) == 0
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert [tuple(rows[0])] == [RESULT_FIELDS] and len(rows) == 4
+    assert {(row["scenario"], row["seed"]) for row in rows} == {
+        (s, str(n)) for s in ("nominal", "paper") for n in (0, 1)
+    }
+    summary = list(csv.DictReader((out / "summary.csv").open()))
+    assert [(row["scenario"], row["episodes"]) for row in summary] == [("nominal", "2"), ("paper", "2")]
+    assert (out / "plots" / "summary.png").stat().st_size > 10_000
+    stored = Scenario.load(out / "scenarios" / "paper.toml")
+    assert (stored.task.payload_mass_range, stored.task.n_cycles) == ((3.8, 3.8), 1)
+    assert "eval.sweep" in (out / "config.json").read_text()
+    assert "paper" in capsys.readouterr().out
+    assert sweep_cli.main(argv) == 0
+    assert len(list(csv.DictReader((out / "results.csv").open()))) == 4
+    assert "Ran 0 episodes (0 failed), 4 already in the table" in capsys.readouterr().out
+    assert len((out / "commands.log").read_text().splitlines()) == 2
