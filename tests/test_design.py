@@ -11,6 +11,7 @@ from controllers.registry import model_controller
 from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
 from delta_env.scaling import scaled_masses
+from delta_env.scenario import load_geometry
 from eval.design import optimize, performance, reconfigure, report, verify
 from eval.design.__main__ import main
 
@@ -211,10 +212,14 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
     )
     for i, a in enumerate(objectives):
         assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
+    with (out / "designs.csv").open() as file:
+        rows_by_design = {row["design"]: row for row in csv.DictReader(file)}
     config = json.loads((out / "config.json").read_text())
     assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
     assert config["config"]["drive"]["armature_kg_m2"] == PlantRealism().armature
     assert "git_commit" in config and "versions" in config
+    compromise = load_geometry(out / "design-compromise.toml")  # the file --geometry reads
+    assert compromise == DeltaGeometry(*(float(rows_by_design["compromise"][k]) for k in ("ra", "rb", "l1", "l2")))
     with (out / "torque_changes.csv").open() as file:
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified

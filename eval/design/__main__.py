@@ -9,7 +9,9 @@
    identified, with PD, MId+F+R+RLS+PD and the oracle.
 6. The run folder (``--out``, default ``runs/design/<timestamp>``): ``config.json`` (resolved configuration
    and command), ``pareto.csv``, ``designs.csv``, ``convergence.csv``, ``reconfiguration.csv``,
-   ``verification.csv``, ``summary.md`` and the figures of :mod:`eval.design.report`; the summary is printed.
+   ``verification.csv``, ``torque_changes.csv``, ``summary.md``, the figures of :mod:`eval.design.report`
+   and a geometry file ``design-<name>.toml`` per chosen design (``--geometry`` of the other command lines,
+   format of :mod:`delta_env.scenario`); the summary is printed.
 
 Usage: python -m eval.design [--seed 0] [--population 40] [--generations 25] [--quick] [--no-verify]
 """
@@ -30,6 +32,7 @@ from delta_env import workspace
 from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
+from delta_env.scenario import save_geometry
 from eval.design import optimize, performance, reconfigure, report, verify
 from eval.run_folder import command_line, create_run_folder, package_versions, write_config
 
@@ -75,6 +78,11 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
             seen.add(design.geometry)
             kept[name] = design
     return kept
+
+
+def _file_name(design: str) -> str:
+    """A design's name as a file-name part: "GA optimum (weighted cost)" -> "ga-optimum-weighted-cost"."""
+    return "-".join("".join(c if c.isalnum() else " " for c in design.lower()).split())
 
 
 def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) -> dict[str, object]:
@@ -193,6 +201,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 for change in report.torque_changes(verifications)
             ],
         )
+    for name, design in designs.items():
+        if name != "nominal":
+            objectives = {k: v for k, v in report.performance_row(design).items() if k not in ("ra", "rb", "l1", "l2")}
+            save_geometry(
+                design.geometry, out / f"design-{_file_name(name)}.toml", {"design": {"name": name, **objectives}}
+            )
     report.plot_convergence(pareto, single, out / "convergence.png")
     report.plot_pareto(front, nominal, {n: p for n, p in designs.items() if n != "nominal"}, out / "pareto.png")
     map_designs = {"nominal": NOMINAL_GEOMETRY, "compromise": chosen["compromise"].geometry}
