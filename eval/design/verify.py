@@ -12,16 +12,14 @@ or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from controllers.base import Controller, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.feedforward import OracleController
-from controllers.identification import fit_joint_least_squares, prepare_motion
+from controllers.identification import fit_joint_least_squares, fit_least_squares, prepare_motion
 from controllers.payload import tare_from_observations
-from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, model_controller
+from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller, payload_estimator
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import DeltaGeometry, DeltaMasses
@@ -50,8 +48,11 @@ EPISODE_CYCLES = 2
 RLS_KEY = "mid_f_rls"
 """Registry key of the model-based controller verified: MId+F+R feedforward with the payload RLS."""
 
-CONTROLLERS = (CONTROLLER_LABELS["pd"], CONTROLLER_LABELS[RLS_KEY], CONTROLLER_LABELS["oracle"])
-"""The controllers compared on every design."""
+CONTROLLER_KEYS = ("pd", RLS_KEY, "oracle")
+"""Registry keys of the controllers compared on every design."""
+
+CONTROLLERS = tuple(CONTROLLER_LABELS[key] for key in CONTROLLER_KEYS)
+"""Their labels."""
 
 EXCITATION_MARGIN = 0.5
 """Excitation paths keep min |k_i| and |det A| above this share of their values at the cylinder's centre."""
@@ -176,17 +177,17 @@ def excitation_specs(performance: Performance, seed: int) -> list[ExcitationSpec
     return [ExcitationSpec(seed=int(s), duration=IDENTIFICATION_DURATION, start=start, limits=limits) for s in seeds]
 
 
-def identify_design(
-    plant: PlantConfig, model: DeltaDynamics, performance: Performance, seed: int, workers: int = 1
-) -> ModelParameters:
-    """MId+F+R of a design's plant: the nominal robot's excitation runs and joint least squares.
+def identify_design(plant: PlantConfig, performance: Performance, seed: int, workers: int = 1) -> ControllerSetup:
+    """MId, MId+F and MId+F+R of a design's plant: the nominal robot's excitation runs and least squares.
 
     Args:
-        plant: The design's plant.
-        model: Its rod-forearm model (geometry and scaled masses); its parameters are not used.
+        plant: The design's plant (its geometry and masses are the models' datasheet values).
         performance: Its figures (the dexterous cylinder bounds the excitation).
         seed: Seed of the excitation trajectories and their sensor noise.
         workers: Processes running the excitation trajectories.
+
+    Returns:
+        The controllers' knowledge of the design: its identified parameters, geometry and masses (no tares).
     """
     try:
         records = collect_excitation_data(excitation_specs(performance, seed), plant=plant, workers=workers)
@@ -195,7 +196,16 @@ def identify_design(
     for index, record in enumerate(records):
         _check(False, record.max_loop_gap, f"excitation run {index}")
     data = [prepare_motion(record.angles, record.torques, record.dt) for record in records]
-    return fit_joint_least_squares(data, dynamics=model.with_parameters(None)).parameters
+    geometry, masses = plant.geometry, plant.masses
+    rho_fit, joint_fit = fit_least_squares(data, dynamics=DeltaDynamics.of_robot(geometry, masses))
+    rod_fit = fit_joint_least_squares(data, dynamics=DeltaDynamics.of_robot(geometry, masses, forearm_rods=True))
+    return ControllerSetup(
+        mid=rho_fit.parameters,
+        mid_f=joint_fit.parameters,
+        mid_f_rods=rod_fit.parameters,
+        geometry=geometry,
+        masses=masses,
+    )
 
 
 def _reference_torques(model: DeltaDynamics, reference: Trajectory) -> tuple[float, float]:
@@ -228,28 +238,21 @@ def verify_design(
         return Verification(**base, feasible=False, reason=f"plant cannot be assembled: {error}")
     model = design_model(geometry, masses)
     try:
-        parameters = identify_design(plant, model, performance, seed, workers)
-
-        def rls(tare: float) -> Controller:
-            return model_controller(
-                parameters,
-                forearm_rods=True,
-                regressor=ESTIMATOR_REGRESSORS[RLS_KEY],
-                tare=tare,
-                name=CONTROLLER_LABELS[RLS_KEY],
-                geometry=geometry,
-                masses=masses,
-            )
-
-        untared = rls(0.0)
-        empty = [0.0] * EPISODE_CYCLES
+        setup = identify_design(plant, performance, seed, workers)
         calibration_seed = seed + CALIBRATION_SEED_OFFSET
         calibration = run_episode(
-            env, untared, calibration_seed, empty, reference=episode_reference(geometry, seed), keep_observations=True
+            env,
+            build_controller(RLS_KEY, setup),
+            calibration_seed,
+            [0.0] * EPISODE_CYCLES,
+            reference=episode_reference(geometry, seed),
+            keep_observations=True,
         )
         _check(calibration.diverged, calibration.max_loop_gap, "tare calibration")
-        tare, _ = tare_from_observations(untared.estimator, [calibration.observations])
-        controllers = (PDController(), rls(tare), OracleController(plant))
+        tare, _ = tare_from_observations(payload_estimator(RLS_KEY, setup), [calibration.observations])
+        setup = replace(setup, tares={RLS_KEY: tare})
+        controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
+        parameters = setup.mid_f_rods
         identified = model.with_parameters(parameters)
         results, predicted, identified_figures = [], {}, {}
         for episode_seed in range(seed, seed + episodes):
