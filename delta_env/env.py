@@ -27,10 +27,6 @@ from delta_env.trajectories import Trajectory, conveyor_cycles, standard_cycle
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
 
-# The gripper observation: read-only, so one array per state serves every step.
-_GRIPPER_OPEN, _GRIPPER_CLOSED = np.array([0.0]), np.array([1.0])
-_GRIPPER_OPEN.flags.writeable = _GRIPPER_CLOSED.flags.writeable = False
-
 
 DEFAULT_CAMERA = {
     "distance": 2.4,
@@ -404,7 +400,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reference_angles": trajectory.theta[k],
             "reference_velocities": trajectory.theta_dot[k],
             "reference_accelerations": trajectory.theta_ddot[k],
-            "gripper": _GRIPPER_CLOSED if self._holding else _GRIPPER_OPEN,
+            "gripper": np.array([1.0 if self._holding else 0.0]),
         }
 
     # -- rendering ------------------------------------------------------------------------------
