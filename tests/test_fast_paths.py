@@ -1,4 +1,7 @@
-"""The 1 kHz fast paths against their references: filterpy's Kalman filter, SB3's predict, the Python formula."""
+"""The fast paths against their references: filterpy's Kalman filter, SB3's predict, the Python formula, one
+policy load and one process pool for many episodes."""
+
+import math
 
 import numpy as np
 import pytest
@@ -7,7 +10,9 @@ from numpy.testing import assert_array_equal
 
 from controllers.dynamics import DeltaDynamics, ModelParameters, _single_sample_model
 from controllers.estimation import PayloadRLS
-from controllers.residual import ResidualFeatures, load_residual_policy
+from controllers.residual import ResidualFeatures, load_residual_controller, load_residual_policy, residual_controller
+from delta_env.env import DeltaPickPlaceEnv
+from eval.processes import parallel_map, process_pool
 
 
 def reference_filter(forgetting_factor: float, noise_std: float, variance: float, mass: float) -> KalmanFilter:
@@ -86,3 +91,33 @@ def test_compiled_single_sample_model_equals_its_python_formula_bit_for_bit(fore
         python_status, python = _single_sample_model.py_func(*arguments)
         assert compiled_status == python_status == 0
         assert_array_equal(compiled, python)
+
+
+def test_one_loaded_policy_serves_many_residual_controllers_like_fresh_loads() -> None:
+    # The evaluation loads the policy once per worker process: it must carry nothing from one episode into
+    # the next, so a controller on a used policy acts as one on a fresh load of the file.
+    shared = load_residual_policy()
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    earlier = residual_controller(shared)
+    earlier.reset()
+    observation, _ = env.reset(seed=7)
+    for _ in range(40):  # an earlier episode on the shared policy
+        observation, *_ = env.step(earlier(observation))
+    reused, fresh = residual_controller(shared), load_residual_controller()
+    reused.reset()
+    fresh.reset()
+    observation, _ = env.reset(seed=8)
+    for _ in range(60):  # several policy steps
+        torque = fresh(observation)
+        assert_array_equal(reused(observation), torque)
+        observation, *_ = env.step(torque)
+
+
+def test_process_pool_serves_dependent_batches_in_order() -> None:
+    with process_pool(2) as pool:
+        assert pool is not None
+        first = parallel_map(math.sqrt, [4.0, 9.0, 16.0], 2, pool=pool)
+        second = parallel_map(math.sqrt, [x * x for x in first], 2, pool=pool)
+    assert first == second == [2.0, 3.0, 4.0]
+    with process_pool(1) as pool:
+        assert pool is None

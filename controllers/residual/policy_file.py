@@ -234,9 +234,25 @@ def load_residual_controller(
             ``base`` is None for a policy trained on a custom base.
     """
     policy = load_residual_policy(path)
+    if base is None and policy.base is None:
+        raise ValueError(f"{path} was trained on a custom base controller: pass base=")
+    return residual_controller(policy, base, name)
+
+
+def residual_controller(policy: ResidualPolicy, base: Controller | None = None, name: str | None = None) -> Controller:
+    """A loaded residual policy on top of ``base`` as a 1 kHz Controller; one policy serves many controllers.
+
+    Args:
+        policy: From :func:`load_residual_policy`; it holds no episode state.
+        base: The base controller the policy corrects. None rebuilds the base it was trained on.
+        name: Row name; by default ``"<base name> + residual"``.
+
+    Raises:
+        ValueError: if ``base`` is None for a policy trained on a custom base.
+    """
     if base is None:
         if policy.base is None:
-            raise ValueError(f"{path} was trained on a custom base controller: pass base=")
+            raise ValueError("the residual policy was trained on a custom base controller: pass base=")
         base = policy.base.controller()
     return ResidualController(base, policy, policy.config, name=name)
 
