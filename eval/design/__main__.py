@@ -135,11 +135,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     nominal = performance.evaluate(NOMINAL_GEOMETRY)
     if not nominal.feasible:
         raise RuntimeError(f"the nominal robot does not meet the study's own constraints: {nominal.reason}")
-    run = {"population": args.population, "generations": args.generations, "seed": args.seed}
+    settings = optimize.SearchSettings(args.population, args.generations, args.seed)
     with tqdm(total=args.generations, desc="NSGA-II", unit="gen") as bar:
-        pareto = optimize.pareto_front(nominal, progress=bar, **run)
+        pareto = optimize.pareto_front(nominal, settings, progress=bar)
     with tqdm(total=args.generations, desc="GA (weighted cost)", unit="gen") as bar:
-        single = optimize.single_objective(nominal, progress=bar, **run)
+        single = optimize.single_objective(nominal, settings, progress=bar)
     seconds["optimization"] = time.perf_counter() - started
 
     chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(pareto, nominal).items()}
