@@ -29,7 +29,7 @@ from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 
 from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry
 from delta_env.validation import require_count, require_interval
-from eval.design.performance import ASSEMBLY_MARGIN, Performance, evaluate
+from eval.design.performance import Performance, assembly_gap, evaluate
 
 VARIABLES = ("ra", "rb", "l1", "l2")
 """Design variables, in the order of the optimizer's vectors (m)."""
@@ -119,10 +119,9 @@ def objective_vector(performance: Performance) -> NDArray[np.float64]:
 
 def constraint_vector(performance: Performance) -> NDArray[np.float64]:
     """pymoo constraints (<= 0): task shortfall (m), assembly gap (m), torque excess (N m)."""
-    g = performance.geometry
     shortfall = min(performance.shortfall, MAX_SHORTFALL)
     torque = min(performance.peak_torque_nm, PENALTY_TORQUE)
-    return np.array([shortfall, g.r + g.l1 + ASSEMBLY_MARGIN - g.l2, torque - TORQUE_LIMIT])
+    return np.array([shortfall, assembly_gap(performance.geometry), torque - TORQUE_LIMIT])
 
 
 def weighted_cost(performance: Performance, nominal: Performance, weights: tuple[float, ...] = WEIGHTS) -> float:
