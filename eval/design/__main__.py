@@ -34,7 +34,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from eval.design import optimize, performance, reconfigure, report, verify
-from eval.run_folder import command_line, create_run_folder, package_versions, write_config
+from eval.run_folder import command_line, create_run_folder, package_versions, write_config, write_csv
 
 QUICK = {"population": 12, "generations": 3, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
@@ -160,8 +160,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         seconds["verification"] = time.perf_counter() - started - sum(seconds.values())
 
-    report.write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
-    report.write_csv(
+    write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
+    write_csv(
         out / "designs.csv",
         [
             {
@@ -173,12 +173,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             for n, p in designs.items()
         ],
     )
-    report.write_csv(
+    write_csv(
         out / "convergence.csv",
         [{"optimizer": "NSGA-II", **row} for row in pareto.convergence]
         + [{"optimizer": "GA", **row} for row in single.convergence],
     )
-    report.write_csv(
+    write_csv(
         out / "reconfiguration.csv",
         [
             {"profile": o.profile.name, "objective": o.profile.objective, "ra": ra, "value": value}
@@ -187,8 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ],
     )
     if verifications:
-        report.write_csv(out / "verification.csv", report.verification_rows(verifications))
-        report.write_csv(
+        write_csv(out / "verification.csv", report.verification_rows(verifications))
+        write_csv(
             out / "torque_changes.csv",
             [
                 {

@@ -35,7 +35,7 @@ from pathlib import Path
 
 from delta_env.scenario import preset_names, resolve_scenario
 from eval.identification import parameter_path
-from eval.run_folder import command_line, write_config
+from eval.run_folder import command_line, write_config, write_csv
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
@@ -190,7 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     grid_keys = {unit_key(unit, version, digests[unit.scenario.content_hash]) for unit in units}
     rows = [row for row in table.load() if row["key"] in grid_keys]
     summary = report.summarize(rows, [s.name for s in args.scenarios], args.controllers)
-    report.write_csv(out / "summary.csv", summary)
+    write_csv(out / "summary.csv", summary)
     text = "\n".join(
         [
             f"# Sweep: {len(args.scenarios)} scenarios x {len(args.controllers)} controllers x {len(args.seeds)} seeds",
