@@ -43,6 +43,10 @@ PENALTY_TORQUE = 10.0 * TORQUE_LIMIT
 PENALTY_TIME = 10.0
 """Objective value (s) given to a design that cannot hold the payload: far beyond any feasible one."""
 
+PENALTY_COST = 1000.0
+"""Weighted cost given to a design without a dexterous cylinder (whose :func:`weighted_cost` is inf): far
+beyond any feasible one (the nominal design costs 1)."""
+
 MAX_SHORTFALL = 1.0
 """Constraint value (m) of a design whose task band is not even reachable on the axis."""
 
@@ -197,7 +201,7 @@ class DesignProblem(ElementwiseProblem):
         f, g = self.archive.add(x, performance)
         if self.cost is not None:
             cost = self.cost(performance)
-            f = np.array([cost if math.isfinite(cost) else PENALTY_TIME * 100.0])
+            f = np.array([cost if math.isfinite(cost) else PENALTY_COST])
         out["F"], out["G"] = f, g
 
 
