@@ -222,19 +222,19 @@ def monte_carlo_volume(
 
 
 def reachable_volume_estimate(
-    geometry: DeltaGeometry,
-    theta_range: tuple[float, float] = THETA_RANGE,
-    min_conditioning: float = 0.0,
-    samples: int = VOLUME_SAMPLES,
-    seed: int = 0,
-    *,
-    max_forearm_tilt: float = MAX_FOREARM_TILT,
+    geometry: DeltaGeometry, criteria: Criteria = REACHABLE, samples: int = VOLUME_SAMPLES, seed: int = 0
 ) -> tuple[float, float]:
-    """Volume (m^3) of the admissible points and its Monte Carlo standard error (m^3).
+    """Volume (m^3) of the points that satisfy ``criteria`` and its Monte Carlo standard error (m^3).
 
-    Arguments as :func:`reachable_volume`.
+    Monte Carlo over a cylinder that holds the reach (:func:`reach_bounds`), reproducible by ``seed``; the
+    standard error is about 1 % of the volume with the default samples.
+
+    Args:
+        geometry: Robot geometry.
+        criteria: What makes a point admissible; by default the joint limits without a dexterity threshold.
+        samples: Monte Carlo samples, >= 100.
+        seed: Seed of the sample points.
     """
-    criteria = Criteria(theta_range, max_forearm_tilt, min_conditioning)
     bounds = reach_bounds(geometry, criteria.theta_range)
     return monte_carlo_volume(lambda points: admissible(geometry, points, criteria), bounds, samples, seed)
 
@@ -250,8 +250,8 @@ def reachable_volume(
 ) -> float:
     """Volume (m^3) of the points reachable with theta in ``theta_range`` and 1/cond(J) >= ``min_conditioning``.
 
-    Monte Carlo over a cylinder that holds the reach (:func:`reach_bounds`), reproducible by ``seed``;
-    the standard error (:func:`reachable_volume_estimate`) is about 1 % with the default samples.
+    The estimate of :func:`reachable_volume_estimate` (which also gives its standard error) for the
+    :class:`Criteria` these arguments make.
 
     Args:
         geometry: Robot geometry.
@@ -261,9 +261,8 @@ def reachable_volume(
         seed: Seed of the sample points.
         max_forearm_tilt: Ball-joint cone (rad).
     """
-    return reachable_volume_estimate(
-        geometry, theta_range, min_conditioning, samples, seed, max_forearm_tilt=max_forearm_tilt
-    )[0]
+    criteria = Criteria(theta_range, max_forearm_tilt, min_conditioning)
+    return reachable_volume_estimate(geometry, criteria, samples, seed)[0]
 
 
 @dataclass(frozen=True)

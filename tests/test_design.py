@@ -98,18 +98,18 @@ def test_bad_bounds_are_named():
     with pytest.raises(ValueError, match="l2 min > l1 max"):
         optimize.DesignBounds(l1=(0.3, 0.8))
     with pytest.raises(ValueError, match="population"):
-        optimize.pareto_front(performance.evaluate(NOMINAL_GEOMETRY), population=2)
+        optimize.SearchSettings(population=2)
 
 
 def test_impossible_constraints_give_a_clear_error(nominal):
     tiny = optimize.DesignBounds(ra=(0.12, 0.13), rb=(0.03, 0.04), l1=(0.10, 0.11), l2=(0.30, 0.31))
     with pytest.raises(RuntimeError, match=r"no feasible design.*task region shortfall"):
-        optimize.pareto_front(nominal, bounds=tiny, population=4, generations=1)
+        optimize.pareto_front(nominal, optimize.SearchSettings(4, 1), bounds=tiny)
 
 
 def test_pareto_front_is_reproducible_and_non_dominated(nominal):
-    first = optimize.pareto_front(nominal, population=6, generations=2, seed=5)
-    again = optimize.pareto_front(nominal, population=6, generations=2, seed=5)
+    first = optimize.pareto_front(nominal, optimize.SearchSettings(6, 2, seed=5))
+    again = optimize.pareto_front(nominal, optimize.SearchSettings(6, 2, seed=5))
     assert np.array_equal(np.array(first.archive.x), np.array(again.archive.x))
     assert np.array_equal(first.front, again.front)
     objectives = np.array([first.archive.f[i] for i in first.front])
@@ -126,8 +126,8 @@ def test_pareto_front_is_reproducible_and_non_dominated(nominal):
 
 def test_weighted_cost_is_one_at_nominal_and_ga_is_reproducible(nominal):
     assert optimize.weighted_cost(nominal, nominal) == pytest.approx(1.0)
-    first = optimize.single_objective(nominal, population=6, generations=2, seed=2)
-    again = optimize.single_objective(nominal, population=6, generations=2, seed=2)
+    first = optimize.single_objective(nominal, optimize.SearchSettings(6, 2, seed=2))
+    again = optimize.single_objective(nominal, optimize.SearchSettings(6, 2, seed=2))
     assert first.best == again.best
     best = first.archive.performance[first.best]
     costs = [optimize.weighted_cost(p, nominal) for p in first.archive.performance if p.feasible]

@@ -34,7 +34,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from eval.design import optimize, performance, reconfigure, report, verify
-from eval.run_folder import command_line, create_run_folder, package_versions, write_config
+from eval.run_folder import command_line, create_run_folder, package_versions, write_config, write_csv
 
 QUICK = {"population": 12, "generations": 3, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
@@ -135,11 +135,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     nominal = performance.evaluate(NOMINAL_GEOMETRY)
     if not nominal.feasible:
         raise RuntimeError(f"the nominal robot does not meet the study's own constraints: {nominal.reason}")
-    run = {"population": args.population, "generations": args.generations, "seed": args.seed}
+    settings = optimize.SearchSettings(args.population, args.generations, args.seed)
     with tqdm(total=args.generations, desc="NSGA-II", unit="gen") as bar:
-        pareto = optimize.pareto_front(nominal, progress=bar, **run)
+        pareto = optimize.pareto_front(nominal, settings, progress=bar)
     with tqdm(total=args.generations, desc="GA (weighted cost)", unit="gen") as bar:
-        single = optimize.single_objective(nominal, progress=bar, **run)
+        single = optimize.single_objective(nominal, settings, progress=bar)
     seconds["optimization"] = time.perf_counter() - started
 
     chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(pareto, nominal).items()}
@@ -160,8 +160,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         seconds["verification"] = time.perf_counter() - started - sum(seconds.values())
 
-    report.write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
-    report.write_csv(
+    write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
+    write_csv(
         out / "designs.csv",
         [
             {
@@ -173,12 +173,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             for n, p in designs.items()
         ],
     )
-    report.write_csv(
+    write_csv(
         out / "convergence.csv",
         [{"optimizer": "NSGA-II", **row} for row in pareto.convergence]
         + [{"optimizer": "GA", **row} for row in single.convergence],
     )
-    report.write_csv(
+    write_csv(
         out / "reconfiguration.csv",
         [
             {"profile": o.profile.name, "objective": o.profile.objective, "ra": ra, "value": value}
@@ -187,8 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ],
     )
     if verifications:
-        report.write_csv(out / "verification.csv", report.verification_rows(verifications))
-        report.write_csv(
+        write_csv(out / "verification.csv", report.verification_rows(verifications))
+        write_csv(
             out / "torque_changes.csv",
             [
                 {

@@ -29,7 +29,7 @@ from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 
 from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry
 from delta_env.validation import require_count, require_interval
-from eval.design.performance import ASSEMBLY_MARGIN, Performance, evaluate
+from eval.design.performance import Performance, assembly_gap, evaluate
 
 VARIABLES = ("ra", "rb", "l1", "l2")
 """Design variables, in the order of the optimizer's vectors (m)."""
@@ -42,6 +42,10 @@ PENALTY_TORQUE = 10.0 * TORQUE_LIMIT
 
 PENALTY_TIME = 10.0
 """Objective value (s) given to a design that cannot hold the payload: far beyond any feasible one."""
+
+PENALTY_COST = 1000.0
+"""Weighted cost given to a design without a dexterous cylinder (whose :func:`weighted_cost` is inf): far
+beyond any feasible one (the nominal design costs 1)."""
 
 MAX_SHORTFALL = 1.0
 """Constraint value (m) of a design whose task band is not even reachable on the axis."""
@@ -119,10 +123,9 @@ def objective_vector(performance: Performance) -> NDArray[np.float64]:
 
 def constraint_vector(performance: Performance) -> NDArray[np.float64]:
     """pymoo constraints (<= 0): task shortfall (m), assembly gap (m), torque excess (N m)."""
-    g = performance.geometry
     shortfall = min(performance.shortfall, MAX_SHORTFALL)
     torque = min(performance.peak_torque_nm, PENALTY_TORQUE)
-    return np.array([shortfall, g.r + g.l1 + ASSEMBLY_MARGIN - g.l2, torque - TORQUE_LIMIT])
+    return np.array([shortfall, assembly_gap(performance.geometry), torque - TORQUE_LIMIT])
 
 
 def weighted_cost(performance: Performance, nominal: Performance, weights: tuple[float, ...] = WEIGHTS) -> float:
@@ -198,12 +201,12 @@ class DesignProblem(ElementwiseProblem):
         f, g = self.archive.add(x, performance)
         if self.cost is not None:
             cost = self.cost(performance)
-            f = np.array([cost if math.isfinite(cost) else PENALTY_TIME * 100.0])
+            f = np.array([cost if math.isfinite(cost) else PENALTY_COST])
         out["F"], out["G"] = f, g
 
 
 class _Progress(Callback):
-    """Per generation: a tqdm update and the convergence record."""
+    """Per generation: the convergence record, and an update of the tqdm ``bar`` unless it is None."""
 
     def __init__(self, bar: object, record: Callable[[object], dict[str, float]]) -> None:
         super().__init__()
@@ -212,7 +215,8 @@ class _Progress(Callback):
     def notify(self, algorithm: object) -> None:
         counts = {"generation": algorithm.n_gen, "evaluations": algorithm.evaluator.n_eval}
         self.history.append({**counts, **self.record(algorithm)})
-        self.bar.update()
+        if self.bar is not None:
+            self.bar.update()
 
 
 @dataclass(frozen=True)
@@ -245,9 +249,23 @@ class SingleObjectiveResult:
     convergence: list[dict[str, float]]
 
 
-def _require_run(population: int, generations: int) -> None:
-    require_count("population", population, minimum=4)
-    require_count("generations", generations, minimum=1)
+@dataclass(frozen=True)
+class SearchSettings:
+    """Size and seed of a genetic search.
+
+    Attributes:
+        population: Population size, >= 4.
+        generations: Generations, >= 1.
+        seed: Seed of pymoo's random operators.
+    """
+
+    population: int = 40
+    generations: int = 25
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        require_count("population", self.population, minimum=4)
+        require_count("generations", self.generations, minimum=1)
 
 
 def _no_feasible(archive: Archive, what: str) -> RuntimeError:
@@ -257,29 +275,37 @@ def _no_feasible(archive: Archive, what: str) -> RuntimeError:
     return RuntimeError(f"{what}: no feasible design in {len(g)} evaluations ({worst}); widen the bounds")
 
 
+def _search(
+    problem: DesignProblem,
+    algorithm: object,
+    settings: SearchSettings,
+    progress: object,
+    record: Callable[[object], dict[str, float]],
+) -> list[dict[str, float]]:
+    """Run ``algorithm`` on ``problem``; the per-generation convergence record."""
+    callback = _Progress(progress, record)
+    minimize(problem, algorithm, ("n_gen", settings.generations), seed=settings.seed, callback=callback, verbose=False)
+    return callback.history
+
+
 def pareto_front(
     nominal: Performance,
+    settings: SearchSettings = SearchSettings(),
     *,
     bounds: DesignBounds = DEFAULT_BOUNDS,
-    population: int = 40,
-    generations: int = 25,
-    seed: int = 0,
     progress: object = None,
 ) -> ParetoResult:
     """NSGA-II over ``bounds``; reproducible for a seed.
 
     Args:
         nominal: The nominal design's figures (normalizes the hypervolume).
+        settings: Population, generations and seed.
         bounds: Box of the design variables.
-        population: Population size, >= 4.
-        generations: Generations, >= 1.
-        seed: Seed of pymoo's random operators.
         progress: A tqdm bar updated once per generation, or None.
 
     Raises:
         RuntimeError: if no evaluated design satisfies the constraints.
     """
-    _require_run(population, generations)
     archive = Archive()
     scale = np.array([nominal.workspace_m3, nominal.peak_torque_nm, nominal.cycle_time_s])
     indicator = HV(ref_point=np.array(HYPERVOLUME_REFERENCE))
@@ -291,32 +317,21 @@ def pareto_front(
             return {"hypervolume": 0.0}
         return {"hypervolume": float(indicator(pop.get("F")[feasible] / scale))}
 
-    callback = _Progress(progress if progress is not None else _NullBar(), record)
-    minimize(
-        DesignProblem(bounds, archive),
-        NSGA2(pop_size=population),
-        ("n_gen", generations),
-        seed=seed,
-        callback=callback,
-        verbose=False,
-    )
+    history = _search(DesignProblem(bounds, archive), NSGA2(pop_size=settings.population), settings, progress, record)
     front = archive.pareto_indices()
     if front.size == 0:
         raise _no_feasible(archive, "NSGA-II")
-    return ParetoResult(archive=archive, front=front, convergence=callback.history)
+    return ParetoResult(archive=archive, front=front, convergence=history)
 
 
 def single_objective(
     nominal: Performance,
+    settings: SearchSettings = SearchSettings(),
     *,
     bounds: DesignBounds = DEFAULT_BOUNDS,
-    population: int = 40,
-    generations: int = 25,
-    seed: int = 0,
     progress: object = None,
 ) -> SingleObjectiveResult:
     """A GA on :func:`weighted_cost` over ``bounds``; arguments as :func:`pareto_front`."""
-    _require_run(population, generations)
     archive = Archive()
 
     def cost(performance: Performance) -> float:
@@ -330,25 +345,13 @@ def single_objective(
             return {"best_cost": math.nan, "mean_cost": math.nan}
         return {"best_cost": float(values.min()), "mean_cost": float(values.mean())}
 
-    callback = _Progress(progress if progress is not None else _NullBar(), record)
-    minimize(
-        DesignProblem(bounds, archive, cost=cost),
-        GA(pop_size=population, eliminate_duplicates=True),
-        ("n_gen", generations),
-        seed=seed,
-        callback=callback,
-        verbose=False,
-    )
+    algorithm = GA(pop_size=settings.population, eliminate_duplicates=True)
+    history = _search(DesignProblem(bounds, archive, cost=cost), algorithm, settings, progress, record)
     feasible = [i for i, g in enumerate(archive.g) if np.all(g <= 0.0)]
     if not feasible:
         raise _no_feasible(archive, "GA")
     best = min(feasible, key=lambda i: cost(archive.performance[i]))
-    return SingleObjectiveResult(archive=archive, best=best, convergence=callback.history)
-
-
-class _NullBar:
-    def update(self, n: int = 1) -> None:
-        """No progress display."""
+    return SingleObjectiveResult(archive=archive, best=best, convergence=history)
 
 
 def choose_designs(result: ParetoResult, nominal: Performance) -> dict[str, int]:

@@ -139,6 +139,11 @@ class Performance:
         return not self.reason
 
 
+def assembly_gap(geometry: DeltaGeometry) -> float:
+    """How far (m) the forearm falls short of r + l1 + :data:`ASSEMBLY_MARGIN`; <= 0 when the design assembles."""
+    return geometry.r + geometry.l1 + ASSEMBLY_MARGIN - geometry.l2
+
+
 def design_model(
     geometry: DeltaGeometry, masses: DeltaMasses | None = None, drive: PlantRealism | None = DRIVE
 ) -> DeltaDynamics:
@@ -289,11 +294,12 @@ def evaluate(
     require_in("payload", payload, 0.0, math.inf, unit="kg")
     masses = scaled_masses(geometry) if masses is None else masses
     search = workspace.largest_cylinder(geometry, criteria, required_radius=task_radius, required_band=TASK_BAND)
-    region = workspace.pose_measures(geometry, task_region_points(task_radius))
+    points = task_region_points(task_radius)
+    region = workspace.pose_measures(geometry, points)
     reasons = []
     if search.cylinder is None:
         reasons.append(f"task region (radius {task_radius:.3f} m) not dexterous: short by {search.shortfall:.3f} m")
-    if geometry.l2 < geometry.r + geometry.l1 + ASSEMBLY_MARGIN:
+    if assembly_gap(geometry) > 0.0:
         reasons.append(f"l2 = {geometry.l2:.3f} m < ra - rb + l1 + {ASSEMBLY_MARGIN} m (cannot assemble)")
     model = design_model(geometry, masses)
     figures = []
@@ -308,7 +314,7 @@ def evaluate(
             reasons.append(f"peak torque {peak:.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
     elif figures:
         reasons.append("gravity and Coulomb friction alone exceed the torque limit")
-    speed = workspace.isotropic_speed(geometry, task_region_points(task_radius), JOINT_SPEED_LIMIT)
+    speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)
     return Performance(
         geometry=geometry,
         masses=masses,

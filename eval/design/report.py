@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -32,6 +31,7 @@ from eval.design.optimize import PAPER_TARGETS, ParetoResult, SingleObjectiveRes
 from eval.design.performance import Performance, peak_torque_map
 from eval.design.reconfigure import Reconfiguration
 from eval.design.verify import CONTROLLERS, Verification
+from eval.metrics import markdown_table
 
 PAPER_CHANGES = {
     "workspace": 100 * PAPER_TARGETS[0],
@@ -73,22 +73,6 @@ def performance_row(performance: Performance) -> dict[str, Any]:
         "m2_kg": m.m2,
         "m0_kg": m.m0,
     }
-
-
-def write_csv(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
-    """Rows as a CSV file with a header: the union of their keys, in order of appearance (missing cells empty)."""
-    fields = list(dict.fromkeys(key for row in rows for key in row))
-    with path.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A GitHub Markdown table."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return "\n".join(lines)
 
 
 def _change(value: float, reference: float, *, inverse: bool = False) -> float:

@@ -30,7 +30,7 @@ from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
 from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import ExcitationSpec, collect_excitation_data
+from eval.identification import ExcitationSpec, collect_excitation_data, robot_model
 
 LOOP_GAP_LIMIT = 1e-4
 """Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""
@@ -196,15 +196,14 @@ def identify_design(plant: PlantConfig, performance: Performance, seed: int, wor
     for index, record in enumerate(records):
         _check(False, record.max_loop_gap, f"excitation run {index}")
     data = [prepare_motion(record.angles, record.torques, record.dt) for record in records]
-    geometry, masses = plant.geometry, plant.masses
-    rho_fit, joint_fit = fit_least_squares(data, dynamics=DeltaDynamics.of_robot(geometry, masses))
-    rod_fit = fit_joint_least_squares(data, dynamics=DeltaDynamics.of_robot(geometry, masses, forearm_rods=True))
+    rho_fit, joint_fit = fit_least_squares(data, dynamics=robot_model(plant))
+    rod_fit = fit_joint_least_squares(data, dynamics=robot_model(plant, forearm_rods=True))
     return ControllerSetup(
         mid=rho_fit.parameters,
         mid_f=joint_fit.parameters,
         mid_f_rods=rod_fit.parameters,
-        geometry=geometry,
-        masses=masses,
+        geometry=plant.geometry,
+        masses=plant.masses,
     )
 
 
@@ -264,9 +263,9 @@ def verify_design(
                 _check(record.diverged, record.max_loop_gap, f"{label} episode {episode_seed}")
                 results.append(_result(record, label, episode_seed))
     except DesignInfeasible as error:
-        env.close()
         return Verification(**base, feasible=False, reason=str(error))
-    env.close()
+    finally:
+        env.close()
     return Verification(
         **base,
         feasible=True,
