@@ -51,7 +51,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--verified-designs", type=int, default=5, help="chosen designs verified besides the nominal (default 5)"
     )
-    parser.add_argument("--quick", action="store_true", help=f"a small run for tests: {QUICK}")
+    parser.add_argument("--quick", action="store_true", help=f"a small run for tests: {QUICK}, unless given explicitly")
     parser.add_argument("--no-verify", action="store_true", help="skip the closed-loop verification")
     parser.add_argument(
         "--workers", type=int, default=None, help="processes of each design's identification runs (default: up to 2)"
@@ -59,8 +59,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/design/<timestamp>)")
     args = parser.parse_args(argv)
     if args.quick:
+        # Only the settings left at their defaults: an explicit --population etc. wins over --quick.
         for key, value in QUICK.items():
-            setattr(args, key, value)
+            if getattr(args, key) == parser.get_default(key):
+                setattr(args, key, value)
     if args.workers is None:
         args.workers = min(2, os.cpu_count() or 1)
     minimums = {"population": 4, "generations": 1, "episodes": 1, "verified_designs": 1, "workers": 1}
