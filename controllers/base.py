@@ -56,9 +56,15 @@ class PDController:
 
     def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The PD torque (N m), (3,)."""
-        angle_error = observation["reference_angles"] - observation["joint_angles"]
-        rate_error = observation["reference_velocities"] - observation["joint_velocities"]
-        return self.kp * angle_error + self.kd * rate_error
+        # Per joint in Python floats: at three values, cheaper than four NumPy operations.
+        kp, kd = self.kp, self.kd
+        r1, r2, r3 = observation["reference_angles"].tolist()
+        a1, a2, a3 = observation["joint_angles"].tolist()
+        v1, v2, v3 = observation["reference_velocities"].tolist()
+        w1, w2, w3 = observation["joint_velocities"].tolist()
+        return np.array(
+            (kp * (r1 - a1) + kd * (v1 - w1), kp * (r2 - a2) + kd * (v2 - w2), kp * (r3 - a3) + kd * (v3 - w3))
+        )
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         return self.feedback(observation)

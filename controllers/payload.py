@@ -235,11 +235,12 @@ class PayloadEstimator:
         self.correlation_samples = float(correlation_samples)
         self.rest_rate = float(rest_rate)
         self._friction_prior = None if friction_scale_std is None else 1.0 / friction_scale_std**2
-        self._viscous = tuple(dynamics.parameters.viscous)
-        self._coulomb = tuple(dynamics.parameters.coulomb)
-        self._friction_information = np.zeros(3)
-        self._friction_moment = np.zeros(3)
-        self._kappa = np.zeros(3)
+        self._viscous = tuple(float(f) for f in dynamics.parameters.viscous)
+        self._coulomb = tuple(float(f) for f in dynamics.parameters.coulomb)
+        # Per joint: sum of w f^2 and of w f (y - phi tare) over the empty moves, and the fitted scale error.
+        self._friction_information = [0.0, 0.0, 0.0]
+        self._friction_moment = [0.0, 0.0, 0.0]
+        self._kappa = [0.0, 0.0, 0.0]
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
@@ -272,14 +273,14 @@ class PayloadEstimator:
     @property
     def friction_scale_error(self) -> NDArray[np.float64]:
         """Relative error kappa_i of each joint's identified friction fitted on this episode's empty moves, (3,)."""
-        return self._kappa.copy()
+        return np.array(self._kappa)
 
     def reset(self) -> None:
         """Start an episode: nothing held, apparent mass at the tare, joint filter restarted at the next reading."""
         self.rls.reset(self.tare)
-        self._friction_information[:] = 0.0
-        self._friction_moment[:] = 0.0
-        self._kappa[:] = 0.0
+        self._friction_information = [0.0, 0.0, 0.0]
+        self._friction_moment = [0.0, 0.0, 0.0]
+        self._kappa = [0.0, 0.0, 0.0]
         self._filter_started = False
         self._holding = False
         self._previous_reference = None
@@ -303,18 +304,23 @@ class PayloadEstimator:
                 self.rls.reset_covariance()
             else:
                 self.rls.reset(self.tare)  # released: the object is known to be gone
-        equation = self.measurement(observation, reference_torque, reference_regressor)
-        if equation is None:
+        moments = self.measurement(observation, reference_torque, reference_regressor)
+        if moments is None:
             return self.rls.mass
-        return self.rls.update(*equation)
+        return self.rls.update_moments(*moments)
 
     def measurement(
         self,
         observation: Observation,
         reference_torque: NDArray[np.float64] | None = None,
         reference_regressor: NDArray[np.float64] | None = None,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """This step's whitened payload equation (phi_i / sigma_i, y_i / sigma_i), or None with the gripper open.
+    ) -> tuple[float, float] | None:
+        """This step's weighted payload equation as its moments, or None with the gripper open or every joint at
+        rest (:data:`REST_RATE`). With the gripper open, the sample fits the friction scale errors instead.
+
+        With the weights w_i = 1 / sigma_i^2 (:func:`residual_std`), the moments are sum_i w_i phi_i^2
+        ((N m/kg)^2) and sum_i w_i phi_i y_i (N^2 m^2/kg): all that RLS with R = diag(sigma_i^2) needs of a
+        sample (:meth:`PayloadRLS.update_moments` with a noise standard deviation of 1).
 
         Call once per control step, in order (it keeps the previous reference and the joint filter).
 
@@ -333,23 +339,27 @@ class PayloadEstimator:
                     observation["reference_velocities"],
                     observation["reference_accelerations"],
                 )
-            rates = observation["reference_velocities"].tolist()
-            current = (reference_torque, reference_regressor, rates)
+            current = (
+                reference_torque.tolist(),
+                reference_regressor.tolist(),
+                observation["reference_velocities"].tolist(),
+            )
             previous = self._previous_reference if self._previous_reference is not None else current
             self._previous_reference = current
             carrying = holding
             # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
-            tau0 = reference_torque - _TORQUE_AGE * (reference_torque - previous[0])
-            phi = reference_regressor - _TORQUE_AGE * (reference_regressor - previous[1])
-            rates = [b - _TORQUE_AGE * (b - a) for a, b in zip(previous[2], rates, strict=True)]
-            torque = observation["joint_torques"]
+            tau0, phi, rates = (
+                [b - _TORQUE_AGE * (b - a) for a, b in zip(before, now, strict=True)]
+                for before, now in zip(previous, current, strict=True)
+            )
+            torque = observation["joint_torques"].tolist()
         else:
             angles = observation["joint_angles"]
             if not self._filter_started:
                 self.joint_filter.reset(angles)
                 self._filter_started = True
             estimate = self.joint_filter.update(angles)
-            self._history.append((estimate, np.array(observation["joint_torques"]), holding))
+            self._history.append((estimate, observation["joint_torques"].tolist(), holding))
             if len(self._history) <= self.delay:
                 return None
             # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
@@ -366,37 +376,31 @@ class PayloadEstimator:
                 x - _TORQUE_AGE * (x - p) for x, p in zip(state, previous_state, strict=True)
             )
             tau0, phi = self.dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
-            rates = theta_dot.tolist()
+            tau0, phi, rates = tau0.tolist(), phi.tolist(), theta_dot.tolist()
+
         rest = self.rest_rate
         if abs(rates[0]) < rest and abs(rates[1]) < rest and abs(rates[2]) < rest:
             return None  # static friction holds an unknown share of the load: no measurement of the mass
-
-        # Whitening by sigma_i (residual_std, written out for the 1 kHz path): RLS with R = diag(sigma_i^2).
-        inverse_std = np.array(
-            [
-                1.0 / math.sqrt(self._nominal_variance + (f * math.exp(-((v * self._inverse_velocity) ** 2))) ** 2)
-                for f, v in zip(self._band, rates, strict=True)
-            ]
-        )
-        phi_w, y_w = phi * inverse_std, (torque - tau0) * inverse_std
-        if self._friction_prior is None:
-            return (phi_w, y_w) if carrying else None
-        # The model's friction along each joint, whitened: its scale error kappa_i is fitted on the empty moves.
-        friction = (
-            np.array(
-                [
-                    fv * v + fc * math.copysign(1.0, v)
-                    for fv, fc, v in zip(self._viscous, self._coulomb, rates, strict=True)
-                ]
-            )
-            * inverse_std
-        )
-        if not carrying:
-            self._friction_information += friction * friction
-            self._friction_moment += friction * (y_w - phi_w * self.tare)
-            np.divide(self._friction_moment, self._friction_information + self._friction_prior, out=self._kappa)
+        if not carrying and self._friction_prior is None:
             return None
-        return phi_w, y_w - self._kappa * friction
+        # w_i = 1 / sigma_i^2 of residual_std, written out for the 1 kHz path; f_i the model's friction.
+        information = moment = 0.0
+        for i, (band, rate, regressor, measured, modelled) in enumerate(
+            zip(self._band, rates, phi, torque, tau0, strict=True)
+        ):
+            band *= math.exp(-((rate * self._inverse_velocity) ** 2))
+            weight = 1.0 / (self._nominal_variance + band * band)
+            friction = self._viscous[i] * rate + math.copysign(self._coulomb[i], rate)
+            residual = measured - modelled
+            if carrying:
+                residual -= self._kappa[i] * friction
+                information += weight * regressor * regressor
+                moment += weight * regressor * residual
+            else:  # mp = 0: y_i - phi_i tare = kappa_i f_i
+                self._friction_information[i] += weight * friction * friction
+                self._friction_moment[i] += weight * friction * (residual - regressor * self.tare)
+                self._kappa[i] = self._friction_moment[i] / (self._friction_information[i] + self._friction_prior)
+        return (information, moment) if carrying else None
 
 
 def tare_from_observations(
@@ -417,21 +421,21 @@ def tare_from_observations(
         The tare (kg) and the standard deviation (kg) of the same estimate carry by carry: the model
         error along phi changes with the path, so this, not the torque noise, is its uncertainty.
     """
-    carries: list[tuple[float, float]] = []  # (phi . y, phi . phi) summed over one carry
+    carries: list[tuple[float, float]] = []  # (sum of phi.y, sum of phi.phi) over one carry, weighted
     for episode in episodes:
         estimator.reset()
         holding = False
         for observation in episode:
-            equation = estimator.measurement(observation)
-            if equation is None:
+            moments = estimator.measurement(observation)
+            if moments is None:
                 holding = False
                 continue
             if not holding:
                 carries.append((0.0, 0.0))
                 holding = True
-            phi, y = equation
-            moment, information = carries[-1]
-            carries[-1] = (moment + float(phi @ y), information + float(phi @ phi))
+            information, moment = moments
+            carry_moment, carry_information = carries[-1]
+            carries[-1] = (carry_moment + moment, carry_information + information)
     if not carries:
         raise ValueError("no carry phase in the calibration episodes: the gripper never closed")
     moments, informations = np.array(carries).T

@@ -13,7 +13,7 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
 from controllers.drive import LagCompensatedController
@@ -22,6 +22,9 @@ from controllers.feedforward import FeedforwardController, OracleController
 from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+
+if TYPE_CHECKING:
+    from controllers.residual import ResidualPolicy
 
 CONTROLLER_LABELS = {
     "pd": "PD",
@@ -122,13 +125,28 @@ class ControllerSetup:
     masses: DeltaMasses = NOMINAL_MASSES
 
 
-def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
+def residual_policy_path(setup: ControllerSetup) -> Path:
+    """The policy file of the ``residual`` row: ``setup.residual_policy``, or the shipped policy when None."""
+    from controllers.residual import DEFAULT_POLICY_PATH
+
+    return DEFAULT_POLICY_PATH if setup.residual_policy is None else setup.residual_policy
+
+
+def build_controller(
+    key: str,
+    setup: ControllerSetup,
+    env: DeltaPickPlaceEnv | None = None,
+    *,
+    policy: ResidualPolicy | None = None,
+) -> Controller:
     """The controller of ``key`` (see :data:`CONTROLLER_LABELS`).
 
     Args:
         key: Controller key.
         setup: Identified parameters, tares and gains.
         env: Needed for the oracle only, which inverts the env's plant; never given to the others.
+        policy: For ``residual``: the policy of :func:`residual_policy_path` already loaded (a caller building
+            many controllers loads it once); None loads it from the file.
     """
     if key not in CONTROLLER_LABELS:
         raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
@@ -136,10 +154,11 @@ def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | 
     if key == "pd":
         return PDController(*setup.pd_gains)
     if key == "residual":
-        from controllers.residual import DEFAULT_POLICY_PATH, load_residual_controller
+        from controllers.residual import load_residual_controller, residual_controller
 
-        path = DEFAULT_POLICY_PATH if setup.residual_policy is None else setup.residual_policy
-        return load_residual_controller(path, name=label)
+        if policy is not None:
+            return residual_controller(policy, name=label)
+        return load_residual_controller(residual_policy_path(setup), name=label)
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")

@@ -32,14 +32,30 @@ STANDARD_TRAVEL = 0.305
 """Horizontal travel of the industry's 25/305/25 mm test cycle (m)."""
 
 
-def _check_cycle_arguments(
-    peak_acceleration: float, lift_height: float, lift_fraction: float, dwell: float, dt: float
-) -> None:
-    require_sample_period(dt)
-    require_positive("peak_acceleration", peak_acceleration, "m/s^2")
-    require_in("lift_height", lift_height, 0.0, unit="m")
-    require_in("lift_fraction", lift_fraction, 0.0, 0.5, low_open=True)
-    require_in("dwell", dwell, 2.0 * dt, unit="s (2 dt and up)")
+@dataclass(frozen=True)
+class _Profile:
+    """The timing and shape every move of a cycle shares (validated on construction).
+
+    Attributes:
+        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
+        lift_height: Lift above the higher of the two stations of a move (m), >= 0.
+        lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
+        dwell: Rest at each pick and place point (s), >= 2 dt.
+        dt: Sample period (s).
+    """
+
+    peak_acceleration: float
+    lift_height: float
+    lift_fraction: float
+    dwell: float
+    dt: float
+
+    def __post_init__(self) -> None:
+        require_sample_period(self.dt)
+        require_positive("peak_acceleration", self.peak_acceleration, "m/s^2")
+        require_in("lift_height", self.lift_height, 0.0, unit="m")
+        require_in("lift_fraction", self.lift_fraction, 0.0, 0.5, low_open=True)
+        require_in("dwell", self.dwell, 2.0 * self.dt, unit="s (2 dt and up)")
 
 
 @dataclass(frozen=True)
@@ -116,21 +132,11 @@ def standard_cycle(
         ValueError: on a bad argument or a point outside ``limits`` (named in the message).
     """
     require_count("n_cycles", n_cycles)
-    _check_cycle_arguments(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt)
+    profile = _Profile(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt)
     center_xyz = np.asarray(center, dtype=float)
     half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
     pick, place = center_xyz - half_travel, center_xyz + half_travel
-    return _cycles(
-        geometry,
-        np.tile(pick, (n_cycles + 1, 1)),
-        np.tile(place, (n_cycles, 1)),
-        peak_acceleration=peak_acceleration,
-        lift_height=STANDARD_LIFT,
-        lift_fraction=lift_fraction,
-        dwell=dwell,
-        limits=limits,
-        dt=dt,
-    )
+    return _cycles(geometry, np.tile(pick, (n_cycles + 1, 1)), np.tile(place, (n_cycles, 1)), profile, limits)
 
 
 def conveyor_cycles(
@@ -172,39 +178,21 @@ def conveyor_cycles(
     """
     require_generator(rng)
     require_count("n_cycles", n_cycles)
-    _check_cycle_arguments(peak_acceleration, lift_height, lift_fraction, dwell, dt)
+    profile = _Profile(peak_acceleration, lift_height, lift_fraction, dwell, dt)
     lifted = np.array([0.0, 0.0, lift_height])
     for name, zone in (("pick zone corner", pick_zone), ("place zone corner", place_zone)):
         require_admissible(geometry, zone.corners(), limits, name)
         require_admissible(geometry, zone.corners() + lifted, limits, f"lifted {name}")
     picks = pick_zone.sample(rng, n_cycles + 1)
     places = place_zone.sample(rng, n_cycles)
-    return _cycles(
-        geometry,
-        picks,
-        places,
-        peak_acceleration=peak_acceleration,
-        lift_height=lift_height,
-        lift_fraction=lift_fraction,
-        dwell=dwell,
-        limits=limits,
-        dt=dt,
-    )
+    return _cycles(geometry, picks, places, profile, limits)
 
 
 def _cycles(
-    geometry: DeltaGeometry,
-    picks: np.ndarray,
-    places: np.ndarray,
-    *,
-    peak_acceleration: float,
-    lift_height: float,
-    lift_fraction: float,
-    dwell: float,
-    limits: WorkspaceLimits,
-    dt: float,
+    geometry: DeltaGeometry, picks: np.ndarray, places: np.ndarray, profile: _Profile, limits: WorkspaceLimits
 ) -> Trajectory:
     """Dwell, arch to place k, dwell, arch to pick k + 1, for every k; events mid-dwell."""
+    lift_height, lift_fraction, dwell = profile.lift_height, profile.lift_fraction, profile.dwell
     lifted = np.array([0.0, 0.0, lift_height])
     for name, points in (("pick point", picks), ("place point", places)):
         require_admissible(geometry, points, limits, name)
@@ -214,11 +202,11 @@ def _cycles(
     events: list[tuple[float, float]] = []
     elapsed = 0.0
     for pick, place, next_pick in zip(picks[:-1], places, picks[1:], strict=True):
-        there = Segment(pick, place, 1.0, lift_height, lift_fraction).timed(peak_acceleration)
-        back = Segment(place, next_pick, 1.0, lift_height, lift_fraction).timed(peak_acceleration)
+        there = Segment(pick, place, 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
+        back = Segment(place, next_pick, 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
         segments += [Segment.line(pick, pick, dwell), there, Segment.line(place, place, dwell), back]
         events.append((elapsed + 0.5 * dwell, elapsed + dwell + there.duration + 0.5 * dwell))
         elapsed += 2.0 * dwell + there.duration + back.duration
-    trajectory = sample_segments(geometry, segments, dt, events)
+    trajectory = sample_segments(geometry, segments, profile.dt, events)
     require_admissible(geometry, trajectory.xyz, limits, "path point")
     return trajectory

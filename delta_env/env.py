@@ -178,6 +178,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
         self.plant_config = plant if plant is not None else PlantConfig()
         self.plant = DeltaPlant(self.plant_config)
+        self._motor_qpos = tuple(self.plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
         self.n_cycles = int(n_cycles)
         self.cycle = cycle
         self.peak_acceleration = float(peak_acceleration)
@@ -351,9 +352,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         reference = self.trajectory.xyz[k]
         loop_gap = plant.loop_gap()
         # The warnings count from the episode's mj_resetData; NaN fails the loop-gap comparison.
-        warnings = data.warning
+        counts = data.warning.number  # all warning counts as one array view: one binding call, not three
         bad_qacc, bad_qvel, bad_qpos = self._instability_warnings
-        unstable = warnings[bad_qacc].number or warnings[bad_qvel].number or warnings[bad_qpos].number
+        unstable = counts.item(bad_qacc) or counts.item(bad_qvel) or counts.item(bad_qpos)
         diverged = bool(unstable) or not loop_gap <= DIVERGENCE_LOOP_GAP
         truncated = k >= len(self.trajectory) - 1
         self._episode_over = diverged or truncated
@@ -411,16 +412,21 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     def _encoder(self, angles: NDArray[np.float64]) -> list[float]:
         """Encoder reading (rad) of joint angles: rounded to whole counts when quantized."""
-        if self._encoder_step is None:
-            return angles.tolist()
+        return self._encoder_floats(*angles.tolist())
+
+    def _encoder_floats(self, a0: float, a1: float, a2: float) -> list[float]:
+        """:meth:`_encoder` of three angles (rad) given as floats."""
         step = self._encoder_step
-        a0, a1, a2 = angles.tolist()
+        if step is None:
+            return [a0, a1, a2]
         return [round(a0 / step) * step, round(a1 / step) * step, round(a2 / step) * step]
 
     def _measure_joints(self) -> NDArray[np.float64]:
         """Sample the encoders; return the measured joint rates (rad/s)."""
         p0, p1, p2 = self._measured_angles
-        self._measured_angles = m0, m1, m2 = self._encoder(self.plant.joint_angles())
+        qpos = self.plant.data.qpos
+        a0, a1, a2 = self._motor_qpos
+        self._measured_angles = m0, m1, m2 = self._encoder_floats(qpos.item(a0), qpos.item(a1), qpos.item(a2))
         if self._encoder_step is None:
             return self.plant.joint_velocities()
         rate = 1.0 / CONTROL_PERIOD

@@ -68,18 +68,29 @@ def inverse(geometry: DeltaGeometry, xyz: ArrayLike) -> NDArray[np.float64]:
         ValueError: naming the point if it lies outside the reachable workspace.
     """
     xyz = require_vectors("xyz", xyz)
+    theta = elbow_out_angles(geometry, xyz)
+    unreachable = np.any(np.isnan(theta), axis=-1)
+    if np.any(unreachable):
+        point = xyz[tuple(np.argwhere(unreachable)[0])] if xyz.ndim > 1 else xyz
+        raise ValueError(f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}")
+    return theta
+
+
+def elbow_out_angles(geometry: DeltaGeometry, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Motor angles (rad) of the elbow-out branch, ``(..., 3)``; NaN for a chain that cannot reach ``xyz`` (m).
+
+    Chain i in its own frame: |J'_i - x| = l2 gives p cos th + q sin th = c, solved by
+    th = atan2(q, p) + acos(c / hypot(p, q)) (the elbow-out root); |c| > hypot(p, q) has no solution.
+    """
     x, y, z = xyz[..., 0:1], xyz[..., 1:2], xyz[..., 2:3]
     x_local = x * _COS_ALPHA + y * _SIN_ALPHA - geometry.r
     y_local = -x * _SIN_ALPHA + y * _COS_ALPHA
     p = -2.0 * geometry.l1 * x_local
     q = 2.0 * geometry.l1 * np.broadcast_to(z, x_local.shape)
     c = geometry.l2**2 - geometry.l1**2 - x_local**2 - y_local**2 - z**2
-    ratio = c / np.hypot(p, q)
-    if np.any(np.abs(ratio) > 1.0) or np.any(~np.isfinite(ratio)):
-        bad = np.argwhere(np.any(~(np.abs(ratio) <= 1.0), axis=-1))
-        point = xyz[tuple(bad[0])] if bad.size else xyz
-        raise ValueError(f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}")
-    return np.arctan2(q, p) + np.arccos(ratio)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = c / np.hypot(p, q)
+        return np.where(np.abs(ratio) <= 1.0, np.arctan2(q, p) + np.arccos(np.clip(ratio, -1.0, 1.0)), np.nan)
 
 
 def constraint_terms(

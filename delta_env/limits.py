@@ -70,26 +70,13 @@ def admissible(geometry: DeltaGeometry, xyz: ArrayLike, limits: WorkspaceLimits 
     flat = xyz.reshape(-1, 3)
     inside = (np.hypot(flat[:, 0], flat[:, 1]) <= limits.radius) & (flat[:, 2] >= limits.z_min)
     inside &= flat[:, 2] <= limits.z_max
-    reachable = _reachable(geometry, flat)
-    theta = kinematics.inverse(geometry, flat[reachable])
-    a, k = kinematics.constraint_terms(geometry, flat[reachable], theta)
+    theta = kinematics.elbow_out_angles(geometry, flat)  # NaN where a chain cannot reach
+    reachable = np.all(np.isfinite(theta), axis=-1)
+    a, k = kinematics.constraint_terms(geometry, flat[reachable], theta[reachable])
     # the measures of kinematics.singularity_measures, without its SVD (this runs on whole paths)
     inside[reachable] &= np.min(np.abs(k), axis=-1) >= limits.min_abs_k
     inside[reachable] &= np.abs(np.linalg.det(a)) >= limits.min_abs_det_a
     return (inside & reachable).reshape(xyz.shape[:-1])
-
-
-def _reachable(geometry: DeltaGeometry, flat_xyz: np.ndarray) -> NDArray[np.bool_]:
-    """Whether each point ``(n, 3)`` has an inverse kinematics solution, ``(n,)``."""
-    try:
-        kinematics.inverse(geometry, flat_xyz)
-    except ValueError:
-        if len(flat_xyz) == 1:
-            return np.zeros(1, dtype=bool)
-        # kinematics.inverse rejects a whole batch: bisect to find the unreachable points
-        half = len(flat_xyz) // 2
-        return np.concatenate((_reachable(geometry, flat_xyz[:half]), _reachable(geometry, flat_xyz[half:])))
-    return np.ones(len(flat_xyz), dtype=bool)
 
 
 def _why_not_admissible(geometry: DeltaGeometry, point: np.ndarray, limits: WorkspaceLimits) -> str:

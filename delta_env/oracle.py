@@ -1,7 +1,7 @@
 """Exact closed-chain inverse dynamics of the MuJoCo plant: ground truth and the "exact feedforward" bound.
 
 ``mj_inverse`` alone does not distribute load through closed chains: with the loop constraints on, it
-attributes ~0 force to them. The oracle therefore (DESIGN.md section 4):
+attributes ~0 force to them. The oracle therefore (docs/design.md section 4):
 
 1. makes the state consistent: motor angles and rates fixed, passive coordinates assembled so every loop
    closes, J_c qvel = 0, and J_c qacc = -Jdot_c qvel with the motor accelerations fixed

@@ -196,24 +196,21 @@ class Scenario:
         Raises:
             ValueError: for invalid TOML, an unknown key or an invalid field, naming the field.
         """
-        try:
-            table = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as error:
-            raise ValueError(f"scenario {source}: not valid TOML: {error}") from None
-        try:
-            return _from_table(cls, table, "")
-        except ValueError as error:
-            raise ValueError(f"scenario {source}: {error}") from None
+        return cls._from_document(_read_toml(text, f"scenario {source}"), source)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Scenario:
         """Read a scenario file; a file without ``name`` is named after its stem."""
         path = Path(path)
-        text = path.read_text()
-        scenario = cls.from_toml(text, str(path))
-        if "name" not in tomllib.loads(text):
-            scenario = replace(scenario, name=path.stem)
-        return scenario
+        document = _read_toml(path.read_text(), f"scenario {path}")
+        return cls._from_document({"name": path.stem, **document}, str(path))
+
+    @classmethod
+    def _from_document(cls, document: dict[str, Any], source: str) -> Scenario:
+        try:
+            return _from_table(cls, document, "")
+        except ValueError as error:
+            raise ValueError(f"scenario {source}: {error}") from None
 
 
 def plant_identity(plant: PlantConfig) -> str:
@@ -249,10 +246,7 @@ def load_geometry(path: str | os.PathLike[str]) -> DeltaGeometry:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"geometry file {path}: no such file")
-    try:
-        table = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"geometry file {path}: not valid TOML: {error}") from None
+    table = _read_toml(path.read_text(), f"geometry file {path}")
     if not isinstance(table.get("geometry"), dict):
         raise ValueError(f"geometry file {path}: needs a [geometry] table with ra, rb, l1, l2 (m)")
     missing = sorted({"ra", "rb", "l1", "l2"} - set(table["geometry"]))
@@ -330,6 +324,14 @@ _TABLE_TYPES += (RandomizationRanges,)
 
 def _preset_dir() -> Any:
     return resources.files("delta_env") / "scenarios"
+
+
+def _read_toml(text: str, source: str) -> dict[str, Any]:
+    """The table of TOML ``text``; ValueError naming ``source`` if it is not valid TOML."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{source}: not valid TOML: {error}") from None
 
 
 def _digest(table: dict[str, Any]) -> str:

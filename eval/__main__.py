@@ -25,7 +25,6 @@ Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import os
 import sys
@@ -44,7 +43,7 @@ from eval import plots
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.comparison import TABLE2_KEY, TABLE2_PAYLOAD, calibration_seeds, run_all, table2_statistics, tabulate
 from eval.identification import check_identity, identify_robot, load_or_identify, parameter_path, robot_setup
-from eval.run_folder import command_line, create_run_folder, write_config
+from eval.run_folder import command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 from eval.tables import bound_violations, controller_table, table2_table
 
@@ -122,13 +121,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-def _write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
-    with path.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
 def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     """The check of the table's invariant: no controller tracks better than the oracle bound."""
     bound = CONTROLLER_LABELS["oracle"]
@@ -163,10 +155,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     model_torques = table2_record.model_torques(estimation_model(setup), tares[TABLE2_KEY])
     table2_rows = table2_statistics(model_torques)
 
-    _write_csv(out / "episodes.csv", episode_rows)
+    write_csv(out / "episodes.csv", episode_rows)
     if carry_rows:
-        _write_csv(out / "carries.csv", carry_rows)
-    _write_csv(out / "table2.csv", table2_rows)
+        write_csv(out / "carries.csv", carry_rows)
+    write_csv(out / "table2.csv", table2_rows)
     np.savez_compressed(
         out / "traces.npz",
         dt=CONTROL_PERIOD,

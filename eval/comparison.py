@@ -23,6 +23,7 @@ from controllers.registry import CONTROLLER_LABELS, ESTIMATING_KEYS, ESTIMATOR_R
 from eval import metrics
 from eval.calibration import calibration_tasks, tares_from_results
 from eval.episodes import EpisodeRecord
+from eval.processes import process_pool
 from eval.tasks import Task, run_tasks
 
 CALIBRATION_SEED_OFFSET = 100_000
@@ -73,14 +74,15 @@ def run_all(
     calibrations = calibration_tasks(tared, setup, seeds, args.cycles, args.scenario)
     first = calibrations + episodes(untared, setup)
     total = len(first) + args.episodes * (len(keys) - len(untared)) + 1
-    with tqdm(total=total, desc="episodes", unit="ep") as progress:
-        results = run_tasks(first, args.workers, progress)
+    # One pool for both batches: the second needs the tares of the first, but not new workers.
+    with process_pool(args.workers) as pool, tqdm(total=total, desc="episodes", unit="ep") as progress:
+        results = run_tasks(first, args.workers, progress, pool)
         tares, spreads = tares_from_results(results, setup)
         tared_setup = dataclasses.replace(setup, tares=tares)
         payloads = (TABLE2_PAYLOAD,) * args.cycles
         table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, payloads, args.scenario)
         second = [*episodes([key for key in keys if key not in untared], tared_setup), table2]
-        results += run_tasks(second, args.workers, progress)
+        results += run_tasks(second, args.workers, progress, pool)
     return results, tares, spreads
 
 

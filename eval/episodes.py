@@ -48,6 +48,7 @@ class EpisodeRecord:
         masses: Mass of each object (kg).
         diverged: True if the simulation diverged (the episode ended early).
         saturated_steps: Steps whose command exceeded the torque limit.
+        max_loop_gap: Largest loop-closure gap of the plant over the steps (m); inf if it was not finite.
         observations: The observations from the reset on, if recorded.
     """
 
@@ -65,6 +66,7 @@ class EpisodeRecord:
     masses: NDArray[np.float64]
     diverged: bool
     saturated_steps: int
+    max_loop_gap: float
     observations: list[Observation] | None = None
 
     def metrics(self) -> dict[str, Any]:
@@ -169,7 +171,7 @@ def run_episode(
     estimates = np.zeros(steps)
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
-    diverged, saturated, n = False, 0, 0
+    diverged, saturated, n, loop_gap = False, 0, 0, 0.0
     for n in range(steps):
         action = controller(observation)
         if estimate is not None:
@@ -183,6 +185,7 @@ def run_episode(
         joint_error[n] = plant.joint_angles() - observation["reference_angles"]
         mass.append(info["payload_mass"])
         saturated += bool(info["torque_saturated"])
+        loop_gap = max(loop_gap, info["loop_gap"]) if math.isfinite(info["loop_gap"]) else math.inf
         measured.append(observation["joint_torques"])
         angles.append(observation["joint_angles"])
         if keep_observations:
@@ -209,5 +212,6 @@ def run_episode(
         masses=np.asarray(env.payload_masses, dtype=float),
         diverged=diverged,
         saturated_steps=saturated,
+        max_loop_gap=loop_gap,
         observations=observations,
     )

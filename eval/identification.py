@@ -62,14 +62,15 @@ from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import excitation_trajectory
 from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry
+from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits
 from delta_env.scenario import plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from delta_env.trajectories import Trajectory
+from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_count
 from eval.episodes import run_episode
 from eval.processes import parallel_map
-from eval.run_folder import package_versions
+from eval.run_folder import json_ready, package_versions
 
 logger = logging.getLogger(__name__)
 
@@ -108,6 +109,8 @@ class ExcitationSpec:
         min_acceleration_fraction: Smallest peak |xdd| of a fast move, relative to the largest.
         edge_fraction: Probability that a fast move ends on the workspace edge.
         slow_fraction: Probability that a move is slow (friction near zero speed).
+        start: Platform position (m) where the trajectory starts and ends.
+        limits: Region the trajectory visits; the default suits the nominal geometry.
     """
 
     seed: int
@@ -116,6 +119,8 @@ class ExcitationSpec:
     min_acceleration_fraction: float = 0.2
     edge_fraction: float = 0.3
     slow_fraction: float = 0.2
+    start: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT)
+    limits: WorkspaceLimits = WORKSPACE_LIMITS
 
     @classmethod
     def stress(cls, seed: int, duration: float = VALIDATION_DURATION) -> ExcitationSpec:
@@ -130,9 +135,11 @@ class ExcitationSpec:
             np.random.default_rng(self.seed),
             self.duration,
             self.peak_acceleration,
+            start=self.start,
             min_acceleration_fraction=self.min_acceleration_fraction,
             edge_fraction=self.edge_fraction,
             slow_fraction=self.slow_fraction,
+            limits=self.limits,
             dt=CONTROL_PERIOD,
         )
 
@@ -149,6 +156,7 @@ class ExcitationRecord:
             than angle sample k.
         commands: Command the drive held after each sample (N m), ``(N - 1, 3)``: command k, sent with
             sample k, is followed by the torque reported with sample k + 1.
+        max_loop_gap: Largest loop-closure gap of the plant during the run (m), the simulation's health.
     """
 
     spec: ExcitationSpec
@@ -156,6 +164,7 @@ class ExcitationRecord:
     angles: NDArray[np.float64]
     torques: NDArray[np.float64]
     commands: NDArray[np.float64]
+    max_loop_gap: float
 
     def drive_lag(self) -> NDArray[np.float64]:
         """The drive lag (s) per joint fitted to this run's commands and reported torques (:func:`identify_lag`)."""
@@ -189,6 +198,8 @@ class ReferenceFeedforward:
 def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> ExcitationRecord:
     """Run ``spec`` with PD + MKH feedforward on the plant; record encoder angles and measured torques.
 
+    The reference and the MKH model are those of the plant's geometry and built masses (its datasheet).
+
     Raises:
         RuntimeError: if the plant diverges.
     """
@@ -209,6 +220,7 @@ def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> Ex
         angles=record.encoder_angles,
         torques=record.measured_torque,
         commands=record.command,
+        max_loop_gap=record.max_loop_gap,
     )
 
 
@@ -388,8 +400,8 @@ def run_identification(
             "controller": {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"},
         },
         "seed": seed,
-        "trajectories": [dataclasses.asdict(spec) for spec in specs[:-1]],
-        "validation_trajectory": dataclasses.asdict(specs[-1]),
+        "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
+        "validation_trajectory": json_ready(dataclasses.asdict(specs[-1])),
         "plant": _plant_summary(plant),
         "samples": {
             "per_trajectory": [len(d) for d in data],

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.context import BaseContext
+from multiprocessing.pool import Pool
 from typing import Any, TypeVar
 
 from delta_env.validation import require_count
@@ -13,32 +14,63 @@ from delta_env.validation import require_count
 _Item = TypeVar("_Item")
 _Output = TypeVar("_Output")
 
+WORKER_MODULES = ("eval.tasks", "eval.identification")
+"""Modules the forkserver imports once before it forks any worker: every worker of the experiments needs
+them (MuJoCo, the env, the controllers, filterpy, numba), and a fork inherits them instead of importing them
+again. None of them imports torch; a worker that runs a residual policy imports it itself."""
+
 
 def pool_context() -> BaseContext:
-    """forkserver where available, else spawn; never fork.
+    """forkserver where available (with :data:`WORKER_MODULES` preloaded), else spawn; never fork.
 
     A forked child of a process that has loaded torch (the residual policy, the training CLI) can deadlock
     in torch's thread pool. Forkserver and spawn children start clean and import what their work needs.
     """
     methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" not in methods:
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(WORKER_MODULES))  # takes effect when the forkserver starts
+    return context
+
+
+@contextlib.contextmanager
+def process_pool(workers: int) -> Iterator[Pool | None]:
+    """A pool of ``workers`` processes for several :func:`parallel_map` calls in a row; None for one worker.
+
+    One pool for dependent batches of work (the tare episodes, then the episodes that need the tares)
+    starts its workers once.
+    """
+    require_count("workers", workers)
+    if workers == 1:
+        yield None
+        return
+    with pool_context().Pool(workers) as pool:
+        yield pool
 
 
 def parallel_map(
-    function: Callable[[_Item], _Output], items: Sequence[_Item], workers: int, progress: Any = None
+    function: Callable[[_Item], _Output],
+    items: Sequence[_Item],
+    workers: int,
+    progress: Any = None,
+    pool: Pool | None = None,
 ) -> list[_Output]:
     """``[function(item) for item in items]`` in order, on ``workers`` processes (in this one if 1).
 
     Args:
         function: A picklable function of one item.
         items: The work.
-        workers: Processes, >= 1.
+        workers: Processes, >= 1; ignored when ``pool`` is given.
         progress: A tqdm bar advanced once per finished item, or None.
+        pool: A running pool of :func:`process_pool` to use instead of a new one.
     """
     require_count("workers", workers)
     results = []
     with contextlib.ExitStack() as stack:
-        if workers == 1 or len(items) <= 1:
+        if pool is not None and len(items) > 1:
+            outputs = pool.imap(function, items)
+        elif workers == 1 or len(items) <= 1 or pool is not None:
             outputs = map(function, items)
         else:
             outputs = stack.enter_context(pool_context().Pool(min(workers, len(items)))).imap(function, items)

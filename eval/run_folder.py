@@ -3,11 +3,13 @@
 Each CLI (``python -m eval``, ``python -m eval.identify``, ``python -m eval.train_residual``) creates its
 folder with :func:`create_run_folder` and writes ``config.json`` with :func:`write_config`: the resolved
 configuration of the run under ``"config"`` and, in the same schema for every tool, the command that
-reproduces it, the package versions, the git commit of the code and the start time.
+reproduces it, the package versions, the git commit of the code and the start time. Tables go in as CSV
+with :func:`write_csv`.
 """
 
 from __future__ import annotations
 
+import csv
 import datetime
 import json
 import platform
@@ -91,6 +93,18 @@ def json_ready(value: Any) -> Any:
 def write_json(path: Path, document: Mapping[str, Any]) -> Path:
     """Write ``document`` (made JSON-ready) as indented JSON; returns the path."""
     path.write_text(json.dumps(json_ready(document), indent=2) + "\n")
+    return path
+
+
+def write_csv(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> Path:
+    """Write dict rows as CSV with a header: the union of their keys, in order of appearance (missing cells
+    empty); returns the path."""
+    path = Path(path)
+    fields = list(dict.fromkeys(key for row in rows for key in row))
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
     return path
 
 

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from delta_env.scaling import scaled_masses
 from delta_env.scenario import Scenario, load_geometry, preset_names, resolve_scenario, with_geometry
 
 
@@ -20,16 +21,23 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         "--geometry",
         default=None,
         help="geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
-        "the scenario on a robot of these lengths (a new robot, identified once), with the scenario's masses",
+        "the scenario on a robot of these lengths (a new robot, identified once), its masses following the "
+        "lengths by the rule of delta_env.scaling",
     )
 
 
 def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Scenario:
-    """The scenario of ``--scenario`` on the robot of ``--geometry``; a bad value is a parser error."""
+    """The scenario of ``--scenario`` on the robot of ``--geometry``; a bad value is a parser error.
+
+    The robot of ``--geometry`` is built like the scenario's: its masses follow the lengths by
+    :func:`delta_env.scaling.scaled_masses` from the scenario's robot, as in the design study.
+    """
     try:
         scenario = resolve_scenario(args.scenario)
         if args.geometry is not None:
-            scenario = with_geometry(scenario, load_geometry(args.geometry))
+            geometry = load_geometry(args.geometry)
+            masses = scaled_masses(geometry, scenario.plant.geometry, scenario.plant.masses)
+            scenario = with_geometry(scenario, geometry, masses)
             scenario = dataclasses.replace(scenario, name=f"{scenario.name}+{Path(args.geometry).stem}")
     except ValueError as error:
         parser.error(f"--scenario/--geometry: {error}")

@@ -10,6 +10,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from controllers.base import PDController
 from controllers.registry import build_controller, estimation_model
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario, preset
@@ -153,7 +154,8 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
 def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.TempPathFactory) -> None:
     """The acceptance targets of the controller comparison, on 3 default episodes after a 4-trajectory identification.
 
-    Targets: the RLS controller tracks within 0.2 x PD and 2 x the oracle bound; the residual policy cuts the
+    Targets: the RLS controller tracks within 0.2 x PD; no controller tracks better than the oracle bound (it
+    inverts mechanism and drive exactly, so this is an invariant, not a target); the residual policy cuts the
     RLS controller's tracking RMS by at least 15 % for at most +5 % torque RMS; every estimate of an object of
     0.5 kg or more is within +-5 % by 150 ms after its pick; the payload estimate cuts the spread of
     tau_measured - tau_model to at most 0.6 of its value with mp = 0 on every joint (the paper's Table 2).
@@ -170,9 +172,9 @@ def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.
     def mean(key: str, column: str) -> float:
         return float(np.mean([float(row[column]) for row in episodes if row["key"] == key]))
 
-    tracking = {key: mean(key, "tracking_rms_mm") for key in ("pd", "mid_f_rls", "oracle", "residual")}
+    tracking = {key: mean(key, "tracking_rms_mm") for key in {row["key"] for row in episodes}}
     assert tracking["mid_f_rls"] <= 0.2 * tracking["pd"]
-    assert tracking["mid_f_rls"] <= 2.0 * tracking["oracle"]
+    assert min(tracking, key=tracking.__getitem__) == "oracle", tracking
     assert tracking["residual"] <= 0.85 * tracking["mid_f_rls"]
     assert mean("residual", "torque_rms_nm") <= 1.05 * mean("mid_f_rls", "torque_rms_nm")
     carries = [row for row in read_csv(out / "carries.csv") if row["key"] in ("mid_f_rls", "residual")]
@@ -197,3 +199,18 @@ def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverge
     assert section[0] == "## Bound violated" and len(section) == 4
     assert "A tracks at 0.035 mm RMS, below Oracle+PD (bound) at 0.040 mm" in section[2]
     assert _bound_section([row("PD", 6.0)]) == []  # no oracle row, nothing to check
+
+
+def test_run_episode_records_the_largest_loop_gap() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    record = run_episode(env, PDController(), seed=4, payload_masses=[1.0])
+    # the same seeded episode stepped by hand: the record holds the largest gap the env reported
+    observation, _ = env.reset(seed=4, options={"payload_masses": [1.0]})
+    controller, gaps = PDController(), []
+    controller.reset()
+    for _ in range(len(record.tracking_error)):
+        observation, _, _, _, info = env.step(controller(observation))
+        gaps.append(info["loop_gap"])
+    env.close()
+    assert record.max_loop_gap == max(gaps)
+    assert 0.0 < record.max_loop_gap < 1e-4  # the realistic plant's loops stay closed to well under 0.1 mm

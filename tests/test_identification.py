@@ -25,8 +25,11 @@ from controllers.identification import (
     prepare_motion,
     save_result,
 )
+from delta_env import kinematics
 from delta_env.config import PlantConfig
-from delta_env.geometry import TORQUE_LIMIT
+from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
+from delta_env.limits import WorkspaceLimits
+from delta_env.scaling import scaled_masses
 from delta_env.sensors import ENCODER_RESOLUTION
 from eval import identification as experiment
 from eval.identification import ExcitationSpec, collect_excitation_data, identify, load_or_identify
@@ -397,3 +400,20 @@ def test_excitation_record_holds_the_commands_and_fits_the_plants_drive_lag() ->
     assert np.all(np.abs(record.commands) <= TORQUE_LIMIT)
     # The plant's current loop: 1 ms on every joint; the fit sees the 0.5 N m torque noise and the ripple.
     assert_allclose(record.drive_lag(), PlantConfig().realism.actuator_lag, rtol=0.1)
+
+
+def test_excitation_runs_on_the_plants_own_geometry_inside_the_given_region() -> None:
+    geometry = DeltaGeometry(ra=0.24, rb=0.03, l1=0.32, l2=1.05)
+    region = WorkspaceLimits(radius=0.3, z_min=-1.1, z_max=-0.8, min_abs_k=0.1, min_abs_det_a=0.1)
+    spec = ExcitationSpec(seed=8, duration=1.5, start=(0.0, 0.0, -0.95), limits=region)
+    plant = PlantConfig(geometry=geometry, masses=scaled_masses(geometry))
+    (record,) = collect_excitation_data([spec], plant=plant)
+    # the encoder angles, mapped through the design's kinematics, stay in the region (3 mm of tracking error)
+    platform = kinematics.forward(geometry, record.angles)
+    assert np.max(np.hypot(platform[:, 0], platform[:, 1])) < region.radius + 3e-3
+    assert region.z_min - 3e-3 < platform[:, 2].min() and platform[:, 2].max() < region.z_max + 3e-3
+    assert_allclose(record.angles, spec.reference(geometry).theta, atol=1e-2)  # PD + MKH at up to 6 g
+    assert 0.0 < record.max_loop_gap < 1e-4
+    # the default is the nominal robot's trajectory, as before
+    default = ExcitationSpec(seed=8, duration=1.5)
+    assert_allclose(default.reference().theta, default.reference(NOMINAL_GEOMETRY).theta, rtol=0, atol=0)

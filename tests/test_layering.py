@@ -13,8 +13,11 @@ EXPERIMENT_MODULES = ("argparse", "matplotlib", "stable_baselines3", "torch", "t
 """What ``controllers`` must not import at module level or in functions: command lines, figures, training
 loops and progress bars belong to ``eval`` (SB3 and torch are loaded lazily by the policy file only)."""
 
-LAZY_ALLOWED = {("controllers/residual/policy_file.py", "stable_baselines3")}
-"""(module, import) pairs allowed when deferred: loading a saved policy needs SB3."""
+LAZY_ALLOWED = {
+    ("controllers/residual/policy_file.py", "stable_baselines3"),
+    ("controllers/residual/policy_file.py", "torch"),
+}
+"""(module, import) pairs allowed when deferred: loading a saved policy needs SB3, running its network torch."""
 
 
 def _type_checking_only(node: ast.AST) -> bool:

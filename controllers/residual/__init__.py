@@ -29,6 +29,7 @@ from controllers.residual.policy_file import (
     load_residual_controller,
     load_residual_policy,
     read_policy_metadata,
+    residual_controller,
     save_residual_policy,
     shipped_base_setup,
 )
@@ -49,6 +50,7 @@ __all__ = [
     "load_residual_policy",
     "payload_estimate",
     "read_policy_metadata",
+    "residual_controller",
     "save_residual_policy",
     "shipped_base_setup",
 ]

@@ -50,12 +50,14 @@ class ResidualController:
         self._features = ResidualFeatures(config)
         self._step = 0
         self._action = np.zeros(3)
+        self._residual = np.zeros(3)
 
     def reset(self) -> None:
         """Reset the base controller and start a new episode."""
         self.base.reset()
         self._step = 0
         self._action = np.zeros(3)
+        self._residual = np.zeros(3)
 
     @property
     def payload_estimate(self) -> float:
@@ -65,7 +67,7 @@ class ResidualController:
     @property
     def residual_torque(self) -> NDArray[np.float64]:
         """The residual torque (N m) added in this control step, (3,)."""
-        return self.config.residual_limit * self._action
+        return self._residual.copy()
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         base_torque = self.base(observation)
@@ -78,5 +80,6 @@ class ResidualController:
             if action.shape != (3,) or not np.all(np.isfinite(action)):
                 raise ValueError(f"the residual policy must return 3 finite values, got {action!r}")
             self._action = np.clip(action, -1.0, 1.0)
+            self._residual = self.config.residual_limit * self._action  # held until the next policy step
         self._step += 1
-        return base_torque + self.config.residual_limit * self._action
+        return base_torque + self._residual

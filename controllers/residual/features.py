@@ -64,8 +64,8 @@ class ResidualFeatures:
         self.config = config
         self._inverse_stribeck = 1.0 / config.stribeck_velocity
         self._ripple_periods = float(config.ripple_periods)
-        self._angle_error_sum = np.zeros(3)
-        self._rate_error_sum = np.zeros(3)
+        self._angle_error_sum = [0.0, 0.0, 0.0]
+        self._rate_error_sum = [0.0, 0.0, 0.0]
         self._window = 0
         self._observation: Observation | None = None
         self._base_torque = np.zeros(3)
@@ -78,8 +78,7 @@ class ResidualFeatures:
 
     def reset(self, observation: Observation, base_torque: NDArray[np.float64], payload: float) -> None:
         """Start an episode at its first observation, with the base torque (N m) and payload estimate (kg)."""
-        self._angle_error_sum[:] = 0.0
-        self._rate_error_sum[:] = 0.0
+        self._angle_error_sum[:] = self._rate_error_sum[:] = [0.0, 0.0, 0.0]
         self._window = 0
         self._acceleration = np.asarray(observation["reference_accelerations"], dtype=float).copy()
         self._payload_at_last_policy_step = payload
@@ -104,8 +103,19 @@ class ResidualFeatures:
         # The jerk is formed at policy steps only, from the last two reference accelerations.
         self._previous_acceleration = self._acceleration
         self._acceleration = np.array(observation["reference_accelerations"], dtype=float)
-        self._angle_error_sum += observation["reference_angles"] - observation["joint_angles"]
-        self._rate_error_sum += observation["reference_velocities"] - observation["joint_velocities"]
+        # The sums in Python floats: at three values, cheaper than NumPy's in-place operations.
+        angle_sum, rate_sum = self._angle_error_sum, self._rate_error_sum
+        for joint, (reference, angle, reference_rate, rate) in enumerate(
+            zip(
+                observation["reference_angles"].tolist(),
+                observation["joint_angles"].tolist(),
+                observation["reference_velocities"].tolist(),
+                observation["joint_velocities"].tolist(),
+                strict=True,
+            )
+        ):
+            angle_sum[joint] += reference - angle
+            rate_sum[joint] += reference_rate - rate
         self._window += 1
         self._observation = observation
         self._base_torque = np.array(base_torque, dtype=float)
@@ -125,8 +135,8 @@ class ResidualFeatures:
             (
                 (reference_angles - angles) / _ANGLE_ERROR_SCALE,
                 (reference_rates - observation["joint_velocities"]) / _RATE_ERROR_SCALE,
-                self._angle_error_sum / (self._window * _ANGLE_ERROR_SCALE),
-                self._rate_error_sum / (self._window * _RATE_ERROR_SCALE),
+                np.array(self._angle_error_sum) / (self._window * _ANGLE_ERROR_SCALE),
+                np.array(self._rate_error_sum) / (self._window * _RATE_ERROR_SCALE),
                 reference_angles / _ANGLE_SCALE,
                 reference_rates / _RATE_SCALE,
                 observation["reference_accelerations"] / _ACCELERATION_SCALE,
@@ -144,8 +154,7 @@ class ResidualFeatures:
                 previous_action,
             )
         )
-        self._angle_error_sum[:] = 0.0
-        self._rate_error_sum[:] = 0.0
+        self._angle_error_sum[:] = self._rate_error_sum[:] = [0.0, 0.0, 0.0]
         self._window = 0
         self._payload_at_last_policy_step = self._payload
         return np.clip(vector, -FEATURE_CLIP, FEATURE_CLIP).astype(np.float32)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 from delta_env.scenario import preset_names, resolve_scenario
 from eval.identification import parameter_path
-from eval.run_folder import command_line, write_config
+from eval.run_folder import RUNS_ROOT, command_line, create_run_folder, write_config, write_csv
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
@@ -127,7 +127,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             "seeds": args.seeds,
         }
         digest = hashlib.sha256(json.dumps(grid, sort_keys=True).encode()).hexdigest()[:10]
-        args.out = Path("runs/sweep") / f"sweep-{digest}"
+        args.out = RUNS_ROOT / "sweep" / f"sweep-{digest}"
     return args
 
 
@@ -135,8 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from tqdm.auto import tqdm
 
     args = parse_args(argv)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    out = create_run_folder("sweep", args.out)
     for scenario in args.scenarios:
         scenario.save(out / "scenarios" / f"{scenario.name}.toml")
     robots = robot_setups(args.scenarios, args.residual)
@@ -190,7 +189,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     grid_keys = {unit_key(unit, version, digests[unit.scenario.content_hash]) for unit in units}
     rows = [row for row in table.load() if row["key"] in grid_keys]
     summary = report.summarize(rows, [s.name for s in args.scenarios], args.controllers)
-    report.write_csv(out / "summary.csv", summary)
+    write_csv(out / "summary.csv", summary)
     text = "\n".join(
         [
             f"# Sweep: {len(args.scenarios)} scenarios x {len(args.controllers)} controllers x {len(args.seeds)} seeds",

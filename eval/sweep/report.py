@@ -8,7 +8,6 @@ statistics (a diverged episode's metrics cover only the steps before the diverge
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -75,14 +74,6 @@ def summarize(rows: Sequence[dict[str, Any]], scenarios: Sequence[str], controll
                 entry.update({f"{name}_mean": mean, f"{name}_std": std, f"{name}_ci95": half_width})
             summary.append(entry)
     return summary
-
-
-def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
-    """Write dict rows with the first row's keys as header."""
-    with Path(path).open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
 
 
 def _cell(entry: dict[str, Any], name: str) -> str:

@@ -16,7 +16,6 @@ import os
 import socket
 import time
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +36,7 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
 from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
+from eval.run_folder import package_versions
 
 CONTROLLERS = CONTROLLER_LABELS
 """Controller keys of ``--controllers`` and their labels."""
@@ -165,19 +165,13 @@ def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
 
 
 def code_version() -> str:
-    """Content hash (16 hex digits) of the project's Python sources and the versions of the libraries that
-    decide an episode's numbers: any change of either gives new work-unit keys."""
+    """Content hash (16 hex digits) of the project's Python sources and the versions of Python and of the
+    libraries that decide an episode's numbers: any change of either gives new work-unit keys."""
     root = Path(__file__).resolve().parents[2]
     digest = hashlib.sha256()
     for package in _CODE_PACKAGES:
         for path in sorted((root / package).rglob("*.py")):
             digest.update(path.relative_to(root).as_posix().encode())
             digest.update(path.read_bytes())
-    versions = {}
-    for name in _CODE_DEPENDENCIES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    digest.update(json.dumps(versions, sort_keys=True).encode())
+    digest.update(json.dumps(package_versions(_CODE_DEPENDENCIES), sort_keys=True).encode())
     return digest.hexdigest()[:16]

@@ -1,0 +1,451 @@
+"""Workspace, dexterity and singularity analysis of a Delta geometry (docs/design.md sections 1 and 2).
+
+Everything here follows from :class:`~delta_env.geometry.DeltaGeometry` alone and is vectorized over
+points ``(..., 3)`` (m, base frame). A point is *admissible* when
+
+- the elbow-out inverse kinematics exists with every theta_i in ``theta_range`` (rad, theta > 0 down),
+- every forearm leans at most ``max_forearm_tilt`` from the vertical (the ball-joint cone; the platform
+  stays horizontal, so this is the angle the ball joints must accept), and
+- the local conditioning index 1 / cond_2(J) (J: xd = J thd) is at least ``min_conditioning``.
+
+With rows a_i of A (|a_i| = l2) and k_i of the velocity constraint A xd + K thd = 0, J^{-1} = -K^{-1} A has
+rows -a_i / k_i, which stay finite everywhere except at serial singularities. So
+
+- conditioning = sigma_min / sigma_max of K^{-1} A: 0 at both singularity types (det A = 0, some k_i = 0);
+- the inverse measurement index IMI = 1 / sqrt(det(J J^T)) = |det A| / prod |k_i| (rad^3/m^3);
+- the speed the platform reaches in *every* direction with |thd_i| <= omega is
+  omega * min_i |k_i| / l2 (the largest row norm of J^{-1} is l2 / min |k_i|).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from delta_env import kinematics
+from delta_env.geometry import DeltaGeometry
+from delta_env.validation import require_count, require_in, require_interval, require_positive
+
+THETA_RANGE = (-0.6, 1.5)
+"""Default motor range (rad): up to 34 deg above horizontal before the arm meets the base housing, down to
+86 deg, just short of hanging vertically under its motor."""
+
+MAX_FOREARM_TILT = math.radians(60.0)
+"""Default ball-joint cone (rad): forearm angle from the vertical that ball joints with inclined cups accept."""
+
+DEXTEROUS_CONDITIONING = 0.25
+"""Default dexterity threshold on 1 / cond_2(J): beyond a condition number of 4 a joint error moves the
+platform four times more in one direction than in another."""
+
+VOLUME_SAMPLES = 400_000
+"""Default Monte Carlo samples of :func:`reachable_volume`: a relative standard error near 1 %."""
+
+CYLINDER_HEIGHT_STEP = 0.025
+"""Height resolution (m) of :func:`largest_cylinder`: the standard cycle's 25 mm lift."""
+
+CYLINDER_RADIAL_SAMPLES = 80
+"""Radii tested per height by :func:`largest_cylinder` (from 0 to the reach bound)."""
+
+CYLINDER_AZIMUTHS = 7
+"""Azimuths tested per ring in [0, pi/3] (every 10 deg): the workspace is symmetric under rotations by
+2 pi / 3 and the mirror y -> -y (chain 1's plane), so this sector covers every direction."""
+
+_CHUNK = 100_000  # points per vectorized batch: bounds memory at a few tens of MB
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """What makes a point admissible (module docstring).
+
+    Attributes:
+        theta_range: (min, max) motor angle (rad).
+        max_forearm_tilt: Largest forearm angle from the vertical (rad), in (0, pi/2].
+        min_conditioning: Smallest 1 / cond_2(J), in [0, 1].
+    """
+
+    theta_range: tuple[float, float] = THETA_RANGE
+    max_forearm_tilt: float = MAX_FOREARM_TILT
+    min_conditioning: float = DEXTEROUS_CONDITIONING
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "theta_range", require_interval("theta_range", self.theta_range, -math.pi, math.pi, unit="rad")
+        )
+        require_in("max_forearm_tilt", self.max_forearm_tilt, 0.0, math.pi / 2, unit="rad", low_open=True)
+        require_in("min_conditioning", self.min_conditioning, 0.0, 1.0)
+
+
+DEXTEROUS = Criteria()
+"""The default criteria: the dexterous workspace."""
+
+REACHABLE = Criteria(min_conditioning=0.0)
+"""The default joint limits without a dexterity threshold: the reachable workspace."""
+
+
+@dataclass(frozen=True)
+class PoseMeasures:
+    """Kinematic measures at points, each ``(...)``; NaN where the inverse kinematics does not exist.
+
+    Attributes:
+        reachable: True where the elbow-out inverse kinematics exists.
+        theta: Motor angles (rad), ``(..., 3)``.
+        conditioning: 1 / cond_2(J) (dimensionless, 0 at singularities).
+        imi: Inverse measurement index 1 / sqrt(det(J J^T)) (rad^3/m^3).
+        det_a: det A (m^3), zero at parallel-type singularities.
+        min_abs_k: min_i |k_i| (m^2/rad), zero at serial-type singularities.
+        forearm_tilt: Largest forearm angle from the vertical (rad).
+    """
+
+    reachable: NDArray[np.bool_]
+    theta: NDArray[np.float64]
+    conditioning: NDArray[np.float64]
+    imi: NDArray[np.float64]
+    det_a: NDArray[np.float64]
+    min_abs_k: NDArray[np.float64]
+    forearm_tilt: NDArray[np.float64]
+
+    def admissible(self, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
+        """Whether each point satisfies ``criteria``, ``(...)``."""
+        low, high = criteria.theta_range
+        with np.errstate(invalid="ignore"):
+            inside = np.all((self.theta >= low) & (self.theta <= high), axis=-1)
+            inside &= self.forearm_tilt <= criteria.max_forearm_tilt
+            inside &= self.conditioning >= criteria.min_conditioning
+        return self.reachable & inside
+
+
+def _points(xyz: ArrayLike) -> NDArray[np.float64]:
+    array = np.asarray(xyz, dtype=float)
+    if array.ndim == 0 or array.shape[-1] != 3 or not np.all(np.isfinite(array)):
+        raise ValueError(f"xyz must be finite points with a last axis of length 3, got shape {array.shape}")
+    return array
+
+
+def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
+    """Kinematic measures at platform positions ``xyz`` (m), ``(..., 3)``; unreachable points get NaN."""
+    xyz = _points(xyz)
+    theta = kinematics.elbow_out_angles(geometry, xyz)
+    reachable = np.all(np.isfinite(theta), axis=-1)
+    theta = np.where(reachable[..., None], theta, np.nan)
+    # rows a_i = x - J'_i (|a_i| = l2 where reachable) and k_i; unreachable points are masked below
+    a, k = kinematics.constraint_terms(geometry, xyz, np.nan_to_num(theta))
+    abs_k = np.abs(k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse_jacobian = a / k[..., None]  # J^{-1} = -K^{-1} A up to sign
+        singular = np.linalg.svd(np.nan_to_num(inverse_jacobian, nan=0.0, posinf=0.0, neginf=0.0), compute_uv=False)
+        conditioning = np.where(np.all(abs_k > 0.0, axis=-1), singular[..., -1] / singular[..., 0], 0.0)
+        det_a = np.linalg.det(np.nan_to_num(a))
+        imi = np.abs(det_a) / np.prod(abs_k, axis=-1)
+        tilt = np.max(np.arccos(np.clip(-a[..., 2] / geometry.l2, -1.0, 1.0)), axis=-1)
+    nan = np.where(reachable, 0.0, np.nan)
+    return PoseMeasures(
+        reachable=reachable,
+        theta=theta,
+        conditioning=np.nan_to_num(conditioning) + nan,
+        imi=imi + nan,
+        det_a=det_a + nan,
+        min_abs_k=np.min(abs_k, axis=-1) + nan,
+        forearm_tilt=tilt + nan,
+    )
+
+
+def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
+    """Whether platform positions ``xyz`` (m), ``(..., 3)``, satisfy ``criteria``, ``(...)``.
+
+    The joint-range test runs first on all points; the conditioning (an SVD) only on the points that pass.
+    """
+    xyz = _points(xyz)
+    flat = xyz.reshape(-1, 3)
+    result = np.zeros(len(flat), dtype=bool)
+    low, high = criteria.theta_range
+    for start in range(0, len(flat), _CHUNK):
+        chunk = flat[start : start + _CHUNK]
+        theta = kinematics.elbow_out_angles(geometry, chunk)
+        with np.errstate(invalid="ignore"):
+            candidate = np.all((theta >= low) & (theta <= high), axis=-1)
+        if np.any(candidate):
+            result[start : start + len(chunk)][candidate] = pose_measures(geometry, chunk[candidate]).admissible(
+                criteria
+            )
+    return result.reshape(xyz.shape[:-1])
+
+
+def reach_bounds(geometry: DeltaGeometry, theta_range: tuple[float, float] = THETA_RANGE) -> tuple[float, float, float]:
+    """A vertical cylinder that holds every reachable point: (radius, z_min, z_max) in m.
+
+    The elbows of arms in ``theta_range`` lie within radius r + l1 and heights
+    [-l1 max(sin th), -l1 min(sin th)]; the platform is l2 from each elbow.
+    """
+    low, high = require_interval("theta_range", theta_range, -math.pi, math.pi, unit="rad")
+    angles = np.linspace(low, high, 721)
+    elbow_z = -geometry.l1 * np.sin(angles)
+    radius = geometry.r + geometry.l1 * float(np.max(np.cos(angles))) + geometry.l2
+    return radius, float(np.min(elbow_z)) - geometry.l2, float(np.max(elbow_z)) + geometry.l2
+
+
+def monte_carlo_volume(
+    inside: Callable[[NDArray[np.float64]], NDArray[np.bool_]],
+    bounds: tuple[float, float, float],
+    samples: int,
+    seed: int,
+) -> tuple[float, float]:
+    """Volume (m^3) and its standard error of a region inside a vertical cylinder, by Monte Carlo.
+
+    Args:
+        inside: Callable mapping points ``(n, 3)`` to booleans ``(n,)``.
+        bounds: (radius, z_min, z_max) of a vertical cylinder on the z axis that holds the region (m).
+        samples: Uniform samples in the cylinder, >= 100.
+        seed: Seed of the sample points.
+
+    Returns:
+        (volume, standard error) in m^3; the error is that of a binomial proportion.
+    """
+    require_count("samples", samples, minimum=100)
+    radius, z_min, z_max = bounds
+    require_positive("bounds radius", radius, "m")
+    require_in("bounds z_max", z_max, z_min, math.inf, unit="m", low_open=True)
+    rng = np.random.default_rng(seed)
+    hits = 0
+    for start in range(0, samples, _CHUNK):
+        n = min(_CHUNK, samples - start)
+        rho = radius * np.sqrt(rng.random(n))
+        phi = 2.0 * math.pi * rng.random(n)
+        points = np.column_stack((rho * np.cos(phi), rho * np.sin(phi), rng.uniform(z_min, z_max, n)))
+        hits += int(np.count_nonzero(inside(points)))
+    fraction = hits / samples
+    total = math.pi * radius**2 * (z_max - z_min)
+    return total * fraction, total * math.sqrt(fraction * (1.0 - fraction) / samples)
+
+
+def reachable_volume_estimate(
+    geometry: DeltaGeometry, criteria: Criteria = REACHABLE, samples: int = VOLUME_SAMPLES, seed: int = 0
+) -> tuple[float, float]:
+    """Volume (m^3) of the points that satisfy ``criteria`` and its Monte Carlo standard error (m^3).
+
+    Monte Carlo over a cylinder that holds the reach (:func:`reach_bounds`), reproducible by ``seed``; the
+    standard error is about 1 % of the volume with the default samples.
+
+    Args:
+        geometry: Robot geometry.
+        criteria: What makes a point admissible; by default the joint limits without a dexterity threshold.
+        samples: Monte Carlo samples, >= 100.
+        seed: Seed of the sample points.
+    """
+    bounds = reach_bounds(geometry, criteria.theta_range)
+    return monte_carlo_volume(lambda points: admissible(geometry, points, criteria), bounds, samples, seed)
+
+
+def reachable_volume(
+    geometry: DeltaGeometry,
+    theta_range: tuple[float, float] = THETA_RANGE,
+    min_conditioning: float = 0.0,
+    samples: int = VOLUME_SAMPLES,
+    seed: int = 0,
+    *,
+    max_forearm_tilt: float = MAX_FOREARM_TILT,
+) -> float:
+    """Volume (m^3) of the points reachable with theta in ``theta_range`` and 1/cond(J) >= ``min_conditioning``.
+
+    The estimate of :func:`reachable_volume_estimate` (which also gives its standard error) for the
+    :class:`Criteria` these arguments make.
+
+    Args:
+        geometry: Robot geometry.
+        theta_range: (min, max) motor angle (rad).
+        min_conditioning: Smallest 1 / cond_2(J), in [0, 1].
+        samples: Monte Carlo samples, >= 100.
+        seed: Seed of the sample points.
+        max_forearm_tilt: Ball-joint cone (rad).
+    """
+    criteria = Criteria(theta_range, max_forearm_tilt, min_conditioning)
+    return reachable_volume_estimate(geometry, criteria, samples, seed)[0]
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A vertical cylinder on the base z axis (m).
+
+    Attributes:
+        diameter: Diameter (m).
+        height: Height (m).
+        top: Height of its top face (m); its bottom is at top - height.
+    """
+
+    diameter: float
+    height: float
+    top: float
+
+    @property
+    def volume(self) -> float:
+        """Volume (m^3)."""
+        return math.pi * self.diameter**2 / 4.0 * self.height
+
+    @property
+    def bottom(self) -> float:
+        """Height of its bottom face (m)."""
+        return self.top - self.height
+
+
+@dataclass(frozen=True)
+class CylinderSearch:
+    """The result of :func:`largest_cylinder`.
+
+    Attributes:
+        cylinder: The largest admissible cylinder that meets the requirement, or None if none does.
+        shortfall: How far the requirement is from being met (m, <= 0 when met): the required radius
+            minus the largest admissible radius over the required height band; +inf when that band is not
+            admissible even on the axis or lies beyond the reach.
+        heights: The height grid (m), ``(H,)``.
+        radii: Largest admissible disc radius at each height (m), ``(H,)``; -inf where the axis point
+            itself is not admissible.
+    """
+
+    cylinder: Cylinder | None
+    shortfall: float
+    heights: NDArray[np.float64]
+    radii: NDArray[np.float64]
+
+
+def largest_cylinder(
+    geometry: DeltaGeometry,
+    criteria: Criteria = DEXTEROUS,
+    *,
+    required_radius: float = 0.0,
+    required_band: tuple[float, float] | None = None,
+    height_step: float = CYLINDER_HEIGHT_STEP,
+    radial_samples: int = CYLINDER_RADIAL_SAMPLES,
+    azimuths: int = CYLINDER_AZIMUTHS,
+) -> CylinderSearch:
+    """The largest-volume vertical cylinder on the z axis whose points are all admissible.
+
+    Heights are a grid with step ``height_step`` aligned to the required band (or to z = 0); at each
+    height the admissible disc radius is the largest tested radius up to which every tested ring is
+    admissible (rings of ``azimuths`` points over the symmetry sector [0, pi/3]). Resolution: one radial
+    step (reach / ``radial_samples``) in diameter, one height step in height.
+
+    Args:
+        geometry: Robot geometry.
+        criteria: What makes a point admissible.
+        required_radius: The cylinder must be at least this wide (m), >= 0.
+        required_band: (bottom, top) heights (m) the cylinder must span, e.g. the conveyor and the lift.
+        height_step: Height resolution (m), > 0.
+        radial_samples: Radii tested per height, >= 2.
+        azimuths: Azimuths per ring, >= 2.
+    """
+    require_in("required_radius", required_radius, 0.0, math.inf, unit="m")
+    require_positive("height_step", height_step, "m")
+    require_count("radial_samples", radial_samples, minimum=2)
+    require_count("azimuths", azimuths, minimum=2)
+    reach, z_min, z_max = reach_bounds(geometry, criteria.theta_range)
+    if required_band is not None:
+        band_low, band_high = require_interval("required_band", required_band, unit="m")
+        anchor = band_low
+    else:
+        band_low = band_high = None
+        anchor = 0.0
+    first = math.ceil((z_min - anchor) / height_step - 1e-9)
+    last = math.floor((z_max - anchor) / height_step + 1e-9)
+    heights = anchor + height_step * np.arange(first, last + 1)
+    radii_grid = np.linspace(0.0, reach, radial_samples)
+    phi = np.linspace(0.0, math.pi / 3.0, azimuths)
+    ring = np.stack((np.cos(phi), np.sin(phi)), axis=-1)  # (P, 2)
+    axis_ok = admissible(geometry, np.column_stack((np.zeros((len(heights), 2)), heights)), criteria)
+    points = np.empty((int(np.count_nonzero(axis_ok)), radial_samples, azimuths, 3))
+    points[..., :2] = radii_grid[None, :, None, None] * ring[None, None, :, :]
+    points[..., 2] = heights[axis_ok, None, None]
+    ok = np.zeros((len(heights), radial_samples), dtype=bool)  # the whole ring admissible
+    ok[axis_ok] = np.all(admissible(geometry, points, criteria), axis=-1)
+    # disc radius: the last radius before the first inadmissible ring, -inf if the centre fails
+    first_bad = np.where(ok.all(axis=1), radial_samples, np.argmin(ok, axis=1))
+    radii = np.where(first_bad > 0, radii_grid[np.maximum(first_bad - 1, 0)], -np.inf)
+
+    if band_low is None:
+        need_low, need_high = len(heights), -1  # no height must be covered
+        shortfall = math.inf if np.all(np.isinf(radii)) else required_radius - float(np.max(radii))
+    else:
+        band = np.flatnonzero((heights >= band_low - 1e-9) & (heights <= band_high + 1e-9))
+        if band.size == 0:  # the band lies beyond the reach: nothing can hold it
+            return CylinderSearch(cylinder=None, shortfall=math.inf, heights=heights, radii=radii)
+        need_low, need_high = int(band[0]), int(band[-1])
+        band_radius = float(np.min(radii[band]))
+        shortfall = math.inf if band_radius == -math.inf else required_radius - band_radius
+    best: Cylinder | None = None
+    best_volume = 0.0
+    for i in range(min(need_low, len(heights) - 1) + 1):
+        floor_radius = math.inf
+        for j in range(i, len(heights)):
+            floor_radius = min(floor_radius, float(radii[j]))
+            if floor_radius == -math.inf or floor_radius < required_radius:
+                break
+            volume = math.pi * floor_radius**2 * (heights[j] - heights[i])
+            if j >= need_high and volume > best_volume:
+                best_volume = volume
+                height = float(heights[j] - heights[i])
+                best = Cylinder(diameter=2.0 * floor_radius, height=height, top=float(heights[j]))
+    return CylinderSearch(cylinder=best, shortfall=shortfall, heights=heights, radii=radii)
+
+
+@dataclass(frozen=True)
+class SliceMap:
+    """Kinematic measures on a plane grid.
+
+    Attributes:
+        plane: ``"horizontal"`` (axes x, y at height ``level``) or ``"vertical"`` (axes x, z at y = ``level``).
+        level: z (horizontal) or y (vertical) of the plane (m).
+        axis_u: First grid axis (m), ``(U,)``.
+        axis_v: Second grid axis (m), ``(V,)``.
+        points: Grid points (m), ``(V, U, 3)``.
+        measures: :class:`PoseMeasures` on the grid, each ``(V, U)``.
+    """
+
+    plane: str
+    level: float
+    axis_u: NDArray[np.float64]
+    axis_v: NDArray[np.float64]
+    points: NDArray[np.float64]
+    measures: PoseMeasures
+
+
+def slice_map(
+    geometry: DeltaGeometry,
+    plane: str,
+    level: float,
+    extent_u: tuple[float, float],
+    extent_v: tuple[float, float],
+    resolution: int = 81,
+) -> SliceMap:
+    """Conditioning, IMI, det A and min |k_i| on a horizontal or vertical plane.
+
+    Args:
+        geometry: Robot geometry.
+        plane: ``"horizontal"`` (x, y at z = level) or ``"vertical"`` (x, z at y = level).
+        level: Height z or offset y of the plane (m).
+        extent_u: (min, max) of x (m).
+        extent_v: (min, max) of y (horizontal) or z (vertical) (m).
+        resolution: Grid points per axis, >= 2.
+    """
+    if plane not in ("horizontal", "vertical"):
+        raise ValueError(f"plane must be 'horizontal' or 'vertical', got {plane!r}")
+    require_in("level", level, unit="m")
+    low_u, high_u = require_interval("extent_u", extent_u, unit="m")
+    low_v, high_v = require_interval("extent_v", extent_v, unit="m")
+    require_count("resolution", resolution, minimum=2)
+    axis_u, axis_v = np.linspace(low_u, high_u, resolution), np.linspace(low_v, high_v, resolution)
+    grid_u, grid_v = np.meshgrid(axis_u, axis_v)
+    fixed = np.full_like(grid_u, float(level))
+    columns = (grid_u, grid_v, fixed) if plane == "horizontal" else (grid_u, fixed, grid_v)
+    points = np.stack(columns, axis=-1)
+    return SliceMap(plane, float(level), axis_u, axis_v, points, pose_measures(geometry, points))
+
+
+def isotropic_speed(geometry: DeltaGeometry, xyz: ArrayLike, joint_speed_limit: float) -> NDArray[np.float64]:
+    """Platform speed (m/s) reachable in every direction with |thd_i| <= ``joint_speed_limit`` (rad/s).
+
+    omega * min_i |k_i| / l2 (module docstring); NaN where unreachable.
+    """
+    require_positive("joint_speed_limit", joint_speed_limit, "rad/s")
+    return joint_speed_limit * pose_measures(geometry, xyz).min_abs_k / geometry.l2

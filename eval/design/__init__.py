@@ -1,0 +1,12 @@
+"""The design study of the reconfigurable-Delta paper (``python -m eval.design``).
+
+- :mod:`eval.design.performance`: the figures of merit of one geometry (workspace, torque on the 3.8 kg
+  standard cycles, cycle time at the torque limit, speed at a joint-speed limit, peak-torque maps);
+- :mod:`eval.design.optimize`: the pymoo problems (NSGA-II Pareto front, GA on the weighted cost);
+- :mod:`eval.design.reconfigure`: the adjustable base radius over task profiles;
+- :mod:`eval.design.verify`: closed-loop verification on each design's own MuJoCo plant (the only module
+  here that calls identification, controllers and episodes);
+- :mod:`eval.design.report`: tables and figures.
+
+The kinematic analysis itself is :mod:`delta_env.workspace`; the mass rule is :mod:`delta_env.scaling`.
+"""

@@ -1,0 +1,367 @@
+"""The figures of merit of one Delta geometry: workspace, torque on the standard cycle, speed.
+
+Every design carries the masses of :func:`delta_env.scaling.scaled_masses` and is judged by the model with
+rod forearms (``DeltaDynamics(..., forearm_rods=True)``) plus its drives, on the same task: the industry's
+25/305/25 mm cycle carrying :data:`PAYLOAD` at the places :data:`TASK_CYCLES`, which lie in the
+pick-and-place region of the conveyors.
+
+The drives are the same motors on every design, so they do not scale with the links: each joint carries the
+rotor inertia (armature) Ia, viscous friction fv and Coulomb friction fc of the motor datasheet
+(:data:`DRIVE`, the plant's nominal drive values without its per-joint scatter). In the model's terms the
+armature is rho1 = 1 + Ia / I, with I = (m1/3 + m2) l1^2 the design's own arm inertia, and the friction
+is its (fv, fc) on every joint.
+
+Cycle time at the torque limit: along a fixed path, speeding time up by s scales every velocity by s and
+every acceleration by s^2, so the torque is exactly tau(s) = a + b s + c s^2 for s > 0: a the gravity and
+Coulomb torque, b the viscous torque and c the inertial and velocity-product torques at the reference
+timing (the rod-forearm terms are quadratic in the rates too). Three evaluations of the model (s = 1, 2,
+3) give a, b and c; the first s at which some sample and joint reaches |tau| = limit is the smallest
+positive root of c s^2 + b s + a = +-limit over all of them: the fastest admissible timing, exactly, with
+no search.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from delta_env import kinematics, workspace
+from delta_env.config import PlantRealism
+from delta_env.cycles import PICK_ZONE, PLACE_ZONE, STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
+from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry, DeltaMasses
+from delta_env.limits import WorkspaceLimits
+from delta_env.scaling import scaled_masses
+from delta_env.trajectories import STANDARD_PEAK_ACCELERATION, WORKING_HEIGHT, Trajectory
+from delta_env.validation import require_in, require_positive
+
+PAYLOAD = 3.8
+"""Payload of the standard cycle (kg): the test payload of the dynamic-model paper (docs/design.md section 4)."""
+
+CYCLE_ACCELERATION = STANDARD_PEAK_ACCELERATION
+"""Peak Cartesian acceleration of the torque-rated cycle (m/s^2): the environment's default 3 g."""
+
+JOINT_SPEED_LIMIT = 30.0
+"""Joint speed limit (rad/s) of the end-effector speed figure: a 3000 rpm servo behind a 10:1 reducer."""
+
+ANALYSIS_PERIOD = 0.002
+"""Sample period (s) of the analysed cycles: peaks of the smooth quintic profiles move < 0.1 % from 1 ms."""
+
+CYCLE_DWELL = 0.1
+"""Rest at the pick and at the place point (s); process time, left out of the cycle time."""
+
+TASK_BAND = (WORKING_HEIGHT, WORKING_HEIGHT + STANDARD_LIFT)
+"""Heights (m) the task needs: the conveyors and the 25 mm lift above them."""
+
+TASK_RADIUS = float(np.max(np.hypot(*np.vstack((PICK_ZONE.corners(), PLACE_ZONE.corners()))[:, :2].T)))
+"""Radius (m) of the smallest axis-centred disc holding both conveyor zones (0.461 m)."""
+
+TASK_CYCLES = (
+    ((0.0, 0.0, WORKING_HEIGHT), math.pi / 2),
+    ((0.3, 0.0, WORKING_HEIGHT), math.pi / 2),
+    ((-0.3, 0.0, WORKING_HEIGHT), math.pi / 2),
+    ((0.0, 0.0, WORKING_HEIGHT), 0.0),
+    ((0.0, 0.25, WORKING_HEIGHT), 0.0),
+)
+"""(centre (m), heading (rad)) of the standard cycles: from conveyor to conveyor at the middle and both
+ends of the zones (chain 1's side and the opposite one), across the robot, and along the place conveyor."""
+
+STANDARD_TRAVEL_HALF = STANDARD_TRAVEL / 2.0
+"""Distance (m) of the pick and of the place point from the centre of a standard cycle."""
+
+ASSEMBLY_MARGIN = 0.05
+"""The forearm must exceed r + l1 by this much (m): the plant assembles with its arms horizontal, and home
+stays a usable height below the base."""
+
+DRIVE = PlantRealism()
+"""The motor datasheet of every design: armature, viscous and Coulomb friction of the plant's nominal drive."""
+
+_QUADRATIC_EPS = 1e-12  # |c| (N m) below which c s^2 + b s + a is solved as linear
+
+
+@dataclass(frozen=True)
+class CycleFigures:
+    """Torque figures of one standard cycle.
+
+    Attributes:
+        peak_torque: Largest |tau_i| over the cycle (N m).
+        rms_torque: RMS of tau over samples and joints (N m).
+        motion_time: Duration of the two moves at the reference acceleration (s), dwells left out.
+        fastest_motion_time: Duration of the two moves at the fastest timing whose peak torque is the
+            motor limit (s); inf when even the slowest timing (gravity and Coulomb friction) exceeds it.
+    """
+
+    peak_torque: float
+    rms_torque: float
+    motion_time: float
+    fastest_motion_time: float
+
+
+@dataclass(frozen=True)
+class Performance:
+    """The figures of merit of one geometry; the infeasible ones say why.
+
+    Attributes:
+        geometry: The design (m).
+        masses: Its masses (kg), :func:`delta_env.scaling.scaled_masses`.
+        cylinder: Largest dexterous cylinder holding the task region, or None.
+        shortfall: Task radius minus the dexterous radius over the task band (m), <= 0 when met.
+        workspace_m3: Volume of ``cylinder`` (m^3), 0 without one.
+        peak_torque_nm: Largest peak |tau| over the task cycles at :data:`CYCLE_ACCELERATION` (N m).
+        rms_torque_nm: Largest RMS torque over the task cycles (N m).
+        cycle_time_s: Motion time of the slowest task cycle at the torque limit (s).
+        speed_m_s: Platform speed reachable in every direction over the task region at
+            :data:`JOINT_SPEED_LIMIT` (m/s), its minimum over the region.
+        min_conditioning: Smallest 1 / cond(J) over the task region.
+        cycles: Figures of each task cycle.
+        reason: Why the design is infeasible ("" when feasible).
+    """
+
+    geometry: DeltaGeometry
+    masses: DeltaMasses
+    cylinder: workspace.Cylinder | None
+    shortfall: float
+    workspace_m3: float
+    peak_torque_nm: float
+    rms_torque_nm: float
+    cycle_time_s: float
+    speed_m_s: float
+    min_conditioning: float
+    cycles: tuple[CycleFigures, ...] = field(default_factory=tuple)
+    reason: str = ""
+
+    @property
+    def feasible(self) -> bool:
+        """True if the task fits and the torque limit holds."""
+        return not self.reason
+
+
+def assembly_gap(geometry: DeltaGeometry) -> float:
+    """How far (m) the forearm falls short of r + l1 + :data:`ASSEMBLY_MARGIN`; <= 0 when the design assembles."""
+    return geometry.r + geometry.l1 + ASSEMBLY_MARGIN - geometry.l2
+
+
+def design_model(
+    geometry: DeltaGeometry, masses: DeltaMasses | None = None, drive: PlantRealism | None = DRIVE
+) -> DeltaDynamics:
+    """The rod-forearm model of a design with its scaled masses (or ``masses``) and its drives.
+
+    Args:
+        geometry: The design (m).
+        masses: Its masses (kg); :func:`delta_env.scaling.scaled_masses` when None.
+        drive: The motors (module docstring): ``armature``, ``viscous`` and ``coulomb`` are used, the same on
+            every joint; None leaves the drives out (the links alone).
+    """
+    m = scaled_masses(geometry) if masses is None else masses
+    links = DeltaDynamics(geometry, m1=m.m1, m2=m.m2, m0=m.m0, forearm_rods=True)
+    if drive is None:
+        return links
+    return links.with_parameters(
+        ModelParameters(
+            rho1=1.0 + drive.armature / links.inertia,
+            viscous=(drive.viscous,) * 3,
+            coulomb=(drive.coulomb,) * 3,
+        )
+    )
+
+
+def path_limits(geometry: DeltaGeometry, criteria: workspace.Criteria = workspace.DEXTEROUS) -> WorkspaceLimits:
+    """Limits for paths of any design: its whole reach; the dexterity checks are the design study's own."""
+    radius, z_min, z_max = workspace.reach_bounds(geometry, criteria.theta_range)
+    return WorkspaceLimits(radius=radius, z_min=z_min, z_max=z_max, min_abs_k=1e-9, min_abs_det_a=1e-9)
+
+
+def task_cycle(
+    geometry: DeltaGeometry,
+    centre: tuple[float, float, float],
+    heading: float,
+    *,
+    n_cycles: int = 1,
+    peak_acceleration: float = CYCLE_ACCELERATION,
+    dt: float = ANALYSIS_PERIOD,
+) -> Trajectory:
+    """The standard 25/305/25 mm cycle of a design at ``centre`` (m) along ``heading`` (rad)."""
+    return standard_cycle(
+        geometry,
+        peak_acceleration,
+        n_cycles=n_cycles,
+        center=centre,
+        heading=heading,
+        dwell=CYCLE_DWELL,
+        limits=path_limits(geometry),
+        dt=dt,
+    )
+
+
+def payload_profile(trajectory: Trajectory, payload: float) -> NDArray[np.float64]:
+    """The carried mass (kg) at each sample: ``payload`` while the gripper holds, else 0, ``(N,)``."""
+    return np.where(trajectory.gripper, payload, 0.0)
+
+
+def _first_positive_root(
+    quadratic: NDArray[np.float64], linear: NDArray[np.float64], constant: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Smallest root s > 0 of quadratic s^2 + linear s + constant = 0, elementwise; inf where none."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.sqrt(linear**2 - 4.0 * quadratic * constant)  # NaN where there is no real root
+        curved = np.abs(quadratic) > _QUADRATIC_EPS
+        first = np.where(curved, (-linear - root) / (2.0 * quadratic), -constant / linear)
+        second = np.where(curved, (-linear + root) / (2.0 * quadratic), np.nan)
+    candidates = np.stack((first, second))
+    candidates = np.where(np.isfinite(candidates) & (candidates > 0.0), candidates, np.inf)
+    return np.min(candidates, axis=0)
+
+
+def fastest_speed_up(
+    constant: NDArray[np.float64], linear: NDArray[np.float64], quadratic: NDArray[np.float64], limit: float
+) -> float:
+    """Largest s with |constant + s linear + s^2 quadratic| <= limit for every s' in (0, s] (module docstring).
+
+    Args:
+        constant: Torques independent of the timing (N m), any shape: gravity and Coulomb friction.
+        linear: Torques proportional to the speed-up s at s = 1 (N m), same shape: viscous friction.
+        quadratic: Torques proportional to s^2 at s = 1 (N m), same shape: inertia and velocity products.
+        limit: Torque limit (N m), > 0.
+
+    Returns:
+        s (dimensionless); 0 if ``constant`` already exceeds the limit, inf if no torque ever reaches it.
+    """
+    require_positive("limit", limit, "N m")
+    if np.any(np.abs(constant) > limit):
+        return 0.0
+    upper = _first_positive_root(quadratic, linear, constant - limit)
+    lower = _first_positive_root(quadratic, linear, constant + limit)
+    return float(min(np.min(upper, initial=math.inf), np.min(lower, initial=math.inf)))
+
+
+def cycle_figures(
+    model: DeltaDynamics, trajectory: Trajectory, payload: float, limit: float = TORQUE_LIMIT
+) -> CycleFigures:
+    """Peak and RMS torque along ``trajectory`` and its fastest timing under ``limit``."""
+    carried = payload_profile(trajectory, payload)
+
+    def torque_at(speed_up: float) -> NDArray[np.float64]:
+        rates, accelerations = speed_up * trajectory.theta_dot, speed_up**2 * trajectory.theta_ddot
+        return model.inverse_dynamics(trajectory.theta, rates, accelerations, carried)
+
+    # tau(s) = a + b s + c s^2 through s = 1, 2, 3
+    once, twice, thrice = torque_at(1.0), torque_at(2.0), torque_at(3.0)
+    quadratic = (thrice - 2.0 * twice + once) / 2.0
+    linear = twice - once - 3.0 * quadratic
+    constant = once - linear - quadratic
+    moving = np.any(trajectory.theta_dot != 0.0, axis=-1) | np.any(trajectory.theta_ddot != 0.0, axis=-1)
+    motion_time = float(np.count_nonzero(moving)) * trajectory.dt
+    speed_up = fastest_speed_up(constant, linear, quadratic, limit)
+    return CycleFigures(
+        peak_torque=float(np.max(np.abs(once))),
+        rms_torque=float(np.sqrt(np.mean(once**2))),
+        motion_time=motion_time,
+        fastest_motion_time=motion_time / speed_up if speed_up > 0.0 else math.inf,
+    )
+
+
+def task_region_points(radius: float = TASK_RADIUS, band: tuple[float, float] = TASK_BAND) -> NDArray[np.float64]:
+    """Points (m) on rings of the task disc at the band's two heights, ``(n, 3)``."""
+    require_positive("radius", radius, "m")
+    rings = np.linspace(0.0, radius, 9)
+    phi = np.linspace(0.0, 2.0 * math.pi, 36, endpoint=False)
+    r, p, z = np.meshgrid(rings, phi, np.asarray(band, dtype=float), indexing="ij")
+    return np.stack((r * np.cos(p), r * np.sin(p), z), axis=-1).reshape(-1, 3)
+
+
+def evaluate(
+    geometry: DeltaGeometry,
+    *,
+    payload: float = PAYLOAD,
+    criteria: workspace.Criteria = workspace.DEXTEROUS,
+    task_radius: float = TASK_RADIUS,
+    cycles: tuple[tuple[tuple[float, float, float], float], ...] = TASK_CYCLES,
+    masses: DeltaMasses | None = None,
+) -> Performance:
+    """All figures of merit of ``geometry`` (see :class:`Performance`).
+
+    Args:
+        geometry: The design.
+        payload: Carried mass on the task cycles (kg), >= 0.
+        criteria: Dexterity criteria of the workspace.
+        task_radius: Radius (m) the dexterous cylinder must have over :data:`TASK_BAND`.
+        cycles: (centre, heading) of the task cycles, inside the task region.
+        masses: The design's masses; :func:`delta_env.scaling.scaled_masses` when None.
+    """
+    require_in("payload", payload, 0.0, math.inf, unit="kg")
+    masses = scaled_masses(geometry) if masses is None else masses
+    search = workspace.largest_cylinder(geometry, criteria, required_radius=task_radius, required_band=TASK_BAND)
+    points = task_region_points(task_radius)
+    region = workspace.pose_measures(geometry, points)
+    reasons = []
+    if search.cylinder is None:
+        reasons.append(f"task region (radius {task_radius:.3f} m) not dexterous: short by {search.shortfall:.3f} m")
+    if assembly_gap(geometry) > 0.0:
+        reasons.append(f"l2 = {geometry.l2:.3f} m < ra - rb + l1 + {ASSEMBLY_MARGIN} m (cannot assemble)")
+    model = design_model(geometry, masses)
+    figures = []
+    try:
+        for centre, heading in cycles:
+            figures.append(cycle_figures(model, task_cycle(geometry, centre, heading), payload))
+    except ValueError as error:
+        reasons.append(f"task cycle not reachable: {error}")
+    if figures and all(math.isfinite(f.fastest_motion_time) for f in figures):
+        peak = max(f.peak_torque for f in figures)
+        if peak > TORQUE_LIMIT:
+            reasons.append(f"peak torque {peak:.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
+    elif figures:
+        reasons.append("gravity and Coulomb friction alone exceed the torque limit")
+    speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)
+    return Performance(
+        geometry=geometry,
+        masses=masses,
+        cylinder=search.cylinder,
+        shortfall=search.shortfall,
+        workspace_m3=search.cylinder.volume if search.cylinder else 0.0,
+        peak_torque_nm=max((f.peak_torque for f in figures), default=math.inf),
+        rms_torque_nm=max((f.rms_torque for f in figures), default=math.inf),
+        cycle_time_s=max((f.fastest_motion_time for f in figures), default=math.inf),
+        speed_m_s=float(np.min(speed)) if region.reachable.all() else 0.0,
+        min_conditioning=float(np.min(np.nan_to_num(region.conditioning))),
+        cycles=tuple(figures),
+        reason="; ".join(reasons),
+    )
+
+
+def peak_torque_map(
+    geometry: DeltaGeometry,
+    points: NDArray[np.float64],
+    *,
+    payload: float = PAYLOAD,
+    acceleration: float = CYCLE_ACCELERATION,
+    masses: DeltaMasses | None = None,
+) -> NDArray[np.float64]:
+    """Largest |tau_i| (N m) to accelerate the payload from rest at ``acceleration`` along +-x, +-y, +-z.
+
+    Args:
+        geometry: The design.
+        points: Platform positions (m), ``(..., 3)``; unreachable ones give NaN.
+        payload: Carried mass (kg).
+        acceleration: Magnitude of the platform acceleration (m/s^2).
+        masses: The design's masses; scaled when None.
+
+    Returns:
+        ``(...)`` N m.
+    """
+    model = design_model(geometry, masses)
+    points = np.asarray(points, dtype=float)
+    reachable = workspace.pose_measures(geometry, points).reachable
+    flat = points[reachable]
+    peak = np.zeros(len(flat))
+    for direction in np.vstack((np.eye(3), -np.eye(3))):
+        theta, theta_dot, theta_ddot = kinematics.cartesian_to_joint(
+            geometry, flat, np.zeros_like(flat), np.broadcast_to(acceleration * direction, flat.shape)
+        )
+        torque = model.inverse_dynamics(theta, theta_dot, theta_ddot, payload)
+        peak = np.maximum(peak, np.max(np.abs(torque), axis=-1))
+    result = np.full(points.shape[:-1], np.nan)
+    result[reachable] = peak
+    return result

@@ -1,0 +1,394 @@
+"""Tables and figures of the design study, written into its run folder.
+
+- ``convergence.png``: GA best and mean weighted cost and NSGA-II hypervolume per generation (the second
+  paper's Fig. 9);
+- ``pareto.png``: the Pareto front, workspace against peak torque coloured by cycle time, with the nominal,
+  the chosen and the single-objective designs (its Fig. 10);
+- ``maps_horizontal.png`` and ``maps_vertical.png``: conditioning, IMI, det A, min |k_i| and the peak
+  torque to accelerate 3.8 kg at 3 g, nominal against the chosen design, on the conveyor plane z = -0.9 m
+  and on the vertical plane y = 0;
+- ``reconfiguration.png``: each task profile's objective against the base radius setting.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from delta_env import workspace
+from delta_env.geometry import DeltaGeometry
+from delta_env.trajectories import WORKING_HEIGHT
+from eval.design.optimize import PAPER_TARGETS, ParetoResult, SingleObjectiveResult
+from eval.design.performance import Performance, peak_torque_map
+from eval.design.reconfigure import Reconfiguration
+from eval.design.verify import CONTROLLERS, Verification
+from eval.metrics import markdown_table
+
+PAPER_CHANGES = {
+    "workspace": 100 * PAPER_TARGETS[0],
+    "torque": -100 * PAPER_TARGETS[1],
+    "speed": 100 * PAPER_TARGETS[2],
+}
+"""The second paper's reported changes against its nominal robot (%)."""
+
+TORQUE_CHANGE_TOLERANCE = 0.05
+"""The 5 % of "the model's predicted torque change must hold on the plant within 5 % of its value", read two
+ways (:class:`TorqueChange`): the torque ratio design / nominal within 5 % of the predicted ratio, or the
+change itself within 5 % of the predicted change (for a -20 % prediction: -19 % to -21 %)."""
+
+MAP_EXTENT = 0.8
+"""Half-width (m) of the slice maps: the conveyors' region and its surroundings."""
+
+MAP_HEIGHTS = (-1.3, -0.5)
+"""Heights (m) of the vertical slice maps: from below the reach of the nominal robot to above home."""
+
+
+def performance_row(performance: Performance) -> dict[str, Any]:
+    """One CSV row of a design's figures."""
+    g, m, c = performance.geometry, performance.masses, performance.cylinder
+    return {
+        "ra": g.ra,
+        "rb": g.rb,
+        "l1": g.l1,
+        "l2": g.l2,
+        "workspace_m3": performance.workspace_m3,
+        "peak_torque_nm": performance.peak_torque_nm,
+        "cycle_time_s": performance.cycle_time_s,
+        "rms_torque_nm": performance.rms_torque_nm,
+        "speed_m_s": performance.speed_m_s,
+        "min_conditioning": performance.min_conditioning,
+        "cylinder_diameter_m": c.diameter if c else 0.0,
+        "cylinder_height_m": c.height if c else 0.0,
+        "cylinder_top_m": c.top if c else math.nan,
+        "m1_kg": m.m1,
+        "m2_kg": m.m2,
+        "m0_kg": m.m0,
+    }
+
+
+def _change(value: float, reference: float, *, inverse: bool = False) -> float:
+    """Change (%) of ``value`` against ``reference``; ``inverse`` for a time turned into a speed."""
+    if inverse:
+        return 100.0 * (reference / value - 1.0)
+    return 100.0 * (value / reference - 1.0)
+
+
+def summary_table(
+    designs: Mapping[str, Performance], nominal: Performance, reachable: Mapping[str, tuple[float, float]]
+) -> str:
+    """Designs with their figures and % change against nominal, beside the paper's changes.
+
+    Args:
+        designs: Figures by design name, the nominal one included.
+        nominal: The nominal design's figures.
+        reachable: Reachable volume and its standard error (m^3) by design name, nominal under "nominal".
+    """
+    header = [
+        "Design",
+        "ra, rb, l1, l2 (m)",
+        "Reachable volume (m³)",
+        "Dexterous cylinder ⌀ x h (m)",
+        "Workspace (m³)",
+        "Peak torque (N m)",
+        "Cycle time at 400 N m (s)",
+        "Cycle speed",
+        "Speed at 30 rad/s (m/s)",
+        "Masses m1, m2, m0 (kg)",
+    ]
+    rows = []
+    for name, p in designs.items():
+        g, c, m = p.geometry, p.cylinder, p.masses
+        volume, error = reachable[name]
+        rows.append(
+            [
+                name,
+                f"{g.ra:.3f}, {g.rb:.3f}, {g.l1:.3f}, {g.l2:.3f}",
+                f"{volume:.3f} ± {error:.3f} ({_change(volume, reachable['nominal'][0]):+.1f} %)",
+                f"{c.diameter:.2f} x {c.height:.3f}" if c else "none",
+                f"{p.workspace_m3:.4f} ({_change(p.workspace_m3, nominal.workspace_m3):+.1f} %)",
+                f"{p.peak_torque_nm:.1f} ({_change(p.peak_torque_nm, nominal.peak_torque_nm):+.1f} %)",
+                f"{p.cycle_time_s:.3f} ({_change(p.cycle_time_s, nominal.cycle_time_s):+.1f} %)",
+                f"{_change(p.cycle_time_s, nominal.cycle_time_s, inverse=True):+.1f} %",
+                f"{p.speed_m_s:.2f} ({_change(p.speed_m_s, nominal.speed_m_s):+.1f} %)",
+                f"{m.m1:.2f}, {m.m2:.3f}, {m.m0:.2f}",
+            ]
+        )
+    paper = PAPER_CHANGES
+    rows.append(
+        [
+            "paper (Hasanlu & Siavashi 2025)",
+            "not printed",
+            "",
+            "",
+            f"{paper['workspace']:+.0f} %",
+            f"{paper['torque']:+.0f} %",
+            "",
+            f"{paper['speed']:+.0f} % (end-effector speed)",
+            "",
+            "",
+        ]
+    )
+    return markdown_table(header, rows)
+
+
+def verification_rows(verifications: Sequence[Verification]) -> list[dict[str, Any]]:
+    """One CSV row per design, controller and figure."""
+    rows = []
+    for v in verifications:
+        for controller in CONTROLLERS:
+            rows.append(
+                {
+                    "design": v.name,
+                    "feasible": v.feasible,
+                    "reason": v.reason,
+                    "controller": controller,
+                    "tracking_rms_mm": v.mean(controller, "tracking_rms_mm"),
+                    "torque_peak_nm": v.mean(controller, "torque_peak_nm"),
+                    "torque_rms_nm": v.mean(controller, "torque_rms_nm"),
+                    "max_loop_gap_m": max(
+                        (e.max_loop_gap_m for e in v.episodes if e.controller == controller), default=math.nan
+                    ),
+                    "model_peak_nm": v.predicted_mean("predicted", 0),
+                    "model_rms_nm": v.predicted_mean("predicted", 1),
+                    "identified_peak_nm": v.predicted_mean("identified", 0),
+                    "identified_rms_nm": v.predicted_mean("identified", 1),
+                    "rho1": v.parameters.rho1 if v.parameters else math.nan,
+                    "rho2": v.parameters.rho2 if v.parameters else math.nan,
+                    "tare_kg": v.tare_kg,
+                }
+            )
+    return rows
+
+
+def verification_table(verifications: Sequence[Verification]) -> tuple[str, list[str]]:
+    """The closed-loop table (model vs plant) and one line per design on the predicted torque change."""
+    header = [
+        "Design",
+        "Plant",
+        *(f"{c}: tracking RMS (mm)" for c in CONTROLLERS),
+        *(f"{c}: peak / RMS torque (N m)" for c in CONTROLLERS),
+        "Model (rods, scaled masses, drives): peak / RMS (N m)",
+        "Identified MId+F+R: peak / RMS (N m)",
+    ]
+    rows = []
+    for v in verifications:
+        if not v.feasible:
+            rows.append([v.name, f"infeasible: {v.reason}", *[""] * (len(header) - 2)])
+            continue
+        rows.append(
+            [
+                v.name,
+                f"feasible (rho1 {v.parameters.rho1:.2f}, rho2 {v.parameters.rho2:.2f})",
+                *(f"{v.mean(c, 'tracking_rms_mm'):.3f}" for c in CONTROLLERS),
+                *(f"{v.mean(c, 'torque_peak_nm'):.1f} / {v.mean(c, 'torque_rms_nm'):.1f}" for c in CONTROLLERS),
+                f"{v.predicted_mean('predicted', 0):.1f} / {v.predicted_mean('predicted', 1):.1f}",
+                f"{v.predicted_mean('identified', 0):.1f} / {v.predicted_mean('identified', 1):.1f}",
+            ]
+        )
+    return markdown_table(header, rows), [change.sentence() for change in torque_changes(verifications)]
+
+
+@dataclass(frozen=True)
+class TorqueChange:
+    """A design's torque against the nominal design's, as ratios (design / nominal) of the same figure.
+
+    Attributes:
+        design: Design name.
+        figure: ``"peak"`` or ``"RMS"``.
+        model: Ratio predicted by the design model (links, scaled masses and drives).
+        identified: Ratio of the MId+F+R models identified on the two plants.
+        plant: Ratio measured on the plants (the oracle controller: the torque each plant needs).
+    """
+
+    design: str
+    figure: str
+    model: float
+    identified: float
+    plant: float
+
+    def ratio_holds(self, predicted: float, tolerance: float = TORQUE_CHANGE_TOLERANCE) -> bool:
+        """Reading 1: the plant's ratio lies within ``tolerance`` (relative) of the ``predicted`` ratio."""
+        return abs(self.plant / predicted - 1.0) <= tolerance
+
+    def change_holds(self, predicted: float, tolerance: float = TORQUE_CHANGE_TOLERANCE) -> bool:
+        """Reading 2: the plant's change (ratio - 1) lies within ``tolerance`` of the predicted change's size."""
+        return abs((self.plant - 1.0) - (predicted - 1.0)) <= tolerance * abs(predicted - 1.0)
+
+    def sentence(self) -> str:
+        """One line of the summary: the three changes and both readings of the 5 % criterion."""
+
+        def verdict(predicted: float) -> str:
+            readings = (self.ratio_holds(predicted), self.change_holds(predicted))
+            return " / ".join("holds" if held else "fails" for held in readings)
+
+        return (
+            f"- {self.design}, {self.figure} torque vs nominal: model {100 * (self.model - 1):+.1f} %, plant "
+            f"(oracle) {100 * (self.plant - 1):+.1f} %, identified model {100 * (self.identified - 1):+.1f} %. "
+            f"Model (ratio / change reading): {verdict(self.model)}; identified model: {verdict(self.identified)}"
+        )
+
+
+def torque_changes(verifications: Sequence[Verification]) -> list[TorqueChange]:
+    """Peak and RMS torque changes of every feasible design against the first (nominal) verification."""
+    nominal, oracle = verifications[0], CONTROLLERS[2]
+    if not nominal.feasible:
+        return []
+    changes = []
+    for v in verifications[1:]:
+        if not v.feasible:
+            continue
+        for figure, index, metric in (("peak", 0, "torque_peak_nm"), ("RMS", 1, "torque_rms_nm")):
+            changes.append(
+                TorqueChange(
+                    design=v.name,
+                    figure=figure,
+                    model=v.predicted_mean("predicted", index) / nominal.predicted_mean("predicted", index),
+                    identified=v.predicted_mean("identified", index) / nominal.predicted_mean("identified", index),
+                    plant=v.mean(oracle, metric) / nominal.mean(oracle, metric),
+                )
+            )
+    return changes
+
+
+def reconfiguration_table(study: Reconfiguration) -> str:
+    """Best ra per profile, the best fixed ra and what reconfiguring gains."""
+    units = {"peak_torque": "N m", "workspace": "m³", "cycle_time": "s"}
+    fixed = f"At fixed ra = {study.fixed_ra:.3f} m"
+    header = ["Task profile", "Objective", "Best ra (m)", "Value there", fixed, "Gain"]
+    rows = []
+    for o in study.outcomes:
+        p = o.profile
+        if math.isnan(o.best_ra):
+            rows.append([p.name, p.objective, "no feasible setting", "", "", ""])
+            continue
+        rows.append(
+            [
+                f"{p.name} ({p.payload:g} kg, zone radius {p.zone_radius:g} m)",
+                p.objective.replace("_", " "),
+                f"{o.best_ra:.3f}",
+                f"{o.best_value:.4g} {units[p.objective]}",
+                f"{o.fixed_value:.4g} {units[p.objective]}",
+                f"{o.gain_percent:.1f} %",
+            ]
+        )
+    return markdown_table(header, rows)
+
+
+def plot_convergence(pareto: ParetoResult, single: SingleObjectiveResult, path: Path) -> None:
+    """GA cost and NSGA-II hypervolume per generation (the paper's Fig. 9)."""
+    figure, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    generations = [row["generation"] for row in single.convergence]
+    left.plot(generations, [row["best_cost"] for row in single.convergence], "o-", label="best")
+    left.plot(generations, [row["mean_cost"] for row in single.convergence], "s--", label="mean (feasible)")
+    left.axhline(1.0, color="grey", lw=0.8, label="nominal")
+    left.set(xlabel="generation", ylabel="weighted cost (nominal = 1)", title="Single-objective GA")
+    left.legend()
+    right.plot([r["generation"] for r in pareto.convergence], [r["hypervolume"] for r in pareto.convergence], "o-")
+    right.set(xlabel="generation", ylabel="hypervolume (nominal-relative objectives)", title="NSGA-II")
+    for axis in (left, right):
+        axis.grid(alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def plot_pareto(
+    front: Sequence[Performance], nominal: Performance, marked: Mapping[str, Performance], path: Path, dpi: int = 110
+) -> None:
+    """Workspace against peak torque of the front, coloured by cycle time (the paper's Fig. 10)."""
+    figure, axis = plt.subplots(figsize=(7, 5))
+    points = axis.scatter(
+        [p.workspace_m3 for p in front],
+        [p.peak_torque_nm for p in front],
+        c=[p.cycle_time_s for p in front],
+        cmap="viridis",
+        s=22,
+    )
+    figure.colorbar(points, label="cycle time at the 400 N m limit (s)")
+    axis.plot(nominal.workspace_m3, nominal.peak_torque_nm, "k*", ms=14, label="nominal")
+    for (name, p), marker in zip(marked.items(), "oDs^v", strict=False):
+        axis.plot(p.workspace_m3, p.peak_torque_nm, marker, mfc="none", mec="red", ms=11, mew=1.8, label=name)
+    axis.set(
+        xlabel="dexterous cylinder holding the conveyors (m³)",
+        ylabel="peak torque, 3.8 kg standard cycles at 3 g (N m)",
+        title="Pareto front (NSGA-II)",
+    )
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=dpi)
+    plt.close(figure)
+
+
+def _map_fields(geometry: DeltaGeometry, plane: str) -> tuple[workspace.SliceMap, dict[str, np.ndarray]]:
+    if plane == "horizontal":
+        slice_ = workspace.slice_map(
+            geometry, plane, WORKING_HEIGHT, (-MAP_EXTENT, MAP_EXTENT), (-MAP_EXTENT, MAP_EXTENT)
+        )
+    else:
+        slice_ = workspace.slice_map(geometry, plane, 0.0, (-MAP_EXTENT, MAP_EXTENT), MAP_HEIGHTS)
+    m = slice_.measures
+    fields = {
+        "1 / cond(J)": m.conditioning,
+        "IMI (rad³/m³)": m.imi,
+        "|det A| (m³)": np.abs(m.det_a),
+        "min |k_i| (m²/rad)": m.min_abs_k,
+        "peak torque, 3.8 kg at 3 g (N m)": peak_torque_map(geometry, slice_.points),
+    }
+    admissible = m.admissible(workspace.REACHABLE)
+    return slice_, {name: np.where(admissible, value, np.nan) for name, value in fields.items()}
+
+
+def plot_maps(designs: Mapping[str, DeltaGeometry], plane: str, path: Path) -> None:
+    """Slice maps of each design (rows) and measure (columns); the dexterous boundary drawn in white."""
+    names = list(designs)
+    figure, axes = plt.subplots(len(names), 5, figsize=(20, 3.8 * len(names)), squeeze=False)
+    maps = {name: _map_fields(designs[name], plane) for name in names}
+    for column in range(5):
+        key = list(maps[names[0]][1])[column]
+        values = np.concatenate([maps[name][1][key].ravel() for name in names])
+        low, high = np.nanpercentile(values, 1), np.nanpercentile(values, 99)
+        for row, name in enumerate(names):
+            slice_, fields = maps[name]
+            axis = axes[row, column]
+            image = axis.pcolormesh(slice_.axis_u, slice_.axis_v, fields[key], vmin=low, vmax=high, shading="auto")
+            dexterous = slice_.measures.admissible(workspace.DEXTEROUS).astype(float)
+            axis.contour(slice_.axis_u, slice_.axis_v, dexterous, levels=[0.5], colors="white", linewidths=1.0)
+            axis.set_aspect("equal")
+            axis.set_title(f"{name}: {key}", fontsize=9)
+            axis.set_xlabel("x (m)")
+            axis.set_ylabel("y (m)" if plane == "horizontal" else "z (m)")
+            figure.colorbar(image, ax=axis, shrink=0.8)
+    level = f"z = {WORKING_HEIGHT} m" if plane == "horizontal" else "y = 0"
+    threshold = workspace.DEXTEROUS_CONDITIONING
+    figure.suptitle(f"Slice {level}; white: boundary of the dexterous region (1/cond >= {threshold})")
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def plot_reconfiguration(study: Reconfiguration, path: Path) -> None:
+    """Each profile's objective against the base radius setting."""
+    profiles = [o.profile for o in study.outcomes]
+    figure, axes = plt.subplots(1, len(profiles), figsize=(4.5 * len(profiles), 3.6), squeeze=False)
+    for axis, profile, values, outcome in zip(axes[0], profiles, study.values, study.outcomes, strict=True):
+        axis.plot(study.settings, values, "o-")
+        if not math.isnan(outcome.best_ra):
+            axis.axvline(outcome.best_ra, color="green", ls="--", label="best for this task")
+        if not math.isnan(study.fixed_ra):
+            axis.axvline(study.fixed_ra, color="grey", ls=":", label="best fixed")
+        axis.set(xlabel="base radius ra (m)", ylabel=profile.objective.replace("_", " "), title=profile.name)
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)

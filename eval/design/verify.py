@@ -1,0 +1,277 @@
+"""Closed-loop verification of a design on its own MuJoCo plant (beyond the paper).
+
+For a geometry: build the realistic plant with the scaled masses, identify MId+F+R on it by the nominal
+robot's identification (:func:`eval.identification.collect_excitation_data`: excitation runs in closed loop
+inside the design's dexterous cylinder, then the joint least squares of :mod:`controllers.identification`
+on the rod-forearm model of that geometry), tare the payload estimator, then run PD, MId+F+R+RLS+PD and
+the oracle with the episode runner :func:`eval.episodes.run_episode` on seeded standard cycles carrying
+3.8 kg. A design is infeasible, and reported as such, when its plant cannot be assembled, a run diverges,
+or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.identification import fit_joint_least_squares, fit_least_squares, prepare_motion
+from controllers.payload import tare_from_observations
+from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller, payload_estimator
+from delta_env.config import PlantConfig
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import DeltaGeometry, DeltaMasses
+from delta_env.limits import WorkspaceLimits
+from delta_env.sensors import CONTROL_PERIOD
+from delta_env.trajectories import Trajectory
+from delta_env.validation import require_count
+from delta_env.workspace import pose_measures
+from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
+from eval.episodes import EpisodeRecord, run_episode
+from eval.identification import ExcitationSpec, collect_excitation_data, robot_model
+
+LOOP_GAP_LIMIT = 1e-4
+"""Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""
+
+IDENTIFICATION_TRAJECTORIES = 4
+"""Excitation trajectories per design: a third of the nominal robot's 12, to fit the time budget; the
+eight friction and inertia parameters stay well determined (thousands of moving samples each)."""
+
+IDENTIFICATION_DURATION = 6.0
+"""Length of each excitation trajectory (s)."""
+
+EPISODE_CYCLES = 2
+"""Standard cycles per verification episode."""
+
+RLS_KEY = "mid_f_rls"
+"""Registry key of the model-based controller verified: MId+F+R feedforward with the payload RLS."""
+
+CONTROLLER_KEYS = ("pd", RLS_KEY, "oracle")
+"""Registry keys of the controllers compared on every design."""
+
+CONTROLLERS = tuple(CONTROLLER_LABELS[key] for key in CONTROLLER_KEYS)
+"""Their labels."""
+
+EXCITATION_MARGIN = 0.5
+"""Excitation paths keep min |k_i| and |det A| above this share of their values at the cylinder's centre."""
+
+CALIBRATION_SEED_OFFSET = 10_000
+"""The tare's payload-free episode runs on seed + this, away from the verification episodes' seeds."""
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """One controller on one episode of a design's plant.
+
+    Attributes:
+        controller: Controller label.
+        seed: Episode seed.
+        tracking_rms_mm: RMS Cartesian tracking error (mm).
+        torque_peak_nm: Largest |applied torque| (N m).
+        torque_rms_nm: RMS applied torque over samples and joints (N m).
+        max_loop_gap_m: Largest loop gap (m).
+        diverged: True if the simulation diverged.
+    """
+
+    controller: str
+    seed: int
+    tracking_rms_mm: float
+    torque_peak_nm: float
+    torque_rms_nm: float
+    max_loop_gap_m: float
+    diverged: bool
+
+
+@dataclass(frozen=True)
+class Verification:
+    """A design's closed-loop verification.
+
+    Attributes:
+        name: Design name.
+        geometry: Its lengths (m).
+        masses: Its scaled masses (kg).
+        feasible: False if the plant could not be assembled, diverged or opened a loop.
+        reason: Why it is infeasible ("" when feasible).
+        parameters: Identified MId+F+R parameters, or None.
+        tare_kg: Apparent payload of the empty gripper of its estimator (kg).
+        episodes: Every run.
+        predicted: Per episode seed, the design model's (peak, RMS) torque along the reference (N m).
+        identified: Per episode seed, the identified model's (peak, RMS) torque along the reference (N m).
+    """
+
+    name: str
+    geometry: DeltaGeometry
+    masses: DeltaMasses
+    feasible: bool
+    reason: str = ""
+    parameters: ModelParameters | None = None
+    tare_kg: float = math.nan
+    episodes: tuple[EpisodeResult, ...] = ()
+    predicted: dict[int, tuple[float, float]] = field(default_factory=dict)
+    identified: dict[int, tuple[float, float]] = field(default_factory=dict)
+
+    def mean(self, controller: str, metric: str) -> float:
+        """Mean of ``metric`` over the controller's episodes (NaN if none)."""
+        values = [getattr(e, metric) for e in self.episodes if e.controller == controller]
+        return float(np.mean(values)) if values else math.nan
+
+    def predicted_mean(self, which: str, index: int) -> float:
+        """Mean over episodes of the design model's (``which="predicted"``) or identified model's figure
+        ``index`` (0 peak, 1 RMS) in N m."""
+        values = [v[index] for v in getattr(self, which).values()]
+        return float(np.mean(values)) if values else math.nan
+
+
+class DesignInfeasible(RuntimeError):
+    """The plant of a design cannot be assembled, diverged, or opened a loop beyond the limit."""
+
+
+def episode_reference(geometry: DeltaGeometry, seed: int) -> Trajectory:
+    """The verification path of episode ``seed``: the standard cycle at task place ``seed mod 5``, 1 kHz."""
+    centre, heading = TASK_CYCLES[seed % len(TASK_CYCLES)]
+    return task_cycle(geometry, centre, heading, n_cycles=EPISODE_CYCLES, dt=CONTROL_PERIOD)
+
+
+def excitation_limits(performance: Performance) -> WorkspaceLimits:
+    """The region identification paths of a design may visit: its dexterous cylinder with margins."""
+    cylinder = performance.cylinder
+    if cylinder is None:
+        raise DesignInfeasible("the design has no dexterous cylinder to identify it in")
+    centre = pose_measures(performance.geometry, np.array([0.0, 0.0, cylinder.top - cylinder.height / 2]))
+    return WorkspaceLimits(
+        radius=cylinder.diameter / 2,
+        z_min=cylinder.bottom,
+        z_max=cylinder.top,
+        min_abs_k=EXCITATION_MARGIN * float(centre.min_abs_k),
+        min_abs_det_a=EXCITATION_MARGIN * abs(float(centre.det_a)),
+    )
+
+
+def _result(record: EpisodeRecord, controller: str, seed: int) -> EpisodeResult:
+    figures = record.metrics()
+    return EpisodeResult(
+        controller=controller,
+        seed=seed,
+        tracking_rms_mm=figures["tracking_rms_mm"],
+        torque_peak_nm=figures["torque_peak_nm"],
+        torque_rms_nm=figures["torque_rms_nm"],
+        max_loop_gap_m=record.max_loop_gap,
+        diverged=record.diverged,
+    )
+
+
+def _check(diverged: bool, loop_gap: float, what: str) -> None:
+    if diverged:
+        raise DesignInfeasible(f"{what} diverged")
+    if not loop_gap <= LOOP_GAP_LIMIT:
+        raise DesignInfeasible(f"{what} opened a loop by {1e3 * loop_gap:.3f} mm (> {1e3 * LOOP_GAP_LIMIT} mm)")
+
+
+def excitation_specs(performance: Performance, seed: int) -> list[ExcitationSpec]:
+    """The design's excitation trajectories: seeds from ``seed``, inside its dexterous cylinder."""
+    limits = excitation_limits(performance)
+    start = (0.0, 0.0, performance.cylinder.top - performance.cylinder.height / 2)
+    seeds = np.random.SeedSequence(seed).generate_state(IDENTIFICATION_TRAJECTORIES)
+    return [ExcitationSpec(seed=int(s), duration=IDENTIFICATION_DURATION, start=start, limits=limits) for s in seeds]
+
+
+def identify_design(plant: PlantConfig, performance: Performance, seed: int, workers: int = 1) -> ControllerSetup:
+    """MId, MId+F and MId+F+R of a design's plant: the nominal robot's excitation runs and least squares.
+
+    Args:
+        plant: The design's plant (its geometry and masses are the models' datasheet values).
+        performance: Its figures (the dexterous cylinder bounds the excitation).
+        seed: Seed of the excitation trajectories and their sensor noise.
+        workers: Processes running the excitation trajectories.
+
+    Returns:
+        The controllers' knowledge of the design: its identified parameters, geometry and masses (no tares).
+    """
+    try:
+        records = collect_excitation_data(excitation_specs(performance, seed), plant=plant, workers=workers)
+    except (RuntimeError, ValueError) as error:  # a divergence, or no excitation path fits the cylinder
+        raise DesignInfeasible(f"identification failed: {error}") from error
+    for index, record in enumerate(records):
+        _check(False, record.max_loop_gap, f"excitation run {index}")
+    data = [prepare_motion(record.angles, record.torques, record.dt) for record in records]
+    rho_fit, joint_fit = fit_least_squares(data, dynamics=robot_model(plant))
+    rod_fit = fit_joint_least_squares(data, dynamics=robot_model(plant, forearm_rods=True))
+    return ControllerSetup(
+        mid=rho_fit.parameters,
+        mid_f=joint_fit.parameters,
+        mid_f_rods=rod_fit.parameters,
+        geometry=plant.geometry,
+        masses=plant.masses,
+    )
+
+
+def _reference_torques(model: DeltaDynamics, reference: Trajectory) -> tuple[float, float]:
+    """Peak and RMS torque (N m) of ``model`` along ``reference`` carrying :data:`PAYLOAD` while gripping."""
+    torque = model.inverse_dynamics(
+        reference.theta, reference.theta_dot, reference.theta_ddot, payload_profile(reference, PAYLOAD)
+    )
+    return float(np.max(np.abs(torque))), float(np.sqrt(np.mean(torque**2)))
+
+
+def verify_design(
+    name: str, performance: Performance, *, seed: int = 0, episodes: int = 2, workers: int = 1
+) -> Verification:
+    """Identify a design's plant and run the controllers on it; never raises for an infeasible plant.
+
+    Args:
+        name: Design name for the report.
+        performance: The design's figures (geometry, scaled masses, dexterous cylinder).
+        seed: Seed of the identification and of the first episode (episodes ``seed .. seed + episodes - 1``).
+        episodes: Episodes per controller, >= 1.
+        workers: Processes running the identification's excitation trajectories.
+    """
+    require_count("episodes", episodes)
+    geometry, masses = performance.geometry, performance.masses
+    base = {"name": name, "geometry": geometry, "masses": masses}
+    try:
+        plant = PlantConfig(geometry=geometry, masses=masses)
+        env = DeltaPickPlaceEnv(plant=plant, n_cycles=EPISODE_CYCLES)
+    except (ValueError, RuntimeError) as error:
+        return Verification(**base, feasible=False, reason=f"plant cannot be assembled: {error}")
+    model = design_model(geometry, masses)
+    try:
+        setup = identify_design(plant, performance, seed, workers)
+        calibration_seed = seed + CALIBRATION_SEED_OFFSET
+        calibration = run_episode(
+            env,
+            build_controller(RLS_KEY, setup),
+            calibration_seed,
+            [0.0] * EPISODE_CYCLES,
+            reference=episode_reference(geometry, seed),
+            keep_observations=True,
+        )
+        _check(calibration.diverged, calibration.max_loop_gap, "tare calibration")
+        tare, _ = tare_from_observations(payload_estimator(RLS_KEY, setup), [calibration.observations])
+        setup = replace(setup, tares={RLS_KEY: tare})
+        controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
+        parameters = setup.mid_f_rods
+        identified = model.with_parameters(parameters)
+        results, predicted, identified_figures = [], {}, {}
+        for episode_seed in range(seed, seed + episodes):
+            reference = episode_reference(geometry, episode_seed)
+            predicted[episode_seed] = _reference_torques(model, reference)
+            identified_figures[episode_seed] = _reference_torques(identified, reference)
+            for label, controller in zip(CONTROLLERS, controllers, strict=True):
+                record = run_episode(env, controller, episode_seed, [PAYLOAD] * EPISODE_CYCLES, reference=reference)
+                _check(record.diverged, record.max_loop_gap, f"{label} episode {episode_seed}")
+                results.append(_result(record, label, episode_seed))
+    except DesignInfeasible as error:
+        return Verification(**base, feasible=False, reason=str(error))
+    finally:
+        env.close()
+    return Verification(
+        **base,
+        feasible=True,
+        parameters=parameters,
+        tare_kg=tare,
+        episodes=tuple(results),
+        predicted=predicted,
+        identified=identified_figures,
+    )

@@ -1,0 +1,229 @@
+"""The design study (eval.design): figures of merit, optimization, reconfiguration, verification, CLI."""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from controllers.registry import model_controller
+from delta_env.config import PlantRealism
+from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
+from delta_env.scaling import scaled_masses
+from delta_env.scenario import load_geometry
+from eval.design import optimize, performance, reconfigure, report, verify
+from eval.design.__main__ import main
+
+
+@pytest.fixture(scope="module")
+def nominal() -> performance.Performance:
+    return performance.evaluate(NOMINAL_GEOMETRY)
+
+
+def _dominates(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.all(a <= b) and np.any(a < b))
+
+
+def test_nominal_design_is_feasible_with_plausible_figures(nominal):
+    assert nominal.feasible, nominal.reason
+    assert 0.9 < nominal.cylinder.diameter < 1.0  # an industrial-size dexterous cylinder
+    assert 40.0 < nominal.peak_torque_nm < 100.0  # 3.8 kg at 3 g; DESIGN's 170 N m is at 6 g
+    assert len(nominal.cycles) == len(performance.TASK_CYCLES)
+    heavier = performance.evaluate(NOMINAL_GEOMETRY, payload=8.0)
+    assert heavier.peak_torque_nm > nominal.peak_torque_nm
+    assert heavier.cycle_time_s > nominal.cycle_time_s
+
+
+def test_cycle_time_at_the_limit_is_exact_when_retimed(nominal):
+    # retiming the cycle to the found speed-up must put its peak torque on the motor limit
+    model = performance.design_model(NOMINAL_GEOMETRY)
+    centre, heading = performance.TASK_CYCLES[0]
+    reference = performance.task_cycle(NOMINAL_GEOMETRY, centre, heading)
+    figures = performance.cycle_figures(model, reference, performance.PAYLOAD)
+    speed_up = (figures.motion_time / figures.fastest_motion_time) ** 2
+    fast = performance.task_cycle(
+        NOMINAL_GEOMETRY, centre, heading, peak_acceleration=performance.CYCLE_ACCELERATION * speed_up, dt=0.0005
+    )
+    retimed = performance.cycle_figures(model, fast, performance.PAYLOAD)
+    assert retimed.peak_torque == pytest.approx(TORQUE_LIMIT, rel=2e-3)
+    assert retimed.motion_time == pytest.approx(figures.fastest_motion_time, abs=2e-3)
+
+
+def test_fastest_speed_up_solves_the_torque_quadratics():
+    zero = np.zeros(2)
+    # joint 2: |-20 - 40 s^2| = 100 at s^2 = 2
+    speed_up = performance.fastest_speed_up(np.array([10.0, -20.0]), zero, np.array([5.0, -40.0]), 100.0)
+    assert speed_up == pytest.approx(math.sqrt(2.0))
+    # viscous only: 10 + 30 s = 100 at s = 3; the quadratic one first: 10 + 30 s + 10 s^2 = 100 at s = 1.85
+    assert performance.fastest_speed_up(np.array([10.0]), np.array([30.0]), np.zeros(1), 100.0) == pytest.approx(3.0)
+    root = (-30.0 + math.sqrt(30.0**2 + 4 * 10.0 * 90.0)) / 20.0
+    assert performance.fastest_speed_up(np.array([10.0]), np.array([30.0]), np.array([10.0]), 100.0) == pytest.approx(
+        root
+    )
+    # a torque that turns back before the limit never binds
+    assert performance.fastest_speed_up(np.array([0.0]), np.array([10.0]), np.array([-1.0]), 100.0) == pytest.approx(
+        (10.0 + math.sqrt(100.0 + 400.0)) / 2.0
+    )
+    assert performance.fastest_speed_up(np.array([150.0]), np.zeros(1), np.array([1.0]), 100.0) == 0.0
+    assert performance.fastest_speed_up(np.zeros(1), np.zeros(1), np.zeros(1), 100.0) == math.inf
+
+
+def test_design_model_adds_the_same_drive_to_every_design():
+    drive = performance.DRIVE
+    for geometry in (NOMINAL_GEOMETRY, DeltaGeometry(0.25, 0.03, 0.32, 1.05)):
+        links = performance.design_model(geometry, drive=None)
+        model = performance.design_model(geometry)
+        assert model.inertia * model.parameters.rho1 == pytest.approx(links.inertia + drive.armature)
+        theta = np.array([[0.3, 0.5, 0.4]])
+        rate, acceleration = np.array([[1.0, -2.0, 0.0]]), np.array([[5.0, 0.0, -3.0]])
+        difference = model.inverse_dynamics(theta, rate, acceleration) - links.inverse_dynamics(
+            theta, rate, acceleration
+        )
+        expected = drive.armature * acceleration + drive.viscous * rate + drive.coulomb * np.sign(rate)
+        np.testing.assert_allclose(difference, expected, atol=1e-9)
+
+
+def test_infeasible_designs_say_why():
+    short = performance.evaluate(DeltaGeometry(0.15, 0.04, 0.3, 0.72))
+    assert not short.feasible and "task region" in short.reason
+    assert short.workspace_m3 == 0.0
+
+
+def test_bad_bounds_are_named():
+    with pytest.raises(ValueError, match="ra"):
+        optimize.DesignBounds(ra=(0.3, 0.2))
+    with pytest.raises(ValueError, match="rb max < ra min"):
+        optimize.DesignBounds(rb=(0.03, 0.2))
+    with pytest.raises(ValueError, match="l2 min > l1 max"):
+        optimize.DesignBounds(l1=(0.3, 0.8))
+    with pytest.raises(ValueError, match="population"):
+        optimize.SearchSettings(population=2)
+
+
+def test_impossible_constraints_give_a_clear_error(nominal):
+    tiny = optimize.DesignBounds(ra=(0.12, 0.13), rb=(0.03, 0.04), l1=(0.10, 0.11), l2=(0.30, 0.31))
+    with pytest.raises(RuntimeError, match=r"no feasible design.*task region shortfall"):
+        optimize.pareto_front(nominal, optimize.SearchSettings(4, 1), bounds=tiny)
+
+
+def test_pareto_front_is_reproducible_and_non_dominated(nominal):
+    first = optimize.pareto_front(nominal, optimize.SearchSettings(6, 2, seed=5))
+    again = optimize.pareto_front(nominal, optimize.SearchSettings(6, 2, seed=5))
+    assert np.array_equal(np.array(first.archive.x), np.array(again.archive.x))
+    assert np.array_equal(first.front, again.front)
+    objectives = np.array([first.archive.f[i] for i in first.front])
+    for i, a in enumerate(objectives):
+        assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
+    # every feasible evaluation is dominated by or equal to a front member
+    for f, g in zip(first.archive.f, first.archive.g, strict=True):
+        if np.all(g <= 0):
+            assert any(np.all(member <= f) for member in objectives)
+    assert all(first.archive.performance[i].feasible for i in first.front)
+    chosen = optimize.choose_designs(first, nominal)
+    assert chosen["compromise"] in first.front
+
+
+def test_weighted_cost_is_one_at_nominal_and_ga_is_reproducible(nominal):
+    assert optimize.weighted_cost(nominal, nominal) == pytest.approx(1.0)
+    first = optimize.single_objective(nominal, optimize.SearchSettings(6, 2, seed=2))
+    again = optimize.single_objective(nominal, optimize.SearchSettings(6, 2, seed=2))
+    assert first.best == again.best
+    best = first.archive.performance[first.best]
+    costs = [optimize.weighted_cost(p, nominal) for p in first.archive.performance if p.feasible]
+    assert optimize.weighted_cost(best, nominal) == pytest.approx(min(costs))
+
+
+def test_reconfiguration_finds_each_profile_best_and_nonnegative_gains():
+    study = reconfigure.study(NOMINAL_GEOMETRY, settings=5)
+    assert len(study.outcomes) == len(reconfigure.PROFILES)
+    for outcome, values, profile in zip(study.outcomes, study.values, reconfigure.PROFILES, strict=True):
+        best = np.nanmax(values) if profile.objective == "workspace" else np.nanmin(values)
+        assert outcome.best_value == pytest.approx(best)
+        assert outcome.gain_percent >= 0.0
+    torque = study.values[0]
+    assert torque[0] > torque[-1]  # a wider base spreads the heavy load over the arms
+    with pytest.raises(ValueError, match="ra below rb"):
+        reconfigure.study(NOMINAL_GEOMETRY, travel=0.16)
+    with pytest.raises(ValueError, match="objective"):
+        reconfigure.TaskProfile("bad", 1.0, 0.3, "energy")
+
+
+def test_a_plant_that_cannot_assemble_is_reported_not_dropped():
+    design = performance.evaluate(DeltaGeometry(0.3, 0.05, 0.5, 0.72))
+    result = verify.verify_design("too short", design, episodes=1)
+    assert not result.feasible and "cannot be assembled" in result.reason
+    assert result.episodes == ()
+
+
+def test_the_two_readings_of_the_five_percent_criterion():
+    close_ratio = report.TorqueChange("d", "peak", model=0.80, identified=0.82, plant=0.83)
+    assert close_ratio.ratio_holds(close_ratio.model)  # 0.83 / 0.80 = 1.0375
+    assert not close_ratio.change_holds(close_ratio.model)  # -17 % is not within 1 point of -20 %
+    assert close_ratio.change_holds(close_ratio.identified, tolerance=0.06)  # -17 % vs -18 %: 1 point of 18
+    far = report.TorqueChange("d", "peak", model=0.80, identified=0.85, plant=0.85)
+    assert not far.ratio_holds(far.model) and far.ratio_holds(far.identified) and far.change_holds(far.identified)
+
+
+def test_model_controller_uses_the_robot_it_is_given():
+    geometry = DeltaGeometry(0.25, 0.03, 0.32, 1.05)
+    masses = scaled_masses(geometry)
+    controller = model_controller(None, forearm_rods=True, geometry=geometry, masses=masses)
+    assert controller.dynamics.geometry == geometry and controller.dynamics.masses == masses
+    assert model_controller(None).dynamics.geometry == NOMINAL_GEOMETRY
+
+
+def test_nominal_verification_runs_every_controller_with_closed_loops(nominal):
+    result = verify.verify_design("nominal", nominal, episodes=1)
+    assert result.feasible, result.reason
+    assert {e.controller for e in result.episodes} == set(verify.CONTROLLERS)
+    assert all(e.max_loop_gap_m < verify.LOOP_GAP_LIMIT for e in result.episodes)
+    assert result.mean("MId+F+R+RLS+PD", "tracking_rms_mm") < 0.2 * result.mean("PD", "tracking_rms_mm")
+    # the identified model and the design model with its drives both predict the torque the plant needs
+    oracle_rms = result.mean("Oracle+PD (bound)", "torque_rms_nm")
+    assert result.predicted_mean("identified", 1) == pytest.approx(oracle_rms, rel=0.05)
+    assert result.predicted_mean("predicted", 1) == pytest.approx(oracle_rms, rel=0.05)
+
+
+def test_a_design_is_identified_on_its_own_plant():
+    design = performance.evaluate(DeltaGeometry(0.244, 0.030, 0.318, 1.054))
+    assert design.feasible, design.reason
+    result = verify.verify_design("short arm", design, episodes=1, seed=1)
+    assert result.feasible, result.reason
+    assert result.mean("MId+F+R+RLS+PD", "tracking_rms_mm") < 0.2 * result.mean("PD", "tracking_rms_mm")
+    # the identified friction is the plant's drive, whatever the links
+    drive = PlantRealism()
+    np.testing.assert_allclose(result.parameters.viscous, drive.viscous_per_joint, rtol=0.25)
+    np.testing.assert_allclose(result.parameters.coulomb, drive.coulomb_per_joint, rtol=0.25)
+    # rho1 holds the armature relative to this design's own arm inertia (plus the forearms' share)
+    links = performance.design_model(design.geometry, drive=None)
+    assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)
+
+
+def test_quick_cli_writes_the_run_folder(tmp_path):
+    out = tmp_path / "run"
+    assert main(["--quick", "--seed", "3", "--workers", "1", "--out", str(out)]) == 0
+    with (out / "pareto.csv").open() as file:
+        rows = list(csv.DictReader(file))
+    for column in ("ra", "rb", "l1", "l2", "workspace_m3", "peak_torque_nm", "cycle_time_s"):
+        assert column in rows[0]
+    objectives = np.array(
+        [[-float(r["workspace_m3"]), float(r["peak_torque_nm"]), float(r["cycle_time_s"])] for r in rows]
+    )
+    for i, a in enumerate(objectives):
+        assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
+    with (out / "designs.csv").open() as file:
+        rows_by_design = {row["design"]: row for row in csv.DictReader(file)}
+    config = json.loads((out / "config.json").read_text())
+    assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
+    assert config["config"]["drive"]["armature_kg_m2"] == PlantRealism().armature
+    assert "git_commit" in config and "versions" in config
+    compromise = load_geometry(out / "design-compromise.toml")  # the file --geometry reads
+    assert compromise == DeltaGeometry(*(float(rows_by_design["compromise"][k]) for k in ("ra", "rb", "l1", "l2")))
+    with (out / "torque_changes.csv").open() as file:
+        changes = list(csv.DictReader(file))
+    assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
+    names = ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "verification.csv")
+    for name in (*names, "summary.md"):
+        assert (out / name).stat().st_size > 0
+    assert math.isfinite(config["seconds"]["total"])
