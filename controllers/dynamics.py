@@ -1,3 +1,4 @@
+# Over 500 lines: the model in its batched form and its compiled single-sample form for the 1 kHz loop.
 """Inverse dynamics of the Delta robot: the Kuo & Huang model (MKH) and its identified forms.
 
 docs/design.md section 3. Active arm: homogeneous rod m1; each forearm pair: m2 at the elbow and m2 at the

@@ -1,6 +1,7 @@
+# Over 500 lines: one experiment from excitation runs to the cached, identity-checked parameter file.
 """The identification experiment: excitation runs on the plant, then every fit (docs/design.md section 7).
 
-Data: excitation trajectories (:func:`delta_env.trajectories.excitation_trajectory`, 6 g, workspace
+Data: excitation trajectories (:func:`delta_env.excitation.excitation_trajectory`, 6 g, workspace
 edges, slow moves) run in closed loop on the plant (PD plus MKH feedforward along the reference) by the
 episode runner :func:`eval.episodes.run_episode`; only the observations are kept: encoder angles and
 measured motor torques. The algorithms of :mod:`controllers.identification` then fit, on the same
