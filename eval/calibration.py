@@ -2,8 +2,9 @@
 
 Each RLS controller runs pick-and-place episodes with nothing to pick (0 kg objects, the gripper still
 closes and opens) on seeds of their own; :func:`controllers.payload.tare_from_observations` turns their
-observations into the tare (kg) and its spread over the carries. ``python -m eval`` and the residual
-training tare their estimators with these functions.
+observations into the tare (kg) and its spread over the carries. ``python -m eval``, the sweep, the residual
+training and the design verification (on its standard cycles, given as references) tare their estimators
+with these functions.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any
 from controllers.payload import tare_from_observations
 from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, payload_estimator
 from delta_env.scenario import Scenario
+from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord
 from eval.tasks import Task, run_tasks
 
@@ -27,25 +29,39 @@ def calibration_tasks(
     seeds: Sequence[int],
     n_cycles: int,
     scenario: Scenario | None = None,
+    references: Sequence[Trajectory] | None = None,
 ) -> list[Task]:
     """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed, on
-    ``scenario`` (None: ``nominal``)."""
+    ``scenario`` (None: ``nominal``), following ``references[j]`` on seed ``j`` when given (else the
+    scenario's pick-and-place)."""
+    if references is not None and len(references) != len(seeds):
+        raise ValueError(f"references must be one per seed: {len(references)} references for {len(seeds)} seeds")
+    paths = [None] * len(seeds) if references is None else list(references)
     tasks = []
     for key in keys:
         if key not in ESTIMATOR_REGRESSORS:
             raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
         empty = (0.0,) * n_cycles
-        tasks += [Task("calibration", key, j, seed, n_cycles, setup, empty, scenario) for j, seed in enumerate(seeds)]
+        tasks += [
+            Task("calibration", key, j, seed, n_cycles, setup, empty, scenario, path)
+            for j, (seed, path) in enumerate(zip(seeds, paths, strict=True))
+        ]
     return tasks
 
 
 def tares_from_results(
     results: Iterable[tuple[Task, EpisodeRecord]], setup: ControllerSetup
 ) -> tuple[dict[str, float], dict[str, float]]:
-    """Tare (kg) and its carry-to-carry spread (kg) per RLS controller, from its calibration episodes."""
+    """Tare (kg) and its carry-to-carry spread (kg) per RLS controller, from its calibration episodes.
+
+    Raises:
+        RuntimeError: if a calibration episode diverged (its observations would give a meaningless tare).
+    """
     observed: dict[str, list] = {}
     for task, record in results:
         if task.kind == "calibration":
+            if record.diverged:
+                raise RuntimeError(f"the calibration episode of {task.key!r} on seed {task.seed} diverged")
             observed.setdefault(task.key, []).append(record.observations)
     tares, spreads = {}, {}
     for key, episodes in observed.items():
@@ -62,8 +78,9 @@ def calibrate_tares(
     workers: int = 1,
     progress: Any = None,
     scenario: Scenario | None = None,
+    references: Sequence[Trajectory] | None = None,
 ) -> tuple[dict[str, float], dict[str, float]]:
-    """Run the calibration episodes of ``keys`` on ``scenario`` (None: ``nominal``) and return their tares
-    and spreads (kg) by key."""
-    tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario)
+    """Run the calibration episodes of ``keys`` on ``scenario`` (None: ``nominal``), along ``references``
+    (one per seed) if given, and return their tares and spreads (kg) by key."""
+    tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario, references)
     return tares_from_results(run_tasks(tasks, workers, progress), setup)

@@ -100,6 +100,23 @@ _Output = TypeVar("_Output")
 
 
 @dataclass(frozen=True)
+class ExcitationRegion:
+    """Where a robot's excitation trajectories start and move.
+
+    Attributes:
+        start: Platform position (m) where every trajectory starts and ends.
+        limits: Region the trajectories visit.
+    """
+
+    start: tuple[float, float, float]
+    limits: WorkspaceLimits
+
+
+NOMINAL_REGION = ExcitationRegion(start=(0.0, 0.0, WORKING_HEIGHT), limits=WORKSPACE_LIMITS)
+"""The nominal robot's excitation region: its working height and workspace."""
+
+
+@dataclass(frozen=True)
 class ExcitationSpec:
     """One excitation trajectory: the arguments of ``excitation_trajectory`` and the episode seed.
 
@@ -264,10 +281,13 @@ def collect_excitation_data(
         return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)
 
 
-def _collect_and_prepare(spec: ExcitationSpec, plant: PlantConfig | None) -> tuple[MotionData, NDArray[np.float64]]:
-    """The smoothed samples of one excitation run and the drive lag (s, per joint) fitted to it."""
+def _collect_and_prepare(
+    spec: ExcitationSpec, plant: PlantConfig | None
+) -> tuple[MotionData, NDArray[np.float64], float]:
+    """The smoothed samples of one excitation run, the drive lag (s, per joint) fitted to it and the run's
+    largest loop gap (m)."""
     record = run_excitation(spec, plant)
-    return prepare_motion(record.angles, record.torques, record.dt), record.drive_lag()
+    return prepare_motion(record.angles, record.torques, record.dt), record.drive_lag(), record.max_loop_gap
 
 
 @dataclass(frozen=True)
@@ -279,12 +299,14 @@ class IdentificationRun:
         data: Samples of the identification trajectories.
         validation: Samples of the held-out free-motion stress trajectory.
         models: The models compared on it, with their parameters (Table 1 rows), by name.
+        max_loop_gap: Largest loop gap of the plant over every excitation run (m), the simulation's health.
     """
 
     result: IdentificationResult
     data: tuple[MotionData, ...]
     validation: MotionData
     models: dict[str, DeltaDynamics]
+    max_loop_gap: float
 
 
 def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
@@ -341,25 +363,40 @@ def run_identification(
     progress: bool = True,
     workers: int | None = None,
     plant: PlantConfig | None = None,
+    region: ExcitationRegion | None = None,
 ) -> IdentificationRun:
     """Collect data, identify with both methods and validate on a held-out stress trajectory.
 
-    Arguments as in :func:`identify`; ``validation_duration`` is the length (s) of the held-out
-    trajectory.
+    The one identification of every robot: the nominal one, a scenario's and a design's.
+
+    Args:
+        n_trajectories: Excitation trajectories (distinct seeds derived from ``seed``), >= 1.
+        seed: Seed of the whole identification (trajectories and sensor noise).
+        duration: Length of each excitation trajectory (s).
+        validation_duration: Length of the held-out stress trajectory (s).
+        progress: Show a tqdm progress bar.
+        workers: Processes simulating trajectories; None uses up to 2 cores.
+        plant: The robot; None is the default realistic plant.
+        region: Where every trajectory, the held-out one included, starts and moves; None is the nominal
+            robot's workspace (:data:`NOMINAL_REGION`).
     """
     start = time.perf_counter()
     require_count("n_trajectories", n_trajectories)
     workers = min(2, os.cpu_count() or 1) if workers is None else workers
     plant = PlantConfig() if plant is None else plant
+    region = NOMINAL_REGION if region is None else region
     seeds, validation_seed = _trajectory_seeds(seed, n_trajectories)
-    specs = [ExcitationSpec(seed=s, duration=duration) for s in seeds]
-    specs.append(ExcitationSpec.stress(validation_seed, validation_duration))
+    place = {"start": region.start, "limits": region.limits}
+    specs = [ExcitationSpec(seed=s, duration=duration, **place) for s in seeds]
+    specs.append(dataclasses.replace(ExcitationSpec.stress(validation_seed, validation_duration), **place))
 
     run = functools.partial(_collect_and_prepare, plant=plant)
     with _progress_bar(len(specs), progress) as bar:
-        *runs, (validation, _) = parallel_map(run, specs, workers, bar)
-    data = [motion for motion, _ in runs]
-    lags_per_trajectory = np.array([lag for _, lag in runs])
+        runs = parallel_map(run, specs, workers, bar)
+    max_loop_gap = max(gap for _, _, gap in runs)
+    *runs, (validation, _, _) = runs
+    data = [motion for motion, _, _ in runs]
+    lags_per_trajectory = np.array([lag for _, lag, _ in runs])
     drive_lag = np.median(lags_per_trajectory, axis=0)
     data_time = time.perf_counter() - start
 
@@ -444,7 +481,9 @@ def run_identification(
         standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
         provenance=provenance,
     )
-    return IdentificationRun(result=result, data=tuple(data), validation=validation, models=models)
+    return IdentificationRun(
+        result=result, data=tuple(data), validation=validation, models=models, max_loop_gap=max_loop_gap
+    )
 
 
 def identify(
@@ -464,7 +503,8 @@ def identify(
         duration: Length of each excitation trajectory (s).
         progress: Show a tqdm progress bar.
         workers: Processes simulating trajectories; None uses up to 2 cores.
-        **kwargs: ``validation_duration`` (s) and ``plant`` (a PlantConfig), see :func:`run_identification`.
+        **kwargs: ``validation_duration`` (s), ``plant`` (a PlantConfig) and ``region`` (an ExcitationRegion),
+            see :func:`run_identification`.
     """
     return run_identification(n_trajectories, seed, duration, progress=progress, workers=workers, **kwargs).result
 

@@ -1,13 +1,26 @@
-"""``--scenario NAME|FILE`` and ``--geometry FILE``: the same two options on every command line."""
+"""``--scenario NAME|FILE`` and ``--geometry FILE``: the same options on every command line."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 from pathlib import Path
 
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import Scenario, load_geometry, preset_names, resolve_scenario, with_geometry
+
+GEOMETRY_HELP = (
+    "geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
+    "the scenario on a robot of these lengths (a new robot, identified once), its masses following the "
+    "lengths by the rule of delta_env.scaling"
+)
+"""Help text of ``--geometry``."""
+
+
+def add_geometry_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--geometry`` to ``parser``."""
+    parser.add_argument("--geometry", default=None, help=GEOMETRY_HELP)
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,28 +30,31 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         default="nominal",
         help=f"preset ({', '.join(preset_names())}) or scenario TOML file (default nominal)",
     )
-    parser.add_argument(
-        "--geometry",
-        default=None,
-        help="geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
-        "the scenario on a robot of these lengths (a new robot, identified once), its masses following the "
-        "lengths by the rule of delta_env.scaling",
-    )
+    add_geometry_argument(parser)
+
+
+def on_geometry(scenario: Scenario, path: str | os.PathLike[str]) -> Scenario:
+    """``scenario`` on the robot of the geometry file ``path``, named ``<scenario>+<file stem>``.
+
+    Its masses follow the lengths by :func:`delta_env.scaling.scaled_masses` from the scenario's robot, as in
+    the design study.
+
+    Raises:
+        ValueError: for a bad geometry file (naming the file and the field).
+    """
+    geometry = load_geometry(path)
+    masses = scaled_masses(geometry, scenario.plant.geometry, scenario.plant.masses)
+    scenario = with_geometry(scenario, geometry, masses)
+    return dataclasses.replace(scenario, name=f"{scenario.name}+{Path(path).stem}")
 
 
 def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Scenario:
-    """The scenario of ``--scenario`` on the robot of ``--geometry``; a bad value is a parser error.
-
-    The robot of ``--geometry`` is built like the scenario's: its masses follow the lengths by
-    :func:`delta_env.scaling.scaled_masses` from the scenario's robot, as in the design study.
-    """
+    """The scenario of ``--scenario`` on the robot of ``--geometry`` (:func:`on_geometry`); a bad value is a
+    parser error."""
     try:
         scenario = resolve_scenario(args.scenario)
         if args.geometry is not None:
-            geometry = load_geometry(args.geometry)
-            masses = scaled_masses(geometry, scenario.plant.geometry, scenario.plant.masses)
-            scenario = with_geometry(scenario, geometry, masses)
-            scenario = dataclasses.replace(scenario, name=f"{scenario.name}+{Path(args.geometry).stem}")
+            scenario = on_geometry(scenario, args.geometry)
     except ValueError as error:
         parser.error(f"--scenario/--geometry: {error}")
     return scenario

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from controllers.registry import ControllerSetup, build_controller, residual_policy_path
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
+from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord, run_episode
 from eval.processes import parallel_map
 
@@ -35,6 +36,7 @@ class Task:
         setup: What the controller may know.
         masses: Object masses (kg) overriding the drawn ones, or None.
         scenario: The robot and the work (``n_cycles`` overrides its cycles); None is ``nominal``.
+        reference: The path to follow instead of the scenario's pick-and-place (1 kHz), or None.
     """
 
     kind: str
@@ -45,6 +47,7 @@ class Task:
     setup: ControllerSetup
     masses: tuple[float, ...] | None = None
     scenario: Scenario | None = None
+    reference: Trajectory | None = None
 
 
 @functools.cache
@@ -60,7 +63,9 @@ def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     env = DeltaPickPlaceEnv(n_cycles=task.n_cycles, scenario=task.scenario)
     policy = _loaded_policy(residual_policy_path(task.setup)) if task.key == "residual" else None
     controller = build_controller(task.key, task.setup, env, policy=policy)
-    record = run_episode(env, controller, task.seed, task.masses, keep_observations=task.kind == "calibration")
+    record = run_episode(
+        env, controller, task.seed, task.masses, reference=task.reference, keep_observations=task.kind == "calibration"
+    )
     env.close()
     return task, record
 

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from delta_env.scenario import Scenario, preset
+from delta_env.geometry import DeltaGeometry
+from delta_env.scaling import scaled_masses
+from delta_env.scenario import Scenario, preset, save_geometry
 from eval.sweep import __main__ as sweep_cli
 from eval.sweep import report
 from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
@@ -201,3 +203,21 @@ def test_cli_writes_the_run_folder_and_resumes(tmp_path: Path, monkeypatch: pyte
     assert len(list(csv.DictReader((out / "results.csv").open()))) == 4
     assert "Ran 0 episodes (0 failed), 4 already in the table" in capsys.readouterr().out
     assert len((out / "commands.log").read_text().splitlines()) == 2
+
+
+def test_geometry_puts_every_scenario_on_that_robot_with_scaled_masses(tmp_path: Path, capsys) -> None:
+    design = DeltaGeometry(ra=0.24, rb=0.035, l1=0.42, l2=1.1)
+    path = save_geometry(design, tmp_path / "wide.toml")
+    args = sweep_cli.parse_args(["--scenarios", "nominal,worn", "--geometry", str(path)])
+    nominal = preset("nominal")
+    expected_masses = scaled_masses(design, nominal.plant.geometry, nominal.plant.masses)
+    assert [s.name for s in args.scenarios] == ["nominal+wide", "worn+wide"]
+    for scenario, name in zip(args.scenarios, ("nominal", "worn"), strict=True):
+        assert scenario.plant == dataclasses.replace(preset(name).plant, geometry=design, masses=expected_masses)
+        assert (scenario.condition, scenario.task) == (preset(name).condition, preset(name).task)
+    assert expected_masses.m1 > nominal.plant.masses.m1  # the longer arm is heavier
+    assert args.out != sweep_cli.parse_args(["--scenarios", "nominal,worn"]).out  # another robot, another folder
+    (tmp_path / "short.toml").write_text("[geometry]\nra = 0.2\nrb = 0.05\nl1 = 0.37\n")
+    with pytest.raises(SystemExit):
+        sweep_cli.parse_args(["--geometry", str(tmp_path / "short.toml")])
+    assert "short.toml" in capsys.readouterr().err

@@ -33,6 +33,7 @@ from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
+from eval import calibration, identification
 from eval.design import optimize, performance, reconfigure, report, verify
 from eval.run_folder import command_line, create_run_folder, package_versions, write_config, write_csv
 
@@ -117,8 +118,10 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) ->
             "fixed_ra_m": fixed_ra,
         },
         "verification": {
-            "identification_trajectories": verify.IDENTIFICATION_TRAJECTORIES,
-            "identification_duration_s": verify.IDENTIFICATION_DURATION,
+            "identification_trajectories": identification.DEFAULT_TRAJECTORIES,
+            "identification_duration_s": identification.DEFAULT_DURATION,
+            "validation_duration_s": identification.VALIDATION_DURATION,
+            "calibration_episodes": calibration.DEFAULT_CALIBRATION_EPISODES,
             "episode_cycles": verify.EPISODE_CYCLES,
             "loop_gap_limit_m": verify.LOOP_GAP_LIMIT,
         },

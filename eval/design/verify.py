@@ -1,12 +1,12 @@
 """Closed-loop verification of a design on its own MuJoCo plant (beyond the paper).
 
-For a geometry: build the realistic plant with the scaled masses, identify MId+F+R on it by the nominal
-robot's identification (:func:`eval.identification.collect_excitation_data`: excitation runs in closed loop
-inside the design's dexterous cylinder, then the joint least squares of :mod:`controllers.identification`
-on the rod-forearm model of that geometry), tare the payload estimator, then run PD, MId+F+R+RLS+PD and
-the oracle with the episode runner :func:`eval.episodes.run_episode` on seeded standard cycles carrying
-3.8 kg. A design is infeasible, and reported as such, when its plant cannot be assembled, a run diverges,
-or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
+For a geometry: build the realistic plant with the scaled masses, identify it by the nominal robot's
+identification (:func:`eval.identification.run_identification`, the same excitation runs in closed loop but
+inside the design's dexterous cylinder, the same fits on that geometry's models, the drive lag), tare the
+payload estimator by :func:`eval.calibration.calibrate_tares` on payload-free standard cycles, then run PD,
+MId+F+R+RLS+PD and the oracle with the episode runner :func:`eval.episodes.run_episode` on seeded standard
+cycles carrying 3.8 kg. A design is infeasible, and reported as such, when its plant cannot be assembled,
+a run diverges or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
 """
 
 from __future__ import annotations
@@ -17,30 +17,23 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.identification import fit_joint_least_squares, fit_least_squares, prepare_motion
-from controllers.payload import tare_from_observations
-from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller, payload_estimator
+from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.limits import WorkspaceLimits
+from delta_env.scenario import preset, with_geometry
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
 from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import ExcitationSpec, collect_excitation_data, robot_model
+from eval.identification import ExcitationRegion, robot_setup, run_identification
 
 LOOP_GAP_LIMIT = 1e-4
 """Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""
-
-IDENTIFICATION_TRAJECTORIES = 4
-"""Excitation trajectories per design: a third of the nominal robot's 12, to fit the time budget; the
-eight friction and inertia parameters stay well determined (thousands of moving samples each)."""
-
-IDENTIFICATION_DURATION = 6.0
-"""Length of each excitation trajectory (s)."""
 
 EPISODE_CYCLES = 2
 """Standard cycles per verification episode."""
@@ -58,7 +51,7 @@ EXCITATION_MARGIN = 0.5
 """Excitation paths keep min |k_i| and |det A| above this share of their values at the cylinder's centre."""
 
 CALIBRATION_SEED_OFFSET = 10_000
-"""The tare's payload-free episode runs on seed + this, away from the verification episodes' seeds."""
+"""The tare's payload-free episodes run on seeds from seed + this, away from the verification episodes'."""
 
 
 @dataclass(frozen=True)
@@ -169,16 +162,16 @@ def _check(diverged: bool, loop_gap: float, what: str) -> None:
         raise DesignInfeasible(f"{what} opened a loop by {1e3 * loop_gap:.3f} mm (> {1e3 * LOOP_GAP_LIMIT} mm)")
 
 
-def excitation_specs(performance: Performance, seed: int) -> list[ExcitationSpec]:
-    """The design's excitation trajectories: seeds from ``seed``, inside its dexterous cylinder."""
+def excitation_region(performance: Performance) -> ExcitationRegion:
+    """Where the design's excitation trajectories start and move: its dexterous cylinder, from its centre."""
     limits = excitation_limits(performance)
-    start = (0.0, 0.0, performance.cylinder.top - performance.cylinder.height / 2)
-    seeds = np.random.SeedSequence(seed).generate_state(IDENTIFICATION_TRAJECTORIES)
-    return [ExcitationSpec(seed=int(s), duration=IDENTIFICATION_DURATION, start=start, limits=limits) for s in seeds]
+    return ExcitationRegion(start=(0.0, 0.0, performance.cylinder.top - performance.cylinder.height / 2), limits=limits)
 
 
 def identify_design(plant: PlantConfig, performance: Performance, seed: int, workers: int = 1) -> ControllerSetup:
-    """MId, MId+F and MId+F+R of a design's plant: the nominal robot's excitation runs and least squares.
+    """MId, MId+F, MId+F+R and the drive lag of a design's plant by the nominal robot's identification
+    (:func:`eval.identification.run_identification`, same trajectory count and length), inside the design's
+    dexterous cylinder.
 
     Args:
         plant: The design's plant (its geometry and masses are the models' datasheet values).
@@ -188,23 +181,18 @@ def identify_design(plant: PlantConfig, performance: Performance, seed: int, wor
 
     Returns:
         The controllers' knowledge of the design: its identified parameters, geometry and masses (no tares).
+
+    Raises:
+        DesignInfeasible: if no excitation path fits the cylinder, a run diverges or opens a loop.
     """
     try:
-        records = collect_excitation_data(excitation_specs(performance, seed), plant=plant, workers=workers)
+        run = run_identification(
+            seed=seed, progress=False, workers=workers, plant=plant, region=excitation_region(performance)
+        )
     except (RuntimeError, ValueError) as error:  # a divergence, or no excitation path fits the cylinder
         raise DesignInfeasible(f"identification failed: {error}") from error
-    for index, record in enumerate(records):
-        _check(False, record.max_loop_gap, f"excitation run {index}")
-    data = [prepare_motion(record.angles, record.torques, record.dt) for record in records]
-    rho_fit, joint_fit = fit_least_squares(data, dynamics=robot_model(plant))
-    rod_fit = fit_joint_least_squares(data, dynamics=robot_model(plant, forearm_rods=True))
-    return ControllerSetup(
-        mid=rho_fit.parameters,
-        mid_f=joint_fit.parameters,
-        mid_f_rods=rod_fit.parameters,
-        geometry=plant.geometry,
-        masses=plant.masses,
-    )
+    _check(False, run.max_loop_gap, "an excitation run")
+    return robot_setup(plant, run.result)
 
 
 def _reference_torques(model: DeltaDynamics, reference: Trajectory) -> tuple[float, float]:
@@ -231,25 +219,29 @@ def verify_design(
     geometry, masses = performance.geometry, performance.masses
     base = {"name": name, "geometry": geometry, "masses": masses}
     try:
-        plant = PlantConfig(geometry=geometry, masses=masses)
+        scenario = with_geometry(preset("nominal"), geometry, masses)
+        plant = scenario.plant
         env = DeltaPickPlaceEnv(plant=plant, n_cycles=EPISODE_CYCLES)
     except (ValueError, RuntimeError) as error:
         return Verification(**base, feasible=False, reason=f"plant cannot be assembled: {error}")
     model = design_model(geometry, masses)
     try:
         setup = identify_design(plant, performance, seed, workers)
-        calibration_seed = seed + CALIBRATION_SEED_OFFSET
-        calibration = run_episode(
-            env,
-            build_controller(RLS_KEY, setup),
-            calibration_seed,
-            [0.0] * EPISODE_CYCLES,
-            reference=episode_reference(geometry, seed),
-            keep_observations=True,
-        )
-        _check(calibration.diverged, calibration.max_loop_gap, "tare calibration")
-        tare, _ = tare_from_observations(payload_estimator(RLS_KEY, setup), [calibration.observations])
-        setup = replace(setup, tares={RLS_KEY: tare})
+        calibration_seeds = [seed + CALIBRATION_SEED_OFFSET + j for j in range(DEFAULT_CALIBRATION_EPISODES)]
+        try:
+            tares, _ = calibrate_tares(
+                [RLS_KEY],
+                setup,
+                calibration_seeds,
+                EPISODE_CYCLES,
+                workers=workers,
+                scenario=scenario,
+                references=[episode_reference(geometry, s) for s in calibration_seeds],
+            )
+        except RuntimeError as error:
+            raise DesignInfeasible(f"tare calibration failed: {error}") from error
+        tare = tares[RLS_KEY]
+        setup = replace(setup, tares=tares)
         controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
         parameters = setup.mid_f_rods
         identified = model.with_parameters(parameters)

@@ -18,8 +18,12 @@ kept in ``runs/identification/<identity>/``; ``worn`` and ``randomized`` share t
 the tares of their payload estimators measured on that scenario (:mod:`eval.calibration`, as
 ``python -m eval`` measures them), before the grid runs.
 
+With ``--geometry FILE`` every scenario runs on the robot of that geometry file (as on the other command
+lines: masses scaled with the lengths, a new robot identified once), named ``<scenario>+<file stem>``.
+
 Usage: python -m eval.sweep --scenarios nominal,stress-6g,randomized --controllers pd,mid_f_rls --seeds 0-9
-           [--backend local|ray] [--address auto|ray://host:port] [--workers 2] [--cycles N] [--out DIR]
+           [--geometry FILE] [--backend local|ray] [--address auto|ray://host:port] [--workers 2] [--cycles N]
+           [--out DIR]
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from pathlib import Path
 from delta_env.scenario import preset_names, resolve_scenario
 from eval.identification import parameter_path
 from eval.run_folder import RUNS_ROOT, command_line, create_run_folder, write_config, write_csv
+from eval.scenario_args import add_geometry_argument, on_geometry
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
@@ -90,10 +95,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/sweep/<grid hash>)")
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
+    add_geometry_argument(parser)
     args = parser.parse_args(argv)
     try:
         args.seeds = parse_seeds(args.seeds)
         scenarios = [resolve_scenario(spec.strip()) for spec in args.scenarios.split(",") if spec.strip()]
+        if args.geometry is not None:
+            scenarios = [on_geometry(scenario, args.geometry) for scenario in scenarios]
         if args.cycles is not None:
             if args.cycles < 1:
                 raise ValueError(f"--cycles must be >= 1, got {args.cycles}")
