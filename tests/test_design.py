@@ -195,6 +195,8 @@ def test_a_design_is_identified_on_its_own_plant():
     drive = PlantRealism()
     np.testing.assert_allclose(result.parameters.viscous, drive.viscous_per_joint, rtol=0.25)
     np.testing.assert_allclose(result.parameters.coulomb, drive.coulomb_per_joint, rtol=0.25)
+    # and so is the drive's current loop, identified like the nominal robot's
+    np.testing.assert_allclose(result.drive_lag, drive.actuator_lag, rtol=0.1)
     # rho1 holds the armature relative to this design's own arm inertia (plus the forearms' share)
     links = performance.design_model(design.geometry, drive=None)
     assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)

@@ -163,6 +163,7 @@ def verification_rows(verifications: Sequence[Verification]) -> list[dict[str, A
                     "identified_rms_nm": v.predicted_mean("identified", 1),
                     "rho1": v.parameters.rho1 if v.parameters else math.nan,
                     "rho2": v.parameters.rho2 if v.parameters else math.nan,
+                    "drive_lag_ms": 1e3 * float(np.mean(v.drive_lag)) if v.drive_lag else math.nan,
                     "tare_kg": v.tare_kg,
                 }
             )

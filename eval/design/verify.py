@@ -88,6 +88,7 @@ class Verification:
         feasible: False if the plant could not be assembled, diverged or opened a loop.
         reason: Why it is infeasible ("" when feasible).
         parameters: Identified MId+F+R parameters, or None.
+        drive_lag: Identified drive lag per joint (s), or None.
         tare_kg: Apparent payload of the empty gripper of its estimator (kg).
         episodes: Every run.
         predicted: Per episode seed, the design model's (peak, RMS) torque along the reference (N m).
@@ -100,6 +101,7 @@ class Verification:
     feasible: bool
     reason: str = ""
     parameters: ModelParameters | None = None
+    drive_lag: tuple[float, float, float] | None = None
     tare_kg: float = math.nan
     episodes: tuple[EpisodeResult, ...] = ()
     predicted: dict[int, tuple[float, float]] = field(default_factory=dict)
@@ -243,7 +245,7 @@ def verify_design(
         tare = tares[RLS_KEY]
         setup = replace(setup, tares=tares)
         controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
-        parameters = setup.mid_f_rods
+        parameters, drive_lag = setup.mid_f_rods, setup.drive_lag
         identified = model.with_parameters(parameters)
         results, predicted, identified_figures = [], {}, {}
         for episode_seed in range(seed, seed + episodes):
@@ -262,6 +264,7 @@ def verify_design(
         **base,
         feasible=True,
         parameters=parameters,
+        drive_lag=drive_lag,
         tare_kg=tare,
         episodes=tuple(results),
         predicted=predicted,

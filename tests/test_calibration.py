@@ -1,0 +1,38 @@
+"""Tare calibration: payload-free episodes on a scenario's work or along given references."""
+
+import types
+
+import numpy as np
+import pytest
+
+from delta_env.geometry import NOMINAL_GEOMETRY
+from delta_env.sensors import CONTROL_PERIOD
+from eval.calibration import calibration_tasks, tares_from_results
+from eval.design.performance import TASK_CYCLES, task_cycle
+from eval.tasks import run_task
+from tests.conftest import NOMINAL_SETUP as SETUP
+
+
+def standard_cycle(place: int):
+    centre, heading = TASK_CYCLES[place]
+    return task_cycle(NOMINAL_GEOMETRY, centre, heading, n_cycles=1, dt=CONTROL_PERIOD)
+
+
+def test_calibration_episodes_follow_the_references_given_one_per_seed():
+    references = [standard_cycle(0), standard_cycle(1)]
+    tasks = calibration_tasks(["mid_f_rls"], SETUP, [7, 8], 1, references=references)
+    assert [(t.seed, t.masses, t.reference) for t in tasks] == [(7, (0.0,), references[0]), (8, (0.0,), references[1])]
+    assert all(t.reference is None for t in calibration_tasks(["mid_f_rls"], SETUP, [7, 8], 1))
+    with pytest.raises(ValueError, match="2 references for 3 seeds"):
+        calibration_tasks(["mid_f_rls"], SETUP, [7, 8, 9], 1, references=references)
+    _, record = run_task(tasks[1])
+    assert not record.diverged
+    assert len(record.observations) == len(references[1].theta)  # the whole reference, sample for sample
+    np.testing.assert_allclose(record.observations[-1]["reference_angles"], references[1].theta[-1], atol=1e-12)
+
+
+def test_a_diverged_calibration_episode_gives_no_tare():
+    task = calibration_tasks(["mid_f_rls"], SETUP, [5], 1)[0]
+    diverged = types.SimpleNamespace(diverged=True, observations=[])
+    with pytest.raises(RuntimeError, match="'mid_f_rls' on seed 5 diverged"):
+        tares_from_results([(task, diverged)], SETUP)
