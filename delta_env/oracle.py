@@ -184,7 +184,7 @@ class InverseDynamicsOracle:
         # The payload rides at the platform's CoM: mass only (a translating body's inertia does no work).
         model.body_mass[self._platform_body] = self._platform_mass + payload
         try:
-            jac = plant._assemble(theta, theta_dot, platform, elbows)
+            jac = plant._assemble(theta, theta_dot, platform, elbows, forward=False)
             # J_c qacc = -Jdot_c qvel with the motor accelerations fixed.
             bias = plant.loop_bias_acceleration()
             data.qacc[self._motor_dofs] = theta_ddot

@@ -218,10 +218,15 @@ class DeltaPlant:
         elbows = np.stack((np.arctan2(-local_x, -local_z), np.arcsin(tangential)), axis=-1)
         return xyz, elbows
 
-    def _assemble(self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
+    def _assemble(
+        self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray, *, forward: bool = True
+    ) -> NDArray[np.float64]:
         """Write a configuration from :meth:`assembly_coordinates` and solve the velocities (no checks).
 
-        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`).
+        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`). With
+        ``forward=False`` only the velocity kinematics (``mj_comVel``) follow instead of ``mj_forward``: all
+        that ``mj_jacDot`` needs, for a caller (the inverse dynamics oracle) whose ``mj_inverse`` recomputes
+        the rest from qpos, qvel and qacc.
         """
         model, data = self.model, self.data
         data.qpos[self._motor_qpos] = theta
@@ -244,7 +249,10 @@ class DeltaPlant:
             self._match_payload_velocity()
         if model.na:
             data.act[:] = 0.0
-        mujoco.mj_forward(model, data)
+        if forward:
+            mujoco.mj_forward(model, data)
+        else:
+            mujoco.mj_comVel(model, data)
         return jac
 
     def loop_jacobian(self) -> NDArray[np.float64]:
