@@ -124,6 +124,23 @@ class DeltaPlant:
         self._jac_b = np.zeros((3, model.nv))
         self._loop_jac = np.zeros((n_rows, model.nv))
         self._loop_jac_dot = np.zeros((n_rows, model.nv))
+        # Per loop, for the 1 kHz oracle: ids as Python ints, views of the two sites' positions (MjData keeps
+        # its buffers for its lifetime) and of the loop's rows in the Jacobian and its derivative.
+        self._loop_terms = [
+            (
+                rod_site,
+                platform_site,
+                rod_body,
+                platform_body,
+                self.data.site_xpos[rod_site],
+                self.data.site_xpos[platform_site],
+                self._loop_jac[3 * k : 3 * k + 3],
+                self._loop_jac_dot[3 * k : 3 * k + 3],
+            )
+            for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
+                zip(self._loop_sites.tolist(), self._loop_bodies.tolist(), strict=True)
+            )
+        ]
 
         if self.config.payload_body:
             self._payload_qpos = int(model.jnt_qposadr[model.body_jntadr[self._payload_body]])
@@ -261,10 +278,11 @@ class DeltaPlant:
         Uses the current ``site_xpos`` and ``cdof``: call after ``mj_kinematics`` and ``mj_comPos``
         (``mj_forward`` does both). The returned array is reused by the next call.
         """
-        for k, (rod_site, platform_site) in enumerate(self._loop_sites):
-            mujoco.mj_jacSite(self.model, self.data, self._jac_a, None, rod_site)
-            mujoco.mj_jacSite(self.model, self.data, self._jac_b, None, platform_site)
-            np.subtract(self._jac_a, self._jac_b, out=self._loop_jac[3 * k : 3 * k + 3])
+        model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
+        for rod_site, platform_site, _, _, _, _, rows, _ in self._loop_terms:
+            mujoco.mj_jacSite(model, data, jac_a, None, rod_site)
+            mujoco.mj_jacSite(model, data, jac_b, None, platform_site)
+            np.subtract(jac_a, jac_b, out=rows)
         return self._loop_jac
 
     def loop_bias_acceleration(self) -> NDArray[np.float64]:
@@ -272,13 +290,11 @@ class DeltaPlant:
 
         Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``.
         """
-        model, data = self.model, self.data
-        for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
-            zip(self._loop_sites, self._loop_bodies, strict=True)
-        ):
-            mujoco.mj_jacDot(model, data, self._jac_a, None, data.site_xpos[rod_site], rod_body)
-            mujoco.mj_jacDot(model, data, self._jac_b, None, data.site_xpos[platform_site], platform_body)
-            np.subtract(self._jac_a, self._jac_b, out=self._loop_jac_dot[3 * k : 3 * k + 3])
+        model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
+        for _, _, rod_body, platform_body, rod_point, platform_point, _, rows in self._loop_terms:
+            mujoco.mj_jacDot(model, data, jac_a, None, rod_point, rod_body)
+            mujoco.mj_jacDot(model, data, jac_b, None, platform_point, platform_body)
+            np.subtract(jac_a, jac_b, out=rows)
         return self._loop_jac_dot @ data.qvel
 
     def joint_angles(self) -> NDArray[np.float64]:
