@@ -368,9 +368,10 @@ class PayloadEstimator:
         elif regressor == "filtered":
             self.joint_filter = JointStateFilter()
             self.delay = round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
-        # (joint-state estimate, measured torque, gripper holding) of the last D + 1 samples.
-        self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray], NDArray, bool]] = collections.deque(
-            maxlen=self.delay + 1
+        # (joint-state estimate of the causal filter, None with the smoother; measured torque; gripper holding)
+        # of the last D + 1 samples.
+        self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray] | None, list[float], bool]] = (
+            collections.deque(maxlen=self.delay + 1)
         )
         # Constants of the compiled payload equation (layout _EQ_*); the band's standard deviation is sqrt(n_c) f_i.
         self._equation = np.array(
