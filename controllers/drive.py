@@ -53,25 +53,31 @@ class ReferencePredictor:
         if not (math.isfinite(period) and 0.0 < period <= 0.1):
             raise ValueError(f"period must lie in (0, 0.1] s, got {period}")
         self.period = float(period)
-        self._last_acceleration: NDArray[np.float64] | None = None
+        self._last_acceleration: list[float] | None = None
 
     def reset(self) -> None:
         """Forget the last reference (a new episode)."""
         self._last_acceleration = None
 
     def next(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Reference angles (rad), rates (rad/s) and accelerations (rad/s^2) at the next control instant."""
+        """Reference angles (rad), rates (rad/s) and accelerations (rad/s^2) at the next control instant, each (3,)."""
+        # Per joint in Python floats: at three values, cheaper than a dozen NumPy operations.
         dt = self.period
-        theta = observation["reference_angles"]
-        theta_dot = observation["reference_velocities"]
-        theta_ddot = observation["reference_accelerations"]
+        theta = observation["reference_angles"].tolist()
+        theta_dot = observation["reference_velocities"].tolist()
+        theta_ddot = observation["reference_accelerations"].tolist()
         last = self._last_acceleration
-        jerk_dt = 0.0 if last is None else theta_ddot - last  # jerk * dt
-        self._last_acceleration = theta_ddot.copy()
+        jerk_dt = [0.0, 0.0, 0.0] if last is None else [a - b for a, b in zip(theta_ddot, last, strict=True)]
+        self._last_acceleration = theta_ddot
         return (
-            theta + dt * (theta_dot + dt * (0.5 * theta_ddot + jerk_dt / 6.0)),
-            theta_dot + dt * (theta_ddot + 0.5 * jerk_dt),
-            theta_ddot + jerk_dt,
+            np.array(
+                [
+                    p + dt * (v + dt * (0.5 * a + j / 6.0))
+                    for p, v, a, j in zip(theta, theta_dot, theta_ddot, jerk_dt, strict=True)
+                ]
+            ),
+            np.array([v + dt * (a + 0.5 * j) for v, a, j in zip(theta_dot, theta_ddot, jerk_dt, strict=True)]),
+            np.array([a + j for a, j in zip(theta_ddot, jerk_dt, strict=True)]),
         )
 
 
@@ -201,6 +207,7 @@ class LagCompensatedController:
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         feedback = self.base.pd.feedback(observation)
-        self.base(observation)  # updates the payload estimate from this step's observation
+        if self.base.estimator is not None:  # the base's payload estimate from this step's observation
+            self.base.estimator.update(observation)
         tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
         return self.drive.command(tau0 + self.base.feedforward_mass * phi) + feedback

@@ -247,6 +247,8 @@ class JointStateSmoother:
         self._readings = np.zeros((2 * window, 3))
         self._window = window
         self._next = 0
+        self._estimates = np.zeros((2, 3, 3))
+        self._buffer = 0
         self._is_reset = False
 
     def reset(self, theta0: ArrayLike) -> None:
@@ -264,6 +266,19 @@ class JointStateSmoother:
         Raises:
             RuntimeError: before the first :meth:`reset`.
         """
+        theta, theta_dot, theta_ddot = self.update_state(theta_measured).copy()
+        return theta, theta_dot, theta_ddot
+
+    def update_state(self, theta_measured: ArrayLike) -> NDArray[np.float64]:
+        """:meth:`update` without allocation, for the 1 kHz estimator.
+
+        Returns:
+            ``(3, 3)``, rows theta (rad), theta_dot (rad/s), theta_ddot (rad/s^2) of sample k - ``lag``: one of
+            two buffers used in turn, so it holds until the next call but one.
+
+        Raises:
+            RuntimeError: before the first :meth:`reset`.
+        """
         if not self._is_reset:
             raise RuntimeError("JointStateSmoother.reset(theta0) must be called before update()")
         z = _finite_joint_values("theta_measured", theta_measured)
@@ -271,8 +286,8 @@ class JointStateSmoother:
         slot = self._next
         self._readings[slot] = self._readings[slot + window] = z
         self._next = slot + 1 if slot + 1 < window else 0
-        theta, theta_dot, theta_ddot = self.weights @ self._readings[slot + 1 : slot + 1 + window]
-        return theta, theta_dot, theta_ddot
+        self._buffer = 1 - self._buffer
+        return np.matmul(self.weights, self._readings[slot + 1 : slot + 1 + window], out=self._estimates[self._buffer])
 
 
 class PayloadRLS:

@@ -64,11 +64,12 @@ import math
 from collections.abc import Iterable
 from typing import Literal
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
-from controllers.dynamics import DeltaDynamics
+from controllers.dynamics import _INVALID_STATE, _VALID, DeltaDynamics, _single_sample_model
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_in, require_positive
@@ -163,6 +164,125 @@ def acceleration_lag(joint_filter: JointStateFilter, dt: float = CONTROL_PERIOD)
     return float(jerk * samples * dt - theta_ddot[0]) / jerk
 
 
+# Layout of PayloadEstimator._equation, the constants of the compiled payload equation.
+_EQ_BAND, _EQ_INVERSE_VELOCITY, _EQ_NOMINAL_VARIANCE, _EQ_VISCOUS, _EQ_COULOMB = 0, 3, 4, 5, 8
+_EQ_TORQUE_AGE, _EQ_TARE, _EQ_FRICTION_PRIOR, _EQ_REST_RATE = 11, 12, 13, 14
+# Layout of PayloadEstimator._fit: per joint sum of w f^2, sum of w f (y - phi tare), kappa.
+_FIT_INFORMATION, _FIT_MOMENT, _FIT_KAPPA = 0, 3, 6
+
+
+@numba.njit(cache=True, inline="always")
+def _weighted_equation(
+    equation: NDArray[np.float64],
+    fit: NDArray[np.float64],
+    carrying: bool,
+    tau0: tuple[float, float, float],
+    phi: tuple[float, float, float],
+    rates: tuple[float, float, float],
+    torque: tuple[float, float, float],
+) -> tuple[bool, float, float]:
+    """One sample's weighted payload equation: (used, sum w phi^2, sum w phi y), or the friction scale fit.
+
+    w_i = 1 / sigma_i^2 of :func:`residual_std`, f_i = fv_i thd_i + fc_i sign(thd_i) the model's friction.
+    While carrying, y_i = tau_i - tau0_i - kappa_i f_i; with the gripper open (mp = 0 known) the sample
+    updates the least-squares fit of kappa_i in y_i - phi_i tare = kappa_i f_i instead (``fit``, in place).
+    """
+    rest = equation[_EQ_REST_RATE]
+    if abs(rates[0]) < rest and abs(rates[1]) < rest and abs(rates[2]) < rest:
+        return False, 0.0, 0.0  # static friction holds an unknown share of the load: no measurement of the mass
+    prior = equation[_EQ_FRICTION_PRIOR]
+    if not carrying and math.isnan(prior):
+        return False, 0.0, 0.0
+    information = moment = 0.0
+    for i in range(3):
+        rate = rates[i]
+        scaled = rate * equation[_EQ_INVERSE_VELOCITY]
+        band = equation[_EQ_BAND + i] * math.exp(-(scaled * scaled))
+        weight = 1.0 / (equation[_EQ_NOMINAL_VARIANCE] + band * band)
+        friction = equation[_EQ_VISCOUS + i] * rate + math.copysign(equation[_EQ_COULOMB + i], rate)
+        residual = torque[i] - tau0[i]
+        if carrying:
+            residual -= fit[_FIT_KAPPA + i] * friction
+            information += weight * phi[i] * phi[i]
+            moment += weight * phi[i] * residual
+        else:
+            fit[_FIT_INFORMATION + i] += weight * friction * friction
+            fit[_FIT_MOMENT + i] += weight * friction * (residual - phi[i] * equation[_EQ_TARE])
+            fit[_FIT_KAPPA + i] = fit[_FIT_MOMENT + i] / (fit[_FIT_INFORMATION + i] + prior)
+    return carrying, information, moment
+
+
+@numba.njit(cache=True)
+def _reference_equation(
+    equation: NDArray[np.float64],
+    fit: NDArray[np.float64],
+    carrying: bool,
+    tau01: float,
+    tau02: float,
+    tau03: float,
+    phi1: float,
+    phi2: float,
+    phi3: float,
+    rate1: float,
+    rate2: float,
+    rate3: float,
+    torque1: float,
+    torque2: float,
+    torque3: float,
+) -> tuple[bool, float, float]:
+    """:func:`_weighted_equation` of tau0, phi and rates already formed (``regressor="reference"``)."""
+    return _weighted_equation(
+        equation,
+        fit,
+        carrying,
+        (tau01, tau02, tau03),
+        (phi1, phi2, phi3),
+        (rate1, rate2, rate3),
+        (torque1, torque2, torque3),
+    )
+
+
+@numba.njit(cache=True)
+def _estimated_state_equation(
+    model: NDArray[np.float64],
+    equation: NDArray[np.float64],
+    fit: NDArray[np.float64],
+    state: NDArray[np.float64],
+    previous: NDArray[np.float64],
+    carrying: bool,
+    torque1: float,
+    torque2: float,
+    torque3: float,
+) -> tuple[int, bool, float, float]:
+    """The weighted payload equation at an estimated joint state: (model status, used, moments).
+
+    ``state`` and ``previous`` are (3, 3), rows theta (rad), theta_dot (rad/s), theta_ddot (rad/s^2) of this
+    sample and the one before; the model is evaluated at the state interpolated back to the torque's instant,
+    x - a (x - x_previous) with a the torque's age in control periods.
+    """
+    age = equation[_EQ_TORQUE_AGE]
+    x = np.empty((3, 3))
+    for row in range(3):
+        for joint in range(3):
+            now = state[row, joint]
+            x[row, joint] = now - age * (now - previous[row, joint])
+    status, terms = _single_sample_model(
+        model, x[0, 0], x[0, 1], x[0, 2], x[1, 0], x[1, 1], x[1, 2], x[2, 0], x[2, 1], x[2, 2]
+    )
+    if status != _VALID:
+        return status, False, 0.0, 0.0
+    used, information, moment = _weighted_equation(
+        equation,
+        fit,
+        carrying,
+        (terms[0, 0], terms[0, 1], terms[0, 2]),
+        (terms[1, 0], terms[1, 1], terms[1, 2]),
+        (x[1, 0], x[1, 1], x[1, 2]),
+        (torque1, torque2, torque3),
+    )
+    return status, used, information, moment
+
+
 class PayloadEstimator:
     """Payload mass (kg) from measured joint torques, updated once per control step while the gripper holds.
 
@@ -234,13 +354,9 @@ class PayloadEstimator:
         self.friction_velocity = float(friction_velocity)
         self.correlation_samples = float(correlation_samples)
         self.rest_rate = float(rest_rate)
-        self._friction_prior = None if friction_scale_std is None else 1.0 / friction_scale_std**2
-        self._viscous = tuple(float(f) for f in dynamics.parameters.viscous)
-        self._coulomb = tuple(float(f) for f in dynamics.parameters.coulomb)
-        # Per joint: sum of w f^2 and of w f (y - phi tare) over the empty moves, and the fitted scale error.
-        self._friction_information = [0.0, 0.0, 0.0]
-        self._friction_moment = [0.0, 0.0, 0.0]
-        self._kappa = [0.0, 0.0, 0.0]
+        # Per joint: sum of w f^2 and of w f (y - phi tare) over the empty moves, and the fitted scale error
+        # (layout _FIT_*).
+        self._fit = np.zeros(9)
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
@@ -252,18 +368,30 @@ class PayloadEstimator:
         elif regressor == "filtered":
             self.joint_filter = JointStateFilter()
             self.delay = round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
-        # (joint-state estimate, measured torque, gripper holding) of the last D + 1 samples.
-        self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray], NDArray, bool]] = collections.deque(
-            maxlen=self.delay + 1
+        # (joint-state estimate of the causal filter, None with the smoother; measured torque; gripper holding)
+        # of the last D + 1 samples.
+        self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray] | None, list[float], bool]] = (
+            collections.deque(maxlen=self.delay + 1)
         )
-        # Hot-path constants as Python floats: the band's standard deviation sqrt(n_c) f_i.
-        self._band = tuple(math.sqrt(self.correlation_samples) * f for f in self.static_friction)
-        self._nominal_variance = self.nominal_std**2
-        self._inverse_velocity = 1.0 / self.friction_velocity
+        # Constants of the compiled payload equation (layout _EQ_*); the band's standard deviation is sqrt(n_c) f_i.
+        self._equation = np.array(
+            [
+                *(math.sqrt(self.correlation_samples) * f for f in self.static_friction),
+                1.0 / self.friction_velocity,
+                self.nominal_std**2,
+                *dynamics.parameters.viscous,
+                *dynamics.parameters.coulomb,
+                _TORQUE_AGE,
+                self.tare,
+                math.nan if friction_scale_std is None else 1.0 / friction_scale_std**2,
+                self.rest_rate,
+            ],
+            dtype=np.float64,
+        )
         self._filter_started = False
         self._holding = False
         self._previous_reference: tuple[NDArray[np.float64], NDArray[np.float64], list[float]] | None = None
-        self._previous_state: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
 
     @property
     def mass(self) -> float:
@@ -273,14 +401,12 @@ class PayloadEstimator:
     @property
     def friction_scale_error(self) -> NDArray[np.float64]:
         """Relative error kappa_i of each joint's identified friction fitted on this episode's empty moves, (3,)."""
-        return np.array(self._kappa)
+        return self._fit[_FIT_KAPPA : _FIT_KAPPA + 3].copy()
 
     def reset(self) -> None:
         """Start an episode: nothing held, apparent mass at the tare, joint filter restarted at the next reading."""
         self.rls.reset(self.tare)
-        self._friction_information = [0.0, 0.0, 0.0]
-        self._friction_moment = [0.0, 0.0, 0.0]
-        self._kappa = [0.0, 0.0, 0.0]
+        self._fit[:] = 0.0
         self._filter_started = False
         self._holding = False
         self._previous_reference = None
@@ -358,49 +484,41 @@ class PayloadEstimator:
             if not self._filter_started:
                 self.joint_filter.reset(angles)
                 self._filter_started = True
-            estimate = self.joint_filter.update(angles)
-            self._history.append((estimate, observation["joint_torques"].tolist(), holding))
+            if self.regressor == "smoothed":
+                state = self.joint_filter.update_state(angles)
+                self._history.append((None, observation["joint_torques"].tolist(), holding))
+            else:
+                estimate = self.joint_filter.update(angles)
+                self._history.append((estimate, observation["joint_torques"].tolist(), holding))
             if len(self._history) <= self.delay:
                 return None
             # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
             # estimate with its angles and rates of D samples ago, and the torque measured then.
             delayed, torque, held = self._history[0]
-            state = estimate if self.regressor == "smoothed" else (delayed[0], delayed[1], estimate[2])
+            if self.regressor == "filtered":
+                state = np.array((delayed[0], delayed[1], estimate[2]))
             previous_state = self._previous_state if self._previous_state is not None else state
             self._previous_state = state
             if holding != held:
                 return None
-            carrying = holding
             # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
-            theta, theta_dot, theta_ddot = (
-                x - _TORQUE_AGE * (x - p) for x, p in zip(state, previous_state, strict=True)
+            status, used, information, moment = _estimated_state_equation(
+                self.dynamics._single_sample_constants,
+                self._equation,
+                self._fit,
+                state,
+                previous_state,
+                holding,
+                *torque,
             )
-            tau0, phi = self.dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
-            tau0, phi, rates = tau0.tolist(), phi.tolist(), theta_dot.tolist()
+            if status != _VALID:
+                raise ValueError(f"{_INVALID_STATE[status]}: joint state estimate {state!r}")
+            return (information, moment) if used else None
 
-        rest = self.rest_rate
-        if abs(rates[0]) < rest and abs(rates[1]) < rest and abs(rates[2]) < rest:
-            return None  # static friction holds an unknown share of the load: no measurement of the mass
-        if not carrying and self._friction_prior is None:
-            return None
-        # w_i = 1 / sigma_i^2 of residual_std, written out for the 1 kHz path; f_i the model's friction.
-        information = moment = 0.0
-        for i, (band, rate, regressor, measured, modelled) in enumerate(
-            zip(self._band, rates, phi, torque, tau0, strict=True)
-        ):
-            band *= math.exp(-((rate * self._inverse_velocity) ** 2))
-            weight = 1.0 / (self._nominal_variance + band * band)
-            friction = self._viscous[i] * rate + math.copysign(self._coulomb[i], rate)
-            residual = measured - modelled
-            if carrying:
-                residual -= self._kappa[i] * friction
-                information += weight * regressor * regressor
-                moment += weight * regressor * residual
-            else:  # mp = 0: y_i - phi_i tare = kappa_i f_i
-                self._friction_information[i] += weight * friction * friction
-                self._friction_moment[i] += weight * friction * (residual - regressor * self.tare)
-                self._kappa[i] = self._friction_moment[i] / (self._friction_information[i] + self._friction_prior)
-        return (information, moment) if carrying else None
+        used, information, moment = _reference_equation(
+            self._equation, self._fit, carrying, *tau0, *phi, *rates, *torque
+        )
+        return (information, moment) if used else None
 
 
 def tare_from_observations(

@@ -33,6 +33,7 @@ import math
 from dataclasses import replace
 
 import mujoco
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -140,35 +141,8 @@ class InverseDynamicsOracle:
 
     def _assembly_one(self, theta: NDArray) -> None:
         """:meth:`DeltaPlant.assembly_coordinates` of one sample in scalar math, into the oracle's buffers."""
-        r, l1, l2 = self._r, self._l1, self._l2
-        elbows = []
-        for (cos_a, sin_a), angle in zip(self._azimuths, theta.tolist(), strict=True):
-            radial = r + l1 * math.cos(angle)
-            elbows.append((radial * cos_a, radial * sin_a, -l1 * math.sin(angle)))
-        (x1, y1, z1), (x2, y2, z2), (x3, y3, z3) = elbows
-        # Lower intersection of the three spheres of radius l2 around the elbows (kinematics.forward).
-        ax, ay, az, bx, by, bz = x1 - x3, y1 - y3, z1 - z3, x2 - x3, y2 - y3, z2 - z3
-        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-        normal_sq = nx * nx + ny * ny + nz * nz
-        aa, bb = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz
-        vx, vy, vz = aa * bx - bb * ax, aa * by - bb * ay, aa * bz - bb * az
-        scale = 0.5 / normal_sq
-        cx, cy, cz = (vy * nz - vz * ny) * scale, (vz * nx - vx * nz) * scale, (vx * ny - vy * nx) * scale
-        height = math.sqrt(l2 * l2 - (cx * cx + cy * cy + cz * cz)) / math.sqrt(normal_sq)
-        if nz > 0.0:
-            height = -height
-        px, py, pz = x3 + cx + height * nx, y3 + cy + height * ny, z3 + cz + height * nz
-        self._platform[:] = (px, py, pz)
-        # Elbow angles of each forearm (DeltaPlant.assembly_coordinates).
-        for chain, ((cos_a, sin_a), angle, (ex, ey, ez)) in enumerate(
-            zip(self._azimuths, theta.tolist(), elbows, strict=True)
-        ):
-            dx, dy, dz = (px - ex) / l2, (py - ey) / l2, (pz - ez) / l2
-            radial, tangential = dx * cos_a + dy * sin_a, -dx * sin_a + dy * cos_a
-            turn = angle + self._tilt
-            local_x = math.cos(turn) * radial - math.sin(turn) * dz
-            local_z = math.sin(turn) * radial + math.cos(turn) * dz
-            self._elbows[chain] = (math.atan2(-local_x, -local_z), math.asin(tangential))
+        t1, t2, t3 = theta.tolist()
+        _assembly(t1, t2, t3, self._r, self._l1, self._l2, self._tilt, self._azimuths, self._platform, self._elbows)
 
     def _torques_one(
         self,
@@ -184,11 +158,11 @@ class InverseDynamicsOracle:
         # The payload rides at the platform's CoM: mass only (a translating body's inertia does no work).
         model.body_mass[self._platform_body] = self._platform_mass + payload
         try:
-            jac = plant._assemble(theta, theta_dot, platform, elbows)
+            jac = plant._assemble(theta, theta_dot, platform, elbows, forward=False)
             # J_c qacc = -Jdot_c qvel with the motor accelerations fixed.
             bias = plant.loop_bias_acceleration()
             data.qacc[self._motor_dofs] = theta_ddot
-            data.qacc[self._passive_dofs] = np.linalg.solve(
+            data.qacc[self._passive_dofs] = _solve(
                 jac[:, self._passive_dofs], -bias - jac[:, self._motor_dofs] @ theta_ddot
             )
             mujoco.mj_inverse(model, data)
@@ -200,4 +174,61 @@ class InverseDynamicsOracle:
         rhs[self._motor_dofs] += self._frictionloss * np.sign(theta_dot)
         rhs[self._motor_dofs] -= plant.motor_disturbance(theta, theta_dot)
         self._system[:, 3:] = jac.T
-        return np.linalg.solve(self._system, rhs)[:3]
+        return _solve(self._system, rhs)[:3]
+
+
+@numba.njit(cache=True)
+def _assembly(
+    t1: float,
+    t2: float,
+    t3: float,
+    r: float,
+    l1: float,
+    l2: float,
+    tilt: float,
+    azimuths: tuple[tuple[float, float], tuple[float, float], tuple[float, float]],
+    platform: NDArray[np.float64],
+    elbows: NDArray[np.float64],
+) -> None:
+    """Platform centre (m), (3,), and elbow angles (rad), (3, 2), of motor angles t1..t3 (rad), in place.
+
+    The lower intersection of the three spheres of radius l2 around the elbows (``kinematics.forward``), then
+    each forearm's pitch and roll as :meth:`DeltaPlant.assembly_coordinates` defines them.
+    """
+    angles = (t1, t2, t3)
+    ex = np.empty(3)
+    ey = np.empty(3)
+    ez = np.empty(3)
+    for chain in range(3):
+        cos_a, sin_a = azimuths[chain]
+        radial = r + l1 * math.cos(angles[chain])
+        ex[chain], ey[chain], ez[chain] = radial * cos_a, radial * sin_a, -l1 * math.sin(angles[chain])
+    x1, y1, z1, x2, y2, z2, x3, y3, z3 = ex[0], ey[0], ez[0], ex[1], ey[1], ez[1], ex[2], ey[2], ez[2]
+    ax, ay, az, bx, by, bz = x1 - x3, y1 - y3, z1 - z3, x2 - x3, y2 - y3, z2 - z3
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    normal_sq = nx * nx + ny * ny + nz * nz
+    aa, bb = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz
+    vx, vy, vz = aa * bx - bb * ax, aa * by - bb * ay, aa * bz - bb * az
+    scale = 0.5 / normal_sq
+    cx, cy, cz = (vy * nz - vz * ny) * scale, (vz * nx - vx * nz) * scale, (vx * ny - vy * nx) * scale
+    height = math.sqrt(l2 * l2 - (cx * cx + cy * cy + cz * cz)) / math.sqrt(normal_sq)
+    if nz > 0.0:
+        height = -height
+    px, py, pz = x3 + cx + height * nx, y3 + cy + height * ny, z3 + cz + height * nz
+    platform[0], platform[1], platform[2] = px, py, pz
+    for chain in range(3):
+        cos_a, sin_a = azimuths[chain]
+        dx, dy, dz = (px - ex[chain]) / l2, (py - ey[chain]) / l2, (pz - ez[chain]) / l2
+        radial, tangential = dx * cos_a + dy * sin_a, -dx * sin_a + dy * cos_a
+        turn = angles[chain] + tilt
+        local_x = math.cos(turn) * radial - math.sin(turn) * dz
+        local_z = math.sin(turn) * radial + math.cos(turn) * dz
+        elbows[chain, 0] = math.atan2(-local_x, -local_z)
+        elbows[chain, 1] = math.asin(tangential)
+
+
+@numba.njit(cache=True)
+def _solve(matrix: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.linalg.solve`` (LAPACK gesv) compiled: the same LU with partial pivoting, without NumPy's per-call
+    overhead, which exceeds the factorization of the oracle's 18 x 18 and 21 x 21 systems."""
+    return np.linalg.solve(matrix, rhs)

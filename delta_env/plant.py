@@ -8,11 +8,16 @@ payload and applies domain randomization.
 
 from __future__ import annotations
 
+import glob
 import math
+import os
 from dataclasses import replace
 
+import llvmlite.binding
 import mujoco
+import numba
 import numpy as np
+from numba import types
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
@@ -124,6 +129,12 @@ class DeltaPlant:
         self._jac_b = np.zeros((3, model.nv))
         self._loop_jac = np.zeros((n_rows, model.nv))
         self._loop_jac_dot = np.zeros((n_rows, model.nv))
+        # For the compiled loop rows (_loop_rows): the addresses of MuJoCo's structs and MjData's site positions
+        # (MjData keeps its buffers for its lifetime).
+        self._model_address, self._data_address = self.model._address, self.data._address
+        self._site_xpos = self.data.site_xpos
+        self._loop_site_ids = self._loop_sites.astype(np.intc)
+        self._loop_body_ids = self._loop_bodies.astype(np.intc)
 
         if self.config.payload_body:
             self._payload_qpos = int(model.jnt_qposadr[model.body_jntadr[self._payload_body]])
@@ -218,10 +229,15 @@ class DeltaPlant:
         elbows = np.stack((np.arctan2(-local_x, -local_z), np.arcsin(tangential)), axis=-1)
         return xyz, elbows
 
-    def _assemble(self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
+    def _assemble(
+        self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray, *, forward: bool = True
+    ) -> NDArray[np.float64]:
         """Write a configuration from :meth:`assembly_coordinates` and solve the velocities (no checks).
 
-        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`).
+        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`). With
+        ``forward=False`` only the velocity kinematics (``mj_comVel``) follow instead of ``mj_forward``: all
+        that ``mj_jacDot`` needs, for a caller (the inverse dynamics oracle) whose ``mj_inverse`` recomputes
+        the rest from qpos, qvel and qacc.
         """
         model, data = self.model, self.data
         data.qpos[self._motor_qpos] = theta
@@ -244,7 +260,10 @@ class DeltaPlant:
             self._match_payload_velocity()
         if model.na:
             data.act[:] = 0.0
-        mujoco.mj_forward(model, data)
+        if forward:
+            mujoco.mj_forward(model, data)
+        else:
+            mujoco.mj_comVel(model, data)
         return jac
 
     def loop_jacobian(self) -> NDArray[np.float64]:
@@ -253,10 +272,17 @@ class DeltaPlant:
         Uses the current ``site_xpos`` and ``cdof``: call after ``mj_kinematics`` and ``mj_comPos``
         (``mj_forward`` does both). The returned array is reused by the next call.
         """
-        for k, (rod_site, platform_site) in enumerate(self._loop_sites):
-            mujoco.mj_jacSite(self.model, self.data, self._jac_a, None, rod_site)
-            mujoco.mj_jacSite(self.model, self.data, self._jac_b, None, platform_site)
-            np.subtract(self._jac_a, self._jac_b, out=self._loop_jac[3 * k : 3 * k + 3])
+        _loop_rows(
+            self._model_address,
+            self._data_address,
+            self._loop_site_ids,
+            self._loop_body_ids,
+            self._site_xpos,
+            self._jac_a,
+            self._jac_b,
+            self._loop_jac,
+            False,
+        )
         return self._loop_jac
 
     def loop_bias_acceleration(self) -> NDArray[np.float64]:
@@ -264,14 +290,18 @@ class DeltaPlant:
 
         Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``.
         """
-        model, data = self.model, self.data
-        for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
-            zip(self._loop_sites, self._loop_bodies, strict=True)
-        ):
-            mujoco.mj_jacDot(model, data, self._jac_a, None, data.site_xpos[rod_site], rod_body)
-            mujoco.mj_jacDot(model, data, self._jac_b, None, data.site_xpos[platform_site], platform_body)
-            np.subtract(self._jac_a, self._jac_b, out=self._loop_jac_dot[3 * k : 3 * k + 3])
-        return self._loop_jac_dot @ data.qvel
+        _loop_rows(
+            self._model_address,
+            self._data_address,
+            self._loop_site_ids,
+            self._loop_body_ids,
+            self._site_xpos,
+            self._jac_a,
+            self._jac_b,
+            self._loop_jac_dot,
+            True,
+        )
+        return self._loop_jac_dot @ self.data.qvel
 
     def joint_angles(self) -> NDArray[np.float64]:
         """Motor angles theta (rad), shape (3,); current."""
@@ -548,3 +578,67 @@ class DeltaPlant:
             (int(address), int(dof), float(gain))
             for address, dof, gain in zip(self._motor_qpos, self._motor_dofs, self._stribeck_gain, strict=True)
         )
+
+
+# MuJoCo's C functions called from compiled code: the oracle needs 24 Jacobians per control step, and through
+# the Python bindings their call overhead alone costs about one physics step. The symbols come from the
+# library the bindings load; pointers (mjModel*, mjData*, mjtNum*) are passed as addresses.
+_MUJOCO_LIBRARIES = sorted(glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco*")))
+if not _MUJOCO_LIBRARIES:
+    raise ImportError(f"no libmujoco next to the mujoco package in {os.path.dirname(mujoco.__file__)}")
+llvmlite.binding.load_library_permanently(_MUJOCO_LIBRARIES[0])
+_mj_jac_site = types.ExternalFunction(
+    "mj_jacSite", types.void(types.intp, types.intp, types.intp, types.intp, types.intc)
+)
+_mj_jac_dot = types.ExternalFunction(
+    "mj_jacDot", types.void(types.intp, types.intp, types.intp, types.intp, types.intp, types.intc)
+)
+
+
+@numba.njit(cache=True)
+def _loop_rows(
+    model: int,
+    data: int,
+    sites: NDArray[np.intc],
+    bodies: NDArray[np.intc],
+    site_xpos: NDArray[np.float64],
+    jac_a: NDArray[np.float64],
+    jac_b: NDArray[np.float64],
+    out: NDArray[np.float64],
+    derivative: bool,
+) -> None:
+    """Rows 3k..3k+2 of ``out``: the translational Jacobian (``mj_jacSite``) or its time derivative
+    (``mj_jacDot`` at the site's position) of loop k's rod site minus its platform site.
+
+    Args:
+        model, data: Addresses of the mjModel and mjData (``._address`` of the Python objects).
+        sites, bodies: (n_loops, 2) site ids and their body ids, rod end first.
+        site_xpos: ``data.site_xpos``, (nsite, 3).
+        jac_a, jac_b: (3, nv) work buffers.
+        out: (3 n_loops, nv).
+        derivative: ``mj_jacDot`` instead of ``mj_jacSite``.
+    """
+    for k in range(sites.shape[0]):
+        if derivative:
+            _mj_jac_dot(
+                model,
+                data,
+                jac_a.ctypes.data,
+                0,
+                site_xpos.ctypes.data + site_xpos.strides[0] * sites[k, 0],
+                bodies[k, 0],
+            )
+            _mj_jac_dot(
+                model,
+                data,
+                jac_b.ctypes.data,
+                0,
+                site_xpos.ctypes.data + site_xpos.strides[0] * sites[k, 1],
+                bodies[k, 1],
+            )
+        else:
+            _mj_jac_site(model, data, jac_a.ctypes.data, 0, sites[k, 0])
+            _mj_jac_site(model, data, jac_b.ctypes.data, 0, sites[k, 1])
+        for row in range(3):
+            for column in range(jac_a.shape[1]):
+                out[3 * k + row, column] = jac_a[row, column] - jac_b[row, column]

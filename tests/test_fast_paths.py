@@ -3,15 +3,18 @@ policy load and one process pool for many episodes."""
 
 import math
 
+import mujoco
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 from numpy.testing import assert_array_equal
 
 from controllers.dynamics import DeltaDynamics, ModelParameters, _single_sample_model
-from controllers.estimation import PayloadRLS
+from controllers.estimation import JointStateSmoother, PayloadRLS
+from controllers.payload import FRICTION_SCALE_STD, REST_RATE, PayloadEstimator, residual_std
 from controllers.residual import ResidualFeatures, load_residual_controller, load_residual_policy, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from eval.processes import parallel_map, process_pool
 
 
@@ -121,3 +124,97 @@ def test_process_pool_serves_dependent_batches_in_order() -> None:
     assert first == second == [2.0, 3.0, 4.0]
     with process_pool(1) as pool:
         assert pool is None
+
+
+def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:
+    # The estimator's compiled path against the equations written with NumPy: the smoother's state interpolated
+    # to the torque's instant, tau0 and phi there, w_i = 1 / residual_std^2, the friction scale fit on the empty
+    # move (mp = 0 known, y_i - phi_i tare = kappa_i f_i) and its removal from the carry's moments.
+    parameters = ModelParameters(rho1=1.9, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
+    dynamics = DeltaDynamics.nominal(parameters, forearm_rods=True)
+    tare = 0.05
+    estimator = PayloadEstimator(dynamics, regressor="smoothed", tare=tare)
+    smoother = JointStateSmoother()
+    age = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
+    prior = 1.0 / FRICTION_SCALE_STD**2
+    rng = np.random.default_rng(9)
+    times = np.arange(400) * CONTROL_PERIOD
+    angles = 0.3 + 0.2 * np.sin(2.0 * np.pi * np.outer(times, [1.0, 1.3, 0.7]) + [0.0, 1.0, 2.0])
+    torques = rng.normal(0.0, 30.0, angles.shape)
+    holding = times >= 0.2  # open first: the friction fit, then a carry
+    information_fit, moment_fit = np.zeros(3), np.zeros(3)
+    history, previous, compared = [], None, 0
+    for k in range(len(times)):
+        observation = {"joint_angles": angles[k], "joint_torques": torques[k], "gripper": np.array([float(holding[k])])}
+        moments = estimator.measurement(observation)
+        if k == 0:
+            smoother.reset(angles[0])
+        state = np.array(smoother.update(angles[k]))
+        history.append((torques[k], holding[k]))
+        if k < smoother.lag:
+            assert moments is None
+            continue
+        torque, held = history[k - smoother.lag]
+        previous = state if previous is None else previous
+        theta, theta_dot, theta_ddot = state - age * (state - previous)
+        previous = state
+        if held != holding[k] or np.all(np.abs(theta_dot) < REST_RATE):
+            assert moments is None
+            continue
+        tau0, phi = dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
+        weight = residual_std(theta_dot, parameters.coulomb) ** -2.0
+        friction = np.array(parameters.viscous) * theta_dot + np.array(parameters.coulomb) * np.sign(theta_dot)
+        if not held:
+            information_fit += weight * friction**2
+            moment_fit += weight * friction * (torque - tau0 - phi * tare)
+            assert moments is None
+            continue
+        kappa = moment_fit / (information_fit + prior)
+        assert estimator.friction_scale_error == pytest.approx(kappa, rel=1e-12)
+        assert moments == pytest.approx(
+            (np.sum(weight * phi**2), np.sum(weight * phi * (torque - tau0 - kappa * friction))), rel=1e-11
+        )
+        compared += 1
+    assert compared > 100 and np.all(np.abs(estimator.friction_scale_error) > 1e-3)
+
+
+def test_smoother_update_state_equals_update_and_holds_until_the_next_call_but_one() -> None:
+    fast, reference = JointStateSmoother(), JointStateSmoother()
+    rng = np.random.default_rng(10)
+    readings = np.cumsum(rng.normal(0.0, 1e-3, (60, 3)), axis=0)
+    fast.reset(readings[0])
+    reference.reset(readings[0])
+    earlier = None
+    for reading in readings:
+        state = fast.update_state(reading)
+        expected = np.array(reference.update(reading))
+        assert_array_equal(state, expected)
+        if earlier is not None:
+            assert_array_equal(earlier[1], earlier[0])  # the previous call's state is still intact
+        earlier = (state, expected)
+
+
+def test_compiled_loop_rows_equal_the_python_bindings_bit_for_bit() -> None:
+    # The plant's loop Jacobian and Jdot qvel call MuJoCo's C functions from compiled code: the same numbers as
+    # mj_jacSite and mj_jacDot through the bindings.
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    env.reset(seed=11)
+    for _ in range(30):  # a moving, non-trivial state
+        env.step(np.array([8.0, -5.0, 3.0]))
+    plant = env.plant
+    model, data = plant.model, plant.data
+    jacobian, bias = plant.loop_jacobian().copy(), plant.loop_bias_acceleration()
+    a, b = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    expected_jacobian, expected_derivative = np.zeros_like(jacobian), np.zeros_like(jacobian)
+    for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
+        zip(plant._loop_sites.tolist(), plant._loop_bodies.tolist(), strict=True)
+    ):
+        mujoco.mj_jacSite(model, data, a, None, rod_site)
+        mujoco.mj_jacSite(model, data, b, None, platform_site)
+        expected_jacobian[3 * k : 3 * k + 3] = a - b
+        mujoco.mj_jacDot(model, data, a, None, data.site_xpos[rod_site], rod_body)
+        mujoco.mj_jacDot(model, data, b, None, data.site_xpos[platform_site], platform_body)
+        expected_derivative[3 * k : 3 * k + 3] = a - b
+    assert np.abs(expected_derivative @ data.qvel).max() > 1e-3
+    assert_array_equal(jacobian, expected_jacobian)
+    assert_array_equal(bias, expected_derivative @ data.qvel)
