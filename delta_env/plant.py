@@ -8,16 +8,11 @@ payload and applies domain randomization.
 
 from __future__ import annotations
 
-import glob
 import math
-import os
 from dataclasses import replace
 
-import llvmlite.binding
 import mujoco
-import numba
 import numpy as np
-from numba import types
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
@@ -129,12 +124,23 @@ class DeltaPlant:
         self._jac_b = np.zeros((3, model.nv))
         self._loop_jac = np.zeros((n_rows, model.nv))
         self._loop_jac_dot = np.zeros((n_rows, model.nv))
-        # For the compiled loop rows (_loop_rows): the addresses of MuJoCo's structs and MjData's site positions
-        # (MjData keeps its buffers for its lifetime).
-        self._model_address, self._data_address = self.model._address, self.data._address
-        self._site_xpos = self.data.site_xpos
-        self._loop_site_ids = self._loop_sites.astype(np.intc)
-        self._loop_body_ids = self._loop_bodies.astype(np.intc)
+        # Per loop, for the 1 kHz oracle: ids as Python ints, views of the two sites' positions (MjData keeps
+        # its buffers for its lifetime) and of the loop's rows in the Jacobian and its derivative.
+        self._loop_terms = [
+            (
+                rod_site,
+                platform_site,
+                rod_body,
+                platform_body,
+                self.data.site_xpos[rod_site],
+                self.data.site_xpos[platform_site],
+                self._loop_jac[3 * k : 3 * k + 3],
+                self._loop_jac_dot[3 * k : 3 * k + 3],
+            )
+            for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
+                zip(self._loop_sites.tolist(), self._loop_bodies.tolist(), strict=True)
+            )
+        ]
 
         if self.config.payload_body:
             self._payload_qpos = int(model.jnt_qposadr[model.body_jntadr[self._payload_body]])
@@ -272,17 +278,11 @@ class DeltaPlant:
         Uses the current ``site_xpos`` and ``cdof``: call after ``mj_kinematics`` and ``mj_comPos``
         (``mj_forward`` does both). The returned array is reused by the next call.
         """
-        _loop_rows(
-            self._model_address,
-            self._data_address,
-            self._loop_site_ids,
-            self._loop_body_ids,
-            self._site_xpos,
-            self._jac_a,
-            self._jac_b,
-            self._loop_jac,
-            False,
-        )
+        model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
+        for rod_site, platform_site, _, _, _, _, rows, _ in self._loop_terms:
+            mujoco.mj_jacSite(model, data, jac_a, None, rod_site)
+            mujoco.mj_jacSite(model, data, jac_b, None, platform_site)
+            np.subtract(jac_a, jac_b, out=rows)
         return self._loop_jac
 
     def loop_bias_acceleration(self) -> NDArray[np.float64]:
@@ -290,18 +290,12 @@ class DeltaPlant:
 
         Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``.
         """
-        _loop_rows(
-            self._model_address,
-            self._data_address,
-            self._loop_site_ids,
-            self._loop_body_ids,
-            self._site_xpos,
-            self._jac_a,
-            self._jac_b,
-            self._loop_jac_dot,
-            True,
-        )
-        return self._loop_jac_dot @ self.data.qvel
+        model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
+        for _, _, rod_body, platform_body, rod_point, platform_point, _, rows in self._loop_terms:
+            mujoco.mj_jacDot(model, data, jac_a, None, rod_point, rod_body)
+            mujoco.mj_jacDot(model, data, jac_b, None, platform_point, platform_body)
+            np.subtract(jac_a, jac_b, out=rows)
+        return self._loop_jac_dot @ data.qvel
 
     def joint_angles(self) -> NDArray[np.float64]:
         """Motor angles theta (rad), shape (3,); current."""
@@ -578,67 +572,3 @@ class DeltaPlant:
             (int(address), int(dof), float(gain))
             for address, dof, gain in zip(self._motor_qpos, self._motor_dofs, self._stribeck_gain, strict=True)
         )
-
-
-# MuJoCo's C functions called from compiled code: the oracle needs 24 Jacobians per control step, and through
-# the Python bindings their call overhead alone costs about one physics step. The symbols come from the
-# library the bindings load; pointers (mjModel*, mjData*, mjtNum*) are passed as addresses.
-_MUJOCO_LIBRARIES = sorted(glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco*")))
-if not _MUJOCO_LIBRARIES:
-    raise ImportError(f"no libmujoco next to the mujoco package in {os.path.dirname(mujoco.__file__)}")
-llvmlite.binding.load_library_permanently(_MUJOCO_LIBRARIES[0])
-_mj_jac_site = types.ExternalFunction(
-    "mj_jacSite", types.void(types.intp, types.intp, types.intp, types.intp, types.intc)
-)
-_mj_jac_dot = types.ExternalFunction(
-    "mj_jacDot", types.void(types.intp, types.intp, types.intp, types.intp, types.intp, types.intc)
-)
-
-
-@numba.njit(cache=True)
-def _loop_rows(
-    model: int,
-    data: int,
-    sites: NDArray[np.intc],
-    bodies: NDArray[np.intc],
-    site_xpos: NDArray[np.float64],
-    jac_a: NDArray[np.float64],
-    jac_b: NDArray[np.float64],
-    out: NDArray[np.float64],
-    derivative: bool,
-) -> None:
-    """Rows 3k..3k+2 of ``out``: the translational Jacobian (``mj_jacSite``) or its time derivative
-    (``mj_jacDot`` at the site's position) of loop k's rod site minus its platform site.
-
-    Args:
-        model, data: Addresses of the mjModel and mjData (``._address`` of the Python objects).
-        sites, bodies: (n_loops, 2) site ids and their body ids, rod end first.
-        site_xpos: ``data.site_xpos``, (nsite, 3).
-        jac_a, jac_b: (3, nv) work buffers.
-        out: (3 n_loops, nv).
-        derivative: ``mj_jacDot`` instead of ``mj_jacSite``.
-    """
-    for k in range(sites.shape[0]):
-        if derivative:
-            _mj_jac_dot(
-                model,
-                data,
-                jac_a.ctypes.data,
-                0,
-                site_xpos.ctypes.data + site_xpos.strides[0] * sites[k, 0],
-                bodies[k, 0],
-            )
-            _mj_jac_dot(
-                model,
-                data,
-                jac_b.ctypes.data,
-                0,
-                site_xpos.ctypes.data + site_xpos.strides[0] * sites[k, 1],
-                bodies[k, 1],
-            )
-        else:
-            _mj_jac_site(model, data, jac_a.ctypes.data, 0, sites[k, 0])
-            _mj_jac_site(model, data, jac_b.ctypes.data, 0, sites[k, 1])
-        for row in range(3):
-            for column in range(jac_a.shape[1]):
-                out[3 * k + row, column] = jac_a[row, column] - jac_b[row, column]

@@ -3,7 +3,6 @@ policy load and one process pool for many episodes."""
 
 import math
 
-import mujoco
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
@@ -192,29 +191,3 @@ def test_smoother_update_state_equals_update_and_holds_until_the_next_call_but_o
         if earlier is not None:
             assert_array_equal(earlier[1], earlier[0])  # the previous call's state is still intact
         earlier = (state, expected)
-
-
-def test_compiled_loop_rows_equal_the_python_bindings_bit_for_bit() -> None:
-    # The plant's loop Jacobian and Jdot qvel call MuJoCo's C functions from compiled code: the same numbers as
-    # mj_jacSite and mj_jacDot through the bindings.
-    env = DeltaPickPlaceEnv(n_cycles=1)
-    env.reset(seed=11)
-    for _ in range(30):  # a moving, non-trivial state
-        env.step(np.array([8.0, -5.0, 3.0]))
-    plant = env.plant
-    model, data = plant.model, plant.data
-    jacobian, bias = plant.loop_jacobian().copy(), plant.loop_bias_acceleration()
-    a, b = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    expected_jacobian, expected_derivative = np.zeros_like(jacobian), np.zeros_like(jacobian)
-    for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
-        zip(plant._loop_sites.tolist(), plant._loop_bodies.tolist(), strict=True)
-    ):
-        mujoco.mj_jacSite(model, data, a, None, rod_site)
-        mujoco.mj_jacSite(model, data, b, None, platform_site)
-        expected_jacobian[3 * k : 3 * k + 3] = a - b
-        mujoco.mj_jacDot(model, data, a, None, data.site_xpos[rod_site], rod_body)
-        mujoco.mj_jacDot(model, data, b, None, data.site_xpos[platform_site], platform_body)
-        expected_derivative[3 * k : 3 * k + 3] = a - b
-    assert np.abs(expected_derivative @ data.qvel).max() > 1e-3
-    assert_array_equal(jacobian, expected_jacobian)
-    assert_array_equal(bias, expected_derivative @ data.qvel)
