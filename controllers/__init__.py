@@ -10,7 +10,7 @@ import gymnasium as gym
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
-from controllers.feedforward import FeedforwardController, OracleController
+from controllers.feedforward import FeedforwardController, LagCompensatedController, OracleController, model_controller
 from controllers.payload import PayloadEstimator, tare_from_observations
 from controllers.registry import (
     CONTROLLER_LABELS,
@@ -18,7 +18,6 @@ from controllers.registry import (
     ESTIMATOR_REGRESSORS,
     ControllerSetup,
     build_controller,
-    model_controller,
 )
 
 __all__ = [
@@ -33,6 +32,7 @@ __all__ = [
     "FeedforwardController",
     "JointStateFilter",
     "JointStateSmoother",
+    "LagCompensatedController",
     "ModelParameters",
     "Observation",
     "OracleController",

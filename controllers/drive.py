@@ -1,4 +1,4 @@
-"""The drive's current-loop lag: its identification from excitation data, and a feedforward that leads it.
+"""The drive's current-loop lag: its identification from excitation data, and the reference one period ahead.
 
 The plant's drive is a first-order lag T dtau/dt = u - tau per joint (:mod:`delta_env.drive`). A command u_k
 held over the control period Delta gives tau(t_k + s) = e^{-s/T} tau(t_k) + (1 - e^{-s/T}) u_k for s in
@@ -12,15 +12,14 @@ that exact sampled model for a trial T, and T minimizes the squared difference t
 an equation-error least squares on tau[k+1] = a tau[k] + (1 - a) u[k] would have the noisy torque as its
 regressor and be biased towards a faster drive.
 
-Control (:class:`LagCompensatedController`): the feedforward of a model-based controller is evaluated at
-the reference one period ahead and passed through the exact inverse of the sampled lag, so the drive
-delivers it at the next control instant; the PD feedback is added unchanged.
+Control: :class:`ReferencePredictor` gives the reference one period ahead, where the controllers that lead
+the lag (:class:`controllers.feedforward.LagCompensatedController` and the oracle) evaluate their
+feedforward before passing it through the exact inverse of the sampled lag.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,12 +27,8 @@ from scipy.optimize import minimize_scalar
 from scipy.signal import lfilter
 
 from controllers.base import Observation
-from delta_env.drive import MAX_TIME_CONSTANT, SampledLag
+from delta_env.drive import MAX_TIME_CONSTANT
 from delta_env.sensors import CONTROL_PERIOD, PHYSICS_TIMESTEP
-
-if TYPE_CHECKING:
-    from controllers.feedforward import FeedforwardController
-    from controllers.payload import PayloadEstimator
 
 MIN_TIME_CONSTANT = 1e-5
 """Smallest lag (s) the fit considers; below it the drive is a direct torque source at 1 kHz."""
@@ -165,49 +160,3 @@ def identify_lag(
         )
         lags[joint] = math.exp(result.x)
     return lags
-
-
-class LagCompensatedController:
-    """A model-based feedforward controller whose feedforward leads the drive's identified lag.
-
-    command_k = SampledLag^-1(feedforward at the reference of t_{k+1}) + PD_k. The base controller runs as
-    usual (its payload estimator, if any, updates on this step's observation); its feedforward is then
-    evaluated at the reference one period ahead with the apparent payload it feeds forward (the estimate plus
-    the tare, :attr:`FeedforwardController.feedforward_mass`).
-
-    Args:
-        name: Label in tables (e.g. ``"MId+F+R+RLS+lag+PD"``).
-        base: The feedforward controller to compensate.
-        time_constant: Identified lag per joint (s), shape (3,) or a scalar.
-        period: Control period (s).
-    """
-
-    def __init__(
-        self, name: str, base: FeedforwardController, time_constant: ArrayLike, period: float = CONTROL_PERIOD
-    ) -> None:
-        self.name = name
-        self.base = base
-        self.drive = SampledLag(time_constant, period)
-        self.reference = ReferencePredictor(period)
-
-    @property
-    def payload_estimate(self) -> float:
-        """The base's payload estimate (kg) at the last call."""
-        return self.base.payload_estimate
-
-    @property
-    def estimator(self) -> PayloadEstimator | None:
-        """The base's payload estimator, if any."""
-        return self.base.estimator
-
-    def reset(self) -> None:
-        self.base.reset()
-        self.drive.reset()
-        self.reference.reset()
-
-    def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        feedback = self.base.pd.feedback(observation)
-        if self.base.estimator is not None:  # the base's payload estimate from this step's observation
-            self.base.estimator.update(observation)
-        tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
-        return self.drive.command(tau0 + self.base.feedforward_mass * phi) + feedback

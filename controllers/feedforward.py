@@ -15,16 +15,18 @@ Controllers see only the observation and nominal or identified parameters; none 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from controllers.base import Observation, PDController
+from controllers.base import DEFAULT_KD, DEFAULT_KP, Observation, PDController
 from controllers.drive import ReferencePredictor
-from controllers.dynamics import DeltaDynamics
-from controllers.payload import PayloadEstimator
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
 from delta_env.config import PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
+from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.oracle import InverseDynamicsOracle
 from delta_env.sensors import CONTROL_PERIOD
 
@@ -149,3 +151,90 @@ class OracleController:
         self._holding = holding
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
         return self.drive.command(torque_next) + self.pd.feedback(observation)
+
+
+class LagCompensatedController:
+    """A model-based feedforward controller whose feedforward leads the drive's identified lag.
+
+    command_k = SampledLag^-1(feedforward at the reference of t_{k+1}) + PD_k. The base controller runs as
+    usual (its payload estimator, if any, updates on this step's observation); its feedforward is then
+    evaluated at the reference one period ahead with the apparent payload it feeds forward (the estimate plus
+    the tare, :attr:`FeedforwardController.feedforward_mass`).
+
+    Args:
+        name: Label in tables (e.g. ``"MId+F+R+RLS+lag+PD"``).
+        base: The feedforward controller to compensate.
+        time_constant: Identified lag per joint (s), shape (3,) or a scalar.
+        period: Control period (s).
+    """
+
+    def __init__(
+        self, name: str, base: FeedforwardController, time_constant: ArrayLike, period: float = CONTROL_PERIOD
+    ) -> None:
+        self.name = name
+        self.base = base
+        self.drive = SampledLag(time_constant, period)
+        self.reference = ReferencePredictor(period)
+
+    @property
+    def payload_estimate(self) -> float:
+        """The base's payload estimate (kg) at the last call."""
+        return self.base.payload_estimate
+
+    @property
+    def estimator(self) -> PayloadEstimator | None:
+        """The base's payload estimator, if any."""
+        return self.base.estimator
+
+    def reset(self) -> None:
+        self.base.reset()
+        self.drive.reset()
+        self.reference.reset()
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        feedback = self.base.pd.feedback(observation)
+        if self.base.estimator is not None:  # the base's payload estimate from this step's observation
+            self.base.estimator.update(observation)
+        tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
+        return self.drive.command(tau0 + self.base.feedforward_mass * phi) + feedback
+
+
+Regressor = Literal["smoothed", "filtered", "reference"]
+
+
+def controller_name(forearm_rods: bool, estimates_payload: bool) -> str:
+    """Label of a model-based controller: MId+F or MId+F+R feedforward + PD, with or without the RLS."""
+    return ("MId+F+R" if forearm_rods else "MId+F") + ("+RLS" if estimates_payload else "") + "+PD"
+
+
+def model_controller(
+    parameters: ModelParameters | None,
+    *,
+    forearm_rods: bool = False,
+    regressor: Regressor | None = None,
+    tare: float = 0.0,
+    friction_velocity: float = FRICTION_VELOCITY,
+    pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD),
+    name: str | None = None,
+    geometry: DeltaGeometry = NOMINAL_GEOMETRY,
+    masses: DeltaMasses = NOMINAL_MASSES,
+) -> FeedforwardController:
+    """A model feedforward + PD controller, optionally with the online payload estimator.
+
+    Args:
+        parameters: Identified parameters of the robot's model; None is plain MKH.
+        forearm_rods: The model with rod forearms (MId+F+R) instead of the paper's lumped forearms.
+        regressor: Joint states of the payload estimator; None feeds forward mp = 0 (no estimator).
+        tare: Apparent payload of the empty gripper (kg), subtracted by the estimator.
+        friction_velocity: The estimator's friction band v_w (rad/s).
+        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
+        name: Label; by default :func:`controller_name`.
+        geometry: Lengths of the robot (m) the model describes.
+        masses: Datasheet masses of that robot (kg).
+    """
+    dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
+    estimator = None
+    if regressor is not None:
+        estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
+    label = name if name is not None else controller_name(forearm_rods, regressor is not None)
+    return FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)

@@ -3,8 +3,8 @@
 Every controller is built from the datasheet geometry and masses of the robot it was identified on
 (:attr:`ControllerSetup.geometry`, :attr:`ControllerSetup.masses`) and the identified parameters only; the
 oracle row is the labelled exception that knows the plant (and, from the evaluation, the payloads).
-:func:`model_controller` is the one builder of a model-based controller: :func:`build_controller` uses it
-for every model row, and the residual policy file rebuilds its base controller with it.
+:func:`controllers.feedforward.model_controller` is the one builder of a model-based controller:
+:func:`build_controller` uses it for every model row, and the residual policy file rebuilds its base with it.
 """
 
 from __future__ import annotations
@@ -13,18 +13,19 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
-from controllers.drive import LagCompensatedController
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.feedforward import FeedforwardController, OracleController
-from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
+from controllers.feedforward import (
+    LagCompensatedController,
+    OracleController,
+    model_controller,
+)
+from controllers.payload import PayloadEstimator
+from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, load_residual_controller, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
-
-if TYPE_CHECKING:
-    from controllers.residual import ResidualPolicy
 
 CONTROLLER_LABELS = {
     "pd": "PD",
@@ -42,7 +43,7 @@ CONTROLLER_LABELS = {
 (``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
 estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
 reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforward led through the
-inverse of the identified drive lag (:class:`~controllers.drive.LagCompensatedController`). The oracle
+inverse of the identified drive lag (:class:`~controllers.feedforward.LagCompensatedController`). The oracle
 knows the plant and the true payloads: an upper bound, not a controller. ``residual`` is the learned
 residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file."""
 
@@ -56,46 +57,6 @@ ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
 ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
 """Controllers that estimate the payload: the RLS rows (tared by the experiment that runs them) and the
 residual (its base's tare comes with the policy file)."""
-
-Regressor = Literal["smoothed", "filtered", "reference"]
-
-
-def controller_name(forearm_rods: bool, estimates_payload: bool) -> str:
-    """Label of a model-based controller: MId+F or MId+F+R feedforward + PD, with or without the RLS."""
-    return ("MId+F+R" if forearm_rods else "MId+F") + ("+RLS" if estimates_payload else "") + "+PD"
-
-
-def model_controller(
-    parameters: ModelParameters | None,
-    *,
-    forearm_rods: bool = False,
-    regressor: Regressor | None = None,
-    tare: float = 0.0,
-    friction_velocity: float = FRICTION_VELOCITY,
-    pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD),
-    name: str | None = None,
-    geometry: DeltaGeometry = NOMINAL_GEOMETRY,
-    masses: DeltaMasses = NOMINAL_MASSES,
-) -> FeedforwardController:
-    """A model feedforward + PD controller, optionally with the online payload estimator.
-
-    Args:
-        parameters: Identified parameters of the robot's model; None is plain MKH.
-        forearm_rods: The model with rod forearms (MId+F+R) instead of the paper's lumped forearms.
-        regressor: Joint states of the payload estimator; None feeds forward mp = 0 (no estimator).
-        tare: Apparent payload of the empty gripper (kg), subtracted by the estimator.
-        friction_velocity: The estimator's friction band v_w (rad/s).
-        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
-        name: Label; by default :func:`controller_name`.
-        geometry: Lengths of the robot (m) the model describes.
-        masses: Datasheet masses of that robot (kg).
-    """
-    dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
-    estimator = None
-    if regressor is not None:
-        estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
-    label = name if name is not None else controller_name(forearm_rods, regressor is not None)
-    return FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)
 
 
 @dataclass(frozen=True)
@@ -127,8 +88,6 @@ class ControllerSetup:
 
 def residual_policy_path(setup: ControllerSetup) -> Path:
     """The policy file of the ``residual`` row: ``setup.residual_policy``, or the shipped policy when None."""
-    from controllers.residual import DEFAULT_POLICY_PATH
-
     return DEFAULT_POLICY_PATH if setup.residual_policy is None else setup.residual_policy
 
 
@@ -154,8 +113,6 @@ def build_controller(
     if key == "pd":
         return PDController(*setup.pd_gains)
     if key == "residual":
-        from controllers.residual import load_residual_controller, residual_controller
-
         if policy is not None:
             return residual_controller(policy, name=label)
         return load_residual_controller(residual_policy_path(setup), name=label)

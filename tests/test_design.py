@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from controllers.registry import model_controller
+from controllers.feedforward import model_controller
 from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
 from delta_env.scaling import scaled_masses

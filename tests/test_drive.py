@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from controllers.drive import LagCompensatedController, ReferencePredictor, identify_lag, measured_lag_response
+from controllers.drive import ReferencePredictor, identify_lag, measured_lag_response
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.feedforward import FeedforwardController
+from controllers.feedforward import FeedforwardController, LagCompensatedController
 from delta_env.config import PlantConfig, PlantRealism
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD

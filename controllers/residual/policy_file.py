@@ -19,8 +19,8 @@ from numpy.typing import NDArray
 
 from controllers.base import Controller
 from controllers.dynamics import ModelParameters
+from controllers.feedforward import controller_name, model_controller
 from controllers.payload import FRICTION_VELOCITY
-from controllers.registry import controller_name, model_controller
 from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
@@ -288,11 +288,11 @@ def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> BaseSetup:
     except FileNotFoundError as error:
         raise FileNotFoundError(
             f"{error}: it holds the default base controller of DeltaPickPlaceResidual-v0; reinstall the package or "
-            "pass base= (e.g. controllers.registry.model_controller with parameters from `python -m eval.identify`)"
+            "pass base= (e.g. controllers.feedforward.model_controller with parameters from `python -m eval.identify`)"
         ) from None
     if metadata.get("base") is None:
         raise ValueError(
-            f"{path} records no base controller; pass base= (e.g. controllers.registry.model_controller with "
+            f"{path} records no base controller; pass base= (e.g. controllers.feedforward.model_controller with "
             "parameters from `python -m eval.identify`)"
         )
     try:
