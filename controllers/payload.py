@@ -532,7 +532,9 @@ def tare_from_observations(
     carries at once.
 
     Args:
-        estimator: Gives the payload equations (its tare is ignored); reset before each episode.
+        estimator: Gives the payload equations; reset here before each episode. It should be untared, as
+            :func:`controllers.registry.payload_estimator` builds it: its tare enters the friction scale fit of
+            the empty moves (:data:`FRICTION_SCALE_STD`).
         episodes: Observation sequences of payload-free pick-and-place episodes.
 
     Returns:
