@@ -199,7 +199,8 @@ def _weighted_equation(
         scaled = rate * equation[_EQ_INVERSE_VELOCITY]
         band = equation[_EQ_BAND + i] * math.exp(-(scaled * scaled))
         weight = 1.0 / (equation[_EQ_NOMINAL_VARIANCE] + band * band)
-        friction = equation[_EQ_VISCOUS + i] * rate + math.copysign(equation[_EQ_COULOMB + i], rate)
+        coulomb = math.copysign(equation[_EQ_COULOMB + i], rate) if rate != 0.0 else 0.0  # fc sign(thd), 0 at rest
+        friction = equation[_EQ_VISCOUS + i] * rate + coulomb
         residual = torque[i] - tau0[i]
         if carrying:
             residual -= fit[_FIT_KAPPA + i] * friction
