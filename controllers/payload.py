@@ -199,7 +199,8 @@ def _weighted_equation(
         scaled = rate * equation[_EQ_INVERSE_VELOCITY]
         band = equation[_EQ_BAND + i] * math.exp(-(scaled * scaled))
         weight = 1.0 / (equation[_EQ_NOMINAL_VARIANCE] + band * band)
-        friction = equation[_EQ_VISCOUS + i] * rate + math.copysign(equation[_EQ_COULOMB + i], rate)
+        coulomb = math.copysign(equation[_EQ_COULOMB + i], rate) if rate != 0.0 else 0.0  # fc sign(thd), 0 at rest
+        friction = equation[_EQ_VISCOUS + i] * rate + coulomb
         residual = torque[i] - tau0[i]
         if carrying:
             residual -= fit[_FIT_KAPPA + i] * friction
@@ -532,30 +533,35 @@ def tare_from_observations(
     carries at once.
 
     Args:
-        estimator: Gives the payload equations (its tare is ignored); reset before each episode.
+        estimator: Gives the payload equations; reset here before each episode. It should be untared, as
+            :func:`controllers.registry.payload_estimator` builds it: its tare enters the friction scale fit of
+            the empty moves (:data:`FRICTION_SCALE_STD`).
         episodes: Observation sequences of payload-free pick-and-place episodes.
 
     Returns:
         The tare (kg) and the standard deviation (kg) of the same estimate carry by carry: the model
         error along phi changes with the path, so this, not the torque noise, is its uncertainty.
     """
-    carries: list[tuple[float, float]] = []  # (sum of phi.y, sum of phi.phi) over one carry, weighted
+    # (sum of phi.y, sum of phi.phi) over one carry, weighted; a carry runs from a closing of the gripper to the
+    # next (moments are also None while every joint rests, which does not end a carry).
+    carries: list[tuple[float, float]] = []
     for episode in episodes:
         estimator.reset()
         holding = False
         for observation in episode:
+            closed = observation["gripper"].item(0) > 0.5
+            if closed and not holding:
+                carries.append((0.0, 0.0))
+            holding = closed
             moments = estimator.measurement(observation)
             if moments is None:
-                holding = False
                 continue
-            if not holding:
-                carries.append((0.0, 0.0))
-                holding = True
             information, moment = moments
             carry_moment, carry_information = carries[-1]
             carries[-1] = (carry_moment + moment, carry_information + information)
+    carries = [carry for carry in carries if carry[1] > 0.0]
     if not carries:
-        raise ValueError("no carry phase in the calibration episodes: the gripper never closed")
+        raise ValueError("no carry phase in the calibration episodes: the gripper never closed while moving")
     moments, informations = np.array(carries).T
     per_carry = moments / informations
     spread = float(np.std(per_carry, ddof=1)) if len(carries) > 1 else math.nan

@@ -288,7 +288,8 @@ class DeltaPlant:
     def loop_bias_acceleration(self) -> NDArray[np.float64]:
         """Jdot_c qvel (m/s^2) of the loop residuals, shape (n_loop_rows,), from ``mj_jacDot``.
 
-        Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``.
+        Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``, or
+        after ``mj_kinematics``, ``mj_comPos`` and ``mj_comVel`` (``_assemble(..., forward=False)``).
         """
         model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
         for _, _, rod_body, platform_body, rod_point, platform_point, _, rows in self._loop_terms:

@@ -12,7 +12,13 @@ from numpy.testing import assert_allclose, assert_array_equal
 from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController
-from controllers.payload import FRICTION_SCALE_STD, PICK_PRIOR_VARIANCE, PayloadEstimator, residual_std
+from controllers.payload import (
+    FRICTION_SCALE_STD,
+    PICK_PRIOR_VARIANCE,
+    PayloadEstimator,
+    residual_std,
+    tare_from_observations,
+)
 from controllers.registry import (
     CONTROLLER_LABELS,
     ESTIMATOR_REGRESSORS,
@@ -288,3 +294,51 @@ def test_light_object_estimate_does_not_overshoot_at_lift_off(tared_setup: Contr
     for pick, place in zip(record.pick_indices, record.place_indices, strict=True):
         assert np.max(record.payload_estimate[pick:place]) <= 0.17 + 0.2
     assert all(abs(carry.end_estimate - 0.17) <= 0.025 for carry in record.carries())
+
+
+def test_tare_takes_a_carry_with_a_stop_inside_as_one_carry(controller_setup: ControllerSetup) -> None:
+    """The tare's spread is over carries, gripper closing to gripper closing: a stop of every joint within a
+    carry gives no equations but does not split the carry in two."""
+    dynamics = DeltaDynamics.nominal(controller_setup.mid_f_rods, forearm_rods=True)
+    estimator = PayloadEstimator(dynamics, regressor="reference", friction_scale_std=None)
+    angles, accelerations = np.array([0.4, 0.3, 0.5]), np.array([5.0, -3.0, 4.0])
+
+    def sample(rate: float, closed: bool, mass: float) -> dict[str, np.ndarray]:
+        rates = np.full(3, rate)
+        tau0, phi = dynamics.torque_and_payload_regressor(angles, rates, accelerations)
+        return {
+            "reference_angles": angles,
+            "reference_velocities": rates,
+            "reference_accelerations": accelerations,
+            "joint_torques": tau0 + mass * phi,
+            "gripper": np.array([float(closed)]),
+        }
+
+    def carry(mass: float) -> list[dict[str, np.ndarray]]:
+        moving, resting = [sample(2.0, True, mass)] * 50, [sample(0.0, True, mass)] * 30
+        return [sample(2.0, False, 0.0)] * 20 + moving + resting + moving
+
+    tare, spread = tare_from_observations(estimator, [carry(0.1) + carry(0.3)])
+    assert tare == pytest.approx(0.2, abs=0.005)
+    assert spread == pytest.approx(np.std([0.1, 0.3], ddof=1), abs=0.005)  # four half-carries: 0.115
+
+
+def test_friction_scale_fit_gives_a_joint_at_exact_rest_no_coulomb_friction(controller_setup: ControllerSetup) -> None:
+    """The model's friction is fc sign(thd), 0 at thd = 0: a torque error of a resting joint on an empty move is
+    not read as a friction scale error, while the moving joints' errors are."""
+    dynamics = DeltaDynamics.nominal(controller_setup.mid_f_rods, forearm_rods=True)
+    estimator = PayloadEstimator(dynamics, regressor="reference")
+    angles, rates, accelerations = np.array([0.4, 0.3, 0.5]), np.array([0.0, 2.0, -2.0]), np.zeros(3)
+    tau0, _ = dynamics.torque_and_payload_regressor(angles, rates, accelerations)
+    observation = {
+        "reference_angles": angles,
+        "reference_velocities": rates,
+        "reference_accelerations": accelerations,
+        "joint_torques": tau0 + 1.0,  # 1 N m the model does not explain on every joint
+        "gripper": np.array([0.0]),
+    }
+    for _ in range(50):
+        assert estimator.measurement(observation) is None  # gripper open: only the friction fit
+    kappa = estimator.friction_scale_error
+    assert kappa[0] == 0.0
+    assert kappa[1] > 0.01 and kappa[2] < -0.01  # 1 N m along +f and along -f
