@@ -202,9 +202,15 @@ class LagCompensatedController:
 Regressor = Literal["smoothed", "filtered", "reference"]
 
 
-def controller_name(forearm_rods: bool, estimates_payload: bool) -> str:
-    """Label of a model-based controller: MId+F or MId+F+R feedforward + PD, with or without the RLS."""
-    return ("MId+F+R" if forearm_rods else "MId+F") + ("+RLS" if estimates_payload else "") + "+PD"
+def controller_name(forearm_rods: bool, estimates_payload: bool, leads_lag: bool = False) -> str:
+    """Label of a model-based controller: MId+F or MId+F+R feedforward + PD, with or without the RLS and the
+    drive-lag lead."""
+    return (
+        ("MId+F+R" if forearm_rods else "MId+F")
+        + ("+RLS" if estimates_payload else "")
+        + ("+lag" if leads_lag else "")
+        + "+PD"
+    )
 
 
 def model_controller(
@@ -218,8 +224,9 @@ def model_controller(
     name: str | None = None,
     geometry: DeltaGeometry = NOMINAL_GEOMETRY,
     masses: DeltaMasses = NOMINAL_MASSES,
-) -> FeedforwardController:
-    """A model feedforward + PD controller, optionally with the online payload estimator.
+    drive_lag: ArrayLike | None = None,
+) -> FeedforwardController | LagCompensatedController:
+    """A model feedforward + PD controller, optionally with the online payload estimator and the drive-lag lead.
 
     Args:
         parameters: Identified parameters of the robot's model; None is plain MKH.
@@ -231,10 +238,15 @@ def model_controller(
         name: Label; by default :func:`controller_name`.
         geometry: Lengths of the robot (m) the model describes.
         masses: Datasheet masses of that robot (kg).
+        drive_lag: Identified drive lag T (s) per joint (or one for all): the feedforward leads it
+            (:class:`LagCompensatedController`); None feeds forward without a lead.
     """
     dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
     estimator = None
     if regressor is not None:
         estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
-    label = name if name is not None else controller_name(forearm_rods, regressor is not None)
-    return FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)
+    label = name if name is not None else controller_name(forearm_rods, regressor is not None, drive_lag is not None)
+    controller = FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)
+    if drive_lag is None:
+        return controller
+    return LagCompensatedController(label, controller, drive_lag)

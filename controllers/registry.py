@@ -17,11 +17,7 @@ from typing import Literal
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.feedforward import (
-    LagCompensatedController,
-    OracleController,
-    model_controller,
-)
+from controllers.feedforward import OracleController, model_controller
 from controllers.payload import PayloadEstimator
 from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, load_residual_controller, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
@@ -121,21 +117,19 @@ def build_controller(
             raise ValueError("the oracle needs the env whose plant it inverts")
         return OracleController(env.plant_config)  # its own feedback gains: see OracleController
     if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
-        controller = model_controller(
+        if key == "mid_f_rls_lag" and setup.drive_lag is None:
+            raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
+        return model_controller(
             setup.mid_f_rods,
             forearm_rods=True,
             regressor=ESTIMATOR_REGRESSORS.get(key),
             tare=setup.tares.get(key, 0.0),
             pd_gains=setup.pd_gains,
-            name=CONTROLLER_LABELS["mid_f_rls"] if key == "mid_f_rls_lag" else label,
+            name=label,
             geometry=setup.geometry,
             masses=setup.masses,
+            drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
         )
-        if key != "mid_f_rls_lag":
-            return controller
-        if setup.drive_lag is None:
-            raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
-        return LagCompensatedController(label, controller, setup.drive_lag)
     parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
     return model_controller(
         parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses

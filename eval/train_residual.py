@@ -23,8 +23,9 @@ validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the ta
 its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
 ever trained on.
 
-The base controller is the eval's ``mid_f_rls`` row: MId+F+R + PD with the payload RLS, its parameters
-those of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
+The base controller is the eval's ``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
+MId+F+R + PD with the payload RLS, its feedforward leading the identified drive lag, its parameters those
+of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
 its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
 Both, and the robot's geometry and masses, are saved in the policy.
 """
@@ -139,16 +140,31 @@ class EpisodeSeeds(gym.Wrapper):
         return observation, info
 
 
-def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = None) -> BaseSetup:
-    """The default base controller's setup: identified MId+F+R parameters of the scenario's robot and its
-    tare calibrated on the scenario.
+BASE_KEYS = ("mid_f_rls_lag", "mid_f_rls")
+"""Registry keys of the base controllers a residual can be trained on; the first, the strongest, is the default."""
+
+
+def base_setup(
+    env_kwargs: dict[str, Any],
+    parameters: ModelParameters | None = None,
+    drive_lag: tuple[float, float, float] | None = None,
+    *,
+    base: str = BASE_KEYS[0],
+) -> BaseSetup:
+    """The base controller's setup: identified MId+F+R parameters (and drive lag) of the scenario's robot and
+    its tare calibrated on the scenario.
 
     Args:
         env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
             and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
         parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
-            with :func:`eval.identification.identify_robot`.
+            with :func:`eval.identification.identify_robot`, and with them its drive lag.
+        drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
+        base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
+            or ``mid_f_rls``.
     """
+    if base not in BASE_KEYS:
+        raise ValueError(f"base must be one of {BASE_KEYS}, got {base!r}")
     if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
         raise ValueError(f"the tare calibration takes n_cycles and scenario only, got {sorted(env_kwargs)}")
     scenario = env_kwargs.get("scenario") or Scenario()
@@ -156,13 +172,27 @@ def base_setup(env_kwargs: dict[str, Any], parameters: ModelParameters | None = 
     if parameters is None:
         from eval.identification import identify_robot
 
-        parameters = identify_robot(robot).mid_f_rods
-    # The registry's mid_f_rls controller is this base; the lumped parameter sets are not used by it.
+        result = identify_robot(robot)
+        parameters, drive_lag = result.mid_f_rods, result.drive_lag
+    if base == "mid_f_rls_lag" and drive_lag is None:
+        raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")
+    # The registry builds this base; the lumped parameter sets are not used by it.
     setup = ControllerSetup(
-        mid=parameters, mid_f=parameters, mid_f_rods=parameters, geometry=robot.geometry, masses=robot.masses
+        mid=parameters,
+        mid_f=parameters,
+        mid_f_rods=parameters,
+        drive_lag=drive_lag,
+        geometry=robot.geometry,
+        masses=robot.masses,
     )
-    tares, _ = calibrate_tares(["mid_f_rls"], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
-    return BaseSetup(parameters, tare=tares["mid_f_rls"], geometry=robot.geometry, masses=robot.masses)
+    tares, _ = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
+    return BaseSetup(
+        parameters,
+        tare=tares[base],
+        geometry=robot.geometry,
+        masses=robot.masses,
+        drive_lag=drive_lag if base == "mid_f_rls_lag" else None,
+    )
 
 
 def make_env(
@@ -289,7 +319,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
     )
     env_kwargs = {"n_cycles": args.n_cycles, "scenario": args.scenario}
     args.scenario.save(out / "scenario.toml")
-    base = base_setup(env_kwargs) if base_factory is None else None
+    base = base_setup(env_kwargs, base=args.base) if base_factory is None else None
     hyperparameters = load_hyperparameters(args.algo)
     for name in ("learning_rate", "gamma", "batch_size", "learning_starts", "buffer_size"):
         value = getattr(args, name)
@@ -417,6 +447,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--checkpoint-freq", type=int, default=50_000, help="policy steps between checkpoints")
     parser.add_argument("--eval-freq", type=int, default=20_000, help="policy steps between held-out evaluations")
     add_scenario_arguments(parser)
+    parser.add_argument(
+        "--base", choices=BASE_KEYS, default=BASE_KEYS[0], help="base controller (eval key; default: %(default)s)"
+    )
     parser.add_argument(
         "--n-cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )

@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 import controllers  # noqa: F401  (registers DeltaPickPlaceResidual-v0)
 import delta_env  # noqa: F401  (registers DeltaPickPlace-v0)
 from controllers.dynamics import ModelParameters
+from controllers.feedforward import LagCompensatedController
 from controllers.residual import (
     DEFAULT_POLICY_PATH,
     BaseSetup,
@@ -297,10 +298,24 @@ def test_policy_files_from_before_the_rod_model_keep_their_base() -> None:
 
 
 def test_base_setup_calibrates_a_small_tare() -> None:
-    setup = base_setup({"n_cycles": 1}, PARAMETERS)
-    assert setup.parameters == PARAMETERS
+    setup = base_setup({"n_cycles": 1}, PARAMETERS, base="mid_f_rls")
+    assert setup.parameters == PARAMETERS and setup.drive_lag is None
     assert 0.0 < abs(setup.tare) < 0.5, "the tare is the model's small error along phi (kg)"
     assert BaseSetup.from_dict(setup.to_dict()) == setup
+    assert setup.controller().name == "MId+F+R+RLS+PD"
+
+
+def test_lag_base_setup_round_trips_and_leads_the_drive() -> None:
+    with pytest.raises(ValueError, match="drive lag"):
+        base_setup({"n_cycles": 1}, PARAMETERS)
+    setup = base_setup({"n_cycles": 1}, PARAMETERS, (1e-3, 1e-3, 1e-3))
+    assert setup.drive_lag == (1e-3, 1e-3, 1e-3)
+    assert BaseSetup.from_dict(setup.to_dict()) == setup
+    controller = setup.controller()
+    assert controller.name == setup.name == "MId+F+R+RLS+lag+PD"
+    assert isinstance(controller, LagCompensatedController)
+    with pytest.raises(ValueError, match="drive_lag"):
+        BaseSetup.from_dict({**setup.to_dict(), "drive_lag": [1e-3, -1.0, 1e-3]})
 
 
 def test_missing_or_corrupt_policy_files_raise_naming_the_path(tmp_path: Path) -> None:

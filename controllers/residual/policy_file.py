@@ -9,6 +9,7 @@ whole 1 kHz controller from the file alone. SB3 (and torch) are imported only wh
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -88,9 +89,9 @@ def save_residual_policy(
     return path
 
 
-_LEGACY_BASE = {"forearm_rods": False, "regressor": "filtered", "friction_velocity": 0.1}
+_LEGACY_BASE = {"forearm_rods": False, "regressor": "filtered", "friction_velocity": 0.1, "drive_lag": None}
 """The base settings of policy files written before these keys existed: the lumped model, the causal
-filter and a 0.1 rad/s friction band."""
+filter, a 0.1 rad/s friction band and no drive-lag lead."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,7 @@ class BaseSetup:
         friction_velocity: The estimator's friction band (rad/s).
         geometry: Lengths (m) of the robot the parameters were identified on.
         masses: Datasheet masses (kg) of that robot.
+        drive_lag: Identified drive lag T (s) per joint that the feedforward leads; None: no lead.
     """
 
     parameters: ModelParameters
@@ -114,9 +116,11 @@ class BaseSetup:
     friction_velocity: float = FRICTION_VELOCITY
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
     masses: DeltaMasses = NOMINAL_MASSES
+    drive_lag: tuple[float, float, float] | None = None
 
     def controller(self) -> Controller:
-        """A fresh base controller with these settings: model feedforward + PD with the payload RLS."""
+        """A fresh base controller with these settings: model feedforward (leading the drive lag when known)
+        + PD with the payload RLS."""
         return model_controller(
             self.parameters,
             forearm_rods=self.forearm_rods,
@@ -125,11 +129,17 @@ class BaseSetup:
             friction_velocity=self.friction_velocity,
             geometry=self.geometry,
             masses=self.masses,
+            drive_lag=self.drive_lag,
         )
+
+    @property
+    def name(self) -> str:
+        """The base controller's label, e.g. ``"MId+F+R+RLS+lag+PD"``."""
+        return controller_name(self.forearm_rods, estimates_payload=True, leads_lag=self.drive_lag is not None)
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "name": controller_name(self.forearm_rods, estimates_payload=True),
+            "name": self.name,
             "parameters": asdict(self.parameters),
             "tare": self.tare,
             "forearm_rods": self.forearm_rods,
@@ -137,6 +147,7 @@ class BaseSetup:
             "friction_velocity": self.friction_velocity,
             "geometry": asdict(self.geometry),
             "masses": asdict(self.masses),
+            "drive_lag": None if self.drive_lag is None else list(self.drive_lag),
         }
 
     @classmethod
@@ -156,7 +167,16 @@ class BaseSetup:
             friction_velocity=float(values["friction_velocity"]),
             geometry=DeltaGeometry(**values.get("geometry", asdict(NOMINAL_GEOMETRY))),
             masses=DeltaMasses(**values.get("masses", asdict(NOMINAL_MASSES))),
+            drive_lag=None if values["drive_lag"] is None else _drive_lag(values["drive_lag"]),
         )
+
+
+def _drive_lag(values: Any) -> tuple[float, float, float]:
+    """Three finite, non-negative time constants (s) from a policy file."""
+    lags = tuple(float(v) for v in values)
+    if len(lags) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in lags):
+        raise ValueError(f"drive_lag must be 3 finite time constants >= 0 s, got {values!r}")
+    return lags
 
 
 @dataclass(frozen=True)
