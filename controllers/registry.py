@@ -33,7 +33,7 @@ CONTROLLER_LABELS = {
     "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
     "mid_f_rls_lag": "MId+F+R+RLS+lag+PD",
     "oracle": "Oracle+PD (bound)",
-    "residual": "MId+F+R+RLS+PD + residual",
+    "residual": "Residual + its base",
 }
 """Controller keys and their labels. ``+R``: the identified model with rod forearms
 (``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
@@ -41,7 +41,8 @@ estimates the payload on the Kalman-smoothed joint states (the default estimator
 reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforward led through the
 inverse of the identified drive lag (:class:`~controllers.feedforward.LagCompensatedController`). The oracle
 knows the plant and the true payloads: an upper bound, not a controller. ``residual`` is the learned
-residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file."""
+residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file (the
+policy file names its base: ``BaseSetup.name``)."""
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
     "mid_f_rls": "smoothed",

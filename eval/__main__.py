@@ -45,7 +45,7 @@ from eval.comparison import TABLE2_KEY, TABLE2_PAYLOAD, calibration_seeds, run_a
 from eval.identification import check_identity, identify_robot, load_or_identify, parameter_path, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
-from eval.tables import bound_violations, controller_table, table2_table
+from eval.tables import bound_violations, controller_table, residual_gain, table2_table
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -88,6 +88,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     chosen = args.controllers is not None
     args.left_out = ""
+    args.residual_base = None
     keys = [key.strip() for key in (args.controllers or ",".join(CONTROLLER_LABELS)).split(",") if key.strip()]
     unknown = [key for key in keys if key not in CONTROLLER_LABELS]
     if unknown or not keys:
@@ -104,6 +105,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             policy = load_residual_policy(args.residual)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
+        args.residual_base = None if policy.base is None else policy.base.name
         robot = args.scenario.plant
         if policy.base is not None and (policy.base.geometry, policy.base.masses) != (robot.geometry, robot.masses):
             if not chosen:
@@ -130,6 +132,18 @@ def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     if violations:
         return ["## Bound violated", "", *violations, ""]
     return [f"Bound check: no controller's mean tracking RMS is below {bound}'s.", ""]
+
+
+def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any]]) -> list[str]:
+    """Which policy the residual row runs, on which base, and what it adds over that base's row."""
+    if "residual" not in args.controllers:
+        return []
+    base = args.residual_base or "a custom base"
+    label = CONTROLLER_LABELS["residual"]
+    lines = [f"{label}: the policy {args.residual.name} on the base it was trained on, {base}.", ""]
+    if args.residual_base is not None:
+        lines += residual_gain(episode_rows, label, args.residual_base)
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -229,6 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             + ", ".join(f"{CONTROLLER_LABELS[k]} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
             "",
             *_bound_section(episode_rows),
+            *_residual_section(args, episode_rows),
             *([args.left_out, ""] if args.left_out else []),
             f"Run folder: {out} ({total_time:.0f} s)",
         ]

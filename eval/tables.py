@@ -88,3 +88,34 @@ def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> li
         for label, mean in means.items()
         if label != bound_label and mean < bound
     ]
+
+
+RESIDUAL_GOAL = (-15.0, 5.0)
+"""What a residual policy must add over its base: tracking RMS at least 15 % lower (%), torque RMS at most 5 %
+higher (%)."""
+
+
+def residual_gain(episode_rows: list[dict[str, Any]], residual_label: str, base_label: str) -> list[str]:
+    """The residual row against its base row on the same episodes, as summary lines (none if either is absent).
+
+    Changes are of the means over the episodes neither controller diverged on (%), against
+    :data:`RESIDUAL_GOAL`.
+    """
+    by_label = metrics.group_by(episode_rows, "controller")
+    if residual_label not in by_label or base_label not in by_label:
+        return []
+    diverged = {row["seed"] for label in (residual_label, base_label) for row in by_label[label] if row["diverged"]}
+
+    def mean(label: str, name: str) -> float:
+        return metrics.mean_std([row[name] for row in by_label[label] if row["seed"] not in diverged])[0]
+
+    tracking, torque = (
+        100.0 * (mean(residual_label, name) / mean(base_label, name) - 1.0)
+        for name in ("tracking_rms_mm", "torque_rms_nm")
+    )
+    met = tracking <= RESIDUAL_GOAL[0] and torque <= RESIDUAL_GOAL[1]
+    return [
+        f"Residual over its base ({base_label}): tracking RMS {tracking:+.1f} %, torque RMS {torque:+.1f} % "
+        f"(goal: <= {RESIDUAL_GOAL[0]:+.0f} % at <= {RESIDUAL_GOAL[1]:+.0f} %; {'met' if met else 'not met'}).",
+        "",
+    ]

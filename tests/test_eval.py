@@ -19,7 +19,7 @@ from eval.__main__ import main
 from eval.comparison import TABLE2_KEY, table2_statistics
 from eval.episodes import run_episode
 from eval.identification import load_or_identify
-from eval.tables import controller_table
+from eval.tables import controller_table, residual_gain
 
 DT = 1e-3
 
@@ -214,3 +214,29 @@ def test_run_episode_records_the_largest_loop_gap() -> None:
     env.close()
     assert record.max_loop_gap == max(gaps)
     assert 0.0 < record.max_loop_gap < 1e-4  # the realistic plant's loops stay closed to well under 0.1 mm
+
+
+def test_residual_gain_compares_the_residual_with_its_base_on_the_episodes_both_completed() -> None:
+    def row(label: str, seed: int, tracking: float, torque: float, diverged: bool = False) -> dict:
+        return {
+            "controller": label,
+            "seed": seed,
+            "tracking_rms_mm": tracking,
+            "torque_rms_nm": torque,
+            "diverged": diverged,
+        }
+
+    rows = [
+        row("base", 0, 0.40, 20.0),
+        row("base", 1, 0.20, 20.0),
+        row("res", 0, 0.30, 20.6),
+        row("res", 1, 0.15, 21.2),
+        row("res", 2, 9.0, 90.0, diverged=True),
+        row("base", 2, 0.30, 20.0),
+    ]
+    (met,) = (line for line in residual_gain(rows, "res", "base") if line)
+    assert "tracking RMS -25.0 %" in met and "torque RMS +4.5 %" in met and "; met)" in met
+    rows[3]["torque_rms_nm"] = 21.6
+    (missed,) = (line for line in residual_gain(rows, "res", "base") if line)
+    assert "torque RMS +5.5 %" in missed and "not met" in missed
+    assert residual_gain(rows, "res", "absent") == []
