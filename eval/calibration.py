@@ -50,18 +50,29 @@ def calibration_tasks(
 
 
 def tares_from_results(
-    results: Iterable[tuple[Task, EpisodeRecord]], setup: ControllerSetup
+    results: Iterable[tuple[Task, EpisodeRecord]], setup: ControllerSetup, max_loop_gap: float | None = None
 ) -> tuple[dict[str, float], dict[str, float]]:
     """Tare (kg) and its carry-to-carry spread (kg) per RLS controller, from its calibration episodes.
 
+    Args:
+        results: Finished tasks and their records; those of kind ``"calibration"`` are used.
+        setup: What the controllers know (their estimators are rebuilt from it, untared).
+        max_loop_gap: Largest loop gap (m) a calibration episode may open; None accepts what the env accepts.
+
     Raises:
-        RuntimeError: if a calibration episode diverged (its observations would give a meaningless tare).
+        RuntimeError: if a calibration episode diverged or opened a loop beyond ``max_loop_gap`` (its
+            observations would give a meaningless tare).
     """
     observed: dict[str, list] = {}
     for task, record in results:
         if task.kind == "calibration":
             if record.diverged:
                 raise RuntimeError(f"the calibration episode of {task.key!r} on seed {task.seed} diverged")
+            if max_loop_gap is not None and not record.max_loop_gap <= max_loop_gap:
+                raise RuntimeError(
+                    f"the calibration episode of {task.key!r} on seed {task.seed} opened a loop by "
+                    f"{1e3 * record.max_loop_gap:.3f} mm (limit {1e3 * max_loop_gap:.3f} mm)"
+                )
             observed.setdefault(task.key, []).append(record.observations)
     tares, spreads = {}, {}
     for key, episodes in observed.items():
@@ -79,8 +90,10 @@ def calibrate_tares(
     progress: Any = None,
     scenario: Scenario | None = None,
     references: Sequence[Trajectory] | None = None,
+    max_loop_gap: float | None = None,
 ) -> tuple[dict[str, float], dict[str, float]]:
     """Run the calibration episodes of ``keys`` on ``scenario`` (None: ``nominal``), along ``references``
-    (one per seed) if given, and return their tares and spreads (kg) by key."""
+    (one per seed) if given, and return their tares and spreads (kg) by key (see :func:`tares_from_results`
+    for ``max_loop_gap``)."""
     tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario, references)
-    return tares_from_results(run_tasks(tasks, workers, progress), setup)
+    return tares_from_results(run_tasks(tasks, workers, progress), setup, max_loop_gap)

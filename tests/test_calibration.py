@@ -36,3 +36,10 @@ def test_a_diverged_calibration_episode_gives_no_tare():
     diverged = types.SimpleNamespace(diverged=True, observations=[])
     with pytest.raises(RuntimeError, match="'mid_f_rls' on seed 5 diverged"):
         tares_from_results([(task, diverged)], SETUP)
+
+
+def test_a_calibration_episode_that_opened_a_loop_beyond_the_limit_gives_no_tare():
+    task = calibration_tasks(["mid_f_rls"], SETUP, [5], 1)[0]
+    opened = types.SimpleNamespace(diverged=False, max_loop_gap=2e-4, observations=[])
+    with pytest.raises(RuntimeError, match=r"seed 5 opened a loop by 0\.200 mm \(limit 0\.100 mm\)"):
+        tares_from_results([(task, opened)], SETUP, max_loop_gap=1e-4)

@@ -239,6 +239,7 @@ def verify_design(
                 workers=workers,
                 scenario=scenario,
                 references=[episode_reference(geometry, s) for s in calibration_seeds],
+                max_loop_gap=LOOP_GAP_LIMIT,
             )
         except RuntimeError as error:
             raise DesignInfeasible(f"tare calibration failed: {error}") from error
