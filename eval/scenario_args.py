@@ -23,12 +23,12 @@ def add_geometry_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--geometry", default=None, help=GEOMETRY_HELP)
 
 
-def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--scenario`` and ``--geometry`` to ``parser``."""
+def add_scenario_arguments(parser: argparse.ArgumentParser, default: str = "nominal") -> None:
+    """Add ``--scenario`` (default ``default``) and ``--geometry`` to ``parser``."""
     parser.add_argument(
         "--scenario",
-        default="nominal",
-        help=f"preset ({', '.join(preset_names())}) or scenario TOML file (default nominal)",
+        default=default,
+        help=f"preset ({', '.join(preset_names())}) or scenario TOML file (default {default})",
     )
     add_geometry_argument(parser)
 

@@ -1,6 +1,6 @@
 """Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (docs/design.md section 6).
 
-    python -m eval.train_residual --seed 0 --timesteps 300000 --n-envs 2 --max-minutes 55
+    python -m eval.train_residual --seed 0 --timesteps 400000 --n-envs 2 --max-minutes 60
 
 SAC by default (``--algo ppo`` selectable), with the hyperparameters of ``eval/hyperparams/residual.toml``
 (command-line options override them). Every run folder (``--out``, default
@@ -23,7 +23,9 @@ validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the ta
 its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
 ever trained on.
 
-The base controller is the eval's ``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
+Training episodes come from the ``randomized`` scenario by default (domain randomization of masses, friction
+and drive lag on the nominal robot; ``--scenario`` chooses another). The base controller is the eval's
+``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
 MId+F+R + PD with the payload RLS, its feedforward leading the identified drive lag, its parameters those
 of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
 its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
@@ -446,7 +448,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--max-minutes", type=float, default=None, help="stop training after this wall time")
     parser.add_argument("--checkpoint-freq", type=int, default=50_000, help="policy steps between checkpoints")
     parser.add_argument("--eval-freq", type=int, default=20_000, help="policy steps between held-out evaluations")
-    add_scenario_arguments(parser)
+    # Domain randomization on by default: a residual trained on one plant learns that plant's errors.
+    add_scenario_arguments(parser, default="randomized")
     parser.add_argument(
         "--base", choices=BASE_KEYS, default=BASE_KEYS[0], help="base controller (eval key; default: %(default)s)"
     )

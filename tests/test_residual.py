@@ -263,6 +263,7 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path) -> None:
     assert model.num_timesteps == 90
     written = json.loads((resumed / "config.json").read_text())
     assert written["command"].startswith("python -m eval.train_residual") and "git_commit" in written
+    assert written["config"]["scenario"]["name"] == "randomized", "domain randomization is on by default"
     resumed_from = written["config"]["resumed_from"]
     assert resumed_from["num_timesteps"] == 60
     assert resumed_from["replay_buffer"].endswith("residual_replay_buffer_60_steps.pkl")
