@@ -39,9 +39,9 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   rods, so even at the plant's exact states it needs -0.1 kg of payload to match the plant with an empty
   gripper, and how much depends on the path (+0.3 kg in the first 30 ms of a lift). With MId+F+R the tare
   is 0.00 to -0.03 kg. Like a scale, the estimator is tared all the same: the apparent
-  payload with nothing picked is measured on payload-free pick cycles (:func:`tare_from_observations`)
-  and subtracted from the estimate; the feedforward keeps the apparent mass, which is what the model
-  needs.
+  payload with nothing picked that the corrections fitted on the empty moves leave (a few grams) is measured
+  on payload-free pick cycles (:func:`tare_from_observations`) and subtracted from the estimate; the
+  feedforward keeps the apparent mass, which is what the model needs.
 - **Gripper events.** The controller knows when the gripper closes and opens (``observation["gripper"]``).
   A pick is an abrupt change of mp that forgetting tracks slowly, so the covariance is reset there. While
   the gripper is open no object is carried: mp = 0 is known, so on release the estimate goes back to 0
@@ -50,8 +50,14 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
 - **At rest.** While every joint is slower than :data:`REST_RATE` (the dwell in which the gripper closes),
   static friction holds an unknown share of the load and the equation is not used: the estimate starts
   from the prior when the lift begins, instead of jumping on friction before it.
-- **Friction of the robot at hand.** The empty moves (mp = 0 known) fit each joint's friction scale error
-  (:data:`FRICTION_SCALE_STD`), which is then removed from the carries' equations.
+- **Masses and friction of the robot at hand.** A robot's masses and friction are not exactly the identified
+  ones (domain randomization: +-10 % and +-30 %). A platform-mass error (m0, and the platform's share 3 m2 of
+  the forearms) is exactly a payload error; an arm-mass error adds d_arm (I thdd + G), whose gravity part
+  resembles phi at rest; a friction error is odd in the rate, so it biases the carry and the empty move back
+  with opposite signs. The empty moves (mp = 0 known) fit all three by weighted least squares with priors
+  (:class:`ModelCorrections`, :data:`MASS_CORRECTION_STD`, :data:`FRICTION_SCALE_STD`) and the carries'
+  equations have them removed. The first carry of an episode comes before any empty move and gets no
+  correction: on a carry dm and mp are the same column, so nothing in it tells them apart.
 - Torque ripple (1 N m, fast in position) and the measured-torque noise are zero-mean over a carry and go
   into the nominal residual standard deviation.
 """
