@@ -300,25 +300,31 @@ def _reference_equation(
     equation: NDArray[np.float64],
     fit: NDArray[np.float64],
     carrying: bool,
-    tau0: NDArray[np.float64],
-    phi: NDArray[np.float64],
-    state: NDArray[np.float64],
+    current: NDArray[np.float64],
+    previous: NDArray[np.float64],
     torque1: float,
     torque2: float,
     torque3: float,
 ) -> tuple[bool, float, float]:
-    """:func:`_weighted_equation` of tau0 and phi (N m, N m/kg) already formed, each ``(3,)``, and the state
-    ``(3, 3)`` (rows theta, theta_dot, theta_ddot) they were formed at (``regressor="reference"``)."""
+    """:func:`_weighted_equation` at the reference (``regressor="reference"``), interpolated back to the torque's
+    instant between the previous step's and this step's ``(5, 3)``: rows tau0 (N m), phi (N m/kg), theta (rad),
+    theta_dot (rad/s), theta_ddot (rad/s^2)."""
+    age = equation[_EQ_TORQUE_AGE]
+    x = np.empty((5, 3))
+    for row in range(5):
+        for joint in range(3):
+            now = current[row, joint]
+            x[row, joint] = now - age * (now - previous[row, joint])
     return _weighted_equation(
         equation,
         fit,
         carrying,
-        (tau0[0], tau0[1], tau0[2]),
-        (phi[0], phi[1], phi[2]),
-        (state[1, 0], state[1, 1], state[1, 2]),
+        (x[0, 0], x[0, 1], x[0, 2]),
+        (x[1, 0], x[1, 1], x[1, 2]),
+        (x[3, 0], x[3, 1], x[3, 2]),
         (torque1, torque2, torque3),
-        (math.cos(state[0, 0]), math.cos(state[0, 1]), math.cos(state[0, 2])),
-        (state[2, 0], state[2, 1], state[2, 2]),
+        (math.cos(x[2, 0]), math.cos(x[2, 1]), math.cos(x[2, 2])),
+        (x[4, 0], x[4, 1], x[4, 2]),
     )
 
 
@@ -488,7 +494,10 @@ class PayloadEstimator:
         )
         self._filter_started = False
         self._holding = False
-        self._previous_reference: NDArray[np.float64] | None = None  # (7, 3): tau0, phi, theta, rates, accelerations
+        # (2, 5, 3): the reference's tau0, phi, theta, rates and accelerations of this step and the previous one.
+        self._references = np.zeros((2, 5, 3))
+        self._reference_slot = 0
+        self._has_previous_reference = False
         self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
 
     @property
@@ -531,7 +540,7 @@ class PayloadEstimator:
         self._fit[:] = 0.0
         self._filter_started = False
         self._holding = False
-        self._previous_reference = None
+        self._has_previous_reference = False
         self._previous_state = None
         self._history.clear()
 
@@ -588,27 +597,18 @@ class PayloadEstimator:
                     observation["reference_velocities"],
                     observation["reference_accelerations"],
                 )
-            current = np.vstack(
-                (
-                    reference_torque,
-                    reference_regressor,
-                    observation["reference_angles"],
-                    observation["reference_velocities"],
-                    observation["reference_accelerations"],
-                )
-            )
-            previous = self._previous_reference if self._previous_reference is not None else current
-            self._previous_reference = current
+            # Two buffers used in turn: this step's reference and the previous step's.
+            self._reference_slot = 1 - self._reference_slot
+            current = self._references[self._reference_slot]
+            current[0], current[1] = reference_torque, reference_regressor
+            current[2] = observation["reference_angles"]
+            current[3] = observation["reference_velocities"]
+            current[4] = observation["reference_accelerations"]
+            previous = self._references[1 - self._reference_slot] if self._has_previous_reference else current
+            self._has_previous_reference = True
             # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
-            interpolated = current - _TORQUE_AGE * (current - previous)
             used, information, moment = _reference_equation(
-                self._equation,
-                self._fit,
-                holding,
-                interpolated[0],
-                interpolated[1],
-                interpolated[2:],
-                *observation["joint_torques"].tolist(),
+                self._equation, self._fit, holding, current, previous, *observation["joint_torques"].tolist()
             )
             return (information, moment) if used else None
         angles = observation["joint_angles"]
