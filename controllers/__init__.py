@@ -11,7 +11,7 @@ from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PD
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
 from controllers.feedforward import FeedforwardController, LagCompensatedController, OracleController, model_controller
-from controllers.payload import PayloadEstimator, tare_from_observations
+from controllers.payload import ModelCorrections, PayloadEstimator, tare_from_observations
 from controllers.registry import (
     CONTROLLER_LABELS,
     ESTIMATING_KEYS,
@@ -33,6 +33,7 @@ __all__ = [
     "JointStateFilter",
     "JointStateSmoother",
     "LagCompensatedController",
+    "ModelCorrections",
     "ModelParameters",
     "Observation",
     "OracleController",

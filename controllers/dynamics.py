@@ -111,9 +111,10 @@ class DeltaDynamics:
         """I (kg m^2), the same for every joint."""
         self.platform_mass = m0 + 3.0 * m2
         """Mt without payload (kg)."""
-        self._gravity_amplitude = -(m1 / 2.0 + m2) * self.g * l1  # G_i = amplitude * cos th_i, N m
+        self.gravity_amplitude = -(m1 / 2.0 + m2) * self.g * l1
+        """G_i / cos th_i (N m), unscaled: G_i = gravity_amplitude cos th_i."""
         self._scaled_inertia = self.parameters.rho1 * self.inertia
-        self._scaled_gravity = self.parameters.rho2 * self._gravity_amplitude
+        self._scaled_gravity = self.parameters.rho2 * self.gravity_amplitude
         self._viscous = np.array(self.parameters.viscous)
         self._coulomb = np.array(self.parameters.coulomb)
         self._has_friction = bool(np.any(self._viscous) or np.any(self._coulomb))
@@ -250,7 +251,7 @@ class DeltaDynamics:
         rows = np.stack(
             (
                 np.broadcast_to(self.inertia * theta_ddot, shape),
-                np.broadcast_to(self._gravity_amplitude * np.cos(theta), shape),
+                np.broadcast_to(self.gravity_amplitude * np.cos(theta), shape),
                 np.broadcast_to(theta_dot, shape),
                 np.broadcast_to(np.sign(theta_dot), shape),
             ),

@@ -63,9 +63,9 @@ class FeedforwardController:
 
     @property
     def feedforward_mass(self) -> float:
-        """The apparent payload (kg) in the feedforward of the last call: the estimate plus the tare, as the
-        model needs it; 0 without an estimator."""
-        return 0.0 if self.estimator is None else self.estimator.rls.mass
+        """The apparent payload (kg) in the feedforward of the last call: the estimate plus the tare and the fitted
+        platform-mass correction, as the model needs it; 0 without an estimator."""
+        return 0.0 if self.estimator is None else self.estimator.apparent_mass
 
     def reset(self) -> None:
         self.pd.reset()

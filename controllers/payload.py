@@ -39,9 +39,9 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   rods, so even at the plant's exact states it needs -0.1 kg of payload to match the plant with an empty
   gripper, and how much depends on the path (+0.3 kg in the first 30 ms of a lift). With MId+F+R the tare
   is 0.00 to -0.03 kg. Like a scale, the estimator is tared all the same: the apparent
-  payload with nothing picked is measured on payload-free pick cycles (:func:`tare_from_observations`)
-  and subtracted from the estimate; the feedforward keeps the apparent mass, which is what the model
-  needs.
+  payload with nothing picked that the corrections fitted on the empty moves leave (a few grams) is measured
+  on payload-free pick cycles (:func:`tare_from_observations`) and subtracted from the estimate; the
+  feedforward keeps the apparent mass, which is what the model needs.
 - **Gripper events.** The controller knows when the gripper closes and opens (``observation["gripper"]``).
   A pick is an abrupt change of mp that forgetting tracks slowly, so the covariance is reset there. While
   the gripper is open no object is carried: mp = 0 is known, so on release the estimate goes back to 0
@@ -50,8 +50,14 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
 - **At rest.** While every joint is slower than :data:`REST_RATE` (the dwell in which the gripper closes),
   static friction holds an unknown share of the load and the equation is not used: the estimate starts
   from the prior when the lift begins, instead of jumping on friction before it.
-- **Friction of the robot at hand.** The empty moves (mp = 0 known) fit each joint's friction scale error
-  (:data:`FRICTION_SCALE_STD`), which is then removed from the carries' equations.
+- **Masses and friction of the robot at hand.** A robot's masses and friction are not exactly the identified
+  ones (domain randomization: +-10 % and +-30 %). A platform-mass error (m0, and the platform's share 3 m2 of
+  the forearms) is exactly a payload error; an arm-mass error adds d_arm (I thdd + G), whose gravity part
+  resembles phi at rest; a friction error is odd in the rate, so it biases the carry and the empty move back
+  with opposite signs. The empty moves (mp = 0 known) fit all three by weighted least squares with priors
+  (:class:`ModelCorrections`, :data:`MASS_CORRECTION_STD`, :data:`FRICTION_SCALE_STD`) and the carries'
+  equations have them removed. The first carry of an episode comes before any empty move and gets no
+  correction: on a carry dm and mp are the same column, so nothing in it tells them apart.
 - Torque ripple (1 N m, fast in position) and the measured-torque noise are zero-mean over a carry and go
   into the nominal residual standard deviation.
 """
@@ -62,7 +68,7 @@ import collections
 import copy
 import math
 from collections.abc import Iterable
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -109,17 +115,48 @@ over the dwell in which the gripper closes. Used, those samples carried a 0.17 k
 
 FRICTION_SCALE_STD = 0.3
 """Prior standard deviation of the relative error of each joint's identified friction on the robot at hand
-(a drive's friction changes by tens of percent with temperature, lubrication and wear). The friction
-torque is odd in the joint rate and the payload regressor is not (gravity dominates it), so a friction
-error biases the apparent payload with opposite signs on the carry and on the empty move back: a tare
-re-measured on the empty moves would double that bias instead of removing it. What the empty moves do
-measure (mp = 0 is known there) is the scale error kappa_i in y_i - phi_i tare = kappa_i f_i(thd_i), with
-f_i the model's friction; it is fitted per episode by least squares with this prior around 0 and
-subtracted from the carries' equations."""
+(a drive's friction changes by tens of percent with temperature, lubrication and wear): kappa_i of the
+empty-move fit (:class:`PayloadEstimator`, ``friction_scale_std``). The friction torque is odd in the joint
+rate and the payload regressor is not (gravity dominates it), so a friction error biases the apparent payload
+with opposite signs on the carry and on the empty move back: a tare re-measured on the empty moves alone
+would double that bias instead of removing it."""
+
+MASS_CORRECTION_STD = (0.06, 0.05)
+"""Prior standard deviations of the mass errors of the robot at hand fitted on the empty moves: its platform
+mass (kg, the payload-like offset along phi) and the relative error of the arms' mass (dimensionless), which
+scales both their inertia I = (m1/3 + m2) l1^2 and their gravity amplitude G = -(m1/2 + m2) g l1. They are
+those of masses off by up to +-10 % each (uniform: a standard deviation of 5.8 % of each): m0 + 3 m2 = 1.4 kg
+gives 0.06 kg, and I and G, dominated by m1, 5 %. With thousands of equations per empty move the data outweigh
+them after the first move.
+
+One scale for I and G, not one each: a mass error of the arms changes both by nearly the same fraction (m1
++10 %: I +7.7 %, G +8.3 %; m2 +10 %: +2.3 % and +1.7 %). On its own, a gravity error cannot be told from the
+payload regressor at rest (J^T g e_z, which varies with cos th_i much as G_i does) nor from the Coulomb
+friction of a joint that moves one way on every empty move (the empty moves all go from a place to a pick):
+fitted freely, it was read as friction, whose sign then flips on the carry back. Tied to the inertia, it is
+measured by the accelerations, which no other column resembles."""
 
 PICK_PRIOR_VARIANCE = 16.0 / 3.0
 """Variance (kg^2) restored at a pick: the mean square of a mass uniform on [0, 4] kg (the rating)
 around the prior of 0 kg."""
+
+
+class ModelCorrections(NamedTuple):
+    """Corrections of the identified model to the robot at hand, fitted on the empty moves of an episode.
+
+    The plant's torque with an empty gripper is modelled as tau0 + dm phi + d_arm (I thdd + G) + kappa_i f_i: the
+    model's, plus what mass and friction errors add (the model is linear in each; docs/design.md section 3).
+
+    Attributes:
+        platform_mass: dm (kg), the mass the model lacks at the platform: a payload-like offset along phi.
+        arm_mass_scale: d_arm, the relative error of the arms' inertia I = (m1/3 + m2) l1^2 and gravity amplitude
+            G = -(m1/2 + m2) g l1 together (dimensionless; :data:`MASS_CORRECTION_STD`).
+        friction_scale: kappa_i, the relative error of each joint's friction fv_i thd_i + fc_i sign(thd_i), (3,).
+    """
+
+    platform_mass: float
+    arm_mass_scale: float
+    friction_scale: NDArray[np.float64]
 
 
 def residual_std(
@@ -166,9 +203,39 @@ def acceleration_lag(joint_filter: JointStateFilter, dt: float = CONTROL_PERIOD)
 
 # Layout of PayloadEstimator._equation, the constants of the compiled payload equation.
 _EQ_BAND, _EQ_INVERSE_VELOCITY, _EQ_NOMINAL_VARIANCE, _EQ_VISCOUS, _EQ_COULOMB = 0, 3, 4, 5, 8
-_EQ_TORQUE_AGE, _EQ_TARE, _EQ_FRICTION_PRIOR, _EQ_REST_RATE = 11, 12, 13, 14
-# Layout of PayloadEstimator._fit: per joint sum of w f^2, sum of w f (y - phi tare), kappa.
-_FIT_INFORMATION, _FIT_MOMENT, _FIT_KAPPA = 0, 3, 6
+_EQ_TORQUE_AGE, _EQ_REST_RATE, _EQ_INERTIA, _EQ_GRAVITY, _EQ_PRIOR, _EQ_FITS = 11, 12, 13, 14, 15, 20
+# Parameters of the empty-move fit: dm (kg), d_arm, kappa_1..3 (ModelCorrections).
+_P_PLATFORM, _P_ARM, _P_FRICTION, _PARAMETERS = 0, 1, 2, 5
+# Layout of PayloadEstimator._fit: sum of w c c^T (5 x 5, by rows) and of w c y over the empty moves, the
+# parameters solved from them, whether new empty-move equations came in since, and how many came in.
+_FIT_INFORMATION, _FIT_MOMENT, _FIT_SOLUTION, _FIT_STALE, _FIT_SAMPLES, _FIT_SIZE = 0, 25, 30, 35, 36, 37
+
+
+@numba.njit(cache=True)
+def _solve_fit(equation: NDArray[np.float64], fit: NDArray[np.float64]) -> None:
+    """Solve the empty-move least squares with its prior (information added to the diagonal) into ``fit``.
+
+    A parameter whose prior information is NaN is not fitted: it stays 0.
+    """
+    matrix = np.empty((_PARAMETERS, _PARAMETERS))
+    vector = np.empty(_PARAMETERS)
+    for a in range(_PARAMETERS):
+        vector[a] = fit[_FIT_MOMENT + a]
+        for b in range(_PARAMETERS):
+            matrix[a, b] = fit[_FIT_INFORMATION + _PARAMETERS * a + b]
+    for a in range(_PARAMETERS):
+        prior = equation[_EQ_PRIOR + a]
+        if math.isnan(prior):
+            matrix[a, :] = 0.0
+            matrix[:, a] = 0.0
+            matrix[a, a] = 1.0
+            vector[a] = 0.0
+        else:
+            matrix[a, a] += prior
+    solution = np.linalg.solve(matrix, vector)
+    for a in range(_PARAMETERS):
+        fit[_FIT_SOLUTION + a] = solution[a]
+    fit[_FIT_STALE] = 0.0
 
 
 @numba.njit(cache=True, inline="always")
@@ -180,19 +247,25 @@ def _weighted_equation(
     phi: tuple[float, float, float],
     rates: tuple[float, float, float],
     torque: tuple[float, float, float],
+    cosines: tuple[float, float, float],
+    accelerations: tuple[float, float, float],
 ) -> tuple[bool, float, float]:
-    """One sample's weighted payload equation: (used, sum w phi^2, sum w phi y), or the friction scale fit.
+    """One sample's weighted payload equation: (used, sum w phi^2, sum w phi y), or the empty-move fit.
 
-    w_i = 1 / sigma_i^2 of :func:`residual_std`, f_i = fv_i thd_i + fc_i sign(thd_i) the model's friction.
-    While carrying, y_i = tau_i - tau0_i - kappa_i f_i; with the gripper open (mp = 0 known) the sample
-    updates the least-squares fit of kappa_i in y_i - phi_i tare = kappa_i f_i instead (``fit``, in place).
+    w_i = 1 / sigma_i^2 of :func:`residual_std`, f_i = fv_i thd_i + fc_i sign(thd_i) the model's friction, and per
+    joint the columns c_i = (phi_i, I thdd_i + G cos th_i, f_i on the joint's own kappa) of
+    :class:`ModelCorrections`. With the gripper open (mp = 0 known) the sample adds w_i c_i c_i^T and
+    w_i c_i (tau_i - tau0_i) to the fit (``fit``, in place); while carrying, y_i = tau_i - tau0_i - c_i . p with
+    p the fit solved at the first carrying sample after empty ones.
     """
     rest = equation[_EQ_REST_RATE]
     if abs(rates[0]) < rest and abs(rates[1]) < rest and abs(rates[2]) < rest:
         return False, 0.0, 0.0  # static friction holds an unknown share of the load: no measurement of the mass
-    prior = equation[_EQ_FRICTION_PRIOR]
-    if not carrying and math.isnan(prior):
+    fits = equation[_EQ_FITS] != 0.0
+    if not carrying and not fits:
         return False, 0.0, 0.0
+    if carrying and fit[_FIT_STALE] != 0.0:
+        _solve_fit(equation, fit)
     information = moment = 0.0
     for i in range(3):
         rate = rates[i]
@@ -201,15 +274,24 @@ def _weighted_equation(
         weight = 1.0 / (equation[_EQ_NOMINAL_VARIANCE] + band * band)
         coulomb = math.copysign(equation[_EQ_COULOMB + i], rate) if rate != 0.0 else 0.0  # fc sign(thd), 0 at rest
         friction = equation[_EQ_VISCOUS + i] * rate + coulomb
+        arm = equation[_EQ_INERTIA] * accelerations[i] + equation[_EQ_GRAVITY] * cosines[i]
+        columns = (phi[i], arm, friction)
+        indices = (_P_PLATFORM, _P_ARM, _P_FRICTION + i)
         residual = torque[i] - tau0[i]
         if carrying:
-            residual -= fit[_FIT_KAPPA + i] * friction
+            for a in range(3):
+                residual -= fit[_FIT_SOLUTION + indices[a]] * columns[a]
             information += weight * phi[i] * phi[i]
             moment += weight * phi[i] * residual
         else:
-            fit[_FIT_INFORMATION + i] += weight * friction * friction
-            fit[_FIT_MOMENT + i] += weight * friction * (residual - phi[i] * equation[_EQ_TARE])
-            fit[_FIT_KAPPA + i] = fit[_FIT_MOMENT + i] / (fit[_FIT_INFORMATION + i] + prior)
+            for a in range(3):
+                weighted = weight * columns[a]
+                fit[_FIT_MOMENT + indices[a]] += weighted * residual
+                for b in range(3):
+                    fit[_FIT_INFORMATION + _PARAMETERS * indices[a] + indices[b]] += weighted * columns[b]
+    if not carrying:
+        fit[_FIT_STALE] = 1.0
+        fit[_FIT_SAMPLES] += 1.0
     return carrying, information, moment
 
 
@@ -218,28 +300,31 @@ def _reference_equation(
     equation: NDArray[np.float64],
     fit: NDArray[np.float64],
     carrying: bool,
-    tau01: float,
-    tau02: float,
-    tau03: float,
-    phi1: float,
-    phi2: float,
-    phi3: float,
-    rate1: float,
-    rate2: float,
-    rate3: float,
+    current: NDArray[np.float64],
+    previous: NDArray[np.float64],
     torque1: float,
     torque2: float,
     torque3: float,
 ) -> tuple[bool, float, float]:
-    """:func:`_weighted_equation` of tau0, phi and rates already formed (``regressor="reference"``)."""
+    """:func:`_weighted_equation` at the reference (``regressor="reference"``), interpolated back to the torque's
+    instant between the previous step's and this step's ``(5, 3)``: rows tau0 (N m), phi (N m/kg), theta (rad),
+    theta_dot (rad/s), theta_ddot (rad/s^2)."""
+    age = equation[_EQ_TORQUE_AGE]
+    x = np.empty((5, 3))
+    for row in range(5):
+        for joint in range(3):
+            now = current[row, joint]
+            x[row, joint] = now - age * (now - previous[row, joint])
     return _weighted_equation(
         equation,
         fit,
         carrying,
-        (tau01, tau02, tau03),
-        (phi1, phi2, phi3),
-        (rate1, rate2, rate3),
+        (x[0, 0], x[0, 1], x[0, 2]),
+        (x[1, 0], x[1, 1], x[1, 2]),
+        (x[3, 0], x[3, 1], x[3, 2]),
         (torque1, torque2, torque3),
+        (math.cos(x[2, 0]), math.cos(x[2, 1]), math.cos(x[2, 2])),
+        (x[4, 0], x[4, 1], x[4, 2]),
     )
 
 
@@ -280,6 +365,8 @@ def _estimated_state_equation(
         (terms[1, 0], terms[1, 1], terms[1, 2]),
         (x[1, 0], x[1, 1], x[1, 2]),
         (torque1, torque2, torque3),
+        (math.cos(x[0, 0]), math.cos(x[0, 1]), math.cos(x[0, 2])),
+        (x[2, 0], x[2, 1], x[2, 2]),
     )
     return status, used, information, moment
 
@@ -287,10 +374,12 @@ def _estimated_state_equation(
 class PayloadEstimator:
     """Payload mass (kg) from measured joint torques, updated once per control step while the gripper holds.
 
-    The RLS state is the *apparent* payload: what the model needs at its platform to match the measured
-    torques. With an empty gripper it is not 0 but the tare, the model's own error along phi (about
-    -0.1 kg for MId+F on this plant, -0.005 to 0 kg for MId+F+R). The estimate of the object is the
-    apparent mass minus the tare; the feedforward uses the apparent mass.
+    The empty moves of the episode (gripper open, mp = 0 known) fit the robot's own mass and friction errors
+    (:class:`ModelCorrections`); the carries' equations have them removed, and their RLS state is the object's
+    mass plus the tare, the model's remaining error along phi on carries (about 0.00 to -0.03 kg for MId+F+R
+    on the nominal plant). The estimate of the object is the RLS state minus the tare; the feedforward uses
+    the apparent mass, what the model needs at its platform: the RLS state plus the fitted platform-mass
+    correction.
 
     Args:
         dynamics: The identified model (MId+F) whose torque at mp = 0 is subtracted.
@@ -298,8 +387,8 @@ class PayloadEstimator:
             the measured joints; ``"filtered"`` on the :class:`JointStateFilter` estimate, aligned with its
             acceleration lag; ``"reference"`` on the reference interpolated to the torque sample (see the
             module docstring).
-        tare: Apparent payload of the empty gripper (kg), from :func:`tare_from_observations` on
-            payload-free pick cycles; 0 trusts the model.
+        tare: Apparent payload of the empty gripper on carries (kg) beyond the empty-move fit, from
+            :func:`tare_from_observations` on payload-free pick cycles; 0 trusts the model.
         nominal_std: Residual standard deviation while moving (N m).
         static_friction: Static friction band f_i per joint (N m); None uses the model's Coulomb friction
             fc_i (MId+F's identified values), which is what the model cannot predict at rest.
@@ -308,9 +397,12 @@ class PayloadEstimator:
         forgetting_factor: lambda of the RLS within a carry (memory about 1 / (1 - lambda) samples).
         prior_variance: Variance of the mass (kg^2) restored at every pick.
         rest_rate: Samples with every joint slower than this (rad/s) are not used (:data:`REST_RATE`); 0 uses all.
-        friction_scale_std: Prior standard deviation of each joint's friction scale error (dimensionless),
-            fitted on the empty moves and removed from the carries' equations (:data:`FRICTION_SCALE_STD`);
-            None trusts the identified friction.
+        friction_scale_std: Prior standard deviation of each joint's friction scale error kappa_i
+            (dimensionless), fitted on the empty moves and removed from the carries' equations
+            (:data:`FRICTION_SCALE_STD`); None trusts the identified friction.
+        mass_correction_std: Prior standard deviations of the platform-mass error (kg) and of the arms' relative
+            mass error (dimensionless), fitted likewise (:data:`MASS_CORRECTION_STD`); None trusts the
+            identified masses.
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
@@ -334,6 +426,7 @@ class PayloadEstimator:
         prior_variance: float = PICK_PRIOR_VARIANCE,
         rest_rate: float = REST_RATE,
         friction_scale_std: float | None = FRICTION_SCALE_STD,
+        mass_correction_std: tuple[float, float] | None = MASS_CORRECTION_STD,
     ) -> None:
         if regressor not in ("smoothed", "filtered", "reference"):
             raise ValueError(f"regressor must be 'smoothed', 'filtered' or 'reference', got {regressor!r}")
@@ -344,6 +437,11 @@ class PayloadEstimator:
         require_in("rest_rate", rest_rate, 0.0, unit="rad/s")
         if friction_scale_std is not None:
             require_positive("friction_scale_std", friction_scale_std)
+        if mass_correction_std is not None:
+            if len(mass_correction_std) != 2:
+                raise ValueError(f"mass_correction_std must be 2 values (kg, -), got {mass_correction_std!r}")
+            for name, std in zip(("platform mass", "arm mass scale"), mass_correction_std, strict=True):
+                require_positive(f"mass_correction_std ({name})", std)
         friction = dynamics.parameters.coulomb if static_friction is None else tuple(static_friction)
         if len(friction) != 3 or not all(math.isfinite(f) and f >= 0.0 for f in friction):
             raise ValueError(f"static_friction must be 3 finite values >= 0 N m, got {static_friction!r}")
@@ -355,9 +453,8 @@ class PayloadEstimator:
         self.friction_velocity = float(friction_velocity)
         self.correlation_samples = float(correlation_samples)
         self.rest_rate = float(rest_rate)
-        # Per joint: sum of w f^2 and of w f (y - phi tare) over the empty moves, and the fitted scale error
-        # (layout _FIT_*).
-        self._fit = np.zeros(9)
+        # The empty-move least squares and its solution (layout _FIT_*).
+        self._fit = np.zeros(_FIT_SIZE)
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
@@ -374,6 +471,10 @@ class PayloadEstimator:
         self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray] | None, list[float], bool]] = (
             collections.deque(maxlen=self.delay + 1)
         )
+        # Prior information of the fitted parameters (layout _P_*), NaN for those not fitted.
+        mass_prior = (math.nan,) * 2 if mass_correction_std is None else tuple(std**-2 for std in mass_correction_std)
+        friction_prior = math.nan if friction_scale_std is None else friction_scale_std**-2
+        prior_information = (*mass_prior, *(friction_prior,) * 3)
         # Constants of the compiled payload equation (layout _EQ_*); the band's standard deviation is sqrt(n_c) f_i.
         self._equation = np.array(
             [
@@ -383,15 +484,20 @@ class PayloadEstimator:
                 *dynamics.parameters.viscous,
                 *dynamics.parameters.coulomb,
                 _TORQUE_AGE,
-                self.tare,
-                math.nan if friction_scale_std is None else 1.0 / friction_scale_std**2,
                 self.rest_rate,
+                dynamics.inertia,
+                dynamics.gravity_amplitude,
+                *prior_information,
+                float(not all(math.isnan(p) for p in prior_information)),
             ],
             dtype=np.float64,
         )
         self._filter_started = False
         self._holding = False
-        self._previous_reference: tuple[NDArray[np.float64], NDArray[np.float64], list[float]] | None = None
+        # (2, 5, 3): the reference's tau0, phi, theta, rates and accelerations of this step and the previous one.
+        self._references = np.zeros((2, 5, 3))
+        self._reference_slot = 0
+        self._has_previous_reference = False
         self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
 
     @property
@@ -400,17 +506,41 @@ class PayloadEstimator:
         return self.rls.mass - self.tare if self._holding else 0.0
 
     @property
+    def apparent_mass(self) -> float:
+        """The payload (kg) the model needs at its platform, fed forward: the RLS state (the object plus the tare)
+        plus the platform-mass correction as solved at the last carry's start."""
+        return self.rls.mass + self._fit[_FIT_SOLUTION + _P_PLATFORM]
+
+    @property
+    def corrections(self) -> ModelCorrections:
+        """The model's corrections fitted on this episode's empty moves so far (0 before any)."""
+        if self._fit[_FIT_STALE] != 0.0:
+            _solve_fit(self._equation, self._fit)
+        p = self._fit[_FIT_SOLUTION : _FIT_SOLUTION + _PARAMETERS]
+        return ModelCorrections(float(p[_P_PLATFORM]), float(p[_P_ARM]), p[_P_FRICTION:].copy())
+
+    @property
+    def fits_corrections(self) -> bool:
+        """Whether the empty moves fit any correction of the model (:class:`ModelCorrections`)."""
+        return bool(self._equation[_EQ_FITS] != 0.0)
+
+    @property
+    def empty_move_samples(self) -> int:
+        """Samples of this episode's empty moves that entered the fit so far."""
+        return int(self._fit[_FIT_SAMPLES])
+
+    @property
     def friction_scale_error(self) -> NDArray[np.float64]:
         """Relative error kappa_i of each joint's identified friction fitted on this episode's empty moves, (3,)."""
-        return self._fit[_FIT_KAPPA : _FIT_KAPPA + 3].copy()
+        return self.corrections.friction_scale
 
     def reset(self) -> None:
-        """Start an episode: nothing held, apparent mass at the tare, joint filter restarted at the next reading."""
+        """Start an episode: nothing held or fitted, RLS at the tare, joint filter restarted at the next reading."""
         self.rls.reset(self.tare)
         self._fit[:] = 0.0
         self._filter_started = False
         self._holding = False
-        self._previous_reference = None
+        self._has_previous_reference = False
         self._previous_state = None
         self._history.clear()
 
@@ -420,7 +550,7 @@ class PayloadEstimator:
         reference_torque: NDArray[np.float64] | None = None,
         reference_regressor: NDArray[np.float64] | None = None,
     ) -> float:
-        """Fuse one observation and return the apparent payload (kg) to feed forward.
+        """Fuse one observation and return the apparent payload (kg) to feed forward (:attr:`apparent_mass`).
 
         Arguments as in :meth:`measurement`.
         """
@@ -432,9 +562,9 @@ class PayloadEstimator:
             else:
                 self.rls.reset(self.tare)  # released: the object is known to be gone
         moments = self.measurement(observation, reference_torque, reference_regressor)
-        if moments is None:
-            return self.rls.mass
-        return self.rls.update_moments(*moments)
+        if moments is not None:
+            self.rls.update_moments(*moments)
+        return self.apparent_mass
 
     def measurement(
         self,
@@ -443,7 +573,8 @@ class PayloadEstimator:
         reference_regressor: NDArray[np.float64] | None = None,
     ) -> tuple[float, float] | None:
         """This step's weighted payload equation as its moments, or None with the gripper open or every joint at
-        rest (:data:`REST_RATE`). With the gripper open, the sample fits the friction scale errors instead.
+        rest (:data:`REST_RATE`). With the gripper open, the sample enters the fit of the model's corrections
+        instead (:class:`ModelCorrections`), which are removed from the carries' equations.
 
         With the weights w_i = 1 / sigma_i^2 (:func:`residual_std`), the moments are sum_i w_i phi_i^2
         ((N m/kg)^2) and sum_i w_i phi_i y_i (N^2 m^2/kg): all that RLS with R = diag(sigma_i^2) needs of a
@@ -466,59 +597,53 @@ class PayloadEstimator:
                     observation["reference_velocities"],
                     observation["reference_accelerations"],
                 )
-            current = (
-                reference_torque.tolist(),
-                reference_regressor.tolist(),
-                observation["reference_velocities"].tolist(),
-            )
-            previous = self._previous_reference if self._previous_reference is not None else current
-            self._previous_reference = current
-            carrying = holding
+            # Two buffers used in turn: this step's reference and the previous step's.
+            self._reference_slot = 1 - self._reference_slot
+            current = self._references[self._reference_slot]
+            current[0], current[1] = reference_torque, reference_regressor
+            current[2] = observation["reference_angles"]
+            current[3] = observation["reference_velocities"]
+            current[4] = observation["reference_accelerations"]
+            previous = self._references[1 - self._reference_slot] if self._has_previous_reference else current
+            self._has_previous_reference = True
             # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
-            tau0, phi, rates = (
-                [b - _TORQUE_AGE * (b - a) for a, b in zip(before, now, strict=True)]
-                for before, now in zip(previous, current, strict=True)
+            used, information, moment = _reference_equation(
+                self._equation, self._fit, holding, current, previous, *observation["joint_torques"].tolist()
             )
-            torque = observation["joint_torques"].tolist()
-        else:
-            angles = observation["joint_angles"]
-            if not self._filter_started:
-                self.joint_filter.reset(angles)
-                self._filter_started = True
-            if self.regressor == "smoothed":
-                state = self.joint_filter.update_state(angles)
-                self._history.append((None, observation["joint_torques"].tolist(), holding))
-            else:
-                estimate = self.joint_filter.update(angles)
-                self._history.append((estimate, observation["joint_torques"].tolist(), holding))
-            if len(self._history) <= self.delay:
-                return None
-            # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
-            # estimate with its angles and rates of D samples ago, and the torque measured then.
-            delayed, torque, held = self._history[0]
-            if self.regressor == "filtered":
-                state = np.array((delayed[0], delayed[1], estimate[2]))
-            previous_state = self._previous_state if self._previous_state is not None else state
-            self._previous_state = state
-            if holding != held:
-                return None
-            # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
-            status, used, information, moment = _estimated_state_equation(
-                self.dynamics._single_sample_constants,
-                self._equation,
-                self._fit,
-                state,
-                previous_state,
-                holding,
-                *torque,
-            )
-            if status != _VALID:
-                raise ValueError(f"{_INVALID_STATE[status]}: joint state estimate {state!r}")
             return (information, moment) if used else None
-
-        used, information, moment = _reference_equation(
-            self._equation, self._fit, carrying, *tau0, *phi, *rates, *torque
+        angles = observation["joint_angles"]
+        if not self._filter_started:
+            self.joint_filter.reset(angles)
+            self._filter_started = True
+        if self.regressor == "smoothed":
+            state = self.joint_filter.update_state(angles)
+            self._history.append((None, observation["joint_torques"].tolist(), holding))
+        else:
+            estimate = self.joint_filter.update(angles)
+            self._history.append((estimate, observation["joint_torques"].tolist(), holding))
+        if len(self._history) <= self.delay:
+            return None
+        # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
+        # estimate with its angles and rates of D samples ago, and the torque measured then.
+        delayed, torque, held = self._history[0]
+        if self.regressor == "filtered":
+            state = np.array((delayed[0], delayed[1], estimate[2]))
+        previous_state = self._previous_state if self._previous_state is not None else state
+        self._previous_state = state
+        if holding != held:
+            return None
+        # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
+        status, used, information, moment = _estimated_state_equation(
+            self.dynamics._single_sample_constants,
+            self._equation,
+            self._fit,
+            state,
+            previous_state,
+            holding,
+            *torque,
         )
+        if status != _VALID:
+            raise ValueError(f"{_INVALID_STATE[status]}: joint state estimate {state!r}")
         return (information, moment) if used else None
 
 
@@ -528,41 +653,48 @@ def tare_from_observations(
     """The apparent payload of an empty gripper (kg): weighted least squares over payload-free carries.
 
     Taring, as on a scale: pick cycles are run with nothing to pick (the gripper still closes and opens,
-    mp = 0 is known), and the mass that the model needs along phi over the carry phases is its error
-    there. The estimate is the weighted least squares of the RLS without forgetting or prior, over all
-    carries at once.
+    mp = 0 is known), and the mass that the model needs along phi over the carry phases, beyond what the
+    estimator fits on the empty moves of the same episode (:class:`ModelCorrections`), is its error there.
+    The estimate is the weighted least squares of the RLS without forgetting or prior, over all carries at once.
+
+    Only the carries that follow an empty move count, if there are any: before the first, nothing is fitted, and
+    the apparent payload of a first carry also holds the calibration plant's own mass and friction errors (on a
+    randomized plant, tens of grams that the next plant does not share). Calibration episodes of one cycle
+    have no such carry; their first carries are used then.
 
     Args:
-        estimator: Gives the payload equations; reset here before each episode. It should be untared, as
-            :func:`controllers.registry.payload_estimator` builds it: its tare enters the friction scale fit of
-            the empty moves (:data:`FRICTION_SCALE_STD`).
+        estimator: Gives the payload equations, with the corrections it fits on each episode's empty moves
+            removed (its tare does not enter them); reset here before each episode.
         episodes: Observation sequences of payload-free pick-and-place episodes.
 
     Returns:
         The tare (kg) and the standard deviation (kg) of the same estimate carry by carry: the model
         error along phi changes with the path, so this, not the torque noise, is its uncertainty.
     """
-    # (sum of phi.y, sum of phi.phi) over one carry, weighted; a carry runs from a closing of the gripper to the
-    # next (moments are also None while every joint rests, which does not end a carry).
-    carries: list[tuple[float, float]] = []
+    # (sum of phi.y, sum of phi.phi) over one carry, weighted, and whether an empty move was fitted before it; a
+    # carry runs from a closing of the gripper to the next (moments are also None while every joint rests, which
+    # does not end a carry).
+    carries: list[tuple[float, float, bool]] = []
     for episode in episodes:
         estimator.reset()
         holding = False
         for observation in episode:
             closed = observation["gripper"].item(0) > 0.5
             if closed and not holding:
-                carries.append((0.0, 0.0))
+                carries.append((0.0, 0.0, estimator.empty_move_samples > 0))
             holding = closed
             moments = estimator.measurement(observation)
             if moments is None:
                 continue
             information, moment = moments
-            carry_moment, carry_information = carries[-1]
-            carries[-1] = (carry_moment + moment, carry_information + information)
+            carry_moment, carry_information, corrected = carries[-1]
+            carries[-1] = (carry_moment + moment, carry_information + information, corrected)
     carries = [carry for carry in carries if carry[1] > 0.0]
     if not carries:
         raise ValueError("no carry phase in the calibration episodes: the gripper never closed while moving")
-    moments, informations = np.array(carries).T
+    if estimator.fits_corrections and any(corrected for *_, corrected in carries):
+        carries = [carry for carry in carries if carry[2]]
+    moments, informations, _ = np.array(carries).T
     per_carry = moments / informations
     spread = float(np.std(per_carry, ddof=1)) if len(carries) > 1 else math.nan
     return float(moments.sum() / informations.sum()), spread

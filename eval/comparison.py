@@ -35,9 +35,6 @@ TABLE2_KEY = "mid_f_rls"
 TABLE2_PAYLOAD = 3.8
 """Mass of every object in the Table 2 run (kg), the paper's test payload."""
 
-SETTLING_DEADLINE_MS = 150.0
-"""Deadline (ms after each pick) of the table's "settled" count: estimates within +-5 % by then."""
-
 
 def calibration_seeds(seed: int, episodes: int) -> list[int]:
     """Seeds of the tare calibration of a comparison starting at ``seed``: ``seed + 100000 + j``."""
@@ -111,6 +108,7 @@ def tabulate(
                         "end_error_kg": carry.end_error_kg,
                         "end_error_percent": carry.end_error_percent,
                         "settling_time_ms": carry.settling_time_ms,
+                        "peak_estimate_kg": carry.peak_estimate,
                     }
                 )
         if task.index == 0:

@@ -8,8 +8,10 @@ Definitions (units in the names):
 - energy: the absolute mechanical work of the three motors, sum_i integral |tau_i theta_dot_i| dt (J):
   every joule a motor delivers or absorbs counts, since the drives of a Delta do not regenerate into each
   other;
-- payload: per carry, the estimate's relative error at the end of the carry (%) and the settling time to
-  +-5 %, the time after the pick from which the estimate stays inside the band until the release (ms);
+- payload: per carry, the estimate's relative error at the end of the carry (%), the settling time to
+  +-5 %, the time after the pick from which the estimate stays inside the band until the release (ms), and
+  the peak estimate during the carry (kg); over many carries, the counts against the payload targets
+  (:func:`payload_targets`);
 - torque error statistics of a model: mean and standard deviation of tau_measured - tau_model per joint
   (N m), the paper's Tables 1 and 2.
 """
@@ -29,6 +31,16 @@ PAYLOAD_BAND = 0.05
 MIN_RELATIVE_MASS = 0.5
 """Smallest payload (kg) whose relative estimate error is scored: relative errors of near-empty grippers
 say nothing about the estimator."""
+
+LIGHT_OBJECT_BAND_KG = 0.025
+"""Target band (kg) of the end-of-carry error of objects lighter than :data:`MIN_RELATIVE_MASS`."""
+
+OVERSHOOT_BOUND = (0.2, 0.2)
+"""(kg, relative): during a carry the estimate must not exceed the true mass by more than
+max(0.2 kg, 20 % of it)."""
+
+SETTLING_DEADLINE_MS = 150.0
+"""Deadline (ms after each pick) by which estimates of objects >= :data:`MIN_RELATIVE_MASS` should be within +-5 %."""
 
 
 def tracking_metrics(tracking_error: ArrayLike) -> tuple[float, float]:
@@ -68,12 +80,14 @@ class CarryMetrics:
         end_error_percent: 100 (end_estimate - mass) / mass (%); NaN for a 0 kg object.
         settling_time_ms: Time after the pick from which the estimate stays within +-5 % until the release
             (ms); NaN if it is outside at the end of the carry.
+        peak_estimate: Largest estimate during the carry (kg).
     """
 
     mass: float
     end_estimate: float
     end_error_percent: float
     settling_time_ms: float
+    peak_estimate: float
 
     @property
     def end_error_kg(self) -> float:
@@ -114,8 +128,43 @@ def carry_metrics(
             settling = 1e3 * dt * (outside[-1] + 1)
         end = float(carry[-1])
         error = 100.0 * (end - mass) / mass if mass > 0.0 else math.nan
-        results.append(CarryMetrics(float(mass), end, error, settling))
+        results.append(CarryMetrics(float(mass), end, error, settling, float(np.max(carry))))
     return results
+
+
+@dataclass(frozen=True)
+class PayloadTargets:
+    """How many carries meet each payload target (counts a of b).
+
+    Attributes:
+        end_within_band: Objects >= :data:`MIN_RELATIVE_MASS` whose end-of-carry estimate is within +-5 %, of all
+            such objects.
+        light_within_band: Lighter objects whose end-of-carry error is within +-:data:`LIGHT_OBJECT_BAND_KG`, of all.
+        light_error_range_kg: Smallest and largest end-of-carry error of the lighter objects (kg); NaN if none.
+        overshoots: Carries whose peak estimate exceeds the mass by more than :data:`OVERSHOOT_BOUND`, of all.
+        settled: Objects >= :data:`MIN_RELATIVE_MASS` within +-5 % by :data:`SETTLING_DEADLINE_MS`, of all such.
+    """
+
+    end_within_band: tuple[int, int]
+    light_within_band: tuple[int, int]
+    light_error_range_kg: tuple[float, float]
+    overshoots: tuple[int, int]
+    settled: tuple[int, int]
+
+
+def payload_targets(carries: Sequence[CarryMetrics], band: float = PAYLOAD_BAND) -> PayloadTargets:
+    """Count the carries against the payload targets (:class:`PayloadTargets`); NaN settling is "not settled"."""
+    heavy = [carry for carry in carries if carry.mass >= MIN_RELATIVE_MASS]
+    light_errors = [carry.end_error_kg for carry in carries if carry.mass < MIN_RELATIVE_MASS]
+    bound_kg, bound_fraction = OVERSHOOT_BOUND
+    over = sum(carry.peak_estimate - carry.mass > max(bound_kg, bound_fraction * carry.mass) for carry in carries)
+    return PayloadTargets(
+        end_within_band=(sum(abs(carry.end_error_percent) <= 100.0 * band for carry in heavy), len(heavy)),
+        light_within_band=(sum(abs(error) <= LIGHT_OBJECT_BAND_KG for error in light_errors), len(light_errors)),
+        light_error_range_kg=(min(light_errors), max(light_errors)) if light_errors else (math.nan, math.nan),
+        overshoots=(int(over), len(carries)),
+        settled=(sum(carry.settling_time_ms <= SETTLING_DEADLINE_MS for carry in heavy), len(heavy)),
+    )
 
 
 def torque_error_statistics(

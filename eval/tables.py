@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from eval import metrics
-from eval.comparison import SETTLING_DEADLINE_MS
+from eval.metrics import SETTLING_DEADLINE_MS
 
 
 def controller_table(episode_rows: list[dict[str, Any]], carry_rows: list[dict[str, Any]]) -> str:
@@ -50,6 +50,56 @@ def controller_table(episode_rows: list[dict[str, Any]], carry_rows: list[dict[s
                 column("torque_peak_nm"),
                 column("energy_j"),
                 *payload,
+            ]
+        )
+    return metrics.markdown_table(header, rows)
+
+
+def carries_from_rows(carry_rows: list[dict[str, Any]]) -> list[metrics.CarryMetrics]:
+    """The :class:`~eval.metrics.CarryMetrics` of per-carry rows (as ``carries.csv`` holds them)."""
+    return [
+        metrics.CarryMetrics(
+            mass=float(row["mass_kg"]),
+            end_estimate=float(row["end_estimate_kg"]),
+            end_error_percent=float(row["end_error_percent"]),
+            settling_time_ms=float(row["settling_time_ms"]),
+            peak_estimate=float(row["peak_estimate_kg"]),
+        )
+        for row in carry_rows
+    ]
+
+
+def payload_target_table(carry_rows: list[dict[str, Any]]) -> str:
+    """One row per estimating controller: its carries counted against the payload targets
+    (:func:`eval.metrics.payload_targets`)."""
+    low = metrics.MIN_RELATIVE_MASS
+    bound_kg, bound_fraction = metrics.OVERSHOOT_BOUND
+    header = [
+        "Controller",
+        f"End within ±{100 * metrics.PAYLOAD_BAND:.0f} % (≥ {low} kg)",
+        f"End within ±{1e3 * metrics.LIGHT_OBJECT_BAND_KG:.0f} g (< {low} kg)",
+        f"End error < {low} kg (g): min, max",
+        f"Carries over max({bound_kg} kg, {100 * bound_fraction:.0f} %)",
+        f"Settled ≤ {SETTLING_DEADLINE_MS:.0f} ms (≥ {low} kg)",
+    ]
+
+    def count(pair: tuple[int, int]) -> str:
+        done, total = pair
+        return f"{done}/{total} ({100.0 * done / total:.0f} %)" if total else "n/a"
+
+    rows = []
+    for label, group in metrics.group_by(carry_rows, "controller").items():
+        targets = metrics.payload_targets(carries_from_rows(group))
+        low_error, high_error = targets.light_error_range_kg
+        light_range = f"{1e3 * low_error:+.0f}, {1e3 * high_error:+.0f}" if targets.light_within_band[1] else "n/a"
+        rows.append(
+            [
+                str(label),
+                count(targets.end_within_band),
+                count(targets.light_within_band),
+                light_range,
+                count(targets.overshoots),
+                count(targets.settled),
             ]
         )
     return metrics.markdown_table(header, rows)

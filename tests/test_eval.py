@@ -49,6 +49,58 @@ def test_settling_time_is_the_last_entry_into_the_band(inside_from, excursion, e
     assert carry.end_error_percent == pytest.approx(100.0 * (estimate[109] - 2.0) / 2.0)
 
 
+def test_peak_estimate_is_the_largest_estimate_of_the_carry() -> None:
+    estimate = [9.0] * 10 + estimate_with_excursions(2.0, 30, (50, 60)) + [9.0] * 10  # 9 kg outside the carry
+    (carry,) = metrics.carry_metrics(estimate, [10], [110], [2.0], DT)
+    assert carry.peak_estimate == pytest.approx(2.2)
+
+
+def carry(mass: float, end: float, settling_ms: float = 50.0, peak: float | None = None) -> metrics.CarryMetrics:
+    """A carry of ``mass`` (kg) whose estimate ends at ``end`` (kg)."""
+    error = 100.0 * (end - mass) / mass if mass > 0.0 else math.nan
+    return metrics.CarryMetrics(mass, end, error, settling_ms, end if peak is None else peak)
+
+
+def test_payload_targets_count_every_carry_against_each_target() -> None:
+    carries = [
+        carry(2.0, 2.09),  # +4.5 %: within
+        carry(2.0, 2.12, settling_ms=math.nan),  # +6 %: outside, never settled
+        carry(0.5, 0.476, settling_ms=150.0),  # -4.8 %: within, settled just in time
+        carry(1.0, 1.0, settling_ms=151.0, peak=1.21),  # settled too late; 21 % over 1 kg: over max(0.2 kg, 20 %)
+        carry(3.0, 3.0, peak=3.59),  # 0.59 kg < 20 % of 3 kg: not over
+        carry(0.3, 0.324, peak=0.5),  # +24 g: within; 0.2 kg over a light object: not over
+        carry(0.2, 0.17, peak=0.41),  # -30 g: outside; 0.21 kg over: over
+    ]
+    targets = metrics.payload_targets(carries)
+    assert targets.end_within_band == (4, 5)
+    assert targets.light_within_band == (1, 2)
+    assert targets.light_error_range_kg == pytest.approx((-0.03, 0.024))
+    assert targets.overshoots == (2, 7)
+    assert targets.settled == (3, 5)
+    empty = metrics.payload_targets([carry(2.0, 2.0)])
+    assert empty.light_within_band == (0, 0) and all(math.isnan(v) for v in empty.light_error_range_kg)
+
+
+def test_payload_target_table_has_a_row_per_estimating_controller() -> None:
+    from eval.tables import payload_target_table
+
+    def row(label: str, item: metrics.CarryMetrics) -> dict:
+        return {
+            "controller": label,
+            "mass_kg": item.mass,
+            "end_estimate_kg": item.end_estimate,
+            "end_error_percent": item.end_error_percent,
+            "settling_time_ms": item.settling_time_ms,
+            "peak_estimate_kg": item.peak_estimate,
+        }
+
+    rows = [row("A", carry(2.0, 2.09)), row("A", carry(0.2, 0.17, peak=0.41)), row("B", carry(2.0, 2.5))]
+    table = payload_target_table(rows).splitlines()
+    assert table[0].startswith("| Controller | End within ±5 % (≥ 0.5 kg) |")
+    assert table[2] == "| A | 1/1 (100 %) | 0/1 (0 %) | -30, -30 | 1/2 (50 %) | 1/1 (100 %) |"
+    assert table[3] == "| B | 0/1 (0 %) | n/a | n/a | 1/1 (100 %) | 1/1 (100 %) |"
+
+
 def test_energy_counts_motor_work_in_both_directions() -> None:
     # 1 s at 10 N m and 2 rad/s driving on joint 1, braking (negative power) on joint 2: 20 J each.
     steps = 1000
@@ -120,6 +172,7 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert Scenario.load(out / "scenario.toml") == preset("paper")
     assert "| Controller |" in printed and "| PD | 1 (0) |" in printed and "| MId+F+R+RLS+PD | 1 (0) |" in printed
     assert "Table 2 analogue" in printed
+    assert "## Payload targets" in printed and "| MId+F+R+RLS+PD | 1/1 (100 %) |" in printed
     assert (out / "summary.md").read_text() == printed
 
     episodes = read_csv(out / "episodes.csv")

@@ -10,7 +10,7 @@ from numpy.testing import assert_array_equal
 
 from controllers.dynamics import DeltaDynamics, ModelParameters, _single_sample_model
 from controllers.estimation import JointStateSmoother, PayloadRLS
-from controllers.payload import FRICTION_SCALE_STD, REST_RATE, PayloadEstimator, residual_std
+from controllers.payload import FRICTION_SCALE_STD, MASS_CORRECTION_STD, REST_RATE, PayloadEstimator, residual_std
 from controllers.residual import ResidualFeatures, load_residual_controller, load_residual_policy, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
@@ -127,22 +127,22 @@ def test_process_pool_serves_dependent_batches_in_order() -> None:
 
 def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:
     # The estimator's compiled path against the equations written with NumPy: the smoother's state interpolated
-    # to the torque's instant, tau0 and phi there, w_i = 1 / residual_std^2, the friction scale fit on the empty
-    # move (mp = 0 known, y_i - phi_i tare = kappa_i f_i) and its removal from the carry's moments.
+    # to the torque's instant, tau0 and phi there, w_i = 1 / residual_std^2, the least squares of the model's
+    # corrections on the empty move (mp = 0 known: tau_i - tau0_i = dm phi_i + d_arm (I thdd_i + G cos th_i)
+    # + kappa_i f_i, with its prior) and their removal from the carry's moments.
     parameters = ModelParameters(rho1=1.9, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
     dynamics = DeltaDynamics.nominal(parameters, forearm_rods=True)
-    tare = 0.05
-    estimator = PayloadEstimator(dynamics, regressor="smoothed", tare=tare)
+    estimator = PayloadEstimator(dynamics, regressor="smoothed", tare=0.05)
     smoother = JointStateSmoother()
     age = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
-    prior = 1.0 / FRICTION_SCALE_STD**2
+    prior = np.diag([MASS_CORRECTION_STD[0] ** -2, MASS_CORRECTION_STD[1] ** -2, *[FRICTION_SCALE_STD**-2] * 3])
     rng = np.random.default_rng(9)
     times = np.arange(400) * CONTROL_PERIOD
     angles = 0.3 + 0.2 * np.sin(2.0 * np.pi * np.outer(times, [1.0, 1.3, 0.7]) + [0.0, 1.0, 2.0])
     torques = rng.normal(0.0, 30.0, angles.shape)
-    holding = times >= 0.2  # open first: the friction fit, then a carry
-    information_fit, moment_fit = np.zeros(3), np.zeros(3)
-    history, previous, compared = [], None, 0
+    holding = times >= 0.2  # open first: the fit of the corrections, then a carry
+    information_fit, moment_fit = np.zeros((5, 5)), np.zeros(5)
+    history, previous, compared, empty = [], None, 0, 0
     for k in range(len(times)):
         observation = {"joint_angles": angles[k], "joint_torques": torques[k], "gripper": np.array([float(holding[k])])}
         moments = estimator.measurement(observation)
@@ -160,21 +160,31 @@ def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implemen
         if held != holding[k] or np.all(np.abs(theta_dot) < REST_RATE):
             assert moments is None
             continue
+        empty += not held
         tau0, phi = dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
         weight = residual_std(theta_dot, parameters.coulomb) ** -2.0
         friction = np.array(parameters.viscous) * theta_dot + np.array(parameters.coulomb) * np.sign(theta_dot)
+        # Columns per joint (rows): dm, d_arm, kappa_1..3.
+        columns = np.zeros((3, 5))
+        columns[:, 0] = phi
+        columns[:, 1] = dynamics.inertia * theta_ddot + dynamics.gravity_amplitude * np.cos(theta)
+        columns[:, 2:] = np.diag(friction)
         if not held:
-            information_fit += weight * friction**2
-            moment_fit += weight * friction * (torque - tau0 - phi * tare)
+            information_fit += columns.T @ (weight[:, None] * columns)
+            moment_fit += columns.T @ (weight * (torque - tau0))
             assert moments is None
             continue
-        kappa = moment_fit / (information_fit + prior)
-        assert estimator.friction_scale_error == pytest.approx(kappa, rel=1e-12)
+        solution = np.linalg.solve(information_fit + prior, moment_fit)
+        corrections = estimator.corrections
+        assert [corrections.platform_mass, corrections.arm_mass_scale, *corrections.friction_scale] == pytest.approx(
+            solution, rel=1e-10
+        )
         assert moments == pytest.approx(
-            (np.sum(weight * phi**2), np.sum(weight * phi * (torque - tau0 - kappa * friction))), rel=1e-11
+            (np.sum(weight * phi**2), np.sum(weight * phi * (torque - tau0 - columns @ solution))), rel=1e-10
         )
         compared += 1
-    assert compared > 100 and np.all(np.abs(estimator.friction_scale_error) > 1e-3)
+    assert compared > 100 and np.all(np.abs(solution) > 1e-3)
+    assert estimator.empty_move_samples == empty > 100
 
 
 def test_smoother_update_state_equals_update_and_holds_until_the_next_call_but_one() -> None:
