@@ -108,7 +108,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ## Info
     Truth for evaluation, never for controllers: ``payload_mass`` (kg, 0 when nothing is held),
     ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
-    ``applied_torque`` (N m), ``cycle``, ``diverged``, ``torque_saturated`` and the reward terms.
+    ``torque_command`` (N m, the action within the torque limit: what the drive held over the step),
+    ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
+    ``torque_saturated`` and the reward terms.
 
     ## Arguments
     | parameter | type | default | description |
@@ -379,6 +381,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reference_position": reference,
             "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
             "loop_gap": loop_gap,
+            "torque_command": data.ctrl.copy(),
             "applied_torque": data.actuator_force.copy(),
             "cycle": self._cycle,
             "diverged": diverged,

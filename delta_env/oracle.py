@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from delta_env.config import MAX_PAYLOAD_MASS, PhysicalParameters, PlantConfig
 from delta_env.geometry import CHAIN_COS, CHAIN_SIN
-from delta_env.plant import DeltaPlant
+from delta_env.plant import STRIBECK_SIGN_SLOPE, DeltaPlant
 from delta_env.robot import forearm_home_tilt
 
 
@@ -66,7 +66,12 @@ class InverseDynamicsOracle:
         motor_dofs = self.plant.motor_dofs
         self._motor_dofs = motor_dofs
         self._passive_dofs = np.setdiff1d(np.arange(model.nv), motor_dofs)
-        self._frictionloss = model.dof_frictionloss[motor_dofs].copy()
+        self._set_friction()
+        # Views of the model and data buffers the 1 kHz path reads and writes (they never move).
+        self._body_mass = model.body_mass
+        data = self.plant.data
+        self._qvel, self._qacc, self._qfrc_inverse = data.qvel, data.qacc, data.qfrc_inverse
+        self._no_bias = np.zeros(self.plant.n_loop_rows)
         # Columns of the square system [S  J_c^T]: the first three select the motor dofs.
         self._system = np.zeros((model.nv, model.nv))
         self._system[motor_dofs, np.arange(3)] = 1.0
@@ -81,7 +86,14 @@ class InverseDynamicsOracle:
         """Use the same (e.g. randomized) masses and friction as a plant; see DeltaPlant.set_physical_parameters."""
         self.plant.set_physical_parameters(parameters)
         self._platform_mass = float(self.plant.model.body_mass[self._platform_body])
+        self._set_friction()
+
+    def _set_friction(self) -> None:
+        """Coulomb frictionloss fc_i (N m) of the motor joints and the plant's Stribeck and ripple constants."""
         self._frictionloss = self.plant.model.dof_frictionloss[self._motor_dofs].copy()
+        self._stribeck_gain, self._inv_stribeck_velocity, self._ripple_amplitude, self._ripple_periods = (
+            self.plant.disturbance_coefficients
+        )
 
     def torques(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
@@ -155,26 +167,32 @@ class InverseDynamicsOracle:
     ) -> NDArray[np.float64]:
         plant = self.plant
         model, data = plant.model, plant.data
+        motor_dofs, passive_dofs = self._motor_dofs, self._passive_dofs
         # The payload rides at the platform's CoM: mass only (a translating body's inertia does no work).
-        model.body_mass[self._platform_body] = self._platform_mass + payload
+        self._body_mass[self._platform_body] = self._platform_mass + payload
         try:
-            jac = plant._assemble(theta, theta_dot, platform, elbows, forward=False)
-            # J_c qacc = -Jdot_c qvel with the motor accelerations fixed.
-            bias = plant.loop_bias_acceleration()
-            data.qacc[self._motor_dofs] = theta_ddot
-            data.qacc[self._passive_dofs] = _solve(
-                jac[:, self._passive_dofs], -bias - jac[:, self._motor_dofs] @ theta_ddot
-            )
+            jac = plant._configure(theta, platform, elbows)
+            # J_c qvel = 0 with the motor rates fixed, then J_c qacc = -Jdot_c qvel with the motor accelerations
+            # fixed; mj_jacDot needs the velocity stage of the new state.
+            _close_loops(jac, self._no_bias, theta_dot, motor_dofs, passive_dofs, self._qvel)
+            mujoco.mj_comVel(model, data)
+            _close_loops(jac, plant.loop_bias_acceleration(), theta_ddot, motor_dofs, passive_dofs, self._qacc)
             mujoco.mj_inverse(model, data)
         finally:
-            model.body_mass[self._platform_body] = self._platform_mass
-
-        # Forces MuJoCo keeps outside qfrc_inverse: Coulomb (a constraint) and the plant's qfrc_applied.
-        rhs = data.qfrc_inverse.copy()
-        rhs[self._motor_dofs] += self._frictionloss * np.sign(theta_dot)
-        rhs[self._motor_dofs] -= plant.motor_disturbance(theta, theta_dot)
-        self._system[:, 3:] = jac.T
-        return _solve(self._system, rhs)[:3]
+            self._body_mass[self._platform_body] = self._platform_mass
+        return _motor_torques(
+            self._system,
+            jac,
+            self._qfrc_inverse,
+            motor_dofs,
+            theta,
+            theta_dot,
+            self._frictionloss,
+            self._stribeck_gain,
+            self._inv_stribeck_velocity,
+            self._ripple_amplitude,
+            self._ripple_periods,
+        )
 
 
 @numba.njit(cache=True)
@@ -228,7 +246,64 @@ def _assembly(
 
 
 @numba.njit(cache=True)
-def _solve(matrix: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``np.linalg.solve`` (LAPACK gesv) compiled: the same LU with partial pivoting, without NumPy's per-call
-    overhead, which exceeds the factorization of the oracle's 18 x 18 and 21 x 21 systems."""
-    return np.linalg.solve(matrix, rhs)
+def _close_loops(
+    jac: NDArray[np.float64],
+    bias: NDArray[np.float64],
+    motor: NDArray[np.float64],
+    motor_dofs: NDArray[np.int64],
+    passive_dofs: NDArray[np.int64],
+    out: NDArray[np.float64],
+) -> None:
+    """Write ``motor`` (3,) at ``motor_dofs`` of ``out`` (nv,) and the passive entries that solve
+    J_c out = -bias: the velocities (bias 0) or the accelerations (bias Jdot_c qvel) that keep the loops closed."""
+    n = len(passive_dofs)
+    passive_jac = np.empty((n, n))
+    rhs = np.empty(n)
+    for row in range(n):
+        for column in range(n):
+            passive_jac[row, column] = jac[row, passive_dofs[column]]
+        driven = 0.0
+        for joint in range(3):
+            driven += jac[row, motor_dofs[joint]] * motor[joint]
+        rhs[row] = -bias[row] - driven
+    passive = np.linalg.solve(passive_jac, rhs)
+    for joint in range(3):
+        out[motor_dofs[joint]] = motor[joint]
+    for column in range(n):
+        out[passive_dofs[column]] = passive[column]
+
+
+@numba.njit(cache=True)
+def _motor_torques(
+    system: NDArray[np.float64],
+    jac: NDArray[np.float64],
+    qfrc_inverse: NDArray[np.float64],
+    motor_dofs: NDArray[np.int64],
+    theta: NDArray[np.float64],
+    theta_dot: NDArray[np.float64],
+    frictionloss: NDArray[np.float64],
+    stribeck_gain: NDArray[np.float64],
+    inv_stribeck_velocity: float,
+    ripple_amplitude: float,
+    ripple_periods: float,
+) -> NDArray[np.float64]:
+    """Motor torques (N m), (3,), from [S  J_c^T] [tau; lambda] = qfrc_inverse + Coulomb - Stribeck and ripple.
+
+    The right-hand side adds the forces MuJoCo keeps outside ``qfrc_inverse``: Coulomb friction (a constraint,
+    fc_i sign(theta_dot_i)) and the plant's ``qfrc_applied`` (:meth:`DeltaPlant.motor_disturbance`, here in
+    scalar math). ``system`` (nv, nv) holds S in its first three columns; the others receive J_c^T.
+    """
+    rhs = qfrc_inverse.copy()
+    for joint in range(3):
+        rate = theta_dot[joint]
+        sign = 1.0 if rate > 0.0 else (-1.0 if rate < 0.0 else 0.0)
+        v = rate * inv_stribeck_velocity
+        ripple = ripple_amplitude * math.sin(ripple_periods * theta[joint])
+        disturbance = ripple - stribeck_gain[joint] * math.exp(-v * v) * math.tanh(v * STRIBECK_SIGN_SLOPE)
+        dof = motor_dofs[joint]
+        rhs[dof] += frictionloss[joint] * sign
+        rhs[dof] -= disturbance
+    for row in range(jac.shape[0]):
+        for column in range(jac.shape[1]):
+            system[column, 3 + row] = jac[row, column]
+    return np.linalg.solve(system, rhs)[:3]

@@ -35,6 +35,9 @@ STRIBECK_SIGN_SLOPE = 4.0
 """Slope factor of the smooth sign tanh(4 v / v_s) of the Stribeck term: stays explicit-stable at 1 kHz."""
 
 
+_IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
+
+
 def _quat_conjugate(quat: NDArray[np.float64]) -> NDArray[np.float64]:
     return quat * np.array([1.0, -1.0, -1.0, -1.0])
 
@@ -108,7 +111,7 @@ class DeltaPlant:
                 for rod in rods
             ]
         )
-        self._rods_per_chain = len(rods)
+        self._elbow_chains = np.repeat(np.arange(3), len(rods))  # the chain of each rod of _elbow_qpos
         self._tilt = forearm_home_tilt(self.config.geometry)
         self._cos_alpha, self._sin_alpha = np.array(CHAIN_COS), np.array(CHAIN_SIN)
 
@@ -120,12 +123,14 @@ class DeltaPlant:
         n_rows = 3 * len(self._loop_sites)
         if n_rows != len(self._passive_dofs):
             raise RuntimeError(f"model has {n_rows} loop rows for {len(self._passive_dofs)} passive dofs")
-        self._jac_a = np.zeros((3, model.nv))
-        self._jac_b = np.zeros((3, model.nv))
+        # The Jacobians (and their derivatives) of the forearm-end sites in the rows of one array and those of
+        # the platform sites in another, so that one subtraction forms the loop's; per loop, the ids as Python
+        # ints, views of the two sites' positions (MjData keeps its buffers for its lifetime) and of the
+        # loop's three rows in each array.
+        self._site_jac = np.zeros((2, n_rows, model.nv))
+        self._site_jac_dot = np.zeros((2, n_rows, model.nv))
         self._loop_jac = np.zeros((n_rows, model.nv))
         self._loop_jac_dot = np.zeros((n_rows, model.nv))
-        # Per loop, for the 1 kHz oracle: ids as Python ints, views of the two sites' positions (MjData keeps
-        # its buffers for its lifetime) and of the loop's rows in the Jacobian and its derivative.
         self._loop_terms = [
             (
                 rod_site,
@@ -134,8 +139,10 @@ class DeltaPlant:
                 platform_body,
                 self.data.site_xpos[rod_site],
                 self.data.site_xpos[platform_site],
-                self._loop_jac[3 * k : 3 * k + 3],
-                self._loop_jac_dot[3 * k : 3 * k + 3],
+                self._site_jac[0, 3 * k : 3 * k + 3],
+                self._site_jac[1, 3 * k : 3 * k + 3],
+                self._site_jac_dot[0, 3 * k : 3 * k + 3],
+                self._site_jac_dot[1, 3 * k : 3 * k + 3],
             )
             for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
                 zip(self._loop_sites.tolist(), self._loop_bodies.tolist(), strict=True)
@@ -235,42 +242,42 @@ class DeltaPlant:
         elbows = np.stack((np.arctan2(-local_x, -local_z), np.arcsin(tangential)), axis=-1)
         return xyz, elbows
 
-    def _assemble(
-        self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray, *, forward: bool = True
-    ) -> NDArray[np.float64]:
-        """Write a configuration from :meth:`assembly_coordinates` and solve the velocities (no checks).
-
-        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`). With
-        ``forward=False`` only the velocity kinematics (``mj_comVel``) follow instead of ``mj_forward``: all
-        that ``mj_jacDot`` needs, for a caller (the inverse dynamics oracle) whose ``mj_inverse`` recomputes
-        the rest from qpos, qvel and qacc.
-        """
+    def _assemble(self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray) -> None:
+        """Write a configuration from :meth:`assembly_coordinates`, solve the velocities and run ``mj_forward``
+        (no checks)."""
         model, data = self.model, self.data
-        data.qpos[self._motor_qpos] = theta
-        if self._platform_free:
-            data.qpos[self._platform_qpos : self._platform_qpos + 7] = [*platform, 1.0, 0.0, 0.0, 0.0]
-        else:
-            data.qpos[self._platform_qpos : self._platform_qpos + 3] = platform - self._platform_offset
-        data.qpos[self._elbow_qpos] = np.repeat(elbows, self._rods_per_chain, axis=0)
-        carried = self.payload_attached
-        if carried:
-            self._put_payload_on_platform()
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        jac = self.loop_jacobian()
+        jac = self._configure(theta, platform, elbows)
         data.qvel[self._motor_dofs] = theta_dot
         data.qvel[self._passive_dofs] = np.linalg.solve(
             jac[:, self._passive_dofs], -jac[:, self._motor_dofs] @ theta_dot
         )
-        if carried:
+        if self.payload_attached:
             self._match_payload_velocity()
         if model.na:
             data.act[:] = 0.0
-        if forward:
-            mujoco.mj_forward(model, data)
+        mujoco.mj_forward(model, data)
+
+    def _configure(self, theta: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
+        """Write a configuration from :meth:`assembly_coordinates` (a carried payload follows the platform) and
+        run the position stages ``mj_kinematics`` and ``mj_comPos``; qvel is left as it was.
+
+        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`): what the
+        velocities that close the loops solve with (:meth:`_assemble`, and the inverse dynamics oracle, which
+        writes qvel and qacc itself and lets ``mj_inverse`` recompute the rest).
+        """
+        qpos = self._qpos
+        qpos[self._motor_qpos] = theta
+        if self._platform_free:
+            qpos[self._platform_qpos : self._platform_qpos + 3] = platform
+            qpos[self._platform_qpos + 3 : self._platform_qpos + 7] = _IDENTITY_QUATERNION
         else:
-            mujoco.mj_comVel(model, data)
-        return jac
+            np.subtract(platform, self._platform_offset, out=qpos[self._platform_qpos : self._platform_qpos + 3])
+        qpos[self._elbow_qpos] = elbows[self._elbow_chains]
+        if self.payload_attached:
+            self._put_payload_on_platform()
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+        return self.loop_jacobian()
 
     def loop_jacobian(self) -> NDArray[np.float64]:
         """Jacobian (n_loop_rows, nv) of the loop residuals (forearm end minus platform point, m).
@@ -278,25 +285,24 @@ class DeltaPlant:
         Uses the current ``site_xpos`` and ``cdof``: call after ``mj_kinematics`` and ``mj_comPos``
         (``mj_forward`` does both). The returned array is reused by the next call.
         """
-        model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
-        for rod_site, platform_site, _, _, _, _, rows, _ in self._loop_terms:
-            mujoco.mj_jacSite(model, data, jac_a, None, rod_site)
-            mujoco.mj_jacSite(model, data, jac_b, None, platform_site)
-            np.subtract(jac_a, jac_b, out=rows)
-        return self._loop_jac
+        model, data = self.model, self.data
+        for rod_site, platform_site, _, _, _, _, rod_rows, platform_rows, _, _ in self._loop_terms:
+            mujoco.mj_jacSite(model, data, rod_rows, None, rod_site)
+            mujoco.mj_jacSite(model, data, platform_rows, None, platform_site)
+        return np.subtract(self._site_jac[0], self._site_jac[1], out=self._loop_jac)
 
     def loop_bias_acceleration(self) -> NDArray[np.float64]:
         """Jdot_c qvel (m/s^2) of the loop residuals, shape (n_loop_rows,), from ``mj_jacDot``.
 
         Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``, or
-        after ``mj_kinematics``, ``mj_comPos`` and ``mj_comVel`` (``_assemble(..., forward=False)``).
+        after ``mj_kinematics``, ``mj_comPos`` and ``mj_comVel``.
         """
-        model, data, jac_a, jac_b = self.model, self.data, self._jac_a, self._jac_b
-        for _, _, rod_body, platform_body, rod_point, platform_point, _, rows in self._loop_terms:
-            mujoco.mj_jacDot(model, data, jac_a, None, rod_point, rod_body)
-            mujoco.mj_jacDot(model, data, jac_b, None, platform_point, platform_body)
-            np.subtract(jac_a, jac_b, out=rows)
-        return self._loop_jac_dot @ data.qvel
+        model, data = self.model, self.data
+        for _, _, rod_body, platform_body, rod_point, platform_point, _, _, rod_rows, platform_rows in self._loop_terms:
+            mujoco.mj_jacDot(model, data, rod_rows, None, rod_point, rod_body)
+            mujoco.mj_jacDot(model, data, platform_rows, None, platform_point, platform_body)
+        np.subtract(self._site_jac_dot[0], self._site_jac_dot[1], out=self._loop_jac_dot)
+        return self._loop_jac_dot @ self._qvel
 
     def joint_angles(self) -> NDArray[np.float64]:
         """Motor angles theta (rad), shape (3,); current."""
@@ -345,6 +351,17 @@ class DeltaPlant:
         v = np.asarray(theta_dot) * self._inv_stribeck_velocity
         ripple = self._ripple_amplitude * np.sin(self._ripple_periods * np.asarray(theta))
         return ripple - self._stribeck_gain * np.exp(-v * v) * np.tanh(v * STRIBECK_SIGN_SLOPE)
+
+    @property
+    def disturbance_coefficients(self) -> tuple[NDArray[np.float64], float, float, float]:
+        """The constants of :meth:`motor_disturbance`: Stribeck gain excess * fc_i per joint (N m), shape (3,),
+        1 / v_s (s/rad), ripple amplitude (N m) and ripple periods per revolution."""
+        return (
+            self._stribeck_gain.copy(),
+            self._inv_stribeck_velocity,
+            self._ripple_amplitude,
+            self._ripple_periods,
+        )
 
     def step(self, torque_command: NDArray[np.float64], n_substeps: int) -> None:
         """Command motor torques (N m, shape (3,)) and advance ``n_substeps`` physics steps.

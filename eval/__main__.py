@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from controllers.registry import CONTROLLER_LABELS, estimation_model
-from controllers.residual import DEFAULT_POLICY_PATH, load_residual_policy
+from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots
@@ -101,13 +101,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
     if "residual" in args.controllers:
-        try:  # fail now, not after the other controllers have run
-            policy = load_residual_policy(args.residual)
+        # Fail now, not after the other controllers have run. Only the settings are read here: the model
+        # (torch) is loaded by the worker that runs the residual episodes, which the comparison runs first.
+        try:
+            base = read_policy_settings(args.residual).base
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
-        args.residual_base = None if policy.base is None else policy.base.name
+        args.residual_base = None if base is None else base.name
         robot = args.scenario.plant
-        if policy.base is not None and (policy.base.geometry, policy.base.masses) != (robot.geometry, robot.masses):
+        if base is not None and (base.geometry, base.masses) != (robot.geometry, robot.masses):
             if not chosen:
                 args.controllers.remove("residual")
                 args.left_out = (
@@ -115,8 +117,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                 )
                 return args
             parser.error(
-                f"--residual: {args.residual} was trained on a robot with {policy.base.geometry} and "
-                f"{policy.base.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
+                f"--residual: {args.residual} was trained on a robot with {base.geometry} and "
+                f"{base.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
                 "'residual' out of --controllers or train a policy on this robot (python -m eval.train_residual "
                 "--scenario/--geometry)"
             )

@@ -22,7 +22,6 @@ from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import OracleController
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
 from delta_env.env import DeltaPickPlaceEnv
-from delta_env.geometry import TORQUE_LIMIT
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from eval import metrics
@@ -177,7 +176,7 @@ def run_episode(
         if estimate is not None:
             estimates[n] = controller.payload_estimate
         observation, _, terminated, truncated, info = env.step(action)
-        command[n] = np.clip(action, -TORQUE_LIMIT, TORQUE_LIMIT)  # as the env clips it
+        command[n] = info["torque_command"]
         # Truth at the end of the step, against the reference of that instant (the new observation's).
         tracking[n] = info["tracking_error"]
         torque[n] = info["applied_torque"]

@@ -49,6 +49,16 @@ def process_pool(workers: int) -> Iterator[Pool | None]:
         yield pool
 
 
+def parallel_imap(function: Callable[[_Item], _Output], items: Sequence[_Item], pool: Pool | None) -> Iterator[_Output]:
+    """``function(item)`` for each of ``items``, in order, as the caller asks for them.
+
+    On ``pool`` every item is queued at once, so the workers keep busy while the caller works on the first
+    results, and work given to the pool afterwards queues behind these items (no barrier between dependent
+    batches); without a pool, each item runs in this process when its result is asked for.
+    """
+    return map(function, items) if pool is None else pool.imap(function, items)
+
+
 def parallel_map(
     function: Callable[[_Item], _Output],
     items: Sequence[_Item],

@@ -6,7 +6,7 @@ It lives in an importable module (not ``eval.__main__``) so that forkserver / sp
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.pool import Pool
 from pathlib import Path
@@ -17,7 +17,7 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord, run_episode
-from eval.processes import parallel_map
+from eval.processes import parallel_imap, process_pool
 
 if TYPE_CHECKING:
     from controllers.residual import ResidualPolicy
@@ -70,9 +70,66 @@ def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     return task, record
 
 
+def run_task_group(tasks: Sequence[Task]) -> list[tuple[Task, EpisodeRecord]]:
+    """:func:`run_task` of each of ``tasks`` in turn, in one process (picklable)."""
+    return [run_task(task) for task in tasks]
+
+
+def task_groups(tasks: Sequence[Task], workers: int) -> list[list[int]]:
+    """The units of work of ``tasks`` on a pool of ``workers``, as lists of indices into ``tasks``: one task
+    each, except the residual episodes.
+
+    Every process that runs a residual episode first loads torch and the policy, which costs as much CPU as
+    about twenty episodes; so the residual episodes share as few processes as their share of the work needs,
+    max(1, round(workers * residual / all)) groups dealt round-robin (one group on the default comparison),
+    placed where the first of them is. The order is otherwise kept.
+    """
+    residual = [n for n, task in enumerate(tasks) if task.key == "residual"]
+    if not residual:
+        return [[n] for n in range(len(tasks))]
+    n_groups = min(len(residual), max(1, round(workers * len(residual) / len(tasks))))
+    groups: list[list[int]] = []
+    for n, task in enumerate(tasks):
+        if task.key != "residual":
+            groups.append([n])
+        elif n == residual[0]:
+            groups += [residual[start::n_groups] for start in range(n_groups)]
+    return groups
+
+
+def iterate_tasks(
+    tasks: Sequence[Task], workers: int, progress: Any = None, pool: Pool | None = None
+) -> Iterator[tuple[Task, EpisodeRecord]]:
+    """Run ``tasks`` on ``pool`` (in this process if None); (task, record) in the order of :func:`task_groups`
+    as the results arrive, advancing the tqdm bar ``progress`` once per task.
+
+    With a pool, every task is queued by this call (:func:`~eval.processes.parallel_imap`): the caller can give
+    the pool more work that depends on the first results while the rest still runs.
+    """
+    groups = [[tasks[n] for n in group] for group in task_groups(tasks, workers)]
+    return _each_result(parallel_imap(run_task_group, groups, pool), progress)
+
+
+def _each_result(
+    groups: Iterator[list[tuple[Task, EpisodeRecord]]], progress: Any
+) -> Iterator[tuple[Task, EpisodeRecord]]:
+    for results in groups:
+        for result in results:
+            if progress is not None:
+                progress.update()
+            yield result
+
+
 def run_tasks(
     tasks: Sequence[Task], workers: int, progress: Any = None, pool: Pool | None = None
 ) -> list[tuple[Task, EpisodeRecord]]:
-    """Run ``tasks`` in order on ``workers`` processes (in this one if 1) or on ``pool``, advancing the tqdm
-    bar ``progress``."""
-    return parallel_map(run_task, tasks, workers, progress, pool)
+    """Run ``tasks`` on ``workers`` processes (in this one if 1) or on ``pool``, advancing the tqdm bar
+    ``progress``; the results in the order of ``tasks``."""
+    if pool is not None or workers == 1 or len(tasks) <= 1:
+        results = list(iterate_tasks(tasks, workers, progress, pool))
+    else:
+        with process_pool(min(workers, len(tasks))) as own_pool:
+            results = list(iterate_tasks(tasks, workers, progress, own_pool))
+    arrival = [n for group in task_groups(tasks, workers) for n in group]
+    by_index = dict(zip(arrival, results, strict=True))
+    return [by_index[n] for n in range(len(tasks))]

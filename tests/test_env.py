@@ -142,11 +142,17 @@ def test_bad_constructor_arguments_raise(kwargs: dict, message: str) -> None:
 
 def test_torque_beyond_limit_is_saturated_and_flagged(env: DeltaPickPlaceEnv) -> None:
     env.reset(seed=0)
-    _, _, _, _, info = env.step(np.array([1000.0, 0.0, -1000.0]))
+    action = np.array([1000.0, 0.0, -1000.0])
+    _, _, _, _, info = env.step(action)
     assert info["torque_saturated"]
     assert np.all(np.abs(env.plant.data.ctrl) <= delta_env.TORQUE_LIMIT)
-    _, _, _, _, info = env.step(np.zeros(3))
+    limit = delta_env.TORQUE_LIMIT
+    assert_array_equal(info["torque_command"], [limit, 0.0, -limit])  # the command the drive held, not the action
+    action = np.array([5.0, -3.0, 1.0])
+    _, _, _, _, info = env.step(action)
     assert not info["torque_saturated"]
+    action[:] = 0.0  # the caller's array is free to change: info holds a copy
+    assert_array_equal(info["torque_command"], [5.0, -3.0, 1.0])
 
 
 def test_divergence_terminates_with_flag_and_finite_observation() -> None:

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 import warnings
 import zipfile
 from pathlib import Path
@@ -33,9 +36,11 @@ from controllers.residual import (
     load_residual_controller,
     load_residual_policy,
     read_policy_metadata,
+    read_policy_settings,
     save_residual_policy,
     shipped_base_setup,
 )
+from controllers.residual.policy_file import METADATA_NAME
 from delta_env.env import DeltaPickPlaceEnv
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import (
@@ -395,6 +400,29 @@ def test_shipped_base_setup_is_the_policy_files_base() -> None:
     setup = shipped_base_setup()
     assert setup == load_residual_policy(DEFAULT_POLICY_PATH).base
     assert setup.controller().name == "MId+F+R+RLS+PD"
+
+
+def test_policy_settings_are_read_without_torch_and_checked(tmp_path: Path) -> None:
+    # python -m eval checks --residual with these settings in its main process; the model loads in a worker.
+    code = (
+        "import sys; from controllers.residual import read_policy_settings; "
+        "settings = read_policy_settings(); assert 'torch' not in sys.modules, 'torch imported'; "
+        "print(settings.algo, settings.base.name)"
+    )
+    environment = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["sac", load_residual_policy().base.name]
+    with zipfile.ZipFile(DEFAULT_POLICY_PATH) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    metadata = json.loads(members[METADATA_NAME])
+    for field, value, message in (("feature_version", -1, "feature version"), ("algo", "dqn", "algo")):
+        broken = tmp_path / f"{field}.zip"
+        with zipfile.ZipFile(broken, "w") as archive:
+            for name, data in members.items():
+                archive.writestr(name, json.dumps({**metadata, field: value}) if name == METADATA_NAME else data)
+        with pytest.raises(ValueError, match=rf"{field}\.zip.*{message}"):
+            read_policy_settings(broken)
 
 
 def test_hyperparameters_come_from_the_toml_file() -> None:

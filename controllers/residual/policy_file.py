@@ -13,7 +13,7 @@ import math
 import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -209,13 +209,23 @@ class ResidualPolicy:
         return action if np.ndim(observation) == 2 else action[0]
 
 
-def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPolicy:
-    """Load a policy written by :func:`save_residual_policy` (on the CPU).
+class PolicySettings(NamedTuple):
+    """What a policy file records beside the model: the settings, the algorithm, the base and all its metadata."""
+
+    config: ResidualConfig
+    algo: str
+    base: BaseSetup | None
+    metadata: dict[str, Any]
+
+
+def read_policy_settings(path: str | Path = DEFAULT_POLICY_PATH) -> PolicySettings:
+    """The settings of a policy file, checked, without loading the model (no torch): what a caller needs to
+    decide whether the policy fits a robot before paying for :func:`load_residual_policy`.
 
     Raises:
         FileNotFoundError: if ``path`` does not exist.
-        ValueError: if ``path`` is not a valid residual policy (corrupt zip, missing or incompatible
-            settings, unreadable model); the message names the path.
+        ValueError: if the settings are missing, unreadable or of another feature version; the message names
+            the path.
     """
     metadata = read_policy_metadata(path)
     try:
@@ -224,7 +234,24 @@ def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPoli
         config = ResidualConfig.from_dict(metadata["config"])
         base = None if metadata["base"] is None else BaseSetup.from_dict(metadata["base"])
         algo = metadata["algo"]
-        model = algorithm_class(algo).load(path, device="cpu")
+        if algo not in ALGORITHMS:
+            raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"could not load the residual policy {path}: {error}") from error
+    return PolicySettings(config, algo, base, metadata)
+
+
+def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPolicy:
+    """Load a policy written by :func:`save_residual_policy` (on the CPU).
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        ValueError: if ``path`` is not a valid residual policy (corrupt zip, missing or incompatible
+            settings, unreadable model); the message names the path.
+    """
+    settings = read_policy_settings(path)
+    try:
+        model = algorithm_class(settings.algo).load(path, device="cpu")
         model.policy.set_training_mode(False)
     except Exception as error:  # SB3 and torch raise many kinds on a damaged archive
         raise ValueError(f"could not load the residual policy {path}: {error}") from error
@@ -234,7 +261,9 @@ def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPoli
             f"{path}: policy spaces {model.observation_space.shape} -> {model.action_space.shape} do not match "
             f"the residual observation {expected} -> (3,)"
         )
-    return ResidualPolicy(model=model, config=config, algo=algo, base=base, metadata=metadata)
+    return ResidualPolicy(
+        model=model, config=settings.config, algo=settings.algo, base=settings.base, metadata=settings.metadata
+    )
 
 
 def load_residual_controller(
