@@ -29,6 +29,7 @@ from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.oracle import InverseDynamicsOracle
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.validation import require_in
 
 
 class FeedforwardController:
@@ -85,6 +86,24 @@ class FeedforwardController:
         return tau0 + mass * phi + feedback
 
 
+ORACLE_KP = 6000.0
+"""Proportional gain of the oracle's feedback (N m/rad)."""
+
+ORACLE_DAMPING = 4.0
+"""Damping the oracle's feedback keeps through the drive lag, Kd - Kp T (N m s/rad).
+
+A lag T delays the feedback: to first order Kp e(t - T) = Kp e(t) - Kp T de/dt, so the lag takes Kp T of
+damping away. The oracle's gains were chosen on the 1 ms lag of the default plant (Kp 6000, Kd 10, the best of
+a small grid on episodes outside the evaluation's), which leaves 4 N m s/rad; :func:`oracle_gains` keeps that
+on any lag. With Kd fixed at 10, a 2 ms lag leaves almost none and the bound rings (0.1 to 0.4 mm)."""
+
+
+def oracle_gains(lag: float) -> tuple[float, float]:
+    """The oracle's (Kp (N m/rad), Kd (N m s/rad)) on a drive with lag ``lag`` (s): Kd = ORACLE_DAMPING + Kp T."""
+    require_in("lag", lag, 0.0, unit="s")
+    return ORACLE_KP, ORACLE_DAMPING + ORACLE_KP * lag
+
+
 class OracleController:
     """Exact inverse of the plant, mechanism and drive, at the reference with the true payload: a bound.
 
@@ -99,11 +118,12 @@ class OracleController:
     and the ripple are inverted by the oracle at the reference state. Feedback is PD; with an exact
     feedforward it only has to correct integration error, and a large Kd mostly feeds the encoder's rate
     quantization (0.05 rad/s at 17 bit and 1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own
-    gains (Kp 6000 N m/rad, Kd 10 N m s/rad: the best of a small grid on episodes outside the evaluation's).
+    gains, :func:`oracle_gains` of the plant's true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms).
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
-        pd: The feedback part; ``PDController(6000, 10)`` when None.
+        pd: The feedback part; None: :func:`oracle_gains` of the plant's lag, updated with
+            :meth:`set_physical_parameters`.
         period: Control period (s).
     """
 
@@ -111,7 +131,8 @@ class OracleController:
 
     def __init__(self, plant: PlantConfig, *, pd: PDController | None = None, period: float = CONTROL_PERIOD) -> None:
         self.oracle = InverseDynamicsOracle(plant)
-        self.pd = PDController(kp=6000.0, kd=10.0) if pd is None else pd
+        self._gains_follow_lag = pd is None
+        self.pd = PDController(*oracle_gains(plant.realism.actuator_lag)) if pd is None else pd
         self.drive = SampledLag(plant.realism.actuator_lag, period)
         self.reference = ReferencePredictor(period)
         self.payload_masses: tuple[float, ...] = ()
@@ -126,6 +147,8 @@ class OracleController:
         """The plant's true (e.g. randomized) masses, friction and lag, from ``env.plant.parameters``."""
         self.oracle.set_physical_parameters(parameters)
         self.drive = SampledLag(parameters.actuator_lag, self.drive.period)
+        if self._gains_follow_lag:
+            self.pd = PDController(*oracle_gains(parameters.actuator_lag))
 
     @property
     def payload_estimate(self) -> float:
