@@ -133,7 +133,7 @@ def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     violations = bound_violations(episode_rows, bound)
     if violations:
         return ["## Bound violated", "", *violations, ""]
-    return [f"Bound check: no controller's mean tracking RMS is below {bound}'s.", ""]
+    return [f"Bound check: no controller tracks better than {bound}, in the mean or on any episode.", ""]
 
 
 def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any]]) -> list[str]:
