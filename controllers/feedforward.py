@@ -209,6 +209,11 @@ class LagCompensatedController:
         """The base's payload estimator, if any."""
         return self.base.estimator
 
+    @property
+    def dynamics(self) -> DeltaDynamics:
+        """The base's model."""
+        return self.base.dynamics
+
     def reset(self) -> None:
         self.base.reset()
         self.drive.reset()

@@ -209,9 +209,10 @@ def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.
 
     Targets: the RLS controller tracks within 0.2 x PD; no controller tracks better than the oracle bound (it
     inverts mechanism and drive exactly, so this is an invariant, not a target); the residual policy cuts its
-    base's (the lag-compensated RLS controller's) tracking RMS by at least 15 % for at most +5 % torque RMS; every estimate of an object of
-    0.5 kg or more is within +-5 % by 150 ms after its pick; the payload estimate cuts the spread of
-    tau_measured - tau_model to at most 0.6 of its value with mp = 0 on every joint (the paper's Table 2).
+    base's (the lag-compensated RLS controller's) tracking RMS by at least 15 % for at most +5 % torque RMS;
+    every estimate of an object of 0.5 kg or more is within +-5 % by 150 ms after its pick; the payload estimate
+    cuts the spread of tau_measured - tau_model to at most 0.6 of its value with mp = 0 on every joint (the
+    paper's Table 2).
     """
     folder = tmp_path_factory.mktemp("comparison")
     parameters = folder / "parameters.json"

@@ -14,7 +14,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from numpy.testing import assert_array_equal
+from numpy.testing import assert_allclose, assert_array_equal
 
 pytest.importorskip("stable_baselines3", reason="the residual policy needs the rl extra (stable-baselines3)")
 
@@ -40,7 +40,7 @@ from controllers.residual import (
     save_residual_policy,
     shipped_base_setup,
 )
-from controllers.residual.policy_file import METADATA_NAME
+from controllers.residual.policy_file import METADATA_NAME, actor_layers
 from delta_env.env import DeltaPickPlaceEnv
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import (
@@ -283,11 +283,11 @@ def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
     policy = load_residual_policy(path)
     assert policy.config == config and policy.base == base and policy.metadata["extra"] == {"note": "untrained"}
     observations = np.random.default_rng(1).uniform(-3, 3, (16, ResidualFeatures.size)).astype(np.float32)
-    assert_array_equal(policy(observations), model.predict(observations, deterministic=True)[0])
+    assert_allclose(policy(observations), model.predict(observations, deterministic=True)[0], rtol=0.0, atol=1e-6)
     # Without a base, the controller rebuilds the one stored in the file.
     reloaded = load_residual_controller(path)
     assert reloaded.config == config and reloaded.base.estimator.tare == -0.1
-    direct = ResidualController(base.controller(), lambda o: model.predict(o, deterministic=True)[0], config)
+    direct = ResidualController(base.controller(), policy, config)
     torques = controller_rollout(reloaded, 100)[0]
     assert_array_equal(torques, controller_rollout(direct, 100)[0])
     assert not np.array_equal(torques, controller_rollout(base.controller(), 100)[0])
@@ -399,7 +399,7 @@ def test_residual_env_is_a_wrapper_of_the_plant_env() -> None:
 def test_shipped_base_setup_is_the_policy_files_base() -> None:
     setup = shipped_base_setup()
     assert setup == load_residual_policy(DEFAULT_POLICY_PATH).base
-    assert setup.controller().name == "MId+F+R+RLS+PD"
+    assert setup.controller().name == "MId+F+R+RLS+lag+PD", "the shipped policy's base leads the drive lag"
 
 
 def test_policy_settings_are_read_without_torch_and_checked(tmp_path: Path) -> None:
@@ -445,3 +445,14 @@ def test_residual_features_use_the_drives_datasheet_values() -> None:
 def test_a_missing_shipped_policy_says_how_to_get_a_base(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match=r"pass base=.*python -m eval\.identify"):
         shipped_base_setup(tmp_path / "absent.zip")
+
+
+def test_only_a_plain_relu_mlp_actor_runs_as_numpy_layers() -> None:
+    import torch
+
+    env = DeltaResidualEnv(base=make_base(), n_cycles=1)
+    plain = SAC("MlpPolicy", env, seed=2, policy_kwargs={"net_arch": [16, 8]}, device="cpu")
+    layers = actor_layers(plain)
+    assert [w.shape for w, _ in layers] == [(16, ResidualFeatures.size), (8, 16), (3, 8)]
+    other = SAC("MlpPolicy", env, seed=2, policy_kwargs={"net_arch": [16], "activation_fn": torch.nn.Tanh})
+    assert actor_layers(other) is None

@@ -100,9 +100,11 @@ class ResidualFeatures:
         self._add(observation, base_torque, payload)
 
     def _add(self, observation: Observation, base_torque: NDArray[np.float64], payload: float) -> None:
-        # The jerk is formed at policy steps only, from the last two reference accelerations.
+        # The jerk is formed at policy steps only, from the last two reference accelerations. Like the
+        # observation itself, they are kept by reference, not copied: an observation is never changed after it
+        # is made (the env's reference rows are read-only views).
         self._previous_acceleration = self._acceleration
-        self._acceleration = np.array(observation["reference_accelerations"], dtype=float)
+        self._acceleration = observation["reference_accelerations"]
         # The sums in Python floats: at three values, cheaper than NumPy's in-place operations.
         angle_sum, rate_sum = self._angle_error_sum, self._rate_error_sum
         for joint, (reference, angle, reference_rate, rate) in enumerate(
@@ -118,7 +120,7 @@ class ResidualFeatures:
             rate_sum[joint] += reference_rate - rate
         self._window += 1
         self._observation = observation
-        self._base_torque = np.array(base_torque, dtype=float)
+        self._base_torque = base_torque  # read at the policy step of this same control step, before it can change
         self._payload = payload
 
     def policy_observation(self, previous_action: NDArray[np.float64]) -> NDArray[np.float32]:

@@ -188,18 +188,31 @@ class ResidualPolicy:
     algo: str
     base: BaseSetup | None
     metadata: dict[str, Any]
+    layers: tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...] | None = None
+    """The deterministic actor as float32 (weight, bias) pairs of its Linear layers (ReLU between them, tanh
+    after the last), when it is that plain MLP (:func:`actor_layers`); None runs the torch modules."""
 
     def __call__(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
         """The deterministic action (mean of the policy) for one observation ``(43,)`` or a batch ``(N, 43)``.
 
-        For SAC (without gSDE) the arithmetic of SB3's ``predict(observation, deterministic=True)``, the same
-        torch modules on the same float32 input, without its per-call input checks and distribution objects,
-        which cost three times the network: tanh of the actor's mean, unscaled to the action space.
+        For SAC (without gSDE) the arithmetic of SB3's ``predict(observation, deterministic=True)`` without
+        its per-call input checks and distribution objects, which cost three times the network: tanh of the
+        actor's mean, unscaled to the action space. A plain MLP actor runs as NumPy matrix products on its
+        float32 weights, as a controller would deploy it: the torch call costs about four times the
+        arithmetic at one observation; the actions agree with torch's to float32 round-off.
         """
         policy = self.model.policy
         if self.algo != "sac" or policy.actor.use_sde:
             action, _ = self.model.predict(observation, deterministic=True)
             return action
+        if self.layers is not None:
+            hidden = np.asarray(observation, dtype=np.float32)
+            last = len(self.layers) - 1
+            for index, (weight, bias) in enumerate(self.layers):
+                hidden = hidden @ weight.T + bias
+                if index < last:
+                    np.maximum(hidden, 0.0, out=hidden)
+            return policy.unscale_action(np.tanh(hidden))
         import torch
 
         actor = policy.actor
@@ -207,6 +220,26 @@ class ResidualPolicy:
             features = actor.features_extractor(torch.as_tensor(observation).reshape(-1, ResidualFeatures.size))
             action = policy.unscale_action(torch.tanh(actor.mu(actor.latent_pi(features))).numpy())
         return action if np.ndim(observation) == 2 else action[0]
+
+
+def actor_layers(model: BaseAlgorithm) -> tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...] | None:
+    """The (weight, bias) float32 arrays of a SAC actor that is a plain MLP: flattened input, Linear and ReLU
+    layers, a Linear mean; None for any other actor (PPO, gSDE, other activations or feature extractors)."""
+    import torch
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    actor = getattr(model.policy, "actor", None)
+    if actor is None or getattr(actor, "use_sde", True) or not isinstance(actor.features_extractor, FlattenExtractor):
+        return None
+    modules = [*actor.latent_pi, actor.mu]
+    linear = modules[0::2]
+    if not all(isinstance(m, torch.nn.Linear) for m in linear) or not all(
+        isinstance(m, torch.nn.ReLU) for m in modules[1::2]
+    ):
+        return None
+    return tuple(
+        (m.weight.detach().numpy().astype(np.float32), m.bias.detach().numpy().astype(np.float32)) for m in linear
+    )
 
 
 class PolicySettings(NamedTuple):
@@ -262,7 +295,12 @@ def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPoli
             f"the residual observation {expected} -> (3,)"
         )
     return ResidualPolicy(
-        model=model, config=settings.config, algo=settings.algo, base=settings.base, metadata=settings.metadata
+        model=model,
+        config=settings.config,
+        algo=settings.algo,
+        base=settings.base,
+        metadata=settings.metadata,
+        layers=actor_layers(model) if settings.algo == "sac" else None,
     )
 
 
