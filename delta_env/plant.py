@@ -164,6 +164,8 @@ class DeltaPlant:
         # Views into mjData for the hot path (the buffers never move).
         self._qpos, self._qvel = data.qpos, data.qvel
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
+        self._site_xpos = data.site_xpos
+        self._loop_site_pairs = tuple(tuple(pair) for pair in self._loop_sites.tolist())
         self.reset()
 
     # --------------------------------------------------------------------------------------------
@@ -326,9 +328,9 @@ class DeltaPlant:
         if refresh:
             mujoco.mj_kinematics(self.model, self.data)
         # Python floats: one exit from NumPy, then six distances in scalar math (cheaper than mju_dist3 calls).
-        positions = self.data.site_xpos.tolist()
+        positions = self._site_xpos.tolist()
         largest = 0.0  # squared; a NaN distance fails the comparison
-        for rod_end, platform_point in self._loop_sites.tolist():
+        for rod_end, platform_point in self._loop_site_pairs:
             (x1, y1, z1), (x2, y2, z2) = positions[rod_end], positions[platform_point]
             dx, dy, dz = x1 - x2, y1 - y2, z1 - z2
             squared = dx * dx + dy * dy + dz * dz
