@@ -513,10 +513,15 @@ class PayloadEstimator:
 
     @property
     def corrections(self) -> ModelCorrections:
-        """The model's corrections fitted on this episode's empty moves so far (0 before any)."""
-        if self._fit[_FIT_STALE] != 0.0:
-            _solve_fit(self._equation, self._fit)
-        p = self._fit[_FIT_SOLUTION : _FIT_SOLUTION + _PARAMETERS]
+        """The model's corrections fitted on this episode's empty moves so far (0 before any).
+
+        Solved on a copy: the solution the carries and the feedforward use stays the one of the last carry's start.
+        """
+        fit = self._fit
+        if fit[_FIT_STALE] != 0.0:
+            fit = fit.copy()
+            _solve_fit(self._equation, fit)
+        p = fit[_FIT_SOLUTION : _FIT_SOLUTION + _PARAMETERS]
         return ModelCorrections(float(p[_P_PLATFORM]), float(p[_P_ARM]), p[_P_FRICTION:].copy())
 
     @property

@@ -216,7 +216,7 @@ def make_env(
         seed: Seed of the training episode seeds.
         rank: Worker index.
         seeds: Fixed held-out seeds instead of drawn training seeds.
-        base_factory: Builds the base controller instead of the default MId+F+R + RLS (tests).
+        base_factory: Builds the base controller instead of ``base`` (tests).
     """
 
     def factory() -> gym.Env:
@@ -310,7 +310,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
 
     Args:
         args: Parsed command-line arguments.
-        base_factory: Builds the base controller instead of the default MId+F+R + RLS (tests).
+        base_factory: Builds the base controller instead of the one of ``args.base`` (tests).
     """
     torch.set_num_threads(args.torch_threads)
     out = create_run_folder("residual", args.out)

@@ -407,3 +407,35 @@ def test_friction_scale_fit_gives_a_joint_at_exact_rest_no_coulomb_friction(cont
     kappa = estimator.friction_scale_error
     assert kappa[0] == 0.0
     assert kappa[1] > 0.01 and kappa[2] < -0.01  # 1 N m along +f and along -f
+
+
+def test_reading_the_corrections_does_not_change_the_feedforward(controller_setup: ControllerSetup) -> None:
+    """The feedforward's platform-mass correction is the one solved at the last carry's start: reading
+    :attr:`PayloadEstimator.corrections` during an empty move reports the fit so far without moving it."""
+    dynamics = DeltaDynamics.nominal(controller_setup.mid_f_rods, forearm_rods=True)
+    angles, rates, accelerations = np.array([0.4, 0.3, 0.5]), np.full(3, 2.0), np.array([5.0, -3.0, 4.0])
+    tau0, phi = dynamics.torque_and_payload_regressor(angles, rates, accelerations)
+
+    def sample(closed: bool, torque: np.ndarray) -> dict[str, np.ndarray]:
+        return {
+            "reference_angles": angles,
+            "reference_velocities": rates,
+            "reference_accelerations": accelerations,
+            "joint_torques": torque,
+            "gripper": np.array([float(closed)]),
+        }
+
+    read, unread = (PayloadEstimator(dynamics, regressor="reference") for _ in range(2))
+    for estimator in (read, unread):
+        estimator.reset()
+    # A carry, an empty move whose torques say the platform is 0.1 kg heavier than the model, a second carry.
+    episode = [sample(True, tau0 + 0.5 * phi)] * 20 + [sample(False, tau0 + 0.1 * phi)] * 40
+    episode += [sample(True, tau0 + 0.6 * phi)] * 20
+    for observation in episode:
+        masses = [estimator.update(observation) for estimator in (read, unread)]
+        platform_mass = read.corrections.platform_mass
+        assert masses[0] == masses[1], "reading the corrections changed the feedforward"
+        if observation["gripper"][0] == 0.0:
+            assert platform_mass > 0.0  # the fit so far is reported
+    assert read.corrections.platform_mass == pytest.approx(unread.corrections.platform_mass)
+    assert read.apparent_mass == unread.apparent_mass

@@ -21,6 +21,7 @@ from delta_env import (
     RandomizationRanges,
     kinematics,
 )
+from delta_env.config import PhysicalParameters
 from delta_env.drive import SampledLag
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY
@@ -302,3 +303,20 @@ def test_bound_keeps_its_damping_on_a_long_drive_lag() -> None:
     assert fixed > 2.0 * bound, (fixed, bound)
     with pytest.raises(ValueError, match="lag"):
         oracle_gains(-1e-3)
+
+
+def test_bound_gains_follow_the_lag_of_each_randomized_plant_unless_given() -> None:
+    """A randomized episode changes the plant's lag through ``set_physical_parameters``: the oracle's own
+    feedback takes Kd = 4 + Kp T of the new lag, and back; feedback passed in by the caller is kept."""
+    config = PlantConfig()
+    oracle = OracleController(config)
+    oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.002))
+    assert (oracle.pd.kp, oracle.pd.kd) == pytest.approx(oracle_gains(0.002))
+    assert oracle.pd.kd == pytest.approx(16.0)
+    assert np.all(oracle.drive.time_constant == 0.002)
+    oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.0005))
+    assert oracle.pd.kd == pytest.approx(7.0)
+    given = PDController(5000.0, 30.0)
+    fixed = OracleController(config, pd=given)
+    fixed.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.002))
+    assert fixed.pd is given

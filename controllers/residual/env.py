@@ -53,8 +53,8 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
 
     ## Arguments
     Args:
-        base: The base controller; None builds the base of the shipped policy (MId+F+R + RLS with the
-            identified parameters and tare recorded in ``controllers/policies/residual_sac.zip``), so that
+        base: The base controller; None builds the base of the shipped policy (MId+F+R + RLS + drive-lag lead
+            with the identified parameters, lag and tare recorded in ``controllers/policies/residual_sac.zip``), so that
             ``gym.make("DeltaPickPlaceResidual-v0")`` neither identifies nor writes files.
         config: Residual settings; None uses :class:`ResidualConfig` defaults.
         env: The plant env to wrap; None builds ``DeltaPickPlaceEnv(**env_kwargs)``.
