@@ -142,7 +142,12 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
         return []
     base = args.residual_base or "a custom base"
     label = CONTROLLER_LABELS["residual"]
-    lines = [f"{label}: the policy {args.residual.name} on the base it was trained on, {base}.", ""]
+    lines = [
+        f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
+        "file; the gain below is against this run's row of that controller (same identification, this run's "
+        "tare).",
+        "",
+    ]
     if args.residual_base is not None:
         lines += residual_gain(episode_rows, label, args.residual_base)
     return lines

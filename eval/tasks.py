@@ -79,8 +79,8 @@ def task_groups(tasks: Sequence[Task], workers: int) -> list[list[int]]:
     """The units of work of ``tasks`` on a pool of ``workers``, as lists of indices into ``tasks``: one task
     each, except the residual episodes.
 
-    Every process that runs a residual episode first loads torch and the policy, which costs as much CPU as
-    about twenty episodes; so the residual episodes share as few processes as their share of the work needs,
+    Every process that runs a residual episode first loads torch and the policy, which costs more than many
+    episodes; so the residual episodes share as few processes as their share of the work needs,
     max(1, round(workers * residual / all)) groups dealt round-robin (one group on the default comparison),
     placed where the first of them is. The order is otherwise kept.
     """

@@ -228,6 +228,21 @@ def make_env(
     return factory
 
 
+def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:
+    """What differs between the run a checkpoint comes from and a resumed run's ``scenario`` and ``base``
+    (as a sentence), from the ``config.json`` of its run folder; None when nothing differs or no record is
+    found (a checkpoint outside a run folder)."""
+    for folder in (checkpoint.parent, checkpoint.parent.parent):
+        record = folder / "config.json"
+        if record.is_file():
+            arguments = json.loads(record.read_text())["config"]["arguments"]
+            trained = {"scenario": arguments.get("scenario"), "base": arguments.get("base", "mid_f_rls")}
+            resumed = {"scenario": scenario, "base": base}
+            changed = [f"{key} {trained[key]} -> {resumed[key]}" for key in trained if trained[key] != resumed[key]]
+            return f"{checkpoint} was trained with another setting: {', '.join(changed)}" if changed else None
+    return None
+
+
 class LatestReplayCheckpoint(CheckpointCallback):
     """CheckpointCallback that keeps only the newest replay buffer (each is ~100 MB; models are kept)."""
 
@@ -380,6 +395,9 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
     if HAS_TENSORBOARD:
         formats.append("tensorboard")
     if args.resume is not None:
+        mismatch = resume_mismatch(args.resume, args.scenario.name, args.base)
+        if mismatch is not None:
+            warnings.warn(f"{mismatch}; training goes on with the new one", stacklevel=1)
         model = algorithm.load(args.resume, env=vec_env, device="cpu")
         replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
         if args.algo == "sac" and replay.is_file():
@@ -390,6 +408,7 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
             replay = None
         resolved["resumed_from"] = {
             "checkpoint": str(args.resume),
+            "setting_changed": mismatch,
             "num_timesteps": model.num_timesteps,
             "replay_buffer": None if args.algo != "sac" else replay,
         }

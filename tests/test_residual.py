@@ -52,6 +52,7 @@ from eval.train_residual import (
     load_hyperparameters,
     make_env,
     parse_args,
+    resume_mismatch,
     train,
 )
 
@@ -456,3 +457,15 @@ def test_only_a_plain_relu_mlp_actor_runs_as_numpy_layers() -> None:
     assert [w.shape for w, _ in layers] == [(16, ResidualFeatures.size), (8, 16), (3, 8)]
     other = SAC("MlpPolicy", env, seed=2, policy_kwargs={"net_arch": [16], "activation_fn": torch.nn.Tanh})
     assert actor_layers(other) is None
+
+
+def test_resuming_under_another_scenario_or_base_is_named(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    checkpoint = run / "checkpoints" / "residual_10_steps.zip"
+    record = {"config": {"arguments": {"scenario": "nominal", "base": "mid_f_rls"}}}
+    (run / "config.json").write_text(json.dumps(record))
+    assert resume_mismatch(checkpoint, "nominal", "mid_f_rls") is None
+    message = resume_mismatch(checkpoint, "randomized", "mid_f_rls_lag")
+    assert "scenario nominal -> randomized" in message and "base mid_f_rls -> mid_f_rls_lag" in message
+    assert resume_mismatch(tmp_path / "elsewhere.zip", "randomized", "mid_f_rls_lag") is None
