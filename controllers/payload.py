@@ -296,6 +296,20 @@ def _weighted_equation(
 
 
 @numba.njit(cache=True)
+def _back_to_torque_instant(
+    current: NDArray[np.float64], previous: NDArray[np.float64], age: float
+) -> NDArray[np.float64]:
+    """Rows (rows, 3) of this sample interpolated back ``age`` control periods towards the previous sample's:
+    x - age (x - x_previous), the instant of the measured torque."""
+    x = np.empty(current.shape)
+    for row in range(current.shape[0]):
+        for joint in range(3):
+            now = current[row, joint]
+            x[row, joint] = now - age * (now - previous[row, joint])
+    return x
+
+
+@numba.njit(cache=True)
 def _reference_equation(
     equation: NDArray[np.float64],
     fit: NDArray[np.float64],
@@ -309,12 +323,7 @@ def _reference_equation(
     """:func:`_weighted_equation` at the reference (``regressor="reference"``), interpolated back to the torque's
     instant between the previous step's and this step's ``(5, 3)``: rows tau0 (N m), phi (N m/kg), theta (rad),
     theta_dot (rad/s), theta_ddot (rad/s^2)."""
-    age = equation[_EQ_TORQUE_AGE]
-    x = np.empty((5, 3))
-    for row in range(5):
-        for joint in range(3):
-            now = current[row, joint]
-            x[row, joint] = now - age * (now - previous[row, joint])
+    x = _back_to_torque_instant(current, previous, equation[_EQ_TORQUE_AGE])
     return _weighted_equation(
         equation,
         fit,
@@ -346,12 +355,7 @@ def _estimated_state_equation(
     sample and the one before; the model is evaluated at the state interpolated back to the torque's instant,
     x - a (x - x_previous) with a the torque's age in control periods.
     """
-    age = equation[_EQ_TORQUE_AGE]
-    x = np.empty((3, 3))
-    for row in range(3):
-        for joint in range(3):
-            now = state[row, joint]
-            x[row, joint] = now - age * (now - previous[row, joint])
+    x = _back_to_torque_instant(state, previous, equation[_EQ_TORQUE_AGE])
     status, terms = _single_sample_model(
         model, x[0, 0], x[0, 1], x[0, 2], x[1, 0], x[1, 1], x[1, 2], x[2, 0], x[2, 1], x[2, 2]
     )
