@@ -1,3 +1,4 @@
+# Over 500 lines: one estimator, its physics notes and the compiled kernels of its 1 kHz update.
 """Online payload mass estimation for the feedforward controllers (the paper's section 5, docs/design.md section 6).
 
 The payload enters the identified model linearly, tau(mp) = tau0 + mp phi with tau0 = tau_model(mp = 0) and

@@ -1,3 +1,4 @@
+# Over 500 lines: one command, from the base controller's setup through SB3's callbacks to the scored policy.
 """Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (docs/design.md section 6).
 
     python -m eval.train_residual --seed 0 --timesteps 400000 --n-envs 2 --max-minutes 60
