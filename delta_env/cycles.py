@@ -1,13 +1,17 @@
 """Pick-and-place reference cycles: the industry's 25/305/25 mm cycle and random conveyor cycles.
 
 Every cycle dwells at the pick point (the gripper closes mid-dwell), arches to the place point, dwells
-(the gripper opens mid-dwell) and arches back (docs/design.md section 5).
+(the gripper opens mid-dwell) and arches back (docs/design.md section 5). An episode is a window of continuous
+work: by default it starts at rest at a place point, where a previous object was released, and arches empty to
+its first pick point, so that every carry follows an empty move, as in a running cell; ``start="pick"`` starts at
+rest at the first pick point instead.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -107,14 +111,16 @@ def standard_cycle(
     heading: float = math.pi / 2,
     dwell: float = 0.1,
     lift_fraction: float = 0.3,
+    start: Literal["place", "pick"] = "place",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
 ) -> Trajectory:
     """The industry's 25/305/25 mm pick cycle: up 25 mm, across 305 mm, down 25 mm, and back.
 
     One cycle: dwell at the pick point (the gripper closes mid-dwell), arch to the place point,
-    dwell (the gripper opens mid-dwell), arch back to the pick point. The trajectory starts and ends
-    at rest at the pick point.
+    dwell (the gripper opens mid-dwell), arch back to the pick point. The trajectory starts at rest at the
+    place point with the gripper open and arches back to the pick point first (``start="place"``), or starts at
+    rest at the pick point (``start="pick"``); it ends at rest at the pick point.
 
     Args:
         geometry: Robot geometry.
@@ -125,6 +131,7 @@ def standard_cycle(
             travels along +y, from the pick conveyor side to the place side.
         dwell: Rest at each pick and place point (s), >= 2 dt.
         lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
+        start: ``"place"`` or ``"pick"``, where the trajectory starts at rest.
         limits: Region and singularity margins every sample must respect.
         dt: Sample period (s).
 
@@ -132,11 +139,13 @@ def standard_cycle(
         ValueError: on a bad argument or a point outside ``limits`` (named in the message).
     """
     require_count("n_cycles", n_cycles)
+    require_start(start)
     profile = _Profile(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt)
     center_xyz = np.asarray(center, dtype=float)
     half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
     pick, place = center_xyz - half_travel, center_xyz + half_travel
-    return _cycles(geometry, np.tile(pick, (n_cycles + 1, 1)), np.tile(place, (n_cycles, 1)), profile, limits)
+    origin = place if start == "place" else None
+    return _cycles(geometry, np.tile(pick, (n_cycles + 1, 1)), np.tile(place, (n_cycles, 1)), profile, limits, origin)
 
 
 def conveyor_cycles(
@@ -150,6 +159,7 @@ def conveyor_cycles(
     lift_height: float = STANDARD_LIFT,
     lift_fraction: float = 0.3,
     dwell: float = 0.1,
+    start: Literal["place", "pick"] = "place",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
 ) -> Trajectory:
@@ -157,12 +167,15 @@ def conveyor_cycles(
 
     Cycle k picks a new object at pick point k and places it at place point k (both uniform on
     their zones). Every cycle has the shape of `standard_cycle`, except that it returns to the next
-    pick point; the trajectory starts at rest at pick point 0 and ends at rest at pick point
-    ``n_cycles`` (drawn like the others, not picked), ready for another cycle.
+    pick point. The trajectory starts at rest at a place point drawn like the others, where a previous object
+    was released, and arches empty to pick point 0 (``start="place"``), or starts at rest at pick point 0
+    (``start="pick"``). It ends at rest at pick point ``n_cycles`` (drawn like the others, not picked), ready
+    for another cycle.
 
     Args:
         geometry: Robot geometry.
-        rng: Source of all randomness; draws n_cycles + 1 pick points, then n_cycles place points.
+        rng: Source of all randomness; draws n_cycles + 1 pick points, then n_cycles place points, then the
+            starting place point (drawn with either ``start``, so that both share every other draw).
         n_cycles: Number of pick-and-place cycles, >= 1.
         peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
         pick_zone: Where objects are picked.
@@ -170,6 +183,7 @@ def conveyor_cycles(
         lift_height: Lift above the higher of the two stations of a move (m), >= 0.
         lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
         dwell: Rest at each pick and place point (s), >= 2 dt; the gripper switches mid-dwell.
+        start: ``"place"`` or ``"pick"`` (see above).
         limits: Region and singularity margins every sample must respect.
         dt: Sample period (s).
 
@@ -178,6 +192,7 @@ def conveyor_cycles(
     """
     require_generator(rng)
     require_count("n_cycles", n_cycles)
+    require_start(start)
     profile = _Profile(peak_acceleration, lift_height, lift_fraction, dwell, dt)
     lifted = np.array([0.0, 0.0, lift_height])
     for name, zone in (("pick zone corner", pick_zone), ("place zone corner", place_zone)):
@@ -185,22 +200,43 @@ def conveyor_cycles(
         require_admissible(geometry, zone.corners() + lifted, limits, f"lifted {name}")
     picks = pick_zone.sample(rng, n_cycles + 1)
     places = place_zone.sample(rng, n_cycles)
-    return _cycles(geometry, picks, places, profile, limits)
+    previous_place = place_zone.sample(rng, 1)[0]
+    return _cycles(geometry, picks, places, profile, limits, previous_place if start == "place" else None)
+
+
+def require_start(start: str) -> None:
+    """Raise ValueError unless ``start`` is ``"place"`` or ``"pick"``, where an episode starts at rest."""
+    if start not in ("place", "pick"):
+        raise ValueError(f"start must be 'place' or 'pick', got {start!r}")
 
 
 def _cycles(
-    geometry: DeltaGeometry, picks: np.ndarray, places: np.ndarray, profile: _Profile, limits: WorkspaceLimits
+    geometry: DeltaGeometry,
+    picks: np.ndarray,
+    places: np.ndarray,
+    profile: _Profile,
+    limits: WorkspaceLimits,
+    origin: np.ndarray | None = None,
 ) -> Trajectory:
-    """Dwell, arch to place k, dwell, arch to pick k + 1, for every k; events mid-dwell."""
+    """From ``origin`` (if given) half a dwell and an empty arch to pick 0; then dwell, arch to place k, dwell, arch to pick k + 1,
+    for every k; events mid-dwell."""
     lift_height, lift_fraction, dwell = profile.lift_height, profile.lift_fraction, profile.dwell
     lifted = np.array([0.0, 0.0, lift_height])
-    for name, points in (("pick point", picks), ("place point", places)):
+    stations = [("pick point", picks), ("place point", places)]
+    if origin is not None:
+        stations.append(("starting point", origin[None, :]))
+    for name, points in stations:
         require_admissible(geometry, points, limits, name)
         require_admissible(geometry, points + lifted, limits, f"lifted {name}")
 
     segments: list[Segment] = []
     events: list[tuple[float, float]] = []
     elapsed = 0.0
+    if origin is not None:
+        # The second half of the place dwell in which the previous object was released, then the move back.
+        approach = Segment(origin, picks[0], 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
+        segments += [Segment.line(origin, origin, 0.5 * dwell), approach]
+        elapsed = 0.5 * dwell + approach.duration
     for pick, place, next_pick in zip(picks[:-1], places, picks[1:], strict=True):
         there = Segment(pick, place, 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
         back = Segment(place, next_pick, 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)

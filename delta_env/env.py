@@ -20,7 +20,7 @@ from delta_env.config import (
     PlantConfig,
     RandomizationRanges,
 )
-from delta_env.cycles import conveyor_cycles, standard_cycle
+from delta_env.cycles import conveyor_cycles, require_start, standard_cycle
 from delta_env.geometry import TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
@@ -93,9 +93,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     and ``info["reward_torque"]``.
 
     ## Starting State
-    At rest at the first pick point of the reference, loops assembled exactly, the first object under
-    the gripper. The randomness of an episode (pick and place points, object masses, sensor noise and,
-    if enabled, the plant's parameters) comes from the ``seed`` of :meth:`reset`.
+    At rest at the start of the reference, loops assembled exactly, the gripper empty: a place point where a
+    previous object was released, from which the first move takes the gripper to the first pick point
+    (``start="place"``, a window of continuous work), or the first pick point itself (``start="pick"``); the
+    first object waits at the first pick point. The randomness of an episode (pick and
+    place points, object masses, sensor noise and, if enabled, the plant's parameters) comes from the ``seed``
+    of :meth:`reset`.
 
     ## Episode End
     - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
@@ -118,6 +121,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``plant`` | PlantConfig, None | None = ``PlantConfig()`` | plant variant, realism, masses, geometry |
     | ``n_cycles`` | int | 3 | pick-and-place cycles per episode, >= 1 |
     | ``cycle`` | str | ``"conveyor"`` | random conveyor points, or ``"standard"`` 25/305/25 mm |
+    | ``start`` | str | ``"place"`` | at rest at a place point, then an empty move to the first pick; or ``"pick"`` |
     | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2) |
     | ``payload_mass_range`` | (float, float) | (0.0, 4.0) | object masses drawn from U[low, high] (kg), in [0, 20] |
     | ``domain_randomization`` | RandomizationRanges, None | None (off) | per-episode perturbation of the plant |
@@ -139,6 +143,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         plant: PlantConfig | None = None,
         n_cycles: int | None = None,
         cycle: Literal["conveyor", "standard"] | None = None,
+        start: Literal["place", "pick"] | None = None,
         peak_acceleration: float | None = None,
         payload_mass_range: tuple[float, float] | None = None,
         domain_randomization: RandomizationRanges | None = None,
@@ -153,17 +158,19 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         overrides = {
             "n_cycles": n_cycles,
             "cycle": cycle,
+            "start": start,
             "peak_acceleration": peak_acceleration,
             "payload_mass_range": payload_mass_range,
             "domain_randomization": domain_randomization,
         }
         plant = base.effective_plant if plant is None else plant
-        n_cycles, cycle, peak_acceleration, payload_mass_range, domain_randomization = (
+        n_cycles, cycle, start, peak_acceleration, payload_mass_range, domain_randomization = (
             getattr(base.task, name) if value is None else value for name, value in overrides.items()
         )
         require_count("n_cycles", n_cycles)
         if cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
+        require_start(start)
         require_positive("peak_acceleration", peak_acceleration, "m/s^2")
         low, high = require_interval("payload_mass_range", payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
         if plant is not None:
@@ -183,6 +190,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._motor_qpos = tuple(self.plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
         self.n_cycles = int(n_cycles)
         self.cycle = cycle
+        self.start = start
         self.peak_acceleration = float(peak_acceleration)
         self.payload_mass_range = (float(low), float(high))
         self.domain_randomization = domain_randomization
@@ -282,9 +290,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
                 self.np_random,
                 self.n_cycles,
                 peak_acceleration=self.peak_acceleration,
+                start=self.start,
             )
         else:
-            trajectory = standard_cycle(self.plant_config.geometry, self.peak_acceleration, n_cycles=self.n_cycles)
+            trajectory = standard_cycle(
+                self.plant_config.geometry, self.peak_acceleration, n_cycles=self.n_cycles, start=self.start
+            )
         if self.domain_randomization is not None:
             self.plant.randomize(self.np_random, self.domain_randomization)
         self.payload_masses = self._payload_masses(options.get("payload_masses"), drawn_masses)

@@ -6,8 +6,8 @@ A :class:`Scenario` has three parts:
   sensors). Its content hash is the robot's identity (:attr:`Scenario.robot_identity`).
 - ``condition``: how the drive differs today from the robot as identified (wear: more friction, a slower
   current loop). A condition changes the physics the episode runs on, not which robot it is.
-- ``task``: the work (:class:`PickPlaceTask`): cycle kind, cycles per episode, peak acceleration, payload
-  range and per-episode domain randomization.
+- ``task``: the work (:class:`PickPlaceTask`): cycle kind, where it starts, cycles per episode, peak acceleration,
+  payload range and per-episode domain randomization.
 
 Identity rule. ``robot_identity`` hashes the ``plant`` part only. Conditions (wear), payloads and domain
 randomization are left out, so ``worn``, ``heavy`` and ``randomized`` are the nominal robot under other
@@ -52,6 +52,7 @@ from typing import Any, Literal
 import tomli_w
 
 from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, RandomizationRanges
+from delta_env.cycles import require_start
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
@@ -97,6 +98,9 @@ class PickPlaceTask:
         cycle: ``"conveyor"`` (random pick and place points on two conveyor zones) or ``"standard"`` (the
             25/305/25 mm cycle).
         n_cycles: Pick-and-place cycles per episode.
+        start: ``"place"`` (the episode starts at rest at a place point, where a previous object was released, and
+            arches empty to the first pick point: a window of continuous work) or ``"pick"`` (it starts at rest at
+            the first pick point).
         peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2).
         payload_mass_range: Object masses (kg) are drawn per pick from U[low, high]; low = high fixes them.
         domain_randomization: Per-episode perturbation of the plant, or None (off).
@@ -104,6 +108,7 @@ class PickPlaceTask:
 
     cycle: Literal["conveyor", "standard"] = "conveyor"
     n_cycles: int = 3
+    start: Literal["place", "pick"] = "place"
     peak_acceleration: float = 3.0 * GRAVITY
     payload_mass_range: tuple[float, float] = (0.0, 4.0)
     domain_randomization: RandomizationRanges | None = None
@@ -112,6 +117,7 @@ class PickPlaceTask:
         if self.cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {self.cycle!r}")
         require_count("n_cycles", self.n_cycles)
+        require_start(self.start)
         require_positive("peak_acceleration", self.peak_acceleration, unit="m/s^2")
         require_interval("payload_mass_range", self.payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
         if self.domain_randomization is not None and not isinstance(self.domain_randomization, RandomizationRanges):
@@ -173,6 +179,7 @@ class Scenario:
             "plant": self.effective_plant,
             "n_cycles": task.n_cycles,
             "cycle": task.cycle,
+            "start": task.start,
             "peak_acceleration": task.peak_acceleration,
             "payload_mass_range": task.payload_mass_range,
             "domain_randomization": task.domain_randomization,

@@ -205,6 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "id": "DeltaPickPlace-v0",
             "n_cycles": args.cycles,
             "cycle": env.cycle,
+            "start": env.start,
             "peak_acceleration_m_s2": env.peak_acceleration,
             "payload_mass_range_kg": list(env.payload_mass_range),
             "plant": repr(env.plant_config),
