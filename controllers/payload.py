@@ -57,8 +57,9 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   resembles phi at rest; a friction error is odd in the rate, so it biases the carry and the empty move back
   with opposite signs. The empty moves (mp = 0 known) fit all three by weighted least squares with priors
   (:class:`ModelCorrections`, :data:`MASS_CORRECTION_STD`, :data:`FRICTION_SCALE_STD`) and the carries'
-  equations have them removed. The first carry of an episode comes before any empty move and gets no
-  correction: on a carry dm and mp are the same column, so nothing in it tells them apart.
+  equations have them removed. On a carry dm and mp are the same column, so nothing in it tells them apart:
+  a carry is corrected only if an empty move came before it in the episode (the env's default start, at a
+  place point, gives every carry one; with ``start="pick"`` the first carry has none).
 - Torque ripple (1 N m, fast in position) and the measured-torque noise are zero-mean over a carry and go
   into the nominal residual standard deviation.
 """
@@ -669,8 +670,8 @@ def tare_from_observations(
 
     Only the carries that follow an empty move count, if there are any: before the first, nothing is fitted, and
     the apparent payload of a first carry also holds the calibration plant's own mass and friction errors (on a
-    randomized plant, tens of grams that the next plant does not share). Calibration episodes of one cycle
-    have no such carry; their first carries are used then.
+    randomized plant, tens of grams that the next plant does not share). Episodes that start at their pick point
+    with one cycle have no such carry; their first carries are used then.
 
     Args:
         estimator: Gives the payload equations, with the corrections it fits on each episode's empty moves
