@@ -183,7 +183,8 @@ def task_cycle(
     peak_acceleration: float = CYCLE_ACCELERATION,
     dt: float = ANALYSIS_PERIOD,
 ) -> Trajectory:
-    """The standard 25/305/25 mm cycle of a design at ``centre`` (m) along ``heading`` (rad)."""
+    """The standard 25/305/25 mm cycle of a design at ``centre`` (m) along ``heading`` (rad), from rest at its pick
+    point: the design's figures (motion time, peak and RMS torque) are those of whole cycles and nothing else."""
     return standard_cycle(
         geometry,
         peak_acceleration,
@@ -191,6 +192,7 @@ def task_cycle(
         center=centre,
         heading=heading,
         dwell=CYCLE_DWELL,
+        start="pick",
         limits=path_limits(geometry),
         dt=dt,
     )
