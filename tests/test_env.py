@@ -4,11 +4,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
-from numpy.testing import assert_array_equal
+from numpy.testing import assert_allclose, assert_array_equal
 
 import delta_env
 from controllers.base import PDController
 from delta_env import DeltaPickPlaceEnv, RandomizationRanges
+from delta_env.cycles import PLACE_ZONE
+from delta_env.sensors import encoder_resolution
 
 
 def rollout(env: gym.Env, seed: int, masses: list[float] | None = None, steps: int = 400) -> list:
@@ -96,6 +98,43 @@ def test_encoder_quantizes_angles(env: DeltaPickPlaceEnv) -> None:
     assert_array_equal(counts, np.round(counts))
 
 
+def test_an_episode_starts_at_rest_at_a_place_point_and_picks_after_an_empty_move(env: DeltaPickPlaceEnv) -> None:
+    assert env.start == "place"  # the default
+    observation, info = env.reset(seed=4)
+    trajectory = env.trajectory
+    step = encoder_resolution(env.plant_config.realism.encoder_bits)
+    assert_allclose(observation["joint_angles"], trajectory.theta[0], rtol=0, atol=0.5 * step * (1.0 + 1e-9))
+    assert_array_equal(observation["reference_angles"], trajectory.theta[0])
+    assert_array_equal(observation["reference_velocities"], 0.0)
+    assert_array_equal(observation["reference_accelerations"], 0.0)
+    assert_array_equal(observation["gripper"], [0.0])
+    platform = env.plant.platform_position()
+    assert_allclose(platform, trajectory.xyz[0], rtol=0, atol=1e-9)
+    assert PLACE_ZONE.y_range[0] <= platform[1] <= PLACE_ZONE.y_range[1]  # not at the pick point
+    # follow the empty move: nothing is held until the gripper closes at the first pick point
+    first_pick = int(trajectory.pick_indices[0])
+    records = rollout(env, seed=4, steps=first_pick)
+    assert all(obs["gripper"][0] == 0.0 and step_info["payload_mass"] == 0.0 for obs, _, step_info in records[:-1])
+    observation, _, step_info = records[-1]
+    assert observation["gripper"][0] == 1.0 and step_info["payload_mass"] == info["payload_masses"][0]
+    # PD alone: within millimetres of the pick point after a move of decimetres
+    assert np.linalg.norm(step_info["platform_position"] - trajectory.xyz[first_pick]) < 5e-3
+
+
+def test_pick_start_shares_the_episode_draws_and_starts_at_the_first_pick(env: DeltaPickPlaceEnv) -> None:
+    from_pick = DeltaPickPlaceEnv(n_cycles=1, start="pick")
+    assert from_pick.start == "pick"
+    _, info = env.reset(seed=6)
+    observation, pick_info = from_pick.reset(seed=6)
+    assert_array_equal(pick_info["payload_masses"], info["payload_masses"])
+    place_run, pick_run = env.trajectory, from_pick.trajectory
+    for name in ("pick_indices", "place_indices"):
+        assert_array_equal(pick_run.xyz[getattr(pick_run, name)], place_run.xyz[getattr(place_run, name)])
+    assert_allclose(pick_run.xyz[0], pick_run.xyz[pick_run.pick_indices[0]], rtol=0, atol=1e-12)
+    assert_allclose(from_pick.plant.platform_position(), pick_run.xyz[0], rtol=0, atol=1e-9)
+    assert_array_equal(observation["gripper"], [0.0])  # it closes half a dwell later
+
+
 @pytest.mark.parametrize(
     ("action", "message"),
     [([np.nan, 0.0, 0.0], "finite"), ([0.0, np.inf, 0.0], "finite"), ([0.0, 0.0], "got shape")],
@@ -125,6 +164,7 @@ def test_bad_reset_options_raise(env: DeltaPickPlaceEnv, options: dict, message:
     [
         ({"n_cycles": 0}, "n_cycles"),
         ({"cycle": "adept"}, "cycle"),
+        ({"start": "home"}, "start must be 'place' or 'pick', got 'home'"),
         ({"payload_mass_range": (2.0, 1.0)}, "payload_mass_range"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"n_cycles": True}, "n_cycles must be an integer >= 1, got True"),

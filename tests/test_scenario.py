@@ -31,6 +31,7 @@ def unusual_scenario() -> Scenario:
         task=PickPlaceTask(
             cycle="standard",
             n_cycles=2,
+            start="pick",
             peak_acceleration=2.5 * GRAVITY,
             payload_mass_range=(0.5, 1.5),
             domain_randomization=RandomizationRanges(mass_fraction=0.05, actuator_lag=None),
@@ -75,6 +76,7 @@ def test_a_file_without_a_name_is_named_after_its_stem(tmp_path) -> None:
         ("[task]\nn_cycles = 1.5\n", "task.n_cycles must be an integer"),
         ("[task]\nn_cycles = 0\n", "task: n_cycles must be an integer >= 1"),
         ("[task]\ncycle = 'circle'\n", "task.cycle must be one of 'conveyor', 'standard'"),
+        ("[task]\nstart = 'home'\n", "task.start must be one of 'place', 'pick', got 'home'"),
         ("[task]\npeak_acceleration = true\n", "task.peak_acceleration must be a number"),
         ("[task]\npayload_mass_range = [0.0, 30.0]\n", "task: payload_mass_range must be a pair 0 <= min <= max <= 20"),
         ("[task.domain_randomization]\nmass_fraction = 0.95\n", "task.domain_randomization: mass_fraction must be"),
@@ -114,7 +116,7 @@ def test_nominal_preset_is_the_default_env() -> None:
     default, nominal = DeltaPickPlaceEnv(), DeltaPickPlaceEnv(scenario="nominal")
     for env in (default, nominal):
         assert env.plant_config == PlantConfig()
-        assert (env.n_cycles, env.cycle, env.payload_mass_range) == (3, "conveyor", (0.0, 4.0))
+        assert (env.n_cycles, env.cycle, env.start, env.payload_mass_range) == (3, "conveyor", "place", (0.0, 4.0))
         assert env.peak_acceleration == pytest.approx(3.0 * GRAVITY)
         assert env.domain_randomization is None
 
@@ -154,7 +156,11 @@ def test_every_preset_builds_and_runs_a_short_episode(name: str) -> None:
     env = gym.make("DeltaPickPlace-v0", scenario=name, n_cycles=1).unwrapped
     scenario = preset(name)
     assert env.n_cycles == 1  # the keyword overrides the scenario's field
-    assert (env.cycle, env.peak_acceleration) == (scenario.task.cycle, scenario.task.peak_acceleration)
+    assert (env.cycle, env.start, env.peak_acceleration) == (
+        scenario.task.cycle,
+        scenario.task.start,
+        scenario.task.peak_acceleration,
+    )
     assert env.domain_randomization == scenario.task.domain_randomization
     controller = PDController(3000.0, 60.0)
     observation, info = env.reset(seed=3)
@@ -184,6 +190,22 @@ def test_paper_preset_is_the_standard_cycle_with_3_8_kg_on_every_pick() -> None:
     pick, place = env.trajectory.pick_indices[0], env.trajectory.place_indices[0]
     assert np.linalg.norm(xyz[place, :2] - xyz[pick, :2]) == pytest.approx(0.305, abs=1e-9)
     assert xyz[:, 2].max() - xyz[pick, 2] == pytest.approx(0.025, abs=1e-9)
+    # as in the paper's repeated cycles, the robot starts at rest at the pick point
+    assert env.start == "pick"
+    np.testing.assert_allclose(xyz[0], xyz[pick], rtol=0, atol=1e-12)
+
+
+def test_start_is_part_of_the_task_hash_not_of_the_robot() -> None:
+    from_pick = Scenario(task=PickPlaceTask(start="pick"))
+    assert Scenario().task.start == "place"
+    assert from_pick.content_hash != Scenario().content_hash
+    assert from_pick.robot_identity == Scenario().robot_identity
+    assert Scenario.from_toml(from_pick.to_toml()).task.start == "pick"
+    assert DeltaPickPlaceEnv(scenario=from_pick).start == "pick"
+    assert DeltaPickPlaceEnv(**from_pick.env_kwargs()).start == "pick"
+    assert DeltaPickPlaceEnv(scenario="paper", start="place").start == "place"  # the keyword overrides
+    with pytest.raises(ValueError, match="start must be 'place' or 'pick', got 'home'"):
+        PickPlaceTask(start="home")
 
 
 def test_keywords_override_the_scenario_and_plant_replaces_its_plant() -> None:

@@ -1,13 +1,15 @@
-"""C2 reference trajectories: continuity, timing, cycle geometry, events, workspace, determinism."""
+"""C2 reference trajectories: continuity, timing, cycle geometry and start, events, workspace, determinism."""
 
 from __future__ import annotations
 
 import functools
 import math
+import re
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
+from scipy.interpolate import BPoly
 
 from delta_env import NOMINAL_GEOMETRY, cycles, excitation, kinematics
 from delta_env import limits as workspace_limits
@@ -19,13 +21,19 @@ EXCITATION_SECONDS = 4.0
 
 
 @functools.cache
-def build(kind: str, peak_acceleration: float = tr.STANDARD_PEAK_ACCELERATION, dt: float = 1e-3, seed: int = 0):
+def build(
+    kind: str,
+    peak_acceleration: float = tr.STANDARD_PEAK_ACCELERATION,
+    dt: float = 1e-3,
+    seed: int = 0,
+    start: str = "place",
+):
     """One trajectory of each kind, cached: the tests only read them."""
     rng = np.random.default_rng(seed)
     if kind == "standard":
-        return cycles.standard_cycle(G, peak_acceleration, n_cycles=2, dt=dt)
+        return cycles.standard_cycle(G, peak_acceleration, n_cycles=2, dt=dt, start=start)
     if kind == "conveyor":
-        return cycles.conveyor_cycles(G, rng, 3, peak_acceleration, dt=dt)
+        return cycles.conveyor_cycles(G, rng, 3, peak_acceleration, dt=dt, start=start)
     if kind == "excitation":
         return excitation.excitation_trajectory(G, rng, EXCITATION_SECONDS, peak_acceleration, dt=dt)
     raise AssertionError(kind)
@@ -44,6 +52,8 @@ ALL_KINDS = [
     ("excitation", tr.STRESS_PEAK_ACCELERATION),
 ]
 CYCLE_KINDS = [case for case in ALL_KINDS if case[0] != "excitation"]
+STARTS = ("place", "pick")
+DWELL = 0.1  # the cycles' default rest at each station (s)
 
 
 def moves(trajectory: tr.Trajectory) -> list[slice]:
@@ -105,13 +115,15 @@ def test_joint_references_are_exact_kinematics(kind: str, peak: float) -> None:
     assert_allclose(xyz_ddot, trajectory.xyz_ddot, rtol=0, atol=1e-7)
 
 
+@pytest.mark.parametrize("start", STARTS)
 @pytest.mark.parametrize(("kind", "peak"), CYCLE_KINDS)
-def test_every_move_reaches_the_requested_peak_acceleration(kind: str, peak: float) -> None:
-    trajectory = build(kind, peak)
+def test_every_move_reaches_the_requested_peak_acceleration(kind: str, peak: float, start: str) -> None:
+    trajectory = build(kind, peak, start=start)
     acceleration = np.linalg.norm(trajectory.xyz_ddot, axis=1)
     peaks = np.array([np.max(acceleration[move]) for move in moves(trajectory)])
     n_cycles = len(trajectory.pick_indices)
-    assert len(peaks) == 2 * n_cycles
+    # there and back per cycle, and from a place point the empty move to the first pick
+    assert len(peaks) == 2 * n_cycles + (start == "place")
     assert_allclose(peaks, peak, rtol=1e-2)
 
 
@@ -136,14 +148,16 @@ def test_excitation_includes_slow_and_fast_moves() -> None:
     assert not np.any(trajectory.gripper)
 
 
+@pytest.mark.parametrize("start", STARTS)
 @pytest.mark.parametrize("peak", [tr.STANDARD_PEAK_ACCELERATION, tr.STRESS_PEAK_ACCELERATION])
 @pytest.mark.parametrize(("center", "heading"), [((0.0, 0.0, -0.9), math.pi / 2), ((0.1, -0.05, -0.95), 0.4)])
-def test_standard_cycle_is_25_305_25_mm(peak: float, center: tuple, heading: float) -> None:
-    trajectory = cycles.standard_cycle(G, peak, center=center, heading=heading)
+def test_standard_cycle_is_25_305_25_mm(peak: float, center: tuple, heading: float, start: str) -> None:
+    trajectory = cycles.standard_cycle(G, peak, center=center, heading=heading, start=start)
     pick, place = trajectory.xyz[trajectory.pick_indices[0]], trajectory.xyz[trajectory.place_indices[0]]
     assert_allclose(place - pick, 0.305 * np.array([math.cos(heading), math.sin(heading), 0.0]), atol=1e-12)
     assert_allclose((pick + place) / 2.0, center, atol=1e-12)
-    assert_allclose(trajectory.xyz[[0, -1]], [pick, pick], atol=1e-12)  # and back
+    first = place if start == "place" else pick
+    assert_allclose(trajectory.xyz[[0, -1]], [first, pick], atol=1e-12)  # and back to the pick point
     lift = trajectory.xyz[:, 2] - center[2]
     assert_allclose([np.min(lift), np.max(lift)], [0.0, 0.025], atol=1e-9)
     # the arch stays in the vertical plane through pick and place
@@ -164,9 +178,10 @@ def test_arch_leaves_the_conveyor_steeper_than_45_degrees() -> None:
             assert np.all(lift[near] >= travel[near])
 
 
+@pytest.mark.parametrize("start", STARTS)
 @pytest.mark.parametrize(("kind", "peak"), CYCLE_KINDS)
-def test_pick_and_place_events_are_at_rest_at_the_stations(kind: str, peak: float) -> None:
-    trajectory = build(kind, peak)
+def test_pick_and_place_events_are_at_rest_at_the_stations(kind: str, peak: float, start: str) -> None:
+    trajectory = build(kind, peak, start=start)
     picks, places = trajectory.pick_indices, trajectory.place_indices
     n_cycles = 2 if kind == "standard" else 3
     assert len(picks) == len(places) == n_cycles
@@ -199,6 +214,93 @@ def test_conveyor_events_lie_on_their_zones() -> None:
     assert_allclose(trajectory.xyz[trajectory.pick_indices], picks[:-1], atol=1e-12)
     assert_allclose(trajectory.xyz[-1], picks[-1], atol=1e-12)
     assert_array_equal(trajectory.xyz_dot[-1], 0.0)
+
+
+@pytest.mark.parametrize(("kind", "peak"), CYCLE_KINDS)
+def test_place_start_rests_half_a_dwell_open_then_moves_empty_to_the_first_pick(kind: str, peak: float) -> None:
+    trajectory = build(kind, peak)
+    for name in ("xyz_dot", "xyz_ddot", "theta_dot", "theta_ddot"):
+        assert_array_equal(getattr(trajectory, name)[0], 0.0)
+    origin = trajectory.xyz[0]
+    zone = cycles.PLACE_ZONE
+    assert zone.x_range[0] <= origin[0] <= zone.x_range[1] and zone.y_range[0] <= origin[1] <= zone.y_range[1]
+    assert origin[2] == pytest.approx(zone.z, abs=1e-12)
+    if kind == "standard":
+        assert_array_equal(origin, trajectory.xyz[trajectory.place_indices[0]])
+    # at rest for the second half of the dwell in which the previous object was released
+    half_dwell = round(0.5 * DWELL / trajectory.dt)  # samples
+    first_move = moves(trajectory)[0]
+    assert first_move.start - half_dwell in (0, 1)  # the sample at 0.5 dwell is the move's start, at rest
+    assert_array_equal(trajectory.xyz[: first_move.start], np.tile(origin, (first_move.start, 1)))
+    # then one move, with the gripper open, to pick point 0, where it closes after half a dwell at rest
+    first_pick = trajectory.pick_indices[0]
+    assert not np.any(trajectory.gripper[:first_pick]) and trajectory.gripper[first_pick]
+    assert first_move.stop < first_pick < moves(trajectory)[1].start
+    assert_array_equal(trajectory.xyz[first_move.stop], trajectory.xyz[first_pick])
+    assert abs(first_pick - first_move.stop - half_dwell) <= 1
+    assert np.max(trajectory.xyz[first_move, 2]) == pytest.approx(zone.z + cycles.STANDARD_LIFT, abs=1e-9)
+
+
+@pytest.mark.parametrize("start", STARTS)
+@pytest.mark.parametrize("kind", ["standard", "conveyor"])
+def test_from_a_place_start_every_carry_follows_an_empty_move(kind: str, start: str) -> None:
+    trajectory = build(kind, start=start)
+    loaded = []
+    for move in moves(trajectory):
+        held = trajectory.gripper[move]
+        assert np.all(held) or not np.any(held)  # the gripper never switches while the platform moves
+        loaded.append(bool(held[0]))
+    # carry to place k, empty back to pick k + 1; from a place point an empty move comes first
+    expected = [True, False] * len(trajectory.pick_indices)
+    assert loaded == ([False] if start == "place" else []) + expected
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_both_starts_share_every_draw_and_the_place_start_draws_its_point_last(seed: int) -> None:
+    place, pick = (build("conveyor", seed=seed, start=start) for start in STARTS)
+    for name in ("pick_indices", "place_indices"):
+        assert_array_equal(place.xyz[getattr(place, name)], pick.xyz[getattr(pick, name)])
+    assert_array_equal(place.xyz[-1], pick.xyz[-1])
+    # documented draws: n_cycles + 1 pick points, n_cycles place points, then the starting place point
+    rng = np.random.default_rng(seed)
+    picks, places = cycles.PICK_ZONE.sample(rng, 4), cycles.PLACE_ZONE.sample(rng, 3)
+    assert_allclose(pick.xyz[[*pick.pick_indices, -1]], picks, rtol=0, atol=1e-12)
+    assert_allclose(pick.xyz[pick.place_indices], places, rtol=0, atol=1e-12)
+    assert_allclose(pick.xyz[0], picks[0], rtol=0, atol=1e-12)
+    assert_allclose(place.xyz[0], cycles.PLACE_ZONE.sample(rng, 1)[0], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["standard", "conveyor"])
+def test_pick_start_is_the_place_start_from_its_first_pick_on(kind: str) -> None:
+    peak = tr.STRESS_PEAK_ACCELERATION
+    place, pick = (build(kind, peak, start=start) for start in STARTS)
+    dt = pick.dt
+    # the place start adds half a dwell at rest and the empty move, timed like every other move
+    approach = tr.Segment(place.xyz[0], place.xyz[place.pick_indices[0]], 1.0, cycles.STANDARD_LIFT, 0.3)
+    offset = 0.5 * DWELL + approach.timed(peak).duration
+    assert place.duration == pytest.approx(pick.duration + offset, abs=dt)
+    for name in ("pick_indices", "place_indices"):  # each event time is rounded to a sample
+        assert_allclose(getattr(place, name) * dt - offset, getattr(pick, name) * dt, rtol=0, atol=dt + 1e-12)
+    # The offset is not a whole number of samples: read the pick start between its samples with
+    # quintic Hermite pieces through its values and first two derivatives. They reproduce a quintic
+    # blend exactly and err by about dt^3 times a jerk step where a blend starts or ends.
+    later = (place.time >= offset) & (place.time - offset <= pick.duration)
+    assert np.count_nonzero(later) == pytest.approx(len(pick), abs=1)
+    times = place.time[later] - offset
+    for names, tolerance in ((("xyz", "xyz_dot", "xyz_ddot"), 1e-7), (("theta", "theta_dot", "theta_ddot"), 2e-7)):
+        for axis in range(3):
+            derivatives = np.stack([getattr(pick, name)[:, axis] for name in names], axis=1)
+            between = BPoly.from_derivatives(pick.time, derivatives)(times)
+            assert_allclose(between, getattr(place, names[0])[later, axis], rtol=0, atol=tolerance)
+
+
+@pytest.mark.parametrize("start", ["home", "Place", None])
+def test_a_bad_start_is_an_error_naming_it(start: object) -> None:
+    message = re.escape(f"start must be 'place' or 'pick', got {start!r}")
+    with pytest.raises(ValueError, match=message):
+        cycles.standard_cycle(G, start=start)
+    with pytest.raises(ValueError, match=message):
+        cycles.conveyor_cycles(G, np.random.default_rng(0), 1, start=start)
 
 
 @pytest.mark.parametrize(("kind", "peak"), ALL_KINDS)
