@@ -172,19 +172,6 @@ class Scenario:
         """Content hash (16 hex digits) of plant, condition and task: what decides an episode's physics."""
         return _digest({part: _to_table(getattr(self, part)) for part in ("plant", "condition", "task")})
 
-    def env_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``DeltaPickPlaceEnv`` for this scenario."""
-        task = self.task
-        return {
-            "plant": self.effective_plant,
-            "n_cycles": task.n_cycles,
-            "cycle": task.cycle,
-            "start": task.start,
-            "peak_acceleration": task.peak_acceleration,
-            "payload_mass_range": task.payload_mass_range,
-            "domain_randomization": task.domain_randomization,
-        }
-
     def to_toml(self) -> str:
         """Every field, resolved, as TOML text (what :meth:`from_toml` reads back to an equal value)."""
         return tomli_w.dumps(_to_table(self))

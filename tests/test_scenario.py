@@ -202,7 +202,6 @@ def test_start_is_part_of_the_task_hash_not_of_the_robot() -> None:
     assert from_pick.robot_identity == Scenario().robot_identity
     assert Scenario.from_toml(from_pick.to_toml()).task.start == "pick"
     assert DeltaPickPlaceEnv(scenario=from_pick).start == "pick"
-    assert DeltaPickPlaceEnv(**from_pick.env_kwargs()).start == "pick"
     assert DeltaPickPlaceEnv(scenario="paper", start="place").start == "place"  # the keyword overrides
     with pytest.raises(ValueError, match="start must be 'place' or 'pick', got 'home'"):
         PickPlaceTask(start="home")
