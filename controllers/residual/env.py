@@ -40,7 +40,8 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
     holds the summed terms ``reward_tracking`` and ``reward_torque``.
 
     ## Starting State
-    The plant env's: at rest at the first pick point. The base controller is reset with it.
+    The plant env's: at rest at a place point (``start="place"``, the default) or at the first pick point
+    (``start="pick"``). The base controller is reset with it.
 
     ## Episode End
     As the plant env: truncated at the end of the reference (the last policy step may run fewer
