@@ -218,8 +218,11 @@ def _cycles(
     limits: WorkspaceLimits,
     origin: np.ndarray | None = None,
 ) -> Trajectory:
-    """From ``origin`` (if given) half a dwell and an empty arch to pick 0; then dwell, arch to place k, dwell,
-    arch to pick k + 1, for every k; events mid-dwell."""
+    """The sampled cycles through ``picks`` and ``places`` (m), gripper events mid-dwell.
+
+    From ``origin`` (m, if given): half a dwell at rest and an empty arch to pick 0. Then, for every k: dwell at
+    pick k, arch to place k, dwell, arch to pick k + 1.
+    """
     lift_height, lift_fraction, dwell = profile.lift_height, profile.lift_fraction, profile.dwell
     lifted = np.array([0.0, 0.0, lift_height])
     stations = [("pick point", picks), ("place point", places)]

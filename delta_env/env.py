@@ -96,9 +96,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     At rest at the start of the reference, loops assembled exactly, the gripper empty: a place point where a
     previous object was released, from which the first move takes the gripper to the first pick point
     (``start="place"``, a window of continuous work), or the first pick point itself (``start="pick"``); the
-    first object waits at the first pick point. The randomness of an episode (pick and
-    place points, object masses, sensor noise and, if enabled, the plant's parameters) comes from the ``seed``
-    of :meth:`reset`.
+    first object waits at the first pick point. The randomness of an episode (pick and place points, object
+    masses, sensor noise and, if enabled, the plant's parameters) comes from the ``seed`` of :meth:`reset`.
 
     ## Episode End
     - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
