@@ -11,7 +11,7 @@ from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PD
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
 from controllers.feedforward import FeedforwardController, LagCompensatedController, OracleController, model_controller
-from controllers.payload import ModelCorrections, PayloadEstimator, tare_from_observations
+from controllers.payload import EmptyMoveSums, ModelCorrections, PayloadEstimator, Tare, tare_from_observations
 from controllers.registry import (
     CONTROLLER_LABELS,
     ESTIMATING_KEYS,
@@ -29,6 +29,7 @@ __all__ = [
     "Controller",
     "ControllerSetup",
     "DeltaDynamics",
+    "EmptyMoveSums",
     "FeedforwardController",
     "JointStateFilter",
     "JointStateSmoother",
@@ -40,6 +41,7 @@ __all__ = [
     "PDController",
     "PayloadEstimator",
     "PayloadRLS",
+    "Tare",
     "build_controller",
     "model_controller",
     "smooth_joint_motion",

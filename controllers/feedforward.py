@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Observation, PDController
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.payload import FRICTION_VELOCITY, PayloadEstimator
+from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
 from delta_env.config import PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
@@ -247,6 +247,7 @@ def model_controller(
     forearm_rods: bool = False,
     regressor: Regressor | None = None,
     tare: float = 0.0,
+    empty_moves: EmptyMoveSums | None = None,
     friction_velocity: float = FRICTION_VELOCITY,
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD),
     name: str | None = None,
@@ -261,6 +262,8 @@ def model_controller(
         forearm_rods: The model with rod forearms (MId+F+R) instead of the paper's lumped forearms.
         regressor: Joint states of the payload estimator; None feeds forward mp = 0 (no estimator).
         tare: Apparent payload of the empty gripper (kg), subtracted by the estimator.
+        empty_moves: Sums of the robot's earlier empty moves that seed the estimator's fit of its mass and friction
+            errors (:class:`~controllers.payload.EmptyMoveSums`); None: none.
         friction_velocity: The estimator's friction band v_w (rad/s).
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
         name: Label; by default :func:`controller_name`.
@@ -272,7 +275,9 @@ def model_controller(
     dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
     estimator = None
     if regressor is not None:
-        estimator = PayloadEstimator(dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity)
+        estimator = PayloadEstimator(
+            dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity, empty_moves=empty_moves
+        )
     label = name if name is not None else controller_name(forearm_rods, regressor is not None, drive_lag is not None)
     controller = FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)
     if drive_lag is None:

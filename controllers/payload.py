@@ -161,6 +161,37 @@ class ModelCorrections(NamedTuple):
     friction_scale: NDArray[np.float64]
 
 
+class EmptyMoveSums(NamedTuple):
+    """The weighted least-squares sums of a robot's empty moves, over the columns of :class:`ModelCorrections`
+    (platform mass, arm-mass scale, three friction scales).
+
+    What the robot's earlier work taught about its own mass and friction errors: seeded into the fit at every
+    episode (``PayloadEstimator(empty_moves=...)``), they make its corrections as certain from the start as many
+    empty moves would. Only for the robot they were measured on.
+
+    Attributes:
+        information: sum of w c c^T, (5, 5).
+        moment: sum of w c y, (5,).
+    """
+
+    information: NDArray[np.float64]
+    moment: NDArray[np.float64]
+
+
+class Tare(NamedTuple):
+    """What payload-free pick cycles tell a payload estimator (:func:`tare_from_observations`).
+
+    Attributes:
+        mass: Apparent payload of the empty gripper on carries (kg), the tare.
+        spread: Standard deviation of the same estimate carry by carry (kg); NaN from one carry.
+        empty_moves: The sums of the cycles' empty moves (:class:`EmptyMoveSums`).
+    """
+
+    mass: float
+    spread: float
+    empty_moves: EmptyMoveSums
+
+
 def residual_std(
     theta_dot: ArrayLike,
     static_friction: ArrayLike,
@@ -377,6 +408,19 @@ def _estimated_state_equation(
     return status, used, information, moment
 
 
+def _checked_sums(sums: EmptyMoveSums) -> EmptyMoveSums:
+    """``sums`` as float arrays of shapes (5, 5) and (5,), finite, the information symmetric; else ValueError."""
+    information = np.array(sums.information, dtype=np.float64)
+    moment = np.array(sums.moment, dtype=np.float64)
+    if information.shape != (_PARAMETERS, _PARAMETERS) or moment.shape != (_PARAMETERS,):
+        raise ValueError(f"empty_moves must be (5, 5) and (5,) sums, got shapes {information.shape} and {moment.shape}")
+    if not (np.all(np.isfinite(information)) and np.all(np.isfinite(moment))):
+        raise ValueError("empty_moves must be finite")
+    if not np.allclose(information, information.T, rtol=1e-9, atol=0.0):
+        raise ValueError("empty_moves.information must be symmetric (a sum of w c c^T)")
+    return EmptyMoveSums(information, moment)
+
+
 class PayloadEstimator:
     """Payload mass (kg) from measured joint torques, updated once per control step while the gripper holds.
 
@@ -409,6 +453,9 @@ class PayloadEstimator:
         mass_correction_std: Prior standard deviations of the platform-mass error (kg) and of the arms' relative
             mass error (dimensionless), fitted likewise (:data:`MASS_CORRECTION_STD`); None trusts the
             identified masses.
+        empty_moves: Sums of this robot's earlier empty moves (:class:`EmptyMoveSums`, e.g. its calibration
+            episodes) that seed the fit of the corrections at every episode; None starts each episode from the
+            priors alone (a robot with no history). Needs a fit (a correction std not None).
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
@@ -433,6 +480,7 @@ class PayloadEstimator:
         rest_rate: float = REST_RATE,
         friction_scale_std: float | None = FRICTION_SCALE_STD,
         mass_correction_std: tuple[float, float] | None = MASS_CORRECTION_STD,
+        empty_moves: EmptyMoveSums | None = None,
     ) -> None:
         if regressor not in ("smoothed", "filtered", "reference"):
             raise ValueError(f"regressor must be 'smoothed', 'filtered' or 'reference', got {regressor!r}")
@@ -498,6 +546,9 @@ class PayloadEstimator:
             ],
             dtype=np.float64,
         )
+        self.empty_moves = None if empty_moves is None else _checked_sums(empty_moves)
+        if self.empty_moves is not None and not self.fits_corrections:
+            raise ValueError("empty_moves seed the fit of the model's corrections, but this estimator fits none")
         self._filter_started = False
         self._holding = False
         # (2, 5, 3): the reference's tau0, phi, theta, rates and accelerations of this step and the previous one.
@@ -536,6 +587,12 @@ class PayloadEstimator:
         return bool(self._equation[_EQ_FITS] != 0.0)
 
     @property
+    def empty_move_sums(self) -> EmptyMoveSums:
+        """The fit's sums so far (:class:`EmptyMoveSums`): the seeded ones plus this episode's empty moves."""
+        information = self._fit[_FIT_INFORMATION:_FIT_MOMENT].reshape(_PARAMETERS, _PARAMETERS).copy()
+        return EmptyMoveSums(information, self._fit[_FIT_MOMENT:_FIT_SOLUTION].copy())
+
+    @property
     def empty_move_samples(self) -> int:
         """Samples of this episode's empty moves that entered the fit so far."""
         return int(self._fit[_FIT_SAMPLES])
@@ -549,6 +606,10 @@ class PayloadEstimator:
         """Start an episode: nothing held or fitted, RLS at the tare, joint filter restarted at the next reading."""
         self.rls.reset(self.tare)
         self._fit[:] = 0.0
+        if self.empty_moves is not None:
+            self._fit[_FIT_INFORMATION:_FIT_MOMENT] = self.empty_moves.information.ravel()
+            self._fit[_FIT_MOMENT:_FIT_SOLUTION] = self.empty_moves.moment
+            self._fit[_FIT_STALE] = 1.0
         self._filter_started = False
         self._holding = False
         self._has_previous_reference = False
@@ -658,9 +719,7 @@ class PayloadEstimator:
         return (information, moment) if used else None
 
 
-def tare_from_observations(
-    estimator: PayloadEstimator, episodes: Iterable[Iterable[Observation]]
-) -> tuple[float, float]:
+def tare_from_observations(estimator: PayloadEstimator, episodes: Iterable[Iterable[Observation]]) -> Tare:
     """The apparent payload of an empty gripper (kg): weighted least squares over payload-free carries.
 
     Taring, as on a scale: pick cycles are run with nothing to pick (the gripper still closes and opens,
@@ -679,13 +738,17 @@ def tare_from_observations(
         episodes: Observation sequences of payload-free pick-and-place episodes.
 
     Returns:
-        The tare (kg) and the standard deviation (kg) of the same estimate carry by carry: the model
-        error along phi changes with the path, so this, not the torque noise, is its uncertainty.
+        The tare (kg), the standard deviation (kg) of the same estimate carry by carry (the model error along phi
+        changes with the path, so this, not the torque noise, is its uncertainty) and the sums of the episodes'
+        empty moves, which the estimator fitted (:class:`Tare`).
     """
     # (sum of phi.y, sum of phi.phi) over one carry, weighted, and whether an empty move was fitted before it; a
     # carry runs from a closing of the gripper to the next (moments are also None while every joint rests, which
     # does not end a carry).
     carries: list[tuple[float, float, bool]] = []
+    if estimator.empty_moves is not None:
+        raise ValueError("taring needs an estimator without seeded empty moves: it sums the episodes' own")
+    empty_information, empty_moment = np.zeros((_PARAMETERS, _PARAMETERS)), np.zeros(_PARAMETERS)
     for episode in episodes:
         estimator.reset()
         holding = False
@@ -700,6 +763,9 @@ def tare_from_observations(
             information, moment = moments
             carry_moment, carry_information, corrected = carries[-1]
             carries[-1] = (carry_moment + moment, carry_information + information, corrected)
+        sums = estimator.empty_move_sums
+        empty_information += sums.information
+        empty_moment += sums.moment
     carries = [carry for carry in carries if carry[1] > 0.0]
     if not carries:
         raise ValueError("no carry phase in the calibration episodes: the gripper never closed while moving")
@@ -708,4 +774,4 @@ def tare_from_observations(
     moments, informations, _ = np.array(carries).T
     per_carry = moments / informations
     spread = float(np.std(per_carry, ddof=1)) if len(carries) > 1 else math.nan
-    return float(moments.sum() / informations.sum()), spread
+    return Tare(float(moments.sum() / informations.sum()), spread, EmptyMoveSums(empty_information, empty_moment))

@@ -18,7 +18,7 @@ from typing import Literal
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import OracleController, model_controller
-from controllers.payload import PayloadEstimator
+from controllers.payload import EmptyMoveSums, PayloadEstimator
 from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, load_residual_controller, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
@@ -66,6 +66,9 @@ class ControllerSetup:
         mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
         drive_lag: Identified drive lag T (s) per joint; None if unknown (then ``mid_f_rls_lag`` cannot be built).
         tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
+        empty_moves: Sums of the robot's earlier empty moves per RLS controller key (its calibration episodes,
+            :class:`~controllers.payload.EmptyMoveSums`), which seed the estimator's fit of the robot's mass and
+            friction errors at every episode; only for the robot they were measured on. Missing keys: none.
         pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
         residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
         geometry: Lengths (m) of the robot the parameters were identified on; the models are of this robot.
@@ -77,6 +80,7 @@ class ControllerSetup:
     mid_f_rods: ModelParameters
     drive_lag: tuple[float, float, float] | None = None
     tares: Mapping[str, float] = field(default_factory=dict)
+    empty_moves: Mapping[str, EmptyMoveSums] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
     residual_policy: Path | None = None
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
@@ -125,6 +129,7 @@ def build_controller(
             forearm_rods=True,
             regressor=ESTIMATOR_REGRESSORS.get(key),
             tare=setup.tares.get(key, 0.0),
+            empty_moves=setup.empty_moves.get(key),
             pd_gains=setup.pd_gains,
             name=label,
             geometry=setup.geometry,
@@ -138,10 +143,11 @@ def build_controller(
 
 
 def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
-    """A fresh, untared payload estimator of the RLS controller ``key`` (the one its controller runs)."""
+    """A fresh, untared payload estimator of the RLS controller ``key`` (the one its controller runs), without
+    seeded empty moves."""
     if key not in ESTIMATOR_REGRESSORS:
         raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
-    return build_controller(key, dataclasses.replace(setup, tares={})).estimator
+    return build_controller(key, dataclasses.replace(setup, tares={}, empty_moves={})).estimator
 
 
 def estimation_model(setup: ControllerSetup) -> DeltaDynamics:

@@ -9,10 +9,11 @@ with these functions.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
-from controllers.payload import tare_from_observations
+from controllers.payload import EmptyMoveSums, tare_from_observations
 from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, payload_estimator
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
@@ -23,6 +24,33 @@ DEFAULT_CALIBRATION_EPISODES = 6
 """Payload-free episodes per tare: the apparent payload of an empty gripper varies by about 10 g from episode to
 episode (noise and path), so six of them put the tare's own standard error near 4 g, against a +-25 g target for
 light objects."""
+
+
+class Calibration(NamedTuple):
+    """What the payload-free episodes tell each RLS controller (by key).
+
+    Attributes:
+        tares: Apparent payload of the empty gripper (kg).
+        spreads: Its carry-to-carry standard deviation (kg).
+        empty_moves: The sums of the episodes' empty moves (:class:`~controllers.payload.EmptyMoveSums`).
+    """
+
+    tares: dict[str, float]
+    spreads: dict[str, float]
+    empty_moves: dict[str, EmptyMoveSums]
+
+
+def calibrated_setup(setup: ControllerSetup, calibration: Calibration, scenario: Scenario | None) -> ControllerSetup:
+    """``setup`` with the tares of ``calibration`` and, if the episodes run on the robot it was measured on, the
+    sums of its empty moves.
+
+    The robot is the calibration's unless ``scenario`` randomizes the plant per episode: then every episode is
+    another robot, and what the calibration's robots taught about their own mass and friction errors does not
+    hold for it (each episode fits its own on its empty moves).
+    """
+    randomized = scenario is not None and scenario.task.domain_randomization is not None
+    empty_moves = {} if randomized else dict(calibration.empty_moves)
+    return dataclasses.replace(setup, tares=dict(calibration.tares), empty_moves=empty_moves)
 
 
 def calibration_tasks(
@@ -53,8 +81,9 @@ def calibration_tasks(
 
 def tares_from_results(
     results: Iterable[tuple[Task, EpisodeRecord]], setup: ControllerSetup, max_loop_gap: float | None = None
-) -> tuple[dict[str, float], dict[str, float]]:
-    """Tare (kg) and its carry-to-carry spread (kg) per RLS controller, from its calibration episodes.
+) -> Calibration:
+    """Tare (kg), its carry-to-carry spread (kg) and the empty moves' sums per RLS controller, from its calibration
+    episodes.
 
     Args:
         results: Finished tasks and their records; those of kind ``"calibration"`` are used.
@@ -76,10 +105,12 @@ def tares_from_results(
                     f"{1e3 * record.max_loop_gap:.3f} mm (limit {1e3 * max_loop_gap:.3f} mm)"
                 )
             observed.setdefault(task.key, []).append(record.observations)
-    tares, spreads = {}, {}
+    calibration = Calibration({}, {}, {})
     for key, episodes in observed.items():
-        tares[key], spreads[key] = tare_from_observations(payload_estimator(key, setup), episodes)
-    return tares, spreads
+        tare = tare_from_observations(payload_estimator(key, setup), episodes)
+        calibration.tares[key], calibration.spreads[key] = tare.mass, tare.spread
+        calibration.empty_moves[key] = tare.empty_moves
+    return calibration
 
 
 def calibrate_tares(
@@ -93,9 +124,9 @@ def calibrate_tares(
     scenario: Scenario | None = None,
     references: Sequence[Trajectory] | None = None,
     max_loop_gap: float | None = None,
-) -> tuple[dict[str, float], dict[str, float]]:
+) -> Calibration:
     """Run the calibration episodes of ``keys`` on ``scenario`` (None: ``nominal``), along ``references``
-    (one per seed) if given, and return their tares and spreads (kg) by key (see :func:`tares_from_results`
-    for ``max_loop_gap``)."""
+    (one per seed) if given, and return what they tell each (see :func:`tares_from_results` for
+    ``max_loop_gap``)."""
     tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario, references)
     return tares_from_results(run_tasks(tasks, workers, progress), setup, max_loop_gap)

@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 from collections.abc import Sequence
 from typing import Any
@@ -22,7 +21,7 @@ import numpy as np
 
 from controllers.registry import CONTROLLER_LABELS, ESTIMATING_KEYS, ESTIMATOR_REGRESSORS, ControllerSetup
 from eval import metrics
-from eval.calibration import calibration_tasks, tares_from_results
+from eval.calibration import calibrated_setup, calibration_tasks, tares_from_results
 from eval.episodes import EpisodeRecord
 from eval.processes import process_pool
 from eval.tasks import Task, iterate_tasks
@@ -82,14 +81,14 @@ def run_all(
     with process_pool(args.workers) as pool, tqdm(total=total, desc="episodes", unit="ep") as progress:
         running = iterate_tasks(first, args.workers, progress, pool)
         results = list(itertools.islice(running, len(calibrations)))
-        tares, spreads = tares_from_results(results, setup)
-        tared_setup = dataclasses.replace(setup, tares=tares)
+        calibration = tares_from_results(results, setup)
+        tared_setup = calibrated_setup(setup, calibration, args.scenario)
         payloads = (TABLE2_PAYLOAD,) * args.cycles
         table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, payloads, args.scenario)
         second = [*episodes([key for key in keys if key not in untared], tared_setup), table2]
         queued = iterate_tasks(second, args.workers, progress, pool)
         results += [*running, *queued]
-    return results, tares, spreads
+    return results, calibration.tares, calibration.spreads
 
 
 def tabulate(

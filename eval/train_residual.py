@@ -188,10 +188,10 @@ def base_setup(
         geometry=robot.geometry,
         masses=robot.masses,
     )
-    tares, _ = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
+    calibration = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
     return BaseSetup(
         parameters,
-        tare=tares[base],
+        tare=calibration.tares[base],
         geometry=robot.geometry,
         masses=robot.masses,
         drive_lag=drive_lag if base == "mid_f_rls_lag" else None,

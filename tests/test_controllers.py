@@ -76,7 +76,7 @@ RLS_KEYS = sorted(ESTIMATOR_REGRESSORS)
 def tared_setup(controller_setup: ControllerSetup) -> ControllerSetup:
     """The setup with each RLS controller's tare from one payload-free calibration episode of three cycles (one
     carry's apparent payload varies by about 10 g from carry to carry)."""
-    tares, _ = calibrate_tares(RLS_KEYS, controller_setup, [CALIBRATION_SEED], n_cycles=3)
+    tares = calibrate_tares(RLS_KEYS, controller_setup, [CALIBRATION_SEED], n_cycles=3).tares
     return dataclasses.replace(controller_setup, tares=tares)
 
 
@@ -382,7 +382,7 @@ def test_tare_takes_a_carry_with_a_stop_inside_as_one_carry(controller_setup: Co
         moving, resting = [sample(2.0, True, mass)] * 50, [sample(0.0, True, mass)] * 30
         return [sample(2.0, False, 0.0)] * 20 + moving + resting + moving
 
-    tare, spread = tare_from_observations(estimator, [carry(0.1) + carry(0.3)])
+    tare, spread, _ = tare_from_observations(estimator, [carry(0.1) + carry(0.3)])
     assert tare == pytest.approx(0.2, abs=0.005)
     assert spread == pytest.approx(np.std([0.1, 0.3], ddof=1), abs=0.005)  # four half-carries: 0.115
 

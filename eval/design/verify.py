@@ -12,7 +12,7 @@ a run diverges or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
 from eval.episodes import EpisodeRecord, run_episode
 from eval.identification import ExcitationRegion, robot_setup, run_identification
@@ -231,7 +231,7 @@ def verify_design(
         setup = identify_design(plant, performance, seed, workers)
         calibration_seeds = [seed + CALIBRATION_SEED_OFFSET + j for j in range(DEFAULT_CALIBRATION_EPISODES)]
         try:
-            tares, _ = calibrate_tares(
+            calibration = calibrate_tares(
                 [RLS_KEY],
                 setup,
                 calibration_seeds,
@@ -243,8 +243,8 @@ def verify_design(
             )
         except RuntimeError as error:
             raise DesignInfeasible(f"tare calibration failed: {error}") from error
-        tare = tares[RLS_KEY]
-        setup = replace(setup, tares=tares)
+        tare = calibration.tares[RLS_KEY]
+        setup = calibrated_setup(setup, calibration, scenario)
         controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
         parameters, drive_lag = setup.mid_f_rods, setup.drive_lag
         identified = model.with_parameters(parameters)

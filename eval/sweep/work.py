@@ -8,7 +8,6 @@ module. Both backends run :func:`run_unit`; it never raises for a failing episod
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -32,7 +31,7 @@ from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from eval import metrics
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
 from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
@@ -140,24 +139,29 @@ def tared_setup(
     calibration_episodes: int = DEFAULT_CALIBRATION_EPISODES,
     workers: int = 1,
 ) -> ControllerSetup:
-    """``setup`` with the tares of the RLS controllers among ``controllers``, measured on ``scenario``.
+    """``setup`` with the tares of the RLS controllers among ``controllers``, measured on ``scenario``, and the sums of
+    the calibration's empty moves when the scenario's episodes run on its robot (:func:`calibrated_setup`).
 
-    The tare is measured as ``python -m eval`` measures it (:mod:`eval.calibration`): payload-free
+    They are measured as ``python -m eval`` measures them (:mod:`eval.calibration`): payload-free
     episodes of the scenario on the calibration seeds of ``seed``.
     """
     keys = [key for key in controllers if key in ESTIMATOR_REGRESSORS]
     if not keys:
         return setup
     seeds = calibration_seeds(seed, calibration_episodes)
-    tares, _ = calibrate_tares(keys, setup, seeds, scenario.task.n_cycles, workers=workers, scenario=scenario)
-    return dataclasses.replace(setup, tares=tares)
+    calibration = calibrate_tares(keys, setup, seeds, scenario.task.n_cycles, workers=workers, scenario=scenario)
+    return calibrated_setup(setup, calibration, scenario)
 
 
 def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
-    """Content hash (16 hex digits) of what the controllers know: parameters, tares, gains and, if the
-    residual row runs, the policy file's bytes."""
+    """Content hash (16 hex digits) of what the controllers know: parameters, tares, the empty moves' sums, gains
+    and, if the residual row runs, the policy file's bytes."""
     known = (setup.mid, setup.mid_f, setup.mid_f_rods, sorted(setup.tares.items()), setup.geometry, setup.masses)
     digest = hashlib.sha256(repr(known).encode())
+    for key, sums in sorted(setup.empty_moves.items()):
+        digest.update(key.encode())
+        digest.update(np.ascontiguousarray(sums.information).tobytes())
+        digest.update(np.ascontiguousarray(sums.moment).tobytes())
     digest.update(repr(setup.pd_gains).encode())
     if "residual" in controllers:
         digest.update(Path(setup.residual_policy).read_bytes())
