@@ -59,7 +59,10 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   (:class:`ModelCorrections`, :data:`MASS_CORRECTION_STD`, :data:`FRICTION_SCALE_STD`) and the carries'
   equations have them removed. On a carry dm and mp are the same column, so nothing in it tells them apart:
   a carry is corrected only if an empty move came before it in the episode (the env's default start, at a
-  place point, gives every carry one; with ``start="pick"`` the first carry has none).
+  place point, gives every carry one; with ``start="pick"`` the first carry has none) or the robot's earlier
+  empty moves seed the fit (:class:`EmptyMoveSums`, its calibration episodes). From one empty move the fitted
+  platform mass is uncertain (it is collinear with the arm-mass scale there) and carries about 8 g of torque
+  noise into the carry; the seeded sums of the same robot remove that.
 - Torque ripple (1 N m, fast in position) and the measured-torque noise are zero-mean over a carry and go
   into the nominal residual standard deviation.
 """
