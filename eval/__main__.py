@@ -144,8 +144,9 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
     label = CONTROLLER_LABELS["residual"]
     lines = [
         f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
-        "file; the gain below is against this run's row of that controller (same identification, this run's "
-        "tare).",
+        "file; the gain below is against this run's row of that controller (same identification; this run's "
+        "tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
+        "file's base does not carry).",
         "",
     ]
     if args.residual_base is not None:
