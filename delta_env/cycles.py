@@ -174,8 +174,9 @@ def conveyor_cycles(
 
     Args:
         geometry: Robot geometry.
-        rng: Source of all randomness; draws n_cycles + 1 pick points, then n_cycles place points, then the
-            starting place point (drawn with either ``start``, so that both share every other draw).
+        rng: Source of all randomness; draws n_cycles + 1 pick points, then n_cycles place points, then (with
+            ``start="place"`` only) the starting place point: ``start="pick"`` draws what it drew before the
+            option existed, so earlier seeded runs repeat.
         n_cycles: Number of pick-and-place cycles, >= 1.
         peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
         pick_zone: Where objects are picked.
@@ -200,8 +201,8 @@ def conveyor_cycles(
         require_admissible(geometry, zone.corners() + lifted, limits, f"lifted {name}")
     picks = pick_zone.sample(rng, n_cycles + 1)
     places = place_zone.sample(rng, n_cycles)
-    previous_place = place_zone.sample(rng, 1)[0]
-    return _cycles(geometry, picks, places, profile, limits, previous_place if start == "place" else None)
+    origin = place_zone.sample(rng, 1)[0] if start == "place" else None
+    return _cycles(geometry, picks, places, profile, limits, origin)
 
 
 def require_start(start: str) -> None:

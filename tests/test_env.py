@@ -121,7 +121,7 @@ def test_an_episode_starts_at_rest_at_a_place_point_and_picks_after_an_empty_mov
     assert np.linalg.norm(step_info["platform_position"] - trajectory.xyz[first_pick]) < 5e-3
 
 
-def test_pick_start_shares_the_episode_draws_and_starts_at_the_first_pick(env: DeltaPickPlaceEnv) -> None:
+def test_pick_start_shares_the_points_and_masses_and_starts_at_the_first_pick(env: DeltaPickPlaceEnv) -> None:
     from_pick = DeltaPickPlaceEnv(n_cycles=1, start="pick")
     assert from_pick.start == "pick"
     _, info = env.reset(seed=6)

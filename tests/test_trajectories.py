@@ -256,7 +256,7 @@ def test_from_a_place_start_every_carry_follows_an_empty_move(kind: str, start: 
 
 
 @pytest.mark.parametrize("seed", [0, 7])
-def test_both_starts_share_every_draw_and_the_place_start_draws_its_point_last(seed: int) -> None:
+def test_both_starts_share_the_cycle_points_and_only_the_place_start_draws_one_more(seed: int) -> None:
     place, pick = (build("conveyor", seed=seed, start=start) for start in STARTS)
     for name in ("pick_indices", "place_indices"):
         assert_array_equal(place.xyz[getattr(place, name)], pick.xyz[getattr(pick, name)])
@@ -268,6 +268,12 @@ def test_both_starts_share_every_draw_and_the_place_start_draws_its_point_last(s
     assert_allclose(pick.xyz[pick.place_indices], places, rtol=0, atol=1e-12)
     assert_allclose(pick.xyz[0], picks[0], rtol=0, atol=1e-12)
     assert_allclose(place.xyz[0], cycles.PLACE_ZONE.sample(rng, 1)[0], rtol=0, atol=1e-12)
+    # the pick start draws nothing else: an episode's later draws (plant, noise) are those of earlier runs
+    for start, extra in (("pick", 0), ("place", 1)):
+        used, expected = np.random.default_rng(seed), np.random.default_rng(seed)
+        cycles.conveyor_cycles(G, used, 3, start=start)
+        cycles.PICK_ZONE.sample(expected, 4), cycles.PLACE_ZONE.sample(expected, 3 + extra)
+        assert used.random() == expected.random(), start
 
 
 @pytest.mark.parametrize("kind", ["standard", "conveyor"])
