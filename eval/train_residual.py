@@ -72,7 +72,7 @@ from controllers.residual import (
 )
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
-from eval.calibration import calibrate_tares
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
 from eval.run_folder import command_line, create_run_folder, write_config, write_json
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
@@ -86,8 +86,8 @@ TRAINING_SEEDS = range(10_000_000, 20_000_000)
 VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
 """Held-out episodes of the EvalCallback during training (model selection)."""
 
-CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_003))
-"""Payload-free episodes of the base controller's tare (three, like the eval)."""
+CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_000 + DEFAULT_CALIBRATION_EPISODES))
+"""Payload-free episodes of the base controller's tare (as many as the eval's)."""
 
 CHECKPOINT_PREFIX = "residual"
 """CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
