@@ -427,12 +427,12 @@ def _checked_sums(sums: EmptyMoveSums) -> EmptyMoveSums:
 class PayloadEstimator:
     """Payload mass (kg) from measured joint torques, updated once per control step while the gripper holds.
 
-    The empty moves of the episode (gripper open, mp = 0 known) fit the robot's own mass and friction errors
-    (:class:`ModelCorrections`); the carries' equations have them removed, and their RLS state is the object's
-    mass plus the tare, the model's remaining error along phi on carries (about 0.00 to -0.03 kg for MId+F+R
-    on the nominal plant). The estimate of the object is the RLS state minus the tare; the feedforward uses
-    the apparent mass, what the model needs at its platform: the RLS state plus the fitted platform-mass
-    correction.
+    The empty moves of the episode (gripper open, mp = 0 known), added to the robot's earlier ones if seeded
+    (``empty_moves``), fit the robot's own mass and friction errors (:class:`ModelCorrections`); the carries'
+    equations have them removed, and their RLS state is the object's mass plus the tare, the model's remaining
+    error along phi on carries (about 0.00 to -0.03 kg for MId+F+R on the nominal plant). The estimate of the
+    object is the RLS state minus the tare; the feedforward uses the apparent mass, what the model needs at its
+    platform: the RLS state plus the fitted platform-mass correction.
 
     Args:
         dynamics: The identified model (MId+F) whose torque at mp = 0 is subtracted.
@@ -466,6 +466,7 @@ class PayloadEstimator:
             (None with ``regressor="reference"``).
         delay: Control periods between the newest observation and the sample whose equation is formed: the
             smoother's lag, the filter's acceleration lag, or 0 with ``regressor="reference"``.
+        empty_moves: The checked seed sums (:class:`EmptyMoveSums`), or None.
     """
 
     def __init__(
@@ -552,6 +553,7 @@ class PayloadEstimator:
         self.empty_moves = None if empty_moves is None else _checked_sums(empty_moves)
         if self.empty_moves is not None and not self.fits_corrections:
             raise ValueError("empty_moves seed the fit of the model's corrections, but this estimator fits none")
+        self._restart_fit()
         self._filter_started = False
         self._holding = False
         # (2, 5, 3): the reference's tau0, phi, theta, rates and accelerations of this step and the previous one.
@@ -573,7 +575,7 @@ class PayloadEstimator:
 
     @property
     def corrections(self) -> ModelCorrections:
-        """The model's corrections fitted on this episode's empty moves so far (0 before any).
+        """The model's corrections fitted on the seeded sums and this episode's empty moves so far (0 before any).
 
         Solved on a copy: the solution the carries and the feedforward use stays the one of the last carry's start.
         """
@@ -602,22 +604,27 @@ class PayloadEstimator:
 
     @property
     def friction_scale_error(self) -> NDArray[np.float64]:
-        """Relative error kappa_i of each joint's identified friction fitted on this episode's empty moves, (3,)."""
+        """Relative error kappa_i of each joint's identified friction, fitted as :attr:`corrections`, (3,)."""
         return self.corrections.friction_scale
 
     def reset(self) -> None:
-        """Start an episode: nothing held or fitted, RLS at the tare, joint filter restarted at the next reading."""
+        """Start an episode: nothing held, the fit back to the seeded sums (empty without), RLS at the tare, joint
+        filter restarted at the next reading."""
         self.rls.reset(self.tare)
-        self._fit[:] = 0.0
-        if self.empty_moves is not None:
-            self._fit[_FIT_INFORMATION:_FIT_MOMENT] = self.empty_moves.information.ravel()
-            self._fit[_FIT_MOMENT:_FIT_SOLUTION] = self.empty_moves.moment
-            self._fit[_FIT_STALE] = 1.0
+        self._restart_fit()
         self._filter_started = False
         self._holding = False
         self._has_previous_reference = False
         self._previous_state = None
         self._history.clear()
+
+    def _restart_fit(self) -> None:
+        """The empty-move fit as an episode starts: the seeded sums, to be solved at the first carry, or nothing."""
+        self._fit[:] = 0.0
+        if self.empty_moves is not None:
+            self._fit[_FIT_INFORMATION:_FIT_MOMENT] = self.empty_moves.information.ravel()
+            self._fit[_FIT_MOMENT:_FIT_SOLUTION] = self.empty_moves.moment
+            self._fit[_FIT_STALE] = 1.0
 
     def update(
         self,

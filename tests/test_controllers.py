@@ -381,6 +381,8 @@ def test_empty_move_sums_are_only_for_the_robot_they_were_measured_on(controller
         assert setup.tares == {"mid_f_rls": 0.01}
         assert (set(setup.empty_moves) == {"mid_f_rls"}) is kept, name
     dynamics = DeltaDynamics.nominal(controller_setup.mid_f_rods, forearm_rods=True)
+    fresh = PayloadEstimator(dynamics, regressor="reference", empty_moves=EmptyMoveSums(2.0 * np.eye(5), np.ones(5)))
+    assert_allclose(fresh.corrections.friction_scale, 1.0 / (2.0 + FRICTION_SCALE_STD**-2))  # seeded before a reset
     with pytest.raises(ValueError, match=r"\(5, 5\) and \(5,\) sums, got shapes \(4, 4\)"):
         PayloadEstimator(dynamics, empty_moves=EmptyMoveSums(np.eye(4), np.zeros(4)))
     with pytest.raises(ValueError, match="symmetric"):
