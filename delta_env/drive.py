@@ -1,4 +1,12 @@
-"""The drive's current loop as a 1 kHz controller sees it: a first-order lag under a zero-order hold.
+"""The drive: its limits (motor and gearbox as seen at the joint), and its current loop as a 1 kHz controller sees it.
+
+**Limits** (:class:`DriveLimits`, docs/design.md section 4). A servo drive delivers its peak torque up to a
+corner speed; above it the supply voltage, minus the motor's back-EMF, limits the current it can push *with*
+the motion, so the torque available in the motoring quadrants falls linearly to zero at the maximum speed.
+Torque *against* the motion (braking) is limited by the peak current only. Continuously the motor may deliver
+its rated torque: the RMS torque over a window longer than a work cycle must stay below it (thermal limit).
+
+**Current loop.** A first-order lag under a zero-order hold.
 
 The plant's actuator (``dyntype="filterexact"``) integrates T dtau/dt = u - tau exactly over each physics
 step h: tau_{j+1} = a tau_j + (1 - a) u_j with a = exp(-h / T), and the force that acts during step j is
@@ -15,14 +23,131 @@ is the exponential between the two instants, tau(t_k + j h) = a^j tau_k + (1 - a
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from delta_env.geometry import TORQUE_LIMIT
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.validation import require_in, require_positive
 
 MAX_TIME_CONSTANT = 0.1
 """Largest lag time constant (s) accepted, as for the plant's ``actuator_lag``."""
+
+RPM = 2.0 * math.pi / 60.0
+"""One revolution per minute in rad/s."""
+
+MAX_PEAK_TORQUE = 1.0e4
+"""Largest joint peak torque (N m) accepted: 25x the default drive."""
+
+MAX_JOINT_SPEED = 1.0e3
+"""Largest joint speed limit (rad/s) accepted."""
+
+
+@dataclass(frozen=True)
+class ServoMotor:
+    """A servo motor's data-sheet values, on its own shaft (before the gearbox).
+
+    Attributes:
+        peak_torque: Peak (intermittent) torque (N m), available up to ``corner_speed``.
+        rated_torque: Rated continuous torque (N m): the thermal (RMS) limit.
+        corner_speed: Speed (rad/s) up to which the peak torque is available.
+        max_speed: Maximum speed (rad/s), where the motoring torque has fallen to zero.
+    """
+
+    peak_torque: float
+    rated_torque: float
+    corner_speed: float
+    max_speed: float
+
+    def __post_init__(self) -> None:
+        require_positive("peak_torque", self.peak_torque, "N m")
+        require_in("rated_torque", self.rated_torque, 0.0, self.peak_torque, unit="N m", low_open=True)
+        require_positive("corner_speed", self.corner_speed, "rad/s")
+        require_in("max_speed", self.max_speed, self.corner_speed, unit="rad/s", low_open=True)
+
+
+REPRESENTATIVE_MOTOR = ServoMotor(peak_torque=20.0, rated_torque=6.4, corner_speed=3000.0 * RPM, max_speed=6000.0 * RPM)
+"""A 2 kW class permanent-magnet AC servo on a 400 V drive (docs/design.md section 4): rated 6.4 N m at
+3000 rpm, peak about 3x rated up to 3000 rpm, 6000 rpm maximum."""
+
+REPRESENTATIVE_GEAR_RATIO = 21.0
+"""Reduction of a one-stage precision planetary gearbox matched to that motor (dimensionless)."""
+
+REPRESENTATIVE_GEAR_EFFICIENCY = 0.95
+"""Torque efficiency of a one-stage planetary gearbox (dimensionless)."""
+
+DEFAULT_THERMAL_WINDOW = 1.0
+"""Window (s) of the thermal RMS torque: longer than one work cycle of the tasks (0.4-0.8 s), much shorter than
+a motor winding's thermal time constant (minutes), so a cycle that stays under it is safe to repeat."""
+
+
+@dataclass(frozen=True)
+class DriveLimits:
+    """The torque-speed envelope and thermal limit of each joint's drive (motor and gearbox, at the joint).
+
+    The defaults are :data:`REPRESENTATIVE_MOTOR` behind :data:`REPRESENTATIVE_GEAR_RATIO` at
+    :data:`REPRESENTATIVE_GEAR_EFFICIENCY`, rounded (399 N m peak, 128 N m rated, 15 and 30 rad/s):
+    ``DriveLimits.of(REPRESENTATIVE_MOTOR, REPRESENTATIVE_GEAR_RATIO, REPRESENTATIVE_GEAR_EFFICIENCY)`` is the
+    unrounded drive.
+
+    Attributes:
+        peak_torque: Peak torque at the joint (N m): the command is clipped to it at any speed.
+        rated_torque: Rated continuous torque at the joint (N m): the RMS torque over ``thermal_window`` may
+            not exceed it.
+        corner_speed: Joint speed (rad/s) up to which the peak torque is available in the motoring quadrants.
+        max_speed: Maximum joint speed (rad/s), where the motoring torque has fallen to zero.
+        thermal_window: Window (s) of the thermal RMS torque.
+    """
+
+    peak_torque: float = TORQUE_LIMIT
+    rated_torque: float = 128.0
+    corner_speed: float = 15.0
+    max_speed: float = 30.0
+    thermal_window: float = DEFAULT_THERMAL_WINDOW
+
+    def __post_init__(self) -> None:
+        require_in("peak_torque", self.peak_torque, 0.0, MAX_PEAK_TORQUE, unit="N m", low_open=True)
+        require_in("rated_torque", self.rated_torque, 0.0, self.peak_torque, unit="N m", low_open=True)
+        require_in("corner_speed", self.corner_speed, 0.0, MAX_JOINT_SPEED, unit="rad/s", low_open=True)
+        require_in("max_speed", self.max_speed, self.corner_speed, MAX_JOINT_SPEED, unit="rad/s", low_open=True)
+        require_in("thermal_window", self.thermal_window, 0.01, 3600.0, unit="s")
+
+    @classmethod
+    def of(cls, motor: ServoMotor, gear_ratio: float, efficiency: float = 1.0, **kwargs: float) -> DriveLimits:
+        """The joint-side limits of ``motor`` behind a gearbox of ``gear_ratio`` (> 0) and ``efficiency`` (0, 1]."""
+        require_positive("gear_ratio", gear_ratio)
+        require_in("efficiency", efficiency, 0.0, 1.0, low_open=True)
+        torque = gear_ratio * efficiency
+        return cls(
+            peak_torque=motor.peak_torque * torque,
+            rated_torque=motor.rated_torque * torque,
+            corner_speed=motor.corner_speed / gear_ratio,
+            max_speed=motor.max_speed / gear_ratio,
+            **kwargs,
+        )
+
+    def motoring_limit(self, speed: ArrayLike) -> NDArray[np.float64]:
+        """Torque (N m, >= 0) available *with* the motion at joint ``speed`` (rad/s, either sign), elementwise.
+
+        The peak torque up to the corner speed, then falling linearly to 0 at the maximum speed (and 0 beyond).
+        """
+        magnitude = np.abs(np.asarray(speed, dtype=float))
+        falling = self.peak_torque * (self.max_speed - magnitude) / (self.max_speed - self.corner_speed)
+        return np.clip(falling, 0.0, self.peak_torque)
+
+    def torque_bounds(self, speed: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(lower, upper) torque bounds (N m) at joint ``speed`` (rad/s), elementwise.
+
+        With the motion (the sign of the speed) the motoring limit applies; against it, the peak torque. At
+        rest both directions have the peak torque.
+        """
+        speed = np.asarray(speed, dtype=float)
+        motoring = self.motoring_limit(speed)
+        upper = np.where(speed > 0.0, motoring, self.peak_torque)
+        lower = np.where(speed < 0.0, -motoring, -self.peak_torque)
+        return lower, upper
 
 
 class SampledLag:

@@ -16,7 +16,8 @@ GRAVITY = 9.81
 """Gravitational acceleration (m/s^2), acting along -z of the base frame."""
 
 TORQUE_LIMIT = 400.0
-"""Motor torque limit (N m) at the joint (after the gearbox)."""
+"""Peak torque (N m) of the default drive at the joint (after the gearbox); the whole envelope is
+:class:`delta_env.drive.DriveLimits`."""
 
 CHAIN_AZIMUTHS = np.array([0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0])
 """Azimuth alpha_i (rad) of chain i = 1, 2, 3 about the base z axis."""
