@@ -10,6 +10,7 @@ rest at the first pick point instead.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -17,8 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from delta_env.geometry import DeltaGeometry
+from delta_env.kinematics import cartesian_to_joint
 from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits, require_admissible
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.timing import MoveTiming, TimeLaw, move_samples
 from delta_env.trajectories import (
     STANDARD_PEAK_ACCELERATION,
     WORKING_HEIGHT,
@@ -114,7 +117,9 @@ def standard_cycle(
     start: Literal["place", "pick"] = "place",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
-) -> Trajectory:
+    timing: MoveTiming | None = None,
+    declared_masses: Sequence[float] | None = None,
+) -> Trajectory | TimedCycles:
     """The industry's 25/305/25 mm pick cycle: up 25 mm, across 305 mm, down 25 mm, and back.
 
     One cycle: dwell at the pick point (the gripper closes mid-dwell), arch to the place point,
@@ -134,6 +139,9 @@ def standard_cycle(
         start: ``"place"`` or ``"pick"``, where the trajectory starts at rest.
         limits: Region and singularity margins every sample must respect.
         dt: Sample period (s).
+        timing: Times every move instead of ``peak_acceleration`` (:mod:`delta_env.timing`); the result is then
+            a :class:`TimedCycles`, whose :meth:`TimedCycles.trajectory` is the reference.
+        declared_masses: With ``timing``: the mass (kg) of each cycle's object, handed to ``timing.carry``.
 
     Raises:
         ValueError: on a bad argument or a point outside ``limits`` (named in the message).
@@ -145,7 +153,10 @@ def standard_cycle(
     half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
     pick, place = center_xyz - half_travel, center_xyz + half_travel
     origin = place if start == "place" else None
-    return _cycles(geometry, np.tile(pick, (n_cycles + 1, 1)), np.tile(place, (n_cycles, 1)), profile, limits, origin)
+    picks, places = np.tile(pick, (n_cycles + 1, 1)), np.tile(place, (n_cycles, 1))
+    if timing is not None:
+        return TimedCycles.plan(geometry, picks, places, profile, limits, origin, timing, declared_masses)
+    return _cycles(geometry, picks, places, profile, limits, origin)
 
 
 def conveyor_cycles(
@@ -162,7 +173,9 @@ def conveyor_cycles(
     start: Literal["place", "pick"] = "place",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
-) -> Trajectory:
+    timing: MoveTiming | None = None,
+    declared_masses: Sequence[float] | None = None,
+) -> Trajectory | TimedCycles:
     """Pick-and-place cycles between random points on a pick and a place conveyor.
 
     Cycle k picks a new object at pick point k and places it at place point k (both uniform on
@@ -187,6 +200,9 @@ def conveyor_cycles(
         start: ``"place"`` or ``"pick"`` (see above).
         limits: Region and singularity margins every sample must respect.
         dt: Sample period (s).
+        timing: Times every move instead of ``peak_acceleration``; the result is then a :class:`TimedCycles`
+            (as in :func:`standard_cycle`). It draws nothing from ``rng``.
+        declared_masses: With ``timing``: the mass (kg) of each cycle's object, handed to ``timing.carry``.
 
     Raises:
         ValueError: on a bad argument or a point outside ``limits`` (named in the message).
@@ -202,6 +218,8 @@ def conveyor_cycles(
     picks = pick_zone.sample(rng, n_cycles + 1)
     places = place_zone.sample(rng, n_cycles)
     origin = place_zone.sample(rng, 1)[0] if start == "place" else None
+    if timing is not None:
+        return TimedCycles.plan(geometry, picks, places, profile, limits, origin, timing, declared_masses)
     return _cycles(geometry, picks, places, profile, limits, origin)
 
 
@@ -224,15 +242,8 @@ def _cycles(
     From ``origin`` (m, if given): half a dwell at rest and an empty arch to pick 0. Then, for every k: dwell at
     pick k, arch to place k, dwell, arch to pick k + 1.
     """
+    _require_stations(geometry, picks, places, origin, profile.lift_height, limits)
     lift_height, lift_fraction, dwell = profile.lift_height, profile.lift_fraction, profile.dwell
-    lifted = np.array([0.0, 0.0, lift_height])
-    stations = [("pick point", picks), ("place point", places)]
-    if origin is not None:
-        stations.append(("starting point", origin[None, :]))
-    for name, points in stations:
-        require_admissible(geometry, points, limits, name)
-        require_admissible(geometry, points + lifted, limits, f"lifted {name}")
-
     segments: list[Segment] = []
     events: list[tuple[float, float]] = []
     elapsed = 0.0
@@ -250,3 +261,137 @@ def _cycles(
     trajectory = sample_segments(geometry, segments, profile.dt, events)
     require_admissible(geometry, trajectory.xyz, limits, "path point")
     return trajectory
+
+
+def _require_stations(
+    geometry: DeltaGeometry,
+    picks: np.ndarray,
+    places: np.ndarray,
+    origin: np.ndarray | None,
+    lift_height: float,
+    limits: WorkspaceLimits,
+) -> None:
+    """Raise ValueError unless every station (m) and the point ``lift_height`` (m) above it is admissible."""
+    lifted = np.array([0.0, 0.0, lift_height])
+    stations = [("pick point", picks), ("place point", places)]
+    if origin is not None:
+        stations.append(("starting point", origin[None, :]))
+    for name, points in stations:
+        require_admissible(geometry, points, limits, name)
+        require_admissible(geometry, points + lifted, limits, f"lifted {name}")
+
+
+@dataclass(frozen=True)
+class TimedPiece:
+    """One piece of timed cycles: a dwell (``law`` None, ``samples`` at rest) or a move timed by ``law``.
+
+    Attributes:
+        shape: The move's shape (its ``duration`` unused), or for a dwell a line from the point to itself.
+        samples: Samples of the piece including both ends (a dwell of d seconds has d / dt + 1).
+        law: The move's time law, or None for a dwell.
+        carry: The cycle whose object the move carries, or None (empty move or dwell).
+    """
+
+    shape: Segment
+    samples: int
+    law: TimeLaw | None = None
+    carry: int | None = None
+
+
+@dataclass(frozen=True)
+class TimedCycles:
+    """Pick-and-place cycles whose moves are timed by a :class:`~delta_env.timing.MoveTiming`.
+
+    The same stations, shapes, dwells and gripper events (mid-dwell) as the fixed timing; every piece starts and
+    ends on a sample, so a move's law can be replaced while it runs (:meth:`with_law`) and the reference before
+    the change stays as it was.
+
+    Attributes:
+        geometry: Robot geometry.
+        dt: Sample period (s).
+        pieces: Dwells and moves in order.
+        limits: Region and singularity margins every sample must respect.
+    """
+
+    geometry: DeltaGeometry
+    dt: float
+    pieces: tuple[TimedPiece, ...]
+    limits: WorkspaceLimits = WORKSPACE_LIMITS
+
+    @classmethod
+    def plan(
+        cls,
+        geometry: DeltaGeometry,
+        picks: np.ndarray,
+        places: np.ndarray,
+        profile: _Profile,
+        limits: WorkspaceLimits,
+        origin: np.ndarray | None,
+        timing: MoveTiming,
+        declared_masses: Sequence[float] | None,
+    ) -> TimedCycles:
+        """The pieces of :func:`_cycles`' path with every move timed by ``timing`` (arguments as there)."""
+        n_cycles = len(places)
+        if declared_masses is None or len(declared_masses) != n_cycles:
+            got = None if declared_masses is None else len(declared_masses)
+            raise ValueError(f"a timing needs one declared mass per cycle ({n_cycles}), got {got}")
+        _require_stations(geometry, picks, places, origin, profile.lift_height, limits)
+        dwell_samples = round(profile.dwell / profile.dt)
+        if dwell_samples % 2 or not math.isclose(dwell_samples * profile.dt, profile.dwell, abs_tol=1e-9):
+            raise ValueError(
+                f"with a timing the dwell must be an even number of sample periods ({profile.dt} s), "
+                f"got {profile.dwell} s"
+            )
+
+        def dwell(point: np.ndarray, samples: int) -> TimedPiece:
+            return TimedPiece(Segment.line(point, point, samples * profile.dt), samples + 1)
+
+        def move(start: np.ndarray, end: np.ndarray, carry: int | None) -> TimedPiece:
+            shape = Segment(start, end, 1.0, profile.lift_height, profile.lift_fraction)
+            law = timing.empty(shape) if carry is None else timing.carry(shape, float(declared_masses[carry]))
+            return TimedPiece(shape, len(law), law, carry)
+
+        pieces: list[TimedPiece] = []
+        if origin is not None:
+            pieces += [dwell(origin, dwell_samples // 2), move(origin, picks[0], None)]
+        for cycle, (pick, place, next_pick) in enumerate(zip(picks[:-1], places, picks[1:], strict=True)):
+            pieces += [dwell(pick, dwell_samples), move(pick, place, cycle)]
+            pieces += [dwell(place, dwell_samples), move(place, next_pick, None)]
+        return cls(geometry, profile.dt, tuple(pieces), limits)
+
+    def starts(self) -> list[int]:
+        """The sample at which each piece starts."""
+        return np.concatenate(([0], np.cumsum([piece.samples - 1 for piece in self.pieces])))[:-1].tolist()
+
+    def with_law(self, index: int, law: TimeLaw) -> TimedCycles:
+        """The same cycles with piece ``index`` (a move) timed by ``law``."""
+        piece = self.pieces[index]
+        if piece.law is None:
+            raise ValueError(f"piece {index} is a dwell, not a move")
+        pieces = list(self.pieces)
+        pieces[index] = TimedPiece(piece.shape, len(law), law, piece.carry)
+        return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits)
+
+    def trajectory(self) -> Trajectory:
+        """The sampled reference: joint references by exact inverse kinematics, gripper events mid-dwell."""
+        starts = self.starts()
+        parts = []
+        for piece in self.pieces:
+            if piece.law is None:
+                rest = np.zeros((piece.samples, 3))
+                parts.append((rest + piece.shape.start, rest, rest))
+            else:
+                parts.append(move_samples(piece.shape, piece.law))
+        xyz, xyz_dot, xyz_ddot = (
+            np.concatenate([part[k][1 if i else 0 :] for i, part in enumerate(parts)]) for k in range(3)
+        )
+        require_admissible(self.geometry, xyz, self.limits, "path point")
+        theta, theta_dot, theta_ddot = cartesian_to_joint(self.geometry, xyz, xyz_dot, xyz_ddot)
+        # A carry's object is picked in the middle of the dwell before it and released in the middle of the one after.
+        carries = [index for index, piece in enumerate(self.pieces) if piece.carry is not None]
+        picks = [starts[i - 1] + (self.pieces[i - 1].samples - 1) // 2 for i in carries]
+        places = [starts[i + 1] + (self.pieces[i + 1].samples - 1) // 2 for i in carries]
+        gripper = np.zeros(len(xyz), dtype=bool)
+        for pick, place in zip(picks, places, strict=True):
+            gripper[pick:place] = True
+        return Trajectory(self.dt, xyz, xyz_dot, xyz_ddot, theta, theta_dot, theta_ddot, gripper, picks, places)

@@ -20,11 +20,12 @@ from delta_env.config import (
     PlantConfig,
     RandomizationRanges,
 )
-from delta_env.cycles import conveyor_cycles, require_start, standard_cycle
+from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.geometry import TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
+from delta_env.timing import MoveTiming
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
 
@@ -129,6 +130,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``render_mode`` | str, None | None | ``"rgb_array"``, ``"human"`` or None |
     | ``width``, ``height`` | int | 480, 480 | render size (pixels) |
     | ``scenario`` | str, path, Scenario, None | None = ``nominal`` | preset name, scenario TOML file or value |
+    | ``timing`` | MoveTiming, None | None | times every move instead of ``peak_acceleration`` (``env.timing``) |
+
+    With a ``timing`` (:class:`~delta_env.timing.MoveTiming`, e.g. the payload-adaptive time-optimal planner of
+    :mod:`controllers.timing`), every move keeps its shape but is timed by it: carries with the object's mass
+    declared to it, empty moves for the empty gripper; a timing that ``retimes_online`` is asked at every step of
+    a carry whether to change the rest of it. Dwells and gripper events stay mid-dwell.
 
     The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
     argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the
@@ -152,6 +159,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         width: int = 480,
         height: int = 480,
         scenario: str | os.PathLike[str] | Scenario | None = None,
+        timing: MoveTiming | None = None,
     ) -> None:
         base = Scenario() if scenario is None else resolve_scenario(scenario)
         overrides = {
@@ -193,6 +201,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.peak_acceleration = float(peak_acceleration)
         self.payload_mass_range = (float(low), float(high))
         self.domain_randomization = domain_randomization
+        self.timing = timing
+        self.task_timing = base.task.timing
         self.reward_weights = reward_weights if reward_weights is not None else RewardWeights()
         self.divergence_penalty = float(divergence_penalty)
         self._tracking_weight_m2 = self.reward_weights.tracking * 1e6  # the weight is per mm^2
@@ -231,6 +241,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._render_every = max(1, round(1.0 / (self.metadata["render_fps"] * CONTROL_PERIOD)))
 
         self.trajectory: Trajectory | None = None
+        self._timed: TimedCycles | None = None  # the timed pieces of the reference, with a timing
+        self._carry_starts: dict[int, tuple[int, int]] = {}  # sample -> (piece, its first sample) of each carry
+        self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
         self._events: dict[int, tuple[str, int]] = {}
@@ -277,34 +290,47 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         reference = options.get("reference")
         if reference is not None and not isinstance(reference, Trajectory):
             raise ValueError(f"options['reference'] must be a delta_env.trajectories.Trajectory, got {type(reference)}")
+        if reference is None and self.timing is None and self.task_timing != "fixed":
+            raise ValueError(
+                f"the scenario times its moves {self.task_timing!r}, which needs a planner on the identified model: "
+                "set env.timing (a delta_env.timing.MoveTiming, e.g. controllers.timing.payload_timing(...))"
+            )
 
         # Draw everything in a fixed order so that overriding the masses changes nothing else.
         n_objects = self.n_cycles if reference is None else len(reference.pick_indices)
         drawn_masses = self.np_random.uniform(*self.payload_mass_range, size=n_objects)
+        self.payload_masses = self._payload_masses(options.get("payload_masses"), drawn_masses)
+        timing = self.timing if reference is None else None
         if reference is not None:
-            trajectory = reference
+            planned = reference
         elif self.cycle == "conveyor":
-            trajectory = conveyor_cycles(
+            planned = conveyor_cycles(
                 self.plant_config.geometry,
                 self.np_random,
                 self.n_cycles,
                 peak_acceleration=self.peak_acceleration,
                 start=self.start,
+                timing=timing,
+                declared_masses=self.payload_masses,
             )
         else:
-            trajectory = standard_cycle(
-                self.plant_config.geometry, self.peak_acceleration, n_cycles=self.n_cycles, start=self.start
+            planned = standard_cycle(
+                self.plant_config.geometry,
+                self.peak_acceleration,
+                n_cycles=self.n_cycles,
+                start=self.start,
+                timing=timing,
+                declared_masses=self.payload_masses,
             )
         if self.domain_randomization is not None:
             self.plant.randomize(self.np_random, self.domain_randomization)
-        self.payload_masses = self._payload_masses(options.get("payload_masses"), drawn_masses)
 
-        self.trajectory = trajectory
-        self._events = {int(i): ("pick", c) for c, i in enumerate(trajectory.pick_indices)}
-        self._events.update({int(i): ("place", c) for c, i in enumerate(trajectory.place_indices)})
+        self._timed = planned if isinstance(planned, TimedCycles) else None
+        trajectory = self._set_reference(planned)
         self._step_index = 0
         self._cycle = 0
         self._holding = False
+        self._carry = None
         self._episode_over = False
 
         # A fresh mjData state (time, solver warm start, constraint states, applied forces) so that an
@@ -319,6 +345,48 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if self.render_mode == "human":
             self.render()
         return observation, {"payload_masses": self.payload_masses.copy()}
+
+    def _set_reference(self, planned: Trajectory | TimedCycles) -> Trajectory:
+        """Follow ``planned`` (sampled, or timed pieces) from now on: the reference, its gripper events, its carries."""
+        trajectory = planned.trajectory() if isinstance(planned, TimedCycles) else planned
+        self.trajectory = trajectory
+        self._events = {int(i): ("pick", c) for c, i in enumerate(trajectory.pick_indices)}
+        self._events.update({int(i): ("place", c) for c, i in enumerate(trajectory.place_indices)})
+        self._carry_starts = {}
+        if isinstance(planned, TimedCycles):
+            for index, (start, piece) in enumerate(zip(planned.starts(), planned.pieces, strict=True)):
+                if piece.carry is not None:
+                    self._carry_starts[start] = (index, start)
+        return trajectory
+
+    def _retime_carry(self) -> None:
+        """Let an online timing retime the carry under way at this step (:meth:`MoveTiming.retime`)."""
+        k = self._step_index
+        if k in self._carry_starts:
+            self._carry = self._carry_starts[k]
+        if self._carry is None:
+            return
+        piece_index, start = self._carry
+        piece = self._timed.pieces[piece_index]
+        if k >= start + piece.samples - 1:
+            self._carry = None
+            return
+        law = self.timing.retime(piece.shape, piece.law, k - start)
+        if law is None:
+            return
+        index = k - start
+        for name in ("tau", "tau_dot", "tau_ddot"):
+            if len(law) <= index or not np.array_equal(
+                getattr(law, name)[: index + 1], getattr(piece.law, name)[: index + 1]
+            ):
+                raise ValueError(f"a retimed law must repeat the {index + 1} samples already followed ({name} differs)")
+        self._timed = self._timed.with_law(piece_index, law)
+        self._set_reference(self._timed)
+        self._carry = (piece_index, start)
+        missing = len(self.trajectory) - len(self._torque_noise)
+        if missing > 0:
+            extra = self.np_random.normal(0.0, self._torque_noise_std, size=(missing, 3))
+            self._torque_noise = np.concatenate((self._torque_noise, extra))
 
     def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
         if requested is None:
@@ -355,6 +423,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         plant.step(torque, self.n_substeps)
         self._step_index += 1
         k = self._step_index
+        if self._timed is not None and self.timing.retimes_online:
+            self._retime_carry()
         event = self._events.get(k)
         if event is not None:
             self._gripper_event(*event)

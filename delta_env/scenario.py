@@ -90,6 +90,17 @@ class Condition:
         return replace(plant, realism=worn)
 
 
+TIMINGS = ("fixed", "worst_case", "declared", "online")
+"""The names of the ways a task's moves may be timed (:attr:`PickPlaceTask.timing`)."""
+
+
+def require_timing(timing: str) -> str:
+    """``timing`` if it is one of :data:`TIMINGS`, else ValueError."""
+    if timing not in TIMINGS:
+        raise ValueError(f"timing must be one of {list(TIMINGS)}, got {timing!r}")
+    return timing
+
+
 @dataclass(frozen=True)
 class PickPlaceTask:
     """The work of one episode (the task arguments of ``DeltaPickPlaceEnv``).
@@ -104,6 +115,12 @@ class PickPlaceTask:
         peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2).
         payload_mass_range: Object masses (kg) are drawn per pick from U[low, high]; low = high fixes them.
         domain_randomization: Per-episode perturbation of the plant, or None (off).
+        timing: How moves are timed: ``"fixed"`` at ``peak_acceleration``, or by the time-optimal planner on the
+            identified model within the drive's envelope (:mod:`controllers.timing`): ``"worst_case"`` (every
+            carry for the heaviest object of ``payload_mass_range``), ``"declared"`` (each carry for its object's
+            true mass: a per-object payload schedule, the reference), ``"online"`` (a carry starts timed for the
+            heaviest object and is retimed once the payload estimate has settled). A planned timing needs the
+            identified model, so the env then needs a ``timing`` object (the evaluation builds it).
     """
 
     cycle: Literal["conveyor", "standard"] = "conveyor"
@@ -112,8 +129,10 @@ class PickPlaceTask:
     peak_acceleration: float = 3.0 * GRAVITY
     payload_mass_range: tuple[float, float] = (0.0, 4.0)
     domain_randomization: RandomizationRanges | None = None
+    timing: Literal["fixed", "worst_case", "declared", "online"] = "fixed"
 
     def __post_init__(self) -> None:
+        require_timing(self.timing)
         if self.cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {self.cycle!r}")
         require_count("n_cycles", self.n_cycles)
