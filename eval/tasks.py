@@ -12,7 +12,9 @@ from multiprocessing.pool import Pool
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from controllers.registry import ControllerSetup, build_controller, residual_policy_path
+from controllers.base import Controller
+from controllers.payload_timing import EstimatingController, PayloadTiming, shared_planner
+from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, build_controller, residual_policy_path
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
@@ -58,11 +60,42 @@ def _loaded_policy(path: Path) -> ResidualPolicy:
     return load_residual_policy(path)
 
 
+CELL_ESTIMATOR_KEY = "mid_f_rls"
+"""The payload estimator an online timing reads when the controller has none of its own (the cell's estimate)."""
+
+
+def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: ControllerSetup) -> Controller:
+    """Give ``env`` the timing its scenario asks for (:attr:`PickPlaceTask.timing`), planned on ``setup``'s model.
+
+    An ``"online"`` timing reads the controller's payload estimator (the RLS rows') or, for a controller without
+    one, the cell's (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run beside it: the controller is
+    then returned wrapped in an :class:`EstimatingController`. A ``"fixed"`` scenario leaves both as they are.
+    """
+    if env.task_timing == "fixed":
+        return controller
+    if setup.drive_lag is None:
+        raise ValueError(f"the {env.task_timing!r} timing plans with the identified drive lag; the setup has none")
+    planner = shared_planner(
+        setup.geometry, setup.masses, setup.mid_f_rods, env.plant_config.drive, tuple(setup.drive_lag)
+    )
+    estimator = None
+    if env.task_timing == "online":
+        if key in ESTIMATOR_REGRESSORS:
+            estimator = controller.estimator
+        else:
+            estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
+            controller = EstimatingController(controller, estimator)
+    env.timing = PayloadTiming(planner, env.task_timing, env.payload_mass_range[1], estimator)
+    return controller
+
+
 def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     """Run one task in a fresh env and controller (picklable: the unit of work of the process pool)."""
     env = DeltaPickPlaceEnv(n_cycles=task.n_cycles, scenario=task.scenario)
     policy = _loaded_policy(residual_policy_path(task.setup)) if task.key == "residual" else None
     controller = build_controller(task.key, task.setup, env, policy=policy)
+    if task.reference is None:
+        controller = timed(env, controller, task.key, task.setup)
     record = run_episode(
         env, controller, task.seed, task.masses, reference=task.reference, keep_observations=task.kind == "calibration"
     )

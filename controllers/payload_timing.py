@@ -1,0 +1,161 @@
+"""Payload-adaptive timing of pick-and-place moves (docs/design.md section 9): how a cell decides how fast to move.
+
+A :class:`PayloadTiming` implements :class:`delta_env.timing.MoveTiming` with the time-optimal planner of
+:mod:`controllers.timing` on the identified model. Empty moves are timed for the empty gripper; carries by mode:
+
+- ``"worst_case"``: every carry for the task's heaviest object, as an industrial controller does when its
+  objects are not weighed (or its payload not declared): the best a cell can do without knowing the mass;
+- ``"declared"``: each carry for its object's true mass, as a per-object payload schedule would give: the
+  reference a payload estimate can at best reach, not a controller;
+- ``"online"``: a carry starts on the plan for the heaviest object; once the payload estimator (the
+  controller's RLS) has settled, the rest of the carry is replanned for the estimate plus its uncertainty and a
+  margin, from the state the carry has reached (the past is kept, the continuation is C2). It may replan again
+  as the estimate tightens, but only to a lighter mass by at least :data:`REPLAN_STEP`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Controller, Observation
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.payload import PayloadEstimator
+from controllers.timing import TimeOptimalPlanner
+from delta_env.drive import DriveLimits
+from delta_env.geometry import DeltaGeometry, DeltaMasses
+from delta_env.timing import TimeLaw
+from delta_env.trajectories import Segment
+from delta_env.validation import require_in, require_instance
+
+Mode = Literal["worst_case", "declared", "online"]
+
+MODES: tuple[Mode, ...] = ("worst_case", "declared", "online")
+"""The planned timings, as :attr:`delta_env.scenario.PickPlaceTask.timing` names them."""
+
+SETTLED_STD = 0.1
+"""The estimate counts as settled once its standard deviation (kg) is below this."""
+
+ESTIMATE_SIGMAS = 3.0
+"""A retimed carry is planned for the estimate plus this many of its standard deviations (and the margin)."""
+
+ESTIMATE_MARGIN = 0.1
+"""Mass (kg) added to the estimate's upper bound when a carry is retimed: the estimate's model error, which its
+variance does not describe (the tare's spread and the lift-off transient are tens of grams)."""
+
+REPLAN_STEP = 0.2
+"""A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
+
+
+class PayloadTiming:
+    """Times every move with a :class:`TimeOptimalPlanner`, carries by ``mode`` (the module docstring).
+
+    Args:
+        planner: The time-optimal planner on the identified model within the drive's envelope.
+        mode: ``"worst_case"``, ``"declared"`` or ``"online"``.
+        max_payload: The heaviest object of the task (kg), >= 0.
+        estimator: The payload estimator whose estimate retimes carries (``"online"`` only; the controller's own).
+    """
+
+    def __init__(
+        self,
+        planner: TimeOptimalPlanner,
+        mode: Mode,
+        max_payload: float,
+        estimator: PayloadEstimator | None = None,
+    ) -> None:
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {list(MODES)}, got {mode!r}")
+        require_instance("planner", planner, TimeOptimalPlanner)
+        self.max_payload = require_in("max_payload", max_payload, 0.0, unit="kg")
+        if mode == "online" and estimator is None:
+            raise ValueError("online timing needs the payload estimator whose estimate retimes the carries")
+        self.planner = planner
+        self.mode = mode
+        self.estimator = estimator
+        self.retimes_online = mode == "online"
+        self._law: TimeLaw | None = None  # the carry law last returned by retime, and the mass it is planned for
+        self._law_mass = math.inf
+
+    def _plan(self, shape: Segment, payload: float) -> TimeLaw:
+        """The planner's law for ``shape`` and ``payload`` (kg), planned once per planner, shape and mass."""
+        key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, payload)
+        plans = _PLANS.setdefault(id(self.planner), {})
+        if key not in plans:
+            plans[key] = self.planner.plan(shape, payload)
+        return plans[key]
+
+    def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
+        """The law of a carry: for its declared mass (kg) in ``"declared"`` mode, else for the heaviest object."""
+        return self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
+
+    def empty(self, shape: Segment) -> TimeLaw:
+        """The law of an empty move: for the empty gripper."""
+        return self._plan(shape, 0.0)
+
+    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+        """``"online"``: the rest of the carry replanned for the settled estimate, or None to keep ``law``."""
+        if not self.retimes_online:
+            return None
+        if law is not self._law:  # a carry that has not been retimed yet runs on the heaviest object's plan
+            self._law, self._law_mass = law, self.max_payload
+        variance = self.estimator.rls.variance
+        if variance > SETTLED_STD**2:
+            return None
+        upper = self.estimator.mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN
+        payload = min(self.max_payload, max(0.0, upper))
+        if payload > self._law_mass - REPLAN_STEP:
+            return None
+        self._law = self.planner.replan(shape, law, index, payload)
+        self._law_mass = payload
+        return self._law
+
+
+_PLANS: dict[int, dict[tuple, TimeLaw]] = {}
+"""Laws already planned, per planner of :func:`shared_planner` (which keeps its planners alive): a cell plans a
+recurring move once (the standard cycle repeats the same two shapes)."""
+
+
+@functools.cache
+def shared_planner(
+    geometry: DeltaGeometry,
+    masses: DeltaMasses,
+    parameters: ModelParameters,
+    drive: DriveLimits,
+    drive_lag: float | tuple[float, float, float],
+) -> TimeOptimalPlanner:
+    """One :class:`TimeOptimalPlanner` per process for the MId+F+R model of this robot (identified ``parameters``)
+    and drive, so that the laws it plans are reused across episodes."""
+    dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=True)
+    return TimeOptimalPlanner(dynamics, drive, drive_lag)
+
+
+class EstimatingController:
+    """A controller run beside a payload estimator of its own: the cell's estimate, which an online timing reads
+    whatever the control law (e.g. PD, or a user's controller without an estimator).
+
+    Args:
+        controller: The control law; its commands are returned unchanged.
+        estimator: Updated with every observation before the controller is called.
+    """
+
+    def __init__(self, controller: Controller, estimator: PayloadEstimator) -> None:
+        self.controller = controller
+        self.estimator = estimator
+
+    @property
+    def payload_estimate(self) -> float:
+        """The estimator's mass (kg) at the last call."""
+        return self.estimator.mass
+
+    def reset(self) -> None:
+        self.controller.reset()
+        self.estimator.reset()
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        self.estimator.update(observation)
+        return self.controller(observation)
