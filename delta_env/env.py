@@ -233,13 +233,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._torque_noise_std = realism.torque_noise_std
         drive = self.plant_config.drive
         self._motor_dofs = tuple(self.plant.motor_dofs.tolist())
-        self._envelope = (drive.peak_torque, drive.max_speed, drive.max_speed - drive.corner_speed)
+        self._envelope = (drive.peak_torque, drive.corner_speed, drive.max_speed, drive.max_speed - drive.corner_speed)
         self._rated_torque = drive.rated_torque
         # Thermal RMS: a ring buffer of the squared output torques of the last window and their running sums.
         self._thermal_steps = max(1, round(drive.thermal_window / self.dt))
         self._thermal_squares: list[tuple[float, float, float]] = []
         self._thermal_sums = (0.0, 0.0, 0.0)
-        self._thermal_count = 0
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
         unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
@@ -343,7 +342,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._episode_over = False
         self._thermal_squares = [(0.0, 0.0, 0.0)] * self._thermal_steps
         self._thermal_sums = (0.0, 0.0, 0.0)
-        self._thermal_count = 0
 
         # A fresh mjData state (time, solver warm start, constraint states, applied forces) so that an
         # episode repeats bit for bit whatever ran before it.
@@ -388,13 +386,21 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         plant = self.plant
         qvel = plant.data.qvel
         d0, d1, d2 = self._motor_dofs
-        peak, max_speed, span = self._envelope
-        t0, m0 = _clip_to_envelope(t0, qvel.item(d0), peak, max_speed, span)
-        t1, m1 = _clip_to_envelope(t1, qvel.item(d1), peak, max_speed, span)
-        t2, m2 = _clip_to_envelope(t2, qvel.item(d2), peak, max_speed, span)
-        saturated = min(m0, m1, m2) < 0.0
-        if saturated:
-            torque = np.array([t0, t1, t2])
+        peak, corner, max_speed, span = self._envelope
+        w0, w1, w2 = qvel.item(d0), qvel.item(d1), qvel.item(d2)
+        if abs(w0) <= corner and abs(w1) <= corner and abs(w2) <= corner:  # the peak both ways: the usual case
+            m0, m1, m2 = peak - abs(t0), peak - abs(t1), peak - abs(t2)
+            saturated = min(m0, m1, m2) < 0.0
+            if saturated:
+                torque = np.clip(torque, -peak, peak)
+                t0, t1, t2 = torque.tolist()
+        else:
+            t0, m0 = _clip_to_envelope(t0, w0, peak, max_speed, span)
+            t1, m1 = _clip_to_envelope(t1, w1, peak, max_speed, span)
+            t2, m2 = _clip_to_envelope(t2, w2, peak, max_speed, span)
+            saturated = min(m0, m1, m2) < 0.0
+            if saturated:
+                torque = np.array([t0, t1, t2])
 
         plant.step(torque, self.n_substeps)
         self._step_index += 1
@@ -433,14 +439,15 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         v0, v1, v2 = abs(qvel.item(d0)), abs(qvel.item(d1)), abs(qvel.item(d2))
         applied = data.actuator_force.copy()
         a0, a1, a2 = applied.tolist()
-        q0, q1, q2 = a0 * a0, a1 * a1, a2 * a2
-        squares, index = self._thermal_squares, k % self._thermal_steps
+        window = self._thermal_steps
+        squares, index = self._thermal_squares, k % window
         o0, o1, o2 = squares[index]
-        squares[index] = (q0, q1, q2)
+        squares[index] = q0, q1, q2 = a0 * a0, a1 * a1, a2 * a2
         s0, s1, s2 = self._thermal_sums
         self._thermal_sums = s0, s1, s2 = s0 + q0 - o0, s1 + q1 - o1, s2 + q2 - o2
-        self._thermal_count = count = min(self._thermal_count + 1, self._thermal_steps)
-        r0, r1, r2 = math.sqrt(max(s0, 0.0) / count), math.sqrt(max(s1, 0.0) / count), math.sqrt(max(s2, 0.0) / count)
+        full = k >= window  # k steps since the reset, one sample each
+        scale = 1.0 / window if full else 1.0 / k
+        r0, r1, r2 = math.sqrt(max(s0, 0.0) * scale), math.sqrt(max(s1, 0.0) * scale), math.sqrt(max(s2, 0.0) * scale)
         rated = self._rated_torque
 
         info = {
@@ -454,12 +461,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "cycle": self._cycle,
             "diverged": diverged,
             "torque_saturated": saturated,
-            "torque_margin": np.array([m0, m1, m2]),
-            "speed_margin": np.array([max_speed - v0, max_speed - v1, max_speed - v2]),
+            "torque_margin": np.array((m0, m1, m2)),
+            "speed_margin": np.array((max_speed - v0, max_speed - v1, max_speed - v2)),
             "speed_exceeded": max(v0, v1, v2) > max_speed,
-            "thermal_rms": np.array([r0, r1, r2]),
-            "thermal_margin": np.array([rated - r0, rated - r1, rated - r2]),
-            "thermal_exceeded": count == self._thermal_steps and max(r0, r1, r2) > rated,
+            "thermal_rms": np.array((r0, r1, r2)),
+            "thermal_margin": np.array((rated - r0, rated - r1, rated - r2)),
+            "thermal_exceeded": full and max(r0, r1, r2) > rated,
             "reward_tracking": reward_tracking,
             "reward_torque": reward_torque,
         }
