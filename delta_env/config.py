@@ -12,6 +12,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from delta_env.drive import DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP
 from delta_env.validation import require_count, require_in, require_instance, require_interval, require_joint_vector
@@ -143,6 +144,8 @@ class PlantConfig:
         timestep: Physics timestep (s) in [1e-5, 2e-3]; 0.5 ms holds the loops closed
             (docs/design.md section 4).
         payload_body: Include the pick-and-place payload body and its ``suction`` weld.
+        drive: Torque-speed envelope and thermal limit of each joint's drive; MuJoCo's ``ctrlrange`` is its
+            peak torque, the env enforces the rest.
     """
 
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
@@ -151,6 +154,7 @@ class PlantConfig:
     realism: PlantRealism = field(default_factory=PlantRealism)
     timestep: float = PHYSICS_TIMESTEP
     payload_body: bool = True
+    drive: DriveLimits = field(default_factory=DriveLimits)
 
     def __post_init__(self) -> None:
         require_instance("geometry", self.geometry, DeltaGeometry)
@@ -167,6 +171,7 @@ class PlantConfig:
         require_in("timestep", self.timestep, 1e-5, 2e-3, unit="s")
         if not isinstance(self.payload_body, bool):
             raise ValueError(f"payload_body must be a bool, got {self.payload_body!r}")
+        require_instance("drive", self.drive, DriveLimits)
 
     @classmethod
     def ideal(

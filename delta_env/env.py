@@ -21,7 +21,6 @@ from delta_env.config import (
     RandomizationRanges,
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
-from delta_env.geometry import TORQUE_LIMIT
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
@@ -54,6 +53,20 @@ class RewardWeights:
     torque: float = 1e-5
 
 
+def _clip_to_envelope(command: float, speed: float, peak: float, max_speed: float, span: float) -> tuple[float, float]:
+    """``command`` (N m) clipped to the drive's bound in its direction at joint ``speed`` (rad/s), and the margin
+    (N m): that bound minus |command|, negative when clipped. A zero command counts as motoring.
+
+    The scalar form of :meth:`delta_env.drive.DriveLimits.torque_bounds`; ``span`` is max_speed - corner_speed.
+    """
+    # With the motion (or at rest): the motoring limit, the peak up to the corner speed; against it: the peak.
+    bound = min(peak, max(0.0, peak * (max_speed - abs(speed)) / span)) if command * speed >= 0.0 else peak
+    margin = bound - abs(command)
+    if margin < 0.0:
+        command = bound if command > 0.0 else -bound
+    return command, margin
+
+
 class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
     """A 3-DOF Delta robot in MuJoCo picks and places objects whose masses it is never told.
 
@@ -66,9 +79,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     in this project knows. One step is one control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
 
     ## Action Space
-    ``Box(-400, 400, (3,), float64)``: motor torques (N m) at the three joints. Values beyond the limit
-    are saturated by the motor (MuJoCo ``ctrlrange``) and flagged in ``info["torque_saturated"]``;
-    NaN or inf raises a ValueError.
+    ``Box(-peak, peak, (3,), float64)``: motor torques (N m) at the three joints; the peak is the drive's,
+    400 N m by default (``plant.drive``, :class:`~delta_env.drive.DriveLimits`). The drive enforces its
+    torque-speed envelope at every step: each joint's command is clipped to
+    ``DriveLimits.torque_bounds`` at the true joint speed at the start of the step (the peak torque when
+    braking or at rest, falling from the corner speed to 0 at the maximum speed when motoring), and a clipped
+    step is flagged in ``info["torque_saturated"]``. NaN or inf raises a ValueError.
 
     ## Observation Space
     A ``Dict`` of float64 arrays, all measured or known to a real drive:
@@ -111,14 +127,24 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ## Info
     Truth for evaluation, never for controllers: ``payload_mass`` (kg, 0 when nothing is held),
     ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
-    ``torque_command`` (N m, the action within the torque limit: what the drive held over the step),
+    ``torque_command`` (N m, the action within the drive's envelope: what the drive held over the step),
     ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
-    ``torque_saturated`` and the reward terms.
+    ``torque_saturated`` (the envelope clipped the action) and the reward terms. The drive's limits
+    (:class:`~delta_env.drive.DriveLimits`), per joint, shape (3,) unless a bool:
+
+    | key | unit | meaning |
+    |---|---|---|
+    | ``torque_margin`` | N m | bound in the action's direction minus abs(action); < 0: clipped by that much |
+    | ``speed_margin`` | rad/s | ``max_speed`` minus abs(joint speed), after the step |
+    | ``speed_exceeded`` | bool | some joint is beyond ``max_speed`` after the step |
+    | ``thermal_rms`` | N m | RMS of ``applied_torque`` over the last ``thermal_window`` (or since the reset) |
+    | ``thermal_margin`` | N m | ``rated_torque`` minus ``thermal_rms`` |
+    | ``thermal_exceeded`` | bool | a full window has elapsed and some ``thermal_rms`` is above ``rated_torque`` |
 
     ## Arguments
     | parameter | type | default | description |
     |---|---|---|---|
-    | ``plant`` | PlantConfig, None | None = ``PlantConfig()`` | plant variant, realism, masses, geometry |
+    | ``plant`` | PlantConfig, None | None = ``PlantConfig()`` | plant variant, realism, masses, geometry, drive |
     | ``n_cycles`` | int | 3 | pick-and-place cycles per episode, >= 1 |
     | ``cycle`` | str | ``"conveyor"`` | random conveyor points, or ``"standard"`` 25/305/25 mm |
     | ``start`` | str | ``"place"`` | at rest at a place point, then an empty move to the first pick; or ``"pick"`` |
@@ -215,8 +241,16 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         realism = self.plant_config.realism
         self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
         self._torque_noise_std = realism.torque_noise_std
+        drive = self.plant_config.drive
+        self._motor_dofs = tuple(self.plant.motor_dofs.tolist())
+        self._envelope = (drive.peak_torque, drive.corner_speed, drive.max_speed, drive.max_speed - drive.corner_speed)
+        self._rated_torque = drive.rated_torque
+        # Thermal RMS: a ring buffer of the squared output torques of the last window and their running sums.
+        self._thermal_steps = max(1, round(drive.thermal_window / self.dt))
+        self._thermal_squares: list[tuple[float, float, float]] = []
+        self._thermal_sums = (0.0, 0.0, 0.0)
 
-        self.action_space = spaces.Box(-TORQUE_LIMIT, TORQUE_LIMIT, shape=(3,), dtype=np.float64)
+        self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
         unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
         self.observation_space = spaces.Dict(
             {
@@ -332,6 +366,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._holding = False
         self._carry = None
         self._episode_over = False
+        self._thermal_squares = [(0.0, 0.0, 0.0)] * self._thermal_steps
+        self._thermal_sums = (0.0, 0.0, 0.0)
 
         # A fresh mjData state (time, solver warm start, constraint states, applied forces) so that an
         # episode repeats bit for bit whatever ran before it.
@@ -410,16 +446,30 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             raise RuntimeError(f"call reset() before step(): {reason}")
         torque = np.asarray(action, dtype=float)
         if torque.shape != (3,):
-            raise ValueError(f"action must be 3 motor torques (N m) in [-400, 400], got shape {torque.shape}")
+            raise ValueError(f"action must be 3 motor torques (N m), got shape {torque.shape}")
         t0, t1, t2 = torque.tolist()
         if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
-            raise ValueError(f"action must be 3 finite motor torques (N m) in [-400, 400], got {action!r}")
-        saturated = max(abs(t0), abs(t1), abs(t2)) > TORQUE_LIMIT
-        if saturated:
-            torque = np.clip(torque, -TORQUE_LIMIT, TORQUE_LIMIT)
-            t0, t1, t2 = torque.tolist()
-
+            raise ValueError(f"action must be 3 finite motor torques (N m), got {action!r}")
+        # The drive's envelope at the true joint speeds at the start of the step (it measures its own motor).
         plant = self.plant
+        qvel = plant.data.qvel
+        d0, d1, d2 = self._motor_dofs
+        peak, corner, max_speed, span = self._envelope
+        w0, w1, w2 = qvel.item(d0), qvel.item(d1), qvel.item(d2)
+        if abs(w0) <= corner and abs(w1) <= corner and abs(w2) <= corner:  # the peak both ways: the usual case
+            m0, m1, m2 = peak - abs(t0), peak - abs(t1), peak - abs(t2)
+            saturated = min(m0, m1, m2) < 0.0
+            if saturated:
+                torque = np.clip(torque, -peak, peak)
+                t0, t1, t2 = torque.tolist()
+        else:
+            t0, m0 = _clip_to_envelope(t0, w0, peak, max_speed, span)
+            t1, m1 = _clip_to_envelope(t1, w1, peak, max_speed, span)
+            t2, m2 = _clip_to_envelope(t2, w2, peak, max_speed, span)
+            saturated = min(m0, m1, m2) < 0.0
+            if saturated:
+                torque = np.array([t0, t1, t2])
+
         plant.step(torque, self.n_substeps)
         self._step_index += 1
         k = self._step_index
@@ -455,6 +505,21 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
 
+        # Speed after the step; thermal RMS of the output torque over the last window (running sums).
+        v0, v1, v2 = abs(qvel.item(d0)), abs(qvel.item(d1)), abs(qvel.item(d2))
+        applied = data.actuator_force.copy()
+        a0, a1, a2 = applied.tolist()
+        window = self._thermal_steps
+        squares, index = self._thermal_squares, k % window
+        o0, o1, o2 = squares[index]
+        squares[index] = q0, q1, q2 = a0 * a0, a1 * a1, a2 * a2
+        s0, s1, s2 = self._thermal_sums
+        self._thermal_sums = s0, s1, s2 = s0 + q0 - o0, s1 + q1 - o1, s2 + q2 - o2
+        full = k >= window  # k steps since the reset, one sample each
+        scale = 1.0 / window if full else 1.0 / k
+        r0, r1, r2 = math.sqrt(max(s0, 0.0) * scale), math.sqrt(max(s1, 0.0) * scale), math.sqrt(max(s2, 0.0) * scale)
+        rated = self._rated_torque
+
         info = {
             "payload_mass": self.payload_masses.item(self._cycle) if self._holding else 0.0,
             "platform_position": platform,
@@ -462,10 +527,16 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
             "loop_gap": loop_gap,
             "torque_command": data.ctrl.copy(),
-            "applied_torque": data.actuator_force.copy(),
+            "applied_torque": applied,
             "cycle": self._cycle,
             "diverged": diverged,
             "torque_saturated": saturated,
+            "torque_margin": np.array((m0, m1, m2)),
+            "speed_margin": np.array((max_speed - v0, max_speed - v1, max_speed - v2)),
+            "speed_exceeded": max(v0, v1, v2) > max_speed,
+            "thermal_rms": np.array((r0, r1, r2)),
+            "thermal_margin": np.array((rated - r0, rated - r1, rated - r2)),
+            "thermal_exceeded": full and max(r0, r1, r2) > rated,
             "reward_tracking": reward_tracking,
             "reward_torque": reward_torque,
         }

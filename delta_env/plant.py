@@ -368,7 +368,7 @@ class DeltaPlant:
     def step(self, torque_command: NDArray[np.float64], n_substeps: int) -> None:
         """Command motor torques (N m, shape (3,)) and advance ``n_substeps`` physics steps.
 
-        MuJoCo clips the command to +-TORQUE_LIMIT and passes it through the current-loop lag, if any.
+        MuJoCo clips the command to the drive's peak torque and passes it through the current-loop lag, if any.
         Stribeck excess and ripple (:meth:`motor_disturbance`) are computed once from the state at the call
         and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
         ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path, so the

@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from delta_env.config import FOREARM_SPACING, SUCTION_CUP_OFFSET, PlantConfig
-from delta_env.geometry import CHAIN_AZIMUTHS, CHAIN_COS, CHAIN_SIN, GRAVITY, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
+from delta_env.geometry import CHAIN_AZIMUTHS, CHAIN_COS, CHAIN_SIN, GRAVITY, DeltaGeometry, DeltaMasses
 
 CHAIN_LABELS = ("1", "2", "3")
 """Chain suffixes used in element names (``motor_1`` ... ``motor_3``), docs/design.md numbering."""
@@ -313,7 +313,8 @@ def _add_loop_closures(spec: mujoco.MjSpec, config: PlantConfig) -> None:
 
 
 def _add_motors(spec: mujoco.MjSpec, config: PlantConfig) -> None:
-    """Torque motors on the three motor joints, clipped at +-TORQUE_LIMIT.
+    """Torque motors on the three motor joints, clipped at the drive's peak torque (the env enforces the rest of
+    its envelope).
 
     With a lag, the current loop is a first-order filter integrated exactly (``filterexact``), accurate
     for lags down to one timestep; the joint torque is the filtered command.
@@ -329,7 +330,7 @@ def _add_motors(spec: mujoco.MjSpec, config: PlantConfig) -> None:
             gaintype=mujoco.mjtGain.mjGAIN_FIXED,
             biastype=mujoco.mjtBias.mjBIAS_NONE,
             ctrllimited=mujoco.mjtLimited.mjLIMITED_TRUE,
-            ctrlrange=(-TORQUE_LIMIT, TORQUE_LIMIT),
+            ctrlrange=(-config.drive.peak_torque, config.drive.peak_torque),
         )
         motor.gainprm[0] = 1.0
         if lag > 0.0:

@@ -12,7 +12,10 @@ A :class:`Scenario` has three parts:
 Identity rule. ``robot_identity`` hashes the ``plant`` part only. Conditions (wear), payloads and domain
 randomization are left out, so ``worn``, ``heavy`` and ``randomized`` are the nominal robot under other
 conditions and reuse its identification, as a real cell is identified once and then runs under changing
-conditions. A new geometry, new true masses or new drive or sensor hardware is a new robot.
+conditions. A new geometry, new true masses or new drive or sensor hardware is a new robot. The drive's limits
+(``plant.drive``) came later than the identities: they enter the hashes only when they differ from the default
+drive, so that the robots that existed before (their cached identifications and the shipped residual policy)
+keep their identities, while a robot with another drive gets a new one.
 
 Files are TOML: human-readable with comments, a standard-library reader (``tomllib``, Python >= 3.11), no
 implicit typing surprises (YAML reads ``no`` as False and ``1e-3`` as a string), and nested tables map one
@@ -53,6 +56,7 @@ import tomli_w
 
 from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.cycles import require_start
+from delta_env.drive import DriveLimits
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
@@ -189,7 +193,9 @@ class Scenario:
     @property
     def content_hash(self) -> str:
         """Content hash (16 hex digits) of plant, condition and task: what decides an episode's physics."""
-        return _digest({part: _to_table(getattr(self, part)) for part in ("plant", "condition", "task")})
+        parts = {"plant": _plant_table(self.plant)}
+        parts.update({part: _to_table(getattr(self, part)) for part in ("condition", "task")})
+        return _digest(parts)
 
     def to_toml(self) -> str:
         """Every field, resolved, as TOML text (what :meth:`from_toml` reads back to an equal value)."""
@@ -234,7 +240,15 @@ def plant_identity(plant: PlantConfig) -> str:
     """
     if not isinstance(plant, PlantConfig):
         raise ValueError(f"plant must be a PlantConfig, got {type(plant).__name__}")
-    return _digest(_to_table(plant))
+    return _digest(_plant_table(plant))
+
+
+def _plant_table(plant: PlantConfig) -> dict[str, Any]:
+    """The table of ``plant`` that its hashes cover: without ``drive`` when it is the default drive."""
+    table = _to_table(plant)
+    if plant.drive == DriveLimits():
+        del table["drive"]
+    return table
 
 
 def with_geometry(scenario: Scenario, geometry: DeltaGeometry, masses: DeltaMasses | None = None) -> Scenario:
@@ -332,7 +346,7 @@ def resolve_scenario(spec: str | os.PathLike[str] | Scenario) -> Scenario:
 # ------------------------------------------------------------------------------------------------
 
 _TABLE_TYPES = (Scenario, PlantConfig, DeltaGeometry, DeltaMasses, PlantRealism, Condition, PickPlaceTask)
-_TABLE_TYPES += (RandomizationRanges,)
+_TABLE_TYPES += (RandomizationRanges, DriveLimits)
 
 
 def _preset_dir() -> Any:

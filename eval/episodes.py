@@ -46,9 +46,12 @@ class EpisodeRecord:
         place_indices: Steps at which it opens.
         masses: Mass of each object (kg).
         diverged: True if the simulation diverged (the episode ended early).
-        saturated_steps: Steps whose command exceeded the torque limit.
+        saturated_steps: Steps whose command the drive clipped (its peak torque or its torque-speed envelope).
         max_loop_gap: Largest loop-closure gap of the plant over the steps (m); inf if it was not finite.
         observations: The observations from the reset on, if recorded.
+        speed_exceeded_steps: Steps after which some joint was beyond the drive's maximum speed.
+        thermal_exceeded: True if some joint's RMS torque over a full thermal window exceeded the drive's rated
+            torque.
     """
 
     tracking_error: NDArray[np.float64]
@@ -67,6 +70,8 @@ class EpisodeRecord:
     saturated_steps: int
     max_loop_gap: float
     observations: list[Observation] | None = None
+    speed_exceeded_steps: int = 0
+    thermal_exceeded: bool = False
 
     def metrics(self) -> dict[str, Any]:
         """Scalar metrics of the episode (see :mod:`eval.metrics` for the definitions)."""
@@ -83,6 +88,8 @@ class EpisodeRecord:
             "diverged": self.diverged,
             "saturated_steps": self.saturated_steps,
             "steps": len(self.tracking_error),
+            "speed_exceeded_steps": self.speed_exceeded_steps,
+            "thermal_exceeded": self.thermal_exceeded,
         }
 
     def model_torques(
@@ -171,6 +178,7 @@ def run_episode(
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
     diverged, saturated, n, loop_gap = False, 0, 0, 0.0
+    speed_exceeded, thermal_exceeded = 0, False
     for n in range(steps):
         action = controller(observation)
         if estimate is not None:
@@ -184,6 +192,8 @@ def run_episode(
         joint_error[n] = plant.joint_angles() - observation["reference_angles"]
         mass.append(info["payload_mass"])
         saturated += bool(info["torque_saturated"])
+        speed_exceeded += bool(info["speed_exceeded"])
+        thermal_exceeded = thermal_exceeded or bool(info["thermal_exceeded"])
         loop_gap = max(loop_gap, info["loop_gap"]) if math.isfinite(info["loop_gap"]) else math.inf
         measured.append(observation["joint_torques"])
         angles.append(observation["joint_angles"])
@@ -213,4 +223,6 @@ def run_episode(
         saturated_steps=saturated,
         max_loop_gap=loop_gap,
         observations=observations,
+        speed_exceeded_steps=speed_exceeded,
+        thermal_exceeded=thermal_exceeded,
     )

@@ -124,11 +124,24 @@ def table2_table(table2_rows: list[dict[str, Any]]) -> str:
     return metrics.markdown_table(header, rows)
 
 
+def unbounded_episodes(episode_rows: list[dict[str, Any]], bound_label: str) -> list[dict[str, Any]]:
+    """The bound's episodes that are not a bound: the drive clipped one of its commands (``saturated_steps``) or
+    a joint went beyond the drive's maximum speed (``speed_exceeded_steps``)."""
+    return [
+        row
+        for row in episode_rows
+        if row["controller"] == bound_label and (row["saturated_steps"] > 0 or row["speed_exceeded_steps"] > 0)
+    ]
+
+
 def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> list[str]:
     """Where a controller tracks better than the bound (which is then not a bound), as lines: a mean tracking
     RMS below the bound's, or an episode tracked better than the bound tracked the same episode (same seed).
-    Diverged episodes do not count."""
-    groups = metrics.group_by([row for row in episode_rows if not row["diverged"]], "controller")
+    Diverged episodes do not count, nor do the episodes (seeds) on which the bound was not a bound
+    (:func:`unbounded_episodes`), for any controller."""
+    skipped = {row["seed"] for row in unbounded_episodes(episode_rows, bound_label)}
+    kept = [row for row in episode_rows if not row["diverged"] and row["seed"] not in skipped]
+    groups = metrics.group_by(kept, "controller")
     if bound_label not in groups:
         return []
     means = {label: metrics.mean_std([row["tracking_rms_mm"] for row in group])[0] for label, group in groups.items()}

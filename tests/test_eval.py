@@ -238,11 +238,22 @@ def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.
         assert float(row["mp_hat_std"]) <= 0.6 * float(row["mp_0_std"])
 
 
+def bound_row(label: str, seed: int, rms: float, diverged: bool = False, clipped: int = 0, fast: int = 0) -> dict:
+    """An episode row of the bound check: tracking RMS (mm), steps the drive clipped and steps beyond its speed."""
+    return {
+        "controller": label,
+        "seed": seed,
+        "tracking_rms_mm": rms,
+        "diverged": diverged,
+        "saturated_steps": clipped,
+        "speed_exceeded_steps": fast,
+    }
+
+
 def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverged_episodes() -> None:
     from eval.__main__ import _bound_section
 
-    def row(label: str, seed: int, rms: float, diverged: bool = False) -> dict:
-        return {"controller": label, "seed": seed, "tracking_rms_mm": rms, "diverged": diverged}
+    row = bound_row
 
     bound = "Oracle+PD (bound)"
     holds = [row(bound, 0, 0.03), row(bound, 1, 0.05), row("PD", 0, 6.0), row("MId+F+R+RLS+lag+PD", 1, 0.051)]
@@ -262,6 +273,31 @@ def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverge
         "",
     ]
     assert _bound_section([row("PD", 0, 6.0)]) == []  # no oracle row, nothing to check
+
+
+def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
+    """An oracle episode whose commands the drive clipped, or in which a joint exceeded the drive's speed, is no
+    bound: its seed leaves the check (mean and episodes) for every controller, and the summary says so."""
+    from eval.__main__ import _bound_section
+
+    bound = "Oracle+PD (bound)"
+    rows = [
+        bound_row(bound, 0, 0.03),
+        bound_row(bound, 1, 0.50, clipped=12),
+        bound_row(bound, 2, 0.04, fast=3),
+        bound_row("A", 0, 0.031),
+        bound_row("A", 1, 0.10),  # better than the clipped oracle on its episode, and in the mean over all three
+        bound_row("A", 2, 0.035),
+    ]
+    note = (
+        f"Not a bound on episode(s) 1, 2: the drive clipped {bound}'s command on 12, 0 steps and a joint was beyond "
+        "the drive's maximum speed on 0, 3 steps; the bound check skips these episodes."
+    )
+    holds = f"Bound check: no controller tracks better than {bound}, in the mean or on any episode."
+    assert _bound_section(rows) == [note, "", holds, ""]
+    rows[3] = bound_row("A", 0, 0.02)  # episode 0 is still checked
+    assert _bound_section(rows)[2] == "## Bound violated"
+    assert _bound_section(rows[1:3]) == [note, ""]  # no episode left to check
 
 
 def test_run_episode_records_the_largest_loop_gap() -> None:
