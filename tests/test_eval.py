@@ -303,6 +303,7 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert "| Controller |" in printed and "| PD | 1 (0) |" in printed and "| MId+F+R+RLS+PD | 1 (0) |" in printed
     assert "Table 2 analogue" in printed
     assert "## Payload targets" in printed and "| MId+F+R+RLS+PD | 1/1 (100 %) |" in printed
+    assert "## Pick rate" in printed and "| PD | " in printed.split("## Pick rate")[1]
     assert (out / "summary.md").read_text() == printed
 
     episodes = read_csv(out / "episodes.csv")
@@ -310,6 +311,8 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert all(row["seed"] == "4" and row["diverged"] == "False" for row in episodes)
     rms = {row["key"]: float(row["tracking_rms_mm"]) for row in episodes}
     assert rms["mid_f_rls"] < rms["pd"]
+    # the paper's standard cycle, timed alike for both: the same pick rate, under a second per object
+    assert episodes[0]["picks_per_min"] == episodes[1]["picks_per_min"] and float(episodes[0]["picks_per_min"]) > 60.0
     (carry,) = read_csv(out / "carries.csv")
     assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) == 3.8  # the paper's payload on every pick
     table2 = read_csv(out / "table2.csv")
