@@ -129,7 +129,9 @@ def cycle_times(reference_velocity: ArrayLike, pick_indices: Sequence[int], dt: 
         dt: Sample period (s).
     """
     start = arrivals(reference_velocity, pick_indices)
-    end = np.append(start[1:], len(reference_velocity) - 1)
+    if start.size == 0:  # a reference without objects (an excitation) has no cycles
+        return np.zeros(0)
+    end = np.append(start[1:], len(np.asarray(reference_velocity)) - 1)
     return (end - start) * dt
 
 
