@@ -13,8 +13,8 @@ robot (``--geometry``, a design of the design study).
    the base it was trained on, rebuilt from the policy file.
 3. Writes the run folder (``--out``): ``config.json`` (resolved configuration and command),
    ``scenario.toml`` (the scenario, every field resolved),
-   ``episodes.csv`` and ``carries.csv`` (per episode and per carried object), ``table2.csv``,
-   ``traces.npz`` and ``table2_run.npz`` (time series), ``summary.md`` and the plots made from these
+   ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
+   ``table2.csv``, ``traces.npz`` and ``table2_run.npz`` (time series), ``summary.md`` and the plots made from these
    files; prints the summary. Diverged episodes are counted in the table, never dropped silently: their
    metrics cover the steps before the divergence.
 
@@ -49,6 +49,7 @@ from eval.tables import (
     bound_violations,
     controller_table,
     payload_target_table,
+    pick_rate_table,
     residual_gain,
     table2_table,
     unbounded_episodes,
@@ -267,6 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "",
             controller_table(episode_rows, carry_rows),
             "",
+            *_pick_rate_section(episode_rows),
             *_payload_target_section(carry_rows),
             f"## Table 2 analogue: {CONTROLLER_LABELS[TABLE2_KEY]}, every object {TABLE2_PAYLOAD} kg, "
             "tau_measured - tau_MId+F+R",
@@ -286,6 +288,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     plots.make_plots(out)
     print(summary)
     return 0
+
+
+def _pick_rate_section(episode_rows: list[dict[str, Any]]) -> list[str]:
+    """The summary's lines on the pick rate (:func:`eval.tables.pick_rate_table`)."""
+    return [
+        "## Pick rate",
+        "",
+        "Mean ± std over the completed episodes. Picks/min and cycle times are the reference's timing: from its "
+        "arrival at rest at the first pick point to its end, at rest at the next pick point. Place error: platform "
+        "to place point as the gripper opens. Path deviation: platform to the nearest segment of the reference "
+        "path. Envelope violations: steps the drive clipped plus steps over the maximum joint speed, summed (episodes "
+        "with any). Torque against the drive's ratings; thermal margin = 1 - max RMS torque / rated torque.",
+        "",
+        pick_rate_table(episode_rows),
+        "",
+    ]
 
 
 def _payload_target_section(carry_rows: list[dict[str, Any]]) -> list[str]:

@@ -48,6 +48,11 @@ class EpisodeRecord:
         diverged: True if the simulation diverged (the episode ended early).
         saturated_steps: Steps whose command the drive clipped (its peak torque or its torque-speed envelope).
         max_loop_gap: Largest loop-closure gap of the plant over the steps (m); inf if it was not finite.
+        platform_position: True platform position at the end of each step (m), ``(N, 3)``; NaN after a
+            divergence. Step n ends at reference sample n + 1.
+        reference: The reference the episode followed (samples ``0 .. N`` and on, if it ended early).
+        peak_torque: The drive's peak torque (N m).
+        rated_torque: The drive's rated continuous torque (N m).
         observations: The observations from the reset on, if recorded.
         speed_exceeded_steps: Steps after which some joint was beyond the drive's maximum speed.
         thermal_exceeded: True if some joint's RMS torque over a full thermal window exceeded the drive's rated
@@ -69,6 +74,10 @@ class EpisodeRecord:
     diverged: bool
     saturated_steps: int
     max_loop_gap: float
+    platform_position: NDArray[np.float64]
+    reference: Trajectory
+    peak_torque: float
+    rated_torque: float
     observations: list[Observation] | None = None
     speed_exceeded_steps: int = 0
     thermal_exceeded: bool = False
@@ -78,6 +87,15 @@ class EpisodeRecord:
         rms, peak = metrics.tracking_metrics(self.tracking_error)
         torque_rms, torque_peak = metrics.torque_metrics(self.torque)
         joint_rms = 1e3 * float(np.sqrt(np.mean(self.joint_error**2)))
+        reference = self.reference
+        cycle_times = metrics.cycle_times(reference.xyz_dot, self.pick_indices, reference.dt)
+        place_errors = self.place_errors()
+        # Step n ends at reference sample n + 1: the path is searched around that sample.
+        steps = len(self.platform_position)
+        deviation_rms, deviation_max = metrics.path_deviation(
+            self.platform_position, reference.xyz, np.arange(1, steps + 1)
+        )
+        peak_ratio, rms_ratio = metrics.torque_ratios(self.torque, self.peak_torque, self.rated_torque)
         return {
             "tracking_rms_mm": rms,
             "tracking_max_mm": peak,
@@ -90,7 +108,25 @@ class EpisodeRecord:
             "steps": len(self.tracking_error),
             "speed_exceeded_steps": self.speed_exceeded_steps,
             "thermal_exceeded": self.thermal_exceeded,
+            "picks_per_min": metrics.picks_per_min(reference.xyz_dot, self.pick_indices, reference.dt),
+            "cycle_time_mean_s": float(np.mean(cycle_times)) if cycle_times.size else math.nan,
+            "cycle_time_max_s": float(np.max(cycle_times)) if cycle_times.size else math.nan,
+            "place_error_mean_mm": float(np.mean(place_errors)) if place_errors.size else math.nan,
+            "place_error_max_mm": float(np.max(place_errors)) if place_errors.size else math.nan,
+            "path_deviation_rms_mm": deviation_rms,
+            "path_deviation_max_mm": deviation_max,
+            "envelope_violations": metrics.envelope_violations(self.saturated_steps, self.speed_exceeded_steps),
+            "peak_torque_ratio": peak_ratio,
+            "rms_torque_ratio": rms_ratio,
+            "thermal_margin": 1.0 - rms_ratio,
         }
+
+    def place_errors(self) -> NDArray[np.float64]:
+        """Distance (mm) of the platform from the place point when the gripper opened, per object released before
+        the episode ended: the gripper opens as step ``place_indices[k] - 1`` ends, at that reference sample."""
+        released = self.place_indices[(self.place_indices >= 1) & (self.place_indices <= len(self.platform_position))]
+        errors = metrics.place_errors(self.platform_position[released - 1], self.reference.xyz[released])
+        return errors[np.isfinite(errors)]  # a release on the step that diverged is no placement
 
     def model_torques(
         self, dynamics: DeltaDynamics, tare: float = 0.0, trim: int = TRIM_SAMPLES
@@ -177,8 +213,8 @@ def run_episode(
     estimates = np.zeros(steps)
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
-    diverged, saturated, n, loop_gap = False, 0, 0, 0.0
-    speed_exceeded, thermal_exceeded = 0, False
+    platform = np.full((steps, 3), math.nan)
+    diverged, saturated, speed_exceeded, thermal_exceeded, n, loop_gap = False, 0, 0, False, 0, 0.0
     for n in range(steps):
         action = controller(observation)
         if estimate is not None:
@@ -202,10 +238,12 @@ def run_episode(
         if info["diverged"]:
             diverged = True
             break
+        platform[n] = info["platform_position"]
         if terminated or truncated:
             break
     length = n + 1
     trajectory = env.trajectory
+    drive = env.plant_config.drive
     return EpisodeRecord(
         tracking_error=tracking[:length],
         torque=torque[:length],
@@ -222,6 +260,10 @@ def run_episode(
         diverged=diverged,
         saturated_steps=saturated,
         max_loop_gap=loop_gap,
+        platform_position=platform[:length],
+        reference=trajectory,
+        peak_torque=drive.peak_torque,
+        rated_torque=drive.rated_torque,
         observations=observations,
         speed_exceeded_steps=speed_exceeded,
         thermal_exceeded=thermal_exceeded,

@@ -14,6 +14,22 @@ Definitions (units in the names):
   (:func:`payload_targets`);
 - torque error statistics of a model: mean and standard deviation of tau_measured - tau_model per joint
   (N m), the paper's Tables 1 and 2.
+
+Pick rate, scored like a picker's data sheet (:func:`arrivals`):
+
+- work time: from the reference's arrival at rest at the first pick point to the end of the reference, which
+  ends at rest at the next pick point (one full cycle per object); it is a property of the reference alone,
+  the timing's rate, not of how well a controller followed it;
+- picks per minute: 60 * (objects of the reference) / work time (1/min);
+- cycle time of object k: arrival at pick k to arrival at pick k + 1, the end of the reference for the last (s);
+- place error: per object, the distance from the platform to the place point when the gripper opens (mm);
+- path deviation: the platform's distance to the reference polyline, nearest segment, RMS and max (mm): a
+  time-independent tracking score (lagging along the path but on it scores well);
+- envelope violations: steps on which the drive clipped the command plus steps on which a joint exceeded its
+  maximum speed (a step with both counts twice);
+- torque ratios: peak |tau| over joints and time / the drive's peak torque, and the largest per-joint RMS
+  torque over the episode / its rated torque; thermal margin = 1 - the RMS ratio (negative: over the thermal
+  rating).
 """
 
 from __future__ import annotations
@@ -42,6 +58,16 @@ max(0.2 kg, 20 % of it)."""
 SETTLING_DEADLINE_MS = 150.0
 """Deadline (ms after each pick) by which estimates of objects >= :data:`MIN_RELATIVE_MASS` should be within +-5 %."""
 
+REST_SPEED = 1e-9
+"""Reference speed (m/s) at or below which the reference is at rest: the dwells of the sampled references are
+exactly at rest, moves are not on any sample inside them."""
+
+_PATH_CHUNK = 512  # samples per block of path_deviation's search
+
+PATH_WINDOW = 100
+"""Reference segments searched on either side of a sample's own reference sample by :func:`path_deviation`:
+0.1 s at 1 kHz, far more than any controller's lag along the path, and the search stays linear in N."""
+
 
 def tracking_metrics(tracking_error: ArrayLike) -> tuple[float, float]:
     """RMS and max (mm) of Cartesian tracking errors given in m, ``(N,)``; NaN samples are excluded."""
@@ -68,6 +94,118 @@ def mechanical_energy(torque: ArrayLike, joint_velocity: ArrayLike, dt: float) -
     """
     power = np.abs(np.asarray(torque, dtype=float) * np.asarray(joint_velocity, dtype=float))
     return float(np.sum(power) * dt)
+
+
+def arrivals(
+    reference_velocity: ArrayLike, pick_indices: Sequence[int], speed: float = REST_SPEED
+) -> NDArray[np.int64]:
+    """The sample at which the reference arrives at rest at each pick point: the first sample of the rest run
+    (|xyz_dot| <= ``speed``) that contains the pick index.
+
+    Args:
+        reference_velocity: Reference platform velocity (m/s), ``(M, 3)``.
+        pick_indices: Samples where the gripper closes.
+        speed: Rest threshold (m/s).
+
+    Raises:
+        ValueError: if the reference moves at a pick index.
+    """
+    moving = np.flatnonzero(np.linalg.norm(np.asarray(reference_velocity, dtype=float), axis=1) > speed)
+    picks = np.asarray(pick_indices, dtype=np.int64)
+    if np.isin(picks, moving).any():
+        raise ValueError(f"the reference moves at a pick index, {picks.tolist()}: a pick must lie in a dwell")
+    # The last moving sample before each pick ends the move into its dwell; none means at rest from sample 0.
+    after_move = np.append(0, moving + 1)
+    return after_move[np.searchsorted(moving, picks)].astype(np.int64)
+
+
+def cycle_times(reference_velocity: ArrayLike, pick_indices: Sequence[int], dt: float) -> NDArray[np.float64]:
+    """Cycle time (s) of each object: the reference's arrival at rest at its pick point to the arrival at the
+    next one, the end of the reference (at rest at the next pick point) for the last object, ``(n,)``.
+
+    Args:
+        reference_velocity: Reference platform velocity (m/s), ``(M, 3)``.
+        pick_indices: Samples where the gripper closes, one per object, in order.
+        dt: Sample period (s).
+    """
+    start = arrivals(reference_velocity, pick_indices)
+    if start.size == 0:  # a reference without objects (an excitation) has no cycles
+        return np.zeros(0)
+    end = np.append(start[1:], len(np.asarray(reference_velocity)) - 1)
+    return (end - start) * dt
+
+
+def picks_per_min(reference_velocity: ArrayLike, pick_indices: Sequence[int], dt: float) -> float:
+    """Pick rate of a reference (1/min): 60 * objects / work time, the work time from the arrival at rest at the
+    first pick point to the end of the reference (:func:`cycle_times` summed); NaN without objects."""
+    if len(pick_indices) == 0:
+        return math.nan
+    return 60.0 * len(pick_indices) / float(np.sum(cycle_times(reference_velocity, pick_indices, dt)))
+
+
+def place_errors(release_positions: ArrayLike, place_points: ArrayLike) -> NDArray[np.float64]:
+    """Distance (mm) of the platform at each release, (n, 3) m, from its place point, (n, 3) m, ``(n,)``."""
+    offset = np.asarray(release_positions, dtype=float) - np.asarray(place_points, dtype=float)
+    return 1e3 * np.linalg.norm(offset.reshape(-1, 3), axis=1)
+
+
+def path_deviation(
+    positions: ArrayLike, path: ArrayLike, index: ArrayLike | None = None, window: int = PATH_WINDOW
+) -> tuple[float, float]:
+    """RMS and max (mm) of the distance of each position to the polyline ``path``: to the nearest of its segments.
+
+    Args:
+        positions: Platform positions (m), ``(N, 3)``; non-finite samples are excluded.
+        path: Polyline vertices (m), ``(M, 3)``: the reference's samples.
+        index: The path sample each position belongs to, ``(N,)``: only the segments within ``window`` samples
+            of it are searched. None searches every segment (short paths).
+        window: Segments searched on either side of ``index``.
+    """
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    path = np.asarray(path, dtype=float).reshape(-1, 3)
+    finite = np.all(np.isfinite(positions), axis=1)
+    positions = positions[finite]
+    if positions.shape[0] == 0:
+        return math.nan, math.nan
+    # A single vertex is a zero-length segment onto itself.
+    starts, ends = (path[:-1], path[1:]) if len(path) > 1 else (path, path)
+    if index is None:
+        offsets, centers = np.arange(len(starts)), np.zeros(len(positions), dtype=np.int64)
+    else:
+        offsets, centers = np.arange(-window, window + 1), np.asarray(index, dtype=np.int64)[finite]
+    distance = np.empty(len(positions))
+    # Chunks of samples keep the (chunk, segments, 3) temporaries to a few MB.
+    for chunk in range(0, len(positions), _PATH_CHUNK):
+        rows = slice(chunk, chunk + _PATH_CHUNK)
+        segments = np.clip(centers[rows, None] + offsets, 0, len(starts) - 1)
+        start, direction = starts[segments], ends[segments] - starts[segments]
+        relative = positions[rows, None, :] - start
+        length2 = np.einsum("nki,nki->nk", direction, direction)
+        # Zero-length segments (dwells) project onto their start point.
+        along = np.einsum("nki,nki->nk", relative, direction) / np.where(length2 > 0.0, length2, 1.0)
+        gap = relative - np.clip(along, 0.0, 1.0)[..., None] * direction
+        distance[rows] = np.sqrt(np.min(np.einsum("nki,nki->nk", gap, gap), axis=1))
+    return 1e3 * float(np.sqrt(np.mean(distance**2))), 1e3 * float(np.max(distance))
+
+
+def torque_ratios(torque: ArrayLike, peak_torque: float, rated_torque: float) -> tuple[float, float]:
+    """How much of the drive an episode used: peak |tau| over joints and time / ``peak_torque``, and the largest
+    per-joint RMS torque over the episode / ``rated_torque`` (both dimensionless).
+
+    Args:
+        torque: Motor torques that acted (N m), ``(N, 3)``.
+        peak_torque: The drive's peak torque (N m).
+        rated_torque: The drive's rated continuous torque (N m).
+    """
+    torque = np.asarray(torque, dtype=float)
+    rms = np.sqrt(np.mean(torque**2, axis=0))
+    return float(np.max(np.abs(torque))) / peak_torque, float(np.max(rms)) / rated_torque
+
+
+def envelope_violations(saturated_steps: int, speed_exceeded_steps: int) -> int:
+    """Steps outside the drive's envelope: those whose command the drive clipped plus those on which a joint
+    exceeded its maximum speed (a step with both counts twice)."""
+    return int(saturated_steps) + int(speed_exceeded_steps)
 
 
 @dataclass(frozen=True)

@@ -55,6 +55,43 @@ def controller_table(episode_rows: list[dict[str, Any]], carry_rows: list[dict[s
     return metrics.markdown_table(header, rows)
 
 
+def pick_rate_table(episode_rows: list[dict[str, Any]]) -> str:
+    """One row per controller, scored like a picker's data sheet: mean ± std over its completed episodes of the
+    pick rate, the cycle time, the worst place error, the path deviation and the drive's use, and the envelope
+    violations summed (:mod:`eval.metrics`)."""
+    header = [
+        "Controller",
+        "Picks/min",
+        "Cycle time, mean (s)",
+        "Place error, max (mm)",
+        "Path deviation RMS (mm)",
+        "Envelope violations (episodes)",
+        "Peak torque / peak rating",
+        "Thermal margin",
+    ]
+    rows = []
+    for label, group in metrics.group_by(episode_rows, "controller").items():
+        kept = [row for row in group if not row["diverged"]]
+
+        def column(name: str, digits: int, rows_: list[dict[str, Any]] = kept) -> str:
+            return metrics.format_mean_std([row[name] for row in rows_], digits)
+
+        violations = [int(row["envelope_violations"]) for row in kept]
+        rows.append(
+            [
+                label,
+                column("picks_per_min", 1),
+                column("cycle_time_mean_s", 3),
+                column("place_error_max_mm", 2),
+                column("path_deviation_rms_mm", 3),
+                f"{sum(violations)} ({sum(n > 0 for n in violations)}/{len(kept)})",
+                column("peak_torque_ratio", 2),
+                column("thermal_margin", 2),
+            ]
+        )
+    return metrics.markdown_table(header, rows)
+
+
 def carries_from_rows(carry_rows: list[dict[str, Any]]) -> list[metrics.CarryMetrics]:
     """The :class:`~eval.metrics.CarryMetrics` of per-carry rows (as ``carries.csv`` holds them)."""
     return [

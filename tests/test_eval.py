@@ -12,12 +12,16 @@ import pytest
 
 from controllers.base import PDController
 from controllers.registry import build_controller, estimation_model
+from delta_env import NOMINAL_GEOMETRY
+from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
+from delta_env.trajectories import WORKING_HEIGHT, Segment, Trajectory
 from eval import metrics
 from eval.__main__ import main
 from eval.comparison import TABLE2_KEY, table2_statistics
-from eval.episodes import run_episode
+from eval.episodes import EpisodeRecord, run_episode
 from eval.identification import load_or_identify
 from eval.tables import controller_table, residual_gain
 
@@ -122,6 +126,132 @@ def test_torque_error_statistics_are_per_joint() -> None:
     np.testing.assert_allclose(std, [1.0, 0.0, 1.0])
 
 
+L_PATH = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+"""An L-shaped polyline (m): 1 m along x, then 1 m along y."""
+
+
+def test_path_deviation_is_the_distance_to_the_nearest_segment() -> None:
+    on_path = [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.7, 0.0], [1.0, 1.0, 0.0]]
+    assert metrics.path_deviation(on_path, L_PATH) == pytest.approx((0.0, 0.0), abs=1e-9)
+    off_path = [
+        [0.5, 0.003, 0.0],  # 3 mm beside the first leg
+        [1.004, 0.5, 0.0],  # 4 mm beside the second leg
+        [0.2, 0.0, -0.002],  # 2 mm below the first leg
+        [1.003, -0.004, 0.0],  # 5 mm off the corner, beyond both legs' ends
+        [math.nan, 0.0, 0.0],  # the step a simulation diverged: left out
+    ]
+    rms, peak = metrics.path_deviation(off_path, L_PATH)
+    assert rms == pytest.approx(math.sqrt((9.0 + 16.0 + 4.0 + 25.0) / 4.0), rel=1e-9)
+    assert peak == pytest.approx(5.0, rel=1e-9)
+
+
+def test_path_deviation_does_not_score_a_lag_along_the_path() -> None:
+    # A half circle of radius 0.1 m in 2001 samples; the platform runs 2 mm outside it, 30 samples late.
+    angle = np.linspace(0.0, math.pi, 2001)
+    circle = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)
+    index = np.arange(30, len(angle))
+    positions = 0.102 * circle[index - 30]
+    rms, peak = metrics.path_deviation(positions, 0.1 * circle, index, window=40)
+    # the chords lie within 0.1 m (1 - cos(pi / 4000)) = 0.03 um inside the circle
+    assert (rms, peak) == pytest.approx((2.0, 2.0), abs=1e-3)
+    # the same lag as a tracking error: about 30 samples of arc, 4.7 mm
+    assert 1e3 * np.linalg.norm(positions[0] - 0.1 * circle[30]) > 4.0
+
+
+@pytest.mark.parametrize("start", ["place", "pick"])
+def test_pick_rate_and_cycle_times_of_the_standard_cycle(start: str) -> None:
+    acceleration, dwell, lift_fraction, cycles = 4.0 * GRAVITY, 0.08, 0.3, 3
+    reference = standard_cycle(
+        NOMINAL_GEOMETRY, acceleration, n_cycles=cycles, dwell=dwell, lift_fraction=lift_fraction, start=start
+    )
+    pick = np.array([0.0, -0.5 * STANDARD_TRAVEL, WORKING_HEIGHT])
+    place = np.array([0.0, 0.5 * STANDARD_TRAVEL, WORKING_HEIGHT])
+    there = Segment(pick, place, 1.0, STANDARD_LIFT, lift_fraction).timed(acceleration).duration
+    back = Segment(place, pick, 1.0, STANDARD_LIFT, lift_fraction).timed(acceleration).duration
+    cycle = 2.0 * dwell + there + back  # dwell at the pick, carry, dwell at the place, return
+    dt = reference.dt
+    # Sample times round the arrivals up to the next sample, the end of the reference too: within one sample.
+    times = metrics.cycle_times(reference.xyz_dot, reference.pick_indices, dt)
+    np.testing.assert_allclose(times, cycle, atol=dt + 1e-9)
+    expected_rate = 60.0 * cycles / (cycles * cycle)
+    rate = metrics.picks_per_min(reference.xyz_dot, reference.pick_indices, dt)
+    assert rate == pytest.approx(expected_rate, abs=expected_rate * dt / cycle)
+    # From a place point the episode rests half a dwell, then returns to the first pick point.
+    arrival = 0.0 if start == "pick" else 0.5 * dwell + back
+    assert metrics.arrivals(reference.xyz_dot, reference.pick_indices)[0] * dt == pytest.approx(arrival, abs=dt)
+
+
+def test_a_pick_must_lie_at_rest() -> None:
+    velocity = np.zeros((10, 3))
+    velocity[4:7, 0] = 0.1
+    np.testing.assert_array_equal(metrics.arrivals(velocity, [2, 8]), [0, 7])
+    assert math.isnan(metrics.picks_per_min(velocity, [], 1e-3)) and metrics.cycle_times(velocity, [], 1e-3).size == 0
+    with pytest.raises(ValueError, match="moves at a pick"):
+        metrics.arrivals(velocity, [5])
+
+
+def test_torque_ratios_and_envelope_violations() -> None:
+    # joint 1: 100 N m RMS; joint 2: one 300 N m step in four, 150 N m RMS; joint 3 idle
+    torque = [[100.0, 300.0, 0.0], [-100.0, 0.0, 0.0], [100.0, 0.0, 0.0], [-100.0, 0.0, 0.0]]
+    assert metrics.torque_ratios(torque, peak_torque=400.0, rated_torque=128.0) == pytest.approx(
+        (0.75, 150.0 / 128.0), rel=1e-12
+    )
+    assert metrics.envelope_violations(3, 2) == 5
+
+
+def constructed_record(reference: Trajectory, platform: np.ndarray, torque: np.ndarray, **fields) -> EpisodeRecord:
+    """A record of ``len(platform)`` steps following ``reference``, zero elsewhere, with ``fields`` set."""
+    steps = len(platform)
+    zeros = np.zeros((steps, 3))
+    record = EpisodeRecord(
+        tracking_error=np.linalg.norm(platform - reference.xyz[1 : steps + 1], axis=1),
+        torque=torque,
+        command=torque,
+        joint_velocity=zeros,
+        joint_error=zeros,
+        payload_mass=np.zeros(steps + 1),
+        payload_estimate=np.zeros(steps),
+        measured_torque=np.zeros((steps + 1, 3)),
+        encoder_angles=np.zeros((steps + 1, 3)),
+        pick_indices=reference.pick_indices,
+        place_indices=reference.place_indices,
+        masses=np.ones(len(reference.pick_indices)),
+        diverged=False,
+        saturated_steps=0,
+        max_loop_gap=0.0,
+        platform_position=platform,
+        reference=reference,
+        peak_torque=400.0,
+        rated_torque=128.0,
+    )
+    return dataclasses.replace(record, **fields)
+
+
+def test_episode_metrics_score_the_pick_rate_the_placements_and_the_drive() -> None:
+    reference = standard_cycle(NOMINAL_GEOMETRY, n_cycles=2, start="pick")
+    platform = reference.xyz[1:].copy()  # step n ends at reference sample n + 1
+    first, second = reference.place_indices
+    # Sideways (x) off the place points as the gripper opens: the path runs in the plane x = 0.
+    platform[first - 1] += [0.005, 0.0, 0.0]  # 5 mm off the first place point
+    platform[second - 1] += [-0.001, 0.0, 0.0]  # 1 mm off the second
+    torque = np.zeros((len(platform), 3))
+    torque[0] = [-200.0, 0.0, 0.0]
+    record = constructed_record(reference, platform, torque, saturated_steps=2, speed_exceeded_steps=1)
+    scores = record.metrics()
+    np.testing.assert_allclose(record.place_errors(), [5.0, 1.0], rtol=1e-9)
+    assert (scores["place_error_max_mm"], scores["place_error_mean_mm"]) == pytest.approx((5.0, 3.0), rel=1e-9)
+    # two single samples off the path, 5 and 1 mm
+    assert scores["path_deviation_max_mm"] == pytest.approx(5.0, rel=1e-9)
+    assert scores["path_deviation_rms_mm"] == pytest.approx(math.sqrt(26.0 / len(platform)), rel=1e-9)
+    times = metrics.cycle_times(reference.xyz_dot, reference.pick_indices, reference.dt)
+    assert scores["cycle_time_mean_s"] == pytest.approx(np.mean(times))
+    assert scores["picks_per_min"] == pytest.approx(60.0 / np.mean(times))
+    assert scores["envelope_violations"] == 3
+    assert scores["peak_torque_ratio"] == pytest.approx(0.5)
+    rms_ratio = 200.0 / math.sqrt(len(platform)) / 128.0
+    assert (scores["rms_torque_ratio"], scores["thermal_margin"]) == pytest.approx((rms_ratio, 1.0 - rms_ratio))
+
+
 def test_diverged_episodes_are_counted_and_left_out_of_the_means() -> None:
     rows = [
         {"controller": "PD", "diverged": False, "tracking_rms_mm": 1.0},
@@ -173,6 +303,7 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert "| Controller |" in printed and "| PD | 1 (0) |" in printed and "| MId+F+R+RLS+PD | 1 (0) |" in printed
     assert "Table 2 analogue" in printed
     assert "## Payload targets" in printed and "| MId+F+R+RLS+PD | 1/1 (100 %) |" in printed
+    assert "## Pick rate" in printed and "| PD | " in printed.split("## Pick rate")[1]
     assert (out / "summary.md").read_text() == printed
 
     episodes = read_csv(out / "episodes.csv")
@@ -180,6 +311,8 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert all(row["seed"] == "4" and row["diverged"] == "False" for row in episodes)
     rms = {row["key"]: float(row["tracking_rms_mm"]) for row in episodes}
     assert rms["mid_f_rls"] < rms["pd"]
+    # the paper's standard cycle, timed alike for both: the same pick rate, under a second per object
+    assert episodes[0]["picks_per_min"] == episodes[1]["picks_per_min"] and float(episodes[0]["picks_per_min"]) > 60.0
     (carry,) = read_csv(out / "carries.csv")
     assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) == 3.8  # the paper's payload on every pick
     table2 = read_csv(out / "table2.csv")

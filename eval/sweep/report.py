@@ -25,6 +25,13 @@ SUMMARY_METRICS = (
     "torque_peak_nm",
     "energy_j",
     "payload_end_error_percent",
+    "picks_per_min",
+    "cycle_time_mean_s",
+    "place_error_max_mm",
+    "path_deviation_rms_mm",
+    "envelope_violations",
+    "peak_torque_ratio",
+    "thermal_margin",
 )
 """Metrics summarized per scenario and controller."""
 

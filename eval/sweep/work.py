@@ -50,8 +50,19 @@ EPISODE_METRICS = (
     "diverged",
     "saturated_steps",
     "steps",
+    "picks_per_min",
+    "cycle_time_mean_s",
+    "cycle_time_max_s",
+    "place_error_mean_mm",
+    "place_error_max_mm",
+    "path_deviation_rms_mm",
+    "path_deviation_max_mm",
+    "envelope_violations",
+    "peak_torque_ratio",
+    "rms_torque_ratio",
+    "thermal_margin",
 )
-"""Metrics of every episode (definitions in :mod:`eval.metrics`)."""
+"""Metrics of every episode, the pick-rate scores included (definitions in :mod:`eval.metrics`)."""
 
 PAYLOAD_METRICS = ("payload_end_error_percent", "payload_settling_ms")
 """Payload metrics of the estimating controllers over the carries of objects >= 0.5 kg: mean |end error|
