@@ -1,7 +1,12 @@
 """Payload-adaptive timing of pick-and-place moves (docs/design.md section 9): how a cell decides how fast to move.
 
 A :class:`PayloadTiming` implements :class:`delta_env.timing.MoveTiming` with the time-optimal planner of
-:mod:`controllers.timing` on the identified model. Empty moves are timed for the empty gripper; carries by mode:
+:mod:`controllers.timing` on the identified model. Every move is also kept within the drive's thermal rating:
+by the model, the RMS torque of each joint over the move and the dwell that follows it (holding the move's end
+point) stays below the rated torque less :data:`THERMAL_MARGIN`, so any sequence of moves and dwells does; a move
+that would exceed it is planned within a smaller share of the envelope (``torque_scale``, found by bisection),
+which cools better than waiting: the squared torque of a move falls like its duration to the -3. Empty moves are
+timed for the empty gripper; carries by mode:
 
 - ``"worst_case"``: every carry for the task's heaviest object, as an industrial controller does when its
   objects are not weighed (or its payload not declared): the best a cell can do without knowing the mass;
@@ -17,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -26,6 +32,7 @@ from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import PayloadEstimator
 from controllers.timing import TimeOptimalPlanner
+from delta_env.cycles import DEFAULT_DWELL
 from delta_env.drive import DriveLimits
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.timing import TimeLaw
@@ -37,7 +44,7 @@ Mode = Literal["worst_case", "declared", "online"]
 MODES: tuple[Mode, ...] = ("worst_case", "declared", "online")
 """The planned timings, as :attr:`delta_env.scenario.PickPlaceTask.timing` names them."""
 
-SETTLED_STD = 0.1
+SETTLED_STD = 0.5
 """The estimate counts as settled once its standard deviation (kg) is below this."""
 
 ESTIMATE_SIGMAS = 3.0
@@ -47,8 +54,17 @@ ESTIMATE_MARGIN = 0.1
 """Mass (kg) added to the estimate's upper bound when a carry is retimed: the estimate's model error, which its
 variance does not describe (the tare's spread and the lift-off transient are tens of grams)."""
 
-REPLAN_STEP = 0.2
+REPLAN_STEP = 0.1
 """A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
+
+DEFAULT_TORQUE_SHARE = 0.2
+"""Share of the planner's envelope moves may use by default."""
+
+THERMAL_MARGIN = 0.05
+"""Share of the rated torque held back by the thermal check of every move (model error)."""
+
+THERMAL_BISECTIONS = 6
+"""Bisection steps of the share of the envelope that keeps a move within the thermal rating (2 % resolution)."""
 
 
 class PayloadTiming:
@@ -59,6 +75,9 @@ class PayloadTiming:
         mode: ``"worst_case"``, ``"declared"`` or ``"online"``.
         max_payload: The heaviest object of the task (kg), >= 0.
         estimator: The payload estimator whose estimate retimes carries (``"online"`` only; the controller's own).
+        dwell: Rest (s) after every move, part of its thermal budget (the task's dwell).
+        torque_share: Share of the planner's envelope (after its margin) that moves may use, in (0, 1]: the
+            margin for tracking (:data:`DEFAULT_TORQUE_SHARE`).
     """
 
     def __init__(
@@ -67,6 +86,8 @@ class PayloadTiming:
         mode: Mode,
         max_payload: float,
         estimator: PayloadEstimator | None = None,
+        dwell: float = DEFAULT_DWELL,
+        torque_share: float = DEFAULT_TORQUE_SHARE,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {list(MODES)}, got {mode!r}")
@@ -77,6 +98,8 @@ class PayloadTiming:
         self.planner = planner
         self.mode = mode
         self.estimator = estimator
+        self.dwell = require_in("dwell", dwell, 0.0, unit="s")
+        self.torque_share = require_in("torque_share", torque_share, 0.0, 1.0, low_open=True)
         self.retimes_online = mode == "online"
         self._law: TimeLaw | None = None  # the carry law last returned by retime, and the mass it is planned for
         self._law_mass = math.inf
@@ -84,10 +107,49 @@ class PayloadTiming:
     def _plan(self, shape: Segment, payload: float) -> TimeLaw:
         """The planner's law for ``shape`` and ``payload`` (kg), planned once per planner, shape and mass."""
         key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, payload)
-        plans = _PLANS.setdefault(id(self.planner), {})
+        plans = _PLANS.setdefault((id(self.planner), self.dwell, self.torque_share), {})
         if key not in plans:
-            plans[key] = self.planner.plan(shape, payload)
+            law = self._within_rating(lambda scale: self.planner.plan(shape, payload, scale), shape, payload)
+            if law is None:
+                raise ValueError(
+                    f"no share of the envelope keeps a move with {payload} kg within the drive's rated torque "
+                    f"{self.planner.drive.rated_torque} N m (less {100 * THERMAL_MARGIN:.0f} %)"
+                )
+            plans[key] = law
         return plans[key]
+
+    def thermal_ratio(self, shape: Segment, law: TimeLaw, payload: float) -> float:
+        """Largest joint RMS torque over the move and the dwell after it, over the rated torque less the margin.
+
+        By the planner's model with ``payload`` (kg) throughout; the dwell holds the last sample's (static) torque.
+        """
+        torque, _ = self.planner.model_torque(shape, law, payload)
+        squared = np.sum(torque[:-1] ** 2, axis=0) * law.dt + self.dwell * torque[-1] ** 2
+        rms = np.sqrt(squared / (law.duration + self.dwell))
+        return float(np.max(rms)) / ((1.0 - THERMAL_MARGIN) * self.planner.drive.rated_torque)
+
+    def _within_rating(
+        self, planned: Callable[[float], TimeLaw], shape: Segment, payload: float
+    ) -> TimeLaw | None:
+        """``planned(1)`` if it is within the thermal rating, else ``planned(scale)`` with the largest share of the
+        envelope that is (bisection over :data:`THERMAL_BISECTIONS` steps; the squared torque falls with it), or
+        None if no share is: a continuation from a moving state may be unable to stop within a small share."""
+        law = planned(self.torque_share)
+        if self.thermal_ratio(shape, law, payload) <= 1.0:
+            return law
+        low, high, best = 0.0, self.torque_share, None
+        for _ in range(THERMAL_BISECTIONS):
+            scale = 0.5 * (low + high)
+            try:
+                candidate = planned(scale)
+            except ValueError:  # too small a share to stop from where the move is
+                low = scale
+                continue
+            if self.thermal_ratio(shape, candidate, payload) <= 1.0:
+                low, best = scale, candidate
+            else:
+                high = scale
+        return best
 
     def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
         """The law of a carry: for its declared mass (kg) in ``"declared"`` mode, else for the heaviest object."""
@@ -110,12 +172,19 @@ class PayloadTiming:
         payload = min(self.max_payload, max(0.0, upper))
         if payload > self._law_mass - REPLAN_STEP:
             return None
-        self._law = self.planner.replan(shape, law, index, payload)
-        self._law_mass = payload
-        return self._law
+        try:
+            retimed = self._within_rating(
+                lambda scale: self.planner.replan(shape, law, index, payload, scale), shape, payload
+            )
+        except ValueError:  # no continuation from here within the share: keep the plan the carry is on
+            retimed = None
+        self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
+        if retimed is not None:
+            self._law = retimed
+        return retimed
 
 
-_PLANS: dict[int, dict[tuple, TimeLaw]] = {}
+_PLANS: dict[tuple[int, float, float], dict[tuple, TimeLaw]] = {}
 """Laws already planned, per planner of :func:`shared_planner` (which keeps its planners alive): a cell plans a
 recurring move once (the standard cycle repeats the same two shapes)."""
 

@@ -139,17 +139,21 @@ class TimeOptimalPlanner:
         """Largest joint speed (rad/s) a plan may reach: the drive's maximum shrunk by the margin."""
         return (1.0 - self.margin) * self.drive.max_speed
 
-    def plan(self, shape: Segment, payload: float) -> PlannedLaw:
-        """The fastest verified rest-to-rest law of ``shape`` (used at unit duration) with ``payload`` (kg)."""
+    def plan(self, shape: Segment, payload: float, torque_scale: float = 1.0) -> PlannedLaw:
+        """The fastest verified rest-to-rest law of ``shape`` (used at unit duration) with ``payload`` (kg).
+
+        ``torque_scale`` in (0, 1] plans within that share of the shrunk envelope (and of the speed limit): a
+        slower law, e.g. to keep the RMS torque within the drive's rating.
+        """
         require_in("payload", payload, 0.0, unit="kg")
         grid = np.linspace(0.0, 1.0, GRID_INTERVALS + 1)
-        return self._planned(shape, payload, grid, None, 0)
+        return self._planned(shape, payload, grid, None, 0, _torque_scale(torque_scale))
 
-    def replan(self, shape: Segment, law: TimeLaw, index: int, payload: float) -> PlannedLaw:
+    def replan(self, shape: Segment, law: TimeLaw, index: int, payload: float, torque_scale: float = 1.0) -> PlannedLaw:
         """``law`` up to its sample ``index``, then the fastest verified continuation with ``payload`` (kg).
 
         Samples 0 .. ``index`` are ``law``'s own; the continuation starts from the raw profile's state at
-        ``index * dt``, so the law stays C2.
+        ``index * dt``, so the law stays C2. ``torque_scale`` as in :meth:`plan`.
 
         Raises:
             ValueError: if ``law`` is not a :class:`PlannedLaw` of this planner's period, ``index`` is outside
@@ -167,7 +171,15 @@ class TimeOptimalPlanner:
         start = float(prefix.s[-1])
         count = max(math.ceil((1.0 - start) * GRID_INTERVALS), 20)
         grid = np.linspace(start, 1.0, count + 1)
-        return self._planned(shape, payload, grid, (prefix, law), index)
+        return self._planned(shape, payload, grid, (prefix, law), index, _torque_scale(torque_scale))
+
+    def model_torque(
+        self, shape: Segment, law: TimeLaw, payload: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The model's joint torques (N m), ``(n, 3)``, and joint rates (rad/s), along ``shape`` timed by ``law``."""
+        x, velocity, acceleration = move_samples(shape, law)
+        q, qd, qdd = kinematics.cartesian_to_joint(self.dynamics.geometry, x, velocity, acceleration)
+        return self.dynamics.inverse_dynamics(q, qd, qdd, payload), qd
 
     def utilisation(self, shape: Segment, law: TimeLaw, payload: float) -> NDArray[np.float64]:
         """Worst share of the shrunk envelope used at each sample and joint, ``(n, 3)``; a law passes if all <= 1.
@@ -175,9 +187,7 @@ class TimeOptimalPlanner:
         At each sample: the full model's torque and speed, and the lag-inverse command held until the next
         sample (against the bounds at both samples' speeds), each over its allowed bound.
         """
-        x, velocity, acceleration = move_samples(shape, law)
-        q, qd, qdd = kinematics.cartesian_to_joint(self.dynamics.geometry, x, velocity, acceleration)
-        torque = self.dynamics.inverse_dynamics(q, qd, qdd, payload)
+        torque, qd = self.model_torque(shape, law, payload)
         lag = SampledLag(self.drive_lag, self.dt)
         lag.reset(torque[0])  # at rest before the move, the drive already holds the static torque
         command = np.array([lag.command(target) for target in torque[1:]])
@@ -201,6 +211,7 @@ class TimeOptimalPlanner:
         grid: NDArray[np.float64],
         continuation: tuple[RawProfile, PlannedLaw] | None,
         index: int,
+        torque_scale: float,
     ) -> PlannedLaw:
         """Plan on ``grid`` (from the prefix's end state if continuing), smooth, verify, tighten until it passes."""
         stats = PlanStats()
@@ -209,7 +220,7 @@ class TimeOptimalPlanner:
         terms = self._path_terms(q, dq, ddq, payload)
         stats.constraints += time.perf_counter() - clock
         sd_start = float(continuation[0].sd[-1]) if continuation else 0.0
-        scale = np.ones(len(grid))
+        scale = np.full(len(grid), torque_scale)
         for _ in range(MAX_TIGHTENINGS):
             raw = self._raw(grid, dq, terms, scale, sd_start, stats)
             if continuation:
@@ -369,6 +380,11 @@ class TimeOptimalPlanner:
         tau = np.maximum.accumulate(np.clip(tau, 0.0, 1.0))
         tau[0], tau[-1], tau_dot[0], tau_dot[-1] = 0.0, 1.0, 0.0, 0.0
         return tau, np.maximum(tau_dot, 0.0), tau_ddot
+
+
+def _torque_scale(value: float) -> float:
+    """``value`` if it is a share of the envelope in (0, 1], else ValueError."""
+    return require_in("torque_scale", value, 0.0, 1.0, low_open=True)
 
 
 def _inverse_quintic(p: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -38,6 +38,9 @@ STANDARD_LIFT = 0.025
 STANDARD_TRAVEL = 0.305
 """Horizontal travel of the industry's 25/305/25 mm test cycle (m)."""
 
+DEFAULT_DWELL = 0.1
+"""Rest (s) at each pick and place point; the gripper closes or opens in its middle."""
+
 
 @dataclass(frozen=True)
 class _Profile:
@@ -112,7 +115,7 @@ def standard_cycle(
     n_cycles: int = 1,
     center: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT),
     heading: float = math.pi / 2,
-    dwell: float = 0.1,
+    dwell: float = DEFAULT_DWELL,
     lift_fraction: float = 0.3,
     start: Literal["place", "pick"] = "place",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
@@ -169,7 +172,7 @@ def conveyor_cycles(
     place_zone: ConveyorZone = PLACE_ZONE,
     lift_height: float = STANDARD_LIFT,
     lift_fraction: float = 0.3,
-    dwell: float = 0.1,
+    dwell: float = DEFAULT_DWELL,
     start: Literal["place", "pick"] = "place",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
