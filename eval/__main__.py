@@ -42,7 +42,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.comparison import TABLE2_KEY, TABLE2_PAYLOAD, calibration_seeds, run_all, table2_statistics, tabulate
-from eval.identification import check_identity, identify_robot, load_or_identify, parameter_path, robot_setup
+from eval.identification import robot_identification, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 from eval.tables import (
@@ -187,12 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     scenario = args.scenario
     scenario.save(out / "scenario.toml")
     robot = scenario.plant
-    if args.parameters is None:
-        args.parameters = parameter_path(robot)
-        identification = identify_robot(robot)
-    else:
-        identification = load_or_identify(args.parameters, plant=robot)
-        check_identity(identification, robot, args.parameters)
+    args.parameters, identification = robot_identification(robot, args.parameters)
     identified_time = time.perf_counter() - started
     setup = robot_setup(robot, identification, residual_policy=args.residual)
     keys = args.controllers

@@ -565,6 +565,22 @@ def identify_robot(
     return result
 
 
+def robot_identification(
+    plant: PlantConfig, parameters: str | os.PathLike[str] | None = None
+) -> tuple[Path, IdentificationResult]:
+    """The parameter file and identification of ``plant``'s robot: ``parameters`` (identified there when missing)
+    or, when None, its own file (:func:`identify_robot`); either must record this robot.
+
+    Raises:
+        ParameterFileError: if the file is corrupt or records another robot.
+    """
+    if parameters is None:
+        return parameter_path(plant), identify_robot(plant)
+    result = load_or_identify(parameters, plant=plant)
+    check_identity(result, plant, parameters)
+    return Path(parameters), result
+
+
 def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs: Any) -> ControllerSetup:
     """What the controllers know of the robot ``plant`` builds: its lengths, datasheet masses and ``result``.
 

@@ -44,7 +44,7 @@ from eval import metrics
 from eval.calibration import calibrate_tares, calibrated_setup
 from eval.comparison import calibration_seeds
 from eval.episodes import EpisodeRecord
-from eval.identification import identify_robot, robot_setup
+from eval.identification import robot_identification, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
@@ -114,6 +114,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/rate/<timestamp>)")
+    parser.add_argument(
+        "--parameters",
+        type=Path,
+        default=None,
+        help="identified parameter file of the scenario's robot (default: runs/identification/<robot identity>/"
+        "parameters.json, identified when missing)",
+    )
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
     args.scenario = scenario_from_arguments(args, parser)
@@ -267,7 +274,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     scenario = args.scenario
     scenario.save(out / "scenario.toml")
     robot = scenario.plant
-    setup = robot_setup(robot, identify_robot(robot))
+    args.parameters, identification = robot_identification(robot, args.parameters)
+    setup = robot_setup(robot, identification)
     # The lead controller's estimator retimes the online carries (the cell's own if the lead has none).
     tared = [args.controllers[0] if args.controllers[0] in ESTIMATOR_REGRESSORS else CELL_ESTIMATOR_KEY]
     calibration_scenario = rate_scenario(scenario, "declared", MIXED)
@@ -292,6 +300,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         {
             "arguments": {**vars(args), "scenario": scenario.name},
             "scenario": {"name": scenario.name, "file": "scenario.toml", "robot_identity": scenario.robot_identity},
+            "identification": str(args.parameters),
             "tares_kg": calibration.tares,
             "calibration_seeds": seeds,
             "goals_mm": {"tracking_rms": TRACKING_GOAL_MM, "place_error": PLACE_GOAL_MM},

@@ -8,6 +8,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from collections.abc import Callable
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -16,6 +17,7 @@ import pytest
 from controllers.dynamics import ModelParameters
 from controllers.registry import ControllerSetup
 from delta_env import NOMINAL_GEOMETRY, kinematics
+from eval.identification import load_or_identify
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures of the controllers and eval tests
@@ -86,6 +88,15 @@ def controller_setup() -> ControllerSetup:
 
 
 # ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def parameter_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A parameter file of the nominal robot from a tiny identification (one short trajectory): fast, not
+    accurate."""
+    path = tmp_path_factory.mktemp("identification") / "parameters.json"
+    load_or_identify(path, n_trajectories=1, duration=2.0, validation_duration=2.0, progress=False, workers=1)
+    return path
 
 
 @pytest.fixture(scope="session")

@@ -278,14 +278,6 @@ def test_table2_analogue_payload_estimate_shrinks_the_torque_error_spread(contro
         assert abs(row["mp_hat_mean"]) < 1.0
 
 
-@pytest.fixture(scope="module")
-def parameter_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A parameter file from a tiny identification (one short trajectory): fast, not accurate."""
-    path = tmp_path_factory.mktemp("identification") / "parameters.json"
-    load_or_identify(path, n_trajectories=1, duration=2.0, validation_duration=2.0, progress=False, workers=1)
-    return path
-
-
 def read_csv(path: Path) -> list[dict[str, str]]:
     with path.open(newline="") as file:
         return list(csv.DictReader(file))
