@@ -21,6 +21,7 @@ from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import OracleController
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
+from controllers.payload_timing import EstimatingController
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
@@ -200,9 +201,11 @@ def run_episode(
     if reference is not None:
         options["reference"] = reference
     observation, info = env.reset(seed=seed, options=options or None)
-    if isinstance(controller, OracleController):
-        controller.set_payload_masses(info["payload_masses"])  # the oracle's privilege
-        controller.set_physical_parameters(env.plant.parameters)
+    # the oracle's privilege, also when an online timing runs the cell's estimator beside it
+    privileged = controller.controller if isinstance(controller, EstimatingController) else controller
+    if isinstance(privileged, OracleController):
+        privileged.set_payload_masses(info["payload_masses"])
+        privileged.set_physical_parameters(env.plant.parameters)
     controller.reset()
     plant = env.plant
     estimate = getattr(controller, "payload_estimate", None)

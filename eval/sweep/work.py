@@ -36,6 +36,7 @@ from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
 from eval.run_folder import package_versions
+from eval.tasks import timed
 
 CONTROLLERS = CONTROLLER_LABELS
 """Controller keys of ``--controllers`` and their labels."""
@@ -98,7 +99,7 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
     try:
         env = DeltaPickPlaceEnv(scenario=unit.scenario)
         try:
-            controller = build_controller(unit.controller, setup, env)
+            controller = timed(env, build_controller(unit.controller, setup, env), unit.controller, setup)
             record = run_episode(env, controller, unit.seed)
         finally:
             env.close()
