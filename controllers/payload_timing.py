@@ -35,7 +35,7 @@ from controllers.timing import TimeOptimalPlanner
 from delta_env.cycles import DEFAULT_DWELL
 from delta_env.drive import DriveLimits
 from delta_env.geometry import DeltaGeometry, DeltaMasses
-from delta_env.timing import TimeLaw
+from delta_env.timing import DEFAULT_TORQUE_SHARE, TimeLaw
 from delta_env.trajectories import Segment
 from delta_env.validation import require_in, require_instance
 
@@ -47,18 +47,15 @@ MODES: tuple[Mode, ...] = ("worst_case", "declared", "online")
 SETTLED_STD = 0.5
 """The estimate counts as settled once its standard deviation (kg) is below this."""
 
-ESTIMATE_SIGMAS = 3.0
+ESTIMATE_SIGMAS = 2.0
 """A retimed carry is planned for the estimate plus this many of its standard deviations (and the margin)."""
 
-ESTIMATE_MARGIN = 0.1
+ESTIMATE_MARGIN = 0.05
 """Mass (kg) added to the estimate's upper bound when a carry is retimed: the estimate's model error, which its
 variance does not describe (the tare's spread and the lift-off transient are tens of grams)."""
 
-REPLAN_STEP = 0.1
+REPLAN_STEP = 0.05
 """A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
-
-DEFAULT_TORQUE_SHARE = 0.2
-"""Share of the planner's envelope moves may use by default."""
 
 THERMAL_MARGIN = 0.05
 """Share of the rated torque held back by the thermal check of every move (model error)."""
@@ -128,9 +125,7 @@ class PayloadTiming:
         rms = np.sqrt(squared / (law.duration + self.dwell))
         return float(np.max(rms)) / ((1.0 - THERMAL_MARGIN) * self.planner.drive.rated_torque)
 
-    def _within_rating(
-        self, planned: Callable[[float], TimeLaw], shape: Segment, payload: float
-    ) -> TimeLaw | None:
+    def _within_rating(self, planned: Callable[[float], TimeLaw], shape: Segment, payload: float) -> TimeLaw | None:
         """``planned(1)`` if it is within the thermal rating, else ``planned(scale)`` with the largest share of the
         envelope that is (bisection over :data:`THERMAL_BISECTIONS` steps; the squared torque falls with it), or
         None if no share is: a continuation from a moving state may be unable to stop within a small share."""

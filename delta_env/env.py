@@ -229,6 +229,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.domain_randomization = domain_randomization
         self.timing = timing
         self.task_timing = base.task.timing
+        self.torque_share = base.task.torque_share
         self.reward_weights = reward_weights if reward_weights is not None else RewardWeights()
         self.divergence_penalty = float(divergence_penalty)
         self._tracking_weight_m2 = self.reward_weights.tracking * 1e6  # the weight is per mm^2

@@ -15,7 +15,8 @@ conditions and reuse its identification, as a real cell is identified once and t
 conditions. A new geometry, new true masses or new drive or sensor hardware is a new robot. The drive's limits
 (``plant.drive``) came later than the identities: they enter the hashes only when they differ from the default
 drive, so that the robots that existed before (their cached identifications and the shipped residual policy)
-keep their identities, while a robot with another drive gets a new one.
+keep their identities, while a robot with another drive gets a new one. Likewise a task's timing fields enter the
+content hash only when its moves are planned (``task.timing`` not ``"fixed"``).
 
 Files are TOML: human-readable with comments, a standard-library reader (``tomllib``, Python >= 3.11), no
 implicit typing surprises (YAML reads ``no`` as False and ``1e-3`` as a string), and nested tables map one
@@ -58,6 +59,7 @@ from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, Random
 from delta_env.cycles import require_start
 from delta_env.drive import DriveLimits
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
+from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
 NONE_MARKER = "none"
@@ -125,6 +127,8 @@ class PickPlaceTask:
             true mass: a per-object payload schedule, the reference), ``"online"`` (a carry starts timed for the
             heaviest object and is retimed once the payload estimate has settled). A planned timing needs the
             identified model, so the env then needs a ``timing`` object (the evaluation builds it).
+        torque_share: Share of the drive's envelope (after the planner's margin) a planned timing may use, in
+            (0, 1]: the margin for tracking (:data:`delta_env.timing.DEFAULT_TORQUE_SHARE`).
     """
 
     cycle: Literal["conveyor", "standard"] = "conveyor"
@@ -134,9 +138,11 @@ class PickPlaceTask:
     payload_mass_range: tuple[float, float] = (0.0, 4.0)
     domain_randomization: RandomizationRanges | None = None
     timing: Literal["fixed", "worst_case", "declared", "online"] = "fixed"
+    torque_share: float = DEFAULT_TORQUE_SHARE
 
     def __post_init__(self) -> None:
         require_timing(self.timing)
+        require_in("torque_share", self.torque_share, 0.0, 1.0, unit="of the envelope", low_open=True)
         if self.cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {self.cycle!r}")
         require_count("n_cycles", self.n_cycles)
@@ -193,9 +199,8 @@ class Scenario:
     @property
     def content_hash(self) -> str:
         """Content hash (16 hex digits) of plant, condition and task: what decides an episode's physics."""
-        parts = {"plant": _plant_table(self.plant)}
-        parts.update({part: _to_table(getattr(self, part)) for part in ("condition", "task")})
-        return _digest(parts)
+        parts = {"plant": _plant_table(self.plant), "condition": _to_table(self.condition)}
+        return _digest(parts | {"task": _task_table(self.task)})
 
     def to_toml(self) -> str:
         """Every field, resolved, as TOML text (what :meth:`from_toml` reads back to an equal value)."""
@@ -248,6 +253,15 @@ def _plant_table(plant: PlantConfig) -> dict[str, Any]:
     table = _to_table(plant)
     if plant.drive == DriveLimits():
         del table["drive"]
+    return table
+
+
+def _task_table(task: PickPlaceTask) -> dict[str, Any]:
+    """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
+    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then)."""
+    table = _to_table(task)
+    if task.timing == "fixed":
+        del table["timing"], table["torque_share"]
     return table
 
 

@@ -40,6 +40,7 @@ from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS
 from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import TIMINGS, Scenario
+from delta_env.timing import DEFAULT_TORQUE_SHARE
 from eval import metrics
 from eval.calibration import calibrate_tares, calibrated_setup
 from eval.comparison import calibration_seeds
@@ -111,6 +112,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         f"(default {','.join(f'{p:g}' for p in RATE_PAYLOADS)})",
     )
     parser.add_argument(
+        "--torque-share",
+        type=float,
+        default=None,
+        help="share of the drive's envelope the planned timings may use, in (0, 1] (default: the scenario's, "
+        f"{DEFAULT_TORQUE_SHARE:g} unless it sets one)",
+    )
+    parser.add_argument(
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/rate/<timestamp>)")
@@ -124,6 +132,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
     args.scenario = scenario_from_arguments(args, parser)
+    if args.torque_share is not None:
+        try:
+            task = dataclasses.replace(args.scenario.task, torque_share=args.torque_share)
+        except ValueError as error:
+            parser.error(f"--torque-share: {error}")
+        args.scenario = dataclasses.replace(args.scenario, task=task)
     for name in ("episodes", "cycles", "workers"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
@@ -341,6 +355,9 @@ def _summary(
     lines = [
         f"# Pick rate, scenario {args.scenario.name}: 25/305/25 mm standard cycle, {args.episodes} episodes x "
         f"{args.cycles} cycles per row from seed {args.seed}",
+        "",
+        f"Planned timings use {100 * args.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
+        "planner's 10 % margin) and keep its thermal rating.",
         "",
         f"Picks per minute ({lead} runs every row; the other controllers follow its references).",
         "",

@@ -85,7 +85,9 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
         else:
             estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
             controller = EstimatingController(controller, estimator)
-    env.timing = PayloadTiming(planner, env.task_timing, env.payload_mass_range[1], estimator)
+    env.timing = PayloadTiming(
+        planner, env.task_timing, env.payload_mass_range[1], estimator, torque_share=env.torque_share
+    )
     return controller
 
 

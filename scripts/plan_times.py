@@ -1,4 +1,4 @@
-"""``python -m eval.pick_rate``: what time-optimal timing buys on the 25/305/25 mm carry (issue "Pick rate").
+"""Benchmark: what time-optimal timing buys on the 25/305/25 mm carry, and where the planner's time goes.
 
 For payloads 0 to 8 kg, plans the standard carry (:func:`delta_env.cycles.standard_cycle`'s shape and heading,
 centre (0, 0, -0.9) m) with :class:`controllers.timing.TimeOptimalPlanner` on an MId+F+R-like model
