@@ -69,20 +69,6 @@ FASTEST_SEARCH = (0.1 * GRAVITY, 6.0 * GRAVITY, 7)
 """Fixed-timing search of the fastest timing that meets the goals: lowest and highest peak acceleration (m/s^2)
 and bisection steps (on a log scale, about 6 % resolution)."""
 
-SUMMARY_COLUMNS = (
-    "picks_per_min",
-    "cycle_time_mean_s",
-    "tracking_rms_mm",
-    "path_deviation_rms_mm",
-    "place_error_max_mm",
-    "envelope_violations",
-    "peak_torque_ratio",
-    "rms_torque_ratio",
-    "thermal_exceeded",
-)
-"""What a row of ``rate.csv`` reports, over its episodes: means, except the worst place error, the summed
-violations, the largest torque ratios and whether the thermal limit was ever exceeded."""
-
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
@@ -177,7 +163,8 @@ def payload_label(payload: float | str) -> str:
 
 
 def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
-    """One row of ``rate.csv`` from a row's episodes (:data:`SUMMARY_COLUMNS`)."""
+    """One row of ``rate.csv`` from a row's episodes: means over them, except the worst place error (mm), the
+    summed violations and divergences, the largest torque ratios and whether the thermal limit was ever exceeded."""
     rows = [record.metrics() for record in records]
 
     def column(name: str) -> np.ndarray:
@@ -188,7 +175,7 @@ def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
         "cycle_time_mean_s": float(np.mean(column("cycle_time_mean_s"))),
         "tracking_rms_mm": float(np.mean(column("tracking_rms_mm"))),
         "path_deviation_rms_mm": float(np.mean(column("path_deviation_rms_mm"))),
-        "place_error_max_mm": float(np.max(column("place_error_max_mm"))),
+        "place_error_mm": float(np.max(column("place_error_max_mm"))),
         "envelope_violations": int(np.sum(column("envelope_violations"))),
         "peak_torque_ratio": float(np.max(column("peak_torque_ratio"))),
         "rms_torque_ratio": float(np.max(column("rms_torque_ratio"))),
@@ -202,7 +189,7 @@ def holds(row: dict[str, Any]) -> bool:
     """Whether a row holds its timing: the tracking and place goals, no violation, no divergence, no overheating."""
     return (
         row["tracking_rms_mm"] <= TRACKING_GOAL_MM
-        and row["place_error_max_mm"] <= PLACE_GOAL_MM
+        and row["place_error_mm"] <= PLACE_GOAL_MM
         and row["envelope_violations"] == 0
         and row["diverged"] == 0
         and not row["thermal_exceeded"]
@@ -344,7 +331,7 @@ def _summary(
             f"{row['picks_per_min']:.1f}",
             f"{row['tracking_rms_mm']:.3f}",
             f"{row['path_deviation_rms_mm']:.3f}",
-            f"{row['place_error_max_mm']:.3f}",
+            f"{row['place_error_mm']:.3f}",
             str(row["envelope_violations"]),
             f"{row['peak_torque_ratio']:.2f}",
             f"{row['rms_torque_ratio']:.2f}",
