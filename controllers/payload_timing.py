@@ -47,7 +47,7 @@ MODES: tuple[Mode, ...] = ("worst_case", "declared", "online")
 SETTLED_STD = 0.5
 """The estimate counts as settled once its standard deviation (kg) is below this."""
 
-ESTIMATE_SIGMAS = 2.0
+ESTIMATE_SIGMAS = 1.0
 """A retimed carry is planned for the estimate plus this many of its standard deviations (and the margin)."""
 
 ESTIMATE_MARGIN = 0.05
