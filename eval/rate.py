@@ -292,7 +292,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_csv(out / "rate_episodes.csv", episode_rows)
     if fastest:
         write_csv(out / "pd_fastest.csv", fastest)
-    _plot(out / "rate.png", rows, fastest, scenario.name)
+    _plot(out / "rate.png", rows, fastest, CONTROLLER_LABELS[args.controllers[0]], scenario.name)
     summary = "\n".join(_summary(args, rows, fastest, out, time.perf_counter() - started))
     (out / "summary.md").write_text(summary + "\n")
     write_config(
@@ -436,34 +436,34 @@ def _fastest_lines(
     ]
 
 
-def _plot(path: Path, rows: list[dict[str, Any]], fastest: list[dict[str, Any]], name: str) -> None:
-    """Picks/min against payload, one line per planner and controller, like a data sheet's chart."""
+def _plot(path: Path, rows: list[dict[str, Any]], fastest: list[dict[str, Any]], lead: str, name: str) -> None:
+    """Picks/min against payload for each planner with the lead controller, like a data sheet's chart: a line over
+    the fixed payloads (dotted where a row misses the goals) and a cross for the mixed stream at its mean mass."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     figure, axis = plt.subplots(figsize=(7.0, 4.5))
-    series: dict[tuple[str, str], list[tuple[float, float]]] = {}
-    for row in rows:
-        if row["payload"] != MIXED:
-            series.setdefault((row["planner"], row["controller"]), []).append(
-                (float(row["payload"]), row["picks_per_min"])
-            )
-    for (planner, label), points in series.items():
-        payloads, rates = zip(*sorted(points), strict=True)
-        style = "-" if holds_all(rows, planner, label) else ":"
-        axis.plot(payloads, rates, style, marker="o", label=f"{planner}, {label}")
-    if fastest:
-        points = sorted((float(r["payload"]), r["picks_per_min"]) for r in fastest if r["payload"] != MIXED)
-        if points:
-            payloads, rates = zip(*points, strict=True)
-            axis.plot(payloads, rates, "k--", marker="s", label=f"{fastest[0]['controller']}, fastest fixed timing")
-    axis.set_xlabel("payload (kg)")
+    for planner in dict.fromkeys(row["planner"] for row in rows):
+        own = [row for row in rows if row["planner"] == planner and row["controller"] == lead]
+        points = sorted((float(row["payload"]), row["picks_per_min"]) for row in own if row["payload"] != MIXED)
+        style = "-" if all(holds(row) for row in own) else ":"
+        (line,) = axis.plot(*zip(*points, strict=True), style, marker="o", label=planner) if points else (None,)
+        for row in own:
+            if row["payload"] == MIXED:
+                color = line.get_color() if line is not None else None
+                axis.plot(0.5 * RATED_PAYLOAD, row["picks_per_min"], "x", color=color, markersize=9)
+    found = sorted((float(r["payload"]), r["picks_per_min"]) for r in fastest if r["payload"] != MIXED)
+    found = [point for point in found if math.isfinite(point[1])]
+    if found:
+        axis.plot(*zip(*found, strict=True), "k--", marker="s", label=f"{fastest[0]['controller']}, fastest fixed")
+    axis.set_ylim(bottom=0.0)
+    axis.set_xlabel(f"payload (kg); x: mixed stream U[0, {RATED_PAYLOAD:g}] kg at its mean")
     axis.set_ylabel("picks per minute, 25/305/25 mm cycle")
-    axis.set_title(f"Pick rate against payload ({name}); dotted: goals not held")
+    axis.set_title(f"{lead} on {name}; dotted: goals not held")
     axis.grid(True, alpha=0.3)
-    axis.legend(fontsize=7)
+    axis.legend(fontsize=8, loc="lower left")
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
@@ -472,11 +472,6 @@ def _plot(path: Path, rows: list[dict[str, Any]], fastest: list[dict[str, Any]],
 def _column(load: str) -> str:
     """A data-sheet column's header."""
     return load if load == MIXED else f"{load} kg"
-
-
-def holds_all(rows: list[dict[str, Any]], planner: str, label: str) -> bool:
-    """Whether every payload row of ``planner`` and controller ``label`` holds its timing."""
-    return all(holds(row) for row in rows if row["planner"] == planner and row["controller"] == label)
 
 
 if __name__ == "__main__":
