@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import weakref
 from collections.abc import Callable
 from typing import Literal
 
@@ -56,6 +57,14 @@ variance does not describe (the tare's spread and the lift-off transient are ten
 
 REPLAN_STEP = 0.05
 """A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
+
+PLANNING_LATENCY = 0.03
+"""Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: one replan
+takes about 30 ms of a core on the development machine, so the carry keeps its law that long (the online
+rate is what a cell whose planner runs beside the 1 kHz loop would get)."""
+
+MAX_CACHED_PLANS = 512
+"""Laws kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
 
 THERMAL_MARGIN = 0.05
 """Share of the rated torque held back by the thermal check of every move (model error)."""
@@ -102,9 +111,13 @@ class PayloadTiming:
         self._law_mass = math.inf
 
     def _plan(self, shape: Segment, payload: float) -> TimeLaw:
-        """The planner's law for ``shape`` and ``payload`` (kg), planned once per planner, shape and mass."""
+        """The planner's law for ``shape`` and ``payload`` (kg), planned once per planner, shape, mass, dwell and
+        share (a cell repeats its moves: the standard cycle has two shapes)."""
         key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, payload)
-        plans = _PLANS.setdefault((id(self.planner), self.dwell, self.torque_share), {})
+        key += (self.dwell, self.torque_share)
+        plans = _PLANS.setdefault(self.planner, {})
+        if len(plans) >= MAX_CACHED_PLANS:
+            del plans[next(iter(plans))]
         if key not in plans:
             law = self._within_rating(lambda scale: self.planner.plan(shape, payload, scale), shape, payload)
             if law is None:
@@ -155,33 +168,37 @@ class PayloadTiming:
         return self._plan(shape, 0.0)
 
     def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
-        """``"online"``: the rest of the carry replanned for the settled estimate, or None to keep ``law``."""
+        """``"online"``: the rest of the carry replanned for the settled estimate, or None to keep ``law``.
+
+        The new law takes over :data:`PLANNING_LATENCY` after ``index`` and must be shorter than ``law``; a
+        non-finite estimate or variance (a sensor fault) never retimes.
+        """
         if not self.retimes_online:
             return None
-        if law is not self._law:  # a carry that has not been retimed yet runs on the heaviest object's plan
+        if index == 0 or law is not self._law:  # a new carry runs on the heaviest object's plan
             self._law, self._law_mass = law, self.max_payload
-        variance = self.estimator.rls.variance
-        if variance > SETTLED_STD**2:
+        mass, variance = self.estimator.mass, self.estimator.rls.variance
+        if not (math.isfinite(mass) and math.isfinite(variance) and 0.0 <= variance <= SETTLED_STD**2):
             return None
-        upper = self.estimator.mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN
-        payload = min(self.max_payload, max(0.0, upper))
-        if payload > self._law_mass - REPLAN_STEP:
+        payload = min(self.max_payload, max(0.0, mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN))
+        takeover = index + round(PLANNING_LATENCY / law.dt)
+        if payload > self._law_mass - REPLAN_STEP or takeover >= len(law) - 1:
             return None
+        self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
         try:
             retimed = self._within_rating(
-                lambda scale: self.planner.replan(shape, law, index, payload, scale), shape, payload
+                lambda scale: self.planner.replan(shape, law, takeover, payload, scale), shape, payload
             )
-        except ValueError:  # no continuation from here within the share: keep the plan the carry is on
-            retimed = None
-        self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
-        if retimed is not None:
-            self._law = retimed
+        except ValueError:  # no continuation from there within the share: keep the plan the carry is on
+            return None
+        if retimed is None or len(retimed) >= len(law):
+            return None
+        self._law = retimed
         return retimed
 
 
-_PLANS: dict[tuple[int, float, float], dict[tuple, TimeLaw]] = {}
-"""Laws already planned, per planner of :func:`shared_planner` (which keeps its planners alive): a cell plans a
-recurring move once (the standard cycle repeats the same two shapes)."""
+_PLANS: weakref.WeakKeyDictionary[TimeOptimalPlanner, dict[tuple, TimeLaw]] = weakref.WeakKeyDictionary()
+"""Laws already planned, per planner (at most :data:`MAX_CACHED_PLANS` each)."""
 
 
 @functools.cache
@@ -210,6 +227,7 @@ class EstimatingController:
     def __init__(self, controller: Controller, estimator: PayloadEstimator) -> None:
         self.controller = controller
         self.estimator = estimator
+        self.name = controller.name
 
     @property
     def payload_estimate(self) -> float:

@@ -9,9 +9,10 @@ as the drive allows by the model's own account, in three steps:
    |q'| sqrt(x). The sqrt(x) terms are linearized conservatively (:meth:`TimeOptimalPlanner._stages`) and
    :func:`controllers.topp.solve` (toppra) finds the fastest profile: s(t) with piecewise-constant sdd.
 2. **Smoothing.** That raw profile has torque steps, which the lag-inverse command of a drive with a 1 ms
-   current loop turns into spikes. The reference is the raw profile's causal moving average over a window
-   w: tau(t) = (1/w) int_{t-w}^{t} s(t') dt'. It is C2 with bounded jerk, stays on the path (it is a time
-   law of the same shape) and ends at rest at T_raw + w.
+   current loop turns into spikes. The reference is the causal moving average over a window w of the raw
+   profile's horizontal progress p = quintic(s) (which, unlike s, has a non-zero slope at the ends), mapped
+   back to tau: p(tau(t)) = (1/w) int_{t-w}^{t} p(s(t')) dt'. It is C2 with bounded jerk, stays on the path
+   (it is a time law of the same shape) and ends at rest at T_raw + w.
 3. **Verification.** The sampled law is checked at every control sample with the full model (friction
    included) and the lag-inverse command (:class:`~delta_env.drive.SampledLag`) against the shrunk envelope
    at the model's joint speed. If any sample fails, the constraint bounds are scaled down by

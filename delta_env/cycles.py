@@ -366,11 +366,16 @@ class TimedCycles:
         """The sample at which each piece starts."""
         return np.concatenate(([0], np.cumsum([piece.samples - 1 for piece in self.pieces])))[:-1].tolist()
 
-    def with_law(self, index: int, law: TimeLaw) -> TimedCycles:
-        """The same cycles with piece ``index`` (a move) timed by ``law``."""
+    def with_law(self, index: int, law: TimeLaw, followed: int = 0) -> TimedCycles:
+        """The same cycles with piece ``index`` (a move) timed by ``law``, which must repeat the first ``followed``
+        samples of its present law (those the robot has followed already)."""
         piece = self.pieces[index]
         if piece.law is None:
             raise ValueError(f"piece {index} is a dwell, not a move")
+        for name in ("tau", "tau_dot", "tau_ddot"):
+            past = getattr(piece.law, name)[:followed]
+            if len(law) < followed or not np.array_equal(getattr(law, name)[:followed], past):
+                raise ValueError(f"a retimed law must repeat the {followed} samples already followed ({name} differs)")
         pieces = list(self.pieces)
         pieces[index] = TimedPiece(piece.shape, len(law), law, piece.carry)
         return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits)

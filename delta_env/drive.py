@@ -150,6 +150,21 @@ class DriveLimits:
         return lower, upper
 
 
+def clip_to_envelope(command: float, speed: float, peak: float, max_speed: float, span: float) -> tuple[float, float]:
+    """``command`` (N m) clipped to the drive's bound in its direction at joint ``speed`` (rad/s), and the margin
+    (N m): that bound minus |command|, negative when clipped. A zero command counts as motoring.
+
+    The scalar form of :meth:`DriveLimits.torque_bounds`, for the env's 1 kHz step; ``span`` is
+    max_speed - corner_speed.
+    """
+    # With the motion (or at rest): the motoring limit, the peak up to the corner speed; against it: the peak.
+    bound = min(peak, max(0.0, peak * (max_speed - abs(speed)) / span)) if command * speed >= 0.0 else peak
+    margin = bound - abs(command)
+    if margin < 0.0:
+        command = bound if command > 0.0 else -bound
+    return command, margin
+
+
 class SampledLag:
     """The first-order drive lag sampled at the control instants, per joint, and its exact inverse.
 

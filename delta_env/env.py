@@ -21,6 +21,7 @@ from delta_env.config import (
     RandomizationRanges,
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
+from delta_env.drive import clip_to_envelope
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
@@ -51,20 +52,6 @@ class RewardWeights:
 
     tracking: float = 1.0
     torque: float = 1e-5
-
-
-def _clip_to_envelope(command: float, speed: float, peak: float, max_speed: float, span: float) -> tuple[float, float]:
-    """``command`` (N m) clipped to the drive's bound in its direction at joint ``speed`` (rad/s), and the margin
-    (N m): that bound minus |command|, negative when clipped. A zero command counts as motoring.
-
-    The scalar form of :meth:`delta_env.drive.DriveLimits.torque_bounds`; ``span`` is max_speed - corner_speed.
-    """
-    # With the motion (or at rest): the motoring limit, the peak up to the corner speed; against it: the peak.
-    bound = min(peak, max(0.0, peak * (max_speed - abs(speed)) / span)) if command * speed >= 0.0 else peak
-    margin = bound - abs(command)
-    if margin < 0.0:
-        command = bound if command > 0.0 else -bound
-    return command, margin
 
 
 class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
@@ -288,6 +275,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
         self._torque_noise = np.zeros((1, 3))
+        self._spare_noise: np.random.Generator | None = None
         # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
         self._instability_warnings = tuple(
             int(w)
@@ -376,6 +364,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         first_pick = trajectory.pick_indices[0] if n_objects else 0
         self._place_object(trajectory.xyz[first_pick], self.payload_masses[0] if n_objects else 0.0)
         self._torque_noise = self.np_random.normal(0.0, self._torque_noise_std, size=(len(trajectory), 3))
+        # A reference an online timing lengthens draws the rest of its noise from a generator of its own, so that
+        # the retimes leave np_random as a fixed timing would.
+        self._spare_noise = None
+        if self._timed is not None and self.timing.retimes_online:
+            self._spare_noise = np.random.default_rng(self.np_random.integers(2**63))
         self._measured_angles = self._encoder(self.plant.joint_angles())
         observation = self._observation(self.plant.joint_velocities())
         self._last_observation = observation
@@ -411,18 +404,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         law = self.timing.retime(piece.shape, piece.law, k - start)
         if law is None:
             return
-        index = k - start
-        for name in ("tau", "tau_dot", "tau_ddot"):
-            if len(law) <= index or not np.array_equal(
-                getattr(law, name)[: index + 1], getattr(piece.law, name)[: index + 1]
-            ):
-                raise ValueError(f"a retimed law must repeat the {index + 1} samples already followed ({name} differs)")
-        self._timed = self._timed.with_law(piece_index, law)
+        self._timed = self._timed.with_law(piece_index, law, followed=k - start + 1)
         self._set_reference(self._timed)
         self._carry = (piece_index, start)
         missing = len(self.trajectory) - len(self._torque_noise)
         if missing > 0:
-            extra = self.np_random.normal(0.0, self._torque_noise_std, size=(missing, 3))
+            extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
             self._torque_noise = np.concatenate((self._torque_noise, extra))
 
     def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -464,9 +451,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
                 torque = np.clip(torque, -peak, peak)
                 t0, t1, t2 = torque.tolist()
         else:
-            t0, m0 = _clip_to_envelope(t0, w0, peak, max_speed, span)
-            t1, m1 = _clip_to_envelope(t1, w1, peak, max_speed, span)
-            t2, m2 = _clip_to_envelope(t2, w2, peak, max_speed, span)
+            t0, m0 = clip_to_envelope(t0, w0, peak, max_speed, span)
+            t1, m1 = clip_to_envelope(t1, w1, peak, max_speed, span)
+            t2, m2 = clip_to_envelope(t2, w2, peak, max_speed, span)
             saturated = min(m0, m1, m2) < 0.0
             if saturated:
                 torque = np.array([t0, t1, t2])

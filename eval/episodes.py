@@ -9,6 +9,7 @@ score the run; the controller sees only the observations.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -218,7 +219,16 @@ def run_episode(
     observations = [observation] if keep_observations else None
     platform = np.full((steps, 3), math.nan)
     diverged, saturated, speed_exceeded, thermal_exceeded, n, loop_gap = False, 0, 0, False, 0, 0.0
-    for n in range(steps):
+    for n in itertools.count():
+        if n == len(tracking):  # an online timing lengthened the reference: the episode runs to its new end
+            grown = len(env.trajectory) - 1 - n
+
+            def extended(array: np.ndarray, fill: float, rows: int = grown) -> np.ndarray:
+                return np.concatenate((array, np.full((rows, *array.shape[1:]), fill)))
+
+            tracking, platform = extended(tracking, math.nan), extended(platform, math.nan)
+            torque, velocity, joint_error = extended(torque, 0.0), extended(velocity, 0.0), extended(joint_error, 0.0)
+            command, estimates = extended(command, 0.0), extended(estimates, 0.0)
         action = controller(observation)
         if estimate is not None:
             estimates[n] = controller.payload_estimate

@@ -67,7 +67,7 @@ PLACE_GOAL_MM = 0.5
 
 FASTEST_SEARCH = (0.1 * GRAVITY, 6.0 * GRAVITY, 7)
 """Fixed-timing search of the fastest timing that meets the goals: lowest and highest peak acceleration (m/s^2)
-and bisection steps (on a log scale, about 6 % resolution)."""
+and bisection steps (on a log scale, about 3 % resolution)."""
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -226,7 +226,8 @@ def run_rows(args: argparse.Namespace, setup: Any) -> tuple[list[dict[str, Any]]
     grouped: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
     episode_rows = []
     for task, record in results:
-        timing, load = task.scenario.name.split("/")[-2:]
+        timing, (low, high) = task.scenario.task.timing, task.scenario.task.payload_mass_range
+        load = payload_label(low) if low == high else MIXED
         grouped.setdefault((timing, CONTROLLER_LABELS[task.key], load), []).append(record)
         episode_rows.append(
             {"planner": timing, "controller": CONTROLLER_LABELS[task.key], "payload": load, "seed": task.seed}
@@ -467,11 +468,6 @@ def _plot(path: Path, rows: list[dict[str, Any]], fastest: list[dict[str, Any]],
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
-
-
-def _column(load: str) -> str:
-    """A data-sheet column's header."""
-    return load if load == MIXED else f"{load} kg"
 
 
 if __name__ == "__main__":

@@ -67,9 +67,10 @@ CELL_ESTIMATOR_KEY = "mid_f_rls"
 def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: ControllerSetup) -> Controller:
     """Give ``env`` the timing its scenario asks for (:attr:`PickPlaceTask.timing`), planned on ``setup``'s model.
 
-    An ``"online"`` timing reads the controller's payload estimator (the RLS rows') or, for a controller without
-    one, the cell's (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run beside it: the controller is
-    then returned wrapped in an :class:`EstimatingController`. A ``"fixed"`` scenario leaves both as they are.
+    An ``"online"`` timing reads the controller's payload estimator (the RLS rows' and the residual's base's) or,
+    for a controller without one, the cell's (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run
+    beside it: the controller is then returned wrapped in an :class:`EstimatingController`. A ``"fixed"`` scenario
+    leaves both as they are.
     """
     if env.task_timing == "fixed":
         return controller
@@ -82,6 +83,8 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
     if env.task_timing == "online":
         if key in ESTIMATOR_REGRESSORS:
             estimator = controller.estimator
+        elif key == "residual":  # the residual's base is an RLS controller: its estimate is the row's own
+            estimator = controller.base.estimator
         else:
             estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
             controller = EstimatingController(controller, estimator)

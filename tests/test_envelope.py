@@ -12,8 +12,9 @@ from delta_env.drive import (
     REPRESENTATIVE_GEAR_RATIO,
     REPRESENTATIVE_MOTOR,
     DriveLimits,
+    clip_to_envelope,
 )
-from delta_env.env import DeltaPickPlaceEnv, _clip_to_envelope
+from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario, preset
 
 DRIVE = DriveLimits()  # 400 N m peak, 15 rad/s corner, 30 rad/s maximum
@@ -52,7 +53,7 @@ def test_scalar_clip_of_the_env_is_the_envelope() -> None:
     for speed in np.linspace(-40.0, 40.0, 33):
         lower, upper = DRIVE.torque_bounds(speed)
         for command in (-1000.0, -300.0, -50.0, 0.0, 50.0, 300.0, 1000.0):
-            clipped, margin = _clip_to_envelope(command, speed, peak, DRIVE.max_speed, span)
+            clipped, margin = clip_to_envelope(command, speed, peak, DRIVE.max_speed, span)
             assert clipped == pytest.approx(np.clip(command, lower, upper), abs=1e-9)
             bound = upper if command > 0.0 else -lower if command < 0.0 else min(upper, -lower)
             assert margin == pytest.approx(bound - abs(command), abs=1e-9)

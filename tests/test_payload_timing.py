@@ -189,3 +189,26 @@ def test_planned_timing_on_a_plant_that_satisfies_the_model_leaves_the_envelope_
     assert not record.diverged and record.saturated_steps == 0 and record.speed_exceeded_steps == 0
     episode = record.metrics()
     assert episode["peak_torque_ratio"] > 0.5  # it did use the drive: far beyond a 3 g cycle's 0.2
+
+
+@pytest.mark.parametrize(("mass", "variance"), [(math.nan, 0.01), (0.5, math.nan), (0.5, -1e-4), (math.inf, 0.01)])
+def test_a_faulty_estimate_never_retimes(planner: TimeOptimalPlanner, mass: float, variance: float) -> None:
+    estimator = FakeEstimator()
+    timing = PayloadTiming(planner, "online", RATED_PAYLOAD, estimator, torque_share=0.5)
+    law = timing.carry(CARRY, 0.5)
+    estimator.mass, estimator.rls.variance = mass, variance
+    assert timing.retime(CARRY, law, 0) is None and timing.retime(CARRY, law, 20) is None
+
+
+def test_every_carry_starts_afresh_on_the_heaviest_objects_plan(planner: TimeOptimalPlanner) -> None:
+    estimator = FakeEstimator()
+    timing = PayloadTiming(planner, "online", RATED_PAYLOAD, estimator, torque_share=0.5)
+    first = timing.carry(CARRY, 1.0)
+    estimator.mass, estimator.rls.variance = 1.0, 0.01**2
+    assert timing.retime(CARRY, first, 0) is not None
+    # the next carry runs the same cached plan: a 3 kg estimate is still lighter than its 4 kg, so it retimes
+    second = timing.carry(CARRY, 3.0)
+    assert second is first
+    estimator.mass = 3.0
+    retimed = timing.retime(CARRY, second, 0)
+    assert retimed is not None and retimed.payload == pytest.approx(3.0 + 0.01 + ESTIMATE_MARGIN)

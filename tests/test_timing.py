@@ -117,7 +117,7 @@ def test_the_laws_are_c2_and_rest_to_rest(plans: dict[float, PlannedLaw]) -> Non
     _, velocity, acceleration = move_samples(standard_carry(), law)
     assert np.abs(velocity[[0, -1]]).max() < 1e-9 and np.abs(acceleration[[0, -1]]).max() < 1e-6
     # Bounded jerk: from accelerating to braking the raw profile steps by about twice the peak acceleration in
-    # one sample; the smoothed law spreads that over its window (15 samples).
+    # one sample; the smoothed law spreads that over its window (8 samples).
     peak = np.linalg.norm(acceleration, axis=1).max()
     assert np.linalg.norm(np.diff(acceleration, axis=0), axis=1).max() < 0.25 * peak
 

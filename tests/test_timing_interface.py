@@ -129,3 +129,18 @@ def test_a_scenario_with_a_planned_timing_needs_a_timing_object() -> None:
         env.reset(seed=0)
     with pytest.raises(ValueError, match="timing must be one of"):
         PickPlaceTask(timing="fast")
+
+
+class RewritingTiming(QuinticTiming):
+    """Retimes every carry at sample 10 with a law that changes the samples already followed."""
+
+    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+        return quintic_law(0.2) if index == 10 else None
+
+
+def test_a_retime_that_changes_the_past_is_refused() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1, timing=RewritingTiming(retime_at=10))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="must repeat the 11 samples already followed"):
+        for _ in range(len(env.trajectory)):
+            env.step(np.zeros(3))

@@ -36,7 +36,7 @@ from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
 from eval.run_folder import package_versions
-from eval.tasks import timed
+from eval.tasks import CELL_ESTIMATOR_KEY, timed
 
 CONTROLLERS = CONTROLLER_LABELS
 """Controller keys of ``--controllers`` and their labels."""
@@ -155,9 +155,12 @@ def tared_setup(
     the calibration's empty moves when the scenario's episodes run on its robot (:func:`calibrated_setup`).
 
     They are measured as ``python -m eval`` measures them (:mod:`eval.calibration`): payload-free
-    episodes of the scenario on the calibration seeds of ``seed``.
+    episodes of the scenario on the calibration seeds of ``seed``. An online timing also tares the cell's estimator,
+    which it reads beside the controllers that have none (:func:`eval.tasks.timed`).
     """
     keys = [key for key in controllers if key in ESTIMATOR_REGRESSORS]
+    if scenario.task.timing == "online" and CELL_ESTIMATOR_KEY not in keys:
+        keys.append(CELL_ESTIMATOR_KEY)
     if not keys:
         return setup
     seeds = calibration_seeds(seed, calibration_episodes)
