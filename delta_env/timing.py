@@ -23,8 +23,9 @@ from numpy.typing import NDArray
 from delta_env.trajectories import Segment, evaluate_segments, require_sample_period
 
 DEFAULT_TORQUE_SHARE = 0.2
-"""Share of the drive's envelope (after the planner's margin) planned moves may use by default: the share up to
-which the model-based controller tracks within 0.5 mm on the nominal robot (docs/design.md section 9)."""
+"""Share of the drive's envelope and speed limit (after the planner's margin) that moves are planned within by
+default: the share up to which the model-based controller tracks within 0.5 mm on the nominal robot
+(docs/design.md section 9)."""
 
 
 @dataclass(frozen=True, eq=False)
