@@ -44,7 +44,7 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.comparison import TABLE2_KEY, TABLE2_PAYLOAD, calibration_seeds, run_all, table2_statistics, tabulate
 from eval.identification import robot_identification, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
-from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
+from eval.scenario_args import add_parameters_argument, add_scenario_arguments, scenario_from_arguments
 from eval.tables import (
     bound_violations,
     controller_table,
@@ -73,13 +73,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
-    parser.add_argument(
-        "--parameters",
-        type=Path,
-        default=None,
-        help="identified parameter file of the scenario's robot (default: runs/identification/<robot identity>/"
-        "parameters.json, identified when missing)",
-    )
+    add_parameters_argument(parser)
     parser.add_argument(
         "--calibration-episodes",
         type=int,

@@ -47,7 +47,7 @@ from eval.comparison import calibration_seeds
 from eval.episodes import EpisodeRecord
 from eval.identification import robot_identification, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
-from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
+from eval.scenario_args import add_parameters_argument, add_scenario_arguments, scenario_from_arguments
 from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
@@ -108,13 +108,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/rate/<timestamp>)")
-    parser.add_argument(
-        "--parameters",
-        type=Path,
-        default=None,
-        help="identified parameter file of the scenario's robot (default: runs/identification/<robot identity>/"
-        "parameters.json, identified when missing)",
-    )
+    add_parameters_argument(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
     args.scenario = scenario_from_arguments(args, parser)

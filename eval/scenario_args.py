@@ -1,4 +1,4 @@
-"""``--scenario NAME|FILE`` and ``--geometry FILE``: the same options on every command line."""
+"""``--scenario NAME|FILE``, ``--geometry FILE`` and ``--parameters FILE``: the same options on every command line."""
 
 from __future__ import annotations
 
@@ -31,6 +31,17 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, default: str = "nomi
         help=f"preset ({', '.join(preset_names())}) or scenario TOML file (default {default})",
     )
     add_geometry_argument(parser)
+
+
+def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--parameters`` (the identified parameter file of the scenario's robot) to ``parser``."""
+    parser.add_argument(
+        "--parameters",
+        type=Path,
+        default=None,
+        help="identified parameter file of the scenario's robot (default: runs/identification/<robot identity>/"
+        "parameters.json, identified when missing)",
+    )
 
 
 def on_geometry(scenario: Scenario, path: str | os.PathLike[str]) -> Scenario:
