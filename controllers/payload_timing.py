@@ -58,10 +58,18 @@ variance does not describe (the tare's spread and the lift-off transient are ten
 REPLAN_STEP = 0.05
 """A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
 
-PLANNING_LATENCY = 0.03
+PLANNING_LATENCY = 0.015
 """Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: one replan
-takes about 30 ms of a core on the development machine, so the carry keeps its law that long (the online
-rate is what a cell whose planner runs beside the 1 kHz loop would get)."""
+takes about 12 ms of a core on the development machine (:data:`controllers.timing.REPLAN_GRID_INTERVALS`), so
+the carry keeps its law that long (the online rate is what a cell whose planner runs beside the 1 kHz loop
+would get)."""
+
+PRECOMPUTED_TAKEOVERS = (0.015, 0.02, 0.025, 0.03, 0.04)
+"""Times (s) into a carry from which an online timing precomputes, while it plans the carry, continuations for
+:data:`PRECOMPUTED_PAYLOADS`: an estimate that settles before one of them switches at no planning latency."""
+
+PRECOMPUTED_PAYLOADS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5)
+"""Payloads (kg) of the precomputed continuations (below the heaviest object only)."""
 
 MAX_CACHED_PLANS = 512
 """Laws kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
@@ -160,8 +168,36 @@ class PayloadTiming:
         return best
 
     def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
-        """The law of a carry: for its declared mass (kg) in ``"declared"`` mode, else for the heaviest object."""
-        return self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
+        """The law of a carry: for its declared mass (kg) in ``"declared"`` mode, else for the heaviest object.
+
+        ``"online"`` also precomputes its continuations (:data:`PRECOMPUTED_TAKEOVERS`), once per carry shape.
+        """
+        law = self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
+        if self.retimes_online and law not in _CONTINUATIONS:
+            _CONTINUATIONS[law] = self._continuations(shape, law)
+        return law
+
+    def _continuations(self, shape: Segment, law: TimeLaw) -> list[tuple[int, float, TimeLaw]]:
+        """(takeover sample, payload, law) of ``law``'s continuations for lighter objects, earliest first."""
+        table = []
+        for takeover in sorted({round(t / law.dt) for t in PRECOMPUTED_TAKEOVERS}):
+            for payload in (p for p in PRECOMPUTED_PAYLOADS if p <= self.max_payload - REPLAN_STEP):
+                continued = self._continued(shape, law, takeover, payload)
+                if continued is not None:
+                    table.append((takeover, payload, continued))
+        return table
+
+    def _continued(self, shape: Segment, law: TimeLaw, takeover: int, payload: float) -> TimeLaw | None:
+        """``law`` continued from sample ``takeover`` for ``payload`` (kg) within the rating, if shorter."""
+        if takeover >= len(law) - 1:
+            return None
+        try:
+            continued = self._within_rating(
+                lambda scale: self.planner.replan(shape, law, takeover, payload, scale), shape, payload
+            )
+        except ValueError:  # no continuation from there within the share
+            return None
+        return continued if continued is not None and len(continued) < len(law) else None
 
     def empty(self, shape: Segment) -> TimeLaw:
         """The law of an empty move: for the empty gripper."""
@@ -181,21 +217,29 @@ class PayloadTiming:
         if not (math.isfinite(mass) and math.isfinite(variance) and 0.0 <= variance <= SETTLED_STD**2):
             return None
         payload = min(self.max_payload, max(0.0, mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN))
+        if payload > self._law_mass - REPLAN_STEP:
+            return None
         takeover = index + round(PLANNING_LATENCY / law.dt)
-        if payload > self._law_mass - REPLAN_STEP or takeover >= len(law) - 1:
-            return None
-        self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
-        try:
-            retimed = self._within_rating(
-                lambda scale: self.planner.replan(shape, law, takeover, payload, scale), shape, payload
-            )
-        except ValueError:  # no continuation from there within the share: keep the plan the carry is on
-            return None
-        if retimed is None or len(retimed) >= len(law):
+        # A precomputed continuation that takes over before a new plan could, for the lightest payload that covers
+        # the estimate; else a new plan.
+        ready = [
+            (start, mass_, continued)
+            for start, mass_, continued in _CONTINUATIONS.get(law, ())
+            if index <= start < takeover and payload <= mass_ < self._law_mass - REPLAN_STEP
+        ]
+        if ready:
+            _, self._law_mass, retimed = min(ready, key=lambda entry: (entry[0], entry[1]))
+        else:
+            self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
+            retimed = self._continued(shape, law, takeover, payload)
+        if retimed is None:
             return None
         self._law = retimed
         return retimed
 
+
+_CONTINUATIONS: weakref.WeakKeyDictionary[TimeLaw, list[tuple[int, float, TimeLaw]]] = weakref.WeakKeyDictionary()
+"""Precomputed continuations of online carries' laws (:meth:`PayloadTiming._continuations`)."""
 
 _PLANS: weakref.WeakKeyDictionary[TimeOptimalPlanner, dict[tuple, TimeLaw]] = weakref.WeakKeyDictionary()
 """Laws already planned, per planner (at most :data:`MAX_CACHED_PLANS` each)."""

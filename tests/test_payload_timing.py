@@ -15,6 +15,8 @@ from controllers.feedforward import OracleController
 from controllers.payload_timing import (
     ESTIMATE_MARGIN,
     ESTIMATE_SIGMAS,
+    PLANNING_LATENCY,
+    PRECOMPUTED_PAYLOADS,
     REPLAN_STEP,
     SETTLED_STD,
     EstimatingController,
@@ -102,18 +104,24 @@ def test_online_retimes_a_carry_once_the_estimate_has_settled(planner: TimeOptim
     assert timing.retime(CARRY, law, 20) is None  # not settled yet
     std = 0.05
     estimator.rls.variance = std**2
-    retimed = timing.retime(CARRY, law, 20)
-    assert retimed is not None and len(retimed) < len(law)
-    for name in ("tau", "tau_dot", "tau_ddot"):
-        np.testing.assert_array_equal(getattr(retimed, name)[:21], getattr(law, name)[:21])
     planned = 0.5 + ESTIMATE_SIGMAS * std + ESTIMATE_MARGIN
-    assert retimed.payload == pytest.approx(planned)
+    # settled at sample 20: the continuation precomputed from 20 ms on for the lightest grid payload above the
+    # estimate's bound (1 kg) takes over at once
+    first = timing.retime(CARRY, law, 20)
+    assert first is not None and first.payload == min(p for p in PRECOMPUTED_PAYLOADS if p >= planned)
+    assert len(first) < len(law)
+    for name in ("tau", "tau_dot", "tau_ddot"):
+        np.testing.assert_array_equal(getattr(first, name)[:21], getattr(law, name)[:21])
+    # then a plan for the bound itself, from PLANNING_LATENCY later on
+    refined = timing.retime(CARRY, first, 21)
+    takeover = 21 + round(PLANNING_LATENCY / law.dt)
+    assert refined is not None and refined.payload == pytest.approx(planned) and len(refined) < len(first)
+    np.testing.assert_array_equal(refined.tau[: takeover + 1], first.tau[: takeover + 1])
     # the same estimate again: no new plan; a lighter one by more than a step: a new plan
-    assert timing.retime(CARRY, retimed, 21) is None
+    assert timing.retime(CARRY, refined, 22) is None
     estimator.mass = 0.5 - 2.0 * REPLAN_STEP
-    again = timing.retime(CARRY, retimed, 22)
-    assert again is not None and len(again) <= len(retimed)
-    np.testing.assert_array_equal(again.tau[:23], retimed.tau[:23])
+    again = timing.retime(CARRY, refined, 23)
+    assert again is not None and len(again) <= len(refined)
 
 
 def test_bad_arguments_are_refused(planner: TimeOptimalPlanner) -> None:
@@ -213,3 +221,4 @@ def test_every_carry_starts_afresh_on_the_heaviest_objects_plan(planner: TimeOpt
     estimator.mass = 3.0
     retimed = timing.retime(CARRY, second, 0)
     assert retimed is not None and retimed.payload == pytest.approx(3.0 + 0.01 + ESTIMATE_MARGIN)
+    assert len(retimed) < len(second)
