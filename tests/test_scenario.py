@@ -13,8 +13,9 @@ from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
 from delta_env.scenario import Condition, PickPlaceTask, Scenario, preset, preset_names, resolve_scenario
+from eval.tasks import timed
 
-PRESETS = ("heavy", "nominal", "paper", "randomized", "stress-6g", "worn")
+PRESETS = ("heavy", "nominal", "paper", "pick-rate", "randomized", "stress-6g", "worn")
 
 
 def unusual_scenario() -> Scenario:
@@ -98,7 +99,7 @@ def test_bad_fields_are_errors_naming_the_field(text: str, message: str) -> None
 
 def test_unknown_preset_lists_the_presets() -> None:
     assert preset_names() == sorted(PRESETS)
-    with pytest.raises(ValueError, match="heavy, nominal, paper, randomized, stress-6g, worn"):
+    with pytest.raises(ValueError, match="heavy, nominal, paper, pick-rate, randomized, stress-6g, worn"):
         resolve_scenario("nominl")
     with pytest.raises(ValueError, match="no such file"):
         resolve_scenario("missing/dir/cell.toml")
@@ -152,7 +153,7 @@ def test_worn_condition_changes_the_physics_not_the_plant() -> None:
 
 
 @pytest.mark.parametrize("name", PRESETS)
-def test_every_preset_builds_and_runs_a_short_episode(name: str) -> None:
+def test_every_preset_builds_and_runs_a_short_episode(name: str, controller_setup) -> None:
     env = gym.make("DeltaPickPlace-v0", scenario=name, n_cycles=1).unwrapped
     scenario = preset(name)
     assert env.n_cycles == 1  # the keyword overrides the scenario's field
@@ -163,6 +164,8 @@ def test_every_preset_builds_and_runs_a_short_episode(name: str) -> None:
     )
     assert env.domain_randomization == scenario.task.domain_randomization
     controller = PDController(3000.0, 60.0)
+    if scenario.task.timing != "fixed":  # a planned timing plans on the identified model: the evaluation gives it
+        controller = timed(env, controller, "pd", controller_setup)
     observation, info = env.reset(seed=3)
     low, high = scenario.task.payload_mass_range
     assert np.all((info["payload_masses"] >= low) & (info["payload_masses"] <= high))
