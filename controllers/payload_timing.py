@@ -1,21 +1,22 @@
 """Payload-adaptive timing of pick-and-place moves (docs/design.md section 9): how a cell decides how fast to move.
 
 A :class:`PayloadTiming` implements :class:`delta_env.timing.MoveTiming` with the time-optimal planner of
-:mod:`controllers.timing` on the identified model. Every move is also kept within the drive's thermal rating:
-by the model, the RMS torque of each joint over the move and the dwell that follows it (holding the move's end
-point) stays below the rated torque less :data:`THERMAL_MARGIN`, so any sequence of moves and dwells does; a move
-that would exceed it is planned within a smaller share of the envelope (``torque_scale``, found by bisection),
-which cools better than waiting: the squared torque of a move falls like its duration to the -3. Empty moves are
-timed for the empty gripper; carries by mode:
+:mod:`controllers.timing` on the identified model, within a share of the drive's envelope (the task's torque
+share, the margin for tracking). Every move also keeps the drive's thermal rating: by the model, the RMS torque
+of each joint over the move and the dwell that follows it (holding the move's end point) stays below the rated
+torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned within a smaller share of the envelope
+(bisection), which cools better than waiting. Empty moves are timed for the empty gripper; carries by mode:
 
 - ``"worst_case"``: every carry for the task's heaviest object, as an industrial controller does when its
   objects are not weighed (or its payload not declared): the best a cell can do without knowing the mass;
 - ``"declared"``: each carry for its object's true mass, as a per-object payload schedule would give: the
   reference a payload estimate can at best reach, not a controller;
 - ``"online"``: a carry starts on the plan for the heaviest object; once the payload estimator (the
-  controller's RLS) has settled, the rest of the carry is replanned for the estimate plus its uncertainty and a
-  margin, from the state the carry has reached (the past is kept, the continuation is C2). It may replan again
-  as the estimate tightens, but only to a lighter mass by at least :data:`REPLAN_STEP`.
+  controller's RLS) has settled, the rest of the carry continues on a plan for the estimate plus its
+  uncertainty and a margin, from the state the carry has reached (the past is kept, the continuation is C2):
+  at once if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else after the planner's
+  time (:data:`PLANNING_LATENCY`). It may replan again as the estimate tightens, by at least
+  :data:`REPLAN_STEP`.
 """
 
 from __future__ import annotations
