@@ -26,8 +26,8 @@ from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
 from delta_env.timing import MoveTiming
-from delta_env.trajectories import Trajectory
-from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
+from delta_env.trajectories import Trajectory, require_peak_acceleration
+from delta_env.validation import require_count, require_in, require_instance, require_interval
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -135,7 +135,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``n_cycles`` | int | 3 | pick-and-place cycles per episode, >= 1 |
     | ``cycle`` | str | ``"conveyor"`` | random conveyor points, or ``"standard"`` 25/305/25 mm |
     | ``start`` | str | ``"place"`` | at rest at a place point, then an empty move to the first pick; or ``"pick"`` |
-    | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2) |
+    | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2), at most 30 g |
     | ``payload_mass_range`` | (float, float) | (0.0, 4.0) | object masses drawn from U[low, high] (kg), in [0, 20] |
     | ``domain_randomization`` | RandomizationRanges, None | None (off) | per-episode perturbation of the plant |
     | ``reward_weights`` | RewardWeights, None | None = ``RewardWeights()`` | weights of the reward terms |
@@ -191,7 +191,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
         require_start(start)
-        require_positive("peak_acceleration", peak_acceleration, "m/s^2")
+        require_peak_acceleration(peak_acceleration)
         low, high = require_interval("payload_mass_range", payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
         if plant is not None:
             require_instance("plant", plant, PlantConfig)

@@ -79,6 +79,10 @@ def test_a_file_without_a_name_is_named_after_its_stem(tmp_path) -> None:
         ("[task]\ncycle = 'circle'\n", "task.cycle must be one of 'conveyor', 'standard'"),
         ("[task]\nstart = 'home'\n", "task.start must be one of 'place', 'pick', got 'home'"),
         ("[task]\npeak_acceleration = true\n", "task.peak_acceleration must be a number"),
+        (
+            "[task]\npeak_acceleration = 981.0\n",
+            "task: peak_acceleration must be a finite number in (0, 294.3] m/s^2, got 981.0",
+        ),
         ("[task]\npayload_mass_range = [0.0, 30.0]\n", "task: payload_mass_range must be a pair 0 <= min <= max <= 20"),
         ("[task.domain_randomization]\nmass_fraction = 0.95\n", "task.domain_randomization: mass_fraction must be"),
         ("[condition]\nfriction_scale = 0.0\n", "condition: friction_scale must be a finite number in (0, 10]"),
