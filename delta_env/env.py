@@ -432,12 +432,19 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if self._episode_over or self.trajectory is None:
             reason = "the episode has ended" if self._episode_over else "no episode started"
             raise RuntimeError(f"call reset() before step(): {reason}")
-        torque = np.asarray(action, dtype=float)
+        try:
+            raw = np.asarray(action)
+        except ValueError:  # a ragged sequence
+            raw = None
+        # integer and floating kinds only: bool, complex, str and object actions are refused before converting
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
+        torque = np.asarray(raw, dtype=float)
         if torque.shape != (3,):
-            raise ValueError(f"action must be 3 motor torques (N m), got shape {torque.shape}")
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got shape {torque.shape}")
         t0, t1, t2 = torque.tolist()
         if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
-            raise ValueError(f"action must be 3 finite motor torques (N m), got {action!r}")
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
         # The drive's envelope at the true joint speeds at the start of the step (it measures its own motor).
         plant = self.plant
         qvel = plant.data.qvel
