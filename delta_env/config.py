@@ -40,6 +40,10 @@ MAX_PAYLOAD_MASS = 5.0 * RATED_PAYLOAD
 MAX_SCALE = 10.0
 """Largest per-joint friction multiplier accepted (dimensionless)."""
 
+MAX_VISCOUS = 1000.0
+"""Largest viscous friction coefficient accepted (N m s/rad), of the plant and of an identified model: at 1 rad/s
+it is 2.5x the drive's peak torque. Coulomb friction is bounded by the peak torque TORQUE_LIMIT itself."""
+
 MAX_LAG = 0.1
 """Largest current-loop time constant accepted (s)."""
 
@@ -85,7 +89,7 @@ class PlantRealism:
 
     def __post_init__(self) -> None:
         require_in("armature", self.armature, 0.0, 10.0, unit="kg m^2")
-        require_in("viscous", self.viscous, 0.0, 1000.0, unit="N m s/rad")
+        require_in("viscous", self.viscous, 0.0, MAX_VISCOUS, unit="N m s/rad")
         require_joint_vector("viscous_scale", self.viscous_scale, 0.0, MAX_SCALE, low_open=True)
         require_in("coulomb", self.coulomb, 0.0, TORQUE_LIMIT, unit="N m")
         require_joint_vector("coulomb_scale", self.coulomb_scale, 0.0, MAX_SCALE, low_open=True)
