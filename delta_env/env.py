@@ -24,7 +24,7 @@ from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standa
 from delta_env.drive import clip_to_envelope
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
-from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
+from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
 from delta_env.trajectories import Trajectory, require_peak_acceleration
 from delta_env.validation import require_count, require_in, require_instance, require_interval
@@ -223,9 +223,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._torque_weight = self.reward_weights.torque
 
         timestep = self.plant.model.opt.timestep
-        self.n_substeps = round(CONTROL_PERIOD / timestep)
-        if not np.isclose(self.n_substeps * timestep, CONTROL_PERIOD):
-            raise ValueError(f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s")
+        self.n_substeps = control_substeps(timestep)
         realism = self.plant_config.realism
         self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
         self._torque_noise_std = realism.torque_noise_std
