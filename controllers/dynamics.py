@@ -36,16 +36,22 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
+from delta_env.config import MAX_VISCOUS
 from delta_env.geometry import (
     CHAIN_COS,
     CHAIN_SIN,
     GRAVITY,
     NOMINAL_GEOMETRY,
     NOMINAL_MASSES,
+    TORQUE_LIMIT,
     DeltaGeometry,
     DeltaMasses,
 )
-from delta_env.validation import require_in, require_positive
+from delta_env.validation import require_in
+
+MAX_RHO = 10.0
+"""Largest rho1, rho2 accepted (dimensionless): identified values lie near 1-2 (the paper's grid spans
+[0.5, 3]); 10x the model's inertia or gravity torque means the model, not the parameter, is wrong."""
 
 
 @dataclass(frozen=True)
@@ -53,10 +59,10 @@ class ModelParameters:
     """Identified corrections to MKH (docs/design.md sections 3 and 7); the defaults give plain MKH.
 
     Attributes:
-        rho1: Scale of the joint inertia I (dimensionless, > 0): the forearms' missing inertia.
-        rho2: Scale of the gravity torque G (dimensionless, > 0): the missing potential energy.
-        viscous: Viscous friction fv_i per joint (N m s/rad, >= 0).
-        coulomb: Coulomb friction fc_i per joint (N m, >= 0).
+        rho1: Scale of the joint inertia I (dimensionless, in (0, MAX_RHO]): the forearms' missing inertia.
+        rho2: Scale of the gravity torque G (dimensionless, in (0, MAX_RHO]): the missing potential energy.
+        viscous: Viscous friction fv_i per joint (N m s/rad, in [0, MAX_VISCOUS], as the plant's).
+        coulomb: Coulomb friction fc_i per joint (N m, in [0, TORQUE_LIMIT]: more and the drive could not move it).
     """
 
     rho1: float = 1.0
@@ -65,14 +71,14 @@ class ModelParameters:
     coulomb: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        require_positive("rho1", self.rho1)
-        require_positive("rho2", self.rho2)
-        for name in ("viscous", "coulomb"):
+        require_in("rho1", self.rho1, 0.0, MAX_RHO, low_open=True)
+        require_in("rho2", self.rho2, 0.0, MAX_RHO, low_open=True)
+        for name, high, unit in (("viscous", MAX_VISCOUS, "N m s/rad"), ("coulomb", TORQUE_LIMIT, "N m")):
             values = tuple(float(v) for v in getattr(self, name))
             if len(values) != 3:
                 raise ValueError(f"{name} must have one value per joint (3), got {getattr(self, name)!r}")
             for joint, value in enumerate(values, start=1):
-                require_in(f"{name}[{joint}]", value, 0.0)
+                require_in(f"{name}[{joint}]", value, 0.0, high, unit=unit)
             object.__setattr__(self, name, values)
 
 

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from delta_env.drive import DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
-from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP
+from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, PHYSICS_TIMESTEP, control_substeps
 from delta_env.validation import require_count, require_in, require_instance, require_interval, require_joint_vector
 
 FOREARM_SPACING = 0.10
@@ -39,6 +39,10 @@ MAX_PAYLOAD_MASS = 5.0 * RATED_PAYLOAD
 
 MAX_SCALE = 10.0
 """Largest per-joint friction multiplier accepted (dimensionless)."""
+
+MAX_VISCOUS = 1000.0
+"""Largest viscous friction coefficient accepted (N m s/rad), of the plant and of an identified model: at 1 rad/s
+it is 2.5x the drive's peak torque. Coulomb friction is bounded by the peak torque TORQUE_LIMIT itself."""
 
 MAX_LAG = 0.1
 """Largest current-loop time constant accepted (s)."""
@@ -85,7 +89,7 @@ class PlantRealism:
 
     def __post_init__(self) -> None:
         require_in("armature", self.armature, 0.0, 10.0, unit="kg m^2")
-        require_in("viscous", self.viscous, 0.0, 1000.0, unit="N m s/rad")
+        require_in("viscous", self.viscous, 0.0, MAX_VISCOUS, unit="N m s/rad")
         require_joint_vector("viscous_scale", self.viscous_scale, 0.0, MAX_SCALE, low_open=True)
         require_in("coulomb", self.coulomb, 0.0, TORQUE_LIMIT, unit="N m")
         require_joint_vector("coulomb_scale", self.coulomb_scale, 0.0, MAX_SCALE, low_open=True)
@@ -141,8 +145,8 @@ class PlantConfig:
         variant: ``"ideal"`` (MKH assumptions, for validation) or ``"realistic"`` (parallelograms).
         realism: Drive effects; the ideal variant requires them off on the plant side
             (use :meth:`PlantConfig.ideal`).
-        timestep: Physics timestep (s) in [1e-5, 2e-3]; 0.5 ms holds the loops closed
-            (docs/design.md section 4).
+        timestep: Physics timestep (s) in [1e-5, CONTROL_PERIOD] that divides CONTROL_PERIOD (1 ms / n);
+            0.5 ms holds the loops closed (docs/design.md section 4).
         payload_body: Include the pick-and-place payload body and its ``suction`` weld.
         drive: Torque-speed envelope and thermal limit of each joint's drive; MuJoCo's ``ctrlrange`` is its
             peak torque, the env enforces the rest.
@@ -168,7 +172,8 @@ class PlantConfig:
                 "ripple_amplitude and actuator_lag must be 0 (use PlantConfig.ideal() or PlantRealism.off())"
             )
         _ = self.geometry.home_height  # raises ValueError if the robot cannot assemble with its arms horizontal
-        require_in("timestep", self.timestep, 1e-5, 2e-3, unit="s")
+        require_in("timestep", self.timestep, 1e-5, CONTROL_PERIOD, unit="s")
+        control_substeps(self.timestep)  # the env's check, so that a scenario is refused as the env would
         if not isinstance(self.payload_body, bool):
             raise ValueError(f"payload_body must be a bool, got {self.payload_body!r}")
         require_instance("drive", self.drive, DriveLimits)

@@ -27,10 +27,11 @@ from delta_env.trajectories import (
     WORKING_HEIGHT,
     Segment,
     Trajectory,
+    require_peak_acceleration,
     require_sample_period,
     sample_segments,
 )
-from delta_env.validation import require_count, require_generator, require_in, require_interval, require_positive
+from delta_env.validation import require_count, require_generator, require_in, require_interval
 
 STANDARD_LIFT = 0.025
 """Lift and descent of the industry's 25/305/25 mm test cycle (m)."""
@@ -47,7 +48,7 @@ class _Profile:
     """The timing and shape every move of a cycle shares (validated on construction).
 
     Attributes:
-        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
+        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), in (0, MAX_PEAK_ACCELERATION].
         lift_height: Lift above the higher of the two stations of a move (m), >= 0.
         lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
         dwell: Rest at each pick and place point (s), >= 2 dt.
@@ -62,7 +63,7 @@ class _Profile:
 
     def __post_init__(self) -> None:
         require_sample_period(self.dt)
-        require_positive("peak_acceleration", self.peak_acceleration, "m/s^2")
+        require_peak_acceleration(self.peak_acceleration)
         require_in("lift_height", self.lift_height, 0.0, unit="m")
         require_in("lift_fraction", self.lift_fraction, 0.0, 0.5, low_open=True)
         require_in("dwell", self.dwell, 2.0 * self.dt, unit="s (2 dt and up)")
@@ -132,7 +133,7 @@ def standard_cycle(
 
     Args:
         geometry: Robot geometry.
-        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
+        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), in (0, MAX_PEAK_ACCELERATION].
         n_cycles: Number of pick-and-place cycles, >= 1.
         center: Midpoint between the pick and the place point (m).
         heading: Direction of travel from pick to place in the xy plane (rad from +x); the default
@@ -194,7 +195,7 @@ def conveyor_cycles(
             ``start="place"`` only) the starting place point: ``start="pick"`` draws what it drew before the
             option existed, so earlier seeded runs repeat.
         n_cycles: Number of pick-and-place cycles, >= 1.
-        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), > 0.
+        peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), in (0, MAX_PEAK_ACCELERATION].
         pick_zone: Where objects are picked.
         place_zone: Where objects are placed.
         lift_height: Lift above the higher of the two stations of a move (m), >= 0.

@@ -24,10 +24,10 @@ from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standa
 from delta_env.drive import clip_to_envelope
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
-from delta_env.sensors import CONTROL_PERIOD, encoder_resolution
+from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
-from delta_env.trajectories import Trajectory
-from delta_env.validation import require_count, require_in, require_instance, require_interval, require_positive
+from delta_env.trajectories import Trajectory, require_peak_acceleration
+from delta_env.validation import require_count, require_in, require_instance, require_interval
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -135,7 +135,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``n_cycles`` | int | 3 | pick-and-place cycles per episode, >= 1 |
     | ``cycle`` | str | ``"conveyor"`` | random conveyor points, or ``"standard"`` 25/305/25 mm |
     | ``start`` | str | ``"place"`` | at rest at a place point, then an empty move to the first pick; or ``"pick"`` |
-    | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2) |
+    | ``peak_acceleration`` | float | 3 g = 29.43 | peak Cartesian acceleration of the reference (m/s^2), at most 30 g |
     | ``payload_mass_range`` | (float, float) | (0.0, 4.0) | object masses drawn from U[low, high] (kg), in [0, 20] |
     | ``domain_randomization`` | RandomizationRanges, None | None (off) | per-episode perturbation of the plant |
     | ``reward_weights`` | RewardWeights, None | None = ``RewardWeights()`` | weights of the reward terms |
@@ -191,7 +191,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
         require_start(start)
-        require_positive("peak_acceleration", peak_acceleration, "m/s^2")
+        require_peak_acceleration(peak_acceleration)
         low, high = require_interval("payload_mass_range", payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
         if plant is not None:
             require_instance("plant", plant, PlantConfig)
@@ -223,9 +223,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._torque_weight = self.reward_weights.torque
 
         timestep = self.plant.model.opt.timestep
-        self.n_substeps = round(CONTROL_PERIOD / timestep)
-        if not np.isclose(self.n_substeps * timestep, CONTROL_PERIOD):
-            raise ValueError(f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s")
+        self.n_substeps = control_substeps(timestep)
         realism = self.plant_config.realism
         self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
         self._torque_noise_std = realism.torque_noise_std
@@ -432,12 +430,19 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if self._episode_over or self.trajectory is None:
             reason = "the episode has ended" if self._episode_over else "no episode started"
             raise RuntimeError(f"call reset() before step(): {reason}")
-        torque = np.asarray(action, dtype=float)
+        try:
+            raw = np.asarray(action)
+        except ValueError:  # a ragged sequence
+            raw = None
+        # integer and floating kinds only: bool, complex, str and object actions are refused before converting
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
+        torque = np.asarray(raw, dtype=float)
         if torque.shape != (3,):
-            raise ValueError(f"action must be 3 motor torques (N m), got shape {torque.shape}")
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got shape {torque.shape}")
         t0, t1, t2 = torque.tolist()
         if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
-            raise ValueError(f"action must be 3 finite motor torques (N m), got {action!r}")
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
         # The drive's envelope at the true joint speeds at the start of the step (it measures its own motor).
         plant = self.plant
         qvel = plant.data.qvel

@@ -19,6 +19,7 @@ from delta_env.trajectories import (
     WORKING_HEIGHT,
     Segment,
     Trajectory,
+    require_peak_acceleration,
     require_sample_period,
     sample_segments,
 )
@@ -63,7 +64,7 @@ def excitation_trajectory(
         geometry: Robot geometry.
         rng: Source of all randomness.
         duration: Length of the trajectory (s), > 0.
-        peak_acceleration: Largest peak |xdd| of a move (m/s^2), > 0.
+        peak_acceleration: Largest peak |xdd| of a move (m/s^2), in (0, MAX_PEAK_ACCELERATION = 30 g].
         start: Initial rest position (m), inside ``limits``.
         min_acceleration_fraction: Smallest peak |xdd| of a fast move, relative, in (0, 1].
         edge_fraction: Probability that a fast move ends on the workspace edge, in [0, 1].
@@ -80,7 +81,7 @@ def excitation_trajectory(
     require_generator(rng)
     require_sample_period(dt)
     require_positive("duration", duration, "s")
-    require_positive("peak_acceleration", peak_acceleration, "m/s^2")
+    require_peak_acceleration(peak_acceleration)
     require_in("min_acceleration_fraction", min_acceleration_fraction, 0.0, 1.0, low_open=True)
     require_in("edge_fraction", edge_fraction, 0.0, 1.0)
     require_in("slow_fraction", slow_fraction, 0.0, 1.0)

@@ -62,17 +62,38 @@ def forward(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
 
 
 def inverse(geometry: DeltaGeometry, xyz: ArrayLike) -> NDArray[np.float64]:
-    """Motor angles (rad) of the elbow-out branch for a platform position (m).
+    """Motor angles (rad) of the elbow-out branch for a platform position (m), ``(..., 3)``.
+
+    The result is the one :func:`forward` inverts: ``forward(geometry, inverse(geometry, p))`` is ``p``.
+    Vectorized over a batch of points, it raises on the first inadmissible point rather than returning
+    NaN rows; :func:`elbow_out_angles` is the NaN-returning form (NaN where a chain cannot reach).
 
     Raises:
-        ValueError: naming the point if it lies outside the reachable workspace.
+        ValueError: naming the point and why, if it is on or above the base plane (z >= 0), out of every
+            chain's reach, or above the plane of the elbows the angles give (forward kinematics, which
+            takes the lower intersection of the forearm spheres, would return another point).
     """
     xyz = require_vectors("xyz", xyz)
+    above = xyz[..., 2] >= 0.0
+    if np.any(above):
+        point = xyz[tuple(np.argwhere(above)[0])] if xyz.ndim > 1 else xyz
+        raise ValueError(f"point {np.round(point, 6).tolist()} m is on or above the base plane: z must be < 0 m (z up)")
     theta = elbow_out_angles(geometry, xyz)
     unreachable = np.any(np.isnan(theta), axis=-1)
     if np.any(unreachable):
         point = xyz[tuple(np.argwhere(unreachable)[0])] if xyz.ndim > 1 else xyz
         raise ValueError(f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}")
+    # forward() returns the intersection below the elbows' plane (normal turned to point down)
+    elbows = elbow_points(geometry, theta)
+    normal = np.cross(elbows[..., 0, :] - elbows[..., 2, :], elbows[..., 1, :] - elbows[..., 2, :])
+    side = np.sum((xyz - elbows[..., 2, :]) * normal, axis=-1) * np.where(normal[..., 2] > 0.0, -1.0, 1.0)
+    upper = side < 0.0
+    if np.any(upper):
+        point = xyz[tuple(np.argwhere(upper)[0])] if xyz.ndim > 1 else xyz
+        raise ValueError(
+            f"point {np.round(point, 6).tolist()} m is outside the reachable workspace of {geometry}: "
+            "it lies above the plane of the elbows (the upper assembly mode, which forward kinematics excludes)"
+        )
     return theta
 
 

@@ -60,7 +60,8 @@ from delta_env.cycles import require_start
 from delta_env.drive import DriveLimits
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.timing import DEFAULT_TORQUE_SHARE
-from delta_env.validation import require_count, require_in, require_interval, require_positive
+from delta_env.trajectories import require_peak_acceleration
+from delta_env.validation import require_count, require_in, require_interval
 
 NONE_MARKER = "none"
 """How a TOML file writes an optional field's None (TOML has no null)."""
@@ -118,7 +119,7 @@ class PickPlaceTask:
         start: ``"place"`` (the episode starts at rest at a place point, where a previous object was released, and
             arches empty to the first pick point: a window of continuous work) or ``"pick"`` (it starts at rest at
             the first pick point).
-        peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2).
+        peak_acceleration: Peak Cartesian acceleration of the reference (m/s^2), in (0, MAX_PEAK_ACCELERATION = 30 g].
         payload_mass_range: Object masses (kg) are drawn per pick from U[low, high]; low = high fixes them.
         domain_randomization: Per-episode perturbation of the plant, or None (off).
         timing: How moves are timed: ``"fixed"`` at ``peak_acceleration``, or by the time-optimal planner on the
@@ -147,7 +148,7 @@ class PickPlaceTask:
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {self.cycle!r}")
         require_count("n_cycles", self.n_cycles)
         require_start(self.start)
-        require_positive("peak_acceleration", self.peak_acceleration, unit="m/s^2")
+        require_peak_acceleration(self.peak_acceleration)
         require_interval("payload_mass_range", self.payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
         if self.domain_randomization is not None and not isinstance(self.domain_randomization, RandomizationRanges):
             raise ValueError(

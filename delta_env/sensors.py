@@ -26,6 +26,23 @@ PHYSICS_TIMESTEP = CONTROL_PERIOD / 2
 """Default physics timestep h of the plant (s), :attr:`PlantConfig.timestep <delta_env.config.PlantConfig>`:
 two MuJoCo steps per control period, which holds the kinematic loops closed (docs/design.md section 4)."""
 
+
+def control_substeps(timestep: float) -> int:
+    """Physics steps of ``timestep`` (s) per control period, else ``ValueError`` if it does not divide the period.
+
+    The one check of the timestep against :data:`CONTROL_PERIOD`: the env applies it to its model and
+    :class:`~delta_env.config.PlantConfig` (so a scenario file) to its ``timestep``. "Divides" is within the
+    tolerance of ``numpy.isclose`` (1e-8 s + 1e-5 of the period).
+    """
+    n_substeps = round(CONTROL_PERIOD / timestep)
+    if not abs(n_substeps * timestep - CONTROL_PERIOD) <= 1e-8 + 1e-5 * CONTROL_PERIOD:
+        raise ValueError(
+            f"the physics timestep {timestep} s must divide the control period {CONTROL_PERIOD} s "
+            f"(timestep = {CONTROL_PERIOD} s / n for an integer n >= 1)"
+        )
+    return n_substeps
+
+
 MEASURED_TORQUE_DELAY = PHYSICS_TIMESTEP
 """Age of a measured motor torque relative to the encoder sample it comes with (s): one physics step h.
 

@@ -43,6 +43,12 @@ STANDARD_PEAK_ACCELERATION = 3.0 * GRAVITY
 STRESS_PEAK_ACCELERATION = 6.0 * GRAVITY
 """Stress preset and default for excitation trajectories (m/s^2), 6 g (docs/design.md sections 4, 7)."""
 
+MAX_PEAK_ACCELERATION = 30.0 * GRAVITY
+"""Largest peak Cartesian acceleration (m/s^2), 30 g, accepted by the env, a scenario's task, the cycles and the
+excitation trajectories (one check: :func:`require_peak_acceleration`). Beyond what any suction gripper holds,
+and far beyond what the drive follows on this robot: the 400 N m torque limit caps the standard cycle with the
+design payload at about 16-18 g (eval/design/performance.py), the stress preset and excitation use 6 g."""
+
 WORKING_HEIGHT = -0.9
 """Height of the conveyors (m), in the middle of the work zone (docs/design.md section 4)."""
 
@@ -53,6 +59,11 @@ QUINTIC_PEAK_SPEED = 1.875
 """Largest ds/dtau of the quintic blend, at tau = 1/2."""
 
 _SHAPE_GRID = 4001  # samples of a unit-time move shape; locates its peak |xdd| to ~1e-6 relative
+
+
+def require_peak_acceleration(value: float) -> float:
+    """``value`` (m/s^2) if it lies in (0, MAX_PEAK_ACCELERATION], else ``ValueError`` naming the range."""
+    return require_in("peak_acceleration", value, 0.0, MAX_PEAK_ACCELERATION, unit="m/s^2", low_open=True)
 
 
 def require_sample_period(dt: float) -> float:

@@ -233,12 +233,21 @@ def test_bad_angles_raise(method, theta, message) -> None:
         ({"rho2": -1.0}, "rho2"),
         ({"rho1": float("nan")}, "rho1"),
         ({"viscous": (1.0, 2.0)}, "viscous"),
-        ({"coulomb": (1.0, -2.0, 1.0)}, r"coulomb\[2\]"),
+        ({"coulomb": (1.0, -2.0, 1.0)}, r"coulomb\[2\] must be a finite number in \[0, 400\] N m, got -2.0"),
+        ({"coulomb": (1.0, 1e6, 1.0)}, r"coulomb\[2\] must be a finite number in \[0, 400\] N m, got 1000000.0"),
+        ({"viscous": (1.0, 1.0, 1e4)}, r"viscous\[3\] must be a finite number in \[0, 1000\] N m s/rad, got 10000.0"),
+        ({"rho1": 11.0}, r"rho1 must be a finite number in \(0, 10\], got 11.0"),
+        ({"rho2": 1e3}, r"rho2 must be a finite number in \(0, 10\], got 1000.0"),
     ],
 )
 def test_bad_model_parameters_raise(kwargs, name) -> None:
     with pytest.raises(ValueError, match=name):
         ModelParameters(**kwargs)
+
+
+def test_model_parameters_at_their_bounds_are_accepted() -> None:
+    bounds = ModelParameters(rho1=10.0, rho2=10.0, viscous=(0.0, 1000.0, 1.0), coulomb=(0.0, 400.0, 4.0))
+    assert bounds.coulomb == (0.0, 400.0, 4.0) and bounds.viscous == (0.0, 1000.0, 1.0)
 
 
 @pytest.mark.parametrize(("kwargs", "name"), [({"m1": -2.0}, "m1"), ({"m0": 0.0}, "m0"), ({"g": np.inf}, "g")])

@@ -137,12 +137,46 @@ def test_pick_start_shares_the_points_and_masses_and_starts_at_the_first_pick(en
 
 @pytest.mark.parametrize(
     ("action", "message"),
-    [([np.nan, 0.0, 0.0], "finite"), ([0.0, np.inf, 0.0], "finite"), ([0.0, 0.0], "got shape")],
+    [
+        (np.array([np.nan, 0.0, 0.0]), "nan"),
+        (np.array([0.0, np.inf, 0.0]), "inf"),
+        (np.array([0.0, 0.0]), r"shape \(2,\)"),
+        (["1.0", "2.0", "3.0"], "'1.0'"),
+        (np.array(["1.0", "2.0", "3.0"]), "'1.0'"),
+        ([True, False, True], "True"),
+        (np.array([1 + 2j, 0.0, 0.0]), r"1\.\+2\.j"),
+        ([1.0, [2.0, 3.0], 4.0], r"\[2\.0, 3\.0\]"),
+        (np.array([1.0, None, 0.0], dtype=object), "None"),
+        ("abc", "'abc'"),
+    ],
 )
-def test_bad_action_raises(env: DeltaPickPlaceEnv, action: list[float], message: str) -> None:
+def test_bad_action_raises(env: DeltaPickPlaceEnv, action: object, message: str) -> None:
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=message):
-        env.step(np.array(action))
+    with pytest.raises(ValueError, match=r"action must be 3 finite real motor torques \(N m\), got .*" + message):
+        env.step(action)
+
+
+@pytest.mark.parametrize(
+    "action",
+    [
+        np.array([1.0, -2.0, 3.0]),
+        [1.0, -2.0, 3.0],
+        [1, -2, 3],
+        np.array([1, -2, 3], dtype=np.int32),
+        np.array([1.0, -2.0, 3.0], dtype=np.float32),
+        np.array([1, 2, 3], dtype=np.uint8),
+    ],
+)
+def test_real_actions_of_any_numeric_kind_step_alike(action: object) -> None:
+    """Integer and floating actions are accepted and step exactly as the float64 array of the same values."""
+    results = []
+    for given in (action, np.asarray(action, dtype=float)):
+        env = DeltaPickPlaceEnv(n_cycles=1, cycle="standard")
+        env.reset(seed=0)
+        observation, reward, *_ = env.step(given)
+        results.append((observation["joint_angles"].tolist(), reward))
+        env.close()
+    assert results[0] == results[1]
 
 
 @pytest.mark.parametrize(
@@ -168,7 +202,8 @@ def test_bad_reset_options_raise(env: DeltaPickPlaceEnv, options: dict, message:
         ({"payload_mass_range": (2.0, 1.0)}, "payload_mass_range"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"n_cycles": True}, "n_cycles must be an integer >= 1, got True"),
-        ({"peak_acceleration": 0.0}, r"peak_acceleration must be a finite number in \(0, inf\] m/s\^2"),
+        ({"peak_acceleration": 0.0}, r"peak_acceleration must be a finite number in \(0, 294.3\] m/s\^2, got 0.0"),
+        ({"peak_acceleration": 981.0}, r"peak_acceleration must be a finite number in \(0, 294.3\] m/s\^2, got 981.0"),
         ({"payload_mass_range": (0.0, 25.0)}, r"payload_mass_range must be a pair 0 <= min <= max <= 20 kg"),
         ({"plant": "realistic"}, "plant must be a PlantConfig, got str"),
         ({"divergence_penalty": -1.0}, "divergence_penalty"),

@@ -93,10 +93,34 @@ def test_singularity_measures_detect_both_types() -> None:
     assert near_serial.jacobian_condition > 1e2 * regular.jacobian_condition
 
 
+@pytest.mark.parametrize("geometry", GEOMETRIES)
+def test_inverse_either_round_trips_or_raises(geometry: DeltaGeometry) -> None:
+    """Every point inverse accepts comes back through forward within 1e-9 m; every other raises, naming it."""
+    points = np.random.default_rng(3).uniform(-1.5, 1.5, size=(3000, 3))
+    accepted = 0
+    for point in points:
+        try:
+            theta = kinematics.inverse(geometry, point)
+        except ValueError as error:
+            assert str(np.round(point, 6).tolist()) in str(error)
+            assert "base plane" in str(error) or "outside the reachable workspace" in str(error)
+            continue
+        accepted += 1
+        assert_allclose(kinematics.forward(geometry, theta), point, atol=1e-9)
+    assert accepted > 50
+    # a batch with one bad point raises too (no NaN rows from inverse; elbow_out_angles is the NaN form)
+    batch = np.vstack((reachable_points(geometry, 5), [[0.0, 0.0, 1.0]]))
+    with pytest.raises(ValueError, match=r"\[0\.0, 0\.0, 1\.0\] m is on or above the base plane: z must be < 0"):
+        kinematics.inverse(geometry, batch)
+
+
 @pytest.mark.parametrize(
     ("call", "message"),
     [
         (lambda: kinematics.inverse(NOMINAL_GEOMETRY, [0.0, 0.0, -2.0]), "outside the reachable workspace"),
+        (lambda: kinematics.inverse(NOMINAL_GEOMETRY, [0.0, 0.0, 1.0]), r"above the base plane: z must be < 0"),
+        (lambda: kinematics.inverse(NOMINAL_GEOMETRY, [0.0, 0.0, 0.0]), r"above the base plane: z must be < 0"),
+        (lambda: kinematics.inverse(NOMINAL_GEOMETRY, [-0.36, 0.72, -0.03]), "above the plane of the elbows"),
         (lambda: kinematics.inverse(NOMINAL_GEOMETRY, [0.0, 0.0]), "length 3"),
         (lambda: kinematics.forward(NOMINAL_GEOMETRY, [np.nan, 0.0, 0.0]), "finite"),
         (

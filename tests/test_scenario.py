@@ -13,6 +13,7 @@ from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
 from delta_env.scenario import Condition, PickPlaceTask, Scenario, preset, preset_names, resolve_scenario
+from delta_env.sensors import control_substeps
 from eval.tasks import timed
 
 PRESETS = ("heavy", "nominal", "paper", "pick-rate", "randomized", "stress-6g", "worn")
@@ -79,6 +80,15 @@ def test_a_file_without_a_name_is_named_after_its_stem(tmp_path) -> None:
         ("[task]\ncycle = 'circle'\n", "task.cycle must be one of 'conveyor', 'standard'"),
         ("[task]\nstart = 'home'\n", "task.start must be one of 'place', 'pick', got 'home'"),
         ("[task]\npeak_acceleration = true\n", "task.peak_acceleration must be a number"),
+        (
+            "[plant]\ntimestep = 0.0003\n",
+            "plant: the physics timestep 0.0003 s must divide the control period 0.001 s (timestep = 0.001 s / n",
+        ),
+        ("[plant]\ntimestep = 0.002\n", "plant: timestep must be a finite number in [1e-05, 0.001] s, got 0.002"),
+        (
+            "[task]\npeak_acceleration = 981.0\n",
+            "task: peak_acceleration must be a finite number in (0, 294.3] m/s^2, got 981.0",
+        ),
         ("[task]\npayload_mass_range = [0.0, 30.0]\n", "task: payload_mass_range must be a pair 0 <= min <= max <= 20"),
         ("[task.domain_randomization]\nmass_fraction = 0.95\n", "task.domain_randomization: mass_fraction must be"),
         ("[condition]\nfriction_scale = 0.0\n", "condition: friction_scale must be a finite number in (0, 10]"),
@@ -237,3 +247,19 @@ def test_geometry_file_round_trips_and_names_bad_fields(tmp_path) -> None:
     (tmp_path / "inverted.toml").write_text("[geometry]\nra = 0.05\nrb = 0.2\nl1 = 0.37\nl2 = 0.95\n")
     with pytest.raises(ValueError, match="rb"):
         load_geometry(tmp_path / "inverted.toml")
+
+
+@pytest.mark.parametrize("timestep", [0.0003, 0.0007, 0.0004])
+def test_a_timestep_the_env_refuses_is_refused_by_the_plant_config_with_the_same_message(timestep: float) -> None:
+    with pytest.raises(ValueError) as from_config:
+        PlantConfig(timestep=timestep)
+    with pytest.raises(ValueError) as from_check:
+        control_substeps(timestep)
+    assert str(from_config.value) == str(from_check.value)
+    assert f"the physics timestep {timestep} s must divide the control period 0.001 s" in str(from_check.value)
+
+
+@pytest.mark.parametrize(("timestep", "n_substeps"), [(0.001, 1), (0.0005, 2), (0.00025, 4), (1e-4, 10)])
+def test_a_timestep_that_divides_the_control_period_is_accepted(timestep: float, n_substeps: int) -> None:
+    assert PlantConfig(timestep=timestep).timestep == timestep
+    assert control_substeps(timestep) == n_substeps

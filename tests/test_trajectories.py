@@ -340,3 +340,20 @@ def test_excitation_lasts_exactly_the_requested_duration_and_ends_at_rest() -> N
     assert trajectory.duration == pytest.approx(EXCITATION_SECONDS)
     assert_array_equal(trajectory.xyz_dot[[0, -1]], 0.0)
     assert_allclose(trajectory.xyz[0], (0.0, 0.0, tr.WORKING_HEIGHT))
+
+
+@pytest.mark.parametrize(
+    "peak", [0.0, -1.0, math.nan, 100.0 * GRAVITY, math.nextafter(tr.MAX_PEAK_ACCELERATION, math.inf)]
+)
+@pytest.mark.parametrize("kind", ["standard", "conveyor", "excitation"])
+def test_a_peak_acceleration_beyond_the_limit_is_an_error_naming_the_range(kind: str, peak: float) -> None:
+    message = re.escape(f"peak_acceleration must be a finite number in (0, {tr.MAX_PEAK_ACCELERATION:g}] m/s^2")
+    with pytest.raises(ValueError, match=message):
+        build.__wrapped__(kind, peak)
+
+
+def test_the_peak_acceleration_limit_admits_every_preset() -> None:
+    assert tr.MAX_PEAK_ACCELERATION == 30.0 * GRAVITY
+    for peak in (tr.STANDARD_PEAK_ACCELERATION, tr.STRESS_PEAK_ACCELERATION, tr.MAX_PEAK_ACCELERATION):
+        assert tr.require_peak_acceleration(peak) == peak
+    assert cycles.standard_cycle(G, tr.MAX_PEAK_ACCELERATION, start="pick").duration > 0.0
