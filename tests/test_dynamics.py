@@ -236,8 +236,8 @@ def test_bad_angles_raise(method, theta, message) -> None:
         ({"coulomb": (1.0, -2.0, 1.0)}, r"coulomb\[2\] must be a finite number in \[0, 400\] N m, got -2.0"),
         ({"coulomb": (1.0, 1e6, 1.0)}, r"coulomb\[2\] must be a finite number in \[0, 400\] N m, got 1000000.0"),
         ({"viscous": (1.0, 1.0, 1e4)}, r"viscous\[3\] must be a finite number in \[0, 1000\] N m s/rad, got 10000.0"),
-        ({"rho1": 11.0}, r"rho1 must be a finite number in \(0, 10\], got 11.0"),
-        ({"rho2": 1e3}, r"rho2 must be a finite number in \(0, 10\], got 1000.0"),
+        ({"rho1": 1001.0}, r"rho1 must be a finite number in \(0, 1000\], got 1001.0"),
+        ({"rho2": 1e6}, r"rho2 must be a finite number in \(0, 1000\], got 1000000.0"),
     ],
 )
 def test_bad_model_parameters_raise(kwargs, name) -> None:

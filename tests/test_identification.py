@@ -270,8 +270,8 @@ CORRUPTIONS = {
     "rho as text": (_set("paper_mid", "rho2", "0.9"), "paper_mid.rho2 must be a finite number"),
     "rho as bool": (_set("mid", "rho1", True), "mid.rho1 must be a finite number"),
     "rho not finite": (_set("mid", "rho2", math.nan), "mid.rho2 must be a finite number"),
-    "rho zero": (_set("paper_mid_f", "rho1", 0.0), "paper_mid_f: rho1 must be a finite number in (0, 10], got 0.0"),
-    "rho too large": (_set("mid", "rho2", 50.0), "mid: rho2 must be a finite number in (0, 10], got 50.0"),
+    "rho zero": (_set("paper_mid_f", "rho1", 0.0), "paper_mid_f: rho1 must be a finite number in (0, 1000], got 0.0"),
+    "rho too large": (_set("mid", "rho2", 5000.0), "mid: rho2 must be a finite number in (0, 1000], got 5000.0"),
     "two joints": (_set("mid_f", "viscous", [1.0, 2.0]), "mid_f.viscous must be a list of 3 numbers"),
     "negative coulomb": (
         _set("mid_f", "coulomb", [4.0, 3.4, -1.0]),
