@@ -286,7 +286,7 @@ class TimeOptimalPlanner:
 
     def _joint_path(self, shape: Segment, s: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
         """q(s), dq/ds, d^2q/ds^2 (rad), each ``(len(s), 3)``, from the exact shape and inverse kinematics."""
-        unit = Segment(shape.start, shape.end, 1.0, shape.lift_height, shape.lift_fraction)
+        unit = shape.unit()
         x, dx, ddx = evaluate_segments([unit], np.zeros(len(s), dtype=int), s)
         return kinematics.cartesian_to_joint(self.dynamics.geometry, x, dx, ddx)
 

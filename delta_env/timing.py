@@ -76,7 +76,7 @@ def move_samples(shape: Segment, law: TimeLaw) -> tuple[NDArray[np.float64], NDA
 
     ``shape`` is used at unit duration, whatever its ``duration`` field says.
     """
-    unit = Segment(shape.start, shape.end, 1.0, shape.lift_height, shape.lift_fraction)
+    unit = shape.unit()
     x, dx, ddx = evaluate_segments([unit], np.zeros(len(law), dtype=int), law.tau)
     velocity = dx * law.tau_dot[:, None]
     acceleration = ddx * (law.tau_dot**2)[:, None] + dx * law.tau_ddot[:, None]

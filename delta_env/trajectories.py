@@ -208,10 +208,14 @@ class Segment:
         """A straight rest-to-rest line (no lift); ``start == end`` is a dwell."""
         return Segment(np.asarray(start, dtype=float), np.asarray(end, dtype=float), float(duration))
 
+    def unit(self) -> Segment:
+        """The same shape at unit duration: its positions at local time tau in [0, 1] are the shape x(tau)."""
+        return Segment(self.start, self.end, 1.0, self.lift_height, self.lift_fraction)
+
     def timed(self, peak_acceleration: float) -> Segment:
         """The same shape, retimed so that its peak |xdd| equals ``peak_acceleration``."""
         tau = np.linspace(0.0, 1.0, _SHAPE_GRID)
-        unit = Segment(self.start, self.end, 1.0, self.lift_height, self.lift_fraction)
+        unit = self.unit()
         _, _, acceleration = evaluate_segments([unit], np.zeros(tau.shape, dtype=int), tau)
         unit_peak = float(np.max(np.linalg.norm(acceleration, axis=-1)))
         if unit_peak == 0.0:
