@@ -366,6 +366,15 @@ class PayloadRLS:
         self._variance = prior * self.noise_variance / denominator
         return self._mass
 
+    @property
+    def state(self) -> tuple[float, float]:
+        """(mass (kg), variance (kg^2)): everything the estimator remembers."""
+        return self._mass, self._variance
+
+    @state.setter
+    def state(self, value: tuple[float, float]) -> None:
+        self._mass, self._variance = float(value[0]), float(value[1])
+
     def reset_covariance(self) -> None:
         """Restore the prior variance, keeping the estimate: call it at a pick or a release."""
         self._variance = self.initial_variance

@@ -1,10 +1,43 @@
-"""Fault detection from what a real controller sees: encoders, measured torques, its own commands, its model."""
+"""Fault detection from what a real controller sees: encoders, measured torques, its own commands, its model.
+
+:class:`FaultMonitor` checks every observation (docs/design.md section 6, "Fault monitor"):
+
+- **Sensor plausibility**, at the sample itself: a NaN or inf reading; an encoder step whose second difference
+  asks an acceleration no drive could give (:data:`ACCELERATION_FACTOR`); an encoder that repeats its reading while
+  the joint was moving several counts per sample (:data:`STUCK_SAMPLES`); a measured torque outside what a
+  first-order current loop can do between the last torque and the held command (:data:`TORQUE_MARGIN`). A reading
+  that stays implausible for :data:`DRIVE_FAULT_SAMPLES` samples is a drive that does not deliver its command.
+- **External forces** (collisions): the residual of the identified model, measured torque minus the model's
+  torque at the smoothed joint state, mapped to a platform force F = J^-T r. While the gripper holds an object of
+  unknown mass, the residual's component along the payload regressor phi is left out (an unknown mass looks
+  exactly like a force along J^T (xdd + g)).
+- **Payload consistency** (slips and drops): the apparent mass of the last few samples against the mass held since
+  the pick.
+
+The monitor hands the controller a *clean* observation: a faulty encoder reading is replaced by the reference plus
+the joint's last tracking error, a faulty torque by the current loop's prediction, so that one bad sample never
+reaches the feedback, the model or an estimator. :class:`MonitoredController` runs any controller behind a
+monitor, keeps faulty samples out of its payload estimator and reacts to a detected fault.
+"""
 
 from __future__ import annotations
 
+import collections
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Controller, Observation
+from controllers.dynamics import DeltaDynamics
+from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.payload import PayloadEstimator, residual_std
+from delta_env import kinematics
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.validation import require_in, require_positive
 
 
 @dataclass(frozen=True)
@@ -34,3 +67,415 @@ class ReportsFaults(Protocol):
     def detected_faults(self) -> Sequence[DetectedFault]:
         """The faults detected since the last reset, in time order."""
         ...
+
+
+ACCELERATION_FACTOR = 2.0
+"""An encoder step is implausible when its second difference asks more than this many times the acceleration the
+joint's own drive gives its arm at peak torque (peak / (rho1 I)): the other chains and an external force can add
+to it, but not double it (a 1000 N push on the platform adds about 300 N m at a joint)."""
+
+STUCK_COUNTS = 4.0
+"""An encoder that repeats its reading is suspect when its last step was at least this many counts."""
+
+STUCK_SAMPLES = 3
+"""Repeated readings of a suspect encoder that make it stuck."""
+
+TORQUE_MARGIN = 6.0
+"""How far (N m) a measured torque may lie outside the span between the last torque and the command held since: the
+sensor's noise (0.5 N m, so about 8 standard deviations of a difference of two readings) with room."""
+
+DRIVE_FAULT_SAMPLES = 3
+"""Consecutive implausible torques of one joint that make a drive fault rather than a sensor glitch."""
+
+MONITOR_LAG = 3
+"""Lag (readings) of the monitor's joint-state smoother: shorter than the payload estimator's, for a prompt
+collision check, at the price of a noisier residual."""
+
+FORCE_THRESHOLD = 90.0
+"""Platform force (N) beyond which the model's residual is an external force (see docs/design.md)."""
+
+COLLISION_SAMPLES = 2
+"""Consecutive samples over :data:`FORCE_THRESHOLD` that make a collision."""
+
+SLIP_MIN_MASS = 0.3
+"""Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
+
+SLIP_EVIDENCE = 12.0
+"""Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
+
+MONITOR_RESIDUAL_STD = 4.0
+"""Standard deviation (N m) of the model's residual the slip check assumes while moving: the identified model's
+error on a robot whose masses and friction differ from its identification by up to 10 and 30 % (the
+``randomized`` preset), at 6 g, rather than the payload estimator's 1.5 N m on the robot as identified."""
+
+SLIP_SETTLE = 0.03
+"""Time after the pick (s) before the mass held is trusted as a reference."""
+
+SENSOR_QUIET = 2 * SMOOTHER_LAG + 1
+"""Readings after a faulty one whose model equations (the residual here, the payload estimator's) are left out: the
+smoothed states within the smoother's lag either side of a replaced reading lean on it."""
+
+_TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
+
+
+class FaultMonitor:
+    """Checks each observation for faults and returns it cleaned; see the module docstring.
+
+    Args:
+        dynamics: The identified model (MId+F+R), for the residual and the payload regressor.
+        peak_torque: The drive's peak torque (N m).
+        drive_lag: The identified current-loop time constant per joint (s), for the torque prediction; None
+            uses 1 ms.
+        encoder_step: Encoder resolution (rad); None for ideal encoders.
+
+    Attributes:
+        events: The faults detected since the reset, in time order.
+        faulty: Whether this sample's reading (any joint, encoder or torque) was replaced.
+        collision: Whether an external force is being detected now.
+        slipped: Whether a slip was detected on this sample.
+    """
+
+    def __init__(
+        self,
+        dynamics: DeltaDynamics,
+        peak_torque: float,
+        *,
+        drive_lag: Sequence[float] | None = None,
+        encoder_step: float | None = None,
+    ) -> None:
+        require_positive("peak_torque", peak_torque, unit="N m")
+        lags = (1e-3,) * 3 if drive_lag is None else tuple(drive_lag)
+        for lag in lags:
+            require_in("drive_lag", lag, 0.0, 0.1, unit="s")
+        self.dynamics = dynamics
+        self.peak_torque = float(peak_torque)
+        arm_inertia = dynamics.parameters.rho1 * dynamics.inertia
+        step = 0.0 if encoder_step is None else float(encoder_step)
+        self.encoder_step = step
+        self._jump_bound = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
+        self._stuck_step = max(STUCK_COUNTS * step, 1e-9)
+        self._loop_gain = np.array([1.0 - math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 1.0 for lag in lags])
+        self._fast = _DelayedState(MONITOR_LAG)
+        self._slow = _DelayedState(SMOOTHER_LAG)
+        self.lag = MONITOR_LAG
+        """Readings between a sample and the collision check at it (the smoother's lag)."""
+        self._static_friction = np.array(dynamics.parameters.coulomb)
+        self.events: list[DetectedFault] = []
+        self.reset()
+
+    def reset(self) -> None:
+        """Start an episode: no history, no events."""
+        self.events = []
+        self.faulty = False
+        self.collision = False
+        self.slipped = False
+        self._k = -1
+        self._angles: list[NDArray[np.float64]] = []  # the last two clean readings
+        self._error = np.zeros(3)  # last good tracking error per joint (rad)
+        self._raw_previous: NDArray[np.float64] | None = None
+        self._stuck = np.zeros(3, dtype=int)
+        self._encoder_bad = np.zeros(3, dtype=bool)
+        self._torque_previous: NDArray[np.float64] | None = None
+        self._torque_bad = np.zeros(3, dtype=int)
+        self._nan_active = np.zeros(6, dtype=bool)
+        self._glitch_active = np.zeros(6, dtype=bool)
+        self._drive_active = np.zeros(3, dtype=bool)
+        self._fast.reset()
+        self._slow.reset()
+        self._quiet_until = -1
+        self._over = 0
+        self._peak_force = 0.0
+        self._held_since: int | None = None
+        self._held_information = self._held_moment = 0.0
+        self._evidence = 0.0
+        self._slip_armed = False
+
+    def _detect(self, kind: str, joint: int | None, magnitude: float) -> None:
+        self.events.append(DetectedFault(kind, self._k * CONTROL_PERIOD, joint, float(magnitude)))
+
+    # -- sensors --------------------------------------------------------------------------------
+
+    def _clean_encoders(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        raw = np.asarray(observation["joint_angles"], dtype=float)
+        rates = np.asarray(observation["joint_velocities"], dtype=float)
+        reference = observation["reference_angles"]
+        bad = ~np.isfinite(raw) | ~np.isfinite(rates)
+        for joint in np.flatnonzero(bad & ~self._nan_active[:3]):
+            self._detect("sensor_nan", int(joint), math.nan)
+        self._nan_active[:3] = bad
+        if len(self._angles) == 2:
+            last, before = self._angles
+            second_difference = raw - 2.0 * last + before
+            jump = np.isfinite(raw) & (np.abs(second_difference) > self._jump_bound)
+            repeated = raw == self._raw_previous
+            moving = np.abs(last - before) >= self._stuck_step
+            self._stuck = np.where(repeated & (moving | (self._stuck > 0)), self._stuck + 1, 0)
+            stuck = self._stuck >= STUCK_SAMPLES
+            for joint in np.flatnonzero(jump & ~self._glitch_active[:3] & ~stuck):
+                self._detect("encoder_glitch", int(joint), second_difference[joint])
+            for joint in np.flatnonzero(self._stuck == STUCK_SAMPLES):
+                self._detect("encoder_stuck", int(joint), math.nan)
+            self._glitch_active[:3] = jump
+            bad |= jump | stuck
+        self._raw_previous = raw
+        clean = np.where(bad, reference + self._error, raw)
+        if bad.any() or self._encoder_bad.any():
+            # a rate from a replaced reading, or against one: the reference's, else the clean backward difference
+            difference = (clean - self._angles[0]) / CONTROL_PERIOD if self._angles else rates
+            rates = np.where(bad, observation["reference_velocities"], np.where(self._encoder_bad, difference, rates))
+        else:
+            self._error = raw - reference
+        self._error = np.where(bad, self._error, clean - reference)
+        self._encoder_bad = bad
+        self._angles = [clean, *self._angles[:1]]
+        return clean, rates
+
+    def _clean_torques(self, observation: Observation, command: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        torque = np.asarray(observation["joint_torques"], dtype=float)
+        finite = np.isfinite(torque)
+        for joint in np.flatnonzero(~finite & ~self._nan_active[3:]):
+            self._detect("sensor_nan", int(joint), math.nan)
+        self._nan_active[3:] = ~finite
+        previous = self._torque_previous
+        if previous is None or command is None:
+            clean = np.where(finite, torque, 0.0 if previous is None else previous)
+            self._torque_previous = clean
+            return clean
+        held = np.clip(command, -self.peak_torque, self.peak_torque)
+        predicted = previous + self._loop_gain * (held - previous)
+        low = np.minimum(previous, held) - TORQUE_MARGIN
+        high = np.maximum(previous, held) + TORQUE_MARGIN
+        implausible = finite & ((torque < low) | (torque > high))
+        self._torque_bad = np.where(implausible, self._torque_bad + 1, 0)
+        for joint in np.flatnonzero(self._torque_bad == 1):
+            self._detect("torque_glitch", int(joint), torque[joint] - predicted[joint])
+        short = np.abs(torque) < np.abs(predicted)
+        for joint in np.flatnonzero((self._torque_bad >= DRIVE_FAULT_SAMPLES) & short & ~self._drive_active):
+            self._detect("drive_fault", int(joint), abs(predicted[joint]) - abs(torque[joint]))
+            self._drive_active[joint] = True
+        self._drive_active &= self._torque_bad > 0
+        clean = np.where(finite & ~implausible, torque, predicted)
+        self._torque_previous = clean
+        return clean
+
+    # -- the model's residual -------------------------------------------------------------------
+
+    def _check_model(self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool) -> None:
+        quiet = self._k <= self._quiet_until
+        fast = self._fast.update(angles, torque, holding, quiet)
+        if fast is not None:
+            self._check_force(*fast)
+        slow = self._slow.update(angles, torque, holding, quiet)
+        if slow is not None:
+            state, torque_then, held_then, quiet_then = slow
+            tau0, phi = self._model_torque(state)
+            if tau0 is not None:
+                self._check_payload(torque_then - tau0, phi, state[1], held_then, quiet_then)
+
+    def _model_torque(
+        self, state: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | tuple[None, None]:
+        try:
+            return self.dynamics.torque_and_payload_regressor(*state)
+        except ValueError:  # a state the model cannot take (e.g. out of reach): no check
+            return None, None
+
+    def _check_force(self, state: NDArray[np.float64], torque: NDArray[np.float64], holding: bool, quiet: bool) -> None:
+        """The collision check on the platform force F = J^-T r, r the model's residual (without its part along
+        phi while holding)."""
+        if quiet:
+            self._over = 0
+            self.collision = False
+            return
+        tau0, phi = self._model_torque(state)
+        if tau0 is None:
+            return
+        residual = torque - tau0
+        if holding:
+            information = float(phi @ phi)
+            if information > 0.0:
+                residual = residual - (residual @ phi) / information * phi
+        try:
+            force = np.linalg.solve(kinematics.jacobian(self.dynamics.geometry, state[0]).T, residual)
+        except np.linalg.LinAlgError:
+            return
+        magnitude = float(np.linalg.norm(force))
+        if magnitude > FORCE_THRESHOLD:
+            self._over += 1
+            self._peak_force = max(self._peak_force, magnitude) if self._over > 1 else magnitude
+            if self._over == COLLISION_SAMPLES:
+                self._detect("collision", None, self._peak_force)
+                self.collision = True
+        else:
+            self._over = 0
+            self.collision = False
+
+    def _check_payload(
+        self,
+        residual: NDArray[np.float64],
+        phi: NDArray[np.float64],
+        theta_dot: NDArray[np.float64],
+        holding: bool,
+        quiet: bool,
+    ) -> None:
+        """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
+        since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it."""
+        if not holding:
+            self._held_since = None
+            return
+        if self._held_since is None:
+            self._held_since = self._k
+            self._held_information = self._held_moment = 0.0
+            self._evidence = 0.0
+            self._slip_armed = True
+        if quiet or not self._slip_armed:
+            return
+        weight = residual_std(theta_dot, self._static_friction, MONITOR_RESIDUAL_STD) ** -2
+        information = float(np.sum(weight * phi * phi))
+        moment = float(np.sum(weight * phi * residual))
+        if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
+            held = self._held_moment / self._held_information
+            if held >= SLIP_MIN_MASS:
+                self._evidence = max(0.0, self._evidence + held * (0.5 * held * information - moment))
+                if self._evidence > SLIP_EVIDENCE:
+                    self._detect("slip", None, held)
+                    self.slipped = True
+                    self._slip_armed = False
+                    return
+        self._held_information += information
+        self._held_moment += moment
+
+    # -- the step -------------------------------------------------------------------------------
+
+    def update(self, observation: Observation, command: NDArray[np.float64] | None) -> dict[str, NDArray[np.float64]]:
+        """Check one observation given the command (N m) sent after the previous one (None at the first); return
+        the clean observation (a new dict; unchanged entries shared)."""
+        self._k += 1
+        self.slipped = False
+        angles, rates = self._clean_encoders(observation)
+        torque = self._clean_torques(observation, command)
+        self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
+        if self.faulty:
+            self._quiet_until = self._k + SENSOR_QUIET
+        holding = observation["gripper"].item(0) > 0.5
+        self._check_model(angles, torque, holding)
+        clean = dict(observation)
+        clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = angles, rates, torque
+        return clean
+
+
+class _DelayedState:
+    """A joint-state smoother with the readings it lags behind: pairs each smoothed state with its sample's torque,
+    gripper and quiet flag, at the instant the torque was measured."""
+
+    def __init__(self, lag: int) -> None:
+        self._smoother = JointStateSmoother(lag=lag)
+        self.lag = lag
+        self.reset()
+
+    def reset(self) -> None:
+        self._started = False
+        self._previous: NDArray[np.float64] | None = None
+        self._pending: collections.deque[tuple[NDArray[np.float64], bool, bool]] = collections.deque()
+
+    def update(
+        self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool, quiet: bool
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], bool, bool] | None:
+        """Take one reading; return (state (3, 3) at the torque's instant, torque, holding, quiet) of the reading
+        ``lag`` samples ago, or None while the smoother fills."""
+        if not self._started:
+            self._smoother.reset(angles)
+            self._started = True
+        state = self._smoother.update_state(angles).copy()
+        previous, self._previous = self._previous, state
+        self._pending.append((torque, holding, quiet))
+        if len(self._pending) <= self.lag:
+            return None
+        torque_then, held_then, quiet_then = self._pending.popleft()
+        # the torque was measured MEASURED_TORQUE_DELAY before the encoder sample of its state
+        at_torque = state if previous is None else state - _TORQUE_AGE * (state - previous)
+        return at_torque, torque_then, held_then, quiet_then
+
+
+REACTIONS = ("continue", "slow", "stop")
+"""What a monitored controller does after detecting a collision, a slip or a drive fault: carry on, ask the cell to
+slow to :data:`SLOW_RATE` of the reference's speed, or to stop at rest on the path."""
+
+SLOW_RATE = 0.5
+"""Speed override (of the reference's speed) a ``"slow"`` reaction asks for."""
+
+REACTING_KINDS = ("collision", "slip", "drive_fault")
+"""The detected faults a reaction answers; sensor faults are replaced and the work goes on."""
+
+
+class MonitoredController:
+    """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator skips
+    faulty samples and forgets the object on a slip, and a detected fault may ask the cell to slow down or stop.
+
+    Args:
+        controller: The controller to protect.
+        monitor: Its monitor.
+        reaction: One of :data:`REACTIONS`.
+
+    Attributes:
+        requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
+            1 until a reaction asks for less.
+    """
+
+    def __init__(
+        self,
+        controller: Controller,
+        monitor: FaultMonitor,
+        reaction: Literal["continue", "slow", "stop"] = "continue",
+    ) -> None:
+        if reaction not in REACTIONS:
+            raise ValueError(f"reaction must be one of {list(REACTIONS)}, got {reaction!r}")
+        self.controller = controller
+        self.monitor = monitor
+        self.reaction = reaction
+        self.name = controller.name
+        self.requested_speed = 1.0
+        self._command: NDArray[np.float64] | None = None
+        self._checkpoints = monitor.lag + COLLISION_SAMPLES + 2
+        if self.estimator is not None:
+            self.estimator.keep_checkpoints(self._checkpoints)
+
+    @property
+    def detected_faults(self) -> Sequence[DetectedFault]:
+        return self.monitor.events
+
+    @property
+    def payload_estimate(self) -> float:
+        return getattr(self.controller, "payload_estimate", 0.0)
+
+    @property
+    def estimator(self) -> PayloadEstimator | None:
+        """The inner controller's payload estimator, or None."""
+        return getattr(self.controller, "estimator", None)
+
+    def reset(self) -> None:
+        self.controller.reset()
+        self.monitor.reset()
+        self.requested_speed = 1.0
+        self._command = None
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        monitor = self.monitor
+        seen = len(monitor.events)
+        clean = monitor.update(observation, self._command)
+        new = monitor.events[seen:]
+        estimator = self.estimator
+        if estimator is not None:
+            if any(event.kind == "collision" for event in new):
+                # the collision's first samples entered before it was detected: undo them
+                undo = min(self._checkpoints, monitor.lag - estimator.delay + COLLISION_SAMPLES + 1)
+                if undo > 0:
+                    estimator.rollback(undo)
+            if monitor.faulty or monitor.collision:
+                estimator.skip(SENSOR_QUIET)
+            if monitor.slipped:
+                estimator.drop_object()
+        if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
+            self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
+        self._command = np.asarray(self.controller(clean), dtype=float)
+        return self._command

@@ -561,6 +561,9 @@ class PayloadEstimator:
         self._reference_slot = 0
         self._has_previous_reference = False
         self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
+        self._checkpoints: NDArray[np.float64] | None = None  # (n, fit + RLS state) of the last n updates
+        self._checkpoint = 0
+        self._skip = 0
 
     @property
     def mass(self) -> float:
@@ -617,6 +620,7 @@ class PayloadEstimator:
         self._has_previous_reference = False
         self._previous_state = None
         self._history.clear()
+        self._skip = 0
 
     def _restart_fit(self) -> None:
         """The empty-move fit as an episode starts: the seeded sums, to be solved at the first carry, or nothing."""
@@ -643,10 +647,50 @@ class PayloadEstimator:
                 self.rls.reset_covariance()
             else:
                 self.rls.reset(self.tare)  # released: the object is known to be gone
+        if self._checkpoints is None:
+            moments = self.measurement(observation, reference_torque, reference_regressor)
+            if moments is not None:
+                self.rls.update_moments(*moments)
+            return self.apparent_mass
+        checkpoint = self._checkpoints[self._checkpoint]
+        self._checkpoint = (self._checkpoint + 1) % len(self._checkpoints)
+        checkpoint[:_FIT_SIZE] = self._fit
+        checkpoint[_FIT_SIZE:] = self.rls.state
         moments = self.measurement(observation, reference_torque, reference_regressor)
-        if moments is not None:
+        if self._skip > 0:
+            self._skip -= 1
+            self._fit[:] = checkpoint[:_FIT_SIZE]  # the sample entered neither the fit nor the RLS
+        elif moments is not None:
             self.rls.update_moments(*moments)
         return self.apparent_mass
+
+    def keep_checkpoints(self, samples: int) -> None:
+        """Keep the fit and RLS state of the last ``samples`` updates so that :meth:`rollback` can undo them."""
+        self._checkpoints = np.zeros((samples, _FIT_SIZE + 2))
+        self._checkpoint = 0
+
+    def skip(self, samples: int) -> None:
+        """Leave the equations of the next ``samples`` updates out of the fit and the RLS (faulty samples);
+        needs :meth:`keep_checkpoints`."""
+        if self._checkpoints is None:
+            raise RuntimeError("skip() needs keep_checkpoints()")
+        self._skip = max(self._skip, samples)
+
+    def rollback(self, samples: int) -> None:
+        """Undo the last ``samples`` updates' equations (at most the checkpoints kept): samples found faulty late."""
+        if self._checkpoints is None:
+            raise RuntimeError("rollback() needs keep_checkpoints()")
+        kept = len(self._checkpoints)
+        if not 1 <= samples <= kept:
+            raise ValueError(f"samples must be in [1, {kept}] (the checkpoints kept), got {samples!r}")
+        checkpoint = self._checkpoints[(self._checkpoint - samples) % kept]
+        self._fit[:] = checkpoint[:_FIT_SIZE]
+        self.rls.state = checkpoint[_FIT_SIZE:]
+
+    def drop_object(self) -> None:
+        """The object is gone although the gripper still holds (a detected slip): the estimate restarts at the tare
+        with the prior variance."""
+        self.rls.reset(self.tare)
 
     def measurement(
         self,

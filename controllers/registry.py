@@ -18,10 +18,13 @@ from typing import Literal
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import OracleController, model_controller
+from controllers.monitor import FaultMonitor, MonitoredController
 from controllers.payload import EmptyMoveSums, PayloadEstimator
 from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, load_residual_controller, residual_controller
+from delta_env.drive import DriveLimits
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+from delta_env.sensors import ENCODER_BITS, encoder_resolution
 
 CONTROLLER_LABELS = {
     "pd": "PD",
@@ -73,6 +76,10 @@ class ControllerSetup:
         residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
         geometry: Lengths (m) of the robot the parameters were identified on; the models are of this robot.
         masses: Datasheet masses (kg) of that robot.
+        drive: The robot's drive (its data sheet), for the fault monitor's plausibility checks.
+        encoder_bits: Its encoders' resolution (bits per revolution; None: exact), likewise.
+        fault_reaction: What the monitored rows do after detecting a collision, a slip or a drive fault
+            (:data:`controllers.monitor.REACTIONS`).
     """
 
     mid: ModelParameters
@@ -85,6 +92,9 @@ class ControllerSetup:
     residual_policy: Path | None = None
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
     masses: DeltaMasses = NOMINAL_MASSES
+    drive: DriveLimits = field(default_factory=DriveLimits)
+    encoder_bits: int | None = ENCODER_BITS
+    fault_reaction: Literal["continue", "slow", "stop"] = "continue"
 
 
 def residual_policy_path(setup: ControllerSetup) -> Path:
@@ -121,6 +131,11 @@ def build_controller(
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")
         return OracleController(env.plant_config)  # its own feedback gains: see OracleController
+    return monitored(_model_row(key, setup, label), setup)
+
+
+def _model_row(key: str, setup: ControllerSetup, label: str) -> Controller:
+    """The controller of a model-based row, without its monitor."""
     if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
         if key == "mid_f_rls_lag" and setup.drive_lag is None:
             raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
@@ -140,6 +155,21 @@ def build_controller(
     return model_controller(
         parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses
     )
+
+
+def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
+    """A fault monitor on the identified model (MId+F+R) of the robot of ``setup``, with its drive and encoders."""
+    return FaultMonitor(
+        estimation_model(setup),
+        setup.drive.peak_torque,
+        drive_lag=setup.drive_lag,
+        encoder_step=None if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits),
+    )
+
+
+def monitored(controller: Controller, setup: ControllerSetup) -> MonitoredController:
+    """``controller`` behind the :func:`fault_monitor` of ``setup``, reacting as ``setup.fault_reaction`` says."""
+    return MonitoredController(controller, fault_monitor(setup), setup.fault_reaction)
 
 
 def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:

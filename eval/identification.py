@@ -596,5 +596,7 @@ def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs
         drive_lag=result.drive_lag,
         geometry=plant.geometry,
         masses=plant.masses,
+        drive=plant.drive,
+        encoder_bits=plant.realism.encoder_bits,
         **setup_kwargs,
     )

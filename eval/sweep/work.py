@@ -171,7 +171,10 @@ def tared_setup(
 def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
     """Content hash (16 hex digits) of what the controllers know: parameters, tares, the empty moves' sums, gains
     and, if the residual row runs, the policy file's bytes."""
-    known = (setup.mid, setup.mid_f, setup.mid_f_rods, sorted(setup.tares.items()), setup.geometry, setup.masses)
+    known = (
+        *(setup.mid, setup.mid_f, setup.mid_f_rods, setup.drive_lag, sorted(setup.tares.items()), setup.geometry),
+        *(setup.masses, setup.drive, setup.encoder_bits, setup.fault_reaction),
+    )
     digest = hashlib.sha256(repr(known).encode())
     for key, sums in sorted(setup.empty_moves.items()):
         digest.update(key.encode())
