@@ -106,6 +106,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     ## Episode End
     - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
+      After :meth:`override_speed` ``(0)``, a stop at rest, the reference ends once it has held its stopping
+      point for ``STOP_HOLD`` (0.1 s): the episode truncates there with ``info["stopped"] = True``.
     - Termination: the simulation diverges (a MuJoCo instability warning, a non-finite state or a loop
       gap over 1 mm): ``info["diverged"] = True``, the last finite observation is returned and the
       reward is ``-divergence_penalty``.
@@ -117,7 +119,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
     ``torque_command`` (N m, the action within the drive's envelope: what the drive held over the step),
     ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
-    ``torque_saturated`` (the envelope clipped the action) and the reward terms. The drive's limits
+    ``torque_saturated`` (the envelope clipped the action) and the reward terms. The speed override
+    (:meth:`override_speed`): ``speed_override`` (the last rate asked for, a fraction of the planned speed; 1.0
+    without one) and ``stopped`` (True on the step that truncates a stop's hold, else False). The drive's limits
     (:class:`~delta_env.drive.DriveLimits`), per joint, shape (3,) unless a bool:
 
     | key | unit | meaning |
@@ -150,6 +154,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     :mod:`controllers.timing`), every move keeps its shape but is timed by it: carries with the object's mass
     declared to it, empty moves for the empty gripper; a timing that ``retimes_online`` is asked at every step of
     a carry whether to change the rest of it. Dwells and gripper events stay mid-dwell.
+
+    ``override_speed(rate)``, between steps, is the cell's reaction to a fault (e.g. one a controller's monitor
+    detects): a jerk-limited ramp of the rest of the reference to ``rate`` times its planned speed along the same
+    path, 0 for a controlled stop at rest (docs/design.md section 5, "Speed override").
 
     The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
     argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the

@@ -72,8 +72,8 @@ class RateLimits:
         ``jerk = min_j max|theta_dddot_j| / max|theta_dot_j|`` (the jerk by finite differences) keep each
         added term within the reference's own peak on every joint: a stop brakes no harder than the moves
         themselves accelerate (the total, with the reference's own term x'' s_dot^2, stays within twice
-        the peak). On the default 3 g conveyor cycles this gives about 8 to 12 1/s and a few hundred 1/s^2:
-        a stop from full rate takes about 0.15 s, a move's braking time.
+        the peak). On the default 3 g conveyor cycles this gives about 11 to 13 1/s and 700 to 900 1/s^2: a stop
+        from full rate takes about 0.1 s (0.05 s on the shorter moves of the 25/305/25 mm cycle).
         """
         speed = np.max(np.abs(trajectory.theta_dot), axis=0)
         moving = speed > 1e-9
