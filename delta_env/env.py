@@ -22,6 +22,7 @@ from delta_env.config import (
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.drive import clip_to_envelope
+from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
@@ -105,6 +106,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     ## Episode End
     - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
+      After :meth:`override_speed` ``(0)``, a stop at rest, the reference ends once it has held its stopping
+      point for ``STOP_HOLD`` (0.1 s): the episode truncates there with ``info["stopped"] = True``.
     - Termination: the simulation diverges (a MuJoCo instability warning, a non-finite state or a loop
       gap over 1 mm): ``info["diverged"] = True``, the last finite observation is returned and the
       reward is ``-divergence_penalty``.
@@ -116,7 +119,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
     ``torque_command`` (N m, the action within the drive's envelope: what the drive held over the step),
     ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
-    ``torque_saturated`` (the envelope clipped the action) and the reward terms. The drive's limits
+    ``torque_saturated`` (the envelope clipped the action) and the reward terms. The speed override
+    (:meth:`override_speed`): ``speed_override`` (the last rate asked for, a fraction of the planned speed; 1.0
+    without one) and ``stopped`` (True on the step that truncates a stop's hold, else False). The drive's limits
     (:class:`~delta_env.drive.DriveLimits`), per joint, shape (3,) unless a bool:
 
     | key | unit | meaning |
@@ -149,6 +154,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     :mod:`controllers.timing`), every move keeps its shape but is timed by it: carries with the object's mass
     declared to it, empty moves for the empty gripper; a timing that ``retimes_online`` is asked at every step of
     a carry whether to change the rest of it. Dwells and gripper events stay mid-dwell.
+
+    ``override_speed(rate)``, between steps, is the cell's reaction to a fault (e.g. one a controller's monitor
+    detects): a jerk-limited ramp of the rest of the reference to ``rate`` times its planned speed along the same
+    path, 0 for a controlled stop at rest (docs/design.md section 5, "Speed override").
 
     The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
     argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the
@@ -274,6 +283,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
         self._torque_noise = np.zeros((1, 3))
         self._spare_noise: np.random.Generator | None = None
+        self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
+        self._speed_override = 1.0
         # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
         self._instability_warnings = tuple(
             int(w)
@@ -352,6 +363,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._cycle = 0
         self._holding = False
         self._carry = None
+        self._override = None
+        self._speed_override = 1.0
         self._episode_over = False
         self._thermal_squares = [(0.0, 0.0, 0.0)] * self._thermal_steps
         self._thermal_sums = (0.0, 0.0, 0.0)
@@ -407,6 +420,47 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry = (piece_index, start)
         missing = len(self.trajectory) - len(self._torque_noise)
         if missing > 0:
+            extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
+            self._torque_noise = np.concatenate((self._torque_noise, extra))
+
+    def override_speed(self, rate: float) -> None:
+        """Slow the rest of the reference down, or stop it at rest, as a robot controller's speed override does.
+
+        Callable between steps (after :meth:`reset`, before the episode ends). From the current step, the path
+        rate of the reference ramps, jerk-limited, from its present value to ``rate`` times the planned speed
+        along the same path (:func:`delta_env.override.override_speed`, docs/design.md section 5): the reference
+        stays C2, and the gripper events still ahead move with it.
+
+        - ``0 < rate <= 1``: the rest runs at ``rate`` to the planned end (1 restores full speed).
+        - ``rate == 0``: a controlled stop along the path (category 2); the reference comes to rest, holds its
+          stopping point for :data:`~delta_env.override.STOP_HOLD`, and the episode then truncates with
+          ``info["stopped"] = True``. Picks and places the stop never reaches are dropped: an object not yet
+          picked is never picked, one held stays held.
+
+        A second call replaces the first from its own step; rates are always fractions of the planned speed.
+        Once called, an online timing no longer retimes carries. ``info["speed_override"]`` reports the last
+        rate asked for (1.0 without an override).
+
+        Raises:
+            ValueError: ``rate`` is not a finite number in [0, 1].
+            RuntimeError: no episode is under way.
+        """
+        rate = require_in("rate", rate, 0.0, 1.0)
+        if self._episode_over or self.trajectory is None:
+            reason = "the episode has ended" if self._episode_over else "no episode started"
+            raise RuntimeError(f"override_speed() needs an episode under way: {reason}")
+        self._override = override_speed(
+            self.trajectory if self._override is None else self._override, self._step_index, rate
+        )
+        self._timed = None  # no online retiming from now on
+        self._carry = None
+        self._set_reference(self._override.trajectory)
+        self._speed_override = rate
+        missing = len(self.trajectory) - len(self._torque_noise)
+        if missing > 0:
+            if self._spare_noise is None:
+                # a stream of its own, derived from the episode's seed, so that np_random draws as before
+                self._spare_noise = np.random.default_rng(self.np_random.bit_generator.seed_seq.spawn(1)[0])
             extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
             self._torque_noise = np.concatenate((self._torque_noise, extra))
 
@@ -532,6 +586,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "thermal_exceeded": full and max(r0, r1, r2) > rated,
             "reward_tracking": reward_tracking,
             "reward_torque": reward_torque,
+            "speed_override": self._speed_override,
+            "stopped": truncated and self._speed_override == 0.0,
         }
         if self.render_mode == "human" and k % self._render_every == 0:
             self.render()
@@ -547,7 +603,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             self._holding = False
             if cycle + 1 < len(self.payload_masses):
                 # The next object waits at the next pick point (the same body, a new mass).
-                next_pick = self.trajectory.xyz[self.trajectory.pick_indices[cycle + 1]]
+                # (from the planned reference: a stop may have dropped that pick, not the object's place)
+                planned = self.trajectory if self._override is None else self._override.nominal
+                next_pick = planned.xyz[planned.pick_indices[cycle + 1]]
                 self._place_object(next_pick, self.payload_masses[cycle + 1])
 
     def _place_object(self, pick_point: NDArray[np.float64], mass: float) -> None:
