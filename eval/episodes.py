@@ -22,6 +22,7 @@ from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import OracleController
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
+from controllers.monitor import MonitoredController
 from controllers.payload_timing import EstimatingController
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
@@ -167,14 +168,11 @@ class EpisodeRecord:
 
     def carries(self) -> list[metrics.CarryMetrics]:
         """Payload metrics of each completed carry."""
-        done = self.place_indices <= len(self.payload_estimate)
-        return metrics.carry_metrics(
-            self.payload_estimate,
-            self.pick_indices[done],
-            self.place_indices[done],
-            self.masses[done],
-            CONTROL_PERIOD,
-        )
+        # a stop may leave the last pick without its place
+        carried = min(len(self.pick_indices), len(self.place_indices))
+        picks, places, masses = self.pick_indices[:carried], self.place_indices[:carried], self.masses[:carried]
+        done = places <= len(self.payload_estimate)
+        return metrics.carry_metrics(self.payload_estimate, picks[done], places[done], masses[done], CONTROL_PERIOD)
 
 
 def run_episode(
@@ -202,14 +200,15 @@ def run_episode(
     if reference is not None:
         options["reference"] = reference
     observation, info = env.reset(seed=seed, options=options or None)
-    # the oracle's privilege, also when an online timing runs the cell's estimator beside it
-    privileged = controller.controller if isinstance(controller, EstimatingController) else controller
-    if isinstance(privileged, OracleController):
-        privileged.set_payload_masses(info["payload_masses"])
-        privileged.set_physical_parameters(env.plant.parameters)
+    # the oracle's privilege and a monitor's reactions, also when an online timing runs the cell's estimator beside it
+    inner = controller.controller if isinstance(controller, EstimatingController) else controller
+    if isinstance(inner, OracleController):
+        inner.set_payload_masses(info["payload_masses"])
+        inner.set_physical_parameters(env.plant.parameters)
     controller.reset()
     plant = env.plant
     estimate = getattr(controller, "payload_estimate", None)
+    reacts, speed = isinstance(inner, MonitoredController), 1.0
     steps = len(env.trajectory) - 1
     tracking = np.full(steps, math.nan)
     torque, velocity, joint_error = np.zeros((steps, 3)), np.zeros((steps, 3)), np.zeros((steps, 3))
@@ -232,6 +231,9 @@ def run_episode(
         action = controller(observation)
         if estimate is not None:
             estimates[n] = controller.payload_estimate
+        if reacts and inner.requested_speed != speed:
+            speed = inner.requested_speed  # a monitored controller's reaction to a fault: the cell's override
+            env.override_speed(speed)
         observation, _, terminated, truncated, info = env.step(action)
         command[n] = info["torque_command"]
         # Truth at the end of the step, against the reference of that instant (the new observation's).
