@@ -24,6 +24,21 @@ to one onto the nested dataclasses. A file may give any subset of the fields; th
 of the dataclasses, which are today's default environment. TOML has no null: optional fields take the
 string ``"none"``. Unknown keys are errors, so a typo never falls back to a default silently.
 
+Faults (:class:`~delta_env.faults.FaultSpec`, drawn per episode; ``task.faults`` enters the content hash only when
+it is not empty) are an array of tables; each gives a kind and any of its ranges, the rest take the kind's
+defaults::
+
+    [[task.faults]]
+    kind = "collision"
+    probability = 0.5              # half of the episodes
+    target = "arm"                 # on an upper arm at its elbow
+    size = [200.0, 800.0]          # N
+    carry_fraction = [0.3, 0.7]    # of a random carry (or: start = [1.0, 2.0], s from the reset)
+
+    [[task.faults]]
+    kind = "encoder_glitch"
+    joint = 2
+
 Named presets ship as package data next to this module (``delta_env/scenarios/<name>.toml``).
 
 Geometry files (``--geometry FILE`` of the command lines, written by the design study) are TOML with one
