@@ -144,7 +144,7 @@ class FaultSpec:
         value = getattr(self, name)
         if not used:
             if value is not None:
-                raise ValueError(f"{name} is not used by a {self.kind}: leave it out, got {value!r}")
+                raise ValueError(f"{name} is not used by kind {self.kind!r}: leave it out, got {value!r}")
         elif value is None:
             self._set(name, allowed[0])
         elif value not in allowed:
@@ -155,7 +155,8 @@ class FaultSpec:
         value = getattr(self, name)
         if default is None:
             if value is not None:
-                raise ValueError(f"{name} is not used by a {self.kind} ({self.target or 'any'}): leave it out")
+                where = f"kind {self.kind!r}" + (f" with target {self.target!r}" if self.target else "")
+                raise ValueError(f"{name} is not used by {where}: leave it out, got {value!r}")
             return
         self._set(name, require_interval(name, default if value is None else value, 0.0, unit=unit))
 
