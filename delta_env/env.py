@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -22,6 +23,7 @@ from delta_env.config import (
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.drive import clip_to_envelope
+from delta_env.faults import FaultDraw, FaultSpec, InjectedFault
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
@@ -32,6 +34,27 @@ from delta_env.validation import require_count, require_in, require_instance, re
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
+
+
+OBSTACLE_LEAD = 0.05
+"""How long (s) before the platform reaches it the obstacle of a collision fault is put in its path."""
+
+OBSTACLE_MIN_SPEED = 0.05
+"""Reference speed (m/s) from which the platform counts as moving towards the obstacle: it is put ahead of the first
+such sample at or after the drawn time."""
+
+_SENSOR_KINDS = ("encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch")
+
+
+@dataclass
+class _RunningFault:
+    """A fault of the episode that has started: it acts on steps ``first`` to ``last`` (obstacle: from its
+    placement; it counts as active while in contact)."""
+
+    draw: FaultDraw
+    first: int
+    last: int
+    record: int = -1  # its index in env.injected_faults, once recorded
 
 
 DEFAULT_CAMERA = {
@@ -119,7 +142,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
     ``torque_command`` (N m, the action within the drive's envelope: what the drive held over the step),
     ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
-    ``torque_saturated`` (the envelope clipped the action) and the reward terms. The speed override
+    ``torque_saturated`` (the envelope clipped the action), ``faults`` (the kinds of the injected faults acting on this
+    step, a tuple, empty normally; see Faults below) and the reward terms. The speed override
     (:meth:`override_speed`): ``speed_override`` (the last rate asked for, a fraction of the planned speed; 1.0
     without one) and ``stopped`` (True on the step that truncates a stop's hold, else False). The drive's limits
     (:class:`~delta_env.drive.DriveLimits`), per joint, shape (3,) unless a bool:
@@ -149,6 +173,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``width``, ``height`` | int | 480, 480 | render size (pixels) |
     | ``scenario`` | str, path, Scenario, None | None = ``nominal`` | preset name, scenario TOML file or value |
     | ``timing`` | MoveTiming, None | None | times every move instead of ``peak_acceleration`` (``env.timing``) |
+    | ``faults`` | sequence of FaultSpec, None | None = the scenario's (none) | faults injected into the episodes |
 
     With a ``timing`` (:class:`~delta_env.timing.MoveTiming`, e.g. the payload-adaptive time-optimal planner of
     :mod:`controllers.timing`), every move keeps its shape but is timed by it: carries with the object's mass
@@ -158,6 +183,28 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ``override_speed(rate)``, between steps, is the cell's reaction to a fault (e.g. one a controller's monitor
     detects): a jerk-limited ramp of the rest of the reference to ``rate`` times its planned speed along the same
     path, 0 for a controlled stop at rest (docs/design.md section 5, "Speed override").
+    ## Faults
+    Each episode draws its faults (:class:`~delta_env.faults.FaultSpec`, ``env.faults``) from ``np_random`` after
+    everything else, so an episode without faults is exactly what it was before faults existed. A fault starts at a
+    drawn time from the reset, or at a drawn fraction of a carry (pick to place, computed when its pick happens, from
+    the carry's length then). When it starts it is appended to ``env.injected_faults`` (a list of
+    :class:`~delta_env.faults.InjectedFault`, the truth, cleared at reset); one that would start after the episode's
+    end, or after its carry's place, does not happen. What each kind does at the steps it acts on:
+
+    - ``slip``: the suction cup loses the object (the plant releases it); ``gripper`` stays 1 until the place and
+      ``info["payload_mass"]`` is 0 from then on.
+    - ``encoder_glitch`` / ``encoder_stuck`` / ``sensor_nan`` (``"encoder"``): the joint's reading is offset by the
+      size / repeats its last value / is NaN; ``joint_velocities`` stays the backward difference of the readings
+      (with an ideal encoder it is the true rate, NaN where the reading is).
+    - ``torque_glitch`` / ``sensor_nan`` (``"torque"``): the joint's ``joint_torques`` is offset by the size / NaN.
+    - ``collision``: a force of the drawn size and direction on the platform or on an upper arm at its elbow
+      (``data.xfrc_applied``), or an obstacle sphere put on the path a little before the platform reaches it at the
+      drawn time, removed after the duration (its record starts at the first contact, with the largest contact
+      force as size; one obstacle exists, so two obstacle faults must not overlap).
+    - ``drive_fault``: after the envelope, the joint's command is limited to +-size x peak torque
+      (``info["torque_command"]`` shows it).
+
+    A NaN observation never counts as divergence: that is judged on the plant's state.
 
     The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
     argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the
@@ -182,6 +229,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         height: int = 480,
         scenario: str | os.PathLike[str] | Scenario | None = None,
         timing: MoveTiming | None = None,
+        faults: Sequence[FaultSpec] | None = None,
     ) -> None:
         base = Scenario() if scenario is None else resolve_scenario(scenario)
         overrides = {
@@ -214,8 +262,13 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
+        faults = tuple(base.task.faults if faults is None else faults)
+        for index, spec in enumerate(faults):
+            require_instance(f"faults[{index}]", spec, FaultSpec)
+
         self.plant_config = plant if plant is not None else PlantConfig()
-        self.plant = DeltaPlant(self.plant_config)
+        self.faults = faults
+        self.plant = DeltaPlant(self.plant_config, obstacle=any(spec.target == "obstacle" for spec in faults))
         self._motor_qpos = tuple(self.plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
         self.n_cycles = int(n_cycles)
         self.cycle = cycle
@@ -279,9 +332,15 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._step_index = 0
         self._cycle = 0
         self._holding = False
+        self._carried_mass = 0.0  # truth: 0 while nothing is held or after a slip
         self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
         self._torque_noise = np.zeros((1, 3))
+        self.injected_faults: list[InjectedFault] = []
+        self._faulty = False  # the episode drew a fault: the one check of the hot path
+        self._fault_starts: dict[int, list[tuple[FaultDraw, int]]] = {}  # step -> (fault, its drawn step) starting
+        self._carry_faults: dict[int, list[FaultDraw]] = {}  # carry -> its faults, scheduled at its pick
+        self._running: list[_RunningFault] = []
         self._spare_noise: np.random.Generator | None = None
         self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
         self._speed_override = 1.0
@@ -362,6 +421,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._step_index = 0
         self._cycle = 0
         self._holding = False
+        self._carried_mass = 0.0
         self._carry = None
         self._override = None
         self._speed_override = 1.0
@@ -380,6 +440,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._spare_noise = None
         if self._timed is not None and self.timing.retimes_online:
             self._spare_noise = np.random.default_rng(self.np_random.integers(2**63))
+        self._draw_faults(len(trajectory.pick_indices))
         self._measured_angles = self._encoder(self.plant.joint_angles())
         observation = self._observation(self.plant.joint_velocities())
         self._last_observation = observation
@@ -516,6 +577,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             saturated = min(m0, m1, m2) < 0.0
             if saturated:
                 torque = np.array([t0, t1, t2])
+        faulty = self._faulty
+        if faulty:
+            torque = self._faults_before_physics(torque)
+            t0, t1, t2 = torque.tolist()
 
         plant.step(torque, self.n_substeps)
         self._step_index += 1
@@ -546,7 +611,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_tracking = reward_torque = 0.0
             reward = -self.divergence_penalty
         else:
-            observation = self._observation(self._measure_joints())
+            observation = self._faulty_observation() if faulty else self._observation(self._measure_joints())
             self._last_observation = observation
             reward_tracking = -self._tracking_weight_m2 * squared_error
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
@@ -568,7 +633,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         rated = self._rated_torque
 
         info = {
-            "payload_mass": self.payload_masses.item(self._cycle) if self._holding else 0.0,
+            "payload_mass": self._carried_mass,
             "platform_position": platform,
             "reference_position": reference,
             "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
@@ -588,6 +653,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reward_torque": reward_torque,
             "speed_override": self._speed_override,
             "stopped": truncated and self._speed_override == 0.0,
+            "faults": self._faults_after_step() if faulty else (),
         }
         if self.render_mode == "human" and k % self._render_every == 0:
             self.render()
@@ -597,10 +663,14 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if kind == "pick":
             self.plant.attach_payload()
             self._holding = True
+            self._carried_mass = self.payload_masses.item(cycle)
             self._cycle = cycle
+            if cycle in self._carry_faults:
+                self._schedule_carry_faults(cycle)
         else:
             self.plant.release_payload()
             self._holding = False
+            self._carried_mass = 0.0
             if cycle + 1 < len(self.payload_masses):
                 # The next object waits at the next pick point (the same body, a new mass).
                 # (from the planned reference: a stop may have dropped that pick, not the object's place)
@@ -612,6 +682,144 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         """Put the object (kg) on the conveyor so its top face meets the suction cup at ``pick_point``."""
         below = SUCTION_CUP_OFFSET + 0.5 * DEFAULT_PAYLOAD_SIZE[2]
         self.plant.place_payload(pick_point - np.array([0.0, 0.0, below]), mass)
+
+    # -- faults ---------------------------------------------------------------------------------
+
+    def _draw_faults(self, n_carries: int) -> None:
+        """Draw the episode's faults (last of the reset's draws) and schedule those timed from the reset."""
+        self.injected_faults = []
+        self._running = []
+        self._fault_starts = {}
+        self._carry_faults = {}
+        drawn = [spec.draw(self.np_random, n_carries) for spec in self.faults]
+        self._faulty = any(draw is not None for draw in drawn)
+        for draw in drawn:
+            if draw is None:
+                continue
+            if draw.carry is None:
+                self._schedule(draw, max(1, round(draw.when / self.dt)) - 1, 0)
+            else:
+                self._carry_faults.setdefault(draw.carry, []).append(draw)
+
+    def _schedule_carry_faults(self, cycle: int) -> None:
+        """At the pick of ``cycle`` (this step): the steps of its carry's faults, from the carry's length now."""
+        pick, place = self._step_index, int(self.trajectory.place_indices[cycle])
+        for draw in self._carry_faults.pop(cycle):
+            self._schedule(draw, pick + max(1, round(draw.when * (place - pick))) - 1, pick)
+
+    def _schedule(self, draw: FaultDraw, step: int, earliest: int) -> None:
+        """Start ``draw`` at ``step``; put an obstacle in place ``OBSTACLE_LEAD`` earlier, not before ``earliest``."""
+        start = step
+        if draw.detail == "obstacle":
+            start = max(step - round(OBSTACLE_LEAD / self.dt), earliest)
+        self._fault_starts.setdefault(start, []).append((draw, step))
+
+    def _faults_before_physics(self, torque: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Start the faults due at this step and apply those acting on the plant; returns the torque the drive holds."""
+        n = self._step_index
+        for draw, step in self._fault_starts.pop(n, ()):
+            self._start_fault(draw, step)
+        self._running = running = [fault for fault in self._running if fault.last >= n]
+        for fault in running:
+            draw = fault.draw
+            if draw.kind == "drive_fault":
+                limit = draw.size * self.plant_config.drive.peak_torque
+                torque = torque.copy()
+                torque[draw.joint] = min(max(torque[draw.joint], -limit), limit)
+            elif draw.kind == "collision" and draw.detail != "obstacle":
+                self.plant.apply_external_force(draw.size * np.array(draw.direction), draw.joint)
+        return torque
+
+    def _start_fault(self, draw: FaultDraw, step: int) -> None:
+        """Begin ``draw`` (drawn for ``step``) now, or drop it if it can no longer happen."""
+        n, dt = self._step_index, self.dt
+        size = draw.size
+        if draw.kind == "slip":
+            place = int(self.trajectory.place_indices[draw.carry])
+            if not (self._holding and self._cycle == draw.carry and n < place):
+                return
+            size = self._carried_mass
+            self.plant.release_payload()
+            self._carried_mass = 0.0
+            last = place - 1
+        elif draw.detail == "obstacle":
+            trajectory = self.trajectory
+            speeds = np.linalg.norm(trajectory.xyz_dot[step + 1 :], axis=1)
+            moving = np.flatnonzero(speeds >= OBSTACLE_MIN_SPEED)
+            if not len(moving):
+                return
+            hit = step + 1 + int(moving[0])
+            self.plant.place_obstacle(trajectory.xyz[hit], trajectory.xyz_dot[hit])
+            self._running.append(_RunningFault(draw, n, hit - 1 + max(1, round(draw.duration / dt))))
+            return
+        else:
+            last = n + max(1, round(draw.duration / dt)) - 1
+        fault = _RunningFault(draw, n, last, len(self.injected_faults))
+        self._running.append(fault)
+        self.injected_faults.append(
+            InjectedFault(draw.kind, n, last - n + 1, (n + 1) * dt, draw.joint, size, draw.detail)
+        )
+
+    def _faults_after_step(self) -> tuple[str, ...]:
+        """Record the obstacle's contact, end the faults whose last step this was; the kinds acting on this step."""
+        n = self._step_index - 1  # the step just taken
+        kinds = []
+        for fault in self._running:
+            draw = fault.draw
+            if draw.detail == "obstacle":
+                force = self.plant.obstacle_contact_force()
+                if force > 0.0:
+                    kinds.append(draw.kind)
+                    self._record_contact(fault, n, force)
+                if fault.last == n:
+                    self.plant.park_obstacle()
+                continue
+            kinds.append(draw.kind)
+            if fault.last == n and draw.kind == "collision":
+                self.plant.clear_external_forces()
+        return tuple(kinds)
+
+    def _record_contact(self, fault: _RunningFault, n: int, force: float) -> None:
+        """The obstacle's record: its first contact step and the largest contact force (N) so far."""
+        if fault.record < 0:
+            fault.record = len(self.injected_faults)
+            self.injected_faults.append(InjectedFault("collision", n, 1, (n + 1) * self.dt, None, force, "obstacle"))
+            return
+        record = self.injected_faults[fault.record]
+        self.injected_faults[fault.record] = replace(
+            record, steps=n - record.start_step + 1, size=max(record.size, force)
+        )
+
+    def _faulty_observation(self) -> dict[str, NDArray[np.float64]]:
+        """The observation of this step with the sensor faults acting on it."""
+        n = self._step_index - 1
+        previous = self._measured_angles
+        velocities = self._measure_joints()
+        readings = list(self._measured_angles)
+        torque_faults = []
+        for fault in self._running:
+            draw = fault.draw
+            if draw.kind not in _SENSOR_KINDS or fault.first > n:
+                continue
+            j = draw.joint
+            if draw.kind == "torque_glitch" or draw.detail == "torque":
+                torque_faults.append(draw)
+            elif draw.kind == "encoder_glitch":
+                readings[j] += draw.size
+            elif draw.kind == "encoder_stuck":
+                readings[j] = previous[j]
+            else:
+                readings[j] = math.nan
+        if readings != self._measured_angles:
+            self._measured_angles = readings
+            if self._encoder_step is None:
+                velocities[np.isnan(readings)] = math.nan
+            else:
+                velocities = (np.array(readings) - np.array(previous)) / CONTROL_PERIOD
+        observation = self._observation(velocities)
+        for draw in torque_faults:
+            observation["joint_torques"][draw.joint] += draw.size  # NaN for a sensor_nan
+        return observation
 
     # -- measurement ----------------------------------------------------------------------------
 

@@ -28,7 +28,7 @@ from delta_env.config import (
 )
 from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaMasses
 from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
-from delta_env.scene import build_model
+from delta_env.scene import OBSTACLE_PARKED, OBSTACLE_RADIUS, build_model
 from delta_env.validation import require_in, require_joint_vector
 
 STRIBECK_SIGN_SLOPE = 4.0
@@ -71,11 +71,11 @@ class DeltaPlant:
         data: ``mujoco.MjData``.
     """
 
-    def __init__(self, config: PlantConfig | None = None) -> None:
+    def __init__(self, config: PlantConfig | None = None, obstacle: bool = False) -> None:
         self.config = PlantConfig() if config is None else config
         if not isinstance(self.config, PlantConfig):
             raise ValueError(f"config must be a PlantConfig, got {type(self.config).__name__}")
-        self.model = build_model(self.config)
+        self.model = build_model(self.config, obstacle)
         self.data = mujoco.MjData(self.model)
         self._scratch = mujoco.MjData(self.model)  # mj_setConst overwrites the state of the data it gets
         model, data = self.model, self.data
@@ -88,6 +88,11 @@ class DeltaPlant:
         self._motor_qpos = model.jnt_qposadr[motor_joints].copy()
         self._motor_dofs = model.jnt_dofadr[motor_joints].copy()
         self._platform_body = ident(body, "platform")
+        self._arm_bodies = [ident(body, f"upper_arm_{label}") for label in CHAIN_LABELS]
+        self._obstacle = ident(body, "obstacle") if obstacle else -1
+        self._obstacle_geom = ident(mujoco.mjtObj.mjOBJ_GEOM, "obstacle") if obstacle else -1
+        disc = model.geom_size[ident(mujoco.mjtObj.mjOBJ_GEOM, "platform_disc")]
+        self._disc_radius, self._disc_half_height = float(disc[0]), float(disc[1])
         first_platform_joint = model.body_jntadr[self._platform_body]
         self._platform_qpos = int(model.jnt_qposadr[first_platform_joint])
         self._platform_dof = int(model.jnt_dofadr[first_platform_joint])
@@ -156,7 +161,8 @@ class DeltaPlant:
             self._suction = ident(mujoco.mjtObj.mjOBJ_EQUALITY, "suction")
 
         # Domain-randomizable parameters: the nominal ones come from the config.
-        self._robot_bodies = np.array([b for b in range(1, model.nbody) if b != self._payload_body])
+        others = (self._payload_body, self._obstacle)
+        self._robot_bodies = np.array([b for b in range(1, model.nbody) if b not in others])
         self._has_lag = self.config.realism.actuator_lag > 0.0
         self._parameters = self.nominal_parameters
         self._set_disturbance_coefficients(self.config.realism)
@@ -498,6 +504,64 @@ class DeltaPlant:
         velocity = linear + np.cross(angular, payload_position - platform_position)
         self._qvel[self._payload_dof : self._payload_dof + 3] = velocity
         self._qvel[self._payload_dof + 3 : self._payload_dof + 6] = _quat_to_matrix(payload_quat).T @ angular
+
+    # --------------------------------------------------------------------------------------------
+    # External forces and the obstacle (fault injection); mj_resetData clears both
+    # --------------------------------------------------------------------------------------------
+
+    def apply_external_force(self, force: NDArray[np.float64], joint: int | None = None) -> None:
+        """Push with ``force`` (N, world frame, shape (3,)) on the platform at its centre E0 (``joint`` None) or on
+        the upper arm of ``joint`` at its elbow, until :meth:`clear_external_forces`.
+
+        Written to ``xfrc_applied`` at the body's centre of mass, with the torque of the force's lever arm from the
+        body's pose at the last physics step (call it again each control step while the arm turns).
+        """
+        data = self.data
+        body = self._platform_body if joint is None else self._arm_bodies[joint]
+        point = data.xpos[body].copy()
+        if joint is not None:  # the elbow: the arm's x axis at l1
+            point += self.config.geometry.l1 * data.xmat[body].reshape(3, 3)[:, 0]
+        data.xfrc_applied[body, :3] = force
+        data.xfrc_applied[body, 3:] = np.cross(point - data.xipos[body], force)
+
+    def clear_external_forces(self) -> None:
+        """Remove every force of :meth:`apply_external_force`."""
+        self.data.xfrc_applied[:] = 0.0
+
+    @property
+    def has_obstacle(self) -> bool:
+        """True if the model was built with the obstacle of collision faults."""
+        return self._obstacle >= 0
+
+    def place_obstacle(self, point: NDArray[np.float64], direction: NDArray[np.float64]) -> None:
+        """Put the obstacle sphere where the platform disc touches it when its centre E0 is at ``point`` (m) moving
+        along ``direction`` (any length > 0): at the disc's extent in that direction plus the sphere's radius.
+
+        Raises:
+            RuntimeError: if the plant was built without the obstacle.
+        """
+        unit = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+        reach = self._disc_radius * math.hypot(unit[0], unit[1]) + self._disc_half_height * abs(unit[2])
+        self._move_obstacle(np.asarray(point) + (reach + OBSTACLE_RADIUS) * unit)
+
+    def park_obstacle(self) -> None:
+        """Move the obstacle back out of the way."""
+        self._move_obstacle(np.array(OBSTACLE_PARKED))
+
+    def _move_obstacle(self, position: NDArray[np.float64]) -> None:
+        if not self.has_obstacle:
+            raise RuntimeError("this plant was built without the obstacle (DeltaPlant(config, obstacle=True))")
+        self.data.mocap_pos[self.model.body_mocapid[self._obstacle]] = position
+
+    def obstacle_contact_force(self) -> float:
+        """Normal force (N) between the obstacle and the platform at the last physics step; 0 without contact."""
+        force, total = np.zeros(6), 0.0
+        for index in range(self.data.ncon):
+            contact = self.data.contact[index]
+            if self._obstacle_geom in (contact.geom1, contact.geom2):
+                mujoco.mj_contactForce(self.model, self.data, index, force)
+                total += force.item(0)
+        return total
 
     # --------------------------------------------------------------------------------------------
     # Domain randomization: every per-episode model edit happens here

@@ -24,6 +24,21 @@ to one onto the nested dataclasses. A file may give any subset of the fields; th
 of the dataclasses, which are today's default environment. TOML has no null: optional fields take the
 string ``"none"``. Unknown keys are errors, so a typo never falls back to a default silently.
 
+Faults (:class:`~delta_env.faults.FaultSpec`, drawn per episode; ``task.faults`` enters the content hash only when
+it is not empty) are an array of tables; each gives a kind and any of its ranges, the rest take the kind's
+defaults::
+
+    [[task.faults]]
+    kind = "collision"
+    probability = 0.5              # half of the episodes
+    target = "arm"                 # on an upper arm at its elbow
+    size = [200.0, 800.0]          # N
+    carry_fraction = [0.3, 0.7]    # of a random carry (or: start = [1.0, 2.0], s from the reset)
+
+    [[task.faults]]
+    kind = "encoder_glitch"
+    joint = 2
+
 Named presets ship as package data next to this module (``delta_env/scenarios/<name>.toml``).
 
 Geometry files (``--geometry FILE`` of the command lines, written by the design study) are TOML with one
@@ -58,6 +73,7 @@ import tomli_w
 from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.cycles import require_start
 from delta_env.drive import DriveLimits
+from delta_env.faults import FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
@@ -130,6 +146,8 @@ class PickPlaceTask:
             identified model, so the env then needs a ``timing`` object (the evaluation builds it).
         torque_share: Share of the drive's envelope (after the planner's margin) a planned timing may use, in
             (0, 1]: the margin for tracking (:data:`delta_env.timing.DEFAULT_TORQUE_SHARE`).
+        faults: Faults injected into the episodes (:class:`~delta_env.faults.FaultSpec`), drawn per episode;
+            none by default.
     """
 
     cycle: Literal["conveyor", "standard"] = "conveyor"
@@ -140,8 +158,11 @@ class PickPlaceTask:
     domain_randomization: RandomizationRanges | None = None
     timing: Literal["fixed", "worst_case", "declared", "online"] = "fixed"
     torque_share: float = DEFAULT_TORQUE_SHARE
+    faults: tuple[FaultSpec, ...] = ()
 
     def __post_init__(self) -> None:
+        if not isinstance(self.faults, tuple) or not all(isinstance(f, FaultSpec) for f in self.faults):
+            raise ValueError(f"faults must be a tuple of FaultSpec, got {self.faults!r}")
         require_timing(self.timing)
         require_in("torque_share", self.torque_share, 0.0, 1.0, unit="of the envelope", low_open=True)
         if self.cycle not in ("conveyor", "standard"):
@@ -259,10 +280,13 @@ def _plant_table(plant: PlantConfig) -> dict[str, Any]:
 
 def _task_table(task: PickPlaceTask) -> dict[str, Any]:
     """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
-    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then)."""
+    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), and without
+    ``faults`` when there are none (likewise)."""
     table = _to_table(task)
     if task.timing == "fixed":
         del table["timing"], table["torque_share"]
+    if not task.faults:
+        del table["faults"]
     return table
 
 
@@ -361,7 +385,7 @@ def resolve_scenario(spec: str | os.PathLike[str] | Scenario) -> Scenario:
 # ------------------------------------------------------------------------------------------------
 
 _TABLE_TYPES = (Scenario, PlantConfig, DeltaGeometry, DeltaMasses, PlantRealism, Condition, PickPlaceTask)
-_TABLE_TYPES += (RandomizationRanges, DriveLimits)
+_TABLE_TYPES += (RandomizationRanges, DriveLimits, FaultSpec)
 
 
 def _preset_dir() -> Any:
@@ -397,6 +421,8 @@ def _describe(hint: Any) -> str:
         return "one of " + ", ".join(repr(a) for a in args)
     if origin in (typing.Union, types.UnionType):
         return " or ".join(_describe(a) if a is not type(None) else f'"{NONE_MARKER}"' for a in args)
+    if origin is tuple and args[-1] is Ellipsis:
+        return f"an array of {_describe(args[0]).split()[-1]}s"
     if origin is tuple:
         return f"an array of {len(args)} {_describe(args[0]).split()[-1]}s"
     if hint in _TABLE_TYPES:
@@ -427,6 +453,10 @@ def _convert(path: str, hint: Any, value: Any) -> Any:
         ok = isinstance(value, hint)
     elif origin is Literal:
         ok = value in args
+    elif origin is tuple and args[-1] is Ellipsis:  # tuple[X, ...], e.g. an array of tables
+        ok = isinstance(value, list)
+        if ok:
+            return tuple(_convert(f"{path}[{n}]", args[0], v) for n, v in enumerate(value))
     elif origin is tuple:
         ok = isinstance(value, list) and len(value) == len(args)
         if ok:

@@ -19,12 +19,27 @@ FLOOR_HEIGHT = -1.25
 PAYLOAD_RGBA = (0.75, 0.6, 0.4, 1.0)
 """Colour of the payload box."""
 
+OBSTACLE_RADIUS = 0.04
+"""Radius (m) of the obstacle sphere a collision fault puts in the platform's path."""
+
+OBSTACLE_PARKED = (0.0, 0.0, 10.0)
+"""Where the obstacle waits (m) while no fault uses it: far from everything."""
+
+OBSTACLE_SOLREF = (0.01, 1.0)
+"""Contact softness of the obstacle (time constant s, damping ratio): a compliant bumper, not a rigid wall."""
+
+OBSTACLE_CONTACT_BIT = 2
+"""The contact bit the obstacle (contype) and the platform disc (conaffinity) share: only they collide."""
+
 _CAMERA_POSITION = np.array([2.2, -2.2, 0.4])
 _CAMERA_TARGET = np.array([0.0, 0.0, -0.7])
 
 
-def scene_spec(config: PlantConfig) -> mujoco.MjSpec:
+def scene_spec(config: PlantConfig, obstacle: bool = False) -> mujoco.MjSpec:
     """The robot of ``config`` in its scene, with the payload body if ``config.payload_body``.
+
+    With ``obstacle``, the scene also has the obstacle of collision faults (:func:`_add_obstacle`); without it,
+    nothing in the scene collides.
 
     Raises:
         ValueError: if ``config`` is not a :class:`~delta_env.config.PlantConfig`.
@@ -63,7 +78,27 @@ def scene_spec(config: PlantConfig) -> mujoco.MjSpec:
     )
     if config.payload_body:
         _add_payload(spec, config)
+    if obstacle:
+        _add_obstacle(spec)
     return spec
+
+
+def _add_obstacle(spec: mujoco.MjSpec) -> None:
+    """A sphere on a mocap body, parked far away, that collides with the platform disc and nothing else.
+
+    It is moved by :meth:`DeltaPlant.place_obstacle`; its contact is compliant (:data:`OBSTACLE_SOLREF`).
+    """
+    spec.geom("platform_disc").conaffinity = OBSTACLE_CONTACT_BIT
+    body = spec.worldbody.add_body(name="obstacle", pos=OBSTACLE_PARKED, mocap=True)
+    body.add_geom(
+        name="obstacle",
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=(OBSTACLE_RADIUS, 0.0, 0.0),
+        contype=OBSTACLE_CONTACT_BIT,
+        conaffinity=0,
+        solref=OBSTACLE_SOLREF,
+        rgba=(0.8, 0.15, 0.15, 1.0),
+    )
 
 
 def _add_payload(spec: mujoco.MjSpec, config: PlantConfig) -> None:
@@ -95,9 +130,9 @@ def _add_payload(spec: mujoco.MjSpec, config: PlantConfig) -> None:
     home.qpos = np.concatenate((home.qpos, [*position, 1.0, 0.0, 0.0, 0.0]))
 
 
-def build_model(config: PlantConfig) -> mujoco.MjModel:
-    """Compile the scene of ``config`` into an ``MjModel``."""
-    return scene_spec(config).compile()
+def build_model(config: PlantConfig, obstacle: bool = False) -> mujoco.MjModel:
+    """Compile the scene of ``config`` (with the obstacle of collision faults if ``obstacle``) into an ``MjModel``."""
+    return scene_spec(config, obstacle).compile()
 
 
 def build_mjcf(config: PlantConfig) -> str:
