@@ -22,6 +22,7 @@ from delta_env.config import (
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.drive import clip_to_envelope
+from delta_env.faults import InjectedFault
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
@@ -266,6 +267,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
+        self.injected_faults: list[InjectedFault] = []  # the truth of the faults of this episode, as they start
         self._events: dict[int, tuple[str, int]] = {}
         self._step_index = 0
         self._cycle = 0
@@ -304,6 +306,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
                 the generated cycles (e.g. an identification excitation without picks).
         """
         super().reset(seed=seed)
+        self.injected_faults.clear()
         options = options or {}
         unknown = set(options) - {"payload_masses", "reference"}
         if unknown:
