@@ -217,3 +217,15 @@ def test_run_episode_records_injected_and_detected_faults() -> None:
     plain = run_episode(env, PDController(), seed=3, payload_masses=[0.5])
     assert plain.injected_faults == [] and plain.detected_faults == []
     assert np.isnan(plain.metrics()["detection_latency_median_ms"])
+
+
+def test_the_comparison_summary_has_a_faults_section_only_with_faults() -> None:
+    from eval.__main__ import _fault_section
+
+    assert _fault_section([], ["PD"]) == []
+    rows = fault_rows({"controller": "A"}, match_faults(INJECTED, DETECTED))
+    section = _fault_section(rows, ["PD", "A"])
+    assert section[0] == "## Faults" and "50 ms after its end" in section[2]
+    table = section[4].splitlines()
+    assert table[2] == "| PD | all | 0 | 0 | 0 | n/a | n/a | 0 | 0 |"  # a controller without faults is listed
+    assert table[-1] == "| A | all | 3 | 2 | 1 | 26.5 | 41.0 | 1 | 1 |"
