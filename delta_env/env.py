@@ -328,6 +328,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
+        self.injected_faults: list[InjectedFault] = []  # the truth of the faults of this episode, as they start
         self._events: dict[int, tuple[str, int]] = {}
         self._step_index = 0
         self._cycle = 0
@@ -336,7 +337,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
         self._torque_noise = np.zeros((1, 3))
-        self.injected_faults: list[InjectedFault] = []
         self._faulty = False  # the episode drew a fault: the one check of the hot path
         self._fault_starts: dict[int, list[tuple[FaultDraw, int]]] = {}  # step -> (fault, its drawn step) starting
         self._carry_faults: dict[int, list[FaultDraw]] = {}  # carry -> its faults, scheduled at its pick

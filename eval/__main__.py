@@ -14,8 +14,10 @@ robot (``--geometry``, a design of the design study).
 3. Writes the run folder (``--out``): ``config.json`` (resolved configuration and command),
    ``scenario.toml`` (the scenario, every field resolved),
    ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
-   ``table2.csv``, ``traces.npz`` and ``table2_run.npz`` (time series), ``summary.md`` and the plots made from these
-   files; prints the summary. Diverged episodes are counted in the table, never dropped silently: their
+   ``table2.csv``, ``faults.csv`` (every injected fault, detected or missed, and every detection that matched
+   none: :mod:`eval.faults`; a header only when there were none), ``traces.npz`` and ``table2_run.npz`` (time
+   series), ``summary.md`` (with a Faults section when any fault was injected or detected) and the plots made
+   from these files; prints the summary. Diverged episodes are counted in the table, never dropped silently: their
    metrics cover the steps before the divergence.
 
 Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 0] [--episodes 10] [--cycles 3]
@@ -41,7 +43,16 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
-from eval.comparison import TABLE2_KEY, TABLE2_PAYLOAD, calibration_seeds, run_all, table2_statistics, tabulate
+from eval.comparison import (
+    TABLE2_KEY,
+    TABLE2_PAYLOAD,
+    calibration_seeds,
+    run_all,
+    table2_statistics,
+    tabulate,
+    tabulate_faults,
+)
+from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
 from eval.identification import robot_identification, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_parameters_argument, add_scenario_arguments, scenario_from_arguments
@@ -133,18 +144,28 @@ SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
 
 def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     """The check of the table's invariant: no controller tracks better than the oracle bound, on the episodes
-    where the oracle is a bound (the drive neither clipped its commands nor let a joint exceed its speed)."""
+    where the oracle is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
+    fault was injected (the oracle knows the fault-free plant and the payloads)."""
     bound = CONTROLLER_LABELS["oracle"]
     oracle_rows = [row for row in episode_rows if row["controller"] == bound]
     if not oracle_rows:
         return []
     skipped = unbounded_episodes(episode_rows, bound)
     note = []
-    if skipped:
-        seeds, clipped, fast = (", ".join(str(row[name]) for row in skipped) for name in SKIP_COLUMNS)
+    limited = [row for row in skipped if row["saturated_steps"] > 0 or row["speed_exceeded_steps"] > 0]
+    if limited:
+        seeds, clipped, fast = (", ".join(str(row[name]) for row in limited) for name in SKIP_COLUMNS)
         note = [
             f"Not a bound on episode(s) {seeds}: the drive clipped {bound}'s command on {clipped} steps and a joint "
             f"was beyond the drive's maximum speed on {fast} steps; the bound check skips these episodes.",
+            "",
+        ]
+    faulted = [row for row in skipped if row.get("faults_injected", 0) > 0]
+    if faulted:
+        seeds, counts = (", ".join(str(row[name]) for row in faulted) for name in ("seed", "faults_injected"))
+        note += [
+            f"Not a bound on episode(s) {seeds}: {counts} fault(s) were injected, and {bound} knows the fault-free "
+            "plant and the payloads; the bound check skips these episodes.",
             "",
         ]
     if len(skipped) == len(oracle_rows):
@@ -153,6 +174,25 @@ def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     if violations:
         return [*note, "## Bound violated", "", *violations, ""]
     return [*note, f"Bound check: no controller tracks better than {bound}, in the mean or on any episode.", ""]
+
+
+def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[str]:
+    """The summary's lines on the faults (:func:`eval.faults.fault_table`); none when no fault was injected and none
+    detected."""
+    if not fault_rows:
+        return []
+    return [
+        "## Faults",
+        "",
+        "Per controller and fault kind, over its episodes (faults.csv has every one). A detection matches an injected "
+        f"fault of its kind from the fault's start to {1e3 * DETECTION_GRACE_S:.0f} ms after its end; latency: "
+        "detection time minus the fault's start. Consequences: other detections within a fault or its grace, "
+        "counted under the kind of the fault they followed. False alarms: detections with no fault under way, "
+        "counted under the detected kind.",
+        "",
+        fault_table(fault_rows, labels),
+        "",
+    ]
 
 
 def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any]]) -> list[str]:
@@ -187,6 +227,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     keys = args.controllers
     results, tares, tare_spreads = run_all(args, setup)
     episode_rows, carry_rows, traces = tabulate(results, keys)
+    fault_rows = tabulate_faults(results, keys)
     table2_record = next(record for task, record in results if task.kind == "table2")
     model_torques = table2_record.model_torques(estimation_model(setup), tares[TABLE2_KEY])
     table2_rows = table2_statistics(model_torques)
@@ -195,6 +236,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if carry_rows:
         write_csv(out / "carries.csv", carry_rows)
     write_csv(out / "table2.csv", table2_rows)
+    write_fault_csv(out / "faults.csv", fault_rows)
     np.savez_compressed(
         out / "traces.npz",
         dt=CONTROL_PERIOD,
@@ -267,6 +309,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "Tare (apparent payload of the empty gripper): "
             + ", ".join(f"{CONTROLLER_LABELS[k]} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
             "",
+            *_fault_section(fault_rows, [CONTROLLER_LABELS[key] for key in keys]),
             *_bound_section(episode_rows),
             *_residual_section(args, episode_rows),
             *([args.left_out, ""] if args.left_out else []),

@@ -7,7 +7,8 @@
 3. Runs the Table 2 analogue: MId+F+R+RLS on the path of the first episode with every object 3.8 kg (the
    paper's experiment when the scenario is ``paper``: standard cycles, 3.8 kg on every pick); the
    measured torques against MId+F+R with mp = 0 and with mp = m_hat.
-4. Tabulates per episode and per carried object (:func:`tabulate`, :func:`table2_statistics`).
+4. Tabulates per episode and per carried object (:func:`tabulate`, :func:`table2_statistics`), and the
+   faults injected into the episodes and detected by the controllers (:func:`tabulate_faults`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from controllers.registry import CONTROLLER_LABELS, ESTIMATING_KEYS, ESTIMATOR_R
 from eval import metrics
 from eval.calibration import calibrated_setup, calibration_tasks, tares_from_results
 from eval.episodes import EpisodeRecord
+from eval.faults import fault_rows
 from eval.processes import process_pool
 from eval.tasks import Task, iterate_tasks
 
@@ -122,6 +124,26 @@ def tabulate(
         if task.index == 0:
             first[task.key] = record
     return episode_rows, carry_rows, first
+
+
+def tabulate_faults(results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]) -> list[dict[str, Any]]:
+    """The rows of ``faults.csv`` (:func:`eval.faults.fault_rows`) of the comparison's episodes, in the order of
+    :func:`tabulate`: every injected fault, detected or missed, and every detection that matched none."""
+    order = {key: n for n, key in enumerate(keys)}
+    episodes = sorted(
+        ((task, record) for task, record in results if task.kind == "episode"),
+        key=lambda item: (order[item[0].key], item[0].index),
+    )
+    rows = []
+    for task, record in episodes:
+        identity = {
+            "controller": CONTROLLER_LABELS[task.key],
+            "key": task.key,
+            "episode": task.index,
+            "seed": task.seed,
+        }
+        rows += fault_rows(identity, record.faults())
+    return rows
 
 
 def table2_statistics(model_torques: dict[str, np.ndarray]) -> list[dict[str, Any]]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,12 +22,14 @@ from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import OracleController
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
-from controllers.monitor import MonitoredController
+from controllers.monitor import DetectedFault, MonitoredController, ReportsFaults
 from controllers.payload_timing import EstimatingController
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.faults import InjectedFault
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from eval import metrics
+from eval.faults import EpisodeFaults, fault_metrics, match_faults
 
 
 @dataclass
@@ -60,6 +62,11 @@ class EpisodeRecord:
         speed_exceeded_steps: Steps after which some joint was beyond the drive's maximum speed.
         thermal_exceeded: True if some joint's RMS torque over a full thermal window exceeded the drive's rated
             torque.
+        injected_faults: The truth of the faults injected into the episode (``env.injected_faults`` at its end),
+            in the order they started.
+        detected_faults: The faults the controller detected (its ``detected_faults`` at the episode's end, if it
+            :class:`~controllers.monitor.ReportsFaults`; else none), in time order. :mod:`eval.faults` matches
+            them to the injected ones.
     """
 
     tracking_error: NDArray[np.float64]
@@ -84,9 +91,12 @@ class EpisodeRecord:
     observations: list[Observation] | None = None
     speed_exceeded_steps: int = 0
     thermal_exceeded: bool = False
+    injected_faults: list[InjectedFault] = field(default_factory=list)
+    detected_faults: list[DetectedFault] = field(default_factory=list)
 
     def metrics(self) -> dict[str, Any]:
-        """Scalar metrics of the episode (see :mod:`eval.metrics` for the definitions)."""
+        """Scalar metrics of the episode (see :mod:`eval.metrics` for the definitions), and its faults'
+        (:data:`eval.faults.FAULT_METRICS`: ``faults_injected``, ``faults_detected``, ...)."""
         rms, peak = metrics.tracking_metrics(self.tracking_error)
         torque_rms, torque_peak = metrics.torque_metrics(self.torque)
         joint_rms = 1e3 * float(np.sqrt(np.mean(self.joint_error**2)))
@@ -122,7 +132,12 @@ class EpisodeRecord:
             "peak_torque_ratio": peak_ratio,
             "rms_torque_ratio": rms_ratio,
             "thermal_margin": 1.0 - rms_ratio,
+            **fault_metrics(self.faults()),
         }
+
+    def faults(self) -> EpisodeFaults:
+        """The episode's detections matched to its injected faults (:func:`eval.faults.match_faults`)."""
+        return match_faults(self.injected_faults, self.detected_faults)
 
     def place_errors(self) -> NDArray[np.float64]:
         """Distance (mm) of the platform from the place point when the gripper opened, per object released before
@@ -282,4 +297,6 @@ def run_episode(
         observations=observations,
         speed_exceeded_steps=speed_exceeded,
         thermal_exceeded=thermal_exceeded,
+        injected_faults=list(env.injected_faults),
+        detected_faults=list(inner.detected_faults) if isinstance(inner, ReportsFaults) else [],
     )

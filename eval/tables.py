@@ -162,12 +162,14 @@ def table2_table(table2_rows: list[dict[str, Any]]) -> str:
 
 
 def unbounded_episodes(episode_rows: list[dict[str, Any]], bound_label: str) -> list[dict[str, Any]]:
-    """The bound's episodes that are not a bound: the drive clipped one of its commands (``saturated_steps``) or
-    a joint went beyond the drive's maximum speed (``speed_exceeded_steps``)."""
+    """The bound's episodes that are not a bound: the drive clipped one of its commands (``saturated_steps``), a
+    joint went beyond the drive's maximum speed (``speed_exceeded_steps``) or a fault was injected
+    (``faults_injected``: the oracle knows the fault-free plant and the payloads, not the fault)."""
     return [
         row
         for row in episode_rows
-        if row["controller"] == bound_label and (row["saturated_steps"] > 0 or row["speed_exceeded_steps"] > 0)
+        if row["controller"] == bound_label
+        and (row["saturated_steps"] > 0 or row["speed_exceeded_steps"] > 0 or row.get("faults_injected", 0) > 0)
     ]
 
 

@@ -22,6 +22,7 @@ from eval import metrics
 from eval.__main__ import main
 from eval.comparison import TABLE2_KEY, table2_statistics
 from eval.episodes import EpisodeRecord, run_episode
+from eval.faults import FAULT_COLUMNS
 from eval.identification import load_or_identify
 from eval.tables import controller_table, residual_gain
 
@@ -310,6 +311,10 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     table2 = read_csv(out / "table2.csv")
     assert [row["joint"] for row in table2] == ["1", "2", "3"]
     assert all(float(row["mp_hat_std"]) < float(row["mp_0_std"]) for row in table2)
+    # no fault injected and none detected: faults.csv has its header only, the summary no Faults section
+    assert (out / "faults.csv").read_text().strip() == ",".join(FAULT_COLUMNS)
+    assert "## Faults" not in printed
+    assert all(row["faults_injected"] == "0" and row["false_alarms"] == "0" for row in episodes)
 
     written = json.loads((out / "config.json").read_text())
     assert written["command"].endswith("-m eval " + " ".join(argv))
@@ -363,8 +368,11 @@ def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.
         assert float(row["mp_hat_std"]) <= 0.6 * float(row["mp_0_std"])
 
 
-def bound_row(label: str, seed: int, rms: float, diverged: bool = False, clipped: int = 0, fast: int = 0) -> dict:
-    """An episode row of the bound check: tracking RMS (mm), steps the drive clipped and steps beyond its speed."""
+def bound_row(
+    label: str, seed: int, rms: float, diverged: bool = False, clipped: int = 0, fast: int = 0, faults: int = 0
+) -> dict:
+    """An episode row of the bound check: tracking RMS (mm), steps the drive clipped and steps beyond its speed,
+    faults injected."""
     return {
         "controller": label,
         "seed": seed,
@@ -372,6 +380,7 @@ def bound_row(label: str, seed: int, rms: float, diverged: bool = False, clipped
         "diverged": diverged,
         "saturated_steps": clipped,
         "speed_exceeded_steps": fast,
+        "faults_injected": faults,
     }
 
 
@@ -423,6 +432,35 @@ def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
     rows[3] = bound_row("A", 0, 0.02)  # episode 0 is still checked
     assert _bound_section(rows)[2] == "## Bound violated"
     assert _bound_section(rows[1:3]) == [note, ""]  # no episode left to check
+
+
+def test_bound_check_skips_the_oracle_episodes_with_an_injected_fault() -> None:
+    """The oracle knows the fault-free plant and the payloads: on an episode with an injected fault it is no bound,
+    and the check skips that seed for every controller."""
+    from eval.__main__ import _bound_section
+    from eval.tables import unbounded_episodes
+
+    bound = "Oracle+PD (bound)"
+    rows = [
+        bound_row(bound, 0, 0.03),
+        bound_row(bound, 1, 0.90, faults=2),
+        bound_row(bound, 2, 0.50, clipped=4),
+        bound_row("A", 0, 0.031, faults=0),
+        bound_row("A", 1, 0.20, faults=2),  # better than the oracle on its fault episode
+        bound_row("A", 2, 0.60),
+    ]
+    assert [row["seed"] for row in unbounded_episodes(rows, bound)] == [1, 2]
+    clipped = (
+        f"Not a bound on episode(s) 2: the drive clipped {bound}'s command on 4 steps and a joint was beyond "
+        "the drive's maximum speed on 0 steps; the bound check skips these episodes."
+    )
+    faulted = (
+        f"Not a bound on episode(s) 1: 2 fault(s) were injected, and {bound} knows the fault-free plant and the "
+        "payloads; the bound check skips these episodes."
+    )
+    holds = f"Bound check: no controller tracks better than {bound}, in the mean or on any episode."
+    assert _bound_section(rows) == [clipped, "", faulted, "", holds, ""]
+    assert _bound_section(rows[1:2]) == [faulted, ""]  # no episode left to check
 
 
 def test_run_episode_records_the_largest_loop_gap() -> None:

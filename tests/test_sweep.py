@@ -82,6 +82,7 @@ def test_a_work_unit_is_one_row_of_metrics_and_repeats_exactly() -> None:
     assert 60.0 < row["picks_per_min"] < 300.0 and row["cycle_time_max_s"] < 1.0
     assert row["place_error_max_mm"] < 1.0 and row["path_deviation_rms_mm"] <= row["tracking_rms_mm"]
     assert row["envelope_violations"] == 0 and 0.0 < row["thermal_margin"] < 1.0
+    assert row["faults_injected"] == row["detections"] == row["false_alarms"] == 0  # no fault, none detected
     pd_row = run_unit(dataclasses.replace(unit, controller="pd"), SETUP)
     assert pd_row["tracking_rms_mm"] > 3.0 * row["tracking_rms_mm"]
     assert math.isnan(pd_row["payload_end_error_percent"])  # PD estimates nothing

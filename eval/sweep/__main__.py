@@ -4,7 +4,8 @@ The grid is scenarios x controllers x seeds; each cell is one episode (:func:`ev
 The run folder (``--out``, by default ``runs/sweep/<hash of the grid>`` so that the same arguments find
 the same folder) holds:
 
-- ``results.csv``: one row per episode (scenario, controller, seed, status, error, every metric),
+- ``results.csv``: one row per episode (scenario, controller, seed, status, error, every metric, the faults'
+  counts and detection latencies included: :data:`eval.faults.FAULT_METRICS`),
   appended as each episode finishes; rerun the same command after an interruption and only the missing
   episodes run;
 - ``summary.csv`` and ``summary.md``: per scenario and controller, mean, std and 95 % interval;

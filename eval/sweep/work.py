@@ -34,6 +34,7 @@ from eval import metrics
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
 from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
+from eval.faults import FAULT_METRICS
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
 from eval.run_folder import package_versions
 from eval.tasks import CELL_ESTIMATOR_KEY, timed
@@ -69,7 +70,9 @@ PAYLOAD_METRICS = ("payload_end_error_percent", "payload_settling_ms")
 """Payload metrics of the estimating controllers over the carries of objects >= 0.5 kg: mean |end error|
 (%) and the worst settling time to +-5 % (ms, NaN if a carry never settles); NaN for the others."""
 
-METRIC_FIELDS = (*EPISODE_METRICS, *PAYLOAD_METRICS)
+METRIC_FIELDS = (*EPISODE_METRICS, *PAYLOAD_METRICS, *FAULT_METRICS)
+"""The metrics of a row: the episode's, the payload's and the faults' (:data:`eval.faults.FAULT_METRICS`: faults
+injected, detected and missed, detections, false alarms, consequences, median and worst detection latency)."""
 
 _CODE_PACKAGES = ("delta_env", "controllers", "eval")
 _CODE_DEPENDENCIES = ("mujoco", "numpy", "scipy", "filterpy", "gymnasium")
@@ -104,7 +107,7 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
         finally:
             env.close()
         episode = record.metrics()
-        row.update({name: episode[name] for name in EPISODE_METRICS})
+        row.update({name: episode[name] for name in (*EPISODE_METRICS, *FAULT_METRICS)})
         if unit.controller in ESTIMATING_KEYS:
             scored = [carry for carry in record.carries() if carry.mass >= metrics.MIN_RELATIVE_MASS]
             if scored:

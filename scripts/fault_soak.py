@@ -1,0 +1,290 @@
+"""Fault-free soak: how often each controller's fault monitor raises a false alarm on hard, healthy work.
+
+Runs fault-free episodes ``seed, seed + 1, ...`` of fast, hard conditions until each controller has run
+``--minutes`` simulated minutes: the ``randomized`` preset's plants (masses +-10 %, friction +-30 %, current-loop
+lag 0.5-2 ms, drawn per episode) on conveyor cycles at 6 g peak acceleration with objects drawn from U[0, 6] kg
+(1.5 x the rated payload). No fault is injected, so every detection is a false alarm (:mod:`eval.faults` counts
+them; an episode that carried an injected fault all the same is counted apart and reported). The controllers
+are built as ``python -m eval`` builds them: the nominal robot's identification (``runs/identification``,
+identified once when missing, about a minute) and the tares of the payload estimators measured on payload-free
+episodes of the same conditions on the comparison's calibration seeds (:mod:`eval.calibration`).
+
+Writes into the folder ``--out`` (default ``runs/fault_soak/<time stamp>``):
+
+- ``episodes.csv``: one row per episode (:data:`EPISODE_COLUMNS`), appended as each finishes;
+- ``faults.csv``: every detection, as rows of :data:`eval.faults.FAULT_COLUMNS` (false alarms here);
+- ``config.json``: the command and the conditions; ``summary.md``: the table, also printed.
+
+An interrupted run loses nothing already written: rerun the same command with the same ``--out`` and it resumes,
+running only the episodes it lacks (a larger ``--minutes`` extends a finished soak).
+
+Usage: python scripts/fault_soak.py [--minutes 30] [--controllers mid_f_rls] [--seed 0] [--out DIR] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, ControllerSetup
+from delta_env.geometry import GRAVITY
+from delta_env.scenario import Scenario, preset
+from delta_env.sensors import CONTROL_PERIOD
+from eval import metrics
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
+from eval.comparison import calibration_seeds
+from eval.episodes import EpisodeRecord
+from eval.faults import FAULT_COLUMNS, fault_rows
+from eval.identification import robot_identification, robot_setup
+from eval.processes import process_pool
+from eval.run_folder import create_run_folder, write_config
+from eval.tasks import Task, iterate_tasks
+
+SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
+"""Peak Cartesian acceleration of the soak's cycles (m/s^2): twice the default's."""
+
+SOAK_PAYLOAD_RANGE = (0.0, 6.0)
+"""Object masses of the soak (kg), drawn per pick: up to 1.5 x the rated payload."""
+
+EPISODE_COLUMNS = (
+    "controller",
+    "key",
+    "episode",
+    "seed",
+    "simulated_s",
+    "carries",
+    "diverged",
+    "faults_injected",
+    "detections",
+    "false_alarms",
+    "tracking_rms_mm",
+    "torque_peak_nm",
+)
+"""Columns of ``episodes.csv``: the episode, its simulated time (s) and completed carries, whether it diverged,
+faults injected (0 in a fault-free soak), detections, false alarms, and two figures of how hard it ran."""
+
+
+def soak_scenario(base: Scenario | None = None) -> Scenario:
+    """The soak's conditions: the ``randomized`` preset (or ``base``) at :data:`SOAK_PEAK_ACCELERATION` with
+    objects from :data:`SOAK_PAYLOAD_RANGE`."""
+    base = preset("randomized") if base is None else base
+    task = dataclasses.replace(
+        base.task, peak_acceleration=SOAK_PEAK_ACCELERATION, payload_mass_range=SOAK_PAYLOAD_RANGE
+    )
+    return dataclasses.replace(
+        base,
+        name="fault-soak",
+        description="randomized plants, conveyor cycles at 6 g, objects U[0, 6] kg, no fault injected",
+        task=task,
+    )
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="scripts/fault_soak.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--minutes", type=float, default=30.0, help="simulated minutes per controller (default 30)")
+    parser.add_argument(
+        "--controllers",
+        default="mid_f_rls",
+        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default mid_f_rls)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/fault_soak/<time>)")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
+    args = parser.parse_args(argv)
+    keys = list(dict.fromkeys(key.strip() for key in args.controllers.split(",") if key.strip()))
+    unknown = [key for key in keys if key not in CONTROLLER_LABELS]
+    if unknown or not keys:
+        parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLER_LABELS)}")
+    args.controllers = keys
+    if not args.minutes > 0.0:
+        parser.error("--minutes must be > 0")
+    if args.workers < 1 or args.seed < 0:
+        parser.error("--workers must be >= 1 and --seed >= 0")
+    return args
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file written so far; a torn last line (the run died while writing it) is cut off."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+        path.write_text(text)
+    return list(csv.DictReader(text.splitlines()))
+
+
+def append_rows(path: Path, columns: Sequence[str], rows: Sequence[dict[str, Any]]) -> None:
+    """Append ``rows`` (header first if the file is new), flushed at once so that they survive an interruption."""
+    new = not path.exists() or path.stat().st_size == 0
+    with path.open("a", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=columns, extrasaction="ignore")
+        if new:
+            writer.writeheader()
+        writer.writerows(rows)
+        file.flush()
+        os.fsync(file.fileno())
+
+
+def episode_row(task: Task, record: EpisodeRecord) -> dict[str, Any]:
+    """The row of ``episodes.csv`` of one finished episode."""
+    scores = record.metrics()
+    return {
+        "controller": CONTROLLER_LABELS[task.key],
+        "key": task.key,
+        "episode": task.index,
+        "seed": task.seed,
+        "simulated_s": scores["steps"] * CONTROL_PERIOD,
+        "carries": len(record.carries()),
+        "diverged": record.diverged,
+        "faults_injected": scores["faults_injected"],
+        "detections": scores["detections"],
+        "false_alarms": scores["false_alarms"],
+        "tracking_rms_mm": scores["tracking_rms_mm"],
+        "torque_peak_nm": scores["torque_peak_nm"],
+    }
+
+
+def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
+    """The episodes already in ``out`` (none if new); ``faults.csv`` trimmed to them. Refuses a folder of a soak
+    under other conditions (another seed, scenario or code of the conditions)."""
+    config_path = out / "config.json"
+    if config_path.exists():
+        written = json.loads(config_path.read_text())["config"]
+        for name in ("seed", "scenario_hash"):
+            if written.get(name) != config[name]:
+                raise SystemExit(
+                    f"{out} holds a soak with {name} {written.get(name)!r}, not {config[name]!r}: use another --out"
+                )
+    done = read_rows(out / "episodes.csv")
+    finished = {(row["key"], row["seed"]) for row in done}
+    faults_path = out / "faults.csv"
+    kept = [row for row in read_rows(faults_path) if (row["key"], row["seed"]) in finished]
+    faults_path.unlink(missing_ok=True)
+    append_rows(faults_path, FAULT_COLUMNS, kept)  # fault rows of an episode whose row was never written go
+    return done
+
+
+def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
+    """Per controller: simulated minutes, episodes (diverged), carries, false alarms and their rate per hour."""
+    header = ["Controller", "Simulated minutes", "Episodes (diverged)", "Carries", "False alarms", "False alarms / h"]
+    by_key = metrics.group_by(rows, "key")
+    body = []
+    for key in keys:
+        group = [row for row in by_key.get(key, []) if int(row["faults_injected"]) == 0]
+        seconds = sum(float(row["simulated_s"]) for row in group)
+        alarms = sum(int(row["false_alarms"]) for row in group)
+        diverged = sum(str(row["diverged"]) == "True" for row in group)
+        rate = f"{3600.0 * alarms / seconds:.2f}" if seconds > 0 else "n/a"
+        carries = sum(int(row["carries"]) for row in group)
+        body.append(
+            [
+                CONTROLLER_LABELS[key],
+                f"{seconds / 60:.1f}",
+                f"{len(group)} ({diverged})",
+                str(carries),
+                str(alarms),
+                rate,
+            ]
+        )
+    return metrics.markdown_table(header, body)
+
+
+def tared_setup(scenario: Scenario, keys: Sequence[str], seed: int, workers: int) -> ControllerSetup:
+    """What the controllers know, as ``python -m eval`` builds it: the robot's identification and the tares of
+    the payload estimators measured on payload-free episodes of ``scenario`` on the calibration seeds of ``seed``."""
+    _, identification = robot_identification(scenario.plant)
+    setup = robot_setup(scenario.plant, identification)
+    tared = [key for key in keys if key in ESTIMATOR_REGRESSORS]
+    if not tared:
+        return setup
+    seeds = calibration_seeds(seed, DEFAULT_CALIBRATION_EPISODES)
+    calibration = calibrate_tares(tared, setup, seeds, scenario.task.n_cycles, workers=workers, scenario=scenario)
+    return calibrated_setup(setup, calibration, scenario)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from tqdm.auto import tqdm
+
+    args = parse_args(argv)
+    scenario = soak_scenario()
+    keys = args.controllers
+    out = create_run_folder("fault_soak", args.out)
+    config = {
+        "seed": args.seed,
+        "scenario_hash": scenario.content_hash,
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "peak_acceleration_m_s2": SOAK_PEAK_ACCELERATION,
+        "payload_mass_range_kg": list(SOAK_PAYLOAD_RANGE),
+        "minutes": args.minutes,
+        "controllers": keys,
+        "workers": args.workers,
+    }
+    rows: list[dict[str, Any]] = resume(out, config)
+    write_config(out, " ".join(["python", "scripts/fault_soak.py", *(sys.argv[1:] if argv is None else argv)]), config)
+    scenario.save(out / "scenario.toml")
+    setup = tared_setup(scenario, keys, args.seed, args.workers)
+
+    target = 60.0 * args.minutes
+    finished = {(row["key"], int(row["seed"])) for row in rows}
+    simulated = {key: sum(float(row["simulated_s"]) for row in rows if row["key"] == key) for key in keys}
+    batch = 4 * args.workers
+    n_cycles = scenario.task.n_cycles
+    index = 0
+    with (
+        process_pool(args.workers) as pool,
+        tqdm(total=len(keys) * target, desc="simulated s", unit="s") as progress,
+    ):
+        progress.update(sum(min(seconds, target) for seconds in simulated.values()))
+        while any(simulated[key] < target for key in keys):
+            tasks = [
+                Task("episode", key, i, args.seed + i, n_cycles, setup, scenario=scenario)
+                for key in keys
+                if simulated[key] < target
+                for i in range(index, index + batch)
+                if (key, args.seed + i) not in finished
+            ]
+            index += batch
+            for task, record in iterate_tasks(tasks, args.workers, None, pool):
+                row = episode_row(task, record)
+                identity = {name: row[name] for name in ("controller", "key", "episode", "seed")}
+                append_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
+                append_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
+                rows.append(row)
+                before = simulated[task.key]
+                simulated[task.key] += row["simulated_s"]
+                progress.update(min(simulated[task.key], target) - min(before, target))
+
+    faulted = sum(int(row["faults_injected"]) > 0 for row in rows)
+    lines = [
+        f"# Fault-free soak: {scenario.description}, from seed {args.seed}",
+        "",
+        "Every detection in a fault-free episode is a false alarm.",
+        "",
+        summary_table(rows, keys),
+        "",
+        *(
+            [f"{faulted} episode(s) carried an injected fault: left out of the table (see episodes.csv).", ""]
+            if faulted
+            else []
+        ),
+        f"Folder: {out}",
+    ]
+    summary = "\n".join(lines)
+    (out / "summary.md").write_text(summary + "\n")
+    print(summary)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

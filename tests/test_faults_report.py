@@ -1,0 +1,231 @@
+"""The fault report: injected faults matched to detections on synthetic episodes of known truth, the rows of
+``faults.csv``, their summary, and the episode runner's record of both lists."""
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controllers.base import PDController
+from controllers.monitor import DetectedFault, ReportsFaults
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.faults import InjectedFault
+from eval.episodes import run_episode
+from eval.faults import (
+    DETECTION_GRACE_S,
+    FAULT_COLUMNS,
+    FAULT_METRICS,
+    fault_metrics,
+    fault_rows,
+    fault_summary,
+    fault_table,
+    match_faults,
+    write_fault_csv,
+)
+
+DT = 1e-3
+
+
+def injected(kind: str, start_step: int, steps: int, joint: int | None = None, size: float = math.nan) -> InjectedFault:
+    return InjectedFault(kind, start_step, steps, (start_step + 1) * DT, joint, size)
+
+
+# An episode of known truth: a torque glitch on joint 1 at 0.101-0.106 s, detected 12 ms late; an encoder glitch at
+# 0.301 s (1 step), detected 40 ms after it ended (within the grace), then reported again as a collision (a
+# consequence); a collision at 0.501 s missed; a sensor_nan detected at 0.9 s with nothing under way (a false alarm).
+INJECTED = [
+    injected("torque_glitch", 100, 5, joint=1, size=30.0),
+    injected("encoder_glitch", 300, 1, joint=0, size=0.01),
+    injected("collision", 500, 20, size=200.0),
+]
+DETECTED = [
+    DetectedFault("torque_glitch", 0.113, joint=1, magnitude=28.0),
+    DetectedFault("encoder_glitch", 0.342, joint=0, magnitude=0.011),
+    DetectedFault("collision", 0.343),
+    DetectedFault("sensor_nan", 0.9, joint=2),
+]
+
+
+def test_matching_finds_detections_misses_consequences_and_false_alarms() -> None:
+    episode = match_faults(INJECTED, DETECTED)
+    assert [match.detection for match in episode.matches] == [DETECTED[0], DETECTED[1], None]
+    assert episode.matches[0].latency_s == pytest.approx(0.012)
+    assert episode.matches[1].latency_s == pytest.approx(0.041)
+    assert math.isnan(episode.matches[2].latency_s)
+    assert [(c.detection, c.after) for c in episode.consequences] == [(DETECTED[2], INJECTED[1])]
+    assert episode.false_alarms == (DETECTED[3],)
+    assert (episode.detected, episode.missed) == (2, 1)
+
+
+def test_a_detection_matches_within_the_fault_and_its_grace_only() -> None:
+    fault = injected("slip", 99, 10)  # acts from 0.100 s, ends at 0.110 s
+    end = 0.110
+    for time, matched in (
+        (0.100, True),  # on the first affected observation: latency 0
+        (0.099, False),  # before it: a false alarm
+        (end + DETECTION_GRACE_S, True),
+        (end + DETECTION_GRACE_S + 1e-3, False),
+    ):
+        episode = match_faults([fault], [DetectedFault("slip", time)])
+        assert (episode.detected == 1) is matched
+        assert len(episode.false_alarms) == (0 if matched else 1)
+    # The wrong kind at the right time is a consequence; the fault is missed.
+    episode = match_faults([fault], [DetectedFault("collision", 0.105)])
+    assert (episode.missed, len(episode.consequences), len(episode.false_alarms)) == (1, 1, 0)
+
+
+def test_each_fault_takes_its_earliest_detection_and_a_detection_serves_one_fault() -> None:
+    first, second = injected("encoder_glitch", 100, 1, joint=0), injected("encoder_glitch", 110, 1, joint=0)
+    late, early = DetectedFault("encoder_glitch", 0.115), DetectedFault("encoder_glitch", 0.105)
+    episode = match_faults([second, first], [late, early])  # the order given is kept, matching goes by start
+    assert [match.detection for match in episode.matches] == [late, early]
+    assert [match.injected for match in episode.matches] == [second, first]
+    # One detection for two faults: the earlier fault has it, the later one is missed.
+    episode = match_faults([first, second], [late])
+    assert [match.detection for match in episode.matches] == [late, None]
+    # A repeated report of a detected fault is a consequence.
+    episode = match_faults([first], [early, late])
+    assert episode.matches[0].detection == early and [c.detection for c in episode.consequences] == [late]
+
+
+def test_fault_metrics_count_and_time_the_episode() -> None:
+    columns = fault_metrics(match_faults(INJECTED, DETECTED))
+    assert tuple(columns) == FAULT_METRICS
+    assert columns == {
+        "faults_injected": 3,
+        "faults_detected": 2,
+        "faults_missed": 1,
+        "detections": 4,
+        "false_alarms": 1,
+        "fault_consequences": 1,
+        "detection_latency_median_ms": pytest.approx(26.5),
+        "detection_latency_max_ms": pytest.approx(41.0),
+    }
+    empty = fault_metrics(match_faults([], []))
+    assert empty["faults_injected"] == empty["detections"] == 0
+    assert math.isnan(empty["detection_latency_median_ms"]) and math.isnan(empty["detection_latency_max_ms"])
+
+
+def test_fault_rows_and_csv(tmp_path: Path) -> None:
+    identity = {"controller": "MId+F+R+RLS+PD", "key": "mid_f_rls", "episode": 2, "seed": 7}
+    rows = fault_rows(identity, match_faults(INJECTED, DETECTED))
+    assert [row["outcome"] for row in rows] == ["detected", "detected", "missed", "consequence", "false_alarm"]
+    assert all(tuple(row) == FAULT_COLUMNS for row in rows)
+    hit, _, miss, consequence, alarm = rows
+    assert hit["kind"] == hit["detected_kind"] == "torque_glitch"
+    assert (hit["injected_at_s"], hit["detected_at_s"]) == (pytest.approx(0.101), 0.113)
+    assert (hit["latency_ms"], hit["joint"], hit["size"], hit["magnitude"]) == (pytest.approx(12.0), 1, 30.0, 28.0)
+    assert miss["detected_at_s"] is None and miss["latency_ms"] is None and miss["kind"] == "collision"
+    assert (consequence["kind"], consequence["detected_kind"]) == ("encoder_glitch", "collision")
+    assert consequence["magnitude"] is None  # NaN is a blank cell
+    assert alarm["injected_at_s"] is None and alarm["kind"] == alarm["detected_kind"] == "sensor_nan"
+    assert alarm["detected_joint"] == 2 and alarm["joint"] is None
+    assert {row["seed"] for row in rows} == {7}
+
+    path = write_fault_csv(tmp_path / "faults.csv", rows)
+    with path.open() as file:
+        read = list(csv.DictReader(file))
+    assert tuple(read[0]) == FAULT_COLUMNS and len(read) == 5
+    assert read[2]["detected_at_s"] == "" and read[4]["injected_at_s"] == ""
+    # Without faults the file still has its header.
+    empty = write_fault_csv(tmp_path / "empty.csv", [])
+    assert empty.read_text().strip() == ",".join(FAULT_COLUMNS)
+    # The summary reads the rows back from the file as it reads them in memory.
+    assert fault_summary(read) == fault_summary(rows)
+
+
+def test_fault_summary_per_controller_and_kind() -> None:
+    a = fault_rows({"controller": "A"}, match_faults(INJECTED, DETECTED))
+    late = [DetectedFault("torque_glitch", 0.131), DetectedFault("encoder_glitch", 0.302)]
+    b = fault_rows({"controller": "B"}, match_faults(INJECTED[:2], late))
+    summary = fault_summary(a + b, controllers=["C", "B"])
+    assert [(entry.controller, entry.kind) for entry in summary] == [
+        ("C", None),  # asked for, no rows: zeros
+        ("B", "encoder_glitch"),  # in the order of FAULT_KINDS
+        ("B", "torque_glitch"),
+        ("B", None),
+        ("A", "encoder_glitch"),
+        ("A", "sensor_nan"),
+        ("A", "torque_glitch"),
+        ("A", "collision"),
+        ("A", None),
+    ]
+    by = {(entry.controller, entry.kind): entry for entry in summary}
+    assert by["C", None].injected == 0 and math.isnan(by["C", None].latency_median_ms)
+    total_b = by["B", None]
+    assert (total_b.injected, total_b.detected, total_b.missed, total_b.false_alarms) == (2, 2, 0, 0)
+    assert total_b.latency_median_ms == pytest.approx(0.5 * (30.0 + 1.0))
+    assert total_b.latency_max_ms == pytest.approx(30.0)
+    total_a = by["A", None]
+    assert (total_a.injected, total_a.detected, total_a.missed) == (3, 2, 1)
+    assert (total_a.false_alarms, total_a.consequences) == (1, 1)
+    assert total_a.latency_median_ms == pytest.approx(26.5) and total_a.latency_max_ms == pytest.approx(41.0)
+    assert by["A", "sensor_nan"].false_alarms == 1 and by["A", "sensor_nan"].injected == 0
+    assert by["A", "encoder_glitch"].consequences == 1  # the collision report that followed the encoder glitch
+    assert (by["A", "collision"].injected, by["A", "collision"].missed) == (1, 1)
+
+    table = fault_table(a, ["A"]).splitlines()
+    assert table[0].startswith("| Controller | Fault kind | Injected | Detected | Missed |")
+    assert table[-1] == "| A | all | 3 | 2 | 1 | 26.5 | 41.0 | 1 | 1 |"
+    assert "| A | collision | 1 | 0 | 1 | n/a | n/a | 0 | 0 |" in table
+
+
+class ReportingPD(PDController):
+    """A PD controller that "detects" a fault on its third observation: a stand-in for a monitor."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.detected_faults: list[DetectedFault] = []
+        self._calls = 0
+
+    def reset(self) -> None:
+        super().reset()
+        self.detected_faults = []
+        self._calls = 0
+
+    def __call__(self, observation):
+        self._calls += 1
+        if self._calls == 3:
+            self.detected_faults.append(DetectedFault("collision", 2 * DT, magnitude=50.0))
+        return super().__call__(observation)
+
+
+def test_run_episode_records_injected_and_detected_faults() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    truth = injected("collision", 1, 3, size=80.0)
+    original_step = env.step
+
+    def step(action):  # the env's injection, faked: the truth appears as the fault starts
+        if env._step_index == truth.start_step:
+            env.injected_faults.append(truth)
+        return original_step(action)
+
+    env.step = step
+    controller = ReportingPD()
+    assert isinstance(controller, ReportsFaults) and not isinstance(PDController(), ReportsFaults)
+    record = run_episode(env, controller, seed=3, payload_masses=[0.5])
+    assert record.injected_faults == [truth]
+    assert record.detected_faults == [DetectedFault("collision", 2 * DT, magnitude=50.0)]
+    assert record.detected_faults is not controller.detected_faults  # a copy
+    scores = record.metrics()
+    assert (scores["faults_injected"], scores["faults_detected"], scores["false_alarms"]) == (1, 1, 0)
+    assert scores["detection_latency_max_ms"] == pytest.approx(0.0)
+    # The next episode starts without the last one's faults.
+    env.step = original_step
+    plain = run_episode(env, PDController(), seed=3, payload_masses=[0.5])
+    assert plain.injected_faults == [] and plain.detected_faults == []
+    assert np.isnan(plain.metrics()["detection_latency_median_ms"])
+
+
+def test_the_comparison_summary_has_a_faults_section_only_with_faults() -> None:
+    from eval.__main__ import _fault_section
+
+    assert _fault_section([], ["PD"]) == []
+    rows = fault_rows({"controller": "A"}, match_faults(INJECTED, DETECTED))
+    section = _fault_section(rows, ["PD", "A"])
+    assert section[0] == "## Faults" and "50 ms after its end" in section[2]
+    table = section[4].splitlines()
+    assert table[2] == "| PD | all | 0 | 0 | 0 | n/a | n/a | 0 | 0 |"  # a controller without faults is listed
+    assert table[-1] == "| A | all | 3 | 2 | 1 | 26.5 | 41.0 | 1 | 1 |"
