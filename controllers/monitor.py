@@ -36,6 +36,7 @@ from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
 from controllers.payload import PayloadEstimator, residual_std
 from delta_env import kinematics
+from delta_env.faults import FAULT_REACTIONS
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_in, require_positive
 
@@ -397,12 +398,9 @@ class _DelayedState:
         return at_torque, torque_then, held_then, quiet_then
 
 
-REACTIONS = ("continue", "slow", "stop")
-"""What a monitored controller does after detecting a collision, a slip or a drive fault: carry on, ask the cell to
-slow to :data:`SLOW_RATE` of the reference's speed, or to stop at rest on the path."""
-
 SLOW_RATE = 0.5
-"""Speed override (of the reference's speed) a ``"slow"`` reaction asks for."""
+"""Speed override (of the reference's speed) a ``"slow"`` reaction (:data:`~delta_env.faults.FAULT_REACTIONS`)
+asks for."""
 
 REACTING_KINDS = ("collision", "slip", "drive_fault")
 """The detected faults a reaction answers; sensor faults are replaced and the work goes on."""
@@ -415,7 +413,7 @@ class MonitoredController:
     Args:
         controller: The controller to protect.
         monitor: Its monitor.
-        reaction: One of :data:`REACTIONS`.
+        reaction: One of :data:`FAULT_REACTIONS`.
 
     Attributes:
         requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
@@ -428,8 +426,8 @@ class MonitoredController:
         monitor: FaultMonitor,
         reaction: Literal["continue", "slow", "stop"] = "continue",
     ) -> None:
-        if reaction not in REACTIONS:
-            raise ValueError(f"reaction must be one of {list(REACTIONS)}, got {reaction!r}")
+        if reaction not in FAULT_REACTIONS:
+            raise ValueError(f"reaction must be one of {list(FAULT_REACTIONS)}, got {reaction!r}")
         self.controller = controller
         self.monitor = monitor
         self.reaction = reaction

@@ -79,7 +79,7 @@ class ControllerSetup:
         drive: The robot's drive (its data sheet), for the fault monitor's plausibility checks.
         encoder_bits: Its encoders' resolution (bits per revolution; None: exact), likewise.
         fault_reaction: What the monitored rows do after detecting a collision, a slip or a drive fault
-            (:data:`controllers.monitor.REACTIONS`).
+            (:data:`delta_env.faults.FAULT_REACTIONS`).
     """
 
     mid: ModelParameters

@@ -73,7 +73,7 @@ import tomli_w
 from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.cycles import require_start
 from delta_env.drive import DriveLimits
-from delta_env.faults import FaultSpec
+from delta_env.faults import FAULT_REACTIONS, FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
@@ -148,6 +148,9 @@ class PickPlaceTask:
             (0, 1]: the margin for tracking (:data:`delta_env.timing.DEFAULT_TORQUE_SHARE`).
         faults: Faults injected into the episodes (:class:`~delta_env.faults.FaultSpec`), drawn per episode;
             none by default.
+        fault_reaction: What the monitored controllers (:mod:`controllers.monitor`) ask of the cell after detecting a
+            collision, a slip or a drive fault: ``"continue"``, ``"slow"`` (half the reference's speed) or
+            ``"stop"`` (a controlled stop at rest on the path, which ends the episode).
     """
 
     cycle: Literal["conveyor", "standard"] = "conveyor"
@@ -159,11 +162,14 @@ class PickPlaceTask:
     timing: Literal["fixed", "worst_case", "declared", "online"] = "fixed"
     torque_share: float = DEFAULT_TORQUE_SHARE
     faults: tuple[FaultSpec, ...] = ()
+    fault_reaction: Literal["continue", "slow", "stop"] = "continue"
 
     def __post_init__(self) -> None:
         if not isinstance(self.faults, tuple) or not all(isinstance(f, FaultSpec) for f in self.faults):
             raise ValueError(f"faults must be a tuple of FaultSpec, got {self.faults!r}")
         require_timing(self.timing)
+        if self.fault_reaction not in FAULT_REACTIONS:
+            raise ValueError(f"fault_reaction must be one of {list(FAULT_REACTIONS)}, got {self.fault_reaction!r}")
         require_in("torque_share", self.torque_share, 0.0, 1.0, unit="of the envelope", low_open=True)
         if self.cycle not in ("conveyor", "standard"):
             raise ValueError(f"cycle must be 'conveyor' or 'standard', got {self.cycle!r}")
@@ -281,12 +287,14 @@ def _plant_table(plant: PlantConfig) -> dict[str, Any]:
 def _task_table(task: PickPlaceTask) -> dict[str, Any]:
     """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
     fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), and without
-    ``faults`` when there are none (likewise)."""
+    ``faults`` when there are none and ``fault_reaction`` when it is ``"continue"`` (likewise)."""
     table = _to_table(task)
     if task.timing == "fixed":
         del table["timing"], table["torque_share"]
     if not task.faults:
         del table["faults"]
+    if task.fault_reaction == "continue":
+        del table["fault_reaction"]
     return table
 
 

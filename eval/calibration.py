@@ -41,8 +41,8 @@ class Calibration(NamedTuple):
 
 
 def calibrated_setup(setup: ControllerSetup, calibration: Calibration, scenario: Scenario | None) -> ControllerSetup:
-    """``setup`` with the tares of ``calibration`` and, if the episodes run on the robot it was measured on, the
-    sums of its empty moves.
+    """``setup`` with the tares of ``calibration``, the scenario's fault reaction and, if the episodes run on the robot
+    it was measured on, the sums of its empty moves.
 
     The robot is the calibration's unless ``scenario`` randomizes the plant per episode: then every episode is
     another robot, and what the calibration's robots taught about their own mass and friction errors does not
@@ -50,7 +50,8 @@ def calibrated_setup(setup: ControllerSetup, calibration: Calibration, scenario:
     """
     randomized = scenario is not None and scenario.task.domain_randomization is not None
     empty_moves = {} if randomized else dict(calibration.empty_moves)
-    return dataclasses.replace(setup, tares=dict(calibration.tares), empty_moves=empty_moves)
+    reaction = setup.fault_reaction if scenario is None else scenario.task.fault_reaction
+    return dataclasses.replace(setup, tares=dict(calibration.tares), empty_moves=empty_moves, fault_reaction=reaction)
 
 
 def calibration_tasks(
