@@ -76,7 +76,8 @@ joint's own drive gives its arm at peak torque (peak / (rho1 I)): the other chai
 to it, but not double it (a 1000 N push on the platform adds about 300 N m at a joint)."""
 
 STUCK_COUNTS = 4.0
-"""An encoder that repeats its reading is suspect when its last step was at least this many counts."""
+"""An encoder that repeats its reading is suspect when its last step, and its reference's step, were at least this
+many counts."""
 
 STUCK_SAMPLES = 3
 """Repeated readings of a suspect encoder that make it stuck."""
@@ -133,6 +134,8 @@ class FaultMonitor:
         events: The faults detected since the reset, in time order.
         faulty: Whether this sample's reading (any joint, encoder or torque) was replaced.
         collision: Whether an external force is being detected now.
+        force: The last estimate of the external force on the platform (N), (3,): while the gripper holds, without
+            its part along the payload regressor.
         slipped: Whether a slip was detected on this sample.
     """
 
@@ -170,6 +173,7 @@ class FaultMonitor:
         self.faulty = False
         self.collision = False
         self.slipped = False
+        self.force = np.zeros(3)
         self._k = -1
         self._angles: list[NDArray[np.float64]] = []  # the last two clean readings
         self._error = np.zeros(3)  # last good tracking error per joint (rad)
@@ -207,10 +211,18 @@ class FaultMonitor:
         if len(self._angles) == 2:
             last, before = self._angles
             second_difference = raw - 2.0 * last + before
-            jump = np.isfinite(raw) & (np.abs(second_difference) > self._jump_bound)
+            # a reading that continues the one flagged before it at a plausible rate is a step, not a glitch (an
+            # encoder back from being stuck): accepted, so that the clean readings follow the joint again
+            continues = self._glitch_active[:3] & (
+                np.abs(raw - self._raw_previous - (last - before)) <= self._jump_bound
+            )
+            jump = np.isfinite(raw) & (np.abs(second_difference) > self._jump_bound) & ~continues
+            # a repeated reading is suspect while the joint was moving and its reference still moves several counts
+            # per sample (at rest, or coming to rest, a reading repeats rightly)
             repeated = raw == self._raw_previous
+            commanded = np.abs(observation["reference_velocities"]) * CONTROL_PERIOD >= self._stuck_step
             moving = np.abs(last - before) >= self._stuck_step
-            self._stuck = np.where(repeated & (moving | (self._stuck > 0)), self._stuck + 1, 0)
+            self._stuck = np.where(repeated & commanded & (moving | (self._stuck > 0)), self._stuck + 1, 0)
             stuck = self._stuck >= STUCK_SAMPLES
             for joint in np.flatnonzero(jump & ~self._glitch_active[:3] & ~stuck):
                 self._detect("encoder_glitch", int(joint), second_difference[joint])
@@ -300,6 +312,7 @@ class FaultMonitor:
             force = np.linalg.solve(kinematics.jacobian(self.dynamics.geometry, state[0]).T, residual)
         except np.linalg.LinAlgError:
             return
+        self.force = force
         magnitude = float(np.linalg.norm(force))
         if magnitude > FORCE_THRESHOLD:
             self._over += 1
@@ -393,6 +406,7 @@ class _DelayedState:
         if len(self._pending) <= self.lag:
             return None
         torque_then, held_then, quiet_then = self._pending.popleft()
+        quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
         # the torque was measured MEASURED_TORQUE_DELAY before the encoder sample of its state
         at_torque = state if previous is None else state - _TORQUE_AGE * (state - previous)
         return at_torque, torque_then, held_then, quiet_then

@@ -63,11 +63,13 @@ def calibration_tasks(
     references: Sequence[Trajectory] | None = None,
 ) -> list[Task]:
     """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed, on
-    ``scenario`` (None: ``nominal``), following ``references[j]`` on seed ``j`` when given (else the
+    ``scenario`` (None: ``nominal``) without its faults, following ``references[j]`` on seed ``j`` when given (else the
     scenario's pick-and-place)."""
     if references is not None and len(references) != len(seeds):
         raise ValueError(f"references must be one per seed: {len(references)} references for {len(seeds)} seeds")
     paths = [None] * len(seeds) if references is None else list(references)
+    if scenario is not None and scenario.task.faults:  # a tare is measured on healthy work
+        scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
     tasks = []
     for key in keys:
         if key not in ESTIMATOR_REGRESSORS:

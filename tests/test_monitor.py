@@ -1,0 +1,138 @@
+"""The fault monitor on faults of known truth: the injected kind, time and size (controllers.monitor)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controllers.base import PDController
+from controllers.dynamics import DeltaDynamics
+from controllers.feedforward import model_controller
+from controllers.monitor import FaultMonitor, MonitoredController
+from controllers.registry import ControllerSetup, build_controller
+from delta_env.config import PlantConfig
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.faults import FaultSpec
+from eval.episodes import run_episode
+
+START = 0.12  # s: within the first, empty move of the conveyor cycle (the first pick is after 0.3 s)
+
+
+def _monitored_rls(setup: ControllerSetup) -> MonitoredController:
+    controller = build_controller("mid_f_rls", setup)
+    assert isinstance(controller, MonitoredController)
+    return controller
+
+
+def _run(faults: list[FaultSpec], controller: MonitoredController, seed: int = 3, **env_kwargs: object):
+    env = DeltaPickPlaceEnv(faults=faults, n_cycles=2, **env_kwargs)
+    return run_episode(env, controller, seed), env
+
+
+def test_known_constant_force_on_the_ideal_plant_is_estimated_within_ten_percent() -> None:
+    # The ideal plant meets the model's assumptions: the residual is the external force alone.
+    plant = PlantConfig.ideal()
+    force = 200.0
+    env = DeltaPickPlaceEnv(
+        plant=plant,
+        n_cycles=1,
+        faults=[FaultSpec("collision", start=(START, START), size=(force, force), duration=(0.05, 0.05))],
+    )
+    model = DeltaDynamics.nominal()
+    monitor = FaultMonitor(model, plant.drive.peak_torque, drive_lag=(0.0, 0.0, 0.0))
+    controller = MonitoredController(model_controller(None), monitor)
+    observation, _ = env.reset(seed=1)
+    assert env.trajectory.pick_indices[0] * env.dt > START + 0.1
+    controller.reset()
+    estimates = []
+    for _ in range(int((START + 0.04) / env.dt)):
+        observation, *_ = env.step(controller(observation))
+        estimates.append(np.linalg.norm(monitor.force))
+    assert [fault.kind for fault in env.injected_faults] == ["collision"]
+    assert estimates[int(START / env.dt) + 20] == pytest.approx(force, rel=0.10)
+    assert [event.kind for event in monitor.events] == ["collision"]
+    assert 0.0 <= monitor.events[0].time_s - env.injected_faults[0].start_s <= 0.010
+
+
+def test_fault_free_episodes_raise_no_alarm(controller_setup: ControllerSetup) -> None:
+    controller = _monitored_rls(controller_setup)
+    for seed in range(3):
+        record, _ = _run([], controller, seed=seed)
+        assert record.detected_faults == []
+
+
+def test_one_encoder_glitch_is_detected_at_its_sample_and_kept_out_of_the_estimate(
+    controller_setup: ControllerSetup,
+) -> None:
+    glitch = FaultSpec("encoder_glitch", carry_fraction=(0.5, 0.5), size=(0.02, 0.02), joint=1)
+    clean, _ = _run([], _monitored_rls(controller_setup))
+    faulty, env = _run([glitch], _monitored_rls(controller_setup))
+    (injected,) = env.injected_faults
+    (detected,) = faulty.detected_faults
+    assert (detected.kind, detected.joint) == ("encoder_glitch", 1)
+    assert detected.time_s == pytest.approx(injected.start_s)
+    # gated: the estimate and the command barely notice (unguarded, Kp 0.02 rad = 60 N m and a rate spike of 20 rad/s)
+    mass = clean.masses.max()
+    assert np.max(np.abs(faulty.payload_estimate - clean.payload_estimate)) < 0.02 * mass
+    assert np.max(np.abs(faulty.command - clean.command)) < 10.0
+
+
+def test_a_stuck_encoder_is_detected_within_five_samples(controller_setup: ControllerSetup) -> None:
+    stuck = FaultSpec("encoder_stuck", carry_fraction=(0.5, 0.5), duration=(0.03, 0.03), joint=0)
+    record, env = _run([stuck], _monitored_rls(controller_setup))
+    (injected,) = env.injected_faults
+    first = next(event for event in record.detected_faults if event.kind == "encoder_stuck")
+    assert 0.0 <= first.time_s - injected.start_s <= 0.005
+    # the joint runs on its feedforward while stuck, then the clean readings follow the encoder again (no lock-out)
+    assert record.metrics()["tracking_max_mm"] < 20.0
+    assert record.tracking_error[-1] < 2e-3
+
+
+@pytest.mark.parametrize("sensor", ["encoder", "torque"])
+def test_a_nan_reading_is_detected_and_never_crashes_the_controller(
+    controller_setup: ControllerSetup, sensor: str
+) -> None:
+    nan = FaultSpec("sensor_nan", carry_fraction=(0.3, 0.3), sensor=sensor, joint=2, duration=(0.003, 0.003))
+    record, env = _run([nan], _monitored_rls(controller_setup))
+    (injected,) = env.injected_faults
+    assert not record.diverged and np.isfinite(record.payload_estimate).all()
+    first = record.detected_faults[0]
+    assert (first.kind, first.joint, first.time_s) == ("sensor_nan", 2, pytest.approx(injected.start_s))
+
+
+def test_a_torque_glitch_is_detected_at_its_sample(controller_setup: ControllerSetup) -> None:
+    glitch = FaultSpec("torque_glitch", carry_fraction=(0.5, 0.5), size=(30.0, 30.0), joint=0)
+    clean, _ = _run([], _monitored_rls(controller_setup))
+    record, env = _run([glitch], _monitored_rls(controller_setup))
+    (injected,) = env.injected_faults
+    (detected,) = record.detected_faults
+    assert (detected.kind, detected.joint) == ("torque_glitch", 0)
+    assert detected.time_s == pytest.approx(injected.start_s)
+    assert np.max(np.abs(record.payload_estimate - clean.payload_estimate)) < 0.02 * clean.masses.max()
+
+
+def test_a_slip_is_detected_and_the_estimate_forgets_the_object(controller_setup: ControllerSetup) -> None:
+    slip = FaultSpec("slip", carry_fraction=(0.5, 0.5))
+    record, env = _run([slip], _monitored_rls(controller_setup), payload_mass_range=(3.0, 3.0))
+    (injected,) = env.injected_faults
+    detected = next(event for event in record.detected_faults if event.kind == "slip")
+    assert 0.0 <= detected.time_s - injected.start_s <= 0.030
+    after = round(injected.start_s / env.dt) + 50
+    assert record.payload_estimate[after] < 0.1
+
+
+def test_a_stop_reaction_ends_the_episode_at_rest(controller_setup: ControllerSetup) -> None:
+    import dataclasses
+
+    setup = dataclasses.replace(controller_setup, fault_reaction="stop")
+    collision = FaultSpec("collision", carry_fraction=(0.5, 0.5), size=(400.0, 400.0), duration=(0.03, 0.03))
+    record, env = _run([collision], _monitored_rls(setup))
+    assert any(event.kind == "collision" for event in record.detected_faults)
+    assert env.trajectory.xyz_dot[-1] == pytest.approx(np.zeros(3), abs=1e-9)
+    assert len(record.place_indices) < 2  # the second object is never placed
+
+
+def test_monitored_controller_refuses_an_unknown_reaction() -> None:
+    monitor = FaultMonitor(DeltaDynamics.nominal(), 400.0)
+    with pytest.raises(ValueError, match="reaction must be one of"):
+        MonitoredController(PDController(), monitor, reaction="panic")
