@@ -68,10 +68,12 @@ def test_controllers_are_models_of_the_robot_they_were_identified_on() -> None:
     model = estimation_model(setup)
     assert model.geometry == DESIGN and model.masses == masses
     controller = build_controller("mid_f", setup)
-    assert controller.dynamics.geometry == DESIGN
+    assert controller.controller.dynamics.geometry == DESIGN  # the model row behind its fault monitor
     theta = np.array([[0.1, -0.2, 0.3]])
     rate, acceleration = np.array([[0.5, 0.2, -0.4]]), np.array([[3.0, -2.0, 1.0]])
     expected = DeltaDynamics.of_robot(DESIGN, masses, NOMINAL_SETUP.mid_f).inverse_dynamics(theta, rate, acceleration)
-    nominal = build_controller("mid_f", NOMINAL_SETUP).dynamics.inverse_dynamics(theta, rate, acceleration)
-    np.testing.assert_allclose(controller.dynamics.inverse_dynamics(theta, rate, acceleration), expected, rtol=1e-12)
+    nominal = build_controller("mid_f", NOMINAL_SETUP).controller.dynamics.inverse_dynamics(theta, rate, acceleration)
+    np.testing.assert_allclose(
+        controller.controller.dynamics.inverse_dynamics(theta, rate, acceleration), expected, rtol=1e-12
+    )
     assert np.max(np.abs(expected - nominal)) > 0.3  # N m: the design's model is not the nominal one

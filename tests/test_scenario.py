@@ -9,6 +9,7 @@ import pytest
 
 import delta_env  # noqa: F401 - registers DeltaPickPlace-v0
 from controllers.base import PDController
+from controllers.registry import monitored
 from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
@@ -16,7 +17,7 @@ from delta_env.scenario import Condition, PickPlaceTask, Scenario, preset, prese
 from delta_env.sensors import control_substeps
 from eval.tasks import timed
 
-PRESETS = ("heavy", "nominal", "paper", "pick-rate", "randomized", "stress-6g", "worn")
+PRESETS = ("faults", "heavy", "nominal", "paper", "pick-rate", "randomized", "stress-6g", "worn")
 
 
 def unusual_scenario() -> Scenario:
@@ -109,7 +110,7 @@ def test_bad_fields_are_errors_naming_the_field(text: str, message: str) -> None
 
 def test_unknown_preset_lists_the_presets() -> None:
     assert preset_names() == sorted(PRESETS)
-    with pytest.raises(ValueError, match="heavy, nominal, paper, pick-rate, randomized, stress-6g, worn"):
+    with pytest.raises(ValueError, match="faults, heavy, nominal, paper, pick-rate, randomized, stress-6g, worn"):
         resolve_scenario("nominl")
     with pytest.raises(ValueError, match="no such file"):
         resolve_scenario("missing/dir/cell.toml")
@@ -174,6 +175,8 @@ def test_every_preset_builds_and_runs_a_short_episode(name: str, controller_setu
     )
     assert env.domain_randomization == scenario.task.domain_randomization
     controller = PDController(3000.0, 60.0)
+    if scenario.task.faults:  # a NaN reading must reach no controller: a monitor cleans the observations
+        controller = monitored(controller, controller_setup)
     if scenario.task.timing != "fixed":  # a planned timing plans on the identified model: the evaluation gives it
         controller = timed(env, controller, "pd", controller_setup)
     observation, info = env.reset(seed=3)
