@@ -1,0 +1,186 @@
+"""Fault campaign: each kind of fault injected once per episode, its detection and what it did to the estimate.
+
+For every fault kind, runs ``--episodes`` episodes of ``--scenario`` (a preset or file; its own faults are replaced)
+with one fault of that kind at a random point of a random carry (the ``FaultSpec`` default ranges), and the same
+episodes without it (the fault-free twins: the same seed, path, objects and noise). Reports per kind, for
+``--controller`` (a monitored row of the registry, ``mid_f_rls`` by default):
+
+- detected / injected, median and worst latency (ms), consequences and false alarms (:mod:`eval.faults`);
+- for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
+  the payload estimate against the twin from the fault to the end of its carry, as a share of the object's mass;
+- for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone).
+
+Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
+``summary.md`` into ``--out`` (default ``runs/fault_campaign/<time stamp>``), and prints the table. The controller
+is tared on fault-free payload-free episodes, as ``python -m eval`` tares it.
+
+Usage: python scripts/fault_campaign.py [--scenario nominal] [--episodes 20] [--kinds all] [--seed 0] [--out DIR]
+                                        [--controller mid_f_rls] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS
+from delta_env.faults import FAULT_KINDS, FaultSpec
+from delta_env.scenario import Scenario, resolve_scenario
+from delta_env.sensors import CONTROL_PERIOD
+from eval import metrics
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
+from eval.comparison import calibration_seeds
+from eval.episodes import EpisodeRecord
+from eval.faults import fault_rows, fault_summary, write_fault_csv
+from eval.identification import robot_identification, robot_setup
+from eval.processes import process_pool
+from eval.run_folder import create_run_folder, write_config
+from eval.tasks import Task, iterate_tasks
+
+SENSOR_KINDS = ("encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch")
+"""Faults of a reading, which must not move the payload estimate."""
+
+GONE_MASS = 0.1
+"""Estimate (kg) below which a slipped object counts as forgotten."""
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python scripts/fault_campaign.py", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenario", default="nominal", help="preset or scenario TOML file (default nominal)")
+    parser.add_argument("--episodes", type=int, default=20, help="episodes per fault kind (default 20)")
+    kinds = ", ".join(FAULT_KINDS)
+    parser.add_argument("--kinds", default="all", help=f"comma-separated fault kinds or 'all' ({kinds})")
+    parser.add_argument("--controller", default="mid_f_rls", help="monitored controller key (default mid_f_rls)")
+    parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
+    parser.add_argument("--out", default=None, help="run folder (default runs/fault_campaign/<time stamp>)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.workers < 1:
+        parser.error(f"--workers must be >= 1, got {args.workers}")
+    args.kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
+    unknown = sorted(set(args.kinds) - set(FAULT_KINDS))
+    if unknown:
+        parser.error(f"--kinds: unknown {unknown}; choose from {list(FAULT_KINDS)} or 'all'")
+    if args.controller not in CONTROLLER_LABELS or args.controller in ("pd", "oracle", "residual"):
+        parser.error(f"--controller must be a monitored model row, got {args.controller!r}")
+    try:
+        args.scenario = resolve_scenario(args.scenario)
+    except (ValueError, OSError) as error:
+        parser.error(f"--scenario: {error}")
+    return args
+
+
+def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...]) -> Scenario:
+    """``scenario`` with these faults instead of its own."""
+    return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=faults))
+
+
+def estimate_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
+    """What the fault did to the payload estimate: the largest change against the twin from the fault to the end of
+    its carry as a share of the object's mass (sensor faults), or the time until the estimate of a slipped object
+    fell below :data:`GONE_MASS` (NaN if it did not before the place)."""
+    (fault,) = faulty.injected_faults
+    start = fault.start_step + 1  # the first observation it affects
+    carry = int(np.searchsorted(faulty.pick_indices, start, side="right")) - 1
+    places = faulty.place_indices
+    end = int(places[carry]) if 0 <= carry < len(places) else len(faulty.payload_estimate)
+    end = min(end, len(faulty.payload_estimate), len(twin.payload_estimate))
+    effect = {"estimate_change": math.nan, "forgotten_ms": math.nan}
+    if start >= end:
+        return effect
+    if fault.kind == "slip":
+        below = np.flatnonzero(faulty.payload_estimate[start:end] < GONE_MASS)
+        effect["forgotten_ms"] = 1e3 * below[0] * CONTROL_PERIOD if below.size else math.nan
+    elif fault.kind in SENSOR_KINDS and 0 <= carry < len(faulty.masses):
+        change = np.max(np.abs(faulty.payload_estimate[start:end] - twin.payload_estimate[start:end]))
+        effect["estimate_change"] = float(change / max(faulty.masses[carry], GONE_MASS))
+    return effect
+
+
+def summary_table(rows: list[dict[str, Any]], fault_csv_rows: list[dict[str, Any]], kinds: Sequence[str]) -> str:
+    summaries = {(s.kind): s for s in fault_summary(fault_csv_rows)}
+    header = [
+        "Fault",
+        "Detected",
+        "Latency median / max (ms)",
+        "Consequences",
+        "False alarms",
+        "Estimate change, max (% of mass)",
+        "Slip forgotten, max (ms)",
+    ]
+    body = []
+    for kind in kinds:
+        summary = summaries.get(kind)
+        mine = [row for row in rows if row["kind"] == kind]
+        changes = [row["estimate_change"] for row in mine if not math.isnan(row["estimate_change"])]
+        forgotten = [row["forgotten_ms"] for row in mine]
+        slow_forget = "never" if any(math.isnan(f) for f in forgotten) else f"{max(forgotten, default=math.nan):.0f}"
+        body.append(
+            [
+                kind,
+                f"{summary.detected}/{summary.injected}" if summary else "0/0",
+                f"{summary.latency_median_ms:.0f} / {summary.latency_max_ms:.0f}"
+                if summary and summary.detected
+                else "n/a",
+                str(summary.consequences) if summary else "0",
+                str(summary.false_alarms) if summary else "0",
+                f"{100 * max(changes):.1f}" if changes else "",
+                slow_forget if kind == "slip" else "",
+            ]
+        )
+    return metrics.markdown_table(header, body)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    out = create_run_folder("fault_campaign", args.out)
+    command = " ".join(["python", "scripts/fault_campaign.py", *(sys.argv[1:] if argv is None else argv)])
+    write_config(out, command, {"scenario": args.scenario.name, "episodes": args.episodes, "kinds": args.kinds})
+    healthy = with_faults(args.scenario, ())
+    _, identification = robot_identification(healthy.plant)
+    setup = robot_setup(healthy.plant, identification)
+    key, n_cycles = args.controller, healthy.task.n_cycles
+    if key in ESTIMATOR_REGRESSORS:
+        seeds = calibration_seeds(args.seed, DEFAULT_CALIBRATION_EPISODES)
+        calibration = calibrate_tares([key], setup, seeds, n_cycles, workers=args.workers, scenario=healthy)
+        setup = calibrated_setup(setup, calibration, healthy)
+    seeds = [args.seed + i for i in range(args.episodes)]
+    tasks = [Task("episode", key, i, seed, n_cycles, setup, scenario=healthy) for i, seed in enumerate(seeds)]
+    for kind in args.kinds:
+        faulty = with_faults(healthy, (FaultSpec(kind),))
+        tasks += [Task("episode", key, i, seed, n_cycles, setup, scenario=faulty) for i, seed in enumerate(seeds)]
+    with process_pool(args.workers) as pool:
+        records = list(iterate_tasks(tasks, args.workers, None, pool))
+    twins = {task.seed: record for task, record in records[: len(seeds)]}
+    rows, fault_csv_rows = [], []
+    for task, record in records[len(seeds) :]:
+        if not record.injected_faults:
+            continue  # the drawn carry fault fell after the episode's end
+        kind = record.injected_faults[0].kind
+        identity = {"controller": CONTROLLER_LABELS[key], "key": key, "episode": task.index, "seed": task.seed}
+        fault_csv_rows += fault_rows(identity, record.faults())
+        rows.append({"kind": kind, "seed": task.seed, **estimate_effect(record, twins[task.seed])})
+    write_fault_csv(out / "faults.csv", fault_csv_rows)
+    with (out / "campaign.csv").open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=["kind", "seed", "estimate_change", "forgotten_ms"])
+        writer.writeheader()
+        writer.writerows(rows)
+    table = summary_table(rows, fault_csv_rows, args.kinds)
+    text = f"# Fault campaign: {args.scenario.name}, {CONTROLLER_LABELS[key]}, {args.episodes} episodes per kind\n\n"
+    (out / "summary.md").write_text(text + table + "\n")
+    print(text + table)
+    print(f"\nRun folder: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
