@@ -124,9 +124,9 @@ def build_controller(
     if key == "pd":
         return PDController(*setup.pd_gains)
     if key == "residual":
-        if policy is not None:
-            return residual_controller(policy, name=label)
-        return load_residual_controller(residual_policy_path(setup), name=label)
+        if policy is None:
+            return monitored(load_residual_controller(residual_policy_path(setup), name=label), setup)
+        return monitored(residual_controller(policy, name=label), setup)
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")

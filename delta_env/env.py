@@ -262,6 +262,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
+        if isinstance(faults, FaultSpec | str):
+            raise ValueError(f"faults must be a sequence of FaultSpec (e.g. [FaultSpec('slip')]), got {faults!r}")
         faults = tuple(base.task.faults if faults is None else faults)
         for index, spec in enumerate(faults):
             require_instance(f"faults[{index}]", spec, FaultSpec)

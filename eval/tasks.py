@@ -81,10 +81,8 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
     )
     estimator = None
     if env.task_timing == "online":
-        if key in ESTIMATOR_REGRESSORS:
+        if key in ESTIMATOR_REGRESSORS or key == "residual":  # the residual's base is an RLS controller
             estimator = controller.estimator
-        elif key == "residual":  # the residual's base is an RLS controller: its estimate is the row's own
-            estimator = controller.base.estimator
         else:
             estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
             controller = EstimatingController(controller, estimator)

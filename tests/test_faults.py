@@ -317,3 +317,8 @@ def test_gymnasium_env_checker_with_faults() -> None:
         DeltaPickPlaceEnv(n_cycles=1, faults=[*faults, FaultSpec("collision", target="obstacle")]),
         skip_render_check=True,
     )
+
+
+def test_a_bare_fault_spec_is_refused_with_a_clear_error() -> None:
+    with pytest.raises(ValueError, match="faults must be a sequence of FaultSpec"):
+        DeltaPickPlaceEnv(faults=FaultSpec("slip"))

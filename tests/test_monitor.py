@@ -136,3 +136,11 @@ def test_monitored_controller_refuses_an_unknown_reaction() -> None:
     monitor = FaultMonitor(DeltaDynamics.nominal(), 400.0)
     with pytest.raises(ValueError, match="reaction must be one of"):
         MonitoredController(PDController(), monitor, reaction="panic")
+
+
+def test_every_model_row_and_the_residual_run_behind_a_monitor(controller_setup: ControllerSetup) -> None:
+    for key in ("mkh", "mid", "mid_f", "mid_f_r", "mid_f_rls", "mid_f_rls_ref", "mid_f_rls_lag", "residual"):
+        controller = build_controller(key, controller_setup)
+        assert isinstance(controller, MonitoredController), key
+        if key.startswith("mid_f_rls") or key == "residual":
+            assert controller.estimator is not None, key

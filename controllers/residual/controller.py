@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -10,6 +11,9 @@ from numpy.typing import NDArray
 from controllers.base import Controller, Observation
 from controllers.residual.config import ResidualConfig
 from controllers.residual.features import ResidualFeatures
+
+if TYPE_CHECKING:
+    from controllers.payload import PayloadEstimator
 
 PolicyFunction = Callable[[NDArray[np.float32]], NDArray[np.float32]]
 """Maps one policy observation (float32, (ResidualFeatures.size,)) to an action in [-1, 1]^3."""
@@ -63,6 +67,11 @@ class ResidualController:
     def payload_estimate(self) -> float:
         """The base controller's payload estimate (kg)."""
         return payload_estimate(self.base)
+
+    @property
+    def estimator(self) -> PayloadEstimator | None:
+        """The base controller's payload estimator, or None: a fault monitor keeps faulty samples out of it."""
+        return getattr(self.base, "estimator", None)
 
     @property
     def residual_torque(self) -> NDArray[np.float64]:
