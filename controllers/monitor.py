@@ -152,6 +152,7 @@ class FaultMonitor:
     Attributes:
         events: The faults detected since the reset, in time order.
         faulty: Whether this sample's reading (any joint, encoder or torque) was replaced.
+        suspect: Whether an encoder repeats a reading it should not, not yet called stuck (kept out of the checks).
         collision: Whether an external force is being detected now.
         force: The last estimate of the external force on the platform (N), (3,): while the gripper holds, without
             its part along the payload regressor.
@@ -195,6 +196,7 @@ class FaultMonitor:
         """Start an episode: no history, no events."""
         self.events = []
         self.faulty = False
+        self.suspect = False
         self.collision = False
         self.slipped = False
         self.force = np.zeros(3)
@@ -415,7 +417,9 @@ class FaultMonitor:
         angles, rates = self._clean_encoders(observation)
         torque = self._clean_torques(observation, command)
         self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
-        if self.faulty:
+        self.suspect = bool(self._stuck.any())
+        # a repeated reading not yet called stuck is already kept out of the model's checks and the estimator
+        if self.faulty or self._stuck.any():
             self._quiet_until = self._k + SENSOR_QUIET
         holding = observation["gripper"].item(0) > 0.5
         self._check_model(angles, torque, holding)
@@ -532,7 +536,7 @@ class MonitoredController:
                 undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
                 if undo > 0:
                     estimator.rollback(undo)
-            if monitor.faulty or monitor.collision:
+            if monitor.faulty or monitor.suspect or monitor.collision:
                 estimator.skip(SENSOR_QUIET)
             if monitor.slipped:
                 estimator.drop_object()

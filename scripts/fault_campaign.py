@@ -84,17 +84,21 @@ def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...]) -> Scenario:
     return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=faults))
 
 
-def estimate_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
-    """What the fault did to the payload estimate: the largest change against the twin from the fault to the end of
+def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
+    """What the fault did: to the payload estimate, the largest change against the twin from the fault to the end of
     its carry as a share of the object's mass (sensor faults), or the time until the estimate of a slipped object
-    fell below :data:`GONE_MASS` (NaN if it did not before the place)."""
+    fell below :data:`GONE_MASS` (NaN if it did not before the place); for a drive fault, the most torque (N m) it
+    withheld (what the twin commanded over the limit; 0: the fault changed nothing)."""
     (fault,) = faulty.injected_faults
     start = fault.start_step + 1  # the first observation it affects
     carry = int(np.searchsorted(faulty.pick_indices, start, side="right")) - 1
     places = faulty.place_indices
     end = int(places[carry]) if 0 <= carry < len(places) else len(faulty.payload_estimate)
     end = min(end, len(faulty.payload_estimate), len(twin.payload_estimate))
-    effect = {"estimate_change": math.nan, "forgotten_ms": math.nan}
+    effect = {"estimate_change": math.nan, "forgotten_ms": math.nan, "withheld_nm": math.nan}
+    if fault.kind == "drive_fault":  # what the drive withheld: the twin's command (what was asked) over the limit
+        asked = np.abs(twin.command[fault.start_step : fault.start_step + fault.steps, fault.joint])
+        effect["withheld_nm"] = float(np.max(asked - fault.size * faulty.peak_torque, initial=0.0))
     if start >= end:
         return effect
     if fault.kind == "slip":
@@ -104,6 +108,15 @@ def estimate_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, flo
         change = np.max(np.abs(faulty.payload_estimate[start:end] - twin.payload_estimate[start:end]))
         effect["estimate_change"] = float(change / max(faulty.masses[carry], GONE_MASS))
     return effect
+
+
+def effective_drive(rows: list[dict[str, Any]], fault_csv_rows: list[dict[str, Any]]) -> str:
+    """Detected / injected of the drive faults that withheld more than the torque check's margin (6 N m)."""
+    detected = {
+        int(row["seed"]) for row in fault_csv_rows if row["kind"] == "drive_fault" and row["outcome"] == "detected"
+    }
+    effective = [row for row in rows if row["withheld_nm"] > 6.0]
+    return f"{sum(row['seed'] in detected for row in effective)}/{len(effective)}"
 
 
 def summary_table(rows: list[dict[str, Any]], fault_csv_rows: list[dict[str, Any]], kinds: Sequence[str]) -> str:
@@ -116,6 +129,7 @@ def summary_table(rows: list[dict[str, Any]], fault_csv_rows: list[dict[str, Any
         "False alarms",
         "Estimate change, max (% of mass)",
         "Slip forgotten, max (ms)",
+        "Drive faults withholding > 6 N m: detected",
     ]
     body = []
     for kind in kinds:
@@ -135,6 +149,7 @@ def summary_table(rows: list[dict[str, Any]], fault_csv_rows: list[dict[str, Any
                 str(summary.false_alarms) if summary else "0",
                 f"{100 * max(changes):.1f}" if changes else "",
                 slow_forget if kind == "slip" else "",
+                effective_drive(mine, fault_csv_rows) if kind == "drive_fault" else "",
             ]
         )
     return metrics.markdown_table(header, body)
@@ -168,10 +183,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         kind = record.injected_faults[0].kind
         identity = {"controller": CONTROLLER_LABELS[key], "key": key, "episode": task.index, "seed": task.seed}
         fault_csv_rows += fault_rows(identity, record.faults())
-        rows.append({"kind": kind, "seed": task.seed, **estimate_effect(record, twins[task.seed])})
+        rows.append({"kind": kind, "seed": task.seed, **fault_effect(record, twins[task.seed])})
     write_fault_csv(out / "faults.csv", fault_csv_rows)
     with (out / "campaign.csv").open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=["kind", "seed", "estimate_change", "forgotten_ms"])
+        writer = csv.DictWriter(file, fieldnames=["kind", "seed", "estimate_change", "forgotten_ms", "withheld_nm"])
         writer.writeheader()
         writer.writerows(rows)
     table = summary_table(rows, fault_csv_rows, args.kinds)
