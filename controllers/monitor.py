@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
-from controllers.payload import PayloadEstimator, residual_std
+from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, PayloadEstimator, residual_std
 from delta_env import kinematics
 from delta_env.faults import FAULT_REACTIONS
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
@@ -124,10 +124,14 @@ of a light object, biased by the static friction of the lift-off, would make "go
 SLIP_EVIDENCE = 12.0
 """Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
 
-MONITOR_RESIDUAL_STD = 4.0
-"""Standard deviation (N m) of the model's residual the slip check assumes while moving: the identified model's
-error on a robot whose masses and friction differ from its identification by up to 10 and 30 % (the
-``randomized`` preset), at 6 g, rather than the payload estimator's 1.5 N m on the robot as identified."""
+INITIAL_RESIDUAL_STD = 4.0
+"""Standard deviation (N m) of the model's residual the slip check assumes at a reset, before it has measured its
+robot's: the identified model's error on a robot whose masses and friction differ from its identification by up to
+10 and 30 % (the ``randomized`` preset), at 6 g."""
+
+SCATTER_RATE = 0.01
+"""Weight of each moving sample in the running mean square of the model's residual (a memory of about 100 samples),
+from which the slip check takes the residual's variance, at least the payload estimator's 1.5 N m squared."""
 
 SLIP_SETTLE = 0.03
 """Time after the pick (s) before the mass held is trusted as a reference."""
@@ -189,6 +193,8 @@ class FaultMonitor:
         self.lag = SMOOTHER_LAG
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
         self._static_friction = np.array(dynamics.parameters.coulomb)
+        self._viscous = np.array(dynamics.parameters.viscous)
+        self._corrections: ModelCorrections | None = None
         self.events: list[DetectedFault] = []
         self.reset()
 
@@ -223,6 +229,7 @@ class FaultMonitor:
         self._held_information = self._held_moment = 0.0
         self._evidence = 0.0
         self._slip_armed = False
+        self._scatter = np.full(3, INITIAL_RESIDUAL_STD**2)
 
     def _detect(self, kind: str, joint: int | None, magnitude: float) -> None:
         self.events.append(DetectedFault(kind, self._k * CONTROL_PERIOD, joint, float(magnitude)))
@@ -323,8 +330,25 @@ class FaultMonitor:
         if tau0 is None:
             return
         residual = torque_then - tau0
+        if self._corrections is not None:
+            residual = residual - self._correction(state, phi)
         self._check_payload(residual, phi, state[1], held_then, quiet)
         self._check_force(state, residual, phi, held_then, quiet)
+
+    def set_corrections(self, corrections: ModelCorrections | None) -> None:
+        """Take the model's corrections to this robot (fitted by a payload estimator on its empty moves) into the
+        residual from now on; None uses the identified model as it is."""
+        self._corrections = corrections
+
+    def _correction(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """What the corrections add to the model's torque at ``state`` (N m), as :class:`ModelCorrections` says."""
+        theta, theta_dot, theta_ddot = state
+        dynamics, corrections = self.dynamics, self._corrections
+        arm = dynamics.inertia * theta_ddot + dynamics.gravity_amplitude * np.cos(theta)
+        friction = self._viscous * theta_dot + self._static_friction * np.sign(theta_dot)
+        return (
+            corrections.platform_mass * phi + corrections.arm_mass_scale * arm + corrections.friction_scale * friction
+        )
 
     def _model_torque(
         self, state: NDArray[np.float64]
@@ -365,8 +389,12 @@ class FaultMonitor:
         if self._force_evidence > FORCE_EVIDENCE and not self.collision:
             self._detect("collision", None, magnitude)
             self.collision = True
-        elif self._force_evidence == 0.0:
+        elif self._force_evidence == 0.0 and self.collision:
             self.collision = False
+            if self._held_since is not None:  # what the collision left in the mass held: measure it afresh
+                self._held_since = self._k
+                self._held_information = self._held_moment = self._evidence = 0.0
+                self.held_mass = None
 
     def _check_payload(
         self,
@@ -381,6 +409,8 @@ class FaultMonitor:
         if not holding:
             self._held_since = None
             self.held_mass = None
+            if not quiet:
+                self._learn_scatter(residual, theta_dot)
             return
         if self._held_since is None:
             self._held_since = self._k
@@ -389,7 +419,10 @@ class FaultMonitor:
             self._slip_armed = True
         if quiet or not self._slip_armed or self._force_evidence > 0.0:
             return
-        weight = residual_std(theta_dot, self._static_friction, MONITOR_RESIDUAL_STD) ** -2
+        if self.held_mass is not None:
+            self._learn_scatter(residual - self.held_mass * phi, theta_dot)
+        band = residual_std(theta_dot, self._static_friction, 0.0)
+        weight = 1.0 / (band * band + self._scatter)
         information = float(np.sum(weight * phi * phi))
         moment = float(np.sum(weight * phi * residual))
         if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
@@ -406,6 +439,12 @@ class FaultMonitor:
                     return
         self._held_information += information
         self._held_moment += moment
+
+    def _learn_scatter(self, deviation: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> None:
+        """Follow the model's residual variance per joint while moving (N^2 m^2), at least the nominal's."""
+        moving = np.abs(theta_dot) > FRICTION_VELOCITY
+        learned = (1.0 - SCATTER_RATE) * self._scatter + SCATTER_RATE * deviation * deviation
+        self._scatter = np.where(moving, np.maximum(learned, RESIDUAL_STD**2), self._scatter)
 
     # -- the step -------------------------------------------------------------------------------
 
@@ -501,6 +540,7 @@ class MonitoredController:
         self.name = controller.name
         self.requested_speed = 1.0
         self._command: NDArray[np.float64] | None = None
+        self._holding = False
         self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
         if self.estimator is not None:
             self.estimator.keep_checkpoints(self._checkpoints)
@@ -523,13 +563,19 @@ class MonitoredController:
         self.monitor.reset()
         self.requested_speed = 1.0
         self._command = None
+        self._holding = False
+        self.monitor.set_corrections(None)
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         monitor = self.monitor
         seen = len(monitor.events)
+        estimator = self.estimator
+        holding = observation["gripper"].item(0) > 0.5
+        if holding and not self._holding and estimator is not None and estimator.fits_corrections:
+            monitor.set_corrections(estimator.corrections)  # what the empty moves so far say of this robot
+        self._holding = holding
         clean = monitor.update(observation, self._command)
         new = monitor.events[seen:]
-        estimator = self.estimator
         if estimator is not None:
             if any(event.kind == "collision" for event in new):
                 # the collision's first samples entered before it was detected: undo them
