@@ -60,6 +60,7 @@ EPISODE_COLUMNS = (
     "seed",
     "simulated_s",
     "carries",
+    "carries_over",
     "diverged",
     "faults_injected",
     "detections",
@@ -138,13 +139,15 @@ def append_rows(path: Path, columns: Sequence[str], rows: Sequence[dict[str, Any
 def episode_row(task: Task, record: EpisodeRecord) -> dict[str, Any]:
     """The row of ``episodes.csv`` of one finished episode."""
     scores = record.metrics()
+    carries = record.carries()
     return {
         "controller": CONTROLLER_LABELS[task.key],
         "key": task.key,
         "episode": task.index,
         "seed": task.seed,
         "simulated_s": scores["steps"] * CONTROL_PERIOD,
-        "carries": len(record.carries()),
+        "carries": len(carries),
+        "carries_over": metrics.payload_targets(carries).overshoots[0],
         "diverged": record.diverged,
         "faults_injected": scores["faults_injected"],
         "detections": scores["detections"],
@@ -175,8 +178,12 @@ def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
 
 
 def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
-    """Per controller: simulated minutes, episodes (diverged), carries, false alarms and their rate per hour."""
-    header = ["Controller", "Simulated minutes", "Episodes (diverged)", "Carries", "False alarms", "False alarms / h"]
+    """Per controller: simulated minutes, episodes (diverged), carries and those whose estimate overshot the lift-off
+    bound (:data:`eval.metrics.OVERSHOOT_BOUND`), false alarms and their rate per hour."""
+    bound_kg, bound_fraction = metrics.OVERSHOOT_BOUND
+    over = f"Carries over max({bound_kg} kg, {100 * bound_fraction:.0f} %)"
+    header = ["Controller", "Simulated minutes", "Episodes (diverged)", "Carries", over, "False alarms"]
+    header.append("False alarms / h")
     by_key = metrics.group_by(rows, "key")
     body = []
     for key in keys:
@@ -186,12 +193,14 @@ def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
         diverged = sum(str(row["diverged"]) == "True" for row in group)
         rate = f"{3600.0 * alarms / seconds:.2f}" if seconds > 0 else "n/a"
         carries = sum(int(row["carries"]) for row in group)
+        overshoots = sum(int(row["carries_over"]) for row in group)
         body.append(
             [
                 CONTROLLER_LABELS[key],
                 f"{seconds / 60:.1f}",
                 f"{len(group)} ({diverged})",
                 str(carries),
+                str(overshoots),
                 str(alarms),
                 rate,
             ]
