@@ -117,6 +117,10 @@ FORCE_EVIDENCE = 60.0
 SLIP_MIN_MASS = 0.3
 """Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
 
+HELD_MASS_STD = 0.05
+"""Standard error (kg) below which the mass held is taken out of the collision check's residual (before, the part
+along phi is left out): 0.05 kg times phi is about 1 N m."""
+
 SLIP_PRECISION = 0.1
 """The slip check starts once the standard error of the mass held is below this fraction of it: an early estimate
 of a light object, biased by the static friction of the lift-off, would make "gone" and "held" hard to tell."""
@@ -162,7 +166,7 @@ class FaultMonitor:
             its part along the payload regressor.
         collision_samples: Checked samples since the collision evidence began to grow (0 while there is none).
         held_mass: The mass (kg) the payload-consistency check believes held, once :data:`SLIP_SETTLE` after the pick
-            has passed (0 after a slip); None otherwise.
+            has passed and it is known to :data:`HELD_MASS_STD` (0 after a slip); None otherwise.
         slipped: Whether a slip was detected on this sample.
     """
 
@@ -427,7 +431,8 @@ class FaultMonitor:
         moment = float(np.sum(weight * phi * residual))
         if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
             held = self._held_moment / self._held_information
-            self.held_mass = held
+            if self._held_information**-0.5 < HELD_MASS_STD:
+                self.held_mass = held
             # test "gone" against "held" once the mass held is known well enough to tell them apart
             if held >= SLIP_MIN_MASS and self._held_information**-0.5 < SLIP_PRECISION * held:
                 self._evidence = max(0.0, self._evidence + held * (0.5 * held * information - moment))
