@@ -144,3 +144,27 @@ def test_every_model_row_and_the_residual_run_behind_a_monitor(controller_setup:
         assert isinstance(controller, MonitoredController), key
         if key.startswith("mid_f_rls") or key == "residual":
             assert controller.estimator is not None, key
+
+
+def test_a_drive_that_loses_a_small_torque_is_detected(controller_setup: ControllerSetup) -> None:
+    # mid-carry the joint needs only 10-15 N m: too little for the span check, caught by the shortfall CUSUM
+    fault = FaultSpec("drive_fault", carry_fraction=(0.5, 0.5), size=(0.0, 0.0), duration=(0.05, 0.05), joint=1)
+    record, env = _run([fault], _monitored_rls(controller_setup))
+    (injected,) = env.injected_faults
+    drive = [event for event in record.detected_faults if event.kind == "drive_fault"]
+    assert drive and drive[0].joint == 1
+    assert 0.0 <= drive[0].time_s - injected.start_s <= 0.015
+
+
+def test_a_light_slip_on_a_robot_unlike_its_identification_is_caught_without_false_alarms(
+    controller_setup: ControllerSetup,
+) -> None:
+    from delta_env.config import RandomizationRanges
+
+    slip = FaultSpec("slip", carry_fraction=(0.6, 0.6))
+    randomized = {"domain_randomization": RandomizationRanges(), "payload_mass_range": (0.6, 0.6)}
+    record, env = _run([slip], _monitored_rls(controller_setup), seed=5, **randomized)
+    (injected,) = env.injected_faults
+    (detected,) = record.detected_faults
+    assert detected.kind == "slip"
+    assert 0.0 <= detected.time_s - injected.start_s <= 0.030
