@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_LAG, JointStateSmoother
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, PayloadEstimator, residual_std
 from delta_env import kinematics
 from delta_env.faults import FAULT_REACTIONS
@@ -144,6 +144,10 @@ SENSOR_QUIET = 2 * SMOOTHER_LAG + 1
 """Readings after a faulty one whose model equations (the residual here, the payload estimator's) are left out: the
 smoothed states within the smoother's lag either side of a replaced reading lean on it."""
 
+RESYNC_QUIET = SMOOTHER_HISTORY + 2 * SMOOTHER_LAG + 1
+"""Readings kept out of the model's equations after the clean readings step back onto an encoder that was replaced
+for a while (a stuck spell): the step sits in the smoother's whole window."""
+
 _TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
 
 
@@ -161,6 +165,8 @@ class FaultMonitor:
         events: The faults detected since the reset, in time order.
         faulty: Whether this sample's reading (any joint, encoder or torque) was replaced.
         suspect: Whether an encoder repeats a reading it should not, not yet called stuck (kept out of the checks).
+        resynced: Whether the clean readings stepped back onto an encoder on this sample.
+        quiet_samples: Readings from this one that the model's equations leave out after a faulty one.
         collision: Whether an external force is being detected now.
         force: The last estimate of the external force on the platform (N), (3,): while the gripper holds, without
             its part along the payload regressor.
@@ -207,6 +213,8 @@ class FaultMonitor:
         self.events = []
         self.faulty = False
         self.suspect = False
+        self.resynced = False
+        self.quiet_samples = SENSOR_QUIET
         self.collision = False
         self.slipped = False
         self.force = np.zeros(3)
@@ -257,6 +265,7 @@ class FaultMonitor:
                 np.abs(raw - self._raw_previous - (last - before)) <= self._jump_bound
             )
             jump = np.isfinite(raw) & (np.abs(second_difference) > self._jump_bound) & ~continues
+            self.resynced = bool(continues.any())
             # a repeated reading is suspect while the joint was moving and its reference still moves several counts
             # per sample (at rest, or coming to rest, a reading repeats rightly)
             repeated = raw == self._raw_previous
@@ -421,7 +430,7 @@ class FaultMonitor:
             self._held_information = self._held_moment = 0.0
             self._evidence = 0.0
             self._slip_armed = True
-        if quiet or not self._slip_armed or self._force_evidence > 0.0:
+        if quiet or not self._slip_armed:
             return
         if self.held_mass is not None:
             self._learn_scatter(residual - self.held_mass * phi, theta_dot)
@@ -442,8 +451,9 @@ class FaultMonitor:
                     self._slip_armed = False
                     self.held_mass = 0.0
                     return
-        self._held_information += information
-        self._held_moment += moment
+        if self._force_evidence == 0.0:  # a collision's samples stay out of the mass held
+            self._held_information += information
+            self._held_moment += moment
 
     def _learn_scatter(self, deviation: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> None:
         """Follow the model's residual variance per joint while moving (N^2 m^2), at least the nominal's."""
@@ -458,13 +468,15 @@ class FaultMonitor:
         the clean observation (a new dict; unchanged entries shared)."""
         self._k += 1
         self.slipped = False
+        self.resynced = False
         angles, rates = self._clean_encoders(observation)
         torque = self._clean_torques(observation, command)
         self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
         self.suspect = bool(self._stuck.any())
         # a repeated reading not yet called stuck is already kept out of the model's checks and the estimator
-        if self.faulty or self._stuck.any():
-            self._quiet_until = self._k + SENSOR_QUIET
+        self.quiet_samples = RESYNC_QUIET if self.resynced else SENSOR_QUIET
+        if self.faulty or self.suspect or self.resynced:
+            self._quiet_until = self._k + self.quiet_samples
         holding = observation["gripper"].item(0) > 0.5
         self._check_model(angles, torque, holding)
         clean = dict(observation)
@@ -587,8 +599,8 @@ class MonitoredController:
                 undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
                 if undo > 0:
                     estimator.rollback(undo)
-            if monitor.faulty or monitor.suspect or monitor.collision:
-                estimator.skip(SENSOR_QUIET)
+            if monitor.faulty or monitor.suspect or monitor.resynced or monitor.collision:
+                estimator.skip(monitor.quiet_samples)
             if monitor.slipped:
                 estimator.drop_object()
         if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
