@@ -141,6 +141,10 @@ friction of a joint that moves one way on every empty move (the empty moves all 
 fitted freely, it was read as friction, whose sign then flips on the carry back. Tied to the inertia, it is
 measured by the accelerations, which no other column resembles."""
 
+DROP_VARIANCE = 0.01
+"""Variance (kg^2) of the estimate restarted at the tare when a slip is detected: nothing is held, give or take
+0.1 kg (the check that found the slip is that sure)."""
+
 PICK_PRIOR_VARIANCE = 16.0 / 3.0
 """Variance (kg^2) restored at a pick: the mean square of a mass uniform on [0, 4] kg (the rating)
 around the prior of 0 kg."""
@@ -689,8 +693,11 @@ class PayloadEstimator:
 
     def drop_object(self) -> None:
         """The object is gone although the gripper still holds (a detected slip): the estimate restarts at the tare
-        with the prior variance."""
-        self.rls.reset(self.tare)
+        with the variance :data:`DROP_VARIANCE`; the equations still in the pipeline (of samples before the slip was
+        found, up to :attr:`delay` ago), and those whose smoothing window straddles the slip, are left out; needs
+        :meth:`keep_checkpoints`."""
+        self.rls.state = (self.tare, DROP_VARIANCE)
+        self.skip(4 * self.delay + 1)
 
     def measurement(
         self,
