@@ -117,8 +117,9 @@ def test_a_slip_is_detected_and_the_estimate_forgets_the_object(controller_setup
     (injected,) = env.injected_faults
     detected = next(event for event in record.detected_faults if event.kind == "slip")
     assert 0.0 <= detected.time_s - injected.start_s <= 0.030
-    after = round(injected.start_s / env.dt) + 50
-    assert record.payload_estimate[after] < 0.1
+    # forgotten at once, and it stays forgotten: no pre-slip sample pulls the estimate back up
+    found, after = round(detected.time_s / env.dt), round(injected.start_s / env.dt) + 50
+    assert np.max(np.abs(record.payload_estimate[found + 1 : after])) < 0.1
 
 
 def test_a_stop_reaction_ends_the_episode_at_rest(controller_setup: ControllerSetup) -> None:
