@@ -122,7 +122,7 @@ def build_controller(
         raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
     label = CONTROLLER_LABELS[key]
     if key == "pd":
-        return PDController(*setup.pd_gains)
+        return monitored(PDController(*setup.pd_gains), setup)
     if key == "residual":
         if policy is None:
             return monitored(load_residual_controller(residual_policy_path(setup), name=label), setup)
@@ -130,7 +130,8 @@ def build_controller(
     if key == "oracle":
         if env is None:
             raise ValueError("the oracle needs the env whose plant it inverts")
-        return OracleController(env.plant_config)  # its own feedback gains: see OracleController
+        # its own feedback gains (see OracleController); the monitor keeps a faulty reading from it, as from the rows
+        return monitored(OracleController(env.plant_config), setup)
     return monitored(_model_row(key, setup, label), setup)
 
 

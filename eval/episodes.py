@@ -217,9 +217,10 @@ def run_episode(
     observation, info = env.reset(seed=seed, options=options or None)
     # the oracle's privilege and a monitor's reactions, also when an online timing runs the cell's estimator beside it
     inner = controller.controller if isinstance(controller, EstimatingController) else controller
-    if isinstance(inner, OracleController):
-        inner.set_payload_masses(info["payload_masses"])
-        inner.set_physical_parameters(env.plant.parameters)
+    privileged = inner.controller if isinstance(inner, MonitoredController) else inner
+    if isinstance(privileged, OracleController):
+        privileged.set_payload_masses(info["payload_masses"])
+        privileged.set_physical_parameters(env.plant.parameters)
     controller.reset()
     plant = env.plant
     estimate = getattr(controller, "payload_estimate", None)
