@@ -141,8 +141,8 @@ SLIP_SETTLE = 0.03
 """Time after the pick (s) before the mass held is trusted as a reference."""
 
 SENSOR_QUIET = 2 * SMOOTHER_LAG + 1
-"""Readings after a faulty one whose model equations (the residual here, the payload estimator's) are left out: the
-smoothed states within the smoother's lag either side of a replaced reading lean on it."""
+"""Readings whose model equations (the monitor's checks, the payload estimator's) are left out after replaced
+readings in a row: the smoothed states within the smoother's lag either side of them lean on them."""
 
 RESYNC_QUIET = SMOOTHER_HISTORY + 2 * SMOOTHER_LAG + 1
 """Readings kept out of the model's equations after the clean readings step back onto an encoder that was replaced
@@ -166,7 +166,7 @@ class FaultMonitor:
         faulty: Whether this sample's reading (any joint, encoder or torque) was replaced.
         suspect: Whether an encoder repeats a reading it should not, not yet called stuck (kept out of the checks).
         resynced: Whether the clean readings stepped back onto an encoder on this sample.
-        quiet_samples: Readings from this one that the model's equations leave out after a faulty one.
+        quiet_samples: Readings from this one that the model's equations leave out (0 after a lone replaced reading).
         collision: Whether an external force is being detected now.
         force: The last estimate of the external force on the platform (N), (3,): while the gripper holds, without
             its part along the payload regressor.
@@ -214,7 +214,8 @@ class FaultMonitor:
         self.faulty = False
         self.suspect = False
         self.resynced = False
-        self.quiet_samples = SENSOR_QUIET
+        self.quiet_samples = 0
+        self._faulty_run = 0
         self.collision = False
         self.slipped = False
         self.force = np.zeros(3)
@@ -252,23 +253,29 @@ class FaultMonitor:
         raw = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         reference = observation["reference_angles"]
-        bad = ~np.isfinite(raw) | ~np.isfinite(rates)
-        for joint in np.flatnonzero(bad & ~self._nan_active[:3]):
+        bad = ~np.isfinite(raw)
+        # a NaN rate beside a finite reading follows a NaN reading (the rate is a backward difference): it is
+        # recomputed below, and reported only when the reading before was finite
+        rate_missing = ~bad & ~np.isfinite(rates)
+        unexplained = rate_missing & (True if self._raw_previous is None else np.isfinite(self._raw_previous))
+        for joint in np.flatnonzero((bad | unexplained) & ~self._nan_active[:3]):
             self._detect("sensor_nan", int(joint), math.nan)
-        self._nan_active[:3] = bad
+        self._nan_active[:3] = bad | unexplained
         if len(self._angles) == 2:
             last, before = self._angles
             second_difference = raw - 2.0 * last + before
             # a reading that continues the one flagged before it at a plausible rate is a step, not a glitch (an
             # encoder back from being stuck): accepted, so that the clean readings follow the joint again
-            continues = self._glitch_active[:3] & (
-                np.abs(raw - self._raw_previous - (last - before)) <= self._jump_bound
+            repeated = raw == self._raw_previous
+            continues = (
+                self._glitch_active[:3]
+                & ~repeated
+                & (np.abs(raw - self._raw_previous - (last - before)) <= self._jump_bound)
             )
             jump = np.isfinite(raw) & (np.abs(second_difference) > self._jump_bound) & ~continues
             self.resynced = bool(continues.any())
             # a repeated reading is suspect while the joint was moving and its reference still moves several counts
             # per sample (at rest, or coming to rest, a reading repeats rightly)
-            repeated = raw == self._raw_previous
             commanded = np.abs(observation["reference_velocities"]) * CONTROL_PERIOD >= self._stuck_step
             moving = np.abs(last - before) >= self._stuck_step
             self._stuck = np.where(repeated & commanded & (moving | (self._stuck > 0)), self._stuck + 1, 0)
@@ -281,10 +288,13 @@ class FaultMonitor:
             bad |= jump | stuck
         self._raw_previous = raw
         clean = np.where(bad, reference + self._error, raw)
-        if bad.any() or self._encoder_bad.any():
-            # a rate from a replaced reading, or against one: the reference's, else the clean backward difference
-            difference = (clean - self._angles[0]) / CONTROL_PERIOD if self._angles else rates
-            rates = np.where(bad, observation["reference_velocities"], np.where(self._encoder_bad, difference, rates))
+        if bad.any() or self._encoder_bad.any() or rate_missing.any():
+            # a rate from a replaced reading, or against one, or missing: the reference's, else the clean backward
+            # difference
+            reference_rates = observation["reference_velocities"]
+            difference = (clean - self._angles[0]) / CONTROL_PERIOD if self._angles else reference_rates
+            rederived = np.where(self._encoder_bad | rate_missing, difference, rates)
+            rates = np.where(bad, reference_rates, rederived)
         else:
             self._error = raw - reference
         self._error = np.where(bad, self._error, clean - reference)
@@ -473,10 +483,19 @@ class FaultMonitor:
         torque = self._clean_torques(observation, command)
         self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
         self.suspect = bool(self._stuck.any())
-        # a repeated reading not yet called stuck is already kept out of the model's checks and the estimator
-        self.quiet_samples = RESYNC_QUIET if self.resynced else SENSOR_QUIET
-        if self.faulty or self.suspect or self.resynced:
-            self._quiet_until = self._k + self.quiet_samples
+        self._faulty_run = self._faulty_run + 1 if self.faulty else 0
+        # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago,
+        # or the current loop's prediction): the model's equations keep it. Replacements in a row drift from the
+        # joint (a stuck encoder: the joint runs on its feedforward), so they and the smoother's lag after them are
+        # left out, as is a repeated reading not yet called stuck, and the smoother's window after a step back.
+        if self.resynced:
+            self.quiet_samples = RESYNC_QUIET
+        elif self.suspect or self._faulty_run > 1:
+            self.quiet_samples = SENSOR_QUIET
+        else:
+            self.quiet_samples = 0
+        if self.quiet_samples:
+            self._quiet_until = max(self._quiet_until, self._k + self.quiet_samples)
         holding = observation["gripper"].item(0) > 0.5
         self._check_model(angles, torque, holding)
         clean = dict(observation)
@@ -599,8 +618,10 @@ class MonitoredController:
                 undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
                 if undo > 0:
                     estimator.rollback(undo)
-            if monitor.faulty or monitor.suspect or monitor.resynced or monitor.collision:
+            if monitor.quiet_samples:
                 estimator.skip(monitor.quiet_samples)
+            if monitor.collision:
+                estimator.skip(SENSOR_QUIET)
             if monitor.slipped:
                 estimator.drop_object()
         if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
