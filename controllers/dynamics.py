@@ -298,6 +298,23 @@ class DeltaDynamics:
             )
         return terms[0], terms[1]
 
+    def torque_regressor_and_force_map(
+        self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`torque_and_payload_regressor` of one joint state, and the map of a joint torque to the platform
+        force that would cause it: F = J^-T tau = -A^T K^-1 tau (N per N m, ``(3, 3)``), for an observer of external
+        forces. Raises as :meth:`torque_and_payload_regressor`."""
+        t1, t2, t3 = _three_floats(theta)
+        w1, w2, w3 = _three_floats(theta_dot)
+        u1, u2, u3 = _three_floats(theta_ddot)
+        status, terms = _single_sample_model(self._single_sample_constants, t1, t2, t3, w1, w2, w3, u1, u2, u3)
+        if status != _VALID:
+            raise ValueError(
+                f"{_INVALID_STATE[status]}: theta={theta!r}, theta_dot={theta_dot!r}, theta_ddot={theta_ddot!r}"
+            )
+        # column i of A^T is a_i: F = -sum_i a_i tau_i / k_i
+        return terms[0], terms[1], -terms[2:5].T / terms[5]
+
     def _total_mass(self, payload: ArrayLike) -> float | NDArray[np.float64]:
         """Mt = m0 + mp + 3 m2 (kg): a float, or an array with a trailing axis for the joints."""
         if isinstance(payload, (float, int)):  # the 1 kHz controller's path: no array
@@ -410,11 +427,12 @@ def _single_sample_model(
     u2: float,
     u3: float,
 ) -> tuple[int, NDArray[np.float64]]:
-    """tau0 and phi of one joint state, rows 0 and 1 of the returned ``(2, 3)``; a status code first.
+    """tau0 and phi of one joint state, rows 0 and 1 of the returned ``(6, 3)``, then the rows a_1..a_3 of A (m) and
+    k (m); a status code first.
 
     Written out in scalars (docs/design.md sections 2 and 3): forward kinematics, A, k, xdd and A^{-T} once.
     """
-    terms = np.zeros((2, 3))
+    terms = np.zeros((6, 3))
     if not math.isfinite(t1 + t2 + t3 + w1 + w2 + w3 + u1 + u2 + u3):
         return _NOT_FINITE, terms
     l1, r, l2 = constants[_L1], constants[_R], constants[_L2]
@@ -508,6 +526,10 @@ def _single_sample_model(
         tau3 += rod * (-k3 * inv_det * (g3x * sx + g3y * sy + g3z * sz) - own3)
     terms[0, 0], terms[0, 1], terms[0, 2] = tau1, tau2, tau3
     terms[1, 0], terms[1, 1], terms[1, 2] = phi1, phi2, phi3
+    terms[2, 0], terms[2, 1], terms[2, 2] = a1x, a1y, a1z
+    terms[3, 0], terms[3, 1], terms[3, 2] = a2x, a2y, a2z
+    terms[4, 0], terms[4, 1], terms[4, 2] = a3x, a3y, a3z
+    terms[5, 0], terms[5, 1], terms[5, 2] = k1, k2, k3
     return _VALID, terms
 
 

@@ -36,7 +36,6 @@ from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_LAG, JointStateSmoother
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, PayloadEstimator, residual_std
-from delta_env import kinematics
 from delta_env.faults import FAULT_REACTIONS
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_in, require_positive
@@ -196,9 +195,10 @@ class FaultMonitor:
         self._jump_bound = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
         self._stuck_step = max(STUCK_COUNTS * step, 1e-9)
         self._loop_gain = np.array([1.0 - math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 1.0 for lag in lags])
-        self._slowest_gain = np.array(
-            [1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags]
-        )
+        self._slowest_gain_list = [
+            1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags
+        ]
+        self._slowest_gain = np.array(self._slowest_gain_list)
         self._delayed = _DelayedState(SMOOTHER_LAG)
         self.lag = SMOOTHER_LAG
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
@@ -233,6 +233,7 @@ class FaultMonitor:
         self._shortfall = np.zeros(3)
         self._torque_measured = np.zeros(3)
         self._torque_implausible = np.zeros(3, dtype=bool)
+        self._encoders_clean = self._torques_clean = False  # the scalar fast paths: nothing flagged on the last sample
         self._delayed.reset()
         self._quiet_until = -1
         self._force_evidence = 0.0
@@ -249,10 +250,31 @@ class FaultMonitor:
 
     # -- sensors --------------------------------------------------------------------------------
 
+    def _healthy_encoders(self, raw: NDArray[np.float64], rates: NDArray[np.float64], observation: Observation) -> bool:
+        """The 1 kHz fast path, in scalars: nothing flagged before, and these readings finite, within the jump bound
+        and not a suspect repeat. Then the full check would pass them unchanged."""
+        if not self._encoders_clean or len(self._angles) < 2:
+            return False
+        r0, r1, r2 = raw.tolist()
+        v0, v1, v2 = rates.tolist()
+        if not math.isfinite(r0 + r1 + r2 + v0 + v1 + v2):
+            return False
+        (l0, l1, l2), (b0, b1, b2) = self._angles[0].tolist(), self._angles[1].tolist()
+        bound = self._jump_bound
+        if abs(r0 - 2.0 * l0 + b0) > bound or abs(r1 - 2.0 * l1 + b1) > bound or abs(r2 - 2.0 * l2 + b2) > bound:
+            return False
+        p0, p1, p2 = self._raw_previous.tolist()
+        return r0 != p0 and r1 != p1 and r2 != p2  # a repeat: the full check decides whether it is suspect
+
     def _clean_encoders(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         raw = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         reference = observation["reference_angles"]
+        if self._healthy_encoders(raw, rates, observation):
+            self._raw_previous = raw
+            self._error = raw - reference
+            self._angles = [raw, self._angles[0]]
+            return raw, rates
         bad = ~np.isfinite(raw)
         # a NaN rate beside a finite reading follows a NaN reading (the rate is a backward difference): it is
         # recomputed below, and reported only when the reading before was finite
@@ -300,10 +322,36 @@ class FaultMonitor:
         self._error = np.where(bad, self._error, clean - reference)
         self._encoder_bad = bad
         self._angles = [clean, *self._angles[:1]]
+        self._encoders_clean = not (
+            bad.any() or self._glitch_active[:3].any() or self._stuck.any() or self._nan_active[:3].any()
+        )
         return clean, rates
+
+    def _healthy_torques(self, torque: NDArray[np.float64], command: NDArray[np.float64]) -> bool:
+        """The 1 kHz fast path, in scalars: nothing flagged before, and these torques finite, within the current
+        loop's span and adding nothing to the drive-fault CUSUM. Then the full check would pass them unchanged."""
+        if not self._torques_clean:
+            return False
+        peak, margin = self.peak_torque, TORQUE_MARGIN
+        for now, last, asked, slowest_gain in zip(
+            torque.tolist(), self._torque_measured.tolist(), command.tolist(), self._slowest_gain_list, strict=True
+        ):
+            if not math.isfinite(now):
+                return False
+            held = min(max(asked, -peak), peak)
+            if now < min(last, held) - margin or now > max(last, held) + margin:
+                return False
+            step = held - last
+            direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
+            if min((last + slowest_gain * step - now) * direction, DRIVE_FAULT_STEP) > DRIVE_FAULT_DRIFT:
+                return False
+        return True
 
     def _clean_torques(self, observation: Observation, command: NDArray[np.float64] | None) -> NDArray[np.float64]:
         torque = np.asarray(observation["joint_torques"], dtype=float)
+        if command is not None and self._healthy_torques(torque, command):
+            self._torque_previous = self._torque_measured = torque
+            return torque
         finite = np.isfinite(torque)
         for joint in np.flatnonzero(~finite & ~self._nan_active[3:]):
             self._detect("sensor_nan", int(joint), math.nan)
@@ -312,6 +360,7 @@ class FaultMonitor:
         if previous is None or command is None:
             clean = np.where(finite, torque, 0.0 if previous is None else previous)
             self._torque_previous = self._torque_measured = clean
+            self._torques_clean = bool(finite.all())
             return clean
         held = np.clip(command, -self.peak_torque, self.peak_torque)
         predicted = previous + self._loop_gain * (held - previous)
@@ -338,6 +387,9 @@ class FaultMonitor:
         self._drive_active &= (self._shortfall > 0.0) | (self._torque_bad > 0)
         self._torque_implausible = implausible
         self._torque_measured = np.where(finite, torque, raw_previous)
+        self._torques_clean = not (
+            self._torque_bad.any() or self._nan_active[3:].any() or self._shortfall.any() or self._drive_active.any()
+        )
         clean = np.where(finite & ~implausible, torque, predicted)
         self._torque_previous = clean
         return clean
@@ -349,14 +401,15 @@ class FaultMonitor:
         if delayed is None:
             return
         state, torque_then, held_then, quiet = delayed
-        tau0, phi = self._model_torque(state)
-        if tau0 is None:
+        try:
+            tau0, phi, force_map = self.dynamics.torque_regressor_and_force_map(*state)
+        except ValueError:  # a state the model cannot take (e.g. out of reach): no check
             return
         residual = torque_then - tau0
         if self._corrections is not None:
             residual = residual - self._correction(state, phi)
         self._check_payload(residual, phi, state[1], held_then, quiet)
-        self._check_force(state, residual, phi, held_then, quiet)
+        self._check_force(force_map, residual, phi, held_then, quiet)
 
     def set_corrections(self, corrections: ModelCorrections | None) -> None:
         """Take the model's corrections to this robot (fitted by a payload estimator on its empty moves) into the
@@ -373,17 +426,9 @@ class FaultMonitor:
             corrections.platform_mass * phi + corrections.arm_mass_scale * arm + corrections.friction_scale * friction
         )
 
-    def _model_torque(
-        self, state: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | tuple[None, None]:
-        try:
-            return self.dynamics.torque_and_payload_regressor(*state)
-        except ValueError:  # a state the model cannot take (e.g. out of reach): no check
-            return None, None
-
     def _check_force(
         self,
-        state: NDArray[np.float64],
+        force_map: NDArray[np.float64],
         residual: NDArray[np.float64],
         phi: NDArray[np.float64],
         holding: bool,
@@ -401,10 +446,7 @@ class FaultMonitor:
             information = float(phi @ phi)
             if information > 0.0:
                 residual = residual - (residual @ phi) / information * phi
-        try:
-            force = np.linalg.solve(kinematics.jacobian(self.dynamics.geometry, state[0]).T, residual)
-        except np.linalg.LinAlgError:
-            return
+        force = force_map @ residual
         self.force = force
         magnitude = float(np.linalg.norm(force))
         self._force_evidence = max(0.0, self._force_evidence + magnitude - FORCE_REFERENCE)
