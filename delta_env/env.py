@@ -705,8 +705,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     def _schedule_carry_faults(self, cycle: int) -> None:
         """At the pick of ``cycle`` (this step): the steps of its carry's faults, from the carry's length now."""
-        pick, place = self._step_index, int(self.trajectory.place_indices[cycle])
-        for draw in self._carry_faults.pop(cycle):
+        places = self.trajectory.place_indices
+        faults = self._carry_faults.pop(cycle)
+        if cycle >= len(places):  # a stop dropped this carry's place: it ends at rest, holding
+            return
+        pick, place = self._step_index, int(places[cycle])
+        for draw in faults:
             self._schedule(draw, pick + max(1, round(draw.when * (place - pick))) - 1, pick)
 
     def _schedule(self, draw: FaultDraw, step: int, earliest: int) -> None:
@@ -737,7 +741,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         n, dt = self._step_index, self.dt
         size = draw.size
         if draw.kind == "slip":
-            place = int(self.trajectory.place_indices[draw.carry])
+            places = self.trajectory.place_indices
+            if draw.carry >= len(places):  # a stop dropped its place
+                return
+            place = int(places[draw.carry])
             if not (self._holding and self._cycle == draw.carry and n < place):
                 return
             size = self._carried_mass

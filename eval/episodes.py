@@ -216,8 +216,12 @@ def run_episode(
         options["reference"] = reference
     observation, info = env.reset(seed=seed, options=options or None)
     # the oracle's privilege and a monitor's reactions, also when an online timing runs the cell's estimator beside it
-    inner = controller.controller if isinstance(controller, EstimatingController) else controller
-    privileged = inner.controller if isinstance(inner, MonitoredController) else inner
+    wrappers = []  # the wrappers around the controller proper: a fault monitor, the cell's estimator beside it
+    privileged = controller
+    while isinstance(privileged, MonitoredController | EstimatingController):
+        wrappers.append(privileged)
+        privileged = privileged.controller
+    inner = next((wrapper for wrapper in wrappers if isinstance(wrapper, MonitoredController)), controller)
     if isinstance(privileged, OracleController):
         privileged.set_payload_masses(info["payload_masses"])
         privileged.set_physical_parameters(env.plant.parameters)

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from controllers.base import Controller
+from controllers.monitor import MonitoredController
 from controllers.payload_timing import EstimatingController, PayloadTiming, shared_planner
 from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, build_controller, residual_policy_path
 from delta_env.env import DeltaPickPlaceEnv
@@ -69,7 +70,8 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
 
     An ``"online"`` timing reads the controller's payload estimator (the RLS rows' and the residual's base's) or,
     for a controller without one, the cell's (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run
-    beside it: the controller is then returned wrapped in an :class:`EstimatingController`. A ``"fixed"`` scenario
+    beside it: the controller is then returned wrapped in an :class:`EstimatingController` (behind the controller's
+    fault monitor, if it has one, so that the cell's estimator sees clean readings too). A ``"fixed"`` scenario
     leaves both as they are.
     """
     if env.task_timing == "fixed":
@@ -85,7 +87,11 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
             estimator = controller.estimator
         else:
             estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
-            controller = EstimatingController(controller, estimator)
+            if isinstance(controller, MonitoredController):  # beside the row, behind the row's fault monitor
+                estimating = EstimatingController(controller.controller, estimator)
+                controller = MonitoredController(estimating, controller.monitor, controller.reaction)
+            else:
+                controller = EstimatingController(controller, estimator)
     env.timing = PayloadTiming(
         planner, env.task_timing, env.payload_mass_range[1], estimator, torque_share=env.torque_share
     )

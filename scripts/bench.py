@@ -28,6 +28,7 @@ import numpy as np
 
 from controllers.base import PDController
 from controllers.dynamics import ModelParameters
+from controllers.feedforward import OracleController
 from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, ControllerSetup, build_controller
 from delta_env.env import DeltaPickPlaceEnv
 
@@ -79,8 +80,9 @@ def main() -> None:
 
     controllers = {label: build_controller(key, SETUP, env) for key, label in CONTROLLER_LABELS.items()}
     for controller in controllers.values():
-        if hasattr(controller, "set_payload_masses"):
-            controller.set_payload_masses(masses["payload_masses"])  # the oracle bound's truth
+        inner = getattr(controller, "controller", controller)  # behind its fault monitor
+        if isinstance(inner, OracleController):
+            inner.set_payload_masses(masses["payload_masses"])  # the oracle bound's truth
         controller.reset()
         # One-off costs (loading compiled code) are not per-step costs: past the payload estimator's first
         # equation, which waits for the joint smoother's lag.

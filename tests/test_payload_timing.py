@@ -142,7 +142,8 @@ def test_online_timing_reads_the_controllers_estimator_or_runs_the_cells_own(con
     assert timed(env, model, "mid_f_rls_lag", controller_setup) is model
     assert env.timing.estimator is model.estimator and env.timing.max_payload == 4.0
     wrapped = timed(env, build_controller("pd", controller_setup), "pd", controller_setup)
-    assert isinstance(wrapped, EstimatingController) and env.timing.estimator is wrapped.estimator
+    # the cell's estimator runs beside the PD, behind the row's fault monitor, which gates it too
+    assert isinstance(wrapped.controller, EstimatingController) and env.timing.estimator is wrapped.estimator
     fixed_env = DeltaPickPlaceEnv()
     assert timed(fixed_env, model, "mid_f_rls_lag", controller_setup) is model and fixed_env.timing is None
     no_lag = dataclasses.replace(controller_setup, drive_lag=None)
