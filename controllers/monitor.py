@@ -139,9 +139,9 @@ from which the slip check takes the residual's variance, at least the payload es
 SLIP_SETTLE = 0.03
 """Time after the pick (s) before the mass held is trusted as a reference."""
 
-SENSOR_QUIET = 2 * SMOOTHER_LAG + 1
+SENSOR_QUIET = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
 """Readings whose model equations (the monitor's checks, the payload estimator's) are left out after replaced
-readings in a row: the smoothed states within the smoother's lag either side of them lean on them."""
+readings in a row: the smoother's window, every smoothed state that leans on them."""
 
 RESYNC_QUIET = SMOOTHER_HISTORY + 2 * SMOOTHER_LAG + 1
 """Readings kept out of the model's equations after the clean readings step back onto an encoder that was replaced
@@ -224,6 +224,7 @@ class FaultMonitor:
         self._error = np.zeros(3)  # last good tracking error per joint (rad)
         self._raw_previous: NDArray[np.float64] | None = None
         self._stuck = np.zeros(3, dtype=int)
+        self._after_stuck = np.zeros(3, dtype=bool)  # a stuck spell whose readings are still being replaced
         self._encoder_bad = np.zeros(3, dtype=bool)
         self._torque_previous: NDArray[np.float64] | None = None
         self._torque_bad = np.zeros(3, dtype=int)
@@ -231,6 +232,7 @@ class FaultMonitor:
         self._glitch_active = np.zeros(6, dtype=bool)
         self._drive_active = np.zeros(3, dtype=bool)
         self._shortfall = np.zeros(3)
+        self._short_run = np.zeros(3, dtype=int)
         self._torque_measured = np.zeros(3)
         self._torque_implausible = np.zeros(3, dtype=bool)
         self._encoders_clean = self._torques_clean = False  # the scalar fast paths: nothing flagged on the last sample
@@ -286,11 +288,13 @@ class FaultMonitor:
         if len(self._angles) == 2:
             last, before = self._angles
             second_difference = raw - 2.0 * last + before
-            # a reading that continues the one flagged before it at a plausible rate is a step, not a glitch (an
-            # encoder back from being stuck): accepted, so that the clean readings follow the joint again
+            # after a stuck spell, a reading that continues the one flagged before it at a plausible rate is the
+            # joint's true position, not a glitch: accepted, so that the clean readings follow the joint again (a
+            # glitch of several samples stays flagged: its readings continue each other but follow no stuck spell)
             repeated = raw == self._raw_previous
             continues = (
                 self._glitch_active[:3]
+                & self._after_stuck
                 & ~repeated
                 & (np.abs(raw - self._raw_previous - (last - before)) <= self._jump_bound)
             )
@@ -300,7 +304,9 @@ class FaultMonitor:
             # per sample (at rest, or coming to rest, a reading repeats rightly)
             commanded = np.abs(observation["reference_velocities"]) * CONTROL_PERIOD >= self._stuck_step
             moving = np.abs(last - before) >= self._stuck_step
-            self._stuck = np.where(repeated & commanded & (moving | (self._stuck > 0)), self._stuck + 1, 0)
+            # once stuck, a joint stays stuck while its reading repeats, whatever the reference does
+            suspect = repeated & ((commanded & moving) | (self._stuck > 0))
+            self._stuck = np.where(suspect, self._stuck + 1, 0)
             stuck = self._stuck >= STUCK_SAMPLES
             for joint in np.flatnonzero(jump & ~self._glitch_active[:3] & ~stuck):
                 self._detect("encoder_glitch", int(joint), second_difference[joint])
@@ -308,6 +314,7 @@ class FaultMonitor:
                 self._detect("encoder_stuck", int(joint), math.nan)
             self._glitch_active[:3] = jump
             bad |= jump | stuck
+            self._after_stuck = (self._after_stuck | stuck) & bad
         self._raw_previous = raw
         clean = np.where(bad, reference + self._error, raw)
         if bad.any() or self._encoder_bad.any() or rate_missing.any():
@@ -380,7 +387,8 @@ class FaultMonitor:
         shortfall = np.minimum((slowest - torque) * direction, DRIVE_FAULT_STEP)
         usable = finite & ~implausible & ~self._torque_implausible
         self._shortfall = np.where(usable, np.maximum(0.0, self._shortfall + shortfall - DRIVE_FAULT_DRIFT), 0.0)
-        large = (self._torque_bad >= DRIVE_FAULT_SAMPLES) & (np.abs(torque) < np.abs(predicted))
+        self._short_run = np.where(implausible & (np.abs(torque) < np.abs(predicted)), self._short_run + 1, 0)
+        large = self._short_run >= DRIVE_FAULT_SAMPLES
         for joint in np.flatnonzero((large | (self._shortfall > DRIVE_FAULT_EVIDENCE)) & ~self._drive_active):
             self._detect("drive_fault", int(joint), abs(predicted[joint]) - abs(torque[joint]))
             self._drive_active[joint] = True
@@ -388,7 +396,11 @@ class FaultMonitor:
         self._torque_implausible = implausible
         self._torque_measured = np.where(finite, torque, raw_previous)
         self._torques_clean = not (
-            self._torque_bad.any() or self._nan_active[3:].any() or self._shortfall.any() or self._drive_active.any()
+            self._torque_bad.any()
+            or self._nan_active[3:].any()
+            or self._shortfall.any()
+            or self._drive_active.any()
+            or self._short_run.any()
         )
         clean = np.where(finite & ~implausible, torque, predicted)
         self._torque_previous = clean
@@ -456,7 +468,7 @@ class FaultMonitor:
             self.collision = True
         elif self._force_evidence == 0.0 and self.collision:
             self.collision = False
-            if self._held_since is not None:  # what the collision left in the mass held: measure it afresh
+            if self._held_since is not None and self._slip_armed:  # what the collision left in the mass held: afresh
                 self._held_since = self._k
                 self._held_information = self._held_moment = self._evidence = 0.0
                 self.held_mass = None

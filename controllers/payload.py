@@ -566,7 +566,7 @@ class PayloadEstimator:
         self._has_previous_reference = False
         self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
         self._checkpoints: NDArray[np.float64] | None = None  # (n, fit + RLS state) of the last n updates
-        self._checkpoint = 0
+        self._checkpoint = self._checkpointed = 0  # the ring's next slot; how many of its updates a rollback may undo
         self._skip = 0
 
     @property
@@ -625,6 +625,7 @@ class PayloadEstimator:
         self._previous_state = None
         self._history.clear()
         self._skip = 0
+        self._checkpointed = 0
 
     def _restart_fit(self) -> None:
         """The empty-move fit as an episode starts: the seeded sums, to be solved at the first carry, or nothing."""
@@ -647,6 +648,7 @@ class PayloadEstimator:
         holding = observation["gripper"].item(0) > 0.5
         if holding != self._holding:
             self._holding = holding
+            self._checkpointed = 0  # a rollback never crosses a pick or a release
             if holding:
                 self.rls.reset_covariance()
             else:
@@ -658,6 +660,7 @@ class PayloadEstimator:
             return self.apparent_mass
         checkpoint = self._checkpoints[self._checkpoint]
         self._checkpoint = (self._checkpoint + 1) % len(self._checkpoints)
+        self._checkpointed = min(self._checkpointed + 1, len(self._checkpoints))
         checkpoint[:_FIT_SIZE] = self._fit
         checkpoint[_FIT_SIZE:] = self.rls.state
         moments = self.measurement(observation, reference_torque, reference_regressor)
@@ -671,7 +674,7 @@ class PayloadEstimator:
     def keep_checkpoints(self, samples: int) -> None:
         """Keep the fit and RLS state of the last ``samples`` updates so that :meth:`rollback` can undo them."""
         self._checkpoints = np.zeros((samples, _FIT_SIZE + 2))
-        self._checkpoint = 0
+        self._checkpoint = self._checkpointed = 0
 
     def skip(self, samples: int) -> None:
         """Leave the equations of the next ``samples`` updates out of the fit and the RLS (faulty samples);
@@ -681,12 +684,17 @@ class PayloadEstimator:
         self._skip = max(self._skip, samples)
 
     def rollback(self, samples: int) -> None:
-        """Undo the last ``samples`` updates' equations (at most the checkpoints kept): samples found faulty late."""
+        """Undo the last ``samples`` updates' equations (samples found faulty late), as far back as the checkpoints
+        kept reach within this episode and since the last pick or release."""
         if self._checkpoints is None:
             raise RuntimeError("rollback() needs keep_checkpoints()")
         kept = len(self._checkpoints)
         if not 1 <= samples <= kept:
             raise ValueError(f"samples must be in [1, {kept}] (the checkpoints kept), got {samples!r}")
+        samples = min(samples, self._checkpointed)
+        if samples == 0:
+            return
+        self._checkpointed -= samples
         checkpoint = self._checkpoints[(self._checkpoint - samples) % kept]
         self._fit[:] = checkpoint[:_FIT_SIZE]
         self.rls.state = checkpoint[_FIT_SIZE:]
