@@ -265,6 +265,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if isinstance(faults, FaultSpec | str):
             raise ValueError(f"faults must be a sequence of FaultSpec (e.g. [FaultSpec('slip')]), got {faults!r}")
         faults = tuple(base.task.faults if faults is None else faults)
+        obstacles = sum(getattr(spec, "target", None) == "obstacle" for spec in faults)
+        if obstacles > 1:
+            raise ValueError(f"the scene has one obstacle: at most one obstacle collision fault, got {obstacles}")
         for index, spec in enumerate(faults):
             require_instance(f"faults[{index}]", spec, FaultSpec)
 

@@ -62,6 +62,8 @@ class EpisodeRecord:
         speed_exceeded_steps: Steps after which some joint was beyond the drive's maximum speed.
         thermal_exceeded: True if some joint's RMS torque over a full thermal window exceeded the drive's rated
             torque.
+        speed_override: The last speed override a monitored controller's reaction asked the cell for (1: none).
+        stopped: True if the episode ended at rest after a stop (``info["stopped"]``).
         injected_faults: The truth of the faults injected into the episode (``env.injected_faults`` at its end),
             in the order they started.
         detected_faults: The faults the controller detected (its ``detected_faults`` at the episode's end, if it
@@ -91,6 +93,8 @@ class EpisodeRecord:
     observations: list[Observation] | None = None
     speed_exceeded_steps: int = 0
     thermal_exceeded: bool = False
+    speed_override: float = 1.0
+    stopped: bool = False
     injected_faults: list[InjectedFault] = field(default_factory=list)
     detected_faults: list[DetectedFault] = field(default_factory=list)
 
@@ -121,6 +125,8 @@ class EpisodeRecord:
             "steps": len(self.tracking_error),
             "speed_exceeded_steps": self.speed_exceeded_steps,
             "thermal_exceeded": self.thermal_exceeded,
+            "speed_override": self.speed_override,
+            "stopped": self.stopped,
             "picks_per_min": metrics.picks_per_min(reference.xyz_dot, self.pick_indices, reference.dt),
             "cycle_time_mean_s": float(np.mean(cycle_times)) if cycle_times.size else math.nan,
             "cycle_time_max_s": float(np.max(cycle_times)) if cycle_times.size else math.nan,
@@ -182,11 +188,16 @@ class EpisodeRecord:
         }
 
     def carries(self) -> list[metrics.CarryMetrics]:
-        """Payload metrics of each completed carry."""
-        # a stop may leave the last pick without its place
+        """Payload metrics of each completed carry whose object did not slip (an injected slip)."""
+        # a stop may leave the last pick without its place; a carry whose object slipped weighs nothing known
         carried = min(len(self.pick_indices), len(self.place_indices))
         picks, places, masses = self.pick_indices[:carried], self.place_indices[:carried], self.masses[:carried]
-        done = places <= len(self.payload_estimate)
+        slips = [fault.start_step for fault in self.injected_faults if fault.kind == "slip"]
+        intact = np.array(
+            [not any(pick <= slip < place for slip in slips) for pick, place in zip(picks, places, strict=True)],
+            dtype=bool,
+        )
+        done = (places <= len(self.payload_estimate)) & intact
         return metrics.carry_metrics(self.payload_estimate, picks[done], places[done], masses[done], CONTROL_PERIOD)
 
 
@@ -228,7 +239,7 @@ def run_episode(
     controller.reset()
     plant = env.plant
     estimate = getattr(controller, "payload_estimate", None)
-    reacts, speed = isinstance(inner, MonitoredController), 1.0
+    reacts, speed, stopped = isinstance(inner, MonitoredController), 1.0, False
     steps = len(env.trajectory) - 1
     tracking = np.full(steps, math.nan)
     torque, velocity, joint_error = np.zeros((steps, 3)), np.zeros((steps, 3)), np.zeros((steps, 3))
@@ -265,6 +276,7 @@ def run_episode(
         saturated += bool(info["torque_saturated"])
         speed_exceeded += bool(info["speed_exceeded"])
         thermal_exceeded = thermal_exceeded or bool(info["thermal_exceeded"])
+        stopped = bool(info["stopped"])
         loop_gap = max(loop_gap, info["loop_gap"]) if math.isfinite(info["loop_gap"]) else math.inf
         measured.append(observation["joint_torques"])
         angles.append(observation["joint_angles"])
@@ -302,6 +314,8 @@ def run_episode(
         observations=observations,
         speed_exceeded_steps=speed_exceeded,
         thermal_exceeded=thermal_exceeded,
+        speed_override=speed,
+        stopped=stopped,
         injected_faults=list(env.injected_faults),
         detected_faults=list(inner.detected_faults) if isinstance(inner, ReportsFaults) else [],
     )

@@ -322,3 +322,9 @@ def test_gymnasium_env_checker_with_faults() -> None:
 def test_a_bare_fault_spec_is_refused_with_a_clear_error() -> None:
     with pytest.raises(ValueError, match="faults must be a sequence of FaultSpec"):
         DeltaPickPlaceEnv(faults=FaultSpec("slip"))
+
+
+def test_two_obstacle_faults_are_refused_with_a_clear_error() -> None:
+    obstacle = FaultSpec("collision", target="obstacle")
+    with pytest.raises(ValueError, match="at most one obstacle collision fault, got 2"):
+        DeltaPickPlaceEnv(faults=[obstacle, obstacle])

@@ -63,8 +63,11 @@ EPISODE_METRICS = (
     "peak_torque_ratio",
     "rms_torque_ratio",
     "thermal_margin",
+    "speed_override",
+    "stopped",
 )
-"""Metrics of every episode, the pick-rate scores included (definitions in :mod:`eval.metrics`)."""
+"""Metrics of every episode, the pick-rate scores included (definitions in :mod:`eval.metrics`), and the fault
+reaction's speed override and stop (:class:`~eval.episodes.EpisodeRecord`)."""
 
 PAYLOAD_METRICS = ("payload_end_error_percent", "payload_settling_ms")
 """Payload metrics of the estimating controllers over the carries of objects >= 0.5 kg: mean |end error|
