@@ -18,7 +18,7 @@
 The monitor hands the controller a *clean* observation: a faulty encoder reading is replaced by the reference plus
 the joint's last tracking error, a faulty torque by the current loop's prediction, so that one bad sample never
 reaches the feedback, the model or an estimator. :class:`MonitoredController` runs any controller behind a
-monitor, keeps faulty samples out of its payload estimator and reacts to a detected fault.
+monitor, keeps what a fault corrupted out of its payload estimator and reacts to a detected fault.
 """
 
 from __future__ import annotations
@@ -603,8 +603,9 @@ REACTING_KINDS = ("collision", "slip", "drive_fault")
 
 
 class MonitoredController:
-    """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator skips
-    faulty samples and forgets the object on a slip, and a detected fault may ask the cell to slow down or stop.
+    """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator leaves
+    out the equations that lean on drifting replacements or a collision and forgets the object on a slip, and a
+    detected fault may ask the cell to slow down or stop.
 
     Args:
         controller: The controller to protect.
