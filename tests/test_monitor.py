@@ -84,7 +84,7 @@ def test_a_stuck_encoder_is_detected_within_five_samples(controller_setup: Contr
     first = next(event for event in record.detected_faults if event.kind == "encoder_stuck")
     assert 0.0 <= first.time_s - injected.start_s <= 0.005
     # the joint runs on its feedforward while stuck, then the clean readings follow the encoder again (no lock-out)
-    assert record.metrics()["tracking_max_mm"] < 20.0
+    assert record.metrics()["tracking_max_mm"] < 10.0
     assert record.tracking_error[-1] < 2e-3
 
 
@@ -116,7 +116,7 @@ def test_a_slip_is_detected_and_the_estimate_forgets_the_object(controller_setup
     record, env = _run([slip], _monitored_rls(controller_setup), payload_mass_range=(3.0, 3.0))
     (injected,) = env.injected_faults
     detected = next(event for event in record.detected_faults if event.kind == "slip")
-    assert 0.0 <= detected.time_s - injected.start_s <= 0.030
+    assert 0.0 <= detected.time_s - injected.start_s <= 0.015  # 3 kg: found in 5-10 ms
     # forgotten at once, and it stays forgotten: no pre-slip sample pulls the estimate back up
     found, after = round(detected.time_s / env.dt), round(injected.start_s / env.dt) + 50
     assert np.max(np.abs(record.payload_estimate[found + 1 : after])) < 0.1
