@@ -221,6 +221,55 @@ def fault_metrics(episode: EpisodeFaults) -> dict[str, Any]:
     }
 
 
+FAULT_KIND_METRICS = tuple(
+    f"{kind}_{what}" for kind in FAULT_KINDS for what in ("injected", "detected", "latency_max_ms")
+)
+"""Per fault kind, the columns of a sweep's row: faults of the kind injected, those detected, and the worst latency
+of the detected ones (ms; NaN if none)."""
+
+
+def fault_kind_metrics(episode: EpisodeFaults) -> dict[str, Any]:
+    """The :data:`FAULT_KIND_METRICS` of one episode."""
+    columns: dict[str, Any] = {}
+    for kind in FAULT_KINDS:
+        mine = [match for match in episode.matches if match.injected.kind == kind]
+        latencies = [1e3 * match.latency_s for match in mine if match.detection is not None]
+        columns[f"{kind}_injected"] = len(mine)
+        columns[f"{kind}_detected"] = len(latencies)
+        columns[f"{kind}_latency_max_ms"] = max(latencies) if latencies else math.nan
+    return columns
+
+
+def sweep_fault_table(rows: Sequence[Mapping[str, Any]], labels: Mapping[str, str]) -> str:
+    """Per controller (``labels``: key -> label) and fault kind, from a sweep's rows: injected, detected, missed and
+    the worst latency; and per controller the false alarms. Empty when no row injected or detected a fault."""
+    body = []
+    for key, label in labels.items():
+        mine = [row for row in rows if row["controller"] == key]
+        for kind in FAULT_KINDS:
+            injected = _count(mine, f"{kind}_injected")
+            if injected == 0:
+                continue
+            detected = _count(mine, f"{kind}_detected")
+            worst = [_number(row[f"{kind}_latency_max_ms"]) for row in mine]
+            worst = [value for value in worst if math.isfinite(value)]
+            latency = _latency(max(worst, default=math.nan))
+            body.append([label, kind, str(injected), str(detected), str(injected - detected), latency])
+        alarms = _count(mine, "false_alarms")
+        if alarms:
+            body.append([label, "false alarms", "", str(alarms), "", ""])
+    if not body:
+        return ""
+    header = ["Controller", "Fault kind", "Injected", "Detected", "Missed", "Latency max (ms)"]
+    return metrics.markdown_table(header, body)
+
+
+def _count(rows: Sequence[Mapping[str, Any]], column: str) -> int:
+    """The sum of a count column over rows; a failed episode's blank or NaN counts nothing."""
+    values = (_number(row[column]) for row in rows)
+    return int(sum(value for value in values if math.isfinite(value)))
+
+
 def _blank_nan(value: float) -> float | None:
     return None if value is None or not math.isfinite(value) else value
 

@@ -17,11 +17,13 @@ from eval.faults import (
     DETECTION_GRACE_S,
     FAULT_COLUMNS,
     FAULT_METRICS,
+    fault_kind_metrics,
     fault_metrics,
     fault_rows,
     fault_summary,
     fault_table,
     match_faults,
+    sweep_fault_table,
     write_fault_csv,
 )
 
@@ -229,3 +231,18 @@ def test_the_comparison_summary_has_a_faults_section_only_with_faults() -> None:
     table = section[4].splitlines()
     assert table[2] == "| PD | all | 0 | 0 | 0 | n/a | n/a | 0 | 0 |"  # a controller without faults is listed
     assert table[-1] == "| A | all | 3 | 2 | 1 | 26.5 | 41.0 | 1 | 1 |"
+
+
+def test_a_sweeps_fault_table_counts_per_controller_and_kind() -> None:
+    slip = InjectedFault("slip", 100, 50, 0.101, size=2.0)
+    glitch = InjectedFault("encoder_glitch", 200, 1, 0.201, joint=1, size=0.01)
+    found = match_faults([slip, glitch], [DetectedFault("slip", 0.108), DetectedFault("collision", 0.9)])
+    row = {"controller": "mid_f_rls", **fault_metrics(found), **fault_kind_metrics(found)}
+    assert (row["slip_injected"], row["slip_detected"], row["slip_latency_max_ms"]) == (1, 1, pytest.approx(7.0))
+    assert (row["encoder_glitch_injected"], row["encoder_glitch_detected"]) == (1, 0)
+    failed = {**dict.fromkeys(row, math.nan), "controller": "mid_f_rls"}
+    table = sweep_fault_table([row, row, failed], {"mid_f_rls": "RLS"})
+    assert "| RLS | slip | 2 | 2 | 0 | 7.0 |" in table
+    assert "| RLS | encoder_glitch | 2 | 0 | 2 | n/a |" in table
+    assert "| RLS | false alarms |  | 2 |  |  |" in table
+    assert sweep_fault_table([failed], {"mid_f_rls": "RLS"}) == ""

@@ -39,6 +39,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from delta_env.scenario import preset_names, resolve_scenario
+from eval.faults import sweep_fault_table
 from eval.identification import parameter_path
 from eval.run_folder import RUNS_ROOT, command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_geometry_argument, on_geometry
@@ -211,6 +212,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"Run folder: {out}",
         ]
     )
+    faults = sweep_fault_table(rows, {key: CONTROLLERS.get(key, key) for key in args.controllers})
+    if faults:
+        text += "\n\n## Faults\n\nPer controller and fault kind, over the sweep's episodes (a detection of the "
+        text += "fault's kind from its start to 50 ms after its end; docs/design.md section 8).\n\n" + faults
     (out / "summary.md").write_text(text + "\n")
     report.plot(summary, out / "plots" / "summary.png")
     print(text)

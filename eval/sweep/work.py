@@ -34,7 +34,7 @@ from eval import metrics
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
 from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
-from eval.faults import FAULT_METRICS
+from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
 from eval.run_folder import package_versions
 from eval.tasks import CELL_ESTIMATOR_KEY, timed
@@ -73,9 +73,10 @@ PAYLOAD_METRICS = ("payload_end_error_percent", "payload_settling_ms")
 """Payload metrics of the estimating controllers over the carries of objects >= 0.5 kg: mean |end error|
 (%) and the worst settling time to +-5 % (ms, NaN if a carry never settles); NaN for the others."""
 
-METRIC_FIELDS = (*EPISODE_METRICS, *PAYLOAD_METRICS, *FAULT_METRICS)
+METRIC_FIELDS = (*EPISODE_METRICS, *PAYLOAD_METRICS, *FAULT_METRICS, *FAULT_KIND_METRICS)
 """The metrics of a row: the episode's, the payload's and the faults' (:data:`eval.faults.FAULT_METRICS`: faults
-injected, detected and missed, detections, false alarms, consequences, median and worst detection latency)."""
+injected, detected and missed, detections, false alarms, consequences, median and worst detection latency; and
+:data:`eval.faults.FAULT_KIND_METRICS` per fault kind)."""
 
 _CODE_PACKAGES = ("delta_env", "controllers", "eval")
 _CODE_DEPENDENCIES = ("mujoco", "numpy", "scipy", "filterpy", "gymnasium")
@@ -111,6 +112,7 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
             env.close()
         episode = record.metrics()
         row.update({name: episode[name] for name in (*EPISODE_METRICS, *FAULT_METRICS)})
+        row.update(fault_kind_metrics(record.faults()))
         if unit.controller in ESTIMATING_KEYS:
             scored = [carry for carry in record.carries() if carry.mass >= metrics.MIN_RELATIVE_MASS]
             if scored:
