@@ -23,7 +23,7 @@ from delta_env.config import (
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.drive import clip_to_envelope
-from delta_env.faults import FaultDraw, FaultSpec, InjectedFault
+from delta_env.faults import SENSOR_KINDS, FaultDraw, FaultSpec, InjectedFault
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
@@ -42,8 +42,6 @@ OBSTACLE_LEAD = 0.05
 OBSTACLE_MIN_SPEED = 0.05
 """Reference speed (m/s) from which the platform counts as moving towards the obstacle: it is put ahead of the first
 such sample at or after the drawn time."""
-
-_SENSOR_KINDS = ("encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch")
 
 
 @dataclass
@@ -811,7 +809,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         torque_faults = []
         for fault in self._running:
             draw = fault.draw
-            if draw.kind not in _SENSOR_KINDS or fault.first > n:
+            if draw.kind not in SENSOR_KINDS or fault.first > n:
                 continue
             j = draw.joint
             if draw.kind == "torque_glitch" or draw.detail == "torque":

@@ -13,6 +13,9 @@ from delta_env.validation import require_count, require_in, require_interval
 FAULT_KINDS = ("slip", "encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch", "collision", "drive_fault")
 """The kinds of fault an episode may carry; detectors report the same names."""
 
+SENSOR_KINDS = ("encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch")
+"""The kinds that corrupt a reading rather than the robot: the plant never notices them."""
+
 FAULT_REACTIONS = ("continue", "slow", "stop")
 """What a cell may do after a detected collision, slip or drive fault: carry on, slow to half the reference's speed,
 or stop at rest on the path (:attr:`delta_env.scenario.PickPlaceTask.fault_reaction`,
