@@ -170,3 +170,31 @@ def test_a_light_slip_on_a_robot_unlike_its_identification_is_caught_without_fal
     (detected,) = record.detected_faults
     assert detected.kind == "slip"
     assert 0.0 <= detected.time_s - injected.start_s <= 0.030
+
+
+def test_a_stop_that_drops_a_carry_with_a_slip_still_to_come_does_not_crash(controller_setup: ControllerSetup) -> None:
+    import dataclasses
+
+    setup = dataclasses.replace(controller_setup, fault_reaction="stop")
+    faults = [
+        FaultSpec("collision", carry_fraction=(0.3, 0.3), size=(500.0, 500.0), duration=(0.03, 0.03)),
+        FaultSpec("slip", carry_fraction=(0.4, 0.4)),
+    ]
+    # one carry: the stop drops its place, and then its slip comes due
+    env = DeltaPickPlaceEnv(faults=faults, n_cycles=1, payload_mass_range=(2.0, 2.0))
+    record = run_episode(env, _monitored_rls(setup), 3)
+    assert record.stopped and not record.diverged and len(record.place_indices) == 0
+
+
+def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells_estimator(
+    controller_setup: ControllerSetup,
+) -> None:
+    from delta_env.scenario import PickPlaceTask, Scenario
+    from eval.tasks import timed
+
+    nan = FaultSpec("sensor_nan", carry_fraction=(0.5, 0.5), joint=0)
+    env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(timing="online", n_cycles=1, faults=(nan,))))
+    controller = timed(env, build_controller("pd", controller_setup), "pd", controller_setup)
+    record = run_episode(env, controller, 2)
+    assert [event.kind for event in record.detected_faults] == ["sensor_nan"]
+    assert np.isfinite(record.payload_estimate).all() and not record.diverged
