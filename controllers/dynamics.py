@@ -288,14 +288,7 @@ class DeltaDynamics:
         Raises:
             ValueError: on non-finite states, collinear elbows, unreachable angles or det A = 0.
         """
-        t1, t2, t3 = _three_floats(theta)
-        w1, w2, w3 = _three_floats(theta_dot)
-        u1, u2, u3 = _three_floats(theta_ddot)
-        status, terms = _single_sample_model(self._single_sample_constants, t1, t2, t3, w1, w2, w3, u1, u2, u3)
-        if status != _VALID:
-            raise ValueError(
-                f"{_INVALID_STATE[status]}: theta={theta!r}, theta_dot={theta_dot!r}, theta_ddot={theta_ddot!r}"
-            )
+        terms = self._single_sample_terms(theta, theta_dot, theta_ddot)
         return terms[0], terms[1]
 
     def torque_regressor_and_force_map(
@@ -304,6 +297,14 @@ class DeltaDynamics:
         """:meth:`torque_and_payload_regressor` of one joint state, and the map of a joint torque to the platform
         force that would cause it: F = J^-T tau = -A^T K^-1 tau (N per N m, ``(3, 3)``), for an observer of external
         forces. Raises as :meth:`torque_and_payload_regressor`."""
+        terms = self._single_sample_terms(theta, theta_dot, theta_ddot)
+        # column i of A^T is a_i: F = -sum_i a_i tau_i / k_i
+        return terms[0], terms[1], -terms[2:5].T / terms[5]
+
+    def _single_sample_terms(
+        self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike
+    ) -> NDArray[np.float64]:
+        """The compiled single-sample model's rows (:func:`_single_sample_model`), or ValueError naming the state."""
         t1, t2, t3 = _three_floats(theta)
         w1, w2, w3 = _three_floats(theta_dot)
         u1, u2, u3 = _three_floats(theta_ddot)
@@ -312,8 +313,7 @@ class DeltaDynamics:
             raise ValueError(
                 f"{_INVALID_STATE[status]}: theta={theta!r}, theta_dot={theta_dot!r}, theta_ddot={theta_ddot!r}"
             )
-        # column i of A^T is a_i: F = -sum_i a_i tau_i / k_i
-        return terms[0], terms[1], -terms[2:5].T / terms[5]
+        return terms
 
     def _total_mass(self, payload: ArrayLike) -> float | NDArray[np.float64]:
         """Mt = m0 + mp + 3 m2 (kg): a float, or an array with a trailing axis for the joints."""

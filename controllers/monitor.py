@@ -252,7 +252,7 @@ class FaultMonitor:
 
     # -- sensors --------------------------------------------------------------------------------
 
-    def _healthy_encoders(self, raw: NDArray[np.float64], rates: NDArray[np.float64], observation: Observation) -> bool:
+    def _healthy_encoders(self, raw: NDArray[np.float64], rates: NDArray[np.float64]) -> bool:
         """The 1 kHz fast path, in scalars: nothing flagged before, and these readings finite, within the jump bound
         and not a suspect repeat. Then the full check would pass them unchanged."""
         if not self._encoders_clean or len(self._angles) < 2:
@@ -272,7 +272,7 @@ class FaultMonitor:
         raw = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         reference = observation["reference_angles"]
-        if self._healthy_encoders(raw, rates, observation):
+        if self._healthy_encoders(raw, rates):
             self._raw_previous = raw
             self._error = raw - reference
             self._angles = [raw, self._angles[0]]
@@ -469,9 +469,7 @@ class FaultMonitor:
         elif self._force_evidence == 0.0 and self.collision:
             self.collision = False
             if self._held_since is not None and self._slip_armed:  # what the collision left in the mass held: afresh
-                self._held_since = self._k
-                self._held_information = self._held_moment = self._evidence = 0.0
-                self.held_mass = None
+                self._restart_held()
 
     def _check_payload(
         self,
@@ -490,9 +488,7 @@ class FaultMonitor:
                 self._learn_scatter(residual, theta_dot)
             return
         if self._held_since is None:
-            self._held_since = self._k
-            self._held_information = self._held_moment = 0.0
-            self._evidence = 0.0
+            self._restart_held()
             self._slip_armed = True
         if quiet or not self._slip_armed:
             return
@@ -518,6 +514,12 @@ class FaultMonitor:
         if self._force_evidence == 0.0:  # a collision's samples stay out of the mass held
             self._held_information += information
             self._held_moment += moment
+
+    def _restart_held(self) -> None:
+        """Measure the mass held afresh from this sample on (at a pick, or after a collision)."""
+        self._held_since = self._k
+        self._held_information = self._held_moment = self._evidence = 0.0
+        self.held_mass = None
 
     def _learn_scatter(self, deviation: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> None:
         """Follow the model's residual variance per joint while moving (N^2 m^2), at least the nominal's."""
@@ -579,7 +581,8 @@ class _DelayedState:
         if not self._started:
             self._smoother.reset(angles)
             self._started = True
-        state = self._smoother.update_state(angles).copy()
+        # the smoother's buffers alternate: the previous call's state holds through this call
+        state = self._smoother.update_state(angles)
         previous, self._previous = self._previous, state
         self._pending.append((torque, holding, quiet))
         if len(self._pending) <= self.lag:

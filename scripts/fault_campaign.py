@@ -31,18 +31,17 @@ from typing import Any
 import numpy as np
 
 from controllers.monitor import TORQUE_MARGIN
-from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS
+from controllers.registry import CONTROLLER_LABELS
 from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
-from eval.comparison import calibration_seeds
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
 from eval.identification import robot_identification, robot_setup
 from eval.processes import process_pool
 from eval.run_folder import create_run_folder, write_config
+from eval.sweep.work import tared_setup
 from eval.tasks import Task, iterate_tasks
 
 GONE_MASS = 0.1
@@ -164,10 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _, identification = robot_identification(healthy.plant)
     setup = robot_setup(healthy.plant, identification)
     key, n_cycles = args.controller, healthy.task.n_cycles
-    if key in ESTIMATOR_REGRESSORS:
-        seeds = calibration_seeds(args.seed, DEFAULT_CALIBRATION_EPISODES)
-        calibration = calibrate_tares([key], setup, seeds, n_cycles, workers=args.workers, scenario=healthy)
-        setup = calibrated_setup(setup, calibration, healthy)
+    setup = tared_setup(healthy, setup, [key], seed=args.seed, workers=args.workers)
     seeds = [args.seed + i for i in range(args.episodes)]
     tasks = [Task("episode", key, i, seed, n_cycles, setup, scenario=healthy) for i, seed in enumerate(seeds)]
     for kind in args.kinds:

@@ -33,18 +33,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS, ControllerSetup
+from controllers.registry import CONTROLLER_LABELS
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
-from eval.comparison import calibration_seeds
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
 from eval.identification import robot_identification, robot_setup
 from eval.processes import process_pool
 from eval.run_folder import create_run_folder, write_config
+from eval.sweep.work import tared_setup
 from eval.tasks import Task, iterate_tasks
 
 SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
@@ -208,19 +207,6 @@ def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
     return metrics.markdown_table(header, body)
 
 
-def tared_setup(scenario: Scenario, keys: Sequence[str], seed: int, workers: int) -> ControllerSetup:
-    """What the controllers know, as ``python -m eval`` builds it: the robot's identification and the tares of
-    the payload estimators measured on payload-free episodes of ``scenario`` on the calibration seeds of ``seed``."""
-    _, identification = robot_identification(scenario.plant)
-    setup = robot_setup(scenario.plant, identification)
-    tared = [key for key in keys if key in ESTIMATOR_REGRESSORS]
-    if not tared:
-        return setup
-    seeds = calibration_seeds(seed, DEFAULT_CALIBRATION_EPISODES)
-    calibration = calibrate_tares(tared, setup, seeds, scenario.task.n_cycles, workers=workers, scenario=scenario)
-    return calibrated_setup(setup, calibration, scenario)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     from tqdm.auto import tqdm
 
@@ -242,7 +228,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows: list[dict[str, Any]] = resume(out, config)
     write_config(out, " ".join(["python", "scripts/fault_soak.py", *(sys.argv[1:] if argv is None else argv)]), config)
     scenario.save(out / "scenario.toml")
-    setup = tared_setup(scenario, keys, args.seed, args.workers)
+    _, identification = robot_identification(scenario.plant)
+    setup = robot_setup(scenario.plant, identification)
+    setup = tared_setup(scenario, setup, list(keys), seed=args.seed, workers=args.workers)
 
     target = 60.0 * args.minutes
     finished = {(row["key"], int(row["seed"])) for row in rows}
