@@ -27,11 +27,23 @@ from delta_env.sensors import CONTROL_PERIOD, ENCODER_NOISE_STD
 from delta_env.validation import require_in, require_joint_vector, require_positive
 
 SMOOTHER_JERK_STD = 1000.0
-"""Default jerk standard deviation (rad/s^3) of the smoother's model, white at the sample rate.
+"""Default jerk standard deviation (rad/s^3) of the offline smoother's model (:func:`smooth_joint_motion`), white
+at the sample rate.
 
 Below the peak joint jerk of 3 g and 6 g minimum-jerk pick moves (2e3 to 6e3 rad/s^3): on such moves
 sampled by 17-bit encoders the smoother's acceleration error is flat over a wide range of this value and
 two orders of magnitude below central differences.
+"""
+
+FIXED_LAG_JERK_STD = 3000.0
+"""Default jerk standard deviation (rad/s^3) of :class:`JointStateSmoother`'s model.
+
+Three times the offline smoother's: with only :data:`SMOOTHER_LAG` readings after the estimated sample, a stiffer
+model lags where the jerk steps up. At the start of a 6 g lift (a jerk step of about 1e4 rad/s^3) the acceleration
+came out 15 to 20 % low for the first ten samples at 1000 rad/s^3, which the payload RLS read as a mass about 0.2 kg
+too heavy at lift-off on every carry. The payload estimator smooths the tracking error instead of the angles
+(:class:`~controllers.payload.PayloadEstimator`), which steps far less; it still needs the stiffer model there
+(docs/measurements.md, "The fixed-lag smoother's jerk standard deviation").
 """
 
 FILTER_JERK_STD = 3000.0
@@ -194,7 +206,8 @@ class JointStateSmoother:
     """Fixed-lag Kalman smoother of the joint angles, rates and accelerations for the 1 kHz controller.
 
     After reading k it returns the estimate of sample k - ``lag``: the Rauch-Tung-Striebel smoother of
-    :func:`smooth_joint_motion`'s model (filterpy's ``batch_filter`` and ``rts_smoother``) over the window
+    :func:`smooth_joint_motion`'s model (with :data:`FIXED_LAG_JERK_STD`; filterpy's ``batch_filter`` and
+    ``rts_smoother``) over the window
     of the last ``history + lag + 1`` readings, with a diffuse prior at the window start. That estimate is
     linear in the window's readings, so the smoother is computed once, at construction, as the weights of
     each reading (filterpy's smoother run on unit readings), and each update is one small matrix product,
@@ -224,7 +237,7 @@ class JointStateSmoother:
         dt: float = CONTROL_PERIOD,
         *,
         measurement_std: float = ENCODER_NOISE_STD,
-        jerk_std: float = SMOOTHER_JERK_STD,
+        jerk_std: float = FIXED_LAG_JERK_STD,
     ) -> None:
         if isinstance(lag, bool) or not isinstance(lag, int) or lag < 0:
             raise ValueError(f"lag must be an integer >= 0 samples, got {lag!r}")

@@ -25,7 +25,10 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
   linearly back to that instant, between the sample and the one before.
 - **Joint states.** With ``regressor="smoothed"`` (the default) tau0 and phi are evaluated on the
   fixed-lag Kalman smoother's estimate of sample k - L (:class:`~controllers.estimation.JointStateSmoother`,
-  L = 5 ms) and compared with the torque measured with that sample. ``regressor="filtered"`` uses the
+  L = 5 ms) and compared with the torque measured with that sample. The smoother runs on the tracking error
+  theta - theta_ref, and the reference's exact derivatives at sample k - L are added back: what the reference
+  describes needs no smoothing, and where its jerk steps (the start of a lift, 1e4 rad/s^3 at 6 g) the smoother
+  follows only the robot's departure from it. ``regressor="filtered"`` uses the
   causal Kalman filter (:class:`~controllers.estimation.JointStateFilter`) instead, which estimates angle
   and rate without lag but the acceleration about 3 ms late (:func:`acceleration_lag`): the model is
   evaluated at (theta_{k-D}, theta_dot_{k-D}, theta_ddot_k), D = that lag in samples, with the torque of
@@ -753,21 +756,34 @@ class PayloadEstimator:
             )
             return (information, moment) if used else None
         angles = observation["joint_angles"]
-        if not self._filter_started:
-            self.joint_filter.reset(angles)
-            self._filter_started = True
         if self.regressor == "smoothed":
-            state = self.joint_filter.update_state(angles)
-            self._history.append((None, observation["joint_torques"].tolist(), holding))
+            # The smoother estimates the tracking error; the reference's own derivatives are known exactly.
+            reference = np.array(
+                (
+                    observation["reference_angles"],
+                    observation["reference_velocities"],
+                    observation["reference_accelerations"],
+                )
+            )
+            if not self._filter_started:
+                self.joint_filter.reset(angles - reference[0])
+                self._filter_started = True
+            error = self.joint_filter.update_state(angles - reference[0])
+            self._history.append((reference, observation["joint_torques"].tolist(), holding))
         else:
+            if not self._filter_started:
+                self.joint_filter.reset(angles)
+                self._filter_started = True
             estimate = self.joint_filter.update(angles)
             self._history.append((estimate, observation["joint_torques"].tolist(), holding))
         if len(self._history) <= self.delay:
             return None
-        # Everything belongs to sample k - D: the smoother's whole estimate, the filter's acceleration
-        # estimate with its angles and rates of D samples ago, and the torque measured then.
+        # Everything belongs to sample k - D: the smoother's estimate with the reference of that sample, the
+        # filter's acceleration estimate with its angles and rates of D samples ago, and the torque measured then.
         delayed, torque, held = self._history[0]
-        if self.regressor == "filtered":
+        if self.regressor == "smoothed":
+            state = error + delayed
+        else:
             state = np.array((delayed[0], delayed[1], estimate[2]))
         previous_state = self._previous_state if self._previous_state is not None else state
         self._previous_state = state

@@ -7,7 +7,8 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 
 - detected / injected, median and worst latency (ms), consequences and false alarms (:mod:`eval.faults`);
 - for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
-  the payload estimate against the twin from the fault to the end of its carry, as a share of the object's mass;
+  the payload estimate against the twin from the fault to the end of its carry, and the change left at the place,
+  as shares of the object's mass;
 - for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone).
 
 Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
@@ -82,17 +83,18 @@ def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...]) -> Scenario:
 
 
 def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
-    """What the fault did: to the payload estimate, the largest change against the twin from the fault to the end of
-    its carry as a share of the object's mass (sensor faults), or the time until the estimate of a slipped object
-    fell below :data:`GONE_MASS` (NaN if it did not before the place); for a drive fault, the most torque (N m) it
-    withheld (what the twin commanded over the limit; 0: the fault changed nothing)."""
+    """What the fault did: to the payload estimate (sensor faults), the largest change against the twin from the
+    fault to the end of its carry and the change left at its end, as shares of the object's mass; for a slip, the time
+    until the estimate of the slipped object fell below :data:`GONE_MASS` (NaN if it did not before the place); for a
+    drive fault, the most torque (N m) it withheld (what the twin commanded over the limit; 0: the fault changed
+    nothing)."""
     (fault,) = faulty.injected_faults
     start = fault.start_step + 1  # the first observation it affects
     carry = int(np.searchsorted(faulty.pick_indices, start, side="right")) - 1
     places = faulty.place_indices
     end = int(places[carry]) if 0 <= carry < len(places) else len(faulty.payload_estimate)
     end = min(end, len(faulty.payload_estimate), len(twin.payload_estimate))
-    effect = {"estimate_change": math.nan, "forgotten_ms": math.nan, "withheld_nm": math.nan}
+    effect = {"estimate_change": math.nan, "end_change": math.nan, "forgotten_ms": math.nan, "withheld_nm": math.nan}
     if fault.kind == "drive_fault":  # what the drive withheld: the twin's command (what was asked) over the limit
         asked = np.abs(twin.command[fault.start_step : fault.start_step + fault.steps, fault.joint])
         effect["withheld_nm"] = float(np.max(asked - fault.size * faulty.peak_torque, initial=0.0))
@@ -102,8 +104,10 @@ def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]
         below = np.flatnonzero(faulty.payload_estimate[start:end] < GONE_MASS)
         effect["forgotten_ms"] = 1e3 * below[0] * CONTROL_PERIOD if below.size else math.nan
     elif fault.kind in SENSOR_KINDS and 0 <= carry < len(faulty.masses):
-        change = np.max(np.abs(faulty.payload_estimate[start:end] - twin.payload_estimate[start:end]))
-        effect["estimate_change"] = float(change / max(faulty.masses[carry], GONE_MASS))
+        change = np.abs(faulty.payload_estimate[start:end] - twin.payload_estimate[start:end])
+        mass = max(faulty.masses[carry], GONE_MASS)
+        effect["estimate_change"] = float(np.max(change) / mass)
+        effect["end_change"] = float(change[-1] / mass)
     return effect
 
 
@@ -127,6 +131,7 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
         "Consequences",
         "False alarms",
         "Estimate change, max (% of mass)",
+        "At the place (% of mass)",
         "Slip forgotten, max (ms)",
         f"Drive faults withholding > {TORQUE_MARGIN:g} N m: detected",
     ]
@@ -135,6 +140,7 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
         summary = summaries.get(kind)
         mine = [row for row in rows if row["kind"] == kind]
         changes = [row["estimate_change"] for row in mine if not math.isnan(row["estimate_change"])]
+        end_changes = [row["end_change"] for row in mine if not math.isnan(row["end_change"])]
         forgotten = [row["forgotten_ms"] for row in mine]
         slow_forget = "never" if any(math.isnan(f) for f in forgotten) else f"{max(forgotten, default=math.nan):.0f}"
         body.append(
@@ -147,6 +153,7 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
                 str(sum(row["outcome"] == "consequence" for row in by_kind[kind])),
                 str(sum(row["outcome"] == "false_alarm" for row in by_kind[kind])),
                 f"{100 * max(changes):.1f}" if changes else "",
+                f"{100 * max(end_changes):.1f}" if end_changes else "",
                 slow_forget if kind == "slip" else "",
                 effective_drive(mine, by_kind[kind]) if kind == "drive_fault" else "",
             ]
@@ -183,7 +190,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     twin_alarms = sum(len(record.detected_faults) for record in twins.values())
     write_fault_csv(out / "faults.csv", [row for kind in args.kinds for row in by_kind[kind]])
     with (out / "campaign.csv").open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=["kind", "seed", "estimate_change", "forgotten_ms", "withheld_nm"])
+        writer = csv.DictWriter(
+            file, fieldnames=["kind", "seed", "estimate_change", "end_change", "forgotten_ms", "withheld_nm"]
+        )
         writer.writeheader()
         writer.writerows(rows)
     table = summary_table(rows, by_kind, args.kinds)

@@ -29,8 +29,9 @@ from controllers.registry import (
     estimation_model,
 )
 from delta_env import NOMINAL_MASSES, DeltaGeometry, DeltaMasses
-from delta_env.config import PlantConfig, PlantRealism
+from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import GRAVITY
 from delta_env.scenario import PickPlaceTask, Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from eval.calibration import Calibration, calibrate_tares, calibrated_setup
@@ -403,6 +404,19 @@ def test_light_object_estimate_does_not_overshoot_at_lift_off(tared_setup: Contr
     for pick, place in zip(record.pick_indices, record.place_indices, strict=True):
         assert np.max(record.payload_estimate[pick:place]) <= 0.17 + 0.2
     assert all(abs(carry.end_estimate - 0.17) <= 0.025 for carry in record.carries())
+
+
+def test_light_object_estimate_does_not_overshoot_at_a_fast_lift_off(tared_setup: ControllerSetup) -> None:
+    """At 6 g the lift starts with a jerk step of about 1e4 rad/s^3; the fixed-lag smoother's acceleration must
+    follow it, or the unexplained inertia reads as mass. On robots drawn as in the ``randomized`` preset, 50 g
+    objects stay within 0.2 kg above their mass over the whole carry (with a model stiff enough for 3 g, 1000
+    rad/s^3, most of them overshot by 0.2-0.3 kg in the first 10 ms of the lift)."""
+    env = DeltaPickPlaceEnv(n_cycles=3, peak_acceleration=6.0 * GRAVITY, domain_randomization=RandomizationRanges())
+    controller = build_controller("mid_f_rls", tared_setup)
+    for seed in (11, 12):
+        record = run_episode(env, controller, seed, [0.05, 0.05, 0.05])
+        overshoots = [carry.peak_estimate - carry.mass for carry in record.carries()]
+        assert len(overshoots) == 3 and max(overshoots) <= 0.2, overshoots
 
 
 def test_tare_takes_a_carry_with_a_stop_inside_as_one_carry(controller_setup: ControllerSetup) -> None:

@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import (
-    SMOOTHER_JERK_STD,
+    FIXED_LAG_JERK_STD,
     JointStateFilter,
     JointStateSmoother,
     PayloadRLS,
@@ -176,7 +176,7 @@ def test_joint_state_smoother_is_filterpys_rts_smoother_over_its_window() -> Non
     # The same smoother written out with filterpy on the last `window` readings, joint by joint.
     kf = KalmanFilter(dim_x=3, dim_z=1)
     kf.F = kinematic_state_transition(order=2, dt=DT)
-    kf.Q = Q_continuous_white_noise(dim=3, dt=DT, spectral_density=SMOOTHER_JERK_STD**2 * DT)
+    kf.Q = Q_continuous_white_noise(dim=3, dt=DT, spectral_density=FIXED_LAG_JERK_STD**2 * DT)
     kf.H, kf.R = np.array([[1.0, 0.0, 0.0]]), np.array([[ENCODER_NOISE_STD**2]])
     for joint in range(3):
         kf.x, kf.P = np.zeros(3), np.diag([1.0, 1.0 / DT**2, 1.0 / DT**4])
