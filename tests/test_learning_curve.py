@@ -67,7 +67,10 @@ def test_unfinished_runs_restart_and_finished_ones_are_kept(tmp_path: Path) -> N
 
 
 def test_named_recipes_exist_in_the_hyperparameter_file() -> None:
-    from eval.train_residual import load_hyperparameters, override_hyperparameters
+    from eval.train_residual import load_hyperparameters, override_hyperparameters, parse_args
 
-    for algo, items in curve.RECIPES.values():
+    for algo, items, train_args in curve.RECIPES.values():
         override_hyperparameters(load_hyperparameters(algo), items, algo)
+        parse_args(list(train_args))
+    old = curve.recipes_from_arguments(curve.parse_arguments(["--recipe", "old", "--", "--n-cycles", "2"]))[0]
+    assert old.train_args == ("--residual-limit", "40", "--n-cycles", "2")
