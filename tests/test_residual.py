@@ -477,6 +477,15 @@ def test_bad_hyperparams_are_a_command_line_error(capsys) -> None:
     assert "'learning_rat' is not an argument of sac" in capsys.readouterr().err
 
 
+def test_tensorboard_without_the_package_is_a_command_line_error(capsys, monkeypatch) -> None:
+    import eval.train_residual as tool
+
+    monkeypatch.setattr(tool, "HAS_TENSORBOARD", False)
+    with pytest.raises(SystemExit):
+        parse_args(["--tensorboard", "tb"])
+    assert "--tensorboard needs the tensorboard package" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("algo", ["tqc", "crossq"])
 def test_sb3_contrib_algorithms_train_save_and_reload(algo: str, tmp_path: Path) -> None:
     pytest.importorskip("sb3_contrib", reason="TQC and CrossQ need sb3-contrib (the rl extra)")
