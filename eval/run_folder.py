@@ -23,7 +23,17 @@ from typing import Any
 
 import numpy as np
 
-RUN_PACKAGES = ("numpy", "scipy", "mujoco", "gymnasium", "filterpy", "matplotlib", "stable-baselines3", "torch")
+RUN_PACKAGES = (
+    "numpy",
+    "scipy",
+    "mujoco",
+    "gymnasium",
+    "filterpy",
+    "matplotlib",
+    "stable-baselines3",
+    "sb3-contrib",
+    "torch",
+)
 """Packages whose versions decide a run's numbers."""
 
 RUNS_ROOT = Path("runs")

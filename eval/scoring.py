@@ -27,7 +27,7 @@ TEST_PAYLOADS = (0.0, 1.0, 2.5, 3.8, 4.0)
 """Fixed payload masses (kg) of the extra test episodes (3.8 kg is the paper's test)."""
 
 
-def _pooled(records: Sequence[EpisodeRecord]) -> dict[str, float]:
+def pooled_scores(records: Sequence[EpisodeRecord]) -> dict[str, float]:
     """Tracking RMS and max (mm) and torque RMS (N m) over every control step of ``records``."""
     tracking_rms, tracking_max = metrics.tracking_metrics(np.concatenate([r.tracking_error for r in records]))
     torque_rms, _ = metrics.torque_metrics(np.concatenate([r.torque for r in records]))
@@ -80,7 +80,7 @@ def score_policy(
             scores = record.metrics()
             entry[name] = {key: scores[key] for key in ("tracking_rms_mm", "torque_rms_nm", "diverged")}
         per_episode.append(entry)
-    summary: dict[str, Any] = {name: _pooled(group) for name, group in records.items()}
+    summary: dict[str, Any] = {name: pooled_scores(group) for name, group in records.items()}
     for quantity in ("tracking_rms", "torque_rms"):
         unit = "mm" if quantity == "tracking_rms" else "nm"
         ratio = summary["residual"][f"{quantity}_{unit}"] / summary["base"][f"{quantity}_{unit}"]

@@ -1,19 +1,25 @@
 # Over 500 lines: one command, from the base controller's setup through SB3's callbacks to the scored policy.
 """Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (docs/design.md section 6).
 
-    python -m eval.train_residual --seed 0 --timesteps 400000 --n-envs 2 --max-minutes 60
+    python -m eval.train_residual --seed 0 --timesteps 300000 --max-minutes 15
 
-SAC by default (``--algo ppo`` selectable), with the hyperparameters of ``eval/hyperparams/residual.toml``
-(command-line options override them). Every run folder (``--out``, default
-``runs/residual/<timestamp>``) holds:
+SAC by default (``--algo`` ppo, tqc or crossq selectable; TQC and CrossQ come from sb3-contrib), with the
+hyperparameters of ``eval/hyperparams/residual.toml``. ``--hyperparams key:value ...`` overrides any of them
+as the RL Zoo does; each value is a TOML value, as in the file (a bare word is a string), and a dotted key
+sets one entry of a table::
+
+    --hyperparams learning_rate:1e-3 train_freq:4 gradient_steps:2 policy_kwargs.net_arch:[64,64]
+    --hyperparams 'policy_kwargs:{ net_arch = [64, 64] }' ent_coef:auto_0.1
+
+Every run folder (``--out``, default ``runs/residual/<timestamp>``) holds:
 
 - ``config.json``: the resolved configuration (arguments, hyperparameters, residual settings, base
   controller parameters, seeds) with the command line, versions and git commit
   (:func:`eval.run_folder.write_config`), written before training starts;
-- ``checkpoints/``: periodic checkpoints (and the SAC replay buffer) for ``--resume``;
+- ``checkpoints/``: periodic checkpoints (and the replay buffer of off-policy algorithms) for ``--resume``;
 - ``evaluations.npz`` and ``best_model/``: SB3's EvalCallback on held-out seeds (validation), distinct
   from every training seed, and its best model;
-- ``progress.csv`` (and TensorBoard event files when tensorboard is installed): training curves;
+- ``progress.csv``: training curves (TensorBoard event files go to ``--tensorboard DIR`` when given);
 - ``final_policy.zip`` and ``best_policy.zip``: loadable by :func:`controllers.residual.load_residual_controller`;
 - ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training
   (:func:`eval.scoring.score_policy`).
@@ -38,8 +44,10 @@ from __future__ import annotations
 import argparse
 import copy
 import importlib.util
+import inspect
 import json
 import math
+import re
 import time
 import tomllib
 import warnings
@@ -53,8 +61,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import configure, make_output_format
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm import tqdm
@@ -89,6 +98,10 @@ VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
 CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_000 + DEFAULT_CALIBRATION_EPISODES))
 """Payload-free episodes of the base controller's tare (as many as the eval's)."""
 
+TRAINING_RESIDUAL_LIMIT = 15.0
+"""Residual torque (N m) at a = 1 of new policies: the scale of the base's torque errors, so that the policy's
+exploration noise is too (``ResidualConfig``'s 40 N m is the shipped policy's)."""
+
 CHECKPOINT_PREFIX = "residual"
 """CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
 
@@ -96,16 +109,60 @@ HAS_RICH = importlib.util.find_spec("rich") is not None
 """SB3's progress bar needs tqdm and rich; without rich a plain tqdm bar is used."""
 
 HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
-"""TensorBoard logs are written only when tensorboard is installed."""
+"""``--tensorboard`` needs the tensorboard package."""
+
+BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
+"""A ``--hyperparams`` value that is not TOML but reads as a string (``auto``, ``auto_0.1``)."""
 
 
 def load_hyperparameters(algo: str, path: Path = HYPERPARAMETER_FILE) -> dict[str, Any]:
-    """The SB3 keyword arguments of ``algo`` (``"sac"`` or ``"ppo"``) from the hyperparameter file."""
+    """The SB3 keyword arguments of ``algo`` (one of ``ALGORITHMS``) from the hyperparameter file."""
     with path.open("rb") as file:
         tables = tomllib.load(file)
     if algo not in tables:
         raise ValueError(f"{path} has no [{algo}] table; it has {sorted(tables)}")
     return copy.deepcopy(tables[algo])
+
+
+def parse_hyperparameter_value(key: str, text: str) -> Any:
+    """The value of one ``--hyperparams key:value`` item: a TOML value (``1e-3``, ``[64, 64]``, ``true``,
+    ``"auto"``, ``{ net_arch = [64, 64] }``), or the text itself when it is a bare word (``auto``)."""
+    try:
+        return tomllib.loads(f"value = {text}")["value"]
+    except tomllib.TOMLDecodeError as error:
+        if BARE_WORD.fullmatch(text):
+            return text
+        raise ValueError(f"--hyperparams {key}: {text!r} is not a TOML value ({error})") from None
+
+
+def override_hyperparameters(hyperparameters: dict[str, Any], items: Sequence[str], algo: str) -> dict[str, Any]:
+    """``hyperparameters`` with the ``--hyperparams`` items ``key:value`` applied (a new dict).
+
+    A key must be a keyword argument of the algorithm's constructor; a dotted key (``policy_kwargs.net_arch``)
+    sets one entry of a table-valued argument and leaves its other entries.
+    """
+    allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {"self", "policy", "env"}
+    result = copy.deepcopy(hyperparameters)
+    for item in items:
+        key, separator, text = item.partition(":")
+        if not separator or not key or not text:
+            raise ValueError(f"--hyperparams items are key:value, got {item!r}")
+        name, *path = key.split(".")
+        if name not in allowed:
+            raise ValueError(f"--hyperparams {key}: {name!r} is not an argument of {algo}; known: {sorted(allowed)}")
+        value = parse_hyperparameter_value(key, text)
+        if not path:
+            result[name] = value
+            continue
+        table = result.setdefault(name, {})
+        for part in path[:-1]:
+            table = table.setdefault(part, {})
+            if not isinstance(table, dict):
+                raise ValueError(f"--hyperparams {key}: {part!r} is not a table")
+        if not isinstance(table, dict):
+            raise ValueError(f"--hyperparams {key}: {name!r} is {table!r}, not a table")
+        table[path[-1]] = value
+    return result
 
 
 class EpisodeSeeds(gym.Wrapper):
@@ -302,7 +359,7 @@ def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[Ba
             save_freq=max(args.checkpoint_freq // n_envs, 1),
             save_path=str(out / "checkpoints"),
             name_prefix=CHECKPOINT_PREFIX,
-            save_replay_buffer=args.algo == "sac",
+            save_replay_buffer=issubclass(algorithm_class(args.algo), OffPolicyAlgorithm),
         ),
         HeldOutEvalCallback(
             eval_env,
@@ -321,32 +378,39 @@ def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[Ba
     return callbacks
 
 
-def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | None = None) -> Path:
+def residual_config(args: argparse.Namespace) -> ResidualConfig:
+    """The residual settings of the command line."""
+    return ResidualConfig(
+        residual_limit=args.residual_limit,
+        action_period=args.action_period,
+        reward_scale=args.reward_scale,
+    )
+
+
+def train(
+    args: argparse.Namespace,
+    base_factory: Callable[[], Controller] | None = None,
+    *,
+    base: BaseSetup | None = None,
+    callbacks: Sequence[BaseCallback] = (),
+) -> Path:
     """Train per ``args`` (see :func:`parse_args`); returns the run folder.
 
     Args:
         args: Parsed command-line arguments.
         base_factory: Builds the base controller instead of the one of ``args.base`` (tests).
+        base: The setup of ``args.base`` already identified and calibrated (:func:`base_setup`), so that
+            several runs share one; None makes it.
+        callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
     """
     torch.set_num_threads(args.torch_threads)
     out = create_run_folder("residual", args.out)
-    config = ResidualConfig(
-        residual_limit=args.residual_limit,
-        action_period=args.action_period,
-        reward_scale=args.reward_scale,
-    )
+    config = residual_config(args)
     env_kwargs = {"n_cycles": args.n_cycles, "scenario": args.scenario}
     args.scenario.save(out / "scenario.toml")
-    base = base_setup(env_kwargs, base=args.base) if base_factory is None else None
-    hyperparameters = load_hyperparameters(args.algo)
-    for name in ("learning_rate", "gamma", "batch_size", "learning_starts", "buffer_size"):
-        value = getattr(args, name)
-        if value is not None:
-            if name in ("learning_starts", "buffer_size") and args.algo != "sac":
-                raise ValueError(f"--{name.replace('_', '-')} applies to SAC only")
-            hyperparameters[name] = value
-    if args.net_arch is not None:
-        hyperparameters["policy_kwargs"]["net_arch"] = list(args.net_arch)
+    if base is None and base_factory is None:
+        base = base_setup(env_kwargs, base=args.base)
+    hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
 
     command = command_line("eval.train_residual")
     resolved = {
@@ -393,17 +457,16 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
     )
     algorithm = algorithm_class(args.algo)
     formats = ["stdout", "csv"] if args.verbose else ["csv"]
-    if HAS_TENSORBOARD:
-        formats.append("tensorboard")
     if args.resume is not None:
         mismatch = resume_mismatch(args.resume, args.scenario.name, args.base)
         if mismatch is not None:
             warnings.warn(f"{mismatch}; training goes on with the new one", stacklevel=1)
         model = algorithm.load(args.resume, env=vec_env, device="cpu")
+        off_policy = isinstance(model, OffPolicyAlgorithm)
         replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
-        if args.algo == "sac" and replay.is_file():
+        if off_policy and replay.is_file():
             model.load_replay_buffer(replay)
-        elif args.algo == "sac":
+        elif off_policy:
             # Only the newest replay buffer is kept: an older checkpoint restarts with an empty one.
             warnings.warn(f"no replay buffer at {replay}: resuming with an empty one", stacklevel=1)
             replay = None
@@ -411,21 +474,25 @@ def train(args: argparse.Namespace, base_factory: Callable[[], Controller] | Non
             "checkpoint": str(args.resume),
             "setting_changed": mismatch,
             "num_timesteps": model.num_timesteps,
-            "replay_buffer": None if args.algo != "sac" else replay,
+            "replay_buffer": replay if off_policy else None,
         }
         write_config(out, command, resolved)
     else:
         model = algorithm("MlpPolicy", vec_env, seed=args.seed, device="cpu", verbose=0, **hyperparameters)
-    model.set_logger(configure(str(out), formats))
+    logger = configure(str(out), formats)
+    if args.tensorboard is not None:
+        # One event folder per run under DIR, for `tensorboard --logdir DIR`.
+        logger.output_formats.append(make_output_format("tensorboard", str(args.tensorboard / out.name)))
+    model.set_logger(logger)
 
-    callbacks = _callbacks(args, out, eval_env)
+    all_callbacks = [*_callbacks(args, out, eval_env), *callbacks]
     # SubprocVecEnv for training, DummyVecEnv for the held-out episodes: intended, not worth a warning.
     warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
     remaining = max(args.timesteps - model.num_timesteps, 0)
     start = time.monotonic()
     model.learn(
         total_timesteps=remaining,
-        callback=callbacks,
+        callback=all_callbacks,
         reset_num_timesteps=args.resume is None,
         progress_bar=args.progress and HAS_RICH,
     )
@@ -462,7 +529,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--algo", choices=ALGORITHMS, default="sac")
     parser.add_argument("--seed", type=int, default=0, help="seed of the model and of the training episodes")
     parser.add_argument("--timesteps", type=int, default=300_000, help="total policy steps (100 Hz by default)")
-    parser.add_argument("--n-envs", type=int, default=2, help="parallel envs; SubprocVecEnv when > 1")
+    parser.add_argument(
+        "--n-envs", type=int, default=1, help="parallel envs; SubprocVecEnv when > 1 (train_freq counts vector steps)"
+    )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/residual/<timestamp>)")
     parser.add_argument("--resume", type=Path, default=None, help="checkpoint zip to continue from")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop training after this wall time")
@@ -476,15 +545,17 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--n-cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )
-    parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
+    parser.add_argument("--residual-limit", type=float, default=TRAINING_RESIDUAL_LIMIT, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
     parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
-    parser.add_argument("--learning-rate", type=float, default=None)
-    parser.add_argument("--gamma", type=float, default=None)
-    parser.add_argument("--batch-size", type=int, default=None)
-    parser.add_argument("--learning-starts", type=int, default=None, help="SAC only")
-    parser.add_argument("--buffer-size", type=int, default=None, help="SAC only")
-    parser.add_argument("--net-arch", type=int, nargs="+", default=None, help="hidden layer sizes")
+    parser.add_argument(
+        "--hyperparams",
+        nargs="+",
+        default=[],
+        metavar="KEY:VALUE",
+        help="override hyperparameters of the TOML file: key:value with a TOML value, dotted keys for table entries",
+    )
+    parser.add_argument("--tensorboard", type=Path, default=None, help="TensorBoard log folder (needs tensorboard)")
     parser.add_argument("--torch-threads", type=int, default=1)
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     parser.add_argument("--no-score", dest="score", action="store_false", help="skip the final test scores")
@@ -498,6 +569,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         args.n_cycles = args.scenario.task.n_cycles
     if args.n_envs < 1 or args.timesteps < 1:
         parser.error("--n-envs and --timesteps must be >= 1")
+    if args.tensorboard is not None and not HAS_TENSORBOARD:
+        parser.error("--tensorboard needs the tensorboard package (pip install tensorboard)")
+    try:
+        override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
+    except (ValueError, ImportError) as error:
+        parser.error(str(error))
     return args
 
 

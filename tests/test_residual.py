@@ -51,6 +51,7 @@ from eval.train_residual import (
     base_setup,
     load_hyperparameters,
     make_env,
+    override_hyperparameters,
     parse_args,
     resume_mismatch,
     train,
@@ -239,7 +240,8 @@ def tiny_training_args(out: Path, seed: int, *extra: str):
     return parse_args(
         [
             "--seed", str(seed), "--timesteps", "60", "--n-envs", "1", "--n-cycles", "1",
-            "--learning-starts", "30", "--batch-size", "16", "--buffer-size", "500", "--net-arch", "16", "16",
+            "--hyperparams", "learning_starts:30", "batch_size:16", "buffer_size:500", "policy_kwargs.net_arch:[16,16]",
+            "train_freq:1",  # steps in multiples of 30, as the checkpoints
             "--eval-freq", "60", "--checkpoint-freq", "30", "--no-progress", "--no-score", "--out", str(out),
             *extra,
         ]
@@ -434,6 +436,70 @@ def test_hyperparameters_come_from_the_toml_file() -> None:
     assert load_hyperparameters("sac")["gamma"] == 0.95
     with pytest.raises(ValueError, match=r"no \[a2c\] table"):
         load_hyperparameters("a2c")
+
+
+def test_hyperparams_override_any_key_with_toml_values() -> None:
+    sac = load_hyperparameters("sac")
+    items = ["learning_rate:1e-3", "train_freq:4", "ent_coef:auto_0.1", "policy_kwargs.net_arch:[64, 64]"]
+    overridden = override_hyperparameters(sac, items, "sac")
+    assert overridden["learning_rate"] == 1e-3 and overridden["train_freq"] == 4
+    assert overridden["ent_coef"] == "auto_0.1"
+    assert overridden["policy_kwargs"] == {"net_arch": [64, 64]}
+    assert sac["policy_kwargs"] == {"net_arch": [256, 256]}, "the loaded table is left as it was"
+    whole = override_hyperparameters(sac, ["policy_kwargs:{ net_arch = [8], log_std_init = -1.0 }"], "sac")
+    assert whole["policy_kwargs"] == {"net_arch": [8], "log_std_init": -1.0}
+    crossq = override_hyperparameters(
+        load_hyperparameters("crossq"), ["policy_kwargs.net_arch.qf:[128, 128]"], "crossq"
+    )
+    assert crossq["policy_kwargs"]["net_arch"] == {"pi": [256, 256], "qf": [128, 128]}
+    assert parse_args(["--hyperparams", "gamma:0.9", "batch_size:64"]).hyperparams == ["gamma:0.9", "batch_size:64"]
+
+
+@pytest.mark.parametrize(
+    ("items", "algo", "message"),
+    [
+        (["learning_rate=1e-3"], "sac", r"key:value, got 'learning_rate=1e-3'"),
+        (["n_epochs:3"], "sac", r"n_epochs.*not an argument of sac"),
+        (["policy_delay:2"], "tqc", r"policy_delay.*not an argument of tqc"),
+        (["learning_rate:[1e-3"], "sac", r"learning_rate: '\[1e-3' is not a TOML value"),
+        (["gamma:"], "sac", r"key:value"),
+        (["gamma.x:1"], "sac", r"gamma.x: 'gamma' is 0.95, not a table"),
+    ],
+)
+def test_bad_hyperparams_name_the_key_and_value(items: list[str], algo: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        override_hyperparameters(load_hyperparameters(algo), items, algo)
+
+
+def test_bad_hyperparams_are_a_command_line_error(capsys) -> None:
+    with pytest.raises(SystemExit):
+        parse_args(["--hyperparams", "learning_rat:1e-3"])
+    assert "'learning_rat' is not an argument of sac" in capsys.readouterr().err
+
+
+def test_tensorboard_without_the_package_is_a_command_line_error(capsys, monkeypatch) -> None:
+    import eval.train_residual as tool
+
+    monkeypatch.setattr(tool, "HAS_TENSORBOARD", False)
+    with pytest.raises(SystemExit):
+        parse_args(["--tensorboard", "tb"])
+    assert "--tensorboard needs the tensorboard package" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("algo", ["tqc", "crossq"])
+def test_sb3_contrib_algorithms_train_save_and_reload(algo: str, tmp_path: Path) -> None:
+    pytest.importorskip("sb3_contrib", reason="TQC and CrossQ need sb3-contrib (the rl extra)")
+    args = tiny_training_args(tmp_path / algo, 0, "--algo", algo)
+    args.hyperparams = [*args.hyperparams, "policy_kwargs.net_arch:[16, 16]"]
+    run = train(args, base_factory=make_base)
+    policy = load_residual_policy(run / "final_policy.zip")
+    assert policy.algo == algo and policy.model.num_timesteps == 60
+    assert (policy.layers is not None) == (algo == "tqc"), "TQC's actor is SAC's plain MLP, CrossQ's is not"
+    observations = np.random.default_rng(0).uniform(-2, 2, (4, ResidualFeatures.size)).astype(np.float32)
+    expected, _ = policy.model.predict(observations, deterministic=True)
+    assert_allclose(policy(observations), expected, atol=1e-5)
+    checkpoints = sorted(p.name for p in (run / "checkpoints").iterdir())
+    assert "residual_replay_buffer_60_steps.pkl" in checkpoints, "off-policy checkpoints keep the replay buffer"
 
 
 def test_residual_features_use_the_drives_datasheet_values() -> None:

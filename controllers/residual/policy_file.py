@@ -36,17 +36,27 @@ DEFAULT_POLICY_PATH = Path(__file__).resolve().parent.parent / "policies" / "res
 METADATA_NAME = "residual.json"
 """Member of a policy zip that holds its :class:`ResidualConfig`, algorithm and feature version."""
 
-ALGORITHMS = ("sac", "ppo")
+ALGORITHMS = ("sac", "ppo", "tqc", "crossq")
+"""Algorithm names: stable-baselines3's SAC and PPO, sb3-contrib's TQC and CrossQ."""
+
+SQUASHED_GAUSSIAN_ACTORS = ("sac", "tqc")
+"""Algorithms whose actor is SAC's (an MLP mean squashed by tanh): their deterministic action skips ``predict``."""
 
 
 def algorithm_class(algo: str) -> type[BaseAlgorithm]:
-    """The SB3 class of ``algo`` (``"sac"`` or ``"ppo"``); SB3 is imported only when a policy is used."""
-    from stable_baselines3 import PPO, SAC
-
-    classes: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "ppo": PPO}
-    if algo not in classes:
+    """The SB3 class of ``algo`` (one of :data:`ALGORITHMS`); SB3 (and sb3-contrib for TQC and CrossQ) is
+    imported only when a policy is used."""
+    if algo not in ALGORITHMS:
         raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
-    return classes[algo]
+    if algo in ("sac", "ppo"):
+        from stable_baselines3 import PPO, SAC
+
+        return {"sac": SAC, "ppo": PPO}[algo]
+    try:
+        from sb3_contrib import TQC, CrossQ
+    except ImportError as error:
+        raise ImportError(f"algo {algo!r} needs sb3-contrib (pip install -e '.[rl]')") from error
+    return {"tqc": TQC, "crossq": CrossQ}[algo]
 
 
 def save_residual_policy(
@@ -64,7 +74,7 @@ def save_residual_policy(
         model: The trained SAC or PPO model.
         path: Target ``.zip`` path.
         config: The settings the model was trained with.
-        algo: ``"sac"`` or ``"ppo"``.
+        algo: One of :data:`ALGORITHMS`.
         base: The default base controller's setup it was trained on (None: a custom base).
         extra: JSON-serializable notes stored beside the settings (e.g. the training command).
 
@@ -195,14 +205,14 @@ class ResidualPolicy:
     def __call__(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
         """The deterministic action (mean of the policy) for one observation ``(43,)`` or a batch ``(N, 43)``.
 
-        For SAC (without gSDE) the arithmetic of SB3's ``predict(observation, deterministic=True)`` without
+        For SAC and TQC (without gSDE) the arithmetic of SB3's ``predict(observation, deterministic=True)`` without
         its per-call input checks and distribution objects, which cost three times the network: tanh of the
         actor's mean, unscaled to the action space. A plain MLP actor runs as NumPy matrix products on its
         float32 weights, as a controller would deploy it: the torch call costs about four times the
         arithmetic at one observation; the actions agree with torch's to float32 round-off.
         """
         policy = self.model.policy
-        if self.algo != "sac" or policy.actor.use_sde:
+        if self.algo not in SQUASHED_GAUSSIAN_ACTORS or policy.actor.use_sde:
             action, _ = self.model.predict(observation, deterministic=True)
             return action
         if self.layers is not None:
@@ -223,7 +233,7 @@ class ResidualPolicy:
 
 
 def actor_layers(model: BaseAlgorithm) -> tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...] | None:
-    """The (weight, bias) float32 arrays of a SAC actor that is a plain MLP: flattened input, Linear and ReLU
+    """The (weight, bias) float32 arrays of a SAC (or TQC) actor that is a plain MLP: flattened input, Linear and ReLU
     layers, a Linear mean; None for any other actor (PPO, gSDE, other activations or feature extractors)."""
     import torch
     from stable_baselines3.common.torch_layers import FlattenExtractor
@@ -300,7 +310,7 @@ def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPoli
         algo=settings.algo,
         base=settings.base,
         metadata=settings.metadata,
-        layers=actor_layers(model) if settings.algo == "sac" else None,
+        layers=actor_layers(model) if settings.algo in SQUASHED_GAUSSIAN_ACTORS else None,
     )
 
 

@@ -1,0 +1,378 @@
+"""Learning-curve benchmark of the residual policy: policy steps and training wall time to a tracking gain.
+
+    python scripts/residual_learning_curve.py --recipe old new --seeds 0 1 2 --max-minutes 20
+    python scripts/residual_learning_curve.py --algo crossq --hyperparams policy_kwargs.net_arch:[256,256] \\
+        --label crossq256 --seeds 0 --max-minutes 12 --out /tmp/rl-runs/crossq256
+    python scripts/residual_learning_curve.py --recipe new --seeds 0 -- --reward-scale 0.1
+
+Each run trains with :func:`eval.train_residual.train` (one env, ``DummyVecEnv``) and every ``--eval-every``
+policy steps pauses to run the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
+scenario unless other training arguments follow ``--``) with the base controller alone and with the residual,
+scored as :func:`eval.scoring.score_policy` scores the test (tracking RMS and torque RMS pooled over every
+control step). A threshold counts as reached at the first evaluation whose tracking RMS is that much lower
+than the base's with torque RMS at most ``--max-torque-change`` above the base's.
+
+The training wall time excludes the evaluations (and the base controller's identification and tare
+calibration, done once per invocation); ``--max-minutes`` caps each run's training wall time. A run stops
+once every threshold is reached unless ``--full-curve``.
+
+Output (``--out``, default ``runs/learning_curve/<timestamp>``): ``curve.csv`` gets one row per evaluation as
+it comes, ``runs.csv`` one row per finished run; invoked again with the same ``--out``, finished runs
+(label and seed) are skipped and an unfinished one restarts. The table of every run in the folder is
+printed at the end and written to ``table.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, ResidualController
+from delta_env.env import DeltaPickPlaceEnv
+from eval.episodes import run_episode
+from eval.run_folder import create_run_folder
+from eval.scoring import pooled_scores
+from eval.train_residual import VALIDATION_SEEDS, base_setup, parse_args, residual_config, train
+
+RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
+    "old": ("sac", ("train_freq:1", "gradient_steps:1", "learning_rate:3e-4"), ("--residual-limit", "40")),
+    "new": ("sac", (), ()),
+}
+"""Named recipes: algorithm, ``--hyperparams`` items on top of its table in ``eval/hyperparams/residual.toml`` and
+more training arguments. ``old`` is the shipped policy's (SAC, one update per step at 3e-4, 40 N m); ``new``
+the tool's defaults."""
+
+THRESHOLDS = (0.5, 0.7)
+"""Tracking-RMS reductions against the base (fractions) whose first crossing is reported."""
+
+CURVE_FIELDS = (
+    "label", "algo", "hyperparams", "train_args", "seed", "policy_steps", "train_wall_s", "eval_wall_s",
+    "base_tracking_rms_mm", "tracking_rms_mm", "tracking_reduction", "base_torque_rms_nm", "torque_rms_nm",
+    "torque_change",
+)  # fmt: skip
+RUN_FIELDS = ("label", "seed", "policy_steps", "train_wall_s", "stopped")
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """What one benchmark row trains: a label, the algorithm, ``--hyperparams`` items and other training arguments."""
+
+    label: str
+    algo: str
+    hyperparams: tuple[str, ...]
+    train_args: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Crossing:
+    """The first evaluation that reached a threshold: policy steps and training wall time (s)."""
+
+    policy_steps: int
+    train_wall_s: float
+
+
+def first_crossing(rows: Sequence[dict[str, Any]], threshold: float, max_torque_change: float) -> Crossing | None:
+    """The first row (in policy-step order) with ``tracking_reduction >= threshold`` and ``torque_change <=
+    max_torque_change`` (fractions), or None when no row qualifies."""
+    for row in sorted(rows, key=lambda r: int(r["policy_steps"])):
+        if float(row["tracking_reduction"]) >= threshold and float(row["torque_change"]) <= max_torque_change:
+            return Crossing(int(row["policy_steps"]), float(row["train_wall_s"]))
+    return None
+
+
+def validation_scores(
+    policy: Any, base: BaseSetup, config: ResidualConfig, env_kwargs: dict[str, Any]
+) -> dict[str, float]:
+    """Pooled tracking and torque RMS of the validation episodes (``policy`` None: the base alone)."""
+    records = []
+    for seed in VALIDATION_SEEDS:
+        controller = base.controller()
+        if policy is not None:
+            controller = ResidualController(controller, policy, config)
+        env = DeltaPickPlaceEnv(**env_kwargs)
+        records.append(run_episode(env, controller, seed))
+        env.close()
+    return pooled_scores(records)
+
+
+class ValidationCurve(BaseCallback):
+    """Every ``eval_every`` policy steps, scores the policy on the validation episodes and appends a curve row;
+    stops training once ``max_minutes`` of training wall time (evaluations excluded) are spent or, with
+    ``stop_when_reached``, once every threshold is reached."""
+
+    def __init__(
+        self,
+        *,
+        recipe: Recipe,
+        seed: int,
+        base: BaseSetup,
+        config: ResidualConfig,
+        env_kwargs: dict[str, Any],
+        base_scores: dict[str, float],
+        curve_path: Path,
+        eval_every: int,
+        max_minutes: float,
+        max_torque_change: float,
+        stop_when_reached: bool,
+    ) -> None:
+        super().__init__()
+        self.recipe, self.seed, self.base, self.config, self.env_kwargs = recipe, seed, base, config, env_kwargs
+        self.base_scores, self.curve_path, self.eval_every = base_scores, curve_path, eval_every
+        self.max_seconds, self.max_torque_change = 60.0 * max_minutes, max_torque_change
+        self.stop_when_reached = stop_when_reached
+        self.rows: list[dict[str, Any]] = []
+        self.start = 0.0
+        self.eval_seconds = 0.0
+        self.next_evaluation = eval_every
+        self.stopped = "timesteps"
+
+    def train_seconds(self) -> float:
+        """Wall time (s) since training started, evaluations excluded."""
+        return time.monotonic() - self.start - self.eval_seconds
+
+    def _on_training_start(self) -> None:
+        self.start = time.monotonic()
+
+    def _policy(self, observation: np.ndarray) -> np.ndarray:
+        action, _ = self.model.predict(observation, deterministic=True)
+        return action
+
+    def evaluate(self) -> dict[str, Any]:
+        """Score the current policy and append its row to the curve file."""
+        train_wall = self.train_seconds()
+        began = time.monotonic()
+        scores = validation_scores(self._policy, self.base, self.config, self.env_kwargs)
+        eval_wall = time.monotonic() - began
+        self.eval_seconds += eval_wall
+        base = self.base_scores
+        row = {
+            "label": self.recipe.label,
+            "algo": self.recipe.algo,
+            "hyperparams": " ".join(self.recipe.hyperparams),
+            "train_args": " ".join(self.recipe.train_args),
+            "seed": self.seed,
+            "policy_steps": self.num_timesteps,
+            "train_wall_s": round(train_wall, 1),
+            "eval_wall_s": round(eval_wall, 1),
+            "base_tracking_rms_mm": round(base["tracking_rms_mm"], 5),
+            "tracking_rms_mm": round(scores["tracking_rms_mm"], 5),
+            "tracking_reduction": round(1.0 - scores["tracking_rms_mm"] / base["tracking_rms_mm"], 4),
+            "base_torque_rms_nm": round(base["torque_rms_nm"], 4),
+            "torque_rms_nm": round(scores["torque_rms_nm"], 4),
+            "torque_change": round(scores["torque_rms_nm"] / base["torque_rms_nm"] - 1.0, 4),
+        }
+        append_row(self.curve_path, CURVE_FIELDS, row)
+        self.rows.append(row)
+        print(
+            f"{row['label']} seed {self.seed}: {row['policy_steps']} steps, {row['train_wall_s']:.0f} s training, "
+            f"tracking {-100 * row['tracking_reduction']:+.1f} %, torque {100 * row['torque_change']:+.1f} %",
+            flush=True,
+        )
+        return row
+
+    def _on_step(self) -> bool:
+        if self.train_seconds() >= self.max_seconds:
+            self.evaluate()
+            self.stopped = "max_minutes"
+            return False
+        if self.num_timesteps < self.next_evaluation:
+            return True
+        self.next_evaluation += self.eval_every
+        self.evaluate()
+        reached = all(first_crossing(self.rows, t, self.max_torque_change) for t in THRESHOLDS)
+        if self.stop_when_reached and reached:
+            self.stopped = "thresholds_reached"
+            return False
+        return True
+
+
+def append_row(path: Path, fields: Sequence[str], row: dict[str, Any]) -> None:
+    """Append one row to a CSV file (with the header when the file is new), flushed at once."""
+    new = not path.is_file()
+    with path.open("a", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=fields)
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file written by :func:`append_row` (none when it does not exist)."""
+    if not path.is_file():
+        return []
+    with path.open(newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def drop_unfinished(curve_path: Path, finished: set[tuple[str, str]]) -> None:
+    """Remove from the curve file the rows of runs (label, seed) that did not finish: they restart."""
+    rows = read_rows(curve_path)
+    kept = [row for row in rows if (row["label"], row["seed"]) in finished]
+    if len(kept) == len(rows):
+        return
+    curve_path.unlink()
+    for row in kept:
+        append_row(curve_path, CURVE_FIELDS, row)
+
+
+def summary_table(curve_rows: Sequence[dict[str, str]], max_torque_change: float) -> str:
+    """Markdown table: per recipe and seed, steps and training minutes to each threshold, best reduction and
+    its torque change; then the median over seeds per recipe (a run that never reached a threshold counts as
+    not reached, and the median is reported only when most seeds reached it)."""
+    header = ["recipe", "seed"]
+    for threshold in THRESHOLDS:
+        header += [f"steps to {threshold:.0%}", f"min to {threshold:.0%}"]
+    header += ["best reduction", "torque at best", "last steps", "last min"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    labels = list(dict.fromkeys(row["label"] for row in curve_rows))
+    for label in labels:
+        per_seed: dict[str, list[dict[str, str]]] = {}
+        for row in curve_rows:
+            if row["label"] == label:
+                per_seed.setdefault(row["seed"], []).append(row)
+        crossings: dict[float, list[Crossing | None]] = {t: [] for t in THRESHOLDS}
+        for seed, rows in per_seed.items():
+            cells = [label, seed]
+            for threshold in THRESHOLDS:
+                crossing = first_crossing(rows, threshold, max_torque_change)
+                crossings[threshold].append(crossing)
+                cells += (
+                    ["-", "-"]
+                    if crossing is None
+                    else [f"{crossing.policy_steps}", f"{crossing.train_wall_s / 60:.1f}"]
+                )
+            best = max(rows, key=lambda r: float(r["tracking_reduction"]))
+            last = max(rows, key=lambda r: int(r["policy_steps"]))
+            cells += [
+                f"{100 * float(best['tracking_reduction']):.1f} %",
+                f"{100 * float(best['torque_change']):+.1f} %",
+                last["policy_steps"],
+                f"{float(last['train_wall_s']) / 60:.1f}",
+            ]
+            lines.append("| " + " | ".join(cells) + " |")
+        if len(per_seed) > 1:
+            cells = [label, "median"]
+            for threshold in THRESHOLDS:
+                reached = [c for c in crossings[threshold] if c is not None]
+                if 2 * len(reached) > len(crossings[threshold]):
+                    # Unreached seeds rank above every reached one.
+                    steps = [c.policy_steps if c else float("inf") for c in crossings[threshold]]
+                    walls = [c.train_wall_s if c else float("inf") for c in crossings[threshold]]
+                    cells += [f"{statistics.median(steps):.0f}", f"{statistics.median(walls) / 60:.1f}"]
+                else:
+                    cells += ["-", "-"]
+            cells += ["", "", "", ""]
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def recipes_from_arguments(args: argparse.Namespace) -> list[Recipe]:
+    """The recipes to run: the named ones, or one from ``--algo`` and ``--hyperparams``."""
+    train_args = tuple(args.train_args)
+    if args.recipe:
+        return [
+            Recipe(name, algo, items, (*recipe_args, *train_args))
+            for name in args.recipe
+            for algo, items, recipe_args in [RECIPES[name]]
+        ]
+    label = args.label or " ".join([args.algo, *args.hyperparams, *train_args])
+    return [Recipe(label, args.algo, tuple(args.hyperparams), train_args)]
+
+
+def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: dict[str, Any]) -> None:
+    """Train one recipe from one seed with the validation curve; appends its rows and its run row."""
+    folder = out / "runs" / f"{recipe.label.replace(' ', '_').replace('/', '_')}_seed{seed}"
+    train_arguments = parse_args(
+        [
+            "--algo", recipe.algo, "--seed", str(seed), "--timesteps", str(args.timesteps), "--n-envs", "1",
+            "--eval-freq", str(args.timesteps + 1), "--checkpoint-freq", str(args.timesteps + 1),
+            "--no-progress", "--no-score", "--out", str(folder),
+            *(["--hyperparams", *recipe.hyperparams] if recipe.hyperparams else []),
+            *recipe.train_args,
+        ]
+    )  # fmt: skip
+    env_kwargs = {"n_cycles": train_arguments.n_cycles, "scenario": train_arguments.scenario}
+    key = (train_arguments.scenario.name, train_arguments.base, train_arguments.n_cycles)
+    if key not in shared:
+        base = base_setup(env_kwargs, base=train_arguments.base)
+        shared[key] = (base, validation_scores(None, base, ResidualConfig(), env_kwargs))
+    base, base_scores = shared[key]
+    curve = ValidationCurve(
+        recipe=recipe,
+        seed=seed,
+        base=base,
+        config=residual_config(train_arguments),
+        env_kwargs=env_kwargs,
+        base_scores=base_scores,
+        curve_path=out / "curve.csv",
+        eval_every=args.eval_every,
+        max_minutes=args.max_minutes,
+        max_torque_change=args.max_torque_change,
+        stop_when_reached=not args.full_curve,
+    )
+    train(train_arguments, base=base, callbacks=[curve])
+    if not curve.rows or curve.rows[-1]["policy_steps"] != curve.num_timesteps:
+        curve.evaluate()
+    run_row = {
+        "label": recipe.label,
+        "seed": seed,
+        "policy_steps": curve.num_timesteps,
+        "train_wall_s": round(curve.train_seconds(), 1),
+        "stopped": curve.stopped,
+    }
+    append_row(out / "runs.csv", RUN_FIELDS, run_row)
+
+
+def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--recipe", nargs="+", choices=sorted(RECIPES), default=None, help="named recipes")
+    parser.add_argument("--algo", choices=ALGORITHMS, default="sac", help="without --recipe")
+    parser.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY:VALUE", help="without --recipe")
+    parser.add_argument("--label", default=None, help="name of the --algo recipe in the tables")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    parser.add_argument("--timesteps", type=int, default=1_000_000, help="policy steps per run at most")
+    parser.add_argument("--eval-every", type=int, default=10_000, help="policy steps between evaluations")
+    parser.add_argument("--max-minutes", type=float, default=20.0, help="training wall time per run at most")
+    parser.add_argument(
+        "--max-torque-change", type=float, default=0.02, help="torque RMS rise allowed at a crossing (fraction)"
+    )
+    parser.add_argument("--full-curve", action="store_true", help="go on after every threshold is reached")
+    parser.add_argument("--out", type=Path, default=None, help="default runs/learning_curve/<timestamp>")
+    parser.add_argument("train_args", nargs="*", help="after --: more arguments of python -m eval.train_residual")
+    args = parser.parse_args(argv)
+    if args.recipe and (args.hyperparams or args.label):
+        parser.error("--hyperparams and --label go with --algo, not with --recipe")
+    if args.eval_every < 1 or args.timesteps < 1 or args.max_minutes <= 0:
+        parser.error("--eval-every and --timesteps must be >= 1 and --max-minutes > 0")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_arguments(argv)
+    out = create_run_folder("learning_curve", args.out)
+    finished = {(row["label"], row["seed"]) for row in read_rows(out / "runs.csv")}
+    drop_unfinished(out / "curve.csv", finished)
+    shared: dict[str, Any] = {}
+    for recipe in recipes_from_arguments(args):
+        for seed in args.seeds:
+            if (recipe.label, str(seed)) in finished:
+                print(f"{recipe.label} seed {seed}: done before, skipped")
+                continue
+            run(recipe, seed, args, out, shared)
+    table = summary_table(read_rows(out / "curve.csv"), args.max_torque_change)
+    (out / "table.md").write_text(table + "\n")
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
