@@ -781,10 +781,7 @@ class PayloadEstimator:
         # Everything belongs to sample k - D: the smoother's estimate with the reference of that sample, the
         # filter's acceleration estimate with its angles and rates of D samples ago, and the torque measured then.
         delayed, torque, held = self._history[0]
-        if self.regressor == "smoothed":
-            state = error + delayed
-        else:
-            state = np.array((delayed[0], delayed[1], estimate[2]))
+        state = error + delayed if self.regressor == "smoothed" else np.array((delayed[0], delayed[1], estimate[2]))
         previous_state = self._previous_state if self._previous_state is not None else state
         self._previous_state = state
         if holding != held:
