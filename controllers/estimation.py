@@ -38,12 +38,12 @@ two orders of magnitude below central differences.
 FIXED_LAG_JERK_STD = 3000.0
 """Default jerk standard deviation (rad/s^3) of :class:`JointStateSmoother`'s model.
 
-Three times the offline smoother's: with only :data:`SMOOTHER_LAG` readings after the estimated sample, a stiffer
-model lags where the jerk steps up. At the start of a 6 g lift (a jerk step of about 1e4 rad/s^3) the acceleration
-came out 15 to 20 % low for the first ten samples at 1000 rad/s^3, which the payload RLS read as a mass about 0.2 kg
-too heavy at lift-off on every carry. The payload estimator smooths the tracking error instead of the angles
-(:class:`~controllers.payload.PayloadEstimator`), which steps far less; it still needs the stiffer model there
-(docs/measurements.md, "The fixed-lag smoother's jerk standard deviation").
+Three times the offline smoother's: with only :data:`SMOOTHER_LAG` readings after the estimated sample, a model of
+lower jerk standard deviation lags where the jerk steps up. At the start of a 6 g lift (a jerk step of about 1e4
+rad/s^3) the acceleration came out 15 to 20 % low for the first ten samples at 1000 rad/s^3, which the payload RLS
+read as a mass up to 0.4 kg too heavy at lift-off. The payload estimator smooths the tracking error instead of the
+angles (:class:`~controllers.payload.PayloadEstimator`), which steps far less; at 1000 rad/s^3 it still lagged
+(docs/measurements.md, "The fixed-lag smoother: jerk standard deviation, tracking error").
 """
 
 FILTER_JERK_STD = 3000.0

@@ -560,11 +560,11 @@ class FaultMonitor:
 
 
 MONITOR_JERK_STD = SMOOTHER_JERK_STD
-"""Jerk standard deviation (rad/s^3) of the monitor's fixed-lag smoother: the offline smoother's, a third of the
-payload estimator's (:data:`~controllers.estimation.FIXED_LAG_JERK_STD`). The residual force and the slip check sum
-evidence over many samples, which a lag of a sample at a jerk step hardly moves, while the acceleration noise of a
-stiffer model enters the force through the whole inertia: with the estimator's 3000 rad/s^3, the recovery from a
-drive fault that withheld 94 % of a joint's torque raised a collision 60 ms after the fault's end."""
+"""Jerk standard deviation (rad/s^3) of the monitor's fixed-lag smoother of the clean angles: the offline smoother's,
+a third of the payload estimator's (:data:`~controllers.estimation.FIXED_LAG_JERK_STD`). The residual force and the
+slip check sum evidence over many samples, which a sample's lag at a jerk step hardly moves, while the acceleration
+noise of a higher value enters the force through the whole inertia; the monitor's thresholds were set, and its
+campaigns and soak measured, with this value (docs/measurements.md, "Faults")."""
 
 
 class _DelayedState:

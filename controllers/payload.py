@@ -469,8 +469,8 @@ class PayloadEstimator:
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
-        joint_filter: The :class:`JointStateSmoother` or :class:`JointStateFilter` of the measured joints
-            (None with ``regressor="reference"``).
+        joint_filter: The :class:`JointStateSmoother` of the tracking error (``"smoothed"``) or the
+            :class:`JointStateFilter` of the measured joints (``"filtered"``); None with ``regressor="reference"``.
         delay: Control periods between the newest observation and the sample whose equation is formed: the
             smoother's lag, the filter's acceleration lag, or 0 with ``regressor="reference"``.
         empty_moves: The checked seed sums (:class:`EmptyMoveSums`), or None.
@@ -531,8 +531,8 @@ class PayloadEstimator:
         elif regressor == "filtered":
             self.joint_filter = JointStateFilter()
             self.delay = round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
-        # (joint-state estimate of the causal filter, None with the smoother; measured torque; gripper holding)
-        # of the last D + 1 samples.
+        # (the causal filter's joint-state estimate, or the reference's (3, 3) state with the smoother; measured
+        # torque; gripper holding) of the last D + 1 samples.
         self._history: collections.deque[tuple[tuple[NDArray, NDArray, NDArray] | None, list[float], bool]] = (
             collections.deque(maxlen=self.delay + 1)
         )
@@ -727,8 +727,9 @@ class PayloadEstimator:
         Call once per control step, in order (it keeps the previous reference and the joint filter).
 
         Args:
-            observation: The env's observation; reads ``joint_torques``, ``gripper`` and, by regressor,
-                the reference or ``joint_angles``.
+            observation: The env's observation; reads ``joint_torques``, ``gripper`` and, by regressor, the
+                reference (``reference_angles``, ``reference_velocities``, ``reference_accelerations``) and
+                ``joint_angles``: ``"smoothed"`` both, ``"reference"`` the reference, ``"filtered"`` the angles.
             reference_torque: tau0 (N m) at this step's reference, if the caller has it already
                 (``regressor="reference"``); computed otherwise.
             reference_regressor: phi (N m/kg) at this step's reference, with ``reference_torque``.

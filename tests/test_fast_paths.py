@@ -159,8 +159,8 @@ def test_residual_episodes_share_few_processes(keys: str, workers: int, expected
 
 
 def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:
-    # The estimator's compiled path against the equations written with NumPy: the smoother's state interpolated
-    # to the torque's instant, tau0 and phi there, w_i = 1 / residual_std^2, the least squares of the model's
+    # The estimator's compiled path against the equations written with NumPy: the smoother's state of the tracking
+    # error plus the reference's exact state, interpolated to the torque's instant, tau0 and phi there, w_i = 1 / residual_std^2, the least squares of the model's
     # corrections on the empty move (mp = 0 known: tau_i - tau0_i = dm phi_i + d_arm (I thdd_i + G cos th_i)
     # + kappa_i f_i, with its prior) and their removal from the carry's moments.
     parameters = ModelParameters(rho1=1.9, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
@@ -171,22 +171,37 @@ def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implemen
     prior = np.diag([MASS_CORRECTION_STD[0] ** -2, MASS_CORRECTION_STD[1] ** -2, *[FRICTION_SCALE_STD**-2] * 3])
     rng = np.random.default_rng(9)
     times = np.arange(400) * CONTROL_PERIOD
-    angles = 0.3 + 0.2 * np.sin(2.0 * np.pi * np.outer(times, [1.0, 1.3, 0.7]) + [0.0, 1.0, 2.0])
+    frequency, phase = 2.0 * np.pi * np.array([1.0, 1.3, 0.7]), np.array([0.0, 1.0, 2.0])
+    angles = 0.3 + 0.2 * np.sin(np.outer(times, frequency) + phase)
+    # the reference leads the joints by 20 ms: a tracking error of up to 35 mrad to smooth
+    argument = np.outer(times + 0.02, frequency) + phase
+    reference = np.stack(
+        (0.3 + 0.2 * np.sin(argument), 0.2 * frequency * np.cos(argument), -0.2 * frequency**2 * np.sin(argument)),
+        axis=1,
+    )  # (N, 3 derivatives, 3 joints)
     torques = rng.normal(0.0, 30.0, angles.shape)
     holding = times >= 0.2  # open first: the fit of the corrections, then a carry
     information_fit, moment_fit = np.zeros((5, 5)), np.zeros(5)
     history, previous, compared, empty = [], None, 0, 0
     for k in range(len(times)):
-        observation = {"joint_angles": angles[k], "joint_torques": torques[k], "gripper": np.array([float(holding[k])])}
+        observation = {
+            "joint_angles": angles[k],
+            "joint_torques": torques[k],
+            "gripper": np.array([float(holding[k])]),
+            "reference_angles": reference[k, 0],
+            "reference_velocities": reference[k, 1],
+            "reference_accelerations": reference[k, 2],
+        }
         moments = estimator.measurement(observation)
         if k == 0:
-            smoother.reset(angles[0])
-        state = np.array(smoother.update(angles[k]))
+            smoother.reset(angles[0] - reference[0, 0])
+        error = np.array(smoother.update(angles[k] - reference[k, 0]))
         history.append((torques[k], holding[k]))
         if k < smoother.lag:
             assert moments is None
             continue
         torque, held = history[k - smoother.lag]
+        state = error + reference[k - smoother.lag]
         previous = state if previous is None else previous
         theta, theta_dot, theta_ddot = state - age * (state - previous)
         previous = state
