@@ -415,8 +415,10 @@ def test_light_object_estimate_does_not_overshoot_at_a_fast_lift_off(tared_setup
     controller = build_controller("mid_f_rls", tared_setup)
     for seed in (11, 12):
         record = run_episode(env, controller, seed, [0.05, 0.05, 0.05])
-        overshoots = [carry.peak_estimate - carry.mass for carry in record.carries()]
+        carries = record.carries()
+        overshoots = [carry.peak_estimate - carry.mass for carry in carries]
         assert len(overshoots) == 3 and max(overshoots) <= 0.2, overshoots
+        assert all(abs(carry.end_error_kg) <= 0.025 for carry in carries), [carry.end_error_kg for carry in carries]
 
 
 def test_tare_takes_a_carry_with_a_stop_inside_as_one_carry(controller_setup: ControllerSetup) -> None:
