@@ -98,10 +98,6 @@ VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
 CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_000 + DEFAULT_CALIBRATION_EPISODES))
 """Payload-free episodes of the base controller's tare (as many as the eval's)."""
 
-TRAINING_RESIDUAL_LIMIT = 15.0
-"""Residual torque (N m) at a = 1 of new policies: the scale of the base's torque errors, so that the policy's
-exploration noise is too (``ResidualConfig``'s 40 N m is the shipped policy's)."""
-
 CHECKPOINT_PREFIX = "residual"
 """CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
 
@@ -111,8 +107,12 @@ HAS_RICH = importlib.util.find_spec("rich") is not None
 HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
 """``--tensorboard`` needs the tensorboard package."""
 
-BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
-"""A ``--hyperparams`` value that is not TOML but reads as a string (``auto``, ``auto_0.1``)."""
+BARE_WORD = re.compile(r"auto(_[0-9.eE+-]+)?")
+"""The ``--hyperparams`` values that are not TOML but read as strings: SB3's ``auto`` and ``auto_<initial>`` of
+``ent_coef`` and ``target_entropy``. Any other word must be quoted (``'"value"'``)."""
+
+SET_BY_THE_TOOL = frozenset({"seed", "device", "verbose", "tensorboard_log", "_init_setup_model"})
+"""Constructor arguments the tool sets itself (``--seed``, ``--tensorboard``), not ``--hyperparams`` keys."""
 
 
 def load_hyperparameters(algo: str, path: Path = HYPERPARAMETER_FILE) -> dict[str, Any]:
@@ -126,13 +126,21 @@ def load_hyperparameters(algo: str, path: Path = HYPERPARAMETER_FILE) -> dict[st
 
 def parse_hyperparameter_value(key: str, text: str) -> Any:
     """The value of one ``--hyperparams key:value`` item: a TOML value (``1e-3``, ``[64, 64]``, ``true``,
-    ``"auto"``, ``{ net_arch = [64, 64] }``), or the text itself when it is a bare word (``auto``)."""
+    ``"auto"``, ``{ net_arch = [64, 64] }``), or the text itself for ``auto`` / ``auto_<initial>``
+    (:data:`BARE_WORD`). A non-finite number is refused."""
+    if BARE_WORD.fullmatch(text):
+        return text
     try:
-        return tomllib.loads(f"value = {text}")["value"]
+        value = tomllib.loads(f"value = {text}")["value"]
     except tomllib.TOMLDecodeError as error:
-        if BARE_WORD.fullmatch(text):
-            return text
-        raise ValueError(f"--hyperparams {key}: {text!r} is not a TOML value ({error})") from None
+        hint = " (TOML writes true and false in lower case)" if text in ("True", "False") else ""
+        raise ValueError(
+            f"--hyperparams {key}: {text!r} is not a TOML value{hint}; quote a string, e.g. {key}:'\"{text}\"' "
+            f"({error})"
+        ) from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"--hyperparams {key}: {text!r} must be a finite number")
+    return value
 
 
 def override_hyperparameters(hyperparameters: dict[str, Any], items: Sequence[str], algo: str) -> dict[str, Any]:
@@ -142,12 +150,17 @@ def override_hyperparameters(hyperparameters: dict[str, Any], items: Sequence[st
     sets one entry of a table-valued argument and leaves its other entries.
     """
     allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {"self", "policy", "env"}
+    allowed -= SET_BY_THE_TOOL
     result = copy.deepcopy(hyperparameters)
     for item in items:
         key, separator, text = item.partition(":")
         if not separator or not key or not text:
             raise ValueError(f"--hyperparams items are key:value, got {item!r}")
         name, *path = key.split(".")
+        if not all(path):
+            raise ValueError(f"--hyperparams {key}: a dotted key needs a name between the dots")
+        if name in SET_BY_THE_TOOL:
+            raise ValueError(f"--hyperparams {key}: {name!r} is set by the tool (--seed, --tensorboard), not here")
         if name not in allowed:
             raise ValueError(f"--hyperparams {key}: {name!r} is not an argument of {algo}; known: {sorted(allowed)}")
         value = parse_hyperparameter_value(key, text)
@@ -155,12 +168,11 @@ def override_hyperparameters(hyperparameters: dict[str, Any], items: Sequence[st
             result[name] = value
             continue
         table = result.setdefault(name, {})
-        for part in path[:-1]:
-            table = table.setdefault(part, {})
+        for part in [name, *path[:-1]]:
+            if part != name:
+                table = table.setdefault(part, {})
             if not isinstance(table, dict):
-                raise ValueError(f"--hyperparams {key}: {part!r} is not a table")
-        if not isinstance(table, dict):
-            raise ValueError(f"--hyperparams {key}: {name!r} is {table!r}, not a table")
+                raise ValueError(f"--hyperparams {key}: {part!r} is {table!r}, not a table")
         table[path[-1]] = value
     return result
 
@@ -545,7 +557,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--n-cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )
-    parser.add_argument("--residual-limit", type=float, default=TRAINING_RESIDUAL_LIMIT, help="N m at a = 1")
+    parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
     parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
     parser.add_argument(

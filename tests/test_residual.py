@@ -464,6 +464,12 @@ def test_hyperparams_override_any_key_with_toml_values() -> None:
         (["learning_rate:[1e-3"], "sac", r"learning_rate: '\[1e-3' is not a TOML value"),
         (["gamma:"], "sac", r"key:value"),
         (["gamma.x:1"], "sac", r"gamma.x: 'gamma' is 0.95, not a table"),
+        (["ent_coef.a.b:1"], "sac", r"ent_coef.a.b: 'ent_coef' is 'auto', not a table"),
+        (["policy_kwargs..x:1"], "sac", r"name between the dots"),
+        (["use_sde:False"], "sac", r"'False' is not a TOML value \(TOML writes true and false in lower case\)"),
+        (["gamma:O.95"], "sac", r"gamma: 'O.95' is not a TOML value"),
+        (["learning_rate:nan"], "sac", r"learning_rate: 'nan' must be a finite number"),
+        (["seed:1"], "sac", r"'seed' is set by the tool \(--seed"),
     ],
 )
 def test_bad_hyperparams_name_the_key_and_value(items: list[str], algo: str, message: str) -> None:

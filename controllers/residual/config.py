@@ -18,8 +18,10 @@ class ResidualConfig:
     """Settings shared by the residual env and controller; saved with every trained policy.
 
     Attributes:
-        residual_limit: Torque (N m) added per joint at a = +-1; 40 N m is 10 % of the 400 N m motor
-            limit, against feedforward errors of a few N m (identified model, 3 g cycles).
+        residual_limit: Torque (N m) added per joint at a = +-1: 15 N m, the scale of the identified model's
+            feedforward errors (a few N m on 3 g cycles), so that the policy's exploration is too; with 40 N m
+            training took several times longer to the same gain (docs/measurements.md). A policy file keeps the
+            limit it was trained with (the shipped one: 40 N m).
         action_period: Control steps (1 ms each) per policy step; the action is held in between.
         reward_scale: Factor on the policy-step reward, the sum of the env's per-step rewards over the
             ``action_period`` control steps (dimensionless). With 1.0 a policy step of a base
@@ -31,7 +33,7 @@ class ResidualConfig:
             the policy sees tanh(theta_dot_ref / stribeck_velocity).
     """
 
-    residual_limit: float = 0.1 * TORQUE_LIMIT
+    residual_limit: float = 15.0
     action_period: int = 10
     reward_scale: float = 1.0
     ripple_periods: int = field(default=_DATASHEET.ripple_periods)
