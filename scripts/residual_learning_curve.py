@@ -18,14 +18,17 @@ once every threshold is reached unless ``--full-curve``.
 
 Output (``--out``, default ``runs/learning_curve/<timestamp>``): ``curve.csv`` gets one row per evaluation as
 it comes, ``runs.csv`` one row per finished run; invoked again with the same ``--out``, finished runs
-(label and seed) are skipped and an unfinished one restarts. The table of every run in the folder is
-printed at the end and written to ``table.md``.
+(label and seed) are skipped and an unfinished one restarts; ``settings.json`` records each label's recipe and the
+common settings, and a folder made under others is refused. The table of every run in the folder is printed at the
+end and written to ``table.md``.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
+import os
 import statistics
 import time
 from collections.abc import Sequence
@@ -60,6 +63,9 @@ CURVE_FIELDS = (
     "torque_change",
 )  # fmt: skip
 RUN_FIELDS = ("label", "seed", "policy_steps", "train_wall_s", "stopped")
+
+SETTINGS_NAME = "settings.json"
+"""The file of an output folder that records its recipes and common settings (:func:`check_settings`)."""
 
 
 @dataclass(frozen=True)
@@ -214,14 +220,38 @@ def read_rows(path: Path) -> list[dict[str, str]]:
 
 
 def drop_unfinished(curve_path: Path, finished: set[tuple[str, str]]) -> None:
-    """Remove from the curve file the rows of runs (label, seed) that did not finish: they restart."""
+    """Remove from the curve file the rows of runs (label, seed) that did not finish: they restart. The kept rows
+    are written to a new file that then replaces the old one, so an interruption loses none of them."""
     rows = read_rows(curve_path)
     kept = [row for row in rows if (row["label"], row["seed"]) in finished]
     if len(kept) == len(rows):
         return
-    curve_path.unlink()
+    partial = curve_path.with_suffix(".partial")
+    partial.unlink(missing_ok=True)
     for row in kept:
-        append_row(curve_path, CURVE_FIELDS, row)
+        append_row(partial, CURVE_FIELDS, row)
+    partial.touch()
+    os.replace(partial, curve_path)
+
+
+def check_settings(out: Path, args: argparse.Namespace, recipes: Sequence[Recipe]) -> None:
+    """Record the benchmark's settings in ``out/settings.json``; refuse (SystemExit) a folder whose runs were made
+    under other settings or another recipe of the same label, whose rows would otherwise mix with these."""
+    path = out / SETTINGS_NAME
+    settings = json.loads(path.read_text()) if path.is_file() else {"recipes": {}}
+    common = {name: getattr(args, name) for name in ("timesteps", "eval_every", "max_minutes", "max_torque_change")}
+    common["full_curve"] = args.full_curve
+    if settings.get("common", common) != common:
+        raise SystemExit(f"{out} holds runs made with {settings['common']}, not {common}: use another --out")
+    for recipe in recipes:
+        current = {"algo": recipe.algo, "hyperparams": list(recipe.hyperparams), "train_args": list(recipe.train_args)}
+        recorded = settings["recipes"].setdefault(recipe.label, current)
+        if recorded != current:
+            raise SystemExit(f"{out} holds {recipe.label!r} runs of {recorded}, not {current}: use another --out")
+    settings["common"] = common
+    partial = path.with_suffix(".partial")
+    partial.write_text(json.dumps(settings, indent=2) + "\n")
+    os.replace(partial, path)
 
 
 def summary_table(curve_rows: Sequence[dict[str, str]], max_torque_change: float) -> str:
@@ -359,10 +389,12 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_arguments(argv)
     out = create_run_folder("learning_curve", args.out)
+    recipes = recipes_from_arguments(args)
+    check_settings(out, args, recipes)
     finished = {(row["label"], row["seed"]) for row in read_rows(out / "runs.csv")}
     drop_unfinished(out / "curve.csv", finished)
     shared: dict[str, Any] = {}
-    for recipe in recipes_from_arguments(args):
+    for recipe in recipes:
         for seed in args.seeds:
             if (recipe.label, str(seed)) in finished:
                 print(f"{recipe.label} seed {seed}: done before, skipped")

@@ -74,3 +74,16 @@ def test_named_recipes_exist_in_the_hyperparameter_file() -> None:
         parse_args(list(train_args))
     old = curve.recipes_from_arguments(curve.parse_arguments(["--recipe", "old", "--", "--n-cycles", "2"]))[0]
     assert old.train_args == ("--residual-limit", "40", "--n-cycles", "2")
+
+
+def test_a_folder_of_other_settings_or_another_recipe_under_the_same_label_is_refused(tmp_path: Path) -> None:
+    args = curve.parse_arguments(["--recipe", "new", "--max-minutes", "5", "--out", str(tmp_path)])
+    recipes = curve.recipes_from_arguments(args)
+    curve.check_settings(tmp_path, args, recipes)
+    curve.check_settings(tmp_path, args, recipes)  # the same again: resumes
+    longer = curve.parse_arguments(["--recipe", "new", "--max-minutes", "15", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="max_minutes"):
+        curve.check_settings(tmp_path, longer, recipes)
+    renamed = [curve.Recipe("new", "sac", ("train_freq:1",), ())]
+    with pytest.raises(SystemExit, match="'new' runs of"):
+        curve.check_settings(tmp_path, args, renamed)
