@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import datetime
 import json
+import os
 import platform
 import shlex
 import subprocess
@@ -116,6 +117,31 @@ def write_csv(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> Path:
         writer.writeheader()
         writer.writerows(rows)
     return path
+
+
+def read_csv_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file written so far by :func:`append_csv_rows` (none if it does not exist); a torn last
+    line (the run died while writing it) is cut off, in the file too."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+        path.write_text(text)
+    return list(csv.DictReader(text.splitlines()))
+
+
+def append_csv_rows(path: Path, columns: Sequence[str], rows: Sequence[Mapping[str, Any]]) -> None:
+    """Append ``rows`` to a CSV file (the header first if the file is new), synced at once so that they survive an
+    interruption: the rows of a long run that resumes from what it wrote."""
+    new = not path.exists() or path.stat().st_size == 0
+    with path.open("a", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=columns, extrasaction="ignore")
+        if new:
+            writer.writeheader()
+        writer.writerows(rows)
+        file.flush()
+        os.fsync(file.fileno())
 
 
 def write_config(folder: Path, command: str, config: Mapping[str, Any], **extra: Any) -> Path:

@@ -24,7 +24,6 @@ Usage: python scripts/fault_soak.py [--minutes 30] [--controllers mid_f_rls] [--
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import os
@@ -42,7 +41,7 @@ from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
 from eval.identification import robot_identification, robot_setup
 from eval.processes import process_pool
-from eval.run_folder import create_run_folder, write_config
+from eval.run_folder import append_csv_rows, create_run_folder, read_csv_rows, write_config
 from eval.sweep.work import tared_setup
 from eval.tasks import Task, iterate_tasks
 
@@ -112,29 +111,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-def read_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of a CSV file written so far; a torn last line (the run died while writing it) is cut off."""
-    if not path.exists():
-        return []
-    text = path.read_text()
-    if text and not text.endswith("\n"):
-        text = text[: text.rfind("\n") + 1]
-        path.write_text(text)
-    return list(csv.DictReader(text.splitlines()))
-
-
-def append_rows(path: Path, columns: Sequence[str], rows: Sequence[dict[str, Any]]) -> None:
-    """Append ``rows`` (header first if the file is new), flushed at once so that they survive an interruption."""
-    new = not path.exists() or path.stat().st_size == 0
-    with path.open("a", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=columns, extrasaction="ignore")
-        if new:
-            writer.writeheader()
-        writer.writerows(rows)
-        file.flush()
-        os.fsync(file.fileno())
-
-
 def episode_row(task: Task, record: EpisodeRecord) -> dict[str, Any]:
     """The row of ``episodes.csv`` of one finished episode."""
     scores = record.metrics()
@@ -167,12 +143,12 @@ def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
                 raise SystemExit(
                     f"{out} holds a soak with {name} {written.get(name)!r}, not {config[name]!r}: use another --out"
                 )
-    done = read_rows(out / "episodes.csv")
+    done = read_csv_rows(out / "episodes.csv")
     finished = {(row["key"], row["seed"]) for row in done}
     faults_path = out / "faults.csv"
-    kept = [row for row in read_rows(faults_path) if (row["key"], row["seed"]) in finished]
+    kept = [row for row in read_csv_rows(faults_path) if (row["key"], row["seed"]) in finished]
     faults_path.unlink(missing_ok=True)
-    append_rows(faults_path, FAULT_COLUMNS, kept)  # fault rows of an episode whose row was never written go
+    append_csv_rows(faults_path, FAULT_COLUMNS, kept)  # fault rows of an episode whose row was never written go
     return done
 
 
@@ -255,8 +231,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for task, record in iterate_tasks(tasks, args.workers, None, pool):
                 row = episode_row(task, record)
                 identity = {name: row[name] for name in ("controller", "key", "episode", "seed")}
-                append_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
-                append_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
+                append_csv_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
+                append_csv_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
                 rows.append(row)
                 before = simulated[task.key]
                 simulated[task.key] += row["simulated_s"]

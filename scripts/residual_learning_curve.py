@@ -26,7 +26,6 @@ end and written to ``table.md``.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -42,7 +41,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import run_episode
-from eval.run_folder import create_run_folder
+from eval.run_folder import append_csv_rows, create_run_folder, read_csv_rows
 from eval.scoring import pooled_scores
 from eval.train_residual import VALIDATION_SEEDS, base_setup, parse_args, residual_config, train
 
@@ -176,7 +175,7 @@ class ValidationCurve(BaseCallback):
             "torque_rms_nm": round(scores["torque_rms_nm"], 4),
             "torque_change": round(scores["torque_rms_nm"] / base["torque_rms_nm"] - 1.0, 4),
         }
-        append_row(self.curve_path, CURVE_FIELDS, row)
+        append_csv_rows(self.curve_path, CURVE_FIELDS, [row])
         self.rows.append(row)
         print(
             f"{row['label']} seed {self.seed}: {row['policy_steps']} steps, {row['train_wall_s']:.0f} s training, "
@@ -201,36 +200,16 @@ class ValidationCurve(BaseCallback):
         return True
 
 
-def append_row(path: Path, fields: Sequence[str], row: dict[str, Any]) -> None:
-    """Append one row to a CSV file (with the header when the file is new), flushed at once."""
-    new = not path.is_file()
-    with path.open("a", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=fields)
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
-def read_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of a CSV file written by :func:`append_row` (none when it does not exist)."""
-    if not path.is_file():
-        return []
-    with path.open(newline="") as file:
-        return list(csv.DictReader(file))
-
-
 def drop_unfinished(curve_path: Path, finished: set[tuple[str, str]]) -> None:
     """Remove from the curve file the rows of runs (label, seed) that did not finish: they restart. The kept rows
     are written to a new file that then replaces the old one, so an interruption loses none of them."""
-    rows = read_rows(curve_path)
+    rows = read_csv_rows(curve_path)
     kept = [row for row in rows if (row["label"], row["seed"]) in finished]
     if len(kept) == len(rows):
         return
     partial = curve_path.with_suffix(".partial")
     partial.unlink(missing_ok=True)
-    for row in kept:
-        append_row(partial, CURVE_FIELDS, row)
-    partial.touch()
+    append_csv_rows(partial, CURVE_FIELDS, kept)
     os.replace(partial, curve_path)
 
 
@@ -359,7 +338,7 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
         "train_wall_s": round(curve.train_seconds(), 1),
         "stopped": curve.stopped,
     }
-    append_row(out / "runs.csv", RUN_FIELDS, run_row)
+    append_csv_rows(out / "runs.csv", RUN_FIELDS, [run_row])
 
 
 def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -391,7 +370,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = create_run_folder("learning_curve", args.out)
     recipes = recipes_from_arguments(args)
     check_settings(out, args, recipes)
-    finished = {(row["label"], row["seed"]) for row in read_rows(out / "runs.csv")}
+    finished = {(row["label"], row["seed"]) for row in read_csv_rows(out / "runs.csv")}
     drop_unfinished(out / "curve.csv", finished)
     shared: dict[str, Any] = {}
     for recipe in recipes:
@@ -400,7 +379,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(f"{recipe.label} seed {seed}: done before, skipped")
                 continue
             run(recipe, seed, args, out, shared)
-    table = summary_table(read_rows(out / "curve.csv"), args.max_torque_change)
+    table = summary_table(read_csv_rows(out / "curve.csv"), args.max_torque_change)
     (out / "table.md").write_text(table + "\n")
     print(table)
     return 0

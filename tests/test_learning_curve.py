@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from eval.run_folder import append_csv_rows, read_csv_rows
+
 pytest.importorskip("stable_baselines3", reason="the benchmark trains with the rl extra (stable-baselines3)")
 
 SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "residual_learning_curve.py"
@@ -61,9 +63,9 @@ def test_summary_table_gives_each_seed_and_the_median() -> None:
 def test_unfinished_runs_restart_and_finished_ones_are_kept(tmp_path: Path) -> None:
     path = tmp_path / "curve.csv"
     for row in synthetic_rows("new", 0, [0.5], [0.0]) + synthetic_rows("new", 1, [0.4, 0.6], [0.0, 0.0]):
-        curve.append_row(path, curve.CURVE_FIELDS, {field: row.get(field, "") for field in curve.CURVE_FIELDS})
+        append_csv_rows(path, curve.CURVE_FIELDS, [{field: row.get(field, "") for field in curve.CURVE_FIELDS}])
     curve.drop_unfinished(path, {("new", "0")})
-    assert [(r["seed"], r["policy_steps"]) for r in curve.read_rows(path)] == [("0", "10000")]
+    assert [(r["seed"], r["policy_steps"]) for r in read_csv_rows(path)] == [("0", "10000")]
 
 
 def test_named_recipes_exist_in_the_hyperparameter_file() -> None:
