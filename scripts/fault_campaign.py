@@ -22,7 +22,6 @@ Usage: python scripts/fault_campaign.py [--scenario nominal] [--episodes 20] [--
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import math
 import sys
@@ -41,7 +40,7 @@ from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
 from eval.identification import robot_identification, robot_setup
 from eval.processes import process_pool
-from eval.run_folder import create_run_folder, write_config
+from eval.run_folder import create_run_folder, write_config, write_csv
 from eval.sweep.work import tared_setup
 from eval.tasks import Task, iterate_tasks
 
@@ -189,12 +188,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             rows.append({"kind": kind, "seed": task.seed, **fault_effect(record, twins[task.seed])})
     twin_alarms = sum(len(record.detected_faults) for record in twins.values())
     write_fault_csv(out / "faults.csv", [row for kind in args.kinds for row in by_kind[kind]])
-    with (out / "campaign.csv").open("w", newline="") as file:
-        writer = csv.DictWriter(
-            file, fieldnames=["kind", "seed", "estimate_change", "end_change", "forgotten_ms", "withheld_nm"]
-        )
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "campaign.csv", rows)
     table = summary_table(rows, by_kind, args.kinds)
     text = f"# Fault campaign: {args.scenario.name}, {CONTROLLER_LABELS[key]}, {args.episodes} episodes per kind\n\n"
     text += table + f"\n\nThe {len(twins)} fault-free twins raised {twin_alarms} false alarm(s).\n"
