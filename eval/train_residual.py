@@ -5,8 +5,8 @@
 
 SAC by default (``--algo`` ppo, tqc or crossq selectable; TQC and CrossQ come from sb3-contrib), with the
 hyperparameters of ``eval/hyperparams/residual.toml``. ``--hyperparams key:value ...`` overrides any of them
-as the RL Zoo does; each value is a TOML value, as in the file (a bare word is a string), and a dotted key
-sets one entry of a table::
+as the RL Zoo does; each value is a TOML value, as in the file (of bare words only ``auto`` and ``auto_<x>``
+are strings; quote others), and a dotted key sets one entry of a table::
 
     --hyperparams learning_rate:1e-3 train_freq:4 gradient_steps:2 policy_kwargs.net_arch:[64,64]
     --hyperparams 'policy_kwargs:{ net_arch = [64, 64] }' ent_coef:auto_0.1
@@ -167,12 +167,12 @@ def override_hyperparameters(hyperparameters: dict[str, Any], items: Sequence[st
         if not path:
             result[name] = value
             continue
-        table = result.setdefault(name, {})
-        for part in [name, *path[:-1]]:
-            if part != name:
-                table = table.setdefault(part, {})
+        table, owner = result.setdefault(name, {}), name
+        for part in [*path[:-1], None]:  # None: the table that takes the value
             if not isinstance(table, dict):
-                raise ValueError(f"--hyperparams {key}: {part!r} is {table!r}, not a table")
+                raise ValueError(f"--hyperparams {key}: {owner!r} is {table!r}, not a table")
+            if part is not None:
+                table, owner = table.setdefault(part, {}), part
         table[path[-1]] = value
     return result
 

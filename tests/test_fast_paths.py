@@ -160,9 +160,10 @@ def test_residual_episodes_share_few_processes(keys: str, workers: int, expected
 
 def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:
     # The estimator's compiled path against the equations written with NumPy: the smoother's state of the tracking
-    # error plus the reference's exact state, interpolated to the torque's instant, tau0 and phi there, w_i = 1 / residual_std^2, the least squares of the model's
-    # corrections on the empty move (mp = 0 known: tau_i - tau0_i = dm phi_i + d_arm (I thdd_i + G cos th_i)
-    # + kappa_i f_i, with its prior) and their removal from the carry's moments.
+    # error plus the reference's exact state, interpolated to the torque's instant, tau0 and phi there,
+    # w_i = 1 / residual_std^2, the least squares of the model's corrections on the empty move (mp = 0 known:
+    # tau_i - tau0_i = dm phi_i + d_arm (I thdd_i + G cos th_i) + kappa_i f_i, with its prior) and their removal
+    # from the carry's moments.
     parameters = ModelParameters(rho1=1.9, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
     dynamics = DeltaDynamics.nominal(parameters, forearm_rods=True)
     estimator = PayloadEstimator(dynamics, regressor="smoothed", tare=0.05)
