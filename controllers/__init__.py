@@ -14,19 +14,20 @@ from controllers.feedforward import FeedforwardController, LagCompensatedControl
 from controllers.payload import EmptyMoveSums, ModelCorrections, PayloadEstimator, Tare, tare_from_observations
 from controllers.registry import (
     CONTROLLER_LABELS,
-    ESTIMATING_KEYS,
     ESTIMATOR_REGRESSORS,
+    ControllerEntry,
     ControllerSetup,
     build_controller,
+    controller_entry,
 )
 
 __all__ = [
     "CONTROLLER_LABELS",
     "DEFAULT_KD",
     "DEFAULT_KP",
-    "ESTIMATING_KEYS",
     "ESTIMATOR_REGRESSORS",
     "Controller",
+    "ControllerEntry",
     "ControllerSetup",
     "DeltaDynamics",
     "EmptyMoveSums",
@@ -43,6 +44,7 @@ __all__ = [
     "PayloadRLS",
     "Tare",
     "build_controller",
+    "controller_entry",
     "model_controller",
     "smooth_joint_motion",
     "tare_from_observations",

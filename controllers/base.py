@@ -6,13 +6,16 @@ state) and nominal parameters; it never reads the plant's truth (the oracle row 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Protocol, runtime_checkable
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from delta_env.validation import require_in
+
+if TYPE_CHECKING:
+    from delta_env.config import PhysicalParameters
 
 Observation = Mapping[str, NDArray[np.float64]]
 """The env's observation dict (see ``delta_env.env.DeltaPickPlaceEnv``)."""
@@ -35,6 +38,27 @@ class Controller(Protocol):
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         """Motor torques (N m), shape (3,), for this control step."""
+
+
+@runtime_checkable
+class EstimatesPayload(Protocol):
+    """A controller that estimates the mass it carries: the experiments score and plot its estimate."""
+
+    @property
+    def payload_estimate(self) -> float:
+        """The payload estimate (kg) used at the last call."""
+        ...
+
+
+@runtime_checkable
+class Privileged(Protocol):
+    """A controller that knows the plant's truth (the oracle bound): the episode runner tells it after each reset."""
+
+    def set_payload_masses(self, masses: Sequence[float]) -> None:
+        """The true masses (kg) of the episode's objects, in pick order."""
+
+    def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
+        """The plant's true (e.g. randomized) masses, friction and lag."""
 
 
 class PDController:

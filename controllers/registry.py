@@ -1,6 +1,11 @@
-"""The controllers of the comparison, by key, and the one factory that builds them (docs/design.md section 6).
+"""The controllers of the experiments, by key: an open registry of entries (docs/design.md section 6).
 
-Every controller is built from the datasheet geometry and masses of the robot it was identified on
+An entry (:class:`ControllerEntry`) is a key, a label, a factory that receives what the controller may know
+(:class:`ControllerSetup`; a privileged row also the plant) and its declared capabilities. The built-in rows are
+entries like any other; a user's controller joins by import path (``my_module:MyController``) or through the
+entry-point group :data:`ENTRY_POINT_GROUP`, and gets what a built-in gets (:func:`controller_entry`).
+
+Every built-in controller is built from the datasheet geometry and masses of the robot it was identified on
 (:attr:`ControllerSetup.geometry`, :attr:`ControllerSetup.masses`) and the identified parameters only; the
 oracle row is the labelled exception that knows the plant (and, from the evaluation, the payloads).
 :func:`controllers.feedforward.model_controller` is the one builder of a model-based controller:
@@ -10,8 +15,11 @@ oracle row is the labelled exception that knows the plant (and, from the evaluat
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import functools
+import importlib
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from importlib import metadata
 from pathlib import Path
 from typing import Literal
 
@@ -20,43 +28,19 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import OracleController, model_controller
 from controllers.monitor import FaultMonitor, MonitoredController
 from controllers.payload import EmptyMoveSums, PayloadEstimator
-from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, load_residual_controller, residual_controller
+from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, residual_controller
+from delta_env.config import PlantConfig
 from delta_env.drive import DriveLimits
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.sensors import ENCODER_BITS, encoder_resolution
-
-CONTROLLER_LABELS = {
-    "pd": "PD",
-    "mkh": "MKH+PD",
-    "mid": "MId+PD",
-    "mid_f": "MId+F+PD",
-    "mid_f_r": "MId+F+R+PD",
-    "mid_f_rls": "MId+F+R+RLS+PD",
-    "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
-    "mid_f_rls_lag": "MId+F+R+RLS+lag+PD",
-    "oracle": "Oracle+PD (bound)",
-    "residual": "Residual + its base",
-}
-"""Controller keys and their labels. ``+R``: the identified model with rod forearms
-(``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
-estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
-reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforward led through the
-inverse of the identified drive lag (:class:`~controllers.feedforward.LagCompensatedController`). The oracle
-knows the plant and the true payloads: an upper bound, not a controller. ``residual`` is the learned
-residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file (the
-policy file names its base: ``BaseSetup.name``)."""
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
     "mid_f_rls": "smoothed",
     "mid_f_rls_ref": "reference",
     "mid_f_rls_lag": "smoothed",
 }
-"""The payload estimator variant of each RLS controller key."""
-
-ESTIMATING_KEYS = (*ESTIMATOR_REGRESSORS, "residual")
-"""Controllers that estimate the payload: the RLS rows (tared by the experiment that runs them) and the
-residual (its base's tare comes with the policy file)."""
+"""The payload estimator variant of each built-in RLS controller key."""
 
 
 @dataclass(frozen=True)
@@ -102,60 +86,214 @@ def residual_policy_path(setup: ControllerSetup) -> Path:
     return DEFAULT_POLICY_PATH if setup.residual_policy is None else setup.residual_policy
 
 
-def build_controller(
-    key: str,
-    setup: ControllerSetup,
-    env: DeltaPickPlaceEnv | None = None,
-    *,
-    policy: ResidualPolicy | None = None,
-) -> Controller:
-    """The controller of ``key`` (see :data:`CONTROLLER_LABELS`).
+ControllerFactory = Callable[..., Controller]
+"""Builds a controller from what it may know: ``factory(setup)``, or ``factory(setup, plant)`` for a privileged
+entry (``plant``: the env's :class:`~delta_env.plant.PlantConfig`)."""
+
+
+@dataclass(frozen=True)
+class ControllerEntry:
+    """A row of the experiments: a key, a label, a factory and the capabilities the experiments rely on.
+
+    Attributes:
+        key: What command lines and tasks name it by: a built-in key, an entry point's name, or ``module:attr``.
+        label: Its name in tables and plots.
+        factory: :data:`ControllerFactory`.
+        estimates_payload: Its controller reports ``payload_estimate`` (kg) every step: the experiments score its
+            carries and plot its estimate.
+        tared: It estimates the payload with a :class:`~controllers.payload.PayloadEstimator` (its controller's
+            ``estimator``) that reads ``setup.tares[key]`` and ``setup.empty_moves[key]``: the experiments measure
+            both on payload-free episodes before they run it (implies ``estimates_payload``).
+        privileged: The factory receives the plant, and the episode runner gives the controller the plant's true
+            parameters and payloads (:class:`~controllers.base.Privileged`): a bound, not a controller.
+        monitored: The registry puts the controller behind the robot's fault monitor
+            (:class:`~controllers.monitor.MonitoredController`), which reports the faults it detects; False for a
+            controller that handles its own readings.
+    """
+
+    key: str
+    label: str
+    factory: ControllerFactory
+    estimates_payload: bool = False
+    tared: bool = False
+    privileged: bool = False
+    monitored: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.key or "," in self.key:
+            raise ValueError(f"a controller key must be non-empty and without commas, got {self.key!r}")
+        if self.tared and not self.estimates_payload:
+            raise ValueError(f"controller {self.key!r}: a tared controller estimates the payload (estimates_payload)")
+
+    def build(self, setup: ControllerSetup, plant: PlantConfig | None = None) -> Controller:
+        """The controller of this entry for the robot of ``setup`` (``plant``: for a privileged entry only)."""
+        if self.privileged:
+            if plant is None:
+                raise ValueError(f"controller {self.key!r} is privileged: it needs the plant it inverts")
+            controller = self.factory(setup, plant)
+        else:
+            controller = self.factory(setup)
+        if not isinstance(controller, Controller):
+            raise TypeError(
+                f"controller {self.key!r}: its factory returned {type(controller).__name__}, not a Controller "
+                "(a name and reset() and __call__(observation) -> torques)"
+            )
+        if self.tared and not isinstance(getattr(controller, "estimator", None), PayloadEstimator):
+            raise TypeError(f"controller {self.key!r} is declared tared but has no PayloadEstimator 'estimator'")
+        return monitored(controller, setup) if self.monitored else controller
+
+
+ENTRY_POINT_GROUP = "delta_pick_place.controllers"
+"""Installed packages register controllers under this entry-point group: name = key, value = ``module:attr``."""
+
+
+def _model_row(key: str, label: str) -> ControllerFactory:
+    """The factory of a model-based row (its feedforward from the identified model, its PD, its estimator)."""
+
+    def factory(setup: ControllerSetup) -> Controller:
+        if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
+            if key == "mid_f_rls_lag" and setup.drive_lag is None:
+                raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
+            return model_controller(
+                setup.mid_f_rods,
+                forearm_rods=True,
+                regressor=ESTIMATOR_REGRESSORS.get(key),
+                tare=setup.tares.get(key, 0.0),
+                empty_moves=setup.empty_moves.get(key),
+                pd_gains=setup.pd_gains,
+                name=label,
+                geometry=setup.geometry,
+                masses=setup.masses,
+                drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
+            )
+        parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
+        return model_controller(
+            parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses
+        )
+
+    return factory
+
+
+@functools.cache
+def _loaded_policy(path: Path) -> ResidualPolicy:
+    """The residual policy file at ``path``, loaded once per process: a policy holds no episode state."""
+    from controllers.residual import load_residual_policy
+
+    return load_residual_policy(path)
+
+
+def _residual(setup: ControllerSetup) -> Controller:
+    return residual_controller(_loaded_policy(residual_policy_path(setup)), name=BUILTIN_LABELS["residual"])
+
+
+def _oracle(setup: ControllerSetup, plant: PlantConfig) -> Controller:
+    return OracleController(plant)  # its own feedback gains (see OracleController)
+
+
+BUILTIN_LABELS = {
+    "pd": "PD",
+    "mkh": "MKH+PD",
+    "mid": "MId+PD",
+    "mid_f": "MId+F+PD",
+    "mid_f_r": "MId+F+R+PD",
+    "mid_f_rls": "MId+F+R+RLS+PD",
+    "mid_f_rls_ref": "MId+F+R+RLS(ref)+PD",
+    "mid_f_rls_lag": "MId+F+R+RLS+lag+PD",
+    "oracle": "Oracle+PD (bound)",
+    "residual": "Residual + its base",
+}
+"""The built-in controllers' keys and labels. ``+R``: the identified model with rod forearms
+(``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
+estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
+reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforward led through the
+inverse of the identified drive lag (:class:`~controllers.feedforward.LagCompensatedController`). The oracle
+knows the plant and the true payloads: an upper bound, not a controller. ``residual`` is the learned
+residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file (the
+policy file names its base: ``BaseSetup.name``)."""
+
+BUILTIN_CONTROLLERS: dict[str, ControllerEntry] = {
+    "pd": ControllerEntry("pd", BUILTIN_LABELS["pd"], lambda setup: PDController(*setup.pd_gains)),
+    **{
+        key: ControllerEntry(key, BUILTIN_LABELS[key], _model_row(key, BUILTIN_LABELS[key]))
+        for key in ("mkh", "mid", "mid_f", "mid_f_r")
+    },
+    **{
+        key: ControllerEntry(
+            key, BUILTIN_LABELS[key], _model_row(key, BUILTIN_LABELS[key]), estimates_payload=True, tared=True
+        )
+        for key in ESTIMATOR_REGRESSORS
+    },
+    "oracle": ControllerEntry("oracle", BUILTIN_LABELS["oracle"], _oracle, estimates_payload=True, privileged=True),
+    # the residual's base is tared: its tare comes with the policy file
+    "residual": ControllerEntry("residual", BUILTIN_LABELS["residual"], _residual, estimates_payload=True),
+}
+"""Every built-in row, registered as a user's controller is (:func:`controller_entry`)."""
+
+CONTROLLER_LABELS = {key: entry.label for key, entry in BUILTIN_CONTROLLERS.items()}
+"""The built-in keys and their labels, in the comparison's order."""
+
+
+def controller_entry(key: str) -> ControllerEntry:
+    """The entry of ``key``: a built-in key (:data:`BUILTIN_CONTROLLERS`), the name of an installed entry point of
+    :data:`ENTRY_POINT_GROUP`, or ``module:attr`` (the module importable in this process and in the workers, e.g.
+    on ``PYTHONPATH`` or in the current directory).
+
+    ``attr`` names a :class:`ControllerEntry` (its key becomes ``key``), a controller class constructible with no
+    arguments (label: its ``name``), or a factory ``factory(setup) -> Controller`` (label: its ``label`` attribute,
+    else its name). Raises ValueError naming the key and the built-in keys.
+    """
+    if key in BUILTIN_CONTROLLERS:
+        return BUILTIN_CONTROLLERS[key]
+    return _imported_entry(key)
+
+
+def _import_path(key: str) -> str:
+    """``module:attr`` of a key that is not built in: the key itself, or the value of its installed entry point."""
+    if ":" in key:
+        return key
+    installed = {point.name: point.value for point in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    if key not in installed:
+        raise ValueError(
+            f"unknown controller {key!r}: choose from {', '.join(BUILTIN_CONTROLLERS)}"
+            + (f", the installed {', '.join(installed)}" if installed else "")
+            + ", or name your own as module:attr (e.g. my_package.my_module:MyController)"
+        )
+    return installed[key]
+
+
+@functools.cache
+def _imported_entry(key: str) -> ControllerEntry:
+    spec = _import_path(key)
+    module_name, _, attr = spec.partition(":")
+    try:
+        target = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as error:
+        raise ValueError(f"controller {key!r}: cannot import {attr!r} from {module_name!r} ({error})") from error
+    if isinstance(target, ControllerEntry):
+        return dataclasses.replace(target, key=key)
+    if isinstance(target, type):
+        label = getattr(target, "name", attr)
+        return ControllerEntry(key, label if isinstance(label, str) else attr, lambda setup: target())
+    if callable(target):
+        return ControllerEntry(key, getattr(target, "label", attr), target)
+    raise ValueError(f"controller {key!r}: {spec} is a {type(target).__name__}, not a controller class or factory")
+
+
+def controller_label(key: str) -> str:
+    """The label of the controller ``key`` in tables and plots."""
+    return controller_entry(key).label
+
+
+def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
+    """The controller of ``key`` (:func:`controller_entry`) for the robot of ``setup``, behind its fault monitor.
 
     Args:
         key: Controller key.
-        setup: Identified parameters, tares and gains.
-        env: Needed for the oracle only, which inverts the env's plant; never given to the others.
-        policy: For ``residual``: the policy of :func:`residual_policy_path` already loaded (a caller building
-            many controllers loads it once); None loads it from the file.
+        setup: What the controller may know.
+        env: For a privileged controller only (the oracle), which inverts the env's plant; never given to the others.
     """
-    if key not in CONTROLLER_LABELS:
-        raise ValueError(f"unknown controller {key!r}; choose from {sorted(CONTROLLER_LABELS)}")
-    label = CONTROLLER_LABELS[key]
-    if key == "pd":
-        return monitored(PDController(*setup.pd_gains), setup)
-    if key == "residual":
-        if policy is None:
-            return monitored(load_residual_controller(residual_policy_path(setup), name=label), setup)
-        return monitored(residual_controller(policy, name=label), setup)
-    if key == "oracle":
-        if env is None:
-            raise ValueError("the oracle needs the env whose plant it inverts")
-        # its own feedback gains (see OracleController); the monitor keeps a faulty reading from it, as from the rows
-        return monitored(OracleController(env.plant_config), setup)
-    return monitored(_model_row(key, setup, label), setup)
-
-
-def _model_row(key: str, setup: ControllerSetup, label: str) -> Controller:
-    """The controller of a model-based row, without its monitor."""
-    if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
-        if key == "mid_f_rls_lag" and setup.drive_lag is None:
-            raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
-        return model_controller(
-            setup.mid_f_rods,
-            forearm_rods=True,
-            regressor=ESTIMATOR_REGRESSORS.get(key),
-            tare=setup.tares.get(key, 0.0),
-            empty_moves=setup.empty_moves.get(key),
-            pd_gains=setup.pd_gains,
-            name=label,
-            geometry=setup.geometry,
-            masses=setup.masses,
-            drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
-        )
-    parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
-    return model_controller(
-        parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses
-    )
+    entry = controller_entry(key)
+    return entry.build(setup, env.plant_config if entry.privileged and env is not None else None)
 
 
 def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
@@ -174,13 +312,76 @@ def monitored(controller: Controller, setup: ControllerSetup) -> MonitoredContro
 
 
 def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
-    """A fresh, untared payload estimator of the RLS controller ``key`` (the one its controller runs), without
+    """A fresh, untared payload estimator of the tared controller ``key`` (the one its controller runs), without
     seeded empty moves."""
-    if key not in ESTIMATOR_REGRESSORS:
-        raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
+    if not controller_entry(key).tared:
+        raise ValueError(f"{key!r} has no tared payload estimator; built-in ones: {', '.join(ESTIMATOR_REGRESSORS)}")
     return build_controller(key, dataclasses.replace(setup, tares={}, empty_moves={})).estimator
 
 
 def estimation_model(setup: ControllerSetup) -> DeltaDynamics:
     """MId+F+R: the identified model with rod forearms, of the payload estimators and their feedforward."""
     return DeltaDynamics.of_robot(setup.geometry, setup.masses, setup.mid_f_rods, forearm_rods=True)
+
+
+def parse_controller_keys(text: str) -> list[str]:
+    """The controller keys of a comma-separated list (``--controllers``), each resolved now (a user's module is
+    imported here, so that a typo fails before any episode runs), without repeats, in order.
+
+    Raises:
+        ValueError: for an empty list or a key :func:`controller_entry` cannot resolve.
+    """
+    keys = list(dict.fromkeys(key.strip() for key in text.split(",") if key.strip()))
+    if not keys:
+        raise ValueError(f"no controllers in {text!r}; choose from {', '.join(BUILTIN_CONTROLLERS)} or module:attr")
+    for key in keys:
+        controller_entry(key)
+    return keys
+
+
+def controllers_help(default: str) -> str:
+    """The help text of a ``--controllers`` option: the built-in keys beside their labels, and how to add one's own."""
+    builtins = ", ".join(f"{key} = {label}" for key, label in CONTROLLER_LABELS.items())
+    return (
+        f"comma-separated controller keys (default {default}). Built-in: {builtins}. Your own: module:attr, a "
+        "Controller class constructible without arguments, a factory(setup) or a ControllerEntry, importable from "
+        "the current directory or PYTHONPATH; or an installed entry point of the group "
+        f"{ENTRY_POINT_GROUP}"
+    )
+
+
+def controller_source(key: str) -> bytes:
+    """The source code of a user's controller ``key`` (its module's file, or every ``.py`` file of its top-level
+    package), for content hashes of results; empty for a built-in, whose code is the project's."""
+    if key in BUILTIN_CONTROLLERS:
+        return b""
+    controller_entry(key)  # imports it, or names what is wrong
+    module = importlib.import_module(_import_path(key).partition(":")[0])
+    top = importlib.import_module(module.__name__.partition(".")[0])
+    if getattr(top, "__path__", None):
+        files = sorted(path for folder in top.__path__ for path in Path(folder).rglob("*.py"))
+    else:
+        files = [Path(module.__file__)] if getattr(module, "__file__", None) else []
+    return b"".join(path.as_posix().encode() + path.read_bytes() for path in files)
+
+
+def controller_packages(keys: Iterable[str]) -> list[str]:
+    """The folders of the top-level packages of the user's controllers among ``keys``: what a remote worker must be
+    sent to import them (built-in ones and installed entry points' packages excepted).
+
+    Raises:
+        ValueError: for a user controller in a single-file module, which a remote worker cannot be sent as a package.
+    """
+    folders = []
+    for key in keys:
+        if key in BUILTIN_CONTROLLERS or ":" not in key:  # an entry point's package is installed on the nodes
+            continue
+        controller_entry(key)
+        top = importlib.import_module(key.partition(":")[0].partition(".")[0])
+        if not getattr(top, "__path__", None):
+            raise ValueError(
+                f"controller {key!r}: a remote Ray cluster imports user controllers from packages; move "
+                f"{top.__name__}.py into a package (a folder with __init__.py) or install it on the cluster's nodes"
+            )
+        folders += [str(Path(folder)) for folder in top.__path__ if str(Path(folder)) not in folders]
+    return folders

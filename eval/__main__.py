@@ -37,7 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import CONTROLLER_LABELS, estimation_model
+from controllers.registry import (
+    CONTROLLER_LABELS,
+    controller_label,
+    controllers_help,
+    estimation_model,
+    parse_controller_keys,
+)
 from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
@@ -80,8 +86,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--controllers",
         default=None,
-        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default: all; without 'residual' when the "
-        "residual policy was trained on another robot than the scenario's)",
+        help=controllers_help(
+            "all built-in ones; without 'residual' when the residual policy was trained on another robot than the "
+            "scenario's"
+        ),
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
     add_parameters_argument(parser)
@@ -102,11 +110,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     chosen = args.controllers is not None
     args.left_out = ""
     args.residual_base = None
-    keys = [key.strip() for key in (args.controllers or ",".join(CONTROLLER_LABELS)).split(",") if key.strip()]
-    unknown = [key for key in keys if key not in CONTROLLER_LABELS]
-    if unknown or not keys:
-        parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLER_LABELS)}")
-    args.controllers = list(dict.fromkeys(keys))
+    try:
+        args.controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
+    except ValueError as error:
+        parser.error(f"--controllers: {error}")
     args.scenario = scenario_from_arguments(args, parser)
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
@@ -146,7 +153,7 @@ def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     """The check of the table's invariant: no controller tracks better than the oracle bound, on the episodes
     where the oracle is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
     fault was injected (the oracle knows the fault-free plant and the payloads)."""
-    bound = CONTROLLER_LABELS["oracle"]
+    bound = controller_label("oracle")
     oracle_rows = [row for row in episode_rows if row["controller"] == bound]
     if not oracle_rows:
         return []
@@ -200,7 +207,7 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
     if "residual" not in args.controllers:
         return []
     base = args.residual_base or "a custom base"
-    label = CONTROLLER_LABELS["residual"]
+    label = controller_label("residual")
     lines = [
         f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
         "file; the gain below is against this run's row of that controller (same identification; this run's "
@@ -241,7 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out / "traces.npz",
         dt=CONTROL_PERIOD,
         keys=np.array(list(traces)),
-        labels=np.array([CONTROLLER_LABELS[key] for key in traces]),
+        labels=np.array([controller_label(key) for key in traces]),
         **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
     )
     np.savez_compressed(out / "table2_run.npz", **model_torques)
@@ -267,7 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "payload_mass_range_kg": list(env.payload_mass_range),
             "plant": repr(env.plant_config),
         },
-        "controllers": {key: CONTROLLER_LABELS[key] for key in keys},
+        "controllers": {key: controller_label(key) for key in keys},
         "pd_gains": {"kp_nm_per_rad": setup.pd_gains[0], "kd_nm_s_per_rad": setup.pd_gains[1]},
         "identification": {
             "path": str(args.parameters),
@@ -276,7 +283,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "mid_f_rods": dataclasses.asdict(identification.mid_f_rods),
             "provenance": identification.provenance,
         },
-        "table2": {"controller": CONTROLLER_LABELS[TABLE2_KEY], "seed": args.seed, "payload_kg": TABLE2_PAYLOAD},
+        "table2": {"controller": controller_label(TABLE2_KEY), "seed": args.seed, "payload_kg": TABLE2_PAYLOAD},
     }
     results_entry = {
         "tare_kg": tares,
@@ -301,15 +308,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             "",
             *_pick_rate_section(episode_rows),
             *_payload_target_section(carry_rows),
-            f"## Table 2 analogue: {CONTROLLER_LABELS[TABLE2_KEY]}, every object {TABLE2_PAYLOAD} kg, "
+            f"## Table 2 analogue: {controller_label(TABLE2_KEY)}, every object {TABLE2_PAYLOAD} kg, "
             "tau_measured - tau_MId+F+R",
             "",
             table2_table(table2_rows),
             "",
             "Tare (apparent payload of the empty gripper): "
-            + ", ".join(f"{CONTROLLER_LABELS[k]} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
+            + ", ".join(f"{controller_label(k)} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
             "",
-            *_fault_section(fault_rows, [CONTROLLER_LABELS[key] for key in keys]),
+            *_fault_section(fault_rows, [controller_label(key) for key in keys]),
             *_bound_section(episode_rows),
             *_residual_section(args, episode_rows),
             *([args.left_out, ""] if args.left_out else []),

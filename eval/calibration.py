@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any, NamedTuple
 
 from controllers.payload import EmptyMoveSums, tare_from_observations
-from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, payload_estimator
+from controllers.registry import ControllerSetup, controller_entry, payload_estimator
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord
@@ -72,8 +72,8 @@ def calibration_tasks(
         scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
     tasks = []
     for key in keys:
-        if key not in ESTIMATOR_REGRESSORS:
-            raise ValueError(f"{key!r} estimates no payload; RLS controllers: {sorted(ESTIMATOR_REGRESSORS)}")
+        if not controller_entry(key).tared:
+            raise ValueError(f"{key!r} has no tared payload estimator (ControllerEntry.tared)")
         empty = (0.0,) * n_cycles
         tasks += [
             Task("calibration", key, j, seed, n_cycles, setup, empty, scenario, path)

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import CONTROLLER_LABELS, ESTIMATING_KEYS, ESTIMATOR_REGRESSORS, ControllerSetup
+from controllers.registry import ControllerSetup, controller_entry
 from eval import metrics
 from eval.calibration import calibrated_setup, calibration_tasks, tares_from_results
 from eval.episodes import EpisodeRecord
@@ -65,8 +65,8 @@ def run_all(
     from tqdm.auto import tqdm
 
     keys = args.controllers
-    tared = sorted({key for key in keys if key in ESTIMATOR_REGRESSORS} | {TABLE2_KEY})
-    untared = [key for key in keys if key not in ESTIMATOR_REGRESSORS]
+    tared = sorted({key for key in keys if controller_entry(key).tared} | {TABLE2_KEY})
+    untared = [key for key in keys if not controller_entry(key).tared]
 
     def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
         return [
@@ -107,10 +107,10 @@ def tabulate(
     )
     episode_rows, carry_rows, first = [], [], {}
     for task, record in episodes:
-        label = CONTROLLER_LABELS[task.key]
-        identity = {"controller": label, "key": task.key, "episode": task.index, "seed": task.seed}
+        entry = controller_entry(task.key)
+        identity = {"controller": entry.label, "key": task.key, "episode": task.index, "seed": task.seed}
         episode_rows.append({**identity, **record.metrics()})
-        if task.key in ESTIMATING_KEYS:
+        if entry.estimates_payload:
             for n, carry in enumerate(record.carries()):
                 carry_rows.append(
                     {
@@ -140,7 +140,7 @@ def tabulate_faults(results: list[tuple[Task, EpisodeRecord]], keys: Sequence[st
     rows = []
     for task, record in episodes:
         identity = {
-            "controller": CONTROLLER_LABELS[task.key],
+            "controller": controller_entry(task.key).label,
             "key": task.key,
             "episode": task.index,
             "seed": task.seed,

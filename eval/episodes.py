@@ -18,9 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, Observation
+from controllers.base import Controller, EstimatesPayload, Observation, Privileged
 from controllers.dynamics import DeltaDynamics
-from controllers.feedforward import OracleController
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
 from controllers.monitor import DetectedFault, MonitoredController, ReportsFaults
 from controllers.payload_timing import EstimatingController
@@ -233,12 +232,12 @@ def run_episode(
         wrappers.append(privileged)
         privileged = privileged.controller
     inner = next((wrapper for wrapper in wrappers if isinstance(wrapper, MonitoredController)), controller)
-    if isinstance(privileged, OracleController):
+    if isinstance(privileged, Privileged):
         privileged.set_payload_masses(info["payload_masses"])
         privileged.set_physical_parameters(env.plant.parameters)
     controller.reset()
     plant = env.plant
-    estimate = getattr(controller, "payload_estimate", None)
+    estimates_payload = isinstance(controller, EstimatesPayload)
     reacts, speed, stopped = isinstance(inner, MonitoredController), 1.0, False
     steps = len(env.trajectory) - 1
     tracking = np.full(steps, math.nan)
@@ -260,7 +259,7 @@ def run_episode(
             torque, velocity, joint_error = extended(torque, 0.0), extended(velocity, 0.0), extended(joint_error, 0.0)
             command, estimates = extended(command, 0.0), extended(estimates, 0.0)
         action = controller(observation)
-        if estimate is not None:
+        if estimates_payload:
             estimates[n] = controller.payload_estimate
         if reacts and inner.requested_speed != speed:
             speed = inner.requested_speed  # a monitored controller's reaction to a fault: the cell's override

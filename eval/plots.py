@@ -23,7 +23,7 @@ import tomllib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from controllers.registry import ESTIMATING_KEYS
+from controllers.registry import controller_entry
 
 TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
 """EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""
@@ -81,7 +81,7 @@ def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, pa
     panels = [
         (f"{label}, first episode", traces[f"{key}.payload_estimate"], traces[f"{key}.payload_mass"])
         for key, label in zip(traces["keys"], traces["labels"], strict=True)
-        if str(key) in ESTIMATING_KEYS
+        if controller_entry(str(key)).estimates_payload
     ]
     figure, axes = plt.subplots(len(panels) + 1, 1, sharex=False, figsize=(10, 2.6 * (len(panels) + 1)))
     axes = np.atleast_1d(axes)

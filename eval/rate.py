@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import CONTROLLER_LABELS, ESTIMATOR_REGRESSORS
+from controllers.registry import controller_entry, controller_label, controllers_help, parse_controller_keys
 from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import TIMINGS, Scenario
@@ -86,10 +86,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--controllers",
         default=",".join(DEFAULT_CONTROLLERS),
-        help="comma-separated controller keys; the first runs every row, the others replay its references "
-        f"(default {','.join(DEFAULT_CONTROLLERS)}; keys: "
-        + ", ".join(f"{key} = {label}" for key, label in CONTROLLER_LABELS.items())
-        + ")",
+        help="the first runs every row, the others replay its references; "
+        + controllers_help(",".join(DEFAULT_CONTROLLERS)),
     )
     parser.add_argument(
         "--payloads",
@@ -122,9 +120,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
     args.planners = _listed(parser, "--planners", args.planners, TIMINGS)
-    args.controllers = _listed(parser, "--controllers", args.controllers, tuple(CONTROLLER_LABELS))
-    if "oracle" in args.controllers:
-        parser.error("--controllers: the oracle is a bound, not a controller with a pick rate")
+    try:
+        args.controllers = parse_controller_keys(args.controllers)
+    except ValueError as error:
+        parser.error(f"--controllers: {error}")
+    privileged = [key for key in args.controllers if controller_entry(key).privileged]
+    if privileged:
+        parser.error(f"--controllers: {', '.join(privileged)}: a bound that knows the plant, without a pick rate")
     try:
         payloads = [float(value) for value in args.payloads.split(",") if value.strip()]
     except ValueError:
@@ -222,9 +224,9 @@ def run_rows(args: argparse.Namespace, setup: Any) -> tuple[list[dict[str, Any]]
     for task, record in results:
         timing, (low, high) = task.scenario.task.timing, task.scenario.task.payload_mass_range
         load = payload_label(low) if low == high else MIXED
-        grouped.setdefault((timing, CONTROLLER_LABELS[task.key], load), []).append(record)
+        grouped.setdefault((timing, controller_label(task.key), load), []).append(record)
         episode_rows.append(
-            {"planner": timing, "controller": CONTROLLER_LABELS[task.key], "payload": load, "seed": task.seed}
+            {"planner": timing, "controller": controller_label(task.key), "payload": load, "seed": task.seed}
             | record.metrics()
         )
     rows = [
@@ -257,7 +259,7 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[s
             else:
                 upper = math.log(acceleration)
         rows.append(
-            {"controller": CONTROLLER_LABELS[key], "payload": payload_label(load)}
+            {"controller": controller_label(key), "payload": payload_label(load)}
             | (best if best is not None else {"picks_per_min": math.nan, "peak_acceleration_g": math.nan})
         )
     return rows
@@ -273,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.parameters, identification = robot_identification(robot, args.parameters)
     setup = robot_setup(robot, identification)
     # The lead controller's estimator retimes the online carries (the cell's own if the lead has none).
-    tared = [args.controllers[0] if args.controllers[0] in ESTIMATOR_REGRESSORS else CELL_ESTIMATOR_KEY]
+    tared = [args.controllers[0] if controller_entry(args.controllers[0]).tared else CELL_ESTIMATOR_KEY]
     calibration_scenario = rate_scenario(scenario, "declared", MIXED)
     seeds = calibration_seeds(args.seed, 3)
     calibration = calibrate_tares(tared, setup, seeds, args.cycles, workers=args.workers, scenario=calibration_scenario)
@@ -287,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_csv(out / "rate_episodes.csv", episode_rows)
     if fastest:
         write_csv(out / "pd_fastest.csv", fastest)
-    _plot(out / "rate.png", rows, fastest, CONTROLLER_LABELS[args.controllers[0]], scenario.name)
+    _plot(out / "rate.png", rows, fastest, controller_label(args.controllers[0]), scenario.name)
     summary = "\n".join(_summary(args, rows, fastest, out, time.perf_counter() - started))
     (out / "summary.md").write_text(summary + "\n")
     write_config(
@@ -312,11 +314,11 @@ def _summary(
     """The summary's lines: the data sheet, the rows in full, the targets, and what the model buys."""
     loads = [payload_label(p) for p in args.payloads] + [MIXED]
     by_key = {(row["planner"], row["controller"], str(row["payload"])): row for row in rows}
-    lead = CONTROLLER_LABELS[args.controllers[0]]
+    lead = controller_label(args.controllers[0])
     sheet = [
         [planner, label] + [f"{by_key[(planner, label, load)]['picks_per_min']:.1f}" for load in loads]
         for planner in args.planners
-        for label in (CONTROLLER_LABELS[key] for key in args.controllers)
+        for label in (controller_label(key) for key in args.controllers)
     ]
     full = [
         [

@@ -5,25 +5,21 @@ It lives in an importable module (not ``eval.__main__``) so that forkserver / sp
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.pool import Pool
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from controllers.base import Controller
 from controllers.monitor import MonitoredController
+from controllers.payload import PayloadEstimator
 from controllers.payload_timing import EstimatingController, PayloadTiming, shared_planner
-from controllers.registry import ESTIMATOR_REGRESSORS, ControllerSetup, build_controller, residual_policy_path
+from controllers.registry import ControllerSetup, build_controller, controller_entry
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord, run_episode
 from eval.processes import parallel_imap, process_pool
-
-if TYPE_CHECKING:
-    from controllers.residual import ResidualPolicy
 
 
 @dataclass(frozen=True)
@@ -53,14 +49,6 @@ class Task:
     reference: Trajectory | None = None
 
 
-@functools.cache
-def _loaded_policy(path: Path) -> ResidualPolicy:
-    """The residual policy file at ``path``, loaded once per process: a policy holds no episode state."""
-    from controllers.residual import load_residual_policy
-
-    return load_residual_policy(path)
-
-
 CELL_ESTIMATOR_KEY = "mid_f_rls"
 """The payload estimator an online timing reads when the controller has none of its own (the cell's estimate)."""
 
@@ -68,11 +56,11 @@ CELL_ESTIMATOR_KEY = "mid_f_rls"
 def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: ControllerSetup) -> Controller:
     """Give ``env`` the timing its scenario asks for (:attr:`PickPlaceTask.timing`), planned on ``setup``'s model.
 
-    An ``"online"`` timing reads the controller's payload estimator (the RLS rows' and the residual's base's) or,
-    for a controller without one, the cell's (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run
-    beside it: the controller is then returned wrapped in an :class:`EstimatingController` (behind the controller's
-    fault monitor, if it has one, so that the cell's estimator sees clean readings too). A ``"fixed"`` scenario
-    leaves both as they are.
+    An ``"online"`` timing reads the controller's payload estimator (a :class:`~controllers.payload.PayloadEstimator`
+    as its ``estimator``: the RLS rows' and the residual's base's) or, for a controller without one, the cell's
+    (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run beside it: the controller is then returned
+    wrapped in an :class:`EstimatingController` (behind the controller's fault monitor, if it has one, so that the
+    cell's estimator sees clean readings too). A ``"fixed"`` scenario leaves both as they are.
     """
     if env.task_timing == "fixed":
         return controller
@@ -83,8 +71,9 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
     )
     estimator = None
     if env.task_timing == "online":
-        if key in ESTIMATOR_REGRESSORS or key == "residual":  # the residual's base is an RLS controller
-            estimator = controller.estimator
+        own = getattr(controller, "estimator", None)
+        if controller_entry(key).estimates_payload and isinstance(own, PayloadEstimator):
+            estimator = own
         else:
             estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
             if isinstance(controller, MonitoredController):  # beside the row, behind the row's fault monitor
@@ -101,8 +90,7 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
 def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     """Run one task in a fresh env and controller (picklable: the unit of work of the process pool)."""
     env = DeltaPickPlaceEnv(n_cycles=task.n_cycles, scenario=task.scenario)
-    policy = _loaded_policy(residual_policy_path(task.setup)) if task.key == "residual" else None
-    controller = build_controller(task.key, task.setup, env, policy=policy)
+    controller = build_controller(task.key, task.setup, env)
     if task.reference is None:
         controller = timed(env, controller, task.key, task.setup)
     record = run_episode(

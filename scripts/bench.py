@@ -26,9 +26,8 @@ from collections.abc import Callable, Sequence
 import mujoco
 import numpy as np
 
-from controllers.base import PDController
+from controllers.base import PDController, Privileged
 from controllers.dynamics import ModelParameters
-from controllers.feedforward import OracleController
 from controllers.registry import (
     CONTROLLER_LABELS,
     ESTIMATOR_REGRESSORS,
@@ -87,7 +86,7 @@ def main() -> None:
     # The controllers proper, without the fault monitor every row runs behind: the monitor is timed on its own.
     controllers = {label: build_controller(key, SETUP, env).controller for key, label in CONTROLLER_LABELS.items()}
     for controller in controllers.values():
-        if isinstance(controller, OracleController):
+        if isinstance(controller, Privileged):
             controller.set_payload_masses(masses["payload_masses"])  # the oracle bound's truth
         controller.reset()
         # One-off costs (loading compiled code) are not per-step costs: past the payload estimator's first

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from controllers.monitor import TORQUE_MARGIN
-from controllers.registry import CONTROLLER_LABELS
+from controllers.registry import controller_entry, controller_label
 from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD
@@ -67,8 +67,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     unknown = sorted(set(args.kinds) - set(FAULT_KINDS))
     if unknown:
         parser.error(f"--kinds: unknown {unknown}; choose from {list(FAULT_KINDS)} or 'all'")
-    if args.controller not in CONTROLLER_LABELS:
-        parser.error(f"--controller must be one of {sorted(CONTROLLER_LABELS)}, got {args.controller!r}")
+    try:
+        controller_entry(args.controller)
+    except ValueError as error:
+        parser.error(f"--controller: {error}")
     try:
         args.scenario = resolve_scenario(args.scenario)
     except (ValueError, OSError) as error:
@@ -182,7 +184,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     by_kind: dict[str, list[dict[str, Any]]] = {kind: [] for kind in args.kinds}
     for task, record in records[len(seeds) :]:
         kind = task.scenario.task.faults[0].kind
-        identity = {"controller": CONTROLLER_LABELS[key], "key": key, "episode": task.index, "seed": task.seed}
+        identity = {"controller": controller_label(key), "key": key, "episode": task.index, "seed": task.seed}
         by_kind[kind] += fault_rows(identity, record.faults())
         if record.injected_faults:  # else the drawn carry fault fell after the episode's end
             rows.append({"kind": kind, "seed": task.seed, **fault_effect(record, twins[task.seed])})
@@ -190,7 +192,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_fault_csv(out / "faults.csv", [row for kind in args.kinds for row in by_kind[kind]])
     write_csv(out / "campaign.csv", rows)
     table = summary_table(rows, by_kind, args.kinds)
-    text = f"# Fault campaign: {args.scenario.name}, {CONTROLLER_LABELS[key]}, {args.episodes} episodes per kind\n\n"
+    text = f"# Fault campaign: {args.scenario.name}, {controller_label(key)}, {args.episodes} episodes per kind\n\n"
     text += table + f"\n\nThe {len(twins)} fault-free twins raised {twin_alarms} false alarm(s).\n"
     (out / "summary.md").write_text(text)
     print(text)

@@ -32,7 +32,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from controllers.registry import CONTROLLER_LABELS
+from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
@@ -93,17 +93,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--controllers",
         default="mid_f_rls",
-        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default mid_f_rls)",
+        help=controllers_help("mid_f_rls"),
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/fault_soak/<time>)")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
-    keys = list(dict.fromkeys(key.strip() for key in args.controllers.split(",") if key.strip()))
-    unknown = [key for key in keys if key not in CONTROLLER_LABELS]
-    if unknown or not keys:
-        parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLER_LABELS)}")
-    args.controllers = keys
+    try:
+        args.controllers = parse_controller_keys(args.controllers)
+    except ValueError as error:
+        parser.error(f"--controllers: {error}")
     if not args.minutes > 0.0:
         parser.error("--minutes must be > 0")
     if args.workers < 1 or args.seed < 0:
@@ -116,7 +115,7 @@ def episode_row(task: Task, record: EpisodeRecord) -> dict[str, Any]:
     scores = record.metrics()
     carries = record.carries()
     return {
-        "controller": CONTROLLER_LABELS[task.key],
+        "controller": controller_label(task.key),
         "key": task.key,
         "episode": task.index,
         "seed": task.seed,
@@ -171,7 +170,7 @@ def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
         overshoots = sum(int(row["carries_over"]) for row in group)
         body.append(
             [
-                CONTROLLER_LABELS[key],
+                controller_label(key),
                 f"{seconds / 60:.1f}",
                 f"{len(group)} ({diverged})",
                 str(carries),

@@ -20,6 +20,7 @@ from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
 from tests.conftest import NOMINAL_SETUP as SETUP
 
 CODE, DIGEST = "code-under-test", "setup-under-test"
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 COMPARED = ("status", "tracking_rms_mm", "tracking_max_mm", "torque_rms_nm", "energy_j", "steps", "diverged")
 
 
@@ -143,11 +144,14 @@ def test_local_pool_retries_a_unit_whose_worker_died(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow  # starts Ray
-def test_ray_and_local_backends_give_identical_rows(tmp_path: Path) -> None:
+def test_ray_and_local_backends_give_identical_rows(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("ray", reason="Ray is the optional 'distributed' extra")
-    units = grid(controllers=("pd", "mid_f_rls"), seeds=(0,))
+    # a user's controller too, importable from PYTHONPATH by the pool's and by Ray's workers
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(EXAMPLES), os.environ.get("PYTHONPATH", "")]))
+    units = grid(controllers=("pd", "mid_f_rls", "my_controller:StiffPD"), seeds=(0,))
     local, ray = ResultsTable(tmp_path / "local.csv"), ResultsTable(tmp_path / "ray.csv")
-    sweep(units, local, backend="local", workers=1)
+    sweep(units, local, backend="local", workers=2)
     counts = sweep(units, ray, backend="ray", workers=2)
     assert counts["ran"] == len(units) and counts["failed"] == 0
     local_rows, ray_rows = rows_by_key(local.path), rows_by_key(ray.path)

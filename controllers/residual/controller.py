@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, Observation
+from controllers.base import Controller, EstimatesPayload, Observation
 from controllers.residual.config import ResidualConfig
 from controllers.residual.features import ResidualFeatures
 
@@ -20,12 +20,9 @@ PolicyFunction = Callable[[NDArray[np.float32]], NDArray[np.float32]]
 
 
 def payload_estimate(controller: Controller) -> float:
-    """The controller's payload estimate (kg), or 0 if it does not estimate the payload.
-
-    Estimating controllers expose it as ``payload_estimate`` (kg).
-    """
-    estimate = getattr(controller, "payload_estimate", None)
-    return 0.0 if estimate is None else float(estimate)
+    """The controller's payload estimate (kg) (:class:`~controllers.base.EstimatesPayload`), or 0 if it does not
+    estimate the payload."""
+    return float(controller.payload_estimate) if isinstance(controller, EstimatesPayload) else 0.0
 
 
 class ResidualController:

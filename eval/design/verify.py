@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller
+from controllers.registry import ControllerSetup, build_controller, controller_label
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import DeltaGeometry, DeltaMasses
@@ -44,7 +44,7 @@ RLS_KEY = "mid_f_rls"
 CONTROLLER_KEYS = ("pd", RLS_KEY, "oracle")
 """Registry keys of the controllers compared on every design."""
 
-CONTROLLERS = tuple(CONTROLLER_LABELS[key] for key in CONTROLLER_KEYS)
+CONTROLLERS = tuple(controller_label(key) for key in CONTROLLER_KEYS)
 """Their labels."""
 
 EXCITATION_MARGIN = 0.5

@@ -38,6 +38,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from delta_env.scenario import preset_names, resolve_scenario
 from eval.faults import sweep_fault_table
 from eval.identification import parameter_path
@@ -46,7 +47,6 @@ from eval.scenario_args import add_geometry_argument, on_geometry
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
-    CONTROLLERS,
     DEFAULT_POLICY_PATH,
     WorkUnit,
     code_version,
@@ -82,9 +82,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--scenarios", default="nominal", help=f"comma-separated presets ({', '.join(preset_names())}) or TOML files"
     )
-    parser.add_argument(
-        "--controllers", default="pd,mid_f_rls", help=f"comma-separated keys from {', '.join(CONTROLLERS)}"
-    )
+    parser.add_argument("--controllers", default="pd,mid_f_rls", help=controllers_help("pd,mid_f_rls"))
     parser.add_argument("--seeds", default="0-9", help="episode seeds, e.g. 0-9 or 0,3,7 (default 0-9)")
     parser.add_argument("--cycles", type=int, default=None, help="override every scenario's cycles per episode")
     parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
@@ -116,11 +114,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if not scenarios or len(set(names)) != len(names):
         parser.error(f"--scenarios must name distinct scenarios, got {names}")
     args.scenarios = scenarios
-    keys = [key.strip() for key in args.controllers.split(",") if key.strip()]
-    unknown = [key for key in keys if key not in CONTROLLERS]
-    if unknown or not keys:
-        parser.error(f"unknown or no controllers {unknown}; choose from {', '.join(CONTROLLERS)}")
-    args.controllers = list(dict.fromkeys(keys))
+    try:
+        args.controllers = parse_controller_keys(args.controllers)
+    except ValueError as error:
+        parser.error(f"--controllers: {error}")
     if args.workers < 1:
         parser.error("--workers must be >= 1")
     if args.address is not None and args.backend != "ray":
@@ -168,7 +165,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 }
                 for s in args.scenarios
             },
-            "controllers": {key: CONTROLLERS[key] for key in args.controllers},
+            "controllers": {key: controller_label(key) for key in args.controllers},
             "seeds": args.seeds,
             "episodes": len(units),
         },
@@ -212,7 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"Run folder: {out}",
         ]
     )
-    faults = sweep_fault_table(rows, {key: CONTROLLERS.get(key, key) for key in args.controllers})
+    faults = sweep_fault_table(rows, {key: controller_label(key) for key in args.controllers})
     if faults:
         text += "\n\n## Faults\n\nPer controller and fault kind, over the sweep's episodes (a detection of the "
         text += "fault's kind from its start to 50 ms after its end; docs/design.md section 8).\n\n" + faults

@@ -38,8 +38,9 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+from controllers.registry import controller_label, controller_packages
 from eval.processes import pool_context
-from eval.sweep.work import CONTROLLERS, METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
+from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
 
 IDENTITY_FIELDS = (
     "key",
@@ -84,11 +85,19 @@ def identity_row(unit: WorkUnit, key: str, code_version: str, setup_digest: str)
         "scenario_hash": unit.scenario.content_hash,
         "robot_identity": unit.scenario.robot_identity,
         "controller": unit.controller,
-        "label": CONTROLLERS.get(unit.controller, unit.controller),
+        "label": _label(unit.controller),
         "seed": unit.seed,
         "code_version": code_version,
         "setup_digest": setup_digest,
     }
+
+
+def _label(key: str) -> str:
+    """The controller's label; its key when it cannot be resolved (its row records the error)."""
+    try:
+        return controller_label(key)
+    except ValueError:
+        return key
 
 
 class ResultsTable:
@@ -213,6 +222,7 @@ def run_ray(
             import eval as eval_package
 
             folders = [str(Path(package.__file__).parent) for package in (controllers, delta_env, eval_package)]
+            folders += controller_packages({unit.controller for unit in units})
             ray.init(address=address, runtime_env={"py_modules": folders}, log_to_driver=False)
     try:
         remote = ray.remote(num_cpus=1, max_retries=max_attempts - 1)(work)

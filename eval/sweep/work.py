@@ -20,13 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import (
-    CONTROLLER_LABELS,
-    ESTIMATING_KEYS,
-    ESTIMATOR_REGRESSORS,
-    ControllerSetup,
-    build_controller,
-)
+from controllers.registry import ControllerSetup, build_controller, controller_entry, controller_source
 from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
@@ -38,9 +32,6 @@ from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
 from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
 from eval.run_folder import package_versions
 from eval.tasks import CELL_ESTIMATOR_KEY, timed
-
-CONTROLLERS = CONTROLLER_LABELS
-"""Controller keys of ``--controllers`` and their labels."""
 
 EPISODE_METRICS = (
     "tracking_rms_mm",
@@ -88,7 +79,7 @@ class WorkUnit:
 
     Attributes:
         scenario: The robot and the work.
-        controller: Controller key (see :data:`CONTROLLERS`).
+        controller: Controller key (:func:`controllers.registry.controller_entry`).
         seed: Episode seed: the same seed gives every controller the same path and objects.
     """
 
@@ -113,7 +104,7 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
         episode = record.metrics()
         row.update({name: episode[name] for name in (*EPISODE_METRICS, *FAULT_METRICS)})
         row.update(fault_kind_metrics(record.faults()))
-        if unit.controller in ESTIMATING_KEYS:
+        if controller_entry(unit.controller).estimates_payload:
             scored = [carry for carry in record.carries() if carry.mass >= metrics.MIN_RELATIVE_MASS]
             if scored:
                 row["payload_end_error_percent"] = float(np.mean([abs(c.end_error_percent) for c in scored]))
@@ -166,7 +157,7 @@ def tared_setup(
     episodes of the scenario on the calibration seeds of ``seed``. An online timing also tares the cell's estimator,
     which it reads beside the controllers that have none (:func:`eval.tasks.timed`).
     """
-    keys = [key for key in controllers if key in ESTIMATOR_REGRESSORS]
+    keys = [key for key in controllers if controller_entry(key).tared]
     if scenario.task.timing == "online" and CELL_ESTIMATOR_KEY not in keys:
         keys.append(CELL_ESTIMATOR_KEY)
     if not keys:
@@ -178,7 +169,9 @@ def tared_setup(
 
 def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
     """Content hash (16 hex digits) of what the controllers know: parameters, tares, the empty moves' sums, gains
-    and, if the residual row runs, the policy file's bytes."""
+    and, if the residual row runs, the policy file's bytes; and the source of every user controller among
+    ``controllers`` (:func:`controllers.registry.controller_source`), whose code the project's version does not
+    cover."""
     known = (
         *(setup.mid, setup.mid_f, setup.mid_f_rods, setup.drive_lag, sorted(setup.tares.items()), setup.geometry),
         *(setup.masses, setup.drive, setup.encoder_bits, setup.fault_reaction),
@@ -191,6 +184,8 @@ def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
     digest.update(repr(setup.pd_gains).encode())
     if "residual" in controllers:
         digest.update(Path(setup.residual_policy).read_bytes())
+    for key in controllers:
+        digest.update(controller_source(key))
     return digest.hexdigest()[:16]
 
 
