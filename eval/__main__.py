@@ -48,11 +48,10 @@ from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds
 from eval.comparison import (
     TABLE2_KEY,
     TABLE2_PAYLOAD,
-    calibration_seeds,
     run_all,
     table2_statistics,
     tabulate,

@@ -18,12 +18,31 @@ from controllers.registry import ControllerSetup, controller_entry, payload_esti
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord
-from eval.tasks import Task, run_tasks
+from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
+
+CALIBRATION_SEED_OFFSET = 100_000
+"""Calibration (tare) episodes of an experiment from seed ``s`` use seeds ``s + 100000 + j``: paths and noise unlike
+its episodes'."""
 
 DEFAULT_CALIBRATION_EPISODES = 6
 """Payload-free episodes per tare: the apparent payload of an empty gripper varies by about 10 g from episode to
 episode (noise and path), so six of them put the tare's own standard error near 4 g, against a +-25 g target for
 light objects."""
+
+
+def calibration_seeds(seed: int, episodes: int) -> list[int]:
+    """Seeds of the tare calibration of an experiment whose episodes start at ``seed``: ``seed + 100000 + j``."""
+    return [seed + CALIBRATION_SEED_OFFSET + j for j in range(episodes)]
+
+
+def tared_keys(controllers: Iterable[str], scenario: Scenario | None) -> list[str]:
+    """The controllers among ``controllers`` whose estimators an experiment tares (:attr:`ControllerEntry.tared`),
+    and the cell's estimator (:data:`eval.tasks.CELL_ESTIMATOR_KEY`) when ``scenario``'s online timing reads it
+    beside controllers without one of their own."""
+    keys = [key for key in dict.fromkeys(controllers) if controller_entry(key).tared]
+    if scenario is not None and scenario.task.timing == "online" and CELL_ESTIMATOR_KEY not in keys:
+        keys.append(CELL_ESTIMATOR_KEY)
+    return keys
 
 
 class Calibration(NamedTuple):
@@ -133,3 +152,36 @@ def calibrate_tares(
     ``max_loop_gap``)."""
     tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario, references)
     return tares_from_results(run_tasks(tasks, workers, progress), setup, max_loop_gap)
+
+
+def tare_setup(
+    scenario: Scenario,
+    setup: ControllerSetup,
+    controllers: Iterable[str],
+    *,
+    seed: int = 0,
+    episodes: int = DEFAULT_CALIBRATION_EPISODES,
+    workers: int = 1,
+    progress: Any = None,
+    references: Sequence[Trajectory] | None = None,
+    max_loop_gap: float | None = None,
+) -> tuple[ControllerSetup, Calibration]:
+    """``setup`` tared for ``controllers`` on ``scenario`` (:func:`calibrated_setup`), and the calibration: the
+    payload-free episodes of :func:`tared_keys` on the :func:`calibration_seeds` of ``seed`` (along ``references``,
+    one per calibration seed, if given). Nothing runs when no controller is tared."""
+    keys = tared_keys(controllers, scenario)
+    if not keys:
+        return calibrated_setup(setup, Calibration({}, {}, {}), scenario), Calibration({}, {}, {})
+    seeds = calibration_seeds(seed, episodes)
+    calibration = calibrate_tares(
+        keys,
+        setup,
+        seeds,
+        scenario.task.n_cycles,
+        workers=workers,
+        progress=progress,
+        scenario=scenario,
+        references=references,
+        max_loop_gap=max_loop_gap,
+    )
+    return calibrated_setup(setup, calibration, scenario), calibration

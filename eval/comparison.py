@@ -24,14 +24,11 @@ import numpy as np
 
 from controllers.registry import ControllerSetup, controller_entry
 from eval import metrics
-from eval.calibration import calibrated_setup, calibration_tasks, tares_from_results
+from eval.calibration import calibrated_setup, calibration_seeds, calibration_tasks, tared_keys, tares_from_results
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows
 from eval.processes import process_pool
 from eval.tasks import Task, iterate_tasks
-
-CALIBRATION_SEED_OFFSET = 100_000
-"""Calibration (tare) episodes use seeds seed + 100000 + j: paths and noise unlike the evaluation's."""
 
 TABLE2_KEY = "mid_f_rls"
 """The controller of the Table 2 run: MId+F+R with the default payload estimator."""
@@ -42,11 +39,6 @@ TABLE2_PAYLOAD = 3.8
 SLOW_KEYS = ("residual", "oracle")
 """Rows whose episodes cost the most (the residual's first episode in a process also loads torch): queued
 first, so that the short episodes even out the end of the run across the workers."""
-
-
-def calibration_seeds(seed: int, episodes: int) -> list[int]:
-    """Seeds of the tare calibration of a comparison starting at ``seed``: ``seed + 100000 + j``."""
-    return [seed + CALIBRATION_SEED_OFFSET + j for j in range(episodes)]
 
 
 def run_all(
@@ -65,8 +57,8 @@ def run_all(
     from tqdm.auto import tqdm
 
     keys = args.controllers
-    tared = sorted({key for key in keys if controller_entry(key).tared} | {TABLE2_KEY})
-    untared = [key for key in keys if not controller_entry(key).tared]
+    tared = sorted(set(tared_keys([*keys, TABLE2_KEY], args.scenario)))
+    untared = [key for key in keys if key not in tared]
 
     def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
         return [

@@ -305,6 +305,25 @@ def payload_targets(carries: Sequence[CarryMetrics], band: float = PAYLOAD_BAND)
     )
 
 
+PAYLOAD_SCORES = ("payload_end_error_percent", "payload_end_abs_error_percent", "payload_settling_ms")
+"""The payload scores of one episode (:func:`payload_scores`)."""
+
+
+def payload_scores(carries: Sequence[CarryMetrics]) -> dict[str, float]:
+    """An episode's payload scores over its carries of objects >= :data:`MIN_RELATIVE_MASS` (NaN without any):
+    the mean end-of-carry error (%, signed: the tables' "m_hat error, end of carry"), the mean of its magnitude (%)
+    and the worst settling time to +-5 % (ms; NaN if a carry never settles)."""
+    scored = [carry for carry in carries if carry.mass >= MIN_RELATIVE_MASS]
+    if not scored:
+        return dict.fromkeys(PAYLOAD_SCORES, math.nan)
+    errors = np.array([carry.end_error_percent for carry in scored])
+    return {
+        "payload_end_error_percent": float(np.mean(errors)),
+        "payload_end_abs_error_percent": float(np.mean(np.abs(errors))),
+        "payload_settling_ms": max(carry.settling_time_ms for carry in scored),
+    }
+
+
 def torque_error_statistics(
     torque_measured: ArrayLike, torque_model: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -42,10 +42,9 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import TIMINGS, Scenario
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from eval import metrics
-from eval.calibration import calibrate_tares, calibrated_setup
-from eval.comparison import calibration_seeds
+from eval.calibration import calibration_seeds
+from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.identification import robot_identification, robot_setup
 from eval.run_folder import command_line, create_run_folder, write_config, write_csv
 from eval.scenario_args import add_parameters_argument, add_scenario_arguments, scenario_from_arguments
 from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
@@ -58,6 +57,9 @@ MIXED = "mixed"
 
 DEFAULT_CONTROLLERS = ("mid_f_rls_lag", "pd")
 """The model-based controller (which runs every row) and the controllers scored at its timings."""
+
+CALIBRATION_EPISODES = 3
+"""Payload-free episodes of the tare of the estimator that retimes the online carries."""
 
 TRACKING_GOAL_MM = 0.5
 """Tracking RMS (mm) a row must keep to count as holding its timing."""
@@ -271,15 +273,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = create_run_folder("rate", args.out)
     scenario = args.scenario
     scenario.save(out / "scenario.toml")
-    robot = scenario.plant
-    args.parameters, identification = robot_identification(robot, args.parameters)
-    setup = robot_setup(robot, identification)
     # The lead controller's estimator retimes the online carries (the cell's own if the lead has none).
     tared = [args.controllers[0] if controller_entry(args.controllers[0]).tared else CELL_ESTIMATOR_KEY]
     calibration_scenario = rate_scenario(scenario, "declared", MIXED)
-    seeds = calibration_seeds(args.seed, 3)
-    calibration = calibrate_tares(tared, setup, seeds, args.cycles, workers=args.workers, scenario=calibration_scenario)
-    setup = calibrated_setup(setup, calibration, calibration_scenario)
+    calibration_scenario = dataclasses.replace(
+        calibration_scenario, task=dataclasses.replace(calibration_scenario.task, n_cycles=args.cycles)
+    )
+    prepared = prepare(
+        calibration_scenario,
+        tared,
+        parameters=args.parameters,
+        seed=args.seed,
+        calibration_episodes=CALIBRATION_EPISODES,
+        workers=args.workers,
+    )
+    args.parameters, setup, calibration = prepared.parameter_file, prepared.setup, prepared.calibration
 
     rows, episode_rows = run_rows(args, setup)
     fastest = []
@@ -300,7 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "scenario": {"name": scenario.name, "file": "scenario.toml", "robot_identity": scenario.robot_identity},
             "identification": str(args.parameters),
             "tares_kg": calibration.tares,
-            "calibration_seeds": seeds,
+            "calibration_seeds": calibration_seeds(args.seed, CALIBRATION_EPISODES),
             "goals_mm": {"tracking_rms": TRACKING_GOAL_MM, "place_error": PLACE_GOAL_MM},
         },
     )

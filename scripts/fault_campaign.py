@@ -36,12 +36,11 @@ from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
+from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
-from eval.identification import robot_identification, robot_setup
 from eval.processes import process_pool
 from eval.run_folder import create_run_folder, write_config, write_csv
-from eval.sweep.work import tared_setup
 from eval.tasks import Task, iterate_tasks
 
 GONE_MASS = 0.1
@@ -168,10 +167,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = " ".join(["python", "scripts/fault_campaign.py", *(sys.argv[1:] if argv is None else argv)])
     write_config(out, command, {"scenario": args.scenario.name, "episodes": args.episodes, "kinds": args.kinds})
     healthy = with_faults(args.scenario, ())
-    _, identification = robot_identification(healthy.plant)
-    setup = robot_setup(healthy.plant, identification)
     key, n_cycles = args.controller, healthy.task.n_cycles
-    setup = tared_setup(healthy, setup, [key], seed=args.seed, workers=args.workers)
+    setup = prepare(healthy, [key], seed=args.seed, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
     tasks = [Task("episode", key, i, seed, n_cycles, setup, scenario=healthy) for i, seed in enumerate(seeds)]
     for kind in args.kinds:

@@ -37,12 +37,11 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
+from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
-from eval.identification import robot_identification, robot_setup
 from eval.processes import process_pool
 from eval.run_folder import append_csv_rows, create_run_folder, read_csv_rows, write_config
-from eval.sweep.work import tared_setup
 from eval.tasks import Task, iterate_tasks
 
 SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
@@ -203,9 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows: list[dict[str, Any]] = resume(out, config)
     write_config(out, " ".join(["python", "scripts/fault_soak.py", *(sys.argv[1:] if argv is None else argv)]), config)
     scenario.save(out / "scenario.toml")
-    _, identification = robot_identification(scenario.plant)
-    setup = robot_setup(scenario.plant, identification)
-    setup = tared_setup(scenario, setup, list(keys), seed=args.seed, workers=args.workers)
+    setup = prepare(scenario, keys, seed=args.seed, workers=args.workers).setup
 
     target = 60.0 * args.minutes
     finished = {(row["key"], int(row["seed"])) for row in rows}

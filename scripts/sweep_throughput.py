@@ -22,8 +22,9 @@ import time
 from pathlib import Path
 
 from delta_env.scenario import resolve_scenario
+from eval.engine import prepare
 from eval.sweep.runner import ResultsTable, run_sweep
-from eval.sweep.work import WorkUnit, code_version, robot_setups, setup_digest, tared_setup
+from eval.sweep.work import WorkUnit, code_version, setup_digest
 
 CONFIGURATIONS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2))
 
@@ -73,7 +74,7 @@ def main() -> int:
 
     scenario = resolve_scenario(args.scenario)
     controllers = ("pd", "mid_f_rls")
-    setup = tared_setup(scenario, robot_setups([scenario])[scenario.robot_identity], list(controllers))
+    setup = prepare(scenario, controllers).setup
     version, digest = code_version(), setup_digest(setup, controllers)
     units = [WorkUnit(scenario, key, seed) for key in controllers for seed in range(args.seeds)]
     print(f"{len(units)} episodes of {scenario.name} ({scenario.task.n_cycles} cycles), PD and MId+F+R+RLS+PD")

@@ -12,7 +12,6 @@ from controllers.registry import build_controller, estimation_model
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import preset, with_geometry
 from eval import identification
-from eval.sweep import work
 from tests.conftest import NOMINAL_SETUP
 
 DESIGN = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)
@@ -48,11 +47,11 @@ def test_each_robot_is_identified_once_and_a_file_of_another_robot_is_refused(tm
 
     monkeypatch.setattr(identification, "identify", identify)
     scenarios = [preset("nominal"), preset("worn"), preset("randomized"), with_geometry(preset("nominal"), DESIGN)]
-    setups = work.robot_setups(scenarios, identification_root=tmp_path)
-    assert len(setups) == 2 and len(calls) == 2  # the nominal robot and the design, each identified once
-    design_setup = setups[scenarios[-1].robot_identity]
-    assert design_setup.geometry == DESIGN
-    assert work.robot_setups(scenarios, identification_root=tmp_path).keys() == setups.keys()
+    results = {s.robot_identity: identification.identify_robot(s.plant, tmp_path) for s in scenarios}
+    assert len(results) == 2 and len(calls) == 2  # the nominal robot and the design, each identified once
+    assert calls[-1].geometry == DESIGN
+    for scenario in scenarios:
+        identification.identify_robot(scenario.plant, tmp_path)
     assert len(calls) == 2  # the second time every robot comes from its file
     # A file copied under another robot's identity is refused, naming both robots.
     nominal_file = identification.parameter_path(scenarios[0].plant, tmp_path)

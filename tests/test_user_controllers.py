@@ -28,7 +28,7 @@ from tests.conftest import NOMINAL_SETUP
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
-USER_MODULE = '''
+USER_MODULE = """
 import numpy as np
 from controllers.base import PDController
 from controllers.registry import ControllerEntry
@@ -63,7 +63,7 @@ def not_a_controller(setup):
 
 ENTRY = ControllerEntry("ignored", "Declared", lambda setup: Soft(), monitored=False)
 NUMBER = 3
-'''
+"""
 
 
 @pytest.fixture

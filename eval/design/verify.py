@@ -11,6 +11,7 @@ a run diverges or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -27,7 +28,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds, tare_setup
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
 from eval.episodes import EpisodeRecord, run_episode
 from eval.identification import ExcitationRegion, robot_setup, run_identification
@@ -49,9 +50,6 @@ CONTROLLERS = tuple(controller_label(key) for key in CONTROLLER_KEYS)
 
 EXCITATION_MARGIN = 0.5
 """Excitation paths keep min |k_i| and |det A| above this share of their values at the cylinder's centre."""
-
-CALIBRATION_SEED_OFFSET = 10_000
-"""The tare's payload-free episodes run on seeds from seed + this, away from the verification episodes'."""
 
 
 @dataclass(frozen=True)
@@ -229,22 +227,21 @@ def verify_design(
     model = design_model(geometry, masses)
     try:
         setup = identify_design(plant, performance, seed, workers)
-        calibration_seeds = [seed + CALIBRATION_SEED_OFFSET + j for j in range(DEFAULT_CALIBRATION_EPISODES)]
+        standard = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, n_cycles=EPISODE_CYCLES))
+        seeds = calibration_seeds(seed, DEFAULT_CALIBRATION_EPISODES)
         try:
-            calibration = calibrate_tares(
-                [RLS_KEY],
+            setup, calibration = tare_setup(
+                standard,
                 setup,
-                calibration_seeds,
-                EPISODE_CYCLES,
+                CONTROLLER_KEYS,
+                seed=seed,
                 workers=workers,
-                scenario=scenario,
-                references=[episode_reference(geometry, s) for s in calibration_seeds],
+                references=[episode_reference(geometry, s) for s in seeds],
                 max_loop_gap=LOOP_GAP_LIMIT,
             )
         except RuntimeError as error:
             raise DesignInfeasible(f"tare calibration failed: {error}") from error
         tare = calibration.tares[RLS_KEY]
-        setup = calibrated_setup(setup, calibration, scenario)
         controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
         parameters, drive_lag = setup.mid_f_rods, setup.drive_lag
         identified = model.with_parameters(parameters)

@@ -39,7 +39,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
+from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import preset_names, resolve_scenario
+from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.identification import parameter_path
 from eval.run_folder import RUNS_ROOT, command_line, create_run_folder, write_config, write_csv
@@ -47,12 +49,9 @@ from eval.scenario_args import add_geometry_argument, on_geometry
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
-    DEFAULT_POLICY_PATH,
     WorkUnit,
     code_version,
-    robot_setups,
     setup_digest,
-    tared_setup,
 )
 
 
@@ -145,9 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = create_run_folder("sweep", args.out)
     for scenario in args.scenarios:
         scenario.save(out / "scenarios" / f"{scenario.name}.toml")
-    robots = robot_setups(args.scenarios, args.residual)
     setups = {
-        s.content_hash: tared_setup(s, robots[s.robot_identity], args.controllers, workers=args.workers)
+        s.content_hash: prepare(s, args.controllers, workers=args.workers, residual_policy=args.residual).setup
         for s in args.scenarios
     }
     version = code_version()

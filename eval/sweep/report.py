@@ -24,7 +24,7 @@ SUMMARY_METRICS = (
     "torque_rms_nm",
     "torque_peak_nm",
     "energy_j",
-    "payload_end_error_percent",
+    "payload_end_abs_error_percent",
     "picks_per_min",
     "cycle_time_mean_s",
     "place_error_max_mm",

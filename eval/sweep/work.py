@@ -1,8 +1,6 @@
 """The sweep's unit of work: one episode of one controller on one scenario, reduced to one row of metrics.
 
-Every call of the sweep into the episode runner (:func:`eval.episodes.run_episode`), the identification
-(:func:`eval.identification.identify_robot`) and the tare calibration (:mod:`eval.calibration`) is in this
-module. Both backends run :func:`run_unit`; it never raises for a failing episode: the row says
+Both backends run :func:`run_unit`; it never raises for a failing episode: the row says
 ``status = "failed"`` with the error, so the failure is recorded, never dropped.
 """
 
@@ -20,18 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import ControllerSetup, build_controller, controller_entry, controller_source
-from controllers.residual import DEFAULT_POLICY_PATH
-from delta_env.env import DeltaPickPlaceEnv
+from controllers.registry import ControllerSetup, controller_entry, controller_source
 from delta_env.scenario import Scenario
 from eval import metrics
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
-from eval.comparison import calibration_seeds
-from eval.episodes import run_episode
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
-from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
 from eval.run_folder import package_versions
-from eval.tasks import CELL_ESTIMATOR_KEY, timed
+from eval.tasks import Task, run_task
 
 EPISODE_METRICS = (
     "tracking_rms_mm",
@@ -60,11 +52,7 @@ EPISODE_METRICS = (
 """Metrics of every episode, the pick-rate scores included (definitions in :mod:`eval.metrics`), and the fault
 reaction's speed override and stop (:class:`~eval.episodes.EpisodeRecord`)."""
 
-PAYLOAD_METRICS = ("payload_end_error_percent", "payload_settling_ms")
-"""Payload metrics of the estimating controllers over the carries of objects >= 0.5 kg: mean |end error|
-(%) and the worst settling time to +-5 % (ms, NaN if a carry never settles); NaN for the others."""
-
-METRIC_FIELDS = (*EPISODE_METRICS, *PAYLOAD_METRICS, *FAULT_METRICS, *FAULT_KIND_METRICS)
+METRIC_FIELDS = (*EPISODE_METRICS, *metrics.PAYLOAD_SCORES, *FAULT_METRICS, *FAULT_KIND_METRICS)
 """The metrics of a row: the episode's, the payload's and the faults' (:data:`eval.faults.FAULT_METRICS`: faults
 injected, detected and missed, detections, false alarms, consequences, median and worst detection latency; and
 :data:`eval.faults.FAULT_KIND_METRICS` per fault kind)."""
@@ -95,20 +83,15 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
     started, cpu_started = time.perf_counter(), time.process_time()
     row: dict[str, Any] = {"status": "ok", "error": "", **dict.fromkeys(METRIC_FIELDS, math.nan)}
     try:
-        env = DeltaPickPlaceEnv(scenario=unit.scenario)
-        try:
-            controller = timed(env, build_controller(unit.controller, setup, env), unit.controller, setup)
-            record = run_episode(env, controller, unit.seed)
-        finally:
-            env.close()
+        task = Task(
+            "episode", unit.controller, 0, unit.seed, unit.scenario.task.n_cycles, setup, scenario=unit.scenario
+        )
+        _, record = run_task(task)
         episode = record.metrics()
         row.update({name: episode[name] for name in (*EPISODE_METRICS, *FAULT_METRICS)})
         row.update(fault_kind_metrics(record.faults()))
         if controller_entry(unit.controller).estimates_payload:
-            scored = [carry for carry in record.carries() if carry.mass >= metrics.MIN_RELATIVE_MASS]
-            if scored:
-                row["payload_end_error_percent"] = float(np.mean([abs(c.end_error_percent) for c in scored]))
-                row["payload_settling_ms"] = max(c.settling_time_ms for c in scored)
+            row.update(metrics.payload_scores(record.carries()))
     except Exception as error:
         row["status"], row["error"] = "failed", f"{type(error).__name__}: {error}"
     row.update(
@@ -118,53 +101,6 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
         pid=os.getpid(),
     )
     return row
-
-
-def robot_setups(
-    scenarios: list[Scenario],
-    residual_policy: Path = DEFAULT_POLICY_PATH,
-    identification_root: Path = IDENTIFICATION_ROOT,
-) -> dict[str, ControllerSetup]:
-    """One untared setup per robot identity among ``scenarios``: the robot's identification (identified once
-    and kept under ``identification_root`` when missing, about a minute per robot) and the residual policy.
-
-    Returns:
-        The setups by robot identity.
-    """
-    setups = {}
-    for scenario in scenarios:
-        if scenario.robot_identity not in setups:
-            identification = identify_robot(scenario.plant, identification_root)
-            setups[scenario.robot_identity] = robot_setup(
-                scenario.plant, identification, residual_policy=Path(residual_policy)
-            )
-    return setups
-
-
-def tared_setup(
-    scenario: Scenario,
-    setup: ControllerSetup,
-    controllers: list[str],
-    *,
-    seed: int = 0,
-    calibration_episodes: int = DEFAULT_CALIBRATION_EPISODES,
-    workers: int = 1,
-) -> ControllerSetup:
-    """``setup`` with the tares of the RLS controllers among ``controllers``, measured on ``scenario``, and the sums of
-    the calibration's empty moves when the scenario's episodes run on its robot (:func:`calibrated_setup`).
-
-    They are measured as ``python -m eval`` measures them (:mod:`eval.calibration`): payload-free
-    episodes of the scenario on the calibration seeds of ``seed``. An online timing also tares the cell's estimator,
-    which it reads beside the controllers that have none (:func:`eval.tasks.timed`).
-    """
-    keys = [key for key in controllers if controller_entry(key).tared]
-    if scenario.task.timing == "online" and CELL_ESTIMATOR_KEY not in keys:
-        keys.append(CELL_ESTIMATOR_KEY)
-    if not keys:
-        return setup
-    seeds = calibration_seeds(seed, calibration_episodes)
-    calibration = calibrate_tares(keys, setup, seeds, scenario.task.n_cycles, workers=workers, scenario=scenario)
-    return calibrated_setup(setup, calibration, scenario)
 
 
 def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
