@@ -68,8 +68,13 @@ from eval.tables import (
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    width = max(map(len, CONTROLLER_LABELS))
+    rows = "\n".join(f"  {key:<{width}}  {label}" for key, label in CONTROLLER_LABELS.items())
     parser = argparse.ArgumentParser(
-        prog="python -m eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m eval",
+        description=__doc__,
+        epilog=f"controllers (--controllers key: row label):\n{rows}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
@@ -80,8 +85,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--controllers",
         default=None,
-        help=f"comma-separated keys from {', '.join(CONTROLLER_LABELS)} (default: all; without 'residual' when the "
-        "residual policy was trained on another robot than the scenario's)",
+        help="comma-separated controller keys, listed with their labels below (default: all; without 'residual' "
+        "when the residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
     add_parameters_argument(parser)

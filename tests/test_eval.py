@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from controllers.base import PDController
-from controllers.registry import build_controller, estimation_model
+from controllers.registry import CONTROLLER_LABELS, build_controller, estimation_model
 from delta_env import NOMINAL_GEOMETRY
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.env import DeltaPickPlaceEnv
@@ -331,6 +331,13 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     for name in ("torque_profiles", "table2_torques", "payload_estimate", "error_bars"):
         image = plt.imread(out / f"{name}.png")
         assert image.ndim == 3 and min(image.shape[:2]) > 200
+
+
+def test_help_lists_every_controller_key_beside_its_label(capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    listing = capsys.readouterr().out.split("controllers (--controllers key: row label):")[1].splitlines()[1:]
+    assert [line.split(maxsplit=1) for line in listing] == [[key, label] for key, label in CONTROLLER_LABELS.items()]
 
 
 @pytest.mark.slow
