@@ -60,10 +60,10 @@ REPLAN_STEP = 0.05
 """A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
 
 PLANNING_LATENCY = 0.015
-"""Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: one replan
-takes about 12 ms of a core on the development machine (:data:`controllers.timing.REPLAN_GRID_INTERVALS`), so
-the carry keeps its law that long (the online rate is what a cell whose planner runs beside the 1 kHz loop
-would get)."""
+"""Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: longer than a
+replan takes on one core (:data:`controllers.timing.REPLAN_GRID_INTERVALS`; docs/measurements.md, "Pick rate"),
+so the carry keeps its law that long and the online rate is what a cell whose planner runs beside the 1 kHz loop
+would get."""
 
 PRECOMPUTED_TAKEOVERS = (0.015, 0.02, 0.025, 0.03, 0.04)
 """Times (s) into a carry from which an online timing precomputes, while it plans the carry, continuations for

@@ -62,8 +62,9 @@ REPLAN_GRID_INTERVALS = 200
 """Grid intervals of a whole move's shape when a running carry is replanned (its remainder gets its share)."""
 
 REPLAN_TANGENT_PASSES = 1
-"""Conservative passes of a replan: with the coarser grid a replan costs about 12 ms instead of 28 ms here, and
-its law is within a sample of the finer one (the check after it is the same)."""
+"""Conservative passes of a replan: one, on the coarser :data:`REPLAN_GRID_INTERVALS` grid, so that a replan fits
+within :data:`controllers.payload_timing.PLANNING_LATENCY`; its law is within a sample of the finer one and passes
+the same check (the timings: docs/measurements.md, "Pick rate")."""
 
 TIGHTENING = 0.97
 """Factor on every constraint bound after a failed verification."""

@@ -40,7 +40,6 @@ import numpy as np
 from controllers.registry import (
     CONTROLLER_LABELS,
     controller_label,
-    controllers_help,
     estimation_model,
     parse_controller_keys,
 )
@@ -73,8 +72,13 @@ from eval.tables import (
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    width = max(map(len, CONTROLLER_LABELS))
+    rows = "\n".join(f"  {key:<{width}}  {label}" for key, label in CONTROLLER_LABELS.items())
     parser = argparse.ArgumentParser(
-        prog="python -m eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m eval",
+        description=__doc__,
+        epilog=f"controllers (--controllers key: row label):\n{rows}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
@@ -85,10 +89,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--controllers",
         default=None,
-        help=controllers_help(
-            "all built-in ones; without 'residual' when the residual policy was trained on another robot than the "
-            "scenario's"
-        ),
+        help="comma-separated controller keys, the built-in ones listed with their labels below, or your own as "
+        "module:attr (README, 'Compare your own controller') (default: all built-in ones; without 'residual' when the "
+        "residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
     add_parameters_argument(parser)

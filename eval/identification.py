@@ -494,8 +494,8 @@ def identify(
     workers: int | None = None,
     **kwargs: Any,
 ) -> IdentificationResult:
-    """Identify MId and MId+F on a plant (the default realistic one unless ``plant`` is given), by the paper's
-    method and ours.
+    """Identify MId, MId+F, MId+F+R and the drive lag on a plant (the default realistic one unless ``plant`` is
+    given), MId and MId+F by the paper's method and ours.
 
     Args:
         n_trajectories: Excitation trajectories (distinct seeds derived from ``seed``), >= 1.

@@ -28,6 +28,9 @@ from controllers.registry import controller_entry
 TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
 """EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""
 
+TABLE2_MODEL = "MId+F+R"
+"""The model of the Table 2 run's torques, :func:`controllers.registry.estimation_model` (identified, rod forearms)."""
+
 _JOINTS = ("joint 1", "joint 2", "joint 3")
 
 
@@ -57,13 +60,13 @@ def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> 
 
 
 def table2_torques(run: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
-    """Measured torque against MId+F with and without the estimated payload (the paper's Fig. 7)."""
+    """Measured torque against :data:`TABLE2_MODEL` with and without the estimated payload (the paper's Fig. 7)."""
     figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
     time = run["time"]
     for joint, axis in enumerate(axes):
         axis.plot(time, run["measured"][:, joint], color="k", linewidth=0.8, label="tau measured")
-        axis.plot(time, run["mp_0"][:, joint], linewidth=0.8, label="MId+F, mp = 0")
-        axis.plot(time, run["mp_hat"][:, joint], linewidth=0.8, label="MId+F, mp = m_hat")
+        axis.plot(time, run["mp_0"][:, joint], linewidth=0.8, label=f"{TABLE2_MODEL}, mp = 0")
+        axis.plot(time, run["mp_hat"][:, joint], linewidth=0.8, label=f"{TABLE2_MODEL}, mp = m_hat")
         axis.set_ylabel(f"tau {joint + 1} (N m)")
         axis.grid(alpha=0.3)
     axes[0].legend(fontsize="small")
@@ -114,7 +117,7 @@ def error_bars(table2: list[dict[str, str]], episodes: list[dict[str, str]], pat
         left.errorbar(positions + offset, means, yerr=stds, fmt="o", capsize=4, label=label)
     left.axhline(0.0, color="k", linewidth=0.6)
     left.set_xticks(positions, ["tau1", "tau2", "tau3"])
-    left.set_ylabel("tau measured - tau MId+F (N m)")
+    left.set_ylabel(f"tau measured - tau {TABLE2_MODEL} (N m)")
     left.set_title("Table 2 analogue: mean ± std", fontsize="medium")
     left.legend(fontsize="small")
     left.grid(alpha=0.3)

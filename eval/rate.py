@@ -468,7 +468,7 @@ def _plot(path: Path, rows: list[dict[str, Any]], fastest: list[dict[str, Any]],
     axis.set_ylabel("picks per minute, 25/305/25 mm cycle")
     axis.set_title(f"{lead} on {name}; dotted: goals not held")
     axis.grid(True, alpha=0.3)
-    axis.legend(fontsize=8, loc="lower left")
+    axis.legend(title="timing, planned on MId+F+R", title_fontsize=8, fontsize=8, loc="lower left")
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)

@@ -92,15 +92,33 @@ def records(tared_setup: ControllerSetup) -> dict[str, EpisodeRecord]:
     }
 
 
+RECORDED_TRACKING_RMS_MM = {
+    "pd": 5.36,
+    "mkh": 3.31,
+    "mid": 3.07,
+    "mid_f": 2.47,
+    "mid_f_r": 2.57,
+    "mid_f_rls": 0.388,
+    "mid_f_rls_ref": 0.349,
+    "mid_f_rls_lag": 0.291,
+    "oracle": 0.0347,
+    "residual": 0.0539,
+}
+"""Tracking RMS (mm) of each controller on the episode of :func:`records` (seed 3, one cycle, 3 kg).
+
+On seeds 4-6 every row lies within 19 % of these, so :data:`TRACKING_RMS_RTOL` holds a change that redraws the
+episode and fails a regression of 1.4 times or more. Update a row, with its README table, when it improves."""
+
+TRACKING_RMS_RTOL = 0.3
+
+
 @pytest.mark.parametrize("key", list(CONTROLLER_LABELS))
 def test_each_controller_tracks_a_seeded_episode(key: str, records: dict[str, EpisodeRecord]) -> None:
     record = records[key]
     assert not record.diverged and record.saturated_steps == 0
     rms = record.metrics()["tracking_rms_mm"]
     pd_rms = records["pd"].metrics()["tracking_rms_mm"]
-    # Measured: PD 6.0 mm; MKH 3.8, MId 3.5, MId+F 2.9, MId+F+R 3.1; RLS 0.32 (on the reference 0.40);
-    # oracle 0.30 mm; residual 0.08 mm.
-    assert rms < 10.0
+    assert rms == pytest.approx(RECORDED_TRACKING_RMS_MM[key], rel=TRACKING_RMS_RTOL)
     if key != "pd":
         assert rms < 0.8 * pd_rms, "feedforward must beat PD alone"
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from controllers.base import PDController
-from controllers.registry import build_controller, estimation_model
+from controllers.registry import CONTROLLER_LABELS, build_controller, estimation_model
 from delta_env import NOMINAL_GEOMETRY
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.env import DeltaPickPlaceEnv
@@ -272,11 +272,11 @@ def test_table2_analogue_payload_estimate_shrinks_the_torque_error_spread(contro
     env = DeltaPickPlaceEnv(n_cycles=1)
     record = run_episode(env, build_controller(TABLE2_KEY, setup), seed=2, payload_masses=[3.8])
     rows = table2_statistics(record.model_torques(estimation_model(setup)))
-    # Measured: std 7.3, 18.0, 12.8 N m with mp = 0 and 2.2, 2.3, 2.8 N m with m_hat (ratios 0.30, 0.13, 0.22);
-    # means -0.3, -4.8, -3.9 N m with mp = 0 and 0.3, -0.5, -0.4 N m with m_hat.
-    for row in rows:
-        assert row["mp_hat_std"] <= 0.6 * row["mp_0_std"]
-        assert abs(row["mp_hat_mean"]) < 1.0
+    # Measured: std 6.25, 15.04, 10.82 N m with mp = 0 and 2.29, 2.62, 3.02 N m with m_hat (ratios 0.37, 0.17, 0.28;
+    # seed 4: 0.35, 0.17, 0.26); means 0.28, -0.36, -0.33 N m with m_hat. The bounds are 1.5 times those ratios.
+    for row, ratio in zip(rows, (0.55, 0.26, 0.42), strict=True):
+        assert row["mp_hat_std"] <= ratio * row["mp_0_std"]
+        assert abs(row["mp_hat_mean"]) < 0.7
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
@@ -331,6 +331,13 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     for name in ("torque_profiles", "table2_torques", "payload_estimate", "error_bars"):
         image = plt.imread(out / f"{name}.png")
         assert image.ndim == 3 and min(image.shape[:2]) > 200
+
+
+def test_help_lists_every_controller_key_beside_its_label(capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    listing = capsys.readouterr().out.split("controllers (--controllers key: row label):")[1].splitlines()[1:]
+    assert [line.split(maxsplit=1) for line in listing] == [[key, label] for key, label in CONTROLLER_LABELS.items()]
 
 
 @pytest.mark.slow

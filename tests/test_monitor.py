@@ -72,9 +72,10 @@ def test_one_encoder_glitch_is_detected_at_its_sample_and_kept_out_of_the_estima
     assert (detected.kind, detected.joint) == ("encoder_glitch", 1)
     assert detected.time_s == pytest.approx(injected.start_s)
     # gated: the estimate and the command barely notice (unguarded, Kp 0.02 rad = 60 N m and a rate spike of 20 rad/s)
+    # measured: the estimate moves by 0.36 % of the mass, the command by 3.0 N m
     mass = clean.masses.max()
-    assert np.max(np.abs(faulty.payload_estimate - clean.payload_estimate)) < 0.01 * mass
-    assert np.max(np.abs(faulty.command - clean.command)) < 10.0
+    assert np.max(np.abs(faulty.payload_estimate - clean.payload_estimate)) < 0.006 * mass
+    assert np.max(np.abs(faulty.command - clean.command)) < 5.0
 
 
 def test_a_stuck_encoder_is_detected_within_five_samples(controller_setup: ControllerSetup) -> None:
@@ -83,8 +84,9 @@ def test_a_stuck_encoder_is_detected_within_five_samples(controller_setup: Contr
     (injected,) = env.injected_faults
     first = next(event for event in record.detected_faults if event.kind == "encoder_stuck")
     assert 0.0 <= first.time_s - injected.start_s <= 0.005
-    # the joint runs on its feedforward while stuck, then the clean readings follow the encoder again (no lock-out)
-    assert record.metrics()["tracking_max_mm"] < 10.0
+    # the joint runs on its feedforward while stuck, then the clean readings follow the encoder again (no lock-out):
+    # measured 4.0 mm at most (0.53 mm without the fault)
+    assert record.metrics()["tracking_max_mm"] < 6.0
     assert record.tracking_error[-1] < 2e-3
 
 

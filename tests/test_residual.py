@@ -163,9 +163,16 @@ def test_gym_make_and_spaces() -> None:
     assert env.observation_space.contains(observation)
     assert len(info["payload_masses"]) == 1
     _, reward, _, _, info = env.step(env.action_space.sample())
-    assert reward == pytest.approx(info["reward_tracking"] + info["reward_torque"])
-    assert reward < 0.0
+    assert_policy_step_reward(reward, info)
     env.close()
+
+
+def assert_policy_step_reward(reward: float, info: dict) -> None:
+    """The policy step's reward is the plant env's -(w_e |e|^2 + w_tau |tau|^2) summed over its control steps, e in
+    mm (w_e = 1 per mm^2, w_tau = 1e-5 per (N m)^2), and the sum of the two terms in ``info``."""
+    assert info["reward_tracking"] == pytest.approx(-np.sum((1e3 * info["tracking_errors"]) ** 2), rel=1e-9)
+    assert info["reward_torque"] == pytest.approx(-1e-5 * np.sum(info["commanded_torques"] ** 2), rel=1e-9)
+    assert reward == pytest.approx(info["reward_tracking"] + info["reward_torque"], rel=1e-6)  # float32 in a VecEnv
 
 
 def test_episode_ends_with_the_reference() -> None:
@@ -209,9 +216,10 @@ def test_vector_envs() -> None:
         vec_env.seed(0)
         observations = vec_env.reset()
         assert observations.shape == (2, ResidualFeatures.size)
-        observations, rewards, dones, _ = vec_env.step(np.zeros((2, 3), dtype=np.float32))
-        assert observations.shape == (2, ResidualFeatures.size) and rewards.shape == (2,)
-        assert np.all(rewards < 0.0) and not np.any(dones)
+        observations, rewards, dones, infos = vec_env.step(np.zeros((2, 3), dtype=np.float32))
+        assert observations.shape == (2, ResidualFeatures.size) and rewards.shape == (2,) and not np.any(dones)
+        for reward, info in zip(rewards, infos, strict=True):
+            assert_policy_step_reward(float(reward), info)
         seeds = [info["episode_seed"] for info in vec_env.reset_infos]
         assert seeds[0] != seeds[1], "workers must draw different training episodes"
         vec_env.close()

@@ -321,7 +321,7 @@ def plot_pareto(
     axis.set(
         xlabel="dexterous cylinder holding the conveyors (m³)",
         ylabel="peak torque, 3.8 kg standard cycles at 3 g (N m)",
-        title="Pareto front (NSGA-II)",
+        title="Pareto front (NSGA-II), design model: rod forearms, scaled masses, drives",
     )
     axis.grid(alpha=0.3)
     axis.legend(fontsize=8)
