@@ -408,7 +408,7 @@ def test_excitation_record_holds_the_commands_and_fits_the_plants_drive_lag() ->
     assert record.commands.shape == (len(record.torques) - 1, 3)
     assert np.all(np.abs(record.commands) <= TORQUE_LIMIT)
     # The plant's current loop: 1 ms on every joint; the fit sees the 0.5 N m torque noise and the ripple.
-    assert_allclose(record.drive_lag(), PlantConfig().realism.actuator_lag, rtol=0.1)
+    assert_allclose(record.log.drive_lag(), PlantConfig().realism.actuator_lag, rtol=0.1)
 
 
 def test_excitation_runs_on_the_plants_own_geometry_inside_the_given_region() -> None:
