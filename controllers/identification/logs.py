@@ -11,11 +11,12 @@ A log is a table, CSV (a header row, then one row per sample) or Parquet, with t
   row's sample (N m), held until the next one; the last row's may be empty (no command follows the log).
 
 Other columns are ignored. Timestamps may be irregular: the samples are resampled onto the grid
-``time_s[0] + k * period`` (:data:`~delta_env.sensors.CONTROL_PERIOD` by default) up to the last sample, angles and
-torques by linear interpolation, commands by zero-order hold (a drive holds its command). A log on that grid
-already comes back unchanged. A step between two samples longer than :data:`MAX_LOG_GAP` is refused (a
-straight line across it would be a made-up motion), as are non-increasing times and missing or non-finite
-values: each error names the file, the column and the row. Split a log at a gap into two files.
+``time_s[0] + k * period`` (:data:`~delta_env.sensors.CONTROL_PERIOD` by default) up to the last sample, angles
+and torques by linear interpolation, commands by zero-order hold (a drive holds its command). A log on that grid
+to the last bit (as :func:`write_log` writes it) comes back unchanged. A step between two samples longer than
+:data:`MAX_LOG_GAP` is refused (a straight line across it would be a made-up motion), as are non-increasing times
+and missing or non-finite values: each error names the file, the column and the row. Split a log at a gap into
+two files.
 """
 
 from __future__ import annotations
