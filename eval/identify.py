@@ -491,16 +491,23 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     stamp += "_logs" if arguments.log else f"_seed{arguments.seed}"
-    folder = create_run_folder("identification", arguments.out, stamp=stamp)
     command = command_line("eval.identify", argv)
     workers = arguments.workers
     if arguments.log:
-        run = identify_logs(arguments.log, arguments.robot, workers=workers or 1, progress=not arguments.no_progress)
+        try:
+            run = identify_logs(
+                arguments.log, arguments.robot, workers=workers or 1, progress=not arguments.no_progress
+            )
+        except ValueError as error:  # a bad log or robot file, or logs that do not excite the model
+            print(f"python -m eval.identify: error: {error}", file=sys.stderr)
+            return 2
+        folder = create_run_folder("identification", arguments.out, stamp=stamp)
         plant = run.result.provenance["plant"]
         save_robot(DeltaGeometry(**plant["geometry_m"]), DeltaMasses(**plant["masses_kg"]), folder / "robot.toml")
         truth, install = None, arguments.parameters
         config = {**vars(arguments), "out": folder, "robot_identity": plant["identity"]}
     else:
+        folder = create_run_folder("identification", arguments.out, stamp=stamp)
         scenario = arguments.scenario
         scenario.save(folder / "scenario.toml")
         run = run_identification(

@@ -232,6 +232,18 @@ def test_logs_without_commands_identify_everything_but_the_drive_lag(logged_plan
     assert "Not identified: the logs have no commands" in (tmp_path / "run" / "report.md").read_text()
 
 
+def test_a_bad_log_on_the_command_line_is_an_error_message_not_a_traceback(logged_plant, tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text(_csv([*GOOD_ROWS[:3], GOOD_ROWS[1]]))
+    robot = str(logged_plant["logs"] / "robot.toml")
+    assert (
+        cli.main(["--log", str(logged_plant["files"][0]), str(bad), "--robot", robot, "--out", str(tmp_path / "run")])
+        == 2
+    )
+    assert f"error: log {bad}: time_s must increase strictly" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [
