@@ -51,6 +51,18 @@ table of the four lengths in metres; other top-level tables (e.g. the design's o
     l2 = 0.95   # forearm (m)
 
 :func:`load_geometry` and :func:`save_geometry` are the one reader and writer of that format.
+
+A robot file (``--robot FILE`` of ``python -m eval.identify --log``, written by its ``--save-logs``) is a geometry
+file with a second table, the datasheet masses of the analytical model in kg (:class:`DeltaMasses`)::
+
+    [masses]
+    m1 = 2.0    # upper arm
+    m2 = 0.2    # half of one forearm pair
+    m0 = 0.8    # platform with the gripper
+
+It is all a parameter file identified from logs knows of the robot: its identity is the content hash of the two
+tables (:func:`datasheet_identity`), and a scenario whose plant has these lengths and masses (``--geometry FILE``
+with a robot file takes both) is that robot. :func:`load_robot` and :func:`save_robot` read and write it.
 """
 
 from __future__ import annotations
@@ -317,19 +329,62 @@ def load_geometry(path: str | os.PathLike[str]) -> DeltaGeometry:
         ValueError: for a missing file, invalid TOML, a missing ``[geometry]`` table, an unknown key or an
             invalid length, naming the file and the field.
     """
+    return _read_part(Path(path), "geometry file", DeltaGeometry, "geometry", "ra, rb, l1, l2 (m)")
+
+
+def load_masses(path: str | os.PathLike[str]) -> DeltaMasses | None:
+    """The ``[masses]`` table (m1, m2, m0 in kg) of a robot file, or None when the file has none.
+
+    Raises:
+        ValueError: for a missing file, invalid TOML, an unknown key or an invalid mass, naming the file and the
+            field.
+    """
     path = Path(path)
+    if "masses" not in _read_file(path, "robot file"):
+        return None
+    return _read_part(path, "robot file", DeltaMasses, "masses", "m1, m2, m0 (kg)")
+
+
+def load_robot(path: str | os.PathLike[str]) -> tuple[DeltaGeometry, DeltaMasses]:
+    """The lengths (m) and datasheet masses (kg) of a robot file (format in the module docstring).
+
+    Raises:
+        ValueError: as :func:`load_geometry`, or for a missing ``[masses]`` table.
+    """
+    path = Path(path)
+    geometry = _read_part(path, "robot file", DeltaGeometry, "geometry", "ra, rb, l1, l2 (m)")
+    return geometry, _read_part(path, "robot file", DeltaMasses, "masses", "m1, m2, m0 (kg)")
+
+
+def save_robot(geometry: DeltaGeometry, masses: DeltaMasses, path: str | os.PathLike[str]) -> Path:
+    """Write a robot file of ``geometry`` (m) and ``masses`` (kg) (parent folders created); returns the path."""
+    return save_geometry(geometry, path, {"masses": _to_table(masses)})
+
+
+def datasheet_identity(geometry: DeltaGeometry, masses: DeltaMasses) -> str:
+    """Content hash (16 hex digits) of a robot file's lengths and datasheet masses: the identity of a robot known
+    only by them (identified from its logs)."""
+    return _digest({"geometry": _to_table(geometry), "masses": _to_table(masses)})
+
+
+def _read_file(path: Path, kind: str) -> dict[str, Any]:
     if not path.is_file():
-        raise ValueError(f"geometry file {path}: no such file")
-    table = _read_toml(path.read_text(), f"geometry file {path}")
-    if not isinstance(table.get("geometry"), dict):
-        raise ValueError(f"geometry file {path}: needs a [geometry] table with ra, rb, l1, l2 (m)")
-    missing = sorted({"ra", "rb", "l1", "l2"} - set(table["geometry"]))
+        raise ValueError(f"{kind} {path}: no such file")
+    return _read_toml(path.read_text(), f"{kind} {path}")
+
+
+def _read_part(path: Path, kind: str, cls: type, name: str, keys: str) -> Any:
+    """The table ``name`` of a TOML file as dataclass ``cls`` with every field given; ValueError naming the file."""
+    table = _read_file(path, kind).get(name)
+    if not isinstance(table, dict):
+        raise ValueError(f"{kind} {path}: needs a [{name}] table with {keys}")
+    missing = [item.name for item in dataclasses.fields(cls) if item.name not in table]
     if missing:
-        raise ValueError(f"geometry file {path}: [geometry] misses {', '.join(missing)} (m)")
+        raise ValueError(f"{kind} {path}: [{name}] misses {', '.join(missing)}")
     try:
-        return _from_table(DeltaGeometry, table["geometry"], "geometry")
+        return _from_table(cls, table, name)
     except ValueError as error:
-        raise ValueError(f"geometry file {path}: {error}") from None
+        raise ValueError(f"{kind} {path}: {error}") from None
 
 
 def save_geometry(geometry: DeltaGeometry, path: str | os.PathLike[str], extra: dict[str, Any] | None = None) -> Path:

@@ -1,7 +1,8 @@
 """Experiments on the Delta robot and their command lines (docs/design.md section 8).
 
 - ``python -m eval``: the controller comparison (:mod:`eval.comparison`, tables in :mod:`eval.tables`);
-- ``python -m eval.identify``: the identification experiment and its report (:mod:`eval.identification`);
+- ``python -m eval.identify``: the identification experiment and its report (:mod:`eval.identification`), on the
+  simulated plant or on a real robot's drive logs;
 - ``python -m eval.train_residual``: training the residual policy (stable-baselines3).
 
 Every experiment runs its episodes with :func:`eval.episodes.run_episode` and writes its run folder with
@@ -10,7 +11,7 @@ Every experiment runs its episodes with :func:`eval.episodes.run_episode` and wr
 
 from eval.calibration import calibrate_tares
 from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import DEFAULT_PARAMETER_PATH, load_or_identify, run_identification
+from eval.identification import DEFAULT_PARAMETER_PATH, identify_logs, load_or_identify, run_identification
 from eval.run_folder import create_run_folder, write_config
 
 __all__ = [
@@ -18,6 +19,7 @@ __all__ = [
     "EpisodeRecord",
     "calibrate_tares",
     "create_run_folder",
+    "identify_logs",
     "load_or_identify",
     "run_episode",
     "run_identification",

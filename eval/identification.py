@@ -35,7 +35,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Observation, PDController
-from controllers.drive import identify_lag
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
@@ -44,6 +43,7 @@ from controllers.identification import (
     RHO1_GRID,
     RHO2_GRID,
     TRIM_SAMPLES,
+    DriveLog,
     IdentificationResult,
     LeastSquaresFit,
     MotionData,
@@ -56,15 +56,16 @@ from controllers.identification import (
     fit_paper_method,
     load_result,
     prepare_motion,
+    read_log,
     save_result,
 )
 from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import excitation_trajectory
-from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry
+from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
 from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits
-from delta_env.scenario import plant_identity
+from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
@@ -184,9 +185,10 @@ class ExcitationRecord:
     commands: NDArray[np.float64]
     max_loop_gap: float
 
-    def drive_lag(self) -> NDArray[np.float64]:
-        """The drive lag (s) per joint fitted to this run's commands and reported torques (:func:`identify_lag`)."""
-        return identify_lag(self.commands, self.torques[1:], self.dt)
+    @property
+    def log(self) -> DriveLog:
+        """What the drive's logger recorded: angles, torques and commands (:mod:`controllers.identification.logs`)."""
+        return DriveLog(self.angles, self.torques, self.commands, self.dt)
 
 
 class ReferenceFeedforward:
@@ -247,10 +249,10 @@ def robot_model(plant: PlantConfig, *, forearm_rods: bool = False) -> DeltaDynam
     return DeltaDynamics.of_robot(plant.geometry, plant.masses, forearm_rods=forearm_rods)
 
 
-def _progress_bar(total: int, show: bool) -> Any:
+def _progress_bar(total: int, show: bool, unit: str = "excitation runs") -> Any:
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="excitation runs", disable=not show, unit="run")
+    return tqdm(total=total, desc=unit, disable=not show, unit=unit.split()[-1].rstrip("s"))
 
 
 def collect_excitation_data(
@@ -281,13 +283,20 @@ def collect_excitation_data(
         return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)
 
 
+def prepare_log(log: DriveLog) -> tuple[MotionData, NDArray[np.float64] | None]:
+    """The smoothed samples of one log and the drive lag (s, per joint) fitted to it (None without commands).
+
+    The one preparation of every record, simulated or read from a file.
+    """
+    return prepare_motion(log.angles, log.torques, log.dt), log.drive_lag()
+
+
 def _collect_and_prepare(
     spec: ExcitationSpec, plant: PlantConfig | None
-) -> tuple[MotionData, NDArray[np.float64], float]:
-    """The smoothed samples of one excitation run, the drive lag (s, per joint) fitted to it and the run's
-    largest loop gap (m)."""
+) -> tuple[ExcitationRecord, MotionData, NDArray[np.float64] | None]:
+    """One excitation run, its smoothed samples and the drive lag (s, per joint) fitted to it."""
     record = run_excitation(spec, plant)
-    return prepare_motion(record.angles, record.torques, record.dt), record.drive_lag(), record.max_loop_gap
+    return record, *prepare_log(record.log)
 
 
 @dataclass(frozen=True)
@@ -297,16 +306,19 @@ class IdentificationRun:
     Attributes:
         result: The identified parameters.
         data: Samples of the identification trajectories.
-        validation: Samples of the held-out free-motion stress trajectory.
+        validation: Samples of the held-out trajectory (the free-motion stress trajectory of a simulation).
         models: The models compared on it, with their parameters (Table 1 rows), by name.
-        max_loop_gap: Largest loop gap of the plant over every excitation run (m), the simulation's health.
+        logs: The logs identified on, then the held-out one: what the drive recorded.
+        max_loop_gap: Largest loop gap of the plant over every excitation run (m), the simulation's health; None
+            for logs.
     """
 
     result: IdentificationResult
     data: tuple[MotionData, ...]
     validation: MotionData
     models: dict[str, DeltaDynamics]
-    max_loop_gap: float
+    logs: tuple[DriveLog, ...]
+    max_loop_gap: float | None
 
 
 def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
@@ -393,14 +405,148 @@ def run_identification(
     run = functools.partial(_collect_and_prepare, plant=plant)
     with _progress_bar(len(specs), progress) as bar:
         runs = parallel_map(run, specs, workers, bar)
-    max_loop_gap = max(gap for _, _, gap in runs)
-    *runs, (validation, _, _) = runs
-    data = [motion for motion, _, _ in runs]
-    lags_per_trajectory = np.array([lag for _, lag, _ in runs])
-    drive_lag = np.median(lags_per_trajectory, axis=0)
-    data_time = time.perf_counter() - start
+    source = {
+        "seed": seed,
+        "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
+        "validation_trajectory": json_ready(dataclasses.asdict(specs[-1])),
+        "plant": _plant_summary(plant),
+    }
+    controller = {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"}
+    return _identify(
+        [(motion, lag) for _, motion, lag in runs],
+        [record.log for record, _, _ in runs],
+        plant.geometry,
+        plant.masses,
+        data_method=SIMULATED_DATA,
+        controller=controller,
+        source=source,
+        workers=workers,
+        started=start,
+        max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
+    )
 
-    lumped, rods = robot_model(plant), robot_model(plant, forearm_rods=True)
+
+SIMULATED_DATA = (
+    "excitation trajectories in closed loop (PD + MKH feedforward) on the plant; encoder angles "
+    "and measured motor torques from the observations; Kalman RTS smoother for rates and accelerations"
+)
+"""How a simulated identification's data were made (the provenance's ``method.data``)."""
+
+LOGGED_DATA = (
+    "drive logs (controllers.identification.logs) resampled onto the control period; encoder angles and "
+    "measured motor torques; Kalman RTS smoother for rates and accelerations"
+)
+"""How an identification from logs got its data (the provenance's ``method.data``)."""
+
+
+def identify_logs(
+    paths: Sequence[str | os.PathLike[str]],
+    robot: str | os.PathLike[str],
+    *,
+    workers: int = 1,
+    progress: bool = False,
+) -> IdentificationRun:
+    """Identify the robot of the robot file ``robot`` from its drive logs alone: the algorithms, fits and
+    validation of :func:`run_identification` on the logs' arrays.
+
+    Args:
+        paths: Log files (:mod:`controllers.identification.logs`), at least 2; the last one is held out for
+            validation (the Table 1 analogue), the others are identified on.
+        robot: Robot file (:func:`delta_env.scenario.load_robot`): lengths and datasheet masses.
+        workers: Processes smoothing the logs.
+        progress: Show a tqdm progress bar.
+
+    Raises:
+        ValueError: for fewer than 2 logs; LogFileError for a bad log; ValueError naming the robot file for a bad
+            one.
+    """
+    start = time.perf_counter()
+    paths = [Path(path) for path in paths]
+    if len(paths) < 2:
+        raise ValueError(f"need at least 2 logs (the last one is held out for validation), got {len(paths)}")
+    geometry, masses = load_robot(robot)
+    logs = [read_log(path) for path in paths]
+    with _progress_bar(len(logs), progress, "logs") as bar:
+        prepared = parallel_map(prepare_log, logs, workers, bar)
+    summaries = [_log_summary(path, log) for path, log in zip(paths, logs, strict=True)]
+    source = {
+        "logs": summaries[:-1],
+        "validation_log": summaries[-1],
+        "plant": {
+            "identity": datasheet_identity(geometry, masses),
+            "source": "logs",
+            "robot_file": str(robot),
+            "geometry_m": dataclasses.asdict(geometry),
+            "masses_kg": dataclasses.asdict(masses),
+            "control_period_s": CONTROL_PERIOD,
+        },
+    }
+    return _identify(
+        prepared,
+        logs,
+        geometry,
+        masses,
+        data_method=LOGGED_DATA,
+        controller="unknown (the logger's)",
+        source=source,
+        workers=workers,
+        started=start,
+        max_loop_gap=None,
+    )
+
+
+def _log_summary(path: Path, log: DriveLog) -> dict[str, Any]:
+    """What the provenance records of a log file: where, its hash, its length on the grid and its commands."""
+    return {
+        "path": str(path),
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "samples": len(log),
+        "duration_s": (len(log) - 1) * log.dt,
+        "commands": log.commands is not None,
+    }
+
+
+def _identify(
+    prepared: Sequence[tuple[MotionData, NDArray[np.float64] | None]],
+    logs: Sequence[DriveLog],
+    geometry: DeltaGeometry,
+    masses: DeltaMasses,
+    *,
+    data_method: str,
+    controller: Any,
+    source: dict[str, Any],
+    workers: int,
+    started: float,
+    max_loop_gap: float | None,
+) -> IdentificationRun:
+    """Every fit and the held-out validation on prepared logs (:func:`prepare_log`), the last one held out: the
+    one identification of simulated runs and of real logs.
+
+    Args:
+        prepared: Samples and drive lag (None without commands) of each log; the last one is held out.
+        logs: The logs themselves, in the same order.
+        geometry: The robot's lengths (m).
+        masses: Its datasheet masses (kg), those of MKH.
+        data_method: How the data were made (the provenance's ``method.data``).
+        controller: The controller that ran the logs (the provenance's ``method.controller``).
+        source: Provenance of the data: seeds and trajectories, or log files; ``plant``, the robot's summary.
+        workers: Processes used (provenance).
+        started: ``time.perf_counter()`` when the identification started.
+        max_loop_gap: The simulation's largest loop gap (m), None for logs.
+    """
+    *prepared, (validation, _) = prepared
+    data = [motion for motion, _ in prepared]
+    lags = [lag for _, lag in prepared if lag is not None]
+    if lags:
+        lags_per_trajectory = np.array(lags)
+        drive_lag = np.median(lags_per_trajectory, axis=0)
+    else:
+        logger.warning("no commands in the logs: the drive lag is not identified, the parameter file holds T = 0")
+        lags_per_trajectory, drive_lag = np.zeros((0, 3)), np.zeros(3)
+    data_time = time.perf_counter() - started
+
+    lumped = DeltaDynamics.of_robot(geometry, masses)
+    rods = DeltaDynamics.of_robot(geometry, masses, forearm_rods=True)
     (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data, dynamics=lumped))
     paper, paper_time = _best_time(lambda: fit_paper_method(data, dynamics=lumped))
     rod_fit = fit_joint_least_squares(data, dynamics=rods)
@@ -417,8 +563,7 @@ def run_identification(
     training_table = error_table(models, concatenate(data))
     provenance = {
         "method": {
-            "data": "excitation trajectories in closed loop (PD + MKH feedforward) on the plant; encoder angles "
-            "and measured motor torques from the observations; Kalman RTS smoother for rates and accelerations",
+            "data": data_method,
             "mid": "linear least squares of (rho1, rho2), all samples",
             "mid_f": "joint linear least squares of [rho1, rho2, fv_1..3, fc_1..3]; rows with "
             f"|theta_dot_i| <= {FRICTION_VELOCITY_THRESHOLD} rad/s left out (static and Stribeck friction)",
@@ -426,7 +571,9 @@ def run_identification(
             "paper_mid_f": "paper_mid rho + per-trajectory, per-joint LS of (fv, fc) on the remaining error, averaged",
             "mid_f_rods": "the mid_f least squares on the model with homogeneous rod forearms (forearm_rods=True)",
             "drive_lag": "output-error fit per joint and trajectory of the first-order lag from the held commands to "
-            "the reported torques (controllers.drive.identify_lag); median over the trajectories",
+            "the reported torques (controllers.drive.identify_lag); median over the trajectories"
+            if lags
+            else "not identified: no commands in the logs; T = 0",
             "sample_period_s": CONTROL_PERIOD,
             "velocity_threshold_rad_s": FRICTION_VELOCITY_THRESHOLD,
             "rest_velocity_rad_s": REST_VELOCITY,
@@ -435,12 +582,9 @@ def run_identification(
             "smoother": {"jerk_std": SMOOTHER_JERK_STD, "measurement_std": ENCODER_NOISE_STD},
             "rho1_grid": list(RHO1_GRID),
             "rho2_grid": list(RHO2_GRID),
-            "controller": {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"},
+            "controller": controller,
         },
-        "seed": seed,
-        "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
-        "validation_trajectory": json_ready(dataclasses.asdict(specs[-1])),
-        "plant": _plant_summary(plant),
+        **source,
         "samples": {
             "per_trajectory": [len(d) for d in data],
             "total": sum(len(d) for d in data),
@@ -465,7 +609,7 @@ def run_identification(
             "joint_least_squares": ours_time,
             "paper_method": paper_time,
             "fits_timed_as": "best of 3 runs, from smoothed samples to parameters",
-            "total": time.perf_counter() - start,
+            "total": time.perf_counter() - started,
         },
         "workers": workers,
         "versions": package_versions(),
@@ -482,7 +626,12 @@ def run_identification(
         provenance=provenance,
     )
     return IdentificationRun(
-        result=result, data=tuple(data), validation=validation, models=models, max_loop_gap=max_loop_gap
+        result=result,
+        data=tuple(data),
+        validation=validation,
+        models=models,
+        logs=tuple(logs),
+        max_loop_gap=max_loop_gap,
     )
 
 
@@ -533,10 +682,25 @@ def load_or_identify(
 def check_identity(result: IdentificationResult, plant: PlantConfig, path: str | os.PathLike[str]) -> None:
     """Refuse an identification of another robot than ``plant``'s.
 
+    A simulated identification records the plant's identity (:func:`delta_env.scenario.plant_identity`); one from
+    logs knows the robot only by its robot file, and records the identity of its lengths and datasheet masses
+    (:func:`delta_env.scenario.datasheet_identity`): a plant with the same ones is that robot.
+
     Raises:
         ParameterFileError: if the file records no robot identity or another one than ``plant``'s.
     """
-    recorded = result.provenance.get("plant", {}).get("identity")
+    summary = result.provenance.get("plant", {})
+    recorded = summary.get("identity")
+    if summary.get("source") == "logs":
+        expected = datasheet_identity(plant.geometry, plant.masses)
+        if recorded != expected:
+            raise ParameterFileError(
+                f"{path}: identified from the logs of robot {recorded!r} (robot file {summary.get('robot_file')}: "
+                f"{summary.get('geometry_m')} m, {summary.get('masses_kg')} kg), not of this robot {expected!r} "
+                f"({dataclasses.asdict(plant.geometry)} m, {dataclasses.asdict(plant.masses)} kg); simulate that robot "
+                "(--geometry ROBOT_FILE) or pass the file of this robot"
+            )
+        return
     expected = plant_identity(plant)
     if recorded != expected:
         raise ParameterFileError(

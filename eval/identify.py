@@ -5,10 +5,17 @@ an identification belongs to the robot. Runs :func:`eval.identification.run_iden
 parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
 load (``runs/identification/<robot identity>/parameters.json``), the scenario (``scenario.toml``), the resolved
 configuration and the command, the held-out validation data, a Markdown report and the figures
-(made from the saved data), and prints the report.
+(made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
+along every run as log files (:mod:`controllers.identification.logs`) and the robot file ``robot.toml``.
 
-The report compares the identified friction with the plant's true values: the only place that reads
-the plant's truth, labelled as ground truth for the report; the identification never sees it.
+With ``--log FILE [FILE ...] --robot ROBOT.toml`` nothing is simulated: the robot is identified from its logs
+alone (:func:`eval.identification.identify_logs`, the same fits), the last log held out for the report; the
+parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of the robot
+file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot (``--geometry ROBOT.toml``).
+
+The report of a simulation compares the identified friction and drive lag with the plant's true values: the
+only place that reads the plant's truth, labelled as ground truth for the report; the identification never sees
+it. Logs come with no truth.
 """
 
 from __future__ import annotations
@@ -16,7 +23,9 @@ from __future__ import annotations
 import argparse
 import datetime
 import logging
+import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -28,14 +37,17 @@ from controllers.identification import (
     error_table,
     fit_joint_least_squares,
     save_result,
+    write_log,
 )
 from delta_env.config import PlantConfig
-from delta_env.geometry import GRAVITY
+from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
+from delta_env.scenario import save_robot
 from eval.identification import (
     DEFAULT_DURATION,
     DEFAULT_TRAJECTORIES,
     VALIDATION_DURATION,
     IdentificationRun,
+    identify_logs,
     parameter_path,
     run_identification,
 )
@@ -63,17 +75,81 @@ THRESHOLD_SWEEP = (0.1, 0.2, 0.5, 1.0, 2.0)
 TARGET_STD_RATIO = 0.25
 """Goal: std of the MId+F error <= this x std of the MKH error on every joint (the paper's Table 1)."""
 
+DURATION_RANGE = (1.0, 600.0)
+"""Allowed lengths (s) of a simulated trajectory: 1 s leaves 900 samples after the trimmed ends."""
+
+LOG_FORMATS = {"csv": ".csv", "parquet": ".parquet"}
+"""``--log-format``: file ending of each log format."""
+
+SIMULATION_OPTIONS = ("seed", "trajectories", "duration", "validation_duration", "geometry", "save_logs")
+"""Options that only a simulated identification takes; with ``--log`` they are errors."""
+
+
+def _number_in(kind: Callable[[str], float], low: float, high: float, unit: str = "") -> Callable[[str], float]:
+    """An argparse type: ``kind(text)`` if in [low, high], else an error naming the value and the range."""
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            expected = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"must be {expected}, got {text!r}") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            suffix = f" {unit}" if unit else ""
+            raise argparse.ArgumentTypeError(f"must lie in [{low:g}, {high:g}]{suffix}, got {text}")
+        return value
+
+    return parse
+
 
 def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
-    parser.add_argument("--trajectories", type=int, default=DEFAULT_TRAJECTORIES, help="excitation trajectories")
-    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION, help="length of each trajectory (s)")
     parser.add_argument(
-        "--validation-duration", type=float, default=VALIDATION_DURATION, help="held-out stress trajectory (s)"
+        "--trajectories",
+        type=_number_in(int, 1, 1000),
+        default=DEFAULT_TRAJECTORIES,
+        help="excitation trajectories, 1 to 1000",
     )
-    parser.add_argument("--workers", type=int, default=None, help="processes (default: up to 2 cores)")
+    parser.add_argument(
+        "--duration",
+        type=_number_in(float, *DURATION_RANGE, "s"),
+        default=DEFAULT_DURATION,
+        help=f"length of each trajectory (s), {DURATION_RANGE[0]:g} to {DURATION_RANGE[1]:g}",
+    )
+    parser.add_argument(
+        "--validation-duration",
+        type=_number_in(float, *DURATION_RANGE, "s"),
+        default=VALIDATION_DURATION,
+        help=f"held-out stress trajectory (s), {DURATION_RANGE[0]:g} to {DURATION_RANGE[1]:g}",
+    )
+    parser.add_argument(
+        "--save-logs",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write each simulated run as the drive would log it (excitation_NN and, last, validation) and the "
+        "robot file robot.toml into DIR",
+    )
+    parser.add_argument(
+        "--log-format", choices=list(LOG_FORMATS), default="csv", help="format of --save-logs (default csv)"
+    )
+    parser.add_argument(
+        "--log",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="FILE",
+        help="identify from these logs (CSV or Parquet, at least 2; the last one is held out for the report) "
+        "instead of simulating; needs --robot",
+    )
+    parser.add_argument(
+        "--robot", type=Path, default=None, help="robot file of the logs ([geometry] in m, [masses] in kg)"
+    )
+    parser.add_argument(
+        "--workers", type=_number_in(int, 1, 64), default=None, help="processes (default: up to 2 cores)"
+    )
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default runs/identification/<time>_seed<seed>)"
     )
@@ -81,21 +157,52 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
         "--parameters",
         type=Path,
         default=None,
-        help="parameter file the controllers load (default: runs/identification/<robot identity>/parameters.json)",
+        help="parameter file the controllers load (default: runs/identification/<robot identity>/parameters.json; "
+        "with --log: the run folder's only)",
     )
     parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     arguments = parser.parse_args(argv)
-    arguments.scenario = scenario_from_arguments(arguments, parser)
-    if arguments.parameters is None:
-        arguments.parameters = parameter_path(arguments.scenario.plant)
+    if arguments.log is None:
+        if arguments.robot is not None:
+            parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
+        arguments.scenario = scenario_from_arguments(arguments, parser)
+        if arguments.parameters is None:
+            arguments.parameters = parameter_path(arguments.scenario.plant)
+        return arguments
+    given = [name for name in SIMULATION_OPTIONS if getattr(arguments, name) != parser.get_default(name)]
+    if arguments.scenario != parser.get_default("scenario"):
+        given.insert(0, "scenario")
+    if given:
+        names = ", ".join("--" + name.replace("_", "-") for name in given)
+        parser.error(f"--log identifies from files; {names} {'is' if len(given) == 1 else 'are'} for a simulation")
+    if arguments.robot is None:
+        parser.error("--log needs --robot ROBOT.toml, the robot file of the logs ([geometry] in m, [masses] in kg)")
+    if len(arguments.log) < 2:
+        parser.error(f"--log needs at least 2 files (the last one is held out), got {len(arguments.log)}")
+    arguments.scenario = None
     return arguments
 
 
 def _ground_truth(plant: PlantConfig) -> dict[str, list[float]]:
-    """The plant's true friction (ground truth for this report only)."""
+    """The plant's true friction and drive lag (ground truth for this report only)."""
     realism = plant.realism
-    return {"viscous": realism.viscous_per_joint.tolist(), "coulomb": realism.coulomb_per_joint.tolist()}
+    return {
+        "viscous": realism.viscous_per_joint.tolist(),
+        "coulomb": realism.coulomb_per_joint.tolist(),
+        "drive_lag": [realism.actuator_lag] * 3,
+    }
+
+
+def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMasses, folder: Path, suffix: str) -> Path:
+    """Write the run's logs as a robot's logger would (excitation_01 ... and, last, validation) and the robot file
+    ``robot.toml``, what ``--log`` and ``--robot`` read; returns the robot file."""
+    *excitation, validation = run.logs
+    digits = max(2, len(str(len(excitation))))  # the names sort in run order, the held-out one last
+    for index, log in enumerate(excitation, start=1):
+        write_log(log, folder / f"excitation_{index:0{digits}d}{suffix}")
+    write_log(validation, folder / f"validation{suffix}")
+    return save_robot(geometry, masses, folder / "robot.toml")
 
 
 def save_validation_data(run: IdentificationRun, path: Path) -> None:
@@ -196,7 +303,7 @@ def _speed_band_lines(validation_file: Path) -> list[str]:
     return lines
 
 
-def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> list[str]:
+def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
     result = run.result
     spread = result.provenance["mid_f_between_trajectories"]["standard_error_of_mean"]
     lines = [
@@ -213,12 +320,12 @@ def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
             j = int(joint) - 1
             ours, paper = getattr(result.mid_f, kind)[j], getattr(result.paper_mid_f, kind)[j]
             mid = paper_mid = "-"
-            true = truth[kind][j]
+            true = None if truth is None else truth[kind][j]
         error = result.standard_errors[f"mid_f.{name}"]
         between = spread[name]
         between_text = "n/a" if between is None else f"{between:.4f}"
         if true is None:
-            truth_cells = "(no physical truth) | - | -"
+            truth_cells = f"{'unknown' if truth is None else '(no physical truth)'} | - | -"
         else:
             truth_cells = f"{true:.3f} | {100 * (ours - true) / true:+.1f} % | {100 * (paper - true) / true:+.1f} %"
         lines.append(
@@ -228,14 +335,16 @@ def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
     return lines
 
 
-def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> list[str]:
-    """Joint LS at other friction velocity thresholds: friction error vs held-out accuracy."""
-    true = np.array([*truth["viscous"], *truth["coulomb"]])
+def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
+    """Joint LS at other friction velocity thresholds: friction error (the friction itself without a truth) vs
+    held-out accuracy."""
     paper_std = np.array(run.result.provenance["torque_error_validation"]["MId+F (paper)"]["std"])
+    friction = "fv error (%) | fc error (%)" if truth else "fv (N m s/rad) | fc (N m)"
     lines = [
-        "| threshold (rad/s) | fv error (%) | fc error (%) | held-out sigma (N m) | sigma / paper MId+F sigma |",
+        f"| threshold (rad/s) | {friction} | held-out sigma (N m) | sigma / paper MId+F sigma |",
         "|---|---|---|---|---|",
     ]
+    number = "+.1f" if truth else ".3f"
     for threshold in THRESHOLD_SWEEP:
         try:
             parameters = fit_joint_least_squares(
@@ -244,38 +353,85 @@ def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]]) -> l
         except ValueError as failure:
             lines.append(f"| {threshold:g} | not identifiable: {failure} | | | |")
             continue
-        error = 100.0 * (np.array([*parameters.viscous, *parameters.coulomb]) - true) / true
+        error = np.array([*parameters.viscous, *parameters.coulomb])
+        if truth is not None:
+            true = np.array([*truth["viscous"], *truth["coulomb"]])
+            error = 100.0 * (error - true) / true
         model = run.models["MKH"].with_parameters(parameters)
         sigma = np.array(error_table({"ls": model}, run.validation)["ls"]["std"])
         marker = " (default)" if threshold == FRICTION_VELOCITY_THRESHOLD else ""
         lines.append(
-            f"| {threshold:g}{marker} | {', '.join(f'{e:+.1f}' for e in error[:3])} | "
-            f"{', '.join(f'{e:+.1f}' for e in error[3:])} | {', '.join(f'{v:.3f}' for v in sigma)} | "
+            f"| {threshold:g}{marker} | {', '.join(f'{e:{number}}' for e in error[:3])} | "
+            f"{', '.join(f'{e:{number}}' for e in error[3:])} | {', '.join(f'{v:.3f}' for v in sigma)} | "
             f"{', '.join(f'{v:.3f}' for v in sigma / paper_std)} |"
         )
     return lines
 
 
+def _data_lines(provenance: dict[str, Any], command: str) -> list[str]:
+    """What the identification ran on: the simulated trajectories or the log files, and the held-out one."""
+    samples = provenance["samples"]
+    if "logs" in provenance:
+        held_out = provenance["validation_log"]
+        return [
+            f"`{command}` on {provenance['date']}: {len(provenance['logs'])} logs "
+            f"({samples['total']} samples after resampling and trimming) of the robot of "
+            f"{provenance['plant']['robot_file']} (identity {provenance['plant']['identity']}).",
+            f"Held-out log: {held_out['path']}, {held_out['duration_s']:g} s ({samples['validation']} samples).",
+        ]
+    held_out = provenance["validation_trajectory"]
+    peak_g = held_out["peak_acceleration"] / GRAVITY
+    return [
+        f"`{command}` on {provenance['date']}: {len(provenance['trajectories'])} excitation trajectories "
+        f"({samples['total']} samples after trimming), seed {provenance['seed']}.",
+        f"Held-out free-motion stress trajectory (the paper's upsilon_F): episode seed {held_out['seed']}, "
+        f"{held_out['duration']:g} s, fast moves of {peak_g * held_out['min_acceleration_fraction']:g} to "
+        f"{peak_g:g} g, {held_out['edge_fraction']:.0%} to the workspace edge ({samples['validation']} samples).",
+    ]
+
+
+def _drive_lag_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
+    """The identified drive lag per joint, its spread over the trajectories and the truth when known."""
+    per_trajectory = np.array(run.result.provenance["drive_lag_per_trajectory_s"])
+    if per_trajectory.size == 0:
+        return [
+            "Not identified: the logs have no commands. The parameter file holds T = 0 (no lag: the controllers that "
+            "lead the drive lag then lead nothing)."
+        ]
+    lag = 1e3 * np.array(run.result.drive_lag)
+    line = (
+        f"T per joint: {', '.join(f'{v:.3f}' for v in lag)} ms, the median over {len(per_trajectory)} trajectories "
+        f"(spread {1e3 * per_trajectory.min():.3f} to {1e3 * per_trajectory.max():.3f} ms)"
+    )
+    if truth is None:
+        return [line + "."]
+    true = 1e3 * np.array(truth["drive_lag"])
+    errors = ", ".join(f"{e:+.1f}" for e in 100.0 * (lag - true) / true) if np.all(true > 0) else "-"
+    return [line + f"; ground truth {', '.join(f'{v:.3f}' for v in true)} ms, error {errors} %."]
+
+
 def render_report(
-    run: IdentificationRun, validation_file: Path, command: str, figures: list[Path], plant: PlantConfig
+    run: IdentificationRun,
+    validation_file: Path,
+    command: str,
+    figures: list[Path],
+    truth: dict[str, list[float]] | None,
 ) -> str:
-    """The Markdown validation report of the identification of ``plant``."""
+    """The Markdown validation report of an identification; ``truth`` is the plant's friction and drive lag
+    (:func:`_ground_truth`), None for logs."""
     provenance = run.result.provenance
     table = provenance["torque_error_validation"]
     times = provenance["run_time_s"]
     residuals = provenance["residuals"]
-    held_out = provenance["validation_trajectory"]
-    truth = _ground_truth(plant)
-    peak_g = held_out["peak_acceleration"] / GRAVITY
+    truth_note = (
+        "Ground truth: the identified plant's friction (its `PlantConfig.realism`), read by this report only."
+        if truth
+        else "Ground truth: unknown (identified from logs)."
+    )
     lines = [
         "# Identification report",
         "",
-        f"`{command}` on {provenance['date']}: {len(provenance['trajectories'])} excitation trajectories "
-        f"({provenance['samples']['total']} samples after trimming), seed {provenance['seed']}.",
-        f"Held-out free-motion stress trajectory (the paper's upsilon_F): episode seed {held_out['seed']}, "
-        f"{held_out['duration']:g} s, fast moves of {peak_g * held_out['min_acceleration_fraction']:g} to "
-        f"{peak_g:g} g, "
-        f"{held_out['edge_fraction']:.0%} to the workspace edge ({provenance['samples']['validation']} samples).",
+        *_data_lines(provenance, command),
         "",
         "## Table 1 analogue: tau - tau_hat on the held-out trajectory (N m)",
         "",
@@ -289,8 +445,7 @@ def render_report(
         "",
         "## Identified parameters",
         "",
-        "Ground truth: the identified plant's friction (its `PlantConfig.realism`), read by this report only. "
-        "rho1 and rho2 have no physical truth (they absorb armature, the real arm and forearm inertia).",
+        f"{truth_note} rho1 and rho2 have no physical truth (they absorb armature, the real arm and forearm inertia).",
         "SE = sigma^2 (X^T X)^-1 over rows 1 ms apart whose residuals are correlated: optimistic. "
         "The between-trajectory SE (spread of per-trajectory fits / sqrt(n)) is the honest one.",
         "",
@@ -309,6 +464,10 @@ def render_report(
         "which fits those samples better and the true friction worse.",
         "",
         *_threshold_lines(run, truth),
+        "",
+        "## Drive lag",
+        "",
+        *_drive_lag_lines(run, truth),
         "",
         "## Run time (s)",
         "",
@@ -330,35 +489,62 @@ def render_report(
 def main(argv: list[str] | None = None) -> int:
     arguments = parse_arguments(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    stamp = f"{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}_seed{arguments.seed}"
-    folder = create_run_folder("identification", arguments.out, stamp=stamp)
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    stamp += "_logs" if arguments.log else f"_seed{arguments.seed}"
     command = command_line("eval.identify", argv)
-    scenario = arguments.scenario
-    scenario.save(folder / "scenario.toml")
-
-    run = run_identification(
-        arguments.trajectories,
-        arguments.seed,
-        arguments.duration,
-        validation_duration=arguments.validation_duration,
-        progress=not arguments.no_progress,
-        workers=arguments.workers,
-        plant=scenario.plant,
-    )
+    workers = arguments.workers
+    if arguments.log:
+        try:
+            run = identify_logs(
+                arguments.log, arguments.robot, workers=workers or 1, progress=not arguments.no_progress
+            )
+        except ValueError as error:  # a bad log or robot file, or logs that do not excite the model
+            print(f"python -m eval.identify: error: {error}", file=sys.stderr)
+            return 2
+        folder = create_run_folder("identification", arguments.out, stamp=stamp)
+        plant = run.result.provenance["plant"]
+        save_robot(DeltaGeometry(**plant["geometry_m"]), DeltaMasses(**plant["masses_kg"]), folder / "robot.toml")
+        truth, install = None, arguments.parameters
+        config = {**vars(arguments), "out": folder, "robot_identity": plant["identity"]}
+    else:
+        folder = create_run_folder("identification", arguments.out, stamp=stamp)
+        scenario = arguments.scenario
+        scenario.save(folder / "scenario.toml")
+        run = run_identification(
+            arguments.trajectories,
+            arguments.seed,
+            arguments.duration,
+            validation_duration=arguments.validation_duration,
+            progress=not arguments.no_progress,
+            workers=workers,
+            plant=scenario.plant,
+        )
+        if arguments.save_logs is not None:
+            suffix = LOG_FORMATS[arguments.log_format]
+            save_logs(run, scenario.plant.geometry, scenario.plant.masses, arguments.save_logs, suffix)
+        truth = _ground_truth(scenario.plant)
+        install = None if arguments.no_install else arguments.parameters
+        config = {
+            **vars(arguments),
+            "out": folder,
+            "scenario": scenario.name,
+            "robot_identity": scenario.robot_identity,
+        }
     save_result(run.result, folder / "parameters.json")
-    if not arguments.no_install:
-        save_result(run.result, arguments.parameters)
-    config = {**vars(arguments), "out": folder, "scenario": scenario.name, "robot_identity": scenario.robot_identity}
+    if install is not None:
+        save_result(run.result, install)
     write_config(folder, command, config, method=run.result.provenance["method"])
 
     validation_file = folder / "validation.npz"
     save_validation_data(run, validation_file)
     figures = plot_figures(validation_file, folder)
-    report = render_report(run, validation_file, command, figures, scenario.plant)
+    report = render_report(run, validation_file, command, figures, truth)
     (folder / "report.md").write_text(report)
     print(report)
-    installed = "" if arguments.no_install else f" and {arguments.parameters}"
-    print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){installed}.")
+    written = "" if install is None else f" and {install}"
+    if arguments.save_logs is not None:
+        written += f"; the logs and robot.toml in {arguments.save_logs}/"
+    print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){written}.")
     return 0
 
 

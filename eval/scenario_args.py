@@ -8,12 +8,19 @@ import os
 from pathlib import Path
 
 from delta_env.scaling import scaled_masses
-from delta_env.scenario import Scenario, load_geometry, preset_names, resolve_scenario, with_geometry
+from delta_env.scenario import (
+    Scenario,
+    load_geometry,
+    load_masses,
+    preset_names,
+    resolve_scenario,
+    with_geometry,
+)
 
 GEOMETRY_HELP = (
     "geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
-    "the scenario on a robot of these lengths (a new robot, identified once), its masses following the "
-    "lengths by the rule of delta_env.scaling"
+    "the scenario on a robot of these lengths (a new robot, identified once), its masses those of the file's "
+    "[masses] table (m1, m2, m0 in kg: a robot file) or else following the lengths by the rule of delta_env.scaling"
 )
 """Help text of ``--geometry``."""
 
@@ -47,14 +54,16 @@ def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
 def on_geometry(scenario: Scenario, path: str | os.PathLike[str]) -> Scenario:
     """``scenario`` on the robot of the geometry file ``path``, named ``<scenario>+<file stem>``.
 
-    Its masses follow the lengths by :func:`delta_env.scaling.scaled_masses` from the scenario's robot, as in
-    the design study.
+    Its masses are the file's ``[masses]`` (a robot file, :func:`delta_env.scenario.load_robot`), or else follow
+    the lengths by :func:`delta_env.scaling.scaled_masses` from the scenario's robot, as in the design study.
 
     Raises:
-        ValueError: for a bad geometry file (naming the file and the field).
+        ValueError: for a bad geometry or robot file (naming the file and the field).
     """
     geometry = load_geometry(path)
-    masses = scaled_masses(geometry, scenario.plant.geometry, scenario.plant.masses)
+    masses = load_masses(path)
+    if masses is None:
+        masses = scaled_masses(geometry, scenario.plant.geometry, scenario.plant.masses)
     scenario = with_geometry(scenario, geometry, masses)
     return dataclasses.replace(scenario, name=f"{scenario.name}+{Path(path).stem}")
 

@@ -415,7 +415,7 @@ def test_excitation_record_holds_the_commands_and_fits_the_plants_drive_lag() ->
     assert np.all(np.abs(record.commands) <= TORQUE_LIMIT)
     # The plant's current loop: 1 ms on every joint; the fit sees the 0.5 N m torque noise and the ripple. From one
     # 1.5 s run: 1.022, 0.988, 1.089 ms (seeds 6-9: within 5.9 %); 12 runs of 8 s give about 1 %, tested below.
-    assert_allclose(record.drive_lag(), PlantConfig().realism.actuator_lag, rtol=0.1)
+    assert_allclose(record.log.drive_lag(), PlantConfig().realism.actuator_lag, rtol=0.1)
 
 
 @pytest.mark.slow

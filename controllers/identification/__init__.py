@@ -8,7 +8,8 @@ is ``eval.identification``):
   trajectory, then per-joint friction least squares, averaged);
 - :mod:`~controllers.identification.least_squares`: ours, one joint least squares of all parameters, on the
   paper's lumped model or the model with rod forearms (MId+F+R);
-- :mod:`~controllers.identification.parameter_file`: the JSON parameter file with provenance.
+- :mod:`~controllers.identification.parameter_file`: the JSON parameter file with provenance;
+- :mod:`~controllers.identification.logs`: the drive log files (CSV or Parquet) a robot's logger records.
 """
 
 from controllers.identification.data import (
@@ -29,6 +30,15 @@ from controllers.identification.least_squares import (
     fit_joint_least_squares,
     fit_least_squares,
     fit_rho_least_squares,
+)
+from controllers.identification.logs import (
+    LOG_COLUMNS,
+    MAX_LOG_GAP,
+    DriveLog,
+    LogFileError,
+    read_log,
+    resample_log,
+    write_log,
 )
 from controllers.identification.paper import (
     RHO1_GRID,
@@ -52,13 +62,17 @@ __all__ = [
     "FILE_FORMAT_VERSION",
     "FRICTION_VELOCITY_THRESHOLD",
     "JOINT_PARAMETER_NAMES",
+    "LOG_COLUMNS",
+    "MAX_LOG_GAP",
     "MODEL_FIELDS",
     "REST_VELOCITY",
     "RHO1_GRID",
     "RHO2_GRID",
     "TRIM_SAMPLES",
+    "DriveLog",
     "IdentificationResult",
     "LeastSquaresFit",
+    "LogFileError",
     "MotionData",
     "PaperFit",
     "ParameterFileError",
@@ -74,7 +88,10 @@ __all__ = [
     "load_result",
     "motion_at_torque_samples",
     "prepare_motion",
+    "read_log",
+    "resample_log",
     "rho_grid",
     "save_result",
     "torque_errors",
+    "write_log",
 ]

@@ -1,0 +1,257 @@
+"""Drive logs: the table a robot's logger records, read onto the control period (docs/design.md section 7).
+
+A log is a table, CSV (a header row, then one row per sample) or Parquet, with the columns
+
+- ``time_s``: the sample's time (s), strictly increasing; any origin;
+- ``theta_1``, ``theta_2``, ``theta_3``: encoder angles (rad), the sign and zero of docs/design.md section 1
+  (0 is the upper arm horizontal, positive turns the arm down);
+- ``torque_1``, ``torque_2``, ``torque_3``: measured motor torques at the joint (N m), each read with the
+  angles of its row;
+- ``command_1``, ``command_2``, ``command_3`` (optional, all three or none): the torque commanded with the
+  row's sample (N m), held until the next one; the last row's may be empty (no command follows the log).
+
+Other columns are ignored. Timestamps may be irregular: the samples are resampled onto the grid
+``time_s[0] + k * period`` (:data:`~delta_env.sensors.CONTROL_PERIOD` by default) up to the last sample, angles
+and torques by linear interpolation, commands by zero-order hold (a drive holds its command). A log on that grid
+to the last bit (as :func:`write_log` writes it) comes back unchanged. A step between two samples longer than
+:data:`MAX_LOG_GAP` is refused (a straight line across it would be a made-up motion), as are non-increasing times
+and missing or non-finite values: each error names the file, the column and the row. Split a log at a gap into
+two files.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from controllers.drive import identify_lag
+from delta_env.sensors import CONTROL_PERIOD
+
+TIME_COLUMN = "time_s"
+"""Sample time (s)."""
+
+ANGLE_COLUMNS = ("theta_1", "theta_2", "theta_3")
+"""Encoder angles (rad)."""
+
+TORQUE_COLUMNS = ("torque_1", "torque_2", "torque_3")
+"""Measured motor torques (N m)."""
+
+COMMAND_COLUMNS = ("command_1", "command_2", "command_3")
+"""Commanded motor torques (N m), optional."""
+
+LOG_COLUMNS = (TIME_COLUMN, *ANGLE_COLUMNS, *TORQUE_COLUMNS, *COMMAND_COLUMNS)
+"""Every column of a log, in the order a log is written."""
+
+LOG_SUFFIXES = (".csv", ".parquet")
+"""File name endings of the two log formats."""
+
+MAX_LOG_GAP = 0.005
+"""Longest step between two samples of a log (s), 5 control periods. Across it linear interpolation of the
+angles errs by about acceleration x gap^2 / 8: 0.4 mrad (8 encoder steps) at 100 rad/s^2 over 5 ms."""
+
+_GRID_TOLERANCE = 1e-9
+"""Slack (s) of the zero-order hold: a command logged this close after a grid instant counts as held there."""
+
+
+class LogFileError(ValueError):
+    """A log that cannot be used; the message names the file and the problem."""
+
+
+@dataclass(frozen=True, eq=False)
+class DriveLog:
+    """A drive log on a uniform grid: what identification reads of a robot.
+
+    Attributes:
+        angles: Encoder angles (rad), ``(N, 3)``, N >= 2.
+        torques: Measured motor torques (N m), ``(N, 3)``; reading k comes with angle sample k.
+        commands: Commanded torques (N m), ``(N - 1, 3)``: command k, sent with sample k, is held until sample
+            k + 1; None when the log has none.
+        dt: Sample period (s).
+    """
+
+    angles: NDArray[np.float64]
+    torques: NDArray[np.float64]
+    commands: NDArray[np.float64] | None
+    dt: float = CONTROL_PERIOD
+
+    def __post_init__(self) -> None:
+        shape = np.shape(self.angles)
+        if len(shape) != 2 or shape[1] != 3 or shape[0] < 2:
+            raise ValueError(f"angles must have shape (N >= 2, 3), got {shape}")
+        if np.shape(self.torques) != shape:
+            raise ValueError(f"torques must have the shape of angles {shape}, got {np.shape(self.torques)}")
+        if self.commands is not None and np.shape(self.commands) != (shape[0] - 1, 3):
+            raise ValueError(f"commands must have shape ({shape[0] - 1}, 3), got {np.shape(self.commands)}")
+        if not (math.isfinite(self.dt) and self.dt > 0.0):
+            raise ValueError(f"dt must be a finite number > 0 s, got {self.dt!r}")
+
+    def __len__(self) -> int:
+        return len(self.angles)
+
+    def drive_lag(self) -> NDArray[np.float64] | None:
+        """The drive lag (s) per joint fitted to the commands and the torques reported after them
+        (:func:`controllers.drive.identify_lag`); None without commands."""
+        if self.commands is None:
+            return None
+        return identify_lag(self.commands, self.torques[1:], self.dt)
+
+
+def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -> Path:
+    """Write ``log`` as a CSV or Parquet file (by the ending of ``path``); sample k at ``start + k dt`` (s).
+
+    The CSV holds every number exactly (shortest round-trip decimal); the last row's commands are empty
+    (Parquet: null). Parent folders are created.
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    _require_suffix(path)
+    time = start + np.arange(len(log)) * log.dt
+    columns = {TIME_COLUMN: time}
+    columns |= {name: log.angles[:, j] for j, name in enumerate(ANGLE_COLUMNS)}
+    columns |= {name: log.torques[:, j] for j, name in enumerate(TORQUE_COLUMNS)}
+    if log.commands is not None:
+        held = np.vstack([log.commands, np.full((1, 3), np.nan)])
+        columns |= {name: held[:, j] for j, name in enumerate(COMMAND_COLUMNS)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix == ".csv":
+        with path.open("w", newline="") as file:
+            writer = csv.writer(file)
+            writer.writerow(columns)
+            for row in zip(*(column.tolist() for column in columns.values()), strict=True):
+                writer.writerow(["" if math.isnan(value) else repr(value) for value in row])
+    else:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        table = pa.table({name: pa.array(values, mask=np.isnan(values)) for name, values in columns.items()})
+        pq.write_table(table, path)
+    return path
+
+
+def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD) -> DriveLog:
+    """The log at ``path`` (CSV or Parquet, format in the module docstring), resampled onto ``period``.
+
+    Raises:
+        LogFileError: for a missing or unreadable file, a missing column, a value that is not a finite number,
+            non-increasing times or a gap longer than :data:`MAX_LOG_GAP`; the message names the file, the
+            column and the row.
+    """
+    path = Path(path)
+    _require_suffix(path)
+    if not path.is_file():
+        raise LogFileError(f"log {path}: no such file")
+    columns = _read_csv(path) if path.suffix == ".csv" else _read_parquet(path)
+    try:
+        return resample_log(columns, period)
+    except ValueError as error:
+        raise LogFileError(f"log {path}: {error}") from None
+
+
+def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) -> DriveLog:
+    """A log's columns (name -> values) checked and resampled onto ``period`` (s); errors count data rows from 1.
+
+    Raises:
+        ValueError: naming the column and the row (module docstring).
+    """
+    if not (math.isfinite(period) and 0.0 < period <= MAX_LOG_GAP):
+        raise ValueError(f"period must lie in (0, {MAX_LOG_GAP:g}] s, got {period!r}")
+    required = (TIME_COLUMN, *ANGLE_COLUMNS, *TORQUE_COLUMNS)
+    missing = [name for name in required if name not in columns]
+    commands_present = [name for name in COMMAND_COLUMNS if name in columns]
+    if missing:
+        raise ValueError(
+            f"missing column(s) {', '.join(missing)}; a log needs {', '.join(required)} "
+            f"(and optionally {', '.join(COMMAND_COLUMNS)})"
+        )
+    if commands_present and len(commands_present) < len(COMMAND_COLUMNS):
+        absent = [name for name in COMMAND_COLUMNS if name not in columns]
+        raise ValueError(f"has {', '.join(commands_present)} but not {', '.join(absent)}: give all three or none")
+    values = {name: np.asarray(columns[name], dtype=float) for name in (*required, *commands_present)}
+    rows = len(values[TIME_COLUMN])
+    if rows < 2:
+        raise ValueError(f"needs at least 2 rows, has {rows}")
+    for name, column in values.items():
+        checked = column[:-1] if name in COMMAND_COLUMNS else column  # the last command may be empty
+        bad = np.flatnonzero(~np.isfinite(checked))
+        if bad.size:
+            raise ValueError(f"column {name} is not a finite number at data row {bad[0] + 1}: {column[bad[0]]!r}")
+    time = values[TIME_COLUMN]
+    steps = np.diff(time)
+    if np.any(steps <= 0.0):
+        row = int(np.flatnonzero(steps <= 0.0)[0]) + 1  # the data row (from 1) whose successor is not later
+        raise ValueError(
+            f"time_s must increase strictly: data row {row + 1} has {time[row]!r} s after {time[row - 1]!r} s"
+        )
+    if np.any(steps > MAX_LOG_GAP):
+        row = int(np.flatnonzero(steps > MAX_LOG_GAP)[0]) + 1
+        raise ValueError(
+            f"a gap of {1e3 * steps[row - 1]:.4g} ms from data row {row} ({time[row - 1]!r} s) to {row + 1} "
+            f"({time[row]!r} s); steps may be at most {1e3 * MAX_LOG_GAP:g} ms: split the log at the gap into two files"
+        )
+    # 1e-6 periods of slack: a log on the grid keeps its last sample despite rounding of its times
+    grid = time[0] + np.arange(math.floor((time[-1] - time[0]) / period + 1e-6) + 1) * period
+    angles = np.column_stack([np.interp(grid, time, values[name]) for name in ANGLE_COLUMNS])
+    torques = np.column_stack([np.interp(grid, time, values[name]) for name in TORQUE_COLUMNS])
+    commands = None
+    if commands_present:
+        held = np.searchsorted(time, grid[:-1] + _GRID_TOLERANCE, side="right") - 1
+        commands = np.column_stack([values[name][held] for name in COMMAND_COLUMNS])
+    try:
+        return DriveLog(angles, torques, commands, period)
+    except ValueError as error:
+        raise ValueError(f"spans {time[-1] - time[0]:g} s, too short for one {period:g} s period ({error})") from None
+
+
+def _require_suffix(path: Path) -> None:
+    if path.suffix not in LOG_SUFFIXES:
+        raise LogFileError(f"log {path}: the file name must end in {' or '.join(LOG_SUFFIXES)}")
+
+
+def _read_csv(path: Path) -> dict[str, NDArray[np.float64]]:
+    """The numeric columns of a CSV log; an empty cell is NaN."""
+    with path.open(newline="") as file:
+        reader = csv.reader(file)
+        header = next(reader, None)
+        if header is None:
+            raise LogFileError(f"log {path}: empty file, needs a header row of column names")
+        header = [name.strip() for name in header]
+        wanted = {name: index for index, name in enumerate(header) if name in LOG_COLUMNS}
+        table: dict[str, list[float]] = {name: [] for name in wanted}
+        for number, row in enumerate(reader, start=1):
+            where = f"data row {number} (line {number + 1})"
+            if len(row) != len(header):
+                raise LogFileError(f"log {path}: {where} has {len(row)} cells, the header has {len(header)}")
+            for name, index in wanted.items():
+                cell = row[index].strip()
+                try:
+                    table[name].append(float(cell) if cell else math.nan)
+                except ValueError:
+                    raise LogFileError(f"log {path}: column {name} at {where} is not a number: {cell!r}") from None
+    return {name: np.array(values) for name, values in table.items()}
+
+
+def _read_parquet(path: Path) -> dict[str, NDArray[np.float64]]:
+    """The numeric columns of a Parquet log; a null is NaN."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as error:
+        raise LogFileError(f"log {path}: not a readable Parquet file ({error})") from None
+    columns = {}
+    for name in table.column_names:
+        if name in LOG_COLUMNS:
+            column = table.column(name)
+            if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
+                raise LogFileError(f"log {path}: column {name} must hold numbers, has type {column.type}")
+            columns[name] = column.to_numpy().astype(float)
+    return columns
