@@ -33,6 +33,7 @@ from delta_env.config import PlantConfig
 from delta_env.drive import DriveLimits
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+from delta_env.records import content_hash, to_table
 from delta_env.sensors import ENCODER_BITS, encoder_resolution
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
@@ -79,6 +80,11 @@ class ControllerSetup:
     drive: DriveLimits = field(default_factory=DriveLimits)
     encoder_bits: int | None = ENCODER_BITS
     fault_reaction: Literal["continue", "slow", "stop"] = "continue"
+
+    def content_hash(self) -> str:
+        """16 hex digits of every field as a table (:mod:`delta_env.records`): the cache key of what the controllers
+        know, which no field can be left out of."""
+        return content_hash(to_table(self))
 
 
 def residual_policy_path(setup: ControllerSetup) -> Path:

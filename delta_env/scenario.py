@@ -68,8 +68,6 @@ with a robot file takes both) is that robot. :func:`load_robot` and :func:`save_
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 import os
 import tomllib
@@ -87,12 +85,10 @@ from delta_env.cycles import require_start
 from delta_env.drive import DriveLimits
 from delta_env.faults import FAULT_REACTIONS, FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
+from delta_env.records import NONE_MARKER, content_hash, to_table
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
 from delta_env.validation import require_count, require_in, require_interval
-
-NONE_MARKER = "none"
-"""How a TOML file writes an optional field's None (TOML has no null)."""
 
 
 @dataclass(frozen=True)
@@ -239,12 +235,12 @@ class Scenario:
     @property
     def content_hash(self) -> str:
         """Content hash (16 hex digits) of plant, condition and task: what decides an episode's physics."""
-        parts = {"plant": _plant_table(self.plant), "condition": _to_table(self.condition)}
-        return _digest(parts | {"task": _task_table(self.task)})
+        parts = {"plant": _plant_table(self.plant), "condition": to_table(self.condition)}
+        return content_hash(parts | {"task": _task_table(self.task)})
 
     def to_toml(self) -> str:
         """Every field, resolved, as TOML text (what :meth:`from_toml` reads back to an equal value)."""
-        return tomli_w.dumps(_to_table(self))
+        return tomli_w.dumps(to_table(self))
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write :meth:`to_toml` to ``path`` (parent folders created); returns the path."""
@@ -285,12 +281,12 @@ def plant_identity(plant: PlantConfig) -> str:
     """
     if not isinstance(plant, PlantConfig):
         raise ValueError(f"plant must be a PlantConfig, got {type(plant).__name__}")
-    return _digest(_plant_table(plant))
+    return content_hash(_plant_table(plant))
 
 
 def _plant_table(plant: PlantConfig) -> dict[str, Any]:
     """The table of ``plant`` that its hashes cover: without ``drive`` when it is the default drive."""
-    table = _to_table(plant)
+    table = to_table(plant)
     if plant.drive == DriveLimits():
         del table["drive"]
     return table
@@ -300,7 +296,7 @@ def _task_table(task: PickPlaceTask) -> dict[str, Any]:
     """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
     fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), and without
     ``faults`` when there are none and ``fault_reaction`` when it is ``"continue"`` (likewise)."""
-    table = _to_table(task)
+    table = to_table(task)
     if task.timing == "fixed":
         del table["timing"], table["torque_share"]
     if not task.faults:
@@ -358,13 +354,13 @@ def load_robot(path: str | os.PathLike[str]) -> tuple[DeltaGeometry, DeltaMasses
 
 def save_robot(geometry: DeltaGeometry, masses: DeltaMasses, path: str | os.PathLike[str]) -> Path:
     """Write a robot file of ``geometry`` (m) and ``masses`` (kg) (parent folders created); returns the path."""
-    return save_geometry(geometry, path, {"masses": _to_table(masses)})
+    return save_geometry(geometry, path, {"masses": to_table(masses)})
 
 
 def datasheet_identity(geometry: DeltaGeometry, masses: DeltaMasses) -> str:
     """Content hash (16 hex digits) of a robot file's lengths and datasheet masses: the identity of a robot known
     only by them (identified from its logs)."""
-    return _digest({"geometry": _to_table(geometry), "masses": _to_table(masses)})
+    return content_hash({"geometry": to_table(geometry), "masses": to_table(masses)})
 
 
 def _read_file(path: Path, kind: str) -> dict[str, Any]:
@@ -396,7 +392,7 @@ def save_geometry(geometry: DeltaGeometry, path: str | os.PathLike[str], extra: 
         extra: Other top-level tables to record beside ``[geometry]`` (e.g. the design's objectives);
             readers ignore them.
     """
-    document = {**(extra or {}), "geometry": _to_table(geometry)}
+    document = {**(extra or {}), "geometry": to_table(geometry)}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(tomli_w.dumps(document))
@@ -461,21 +457,6 @@ def _read_toml(text: str, source: str) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{source}: not valid TOML: {error}") from None
-
-
-def _digest(table: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(table, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def _to_table(value: Any) -> Any:
-    """A dataclass as nested dicts of TOML values (tuples as lists, None as ``"none"``)."""
-    if dataclasses.is_dataclass(value):
-        return {item.name: _to_table(getattr(value, item.name)) for item in dataclasses.fields(value)}
-    if value is None:
-        return NONE_MARKER
-    if isinstance(value, tuple):
-        return [_to_table(item) for item in value]
-    return value
 
 
 def _describe(hint: Any) -> str:

@@ -8,16 +8,20 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from delta_env.geometry import DeltaGeometry
+from controllers.dynamics import ModelParameters
+from controllers.payload import EmptyMoveSums
+from delta_env.drive import DriveLimits
+from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import Scenario, preset, save_geometry
 from eval.engine import Prepared
 from eval.sweep import __main__ as sweep_cli
 from eval.sweep import report
 from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
-from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
+from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit, setup_digest
 from tests.conftest import NOMINAL_SETUP as SETUP
 
 CODE, DIGEST = "code-under-test", "setup-under-test"
@@ -230,3 +234,33 @@ def test_geometry_puts_every_scenario_on_that_robot_with_scaled_masses(tmp_path:
     with pytest.raises(SystemExit):
         sweep_cli.parse_args(["--geometry", str(tmp_path / "short.toml")])
     assert "short.toml" in capsys.readouterr().err
+
+
+def test_the_setup_digest_covers_every_field_of_what_the_controllers_know(tmp_path: Path) -> None:
+    sums = EmptyMoveSums(np.eye(5), np.zeros(5))
+    policy = tmp_path / "policy.zip"
+    policy.write_bytes(b"weights")
+    changed = {
+        "mid": ModelParameters(rho1=1.9, rho2=0.9),
+        "mid_f": ModelParameters(rho1=1.9, rho2=0.9),
+        "mid_f_rods": ModelParameters(rho1=1.9, rho2=0.9),
+        "drive_lag": (0.001, 0.001, 0.0011),
+        "tares": {"mid_f_rls": 0.01},
+        "empty_moves": {"mid_f_rls": sums},
+        "pd_gains": (3000.0, 61.0),
+        "residual_policy": policy,
+        "geometry": DeltaGeometry(ra=0.21, rb=0.05, l1=0.37, l2=0.95),
+        "masses": DeltaMasses(m1=2.1, m2=0.2, m0=0.8),
+        "drive": DriveLimits(peak_torque=300.0),
+        "encoder_bits": 20,
+        "fault_reaction": "stop",
+    }
+    assert set(changed) == {field.name for field in dataclasses.fields(SETUP)}
+    base = setup_digest(SETUP, ("pd",))
+    for name, value in changed.items():
+        assert setup_digest(dataclasses.replace(SETUP, **{name: value}), ("pd",)) != base, name
+    moved = EmptyMoveSums(np.eye(5), np.full(5, 1e-9))
+    with_sums = dataclasses.replace(SETUP, empty_moves={"mid_f_rls": sums})
+    assert setup_digest(dataclasses.replace(SETUP, empty_moves={"mid_f_rls": moved}), ("pd",)) != setup_digest(
+        with_sums, ("pd",)
+    )

@@ -16,9 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from controllers.registry import ControllerSetup, controller_entry, controller_source
+from controllers.registry import ControllerSetup, controller_entry, controller_source, residual_policy_path
 from delta_env.scenario import Scenario
 from eval import metrics
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
@@ -104,22 +102,13 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
 
 
 def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
-    """Content hash (16 hex digits) of what the controllers know: parameters, tares, the empty moves' sums, gains
-    and, if the residual row runs, the policy file's bytes; and the source of every user controller among
-    ``controllers`` (:func:`controllers.registry.controller_source`), whose code the project's version does not
-    cover."""
-    known = (
-        *(setup.mid, setup.mid_f, setup.mid_f_rods, setup.drive_lag, sorted(setup.tares.items()), setup.geometry),
-        *(setup.masses, setup.drive, setup.encoder_bits, setup.fault_reaction),
-    )
-    digest = hashlib.sha256(repr(known).encode())
-    for key, sums in sorted(setup.empty_moves.items()):
-        digest.update(key.encode())
-        digest.update(np.ascontiguousarray(sums.information).tobytes())
-        digest.update(np.ascontiguousarray(sums.moment).tobytes())
-    digest.update(repr(setup.pd_gains).encode())
+    """Content hash (16 hex digits) of what the controllers know (every field of ``setup``:
+    :meth:`~controllers.registry.ControllerSetup.content_hash`), the residual policy file's bytes if the residual row
+    runs, and the source of every user controller among ``controllers``
+    (:func:`controllers.registry.controller_source`), whose code the project's version does not cover."""
+    digest = hashlib.sha256(setup.content_hash().encode())
     if "residual" in controllers:
-        digest.update(Path(setup.residual_policy).read_bytes())
+        digest.update(residual_policy_path(setup).read_bytes())
     for key in controllers:
         digest.update(controller_source(key))
     return digest.hexdigest()[:16]
