@@ -3,8 +3,9 @@
 The plant is the robot of ``--scenario`` (and ``--geometry``); its condition (wear) and task do not enter:
 an identification belongs to the robot. Runs :func:`eval.identification.run_identification`, writes the
 parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
-load (``runs/identification/<robot identity>/parameters.json``), the scenario (``scenario.toml``), the resolved
-configuration and the command, the held-out validation data, a Markdown report and the figures
+load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`), the
+scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and the
+figures
 (made from the saved data), and prints the report.
 
 The report compares the identified friction with the plant's true values: the only place that reads
@@ -14,7 +15,6 @@ the plant's truth, labelled as ground truth for the report; the identification n
 from __future__ import annotations
 
 import argparse
-import datetime
 import logging
 import sys
 from pathlib import Path
@@ -36,11 +36,12 @@ from eval.identification import (
     DEFAULT_TRAJECTORIES,
     VALIDATION_DURATION,
     IdentificationRun,
+    identification_root,
     parameter_path,
     run_identification,
 )
-from eval.run_folder import command_line, create_run_folder, write_config
-from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, utc_stamp
+from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 
 FIGURES = {
     "fig3_mkh.png": "MKH",
@@ -75,20 +76,23 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--workers", type=int, default=None, help="processes (default: up to 2 cores)")
     parser.add_argument(
-        "--out", type=Path, default=None, help="run folder (default runs/identification/<time>_seed<seed>)"
+        "--out", type=Path, default=None, help="run folder (default <runs root>/identification/<UTC time>_seed<seed>)"
     )
+    add_runs_dir_argument(parser)
     parser.add_argument(
         "--parameters",
         type=Path,
         default=None,
-        help="parameter file the controllers load (default: runs/identification/<robot identity>/parameters.json)",
+        help="parameter file the controllers load (default: <runs root>/identification/<robot identity>/"
+        "parameters.json)",
     )
     parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     arguments = parser.parse_args(argv)
+    check_ranges(parser, arguments, {"seed": 0, "trajectories": 1, "workers": 1}, ("duration", "validation_duration"))
     arguments.scenario = scenario_from_arguments(arguments, parser)
     if arguments.parameters is None:
-        arguments.parameters = parameter_path(arguments.scenario.plant)
+        arguments.parameters = parameter_path(arguments.scenario.plant, identification_root(arguments.runs_dir))
     return arguments
 
 
@@ -330,12 +334,27 @@ def render_report(
 def main(argv: list[str] | None = None) -> int:
     arguments = parse_arguments(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    stamp = f"{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}_seed{arguments.seed}"
-    folder = create_run_folder("identification", arguments.out, stamp=stamp)
     command = command_line("eval.identify", argv)
     scenario = arguments.scenario
-    scenario.save(folder / "scenario.toml")
+    config = {**vars(arguments), "scenario": scenario.name, "robot_identity": scenario.robot_identity}
+    with run_folder(
+        "identification",
+        command,
+        config,
+        out=arguments.out,
+        runs_dir=arguments.runs_dir,
+        scenarios=[scenario],
+        stamp=f"{utc_stamp()}_seed{arguments.seed}",
+    ) as run_dir:
+        run_dir.record(config={**config, "out": run_dir.folder})
+        identify_into(arguments, run_dir, command)
+    return 0
 
+
+def identify_into(arguments: argparse.Namespace, run_dir: Run, command: str) -> None:
+    """Identify the robot of ``arguments`` (:func:`parse_arguments`) and write the parameters, the validation data,
+    the figures and the report into the run folder, the method into its manifest; print the report."""
+    scenario, folder = arguments.scenario, run_dir.folder
     run = run_identification(
         arguments.trajectories,
         arguments.seed,
@@ -348,8 +367,7 @@ def main(argv: list[str] | None = None) -> int:
     save_result(run.result, folder / "parameters.json")
     if not arguments.no_install:
         save_result(run.result, arguments.parameters)
-    config = {**vars(arguments), "out": folder, "scenario": scenario.name, "robot_identity": scenario.robot_identity}
-    write_config(folder, command, config, method=run.result.provenance["method"])
+    run_dir.record(method=run.result.provenance["method"])
 
     validation_file = folder / "validation.npz"
     save_validation_data(run, validation_file)
@@ -359,7 +377,6 @@ def main(argv: list[str] | None = None) -> int:
     print(report)
     installed = "" if arguments.no_install else f" and {arguments.parameters}"
     print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){installed}.")
-    return 0
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, cali
 from eval.comparison import calibration_seeds
 from eval.episodes import run_episode
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
-from eval.identification import IDENTIFICATION_ROOT, identify_robot, robot_setup
+from eval.identification import identify_robot, robot_setup
 from eval.run_folder import package_versions
 from eval.tasks import CELL_ESTIMATOR_KEY, timed
 
@@ -132,10 +132,11 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
 def robot_setups(
     scenarios: list[Scenario],
     residual_policy: Path = DEFAULT_POLICY_PATH,
-    identification_root: Path = IDENTIFICATION_ROOT,
+    identification_root: Path | None = None,
 ) -> dict[str, ControllerSetup]:
     """One untared setup per robot identity among ``scenarios``: the robot's identification (identified once
-    and kept under ``identification_root`` when missing, about a minute per robot) and the residual policy.
+    and kept under ``identification_root`` when missing, about a minute per robot; None:
+    :func:`eval.identification.identification_root`) and the residual policy.
 
     Returns:
         The setups by robot identity.
