@@ -605,14 +605,17 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--score-only", type=Path, default=None, help="no training: score this policy zip on the test seeds"
     )
     args = parser.parse_args(argv)
-    counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "action_period": 1, "torch_threads": 1}
-    counts |= {"checkpoint_freq": 1, "eval_freq": 1}
-    check_ranges(parser, args, counts, ("max_minutes", "residual_limit", "reward_scale"))
+    counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
+    check_ranges(parser, args, {**counts, "torch_threads": 1}, ("max_minutes",))
     args.scenario = scenario_from_arguments(args, parser)
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
     if args.tensorboard is not None and not HAS_TENSORBOARD:
         parser.error("--tensorboard needs the tensorboard package (pip install tensorboard)")
+    try:
+        residual_config(args)
+    except ValueError as error:
+        parser.error(f"--residual-limit, --action-period, --reward-scale: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:
