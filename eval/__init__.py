@@ -11,17 +11,18 @@ Every experiment runs its episodes with :func:`eval.episodes.run_episode` and wr
 
 from eval.calibration import calibrate_tares
 from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import DEFAULT_PARAMETER_PATH, identify_logs, load_or_identify, run_identification
-from eval.run_folder import create_run_folder, write_config
+from eval.identification import identification_root, identify_logs, load_or_identify, run_identification
+from eval.run_folder import create_run_folder, run_folder, runs_root
 
 __all__ = [
-    "DEFAULT_PARAMETER_PATH",
     "EpisodeRecord",
     "calibrate_tares",
     "create_run_folder",
+    "identification_root",
     "identify_logs",
     "load_or_identify",
     "run_episode",
+    "run_folder",
     "run_identification",
-    "write_config",
+    "runs_root",
 ]

@@ -11,7 +11,8 @@ robot (``--geometry``, a design of the design study).
    payload-free episodes, runs every controller on episodes ``seed, seed + 1, ...`` and the Table 2 run.
    The ``residual`` row is the learned residual policy (``--residual``, by default the shipped one) on
    the base it was trained on, rebuilt from the policy file.
-3. Writes the run folder (``--out``): ``config.json`` (resolved configuration and command),
+3. Writes the run folder (``--out``, else ``<runs root>/eval/<UTC time stamp>``; :mod:`eval.run_folder`):
+   ``config.json`` (the manifest: resolved configuration, command, status, start and end times),
    ``scenario.toml`` (the scenario, every field resolved),
    ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
    ``table2.csv``, ``faults.csv`` (every injected fault, detected or missed, and every detection that matched
@@ -21,7 +22,7 @@ robot (``--geometry``, a design of the design study).
    metrics cover the steps before the divergence.
 
 Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 0] [--episodes 10] [--cycles 3]
-                      [--controllers pd,mid_f_rls] [--out DIR]
+                      [--controllers pd,mid_f_rls] [--out DIR] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -57,9 +58,14 @@ from eval.comparison import (
     tabulate_faults,
 )
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
-from eval.identification import robot_identification, robot_setup
-from eval.run_folder import command_line, create_run_folder, write_config, write_csv
-from eval.scenario_args import add_parameters_argument, add_scenario_arguments, scenario_from_arguments
+from eval.identification import identification_root, robot_identification, robot_setup
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.scenario_args import (
+    add_parameters_argument,
+    add_scenario_arguments,
+    check_ranges,
+    scenario_from_arguments,
+)
 from eval.tables import (
     bound_violations,
     controller_table,
@@ -93,7 +99,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "module:attr (README, 'Compare your own controller') (default: all built-in ones; without 'residual' when the "
         "residual policy was trained on another robot than the scenario's)",
     )
-    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/eval/<timestamp>)")
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/eval/<UTC time>)")
+    add_runs_dir_argument(parser)
     add_parameters_argument(parser)
     parser.add_argument(
         "--calibration-episodes",
@@ -119,9 +126,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args.scenario = scenario_from_arguments(args, parser)
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
-    for name in ("episodes", "cycles", "calibration_episodes", "workers"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name.replace('_', '-')} must be >= 1")
+    check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     if "residual" in args.controllers:
         # Fail now, not after the other controllers have run. Only the settings are read here: the model
         # (torch) is loaded by the worker that runs the residual episodes, which the comparison runs first.
@@ -225,12 +230,27 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
-    out = create_run_folder("eval", args.out)
-    args.out = out
+    arguments = {**vars(args), "scenario": args.scenario.name}
+    with run_folder(
+        "eval",
+        command_line("eval", argv),
+        {"arguments": arguments},
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=[args.scenario],
+    ) as run:
+        compare(args, run, started)
+    return 0
+
+
+def compare(args: argparse.Namespace, run: Run, started: float) -> None:
+    """Run the comparison of ``args`` (:func:`parse_args`) into ``run``'s folder and print its summary; ``started``
+    is the :func:`time.perf_counter` time at the start of the command."""
+    out = args.out = run.folder
     scenario = args.scenario
-    scenario.save(out / "scenario.toml")
     robot = scenario.plant
-    args.parameters, identification = robot_identification(robot, args.parameters)
+    identifications = identification_root(args.runs_dir)
+    args.parameters, identification = robot_identification(robot, args.parameters, identifications)
     identified_time = time.perf_counter() - started
     setup = robot_setup(robot, identification, residual_policy=args.residual)
     keys = args.controllers
@@ -292,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "tare_spread_kg": tare_spreads,
         "seconds": {"identification_or_load": identified_time, "total": total_time},
     }
-    write_config(out, command_line("eval", argv), config, results=results_entry)
+    run.record(config=config, results=results_entry)
 
     summary = "\n".join(
         [
@@ -328,7 +348,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     (out / "summary.md").write_text(summary + "\n")
     plots.make_plots(out)
     print(summary)
-    return 0
 
 
 def _pick_rate_section(episode_rows: list[dict[str, Any]]) -> list[str]:

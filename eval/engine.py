@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 from controllers.registry import ControllerSetup
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
-from eval.identification import IdentificationResult, robot_identification, robot_setup
+from eval.identification import IdentificationResult, identification_root, robot_identification, robot_setup
 
 
 class Prepared(NamedTuple):
@@ -41,6 +41,7 @@ def prepare(
     controllers: Iterable[str],
     *,
     parameters: str | Path | None = None,
+    runs_dir: str | Path | None = None,
     seed: int = 0,
     calibration_episodes: int = DEFAULT_CALIBRATION_EPISODES,
     workers: int = 1,
@@ -52,14 +53,16 @@ def prepare(
     Args:
         scenario: The robot and the work; its faults are left out of the tare's episodes.
         controllers: Controller keys (:func:`controllers.registry.controller_entry`); the tared ones are tared.
-        parameters: A parameter file of this robot (identified there when missing); None: the robot's own.
+        parameters: A parameter file of this robot (identified there when missing); None: the robot's own, under
+            the runs root (:func:`eval.identification.identification_root` of ``runs_dir``).
+        runs_dir: The runs root (:func:`eval.run_folder.runs_root`).
         seed: Seed of the experiment's first episode; the calibration runs on its calibration seeds.
         calibration_episodes: Payload-free episodes per tared controller.
         workers: Processes of the identification's and the calibration's episodes.
         progress: tqdm bar advanced once per calibration episode.
         **setup_fields: Other fields of :class:`~controllers.registry.ControllerSetup` (e.g. ``residual_policy``).
     """
-    parameter_file, identification = robot_identification(scenario.plant, parameters)
+    parameter_file, identification = robot_identification(scenario.plant, parameters, identification_root(runs_dir))
     setup = robot_setup(scenario.plant, identification, **setup_fields)
     setup, calibration = tare_setup(
         scenario, setup, controllers, seed=seed, episodes=calibration_episodes, workers=workers, progress=progress

@@ -13,7 +13,8 @@ reported, one fit per trajectory; the file keeps the median over the trajectorie
 The result is a JSON parameter file with provenance, which :func:`load_or_identify` reads, or creates
 when it is missing. The identification belongs to a robot (its plant), not to the conditions it runs in:
 :func:`identify_robot` keeps one file per robot identity
-(:func:`delta_env.scenario.plant_identity`), ``runs/identification/<identity>/parameters.json``, records
+(:func:`delta_env.scenario.plant_identity`), ``<runs root>/identification/<identity>/parameters.json`` (the runs
+root of :func:`eval.run_folder.runs_root`: ``--runs-dir``, ``$DELTA_RUNS_DIR`` or ``./runs``), records
 the identity in the file and checks it on reading; a new robot is identified once, when first needed.
 """
 
@@ -72,21 +73,22 @@ from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_count
 from eval.episodes import run_episode
 from eval.processes import parallel_map
-from eval.run_folder import json_ready, package_versions
+from eval.run_folder import json_ready, package_versions, runs_root
 
 logger = logging.getLogger(__name__)
 
-IDENTIFICATION_ROOT = Path("runs/identification")
-"""Folder of the identifications, one subfolder per robot identity."""
+
+def identification_root(runs_dir: str | os.PathLike[str] | None = None) -> Path:
+    """Folder of the identifications, one subfolder per robot identity: ``identification`` under the runs root
+    (:func:`eval.run_folder.runs_root` of ``runs_dir``)."""
+    return runs_root(runs_dir) / "identification"
 
 
-def parameter_path(plant: PlantConfig, root: str | os.PathLike[str] = IDENTIFICATION_ROOT) -> Path:
-    """Where the identification of the robot ``plant`` builds is kept: ``root/<identity>/parameters.json``."""
-    return Path(root) / plant_identity(plant) / "parameters.json"
+def parameter_path(plant: PlantConfig, root: str | os.PathLike[str] | None = None) -> Path:
+    """Where the identification of the robot ``plant`` builds is kept: ``root/<identity>/parameters.json``
+    (``root`` None: :func:`identification_root`)."""
+    return Path(identification_root() if root is None else root) / plant_identity(plant) / "parameters.json"
 
-
-DEFAULT_PARAMETER_PATH = parameter_path(PlantConfig())
-"""The nominal robot's identified parameters (what ``python -m eval`` uses by default)."""
 
 DEFAULT_TRAJECTORIES = 12
 """Excitation trajectories of the identification, as in the paper."""
@@ -658,9 +660,7 @@ def identify(
     return run_identification(n_trajectories, seed, duration, progress=progress, workers=workers, **kwargs).result
 
 
-def load_or_identify(
-    path: str | os.PathLike[str] = DEFAULT_PARAMETER_PATH, **identify_kwargs: Any
-) -> IdentificationResult:
+def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> IdentificationResult:
     """The identified parameters at ``path``; if the file does not exist, identify and save them there.
 
     Args:
@@ -710,14 +710,14 @@ def check_identity(result: IdentificationResult, plant: PlantConfig, path: str |
 
 
 def identify_robot(
-    plant: PlantConfig, root: str | os.PathLike[str] = IDENTIFICATION_ROOT, **identify_kwargs: Any
+    plant: PlantConfig, root: str | os.PathLike[str] | None = None, **identify_kwargs: Any
 ) -> IdentificationResult:
     """The identification of the robot ``plant`` builds, from its file under ``root``; identified there when
     missing (about a minute per robot).
 
     Args:
         plant: The robot as identified (a scenario's ``plant``, without its condition).
-        root: Folder of the identifications (:func:`parameter_path`).
+        root: Folder of the identifications (:func:`parameter_path`; None: :func:`identification_root`).
         **identify_kwargs: Arguments of :func:`identify` other than ``plant``, used only when identifying.
 
     Raises:
@@ -730,16 +730,18 @@ def identify_robot(
 
 
 def robot_identification(
-    plant: PlantConfig, parameters: str | os.PathLike[str] | None = None
+    plant: PlantConfig,
+    parameters: str | os.PathLike[str] | None = None,
+    root: str | os.PathLike[str] | None = None,
 ) -> tuple[Path, IdentificationResult]:
     """The parameter file and identification of ``plant``'s robot: ``parameters`` (identified there when missing)
-    or, when None, its own file (:func:`identify_robot`); either must record this robot.
+    or, when None, its own file under ``root`` (:func:`identify_robot`); either must record this robot.
 
     Raises:
         ParameterFileError: if the file is corrupt or records another robot.
     """
     if parameters is None:
-        return parameter_path(plant), identify_robot(plant)
+        return parameter_path(plant, root), identify_robot(plant, root)
     result = load_or_identify(parameters, plant=plant)
     check_identity(result, plant, parameters)
     return Path(parameters), result

@@ -3,9 +3,9 @@
 The plant is the robot of ``--scenario`` (and ``--geometry``); its condition (wear) and task do not enter:
 an identification belongs to the robot. Runs :func:`eval.identification.run_identification`, writes the
 parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
-load (``runs/identification/<robot identity>/parameters.json``), the scenario (``scenario.toml``), the resolved
-configuration and the command, the held-out validation data, a Markdown report and the figures
-(made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
+load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`), the
+scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and the
+figures (made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
 along every run as log files (:mod:`controllers.identification.logs`) and the robot file ``robot.toml``.
 
 With ``--log FILE [FILE ...] --robot ROBOT.toml`` nothing is simulated: the robot is identified from its logs
@@ -21,7 +21,6 @@ it. Logs come with no truth.
 from __future__ import annotations
 
 import argparse
-import datetime
 import logging
 import math
 import sys
@@ -47,11 +46,12 @@ from eval.identification import (
     DEFAULT_TRAJECTORIES,
     VALIDATION_DURATION,
     IdentificationRun,
+    identification_root,
     identify_logs,
     parameter_path,
     run_identification,
 )
-from eval.run_folder import command_line, create_run_folder, write_config
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, utc_stamp
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 
 FIGURES = {
@@ -151,14 +151,15 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
         "--workers", type=_number_in(int, 1, 64), default=None, help="processes (default: up to 2 cores)"
     )
     parser.add_argument(
-        "--out", type=Path, default=None, help="run folder (default runs/identification/<time>_seed<seed>)"
+        "--out", type=Path, default=None, help="run folder (default <runs root>/identification/<UTC time>_seed<seed>)"
     )
+    add_runs_dir_argument(parser)
     parser.add_argument(
         "--parameters",
         type=Path,
         default=None,
-        help="parameter file the controllers load (default: runs/identification/<robot identity>/parameters.json; "
-        "with --log: the run folder's only)",
+        help="parameter file the controllers load (default: <runs root>/identification/<robot identity>/"
+        "parameters.json; with --log: the run folder's only)",
     )
     parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -168,7 +169,7 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
         arguments.scenario = scenario_from_arguments(arguments, parser)
         if arguments.parameters is None:
-            arguments.parameters = parameter_path(arguments.scenario.plant)
+            arguments.parameters = parameter_path(arguments.scenario.plant, identification_root(arguments.runs_dir))
         return arguments
     given = [name for name in SIMULATION_OPTIONS if getattr(arguments, name) != parser.get_default(name)]
     if arguments.scenario != parser.get_default("scenario"):
@@ -489,34 +490,53 @@ def render_report(
 def main(argv: list[str] | None = None) -> int:
     arguments = parse_arguments(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    stamp += "_logs" if arguments.log else f"_seed{arguments.seed}"
     command = command_line("eval.identify", argv)
-    workers = arguments.workers
     if arguments.log:
         try:
             run = identify_logs(
-                arguments.log, arguments.robot, workers=workers or 1, progress=not arguments.no_progress
+                arguments.log, arguments.robot, workers=arguments.workers or 1, progress=not arguments.no_progress
             )
         except ValueError as error:  # a bad log or robot file, or logs that do not excite the model
             print(f"python -m eval.identify: error: {error}", file=sys.stderr)
             return 2
-        folder = create_run_folder("identification", arguments.out, stamp=stamp)
+        config = {**vars(arguments), "robot_identity": run.result.provenance["plant"]["identity"]}
+        scenarios, stamp = [], f"{utc_stamp()}_logs"
+    else:
+        run, scenario = None, arguments.scenario
+        config = {**vars(arguments), "scenario": scenario.name, "robot_identity": scenario.robot_identity}
+        scenarios, stamp = [scenario], f"{utc_stamp()}_seed{arguments.seed}"
+    with run_folder(
+        "identification",
+        command,
+        config,
+        out=arguments.out,
+        runs_dir=arguments.runs_dir,
+        scenarios=scenarios,
+        stamp=stamp,
+    ) as run_dir:
+        run_dir.record(config={**config, "out": run_dir.folder})
+        identify_into(arguments, run_dir, command, run)
+    return 0
+
+
+def identify_into(arguments: argparse.Namespace, run_dir: Run, command: str, run: IdentificationRun | None) -> None:
+    """Identify the robot of ``arguments`` (:func:`parse_arguments`), or take ``run``, its identification from logs,
+    and write the parameters, the validation data, the figures and the report into the run folder, the method into
+    its manifest; print the report."""
+    folder = run_dir.folder
+    if run is not None:
         plant = run.result.provenance["plant"]
         save_robot(DeltaGeometry(**plant["geometry_m"]), DeltaMasses(**plant["masses_kg"]), folder / "robot.toml")
         truth, install = None, arguments.parameters
-        config = {**vars(arguments), "out": folder, "robot_identity": plant["identity"]}
     else:
-        folder = create_run_folder("identification", arguments.out, stamp=stamp)
         scenario = arguments.scenario
-        scenario.save(folder / "scenario.toml")
         run = run_identification(
             arguments.trajectories,
             arguments.seed,
             arguments.duration,
             validation_duration=arguments.validation_duration,
             progress=not arguments.no_progress,
-            workers=workers,
+            workers=arguments.workers,
             plant=scenario.plant,
         )
         if arguments.save_logs is not None:
@@ -524,16 +544,10 @@ def main(argv: list[str] | None = None) -> int:
             save_logs(run, scenario.plant.geometry, scenario.plant.masses, arguments.save_logs, suffix)
         truth = _ground_truth(scenario.plant)
         install = None if arguments.no_install else arguments.parameters
-        config = {
-            **vars(arguments),
-            "out": folder,
-            "scenario": scenario.name,
-            "robot_identity": scenario.robot_identity,
-        }
     save_result(run.result, folder / "parameters.json")
     if install is not None:
         save_result(run.result, install)
-    write_config(folder, command, config, method=run.result.provenance["method"])
+    run_dir.record(method=run.result.provenance["method"])
 
     validation_file = folder / "validation.npz"
     save_validation_data(run, validation_file)
@@ -545,7 +559,6 @@ def main(argv: list[str] | None = None) -> int:
     if arguments.save_logs is not None:
         written += f"; the logs and robot.toml in {arguments.save_logs}/"
     print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){written}.")
-    return 0
 
 
 if __name__ == "__main__":

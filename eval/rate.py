@@ -17,9 +17,11 @@ controller (PD by default) meets the tracking and place goals (:data:`TRACKING_G
 the ratio of the two pick rates is what the model buys.
 
 Writes ``rate.csv`` (one row per planner, controller and payload: ``payload`` in kg or ``mixed``),
-``rate_episodes.csv``, ``pd_fastest.csv``, ``rate.png`` and ``summary.md`` (also printed) into the run folder.
+``rate_episodes.csv``, ``pd_fastest.csv``, ``rate.png`` and ``summary.md`` (also printed) into the run folder
+(``--out``, else ``<runs root>/rate/<UTC time>``), with its manifest ``config.json`` (:mod:`eval.run_folder`).
 
 Usage: python -m eval.rate [--scenario S] [--geometry FILE] [--seed 0] [--episodes 3] [--cycles 4] [--out DIR]
+                           [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -45,8 +47,13 @@ from eval import metrics
 from eval.calibration import calibration_seeds
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.run_folder import command_line, create_run_folder, write_config, write_csv
-from eval.scenario_args import add_parameters_argument, add_scenario_arguments, scenario_from_arguments
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.scenario_args import (
+    add_parameters_argument,
+    add_scenario_arguments,
+    check_ranges,
+    scenario_from_arguments,
+)
 from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
@@ -107,10 +114,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
-    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/rate/<timestamp>)")
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
+    add_runs_dir_argument(parser)
     add_parameters_argument(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
+    check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     args.scenario = scenario_from_arguments(args, parser)
     if args.torque_share is not None:
         try:
@@ -118,9 +127,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         except ValueError as error:
             parser.error(f"--torque-share: {error}")
         args.scenario = dataclasses.replace(args.scenario, task=task)
-    for name in ("episodes", "cycles", "workers"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
     args.planners = _listed(parser, "--planners", args.planners, TIMINGS)
     try:
         args.controllers = parse_controller_keys(args.controllers)
@@ -270,9 +276,23 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[s
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
-    out = create_run_folder("rate", args.out)
+    with run_folder(
+        "rate",
+        command_line("eval.rate", argv),
+        {"arguments": {**vars(args), "scenario": args.scenario.name}},
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=[args.scenario],
+    ) as run:
+        rate(args, run, started)
+    return 0
+
+
+def rate(args: argparse.Namespace, run: Run, started: float) -> None:
+    """The data sheet of ``args`` (:func:`parse_args`) into ``run``'s folder, its summary printed; ``started`` is the
+    :func:`time.perf_counter` time at the start of the command."""
+    out = run.folder
     scenario = args.scenario
-    scenario.save(out / "scenario.toml")
     # The lead controller's estimator retimes the online carries (the cell's own if the lead has none).
     tared = [args.controllers[0] if controller_entry(args.controllers[0]).tared else CELL_ESTIMATOR_KEY]
     calibration_scenario = rate_scenario(scenario, "declared", MIXED)
@@ -283,6 +303,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         calibration_scenario,
         tared,
         parameters=args.parameters,
+        runs_dir=args.runs_dir,
         seed=args.seed,
         calibration_episodes=CALIBRATION_EPISODES,
         workers=args.workers,
@@ -300,20 +321,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     _plot(out / "rate.png", rows, fastest, controller_label(args.controllers[0]), scenario.name)
     summary = "\n".join(_summary(args, rows, fastest, out, time.perf_counter() - started))
     (out / "summary.md").write_text(summary + "\n")
-    write_config(
-        out,
-        command_line("eval.rate", argv),
-        {
+    run.record(
+        config={
             "arguments": {**vars(args), "scenario": scenario.name},
-            "scenario": {"name": scenario.name, "file": "scenario.toml", "robot_identity": scenario.robot_identity},
             "identification": str(args.parameters),
             "tares_kg": calibration.tares,
             "calibration_seeds": calibration_seeds(args.seed, CALIBRATION_EPISODES),
             "goals_mm": {"tracking_rms": TRACKING_GOAL_MM, "place_error": PLACE_GOAL_MM},
-        },
+        }
     )
     print(summary)
-    return 0
 
 
 def _summary(

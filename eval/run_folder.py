@@ -1,14 +1,16 @@
 """The run folder every command line writes: where it is and how the run was made.
 
-Each CLI (``python -m eval``, ``python -m eval.identify``, ``python -m eval.train_residual``) creates its
-folder with :func:`create_run_folder` and writes ``config.json`` with :func:`write_config`: the resolved
-configuration of the run under ``"config"`` and, in the same schema for every tool, the command that
-reproduces it, the package versions, the git commit of the code and the start time. Tables go in as CSV
-with :func:`write_csv`.
+Every command line runs inside :func:`run_folder`: it creates the folder (``--out``, else
+``<runs root>/<tool>/<UTC time stamp>``) and keeps its manifest, ``config.json``, from the start of the run to its
+end, in the same schema for every tool (:func:`run_folder` lists the entries). The runs root is ``--runs-dir``, else
+the environment variable ``DELTA_RUNS_DIR``, else ``./runs`` (:func:`runs_root`); the cached identifications live
+under it too (:func:`eval.identification.identification_root`). Tables go in as CSV with :func:`write_csv`.
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import csv
 import datetime
 import json
@@ -17,12 +19,14 @@ import platform
 import shlex
 import subprocess
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from delta_env.scenario import Scenario
 
 RUN_PACKAGES = (
     "numpy",
@@ -37,8 +41,48 @@ RUN_PACKAGES = (
 )
 """Packages whose versions decide a run's numbers."""
 
-RUNS_ROOT = Path("runs")
-"""Where run folders go by default (relative to the working directory): ``runs/<tool>/<timestamp>``."""
+RUNS_DIR_VARIABLE = "DELTA_RUNS_DIR"
+"""Environment variable naming the runs root when ``--runs-dir`` is not given."""
+
+DEFAULT_RUNS_ROOT = Path("runs")
+"""The runs root when neither ``--runs-dir`` nor :data:`RUNS_DIR_VARIABLE` is given (relative to the working
+directory)."""
+
+MANIFEST = "config.json"
+"""File name of a run folder's manifest."""
+
+STATUSES = ("running", "finished", "failed", "interrupted")
+"""Outcomes a manifest records: the run is under way, ended normally, raised (the error is recorded) or was
+interrupted (Ctrl-C)."""
+
+
+def runs_root(runs_dir: str | os.PathLike[str] | None = None) -> Path:
+    """The root of the run folders and of the cached identifications: ``runs_dir``, else ``$DELTA_RUNS_DIR``, else
+    ``./runs``."""
+    if runs_dir is not None:
+        return Path(runs_dir)
+    return Path(os.environ.get(RUNS_DIR_VARIABLE) or DEFAULT_RUNS_ROOT)
+
+
+def add_runs_dir_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--runs-dir`` (see :func:`runs_root`) to ``parser``."""
+    parser.add_argument(
+        "--runs-dir",
+        type=Path,
+        default=None,
+        help=f"root of the run folders and of the cached identifications (default: ${RUNS_DIR_VARIABLE}, else "
+        f"./{DEFAULT_RUNS_ROOT})",
+    )
+
+
+def utc_now() -> str:
+    """The current time, UTC, ISO 8601 to the second (``2025-01-31T12:00:00+00:00``)."""
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def utc_stamp() -> str:
+    """The current time, UTC, as a folder name part (``20250131-120000Z``)."""
+    return datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%SZ")
 
 
 def package_versions(packages: Sequence[str] = RUN_PACKAGES) -> dict[str, str]:
@@ -52,9 +96,11 @@ def package_versions(packages: Sequence[str] = RUN_PACKAGES) -> dict[str, str]:
     return versions
 
 
-def command_line(module: str, argv: Sequence[str] | None = None) -> str:
-    """The shell command ``python -m module args`` that reproduces this run (argv defaults to sys.argv[1:])."""
-    return shlex.join(["python", "-m", module, *(sys.argv[1:] if argv is None else argv)])
+def command_line(program: str, argv: Sequence[str] | None = None) -> str:
+    """The shell command that reproduces this run: ``python -m program args``, or ``python program args`` for a
+    script path (``*.py``); ``argv`` defaults to ``sys.argv[1:]``."""
+    head = ["python", program] if program.endswith(".py") else ["python", "-m", program]
+    return shlex.join([*head, *(sys.argv[1:] if argv is None else argv)])
 
 
 def git_commit() -> str | None:
@@ -76,14 +122,26 @@ def git_commit() -> str | None:
     return f"{commit}+dirty" if status else commit
 
 
-def create_run_folder(tool: str, out: Path | None = None, *, stamp: str | None = None) -> Path:
-    """The run folder ``out`` or ``runs/<tool>/<local time stamp>``, created with its parents."""
-    if out is None:
-        stamp = stamp if stamp is not None else datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-        out = RUNS_ROOT / tool / stamp
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+def create_run_folder(
+    tool: str, out: str | os.PathLike[str] | None = None, *, runs_dir: Path | None = None, stamp: str | None = None
+) -> Path:
+    """The run folder ``out`` (reused if it exists: a resumed run), or a new ``<runs root>/<tool>/<stamp>`` (by
+    default the UTC time stamp; ``-2``, ``-3``, ... appended when a run of the same second has it), created with
+    its parents."""
+    if out is not None:
+        folder = Path(out)
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder
+    base = runs_root(runs_dir) / tool / (stamp if stamp is not None else utc_stamp())
+    base.parent.mkdir(parents=True, exist_ok=True)
+    folder, attempt = base, 1
+    while True:
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            attempt += 1
+            folder = base.with_name(f"{base.name}-{attempt}")
 
 
 def json_ready(value: Any) -> Any:
@@ -144,21 +202,109 @@ def append_csv_rows(path: Path, columns: Sequence[str], rows: Sequence[Mapping[s
         os.fsync(file.fileno())
 
 
-def write_config(folder: Path, command: str, config: Mapping[str, Any], **extra: Any) -> Path:
-    """Write ``folder/config.json``: the command, the resolved configuration and how the run was made.
+class Run:
+    """An open run folder and its manifest (:func:`run_folder`)."""
+
+    def __init__(self, folder: Path, manifest: dict[str, Any]) -> None:
+        self.folder = folder
+        self.manifest = manifest
+
+    def record(self, **entries: Any) -> None:
+        """Add or replace top-level entries of the manifest (``config`` once resolved, results) and write it."""
+        self.manifest.update(entries)
+        self.write()
+
+    def write(self) -> Path:
+        """Write the manifest, whole or not at all (a new file renamed over the old one)."""
+        path = self.folder / MANIFEST
+        partial = path.with_name(f".{MANIFEST}.partial")
+        write_json(partial, self.manifest)
+        partial.replace(path)
+        return path
+
+    def end(self, status: str, error: str | None = None) -> None:
+        """Record the outcome (one of :data:`STATUSES` but ``running``) and the end time."""
+        self.record(status=status, error=error, ended=utc_now())
+
+
+@contextlib.contextmanager
+def run_folder(
+    tool: str,
+    command: str,
+    config: Mapping[str, Any],
+    *,
+    out: str | os.PathLike[str] | None = None,
+    runs_dir: Path | None = None,
+    scenarios: Sequence[Scenario] = (),
+    stamp: str | None = None,
+) -> Iterator[Run]:
+    """Run a command line inside its run folder (:func:`create_run_folder`), its manifest written as it starts and
+    as it ends.
+
+    The manifest, ``config.json``: ``tool``, ``command`` (the command line that reproduces the run,
+    :func:`command_line`), ``config`` (the resolved configuration; a tool may record a fuller one once known),
+    ``scenarios`` (name, file, content hash and robot identity of each; their TOML files are written beside:
+    ``scenario.toml`` for one, ``scenarios/<name>.toml`` for several), ``runs_root``, ``versions``
+    (:func:`package_versions`), ``git_commit``, ``started`` and ``ended`` (UTC, ISO 8601; ``ended`` is null while
+    the run is under way), ``status`` (:data:`STATUSES`) and ``error`` (the exception of a failed run); then the
+    entries the tool records (:meth:`Run.record`: results, timings).
 
     Args:
-        folder: The run folder.
-        command: The command line that reproduces the run (:func:`command_line`).
-        config: The resolved configuration (arguments, seeds, settings).
-        **extra: Further top-level entries (results known when the file is rewritten at the end of a run).
+        tool: The tool's name: the folder is ``<runs root>/<tool>/<stamp>`` unless ``out`` is given.
+        command: :func:`command_line`.
+        config: The resolved configuration known at the start.
+        out: The run folder (``--out``), or None.
+        runs_dir: ``--runs-dir`` (:func:`runs_root`).
+        scenarios: The scenarios the run works on.
+        stamp: Folder name instead of the UTC time stamp.
+
+    Yields:
+        The open run: its ``folder``, and :meth:`Run.record` to add to the manifest. On leaving, ``status``
+        becomes ``finished``, ``failed`` (any exception, or a non-zero ``SystemExit``) or ``interrupted``
+        (``KeyboardInterrupt``); the exception goes on.
     """
-    document = {
-        "command": command,
-        "config": dict(config),
-        "versions": package_versions(),
-        "git_commit": git_commit(),
-        "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        **extra,
-    }
-    return write_json(folder / "config.json", document)
+    folder = create_run_folder(tool, out, runs_dir=runs_dir, stamp=stamp)
+    single = len(scenarios) == 1
+    files = {s.name: "scenario.toml" if single else f"scenarios/{s.name}.toml" for s in scenarios}
+    for scenario in scenarios:
+        scenario.save(folder / files[scenario.name])
+    run = Run(
+        folder,
+        {
+            "tool": tool,
+            "command": command,
+            "status": "running",
+            "error": None,
+            "started": utc_now(),
+            "ended": None,
+            "config": dict(config),
+            "scenarios": [
+                {
+                    "name": s.name,
+                    "file": files[s.name],
+                    "content_hash": s.content_hash,
+                    "robot_identity": s.robot_identity,
+                }
+                for s in scenarios
+            ],
+            "runs_root": runs_root(runs_dir).resolve(),
+            "versions": package_versions(),
+            "git_commit": git_commit(),
+        },
+    )
+    run.write()
+    try:
+        yield run
+    except KeyboardInterrupt:
+        run.end("interrupted", "KeyboardInterrupt")
+        raise
+    except SystemExit as stop:
+        if stop.code in (None, 0):
+            run.end("finished")
+        else:
+            run.end("failed", f"SystemExit: {stop.code}")
+        raise
+    except Exception as error:
+        run.end("failed", f"{type(error).__name__}: {error}")
+        raise
+    run.end("finished")

@@ -1,10 +1,12 @@
-"""``--scenario NAME|FILE``, ``--geometry FILE`` and ``--parameters FILE``: the same options on every command line."""
+"""``--scenario NAME|FILE``, ``--geometry FILE`` and ``--parameters FILE``: the same options on every command line, and
+the range checks of their numeric options (:func:`check_ranges`)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from delta_env.scaling import scaled_masses
@@ -16,6 +18,7 @@ from delta_env.scenario import (
     resolve_scenario,
     with_geometry,
 )
+from delta_env.validation import require_count, require_positive
 
 GEOMETRY_HELP = (
     "geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
@@ -46,8 +49,8 @@ def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
         "--parameters",
         type=Path,
         default=None,
-        help="identified parameter file of the scenario's robot (default: runs/identification/<robot identity>/"
-        "parameters.json, identified when missing)",
+        help="identified parameter file of the scenario's robot (default: <runs root>/identification/<robot "
+        "identity>/parameters.json, identified when missing)",
     )
 
 
@@ -78,3 +81,34 @@ def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentP
     except ValueError as error:
         parser.error(f"--scenario/--geometry: {error}")
     return scenario
+
+
+def check_ranges(
+    parser: argparse.ArgumentParser,
+    args: argparse.Namespace,
+    counts: Mapping[str, int],
+    positive: Sequence[str] = (),
+) -> None:
+    """A parser error naming the option, its allowed range and the value for the first argument out of range
+    (arguments left at None are not checked).
+
+    Args:
+        parser: The command line's parser.
+        args: Its parsed arguments.
+        counts: Integer arguments by ``dest`` and their minimum.
+        positive: Real arguments (``dest``) that must be finite and > 0.
+    """
+    try:
+        for name, minimum in counts.items():
+            if getattr(args, name) is not None:
+                require_count(_flag(name), getattr(args, name), minimum)
+        for name in positive:
+            if getattr(args, name) is not None:
+                require_positive(_flag(name), getattr(args, name))
+    except ValueError as error:
+        parser.error(str(error))
+
+
+def _flag(dest: str) -> str:
+    """The option of an argparse ``dest``: ``calibration_episodes`` -> ``--calibration-episodes``."""
+    return "--" + dest.replace("_", "-")

@@ -11,11 +11,11 @@ are strings; quote others), and a dotted key sets one entry of a table::
     --hyperparams learning_rate:1e-3 train_freq:4 gradient_steps:2 policy_kwargs.net_arch:[64,64]
     --hyperparams 'policy_kwargs:{ net_arch = [64, 64] }' ent_coef:auto_0.1
 
-Every run folder (``--out``, default ``runs/residual/<timestamp>``) holds:
+Every run folder (``--out``, default ``<runs root>/residual/<UTC time>``; :func:`eval.run_folder.runs_root`) holds:
 
-- ``config.json``: the resolved configuration (arguments, hyperparameters, residual settings, base
-  controller parameters, seeds) with the command line, versions and git commit
-  (:func:`eval.run_folder.write_config`), written before training starts;
+- ``config.json``: the manifest (:func:`eval.run_folder.run_folder`): the resolved configuration (arguments,
+  hyperparameters, residual settings, base controller parameters, seeds) with the command line, versions and git
+  commit, the status and the start and end times, written as training starts and as it ends;
 - ``checkpoints/``: periodic checkpoints (and the replay buffer of off-policy algorithms) for ``--resume``;
 - ``evaluations.npz`` and ``best_model/``: SB3's EvalCallback on held-out seeds (validation), distinct
   from every training seed, and its best model;
@@ -23,6 +23,10 @@ Every run folder (``--out``, default ``runs/residual/<timestamp>``) holds:
 - ``final_policy.zip`` and ``best_policy.zip``: loadable by :func:`controllers.residual.load_residual_controller`;
 - ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training
   (:func:`eval.scoring.score_policy`).
+
+``--score-only POLICY`` scores a policy file without training, into its own run folder (``--out``, default
+``<runs root>/residual_scores/<UTC time>``: ``config.json``, ``scenario.toml``, ``scores.json``), never beside the
+policy file.
 
 Seeds: training episodes draw their env seeds from ``TRAINING_SEEDS`` (per worker, from ``--seed``),
 validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the tare calibration
@@ -53,7 +57,6 @@ import tomllib
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -82,8 +85,8 @@ from controllers.residual import (
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
-from eval.run_folder import command_line, create_run_folder, write_config, write_json
-from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_json
+from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
 
 HYPERPARAMETER_FILE = Path(__file__).resolve().parent / "hyperparams" / "residual.toml"
@@ -222,6 +225,7 @@ def base_setup(
     drive_lag: tuple[float, float, float] | None = None,
     *,
     base: str = BASE_KEYS[0],
+    runs_dir: Path | None = None,
 ) -> BaseSetup:
     """The base controller's setup: identified MId+F+R parameters (and drive lag) of the scenario's robot and
     its tare calibrated on the scenario.
@@ -230,7 +234,8 @@ def base_setup(
         env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
             and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
         parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
-            with :func:`eval.identification.identify_robot`, and with them its drive lag.
+            with :func:`eval.identification.identify_robot` (kept under the runs root of ``runs_dir``,
+            :func:`eval.run_folder.runs_root`), and with them its drive lag.
         drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
         base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
             or ``mid_f_rls``.
@@ -242,9 +247,9 @@ def base_setup(
     scenario = env_kwargs.get("scenario") or Scenario()
     robot = scenario.plant
     if parameters is None:
-        from eval.identification import identify_robot
+        from eval.identification import identification_root, identify_robot
 
-        result = identify_robot(robot)
+        result = identify_robot(robot, identification_root(runs_dir))
         parameters, drive_lag = result.mid_f_rods, result.drive_lag
     if base == "mid_f_rls_lag" and drive_lag is None:
         raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")
@@ -416,15 +421,34 @@ def train(
         callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
     """
     torch.set_num_threads(args.torch_threads)
-    out = create_run_folder("residual", args.out)
+    with run_folder(
+        "residual",
+        command_line("eval.train_residual"),
+        {"arguments": {**vars(args), "scenario": args.scenario.name}},
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=[args.scenario],
+    ) as run:
+        _train(args, run, base_factory, base, callbacks)
+    return run.folder
+
+
+def _train(
+    args: argparse.Namespace,
+    run: Run,
+    base_factory: Callable[[], Controller] | None,
+    base: BaseSetup | None,
+    callbacks: Sequence[BaseCallback],
+) -> None:
+    """The training of :func:`train` into ``run``'s folder."""
+    out = run.folder
     config = residual_config(args)
-    env_kwargs = {"n_cycles": args.n_cycles, "scenario": args.scenario}
-    args.scenario.save(out / "scenario.toml")
+    env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
     if base is None and base_factory is None:
-        base = base_setup(env_kwargs, base=args.base)
+        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir)
     hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
 
-    command = command_line("eval.train_residual")
+    command = run.manifest["command"]
     resolved = {
         "arguments": {**vars(args), "scenario": args.scenario.name},
         "hyperparameter_file": HYPERPARAMETER_FILE.name,
@@ -441,7 +465,7 @@ def train(
             "test_payloads": list(TEST_PAYLOADS),
         },
     }
-    write_config(out, command, resolved)
+    run.record(config=resolved)
 
     set_random_seed(args.seed)
     factories = [
@@ -488,7 +512,7 @@ def train(
             "num_timesteps": model.num_timesteps,
             "replay_buffer": replay if off_policy else None,
         }
-        write_config(out, command, resolved)
+        run.record(config=resolved)
     else:
         model = algorithm("MlpPolicy", vec_env, seed=args.seed, device="cpu", verbose=0, **hyperparameters)
     logger = configure(str(out), formats)
@@ -518,18 +542,12 @@ def train(
         save_residual_policy(best_model, out / "best_policy.zip", config, args.algo, base=base, extra=notes)
     vec_env.close()
     eval_env.close()
-    finished = {
-        "finished": datetime.now().isoformat(timespec="seconds"),
-        "wall_time_s": round(wall_time, 1),
-        "num_timesteps": model.num_timesteps,
-    }
-    write_config(out, command, resolved, training=finished)
+    run.record(training={"wall_time_s": round(wall_time, 1), "num_timesteps": model.num_timesteps})
     if args.score:
         policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
         scores = score_policy(policy, env_kwargs, base_factory=base_factory)
         write_json(out / "scores.json", scores)
         print(json.dumps(scores["summary"], indent=2))
-    return out
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -544,7 +562,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--n-envs", type=int, default=1, help="parallel envs; SubprocVecEnv when > 1 (train_freq counts vector steps)"
     )
-    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/residual/<timestamp>)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="run folder (default <runs root>/residual/<UTC time>, with --score-only residual_scores/<UTC time>)",
+    )
+    add_runs_dir_argument(parser)
     parser.add_argument("--resume", type=Path, default=None, help="checkpoint zip to continue from")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop training after this wall time")
     parser.add_argument("--checkpoint-freq", type=int, default=50_000, help="policy steps between checkpoints")
@@ -555,7 +579,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--base", choices=BASE_KEYS, default=BASE_KEYS[0], help="base controller (eval key; default: %(default)s)"
     )
     parser.add_argument(
-        "--n-cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
+        "--cycles",
+        "--n-cycles",  # the old spelling, kept as an alias
+        dest="cycles",
+        type=int,
+        default=None,
+        help="pick-and-place cycles per episode (default: the scenario's)",
     )
     parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
@@ -576,13 +605,17 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--score-only", type=Path, default=None, help="no training: score this policy zip on the test seeds"
     )
     args = parser.parse_args(argv)
+    counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
+    check_ranges(parser, args, {**counts, "torch_threads": 1}, ("max_minutes",))
     args.scenario = scenario_from_arguments(args, parser)
-    if args.n_cycles is None:
-        args.n_cycles = args.scenario.task.n_cycles
-    if args.n_envs < 1 or args.timesteps < 1:
-        parser.error("--n-envs and --timesteps must be >= 1")
+    if args.cycles is None:
+        args.cycles = args.scenario.task.n_cycles
     if args.tensorboard is not None and not HAS_TENSORBOARD:
         parser.error("--tensorboard needs the tensorboard package (pip install tensorboard)")
+    try:
+        residual_config(args)
+    except ValueError as error:
+        parser.error(f"--residual-limit, --action-period, --reward-scale: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:
@@ -595,12 +628,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.score_only is None:
         train(args)
         return 0
-    out = create_run_folder("residual", args.out if args.out is not None else args.score_only.parent)
-    args.scenario.save(out / "scenario.toml")
-    scores = score_policy(args.score_only, {"n_cycles": args.n_cycles, "scenario": args.scenario})
-    scores["command"] = command_line("eval.train_residual")
-    write_json(out / "scores.json", scores)
-    print(json.dumps(scores["summary"], indent=2))
+    with run_folder(
+        "residual_scores",
+        command_line("eval.train_residual", argv),
+        {"arguments": {**vars(args), "scenario": args.scenario.name}},
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=[args.scenario],
+    ) as run:
+        scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario})
+        write_json(run.folder / "scores.json", scores)
+        print(json.dumps(scores["summary"], indent=2))
     return 0
 
 

@@ -12,11 +12,12 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 - for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone).
 
 Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
-``summary.md`` into ``--out`` (default ``runs/fault_campaign/<time stamp>``), and prints the table. The controller
+``summary.md`` into ``--out`` (default ``<runs root>/fault_campaign/<UTC time>``, with the manifest ``config.json`` of
+:mod:`eval.run_folder`), and prints the table. The controller
 is tared on fault-free payload-free episodes, as ``python -m eval`` tares it.
 
 Usage: python scripts/fault_campaign.py [--scenario nominal] [--episodes 20] [--kinds all] [--seed 0] [--out DIR]
-                                        [--controller mid_f_rls] [--workers 2]
+                                        [--controller mid_f_rls] [--workers 2] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -40,7 +41,8 @@ from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
 from eval.processes import process_pool
-from eval.run_folder import create_run_folder, write_config, write_csv
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.scenario_args import check_ranges
 from eval.tasks import Task, iterate_tasks
 
 GONE_MASS = 0.1
@@ -55,13 +57,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--kinds", default="all", help=f"comma-separated fault kinds or 'all' ({kinds})")
     parser.add_argument("--controller", default="mid_f_rls", help="monitored controller key (default mid_f_rls)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
-    parser.add_argument("--out", default=None, help="run folder (default runs/fault_campaign/<time stamp>)")
+    parser.add_argument("--out", default=None, help="run folder (default <runs root>/fault_campaign/<UTC time>)")
+    add_runs_dir_argument(parser)
     parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error(f"--episodes must be >= 1, got {args.episodes}")
-    if args.workers < 1:
-        parser.error(f"--workers must be >= 1, got {args.workers}")
+    check_ranges(parser, args, {"episodes": 1, "seed": 0, "workers": 1})
     args.kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
     unknown = sorted(set(args.kinds) - set(FAULT_KINDS))
     if unknown:
@@ -163,12 +163,24 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    out = create_run_folder("fault_campaign", args.out)
-    command = " ".join(["python", "scripts/fault_campaign.py", *(sys.argv[1:] if argv is None else argv)])
-    write_config(out, command, {"scenario": args.scenario.name, "episodes": args.episodes, "kinds": args.kinds})
+    with run_folder(
+        "fault_campaign",
+        command_line("scripts/fault_campaign.py", argv),
+        {**vars(args), "scenario": args.scenario.name},
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=[args.scenario],
+    ) as run:
+        campaign(args, run)
+    return 0
+
+
+def campaign(args: argparse.Namespace, run: Run) -> None:
+    """The campaign of ``args`` (:func:`parse_args`) into ``run``'s folder, its table printed."""
+    out = run.folder
     healthy = with_faults(args.scenario, ())
     key, n_cycles = args.controller, healthy.task.n_cycles
-    setup = prepare(healthy, [key], seed=args.seed, workers=args.workers).setup
+    setup = prepare(healthy, [key], runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
     tasks = [Task("episode", key, i, seed, n_cycles, setup, scenario=healthy) for i, seed in enumerate(seeds)]
     for kind in args.kinds:
@@ -194,7 +206,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     (out / "summary.md").write_text(text)
     print(text)
     print(f"\nRun folder: {out}")
-    return 0
 
 
 if __name__ == "__main__":

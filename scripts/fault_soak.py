@@ -5,20 +5,22 @@ Runs fault-free episodes ``seed, seed + 1, ...`` of fast, hard conditions until 
 lag 0.5-2 ms, drawn per episode) on conveyor cycles at 6 g peak acceleration with objects drawn from U[0, 6] kg
 (1.5 x the rated payload). No fault is injected, so every detection is a false alarm (:mod:`eval.faults` counts
 them; an episode that carried an injected fault all the same is counted apart and reported). The controllers
-are built as ``python -m eval`` builds them: the nominal robot's identification (``runs/identification``,
+are built as ``python -m eval`` builds them: the nominal robot's identification (``<runs root>/identification``,
 identified once when missing, about a minute) and the tares of the payload estimators measured on payload-free
 episodes of the same conditions on the comparison's calibration seeds (:mod:`eval.calibration`).
 
-Writes into the folder ``--out`` (default ``runs/fault_soak/<time stamp>``):
+Writes into the folder ``--out`` (default ``<runs root>/fault_soak/<UTC time>``; :mod:`eval.run_folder`):
 
 - ``episodes.csv``: one row per episode (:data:`EPISODE_COLUMNS`), appended as each finishes;
 - ``faults.csv``: every detection, as rows of :data:`eval.faults.FAULT_COLUMNS` (false alarms here);
-- ``config.json``: the command and the conditions; ``summary.md``: the table, also printed.
+- ``config.json``: the manifest (the command, the conditions, status, times); ``summary.md``: the table, also
+  printed.
 
 An interrupted run loses nothing already written: rerun the same command with the same ``--out`` and it resumes,
 running only the episodes it lacks (a larger ``--minutes`` extends a finished soak).
 
 Usage: python scripts/fault_soak.py [--minutes 30] [--controllers mid_f_rls] [--seed 0] [--out DIR] [--workers 2]
+                                    [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -41,7 +43,8 @@ from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
 from eval.processes import process_pool
-from eval.run_folder import append_csv_rows, create_run_folder, read_csv_rows, write_config
+from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
+from eval.scenario_args import check_ranges
 from eval.tasks import Task, iterate_tasks
 
 SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
@@ -95,17 +98,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=controllers_help("mid_f_rls"),
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/fault_soak/<time>)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default <runs root>/fault_soak/<UTC time>)"
+    )
+    add_runs_dir_argument(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
     args = parser.parse_args(argv)
+    check_ranges(parser, args, {"seed": 0, "workers": 1}, ("minutes",))
     try:
         args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    if not args.minutes > 0.0:
-        parser.error("--minutes must be > 0")
-    if args.workers < 1 or args.seed < 0:
-        parser.error("--workers must be >= 1 and --seed >= 0")
     return args
 
 
@@ -131,8 +134,11 @@ def episode_row(task: Task, record: EpisodeRecord) -> dict[str, Any]:
 
 
 def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
-    """The episodes already in ``out`` (none if new); ``faults.csv`` trimmed to them. Refuses a folder of a soak
-    under other conditions (another seed, scenario or code of the conditions)."""
+    """The episodes already in the folder ``out`` (none if new); ``faults.csv`` trimmed to them. Refuses a folder of a
+    soak under other conditions (another seed, scenario or code of the conditions), before its manifest is
+    rewritten."""
+    if not out.is_dir():
+        return []
     config_path = out / "config.json"
     if config_path.exists():
         written = json.loads(config_path.read_text())["config"]
@@ -182,12 +188,8 @@ def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from tqdm.auto import tqdm
-
     args = parse_args(argv)
     scenario = soak_scenario()
-    keys = args.controllers
-    out = create_run_folder("fault_soak", args.out)
     config = {
         "seed": args.seed,
         "scenario_hash": scenario.content_hash,
@@ -196,13 +198,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         "peak_acceleration_m_s2": SOAK_PEAK_ACCELERATION,
         "payload_mass_range_kg": list(SOAK_PAYLOAD_RANGE),
         "minutes": args.minutes,
-        "controllers": keys,
+        "controllers": args.controllers,
         "workers": args.workers,
     }
-    rows: list[dict[str, Any]] = resume(out, config)
-    write_config(out, " ".join(["python", "scripts/fault_soak.py", *(sys.argv[1:] if argv is None else argv)]), config)
-    scenario.save(out / "scenario.toml")
-    setup = prepare(scenario, keys, seed=args.seed, workers=args.workers).setup
+    rows = resume(args.out, config) if args.out is not None else []
+    command = command_line("scripts/fault_soak.py", argv)
+    with run_folder("fault_soak", command, config, out=args.out, runs_dir=args.runs_dir, scenarios=[scenario]) as run:
+        soak(args, run, scenario, rows)
+    return 0
+
+
+def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict[str, Any]]) -> None:
+    """Run the soak of ``args`` (:func:`parse_args`) on ``scenario`` into ``run``'s folder, after the episodes
+    ``rows`` already there; its table printed."""
+    from tqdm.auto import tqdm
+
+    out, keys = run.folder, args.controllers
+    setup = prepare(scenario, keys, runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
 
     target = 60.0 * args.minutes
     finished = {(row["key"], int(row["seed"])) for row in rows}
@@ -252,7 +264,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")
     print(summary)
-    return 0
 
 
 if __name__ == "__main__":

@@ -16,7 +16,8 @@ The training wall time excludes the evaluations (and the base controller's ident
 calibration, done once per invocation); ``--max-minutes`` caps each run's training wall time. A run stops
 once every threshold is reached unless ``--full-curve``.
 
-Output (``--out``, default ``runs/learning_curve/<timestamp>``): ``curve.csv`` gets one row per evaluation as
+Output (``--out``, default ``<runs root>/learning_curve/<UTC time>``, with the manifest ``config.json`` of the last
+invocation, :mod:`eval.run_folder`): ``curve.csv`` gets one row per evaluation as
 it comes, ``runs.csv`` one row per finished run; invoked again with the same ``--out``, finished runs
 (label and seed) are skipped and an unfinished one restarts; ``settings.json`` records each label's recipe and the
 common settings, and a folder made under others is refused. The table of every run in the folder is printed at the
@@ -41,7 +42,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import run_episode
-from eval.run_folder import append_csv_rows, create_run_folder, read_csv_rows
+from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scoring import pooled_scores
 from eval.train_residual import VALIDATION_SEEDS, base_setup, parse_args, residual_config, train
 
@@ -305,14 +306,15 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
             "--algo", recipe.algo, "--seed", str(seed), "--timesteps", str(args.timesteps), "--n-envs", "1",
             "--eval-freq", str(args.timesteps + 1), "--checkpoint-freq", str(args.timesteps + 1),
             "--no-progress", "--no-score", "--out", str(folder),
+            *(["--runs-dir", str(args.runs_dir)] if args.runs_dir is not None else []),
             *(["--hyperparams", *recipe.hyperparams] if recipe.hyperparams else []),
             *recipe.train_args,
         ]
     )  # fmt: skip
-    env_kwargs = {"n_cycles": train_arguments.n_cycles, "scenario": train_arguments.scenario}
-    key = (train_arguments.scenario.name, train_arguments.base, train_arguments.n_cycles)
+    env_kwargs = {"n_cycles": train_arguments.cycles, "scenario": train_arguments.scenario}
+    key = (train_arguments.scenario.name, train_arguments.base, train_arguments.cycles)
     if key not in shared:
-        base = base_setup(env_kwargs, base=train_arguments.base)
+        base = base_setup(env_kwargs, base=train_arguments.base, runs_dir=train_arguments.runs_dir)
         shared[key] = (base, validation_scores(None, base, ResidualConfig(), env_kwargs))
     base, base_scores = shared[key]
     curve = ValidationCurve(
@@ -355,7 +357,8 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--max-torque-change", type=float, default=0.02, help="torque RMS rise allowed at a crossing (fraction)"
     )
     parser.add_argument("--full-curve", action="store_true", help="go on after every threshold is reached")
-    parser.add_argument("--out", type=Path, default=None, help="default runs/learning_curve/<timestamp>")
+    parser.add_argument("--out", type=Path, default=None, help="default <runs root>/learning_curve/<UTC time>")
+    add_runs_dir_argument(parser)
     parser.add_argument("train_args", nargs="*", help="after --: more arguments of python -m eval.train_residual")
     args = parser.parse_args(argv)
     if args.recipe and (args.hyperparams or args.label):
@@ -367,7 +370,15 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_arguments(argv)
-    out = create_run_folder("learning_curve", args.out)
+    command = command_line("scripts/residual_learning_curve.py", argv)
+    with run_folder("learning_curve", command, vars(args), out=args.out, runs_dir=args.runs_dir) as run:
+        benchmark(args, run.folder)
+    return 0
+
+
+def benchmark(args: argparse.Namespace, out: Path) -> None:
+    """Run the recipes and seeds of ``args`` (:func:`parse_arguments`) not yet finished in ``out``; print the
+    table of every run there."""
     recipes = recipes_from_arguments(args)
     check_settings(out, args, recipes)
     finished = {(row["label"], row["seed"]) for row in read_csv_rows(out / "runs.csv")}
@@ -382,7 +393,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     table = summary_table(read_csv_rows(out / "curve.csv"), args.max_torque_change)
     (out / "table.md").write_text(table + "\n")
     print(table)
-    return 0
 
 
 if __name__ == "__main__":

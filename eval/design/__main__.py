@@ -7,13 +7,14 @@
 4. Reconfiguration of the base radius for three task profiles.
 5. Closed-loop verification (unless ``--no-verify``): nominal and chosen designs on their own plants,
    identified, with PD, MId+F+R+RLS+PD and the oracle.
-6. The run folder (``--out``, default ``runs/design/<timestamp>``): ``config.json`` (resolved configuration
-   and command), ``pareto.csv``, ``designs.csv``, ``convergence.csv``, ``reconfiguration.csv``,
-   ``verification.csv``, ``torque_changes.csv``, ``summary.md``, the figures of :mod:`eval.design.report`
-   and a geometry file ``design-<name>.toml`` per chosen design (``--geometry`` of the other command lines,
-   format of :mod:`delta_env.scenario`); the summary is printed.
+6. The run folder (``--out``, default ``<runs root>/design/<UTC time>``): ``config.json`` (the manifest of
+   :mod:`eval.run_folder`: resolved configuration, command, status, times), ``pareto.csv``, ``designs.csv``,
+   ``convergence.csv``, ``reconfiguration.csv``, ``verification.csv``, ``torque_changes.csv``, ``summary.md``,
+   the figures of :mod:`eval.design.report` and a geometry file ``design-<name>.toml`` per chosen design
+   (``--geometry`` of the other command lines, format of :mod:`delta_env.scenario`); the summary is printed.
 
-Usage: python -m eval.design [--seed 0] [--population 40] [--generations 25] [--quick] [--no-verify]
+Usage: python -m eval.design [--seed 0] [--population 40] [--generations 25] [--quick] [--no-verify] [--out DIR]
+                             [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from eval import calibration, identification
 from eval.design import optimize, performance, reconfigure, report, verify
-from eval.run_folder import command_line, create_run_folder, package_versions, write_config, write_csv
+from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
+from eval.scenario_args import check_ranges
 
 QUICK = {"population": 12, "generations": 3, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
@@ -57,7 +59,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--workers", type=int, default=None, help="processes of each design's identification runs (default: up to 2)"
     )
-    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/design/<timestamp>)")
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/design/<UTC time>)")
+    add_runs_dir_argument(parser)
     args = parser.parse_args(argv)
     if args.quick:
         # Only the settings left at their defaults: an explicit --population etc. wins over --quick.
@@ -66,10 +69,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                 setattr(args, key, value)
     if args.workers is None:
         args.workers = min(2, os.cpu_count() or 1)
-    minimums = {"population": 4, "generations": 1, "episodes": 1, "verified_designs": 1, "workers": 1}
-    for name, minimum in minimums.items():
-        if getattr(args, name) < minimum:
-            parser.error(f"--{name.replace('_', '-')} must be >= {minimum}, got {getattr(args, name)}")
+    minimums = {"seed": 0, "population": 4, "generations": 1, "episodes": 1, "verified_designs": 1, "workers": 1}
+    check_ranges(parser, args, minimums)
     return args
 
 
@@ -132,9 +133,17 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) ->
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
-    out = create_run_folder("design", args.out)
-    command = command_line("eval.design", argv)
-    write_config(out, command, _resolved_config(args))
+    with run_folder(
+        "design", command_line("eval.design", argv), _resolved_config(args), out=args.out, runs_dir=args.runs_dir
+    ) as run:
+        study(args, run, started)
+    return 0
+
+
+def study(args: argparse.Namespace, run: Run, started: float) -> None:
+    """The design study of ``args`` (:func:`parse_args`) into ``run``'s folder, its summary printed; ``started`` is
+    the :func:`time.perf_counter` time at the start of the command."""
+    out = run.folder
     seconds = {}
 
     nominal = performance.evaluate(NOMINAL_GEOMETRY)
@@ -263,9 +272,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")
 
-    write_config(out, command, _resolved_config(args, reconfiguration.fixed_ra), seconds=seconds)
+    run.record(config=_resolved_config(args, reconfiguration.fixed_ra), seconds=seconds)
     print(summary)
-    return 0
 
 
 if __name__ == "__main__":

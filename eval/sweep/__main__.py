@@ -1,30 +1,32 @@
 """``python -m eval.sweep``: every controller on every scenario over many seeds, locally or on Ray.
 
 The grid is scenarios x controllers x seeds; each cell is one episode (:func:`eval.sweep.work.run_unit`).
-The run folder (``--out``, by default ``runs/sweep/<hash of the grid>`` so that the same arguments find
-the same folder) holds:
+The run folder (``--out``, by default ``<runs root>/sweep/<hash of the grid>`` so that the same arguments find
+the same folder; :func:`eval.run_folder.runs_root`) holds:
 
 - ``results.csv``: one row per episode (scenario, controller, seed, status, error, every metric, the faults'
   counts and detection latencies included: :data:`eval.faults.FAULT_METRICS`),
   appended as each episode finishes; rerun the same command after an interruption and only the missing
-  episodes run;
+  episodes run. An episode's key holds what decides its result and nothing of how it ran (backend, workers,
+  host): a rerun on another backend of a finished sweep runs nothing and says so; ``--force`` runs the grid again
+  (its old rows are dropped);
 - ``summary.csv`` and ``summary.md``: per scenario and controller, mean, std and 95 % interval;
 - ``plots/summary.png``: tracking and torque RMS per scenario and controller;
-- ``config.json`` (resolved configuration, code version, package versions, the command, the tares) and
-  ``commands.log`` (every command that wrote to the folder), ``scenarios/<name>.toml`` (each scenario
-  resolved, every field).
+- ``config.json`` (the manifest of the last command: resolved configuration, code version, package versions, the
+  command, the tares, status, start and end times) and ``commands.log`` (every command that wrote to the folder),
+  ``scenarios/<name>.toml`` (each scenario resolved, every field; ``scenario.toml`` for a grid of one).
 
 Controllers know the identification of each scenario's robot (one per robot identity, identified once and
-kept in ``runs/identification/<identity>/``; ``worn`` and ``randomized`` share the nominal robot's) and
+kept in ``<runs root>/identification/<identity>/``; ``worn`` and ``randomized`` share the nominal robot's) and
 the tares of their payload estimators measured on that scenario (:mod:`eval.calibration`, as
 ``python -m eval`` measures them), before the grid runs.
 
 With ``--geometry FILE`` every scenario runs on the robot of that geometry file (as on the other command
 lines: masses scaled with the lengths, a new robot identified once), named ``<scenario>+<file stem>``.
 
-Usage: python -m eval.sweep --scenarios nominal,stress-6g,randomized --controllers pd,mid_f_rls --seeds 0-9
-           [--geometry FILE] [--backend local|ray] [--address auto|ray://host:port] [--workers 2] [--cycles N]
-           [--out DIR]
+Usage: python -m eval.sweep --scenarios nominal,stress-6g,randomized --controllers pd,mid_f_rls --seed 0 --episodes 10
+           [--seeds 0-9 | 0,3,7] [--geometry FILE] [--backend local|ray] [--address auto|ray://host:port]
+           [--workers 2] [--cycles N] [--out DIR] [--runs-dir DIR] [--force]
 """
 
 from __future__ import annotations
@@ -43,9 +45,9 @@ from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import preset_names, resolve_scenario
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
-from eval.identification import parameter_path
-from eval.run_folder import RUNS_ROOT, command_line, create_run_folder, write_config, write_csv
-from eval.scenario_args import add_geometry_argument, on_geometry
+from eval.identification import identification_root, parameter_path
+from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
+from eval.scenario_args import add_geometry_argument, check_ranges, on_geometry
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
@@ -82,7 +84,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--scenarios", default="nominal", help=f"comma-separated presets ({', '.join(preset_names())}) or TOML files"
     )
     parser.add_argument("--controllers", default="pd,mid_f_rls", help=controllers_help("pd,mid_f_rls"))
-    parser.add_argument("--seeds", default="0-9", help="episode seeds, e.g. 0-9 or 0,3,7 (default 0-9)")
+    parser.add_argument("--seed", type=int, default=None, help="seed of the first episode (default 0)")
+    parser.add_argument(
+        "--episodes", type=int, default=None, help="episodes per scenario and controller, from --seed (default 10)"
+    )
+    parser.add_argument("--seeds", default=None, help="the seeds as a list instead, e.g. 0-9 or 0,3,7")
     parser.add_argument("--cycles", type=int, default=None, help="override every scenario's cycles per episode")
     parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
     parser.add_argument("--address", default=None, help="Ray cluster to join: auto or ray://host:port (ray only)")
@@ -92,18 +98,25 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=min(2, os.cpu_count() or 1),
         help="local processes, or the CPUs of a Ray started here (default 2); a joined cluster uses all its CPUs",
     )
-    parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/sweep/<grid hash>)")
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/sweep/<grid hash>)")
+    add_runs_dir_argument(parser)
+    parser.add_argument("--force", action="store_true", help="run every episode again, even those already done")
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
     add_geometry_argument(parser)
     args = parser.parse_args(argv)
+    check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
+    if args.seeds is not None and (args.seed, args.episodes) != (None, None):
+        parser.error("give --seed/--episodes or --seeds, not both")
     try:
-        args.seeds = parse_seeds(args.seeds)
+        if args.seeds is None:
+            first, count = args.seed or 0, args.episodes or 10
+            args.seeds = list(range(first, first + count))
+        else:
+            args.seeds = parse_seeds(args.seeds)
         scenarios = [resolve_scenario(spec.strip()) for spec in args.scenarios.split(",") if spec.strip()]
         if args.geometry is not None:
             scenarios = [on_geometry(scenario, args.geometry) for scenario in scenarios]
         if args.cycles is not None:
-            if args.cycles < 1:
-                raise ValueError(f"--cycles must be >= 1, got {args.cycles}")
             scenarios = [
                 dataclasses.replace(s, task=dataclasses.replace(s.task, n_cycles=args.cycles)) for s in scenarios
             ]
@@ -117,15 +130,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    if args.workers < 1:
-        parser.error("--workers must be >= 1")
     if args.address is not None and args.backend != "ray":
         parser.error("--address needs --backend ray")
-    if args.backend == "ray":
-        try:
-            import_ray()
-        except ImportError as error:
-            parser.error(str(error))
     if args.out is None:
         grid = {
             "scenarios": [s.content_hash for s in scenarios],
@@ -133,25 +139,54 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             "seeds": args.seeds,
         }
         digest = hashlib.sha256(json.dumps(grid, sort_keys=True).encode()).hexdigest()[:10]
-        args.out = RUNS_ROOT / "sweep" / f"sweep-{digest}"
+        args.out = runs_root(args.runs_dir) / "sweep" / f"sweep-{digest}"
+    if args.backend == "ray" and not (args.out / "results.csv").exists():  # a new sweep: all of it needs Ray
+        _require_ray(parser)
     return args
 
 
+def _require_ray(parser: argparse.ArgumentParser) -> None:
+    """A parser error naming the extra to install when Ray is missing."""
+    try:
+        import_ray()
+    except ImportError as error:
+        parser.error(str(error))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    command = command_line("eval.sweep", argv)
+    grid = {"scenarios": [s.name for s in args.scenarios], "controllers": args.controllers, "seeds": args.seeds}
+    backend = {"name": args.backend, "address": args.address, "workers": args.workers}
+    with run_folder(
+        "sweep",
+        command,
+        {"grid": grid, "backend": backend},
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=args.scenarios,
+    ) as run:
+        sweep(args, run, command)
+    return 0
+
+
+def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
+    """Run the sweep of ``args`` (:func:`parse_args`) into ``run``'s folder, the rows already there skipped unless
+    ``--force``; write the summary and print it."""
     from tqdm.auto import tqdm
 
-    args = parse_args(argv)
-    out = create_run_folder("sweep", args.out)
-    for scenario in args.scenarios:
-        scenario.save(out / "scenarios" / f"{scenario.name}.toml")
+    out = run.folder
+    with (out / "commands.log").open("a") as log:
+        log.write(command + "\n")
     setups = {
-        s.content_hash: prepare(s, args.controllers, workers=args.workers, residual_policy=args.residual).setup
+        s.content_hash: prepare(
+            s, args.controllers, runs_dir=args.runs_dir, workers=args.workers, residual_policy=args.residual
+        ).setup
         for s in args.scenarios
     }
     version = code_version()
     digests = {content: setup_digest(setup, tuple(args.controllers)) for content, setup in setups.items()}
     units = [WorkUnit(s, key, seed) for s in args.scenarios for key in args.controllers for seed in args.seeds]
-    command = command_line("eval.sweep", argv)
     config = {
         "grid": {
             "scenarios": {
@@ -169,15 +204,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         "backend": {"name": args.backend, "address": args.address, "workers": args.workers},
         "code_version": version,
-        "identifications": {s.name: str(parameter_path(s.plant)) for s in args.scenarios},
+        "identifications": {
+            s.name: str(parameter_path(s.plant, identification_root(args.runs_dir))) for s in args.scenarios
+        },
         "residual_policy": str(args.residual),
         "pd_gains": list(next(iter(setups.values())).pd_gains),
     }
-    write_config(out, command, config)
-    with (out / "commands.log").open("a") as log:
-        log.write(command + "\n")
+    run.record(config=config)
 
     table = ResultsTable(out / "results.csv")
+    keys = {unit_key(unit, version, digests[unit.scenario.content_hash]) for unit in units}
+    if args.force:
+        table.drop(keys)
+    done = keys <= {row["key"] for row in table.load()}
+    if args.backend == "ray" and not done:
+        try:
+            import_ray()
+        except ImportError as error:
+            raise SystemExit(f"python -m eval.sweep: error: {error}") from None
     with tqdm(total=len(units), desc="sweep", unit="ep") as progress:
         counts = run_sweep(
             units,
@@ -191,8 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             progress=progress,
         )
 
-    grid_keys = {unit_key(unit, version, digests[unit.scenario.content_hash]) for unit in units}
-    rows = [row for row in table.load() if row["key"] in grid_keys]
+    rows = [row for row in table.load() if row["key"] in keys]
     summary = report.summarize(rows, [s.name for s in args.scenarios], args.controllers)
     write_csv(out / "summary.csv", summary)
     text = "\n".join(
@@ -213,8 +256,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         text += "fault's kind from its start to 50 ms after its end; docs/design.md section 8).\n\n" + faults
     (out / "summary.md").write_text(text + "\n")
     report.plot(summary, out / "plots" / "summary.png")
+    if done:
+        text += (
+            f"\n\nNothing to run: all {len(units)} episodes of this grid were already in {table.path} (an episode's "
+            "key holds what decides its result, not the backend, workers or host that ran it); --force runs them again."
+        )
     print(text)
-    return 0
 
 
 if __name__ == "__main__":

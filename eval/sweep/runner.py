@@ -10,8 +10,9 @@ Setups: what the controllers know is per scenario (:data:`Setups`, by scenario c
 identification of the scenario's robot and the tares measured on the scenario.
 
 Resume: each unit has a content key, a hash of (scenario content hash, controller, seed, code version,
-what the controllers know); a rerun skips every key already in the table, failed ones included (a failure
-is a result; changing the code changes the key and so recomputes it).
+what the controllers know), and nothing of how it runs (backend, workers, host); a rerun skips every key already
+in the table, failed ones included (a failure is a result; changing the code changes the key and so recomputes it),
+whichever backend ran it.
 
 Backends, one work function (:func:`eval.sweep.work.run_unit`):
 
@@ -33,7 +34,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
@@ -127,6 +128,18 @@ class ResultsTable:
         if tuple(header) != RESULT_FIELDS:
             raise ValueError(f"{self.path} has the columns {header}, not {list(RESULT_FIELDS)}: use another --out")
         return list(csv.DictReader(lines))
+
+    def drop(self, keys: Collection[str]) -> None:
+        """Remove the rows of ``keys`` (to run them again), the file replaced whole."""
+        rows = self.load()
+        if not any(row["key"] in keys for row in rows):
+            return
+        partial = self.path.with_name(f".{self.path.name}.partial")
+        with partial.open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=RESULT_FIELDS)
+            writer.writeheader()
+            writer.writerows(row for row in rows if row["key"] not in keys)
+        partial.replace(self.path)
 
     def append(self, row: dict[str, Any]) -> None:
         """Write one row (header first if the file is new).

@@ -1,0 +1,234 @@
+"""One run folder for every command line: the manifest from start to end, the runs root, argument errors."""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import importlib.util
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+
+from delta_env.config import PlantConfig
+from delta_env.scenario import preset
+from eval import __main__ as eval_cli
+from eval import identify, rate
+from eval.design import __main__ as design_cli
+from eval.engine import Prepared
+from eval.identification import identification_root, parameter_path
+from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, run_folder, runs_root
+from eval.sweep import __main__ as sweep_cli
+from tests.conftest import NOMINAL_SETUP as SETUP
+
+SCRIPTS = Path(__file__).resolve().parent.parent / "scripts"
+
+
+def script(name: str) -> ModuleType:
+    """A module of ``scripts/`` (not a package), loaded from its file."""
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def manifest(folder: Path) -> dict[str, Any]:
+    return json.loads((folder / MANIFEST).read_text())
+
+
+def utc(stamp: str) -> datetime.datetime:
+    """An ISO 8601 time that names UTC."""
+    time = datetime.datetime.fromisoformat(stamp)
+    assert time.utcoffset() == datetime.timedelta(0), stamp
+    return time
+
+
+def test_the_manifest_says_running_from_the_start_and_finished_at_the_end(tmp_path: Path) -> None:
+    before = datetime.datetime.now(datetime.UTC).replace(microsecond=0)
+    scenario = preset("paper")
+    with run_folder("tool", "python -m tool --x 1", {"x": 1}, out=tmp_path / "run", scenarios=[scenario]) as run:
+        started = manifest(run.folder)
+        run.record(results={"rms_mm": 0.5})
+    assert started["status"] == "running" and started["ended"] is None and started["error"] is None
+    assert utc(started["started"]) >= before
+    assert (started["command"], started["config"], started["tool"]) == ("python -m tool --x 1", {"x": 1}, "tool")
+    assert {"versions", "git_commit", "runs_root"} <= set(started)
+    (entry,) = started["scenarios"]
+    assert entry == {
+        "name": "paper",
+        "file": "scenario.toml",
+        "content_hash": scenario.content_hash,
+        "robot_identity": scenario.robot_identity,
+    }
+    assert (run.folder / "scenario.toml").is_file()
+    ended = manifest(run.folder)
+    assert ended["status"] == "finished" and ended["started"] == started["started"]
+    assert utc(ended["ended"]) >= utc(ended["started"])
+    assert ended["results"] == {"rms_mm": 0.5}
+    assert sorted(path.name for path in run.folder.iterdir()) == [MANIFEST, "scenario.toml"]  # no partial file left
+
+
+@pytest.mark.parametrize(
+    ("raised", "status", "error"),
+    [
+        (ValueError("no such payload"), "failed", "ValueError: no such payload"),
+        (SystemExit("python -m tool: error: bad"), "failed", "SystemExit: python -m tool: error: bad"),
+        (KeyboardInterrupt(), "interrupted", "KeyboardInterrupt"),
+    ],
+)
+def test_a_run_that_raises_is_marked_with_its_error(
+    tmp_path: Path, raised: BaseException, status: str, error: str
+) -> None:
+    with pytest.raises(type(raised)), run_folder("tool", "python -m tool", {}, out=tmp_path) as run:
+        raise raised
+    written = manifest(run.folder)
+    assert (written["status"], written["error"]) == (status, error)
+    assert utc(written["ended"]) >= utc(written["started"])
+
+
+def test_runs_root_is_the_argument_else_the_environment_else_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv(RUNS_DIR_VARIABLE, raising=False)
+    assert runs_root() == Path("runs")
+    monkeypatch.setenv(RUNS_DIR_VARIABLE, str(tmp_path / "env"))
+    assert runs_root() == tmp_path / "env"
+    assert runs_root(tmp_path / "flag") == tmp_path / "flag"
+    # the cached identifications live under the same root
+    plant = PlantConfig()
+    assert identification_root() == tmp_path / "env" / "identification"
+    assert parameter_path(plant).is_relative_to(tmp_path / "env" / "identification")
+    assert parameter_path(plant, identification_root(tmp_path / "flag")).is_relative_to(tmp_path / "flag")
+    # a new folder per run, even two in the same second
+    first, second = (create_run_folder("tool", stamp="20250101-000000Z") for _ in range(2))
+    assert first == tmp_path / "env" / "tool" / "20250101-000000Z" and second == first.with_name(f"{first.name}-2")
+
+
+def test_the_sweep_finds_its_identifications_under_the_runs_dir(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    roots = []
+
+    def prepared(scenario, controllers, *, runs_dir=None, **kwargs) -> Prepared:
+        roots.append(identification_root(runs_dir))
+        return Prepared(SETUP, Path(), None, None)
+
+    monkeypatch.setattr(sweep_cli, "prepare", prepared)
+    monkeypatch.chdir(tmp_path)  # another folder: nothing goes to ./runs
+    runs = tmp_path / "elsewhere"
+    assert (
+        sweep_cli.main(
+            ["--controllers", "pd", "--episodes", "1", "--cycles", "1", "--workers", "1", "--runs-dir", str(runs)]
+        )
+        == 0
+    )
+    assert roots == [runs / "identification"]
+    (folder,) = (runs / "sweep").iterdir()
+    assert manifest(folder)["status"] == "finished" and not (tmp_path / "runs").exists()
+
+
+def test_a_finished_sweep_rerun_on_ray_runs_nothing_and_force_runs_it_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    monkeypatch.setattr(sweep_cli, "prepare", lambda scenario, *args, **kwargs: Prepared(SETUP, Path(), None, None))
+    monkeypatch.setitem(sys.modules, "ray", None)  # Ray is not installed
+    out = tmp_path / "sweep"
+    argv = ["--controllers", "pd", "--seeds", "0,1", "--cycles", "1", "--workers", "1", "--out", str(out)]
+    assert sweep_cli.main(argv) == 0
+    capsys.readouterr()
+    # The same grid on Ray: every key is in the table already, so nothing runs and Ray is not needed.
+    assert sweep_cli.main([*argv, "--backend", "ray"]) == 0
+    printed = capsys.readouterr().out
+    assert "Nothing to run: all 2 episodes of this grid were already in" in printed and "--force" in printed
+    assert manifest(out)["status"] == "finished" and manifest(out)["config"]["backend"]["name"] == "ray"
+    with pytest.raises(SystemExit, match="distributed"):  # with --force the grid has to run: on Ray, it needs Ray
+        sweep_cli.main([*argv, "--backend", "ray", "--force"])
+    assert manifest(out)["status"] == "failed" and "distributed" in manifest(out)["error"]
+    assert sweep_cli.main([*argv, "--force"]) == 0
+    assert "Ran 2 episodes (0 failed), 0 already in the table" in capsys.readouterr().out
+    with (out / "results.csv").open() as file:
+        assert len(list(csv.DictReader(file))) == 2  # the old rows were replaced, not doubled
+
+
+def test_score_only_writes_into_a_run_folder_not_beside_the_policy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    train_residual = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
+    policies = tmp_path / "package" / "policies"
+    policies.mkdir(parents=True)
+    policy = policies / "residual.zip"
+    policy.write_bytes(b"")
+    scored = []
+
+    def score(path: Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+        scored.append((path, env_kwargs["n_cycles"]))
+        return {"summary": {"tracking_rms_mm": {"base": 0.4, "residual": 0.1}}}
+
+    monkeypatch.setattr(train_residual, "score_policy", score)
+    monkeypatch.setenv(RUNS_DIR_VARIABLE, str(tmp_path / "runs"))
+    assert train_residual.main(["--score-only", str(policy), "--cycles", "1"]) == 0
+    assert scored == [(policy, 1)]
+    assert [path.name for path in policies.iterdir()] == ["residual.zip"]
+    (folder,) = (tmp_path / "runs" / "residual_scores").iterdir()
+    assert json.loads((folder / "scores.json").read_text())["summary"]["tracking_rms_mm"]["residual"] == 0.1
+    written = manifest(folder)
+    assert written["status"] == "finished" and written["command"].endswith(f"--score-only {policy} --cycles 1")
+    assert (folder / "scenario.toml").is_file()
+
+
+def train_residual_parser(argv: list[str]) -> Any:
+    module = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
+    return module.parse_args(argv)
+
+
+PARSERS: dict[str, Callable[[list[str]], Any]] = {
+    "eval": eval_cli.parse_args,
+    "sweep": sweep_cli.parse_args,
+    "identify": identify.parse_arguments,
+    "rate": rate.parse_args,
+    "design": design_cli.parse_args,
+    "train_residual": train_residual_parser,
+    "fault_soak": lambda argv: script("fault_soak").parse_args(argv),
+    "fault_campaign": lambda argv: script("fault_campaign").parse_args(argv),
+}
+
+
+@pytest.mark.parametrize(
+    ("tool", "argv", "message"),
+    [
+        ("identify", ["--trajectories", "0"], "--trajectories must be an integer >= 1, got 0"),
+        ("identify", ["--duration", "-1"], "--duration must be a finite number in (0, inf], got -1.0"),
+        ("identify", ["--validation-duration", "nan"], "--validation-duration must be a finite number"),
+        ("eval", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+        ("eval", ["--seed", "-1"], "--seed must be an integer >= 0, got -1"),
+        ("sweep", ["--cycles", "0"], "--cycles must be an integer >= 1, got 0"),
+        ("sweep", ["--seed", "3", "--seeds", "0-9"], "give --seed/--episodes or --seeds, not both"),
+        ("rate", ["--workers", "0"], "--workers must be an integer >= 1, got 0"),
+        ("design", ["--population", "2"], "--population must be an integer >= 4, got 2"),
+        ("train_residual", ["--timesteps", "0"], "--timesteps must be an integer >= 1, got 0"),
+        ("train_residual", ["--max-minutes", "0"], "--max-minutes must be a finite number in (0, inf], got 0.0"),
+        ("train_residual", ["--n-cycles", "0"], "--cycles must be an integer >= 1, got 0"),
+        ("train_residual", ["--residual-limit", "-1"], "residual_limit must be a finite number in (0, 400] N m"),
+        ("fault_soak", ["--minutes", "-5"], "--minutes must be a finite number in (0, inf], got -5.0"),
+        ("fault_campaign", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+    ],
+)
+def test_argument_errors_are_parser_errors_naming_the_value_and_range(
+    tool: str, argv: list[str], message: str, capsys: pytest.CaptureFixture
+) -> None:
+    with pytest.raises(SystemExit) as exit:
+        PARSERS[tool](argv)
+    assert exit.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_one_spelling_of_cycles_and_seeds(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert train_residual_parser(["--cycles", "2"]).cycles == train_residual_parser(["--n-cycles", "2"]).cycles == 2
+    assert sweep_cli.parse_args(["--seed", "3", "--episodes", "2"]).seeds == [3, 4]
+    default = sweep_cli.parse_args([])
+    assert default.seeds == list(range(10)) and default.seeds == sweep_cli.parse_args(["--seeds", "0-9"]).seeds
