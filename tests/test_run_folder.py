@@ -201,9 +201,9 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
 @pytest.mark.parametrize(
     ("tool", "argv", "message"),
     [
-        ("identify", ["--trajectories", "0"], "--trajectories must be an integer >= 1, got 0"),
-        ("identify", ["--duration", "-1"], "--duration must be a finite number in (0, inf], got -1.0"),
-        ("identify", ["--validation-duration", "nan"], "--validation-duration must be a finite number"),
+        ("identify", ["--trajectories", "0"], "--trajectories: must lie in [1, 1000], got 0"),
+        ("identify", ["--duration", "-1"], "--duration: must lie in [1, 600] s, got -1"),
+        ("identify", ["--validation-duration", "nan"], "--validation-duration: must lie in"),
         ("eval", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
         ("eval", ["--seed", "-1"], "--seed must be an integer >= 0, got -1"),
         ("sweep", ["--cycles", "0"], "--cycles must be an integer >= 1, got 0"),
