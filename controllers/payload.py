@@ -83,8 +83,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
-from controllers.dynamics import _INVALID_STATE, _VALID, DeltaDynamics, _single_sample_model
+from controllers.dynamics import DeltaDynamics, single_sample_model
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS
+from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_in, require_positive
 
@@ -382,7 +383,7 @@ def _reference_equation(
 
 @numba.njit(cache=True)
 def _estimated_state_equation(
-    model: NDArray[np.float64],
+    model: NDArray,
     equation: NDArray[np.float64],
     fit: NDArray[np.float64],
     state: NDArray[np.float64],
@@ -399,10 +400,10 @@ def _estimated_state_equation(
     x - a (x - x_previous) with a the torque's age in control periods.
     """
     x = _back_to_torque_instant(state, previous, equation[_EQ_TORQUE_AGE])
-    status, terms = _single_sample_model(
+    status, terms = single_sample_model(
         model, x[0, 0], x[0, 1], x[0, 2], x[1, 0], x[1, 1], x[1, 2], x[2, 0], x[2, 1], x[2, 2]
     )
-    if status != _VALID:
+    if status != kernels.VALID:
         return status, False, 0.0, 0.0
     used, information, moment = _weighted_equation(
         equation,
@@ -789,7 +790,7 @@ class PayloadEstimator:
             return None
         # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
         status, used, information, moment = _estimated_state_equation(
-            self.dynamics._single_sample_constants,
+            self.dynamics.model_constants,
             self._equation,
             self._fit,
             state,
@@ -797,8 +798,8 @@ class PayloadEstimator:
             holding,
             *torque,
         )
-        if status != _VALID:
-            raise ValueError(f"{_INVALID_STATE[status]}: joint state estimate {state!r}")
+        if status != kernels.VALID:
+            raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
         return (information, moment) if used else None
 
 

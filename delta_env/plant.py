@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env import kinematics
+from delta_env import kernels
 from delta_env.config import (
     DEFAULT_PAYLOAD_SIZE,
     MAX_PAYLOAD_MASS,
@@ -26,14 +26,10 @@ from delta_env.config import (
     PlantRealism,
     RandomizationRanges,
 )
-from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaMasses
+from delta_env.geometry import DeltaMasses
 from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
 from delta_env.scene import OBSTACLE_PARKED, OBSTACLE_RADIUS, build_model
 from delta_env.validation import require_in, require_joint_vector
-
-STRIBECK_SIGN_SLOPE = 4.0
-"""Slope factor of the smooth sign tanh(4 v / v_s) of the Stribeck term: stays explicit-stable at 1 kHz."""
-
 
 _IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -118,7 +114,6 @@ class DeltaPlant:
         )
         self._elbow_chains = np.repeat(np.arange(3), len(rods))  # the chain of each rod of _elbow_qpos
         self._tilt = forearm_home_tilt(self.config.geometry)
-        self._cos_alpha, self._sin_alpha = np.array(CHAIN_COS), np.array(CHAIN_SIN)
 
         # Degrees of freedom of the robot (the payload's free joint excluded), split into motors and the
         # passive ones that assemble() solves for.
@@ -228,33 +223,26 @@ class DeltaPlant:
         """Platform position (m) and elbow (pitch, roll) angles (rad) that close every loop at ``theta``.
 
         Vectorized over a leading batch shape: ``theta`` (..., 3) gives (..., 3) and (..., 3 chains, 2).
-        The platform is the forward kinematics; both rods of a parallelogram are parallel to x - J'_i.
+        The platform is the forward kinematics; both rods of a parallelogram are parallel to x - J'_i
+        (:func:`delta_env.kernels.assembly`).
 
         Raises:
             ValueError: if the forearms cannot reach a common point, or one would lie along its motor axis.
         """
         theta = np.asarray(theta, dtype=float)
+        rows = np.ascontiguousarray(theta.reshape(-1, 3))
+        platform, elbows = np.empty(rows.shape), np.empty((len(rows), 3, 2))
         g = self.config.geometry
-        xyz = kinematics.forward(g, theta)
-        direction = (xyz[..., None, :] - kinematics.elbow_points(g, theta)) / g.l2
-        # In the arm frame (x = u_i, y = t_i), then in the forearm body's frame at zero elbow angles,
-        # which is the arm frame turned by R_y(theta + tilt); there the rod points along -z and the two
-        # hinges give the direction (-sin p cos r, sin r, -cos p cos r).
-        radial = direction[..., 0] * self._cos_alpha + direction[..., 1] * self._sin_alpha
-        tangential = -direction[..., 0] * self._sin_alpha + direction[..., 1] * self._cos_alpha
-        turn = theta + self._tilt
-        local_x = np.cos(turn) * radial - np.sin(turn) * direction[..., 2]
-        local_z = np.sin(turn) * radial + np.cos(turn) * direction[..., 2]
-        if np.any(np.abs(tangential) >= 1.0 - 1e-9):
-            raise ValueError(f"theta={theta.tolist()} puts a forearm along its motor axis (gimbal lock)")
-        elbows = np.stack((np.arctan2(-local_x, -local_z), np.arcsin(tangential)), axis=-1)
-        return xyz, elbows
+        status, row = kernels.assembly(rows, g.r, g.l1, g.l2, self._tilt, platform, elbows)
+        if status != kernels.VALID:
+            raise ValueError(f"{kernels.INVALID_STATE[status]} at theta={rows[row].tolist()}")
+        return platform.reshape(theta.shape), elbows.reshape((*theta.shape, 2))
 
     def _assemble(self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray) -> None:
         """Write a configuration from :meth:`assembly_coordinates`, solve the velocities and run ``mj_forward``
         (no checks)."""
         model, data = self.model, self.data
-        jac = self._configure(theta, platform, elbows)
+        jac = self.configure(theta, platform, elbows)
         data.qvel[self._motor_dofs] = theta_dot
         data.qvel[self._passive_dofs] = np.linalg.solve(
             jac[:, self._passive_dofs], -jac[:, self._motor_dofs] @ theta_dot
@@ -265,13 +253,19 @@ class DeltaPlant:
             data.act[:] = 0.0
         mujoco.mj_forward(model, data)
 
-    def _configure(self, theta: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
-        """Write a configuration from :meth:`assembly_coordinates` (a carried payload follows the platform) and
-        run the position stages ``mj_kinematics`` and ``mj_comPos``; qvel is left as it was.
+    def configure(self, theta: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
+        """Write the positions of a closed configuration and run the position stages ``mj_kinematics`` and
+        ``mj_comPos``; qvel is left as it was, a carried payload follows the platform. No checks.
 
-        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`): what the
-        velocities that close the loops solve with (:meth:`_assemble`, and the inverse dynamics oracle, which
-        writes qvel and qacc itself and lets ``mj_inverse`` recompute the rest).
+        Args:
+            theta: Motor angles (rad), shape (3,).
+            platform: Platform position (m), shape (3,), and elbows: elbow (pitch, roll) angles (rad), shape
+                (3, 2), as :meth:`assembly_coordinates` gives them for ``theta``.
+
+        Returns:
+            The loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`): what the velocities
+            that close the loops solve with (:meth:`assemble`, and the inverse dynamics oracle, which writes qvel
+            and qacc itself and lets ``mj_inverse`` recompute the rest).
         """
         qpos = self._qpos
         qpos[self._motor_qpos] = theta
@@ -348,28 +342,24 @@ class DeltaPlant:
     # Stepping (1 kHz hot path)
     # --------------------------------------------------------------------------------------------
 
-    def motor_disturbance(self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> NDArray:
-        """Stribeck excess and torque ripple (N m) on the motor joints, shape (3,).
-
-        Stribeck: -excess * fc_i * exp(-(v / v_s)^2) * tanh(4 v / v_s); the tanh is a smooth sign whose
-        slope at zero speed (4 excess fc_i / v_s, 160 N m s/rad by default) stays well inside the explicit
-        stability limit of a 1 kHz zero-order hold, so it does not chatter. Ripple:
-        amplitude * sin(periods * theta). Accepts any leading batch shape ``(..., 3)``.
-        """
-        v = np.asarray(theta_dot) * self._inv_stribeck_velocity
-        ripple = self._ripple_amplitude * np.sin(self._ripple_periods * np.asarray(theta))
-        return ripple - self._stribeck_gain * np.exp(-v * v) * np.tanh(v * STRIBECK_SIGN_SLOPE)
+    def motor_disturbance(self, theta: ArrayLike, theta_dot: ArrayLike) -> NDArray[np.float64]:
+        """Stribeck excess and torque ripple (N m) on the motor joints at angles ``theta`` (rad) and rates
+        ``theta_dot`` (rad/s), each ``(..., 3)``: :func:`delta_env.kernels.motor_disturbance`."""
+        theta, theta_dot = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(theta_dot, dtype=float))
+        torque = np.empty(theta.shape)
+        kernels.motor_disturbances(
+            self._disturbance,
+            np.ascontiguousarray(theta.reshape(-1, 3)),
+            np.ascontiguousarray(theta_dot.reshape(-1, 3)),
+            torque.reshape(-1, 3),
+        )
+        return torque
 
     @property
-    def disturbance_coefficients(self) -> tuple[NDArray[np.float64], float, float, float]:
-        """The constants of :meth:`motor_disturbance`: Stribeck gain excess * fc_i per joint (N m), shape (3,),
-        1 / v_s (s/rad), ripple amplitude (N m) and ripple periods per revolution."""
-        return (
-            self._stribeck_gain.copy(),
-            self._inv_stribeck_velocity,
-            self._ripple_amplitude,
-            self._ripple_periods,
-        )
+    def disturbance_coefficients(self) -> NDArray:
+        """The constants of :meth:`motor_disturbance` (a copy), a one-element :data:`delta_env.kernels.DISTURBANCE`
+        array."""
+        return self._disturbance.copy()
 
     def step(self, torque_command: NDArray[np.float64], n_substeps: int) -> None:
         """Command motor torques (N m, shape (3,)) and advance ``n_substeps`` physics steps.
@@ -377,17 +367,13 @@ class DeltaPlant:
         MuJoCo clips the command to the drive's peak torque and passes it through the current-loop lag, if any.
         Stribeck excess and ripple (:meth:`motor_disturbance`) are computed once from the state at the call
         and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
-        ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path, so the
-        disturbance is written out with scalar math (cheaper than the NumPy form).
+        ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path.
         """
         self._ctrl[:] = torque_command
         if self._has_disturbance:
-            qpos, qvel, applied = self._qpos, self._qvel, self._qfrc_applied
-            amplitude, periods = self._ripple_amplitude, self._ripple_periods
-            for qpos_address, dof, gain in self._disturbance_terms:
-                v = qvel.item(dof) * self._inv_stribeck_velocity
-                ripple = amplitude * math.sin(periods * qpos.item(qpos_address))
-                applied[dof] = ripple - gain * math.exp(-v * v) * math.tanh(v * STRIBECK_SIGN_SLOPE)
+            kernels.apply_motor_disturbance(
+                self._disturbance, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
+            )
         mujoco.mj_step(self.model, self.data, n_substeps)
 
     # --------------------------------------------------------------------------------------------
@@ -647,12 +633,9 @@ class DeltaPlant:
         self.model.flg_gravcomp = self.config.payload_body
 
     def _set_disturbance_coefficients(self, realism: PlantRealism) -> None:
-        self._stribeck_gain = realism.stribeck_excess * realism.coulomb_per_joint
-        self._inv_stribeck_velocity = 1.0 / realism.stribeck_velocity
-        self._ripple_amplitude = realism.ripple_amplitude
-        self._ripple_periods = float(realism.ripple_periods)
-        self._has_disturbance = bool(np.any(self._stribeck_gain > 0.0) or realism.ripple_amplitude > 0.0)
-        self._disturbance_terms = tuple(
-            (int(address), int(dof), float(gain))
-            for address, dof, gain in zip(self._motor_qpos, self._motor_dofs, self._stribeck_gain, strict=True)
-        )
+        disturbance = self._disturbance = np.zeros(1, kernels.DISTURBANCE)
+        disturbance["stribeck_gain"] = realism.stribeck_excess * realism.coulomb_per_joint
+        disturbance["inverse_stribeck_velocity"] = 1.0 / realism.stribeck_velocity
+        disturbance["ripple_amplitude"] = realism.ripple_amplitude
+        disturbance["ripple_periods"] = float(realism.ripple_periods)
+        self._has_disturbance = bool(np.any(disturbance["stribeck_gain"] > 0.0) or realism.ripple_amplitude > 0.0)
