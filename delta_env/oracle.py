@@ -70,7 +70,7 @@ class InverseDynamicsOracle:
         self._body_mass = model.body_mass
         data = self.plant.data
         self._qvel, self._qacc, self._qfrc_inverse = data.qvel, data.qacc, data.qfrc_inverse
-        self._no_bias = np.zeros(self.plant.n_loop_rows)
+        self._no_bias = np.zeros(self.plant.loops.n_rows)
         # Columns of the square system [S  J_c^T]: the first three select the motor dofs.
         self._system = np.zeros((model.nv, model.nv))
         self._system[motor_dofs, np.arange(3)] = 1.0
@@ -174,7 +174,7 @@ class InverseDynamicsOracle:
             # fixed; mj_jacDot needs the velocity stage of the new state.
             _close_loops(jac, self._no_bias, theta_dot, motor_dofs, passive_dofs, self._qvel)
             mujoco.mj_comVel(model, data)
-            _close_loops(jac, plant.loop_bias_acceleration(), theta_ddot, motor_dofs, passive_dofs, self._qacc)
+            _close_loops(jac, plant.loops.bias_acceleration(), theta_ddot, motor_dofs, passive_dofs, self._qacc)
             mujoco.mj_inverse(model, data)
         finally:
             self._body_mass[self._platform_body] = self._platform_mass
