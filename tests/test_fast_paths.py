@@ -9,7 +9,8 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from numpy.testing import assert_allclose, assert_array_equal
 
-from controllers.dynamics import DeltaDynamics, ModelParameters, single_sample_model
+from controllers.compiled_model import single_sample_model
+from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateSmoother, PayloadRLS
 from controllers.payload import FRICTION_SCALE_STD, MASS_CORRECTION_STD, REST_RATE, PayloadEstimator, residual_std
 from controllers.registry import ControllerSetup

@@ -13,7 +13,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.dynamics import single_sample_model
+from controllers.compiled_model import single_sample_model
 from delta_env import kernels
 
 PLATFORM_MASS, ARM_MASS_SCALE, FRICTION_SCALE, PARAMETERS = 0, 1, 2, 5
