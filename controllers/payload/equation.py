@@ -83,14 +83,17 @@ def weighted_equation(
     equation: NDArray,
     fit: NDArray,
     carrying: bool,
-    tau0: tuple[float, float, float],
-    phi: tuple[float, float, float],
-    rates: tuple[float, float, float],
+    tau0: NDArray[np.float64],
+    phi: NDArray[np.float64],
+    angles: NDArray[np.float64],
+    rates: NDArray[np.float64],
+    accelerations: NDArray[np.float64],
     torque: tuple[float, float, float],
-    cosines: tuple[float, float, float],
-    accelerations: tuple[float, float, float],
 ) -> tuple[bool, float, float]:
     """One sample's weighted payload equation: (used, sum w phi^2, sum w phi y), or the empty-move fit.
+
+    tau0 (N m) and phi (N m/kg) of the model at the joint angles (rad), rates (rad/s) and accelerations (rad/s^2),
+    each (3,), and the measured ``torque`` (N m).
 
     w_i = 1 / sigma_i^2 of :func:`~controllers.payload.tuning.residual_std`, f_i = fv_i thd_i + fc_i sign(thd_i) the
     model's friction, and per joint the columns c_i = (phi_i, I thdd_i + G cos th_i, f_i on the joint's own kappa)
@@ -114,7 +117,7 @@ def weighted_equation(
         weight = 1.0 / (e.nominal_variance + band * band)
         coulomb = math.copysign(e.coulomb[i], rate) if rate != 0.0 else 0.0  # fc sign(thd), 0 at rest
         friction = e.viscous[i] * rate + coulomb
-        arm = e.inertia * accelerations[i] + e.gravity * cosines[i]
+        arm = e.inertia * accelerations[i] + e.gravity * math.cos(angles[i])
         columns = (phi[i], arm, friction)
         indices = (PLATFORM_MASS, ARM_MASS_SCALE, FRICTION_SCALE + i)
         residual = torque[i] - tau0[i]
@@ -162,17 +165,7 @@ def reference_equation(
     step's and this step's ``(5, 3)``: rows tau0 (N m), phi (N m/kg), theta (rad), theta_dot (rad/s), theta_ddot
     (rad/s^2)."""
     x = back_to_torque_instant(current, previous, equation[0].torque_age)
-    return weighted_equation(
-        equation,
-        fit,
-        carrying,
-        (x[0, 0], x[0, 1], x[0, 2]),
-        (x[1, 0], x[1, 1], x[1, 2]),
-        (x[3, 0], x[3, 1], x[3, 2]),
-        (torque1, torque2, torque3),
-        (math.cos(x[2, 0]), math.cos(x[2, 1]), math.cos(x[2, 2])),
-        (x[4, 0], x[4, 1], x[4, 2]),
-    )
+    return weighted_equation(equation, fit, carrying, x[0], x[1], x[2], x[3], x[4], (torque1, torque2, torque3))
 
 
 @numba.njit(cache=True)
@@ -201,14 +194,6 @@ def estimated_state_equation(
     if status != kernels.VALID:
         return status, False, 0.0, 0.0
     used, information, moment = weighted_equation(
-        equation,
-        fit,
-        carrying,
-        (terms[0, 0], terms[0, 1], terms[0, 2]),
-        (terms[1, 0], terms[1, 1], terms[1, 2]),
-        (x[1, 0], x[1, 1], x[1, 2]),
-        (torque1, torque2, torque3),
-        (math.cos(x[0, 0]), math.cos(x[0, 1]), math.cos(x[0, 2])),
-        (x[2, 0], x[2, 1], x[2, 2]),
+        equation, fit, carrying, terms[0], terms[1], x[0], x[1], x[2], (torque1, torque2, torque3)
     )
     return status, used, information, moment
