@@ -17,28 +17,32 @@ from delta_env import kernels
 from delta_env.geometry import CHAIN_COS, CHAIN_SIN
 
 MODEL_CONSTANTS = np.dtype(
-    [
-        ("l1", np.float64),
-        ("r", np.float64),
-        ("l2", np.float64),
-        ("g", np.float64),
-        ("inertia", np.float64),
-        ("gravity", np.float64),
-        ("platform_mass", np.float64),
-        ("viscous", np.float64, 3),
-        ("coulomb", np.float64, 3),
-        ("forearm_rods", np.bool_),
-        ("rod_coefficient", np.float64),
-    ]
+    (
+        np.record,
+        [
+            ("l1", np.float64),
+            ("r", np.float64),
+            ("l2", np.float64),
+            ("g", np.float64),
+            ("inertia", np.float64),
+            ("gravity", np.float64),
+            ("platform_mass", np.float64),
+            ("viscous", np.float64, 3),
+            ("coulomb", np.float64, 3),
+            ("forearm_rods", np.bool_),
+            ("rod_coefficient", np.float64),
+        ],
+    )
 )
 """The constants of :func:`single_sample_model` (:attr:`~controllers.dynamics.DeltaDynamics.model_constants`):
 lengths l1, r, l2 (m), g (m/s^2), the scaled rho1 I (kg m^2) and rho2 G amplitude (N m), Mt without payload (kg),
-fv_i (N m s/rad), fc_i (N m), whether the forearms are rods and -m2 / 3 (kg) if so."""
+fv_i (N m s/rad), fc_i (N m), whether the forearms are rods and -m2 / 3 (kg) if so. The model takes the record's
+bytes (as the kernels of :mod:`delta_env.kernels`, for a cheaper call from Python)."""
 
 
 @numba.njit(cache=True)
 def single_sample_model(
-    constants: NDArray,
+    constants: NDArray[np.uint8],
     t1: float,
     t2: float,
     t3: float,
@@ -53,13 +57,13 @@ def single_sample_model(
     k (m); a status code first (:data:`delta_env.kernels.INVALID_STATE`).
 
     Written out in scalars (docs/design.md sections 2 and 3): forward kinematics, A, k, xdd and A^{-T} once.
-    ``constants`` is a one-element :data:`MODEL_CONSTANTS` array
+    ``constants`` are the bytes of a :data:`MODEL_CONSTANTS` record
     (:attr:`~controllers.dynamics.DeltaDynamics.model_constants`).
     """
     terms = np.zeros((6, 3))
     if not math.isfinite(t1 + t2 + t3 + w1 + w2 + w3 + u1 + u2 + u3):
         return kernels.NOT_FINITE, terms
-    model = constants[0]
+    model = constants.view(MODEL_CONSTANTS)[0]
     l1, r, l2 = model.l1, model.r, model.l2
     ca1, ca2, ca3 = CHAIN_COS
     sa1, sa2, sa3 = CHAIN_SIN

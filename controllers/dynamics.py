@@ -143,7 +143,7 @@ class DeltaDynamics:
                 )
             ],
             dtype=MODEL_CONSTANTS,
-        )
+        ).view(np.uint8)
 
     @classmethod
     def nominal(cls, parameters: ModelParameters | None = None, *, forearm_rods: bool = False) -> DeltaDynamics:
@@ -309,9 +309,10 @@ class DeltaDynamics:
         return terms[0], terms[1], -terms[2:5].T / terms[5]
 
     @property
-    def model_constants(self) -> NDArray:
-        """The model as :func:`single_sample_model` takes it: a one-element :data:`MODEL_CONSTANTS` array, for
-        compiled callers that evaluate the model themselves (read-only by convention)."""
+    def model_constants(self) -> NDArray[np.uint8]:
+        """The model as :func:`single_sample_model` takes it: the bytes of its :data:`MODEL_CONSTANTS` record
+        (``.view(MODEL_CONSTANTS)`` reads the fields), for compiled callers that evaluate the model themselves
+        (read-only by convention)."""
         return self._model_constants
 
     def _single_sample_terms(

@@ -90,7 +90,7 @@ class InverseDynamicsOracle:
     def _set_friction(self) -> None:
         """Coulomb frictionloss fc_i (N m) of the motor joints and the plant's Stribeck and ripple constants."""
         self._frictionloss = self.plant.model.dof_frictionloss[self._motor_dofs].copy()
-        self._disturbance = self.plant.disturbance_coefficients
+        self._disturbance = self.plant.disturbance_coefficients.view(np.uint8)
 
     def torques(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
@@ -227,22 +227,23 @@ def _motor_torques(
     theta: NDArray[np.float64],
     theta_dot: NDArray[np.float64],
     frictionloss: NDArray[np.float64],
-    disturbance: NDArray,
+    disturbance: NDArray[np.uint8],
 ) -> NDArray[np.float64]:
     """Motor torques (N m), (3,), from [S  J_c^T] [tau; lambda] = qfrc_inverse + Coulomb - Stribeck and ripple.
 
     The right-hand side adds the forces MuJoCo keeps outside ``qfrc_inverse``: Coulomb friction (a constraint,
     fc_i sign(theta_dot_i)) and the plant's ``qfrc_applied`` (:func:`delta_env.kernels.motor_disturbance` with the
-    plant's ``disturbance`` constants). ``system`` (nv, nv) holds S in its first three columns; the others receive
-    J_c^T.
+    bytes of the plant's ``disturbance`` record). ``system`` (nv, nv) holds S in its first three columns; the others
+    receive J_c^T.
     """
     rhs = qfrc_inverse.copy()
+    coefficients = disturbance.view(kernels.DISTURBANCE)[0]
     for joint in range(3):
         rate = theta_dot[joint]
         sign = 1.0 if rate > 0.0 else (-1.0 if rate < 0.0 else 0.0)
         dof = motor_dofs[joint]
         rhs[dof] += frictionloss[joint] * sign
-        rhs[dof] -= kernels.motor_disturbance(disturbance, joint, theta[joint], rate)
+        rhs[dof] -= kernels.motor_disturbance(coefficients, joint, theta[joint], rate)
     for row in range(jac.shape[0]):
         for column in range(jac.shape[1]):
             system[column, 3 + row] = jac[row, column]

@@ -253,7 +253,7 @@ class DeltaPlant:
         theta, theta_dot = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(theta_dot, dtype=float))
         torque = np.empty(theta.shape)
         kernels.motor_disturbances(
-            self._disturbance,
+            self._disturbance_bytes,
             np.ascontiguousarray(theta.reshape(-1, 3)),
             np.ascontiguousarray(theta_dot.reshape(-1, 3)),
             torque.reshape(-1, 3),
@@ -277,7 +277,7 @@ class DeltaPlant:
         self._ctrl[:] = torque_command
         if self._has_disturbance:
             kernels.apply_motor_disturbance(
-                self._disturbance, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
+                self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
             )
         mujoco.mj_step(self.model, self.data, n_substeps)
 
@@ -491,6 +491,7 @@ class DeltaPlant:
 
     def _set_disturbance_coefficients(self, realism: PlantRealism) -> None:
         disturbance = self._disturbance = np.zeros(1, kernels.DISTURBANCE)
+        self._disturbance_bytes = disturbance.view(np.uint8)
         disturbance["stribeck_gain"] = realism.stribeck_excess * realism.coulomb_per_joint
         disturbance["inverse_stribeck_velocity"] = 1.0 / realism.stribeck_velocity
         disturbance["ripple_amplitude"] = realism.ripple_amplitude

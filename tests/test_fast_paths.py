@@ -97,8 +97,7 @@ def test_compiled_single_sample_model_equals_its_python_formula_bit_for_bit(fore
         theta_dot[rng.integers(3)] = 0.0  # sign(0) = 0 in the Coulomb term
         joint_state = (*theta.tolist(), *theta_dot.tolist(), *theta_ddot.tolist())
         compiled_status, compiled = single_sample_model(model.model_constants, *joint_state)
-        # A record array gives the Python formula the field access the compiled one has.
-        python_status, python = single_sample_model.py_func(model.model_constants.view(np.recarray), *joint_state)
+        python_status, python = single_sample_model.py_func(model.model_constants, *joint_state)
         assert compiled_status == python_status == 0
         assert_array_equal(compiled, python)
 

@@ -1,8 +1,9 @@
 """The payload equation of one control step and the empty-move fit, compiled for the 1 kHz loop.
 
-Two named records carry the state of the kernels (one-element NumPy arrays, which numba reads and writes by field):
-:data:`EQUATION`, the constants of the weighted payload equation, and :data:`FIT`, the weighted least squares of
-the model's corrections (:class:`~controllers.payload.estimator.ModelCorrections`) over the empty moves.
+Two named records carry the state of the kernels, which numba reads and writes by field: :data:`EQUATION`, the
+constants of the weighted payload equation, and :data:`FIT`, the weighted least squares of the model's corrections
+(:class:`~controllers.payload.estimator.ModelCorrections`) over the empty moves. The kernels take each record's bytes,
+as those of :mod:`delta_env.kernels` do, for a cheaper call from Python.
 """
 
 from __future__ import annotations
@@ -20,19 +21,22 @@ PLATFORM_MASS, ARM_MASS_SCALE, FRICTION_SCALE, PARAMETERS = 0, 1, 2, 5
 """Columns of the empty-move fit: dm (kg), d_arm, then kappa_1..3 from FRICTION_SCALE on; PARAMETERS of them."""
 
 EQUATION = np.dtype(
-    [
-        ("band_std", np.float64, 3),
-        ("inverse_friction_velocity", np.float64),
-        ("nominal_variance", np.float64),
-        ("viscous", np.float64, 3),
-        ("coulomb", np.float64, 3),
-        ("torque_age", np.float64),
-        ("rest_rate", np.float64),
-        ("inertia", np.float64),
-        ("gravity", np.float64),
-        ("prior_information", np.float64, PARAMETERS),
-        ("fits", np.bool_),
-    ]
+    (
+        np.record,
+        [
+            ("band_std", np.float64, 3),
+            ("inverse_friction_velocity", np.float64),
+            ("nominal_variance", np.float64),
+            ("viscous", np.float64, 3),
+            ("coulomb", np.float64, 3),
+            ("torque_age", np.float64),
+            ("rest_rate", np.float64),
+            ("inertia", np.float64),
+            ("gravity", np.float64),
+            ("prior_information", np.float64, PARAMETERS),
+            ("fits", np.bool_),
+        ],
+    )
 )
 """Constants of the payload equation: the static friction band's standard deviation sqrt(n_c) f_i (N m), 1 / v_w
 (s/rad) and sigma_0^2 (N^2 m^2) of :func:`~controllers.payload.tuning.residual_std`; the model's fv_i (N m s/rad) and
@@ -41,23 +45,26 @@ the prior information 1 / std^2 of each fit parameter (inf for one held at 0: no
 fitted."""
 
 FIT = np.dtype(
-    [
-        ("information", np.float64, (PARAMETERS, PARAMETERS)),
-        ("moment", np.float64, PARAMETERS),
-        ("solution", np.float64, PARAMETERS),
-        ("stale", np.bool_),
-        ("samples", np.int64),
-    ]
+    (
+        np.record,
+        [
+            ("information", np.float64, (PARAMETERS, PARAMETERS)),
+            ("moment", np.float64, PARAMETERS),
+            ("solution", np.float64, PARAMETERS),
+            ("stale", np.bool_),
+            ("samples", np.int64),
+        ],
+    )
 )
 """The empty-move least squares: sum of w c c^T and of w c y, the parameters solved from them, whether equations
 came in since, and how many samples entered."""
 
 
 @numba.njit(cache=True)
-def solve_fit(equation: NDArray, fit: NDArray) -> None:
+def solve_fit(equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
     """Solve the empty-move least squares with its prior (information added to the diagonal) into ``fit``'s
     solution; a parameter of infinite prior information is not fitted: it stays 0."""
-    e, f = equation[0], fit[0]
+    e, f = equation.view(EQUATION)[0], fit.view(FIT)[0]
     matrix = np.empty((PARAMETERS, PARAMETERS))
     vector = np.empty(PARAMETERS)
     for a in range(PARAMETERS):
@@ -80,8 +87,8 @@ def solve_fit(equation: NDArray, fit: NDArray) -> None:
 
 @numba.njit(cache=True, inline="always")
 def weighted_equation(
-    equation: NDArray,
-    fit: NDArray,
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
     carrying: bool,
     tau0: NDArray[np.float64],
     phi: NDArray[np.float64],
@@ -101,7 +108,7 @@ def weighted_equation(
     w_i c_i (tau_i - tau0_i) to the fit (``fit``, in place); while carrying, y_i = tau_i - tau0_i - c_i . p with
     p the fit solved at the first carrying sample after empty ones.
     """
-    e, f = equation[0], fit[0]
+    e, f = equation.view(EQUATION)[0], fit.view(FIT)[0]
     rest = e.rest_rate
     if abs(rates[0]) < rest and abs(rates[1]) < rest and abs(rates[2]) < rest:
         return False, 0.0, 0.0  # static friction holds an unknown share of the load: no measurement of the mass
@@ -152,8 +159,8 @@ def back_to_torque_instant(current: NDArray[np.float64], previous: NDArray[np.fl
 
 @numba.njit(cache=True)
 def reference_equation(
-    equation: NDArray,
-    fit: NDArray,
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
     carrying: bool,
     current: NDArray[np.float64],
     previous: NDArray[np.float64],
@@ -164,15 +171,15 @@ def reference_equation(
     """:func:`weighted_equation` at the reference, interpolated back to the torque's instant between the previous
     step's and this step's ``(5, 3)``: rows tau0 (N m), phi (N m/kg), theta (rad), theta_dot (rad/s), theta_ddot
     (rad/s^2)."""
-    x = back_to_torque_instant(current, previous, equation[0].torque_age)
+    x = back_to_torque_instant(current, previous, equation.view(EQUATION)[0].torque_age)
     return weighted_equation(equation, fit, carrying, x[0], x[1], x[2], x[3], x[4], (torque1, torque2, torque3))
 
 
 @numba.njit(cache=True)
 def estimated_state_equation(
-    model: NDArray,
-    equation: NDArray,
-    fit: NDArray,
+    model: NDArray[np.uint8],
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
     state: NDArray[np.float64],
     previous: NDArray[np.float64],
     carrying: bool,
@@ -187,7 +194,7 @@ def estimated_state_equation(
     before; the model is evaluated at the state interpolated back to the torque's instant, x - a (x - x_previous)
     with a the torque's age in control periods.
     """
-    x = back_to_torque_instant(state, previous, equation[0].torque_age)
+    x = back_to_torque_instant(state, previous, equation.view(EQUATION)[0].torque_age)
     status, terms = single_sample_model(
         model, x[0, 0], x[0, 1], x[0, 2], x[1, 0], x[1, 1], x[1, 2], x[2, 0], x[2, 1], x[2, 2]
     )

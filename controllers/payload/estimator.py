@@ -174,11 +174,9 @@ class PayloadEstimator:
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
-        self._regressor = REGRESSORS[regressor](dynamics)
-        self.joint_filter: JointStateSmoother | JointStateFilter | None = self._regressor.joint_filter
-        self.delay: int = self._regressor.delay
         # Constants of the compiled payload equation; the band's standard deviation is sqrt(n_c) f_i.
         self._equation = np.zeros(1, EQUATION)
+        self._equation_bytes = self._equation.view(np.uint8)
         equation = self._equation[0]
         equation["band_std"] = [math.sqrt(self.correlation_samples) * f for f in self.static_friction]
         equation["inverse_friction_velocity"] = 1.0 / self.friction_velocity
@@ -194,7 +192,12 @@ class PayloadEstimator:
         equation["fits"] = not np.all(np.isinf(prior))
         # The empty-move least squares and its solution, and views of the fields read at every step.
         self._fit = np.zeros(1, FIT)
+        self._fit_bytes = self._fit.view(np.uint8)
         self._solution = self._fit["solution"][0]
+        self._regressor = REGRESSORS[regressor](dynamics, self._equation_bytes, self._fit_bytes)
+        self._moments = self._regressor.moments
+        self.joint_filter: JointStateSmoother | JointStateFilter | None = self._regressor.joint_filter
+        self.delay: int = self._regressor.delay
         self.empty_moves = None if empty_moves is None else _checked_sums(empty_moves)
         if self.empty_moves is not None and not self.fits_corrections:
             raise ValueError("empty_moves seed the fit of the model's corrections, but this estimator fits none")
@@ -226,7 +229,7 @@ class PayloadEstimator:
         fit = self._fit
         if fit["stale"][0]:
             fit = fit.copy()
-            solve_fit(self._equation, fit)
+            solve_fit(self._equation_bytes, fit.view(np.uint8))
         p = fit["solution"][0]
         return ModelCorrections(float(p[PLATFORM_MASS]), float(p[ARM_MASS_SCALE]), p[FRICTION_SCALE:].copy())
 
@@ -366,6 +369,4 @@ class PayloadEstimator:
             reference_regressor: phi (N m/kg) at this step's reference, with ``reference_torque``.
         """
         holding = observation["gripper"].item(0) > 0.5
-        return self._regressor.moments(
-            observation, holding, self._equation, self._fit, reference_torque, reference_regressor
-        )
+        return self._moments(observation, holding, reference_torque, reference_regressor)

@@ -24,7 +24,8 @@ from delta_env.sensors import CONTROL_PERIOD
 
 
 class Regressor(Protocol):
-    """What the estimator needs of a regressor.
+    """What the estimator needs of a regressor, built from the model and the bytes of the estimator's
+    :data:`~controllers.payload.equation.EQUATION` and :data:`~controllers.payload.equation.FIT` records.
 
     Attributes:
         joint_filter: The joint-state estimator it runs, or None.
@@ -41,8 +42,6 @@ class Regressor(Protocol):
         self,
         observation: Observation,
         holding: bool,
-        equation: NDArray,
-        fit: NDArray,
         reference_torque: NDArray[np.float64] | None,
         reference_regressor: NDArray[np.float64] | None,
     ) -> tuple[float, float] | None:
@@ -53,8 +52,9 @@ class ReferenceRegressor:
     """tau0 and phi on the reference, interpolated back to the torque's instant: no lag and no noise, but it assumes
     the robot is where the reference is (``regressor="reference"``)."""
 
-    def __init__(self, dynamics: DeltaDynamics) -> None:
+    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
         self.dynamics = dynamics
+        self._equation, self._fit = equation, fit
         self.joint_filter = None
         self.delay = 0
         # (2, 5, 3): the reference's tau0, phi, theta, rates and accelerations of this step and the previous one.
@@ -69,8 +69,6 @@ class ReferenceRegressor:
         self,
         observation: Observation,
         holding: bool,
-        equation: NDArray,
-        fit: NDArray,
         reference_torque: NDArray[np.float64] | None,
         reference_regressor: NDArray[np.float64] | None,
     ) -> tuple[float, float] | None:
@@ -93,7 +91,7 @@ class ReferenceRegressor:
         self._has_previous = True
         # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
         used, information, moment = reference_equation(
-            equation, fit, holding, current, previous, *observation["joint_torques"].tolist()
+            self._equation, self._fit, holding, current, previous, *observation["joint_torques"].tolist()
         )
         return (information, moment) if used else None
 
@@ -102,9 +100,15 @@ class _EstimatedStateRegressor(ABC):
     """tau0 and phi on a joint-state estimate of sample k - D, with the torque measured with that sample."""
 
     def __init__(
-        self, dynamics: DeltaDynamics, joint_filter: JointStateSmoother | JointStateFilter, delay: int
+        self,
+        dynamics: DeltaDynamics,
+        equation: NDArray[np.uint8],
+        fit: NDArray[np.uint8],
+        joint_filter: JointStateSmoother | JointStateFilter,
+        delay: int,
     ) -> None:
         self.dynamics = dynamics
+        self._model, self._equation, self._fit = dynamics.model_constants, equation, fit
         self.joint_filter = joint_filter
         self.delay = delay
         # (what the joint state of the sample is formed from, measured torque, gripper holding) of the last D + 1.
@@ -129,8 +133,6 @@ class _EstimatedStateRegressor(ABC):
         self,
         observation: Observation,
         holding: bool,
-        equation: NDArray,
-        fit: NDArray,
         reference_torque: NDArray[np.float64] | None,
         reference_regressor: NDArray[np.float64] | None,
     ) -> tuple[float, float] | None:
@@ -147,7 +149,7 @@ class _EstimatedStateRegressor(ABC):
             return None
         # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
         status, used, information, moment = estimated_state_equation(
-            self.dynamics.model_constants, equation, fit, state, previous_state, holding, *torque
+            self._model, self._equation, self._fit, state, previous_state, holding, *torque
         )
         if status != kernels.VALID:
             raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
@@ -158,9 +160,9 @@ class SmoothedRegressor(_EstimatedStateRegressor):
     """The fixed-lag smoother's estimate of sample k - L (``regressor="smoothed"``): it smooths the tracking error
     theta - theta_ref, and the reference's exact derivatives at sample k - L are added back."""
 
-    def __init__(self, dynamics: DeltaDynamics) -> None:
+    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
         smoother = JointStateSmoother()
-        super().__init__(dynamics, smoother, smoother.lag)
+        super().__init__(dynamics, equation, fit, smoother, smoother.lag)
 
     def _observe(self, observation: Observation) -> tuple[NDArray, NDArray]:
         angles = observation["joint_angles"]
@@ -184,9 +186,10 @@ class FilteredRegressor(_EstimatedStateRegressor):
     """The causal Kalman filter's estimate (``regressor="filtered"``): angle and rate of sample k - D with the
     acceleration estimated at sample k, D its acceleration lag (:func:`acceleration_lag`) in samples."""
 
-    def __init__(self, dynamics: DeltaDynamics) -> None:
+    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
         joint_filter = JointStateFilter()
-        super().__init__(dynamics, joint_filter, round(acceleration_lag(joint_filter) / CONTROL_PERIOD))
+        delay = round(acceleration_lag(joint_filter) / CONTROL_PERIOD)
+        super().__init__(dynamics, equation, fit, joint_filter, delay)
 
     def _observe(self, observation: Observation) -> tuple[NDArray, NDArray]:
         angles = observation["joint_angles"]
