@@ -11,8 +11,8 @@ turns arm i down; chains are numbered 0, 1, 2 here. Kernels that can fail return
 
 Constants with names travel as a NumPy record (a dtype of ``np.record``, so NumPy reads its fields as attributes
 too), and a kernel called from Python takes the record's bytes (``records.view(np.uint8)``) and views them as the
-record: numba dispatches a byte array as fast as a float array, a record array about 0.2 us slower per call, which
-the 1 kHz loop pays several times a step.
+record: numba dispatches a byte array as cheaply as a float array, a record array at a multiple of that cost, which
+the 1 kHz loop would pay several times a step.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from controllers.payload.equation import (
     PLATFORM_MASS,
     solve_fit,
 )
-from controllers.payload.regressors import REGRESSORS
+from controllers.payload.regressors import REGRESSORS, Regressor
 from controllers.payload.tuning import (
     DROP_VARIANCE,
     FRICTION_CORRELATION_SAMPLES,
@@ -194,7 +194,7 @@ class PayloadEstimator:
         self._fit = np.zeros(1, FIT)
         self._fit_bytes = self._fit.view(np.uint8)
         self._solution = self._fit["solution"][0]
-        self._regressor = REGRESSORS[regressor](dynamics, self._equation_bytes, self._fit_bytes)
+        self._regressor: Regressor = REGRESSORS[regressor](dynamics, self._equation_bytes, self._fit_bytes)
         self._moments = self._regressor.moments
         self.joint_filter: JointStateSmoother | JointStateFilter | None = self._regressor.joint_filter
         self.delay: int = self._regressor.delay

@@ -10,6 +10,7 @@ from __future__ import annotations
 import collections
 import copy
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -203,12 +204,12 @@ class FilteredRegressor(_EstimatedStateRegressor):
         return np.array((delayed[0], delayed[1], newest[2]))
 
 
-REGRESSORS: dict[str, type[ReferenceRegressor | SmoothedRegressor | FilteredRegressor]] = {
+REGRESSORS: dict[str, Callable[[DeltaDynamics, NDArray[np.uint8], NDArray[np.uint8]], Regressor]] = {
     "smoothed": SmoothedRegressor,
     "filtered": FilteredRegressor,
     "reference": ReferenceRegressor,
 }
-"""The regressor of each ``PayloadEstimator(regressor=...)`` name."""
+"""The regressor of each ``PayloadEstimator(regressor=...)`` name (a :class:`Regressor` factory)."""
 
 
 def acceleration_lag(joint_filter: JointStateFilter, dt: float = CONTROL_PERIOD) -> float:
