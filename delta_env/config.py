@@ -236,3 +236,18 @@ class RandomizationRanges:
         if self.actuator_lag is not None:
             low, _ = require_interval("actuator_lag", self.actuator_lag, 0.0, MAX_LAG, unit="s")
             require_in("actuator_lag[0]", low, 0.0, MAX_LAG, unit="s", low_open=True)
+
+    def draw(self, rng: np.random.Generator, nominal: DeltaMasses, actuator_lag: float) -> PhysicalParameters:
+        """Physical parameters around the ``nominal`` masses (kg); the built ``actuator_lag`` (s) kept without a
+        lag range."""
+
+        def scales(fraction: float) -> NDArray[np.float64]:
+            return rng.uniform(1.0 - fraction, 1.0 + fraction, 3)
+
+        m1, m2, m0 = (nominal.m1, nominal.m2, nominal.m0) * scales(self.mass_fraction)
+        lag = actuator_lag if self.actuator_lag is None else float(rng.uniform(*self.actuator_lag))
+        return PhysicalParameters(
+            masses=DeltaMasses(m1=float(m1), m2=float(m2), m0=float(m0)),
+            friction_scale=tuple(float(v) for v in scales(self.friction_fraction)),
+            actuator_lag=lag,
+        )

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from delta_env import kernels
 from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaGeometry
 from delta_env.validation import require_vectors
 
@@ -36,29 +37,24 @@ def elbow_derivatives(geometry: DeltaGeometry, theta: NDArray[np.float64]) -> tu
 
 
 def forward(geometry: DeltaGeometry, theta: ArrayLike) -> NDArray[np.float64]:
-    """Platform position (m) from motor angles (rad): the lower intersection of three spheres.
+    """Platform position (m) from motor angles (rad): the lower intersection of three spheres
+    (:func:`delta_env.kernels.platform_position`).
 
     Raises:
         ValueError: if the forearms cannot reach a common point (no real solution).
     """
-    elbows = elbow_points(geometry, theta)
-    p1, p2, p3 = elbows[..., 0, :], elbows[..., 1, :], elbows[..., 2, :]
-    a, b = p1 - p3, p2 - p3
-    normal = np.cross(a, b)
-    normal_sq = np.sum(normal * normal, axis=-1)
-    if np.any(normal_sq < 1e-18):
-        raise ValueError(f"forward kinematics is undefined: elbows are collinear for theta={np.asarray(theta)}")
-    numerator = np.cross(np.sum(a * a, axis=-1)[..., None] * b - np.sum(b * b, axis=-1)[..., None] * a, normal)
-    centre = p3 + numerator / (2.0 * normal_sq[..., None])
-    height_sq = geometry.l2**2 - np.sum((centre - p3) ** 2, axis=-1)
-    if np.any(height_sq < 0.0):
+    theta = require_vectors("theta", theta)
+    rows = np.ascontiguousarray(theta.reshape(-1, 3))
+    xyz = np.empty(rows.shape)
+    status, _ = kernels.platform_positions(rows, geometry.r, geometry.l1, geometry.l2, xyz)
+    if status == kernels.COLLINEAR:
+        raise ValueError(f"forward kinematics is undefined: elbows are collinear for theta={theta}")
+    if status == kernels.UNREACHABLE:
         raise ValueError(
-            f"forward kinematics has no real solution for theta={np.asarray(theta)}: the forearms "
+            f"forward kinematics has no real solution for theta={theta}: the forearms "
             f"(l2={geometry.l2} m) cannot reach a common point"
         )
-    unit_normal = normal / np.sqrt(normal_sq)[..., None]
-    unit_normal = np.where(unit_normal[..., 2:3] > 0.0, -unit_normal, unit_normal)
-    return centre + np.sqrt(height_sq)[..., None] * unit_normal
+    return xyz.reshape(theta.shape)
 
 
 def inverse(geometry: DeltaGeometry, xyz: ArrayLike) -> NDArray[np.float64]:

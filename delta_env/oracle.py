@@ -29,7 +29,6 @@ round-off, and on the realistic one a payload hanging under the suction cup need
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import mujoco
@@ -37,9 +36,9 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from delta_env import kernels
 from delta_env.config import MAX_PAYLOAD_MASS, PhysicalParameters, PlantConfig
-from delta_env.geometry import CHAIN_COS, CHAIN_SIN
-from delta_env.plant import STRIBECK_SIGN_SLOPE, DeltaPlant
+from delta_env.plant import DeltaPlant
 from delta_env.robot import forearm_home_tilt
 
 
@@ -71,16 +70,16 @@ class InverseDynamicsOracle:
         self._body_mass = model.body_mass
         data = self.plant.data
         self._qvel, self._qacc, self._qfrc_inverse = data.qvel, data.qacc, data.qfrc_inverse
-        self._no_bias = np.zeros(self.plant.n_loop_rows)
+        self._no_bias = np.zeros(self.plant.loops.n_rows)
         # Columns of the square system [S  J_c^T]: the first three select the motor dofs.
         self._system = np.zeros((model.nv, model.nv))
         self._system[motor_dofs, np.arange(3)] = 1.0
         geometry = self.config.geometry
         self._r, self._l1, self._l2 = geometry.r, geometry.l1, geometry.l2
         self._tilt = forearm_home_tilt(geometry)
-        self._azimuths = tuple(zip(CHAIN_COS, CHAIN_SIN, strict=True))
-        self._platform = np.empty(3)
-        self._elbows = np.empty((3, 2))
+        # The one-sample batch of torque() and views of its row.
+        self._theta, self._platform, self._elbows = np.empty((1, 3)), np.empty((1, 3)), np.empty((1, 3, 2))
+        self._platform_row, self._elbows_row = self._platform[0], self._elbows[0]
 
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
         """Use the same (e.g. randomized) masses and friction as a plant; see DeltaPlant.set_physical_parameters."""
@@ -91,9 +90,7 @@ class InverseDynamicsOracle:
     def _set_friction(self) -> None:
         """Coulomb frictionloss fc_i (N m) of the motor joints and the plant's Stribeck and ripple constants."""
         self._frictionloss = self.plant.model.dof_frictionloss[self._motor_dofs].copy()
-        self._stribeck_gain, self._inv_stribeck_velocity, self._ripple_amplitude, self._ripple_periods = (
-            self.plant.disturbance_coefficients
-        )
+        self._disturbance = self.plant.disturbance_coefficients.view(np.uint8)
 
     def torques(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
@@ -144,17 +141,18 @@ class InverseDynamicsOracle:
     def torque(self, theta: NDArray, theta_dot: NDArray, theta_ddot: NDArray, payload: float) -> NDArray[np.float64]:
         """:meth:`torques` of one sample without input checks: the 1 kHz path of the bound controller.
 
-        Same result as :meth:`torques` to round-off; the loop-closing coordinates come from scalar
-        kinematics (:meth:`_assembly_one`) instead of the batched NumPy form, which costs more than the
-        MuJoCo part for a single sample. The inputs must be reachable, finite (3,) arrays.
-        """
-        self._assembly_one(theta)
-        return self._torques_one(theta, theta_dot, theta_ddot, payload, self._platform, self._elbows)
+        Same result as :meth:`torques`, bit for bit (the same :func:`delta_env.kernels.assembly`), without the
+        NumPy set-up around it that costs more than the MuJoCo part for a single sample. The inputs must be
+        finite (3,) arrays.
 
-    def _assembly_one(self, theta: NDArray) -> None:
-        """:meth:`DeltaPlant.assembly_coordinates` of one sample in scalar math, into the oracle's buffers."""
-        t1, t2, t3 = theta.tolist()
-        _assembly(t1, t2, t3, self._r, self._l1, self._l2, self._tilt, self._azimuths, self._platform, self._elbows)
+        Raises:
+            ValueError: for unreachable angles.
+        """
+        self._theta[0] = theta
+        status, _ = kernels.assembly(self._theta, self._r, self._l1, self._l2, self._tilt, self._platform, self._elbows)
+        if status != kernels.VALID:
+            raise ValueError(f"{kernels.INVALID_STATE[status]} at theta={theta.tolist()}")
+        return self._torques_one(theta, theta_dot, theta_ddot, payload, self._platform_row, self._elbows_row)
 
     def _torques_one(
         self,
@@ -171,12 +169,12 @@ class InverseDynamicsOracle:
         # The payload rides at the platform's CoM: mass only (a translating body's inertia does no work).
         self._body_mass[self._platform_body] = self._platform_mass + payload
         try:
-            jac = plant._configure(theta, platform, elbows)
+            jac = plant.configure(theta, platform, elbows)
             # J_c qvel = 0 with the motor rates fixed, then J_c qacc = -Jdot_c qvel with the motor accelerations
             # fixed; mj_jacDot needs the velocity stage of the new state.
             _close_loops(jac, self._no_bias, theta_dot, motor_dofs, passive_dofs, self._qvel)
             mujoco.mj_comVel(model, data)
-            _close_loops(jac, plant.loop_bias_acceleration(), theta_ddot, motor_dofs, passive_dofs, self._qacc)
+            _close_loops(jac, plant.loops.bias_acceleration(), theta_ddot, motor_dofs, passive_dofs, self._qacc)
             mujoco.mj_inverse(model, data)
         finally:
             self._body_mass[self._platform_body] = self._platform_mass
@@ -188,61 +186,8 @@ class InverseDynamicsOracle:
             theta,
             theta_dot,
             self._frictionloss,
-            self._stribeck_gain,
-            self._inv_stribeck_velocity,
-            self._ripple_amplitude,
-            self._ripple_periods,
+            self._disturbance,
         )
-
-
-@numba.njit(cache=True)
-def _assembly(
-    t1: float,
-    t2: float,
-    t3: float,
-    r: float,
-    l1: float,
-    l2: float,
-    tilt: float,
-    azimuths: tuple[tuple[float, float], tuple[float, float], tuple[float, float]],
-    platform: NDArray[np.float64],
-    elbows: NDArray[np.float64],
-) -> None:
-    """Platform centre (m), (3,), and elbow angles (rad), (3, 2), of motor angles t1..t3 (rad), in place.
-
-    The lower intersection of the three spheres of radius l2 around the elbows (``kinematics.forward``), then
-    each forearm's pitch and roll as :meth:`DeltaPlant.assembly_coordinates` defines them.
-    """
-    angles = (t1, t2, t3)
-    ex = np.empty(3)
-    ey = np.empty(3)
-    ez = np.empty(3)
-    for chain in range(3):
-        cos_a, sin_a = azimuths[chain]
-        radial = r + l1 * math.cos(angles[chain])
-        ex[chain], ey[chain], ez[chain] = radial * cos_a, radial * sin_a, -l1 * math.sin(angles[chain])
-    x1, y1, z1, x2, y2, z2, x3, y3, z3 = ex[0], ey[0], ez[0], ex[1], ey[1], ez[1], ex[2], ey[2], ez[2]
-    ax, ay, az, bx, by, bz = x1 - x3, y1 - y3, z1 - z3, x2 - x3, y2 - y3, z2 - z3
-    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-    normal_sq = nx * nx + ny * ny + nz * nz
-    aa, bb = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz
-    vx, vy, vz = aa * bx - bb * ax, aa * by - bb * ay, aa * bz - bb * az
-    scale = 0.5 / normal_sq
-    cx, cy, cz = (vy * nz - vz * ny) * scale, (vz * nx - vx * nz) * scale, (vx * ny - vy * nx) * scale
-    height = math.sqrt(l2 * l2 - (cx * cx + cy * cy + cz * cz)) / math.sqrt(normal_sq)
-    if nz > 0.0:
-        height = -height
-    px, py, pz = x3 + cx + height * nx, y3 + cy + height * ny, z3 + cz + height * nz
-    platform[0], platform[1], platform[2] = px, py, pz
-    for chain in range(3):
-        cos_a, sin_a = azimuths[chain]
-        dx, dy, dz = (px - ex[chain]) / l2, (py - ey[chain]) / l2, (pz - ez[chain]) / l2
-        radial, tangential = dx * cos_a + dy * sin_a, -dx * sin_a + dy * cos_a
-        turn = angles[chain] + tilt
-        local_x = math.cos(turn) * radial - math.sin(turn) * dz
-        local_z = math.sin(turn) * radial + math.cos(turn) * dz
-        elbows[chain, 0] = math.atan2(-local_x, -local_z)
-        elbows[chain, 1] = math.asin(tangential)
 
 
 @numba.njit(cache=True)
@@ -282,27 +227,23 @@ def _motor_torques(
     theta: NDArray[np.float64],
     theta_dot: NDArray[np.float64],
     frictionloss: NDArray[np.float64],
-    stribeck_gain: NDArray[np.float64],
-    inv_stribeck_velocity: float,
-    ripple_amplitude: float,
-    ripple_periods: float,
+    disturbance: NDArray[np.uint8],
 ) -> NDArray[np.float64]:
     """Motor torques (N m), (3,), from [S  J_c^T] [tau; lambda] = qfrc_inverse + Coulomb - Stribeck and ripple.
 
     The right-hand side adds the forces MuJoCo keeps outside ``qfrc_inverse``: Coulomb friction (a constraint,
-    fc_i sign(theta_dot_i)) and the plant's ``qfrc_applied`` (:meth:`DeltaPlant.motor_disturbance`, here in
-    scalar math). ``system`` (nv, nv) holds S in its first three columns; the others receive J_c^T.
+    fc_i sign(theta_dot_i)) and the plant's ``qfrc_applied`` (:func:`delta_env.kernels.motor_disturbance` with the
+    bytes of the plant's ``disturbance`` record). ``system`` (nv, nv) holds S in its first three columns; the others
+    receive J_c^T.
     """
     rhs = qfrc_inverse.copy()
+    coefficients = disturbance.view(kernels.DISTURBANCE)[0]
     for joint in range(3):
         rate = theta_dot[joint]
         sign = 1.0 if rate > 0.0 else (-1.0 if rate < 0.0 else 0.0)
-        v = rate * inv_stribeck_velocity
-        ripple = ripple_amplitude * math.sin(ripple_periods * theta[joint])
-        disturbance = ripple - stribeck_gain[joint] * math.exp(-v * v) * math.tanh(v * STRIBECK_SIGN_SLOPE)
         dof = motor_dofs[joint]
         rhs[dof] += frictionloss[joint] * sign
-        rhs[dof] -= disturbance
+        rhs[dof] -= kernels.motor_disturbance(coefficients, joint, theta[joint], rate)
     for row in range(jac.shape[0]):
         for column in range(jac.shape[1]):
             system[column, 3 + row] = jac[row, column]

@@ -1,4 +1,3 @@
-# Over 500 lines: DeltaPlant is one class, the only code that reads or writes the robot's MuJoCo state.
 """The "real robot": the compiled MuJoCo Delta and the only code that touches its state (docs/design.md section 4).
 
 :class:`DeltaPlant` builds the model of a :class:`~delta_env.config.PlantConfig` (:mod:`delta_env.scene`),
@@ -15,43 +14,23 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env import kinematics
+from delta_env import kernels
 from delta_env.config import (
     DEFAULT_PAYLOAD_SIZE,
     MAX_PAYLOAD_MASS,
-    MIN_PAYLOAD_MASS,
     SUCTION_CUP_OFFSET,
     PhysicalParameters,
     PlantConfig,
     PlantRealism,
     RandomizationRanges,
 )
-from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaMasses
+from delta_env.loops import LoopClosures
 from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
 from delta_env.scene import OBSTACLE_PARKED, OBSTACLE_RADIUS, build_model
+from delta_env.suction import SuctionPayload, quat_to_matrix
 from delta_env.validation import require_in, require_joint_vector
 
-STRIBECK_SIGN_SLOPE = 4.0
-"""Slope factor of the smooth sign tanh(4 v / v_s) of the Stribeck term: stays explicit-stable at 1 kHz."""
-
-
 _IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
-
-
-def _quat_conjugate(quat: NDArray[np.float64]) -> NDArray[np.float64]:
-    return quat * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def _quat_multiply(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    result = np.empty(4)
-    mujoco.mju_mulQuat(result, a, b)
-    return result
-
-
-def _quat_to_matrix(quat: NDArray[np.float64]) -> NDArray[np.float64]:
-    matrix = np.empty(9)
-    mujoco.mju_quat2Mat(matrix, quat)
-    return matrix.reshape(3, 3)
 
 
 class DeltaPlant:
@@ -83,7 +62,7 @@ class DeltaPlant:
         def ident(kind: mujoco.mjtObj, name: str) -> int:
             return mujoco.mj_name2id(model, kind, name)
 
-        joint, body, site = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_SITE
+        joint, body = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_BODY
         motor_joints = [ident(joint, f"motor_{label}") for label in CHAIN_LABELS]
         self._motor_qpos = model.jnt_qposadr[motor_joints].copy()
         self._motor_dofs = model.jnt_dofadr[motor_joints].copy()
@@ -100,15 +79,9 @@ class DeltaPlant:
         # Ideal: slides measure the displacement from the body's home position.
         self._platform_offset = np.zeros(3) if self._platform_free else model.body_pos[self._platform_body].copy()
 
-        rods = [""] if self.config.variant == "ideal" else list(ROD_LABELS)
-        self._loop_sites = np.array(
-            [
-                (ident(site, f"forearm_{label}{rod}_end"), ident(site, f"platform_{label}{rod}"))
-                for label in CHAIN_LABELS
-                for rod in rods
-            ]
-        )
-        self._loop_bodies = model.site_bodyid[self._loop_sites]
+        rods = ("",) if self.config.variant == "ideal" else ROD_LABELS
+        self.loops = LoopClosures(model, data, rods)
+        """The loop-closure constraints (Jacobian, its rate term, the gap)."""
         self._elbow_qpos = np.array(
             [
                 [model.jnt_qposadr[ident(joint, f"elbow_{label}{rod}_{axis}")] for axis in ("pitch", "roll")]
@@ -118,50 +91,18 @@ class DeltaPlant:
         )
         self._elbow_chains = np.repeat(np.arange(3), len(rods))  # the chain of each rod of _elbow_qpos
         self._tilt = forearm_home_tilt(self.config.geometry)
-        self._cos_alpha, self._sin_alpha = np.array(CHAIN_COS), np.array(CHAIN_SIN)
 
         # Degrees of freedom of the robot (the payload's free joint excluded), split into motors and the
         # passive ones that assemble() solves for.
-        self._payload_body = ident(body, "payload") if self.config.payload_body else -1
-        robot_dofs = np.array([dof for dof in range(model.nv) if model.dof_bodyid[dof] != self._payload_body])
+        self._payload = SuctionPayload(model, data) if self.config.payload_body else None
+        payload_body = -1 if self._payload is None else self._payload.body
+        robot_dofs = np.array([dof for dof in range(model.nv) if model.dof_bodyid[dof] != payload_body])
         self._passive_dofs = np.setdiff1d(robot_dofs, self._motor_dofs)
-        n_rows = 3 * len(self._loop_sites)
-        if n_rows != len(self._passive_dofs):
-            raise RuntimeError(f"model has {n_rows} loop rows for {len(self._passive_dofs)} passive dofs")
-        # The Jacobians (and their derivatives) of the forearm-end sites in the rows of one array and those of
-        # the platform sites in another, so that one subtraction forms the loop's; per loop, the ids as Python
-        # ints, views of the two sites' positions (MjData keeps its buffers for its lifetime) and of the
-        # loop's three rows in each array.
-        self._site_jac = np.zeros((2, n_rows, model.nv))
-        self._site_jac_dot = np.zeros((2, n_rows, model.nv))
-        self._loop_jac = np.zeros((n_rows, model.nv))
-        self._loop_jac_dot = np.zeros((n_rows, model.nv))
-        self._loop_terms = [
-            (
-                rod_site,
-                platform_site,
-                rod_body,
-                platform_body,
-                self.data.site_xpos[rod_site],
-                self.data.site_xpos[platform_site],
-                self._site_jac[0, 3 * k : 3 * k + 3],
-                self._site_jac[1, 3 * k : 3 * k + 3],
-                self._site_jac_dot[0, 3 * k : 3 * k + 3],
-                self._site_jac_dot[1, 3 * k : 3 * k + 3],
-            )
-            for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(
-                zip(self._loop_sites.tolist(), self._loop_bodies.tolist(), strict=True)
-            )
-        ]
-
-        if self.config.payload_body:
-            self._payload_qpos = int(model.jnt_qposadr[model.body_jntadr[self._payload_body]])
-            self._payload_dof = int(model.jnt_dofadr[model.body_jntadr[self._payload_body]])
-            self._payload_geom = int(model.body_geomadr[self._payload_body])
-            self._suction = ident(mujoco.mjtObj.mjOBJ_EQUALITY, "suction")
+        if self.loops.n_rows != len(self._passive_dofs):
+            raise RuntimeError(f"model has {self.loops.n_rows} loop rows for {len(self._passive_dofs)} passive dofs")
 
         # Domain-randomizable parameters: the nominal ones come from the config.
-        others = (self._payload_body, self._obstacle)
+        others = (payload_body, self._obstacle)
         self._robot_bodies = np.array([b for b in range(1, model.nbody) if b not in others])
         self._has_lag = self.config.realism.actuator_lag > 0.0
         self._parameters = self.nominal_parameters
@@ -170,18 +111,11 @@ class DeltaPlant:
         # Views into mjData for the hot path (the buffers never move).
         self._qpos, self._qvel = data.qpos, data.qvel
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
-        self._site_xpos = data.site_xpos
-        self._loop_site_pairs = tuple(tuple(pair) for pair in self._loop_sites.tolist())
         self.reset()
 
     # --------------------------------------------------------------------------------------------
     # State
     # --------------------------------------------------------------------------------------------
-
-    @property
-    def n_loop_rows(self) -> int:
-        """Number of loop-closure constraint rows (3 per connect)."""
-        return 3 * len(self._loop_sites)
 
     @property
     def motor_dofs(self) -> NDArray[np.int_]:
@@ -200,8 +134,8 @@ class DeltaPlant:
             theta: Motor angles (rad), shape (3,); home (arms horizontal) when None.
         """
         mujoco.mj_resetData(self.model, self.data)
-        if self.config.payload_body:
-            self.model.body_gravcomp[self._payload_body] = 1.0
+        if self._payload is not None:
+            self.model.body_gravcomp[self._payload.body] = 1.0
         self.assemble(np.zeros(3) if theta is None else theta)
 
     def assemble(self, theta: ArrayLike, theta_dot: ArrayLike | None = None) -> None:
@@ -228,50 +162,49 @@ class DeltaPlant:
         """Platform position (m) and elbow (pitch, roll) angles (rad) that close every loop at ``theta``.
 
         Vectorized over a leading batch shape: ``theta`` (..., 3) gives (..., 3) and (..., 3 chains, 2).
-        The platform is the forward kinematics; both rods of a parallelogram are parallel to x - J'_i.
+        The platform is the forward kinematics; both rods of a parallelogram are parallel to x - J'_i
+        (:func:`delta_env.kernels.assembly`).
 
         Raises:
             ValueError: if the forearms cannot reach a common point, or one would lie along its motor axis.
         """
         theta = np.asarray(theta, dtype=float)
+        rows = np.ascontiguousarray(theta.reshape(-1, 3))
+        platform, elbows = np.empty(rows.shape), np.empty((len(rows), 3, 2))
         g = self.config.geometry
-        xyz = kinematics.forward(g, theta)
-        direction = (xyz[..., None, :] - kinematics.elbow_points(g, theta)) / g.l2
-        # In the arm frame (x = u_i, y = t_i), then in the forearm body's frame at zero elbow angles,
-        # which is the arm frame turned by R_y(theta + tilt); there the rod points along -z and the two
-        # hinges give the direction (-sin p cos r, sin r, -cos p cos r).
-        radial = direction[..., 0] * self._cos_alpha + direction[..., 1] * self._sin_alpha
-        tangential = -direction[..., 0] * self._sin_alpha + direction[..., 1] * self._cos_alpha
-        turn = theta + self._tilt
-        local_x = np.cos(turn) * radial - np.sin(turn) * direction[..., 2]
-        local_z = np.sin(turn) * radial + np.cos(turn) * direction[..., 2]
-        if np.any(np.abs(tangential) >= 1.0 - 1e-9):
-            raise ValueError(f"theta={theta.tolist()} puts a forearm along its motor axis (gimbal lock)")
-        elbows = np.stack((np.arctan2(-local_x, -local_z), np.arcsin(tangential)), axis=-1)
-        return xyz, elbows
+        status, row = kernels.assembly(rows, g.r, g.l1, g.l2, self._tilt, platform, elbows)
+        if status != kernels.VALID:
+            raise ValueError(f"{kernels.INVALID_STATE[status]} at theta={rows[row].tolist()}")
+        return platform.reshape(theta.shape), elbows.reshape((*theta.shape, 2))
 
     def _assemble(self, theta: NDArray, theta_dot: NDArray, platform: NDArray, elbows: NDArray) -> None:
         """Write a configuration from :meth:`assembly_coordinates`, solve the velocities and run ``mj_forward``
         (no checks)."""
         model, data = self.model, self.data
-        jac = self._configure(theta, platform, elbows)
+        jac = self.configure(theta, platform, elbows)
         data.qvel[self._motor_dofs] = theta_dot
         data.qvel[self._passive_dofs] = np.linalg.solve(
             jac[:, self._passive_dofs], -jac[:, self._motor_dofs] @ theta_dot
         )
         if self.payload_attached:
-            self._match_payload_velocity()
+            self._payload_follows_velocity()
         if model.na:
             data.act[:] = 0.0
         mujoco.mj_forward(model, data)
 
-    def _configure(self, theta: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
-        """Write a configuration from :meth:`assembly_coordinates` (a carried payload follows the platform) and
-        run the position stages ``mj_kinematics`` and ``mj_comPos``; qvel is left as it was.
+    def configure(self, theta: NDArray, platform: NDArray, elbows: NDArray) -> NDArray[np.float64]:
+        """Write the positions of a closed configuration and run the position stages ``mj_kinematics`` and
+        ``mj_comPos``; qvel is left as it was, a carried payload follows the platform. No checks.
 
-        Returns the loop Jacobian at the new configuration (the buffer of :meth:`loop_jacobian`): what the
-        velocities that close the loops solve with (:meth:`_assemble`, and the inverse dynamics oracle, which
-        writes qvel and qacc itself and lets ``mj_inverse`` recompute the rest).
+        Args:
+            theta: Motor angles (rad), shape (3,).
+            platform: Platform position (m), shape (3,), and elbows: elbow (pitch, roll) angles (rad), shape
+                (3, 2), as :meth:`assembly_coordinates` gives them for ``theta``.
+
+        Returns:
+            The loop Jacobian at the new configuration (the buffer of :meth:`LoopClosures.jacobian`): what the
+            velocities that close the loops solve with (:meth:`assemble`, and the inverse dynamics oracle, which
+            writes qvel and qacc itself and lets ``mj_inverse`` recompute the rest).
         """
         qpos = self._qpos
         qpos[self._motor_qpos] = theta
@@ -282,35 +215,10 @@ class DeltaPlant:
             np.subtract(platform, self._platform_offset, out=qpos[self._platform_qpos : self._platform_qpos + 3])
         qpos[self._elbow_qpos] = elbows[self._elbow_chains]
         if self.payload_attached:
-            self._put_payload_on_platform()
+            self._payload.follow(*self._platform_pose())
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)
-        return self.loop_jacobian()
-
-    def loop_jacobian(self) -> NDArray[np.float64]:
-        """Jacobian (n_loop_rows, nv) of the loop residuals (forearm end minus platform point, m).
-
-        Uses the current ``site_xpos`` and ``cdof``: call after ``mj_kinematics`` and ``mj_comPos``
-        (``mj_forward`` does both). The returned array is reused by the next call.
-        """
-        model, data = self.model, self.data
-        for rod_site, platform_site, _, _, _, _, rod_rows, platform_rows, _, _ in self._loop_terms:
-            mujoco.mj_jacSite(model, data, rod_rows, None, rod_site)
-            mujoco.mj_jacSite(model, data, platform_rows, None, platform_site)
-        return np.subtract(self._site_jac[0], self._site_jac[1], out=self._loop_jac)
-
-    def loop_bias_acceleration(self) -> NDArray[np.float64]:
-        """Jdot_c qvel (m/s^2) of the loop residuals, shape (n_loop_rows,), from ``mj_jacDot``.
-
-        Needs the velocity stage (``cvel``, ``cdof_dot``) of the current state: call after ``mj_forward``, or
-        after ``mj_kinematics``, ``mj_comPos`` and ``mj_comVel``.
-        """
-        model, data = self.model, self.data
-        for _, _, rod_body, platform_body, rod_point, platform_point, _, _, rod_rows, platform_rows in self._loop_terms:
-            mujoco.mj_jacDot(model, data, rod_rows, None, rod_point, rod_body)
-            mujoco.mj_jacDot(model, data, platform_rows, None, platform_point, platform_body)
-        np.subtract(self._site_jac_dot[0], self._site_jac_dot[1], out=self._loop_jac_dot)
-        return self._loop_jac_dot @ self._qvel
+        return self.loops.jacobian()
 
     def joint_angles(self) -> NDArray[np.float64]:
         """Motor angles theta (rad), shape (3,); current."""
@@ -333,43 +241,30 @@ class DeltaPlant:
         """
         if refresh:
             mujoco.mj_kinematics(self.model, self.data)
-        # Python floats: one exit from NumPy, then six distances in scalar math (cheaper than mju_dist3 calls).
-        positions = self._site_xpos.tolist()
-        largest = 0.0  # squared; a NaN distance fails the comparison
-        for rod_end, platform_point in self._loop_site_pairs:
-            (x1, y1, z1), (x2, y2, z2) = positions[rod_end], positions[platform_point]
-            dx, dy, dz = x1 - x2, y1 - y2, z1 - z2
-            squared = dx * dx + dy * dy + dz * dz
-            if squared > largest:
-                largest = squared
-        return math.sqrt(largest)
+        return self.loops.gap()
 
     # --------------------------------------------------------------------------------------------
     # Stepping (1 kHz hot path)
     # --------------------------------------------------------------------------------------------
 
-    def motor_disturbance(self, theta: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> NDArray:
-        """Stribeck excess and torque ripple (N m) on the motor joints, shape (3,).
-
-        Stribeck: -excess * fc_i * exp(-(v / v_s)^2) * tanh(4 v / v_s); the tanh is a smooth sign whose
-        slope at zero speed (4 excess fc_i / v_s, 160 N m s/rad by default) stays well inside the explicit
-        stability limit of a 1 kHz zero-order hold, so it does not chatter. Ripple:
-        amplitude * sin(periods * theta). Accepts any leading batch shape ``(..., 3)``.
-        """
-        v = np.asarray(theta_dot) * self._inv_stribeck_velocity
-        ripple = self._ripple_amplitude * np.sin(self._ripple_periods * np.asarray(theta))
-        return ripple - self._stribeck_gain * np.exp(-v * v) * np.tanh(v * STRIBECK_SIGN_SLOPE)
+    def motor_disturbance(self, theta: ArrayLike, theta_dot: ArrayLike) -> NDArray[np.float64]:
+        """Stribeck excess and torque ripple (N m) on the motor joints at angles ``theta`` (rad) and rates
+        ``theta_dot`` (rad/s), each ``(..., 3)``: :func:`delta_env.kernels.motor_disturbance`."""
+        theta, theta_dot = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(theta_dot, dtype=float))
+        torque = np.empty(theta.shape)
+        kernels.motor_disturbances(
+            self._disturbance_bytes,
+            np.ascontiguousarray(theta.reshape(-1, 3)),
+            np.ascontiguousarray(theta_dot.reshape(-1, 3)),
+            torque.reshape(-1, 3),
+        )
+        return torque
 
     @property
-    def disturbance_coefficients(self) -> tuple[NDArray[np.float64], float, float, float]:
-        """The constants of :meth:`motor_disturbance`: Stribeck gain excess * fc_i per joint (N m), shape (3,),
-        1 / v_s (s/rad), ripple amplitude (N m) and ripple periods per revolution."""
-        return (
-            self._stribeck_gain.copy(),
-            self._inv_stribeck_velocity,
-            self._ripple_amplitude,
-            self._ripple_periods,
-        )
+    def disturbance_coefficients(self) -> NDArray:
+        """The constants of :meth:`motor_disturbance` (a copy), a one-element :data:`delta_env.kernels.DISTURBANCE`
+        array."""
+        return self._disturbance.copy()
 
     def step(self, torque_command: NDArray[np.float64], n_substeps: int) -> None:
         """Command motor torques (N m, shape (3,)) and advance ``n_substeps`` physics steps.
@@ -377,42 +272,37 @@ class DeltaPlant:
         MuJoCo clips the command to the drive's peak torque and passes it through the current-loop lag, if any.
         Stribeck excess and ripple (:meth:`motor_disturbance`) are computed once from the state at the call
         and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
-        ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path, so the
-        disturbance is written out with scalar math (cheaper than the NumPy form).
+        ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path.
         """
         self._ctrl[:] = torque_command
         if self._has_disturbance:
-            qpos, qvel, applied = self._qpos, self._qvel, self._qfrc_applied
-            amplitude, periods = self._ripple_amplitude, self._ripple_periods
-            for qpos_address, dof, gain in self._disturbance_terms:
-                v = qvel.item(dof) * self._inv_stribeck_velocity
-                ripple = amplitude * math.sin(periods * qpos.item(qpos_address))
-                applied[dof] = ripple - gain * math.exp(-v * v) * math.tanh(v * STRIBECK_SIGN_SLOPE)
+            kernels.apply_motor_disturbance(
+                self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
+            )
         mujoco.mj_step(self.model, self.data, n_substeps)
 
     # --------------------------------------------------------------------------------------------
     # Payload
     # --------------------------------------------------------------------------------------------
 
-    def _check_payload_body(self) -> None:
-        if not self.config.payload_body:
+    def _required_payload(self) -> SuctionPayload:
+        if self._payload is None:
             raise RuntimeError("this plant was built with payload_body=False")
+        return self._payload
 
     @property
     def payload_attached(self) -> bool:
         """True while the suction weld holds the payload (False without a payload body)."""
-        return self.config.payload_body and bool(self.data.eq_active[self._suction])
+        return self._payload is not None and self._payload.attached
 
     @property
     def payload_mass(self) -> float:
         """Simulated payload mass (kg); at least MIN_PAYLOAD_MASS."""
-        self._check_payload_body()
-        return float(self.model.body_mass[self._payload_body])
+        return self._required_payload().mass
 
     def payload_position(self) -> NDArray[np.float64]:
         """Centre of the payload box (m), shape (3,), from qpos; current."""
-        self._check_payload_body()
-        return self._qpos[self._payload_qpos : self._payload_qpos + 3].copy()
+        return self._required_payload().position()
 
     def suction_cup_position(self) -> NDArray[np.float64]:
         """Suction cup face (m), SUCTION_CUP_OFFSET below E0 (the platform stays level), shape (3,)."""
@@ -431,24 +321,16 @@ class DeltaPlant:
         Raises:
             ValueError: for a bad position, mass or size. RuntimeError: while the payload is attached.
         """
-        self._check_payload_body()
-        if self.payload_attached:
+        payload = self._required_payload()
+        if payload.attached:
             raise RuntimeError("release the payload before placing it")
         position = require_joint_vector("position", position)
         mass = require_in("mass", mass, 0.0, MAX_PAYLOAD_MASS, unit="kg")
         size = require_joint_vector("size", size, 0.0, 1.0, unit="m", low_open=True)
-        model, data = self.model, self.data
-        simulated_mass = max(float(mass), MIN_PAYLOAD_MASS)
-        model.body_mass[self._payload_body] = simulated_mass
-        squares = size**2
-        model.body_inertia[self._payload_body] = simulated_mass / 12.0 * (squares.sum() - squares)
-        model.geom_size[self._payload_geom] = size / 2.0
-        model.geom_rbound[self._payload_geom] = float(np.linalg.norm(size / 2.0))
-        model.body_gravcomp[self._payload_body] = 1.0
+        payload.set_box(mass, size)
         self._set_const()
-        data.qpos[self._payload_qpos : self._payload_qpos + 7] = [*position, 1.0, 0.0, 0.0, 0.0]
-        data.qvel[self._payload_dof : self._payload_dof + 6] = 0.0
-        mujoco.mj_forward(model, data)
+        payload.put_at_rest(position)
+        mujoco.mj_forward(self.model, self.data)
 
     def attach_payload(self) -> None:
         """Activate the suction weld at the current relative pose; gravity compensation off.
@@ -456,26 +338,12 @@ class DeltaPlant:
         The payload takes the platform's velocity (a suction pick is a short impulse the weld would
         otherwise deliver in one constraint time constant).
         """
-        self._check_payload_body()
-        platform_position, platform_quat = self._platform_pose()
-        payload_position = self._qpos[self._payload_qpos : self._payload_qpos + 3]
-        payload_quat = self._qpos[self._payload_qpos + 3 : self._payload_qpos + 7]
-        relative_position = _quat_to_matrix(platform_quat).T @ (payload_position - platform_position)
-        relative_quat = _quat_multiply(_quat_conjugate(platform_quat), payload_quat)
-        eq_data = self.model.eq_data[self._suction]
-        eq_data[0:3] = 0.0  # anchor: the payload's origin, in the payload frame
-        eq_data[3:6] = relative_position  # where that anchor sits in the platform frame
-        eq_data[6:10] = relative_quat
-        self.data.eq_active[self._suction] = 1
-        self.model.body_gravcomp[self._payload_body] = 0.0
-        self._match_payload_velocity()
+        self._required_payload().attach(*self._platform_pose())
+        self._payload_follows_velocity()
 
     def release_payload(self) -> None:
         """Deactivate the suction weld; the payload stops and floats where it is (gravcomp on)."""
-        self._check_payload_body()
-        self.data.eq_active[self._suction] = 0
-        self.model.body_gravcomp[self._payload_body] = 1.0
-        self._qvel[self._payload_dof : self._payload_dof + 6] = 0.0
+        self._required_payload().release()
 
     def _platform_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if self._platform_free:
@@ -483,27 +351,15 @@ class DeltaPlant:
             return self.platform_position(), quat / np.linalg.norm(quat)
         return self.platform_position(), np.array([1.0, 0.0, 0.0, 0.0])
 
-    def _put_payload_on_platform(self) -> None:
-        platform_position, platform_quat = self._platform_pose()
-        eq_data = self.model.eq_data[self._suction]
-        position = platform_position + _quat_to_matrix(platform_quat) @ eq_data[3:6]
-        quat = _quat_multiply(platform_quat, eq_data[6:10])
-        self._qpos[self._payload_qpos : self._payload_qpos + 7] = [*position, *quat]
-
-    def _match_payload_velocity(self) -> None:
+    def _payload_follows_velocity(self) -> None:
         """Give the payload the rigid-body velocity of the platform at its position."""
         platform_position, platform_quat = self._platform_pose()
+        linear = self._qvel[self._platform_dof : self._platform_dof + 3]
         if self._platform_free:
-            linear = self._qvel[self._platform_dof : self._platform_dof + 3]
-            angular = _quat_to_matrix(platform_quat) @ self._qvel[self._platform_dof + 3 : self._platform_dof + 6]
+            angular = quat_to_matrix(platform_quat) @ self._qvel[self._platform_dof + 3 : self._platform_dof + 6]
         else:
-            linear = self._qvel[self._platform_dof : self._platform_dof + 3]
             angular = np.zeros(3)
-        payload_position = self._qpos[self._payload_qpos : self._payload_qpos + 3]
-        payload_quat = self._qpos[self._payload_qpos + 3 : self._payload_qpos + 7]
-        velocity = linear + np.cross(angular, payload_position - platform_position)
-        self._qvel[self._payload_dof : self._payload_dof + 3] = velocity
-        self._qvel[self._payload_dof + 3 : self._payload_dof + 6] = _quat_to_matrix(payload_quat).T @ angular
+        self._payload.match_velocity(platform_position, linear, angular)
 
     # --------------------------------------------------------------------------------------------
     # External forces and the obstacle (fault injection); mj_resetData clears both
@@ -616,22 +472,9 @@ class DeltaPlant:
     def randomize(self, rng: np.random.Generator, ranges: RandomizationRanges | None = None) -> PhysicalParameters:
         """Draw and set new physical parameters (docs/design.md section 4 ranges by default); returns them."""
         ranges = RandomizationRanges() if ranges is None else ranges
-        nominal = self.config.masses
-
-        def draw(fraction: float, size: int | None = None) -> NDArray[np.float64]:
-            return rng.uniform(1.0 - fraction, 1.0 + fraction, size)
-
-        m1, m2, m0 = (nominal.m1, nominal.m2, nominal.m0) * draw(ranges.mass_fraction, 3)
-        lag = self.config.realism.actuator_lag
-        if ranges.actuator_lag is not None:
-            if not self._has_lag:
-                raise ValueError("this plant has no actuator lag to randomize: use actuator_lag=None")
-            lag = float(rng.uniform(*ranges.actuator_lag))
-        parameters = PhysicalParameters(
-            masses=DeltaMasses(m1=float(m1), m2=float(m2), m0=float(m0)),
-            friction_scale=tuple(float(v) for v in draw(ranges.friction_fraction, 3)),
-            actuator_lag=lag,
-        )
+        if ranges.actuator_lag is not None and not self._has_lag:
+            raise ValueError("this plant has no actuator lag to randomize: use actuator_lag=None")
+        parameters = ranges.draw(rng, self.config.masses, self.config.realism.actuator_lag)
         self.set_physical_parameters(parameters)
         return parameters
 
@@ -647,12 +490,10 @@ class DeltaPlant:
         self.model.flg_gravcomp = self.config.payload_body
 
     def _set_disturbance_coefficients(self, realism: PlantRealism) -> None:
-        self._stribeck_gain = realism.stribeck_excess * realism.coulomb_per_joint
-        self._inv_stribeck_velocity = 1.0 / realism.stribeck_velocity
-        self._ripple_amplitude = realism.ripple_amplitude
-        self._ripple_periods = float(realism.ripple_periods)
-        self._has_disturbance = bool(np.any(self._stribeck_gain > 0.0) or realism.ripple_amplitude > 0.0)
-        self._disturbance_terms = tuple(
-            (int(address), int(dof), float(gain))
-            for address, dof, gain in zip(self._motor_qpos, self._motor_dofs, self._stribeck_gain, strict=True)
-        )
+        disturbance = self._disturbance = np.zeros(1, kernels.DISTURBANCE)
+        self._disturbance_bytes = disturbance.view(np.uint8)
+        disturbance["stribeck_gain"] = realism.stribeck_excess * realism.coulomb_per_joint
+        disturbance["inverse_stribeck_velocity"] = 1.0 / realism.stribeck_velocity
+        disturbance["ripple_amplitude"] = realism.ripple_amplitude
+        disturbance["ripple_periods"] = float(realism.ripple_periods)
+        self._has_disturbance = bool(np.any(disturbance["stribeck_gain"] > 0.0) or realism.ripple_amplitude > 0.0)

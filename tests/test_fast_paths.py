@@ -9,7 +9,8 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from numpy.testing import assert_allclose, assert_array_equal
 
-from controllers.dynamics import DeltaDynamics, ModelParameters, _single_sample_model
+from controllers.compiled_model import single_sample_model
+from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateSmoother, PayloadRLS
 from controllers.payload import FRICTION_SCALE_STD, MASS_CORRECTION_STD, REST_RATE, PayloadEstimator, residual_std
 from controllers.registry import ControllerSetup
@@ -94,9 +95,9 @@ def test_compiled_single_sample_model_equals_its_python_formula_bit_for_bit(fore
         theta = rng.uniform(-0.3, 1.2, 3)
         theta_dot, theta_ddot = rng.normal(0.0, 5.0, 3), rng.normal(0.0, 200.0, 3)
         theta_dot[rng.integers(3)] = 0.0  # sign(0) = 0 in the Coulomb term
-        arguments = (model._single_sample_constants, *theta.tolist(), *theta_dot.tolist(), *theta_ddot.tolist())
-        compiled_status, compiled = _single_sample_model(*arguments)
-        python_status, python = _single_sample_model.py_func(*arguments)
+        joint_state = (*theta.tolist(), *theta_dot.tolist(), *theta_ddot.tolist())
+        compiled_status, compiled = single_sample_model(model.model_constants, *joint_state)
+        python_status, python = single_sample_model.py_func(model.model_constants, *joint_state)
         assert compiled_status == python_status == 0
         assert_array_equal(compiled, python)
 

@@ -54,7 +54,7 @@ def test_assembled_plant_matches_kinematics(plant: DeltaPlant, workzone_angles: 
             elbow = g.ra * u + g.l1 * (np.cos(th) * u - np.sin(th) * np.array([0.0, 0.0, 1.0])) + offset * t
             assert_allclose(data.xpos[model.body(f"forearm_{label}").id], elbow, atol=1e-12)
         # Velocities: loops closed to first order and the platform moves with J theta_dot.
-        assert_allclose(plant.loop_jacobian() @ data.qvel, 0.0, atol=1e-12)
+        assert_allclose(plant.loops.jacobian() @ data.qvel, 0.0, atol=1e-12)
         velocity = np.zeros(6)
         mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, platform, velocity, 0)
         assert_allclose(velocity[3:], kinematics.jacobian(g, theta) @ theta_dot, atol=1e-12)
@@ -223,7 +223,7 @@ def test_degrees_of_freedom_and_independent_loop_rows(
     assert model.nv == nv
     plant.assemble(workzone_angles(1, seed=4)[0])
     rows = _equality_jacobian(plant)
-    assert rows.shape[0] == loop_rows == plant.n_loop_rows
+    assert rows.shape[0] == loop_rows == plant.loops.n_rows
     robot_dofs = model.nv - (6 if payload_body else 0)
     assert robot_dofs - loop_rows == 3, "the closed chain must have exactly the three motor DOF"
     assert np.linalg.matrix_rank(rows) == loop_rows

@@ -82,8 +82,8 @@ def hard_constraint_acceleration(plant: DeltaPlant) -> np.ndarray:
     lambda', adding the unique M^-1 J_c^T mu that satisfies the rigid constraint removes only that softness.
     """
     model, data = plant.model, plant.data
-    jacobian = plant.loop_jacobian().copy()
-    bias = plant.loop_bias_acceleration()
+    jacobian = plant.loops.jacobian().copy()
+    bias = plant.loops.bias_acceleration()
     inverse_inertia_jt = np.empty_like(jacobian)
     mujoco.mj_solveM(model, data, inverse_inertia_jt, jacobian)  # rows of J M^-1, i.e. (M^-1 J^T)^T
     mu = np.linalg.solve(jacobian @ inverse_inertia_jt.T, -bias - jacobian @ data.qacc)
