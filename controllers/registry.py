@@ -229,7 +229,8 @@ BUILTIN_CONTROLLERS: dict[str, ControllerEntry] = {
         )
         for key in ESTIMATOR_REGRESSORS
     },
-    "oracle": ControllerEntry("oracle", BUILTIN_LABELS["oracle"], _oracle, estimates_payload=True, privileged=True),
+    # the oracle is told the true payloads: nothing of it to score as an estimate
+    "oracle": ControllerEntry("oracle", BUILTIN_LABELS["oracle"], _oracle, privileged=True),
     # the residual's base is tared: its tare comes with the policy file
     "residual": ControllerEntry("residual", BUILTIN_LABELS["residual"], _residual, estimates_payload=True),
 }
