@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -23,7 +23,8 @@ from delta_env.config import (
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.drive import clip_to_envelope
-from delta_env.faults import SENSOR_KINDS, FaultDraw, FaultSpec, InjectedFault
+from delta_env.fault_injection import FaultInjector
+from delta_env.faults import FaultSpec, InjectedFault
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
@@ -34,25 +35,6 @@ from delta_env.validation import require_count, require_in, require_instance, re
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
-
-
-OBSTACLE_LEAD = 0.05
-"""How long (s) before the platform reaches it the obstacle of a collision fault is put in its path."""
-
-OBSTACLE_MIN_SPEED = 0.05
-"""Reference speed (m/s) from which the platform counts as moving towards the obstacle: it is put ahead of the first
-such sample at or after the drawn time."""
-
-
-@dataclass
-class _RunningFault:
-    """A fault of the episode that has started: it acts on steps ``first`` to ``last`` (obstacle: from its
-    placement; it counts as active while in contact)."""
-
-    draw: FaultDraw
-    first: int
-    last: int
-    record: int = -1  # its index in env.injected_faults, once recorded
 
 
 DEFAULT_CAMERA = {
@@ -270,7 +252,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             require_instance(f"faults[{index}]", spec, FaultSpec)
 
         self.plant_config = plant if plant is not None else PlantConfig()
-        self.faults = faults
         self.plant = DeltaPlant(self.plant_config, obstacle=any(spec.target == "obstacle" for spec in faults))
         self._motor_qpos = tuple(self.plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
         self.n_cycles = int(n_cycles)
@@ -300,6 +281,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._thermal_steps = max(1, round(drive.thermal_window / self.dt))
         self._thermal_squares: list[tuple[float, float, float]] = []
         self._thermal_sums = (0.0, 0.0, 0.0)
+        self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
         unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
@@ -331,7 +313,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
-        self.injected_faults: list[InjectedFault] = []  # the truth of the faults of this episode, as they start
         self._events: dict[int, tuple[str, int]] = {}
         self._step_index = 0
         self._cycle = 0
@@ -340,10 +321,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
         self._torque_noise = np.zeros((1, 3))
-        self._faulty = False  # the episode drew a fault: the one check of the hot path
-        self._fault_starts: dict[int, list[tuple[FaultDraw, int]]] = {}  # step -> (fault, its drawn step) starting
-        self._carry_faults: dict[int, list[FaultDraw]] = {}  # carry -> its faults, scheduled at its pick
-        self._running: list[_RunningFault] = []
         self._spare_noise: np.random.Generator | None = None
         self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
         self._speed_override = 1.0
@@ -361,6 +338,16 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def dt(self) -> float:
         """Control period (s): the time one :meth:`step` advances, ``n_substeps`` physics timesteps."""
         return self.n_substeps * self.plant.model.opt.timestep
+
+    @property
+    def faults(self) -> tuple[FaultSpec, ...]:
+        """The faults each episode may draw (the ``faults`` argument, or the scenario's)."""
+        return self._faults.specs
+
+    @property
+    def injected_faults(self) -> list[InjectedFault]:
+        """The truth of the faults of this episode, as they start (cleared at reset)."""
+        return self._faults.injected
 
     # -- episode --------------------------------------------------------------------------------
 
@@ -443,7 +430,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._spare_noise = None
         if self._timed is not None and self.timing.retimes_online:
             self._spare_noise = np.random.default_rng(self.np_random.integers(2**63))
-        self._draw_faults(len(trajectory.pick_indices))
+        self._faults.draw(self.np_random, len(trajectory.pick_indices))
         self._measured_angles = self._encoder(self.plant.joint_angles())
         observation = self._observation(self.plant.joint_velocities())
         self._last_observation = observation
@@ -580,9 +567,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             saturated = min(m0, m1, m2) < 0.0
             if saturated:
                 torque = np.array([t0, t1, t2])
-        faulty = self._faulty
+        faulty = self._faults.faulty
         if faulty:
-            torque = self._faults_before_physics(torque)
+            carrying = self._cycle if self._holding else None
+            torque = self._faults.before_physics(self._step_index, torque, self.trajectory, carrying)
             t0, t1, t2 = torque.tolist()
 
         plant.step(torque, self.n_substeps)
@@ -656,7 +644,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reward_torque": reward_torque,
             "speed_override": self._speed_override,
             "stopped": truncated and self._speed_override == 0.0,
-            "faults": self._faults_after_step() if faulty else (),
+            "faults": self._faults.after_step(k - 1) if faulty else (),
         }
         if self.render_mode == "human" and k % self._render_every == 0:
             self.render()
@@ -668,8 +656,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             self._holding = True
             self._carried_mass = self.payload_masses.item(cycle)
             self._cycle = cycle
-            if cycle in self._carry_faults:
-                self._schedule_carry_faults(cycle)
+            self._faults.schedule_carry(cycle, self._step_index, self.trajectory.place_indices)
         else:
             self.plant.release_payload()
             self._holding = False
@@ -686,140 +673,20 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         below = SUCTION_CUP_OFFSET + 0.5 * DEFAULT_PAYLOAD_SIZE[2]
         self.plant.place_payload(pick_point - np.array([0.0, 0.0, below]), mass)
 
-    # -- faults ---------------------------------------------------------------------------------
+    def _drop_object(self) -> float:
+        """A slip: the suction cup loses the object held (``gripper`` still reads 1); returns its mass (kg)."""
+        mass = self._carried_mass
+        self.plant.release_payload()
+        self._carried_mass = 0.0
+        return mass
 
-    def _draw_faults(self, n_carries: int) -> None:
-        """Draw the episode's faults (last of the reset's draws) and schedule those timed from the reset."""
-        self.injected_faults = []
-        self._running = []
-        self._fault_starts = {}
-        self._carry_faults = {}
-        drawn = [spec.draw(self.np_random, n_carries) for spec in self.faults]
-        self._faulty = any(draw is not None for draw in drawn)
-        for draw in drawn:
-            if draw is None:
-                continue
-            if draw.carry is None:
-                self._schedule(draw, max(1, round(draw.when / self.dt)) - 1, 0)
-            else:
-                self._carry_faults.setdefault(draw.carry, []).append(draw)
-
-    def _schedule_carry_faults(self, cycle: int) -> None:
-        """At the pick of ``cycle`` (this step): the steps of its carry's faults, from the carry's length now."""
-        places = self.trajectory.place_indices
-        faults = self._carry_faults.pop(cycle)
-        if cycle >= len(places):  # a stop dropped this carry's place: it ends at rest, holding
-            return
-        pick, place = self._step_index, int(places[cycle])
-        for draw in faults:
-            self._schedule(draw, pick + max(1, round(draw.when * (place - pick))) - 1, pick)
-
-    def _schedule(self, draw: FaultDraw, step: int, earliest: int) -> None:
-        """Start ``draw`` at ``step``; put an obstacle in place ``OBSTACLE_LEAD`` earlier, not before ``earliest``."""
-        start = step
-        if draw.detail == "obstacle":
-            start = max(step - round(OBSTACLE_LEAD / self.dt), earliest)
-        self._fault_starts.setdefault(start, []).append((draw, step))
-
-    def _faults_before_physics(self, torque: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Start the faults due at this step and apply those acting on the plant; returns the torque the drive holds."""
-        n = self._step_index
-        for draw, step in self._fault_starts.pop(n, ()):
-            self._start_fault(draw, step)
-        self._running = running = [fault for fault in self._running if fault.last >= n]
-        for fault in running:
-            draw = fault.draw
-            if draw.kind == "drive_fault":
-                limit = draw.size * self.plant_config.drive.peak_torque
-                torque = torque.copy()
-                torque[draw.joint] = min(max(torque[draw.joint], -limit), limit)
-            elif draw.kind == "collision" and draw.detail != "obstacle":
-                self.plant.apply_external_force(draw.size * np.array(draw.direction), draw.joint)
-        return torque
-
-    def _start_fault(self, draw: FaultDraw, step: int) -> None:
-        """Begin ``draw`` (drawn for ``step``) now, or drop it if it can no longer happen."""
-        n, dt = self._step_index, self.dt
-        size = draw.size
-        if draw.kind == "slip":
-            places = self.trajectory.place_indices
-            if draw.carry >= len(places):  # a stop dropped its place
-                return
-            place = int(places[draw.carry])
-            if not (self._holding and self._cycle == draw.carry and n < place):
-                return
-            size = self._carried_mass
-            self.plant.release_payload()
-            self._carried_mass = 0.0
-            last = place - 1
-        elif draw.detail == "obstacle":
-            trajectory = self.trajectory
-            speeds = np.linalg.norm(trajectory.xyz_dot[step + 1 :], axis=1)
-            moving = np.flatnonzero(speeds >= OBSTACLE_MIN_SPEED)
-            if not len(moving):
-                return
-            hit = step + 1 + int(moving[0])
-            self.plant.place_obstacle(trajectory.xyz[hit], trajectory.xyz_dot[hit])
-            self._running.append(_RunningFault(draw, n, hit - 1 + max(1, round(draw.duration / dt))))
-            return
-        else:
-            last = n + max(1, round(draw.duration / dt)) - 1
-        fault = _RunningFault(draw, n, last, len(self.injected_faults))
-        self._running.append(fault)
-        self.injected_faults.append(
-            InjectedFault(draw.kind, n, last - n + 1, (n + 1) * dt, draw.joint, size, draw.detail)
-        )
-
-    def _faults_after_step(self) -> tuple[str, ...]:
-        """Record the obstacle's contact, end the faults whose last step this was; the kinds acting on this step."""
-        n = self._step_index - 1  # the step just taken
-        kinds = []
-        for fault in self._running:
-            draw = fault.draw
-            if draw.detail == "obstacle":
-                force = self.plant.obstacle_contact_force()
-                if force > 0.0:
-                    kinds.append(draw.kind)
-                    self._record_contact(fault, n, force)
-                if fault.last == n:
-                    self.plant.park_obstacle()
-                continue
-            kinds.append(draw.kind)
-            if fault.last == n and draw.kind == "collision":
-                self.plant.clear_external_forces()
-        return tuple(kinds)
-
-    def _record_contact(self, fault: _RunningFault, n: int, force: float) -> None:
-        """The obstacle's record: its first contact step and the largest contact force (N) so far."""
-        if fault.record < 0:
-            fault.record = len(self.injected_faults)
-            self.injected_faults.append(InjectedFault("collision", n, 1, (n + 1) * self.dt, None, force, "obstacle"))
-            return
-        record = self.injected_faults[fault.record]
-        self.injected_faults[fault.record] = replace(
-            record, steps=n - record.start_step + 1, size=max(record.size, force)
-        )
+    # -- measurement ----------------------------------------------------------------------------
 
     def _faulty_observation(self) -> dict[str, NDArray[np.float64]]:
         """The observation of this step with the sensor faults acting on it."""
-        n = self._step_index - 1
         previous = self._measured_angles
         velocities = self._measure_joints()
-        readings = list(self._measured_angles)
-        torque_faults = []
-        for fault in self._running:
-            draw = fault.draw
-            if draw.kind not in SENSOR_KINDS or fault.first > n:
-                continue
-            j = draw.joint
-            if draw.kind == "torque_glitch" or draw.detail == "torque":
-                torque_faults.append(draw)
-            elif draw.kind == "encoder_glitch":
-                readings[j] += draw.size
-            elif draw.kind == "encoder_stuck":
-                readings[j] = previous[j]
-            else:
-                readings[j] = math.nan
+        readings, torque_offsets = self._faults.corrupt_readings(self._step_index - 1, self._measured_angles, previous)
         if readings != self._measured_angles:
             self._measured_angles = readings
             if self._encoder_step is None:
@@ -827,11 +694,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             else:
                 velocities = (np.array(readings) - np.array(previous)) / CONTROL_PERIOD
         observation = self._observation(velocities)
-        for draw in torque_faults:
-            observation["joint_torques"][draw.joint] += draw.size  # NaN for a sensor_nan
+        for joint, offset in torque_offsets:
+            observation["joint_torques"][joint] += offset  # NaN for a sensor_nan
         return observation
-
-    # -- measurement ----------------------------------------------------------------------------
 
     def _encoder(self, angles: NDArray[np.float64]) -> list[float]:
         """Encoder reading (rad) of joint angles: rounded to whole counts when quantized."""
