@@ -61,6 +61,9 @@ class RewardWeights:
 class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
     """A 3-DOF Delta robot in MuJoCo picks and places objects whose masses it is never told.
 
+    A summary; docs/design.md section 5 ("Environment", "Speed override", "Faults") is the full reference: the
+    drive's envelope, every ``info`` key with its unit, the starting state, timing and what each fault does.
+
     ## Description
     Each episode is a sequence of pick-and-place cycles along a C2 reference path (lift 25 mm,
     travel, descend 25 mm, dwell, and back to the next pick point). At each pick point a suction
@@ -70,15 +73,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     in this project knows. One step is one control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
 
     ## Action Space
-    ``Box(-peak, peak, (3,), float64)``: motor torques (N m) at the three joints; the peak is the drive's,
-    400 N m by default (``plant.drive``, :class:`~delta_env.drive.DriveLimits`). The drive enforces its
-    torque-speed envelope at every step: each joint's command is clipped to
-    ``DriveLimits.torque_bounds`` at the true joint speed at the start of the step (the peak torque when
-    braking or at rest, falling from the corner speed to 0 at the maximum speed when motoring), and a clipped
-    step is flagged in ``info["torque_saturated"]``. NaN or inf raises a ValueError.
+    ``Box(-peak, peak, (3,), float64)``: motor torques (N m), peak 400 N m by default (``plant.drive``), clipped
+    to the drive's torque-speed envelope at each step (``info["torque_saturated"]``); NaN or inf raises ValueError.
 
     ## Observation Space
-    A ``Dict`` of float64 arrays, all measured or known to a real drive:
+    A ``Dict`` of float64 arrays, all measured or known to a real drive (never the payload mass):
 
     | key | shape | unit | meaning |
     |---|---|---|---|
@@ -90,10 +89,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
     | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
 
-    The joint rates are exact when the encoder is ideal (``encoder_bits=None``). The measured torque is
-    the actuator force of the last physics substep, ``MEASURED_TORQUE_DELAY`` older than the encoder
-    sample (:mod:`delta_env.sensors`). The payload mass is never observed.
-
     ## Rewards
     ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
     in mm and tau the commanded (saturated) torque in N m; defaults w_tracking = 1 per mm^2 and
@@ -101,41 +96,20 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     and ``info["reward_torque"]``.
 
     ## Starting State
-    At rest at the start of the reference, loops assembled exactly, the gripper empty: a place point where a
-    previous object was released, from which the first move takes the gripper to the first pick point
-    (``start="place"``, a window of continuous work), or the first pick point itself (``start="pick"``); the
-    first object waits at the first pick point. The randomness of an episode (pick and place points, object
-    masses, sensor noise and, if enabled, the plant's parameters) comes from the ``seed`` of :meth:`reset`.
+    At rest at a place point (``start="place"``) or the first pick point (``start="pick"``), the gripper empty.
+    All randomness of an episode comes from the ``seed`` of :meth:`reset`; its ``options`` are documented there.
 
     ## Episode End
-    - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
-      After :meth:`override_speed` ``(0)``, a stop at rest, the reference ends once it has held its stopping
-      point for ``STOP_HOLD`` (0.1 s): the episode truncates there with ``info["stopped"] = True``.
-    - Termination: the simulation diverges (a MuJoCo instability warning, a non-finite state or a loop
-      gap over 1 mm): ``info["diverged"] = True``, the last finite observation is returned and the
-      reward is ``-divergence_penalty``.
-
-    Stepping after either raises ``RuntimeError``: call :meth:`reset`.
+    Truncation at the end of the reference (``n_cycles`` cycles, or a stop's hold: ``info["stopped"]``);
+    termination when the simulation diverges (``info["diverged"]``, reward ``-divergence_penalty``). Stepping
+    after either raises ``RuntimeError``: call :meth:`reset`.
 
     ## Info
-    Truth for evaluation, never for controllers: ``payload_mass`` (kg, 0 when nothing is held),
-    ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
-    ``torque_command`` (N m, the action within the drive's envelope: what the drive held over the step),
-    ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
-    ``torque_saturated`` (the envelope clipped the action), ``faults`` (the kinds of the injected faults acting on this
-    step, a tuple, empty normally; see Faults below) and the reward terms. The speed override
-    (:meth:`override_speed`): ``speed_override`` (the last rate asked for, a fraction of the planned speed; 1.0
-    without one) and ``stopped`` (True on the step that truncates a stop's hold, else False). The drive's limits
-    (:class:`~delta_env.drive.DriveLimits`), per joint, shape (3,) unless a bool:
-
-    | key | unit | meaning |
-    |---|---|---|
-    | ``torque_margin`` | N m | bound in the action's direction minus abs(action); < 0: clipped by that much |
-    | ``speed_margin`` | rad/s | ``max_speed`` minus abs(joint speed), after the step |
-    | ``speed_exceeded`` | bool | some joint is beyond ``max_speed`` after the step |
-    | ``thermal_rms`` | N m | RMS of ``applied_torque`` over the last ``thermal_window`` (or since the reset) |
-    | ``thermal_margin`` | N m | ``rated_torque`` minus ``thermal_rms`` |
-    | ``thermal_exceeded`` | bool | a full window has elapsed and some ``thermal_rms`` is above ``rated_torque`` |
+    Truth for evaluation, never for controllers: ``payload_mass``, ``platform_position``, ``reference_position``,
+    ``tracking_error``, ``loop_gap``, ``torque_command``, ``applied_torque``, ``cycle``, ``diverged``,
+    ``torque_saturated``, ``faults``, ``reward_tracking``, ``reward_torque``, ``speed_override``, ``stopped`` and
+    the drive's limits ``torque_margin``, ``speed_margin``, ``speed_exceeded``, ``thermal_rms``,
+    ``thermal_margin``, ``thermal_exceeded`` (units and meanings: docs/design.md section 5).
 
     ## Arguments
     | parameter | type | default | description |
@@ -155,40 +129,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``timing`` | MoveTiming, None | None | times every move instead of ``peak_acceleration`` (``env.timing``) |
     | ``faults`` | sequence of FaultSpec, None | None = the scenario's (none) | faults injected into the episodes |
 
-    With a ``timing`` (:class:`~delta_env.timing.MoveTiming`, e.g. the payload-adaptive time-optimal planner of
-    :mod:`controllers.timing`), every move keeps its shape but is timed by it: carries with the object's mass
-    declared to it, empty moves for the empty gripper; a timing that ``retimes_online`` is asked at every step of
-    a carry whether to change the rest of it. Dwells and gripper events stay mid-dwell.
-
-    ``override_speed(rate)``, between steps, is the cell's reaction to a fault (e.g. one a controller's monitor
-    detects): a jerk-limited ramp of the rest of the reference to ``rate`` times its planned speed along the same
-    path, 0 for a controlled stop at rest (docs/design.md section 5, "Speed override").
-    ## Faults
-    Each episode draws its faults (:class:`~delta_env.faults.FaultSpec`, ``env.faults``) from ``np_random`` after
-    everything else, so an episode without faults is exactly what it was before faults existed. A fault starts at a
-    drawn time from the reset, or at a drawn fraction of a carry (pick to place, computed when its pick happens, from
-    the carry's length then). When it starts it is appended to ``env.injected_faults`` (a list of
-    :class:`~delta_env.faults.InjectedFault`, the truth, cleared at reset); one that would start after the episode's
-    end, or after its carry's place, does not happen. What each kind does at the steps it acts on:
-
-    - ``slip``: the suction cup loses the object (the plant releases it); ``gripper`` stays 1 until the place and
-      ``info["payload_mass"]`` is 0 from then on.
-    - ``encoder_glitch`` / ``encoder_stuck`` / ``sensor_nan`` (``"encoder"``): the joint's reading is offset by the
-      size / repeats its last value / is NaN; ``joint_velocities`` stays the backward difference of the readings
-      (with an ideal encoder it is the true rate, NaN where the reading is).
-    - ``torque_glitch`` / ``sensor_nan`` (``"torque"``): the joint's ``joint_torques`` is offset by the size / NaN.
-    - ``collision``: a force of the drawn size and direction on the platform or on an upper arm at its elbow
-      (``data.xfrc_applied``), or an obstacle sphere put on the path a little before the platform reaches it at the
-      drawn time, removed after the duration (its record starts at the first contact, with the largest contact
-      force as size; one obstacle exists, so two obstacle faults must not overlap).
-    - ``drive_fault``: after the envelope, the joint's command is limited to +-size x peak torque
-      (``info["torque_command"]`` shows it).
-
-    A NaN observation never counts as divergence: that is judged on the plant's state.
-
-    The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
-    argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the
-    scenario's plant and its condition; ``domain_randomization=None`` keeps the scenario's.
+    The scenario (:mod:`delta_env.scenario`) supplies every argument left at None (the defaults above are the
+    ``nominal`` scenario's). :meth:`override_speed` slows or stops the rest of the reference between steps. Each
+    episode draws its faults (``env.faults``) from ``np_random`` after everything else; their truth is
+    ``env.injected_faults`` (:class:`~delta_env.faults.InjectedFault`) and ``info["faults"]``
+    (:class:`~delta_env.fault_injection.FaultInjector`).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
