@@ -25,6 +25,7 @@ from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standa
 from delta_env.drive import clip_to_envelope
 from delta_env.fault_injection import FaultInjector
 from delta_env.faults import FaultSpec, InjectedFault
+from delta_env.measurement import Sensors
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
@@ -198,7 +199,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
         self.plant_config = plant if plant is not None else PlantConfig()
         self.plant = DeltaPlant(self.plant_config, obstacle=any(spec.target == "obstacle" for spec in faults))
-        self._motor_qpos = tuple(self.plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
         self.n_cycles = int(n_cycles)
         self.cycle = cycle
         self.start = start
@@ -216,8 +216,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         timestep = self.plant.model.opt.timestep
         self.n_substeps = control_substeps(timestep)
         realism = self.plant_config.realism
-        self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
-        self._torque_noise_std = realism.torque_noise_std
+        encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
+        self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std)
         drive = self.plant_config.drive
         self._motor_dofs = tuple(self.plant.motor_dofs.tolist())
         self._envelope = (drive.peak_torque, drive.corner_speed, drive.max_speed, drive.max_speed - drive.corner_speed)
@@ -263,10 +263,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._cycle = 0
         self._holding = False
         self._carried_mass = 0.0  # truth: 0 while nothing is held or after a slip
-        self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
-        self._torque_noise = np.zeros((1, 3))
-        self._spare_noise: np.random.Generator | None = None
         self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
         self._speed_override = 1.0
         # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
@@ -369,15 +366,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.plant.reset(trajectory.theta[0])
         first_pick = trajectory.pick_indices[0] if n_objects else 0
         self._place_object(trajectory.xyz[first_pick], self.payload_masses[0] if n_objects else 0.0)
-        self._torque_noise = self.np_random.normal(0.0, self._torque_noise_std, size=(len(trajectory), 3))
-        # A reference an online timing lengthens draws the rest of its noise from a generator of its own, so that
-        # the retimes leave np_random as a fixed timing would.
-        self._spare_noise = None
-        if self._timed is not None and self.timing.retimes_online:
-            self._spare_noise = np.random.default_rng(self.np_random.integers(2**63))
+        online = self._timed is not None and self.timing.retimes_online
+        self._sensors.draw_noise(self.np_random, len(trajectory), spare=online)
         self._faults.draw(self.np_random, len(trajectory.pick_indices))
-        self._measured_angles = self._encoder(self.plant.joint_angles())
-        observation = self._observation(self.plant.joint_velocities())
+        observation = self._sensors.first_observation(trajectory, self._holding)
         self._last_observation = observation
         if self.render_mode == "human":
             self.render()
@@ -414,10 +406,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._timed = self._timed.with_law(piece_index, law, followed=k - start + 1)
         self._set_reference(self._timed)
         self._carry = (piece_index, start)
-        missing = len(self.trajectory) - len(self._torque_noise)
-        if missing > 0:
-            extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
-            self._torque_noise = np.concatenate((self._torque_noise, extra))
+        self._sensors.cover(len(self.trajectory), self.np_random)
 
     def override_speed(self, rate: float) -> None:
         """Slow the rest of the reference down, or stop it at rest, as a robot controller's speed override does.
@@ -452,13 +441,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry = None
         self._set_reference(self._override.trajectory)
         self._speed_override = rate
-        missing = len(self.trajectory) - len(self._torque_noise)
-        if missing > 0:
-            if self._spare_noise is None:
-                # a stream of its own, derived from the episode's seed, so that np_random draws as before
-                self._spare_noise = np.random.default_rng(self.np_random.bit_generator.seed_seq.spawn(1)[0])
-            extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
-            self._torque_noise = np.concatenate((self._torque_noise, extra))
+        self._sensors.cover(len(self.trajectory), self.np_random)
 
     def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
         if requested is None:
@@ -547,7 +530,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_tracking = reward_torque = 0.0
             reward = -self.divergence_penalty
         else:
-            observation = self._faulty_observation() if faulty else self._observation(self._measure_joints())
+            observation = self._sensors.observe(k, self.trajectory, self._holding, self._faults if faulty else None)
             self._last_observation = observation
             reward_tracking = -self._tracking_weight_m2 * squared_error
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
@@ -624,60 +607,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.plant.release_payload()
         self._carried_mass = 0.0
         return mass
-
-    # -- measurement ----------------------------------------------------------------------------
-
-    def _faulty_observation(self) -> dict[str, NDArray[np.float64]]:
-        """The observation of this step with the sensor faults acting on it."""
-        previous = self._measured_angles
-        velocities = self._measure_joints()
-        readings, torque_offsets = self._faults.corrupt_readings(self._step_index - 1, self._measured_angles, previous)
-        if readings != self._measured_angles:
-            self._measured_angles = readings
-            if self._encoder_step is None:
-                velocities[np.isnan(readings)] = math.nan
-            else:
-                velocities = (np.array(readings) - np.array(previous)) / CONTROL_PERIOD
-        observation = self._observation(velocities)
-        for joint, offset in torque_offsets:
-            observation["joint_torques"][joint] += offset  # NaN for a sensor_nan
-        return observation
-
-    def _encoder(self, angles: NDArray[np.float64]) -> list[float]:
-        """Encoder reading (rad) of joint angles: rounded to whole counts when quantized."""
-        return self._encoder_floats(*angles.tolist())
-
-    def _encoder_floats(self, a0: float, a1: float, a2: float) -> list[float]:
-        """:meth:`_encoder` of three angles (rad) given as floats."""
-        step = self._encoder_step
-        if step is None:
-            return [a0, a1, a2]
-        return [round(a0 / step) * step, round(a1 / step) * step, round(a2 / step) * step]
-
-    def _measure_joints(self) -> NDArray[np.float64]:
-        """Sample the encoders; return the measured joint rates (rad/s)."""
-        p0, p1, p2 = self._measured_angles
-        qpos = self.plant.data.qpos
-        a0, a1, a2 = self._motor_qpos
-        self._measured_angles = m0, m1, m2 = self._encoder_floats(qpos.item(a0), qpos.item(a1), qpos.item(a2))
-        if self._encoder_step is None:
-            return self.plant.joint_velocities()
-        rate = 1.0 / CONTROL_PERIOD
-        return np.array([(m0 - p0) * rate, (m1 - p1) * rate, (m2 - p2) * rate])
-
-    def _observation(self, joint_velocities: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
-        k = self._step_index
-        trajectory = self.trajectory
-        # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
-        return {
-            "joint_angles": np.array(self._measured_angles),
-            "joint_velocities": joint_velocities,
-            "joint_torques": self.plant.data.actuator_force + self._torque_noise[k],
-            "reference_angles": trajectory.theta[k],
-            "reference_velocities": trajectory.theta_dot[k],
-            "reference_accelerations": trajectory.theta_ddot[k],
-            "gripper": np.array([1.0 if self._holding else 0.0]),
-        }
 
     # -- rendering ------------------------------------------------------------------------------
 
