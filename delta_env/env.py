@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -23,7 +23,9 @@ from delta_env.config import (
 )
 from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
 from delta_env.drive import clip_to_envelope
-from delta_env.faults import SENSOR_KINDS, FaultDraw, FaultSpec, InjectedFault
+from delta_env.fault_injection import FaultInjector
+from delta_env.faults import FaultSpec, InjectedFault
+from delta_env.measurement import Sensors
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import Scenario, resolve_scenario
@@ -34,25 +36,6 @@ from delta_env.validation import require_count, require_in, require_instance, re
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
-
-
-OBSTACLE_LEAD = 0.05
-"""How long (s) before the platform reaches it the obstacle of a collision fault is put in its path."""
-
-OBSTACLE_MIN_SPEED = 0.05
-"""Reference speed (m/s) from which the platform counts as moving towards the obstacle: it is put ahead of the first
-such sample at or after the drawn time."""
-
-
-@dataclass
-class _RunningFault:
-    """A fault of the episode that has started: it acts on steps ``first`` to ``last`` (obstacle: from its
-    placement; it counts as active while in contact)."""
-
-    draw: FaultDraw
-    first: int
-    last: int
-    record: int = -1  # its index in env.injected_faults, once recorded
 
 
 DEFAULT_CAMERA = {
@@ -79,6 +62,9 @@ class RewardWeights:
 class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
     """A 3-DOF Delta robot in MuJoCo picks and places objects whose masses it is never told.
 
+    A summary; docs/design.md section 5 ("Environment", "Speed override", "Faults") is the full reference: the
+    drive's envelope, every ``info`` key with its unit, the starting state, timing and what each fault does.
+
     ## Description
     Each episode is a sequence of pick-and-place cycles along a C2 reference path (lift 25 mm,
     travel, descend 25 mm, dwell, and back to the next pick point). At each pick point a suction
@@ -88,15 +74,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     in this project knows. One step is one control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
 
     ## Action Space
-    ``Box(-peak, peak, (3,), float64)``: motor torques (N m) at the three joints; the peak is the drive's,
-    400 N m by default (``plant.drive``, :class:`~delta_env.drive.DriveLimits`). The drive enforces its
-    torque-speed envelope at every step: each joint's command is clipped to
-    ``DriveLimits.torque_bounds`` at the true joint speed at the start of the step (the peak torque when
-    braking or at rest, falling from the corner speed to 0 at the maximum speed when motoring), and a clipped
-    step is flagged in ``info["torque_saturated"]``. NaN or inf raises a ValueError.
+    ``Box(-peak, peak, (3,), float64)``: motor torques (N m), peak 400 N m by default (``plant.drive``), clipped
+    to the drive's torque-speed envelope at each step (``info["torque_saturated"]``); NaN or inf raises ValueError.
 
     ## Observation Space
-    A ``Dict`` of float64 arrays, all measured or known to a real drive:
+    A ``Dict`` of float64 arrays, all measured or known to a real drive (never the payload mass):
 
     | key | shape | unit | meaning |
     |---|---|---|---|
@@ -108,10 +90,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
     | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
 
-    The joint rates are exact when the encoder is ideal (``encoder_bits=None``). The measured torque is
-    the actuator force of the last physics substep, ``MEASURED_TORQUE_DELAY`` older than the encoder
-    sample (:mod:`delta_env.sensors`). The payload mass is never observed.
-
     ## Rewards
     ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
     in mm and tau the commanded (saturated) torque in N m; defaults w_tracking = 1 per mm^2 and
@@ -119,41 +97,20 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     and ``info["reward_torque"]``.
 
     ## Starting State
-    At rest at the start of the reference, loops assembled exactly, the gripper empty: a place point where a
-    previous object was released, from which the first move takes the gripper to the first pick point
-    (``start="place"``, a window of continuous work), or the first pick point itself (``start="pick"``); the
-    first object waits at the first pick point. The randomness of an episode (pick and place points, object
-    masses, sensor noise and, if enabled, the plant's parameters) comes from the ``seed`` of :meth:`reset`.
+    At rest at a place point (``start="place"``) or the first pick point (``start="pick"``), the gripper empty.
+    All randomness of an episode comes from the ``seed`` of :meth:`reset`; its ``options`` are documented there.
 
     ## Episode End
-    - Truncation: at the end of the reference (``n_cycles`` cycles); no ``TimeLimit`` wrapper is needed.
-      After :meth:`override_speed` ``(0)``, a stop at rest, the reference ends once it has held its stopping
-      point for ``STOP_HOLD`` (0.1 s): the episode truncates there with ``info["stopped"] = True``.
-    - Termination: the simulation diverges (a MuJoCo instability warning, a non-finite state or a loop
-      gap over 1 mm): ``info["diverged"] = True``, the last finite observation is returned and the
-      reward is ``-divergence_penalty``.
-
-    Stepping after either raises ``RuntimeError``: call :meth:`reset`.
+    Truncation at the end of the reference (``n_cycles`` cycles, or a stop's hold: ``info["stopped"]``);
+    termination when the simulation diverges (``info["diverged"]``, reward ``-divergence_penalty``). Stepping
+    after either raises ``RuntimeError``: call :meth:`reset`.
 
     ## Info
-    Truth for evaluation, never for controllers: ``payload_mass`` (kg, 0 when nothing is held),
-    ``platform_position`` and ``reference_position`` (m), ``tracking_error`` (m), ``loop_gap`` (m),
-    ``torque_command`` (N m, the action within the drive's envelope: what the drive held over the step),
-    ``applied_torque`` (N m, the drive's output, which lags the command), ``cycle``, ``diverged``,
-    ``torque_saturated`` (the envelope clipped the action), ``faults`` (the kinds of the injected faults acting on this
-    step, a tuple, empty normally; see Faults below) and the reward terms. The speed override
-    (:meth:`override_speed`): ``speed_override`` (the last rate asked for, a fraction of the planned speed; 1.0
-    without one) and ``stopped`` (True on the step that truncates a stop's hold, else False). The drive's limits
-    (:class:`~delta_env.drive.DriveLimits`), per joint, shape (3,) unless a bool:
-
-    | key | unit | meaning |
-    |---|---|---|
-    | ``torque_margin`` | N m | bound in the action's direction minus abs(action); < 0: clipped by that much |
-    | ``speed_margin`` | rad/s | ``max_speed`` minus abs(joint speed), after the step |
-    | ``speed_exceeded`` | bool | some joint is beyond ``max_speed`` after the step |
-    | ``thermal_rms`` | N m | RMS of ``applied_torque`` over the last ``thermal_window`` (or since the reset) |
-    | ``thermal_margin`` | N m | ``rated_torque`` minus ``thermal_rms`` |
-    | ``thermal_exceeded`` | bool | a full window has elapsed and some ``thermal_rms`` is above ``rated_torque`` |
+    Truth for evaluation, never for controllers: ``payload_mass``, ``platform_position``, ``reference_position``,
+    ``tracking_error``, ``loop_gap``, ``torque_command``, ``applied_torque``, ``cycle``, ``diverged``,
+    ``torque_saturated``, ``faults``, ``reward_tracking``, ``reward_torque``, ``speed_override``, ``stopped`` and
+    the drive's limits ``torque_margin``, ``speed_margin``, ``speed_exceeded``, ``thermal_rms``,
+    ``thermal_margin``, ``thermal_exceeded`` (units and meanings: docs/design.md section 5).
 
     ## Arguments
     | parameter | type | default | description |
@@ -173,40 +130,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``timing`` | MoveTiming, None | None | times every move instead of ``peak_acceleration`` (``env.timing``) |
     | ``faults`` | sequence of FaultSpec, None | None = the scenario's (none) | faults injected into the episodes |
 
-    With a ``timing`` (:class:`~delta_env.timing.MoveTiming`, e.g. the payload-adaptive time-optimal planner of
-    :mod:`controllers.timing`), every move keeps its shape but is timed by it: carries with the object's mass
-    declared to it, empty moves for the empty gripper; a timing that ``retimes_online`` is asked at every step of
-    a carry whether to change the rest of it. Dwells and gripper events stay mid-dwell.
-
-    ``override_speed(rate)``, between steps, is the cell's reaction to a fault (e.g. one a controller's monitor
-    detects): a jerk-limited ramp of the rest of the reference to ``rate`` times its planned speed along the same
-    path, 0 for a controlled stop at rest (docs/design.md section 5, "Speed override").
-    ## Faults
-    Each episode draws its faults (:class:`~delta_env.faults.FaultSpec`, ``env.faults``) from ``np_random`` after
-    everything else, so an episode without faults is exactly what it was before faults existed. A fault starts at a
-    drawn time from the reset, or at a drawn fraction of a carry (pick to place, computed when its pick happens, from
-    the carry's length then). When it starts it is appended to ``env.injected_faults`` (a list of
-    :class:`~delta_env.faults.InjectedFault`, the truth, cleared at reset); one that would start after the episode's
-    end, or after its carry's place, does not happen. What each kind does at the steps it acts on:
-
-    - ``slip``: the suction cup loses the object (the plant releases it); ``gripper`` stays 1 until the place and
-      ``info["payload_mass"]`` is 0 from then on.
-    - ``encoder_glitch`` / ``encoder_stuck`` / ``sensor_nan`` (``"encoder"``): the joint's reading is offset by the
-      size / repeats its last value / is NaN; ``joint_velocities`` stays the backward difference of the readings
-      (with an ideal encoder it is the true rate, NaN where the reading is).
-    - ``torque_glitch`` / ``sensor_nan`` (``"torque"``): the joint's ``joint_torques`` is offset by the size / NaN.
-    - ``collision``: a force of the drawn size and direction on the platform or on an upper arm at its elbow
-      (``data.xfrc_applied``), or an obstacle sphere put on the path a little before the platform reaches it at the
-      drawn time, removed after the duration (its record starts at the first contact, with the largest contact
-      force as size; one obstacle exists, so two obstacle faults must not overlap).
-    - ``drive_fault``: after the envelope, the joint's command is limited to +-size x peak torque
-      (``info["torque_command"]`` shows it).
-
-    A NaN observation never counts as divergence: that is judged on the plant's state.
-
-    The scenario (:mod:`delta_env.scenario`) supplies every task and plant argument left at None; an explicit
-    argument overrides its field (the defaults above are the ``nominal`` scenario's). ``plant`` replaces the
-    scenario's plant and its condition; ``domain_randomization=None`` keeps the scenario's.
+    The scenario (:mod:`delta_env.scenario`) supplies every argument left at None (the defaults above are the
+    ``nominal`` scenario's). :meth:`override_speed` slows or stops the rest of the reference between steps. Each
+    episode draws its faults (``env.faults``) from ``np_random`` after everything else; their truth is
+    ``env.injected_faults`` (:class:`~delta_env.faults.InjectedFault`) and ``info["faults"]``
+    (:class:`~delta_env.fault_injection.FaultInjector`).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
@@ -270,9 +198,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             require_instance(f"faults[{index}]", spec, FaultSpec)
 
         self.plant_config = plant if plant is not None else PlantConfig()
-        self.faults = faults
         self.plant = DeltaPlant(self.plant_config, obstacle=any(spec.target == "obstacle" for spec in faults))
-        self._motor_qpos = tuple(self.plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
         self.n_cycles = int(n_cycles)
         self.cycle = cycle
         self.start = start
@@ -290,8 +216,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         timestep = self.plant.model.opt.timestep
         self.n_substeps = control_substeps(timestep)
         realism = self.plant_config.realism
-        self._encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
-        self._torque_noise_std = realism.torque_noise_std
+        encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
+        self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std)
         drive = self.plant_config.drive
         self._motor_dofs = tuple(self.plant.motor_dofs.tolist())
         self._envelope = (drive.peak_torque, drive.corner_speed, drive.max_speed, drive.max_speed - drive.corner_speed)
@@ -300,6 +226,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._thermal_steps = max(1, round(drive.thermal_window / self.dt))
         self._thermal_squares: list[tuple[float, float, float]] = []
         self._thermal_sums = (0.0, 0.0, 0.0)
+        self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
         unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
@@ -331,20 +258,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
-        self.injected_faults: list[InjectedFault] = []  # the truth of the faults of this episode, as they start
         self._events: dict[int, tuple[str, int]] = {}
         self._step_index = 0
         self._cycle = 0
         self._holding = False
         self._carried_mass = 0.0  # truth: 0 while nothing is held or after a slip
-        self._measured_angles = [0.0, 0.0, 0.0]
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
-        self._torque_noise = np.zeros((1, 3))
-        self._faulty = False  # the episode drew a fault: the one check of the hot path
-        self._fault_starts: dict[int, list[tuple[FaultDraw, int]]] = {}  # step -> (fault, its drawn step) starting
-        self._carry_faults: dict[int, list[FaultDraw]] = {}  # carry -> its faults, scheduled at its pick
-        self._running: list[_RunningFault] = []
-        self._spare_noise: np.random.Generator | None = None
         self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
         self._speed_override = 1.0
         # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
@@ -361,6 +280,16 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def dt(self) -> float:
         """Control period (s): the time one :meth:`step` advances, ``n_substeps`` physics timesteps."""
         return self.n_substeps * self.plant.model.opt.timestep
+
+    @property
+    def faults(self) -> tuple[FaultSpec, ...]:
+        """The faults each episode may draw (the ``faults`` argument, or the scenario's)."""
+        return self._faults.specs
+
+    @property
+    def injected_faults(self) -> list[InjectedFault]:
+        """The truth of the faults of this episode, as they start (cleared at reset)."""
+        return self._faults.injected
 
     # -- episode --------------------------------------------------------------------------------
 
@@ -437,15 +366,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.plant.reset(trajectory.theta[0])
         first_pick = trajectory.pick_indices[0] if n_objects else 0
         self._place_object(trajectory.xyz[first_pick], self.payload_masses[0] if n_objects else 0.0)
-        self._torque_noise = self.np_random.normal(0.0, self._torque_noise_std, size=(len(trajectory), 3))
-        # A reference an online timing lengthens draws the rest of its noise from a generator of its own, so that
-        # the retimes leave np_random as a fixed timing would.
-        self._spare_noise = None
-        if self._timed is not None and self.timing.retimes_online:
-            self._spare_noise = np.random.default_rng(self.np_random.integers(2**63))
-        self._draw_faults(len(trajectory.pick_indices))
-        self._measured_angles = self._encoder(self.plant.joint_angles())
-        observation = self._observation(self.plant.joint_velocities())
+        online = self._timed is not None and self.timing.retimes_online
+        self._sensors.draw_noise(self.np_random, len(trajectory), spare=online)
+        self._faults.draw(self.np_random, len(trajectory.pick_indices))
+        observation = self._sensors.first_observation(trajectory, self._holding)
         self._last_observation = observation
         if self.render_mode == "human":
             self.render()
@@ -482,10 +406,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._timed = self._timed.with_law(piece_index, law, followed=k - start + 1)
         self._set_reference(self._timed)
         self._carry = (piece_index, start)
-        missing = len(self.trajectory) - len(self._torque_noise)
-        if missing > 0:
-            extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
-            self._torque_noise = np.concatenate((self._torque_noise, extra))
+        self._sensors.cover(len(self.trajectory), self.np_random)
 
     def override_speed(self, rate: float) -> None:
         """Slow the rest of the reference down, or stop it at rest, as a robot controller's speed override does.
@@ -520,13 +441,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carry = None
         self._set_reference(self._override.trajectory)
         self._speed_override = rate
-        missing = len(self.trajectory) - len(self._torque_noise)
-        if missing > 0:
-            if self._spare_noise is None:
-                # a stream of its own, derived from the episode's seed, so that np_random draws as before
-                self._spare_noise = np.random.default_rng(self.np_random.bit_generator.seed_seq.spawn(1)[0])
-            extra = self._spare_noise.normal(0.0, self._torque_noise_std, size=(missing, 3))
-            self._torque_noise = np.concatenate((self._torque_noise, extra))
+        self._sensors.cover(len(self.trajectory), self.np_random)
 
     def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
         if requested is None:
@@ -580,9 +495,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             saturated = min(m0, m1, m2) < 0.0
             if saturated:
                 torque = np.array([t0, t1, t2])
-        faulty = self._faulty
+        faulty = self._faults.faulty
         if faulty:
-            torque = self._faults_before_physics(torque)
+            carrying = self._cycle if self._holding else None
+            torque = self._faults.before_physics(self._step_index, torque, self.trajectory, carrying)
             t0, t1, t2 = torque.tolist()
 
         plant.step(torque, self.n_substeps)
@@ -614,7 +530,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_tracking = reward_torque = 0.0
             reward = -self.divergence_penalty
         else:
-            observation = self._faulty_observation() if faulty else self._observation(self._measure_joints())
+            observation = self._sensors.observe(k, self.trajectory, self._holding, self._faults if faulty else None)
             self._last_observation = observation
             reward_tracking = -self._tracking_weight_m2 * squared_error
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
@@ -656,7 +572,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reward_torque": reward_torque,
             "speed_override": self._speed_override,
             "stopped": truncated and self._speed_override == 0.0,
-            "faults": self._faults_after_step() if faulty else (),
+            "faults": self._faults.after_step(k - 1) if faulty else (),
         }
         if self.render_mode == "human" and k % self._render_every == 0:
             self.render()
@@ -668,8 +584,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             self._holding = True
             self._carried_mass = self.payload_masses.item(cycle)
             self._cycle = cycle
-            if cycle in self._carry_faults:
-                self._schedule_carry_faults(cycle)
+            self._faults.schedule_carry(cycle, self._step_index, self.trajectory.place_indices)
         else:
             self.plant.release_payload()
             self._holding = False
@@ -686,188 +601,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         below = SUCTION_CUP_OFFSET + 0.5 * DEFAULT_PAYLOAD_SIZE[2]
         self.plant.place_payload(pick_point - np.array([0.0, 0.0, below]), mass)
 
-    # -- faults ---------------------------------------------------------------------------------
-
-    def _draw_faults(self, n_carries: int) -> None:
-        """Draw the episode's faults (last of the reset's draws) and schedule those timed from the reset."""
-        self.injected_faults = []
-        self._running = []
-        self._fault_starts = {}
-        self._carry_faults = {}
-        drawn = [spec.draw(self.np_random, n_carries) for spec in self.faults]
-        self._faulty = any(draw is not None for draw in drawn)
-        for draw in drawn:
-            if draw is None:
-                continue
-            if draw.carry is None:
-                self._schedule(draw, max(1, round(draw.when / self.dt)) - 1, 0)
-            else:
-                self._carry_faults.setdefault(draw.carry, []).append(draw)
-
-    def _schedule_carry_faults(self, cycle: int) -> None:
-        """At the pick of ``cycle`` (this step): the steps of its carry's faults, from the carry's length now."""
-        places = self.trajectory.place_indices
-        faults = self._carry_faults.pop(cycle)
-        if cycle >= len(places):  # a stop dropped this carry's place: it ends at rest, holding
-            return
-        pick, place = self._step_index, int(places[cycle])
-        for draw in faults:
-            self._schedule(draw, pick + max(1, round(draw.when * (place - pick))) - 1, pick)
-
-    def _schedule(self, draw: FaultDraw, step: int, earliest: int) -> None:
-        """Start ``draw`` at ``step``; put an obstacle in place ``OBSTACLE_LEAD`` earlier, not before ``earliest``."""
-        start = step
-        if draw.detail == "obstacle":
-            start = max(step - round(OBSTACLE_LEAD / self.dt), earliest)
-        self._fault_starts.setdefault(start, []).append((draw, step))
-
-    def _faults_before_physics(self, torque: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Start the faults due at this step and apply those acting on the plant; returns the torque the drive holds."""
-        n = self._step_index
-        for draw, step in self._fault_starts.pop(n, ()):
-            self._start_fault(draw, step)
-        self._running = running = [fault for fault in self._running if fault.last >= n]
-        for fault in running:
-            draw = fault.draw
-            if draw.kind == "drive_fault":
-                limit = draw.size * self.plant_config.drive.peak_torque
-                torque = torque.copy()
-                torque[draw.joint] = min(max(torque[draw.joint], -limit), limit)
-            elif draw.kind == "collision" and draw.detail != "obstacle":
-                self.plant.apply_external_force(draw.size * np.array(draw.direction), draw.joint)
-        return torque
-
-    def _start_fault(self, draw: FaultDraw, step: int) -> None:
-        """Begin ``draw`` (drawn for ``step``) now, or drop it if it can no longer happen."""
-        n, dt = self._step_index, self.dt
-        size = draw.size
-        if draw.kind == "slip":
-            places = self.trajectory.place_indices
-            if draw.carry >= len(places):  # a stop dropped its place
-                return
-            place = int(places[draw.carry])
-            if not (self._holding and self._cycle == draw.carry and n < place):
-                return
-            size = self._carried_mass
-            self.plant.release_payload()
-            self._carried_mass = 0.0
-            last = place - 1
-        elif draw.detail == "obstacle":
-            trajectory = self.trajectory
-            speeds = np.linalg.norm(trajectory.xyz_dot[step + 1 :], axis=1)
-            moving = np.flatnonzero(speeds >= OBSTACLE_MIN_SPEED)
-            if not len(moving):
-                return
-            hit = step + 1 + int(moving[0])
-            self.plant.place_obstacle(trajectory.xyz[hit], trajectory.xyz_dot[hit])
-            self._running.append(_RunningFault(draw, n, hit - 1 + max(1, round(draw.duration / dt))))
-            return
-        else:
-            last = n + max(1, round(draw.duration / dt)) - 1
-        fault = _RunningFault(draw, n, last, len(self.injected_faults))
-        self._running.append(fault)
-        self.injected_faults.append(
-            InjectedFault(draw.kind, n, last - n + 1, (n + 1) * dt, draw.joint, size, draw.detail)
-        )
-
-    def _faults_after_step(self) -> tuple[str, ...]:
-        """Record the obstacle's contact, end the faults whose last step this was; the kinds acting on this step."""
-        n = self._step_index - 1  # the step just taken
-        kinds = []
-        for fault in self._running:
-            draw = fault.draw
-            if draw.detail == "obstacle":
-                force = self.plant.obstacle_contact_force()
-                if force > 0.0:
-                    kinds.append(draw.kind)
-                    self._record_contact(fault, n, force)
-                if fault.last == n:
-                    self.plant.park_obstacle()
-                continue
-            kinds.append(draw.kind)
-            if fault.last == n and draw.kind == "collision":
-                self.plant.clear_external_forces()
-        return tuple(kinds)
-
-    def _record_contact(self, fault: _RunningFault, n: int, force: float) -> None:
-        """The obstacle's record: its first contact step and the largest contact force (N) so far."""
-        if fault.record < 0:
-            fault.record = len(self.injected_faults)
-            self.injected_faults.append(InjectedFault("collision", n, 1, (n + 1) * self.dt, None, force, "obstacle"))
-            return
-        record = self.injected_faults[fault.record]
-        self.injected_faults[fault.record] = replace(
-            record, steps=n - record.start_step + 1, size=max(record.size, force)
-        )
-
-    def _faulty_observation(self) -> dict[str, NDArray[np.float64]]:
-        """The observation of this step with the sensor faults acting on it."""
-        n = self._step_index - 1
-        previous = self._measured_angles
-        velocities = self._measure_joints()
-        readings = list(self._measured_angles)
-        torque_faults = []
-        for fault in self._running:
-            draw = fault.draw
-            if draw.kind not in SENSOR_KINDS or fault.first > n:
-                continue
-            j = draw.joint
-            if draw.kind == "torque_glitch" or draw.detail == "torque":
-                torque_faults.append(draw)
-            elif draw.kind == "encoder_glitch":
-                readings[j] += draw.size
-            elif draw.kind == "encoder_stuck":
-                readings[j] = previous[j]
-            else:
-                readings[j] = math.nan
-        if readings != self._measured_angles:
-            self._measured_angles = readings
-            if self._encoder_step is None:
-                velocities[np.isnan(readings)] = math.nan
-            else:
-                velocities = (np.array(readings) - np.array(previous)) / CONTROL_PERIOD
-        observation = self._observation(velocities)
-        for draw in torque_faults:
-            observation["joint_torques"][draw.joint] += draw.size  # NaN for a sensor_nan
-        return observation
-
-    # -- measurement ----------------------------------------------------------------------------
-
-    def _encoder(self, angles: NDArray[np.float64]) -> list[float]:
-        """Encoder reading (rad) of joint angles: rounded to whole counts when quantized."""
-        return self._encoder_floats(*angles.tolist())
-
-    def _encoder_floats(self, a0: float, a1: float, a2: float) -> list[float]:
-        """:meth:`_encoder` of three angles (rad) given as floats."""
-        step = self._encoder_step
-        if step is None:
-            return [a0, a1, a2]
-        return [round(a0 / step) * step, round(a1 / step) * step, round(a2 / step) * step]
-
-    def _measure_joints(self) -> NDArray[np.float64]:
-        """Sample the encoders; return the measured joint rates (rad/s)."""
-        p0, p1, p2 = self._measured_angles
-        qpos = self.plant.data.qpos
-        a0, a1, a2 = self._motor_qpos
-        self._measured_angles = m0, m1, m2 = self._encoder_floats(qpos.item(a0), qpos.item(a1), qpos.item(a2))
-        if self._encoder_step is None:
-            return self.plant.joint_velocities()
-        rate = 1.0 / CONTROL_PERIOD
-        return np.array([(m0 - p0) * rate, (m1 - p1) * rate, (m2 - p2) * rate])
-
-    def _observation(self, joint_velocities: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
-        k = self._step_index
-        trajectory = self.trajectory
-        # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
-        return {
-            "joint_angles": np.array(self._measured_angles),
-            "joint_velocities": joint_velocities,
-            "joint_torques": self.plant.data.actuator_force + self._torque_noise[k],
-            "reference_angles": trajectory.theta[k],
-            "reference_velocities": trajectory.theta_dot[k],
-            "reference_accelerations": trajectory.theta_ddot[k],
-            "gripper": np.array([1.0 if self._holding else 0.0]),
-        }
+    def _drop_object(self) -> float:
+        """A slip: the suction cup loses the object held (``gripper`` still reads 1); returns its mass (kg)."""
+        mass = self._carried_mass
+        self.plant.release_payload()
+        self._carried_mass = 0.0
+        return mass
 
     # -- rendering ------------------------------------------------------------------------------
 

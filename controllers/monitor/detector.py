@@ -1,157 +1,49 @@
-"""Fault detection from what a real controller sees: encoders, measured torques, its own commands, its model.
-
-:class:`FaultMonitor` checks every observation (docs/design.md section 6, "Fault monitor"):
-
-- **Sensor plausibility**, at the sample itself: a NaN or inf reading; an encoder step whose second difference
-  asks an acceleration no drive could give (:data:`ACCELERATION_FACTOR`); an encoder that repeats its reading while
-  the joint was moving several counts per sample (:data:`STUCK_SAMPLES`); a measured torque outside what a
-  first-order current loop can do between the last torque and the held command (:data:`TORQUE_MARGIN`). Measured
-  torques that stay short of the prediction, or keep falling short of what the slowest healthy loop would reach (a
-  CUSUM, :data:`DRIVE_FAULT_EVIDENCE`), are a drive that does not deliver its command.
-- **External forces** (collisions): the residual of the identified model, measured torque minus the model's
-  torque at the smoothed joint state (with the mass held, once known), mapped to a platform force F = J^-T r. Until
-  the mass held is known, the residual's component along the payload regressor phi is left out (an unknown mass
-  looks exactly like a force along J^T (xdd + g)).
-- **Payload consistency** (slips and drops): the apparent mass of the last few samples against the mass held since
-  the pick.
-
-The monitor hands the controller a *clean* observation: a faulty encoder reading is replaced by the reference plus
-the joint's last tracking error, a faulty torque by the current loop's prediction, so that one bad sample never
-reaches the feedback, the model or an estimator. :class:`MonitoredController` runs any controller behind a
-monitor, keeps what a fault corrupted out of its payload estimator and reacts to a detected fault.
-"""
+"""The fault monitor's detector: checks each observation and returns it clean (the package docstring names the
+checks; docs/design.md section 6, "Fault monitor")."""
 
 from __future__ import annotations
 
 import collections
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, Observation
+from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_JERK_STD, SMOOTHER_LAG, JointStateSmoother
-from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, PayloadEstimator, residual_std
-from delta_env.faults import FAULT_REACTIONS
-from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.monitor.events import DetectedFault
+from controllers.monitor.tuning import (
+    ACCELERATION_FACTOR,
+    DRIVE_FAULT_DRIFT,
+    DRIVE_FAULT_EVIDENCE,
+    DRIVE_FAULT_SAMPLES,
+    DRIVE_FAULT_STEP,
+    FORCE_EVIDENCE,
+    FORCE_REFERENCE,
+    HELD_MASS_STD,
+    INITIAL_RESIDUAL_STD,
+    MONITOR_JERK_STD,
+    RESYNC_QUIET,
+    SCATTER_RATE,
+    SENSOR_QUIET,
+    SLIP_EVIDENCE,
+    SLIP_MIN_MASS,
+    SLIP_PRECISION,
+    SLIP_SETTLE,
+    SLOWEST_LAG_FACTOR,
+    STUCK_COUNTS,
+    STUCK_SAMPLES,
+    TORQUE_MARGIN,
+)
+from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
+from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_in, require_positive
 
 
-@dataclass(frozen=True)
-class DetectedFault:
-    """One fault a monitor detected.
-
-    Attributes:
-        kind: One of :data:`delta_env.faults.FAULT_KINDS`: what the monitor believes happened.
-        time_s: Time (s) from the reset of the observation on which it was detected.
-        joint: Joint 0..2 it concerns, or None.
-        magnitude: What the monitor measured, in the unit of its kind: the estimated external force (N) for a
-            collision, the implausible jump (rad) or torque (N m) of a sensor, the mass (kg) lost in a slip, the
-            torque shortfall (N m) of a drive fault; NaN where none applies.
-    """
-
-    kind: str
-    time_s: float
-    joint: int | None = None
-    magnitude: float = float("nan")
-
-
-@runtime_checkable
-class ReportsFaults(Protocol):
-    """A controller that detects faults: the capability the evaluation records beside the injected truth."""
-
-    @property
-    def detected_faults(self) -> Sequence[DetectedFault]:
-        """The faults detected since the last reset, in time order."""
-        ...
-
-
-ACCELERATION_FACTOR = 2.0
-"""An encoder step is implausible when its second difference asks more than this many times the acceleration the
-joint's own drive gives its arm at peak torque (peak / (rho1 I)): the other chains and an external force can add
-to it, but not double it (a 1000 N push on the platform adds about 300 N m at a joint)."""
-
-STUCK_COUNTS = 4.0
-"""An encoder that repeats its reading is suspect when its last step, and its reference's step, were at least this
-many counts."""
-
-STUCK_SAMPLES = 3
-"""Repeated readings of a suspect encoder that make it stuck."""
-
-TORQUE_MARGIN = 6.0
-"""How far (N m) a measured torque may lie outside the span between the last torque and the command held since: the
-sensor's noise (0.5 N m, so about 8 standard deviations of a difference of two readings) with room."""
-
-DRIVE_FAULT_SAMPLES = 3
-"""Consecutive implausible torques of one joint, all short of the prediction, that make a drive fault rather than a
-sensor glitch."""
-
-SLOWEST_LAG_FACTOR = 2.5
-"""The slowest current loop the monitor takes for healthy: this many times the identified time constant (a drive
-whose loop slowed from 1 to 2.5 ms is worn, not faulty)."""
-
-DRIVE_FAULT_DRIFT = 2.0
-"""Shortfall (N m) per sample below the slowest healthy loop's step that the CUSUM forgives: the measured torque's
-noise (0.5 N m on each of two readings) with room."""
-
-DRIVE_FAULT_STEP = 8.0
-"""Largest shortfall (N m) one sample adds to the CUSUM, so that one odd reading cannot make a drive fault."""
-
-DRIVE_FAULT_EVIDENCE = 20.0
-"""Accumulated shortfall beyond the drift (N m, summed over samples) that makes a drive fault: at least four
-samples that each fall short by more than 7 N m."""
-
-FORCE_REFERENCE = 60.0
-"""Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
-52 N in 99.9 % of the samples at 6 g on randomized plants with up to 6 kg, 77 N at most)."""
-
-FORCE_EVIDENCE = 60.0
-"""Accumulated force beyond :data:`FORCE_REFERENCE` (N, summed over samples) that makes a collision: one sample of
-120 N, or two of 90 N."""
-
-SLIP_MIN_MASS = 0.3
-"""Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
-
-HELD_MASS_STD = 0.05
-"""Standard error (kg) below which the mass held is taken out of the collision check's residual (before, the part
-along phi is left out): 0.05 kg times phi is about 1 N m."""
-
-SLIP_PRECISION = 0.1
-"""The slip check starts once the standard error of the mass held is below this fraction of it: an early estimate
-of a light object, biased by the static friction of the lift-off, would make "gone" and "held" hard to tell."""
-
-SLIP_EVIDENCE = 12.0
-"""Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
-
-INITIAL_RESIDUAL_STD = 4.0
-"""Standard deviation (N m) of the model's residual the slip check assumes at a reset, before it has measured its
-robot's: the identified model's error on a robot whose masses and friction differ from its identification by up to
-10 and 30 % (the ``randomized`` preset), at 6 g."""
-
-SCATTER_RATE = 0.01
-"""Weight of each moving sample in the running mean square of the model's residual (a memory of about 100 samples),
-from which the slip check takes the residual's variance, at least the payload estimator's 1.5 N m squared."""
-
-SLIP_SETTLE = 0.03
-"""Time after the pick (s) before the mass held is trusted as a reference."""
-
-SENSOR_QUIET = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
-"""Readings whose model equations (the monitor's checks, the payload estimator's) are left out after replaced
-readings in a row: the smoother's window, every smoothed state that leans on them."""
-
-RESYNC_QUIET = SMOOTHER_HISTORY + 2 * SMOOTHER_LAG + 1
-"""Readings kept out of the model's equations after the clean readings step back onto an encoder that was replaced
-for a while (a stuck spell): the step sits in the smoother's whole window."""
-
-_TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
-
-
 class FaultMonitor:
-    """Checks each observation for faults and returns it cleaned; see the module docstring.
+    """Checks each observation for faults and returns it cleaned; see :mod:`controllers.monitor`.
 
     Args:
         dynamics: The identified model (MId+F+R), for the residual and the payload regressor.
@@ -559,14 +451,6 @@ class FaultMonitor:
         return clean
 
 
-MONITOR_JERK_STD = SMOOTHER_JERK_STD
-"""Jerk standard deviation (rad/s^3) of the monitor's fixed-lag smoother of the clean angles: the offline smoother's,
-a third of the payload estimator's (:data:`~controllers.estimation.FIXED_LAG_JERK_STD`). The residual force and the
-slip check sum evidence over many samples, which a sample's lag at a jerk step hardly moves, while the acceleration
-noise of a higher value enters the force through the whole inertia; the monitor's thresholds were set, and its
-campaigns and soak measured, with this value (docs/measurements.md, "Faults")."""
-
-
 class _DelayedState:
     """A joint-state smoother with the readings it lags behind: pairs each smoothed state with its sample's torque,
     gripper and quiet flag, at the instant the torque was measured."""
@@ -597,100 +481,6 @@ class _DelayedState:
             return None
         torque_then, held_then, quiet_then = self._pending.popleft()
         quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
-        # the torque was measured MEASURED_TORQUE_DELAY before the encoder sample of its state
-        at_torque = state if previous is None else state - _TORQUE_AGE * (state - previous)
+        # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
+        at_torque = state if previous is None else state - TORQUE_AGE * (state - previous)
         return at_torque, torque_then, held_then, quiet_then
-
-
-SLOW_RATE = 0.5
-"""Speed override (of the reference's speed) a ``"slow"`` reaction (:data:`~delta_env.faults.FAULT_REACTIONS`)
-asks for."""
-
-ROLLBACK_SAMPLES = 10
-"""How far back (samples beyond the monitor's lag) a detected collision can undo the payload estimator's updates."""
-
-REACTING_KINDS = ("collision", "slip", "drive_fault")
-"""The detected faults a reaction answers; sensor faults are replaced and the work goes on."""
-
-
-class MonitoredController:
-    """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator leaves
-    out the equations that lean on drifting replacements or a collision and forgets the object on a slip, and a
-    detected fault may ask the cell to slow down or stop.
-
-    Args:
-        controller: The controller to protect.
-        monitor: Its monitor.
-        reaction: One of :data:`FAULT_REACTIONS`.
-
-    Attributes:
-        requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
-            1 until a reaction asks for less.
-    """
-
-    def __init__(
-        self,
-        controller: Controller,
-        monitor: FaultMonitor,
-        reaction: Literal["continue", "slow", "stop"] = "continue",
-    ) -> None:
-        if reaction not in FAULT_REACTIONS:
-            raise ValueError(f"reaction must be one of {list(FAULT_REACTIONS)}, got {reaction!r}")
-        self.controller = controller
-        self.monitor = monitor
-        self.reaction = reaction
-        self.name = controller.name
-        self.requested_speed = 1.0
-        self._command: NDArray[np.float64] | None = None
-        self._holding = False
-        self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
-        if self.estimator is not None:
-            self.estimator.keep_checkpoints(self._checkpoints)
-
-    @property
-    def detected_faults(self) -> Sequence[DetectedFault]:
-        return self.monitor.events
-
-    @property
-    def payload_estimate(self) -> float:
-        return getattr(self.controller, "payload_estimate", 0.0)
-
-    @property
-    def estimator(self) -> PayloadEstimator | None:
-        """The inner controller's payload estimator, or None."""
-        return getattr(self.controller, "estimator", None)
-
-    def reset(self) -> None:
-        self.controller.reset()
-        self.monitor.reset()
-        self.requested_speed = 1.0
-        self._command = None
-        self._holding = False
-        self.monitor.set_corrections(None)
-
-    def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        monitor = self.monitor
-        seen = len(monitor.events)
-        estimator = self.estimator
-        holding = observation["gripper"].item(0) > 0.5
-        if holding and not self._holding and estimator is not None and estimator.fits_corrections:
-            monitor.set_corrections(estimator.corrections)  # what the empty moves so far say of this robot
-        self._holding = holding
-        clean = monitor.update(observation, self._command)
-        new = monitor.events[seen:]
-        if estimator is not None:
-            if any(event.kind == "collision" for event in new):
-                # the collision's first samples entered before it was detected: undo them
-                undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
-                if undo > 0:
-                    estimator.rollback(undo)
-            if monitor.quiet_samples:
-                estimator.skip(monitor.quiet_samples)
-            if monitor.collision:
-                estimator.skip(SENSOR_QUIET)
-            if monitor.slipped:
-                estimator.drop_object()
-        if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
-            self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
-        self._command = np.asarray(self.controller(clean), dtype=float)
-        return self._command

@@ -1,0 +1,88 @@
+"""Fault detection from what a real controller sees: encoders, measured torques, its own commands, its model.
+
+:class:`FaultMonitor` checks every observation (docs/design.md section 6, "Fault monitor"):
+
+- **Sensor plausibility**, at the sample itself: a NaN or inf reading; an encoder step whose second difference
+  asks an acceleration no drive could give (:data:`ACCELERATION_FACTOR`); an encoder that repeats its reading while
+  the joint was moving several counts per sample (:data:`STUCK_SAMPLES`); a measured torque outside what a
+  first-order current loop can do between the last torque and the held command (:data:`TORQUE_MARGIN`). Measured
+  torques that stay short of the prediction, or keep falling short of what the slowest healthy loop would reach (a
+  CUSUM, :data:`DRIVE_FAULT_EVIDENCE`), are a drive that does not deliver its command.
+- **External forces** (collisions): the residual of the identified model, measured torque minus the model's
+  torque at the smoothed joint state (with the mass held, once known), mapped to a platform force F = J^-T r. Until
+  the mass held is known, the residual's component along the payload regressor phi is left out (an unknown mass
+  looks exactly like a force along J^T (xdd + g)).
+- **Payload consistency** (slips and drops): the apparent mass of the last few samples against the mass held since
+  the pick.
+
+The monitor hands the controller a *clean* observation: a faulty encoder reading is replaced by the reference plus
+the joint's last tracking error, a faulty torque by the current loop's prediction, so that one bad sample never
+reaches the feedback, the model or an estimator. :class:`MonitoredController` runs any controller behind a
+monitor, keeps what a fault corrupted out of its payload estimator and reacts to a detected fault.
+
+The modules: :mod:`~controllers.monitor.tuning` (the thresholds and reactions, each with its reason),
+:mod:`~controllers.monitor.events` (:class:`DetectedFault`, :class:`ReportsFaults`),
+:mod:`~controllers.monitor.detector` (:class:`FaultMonitor`) and :mod:`~controllers.monitor.wrapper`
+(:class:`MonitoredController`: its reactions and the payload estimator's rollback).
+"""
+
+from controllers.monitor.detector import FaultMonitor
+from controllers.monitor.events import DetectedFault, ReportsFaults
+from controllers.monitor.tuning import (
+    ACCELERATION_FACTOR,
+    DRIVE_FAULT_DRIFT,
+    DRIVE_FAULT_EVIDENCE,
+    DRIVE_FAULT_SAMPLES,
+    DRIVE_FAULT_STEP,
+    FORCE_EVIDENCE,
+    FORCE_REFERENCE,
+    HELD_MASS_STD,
+    INITIAL_RESIDUAL_STD,
+    MONITOR_JERK_STD,
+    REACTING_KINDS,
+    RESYNC_QUIET,
+    ROLLBACK_SAMPLES,
+    SCATTER_RATE,
+    SENSOR_QUIET,
+    SLIP_EVIDENCE,
+    SLIP_MIN_MASS,
+    SLIP_PRECISION,
+    SLIP_SETTLE,
+    SLOW_RATE,
+    SLOWEST_LAG_FACTOR,
+    STUCK_COUNTS,
+    STUCK_SAMPLES,
+    TORQUE_MARGIN,
+)
+from controllers.monitor.wrapper import MonitoredController
+
+__all__ = [
+    "ACCELERATION_FACTOR",
+    "DRIVE_FAULT_DRIFT",
+    "DRIVE_FAULT_EVIDENCE",
+    "DRIVE_FAULT_SAMPLES",
+    "DRIVE_FAULT_STEP",
+    "FORCE_EVIDENCE",
+    "FORCE_REFERENCE",
+    "HELD_MASS_STD",
+    "INITIAL_RESIDUAL_STD",
+    "MONITOR_JERK_STD",
+    "REACTING_KINDS",
+    "RESYNC_QUIET",
+    "ROLLBACK_SAMPLES",
+    "SCATTER_RATE",
+    "SENSOR_QUIET",
+    "SLIP_EVIDENCE",
+    "SLIP_MIN_MASS",
+    "SLIP_PRECISION",
+    "SLIP_SETTLE",
+    "SLOWEST_LAG_FACTOR",
+    "SLOW_RATE",
+    "STUCK_COUNTS",
+    "STUCK_SAMPLES",
+    "TORQUE_MARGIN",
+    "DetectedFault",
+    "FaultMonitor",
+    "MonitoredController",
+    "ReportsFaults",
+]

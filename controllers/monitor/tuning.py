@@ -1,0 +1,100 @@
+"""The fault monitor's settings, each with its reason: its detection thresholds and the reactions of a monitored
+controller (docs/design.md section 6, "Fault monitor")."""
+
+from __future__ import annotations
+
+from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_JERK_STD, SMOOTHER_LAG
+
+ACCELERATION_FACTOR = 2.0
+"""An encoder step is implausible when its second difference asks more than this many times the acceleration the
+joint's own drive gives its arm at peak torque (peak / (rho1 I)): the other chains and an external force can add
+to it, but not double it (a 1000 N push on the platform adds about 300 N m at a joint)."""
+
+STUCK_COUNTS = 4.0
+"""An encoder that repeats its reading is suspect when its last step, and its reference's step, were at least this
+many counts."""
+
+STUCK_SAMPLES = 3
+"""Repeated readings of a suspect encoder that make it stuck."""
+
+TORQUE_MARGIN = 6.0
+"""How far (N m) a measured torque may lie outside the span between the last torque and the command held since: the
+sensor's noise (0.5 N m, so about 8 standard deviations of a difference of two readings) with room."""
+
+DRIVE_FAULT_SAMPLES = 3
+"""Consecutive implausible torques of one joint, all short of the prediction, that make a drive fault rather than a
+sensor glitch."""
+
+SLOWEST_LAG_FACTOR = 2.5
+"""The slowest current loop the monitor takes for healthy: this many times the identified time constant (a drive
+whose loop slowed from 1 to 2.5 ms is worn, not faulty)."""
+
+DRIVE_FAULT_DRIFT = 2.0
+"""Shortfall (N m) per sample below the slowest healthy loop's step that the CUSUM forgives: the measured torque's
+noise (0.5 N m on each of two readings) with room."""
+
+DRIVE_FAULT_STEP = 8.0
+"""Largest shortfall (N m) one sample adds to the CUSUM, so that one odd reading cannot make a drive fault."""
+
+DRIVE_FAULT_EVIDENCE = 20.0
+"""Accumulated shortfall beyond the drift (N m, summed over samples) that makes a drive fault: at least four
+samples that each fall short by more than 7 N m."""
+
+FORCE_REFERENCE = 60.0
+"""Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
+52 N in 99.9 % of the samples at 6 g on randomized plants with up to 6 kg, 77 N at most)."""
+
+FORCE_EVIDENCE = 60.0
+"""Accumulated force beyond :data:`FORCE_REFERENCE` (N, summed over samples) that makes a collision: one sample of
+120 N, or two of 90 N."""
+
+SLIP_MIN_MASS = 0.3
+"""Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
+
+HELD_MASS_STD = 0.05
+"""Standard error (kg) below which the mass held is taken out of the collision check's residual (before, the part
+along phi is left out): 0.05 kg times phi is about 1 N m."""
+
+SLIP_PRECISION = 0.1
+"""The slip check starts once the standard error of the mass held is below this fraction of it: an early estimate
+of a light object, biased by the static friction of the lift-off, would make "gone" and "held" hard to tell."""
+
+SLIP_EVIDENCE = 12.0
+"""Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
+
+INITIAL_RESIDUAL_STD = 4.0
+"""Standard deviation (N m) of the model's residual the slip check assumes at a reset, before it has measured its
+robot's: the identified model's error on a robot whose masses and friction differ from its identification by up to
+10 and 30 % (the ``randomized`` preset), at 6 g."""
+
+SCATTER_RATE = 0.01
+"""Weight of each moving sample in the running mean square of the model's residual (a memory of about 100 samples),
+from which the slip check takes the residual's variance, at least the payload estimator's 1.5 N m squared."""
+
+SLIP_SETTLE = 0.03
+"""Time after the pick (s) before the mass held is trusted as a reference."""
+
+SENSOR_QUIET = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
+"""Readings whose model equations (the monitor's checks, the payload estimator's) are left out after replaced
+readings in a row: the smoother's window, every smoothed state that leans on them."""
+
+RESYNC_QUIET = SMOOTHER_HISTORY + 2 * SMOOTHER_LAG + 1
+"""Readings kept out of the model's equations after the clean readings step back onto an encoder that was replaced
+for a while (a stuck spell): the step sits in the smoother's whole window."""
+
+MONITOR_JERK_STD = SMOOTHER_JERK_STD
+"""Jerk standard deviation (rad/s^3) of the monitor's fixed-lag smoother of the clean angles: the offline smoother's,
+a third of the payload estimator's (:data:`~controllers.estimation.FIXED_LAG_JERK_STD`). The residual force and the
+slip check sum evidence over many samples, which a sample's lag at a jerk step hardly moves, while the acceleration
+noise of a higher value enters the force through the whole inertia; the monitor's thresholds were set, and its
+campaigns and soak measured, with this value (docs/measurements.md, "Faults")."""
+
+SLOW_RATE = 0.5
+"""Speed override (of the reference's speed) a ``"slow"`` reaction (:data:`~delta_env.faults.FAULT_REACTIONS`)
+asks for."""
+
+ROLLBACK_SAMPLES = 10
+"""How far back (samples beyond the monitor's lag) a detected collision can undo the payload estimator's updates."""
+
+REACTING_KINDS = ("collision", "slip", "drive_fault")
+"""The detected faults a reaction answers; sensor faults are replaced and the work goes on."""

@@ -1,0 +1,100 @@
+"""A controller behind a fault monitor: what it keeps from the payload estimator, and how it reacts to a detected
+fault (docs/design.md section 6, "Fault monitor")."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.base import Controller, Observation
+from controllers.monitor.detector import FaultMonitor
+from controllers.monitor.events import DetectedFault
+from controllers.monitor.tuning import REACTING_KINDS, ROLLBACK_SAMPLES, SENSOR_QUIET, SLOW_RATE
+from controllers.payload import PayloadEstimator
+from delta_env.faults import FAULT_REACTIONS
+
+
+class MonitoredController:
+    """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator leaves
+    out the equations that lean on drifting replacements or a collision and forgets the object on a slip, and a
+    detected fault may ask the cell to slow down or stop.
+
+    Args:
+        controller: The controller to protect.
+        monitor: Its monitor.
+        reaction: One of :data:`FAULT_REACTIONS`.
+
+    Attributes:
+        requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
+            1 until a reaction asks for less.
+    """
+
+    def __init__(
+        self,
+        controller: Controller,
+        monitor: FaultMonitor,
+        reaction: Literal["continue", "slow", "stop"] = "continue",
+    ) -> None:
+        if reaction not in FAULT_REACTIONS:
+            raise ValueError(f"reaction must be one of {list(FAULT_REACTIONS)}, got {reaction!r}")
+        self.controller = controller
+        self.monitor = monitor
+        self.reaction = reaction
+        self.name = controller.name
+        self.requested_speed = 1.0
+        self._command: NDArray[np.float64] | None = None
+        self._holding = False
+        self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
+        if self.estimator is not None:
+            self.estimator.keep_checkpoints(self._checkpoints)
+
+    @property
+    def detected_faults(self) -> Sequence[DetectedFault]:
+        return self.monitor.events
+
+    @property
+    def payload_estimate(self) -> float:
+        return getattr(self.controller, "payload_estimate", 0.0)
+
+    @property
+    def estimator(self) -> PayloadEstimator | None:
+        """The inner controller's payload estimator, or None."""
+        return getattr(self.controller, "estimator", None)
+
+    def reset(self) -> None:
+        self.controller.reset()
+        self.monitor.reset()
+        self.requested_speed = 1.0
+        self._command = None
+        self._holding = False
+        self.monitor.set_corrections(None)
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        monitor = self.monitor
+        seen = len(monitor.events)
+        estimator = self.estimator
+        holding = observation["gripper"].item(0) > 0.5
+        if holding and not self._holding and estimator is not None and estimator.fits_corrections:
+            monitor.set_corrections(estimator.corrections)  # what the empty moves so far say of this robot
+        self._holding = holding
+        clean = monitor.update(observation, self._command)
+        new = monitor.events[seen:]
+        if estimator is not None:
+            if any(event.kind == "collision" for event in new):
+                # the collision's first samples entered before it was detected: undo them
+                undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
+                if undo > 0:
+                    estimator.rollback(undo)
+            if monitor.quiet_samples:
+                estimator.skip(monitor.quiet_samples)
+            if monitor.collision:
+                estimator.skip(SENSOR_QUIET)
+            if monitor.slipped:
+                estimator.drop_object()
+        if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
+            self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
+        self._command = np.asarray(self.controller(clean), dtype=float)
+        return self._command
