@@ -41,16 +41,9 @@ from controllers.identification import (
 from delta_env.config import PlantConfig
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.scenario import save_robot
-from eval.identification import (
-    DEFAULT_DURATION,
-    DEFAULT_TRAJECTORIES,
-    VALIDATION_DURATION,
-    IdentificationRun,
-    identification_root,
-    identify_logs,
-    parameter_path,
-    run_identification,
-)
+from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
+from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
+from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, utc_stamp
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 

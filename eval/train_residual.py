@@ -38,7 +38,7 @@ Training episodes come from the ``randomized`` scenario by default (domain rando
 and drive lag on the nominal robot; ``--scenario`` chooses another). The base controller is the eval's
 ``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
 MId+F+R + PD with the payload RLS, its feedforward leading the identified drive lag, its parameters those
-of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
+of the scenario's robot (``--scenario``, ``--geometry``; ``eval.parameter_files.identify_robot``) and
 its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
 Both, and the robot's geometry and masses, are saved in the policy.
 """
@@ -234,7 +234,7 @@ def base_setup(
         env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
             and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
         parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
-            with :func:`eval.identification.identify_robot` (kept under the runs root of ``runs_dir``,
+            with :func:`eval.parameter_files.identify_robot` (kept under the runs root of ``runs_dir``,
             :func:`eval.run_folder.runs_root`), and with them its drive lag.
         drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
         base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
@@ -247,7 +247,7 @@ def base_setup(
     scenario = env_kwargs.get("scenario") or Scenario()
     robot = scenario.plant
     if parameters is None:
-        from eval.identification import identification_root, identify_robot
+        from eval.parameter_files import identification_root, identify_robot
 
         result = identify_robot(robot, identification_root(runs_dir))
         parameters, drive_lag = result.mid_f_rods, result.drive_lag
