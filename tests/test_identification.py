@@ -392,12 +392,13 @@ def test_identify_end_to_end_on_two_short_trajectories(tmp_path) -> None:
 
 def test_command_line_writes_parameters_configuration_report_and_figures(tmp_path, capsys) -> None:
     from eval import identify as cli
+    from eval.identification_report import FIGURES
 
     folder, installed = tmp_path / "run", tmp_path / "installed" / "parameters.json"
     arguments = ["--trajectories", "2", "--duration", "2", "--validation-duration", "2", "--seed", "5"]
     cli.main([*arguments, "--out", str(folder), "--parameters", str(installed), "--no-progress", "--workers", "1"])
     expected = {"parameters.json", "config.json", "report.md", "validation.npz", "scenario.toml"}
-    expected |= {*cli.FIGURES, "fig6a_error_bars.png"}
+    expected |= {*FIGURES, "fig6a_error_bars.png"}
     assert {path.name for path in folder.iterdir()} == expected
     assert load_result(folder / "parameters.json") == load_result(installed)
     config = json.loads((folder / "config.json").read_text())
