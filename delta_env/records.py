@@ -1,5 +1,6 @@
 """Records as tables: the one writer of every value the project saves or hashes, scenarios, robot files and what a
-controller knows (:class:`controllers.registry.ControllerSetup`).
+controller knows (:class:`controllers.registry.ControllerSetup`), and the one reader of the TOML files back into
+dataclasses (:func:`from_table`, driven by their type hints).
 
 A table holds TOML values only: dataclasses and named tuples become tables of their fields, mappings tables of
 their entries, tuples, lists and arrays lists, paths strings and None the string :data:`NONE_MARKER` (TOML has no
@@ -11,9 +12,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
+import tomllib
+import types
+import typing
 from collections.abc import Mapping
 from pathlib import PurePath
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -45,3 +50,92 @@ def to_table(value: Any) -> Any:
 def content_hash(table: Any) -> str:
     """16 hex digits of the SHA-256 of ``table`` (:func:`to_table`'s form) as sorted JSON."""
     return hashlib.sha256(json.dumps(table, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _is_table(hint: Any) -> bool:
+    """Whether a field of type ``hint`` is a TOML table: a dataclass (the records' nested parts)."""
+    return isinstance(hint, type) and dataclasses.is_dataclass(hint)
+
+
+def read_toml(text: str, source: str) -> dict[str, Any]:
+    """The table of TOML ``text``; ValueError naming ``source`` if it is not valid TOML."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{source}: not valid TOML: {error}") from None
+
+
+def _describe(hint: Any) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) if a is not type(None) else f'"{NONE_MARKER}"' for a in args)
+    if origin is tuple and args[-1] is Ellipsis:
+        return f"an array of {_describe(args[0]).split()[-1]}s"
+    if origin is tuple:
+        return f"an array of {len(args)} {_describe(args[0]).split()[-1]}s"
+    if _is_table(hint):
+        return "a table"
+    return {float: "a number", int: "an integer", bool: "a boolean", str: "a string"}.get(hint, str(hint))
+
+
+def _convert(path: str, hint: Any, value: Any) -> Any:
+    """``value`` read from TOML as the Python value of type ``hint``; ValueError naming ``path``."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if type(None) in args and value == NONE_MARKER:
+            return None
+        (inner,) = (a for a in args if a is not type(None))
+        if isinstance(value, dict):  # a table: its own fields name the error
+            return _convert(path, inner, value)
+        try:
+            return _convert(path, inner, value)
+        except ValueError:
+            raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}") from None
+    ok = True
+    if hint is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        value = float(value) if ok else value
+    elif hint is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif hint in (bool, str):
+        ok = isinstance(value, hint)
+    elif origin is Literal:
+        ok = value in args
+    elif origin is tuple and args[-1] is Ellipsis:  # tuple[X, ...], e.g. an array of tables
+        ok = isinstance(value, list)
+        if ok:
+            return tuple(_convert(f"{path}[{n}]", args[0], v) for n, v in enumerate(value))
+    elif origin is tuple:
+        ok = isinstance(value, list) and len(value) == len(args)
+        if ok:
+            return tuple(_convert(f"{path}[{n}]", a, v) for n, (a, v) in enumerate(zip(args, value, strict=True)))
+    elif _is_table(hint):
+        ok = isinstance(value, dict)
+        if ok:
+            return from_table(hint, value, path)
+    else:  # pragma: no cover - a field type this reader does not know is a programming error
+        raise TypeError(f"{path}: no TOML conversion for {hint!r}")
+    if not ok:
+        raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}")
+    return value
+
+
+def from_table(cls: type, table: dict[str, Any], path: str) -> Any:
+    """Build dataclass ``cls`` from a TOML table: unknown keys rejected, every field converted and checked.
+
+    Raises:
+        ValueError: naming the field, its dotted place under ``path`` (the table's own, "" at the top level).
+    """
+    hints = typing.get_type_hints(cls)
+    names = [item.name for item in dataclasses.fields(cls)]
+    where = f"{path}." if path else ""
+    unknown = sorted(set(table) - set(names))
+    if unknown:
+        raise ValueError(f"unknown key(s) {', '.join(where + k for k in unknown)}; allowed: {', '.join(names)}")
+    values = {key: _convert(where + key, hints[key], value) for key, value in table.items()}
+    try:
+        return cls(**values)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}" if path else str(error)) from None

@@ -68,11 +68,7 @@ with a robot file takes both) is that robot. :func:`load_robot` and :func:`save_
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
-import tomllib
-import types
-import typing
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -80,12 +76,12 @@ from typing import Any, Literal
 
 import tomli_w
 
-from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, PlantRealism, RandomizationRanges
+from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, RandomizationRanges
 from delta_env.cycles import require_start
 from delta_env.drive import DriveLimits
 from delta_env.faults import FAULT_REACTIONS, FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
-from delta_env.records import NONE_MARKER, content_hash, to_table
+from delta_env.records import content_hash, from_table, read_toml, to_table
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
 from delta_env.validation import require_count, require_in, require_interval
@@ -256,19 +252,19 @@ class Scenario:
         Raises:
             ValueError: for invalid TOML, an unknown key or an invalid field, naming the field.
         """
-        return cls._from_document(_read_toml(text, f"scenario {source}"), source)
+        return cls._from_document(read_toml(text, f"scenario {source}"), source)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Scenario:
         """Read a scenario file; a file without ``name`` is named after its stem."""
         path = Path(path)
-        document = _read_toml(path.read_text(), f"scenario {path}")
+        document = read_toml(path.read_text(), f"scenario {path}")
         return cls._from_document({"name": path.stem, **document}, str(path))
 
     @classmethod
     def _from_document(cls, document: dict[str, Any], source: str) -> Scenario:
         try:
-            return _from_table(cls, document, "")
+            return from_table(cls, document, "")
         except ValueError as error:
             raise ValueError(f"scenario {source}: {error}") from None
 
@@ -366,7 +362,7 @@ def datasheet_identity(geometry: DeltaGeometry, masses: DeltaMasses) -> str:
 def _read_file(path: Path, kind: str) -> dict[str, Any]:
     if not path.is_file():
         raise ValueError(f"{kind} {path}: no such file")
-    return _read_toml(path.read_text(), f"{kind} {path}")
+    return read_toml(path.read_text(), f"{kind} {path}")
 
 
 def _read_part(path: Path, kind: str, cls: type, name: str, keys: str) -> Any:
@@ -378,7 +374,7 @@ def _read_part(path: Path, kind: str, cls: type, name: str, keys: str) -> Any:
     if missing:
         raise ValueError(f"{kind} {path}: [{name}] misses {', '.join(missing)}")
     try:
-        return _from_table(cls, table, name)
+        return from_table(cls, table, name)
     except ValueError as error:
         raise ValueError(f"{kind} {path}: {error}") from None
 
@@ -439,93 +435,5 @@ def resolve_scenario(spec: str | os.PathLike[str] | Scenario) -> Scenario:
     )
 
 
-# ------------------------------------------------------------------------------------------------
-# Dataclass <-> TOML table, driven by the dataclasses' type hints
-# ------------------------------------------------------------------------------------------------
-
-_TABLE_TYPES = (Scenario, PlantConfig, DeltaGeometry, DeltaMasses, PlantRealism, Condition, PickPlaceTask)
-_TABLE_TYPES += (RandomizationRanges, DriveLimits, FaultSpec)
-
-
 def _preset_dir() -> Any:
     return resources.files("delta_env") / "scenarios"
-
-
-def _read_toml(text: str, source: str) -> dict[str, Any]:
-    """The table of TOML ``text``; ValueError naming ``source`` if it is not valid TOML."""
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"{source}: not valid TOML: {error}") from None
-
-
-def _describe(hint: Any) -> str:
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin is Literal:
-        return "one of " + ", ".join(repr(a) for a in args)
-    if origin in (typing.Union, types.UnionType):
-        return " or ".join(_describe(a) if a is not type(None) else f'"{NONE_MARKER}"' for a in args)
-    if origin is tuple and args[-1] is Ellipsis:
-        return f"an array of {_describe(args[0]).split()[-1]}s"
-    if origin is tuple:
-        return f"an array of {len(args)} {_describe(args[0]).split()[-1]}s"
-    if hint in _TABLE_TYPES:
-        return "a table"
-    return {float: "a number", int: "an integer", bool: "a boolean", str: "a string"}.get(hint, str(hint))
-
-
-def _convert(path: str, hint: Any, value: Any) -> Any:
-    """``value`` read from TOML as the Python value of type ``hint``; ValueError naming ``path``."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if type(None) in args and value == NONE_MARKER:
-            return None
-        (inner,) = (a for a in args if a is not type(None))
-        if isinstance(value, dict):  # a table: its own fields name the error
-            return _convert(path, inner, value)
-        try:
-            return _convert(path, inner, value)
-        except ValueError:
-            raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}") from None
-    ok = True
-    if hint is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        value = float(value) if ok else value
-    elif hint is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif hint in (bool, str):
-        ok = isinstance(value, hint)
-    elif origin is Literal:
-        ok = value in args
-    elif origin is tuple and args[-1] is Ellipsis:  # tuple[X, ...], e.g. an array of tables
-        ok = isinstance(value, list)
-        if ok:
-            return tuple(_convert(f"{path}[{n}]", args[0], v) for n, v in enumerate(value))
-    elif origin is tuple:
-        ok = isinstance(value, list) and len(value) == len(args)
-        if ok:
-            return tuple(_convert(f"{path}[{n}]", a, v) for n, (a, v) in enumerate(zip(args, value, strict=True)))
-    elif hint in _TABLE_TYPES:
-        ok = isinstance(value, dict)
-        if ok:
-            return _from_table(hint, value, path)
-    else:  # pragma: no cover - a field type this reader does not know is a programming error
-        raise TypeError(f"{path}: no TOML conversion for {hint!r}")
-    if not ok:
-        raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}")
-    return value
-
-
-def _from_table(cls: type, table: dict[str, Any], path: str) -> Any:
-    """Build dataclass ``cls`` from a TOML table: unknown keys rejected, every field converted and checked."""
-    hints = typing.get_type_hints(cls)
-    names = [item.name for item in dataclasses.fields(cls)]
-    where = f"{path}." if path else ""
-    unknown = sorted(set(table) - set(names))
-    if unknown:
-        raise ValueError(f"unknown key(s) {', '.join(where + k for k in unknown)}; allowed: {', '.join(names)}")
-    values = {key: _convert(where + key, hints[key], value) for key, value in table.items()}
-    try:
-        return cls(**values)
-    except ValueError as error:
-        raise ValueError(f"{path}: {error}" if path else str(error)) from None

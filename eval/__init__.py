@@ -11,7 +11,8 @@ Every experiment runs its episodes with :func:`eval.episodes.run_episode` and wr
 
 from eval.calibration import calibrate_tares
 from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import identification_root, identify_logs, load_or_identify, run_identification
+from eval.identification import identify_logs, run_identification
+from eval.parameter_files import identification_root, load_or_identify
 from eval.run_folder import create_run_folder, run_folder, runs_root
 
 __all__ = [

@@ -5,7 +5,7 @@ The episodes are those of a scenario (``--scenario``, a preset or a TOML file; `
 robot (``--geometry``, a design of the design study).
 
 1. Loads the identified MId, MId+F and MId+F+R parameters of the scenario's robot
-   (``eval.identification.identify_robot``: one file per robot identity, identified when missing, about a
+   (``eval.parameter_files.identify_robot``: one file per robot identity, identified when missing, about a
    minute; ``worn`` and ``randomized`` are the nominal robot and share its file).
 2. Runs the comparison (:mod:`eval.comparison`): tares each payload estimator on ``--calibration-episodes``
    payload-free episodes, runs every controller on episodes ``seed, seed + 1, ...`` and the Table 2 run.
@@ -58,7 +58,7 @@ from eval.comparison import (
     tabulate_faults,
 )
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
-from eval.identification import identification_root, robot_identification, robot_setup
+from eval.parameter_files import identification_root, robot_identification, robot_setup
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,

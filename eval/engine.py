@@ -2,7 +2,7 @@
 
 :func:`prepare` turns a scenario and the controllers to run into what they may know: the robot's identification
 (a given parameter file, or the robot's own, identified once and cached per robot identity:
-:func:`eval.identification.robot_identification`), the :class:`~controllers.registry.ControllerSetup` built from it
+:func:`eval.parameter_files.robot_identification`), the :class:`~controllers.registry.ControllerSetup` built from it
 and the tares and empty-move sums of the tared controllers, measured on the scenario's payload-free episodes on the
 calibration seeds (:func:`eval.calibration.tare_setup`). The episodes themselves are tasks (:mod:`eval.tasks`), one
 work unit for every experiment and both sweep backends.
@@ -14,10 +14,11 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from controllers.identification import IdentificationResult
 from controllers.registry import ControllerSetup
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
-from eval.identification import IdentificationResult, identification_root, robot_identification, robot_setup
+from eval.parameter_files import identification_root, robot_identification, robot_setup
 
 
 class Prepared(NamedTuple):
@@ -54,7 +55,7 @@ def prepare(
         scenario: The robot and the work; its faults are left out of the tare's episodes.
         controllers: Controller keys (:func:`controllers.registry.controller_entry`); the tared ones are tared.
         parameters: A parameter file of this robot (identified there when missing); None: the robot's own, under
-            the runs root (:func:`eval.identification.identification_root` of ``runs_dir``).
+            the runs root (:func:`eval.parameter_files.identification_root` of ``runs_dir``).
         runs_dir: The runs root (:func:`eval.run_folder.runs_root`).
         seed: Seed of the experiment's first episode; the calibration runs on its calibration seeds.
         calibration_episodes: Payload-free episodes per tared controller.

@@ -1,21 +1,15 @@
-# Over 500 lines: one experiment from excitation runs to the cached, identity-checked parameter file.
 """The identification experiment: excitation runs on the plant, then every fit (docs/design.md section 7).
 
-Data: excitation trajectories (:func:`delta_env.excitation.excitation_trajectory`, 6 g, workspace
-edges, slow moves) run in closed loop on the plant (PD plus MKH feedforward along the reference) by the
-episode runner :func:`eval.episodes.run_episode`; only the observations are kept: encoder angles and
-measured motor torques. The algorithms of :mod:`controllers.identification` then fit, on the same
-samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod forearms,
-beyond the paper), and compare every model on a held-out stress trajectory. The drive's lag is fitted
+Data: excitation trajectories run in closed loop on the plant by :mod:`eval.excitation`; only the observations
+are kept: encoder angles and measured motor torques. The algorithms of :mod:`controllers.identification` then fit,
+on the same samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod
+forearms, beyond the paper), and compare every model on a held-out stress trajectory. The drive's lag is fitted
 separately (:func:`controllers.drive.identify_lag`) to the commands each run held and the torques the drive
-reported, one fit per trajectory; the file keeps the median over the trajectories.
+reported, one fit per trajectory; the file keeps the median over the trajectories. A robot's drive logs
+(:func:`identify_logs`) go through the same fits.
 
-The result is a JSON parameter file with provenance, which :func:`load_or_identify` reads, or creates
-when it is missing. The identification belongs to a robot (its plant), not to the conditions it runs in:
-:func:`identify_robot` keeps one file per robot identity
-(:func:`delta_env.scenario.plant_identity`), ``<runs root>/identification/<identity>/parameters.json`` (the runs
-root of :func:`eval.run_folder.runs_root`: ``--runs-dir``, ``$DELTA_RUNS_DIR`` or ``./runs``), records
-the identity in the file and checks it on reading; a new robot is identified once, when first needed.
+The result is an :class:`~controllers.identification.IdentificationResult` with provenance; the parameter files,
+one per robot identity, are kept by :mod:`eval.parameter_files`.
 """
 
 from __future__ import annotations
@@ -35,7 +29,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Observation, PDController
+from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
@@ -48,241 +42,41 @@ from controllers.identification import (
     IdentificationResult,
     LeastSquaresFit,
     MotionData,
-    ParameterFileError,
     between_trajectory_spread,
     concatenate,
     error_table,
     fit_joint_least_squares,
     fit_least_squares,
     fit_paper_method,
-    load_result,
     prepare_motion,
     read_log,
-    save_result,
 )
-from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
-from delta_env.env import DeltaPickPlaceEnv
-from delta_env.excitation import excitation_trajectory
-from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
-from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits
+from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_count
-from eval.episodes import run_episode
+from eval.excitation import (
+    DEFAULT_DURATION,
+    NOMINAL_REGION,
+    VALIDATION_DURATION,
+    ExcitationRecord,
+    ExcitationRegion,
+    ExcitationSpec,
+    progress_bar,
+    run_excitation,
+)
 from eval.processes import parallel_map
-from eval.run_folder import json_ready, package_versions, runs_root
+from eval.run_folder import json_ready, package_versions
 
 logger = logging.getLogger(__name__)
-
-
-def identification_root(runs_dir: str | os.PathLike[str] | None = None) -> Path:
-    """Folder of the identifications, one subfolder per robot identity: ``identification`` under the runs root
-    (:func:`eval.run_folder.runs_root` of ``runs_dir``)."""
-    return runs_root(runs_dir) / "identification"
-
-
-def parameter_path(plant: PlantConfig, root: str | os.PathLike[str] | None = None) -> Path:
-    """Where the identification of the robot ``plant`` builds is kept: ``root/<identity>/parameters.json``
-    (``root`` None: :func:`identification_root`)."""
-    return Path(identification_root() if root is None else root) / plant_identity(plant) / "parameters.json"
 
 
 DEFAULT_TRAJECTORIES = 12
 """Excitation trajectories of the identification, as in the paper."""
 
-DEFAULT_DURATION = 8.0
-"""Length of each excitation trajectory (s)."""
-
-VALIDATION_DURATION = 10.0
-"""Length of the held-out free-motion stress trajectory (s), the paper's upsilon_F."""
-
 _Output = TypeVar("_Output")
-
-
-@dataclass(frozen=True)
-class ExcitationRegion:
-    """Where a robot's excitation trajectories start and move.
-
-    Attributes:
-        start: Platform position (m) where every trajectory starts and ends.
-        limits: Region the trajectories visit.
-    """
-
-    start: tuple[float, float, float]
-    limits: WorkspaceLimits
-
-
-NOMINAL_REGION = ExcitationRegion(start=(0.0, 0.0, WORKING_HEIGHT), limits=WORKSPACE_LIMITS)
-"""The nominal robot's excitation region: its working height and workspace."""
-
-
-@dataclass(frozen=True)
-class ExcitationSpec:
-    """One excitation trajectory: the arguments of ``excitation_trajectory`` and the episode seed.
-
-    Attributes:
-        seed: Seeds the trajectory's generator and the env's reset (its torque noise).
-        duration: Length (s).
-        peak_acceleration: Largest peak Cartesian |xdd| of a move (m/s^2).
-        min_acceleration_fraction: Smallest peak |xdd| of a fast move, relative to the largest.
-        edge_fraction: Probability that a fast move ends on the workspace edge.
-        slow_fraction: Probability that a move is slow (friction near zero speed).
-        start: Platform position (m) where the trajectory starts and ends.
-        limits: Region the trajectory visits; the default suits the nominal geometry.
-    """
-
-    seed: int
-    duration: float = DEFAULT_DURATION
-    peak_acceleration: float = 6.0 * GRAVITY
-    min_acceleration_fraction: float = 0.2
-    edge_fraction: float = 0.3
-    slow_fraction: float = 0.2
-    start: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT)
-    limits: WorkspaceLimits = WORKSPACE_LIMITS
-
-    @classmethod
-    def stress(cls, seed: int, duration: float = VALIDATION_DURATION) -> ExcitationSpec:
-        """The held-out free-motion stress trajectory (the paper's upsilon_F): fast moves only (3 to 6 g),
-        half of them to the workspace edge, with the excitation's short dwells (0 to 0.1 s)."""
-        return cls(seed=seed, duration=duration, min_acceleration_fraction=0.5, edge_fraction=0.5, slow_fraction=0.0)
-
-    def reference(self, geometry: DeltaGeometry = NOMINAL_GEOMETRY) -> Trajectory:
-        """The reference :class:`~delta_env.trajectories.Trajectory` of a robot with ``geometry`` (1 kHz)."""
-        return excitation_trajectory(
-            geometry,
-            np.random.default_rng(self.seed),
-            self.duration,
-            self.peak_acceleration,
-            start=self.start,
-            min_acceleration_fraction=self.min_acceleration_fraction,
-            edge_fraction=self.edge_fraction,
-            slow_fraction=self.slow_fraction,
-            limits=self.limits,
-            dt=CONTROL_PERIOD,
-        )
-
-
-@dataclass(frozen=True, eq=False)
-class ExcitationRecord:
-    """What the drive recorded along one excitation run: observations only, never the plant's truth.
-
-    Attributes:
-        spec: The trajectory that was run.
-        dt: Sample period (s).
-        angles: Encoder angles (rad), ``(N, 3)``.
-        torques: Measured motor torques (N m), ``(N, 3)``; sample k is :data:`MEASURED_TORQUE_DELAY` older
-            than angle sample k.
-        commands: Command the drive held after each sample (N m), ``(N - 1, 3)``: command k, sent with
-            sample k, is followed by the torque reported with sample k + 1.
-        max_loop_gap: Largest loop-closure gap of the plant during the run (m), the simulation's health.
-    """
-
-    spec: ExcitationSpec
-    dt: float
-    angles: NDArray[np.float64]
-    torques: NDArray[np.float64]
-    commands: NDArray[np.float64]
-    max_loop_gap: float
-
-    @property
-    def log(self) -> DriveLog:
-        """What the drive's logger recorded: angles, torques and commands (:mod:`controllers.identification.logs`)."""
-        return DriveLog(self.angles, self.torques, self.commands, self.dt)
-
-
-class ReferenceFeedforward:
-    """PD plus a feedforward torque computed beforehand along the reference, one row per control step.
-
-    Args:
-        feedforward: Torques (N m), ``(N, 3)``: row k is added at the k-th call after :meth:`reset`.
-        pd: The feedback; ``PDController()`` when None.
-    """
-
-    name = "MKH (precomputed)+PD"
-
-    def __init__(self, feedforward: NDArray[np.float64], pd: PDController | None = None) -> None:
-        self.feedforward = feedforward
-        self.pd = PDController() if pd is None else pd
-        self._step = 0
-
-    def reset(self) -> None:
-        self._step = 0
-
-    def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        torque = self.feedforward[self._step] + self.pd(observation)
-        self._step += 1
-        return torque
-
-
-def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> ExcitationRecord:
-    """Run ``spec`` with PD + MKH feedforward on the plant; record encoder angles and measured torques.
-
-    The reference and the MKH model are those of the plant's geometry and built masses (its datasheet).
-
-    Raises:
-        RuntimeError: if the plant diverges.
-    """
-    plant = PlantConfig() if plant is None else plant
-    reference = spec.reference(plant.geometry)
-    # MKH feedforward along the reference, in one batch (the batched model is much faster than single samples).
-    mkh = robot_model(plant)
-    feedforward = mkh.inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
-    env = DeltaPickPlaceEnv(plant=plant)
-    record = run_episode(env, ReferenceFeedforward(feedforward), spec.seed, reference=reference)
-    env.close()
-    if record.diverged:
-        steps = len(record.tracking_error)
-        raise RuntimeError(f"the plant diverged at step {steps} of excitation seed {spec.seed}")
-    return ExcitationRecord(
-        spec=spec,
-        dt=CONTROL_PERIOD,
-        angles=record.encoder_angles,
-        torques=record.measured_torque,
-        commands=record.command,
-        max_loop_gap=record.max_loop_gap,
-    )
-
-
-def robot_model(plant: PlantConfig, *, forearm_rods: bool = False) -> DeltaDynamics:
-    """MKH of the robot ``plant`` builds: its lengths and datasheet masses, nothing identified yet."""
-    return DeltaDynamics.of_robot(plant.geometry, plant.masses, forearm_rods=forearm_rods)
-
-
-def _progress_bar(total: int, show: bool, unit: str = "excitation runs") -> Any:
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=unit, disable=not show, unit=unit.split()[-1].rstrip("s"))
-
-
-def collect_excitation_data(
-    specs: Sequence[ExcitationSpec],
-    *,
-    plant: PlantConfig | None = None,
-    workers: int = 1,
-    progress: bool = False,
-) -> list[ExcitationRecord]:
-    """Run excitation trajectories in closed loop on the plant and record the observations.
-
-    Each run: ``DeltaPickPlaceEnv(plant)`` reset with the trajectory as reference (no picks),
-    ``PDController()`` plus MKH feedforward precomputed along the reference. Recorded: the encoder
-    angles and the measured motor torques of the observations (with the plant's sensor noise and
-    quantization), never the simulator's state.
-
-    Args:
-        specs: The trajectories.
-        plant: Plant configuration; None is the default realistic plant.
-        workers: Processes running trajectories in parallel.
-        progress: Show a tqdm progress bar.
-
-    Raises:
-        RuntimeError: if the plant diverges.
-    """
-    specs = list(specs)
-    with _progress_bar(len(specs), progress) as bar:
-        return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)
 
 
 def prepare_log(log: DriveLog) -> tuple[MotionData, NDArray[np.float64] | None]:
@@ -405,7 +199,7 @@ def run_identification(
     specs.append(dataclasses.replace(ExcitationSpec.stress(validation_seed, validation_duration), **place))
 
     run = functools.partial(_collect_and_prepare, plant=plant)
-    with _progress_bar(len(specs), progress) as bar:
+    with progress_bar(len(specs), progress) as bar:
         runs = parallel_map(run, specs, workers, bar)
     source = {
         "seed": seed,
@@ -468,7 +262,7 @@ def identify_logs(
         raise ValueError(f"need at least 2 logs (the last one is held out for validation), got {len(paths)}")
     geometry, masses = load_robot(robot)
     logs = [read_log(path) for path in paths]
-    with _progress_bar(len(logs), progress, "logs") as bar:
+    with progress_bar(len(logs), progress, "logs") as bar:
         prepared = parallel_map(prepare_log, logs, workers, bar)
     summaries = [_log_summary(path, log) for path, log in zip(paths, logs, strict=True)]
     source = {
@@ -658,111 +452,3 @@ def identify(
             see :func:`run_identification`.
     """
     return run_identification(n_trajectories, seed, duration, progress=progress, workers=workers, **kwargs).result
-
-
-def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> IdentificationResult:
-    """The identified parameters at ``path``; if the file does not exist, identify and save them there.
-
-    Args:
-        path: Parameter file.
-        **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
-
-    Raises:
-        ParameterFileError: if the file exists but is corrupt (it is never silently replaced).
-    """
-    path = Path(path)
-    if path.exists():
-        return load_result(path)
-    logger.info("no identified parameters at %s: identifying (about a minute)", path)
-    result = identify(**identify_kwargs)
-    save_result(result, path)
-    return result
-
-
-def check_identity(result: IdentificationResult, plant: PlantConfig, path: str | os.PathLike[str]) -> None:
-    """Refuse an identification of another robot than ``plant``'s.
-
-    A simulated identification records the plant's identity (:func:`delta_env.scenario.plant_identity`); one from
-    logs knows the robot only by its robot file, and records the identity of its lengths and datasheet masses
-    (:func:`delta_env.scenario.datasheet_identity`): a plant with the same ones is that robot.
-
-    Raises:
-        ParameterFileError: if the file records no robot identity or another one than ``plant``'s.
-    """
-    summary = result.provenance.get("plant", {})
-    recorded = summary.get("identity")
-    if summary.get("source") == "logs":
-        expected = datasheet_identity(plant.geometry, plant.masses)
-        if recorded != expected:
-            raise ParameterFileError(
-                f"{path}: identified from the logs of robot {recorded!r} (robot file {summary.get('robot_file')}: "
-                f"{summary.get('geometry_m')} m, {summary.get('masses_kg')} kg), not of this robot {expected!r} "
-                f"({dataclasses.asdict(plant.geometry)} m, {dataclasses.asdict(plant.masses)} kg); simulate that robot "
-                "(--geometry ROBOT_FILE) or pass the file of this robot"
-            )
-        return
-    expected = plant_identity(plant)
-    if recorded != expected:
-        raise ParameterFileError(
-            f"{path}: identified on robot {recorded!r}, not on this robot {expected!r} "
-            "(delete the file to identify again, or pass the file of this robot)"
-        )
-
-
-def identify_robot(
-    plant: PlantConfig, root: str | os.PathLike[str] | None = None, **identify_kwargs: Any
-) -> IdentificationResult:
-    """The identification of the robot ``plant`` builds, from its file under ``root``; identified there when
-    missing (about a minute per robot).
-
-    Args:
-        plant: The robot as identified (a scenario's ``plant``, without its condition).
-        root: Folder of the identifications (:func:`parameter_path`; None: :func:`identification_root`).
-        **identify_kwargs: Arguments of :func:`identify` other than ``plant``, used only when identifying.
-
-    Raises:
-        ParameterFileError: if the file is corrupt or records another robot.
-    """
-    path = parameter_path(plant, root)
-    result = load_or_identify(path, plant=plant, **identify_kwargs)
-    check_identity(result, plant, path)
-    return result
-
-
-def robot_identification(
-    plant: PlantConfig,
-    parameters: str | os.PathLike[str] | None = None,
-    root: str | os.PathLike[str] | None = None,
-) -> tuple[Path, IdentificationResult]:
-    """The parameter file and identification of ``plant``'s robot: ``parameters`` (identified there when missing)
-    or, when None, its own file under ``root`` (:func:`identify_robot`); either must record this robot.
-
-    Raises:
-        ParameterFileError: if the file is corrupt or records another robot.
-    """
-    if parameters is None:
-        return parameter_path(plant, root), identify_robot(plant, root)
-    result = load_or_identify(parameters, plant=plant)
-    check_identity(result, plant, parameters)
-    return Path(parameters), result
-
-
-def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs: Any) -> ControllerSetup:
-    """What the controllers know of the robot ``plant`` builds: its lengths, datasheet masses and ``result``.
-
-    Args:
-        plant: The robot the parameters were identified on.
-        result: Its identification.
-        **setup_kwargs: Other fields of :class:`~controllers.registry.ControllerSetup` (tares, gains, policy).
-    """
-    return ControllerSetup(
-        mid=result.mid,
-        mid_f=result.mid_f,
-        mid_f_rods=result.mid_f_rods,
-        drive_lag=result.drive_lag,
-        geometry=plant.geometry,
-        masses=plant.masses,
-        drive=plant.drive,
-        encoder_bits=plant.realism.encoder_bits,
-        **setup_kwargs,
-    )

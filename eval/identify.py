@@ -13,9 +13,9 @@ alone (:func:`eval.identification.identify_logs`, the same fits), the last log h
 parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of the robot
 file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot (``--geometry ROBOT.toml``).
 
-The report of a simulation compares the identified friction and drive lag with the plant's true values: the
-only place that reads the plant's truth, labelled as ground truth for the report; the identification never sees
-it. Logs come with no truth.
+The report (:mod:`eval.identification_report`) of a simulation compares the identified friction and drive lag with
+the plant's true values: the only place that reads the plant's truth, labelled as ground truth for the report; the
+identification never sees it. Logs come with no truth.
 """
 
 from __future__ import annotations
@@ -26,54 +26,16 @@ import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
-from controllers.identification import (
-    FRICTION_VELOCITY_THRESHOLD,
-    JOINT_PARAMETER_NAMES,
-    error_table,
-    fit_joint_least_squares,
-    save_result,
-    write_log,
-)
-from delta_env.config import PlantConfig
-from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
+from controllers.identification import save_result, write_log
+from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import save_robot
-from eval.identification import (
-    DEFAULT_DURATION,
-    DEFAULT_TRAJECTORIES,
-    VALIDATION_DURATION,
-    IdentificationRun,
-    identification_root,
-    identify_logs,
-    parameter_path,
-    run_identification,
-)
+from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
+from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
+from eval.identification_report import ground_truth, plot_figures, render_report, save_validation_data
+from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, utc_stamp
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
-
-FIGURES = {
-    "fig3_mkh.png": "MKH",
-    "fig4_mid_paper.png": "MId (paper)",
-    "fig5_mid_f_paper.png": "MId+F (paper)",
-    "fig5b_mid_f_joint_ls.png": "MId+F (joint LS)",
-}
-"""Torque-profile figures like the paper's Fig. 3-5, by file name."""
-
-SPEED_BANDS = (
-    (0.0, 0.0, "at rest"),
-    (0.0, FRICTION_VELOCITY_THRESHOLD, f"0-{FRICTION_VELOCITY_THRESHOLD:g} rad/s"),
-    (FRICTION_VELOCITY_THRESHOLD, np.inf, f"> {FRICTION_VELOCITY_THRESHOLD:g} rad/s"),
-)
-"""Speed bands (low, high, label) of |theta_dot_i| for the error breakdown; (0, 0) means exactly 0."""
-
-THRESHOLD_SWEEP = (0.1, 0.2, 0.5, 1.0, 2.0)
-"""Friction velocity thresholds (rad/s) of the report's trade-off table."""
-
-TARGET_STD_RATIO = 0.25
-"""Goal: std of the MId+F error <= this x std of the MKH error on every joint (the paper's Table 1)."""
 
 DURATION_RANGE = (1.0, 600.0)
 """Allowed lengths (s) of a simulated trajectory: 1 s leaves 900 samples after the trimmed ends."""
@@ -185,16 +147,6 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     return arguments
 
 
-def _ground_truth(plant: PlantConfig) -> dict[str, list[float]]:
-    """The plant's true friction and drive lag (ground truth for this report only)."""
-    realism = plant.realism
-    return {
-        "viscous": realism.viscous_per_joint.tolist(),
-        "coulomb": realism.coulomb_per_joint.tolist(),
-        "drive_lag": [realism.actuator_lag] * 3,
-    }
-
-
 def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMasses, folder: Path, suffix: str) -> Path:
     """Write the run's logs as a robot's logger would (excitation_01 ... and, last, validation) and the robot file
     ``robot.toml``, what ``--log`` and ``--robot`` read; returns the robot file."""
@@ -204,287 +156,6 @@ def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMass
         write_log(log, folder / f"excitation_{index:0{digits}d}{suffix}")
     write_log(validation, folder / f"validation{suffix}")
     return save_robot(geometry, masses, folder / "robot.toml")
-
-
-def save_validation_data(run: IdentificationRun, path: Path) -> None:
-    """The held-out samples and every model's torque along them, for the figures (npz)."""
-    data = run.validation
-    torques = {
-        f"model_{index}": model.inverse_dynamics(data.theta, data.theta_dot, data.theta_ddot)
-        for index, model in enumerate(run.models.values())
-    }
-    np.savez_compressed(
-        path,
-        dt=run.result.provenance["method"]["sample_period_s"],
-        theta=data.theta,
-        theta_dot=data.theta_dot,
-        theta_ddot=data.theta_ddot,
-        torque=data.torque,
-        model_names=np.array(list(run.models)),
-        **torques,
-    )
-
-
-def plot_figures(validation_file: Path, folder: Path) -> list[Path]:
-    """Torque profiles (the paper's Fig. 3-5) and error bars (Fig. 6a) from the saved validation data."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    saved = np.load(validation_file)
-    names = [str(name) for name in saved["model_names"]]
-    time = np.arange(len(saved["torque"])) * float(saved["dt"])
-    written = []
-    for file_name, model in FIGURES.items():
-        estimate = saved[f"model_{names.index(model)}"]
-        figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 7), constrained_layout=True)
-        for joint, axis in enumerate(axes):
-            axis.plot(time, saved["torque"][:, joint], color="0.3", linewidth=0.8, label="measured tau")
-            axis.plot(time, estimate[:, joint], color="tab:red", linewidth=0.8, label=f"{model} tau_hat")
-            axis.set_ylabel(f"tau{joint + 1} (N m)")
-            axis.grid(alpha=0.3)
-        axes[0].legend(loc="upper right")
-        axes[0].set_title(f"Held-out stress trajectory: measured torque vs {model}")
-        axes[-1].set_xlabel("time (s)")
-        figure.savefig(folder / file_name, dpi=110)
-        plt.close(figure)
-        written.append(folder / file_name)
-
-    figure, axis = plt.subplots(figsize=(9, 4), constrained_layout=True)
-    width = 0.8 / len(names)
-    for index, name in enumerate(names):
-        errors = saved["torque"] - saved[f"model_{index}"]
-        positions = np.arange(3) + (index - (len(names) - 1) / 2) * width
-        axis.bar(positions, errors.mean(axis=0), width, yerr=errors.std(axis=0), capsize=3, label=name)
-    axis.set_xticks(np.arange(3), [f"tau{joint + 1}" for joint in range(3)])
-    axis.set_ylabel("tau - tau_hat (N m): mean and std")
-    axis.axhline(0.0, color="black", linewidth=0.6)
-    axis.legend(fontsize=8)
-    axis.set_title("Held-out stress trajectory (the paper's Fig. 6a)")
-    figure.savefig(folder / "fig6a_error_bars.png", dpi=110)
-    plt.close(figure)
-    written.append(folder / "fig6a_error_bars.png")
-    return written
-
-
-def _table1(table: dict[str, Any]) -> list[str]:
-    header = "| joint | " + " | ".join(f"{name} mu | {name} sigma" for name in table) + " |"
-    lines = [header, "|---" * (1 + 2 * len(table)) + "|"]
-    for joint in range(3):
-        cells = [f"{row['mean'][joint]:.2f} | {row['std'][joint]:.2f}" for row in table.values()]
-        lines.append(f"| tau{joint + 1} (N m) | " + " | ".join(cells) + " |")
-    return lines
-
-
-def _std_ratio_lines(table: dict[str, Any]) -> list[str]:
-    lines = ["| model | sigma / sigma_MKH, joints 1-3 | goal <= 0.25 on every joint |", "|---|---|---|"]
-    reference = np.array(table["MKH"]["std"])
-    for name in ("MId+F (paper)", "MId+F (joint LS)", "MId+F+R (joint LS)"):
-        ratio = np.array(table[name]["std"]) / reference
-        verdict = "met" if np.all(ratio <= TARGET_STD_RATIO) else "NOT met"
-        lines.append(f"| {name} | {', '.join(f'{r:.3f}' for r in ratio)} | {verdict} |")
-    return lines
-
-
-def _speed_band_lines(validation_file: Path) -> list[str]:
-    saved = np.load(validation_file)
-    names = [str(name) for name in saved["model_names"]]
-    speed = np.abs(saved["theta_dot"])
-    bands = []
-    for low, high, label in SPEED_BANDS:
-        inside = speed == 0.0 if high == 0.0 else (speed > low) & (speed <= high)
-        bands.append((label, inside))
-    header = "| model | " + " | ".join(f"{label} ({inside.mean():.0%})" for label, inside in bands) + " |"
-    lines = [header, "|---" * (1 + len(bands)) + "|"]
-    for index, name in enumerate(names):
-        errors = saved["torque"] - saved[f"model_{index}"]
-        cells = [f"{np.sqrt(np.mean(errors[inside] ** 2)):.2f}" for _, inside in bands]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return lines
-
-
-def _parameter_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
-    result = run.result
-    spread = result.provenance["mid_f_between_trajectories"]["standard_error_of_mean"]
-    lines = [
-        "| parameter | MId (LS) | MId+F joint LS +- SE (between-trajectory SE) | paper MId | paper MId+F "
-        "| ground truth | joint LS error | paper error |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for index, name in enumerate(JOINT_PARAMETER_NAMES):
-        if index < 2:
-            ours, paper = getattr(result.mid_f, name), getattr(result.paper_mid_f, name)
-            mid, paper_mid, true = f"{getattr(result.mid, name):.4f}", f"{getattr(result.paper_mid, name):.4f}", None
-        else:
-            kind, joint = name.rsplit("_", 1)
-            j = int(joint) - 1
-            ours, paper = getattr(result.mid_f, kind)[j], getattr(result.paper_mid_f, kind)[j]
-            mid = paper_mid = "-"
-            true = None if truth is None else truth[kind][j]
-        error = result.standard_errors[f"mid_f.{name}"]
-        between = spread[name]
-        between_text = "n/a" if between is None else f"{between:.4f}"
-        if true is None:
-            truth_cells = f"{'unknown' if truth is None else '(no physical truth)'} | - | -"
-        else:
-            truth_cells = f"{true:.3f} | {100 * (ours - true) / true:+.1f} % | {100 * (paper - true) / true:+.1f} %"
-        lines.append(
-            f"| {name} | {mid} | {ours:.4f} +- {error:.4f} ({between_text}) | {paper_mid} | {paper:.4f} "
-            f"| {truth_cells} |"
-        )
-    return lines
-
-
-def _threshold_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
-    """Joint LS at other friction velocity thresholds: friction error (the friction itself without a truth) vs
-    held-out accuracy."""
-    paper_std = np.array(run.result.provenance["torque_error_validation"]["MId+F (paper)"]["std"])
-    friction = "fv error (%) | fc error (%)" if truth else "fv (N m s/rad) | fc (N m)"
-    lines = [
-        f"| threshold (rad/s) | {friction} | held-out sigma (N m) | sigma / paper MId+F sigma |",
-        "|---|---|---|---|---|",
-    ]
-    number = "+.1f" if truth else ".3f"
-    for threshold in THRESHOLD_SWEEP:
-        try:
-            parameters = fit_joint_least_squares(
-                run.data, dynamics=run.models["MKH"], velocity_threshold=threshold
-            ).parameters
-        except ValueError as failure:
-            lines.append(f"| {threshold:g} | not identifiable: {failure} | | | |")
-            continue
-        error = np.array([*parameters.viscous, *parameters.coulomb])
-        if truth is not None:
-            true = np.array([*truth["viscous"], *truth["coulomb"]])
-            error = 100.0 * (error - true) / true
-        model = run.models["MKH"].with_parameters(parameters)
-        sigma = np.array(error_table({"ls": model}, run.validation)["ls"]["std"])
-        marker = " (default)" if threshold == FRICTION_VELOCITY_THRESHOLD else ""
-        lines.append(
-            f"| {threshold:g}{marker} | {', '.join(f'{e:{number}}' for e in error[:3])} | "
-            f"{', '.join(f'{e:{number}}' for e in error[3:])} | {', '.join(f'{v:.3f}' for v in sigma)} | "
-            f"{', '.join(f'{v:.3f}' for v in sigma / paper_std)} |"
-        )
-    return lines
-
-
-def _data_lines(provenance: dict[str, Any], command: str) -> list[str]:
-    """What the identification ran on: the simulated trajectories or the log files, and the held-out one."""
-    samples = provenance["samples"]
-    if "logs" in provenance:
-        held_out = provenance["validation_log"]
-        return [
-            f"`{command}` on {provenance['date']}: {len(provenance['logs'])} logs "
-            f"({samples['total']} samples after resampling and trimming) of the robot of "
-            f"{provenance['plant']['robot_file']} (identity {provenance['plant']['identity']}).",
-            f"Held-out log: {held_out['path']}, {held_out['duration_s']:g} s ({samples['validation']} samples).",
-        ]
-    held_out = provenance["validation_trajectory"]
-    peak_g = held_out["peak_acceleration"] / GRAVITY
-    return [
-        f"`{command}` on {provenance['date']}: {len(provenance['trajectories'])} excitation trajectories "
-        f"({samples['total']} samples after trimming), seed {provenance['seed']}.",
-        f"Held-out free-motion stress trajectory (the paper's upsilon_F): episode seed {held_out['seed']}, "
-        f"{held_out['duration']:g} s, fast moves of {peak_g * held_out['min_acceleration_fraction']:g} to "
-        f"{peak_g:g} g, {held_out['edge_fraction']:.0%} to the workspace edge ({samples['validation']} samples).",
-    ]
-
-
-def _drive_lag_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
-    """The identified drive lag per joint, its spread over the trajectories and the truth when known."""
-    per_trajectory = np.array(run.result.provenance["drive_lag_per_trajectory_s"])
-    if per_trajectory.size == 0:
-        return [
-            "Not identified: the logs have no commands. The parameter file holds T = 0 (no lag: the controllers that "
-            "lead the drive lag then lead nothing)."
-        ]
-    lag = 1e3 * np.array(run.result.drive_lag)
-    line = (
-        f"T per joint: {', '.join(f'{v:.3f}' for v in lag)} ms, the median over {len(per_trajectory)} trajectories "
-        f"(spread {1e3 * per_trajectory.min():.3f} to {1e3 * per_trajectory.max():.3f} ms)"
-    )
-    if truth is None:
-        return [line + "."]
-    true = 1e3 * np.array(truth["drive_lag"])
-    errors = ", ".join(f"{e:+.1f}" for e in 100.0 * (lag - true) / true) if np.all(true > 0) else "-"
-    return [line + f"; ground truth {', '.join(f'{v:.3f}' for v in true)} ms, error {errors} %."]
-
-
-def render_report(
-    run: IdentificationRun,
-    validation_file: Path,
-    command: str,
-    figures: list[Path],
-    truth: dict[str, list[float]] | None,
-) -> str:
-    """The Markdown validation report of an identification; ``truth`` is the plant's friction and drive lag
-    (:func:`_ground_truth`), None for logs."""
-    provenance = run.result.provenance
-    table = provenance["torque_error_validation"]
-    times = provenance["run_time_s"]
-    residuals = provenance["residuals"]
-    truth_note = (
-        "Ground truth: the identified plant's friction (its `PlantConfig.realism`), read by this report only."
-        if truth
-        else "Ground truth: unknown (identified from logs)."
-    )
-    lines = [
-        "# Identification report",
-        "",
-        *_data_lines(provenance, command),
-        "",
-        "## Table 1 analogue: tau - tau_hat on the held-out trajectory (N m)",
-        "",
-        *_table1(table),
-        "",
-        *_std_ratio_lines(table),
-        "",
-        "RMS error (N m, all joints) by joint speed |theta_dot_i| on the held-out trajectory:",
-        "",
-        *_speed_band_lines(validation_file),
-        "",
-        "## Identified parameters",
-        "",
-        f"{truth_note} rho1 and rho2 have no physical truth (they absorb armature, the real arm and forearm inertia).",
-        "SE = sigma^2 (X^T X)^-1 over rows 1 ms apart whose residuals are correlated: optimistic. "
-        "The between-trajectory SE (spread of per-trajectory fits / sqrt(n)) is the honest one.",
-        "",
-        *_parameter_lines(run, truth),
-        "",
-        f"Joint LS residual RMS {residuals['mid_f']['residual_rms']:.3f} N m over "
-        f"{sum(residuals['mid_f']['rows_per_joint'])} rows (per joint "
-        f"{', '.join(f'{v:.3f}' for v in residuals['mid_f']['residual_rms_per_joint'])}); "
-        f"rows with |theta_dot_i| <= {provenance['method']['velocity_threshold_rad_s']} rad/s left out.",
-        "",
-        "### Friction velocity threshold: truth of the friction vs held-out accuracy",
-        "",
-        "Joint LS refitted with other thresholds (rows with |theta_dot_i| <= threshold left out). Below "
-        "about 1 rad/s the plant's friction is not fv thd + fc sign(thd) (Stribeck excess; MuJoCo's soft "
-        "Coulomb friction reverses while a joint brakes hard at low speed): lower thresholds pull fc down, "
-        "which fits those samples better and the true friction worse.",
-        "",
-        *_threshold_lines(run, truth),
-        "",
-        "## Drive lag",
-        "",
-        *_drive_lag_lines(run, truth),
-        "",
-        "## Run time (s)",
-        "",
-        "| data collection + smoothing | joint LS (both fits) | paper method (grid + friction LS) | total |",
-        "|---|---|---|---|",
-        f"| {times['data_collection_and_smoothing']:.2f} | {times['joint_least_squares']:.3f} | "
-        f"{times['paper_method']:.3f} | {times['total']:.2f} |",
-        "",
-        f"Fits {times['fits_timed_as']}; {provenance['workers']} worker process(es).",
-        "",
-        "## Figures",
-        "",
-        *[f"![{path.stem}]({path.name})" for path in figures],
-        "",
-    ]
-    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -542,7 +213,7 @@ def identify_into(arguments: argparse.Namespace, run_dir: Run, command: str, run
         if arguments.save_logs is not None:
             suffix = LOG_FORMATS[arguments.log_format]
             save_logs(run, scenario.plant.geometry, scenario.plant.masses, arguments.save_logs, suffix)
-        truth = _ground_truth(scenario.plant)
+        truth = ground_truth(scenario.plant)
         install = None if arguments.no_install else arguments.parameters
     save_result(run.result, folder / "parameters.json")
     if install is not None:

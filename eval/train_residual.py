@@ -1,12 +1,11 @@
-# Over 500 lines: one command, from the base controller's setup through SB3's callbacks to the scored policy.
 """Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (docs/design.md section 6).
 
     python -m eval.train_residual --seed 0 --timesteps 300000 --max-minutes 15
 
 SAC by default (``--algo`` ppo, tqc or crossq selectable; TQC and CrossQ come from sb3-contrib), with the
-hyperparameters of ``eval/hyperparams/residual.toml``. ``--hyperparams key:value ...`` overrides any of them
-as the RL Zoo does; each value is a TOML value, as in the file (of bare words only ``auto`` and ``auto_<x>``
-are strings; quote others), and a dotted key sets one entry of a table::
+hyperparameters of ``eval/hyperparams/residual.toml`` (:mod:`eval.hyperparameters`). ``--hyperparams key:value
+...`` overrides any of them as the RL Zoo does; each value is a TOML value, as in the file (of bare words only
+``auto`` and ``auto_<x>`` are strings; quote others), and a dotted key sets one entry of a table::
 
     --hyperparams learning_rate:1e-3 train_freq:4 gradient_steps:2 policy_kwargs.net_arch:[64,64]
     --hyperparams 'policy_kwargs:{ net_arch = [64, 64] }' ent_coef:auto_0.1
@@ -28,17 +27,17 @@ Every run folder (``--out``, default ``<runs root>/residual/<UTC time>``; :func:
 ``<runs root>/residual_scores/<UTC time>``: ``config.json``, ``scenario.toml``, ``scores.json``), never beside the
 policy file.
 
-Seeds: training episodes draw their env seeds from ``TRAINING_SEEDS`` (per worker, from ``--seed``),
-validation uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the tare calibration
-``CALIBRATION_SEEDS``: four disjoint sets, all disjoint from ``python -m eval``'s defaults (seeds 0-9 and
-its calibration seeds from 100000), so no evaluation episode (reference path, payload masses, noise) is
-ever trained on.
+Seeds: training episodes draw their env seeds from ``TRAINING_SEEDS`` (per worker, from ``--seed``), validation
+uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the tare calibration ``CALIBRATION_SEEDS``
+(:mod:`eval.residual_envs`, :mod:`eval.scoring`): four disjoint sets, all disjoint from ``python -m eval``'s
+defaults (seeds 0-9 and its calibration seeds from 100000), so no evaluation episode (reference path, payload
+masses, noise) is ever trained on.
 
 Training episodes come from the ``randomized`` scenario by default (domain randomization of masses, friction
 and drive lag on the nominal robot; ``--scenario`` chooses another). The base controller is the eval's
 ``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
 MId+F+R + PD with the payload RLS, its feedforward leading the identified drive lag, its parameters those
-of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.identify_robot``) and
+of the scenario's robot (``--scenario``, ``--geometry``; ``eval.parameter_files.identify_robot``) and
 its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
 Both, and the robot's geometry and masses, are saved in the policy.
 """
@@ -46,60 +45,37 @@ Both, and the robot's geometry and masses, are saved in the policy.
 from __future__ import annotations
 
 import argparse
-import copy
 import importlib.util
-import inspect
 import json
 import math
-import re
 import time
-import tomllib
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
-import gymnasium as gym
-import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 from stable_baselines3.common.logger import configure, make_output_format
-from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm import tqdm
 
 from controllers.base import Controller
-from controllers.dynamics import ModelParameters
-from controllers.registry import ControllerSetup
-from controllers.residual import (
-    ALGORITHMS,
-    BaseSetup,
-    DeltaResidualEnv,
-    ResidualConfig,
-    algorithm_class,
-    save_residual_policy,
+from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, algorithm_class, save_residual_policy
+from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
+from eval.residual_envs import (
+    BASE_KEYS,
+    CALIBRATION_SEEDS,
+    TRAINING_SEEDS,
+    VALIDATION_SEEDS,
+    base_setup,
+    make_env,
 )
-from delta_env.env import DeltaPickPlaceEnv
-from delta_env.scenario import Scenario
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_json
 from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
-
-HYPERPARAMETER_FILE = Path(__file__).resolve().parent / "hyperparams" / "residual.toml"
-"""The SB3 hyperparameters of each algorithm, one TOML table per algorithm."""
-
-TRAINING_SEEDS = range(10_000_000, 20_000_000)
-"""Env seeds of the training episodes (drawn at random per worker)."""
-
-VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
-"""Held-out episodes of the EvalCallback during training (model selection)."""
-
-CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_000 + DEFAULT_CALIBRATION_EPISODES))
-"""Payload-free episodes of the base controller's tare (as many as the eval's)."""
 
 CHECKPOINT_PREFIX = "residual"
 """CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
@@ -109,198 +85,6 @@ HAS_RICH = importlib.util.find_spec("rich") is not None
 
 HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
 """``--tensorboard`` needs the tensorboard package."""
-
-BARE_WORD = re.compile(r"auto(_[0-9.eE+-]+)?")
-"""The ``--hyperparams`` values that are not TOML but read as strings: SB3's ``auto`` and ``auto_<initial>`` of
-``ent_coef`` and ``target_entropy``. Any other word must be quoted (``'"value"'``)."""
-
-SET_BY_THE_TOOL = frozenset({"seed", "device", "verbose", "tensorboard_log", "_init_setup_model"})
-"""Constructor arguments the tool sets itself (``--seed``, ``--tensorboard``), not ``--hyperparams`` keys."""
-
-
-def load_hyperparameters(algo: str, path: Path = HYPERPARAMETER_FILE) -> dict[str, Any]:
-    """The SB3 keyword arguments of ``algo`` (one of ``ALGORITHMS``) from the hyperparameter file."""
-    with path.open("rb") as file:
-        tables = tomllib.load(file)
-    if algo not in tables:
-        raise ValueError(f"{path} has no [{algo}] table; it has {sorted(tables)}")
-    return copy.deepcopy(tables[algo])
-
-
-def parse_hyperparameter_value(key: str, text: str) -> Any:
-    """The value of one ``--hyperparams key:value`` item: a TOML value (``1e-3``, ``[64, 64]``, ``true``,
-    ``"auto"``, ``{ net_arch = [64, 64] }``), or the text itself for ``auto`` / ``auto_<initial>``
-    (:data:`BARE_WORD`). A non-finite number is refused."""
-    if BARE_WORD.fullmatch(text):
-        return text
-    try:
-        value = tomllib.loads(f"value = {text}")["value"]
-    except tomllib.TOMLDecodeError as error:
-        hint = " (TOML writes true and false in lower case)" if text in ("True", "False") else ""
-        raise ValueError(
-            f"--hyperparams {key}: {text!r} is not a TOML value{hint}; quote a string, e.g. {key}:'\"{text}\"' "
-            f"({error})"
-        ) from None
-    if isinstance(value, float) and not math.isfinite(value):
-        raise ValueError(f"--hyperparams {key}: {text!r} must be a finite number")
-    return value
-
-
-def override_hyperparameters(hyperparameters: dict[str, Any], items: Sequence[str], algo: str) -> dict[str, Any]:
-    """``hyperparameters`` with the ``--hyperparams`` items ``key:value`` applied (a new dict).
-
-    A key must be a keyword argument of the algorithm's constructor; a dotted key (``policy_kwargs.net_arch``)
-    sets one entry of a table-valued argument and leaves its other entries.
-    """
-    allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {"self", "policy", "env"}
-    allowed -= SET_BY_THE_TOOL
-    result = copy.deepcopy(hyperparameters)
-    for item in items:
-        key, separator, text = item.partition(":")
-        if not separator or not key or not text:
-            raise ValueError(f"--hyperparams items are key:value, got {item!r}")
-        name, *path = key.split(".")
-        if not all(path):
-            raise ValueError(f"--hyperparams {key}: a dotted key needs a name between the dots")
-        if name in SET_BY_THE_TOOL:
-            raise ValueError(f"--hyperparams {key}: {name!r} is set by the tool (--seed, --tensorboard), not here")
-        if name not in allowed:
-            raise ValueError(f"--hyperparams {key}: {name!r} is not an argument of {algo}; known: {sorted(allowed)}")
-        value = parse_hyperparameter_value(key, text)
-        if not path:
-            result[name] = value
-            continue
-        table, owner = result.setdefault(name, {}), name
-        for part in [*path[:-1], None]:  # None: the table that takes the value
-            if not isinstance(table, dict):
-                raise ValueError(f"--hyperparams {key}: {owner!r} is {table!r}, not a table")
-            if part is not None:
-                table, owner = table.setdefault(part, {}), part
-        table[path[-1]] = value
-    return result
-
-
-class EpisodeSeeds(gym.Wrapper):
-    """Resets the wrapped env with seeds from a schedule, so that episode sets are disjoint by construction.
-
-    ``seeds`` given: episodes cycle through them (held-out evaluation; :meth:`restart` rewinds).
-    Otherwise episode seeds are drawn from ``TRAINING_SEEDS`` by a generator seeded with
-    (``seed``, ``rank``); a reset with an explicit seed re-seeds that generator.
-    """
-
-    def __init__(self, env: gym.Env, *, seed: int = 0, rank: int = 0, seeds: Sequence[int] | None = None) -> None:
-        super().__init__(env)
-        if seeds is not None and len(seeds) == 0:
-            raise ValueError("seeds must not be empty")
-        self.fixed_seeds = None if seeds is None else tuple(int(s) for s in seeds)
-        self.rank = int(rank)
-        self._index = 0
-        self._generator = np.random.default_rng([int(seed), self.rank])
-        self.episode_seed: int | None = None
-
-    def restart(self) -> None:
-        """Start the fixed seed list again from its first seed."""
-        self._index = 0
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-        if self.fixed_seeds is not None:
-            self.episode_seed = self.fixed_seeds[self._index % len(self.fixed_seeds)]
-            self._index += 1
-        else:
-            if seed is not None:
-                self._generator = np.random.default_rng([int(seed), self.rank])
-            self.episode_seed = int(self._generator.integers(TRAINING_SEEDS.start, TRAINING_SEEDS.stop))
-        observation, info = self.env.reset(seed=self.episode_seed, options=options)
-        info["episode_seed"] = self.episode_seed
-        return observation, info
-
-
-BASE_KEYS = ("mid_f_rls_lag", "mid_f_rls")
-"""Registry keys of the base controllers a residual can be trained on; the first, the strongest, is the default."""
-
-
-def base_setup(
-    env_kwargs: dict[str, Any],
-    parameters: ModelParameters | None = None,
-    drive_lag: tuple[float, float, float] | None = None,
-    *,
-    base: str = BASE_KEYS[0],
-    runs_dir: Path | None = None,
-) -> BaseSetup:
-    """The base controller's setup: identified MId+F+R parameters (and drive lag) of the scenario's robot and
-    its tare calibrated on the scenario.
-
-    Args:
-        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
-            and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
-        parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
-            with :func:`eval.identification.identify_robot` (kept under the runs root of ``runs_dir``,
-            :func:`eval.run_folder.runs_root`), and with them its drive lag.
-        drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
-        base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
-            or ``mid_f_rls``.
-    """
-    if base not in BASE_KEYS:
-        raise ValueError(f"base must be one of {BASE_KEYS}, got {base!r}")
-    if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
-        raise ValueError(f"the tare calibration takes n_cycles and scenario only, got {sorted(env_kwargs)}")
-    scenario = env_kwargs.get("scenario") or Scenario()
-    robot = scenario.plant
-    if parameters is None:
-        from eval.identification import identification_root, identify_robot
-
-        result = identify_robot(robot, identification_root(runs_dir))
-        parameters, drive_lag = result.mid_f_rods, result.drive_lag
-    if base == "mid_f_rls_lag" and drive_lag is None:
-        raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")
-    # The registry builds this base; the lumped parameter sets are not used by it.
-    setup = ControllerSetup(
-        mid=parameters,
-        mid_f=parameters,
-        mid_f_rods=parameters,
-        drive_lag=drive_lag,
-        geometry=robot.geometry,
-        masses=robot.masses,
-    )
-    calibration = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
-    return BaseSetup(
-        parameters,
-        tare=calibration.tares[base],
-        geometry=robot.geometry,
-        masses=robot.masses,
-        drive_lag=drive_lag if base == "mid_f_rls_lag" else None,
-    )
-
-
-def make_env(
-    *,
-    config: ResidualConfig,
-    env_kwargs: dict[str, Any],
-    base: BaseSetup | None,
-    seed: int = 0,
-    rank: int = 0,
-    seeds: Sequence[int] | None = None,
-    base_factory: Callable[[], Controller] | None = None,
-) -> Callable[[], gym.Env]:
-    """A picklable env factory for SB3 vector envs (one torch thread per worker: the machine is shared).
-
-    Args:
-        config: Residual settings.
-        env_kwargs: Keyword arguments of :class:`DeltaPickPlaceEnv`.
-        base: Setup of the default base controller (None: ``base_factory`` must be given).
-        seed: Seed of the training episode seeds.
-        rank: Worker index.
-        seeds: Fixed held-out seeds instead of drawn training seeds.
-        base_factory: Builds the base controller instead of ``base`` (tests).
-    """
-
-    def factory() -> gym.Env:
-        torch.set_num_threads(1)
-        controller = base_factory() if base_factory is not None else base.controller()
-        env = DeltaResidualEnv(base=controller, config=config, env=DeltaPickPlaceEnv(**env_kwargs))
-        return Monitor(EpisodeSeeds(env, seed=seed, rank=rank, seeds=seeds))
-
-    return factory
 
 
 def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:

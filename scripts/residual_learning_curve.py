@@ -42,9 +42,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import run_episode
+from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scoring import pooled_scores
-from eval.train_residual import VALIDATION_SEEDS, base_setup, parse_args, residual_config, train
+from eval.train_residual import parse_args, residual_config, train
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     "old": ("sac", ("train_freq:2", "gradient_steps:1", "learning_rate:3e-4"), ("--residual-limit", "40")),

@@ -17,7 +17,7 @@ import pytest
 from controllers.dynamics import ModelParameters
 from controllers.registry import ControllerSetup
 from delta_env import NOMINAL_GEOMETRY, kinematics
-from eval.identification import load_or_identify
+from eval.parameter_files import load_or_identify
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures of the controllers and eval tests

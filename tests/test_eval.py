@@ -23,7 +23,7 @@ from eval.__main__ import main
 from eval.comparison import TABLE2_KEY, table2_statistics
 from eval.episodes import EpisodeRecord, run_episode
 from eval.faults import FAULT_COLUMNS
-from eval.identification import load_or_identify
+from eval.parameter_files import load_or_identify
 from eval.tables import controller_table, residual_gain
 
 DT = 1e-3

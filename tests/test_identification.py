@@ -31,8 +31,10 @@ from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
 from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
 from delta_env.sensors import ENCODER_RESOLUTION
-from eval import identification as experiment
-from eval.identification import ExcitationSpec, collect_excitation_data, identify, load_or_identify
+from eval import parameter_files
+from eval.excitation import ExcitationSpec, collect_excitation_data
+from eval.identification import identify
+from eval.parameter_files import load_or_identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
@@ -332,7 +334,7 @@ def test_load_of_a_missing_file_says_how_to_create_it(tmp_path) -> None:
 
 def test_load_or_identify_loads_an_existing_file_without_identifying(tmp_path, monkeypatch) -> None:
     path = save_result(RESULT, tmp_path / "parameters.json")
-    monkeypatch.setattr(experiment, "identify", pytest.fail)
+    monkeypatch.setattr(parameter_files, "identify", pytest.fail)
     assert load_or_identify(path) == RESULT
 
 
@@ -343,7 +345,7 @@ def test_load_or_identify_identifies_and_saves_when_the_file_is_missing(tmp_path
         calls.append(kwargs)
         return RESULT
 
-    monkeypatch.setattr(experiment, "identify", fake_identify)
+    monkeypatch.setattr(parameter_files, "identify", fake_identify)
     path = tmp_path / "runs" / "parameters.json"
     assert load_or_identify(path, seed=4, n_trajectories=3) == RESULT
     assert calls == [{"seed": 4, "n_trajectories": 3}]
@@ -353,7 +355,7 @@ def test_load_or_identify_identifies_and_saves_when_the_file_is_missing(tmp_path
 def test_load_or_identify_never_replaces_a_corrupt_file(tmp_path, monkeypatch) -> None:
     path = tmp_path / "parameters.json"
     path.write_text("{corrupt")
-    monkeypatch.setattr(experiment, "identify", pytest.fail)
+    monkeypatch.setattr(parameter_files, "identify", pytest.fail)
     with pytest.raises(ParameterFileError):
         load_or_identify(path)
     assert path.read_text() == "{corrupt"
@@ -390,12 +392,13 @@ def test_identify_end_to_end_on_two_short_trajectories(tmp_path) -> None:
 
 def test_command_line_writes_parameters_configuration_report_and_figures(tmp_path, capsys) -> None:
     from eval import identify as cli
+    from eval.identification_report import FIGURES
 
     folder, installed = tmp_path / "run", tmp_path / "installed" / "parameters.json"
     arguments = ["--trajectories", "2", "--duration", "2", "--validation-duration", "2", "--seed", "5"]
     cli.main([*arguments, "--out", str(folder), "--parameters", str(installed), "--no-progress", "--workers", "1"])
     expected = {"parameters.json", "config.json", "report.md", "validation.npz", "scenario.toml"}
-    expected |= {*cli.FIGURES, "fig6a_error_bars.png"}
+    expected |= {*FIGURES, "fig6a_error_bars.png"}
     assert {path.name for path in folder.iterdir()} == expected
     assert load_result(folder / "parameters.json") == load_result(installed)
     config = json.loads((folder / "config.json").read_text())

@@ -69,7 +69,8 @@ def test_unfinished_runs_restart_and_finished_ones_are_kept(tmp_path: Path) -> N
 
 
 def test_named_recipes_exist_in_the_hyperparameter_file() -> None:
-    from eval.train_residual import load_hyperparameters, override_hyperparameters, parse_args
+    from eval.hyperparameters import load_hyperparameters, override_hyperparameters
+    from eval.train_residual import parse_args
 
     for algo, items, train_args in curve.RECIPES.values():
         override_hyperparameters(load_hyperparameters(algo), items, algo)

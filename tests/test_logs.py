@@ -22,7 +22,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from eval import identify as cli
 from eval.__main__ import main as evaluate
 from eval.__main__ import parse_args as parse_eval_args
-from eval.identification import robot_identification
+from eval.parameter_files import robot_identification
 from eval.scenario_args import on_geometry
 
 PLANT = """

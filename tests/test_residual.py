@@ -42,20 +42,10 @@ from controllers.residual import (
 )
 from controllers.residual.policy_file import METADATA_NAME, actor_layers
 from delta_env.env import DeltaPickPlaceEnv
+from eval.hyperparameters import load_hyperparameters, override_hyperparameters
+from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
 from eval.scoring import TEST_SEEDS
-from eval.train_residual import (
-    CALIBRATION_SEEDS,
-    TRAINING_SEEDS,
-    VALIDATION_SEEDS,
-    EpisodeSeeds,
-    base_setup,
-    load_hyperparameters,
-    make_env,
-    override_hyperparameters,
-    parse_args,
-    resume_mismatch,
-    train,
-)
+from eval.train_residual import parse_args, resume_mismatch, train
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
 PARAMETERS = ModelParameters(rho1=1.76, rho2=0.88, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))

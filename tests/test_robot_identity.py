@@ -11,7 +11,7 @@ from controllers.identification import IdentificationResult, ParameterFileError
 from controllers.registry import build_controller, estimation_model
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import preset, with_geometry
-from eval import identification
+from eval import identification, parameter_files
 from tests.conftest import NOMINAL_SETUP
 
 DESIGN = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)
@@ -32,10 +32,10 @@ def fake_result(plant) -> IdentificationResult:
 
 
 def test_conditions_share_the_robots_file_and_a_new_geometry_gets_its_own() -> None:
-    nominal = identification.parameter_path(preset("nominal").plant)
+    nominal = parameter_files.parameter_path(preset("nominal").plant)
     for name in ("worn", "randomized", "heavy", "stress-6g", "paper"):
-        assert identification.parameter_path(preset(name).plant) == nominal
-    assert identification.parameter_path(with_geometry(preset("nominal"), DESIGN).plant) != nominal
+        assert parameter_files.parameter_path(preset(name).plant) == nominal
+    assert parameter_files.parameter_path(with_geometry(preset("nominal"), DESIGN).plant) != nominal
 
 
 def test_each_robot_is_identified_once_and_a_file_of_another_robot_is_refused(tmp_path, monkeypatch) -> None:
@@ -45,20 +45,20 @@ def test_each_robot_is_identified_once_and_a_file_of_another_robot_is_refused(tm
         calls.append(plant)
         return fake_result(plant)
 
-    monkeypatch.setattr(identification, "identify", identify)
+    monkeypatch.setattr(parameter_files, "identify", identify)
     scenarios = [preset("nominal"), preset("worn"), preset("randomized"), with_geometry(preset("nominal"), DESIGN)]
-    results = {s.robot_identity: identification.identify_robot(s.plant, tmp_path) for s in scenarios}
+    results = {s.robot_identity: parameter_files.identify_robot(s.plant, tmp_path) for s in scenarios}
     assert len(results) == 2 and len(calls) == 2  # the nominal robot and the design, each identified once
     assert calls[-1].geometry == DESIGN
     for scenario in scenarios:
-        identification.identify_robot(scenario.plant, tmp_path)
+        parameter_files.identify_robot(scenario.plant, tmp_path)
     assert len(calls) == 2  # the second time every robot comes from its file
     # A file copied under another robot's identity is refused, naming both robots.
-    nominal_file = identification.parameter_path(scenarios[0].plant, tmp_path)
-    design_file = identification.parameter_path(scenarios[-1].plant, tmp_path)
+    nominal_file = parameter_files.parameter_path(scenarios[0].plant, tmp_path)
+    design_file = parameter_files.parameter_path(scenarios[-1].plant, tmp_path)
     design_file.write_text(nominal_file.read_text())
     with pytest.raises(ParameterFileError, match=scenarios[-1].robot_identity):
-        identification.identify_robot(scenarios[-1].plant, tmp_path)
+        parameter_files.identify_robot(scenarios[-1].plant, tmp_path)
 
 
 def test_controllers_are_models_of_the_robot_they_were_identified_on() -> None:

@@ -34,7 +34,7 @@ from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
-from eval import calibration, identification
+from eval import calibration, excitation, identification
 from eval.design import optimize, performance, reconfigure, report, verify
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
 from eval.scenario_args import check_ranges
@@ -120,8 +120,8 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) ->
         },
         "verification": {
             "identification_trajectories": identification.DEFAULT_TRAJECTORIES,
-            "identification_duration_s": identification.DEFAULT_DURATION,
-            "validation_duration_s": identification.VALIDATION_DURATION,
+            "identification_duration_s": excitation.DEFAULT_DURATION,
+            "validation_duration_s": excitation.VALIDATION_DURATION,
             "calibration_episodes": calibration.DEFAULT_CALIBRATION_EPISODES,
             "episode_cycles": verify.EPISODE_CYCLES,
             "loop_gap_limit_m": verify.LOOP_GAP_LIMIT,

@@ -31,7 +31,9 @@ from delta_env.workspace import pose_measures
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds, tare_setup
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
 from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import ExcitationRegion, robot_setup, run_identification
+from eval.excitation import ExcitationRegion
+from eval.identification import run_identification
+from eval.parameter_files import robot_setup
 
 LOOP_GAP_LIMIT = 1e-4
 """Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""

@@ -45,7 +45,7 @@ from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import preset_names, resolve_scenario
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
-from eval.identification import identification_root, parameter_path
+from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
 from eval.scenario_args import add_geometry_argument, check_ranges, on_geometry
 from eval.sweep import report

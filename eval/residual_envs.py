@@ -1,0 +1,158 @@
+"""The environments of residual training and their seeds (``python -m eval.train_residual``).
+
+Training episodes draw their env seeds from :data:`TRAINING_SEEDS` (per worker, :class:`EpisodeSeeds`), validation
+uses :data:`VALIDATION_SEEDS` and the base controller's tare :data:`CALIBRATION_SEEDS`: disjoint sets, disjoint too
+from the test seeds of :mod:`eval.scoring` and from ``python -m eval``'s defaults. :func:`base_setup` makes the base
+controller's setup, :func:`make_env` the picklable env factories of SB3's vector envs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3.common.monitor import Monitor
+
+from controllers.base import Controller
+from controllers.dynamics import ModelParameters
+from controllers.registry import ControllerSetup
+from controllers.residual import BaseSetup, DeltaResidualEnv, ResidualConfig
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.scenario import Scenario
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
+
+TRAINING_SEEDS = range(10_000_000, 20_000_000)
+"""Env seeds of the training episodes (drawn at random per worker)."""
+
+VALIDATION_SEEDS = tuple(range(1_000_000, 1_000_006))
+"""Held-out episodes of the EvalCallback during training (model selection)."""
+
+CALIBRATION_SEEDS = tuple(range(3_000_000, 3_000_000 + DEFAULT_CALIBRATION_EPISODES))
+"""Payload-free episodes of the base controller's tare (as many as the eval's)."""
+
+
+class EpisodeSeeds(gym.Wrapper):
+    """Resets the wrapped env with seeds from a schedule, so that episode sets are disjoint by construction.
+
+    ``seeds`` given: episodes cycle through them (held-out evaluation; :meth:`restart` rewinds).
+    Otherwise episode seeds are drawn from ``TRAINING_SEEDS`` by a generator seeded with
+    (``seed``, ``rank``); a reset with an explicit seed re-seeds that generator.
+    """
+
+    def __init__(self, env: gym.Env, *, seed: int = 0, rank: int = 0, seeds: Sequence[int] | None = None) -> None:
+        super().__init__(env)
+        if seeds is not None and len(seeds) == 0:
+            raise ValueError("seeds must not be empty")
+        self.fixed_seeds = None if seeds is None else tuple(int(s) for s in seeds)
+        self.rank = int(rank)
+        self._index = 0
+        self._generator = np.random.default_rng([int(seed), self.rank])
+        self.episode_seed: int | None = None
+
+    def restart(self) -> None:
+        """Start the fixed seed list again from its first seed."""
+        self._index = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        if self.fixed_seeds is not None:
+            self.episode_seed = self.fixed_seeds[self._index % len(self.fixed_seeds)]
+            self._index += 1
+        else:
+            if seed is not None:
+                self._generator = np.random.default_rng([int(seed), self.rank])
+            self.episode_seed = int(self._generator.integers(TRAINING_SEEDS.start, TRAINING_SEEDS.stop))
+        observation, info = self.env.reset(seed=self.episode_seed, options=options)
+        info["episode_seed"] = self.episode_seed
+        return observation, info
+
+
+BASE_KEYS = ("mid_f_rls_lag", "mid_f_rls")
+"""Registry keys of the base controllers a residual can be trained on; the first, the strongest, is the default."""
+
+
+def base_setup(
+    env_kwargs: dict[str, Any],
+    parameters: ModelParameters | None = None,
+    drive_lag: tuple[float, float, float] | None = None,
+    *,
+    base: str = BASE_KEYS[0],
+    runs_dir: Path | None = None,
+) -> BaseSetup:
+    """The base controller's setup: identified MId+F+R parameters (and drive lag) of the scenario's robot and
+    its tare calibrated on the scenario.
+
+    Args:
+        env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
+            and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
+        parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
+            with :func:`eval.parameter_files.identify_robot` (kept under the runs root of ``runs_dir``,
+            :func:`eval.run_folder.runs_root`), and with them its drive lag.
+        drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
+        base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
+            or ``mid_f_rls``.
+    """
+    if base not in BASE_KEYS:
+        raise ValueError(f"base must be one of {BASE_KEYS}, got {base!r}")
+    if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
+        raise ValueError(f"the tare calibration takes n_cycles and scenario only, got {sorted(env_kwargs)}")
+    scenario = env_kwargs.get("scenario") or Scenario()
+    robot = scenario.plant
+    if parameters is None:
+        from eval.parameter_files import identification_root, identify_robot
+
+        result = identify_robot(robot, identification_root(runs_dir))
+        parameters, drive_lag = result.mid_f_rods, result.drive_lag
+    if base == "mid_f_rls_lag" and drive_lag is None:
+        raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")
+    # The registry builds this base; the lumped parameter sets are not used by it.
+    setup = ControllerSetup(
+        mid=parameters,
+        mid_f=parameters,
+        mid_f_rods=parameters,
+        drive_lag=drive_lag,
+        geometry=robot.geometry,
+        masses=robot.masses,
+    )
+    calibration = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
+    return BaseSetup(
+        parameters,
+        tare=calibration.tares[base],
+        geometry=robot.geometry,
+        masses=robot.masses,
+        drive_lag=drive_lag if base == "mid_f_rls_lag" else None,
+    )
+
+
+def make_env(
+    *,
+    config: ResidualConfig,
+    env_kwargs: dict[str, Any],
+    base: BaseSetup | None,
+    seed: int = 0,
+    rank: int = 0,
+    seeds: Sequence[int] | None = None,
+    base_factory: Callable[[], Controller] | None = None,
+) -> Callable[[], gym.Env]:
+    """A picklable env factory for SB3 vector envs (one torch thread per worker: the machine is shared).
+
+    Args:
+        config: Residual settings.
+        env_kwargs: Keyword arguments of :class:`DeltaPickPlaceEnv`.
+        base: Setup of the default base controller (None: ``base_factory`` must be given).
+        seed: Seed of the training episode seeds.
+        rank: Worker index.
+        seeds: Fixed held-out seeds instead of drawn training seeds.
+        base_factory: Builds the base controller instead of ``base`` (tests).
+    """
+
+    def factory() -> gym.Env:
+        torch.set_num_threads(1)
+        controller = base_factory() if base_factory is not None else base.controller()
+        env = DeltaResidualEnv(base=controller, config=config, env=DeltaPickPlaceEnv(**env_kwargs))
+        return Monitor(EpisodeSeeds(env, seed=seed, rank=rank, seeds=seeds))
+
+    return factory
