@@ -23,7 +23,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Literal
 
-from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController
+from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController, Privileged
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import OracleController, model_controller
 from controllers.monitor import FaultMonitor, MonitoredController
@@ -144,6 +144,12 @@ class ControllerEntry:
                 f"controller {self.key!r}: its factory returned {type(controller).__name__}, not a Controller "
                 "(a name and reset() and __call__(observation) -> torques)"
             )
+        if self.privileged != isinstance(controller, Privileged):
+            raise TypeError(
+                f"controller {self.key!r}: declared privileged={self.privileged}, but its controller "
+                + ("does not take" if self.privileged else "takes")
+                + " the plant's truth (set_payload_masses, set_physical_parameters): declare what it is"
+            )
         if self.tared and not isinstance(getattr(controller, "estimator", None), PayloadEstimator):
             raise TypeError(f"controller {self.key!r} is declared tared but has no PayloadEstimator 'estimator'")
         return monitored(controller, setup) if self.monitored else controller
@@ -181,15 +187,20 @@ def _model_row(key: str, label: str) -> ControllerFactory:
 
 
 @functools.cache
-def _loaded_policy(path: Path) -> ResidualPolicy:
-    """The residual policy file at ``path``, loaded once per process: a policy holds no episode state."""
+def _loaded_policy(path: Path, modified_ns: int, size: int) -> ResidualPolicy:
+    """The residual policy file at ``path``, loaded once per process and version of the file (its modification time
+    and size): a policy holds no episode state."""
     from controllers.residual import load_residual_policy
 
     return load_residual_policy(path)
 
 
 def _residual(setup: ControllerSetup) -> Controller:
-    return residual_controller(_loaded_policy(residual_policy_path(setup)), name=BUILTIN_LABELS["residual"])
+    path = residual_policy_path(setup).resolve()
+    status = path.stat()
+    return residual_controller(
+        _loaded_policy(path, status.st_mtime_ns, status.st_size), name=BUILTIN_LABELS["residual"]
+    )
 
 
 def _oracle(setup: ControllerSetup, plant: PlantConfig) -> Controller:

@@ -10,7 +10,10 @@ from numpy.typing import ArrayLike, NDArray
 
 
 def _interval(low: float, high: float, low_open: bool, high_open: bool) -> str:
-    return f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    """The interval in math notation; an infinite bound is always open (no finite number reaches it)."""
+    opening = "(" if low_open or low == -math.inf else "["
+    closing = ")" if high_open or high == math.inf else "]"
+    return f"{opening}{low:g}, {high:g}{closing}"
 
 
 def require_in(

@@ -40,6 +40,7 @@ import numpy as np
 
 from controllers.registry import (
     CONTROLLER_LABELS,
+    controller_entry,
     controller_label,
     estimation_model,
     parse_controller_keys,
@@ -57,8 +58,8 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
+from eval.engine import robot_knowledge
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
-from eval.parameter_files import identification_root, robot_identification, robot_setup
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
@@ -248,11 +249,10 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
     is the :func:`time.perf_counter` time at the start of the command."""
     out = args.out = run.folder
     scenario = args.scenario
-    robot = scenario.plant
-    identifications = identification_root(args.runs_dir)
-    args.parameters, identification = robot_identification(robot, args.parameters, identifications)
+    args.parameters, identification, setup = robot_knowledge(
+        scenario, args.parameters, args.runs_dir, residual_policy=args.residual
+    )
     identified_time = time.perf_counter() - started
-    setup = robot_setup(robot, identification, residual_policy=args.residual)
     keys = args.controllers
     results, tares, tare_spreads = run_all(args, setup)
     episode_rows, carry_rows, traces = tabulate(results, keys)
@@ -271,6 +271,7 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
         dt=CONTROL_PERIOD,
         keys=np.array(list(traces)),
         labels=np.array([controller_label(key) for key in traces]),
+        estimates_payload=np.array([controller_entry(key).estimates_payload for key in traces]),
         **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
     )
     np.savez_compressed(out / "table2_run.npz", **model_torques)

@@ -1,11 +1,11 @@
 """The experiment engine: what every experiment does before its episodes, once.
 
-:func:`prepare` turns a scenario and the controllers to run into what they may know: the robot's identification
-(a given parameter file, or the robot's own, identified once and cached per robot identity:
-:func:`eval.parameter_files.robot_identification`), the :class:`~controllers.registry.ControllerSetup` built from it
-and the tares and empty-move sums of the tared controllers, measured on the scenario's payload-free episodes on the
-calibration seeds (:func:`eval.calibration.tare_setup`). The episodes themselves are tasks (:mod:`eval.tasks`), one
-work unit for every experiment and both sweep backends.
+:func:`robot_knowledge` gives what every row knows of a scenario's robot: its identification (a given parameter
+file, or the robot's own, identified once and cached per robot identity:
+:func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.registry.ControllerSetup` built from
+it with the scenario's fault reaction. :func:`prepare` adds the tares and empty-move sums of the tared controllers,
+measured on the scenario's payload-free episodes on the calibration seeds (:func:`eval.calibration.tare_setup`).
+The episodes themselves are tasks (:mod:`eval.tasks`), one work unit for every experiment and both sweep backends.
 """
 
 from __future__ import annotations
@@ -37,6 +37,16 @@ class Prepared(NamedTuple):
     calibration: Calibration
 
 
+def robot_knowledge(
+    scenario: Scenario, parameters: str | Path | None = None, runs_dir: str | Path | None = None, **setup_fields: Any
+) -> tuple[Path, IdentificationResult, ControllerSetup]:
+    """The parameter file, the identification and the untared setup of the scenario's robot, with the scenario's
+    fault reaction (arguments as :func:`prepare`'s): what every row knows before the tare."""
+    parameter_file, identification = robot_identification(scenario.plant, parameters, identification_root(runs_dir))
+    fields = {"fault_reaction": scenario.task.fault_reaction, **setup_fields}
+    return parameter_file, identification, robot_setup(scenario.plant, identification, **fields)
+
+
 def prepare(
     scenario: Scenario,
     controllers: Iterable[str],
@@ -63,8 +73,7 @@ def prepare(
         progress: tqdm bar advanced once per calibration episode.
         **setup_fields: Other fields of :class:`~controllers.registry.ControllerSetup` (e.g. ``residual_policy``).
     """
-    parameter_file, identification = robot_identification(scenario.plant, parameters, identification_root(runs_dir))
-    setup = robot_setup(scenario.plant, identification, **setup_fields)
+    parameter_file, identification, setup = robot_knowledge(scenario, parameters, runs_dir, **setup_fields)
     setup, calibration = tare_setup(
         scenario, setup, controllers, seed=seed, episodes=calibration_episodes, workers=workers, progress=progress
     )

@@ -337,8 +337,8 @@ def _identify(
         lags_per_trajectory = np.array(lags)
         drive_lag = np.median(lags_per_trajectory, axis=0)
     else:
-        logger.warning("no commands in the logs: the drive lag is not identified, the parameter file holds T = 0")
-        lags_per_trajectory, drive_lag = np.zeros((0, 3)), np.zeros(3)
+        logger.warning("no commands in the logs: the drive lag is not identified (null in the parameter file)")
+        lags_per_trajectory, drive_lag = np.zeros((0, 3)), None
     data_time = time.perf_counter() - started
 
     lumped = DeltaDynamics.of_robot(geometry, masses)
@@ -417,7 +417,7 @@ def _identify(
         mid_f_rods=rod_fit.parameters,
         paper_mid=paper.mid,
         paper_mid_f=paper.mid_f,
-        drive_lag=tuple(float(lag) for lag in drive_lag),
+        drive_lag=None if drive_lag is None else tuple(float(lag) for lag in drive_lag),
         standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
         provenance=provenance,
     )

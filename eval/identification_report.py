@@ -245,8 +245,8 @@ def _drive_lag_lines(run: IdentificationRun, truth: dict[str, list[float]] | Non
     per_trajectory = np.array(run.result.provenance["drive_lag_per_trajectory_s"])
     if per_trajectory.size == 0:
         return [
-            "Not identified: the logs have no commands. The parameter file holds T = 0 (no lag: the controllers that "
-            "lead the drive lag then lead nothing)."
+            "Not identified: the logs have no commands. The parameter file holds none (null): the controllers that "
+            "lead the drive lag (mid_f_rls_lag, the residual's base) and the planned timings refuse it."
         ]
     lag = 1e3 * np.array(run.result.drive_lag)
     line = (

@@ -43,8 +43,18 @@ DURATION_RANGE = (1.0, 600.0)
 LOG_FORMATS = {"csv": ".csv", "parquet": ".parquet"}
 """``--log-format``: file ending of each log format."""
 
-SIMULATION_OPTIONS = ("seed", "trajectories", "duration", "validation_duration", "geometry", "save_logs")
-"""Options that only a simulated identification takes; with ``--log`` they are errors."""
+SIMULATION_OPTIONS = (
+    "seed",
+    "trajectories",
+    "duration",
+    "validation_duration",
+    "geometry",
+    "save_logs",
+    "log_format",
+    "no_install",
+)
+"""Options that only a simulated identification takes; with ``--log`` they are errors (a log-identified file is
+installed only where ``--parameters`` says)."""
 
 
 def _number_in(kind: Callable[[str], float], low: float, high: float, unit: str = "") -> Callable[[str], float]:

@@ -23,15 +23,11 @@ import tomllib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from controllers.registry import controller_entry
-
 TRACE_FIELDS = ("tracking_error", "torque", "payload_mass", "payload_estimate")
 """EpisodeRecord fields saved in ``traces.npz`` per controller key, as ``"<key>.<field>"``."""
 
 TABLE2_MODEL = "MId+F+R"
 """The model of the Table 2 run's torques, :func:`controllers.registry.estimation_model` (identified, rod forearms)."""
-
-_JOINTS = ("joint 1", "joint 2", "joint 3")
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
@@ -83,8 +79,8 @@ def payload_estimate(traces: np.lib.npyio.NpzFile, run: np.lib.npyio.NpzFile, pa
     # The estimate formed from observation n and the true mass at observation n (one more at the end).
     panels = [
         (f"{label}, first episode", traces[f"{key}.payload_estimate"], traces[f"{key}.payload_mass"])
-        for key, label in zip(traces["keys"], traces["labels"], strict=True)
-        if controller_entry(str(key)).estimates_payload
+        for key, label, estimates in zip(traces["keys"], traces["labels"], traces["estimates_payload"], strict=True)
+        if estimates
     ]
     figure, axes = plt.subplots(len(panels) + 1, 1, sharex=False, figsize=(10, 2.6 * (len(panels) + 1)))
     axes = np.atleast_1d(axes)

@@ -293,8 +293,10 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
     :func:`time.perf_counter` time at the start of the command."""
     out = run.folder
     scenario = args.scenario
-    # The lead controller's estimator retimes the online carries (the cell's own if the lead has none).
-    tared = [args.controllers[0] if controller_entry(args.controllers[0]).tared else CELL_ESTIMATOR_KEY]
+    # Every tared row is tared; the lead's estimator retimes the online carries (the cell's own if the lead has none).
+    tared = [key for key in args.controllers if controller_entry(key).tared]
+    if not controller_entry(args.controllers[0]).tared:
+        tared.append(CELL_ESTIMATOR_KEY)
     calibration_scenario = rate_scenario(scenario, "declared", MIXED)
     calibration_scenario = dataclasses.replace(
         calibration_scenario, task=dataclasses.replace(calibration_scenario.task, n_cycles=args.cycles)

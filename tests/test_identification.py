@@ -290,7 +290,7 @@ CORRUPTIONS = {
     "friction as text": (_set("mid_f", "coulomb", [4.0, "3.4", 4.6]), "mid_f.coulomb[1] must be a finite number"),
     "negative standard error": (
         _set("standard_errors", "mid_f.rho1", -0.1),
-        "standard_errors['mid_f.rho1'] must be a finite number in [0, inf]",
+        "standard_errors['mid_f.rho1'] must be a finite number in [0, inf)",
     ),
     "standard errors not an object": (_set("standard_errors", [0.1]), "standard_errors must be a JSON object"),
     "provenance not an object": (_set("provenance", "none"), "provenance must be a JSON object"),

@@ -16,13 +16,22 @@ from controllers.identification import (
     resample_log,
     write_log,
 )
+from controllers.registry import build_controller
 from delta_env.geometry import DeltaGeometry, DeltaMasses
-from delta_env.scenario import Scenario, datasheet_identity, load_robot, preset, save_geometry, save_robot
+from delta_env.scenario import (
+    Scenario,
+    datasheet_identity,
+    load_robot,
+    preset,
+    save_geometry,
+    save_robot,
+    with_geometry,
+)
 from delta_env.sensors import CONTROL_PERIOD
 from eval import identify as cli
 from eval.__main__ import main as evaluate
 from eval.__main__ import parse_args as parse_eval_args
-from eval.parameter_files import robot_identification
+from eval.parameter_files import robot_identification, robot_setup
 from eval.scenario_args import on_geometry
 
 PLANT = """
@@ -227,7 +236,10 @@ def test_logs_without_commands_identify_everything_but_the_drive_lag(logged_plan
     robot = logged_plant["logs"] / "robot.toml"
     cli.main(["--log", *map(str, files), "--robot", str(robot), "--no-progress", "--out", str(tmp_path / "run")])
     result = load_result(tmp_path / "run" / "parameters.json")
-    assert result.drive_lag == (0.0, 0.0, 0.0)
+    assert result.drive_lag is None  # unknown, not zero: the lag-leading row refuses to run on it
+    setup = robot_setup(with_geometry(preset("nominal"), *load_robot(robot)).plant, result)
+    with pytest.raises(ValueError, match="needs the identified drive lag"):
+        build_controller("mid_f_rls_lag", setup)
     assert result.mid_f_rods == load_result(logged_plant["root"] / "fromlogs" / "parameters.json").mid_f_rods
     assert "Not identified: the logs have no commands" in (tmp_path / "run" / "report.md").read_text()
 

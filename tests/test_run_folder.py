@@ -211,10 +211,10 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
         ("rate", ["--workers", "0"], "--workers must be an integer >= 1, got 0"),
         ("design", ["--population", "2"], "--population must be an integer >= 4, got 2"),
         ("train_residual", ["--timesteps", "0"], "--timesteps must be an integer >= 1, got 0"),
-        ("train_residual", ["--max-minutes", "0"], "--max-minutes must be a finite number in (0, inf], got 0.0"),
+        ("train_residual", ["--max-minutes", "0"], "--max-minutes must be a finite number in (0, inf), got 0.0"),
         ("train_residual", ["--n-cycles", "0"], "--cycles must be an integer >= 1, got 0"),
         ("train_residual", ["--residual-limit", "-1"], "residual_limit must be a finite number in (0, 400] N m"),
-        ("fault_soak", ["--minutes", "-5"], "--minutes must be a finite number in (0, inf], got -5.0"),
+        ("fault_soak", ["--minutes", "-5"], "--minutes must be a finite number in (0, inf), got -5.0"),
         ("fault_campaign", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
     ],
 )

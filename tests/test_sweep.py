@@ -248,17 +248,25 @@ def test_the_setup_digest_covers_every_field_of_what_the_controllers_know(tmp_pa
         "tares": {"mid_f_rls": 0.01},
         "empty_moves": {"mid_f_rls": sums},
         "pd_gains": (3000.0, 61.0),
-        "residual_policy": policy,
         "geometry": DeltaGeometry(ra=0.21, rb=0.05, l1=0.37, l2=0.95),
         "masses": DeltaMasses(m1=2.1, m2=0.2, m0=0.8),
         "drive": DriveLimits(peak_torque=300.0),
         "encoder_bits": 20,
         "fault_reaction": "stop",
     }
-    assert set(changed) == {field.name for field in dataclasses.fields(SETUP)}
+    assert {*changed, "residual_policy"} == {field.name for field in dataclasses.fields(SETUP)}
     base = setup_digest(SETUP, ("pd",))
     for name, value in changed.items():
         assert setup_digest(dataclasses.replace(SETUP, **{name: value}), ("pd",)) != base, name
+    # the residual policy counts by its bytes, and only when the residual row runs
+    copy = tmp_path / "elsewhere" / "policy.zip"
+    copy.parent.mkdir()
+    copy.write_bytes(policy.read_bytes())
+    with_policy, with_copy = (dataclasses.replace(SETUP, residual_policy=path) for path in (policy, copy))
+    assert setup_digest(with_policy, ("pd",)) == base
+    assert setup_digest(with_policy, ("pd", "residual")) == setup_digest(with_copy, ("pd", "residual"))
+    copy.write_bytes(b"other weights")
+    assert setup_digest(with_policy, ("pd", "residual")) != setup_digest(with_copy, ("pd", "residual"))
     moved = EmptyMoveSums(np.eye(5), np.full(5, 1e-9))
     with_sums = dataclasses.replace(SETUP, empty_moves={"mid_f_rls": sums})
     assert setup_digest(dataclasses.replace(SETUP, empty_moves={"mid_f_rls": moved}), ("pd",)) != setup_digest(

@@ -10,6 +10,7 @@ import pytest
 
 from controllers import registry
 from controllers.base import PDController
+from controllers.feedforward import OracleController
 from controllers.monitor import MonitoredController
 from controllers.registry import (
     BUILTIN_CONTROLLERS,
@@ -21,6 +22,7 @@ from controllers.registry import (
     controller_source,
     parse_controller_keys,
 )
+from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from eval.__main__ import main as eval_main
 from eval.episodes import run_episode
@@ -31,6 +33,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 USER_MODULE = """
 import numpy as np
 from controllers.base import PDController
+from controllers.feedforward import OracleController
 from controllers.registry import ControllerEntry
 
 
@@ -137,6 +140,14 @@ def test_bad_controllers_are_clear_errors(user_module: str) -> None:
         ControllerEntry("mine", "Mine", lambda setup: PDController(), tared=True)
     with pytest.raises(ValueError, match="needs the plant"):
         controller_entry("oracle").build(NOMINAL_SETUP)
+    # the truth goes to declared bounds only, and a declared bound must take it
+    oracle = OracleController(PlantConfig())
+    with pytest.raises(TypeError, match="declared privileged=False, but its controller takes the plant's truth"):
+        ControllerEntry("sly", "Sly", lambda setup: oracle).build(NOMINAL_SETUP)
+    with pytest.raises(TypeError, match="declared privileged=True, but its controller does not take"):
+        ControllerEntry("bound", "Bound", lambda setup, plant: PDController(), privileged=True).build(
+            NOMINAL_SETUP, PlantConfig()
+        )
     with pytest.raises(ValueError, match="no controllers in"):
         parse_controller_keys(" , ")
     assert parse_controller_keys(f"pd, {user_module}:Soft,pd") == ["pd", f"{user_module}:Soft"]

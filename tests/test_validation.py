@@ -42,7 +42,7 @@ def test_require_in_refuses_with_name_interval_and_value(value: object, kwargs: 
 
 def test_require_positive_and_count() -> None:
     assert require_positive("mass", 1e-9, "kg") == 1e-9
-    with pytest.raises(ValueError, match=r"mass must be a finite number in \(0, inf\] kg, got 0"):
+    with pytest.raises(ValueError, match=r"mass must be a finite number in \(0, inf\) kg, got 0"):
         require_positive("mass", 0, "kg")
     assert require_count("n", 3) == 3
     for bad in (0, 1.5, True):

@@ -35,7 +35,8 @@ class IdentificationResult:
         paper_mid: MId by the paper's grid search, averaged over trajectories.
         paper_mid_f: MId+F by the paper's method (grid rho + per-joint friction LS, averaged).
         drive_lag: Time constant T (s) of each joint's first-order drive lag
-            (:func:`controllers.drive.identify_lag`), each in [0, 0.1].
+            (:func:`controllers.drive.identify_lag`), each in [0, 0.1]; None when the data had no commands to fit it
+            on (logs without them): then no controller leads a lag it does not know.
         standard_errors: Standard errors of the least-squares estimates, keyed ``"mid.rho1"``,
             ``"mid_f.viscous_2"``, ... (units of the parameter); optimistic, see
             :attr:`controllers.identification.least_squares.LeastSquaresFit.standard_errors`.
@@ -48,7 +49,7 @@ class IdentificationResult:
     mid_f_rods: ModelParameters
     paper_mid: ModelParameters
     paper_mid_f: ModelParameters
-    drive_lag: tuple[float, float, float]
+    drive_lag: tuple[float, float, float] | None
     standard_errors: dict[str, float]
     provenance: dict[str, Any]
 
@@ -88,7 +89,7 @@ def save_result(result: IdentificationResult, path: str | os.PathLike[str]) -> P
     path = Path(path)
     document = {"format_version": FILE_FORMAT_VERSION}
     document.update({name: _model_to_json(getattr(result, name)) for name in MODEL_FIELDS})
-    document["drive_lag_s"] = list(result.drive_lag)
+    document["drive_lag_s"] = None if result.drive_lag is None else list(result.drive_lag)
     document["standard_errors"] = dict(result.standard_errors)
     document["provenance"] = result.provenance
     text = json.dumps(_json_ready(document), indent=2, allow_nan=False)
@@ -161,9 +162,13 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
         )
     models = {name: _model_from_json(path, document, name) for name in MODEL_FIELDS}
     lags = _entry(path, document, "drive_lag_s", "the file")
-    if not isinstance(lags, list) or len(lags) != 3:
-        raise ParameterFileError(f"{path}: drive_lag_s must be a list of 3 numbers, got {lags!r}")
-    drive_lag = tuple(_number(path, f"drive_lag_s[{i}]", v, 0.0, MAX_TIME_CONSTANT) for i, v in enumerate(lags))
+    if lags is not None and (not isinstance(lags, list) or len(lags) != 3):
+        raise ParameterFileError(f"{path}: drive_lag_s must be a list of 3 numbers or null, got {lags!r}")
+    drive_lag = (
+        None
+        if lags is None
+        else tuple(_number(path, f"drive_lag_s[{i}]", v, 0.0, MAX_TIME_CONSTANT) for i, v in enumerate(lags))
+    )
     errors = _json_object(path, _entry(path, document, "standard_errors", "the file"), "standard_errors")
     standard_errors = {}
     for key, value in errors.items():

@@ -1,7 +1,7 @@
 """``python -m eval.sweep``: every controller on every scenario over many seeds, locally or on Ray.
 
 The grid is scenarios x controllers x seeds; each cell is one episode (:func:`eval.sweep.work.run_unit`).
-The run folder (``--out``, by default ``<runs root>/sweep/<hash of the grid>`` so that the same arguments find
+The run folder (``--out``, by default ``<runs root>/sweep/sweep-<hash of the grid>`` so that the same arguments find
 the same folder; :func:`eval.run_folder.runs_root`) holds:
 
 - ``results.csv``: one row per episode (scenario, controller, seed, status, error, every metric, the faults'
@@ -98,7 +98,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=min(2, os.cpu_count() or 1),
         help="local processes, or the CPUs of a Ray started here (default 2); a joined cluster uses all its CPUs",
     )
-    parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/sweep/<grid hash>)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="run folder (default <runs root>/sweep/sweep-<grid hash>)"
+    )
     add_runs_dir_argument(parser)
     parser.add_argument("--force", action="store_true", help="run every episode again, even those already done")
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")

@@ -6,6 +6,7 @@ Both backends run :func:`run_unit`; it never raises for a failing episode: the r
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -103,10 +104,10 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
 
 def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
     """Content hash (16 hex digits) of what the controllers know (every field of ``setup``:
-    :meth:`~controllers.registry.ControllerSetup.content_hash`), the residual policy file's bytes if the residual row
-    runs, and the source of every user controller among ``controllers``
+    :meth:`~controllers.registry.ControllerSetup.content_hash`, the residual policy by its file's bytes, and only if
+    the residual row runs, not by its path), and the source of every user controller among ``controllers``
     (:func:`controllers.registry.controller_source`), whose code the project's version does not cover."""
-    digest = hashlib.sha256(setup.content_hash().encode())
+    digest = hashlib.sha256(dataclasses.replace(setup, residual_policy=None).content_hash().encode())
     if "residual" in controllers:
         digest.update(residual_policy_path(setup).read_bytes())
     for key in controllers:
