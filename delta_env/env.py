@@ -21,13 +21,13 @@ from delta_env.config import (
     PlantConfig,
     RandomizationRanges,
 )
-from delta_env.cycles import TimedCycles, conveyor_cycles, require_start, standard_cycle
+from delta_env.cycles import require_start
 from delta_env.drive import clip_to_envelope
 from delta_env.fault_injection import FaultInjector
 from delta_env.faults import FaultSpec, InjectedFault
 from delta_env.measurement import Sensors
-from delta_env.override import SpeedOverride, override_speed
 from delta_env.plant import DeltaPlant
+from delta_env.reference import EpisodeReference
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
@@ -227,6 +227,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._thermal_squares: list[tuple[float, float, float]] = []
         self._thermal_sums = (0.0, 0.0, 0.0)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
+        self._reference = EpisodeReference(
+            self.plant_config.geometry, self.n_cycles, cycle, start, self.peak_acceleration
+        )
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
         unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
@@ -252,20 +255,13 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             )
         self._render_every = max(1, round(1.0 / (self.metadata["render_fps"] * CONTROL_PERIOD)))
 
-        self.trajectory: Trajectory | None = None
-        self._timed: TimedCycles | None = None  # the timed pieces of the reference, with a timing
-        self._carry_starts: dict[int, tuple[int, int]] = {}  # sample -> (piece, its first sample) of each carry
-        self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._episode_over = False
         self.payload_masses = np.zeros(self.n_cycles)
-        self._events: dict[int, tuple[str, int]] = {}
         self._step_index = 0
         self._cycle = 0
         self._holding = False
         self._carried_mass = 0.0  # truth: 0 while nothing is held or after a slip
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
-        self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
-        self._speed_override = 1.0
         # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
         self._instability_warnings = tuple(
             int(w)
@@ -290,6 +286,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def injected_faults(self) -> list[InjectedFault]:
         """The truth of the faults of this episode, as they start (cleared at reset)."""
         return self._faults.injected
+
+    @property
+    def trajectory(self) -> Trajectory | None:
+        """The reference followed from now on (1 kHz samples; :class:`~delta_env.reference.EpisodeReference`),
+        None before the first reset."""
+        return self._reference.trajectory
 
     # -- episode --------------------------------------------------------------------------------
 
@@ -323,40 +325,14 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         n_objects = self.n_cycles if reference is None else len(reference.pick_indices)
         drawn_masses = self.np_random.uniform(*self.payload_mass_range, size=n_objects)
         self.payload_masses = self._payload_masses(options.get("payload_masses"), drawn_masses)
-        timing = self.timing if reference is None else None
-        if reference is not None:
-            planned = reference
-        elif self.cycle == "conveyor":
-            planned = conveyor_cycles(
-                self.plant_config.geometry,
-                self.np_random,
-                self.n_cycles,
-                peak_acceleration=self.peak_acceleration,
-                start=self.start,
-                timing=timing,
-                declared_masses=self.payload_masses,
-            )
-        else:
-            planned = standard_cycle(
-                self.plant_config.geometry,
-                self.peak_acceleration,
-                n_cycles=self.n_cycles,
-                start=self.start,
-                timing=timing,
-                declared_masses=self.payload_masses,
-            )
+        trajectory = self._reference.plan(self.np_random, self.payload_masses, self.timing, reference)
         if self.domain_randomization is not None:
             self.plant.randomize(self.np_random, self.domain_randomization)
 
-        self._timed = planned if isinstance(planned, TimedCycles) else None
-        trajectory = self._set_reference(planned)
         self._step_index = 0
         self._cycle = 0
         self._holding = False
         self._carried_mass = 0.0
-        self._carry = None
-        self._override = None
-        self._speed_override = 1.0
         self._episode_over = False
         self._thermal_squares = [(0.0, 0.0, 0.0)] * self._thermal_steps
         self._thermal_sums = (0.0, 0.0, 0.0)
@@ -366,47 +342,13 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.plant.reset(trajectory.theta[0])
         first_pick = trajectory.pick_indices[0] if n_objects else 0
         self._place_object(trajectory.xyz[first_pick], self.payload_masses[0] if n_objects else 0.0)
-        online = self._timed is not None and self.timing.retimes_online
-        self._sensors.draw_noise(self.np_random, len(trajectory), spare=online)
+        self._sensors.draw_noise(self.np_random, len(trajectory), spare=self._reference.retimes_online)
         self._faults.draw(self.np_random, len(trajectory.pick_indices))
         observation = self._sensors.first_observation(trajectory, self._holding)
         self._last_observation = observation
         if self.render_mode == "human":
             self.render()
         return observation, {"payload_masses": self.payload_masses.copy()}
-
-    def _set_reference(self, planned: Trajectory | TimedCycles) -> Trajectory:
-        """Follow ``planned`` (sampled, or timed pieces) from now on: the reference, its gripper events, its carries."""
-        trajectory = planned.trajectory() if isinstance(planned, TimedCycles) else planned
-        self.trajectory = trajectory
-        self._events = {int(i): ("pick", c) for c, i in enumerate(trajectory.pick_indices)}
-        self._events.update({int(i): ("place", c) for c, i in enumerate(trajectory.place_indices)})
-        self._carry_starts = {}
-        if isinstance(planned, TimedCycles):
-            for index, (start, piece) in enumerate(zip(planned.starts(), planned.pieces, strict=True)):
-                if piece.carry is not None:
-                    self._carry_starts[start] = (index, start)
-        return trajectory
-
-    def _retime_carry(self) -> None:
-        """Let an online timing retime the carry under way at this step (:meth:`MoveTiming.retime`)."""
-        k = self._step_index
-        if k in self._carry_starts:
-            self._carry = self._carry_starts[k]
-        if self._carry is None:
-            return
-        piece_index, start = self._carry
-        piece = self._timed.pieces[piece_index]
-        if k >= start + piece.samples - 1:
-            self._carry = None
-            return
-        law = self.timing.retime(piece.shape, piece.law, k - start)
-        if law is None:
-            return
-        self._timed = self._timed.with_law(piece_index, law, followed=k - start + 1)
-        self._set_reference(self._timed)
-        self._carry = (piece_index, start)
-        self._sensors.cover(len(self.trajectory), self.np_random)
 
     def override_speed(self, rate: float) -> None:
         """Slow the rest of the reference down, or stop it at rest, as a robot controller's speed override does.
@@ -434,13 +376,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if self._episode_over or self.trajectory is None:
             reason = "the episode has ended" if self._episode_over else "no episode started"
             raise RuntimeError(f"override_speed() needs an episode under way: {reason}")
-        self._override = override_speed(
-            self.trajectory if self._override is None else self._override, self._step_index, rate
-        )
-        self._timed = None  # no online retiming from now on
-        self._carry = None
-        self._set_reference(self._override.trajectory)
-        self._speed_override = rate
+        self._reference.override_speed(self._step_index, rate)
         self._sensors.cover(len(self.trajectory), self.np_random)
 
     def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -504,33 +440,35 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         plant.step(torque, self.n_substeps)
         self._step_index += 1
         k = self._step_index
-        if self._timed is not None and self.timing.retimes_online:
-            self._retime_carry()
-        event = self._events.get(k)
+        reference = self._reference
+        if reference.retimes_online and reference.retime(k):
+            self._sensors.cover(len(reference.trajectory), self.np_random)
+        event = reference.events.get(k)
         if event is not None:
             self._gripper_event(*event)
+        trajectory = reference.trajectory
 
         data = plant.data
         platform = plant.platform_position()
-        reference = self.trajectory.xyz[k]
+        reference_position = trajectory.xyz[k]
         loop_gap = plant.loop_gap()
         # The warnings count from the episode's mj_resetData; NaN fails the loop-gap comparison.
         counts = data.warning.number  # all warning counts as one array view: one binding call, not three
         bad_qacc, bad_qvel, bad_qpos = self._instability_warnings
         unstable = counts.item(bad_qacc) or counts.item(bad_qvel) or counts.item(bad_qpos)
         diverged = bool(unstable) or not loop_gap <= DIVERGENCE_LOOP_GAP
-        truncated = k >= len(self.trajectory) - 1
+        truncated = k >= len(trajectory) - 1
         self._episode_over = diverged or truncated
 
         px, py, pz = platform.tolist()
-        rx, ry, rz = reference.tolist()
+        rx, ry, rz = reference_position.tolist()
         squared_error = (px - rx) ** 2 + (py - ry) ** 2 + (pz - rz) ** 2
         if diverged:
             observation = self._last_observation
             reward_tracking = reward_torque = 0.0
             reward = -self.divergence_penalty
         else:
-            observation = self._sensors.observe(k, self.trajectory, self._holding, self._faults if faulty else None)
+            observation = self._sensors.observe(k, trajectory, self._holding, self._faults if faulty else None)
             self._last_observation = observation
             reward_tracking = -self._tracking_weight_m2 * squared_error
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
@@ -554,7 +492,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         info = {
             "payload_mass": self._carried_mass,
             "platform_position": platform,
-            "reference_position": reference,
+            "reference_position": reference_position,
             "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
             "loop_gap": loop_gap,
             "torque_command": data.ctrl.copy(),
@@ -570,8 +508,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "thermal_exceeded": full and max(r0, r1, r2) > rated,
             "reward_tracking": reward_tracking,
             "reward_torque": reward_torque,
-            "speed_override": self._speed_override,
-            "stopped": truncated and self._speed_override == 0.0,
+            "speed_override": reference.speed_override,
+            "stopped": truncated and reference.speed_override == 0.0,
             "faults": self._faults.after_step(k - 1) if faulty else (),
         }
         if self.render_mode == "human" and k % self._render_every == 0:
@@ -591,10 +529,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             self._carried_mass = 0.0
             if cycle + 1 < len(self.payload_masses):
                 # The next object waits at the next pick point (the same body, a new mass).
-                # (from the planned reference: a stop may have dropped that pick, not the object's place)
-                planned = self.trajectory if self._override is None else self._override.nominal
-                next_pick = planned.xyz[planned.pick_indices[cycle + 1]]
-                self._place_object(next_pick, self.payload_masses[cycle + 1])
+                self._place_object(self._reference.planned_pick(cycle + 1), self.payload_masses[cycle + 1])
 
     def _place_object(self, pick_point: NDArray[np.float64], mass: float) -> None:
         """Put the object (kg) on the conveyor so its top face meets the suction cup at ``pick_point``."""
