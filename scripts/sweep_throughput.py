@@ -40,13 +40,14 @@ class Clock:
             self.times.append(time.perf_counter())
 
 
-def measure(units: list[WorkUnit], backend: str, workers: int, setup, version: str, digest: str) -> dict[str, float]:
+def measure(units: list[WorkUnit], backend: str, workers: int, setup, version: str) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as folder:
         clock = Clock()
         table = ResultsTable(Path(folder) / "results.csv")
         started = time.perf_counter()
         content = units[0].scenario.content_hash
-        setups, digests = {content: setup}, {content: digest}
+        setups = {content: setup}
+        digests = {(content, unit.controller): setup_digest(setup, unit.controller) for unit in units}
         counts = run_sweep(units, setups, table, version, digests, backend=backend, workers=workers, progress=clock)
         wall = time.perf_counter() - started
         cpu = statistics.fmean(float(row["cpu_seconds"]) for row in table.load())
@@ -75,13 +76,13 @@ def main() -> int:
     scenario = resolve_scenario(args.scenario)
     controllers = ("pd", "mid_f_rls")
     setup = prepare(scenario, controllers).setup
-    version, digest = code_version(), setup_digest(setup, controllers)
+    version = code_version()
     units = [WorkUnit(scenario, key, seed) for key in controllers for seed in range(args.seeds)]
     print(f"{len(units)} episodes of {scenario.name} ({scenario.task.n_cycles} cycles), PD and MId+F+R+RLS+PD")
     load_before = f"{os.getloadavg()[0]:.2f}"
     results = {}
     for backend, workers in CONFIGURATIONS:
-        results[backend, workers] = measure(units, backend, workers, setup, version, digest)
+        results[backend, workers] = measure(units, backend, workers, setup, version)
     base = results["local", 1]["rate_steady"]
     print(f"load average before / after: {load_before} / {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     print(

@@ -42,7 +42,8 @@ def grid(controllers=("pd",), seeds=(0, 1), scenarios=("nominal", "worn")) -> li
 def sweep(units: list[WorkUnit], table: ResultsTable, code: str = CODE, **kwargs) -> dict[str, int]:
     """``run_sweep`` with SETUP (digest :data:`DIGEST`) on every scenario of ``units``."""
     contents = {unit.scenario.content_hash for unit in units}
-    return run_sweep(units, dict.fromkeys(contents, SETUP), table, code, dict.fromkeys(contents, DIGEST), **kwargs)
+    digests = {(unit.scenario.content_hash, unit.controller): DIGEST for unit in units}
+    return run_sweep(units, dict.fromkeys(contents, SETUP), table, code, digests, **kwargs)
 
 
 def rows_by_key(path: Path) -> dict[str, dict[str, str]]:
@@ -236,7 +237,7 @@ def test_geometry_puts_every_scenario_on_that_robot_with_scaled_masses(tmp_path:
     assert "short.toml" in capsys.readouterr().err
 
 
-def test_the_setup_digest_covers_every_field_of_what_the_controllers_know(tmp_path: Path) -> None:
+def test_the_setup_digest_covers_every_field_a_controller_knows_and_nothing_of_the_others(tmp_path: Path) -> None:
     sums = EmptyMoveSums(np.eye(5), np.zeros(5))
     policy = tmp_path / "policy.zip"
     policy.write_bytes(b"weights")
@@ -245,8 +246,8 @@ def test_the_setup_digest_covers_every_field_of_what_the_controllers_know(tmp_pa
         "mid_f": ModelParameters(rho1=1.9, rho2=0.9),
         "mid_f_rods": ModelParameters(rho1=1.9, rho2=0.9),
         "drive_lag": (0.001, 0.001, 0.0011),
-        "tares": {"mid_f_rls": 0.01},
-        "empty_moves": {"mid_f_rls": sums},
+        "tares": {"mid_f_rls_lag": 0.01},
+        "empty_moves": {"mid_f_rls_lag": sums},
         "pd_gains": (3000.0, 61.0),
         "geometry": DeltaGeometry(ra=0.21, rb=0.05, l1=0.37, l2=0.95),
         "masses": DeltaMasses(m1=2.1, m2=0.2, m0=0.8),
@@ -255,20 +256,23 @@ def test_the_setup_digest_covers_every_field_of_what_the_controllers_know(tmp_pa
         "fault_reaction": "stop",
     }
     assert {*changed, "residual_policy"} == {field.name for field in dataclasses.fields(SETUP)}
-    base = setup_digest(SETUP, ("pd",))
+    base = setup_digest(SETUP, "mid_f_rls_lag")
     for name, value in changed.items():
-        assert setup_digest(dataclasses.replace(SETUP, **{name: value}), ("pd",)) != base, name
-    # the residual policy counts by its bytes, and only when the residual row runs
+        assert setup_digest(dataclasses.replace(SETUP, **{name: value}), "mid_f_rls_lag") != base, name
+    moved = EmptyMoveSums(np.eye(5), np.full(5, 1e-9))
+    assert setup_digest(dataclasses.replace(SETUP, empty_moves={"mid_f_rls_lag": moved}), "mid_f_rls_lag") != (
+        setup_digest(dataclasses.replace(SETUP, empty_moves={"mid_f_rls_lag": sums}), "mid_f_rls_lag")
+    )
+    # another row's tare is not what PD knows (the cell's estimator's is: an online timing runs it beside PD)
+    pd = setup_digest(SETUP, "pd")
+    assert setup_digest(dataclasses.replace(SETUP, tares={"mid_f_rls_lag": 0.01}), "pd") == pd
+    assert setup_digest(dataclasses.replace(SETUP, tares={"mid_f_rls": 0.01}), "pd") != pd
+    # the residual policy counts by its bytes, and for the residual row only
     copy = tmp_path / "elsewhere" / "policy.zip"
     copy.parent.mkdir()
     copy.write_bytes(policy.read_bytes())
     with_policy, with_copy = (dataclasses.replace(SETUP, residual_policy=path) for path in (policy, copy))
-    assert setup_digest(with_policy, ("pd",)) == base
-    assert setup_digest(with_policy, ("pd", "residual")) == setup_digest(with_copy, ("pd", "residual"))
+    assert setup_digest(with_policy, "pd") == pd
+    assert setup_digest(with_policy, "residual") == setup_digest(with_copy, "residual")
     copy.write_bytes(b"other weights")
-    assert setup_digest(with_policy, ("pd", "residual")) != setup_digest(with_copy, ("pd", "residual"))
-    moved = EmptyMoveSums(np.eye(5), np.full(5, 1e-9))
-    with_sums = dataclasses.replace(SETUP, empty_moves={"mid_f_rls": sums})
-    assert setup_digest(dataclasses.replace(SETUP, empty_moves={"mid_f_rls": moved}), ("pd",)) != setup_digest(
-        with_sums, ("pd",)
-    )
+    assert setup_digest(with_policy, "residual") != setup_digest(with_copy, "residual")

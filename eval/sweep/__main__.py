@@ -187,7 +187,9 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
         for s in args.scenarios
     }
     version = code_version()
-    digests = {content: setup_digest(setup, tuple(args.controllers)) for content, setup in setups.items()}
+    digests = {
+        (content, key): setup_digest(setup, key) for content, setup in setups.items() for key in args.controllers
+    }
     units = [WorkUnit(s, key, seed) for s in args.scenarios for key in args.controllers for seed in args.seeds]
     config = {
         "grid": {
@@ -195,7 +197,7 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
                 s.name: {
                     "content_hash": s.content_hash,
                     "robot_identity": s.robot_identity,
-                    "setup_digest": digests[s.content_hash],
+                    "setup_digests": {key: digests[s.content_hash, key] for key in args.controllers},
                     "tares_kg": dict(setups[s.content_hash].tares),
                 }
                 for s in args.scenarios
@@ -215,7 +217,7 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
     run.record(config=config)
 
     table = ResultsTable(out / "results.csv")
-    keys = {unit_key(unit, version, digests[unit.scenario.content_hash]) for unit in units}
+    keys = {unit_key(unit, version, digests[unit.scenario.content_hash, unit.controller]) for unit in units}
     if args.force:
         table.drop(keys)
     done = keys <= {row["key"] for row in table.load()}

@@ -276,7 +276,7 @@ def run_sweep(
     setups: Setups,
     table: ResultsTable,
     code_version: str,
-    setup_digests: Mapping[str, str],
+    setup_digests: Mapping[tuple[str, str], str],
     *,
     backend: str = "local",
     workers: int = 1,
@@ -291,7 +291,8 @@ def run_sweep(
         setups: What the controllers know, by scenario content hash.
         table: The results table (read for resume, appended to).
         code_version: :func:`eval.sweep.work.code_version`.
-        setup_digests: :func:`eval.sweep.work.setup_digest` of each setup, by scenario content hash.
+        setup_digests: :func:`eval.sweep.work.setup_digest` of each controller's setup, by (scenario content hash,
+            controller key).
         backend: ``"local"`` or ``"ray"``.
         workers: Local processes, or CPUs of an in-process Ray.
         address: Ray cluster address (``ray`` backend only).
@@ -309,7 +310,7 @@ def run_sweep(
     missing = sorted({unit.scenario.name for unit in units if unit.scenario.content_hash not in setups})
     if missing:
         raise ValueError(f"no controller setup for the scenarios {missing}")
-    keys = [unit_key(unit, code_version, setup_digests[unit.scenario.content_hash]) for unit in units]
+    keys = [unit_key(unit, code_version, setup_digests[unit.scenario.content_hash, unit.controller]) for unit in units]
     if len(set(keys)) != len(keys):
         raise ValueError("the grid holds the same unit twice (same scenario content, controller and seed)")
     finished = {row["key"] for row in table.load()}
@@ -320,7 +321,7 @@ def run_sweep(
         progress.update(counts["skipped"])
 
     def on_result(unit: WorkUnit, result: dict[str, Any]) -> None:
-        digest = setup_digests[unit.scenario.content_hash]
+        digest = setup_digests[unit.scenario.content_hash, unit.controller]
         row = {**identity_row(unit, key_of[id(unit)], code_version, digest), **result}
         table.append(row)
         counts["ran"] += 1

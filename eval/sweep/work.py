@@ -22,7 +22,7 @@ from delta_env.scenario import Scenario
 from eval import metrics
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
 from eval.run_folder import package_versions
-from eval.tasks import Task, run_task
+from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_task
 
 EPISODE_METRICS = (
     "tracking_rms_mm",
@@ -102,16 +102,24 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
     return row
 
 
-def setup_digest(setup: ControllerSetup, controllers: tuple[str, ...]) -> str:
-    """Content hash (16 hex digits) of what the controllers know (every field of ``setup``:
-    :meth:`~controllers.registry.ControllerSetup.content_hash`, the residual policy by its file's bytes, and only if
-    the residual row runs, not by its path), and the source of every user controller among ``controllers``
-    (:func:`controllers.registry.controller_source`), whose code the project's version does not cover."""
-    digest = hashlib.sha256(dataclasses.replace(setup, residual_policy=None).content_hash().encode())
-    if "residual" in controllers:
+def setup_digest(setup: ControllerSetup, controller: str) -> str:
+    """Content hash (16 hex digits) of what ``controller`` knows: every field of ``setup``
+    (:meth:`~controllers.registry.ControllerSetup.content_hash`) with the tares and empty-move sums of this controller
+    and of the cell's estimator (which an online timing runs beside it) only; the residual policy by its file's bytes,
+    for the residual row only; and a user controller's source (:func:`controllers.registry.controller_source`), whose
+    code the project's version does not cover. Adding a controller to a grid, or editing another's code, leaves the
+    keys of this controller's rows as they were."""
+    own = {controller, CELL_ESTIMATOR_KEY}
+    known = dataclasses.replace(
+        setup,
+        residual_policy=None,
+        tares={key: tare for key, tare in setup.tares.items() if key in own},
+        empty_moves={key: sums for key, sums in setup.empty_moves.items() if key in own},
+    )
+    digest = hashlib.sha256(known.content_hash().encode())
+    if controller == "residual":
         digest.update(residual_policy_path(setup).read_bytes())
-    for key in controllers:
-        digest.update(controller_source(key))
+    digest.update(controller_source(controller))
     return digest.hexdigest()[:16]
 
 
