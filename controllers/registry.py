@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
+from types import ModuleType
 from typing import Literal
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController, Privileged
@@ -199,7 +200,7 @@ def _residual(setup: ControllerSetup) -> Controller:
     path = residual_policy_path(setup).resolve()
     status = path.stat()
     return residual_controller(
-        _loaded_policy(path, status.st_mtime_ns, status.st_size), name=BUILTIN_LABELS["residual"]
+        _loaded_policy(path, status.st_mtime_ns, status.st_size), name=CONTROLLER_LABELS["residual"]
     )
 
 
@@ -207,7 +208,7 @@ def _oracle(setup: ControllerSetup, plant: PlantConfig) -> Controller:
     return OracleController(plant)  # its own feedback gains (see OracleController)
 
 
-BUILTIN_LABELS = {
+CONTROLLER_LABELS = {
     "pd": "PD",
     "mkh": "MKH+PD",
     "mid": "MId+PD",
@@ -219,7 +220,7 @@ BUILTIN_LABELS = {
     "oracle": "Oracle+PD (bound)",
     "residual": "Residual + its base",
 }
-"""The built-in controllers' keys and labels. ``+R``: the identified model with rod forearms
+"""The built-in controllers' keys and labels, in the comparison's order. ``+R``: the identified model with rod forearms
 (``DeltaDynamics(forearm_rods=True)``, beyond the paper), which the payload estimators use. ``mid_f_rls``
 estimates the payload on the Kalman-smoothed joint states (the default estimator); ``mid_f_rls_ref`` on the
 reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforward led through the
@@ -229,26 +230,23 @@ residual policy (:mod:`controllers.residual`) on the base it was trained on, reb
 policy file names its base: ``BaseSetup.name``)."""
 
 BUILTIN_CONTROLLERS: dict[str, ControllerEntry] = {
-    "pd": ControllerEntry("pd", BUILTIN_LABELS["pd"], lambda setup: PDController(*setup.pd_gains)),
+    "pd": ControllerEntry("pd", CONTROLLER_LABELS["pd"], lambda setup: PDController(*setup.pd_gains)),
     **{
-        key: ControllerEntry(key, BUILTIN_LABELS[key], _model_row(key, BUILTIN_LABELS[key]))
+        key: ControllerEntry(key, CONTROLLER_LABELS[key], _model_row(key, CONTROLLER_LABELS[key]))
         for key in ("mkh", "mid", "mid_f", "mid_f_r")
     },
     **{
         key: ControllerEntry(
-            key, BUILTIN_LABELS[key], _model_row(key, BUILTIN_LABELS[key]), estimates_payload=True, tared=True
+            key, CONTROLLER_LABELS[key], _model_row(key, CONTROLLER_LABELS[key]), estimates_payload=True, tared=True
         )
         for key in ESTIMATOR_REGRESSORS
     },
     # the oracle is told the true payloads: nothing of it to score as an estimate
-    "oracle": ControllerEntry("oracle", BUILTIN_LABELS["oracle"], _oracle, privileged=True),
+    "oracle": ControllerEntry("oracle", CONTROLLER_LABELS["oracle"], _oracle, privileged=True),
     # the residual's base is tared: its tare comes with the policy file
-    "residual": ControllerEntry("residual", BUILTIN_LABELS["residual"], _residual, estimates_payload=True),
+    "residual": ControllerEntry("residual", CONTROLLER_LABELS["residual"], _residual, estimates_payload=True),
 }
 """Every built-in row, registered as a user's controller is (:func:`controller_entry`)."""
-
-CONTROLLER_LABELS = {key: entry.label for key, entry in BUILTIN_CONTROLLERS.items()}
-"""The built-in keys and their labels, in the comparison's order."""
 
 
 def controller_entry(key: str) -> ControllerEntry:
@@ -368,18 +366,22 @@ def controllers_help(default: str) -> str:
     )
 
 
+def _top_module(key: str) -> ModuleType:
+    """The top-level module or package of the user's controller ``key``, imported (or an error naming the key)."""
+    controller_entry(key)
+    return importlib.import_module(_import_path(key).partition(":")[0].partition(".")[0])
+
+
 def controller_source(key: str) -> bytes:
     """The source code of a user's controller ``key`` (its module's file, or every ``.py`` file of its top-level
     package), for content hashes of results; empty for a built-in, whose code is the project's."""
     if key in BUILTIN_CONTROLLERS:
         return b""
-    controller_entry(key)  # imports it, or names what is wrong
-    module = importlib.import_module(_import_path(key).partition(":")[0])
-    top = importlib.import_module(module.__name__.partition(".")[0])
+    top = _top_module(key)
     if getattr(top, "__path__", None):
         files = sorted(path for folder in top.__path__ for path in Path(folder).rglob("*.py"))
     else:
-        files = [Path(module.__file__)] if getattr(module, "__file__", None) else []
+        files = [Path(top.__file__)] if getattr(top, "__file__", None) else []
     return b"".join(path.as_posix().encode() + path.read_bytes() for path in files)
 
 
@@ -394,8 +396,7 @@ def controller_packages(keys: Iterable[str]) -> list[str]:
     for key in keys:
         if key in BUILTIN_CONTROLLERS or ":" not in key:  # an entry point's package is installed on the nodes
             continue
-        controller_entry(key)
-        top = importlib.import_module(key.partition(":")[0].partition(".")[0])
+        top = _top_module(key)
         if not getattr(top, "__path__", None):
             raise ValueError(
                 f"controller {key!r}: a remote Ray cluster imports user controllers from packages; move "
