@@ -88,19 +88,28 @@ def run_all(
     return results, calibration.tares, calibration.spreads
 
 
+def _episodes_in_order(
+    results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]
+) -> list[tuple[Task, EpisodeRecord]]:
+    """The comparison's episodes, by controller in the order of ``keys``, then by episode index."""
+    order = {key: n for n, key in enumerate(keys)}
+    episodes = ((task, record) for task, record in results if task.kind == "episode")
+    return sorted(episodes, key=lambda item: (order[item[0].key], item[0].index))
+
+
+def _identity(task: Task) -> dict[str, Any]:
+    """The identity columns of an episode's rows: controller label and key, episode index and seed."""
+    return {"controller": controller_entry(task.key).label, "key": task.key, "episode": task.index, "seed": task.seed}
+
+
 def tabulate(
     results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, EpisodeRecord]]:
     """Per-episode rows, per-carry rows (estimating controllers) and the first episode of each controller."""
-    order = {key: n for n, key in enumerate(keys)}
-    episodes = sorted(
-        ((task, record) for task, record in results if task.kind == "episode"),
-        key=lambda item: (order[item[0].key], item[0].index),
-    )
     episode_rows, carry_rows, first = [], [], {}
-    for task, record in episodes:
+    for task, record in _episodes_in_order(results, keys):
         entry = controller_entry(task.key)
-        identity = {"controller": entry.label, "key": task.key, "episode": task.index, "seed": task.seed}
+        identity = _identity(task)
         episode_rows.append({**identity, **record.metrics()})
         if entry.estimates_payload:
             for n, carry in enumerate(record.carries()):
@@ -124,20 +133,9 @@ def tabulate(
 def tabulate_faults(results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]) -> list[dict[str, Any]]:
     """The rows of ``faults.csv`` (:func:`eval.faults.fault_rows`) of the comparison's episodes, in the order of
     :func:`tabulate`: every injected fault, detected or missed, and every detection that matched none."""
-    order = {key: n for n, key in enumerate(keys)}
-    episodes = sorted(
-        ((task, record) for task, record in results if task.kind == "episode"),
-        key=lambda item: (order[item[0].key], item[0].index),
-    )
     rows = []
-    for task, record in episodes:
-        identity = {
-            "controller": controller_entry(task.key).label,
-            "key": task.key,
-            "episode": task.index,
-            "seed": task.seed,
-        }
-        rows += fault_rows(identity, record.faults())
+    for task, record in _episodes_in_order(results, keys):
+        rows += fault_rows(_identity(task), record.faults())
     return rows
 
 
