@@ -290,7 +290,7 @@ class PayloadEstimator:
             else:
                 self.rls.reset(self.tare)  # released: the object is known to be gone
         if self._fit_checkpoints is None:
-            moments = self.measurement(observation, reference_torque, reference_regressor)
+            moments = self._moments(observation, holding, reference_torque, reference_regressor)
             if moments is not None:
                 self.rls.update_moments(*moments)
             return self.apparent_mass
@@ -299,7 +299,7 @@ class PayloadEstimator:
         self._checkpointed = min(self._checkpointed + 1, len(self._fit_checkpoints))
         self._fit_checkpoints[slot] = self._fit[0]
         self._rls_checkpoints[slot] = self.rls.state
-        moments = self.measurement(observation, reference_torque, reference_regressor)
+        moments = self._moments(observation, holding, reference_torque, reference_regressor)
         if self._skip > 0:
             self._skip -= 1
             self._fit[0] = self._fit_checkpoints[slot]  # the sample entered neither the fit nor the RLS

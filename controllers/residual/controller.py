@@ -19,10 +19,13 @@ PolicyFunction = Callable[[NDArray[np.float32]], NDArray[np.float32]]
 """Maps one policy observation (float32, (ResidualFeatures.size,)) to an action in [-1, 1]^3."""
 
 
-def payload_estimate(controller: Controller) -> float:
-    """The controller's payload estimate (kg) (:class:`~controllers.base.EstimatesPayload`), or 0 if it does not
-    estimate the payload."""
-    return float(controller.payload_estimate) if isinstance(controller, EstimatesPayload) else 0.0
+def payload_estimate_reader(controller: Controller) -> Callable[[], float]:
+    """A function of no arguments giving the controller's payload estimate (kg) at the last call, or 0 if it does not
+    estimate the payload (:class:`~controllers.base.EstimatesPayload`). The protocol is checked here, once: a runtime
+    protocol check costs microseconds, too much for every step at 1 kHz."""
+    if isinstance(controller, EstimatesPayload):
+        return lambda: float(controller.payload_estimate)
+    return lambda: 0.0
 
 
 class ResidualController:
@@ -49,6 +52,7 @@ class ResidualController:
         self.config = config
         self.name = name if name is not None else f"{base.name} + residual"
         self._features = ResidualFeatures(config)
+        self._base_estimate = payload_estimate_reader(base)
         self._step = 0
         self._action = np.zeros(3)
         self._residual = np.zeros(3)
@@ -63,7 +67,7 @@ class ResidualController:
     @property
     def payload_estimate(self) -> float:
         """The base controller's payload estimate (kg)."""
-        return payload_estimate(self.base)
+        return self._base_estimate()
 
     @property
     def estimator(self) -> PayloadEstimator | None:
@@ -78,9 +82,9 @@ class ResidualController:
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         base_torque = self.base(observation)
         if self._step == 0:
-            self._features.reset(observation, base_torque, payload_estimate(self.base))
+            self._features.reset(observation, base_torque, self._base_estimate())
         else:
-            self._features.update(observation, base_torque, payload_estimate(self.base))
+            self._features.update(observation, base_torque, self._base_estimate())
         if self._step % self.config.action_period == 0:
             action = np.asarray(self.policy(self._features.policy_observation(self._action)), dtype=float)
             if action.shape != (3,) or not np.all(np.isfinite(action)):

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from controllers.base import Controller
 from controllers.residual.config import ResidualConfig
-from controllers.residual.controller import payload_estimate
+from controllers.residual.controller import payload_estimate_reader
 from controllers.residual.features import FEATURE_CLIP, ResidualFeatures
 from controllers.residual.policy_file import shipped_base_setup
 from delta_env.env import DeltaPickPlaceEnv
@@ -75,6 +75,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         self.base = base if base is not None else shipped_base_setup().controller()
         if not isinstance(self.base, Controller):
             raise ValueError(f"base must implement the Controller protocol, got {type(self.base).__name__}")
+        self._base_estimate = payload_estimate_reader(self.base)
         self.config = config if config is not None else ResidualConfig()
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self.observation_space = spaces.Box(
@@ -97,7 +98,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         observation, info = self.env.reset(seed=seed, options=options)
         self.base.reset()
         self._base_torque = self.base(observation)
-        self._features.reset(observation, self._base_torque, payload_estimate(self.base))
+        self._features.reset(observation, self._base_torque, self._base_estimate())
         self._previous_action = np.zeros(3)
         self._needs_reset = False
         return self._features.policy_observation(self._previous_action), info
@@ -127,7 +128,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             reward_torque += info["reward_torque"]
             steps += 1
             self._base_torque = self.base(observation)
-            self._features.update(observation, self._base_torque, payload_estimate(self.base))
+            self._features.update(observation, self._base_torque, self._base_estimate())
         self._previous_action = action
         self._needs_reset = terminated or truncated
         scale = self.config.reward_scale
