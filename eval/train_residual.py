@@ -185,6 +185,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         residual_limit=args.residual_limit,
         action_period=args.action_period,
         reward_scale=args.reward_scale,
+        torque_increase_weight=args.torque_increase_weight,
     )
 
 
@@ -281,7 +282,15 @@ def _train(
         mismatch = resume_mismatch(args.resume, args.scenario.name, args.base)
         if mismatch is not None:
             warnings.warn(f"{mismatch}; training goes on with the new one", stacklevel=1)
-        model = algorithm.load(args.resume, env=vec_env, device="cpu")
+        # The --hyperparams given apply to the resumed model, except its networks, which the checkpoint fixes.
+        overrides = override_hyperparameters({}, args.hyperparams, args.algo)
+        policy_kwargs = overrides.pop("policy_kwargs", {})
+        model = algorithm.load(args.resume, env=vec_env, device="cpu", **overrides)
+        changed = {key: value for key, value in policy_kwargs.items() if model.policy_kwargs.get(key) != value}
+        if changed:
+            raise ValueError(
+                f"--hyperparams policy_kwargs {changed}: the checkpoint {args.resume} has {model.policy_kwargs}"
+            )
         off_policy = isinstance(model, OffPolicyAlgorithm)
         replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
         if off_policy and replay.is_file():
@@ -295,6 +304,7 @@ def _train(
             "setting_changed": mismatch,
             "num_timesteps": model.num_timesteps,
             "replay_buffer": replay if off_policy else None,
+            "hyperparameters_changed": overrides,
         }
         run.record(config=resolved)
     else:
@@ -374,6 +384,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
     parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
     parser.add_argument(
+        "--torque-increase-weight",
+        type=float,
+        default=ResidualConfig.torque_increase_weight,
+        help="reward weight ((N m)^-2) of the squared torque the residual adds, per control step (default 0)",
+    )
+    parser.add_argument(
         "--hyperparams",
         nargs="+",
         default=[],
@@ -399,11 +415,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     try:
         residual_config(args)
     except ValueError as error:
-        parser.error(f"--residual-limit, --action-period, --reward-scale: {error}")
+        parser.error(f"--residual-limit, --action-period, --reward-scale, --torque-increase-weight: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:
         parser.error(str(error))
+
     return args
 
 

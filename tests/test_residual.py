@@ -132,6 +132,31 @@ def test_controller_runs_the_same_loop_as_the_env(action_period: int) -> None:
     assert_array_equal(info["commanded_torques"] - info["base_torques"], expected)
 
 
+def test_torque_increase_weight_charges_the_squared_torque_the_residual_adds() -> None:
+    weight, scale = 2e-4, 0.5
+    plain, charged = (
+        DeltaResidualEnv(
+            base=make_base(), config=ResidualConfig(reward_scale=scale, torque_increase_weight=w), n_cycles=1
+        )
+        for w in (0.0, weight)
+    )
+    observations = [env.reset(seed=SEED)[0] for env in (plain, charged)]
+    charged_any = False
+    for _ in range(20):
+        action = linear_policy(observations[0])
+        (observation, reward, _, _, info), (_, charged_reward, _, _, charged_info) = (
+            env.step(action) for env in (plain, charged)
+        )
+        observations = [observation, observation]
+        commanded, base = info["commanded_torques"], info["base_torques"]
+        increase = np.sum(commanded**2) - np.sum(base**2)
+        assert info["reward_torque_increase"] == 0.0
+        assert charged_info["reward_torque_increase"] == pytest.approx(-scale * weight * increase, rel=1e-12)
+        assert charged_reward == pytest.approx(reward - scale * weight * increase, rel=1e-12, abs=1e-12)
+        charged_any |= abs(increase) > 1.0
+    assert charged_any, "the policy should change the torque"
+
+
 def test_sb3_check_env_passes_without_warnings() -> None:
     env = DeltaResidualEnv(base=make_base(), n_cycles=1)
     with warnings.catch_warnings():
@@ -190,7 +215,13 @@ def test_bad_actions_raise(action: np.ndarray) -> None:
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{"residual_limit": 0.0}, {"residual_limit": 401.0}, {"action_period": 0}, {"reward_scale": -1.0}],
+    [
+        {"residual_limit": 0.0},
+        {"residual_limit": 401.0},
+        {"action_period": 0},
+        {"reward_scale": -1.0},
+        {"torque_increase_weight": -1e-4},
+    ],
 )
 def test_config_rejects_bad_values(kwargs: dict) -> None:
     with pytest.raises(ValueError):
@@ -264,15 +295,18 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path) -> None:
     assert checkpoints == ["residual_30_steps.zip", "residual_60_steps.zip", "residual_replay_buffer_60_steps.pkl"]
     args = tiny_training_args(tmp_path / "resumed", 0, "--resume", str(runs[0] / "checkpoints" / checkpoints[1]))
     args.timesteps = 90
+    args.hyperparams.append("learning_rate:0.0005")
     resumed = train(args, base_factory=make_base)
     model = load_residual_policy(resumed / "final_policy.zip").model
     assert model.num_timesteps == 90
+    assert model.learning_rate == 0.0005, "--hyperparams apply to a resumed run"
     written = json.loads((resumed / "config.json").read_text())
     assert written["command"].startswith("python -m eval.train_residual") and "git_commit" in written
     assert written["config"]["scenario"]["name"] == "randomized", "domain randomization is on by default"
     resumed_from = written["config"]["resumed_from"]
     assert resumed_from["num_timesteps"] == 60
     assert resumed_from["replay_buffer"].endswith("residual_replay_buffer_60_steps.pkl")
+    assert resumed_from["hyperparameters_changed"]["learning_rate"] == 0.0005
 
 
 def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
