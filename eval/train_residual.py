@@ -185,7 +185,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         residual_limit=args.residual_limit,
         action_period=args.action_period,
         reward_scale=args.reward_scale,
-        torque_increase_weight=args.torque_increase_weight,
+        torque_weight=args.torque_weight,
     )
 
 
@@ -384,10 +384,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
     parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
     parser.add_argument(
-        "--torque-increase-weight",
+        "--torque-weight",
         type=float,
-        default=ResidualConfig.torque_increase_weight,
-        help="reward weight ((N m)^-2) of the squared torque the residual adds, per control step (default 0)",
+        default=ResidualConfig.torque_weight,
+        help="reward weight ((N m)^-2) of the squared torque per control step, added to the plant env's (default 0)",
     )
     parser.add_argument(
         "--hyperparams",
@@ -415,7 +415,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     try:
         residual_config(args)
     except ValueError as error:
-        parser.error(f"--residual-limit, --action-period, --reward-scale, --torque-increase-weight: {error}")
+        parser.error(f"--residual-limit, --action-period, --reward-scale, --torque-weight: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:

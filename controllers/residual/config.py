@@ -31,12 +31,11 @@ class ResidualConfig:
             section 4): the policy sees the ripple phase sin / cos(ripple_periods * theta).
         stribeck_velocity: Speed (rad/s) under which Stribeck friction rises (docs/design.md section 4):
             the policy sees tanh(theta_dot_ref / stribeck_velocity).
-        torque_increase_weight: Weight ((N m)^-2) of the torque the residual adds, per control step:
-            the reward loses ``torque_increase_weight * (|tau_base + r|^2 - |tau_base|^2)``. The plant env's
-            own torque term (1e-5 (N m)^-2 on the whole torque) is a few per mille of a tracking gain, so a
-            policy trained on it alone buys its last tenths of a millimetre with a percent of torque; 2e-4
-            makes a percent of torque RMS (about 24 (N m)^2 per step at 20 N m) cost as much as the
-            tracking error of a 0.07 mm RMS controller. 0 (the default) leaves the plant env's reward.
+        torque_weight: Weight ((N m)^-2) of the squared commanded torque per control step, added to the plant
+            env's own (``RewardWeights.torque``, 1e-5). With the plant's alone a percent of torque RMS costs a few
+            per mille of the tracking term, so a policy buys its last tenths of a millimetre with it; at 1.5e-4 a
+            percent of torque RMS (about 20 (N m)^2 per step at 20 N m per joint) costs about half the tracking
+            term of a 0.07 mm RMS controller. 0 (the default) leaves the plant env's reward.
     """
 
     residual_limit: float = 15.0
@@ -44,7 +43,7 @@ class ResidualConfig:
     reward_scale: float = 1.0
     ripple_periods: int = field(default=_DATASHEET.ripple_periods)
     stribeck_velocity: float = field(default=_DATASHEET.stribeck_velocity)
-    torque_increase_weight: float = 0.0
+    torque_weight: float = 0.0
 
     def __post_init__(self) -> None:
         require_in("residual_limit", self.residual_limit, 0.0, TORQUE_LIMIT, unit="N m", low_open=True)
@@ -52,7 +51,7 @@ class ResidualConfig:
         require_positive("reward_scale", self.reward_scale)
         require_count("ripple_periods", self.ripple_periods, minimum=0)
         require_positive("stribeck_velocity", self.stribeck_velocity, unit="rad/s")
-        require_in("torque_increase_weight", self.torque_increase_weight, 0.0, 1.0, unit="(N m)^-2")
+        require_in("torque_weight", self.torque_weight, 0.0, 1.0, unit="(N m)^-2")
         object.__setattr__(self, "action_period", int(self.action_period))
         object.__setattr__(self, "ripple_periods", int(self.ripple_periods))
 

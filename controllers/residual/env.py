@@ -36,10 +36,9 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
 
     ## Rewards
     ``reward_scale`` times the sum of the plant env's rewards over the control steps of this policy
-    step: -(tracking error in mm^2 + 1e-5 (N m)^-2 torque^2) per control step by default, minus
-    ``config.torque_increase_weight`` times the squared torque the residual adds (|tau_base + r|^2 -
-    |tau_base|^2, (N m)^2) per control step. ``info`` holds the summed terms ``reward_tracking``,
-    ``reward_torque`` and ``reward_torque_increase``.
+    step: -(tracking error in mm^2 + 1e-5 (N m)^-2 torque^2) per control step by default, with
+    ``config.torque_weight`` added to the torque weight. ``info`` holds the summed terms ``reward_tracking``
+    and ``reward_torque``.
 
     ## Starting State
     The plant env's: at rest at a place point (``start="place"``, the default) or at the first pick point
@@ -115,7 +114,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         residual = self.config.residual_limit * action
         n = self.config.action_period
         errors, commanded, base_torques = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3))
-        reward_sum = reward_tracking = reward_torque = torque_increase = 0.0
+        reward_sum = reward_tracking = reward_torque = torque_squared = 0.0
         terminated = truncated = False
         info: dict[str, Any] = {}
         steps = 0
@@ -128,19 +127,19 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             reward_sum += reward
             reward_tracking += info["reward_tracking"]
             reward_torque += info["reward_torque"]
-            torque_increase += float(torque @ torque - self._base_torque @ self._base_torque)
+            torque_squared += float(torque @ torque)
             steps += 1
             self._base_torque = self.base(observation)
             self._features.update(observation, self._base_torque, self._base_estimate())
         self._previous_action = action
         self._needs_reset = terminated or truncated
         scale = self.config.reward_scale
-        reward_torque_increase = -self.config.torque_increase_weight * torque_increase
-        reward_sum += reward_torque_increase
+        extra_torque = -self.config.torque_weight * torque_squared
+        reward_sum += extra_torque
+        reward_torque += extra_torque
         info.update(
             reward_tracking=scale * reward_tracking,
             reward_torque=scale * reward_torque,
-            reward_torque_increase=scale * reward_torque_increase,
             tracking_errors=errors[:steps],
             commanded_torques=commanded[:steps],
             base_torques=base_torques[:steps],
