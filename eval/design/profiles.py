@@ -169,9 +169,7 @@ def _plot_end_effector(profile: CycleProfile, path: Path) -> None:
     along = (profile.xyz - np.asarray(profile.centre)) @ direction
     path_axis = axes[0, 0]
     path_axis.plot(1e3 * along, 1e3 * (profile.xyz[:, 2] - profile.centre[2]), "k-")
-    path_axis.set(
-        xlabel="along the travel (mm)", ylabel="height above the conveyor (mm)", title="path (side view)"
-    )
+    path_axis.set(xlabel="along the travel (mm)", ylabel="height above the conveyor (mm)", title="path (side view)")
     path_axis.set_aspect("equal", adjustable="datalim")
     quantities = (
         ("xyz", 1e3, "position (mm)"),
