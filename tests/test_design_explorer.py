@@ -12,8 +12,8 @@ from delta_env.scenario import load_geometry
 from eval.design import explorer, performance, profiles
 from eval.design.report import performance_row
 
-CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
-"""Debian's chromium and chromium-driver packages (scripts/setup.sh installs them)."""
+BROWSER_PROGRAMS = ("chromium", "chromedriver")
+"""Debian's chromium and chromium-driver packages (scripts/setup.sh installs them), looked up on PATH."""
 
 FRONT_GEOMETRIES = (
     DeltaGeometry(ra=0.16, rb=0.05, l1=0.32, l2=0.95),
@@ -90,14 +90,14 @@ def test_page_is_self_contained_and_bad_arguments_are_named(study, page):
 @pytest.fixture(scope="module")
 def browser():
     webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (pip install -e .[dev])")
-    if not (CHROMIUM.exists() and CHROMEDRIVER.exists()) and not (
-        shutil.which("chromium") and shutil.which("chromedriver")
-    ):
+    chromium, chromedriver = (shutil.which(program) for program in BROWSER_PROGRAMS)
+    if not (chromium and chromedriver):
+        missing = [p for p, found in zip(BROWSER_PROGRAMS, (chromium, chromedriver), strict=True) if not found]
         pytest.skip(
-            f"no headless browser: {CHROMIUM} and {CHROMEDRIVER} (Debian: apt-get install chromium chromium-driver)"
+            f"no headless browser: {', '.join(missing)} not on PATH (Debian: apt-get install chromium chromium-driver)"
         )
     options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM if CHROMIUM.exists() else shutil.which("chromium"))
+    options.binary_location = chromium
     for argument in (
         "--headless=new",
         "--no-sandbox",
@@ -107,7 +107,7 @@ def browser():
     ):
         options.add_argument(argument)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    service = webdriver.ChromeService(str(CHROMEDRIVER if CHROMEDRIVER.exists() else shutil.which("chromedriver")))
+    service = webdriver.ChromeService(chromedriver)
     driver = webdriver.Chrome(service=service, options=options)
     yield driver
     driver.quit()
@@ -184,8 +184,8 @@ def test_clicking_a_design_on_the_front_shows_it_in_the_panel(study, page, brows
     browser.execute_script("Plotly.restyle('parallel', {'dimensions[0].constraintrange': [[0.19, 0.23]]}, [0]);")
     opacity = _wait_for(
         browser,
-        """const front = document.getElementById('front').data;
-        return front[0].marker.opacity && [Array.from(front[0].marker.opacity), Array.from(front[1].marker.opacity)];""",
+        """const front = document.getElementById('front').data, opacity = (t) => Array.from(t.marker.opacity);
+        return front[0].marker.opacity && [opacity(front[0]), opacity(front[1])];""",
         timeout=10.0,
     )
     assert opacity == [[0.15, 1], [1, 1]]  # front designs 0 (ra 0.16 m, dimmed) and 2; nominal and compromise
