@@ -388,11 +388,15 @@ def save_geometry(geometry: DeltaGeometry, path: str | os.PathLike[str], extra: 
         extra: Other top-level tables to record beside ``[geometry]`` (e.g. the design's objectives);
             readers ignore them.
     """
-    document = {**(extra or {}), "geometry": to_table(geometry)}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(tomli_w.dumps(document))
+    path.write_text(geometry_toml(geometry, extra))
     return path
+
+
+def geometry_toml(geometry: DeltaGeometry, extra: dict[str, Any] | None = None) -> str:
+    """The text of the geometry file of ``geometry`` (:func:`save_geometry`), ``extra`` tables first."""
+    return tomli_w.dumps({**(extra or {}), "geometry": to_table(geometry)})
 
 
 def preset_names() -> list[str]:

@@ -227,6 +227,7 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
     names = ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "verification.csv")
+    names += ("profiles_joints.png", "profiles_end_effector.png", "profiles_torque.png", "explorer.html")
     for name in (*names, "summary.md"):
         assert (out / name).stat().st_size > 0
     assert math.isfinite(config["seconds"]["total"])

@@ -10,8 +10,10 @@
 6. The run folder (``--out``, default ``<runs root>/design/<UTC time>``): ``config.json`` (the manifest of
    :mod:`eval.run_folder`: resolved configuration, command, status, times), ``pareto.csv``, ``designs.csv``,
    ``convergence.csv``, ``reconfiguration.csv``, ``verification.csv``, ``torque_changes.csv``, ``summary.md``,
-   the figures of :mod:`eval.design.report` and a geometry file ``design-<name>.toml`` per chosen design
-   (``--geometry`` of the other command lines, format of :mod:`delta_env.scenario`); the summary is printed.
+   the figures of :mod:`eval.design.report` and of :mod:`eval.design.profiles` (motion and torques over the
+   nominal robot's worst cycle), ``explorer.html`` (:mod:`eval.design.explorer`: the interactive front) and a
+   geometry file ``design-<name>.toml`` per chosen design (``--geometry`` of the other command lines, format of
+   :mod:`delta_env.scenario`); the summary is printed.
 
 Usage: python -m eval.design [--seed 0] [--population 40] [--generations 25] [--quick] [--no-verify] [--out DIR]
                              [--runs-dir DIR]
@@ -35,7 +37,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from eval import calibration, excitation, identification
-from eval.design import optimize, performance, reconfigure, report, verify
+from eval.design import explorer, optimize, performance, profiles, reconfigure, report, verify
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
 from eval.scenario_args import check_ranges
 
@@ -82,11 +84,6 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
             seen.add(design.geometry)
             kept[name] = design
     return kept
-
-
-def _file_name(design: str) -> str:
-    """A design's name as a file-name part: "GA optimum (weighted cost)" -> "ga-optimum-weighted-cost"."""
-    return "-".join("".join(c if c.isalnum() else " " for c in design.lower()).split())
 
 
 def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) -> dict[str, object]:
@@ -217,16 +214,17 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         )
     for name, design in designs.items():
         if name != "nominal":
-            objectives = {k: v for k, v in report.performance_row(design).items() if k not in ("ra", "rb", "l1", "l2")}
-            save_geometry(
-                design.geometry, out / f"design-{_file_name(name)}.toml", {"design": {"name": name, **objectives}}
-            )
+            save_geometry(design.geometry, out / report.design_file_name(name), report.design_record(name, design))
     report.plot_convergence(pareto, single, out / "convergence.png")
     report.plot_pareto(front, nominal, {n: p for n, p in designs.items() if n != "nominal"}, out / "pareto.png")
     map_designs = {"nominal": NOMINAL_GEOMETRY, "compromise": chosen["compromise"].geometry}
     report.plot_maps(map_designs, "horizontal", out / "maps_horizontal.png")
     report.plot_maps(map_designs, "vertical", out / "maps_vertical.png")
     report.plot_reconfiguration(reconfiguration, out / "reconfiguration.png")
+    # Figures 3-6 of the paper and the explorer page: every design on the nominal robot's worst task cycle
+    profile_cycle = profiles.worst_cycle(nominal)
+    profiles.plot_profiles({n: profiles.design_profile(p, profile_cycle) for n, p in _distinct(designs).items()}, out)
+    explorer.write_explorer(front, designs, out / "explorer.html", colour="cycle_time_s", cycle=profile_cycle)
     seconds["total"] = time.perf_counter() - started
 
     lines = [

@@ -75,6 +75,21 @@ def performance_row(performance: Performance) -> dict[str, Any]:
     }
 
 
+GEOMETRY_COLUMNS = ("ra", "rb", "l1", "l2")
+"""The columns of :func:`performance_row` that are the design's lengths (m); the others are its figures."""
+
+
+def design_file_name(name: str) -> str:
+    """A design's geometry file name: "GA optimum (weighted cost)" -> "design-ga-optimum-weighted-cost.toml"."""
+    return "design-" + "-".join("".join(c if c.isalnum() else " " for c in name.lower()).split()) + ".toml"
+
+
+def design_record(name: str, performance: Performance) -> dict[str, Any]:
+    """The ``[design]`` table of a design's geometry file: its name and figures (the lengths go in ``[geometry]``)."""
+    row = performance_row(performance)
+    return {"design": {"name": name, **{k: v for k, v in row.items() if k not in GEOMETRY_COLUMNS}}}
+
+
 def _change(value: float, reference: float, *, inverse: bool = False) -> float:
     """Change (%) of ``value`` against ``reference``; ``inverse`` for a time turned into a speed."""
     if inverse:
