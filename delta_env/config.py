@@ -150,6 +150,9 @@ class PlantConfig:
         payload_body: Include the pick-and-place payload body and its ``suction`` weld.
         drive: Torque-speed envelope and thermal limit of each joint's drive; MuJoCo's ``ctrlrange`` is its
             peak torque, the env enforces the rest.
+        collisions: Turn on contacts among the robot's links and its base (realistic variant only;
+            :func:`delta_env.robot.collision_geom_names`), as the design verification does; off, robot parts pass
+            through each other.
     """
 
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
@@ -159,6 +162,7 @@ class PlantConfig:
     timestep: float = PHYSICS_TIMESTEP
     payload_body: bool = True
     drive: DriveLimits = field(default_factory=DriveLimits)
+    collisions: bool = False
 
     def __post_init__(self) -> None:
         require_instance("geometry", self.geometry, DeltaGeometry)
@@ -177,6 +181,10 @@ class PlantConfig:
         if not isinstance(self.payload_body, bool):
             raise ValueError(f"payload_body must be a bool, got {self.payload_body!r}")
         require_instance("drive", self.drive, DriveLimits)
+        if not isinstance(self.collisions, bool):
+            raise ValueError(f"collisions must be a bool, got {self.collisions!r}")
+        if self.collisions and self.variant != "realistic":
+            raise ValueError("collisions need the realistic variant (the ideal one has no parallelograms to collide)")
 
     @classmethod
     def ideal(

@@ -25,7 +25,7 @@ from delta_env.config import (
     RandomizationRanges,
 )
 from delta_env.loops import LoopClosures
-from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
+from delta_env.robot import CHAIN_LABELS, ROBOT_CONTACT_BIT, ROD_LABELS, forearm_home_tilt
 from delta_env.scene import OBSTACLE_PARKED, OBSTACLE_RADIUS, build_model
 from delta_env.suction import SuctionPayload, quat_to_matrix
 from delta_env.validation import require_in, require_joint_vector
@@ -108,6 +108,10 @@ class DeltaPlant:
         self._parameters = self.nominal_parameters
         self._set_disturbance_coefficients(self.config.realism)
 
+        # Robot self-contacts seen since the last reset (collision geometry on): geom-name pair -> deepest (m).
+        self._tracks_contacts = self.config.collisions
+        self._robot_contacts: dict[tuple[str, str], float] = {}
+
         # Views into mjData for the hot path (the buffers never move).
         self._qpos, self._qvel = data.qpos, data.qvel
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
@@ -134,6 +138,7 @@ class DeltaPlant:
             theta: Motor angles (rad), shape (3,); home (arms horizontal) when None.
         """
         mujoco.mj_resetData(self.model, self.data)
+        self._robot_contacts = {}
         if self._payload is not None:
             self.model.body_gravcomp[self._payload.body] = 1.0
         self.assemble(np.zeros(3) if theta is None else theta)
@@ -280,6 +285,23 @@ class DeltaPlant:
                 self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
             )
         mujoco.mj_step(self.model, self.data, n_substeps)
+        if self._tracks_contacts and self.data.ncon:
+            self._record_robot_contacts()
+
+    def _record_robot_contacts(self) -> None:
+        contype = self.model.geom_contype
+        for index in range(self.data.ncon):
+            contact = self.data.contact[index]
+            if contype[contact.geom1] & contype[contact.geom2] & ROBOT_CONTACT_BIT:
+                pair = tuple(sorted(self.model.geom(g).name for g in (contact.geom1, contact.geom2)))
+                self._robot_contacts[pair] = max(self._robot_contacts.get(pair, 0.0), -float(contact.dist))
+
+    @property
+    def robot_contacts(self) -> dict[tuple[str, str], float]:
+        """Robot self-contacts since the last :meth:`reset`, checked after every :meth:`step` (a copy): each pair of
+        geom names with its deepest penetration (m). Always empty unless the plant was built with
+        ``PlantConfig.collisions``; a touch shorter than one control step can pass unseen."""
+        return dict(self._robot_contacts)
 
     # --------------------------------------------------------------------------------------------
     # Payload

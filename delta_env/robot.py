@@ -24,6 +24,7 @@ import numpy as np
 
 from delta_env.config import FOREARM_SPACING, SUCTION_CUP_OFFSET, PlantConfig
 from delta_env.geometry import CHAIN_AZIMUTHS, CHAIN_COS, CHAIN_SIN, GRAVITY, DeltaGeometry, DeltaMasses
+from delta_env.scaling import forearm_rod_radius, upper_arm_tube_radius
 
 CHAIN_LABELS = ("1", "2", "3")
 """Chain suffixes used in element names (``motor_1`` ... ``motor_3``), docs/design.md numbering."""
@@ -40,11 +41,35 @@ POINT_INERTIA = 1e-12
 UPPER_ARM_SPLIT = {"hub": 0.30, "tube": 0.50, "bar": 0.20}
 """Fractions of m1 in the hub, tube and elbow bar of the realistic upper arm."""
 
-FOREARM_ROD_RADIUS = 0.006
-"""Radius (m) of a forearm rod, a thin carbon tube."""
-
 PLATFORM_THICKNESS = 0.02
 """Thickness (m) of the platform disc."""
+
+PLATFORM_RIM = 0.015
+"""How far (m) the platform disc reaches beyond its outermost ball-joint centres."""
+
+ELBOW_BAR_RADIUS = 0.018
+"""Radius (m) of the elbow bar that carries a chain's two upper ball joints."""
+
+ELBOW_BAR_OVERHANG = 0.015
+"""How far (m) the elbow bar reaches beyond each upper ball-joint centre along the motor axis."""
+
+UPPER_ARM_TUBE_SPAN = (0.12, 0.96)
+"""Where the upper arm's tube starts and ends, as fractions of l1 from the motor axis (hub and elbow bar beyond)."""
+
+UPPER_ARM_HUB = (0.045, 0.05)
+"""Half-length along the motor axis and radius (m) of the upper arm's hub on the gearbox output."""
+
+BASE_PLATE_OVERHANG = 0.12
+"""How far (m) the base plate reaches beyond the motor axes' circle (radius ra + this)."""
+
+BASE_PLATE_Z = (0.13, 0.17)
+"""Bottom and top (m) of the base plate: its bottom clears the upper arms' tubes up to 0.6 rad above
+horizontal (the motor range of :data:`delta_env.workspace.THETA_RANGE`) on every arm up to 0.55 m long
+(tests/test_collisions.py checks it)."""
+
+ROBOT_CONTACT_BIT = 4
+"""Contact bit (contype and conaffinity) of the robot's collision geometry when ``PlantConfig.collisions`` is on:
+its links and the base plate collide with each other and with nothing else."""
 
 ROBOT_MATERIALS = {
     "base": (0.35, 0.37, 0.4, 1.0),
@@ -73,8 +98,13 @@ def equality_solref(config: PlantConfig) -> tuple[float, float]:
 
 
 def forearm_home_tilt(geometry: DeltaGeometry) -> float:
-    """Angle (rad) of the forearms from the vertical, inward about t_i, at home (theta = 0)."""
-    return math.atan2(geometry.r + geometry.l1, -geometry.home_height)
+    """Angle (rad) of the forearms from the vertical, inward about t_i, at home (theta = 0).
+
+    The ball-joint cups are mounted along this direction (:mod:`delta_env.buildability`). For a geometry whose
+    forearms cannot reach below the base with the arms horizontal (no plant exists) it is the limit pi/2.
+    """
+    reach = geometry.r + geometry.l1
+    return math.atan2(reach, math.sqrt(max(geometry.l2**2 - reach**2, 0.0)))
 
 
 def ideal_upper_arm_inertial(geometry: DeltaGeometry, masses: DeltaMasses) -> tuple[float, float, float]:
@@ -116,11 +146,12 @@ def robot_spec(config: PlantConfig) -> mujoco.MjSpec:
     for name, rgba in ROBOT_MATERIALS.items():
         spec.add_material(name=name, rgba=rgba)
     home_qpos: list[float] = []
+    bottom, top = BASE_PLATE_Z
     spec.worldbody.add_geom(
         name="base_plate",
         type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-        pos=(0.0, 0.0, 0.06),
-        size=(config.geometry.ra + 0.12, 0.02, 0.0),
+        pos=(0.0, 0.0, (bottom + top) / 2.0),
+        size=(config.geometry.ra + BASE_PLATE_OVERHANG, (top - bottom) / 2.0, 0.0),
         material="base",
     )
     _add_platform(spec, config, classes, home_qpos)
@@ -128,8 +159,39 @@ def robot_spec(config: PlantConfig) -> mujoco.MjSpec:
         _add_chain(spec, config, index, classes, home_qpos)
     _add_loop_closures(spec, config)
     _add_motors(spec, config)
+    if config.collisions:
+        _enable_collisions(spec)
     spec.add_key(name=HOME_KEY, qpos=home_qpos)
     return spec
+
+
+def collision_geom_names() -> tuple[str, ...]:
+    """Names of the geoms that collide when ``PlantConfig.collisions`` is on (realistic variant).
+
+    The base plate, each upper arm's tube and elbow bar, every forearm rod and the platform disc; the hubs sit on
+    the motor axes (they turn in place) and the suction cup is the gripper's.
+    """
+    names = ["base_plate", "platform_disc"]
+    for label in CHAIN_LABELS:
+        names += [f"upper_arm_{label}_tube", f"upper_arm_{label}_bar"]
+        names += [f"forearm_{label}{rod}_rod" for rod in ROD_LABELS]
+    return tuple(names)
+
+
+def _enable_collisions(spec: mujoco.MjSpec) -> None:
+    """Turn on the contacts of :func:`collision_geom_names` among themselves (:data:`ROBOT_CONTACT_BIT`).
+
+    Excluded: each forearm with the platform it is ball-jointed to (the loop pairs); MuJoCo already filters each
+    forearm with its parent upper arm. Contacts are hard (MuJoCo's default softness), so a touch is visible as a
+    contact and a push.
+    """
+    for name in collision_geom_names():
+        geom = spec.geom(name)
+        geom.contype = ROBOT_CONTACT_BIT
+        geom.conaffinity = ROBOT_CONTACT_BIT
+    for label in CHAIN_LABELS:
+        for rod in ROD_LABELS:
+            spec.add_exclude(bodyname1="platform", bodyname2=f"forearm_{label}{rod}")
 
 
 def _set_options(spec: mujoco.MjSpec, config: PlantConfig) -> None:
@@ -187,7 +249,7 @@ def _add_platform(
     spec: mujoco.MjSpec, config: PlantConfig, classes: dict[str, mujoco.MjsDefault], home_qpos: list[float]
 ) -> None:
     g, m = config.geometry, config.masses
-    disc = (math.hypot(g.rb, FOREARM_SPACING / 2.0) + 0.015, PLATFORM_THICKNESS / 2.0, 0.0)
+    disc = (platform_disc_radius(g), PLATFORM_THICKNESS / 2.0, 0.0)
     # The platform's origin is E0. Not "simple": its mass changes at run time (oracle, randomization).
     platform = spec.worldbody.add_body(name="platform", pos=(0.0, 0.0, config.home_height))
     platform.simple = 0
@@ -213,6 +275,27 @@ def _add_platform(
             platform.add_site(name=f"platform_{label}{rod}", pos=g.rb * u + offset * t)
 
 
+def platform_disc_radius(geometry: DeltaGeometry) -> float:
+    """Radius (m) of the platform disc: its outermost ball-joint centres plus :data:`PLATFORM_RIM`."""
+    return math.hypot(geometry.rb, FOREARM_SPACING / 2.0) + PLATFORM_RIM
+
+
+def upper_arm_parts(geometry: DeltaGeometry) -> dict[str, tuple[tuple[float, ...], float]]:
+    """The upper arm's hub, tube and elbow bar: (fromto in the arm frame (x = u_i, y = t_i, z up) in m, radius m).
+
+    The tube's radius follows the stiffness rule of :mod:`delta_env.scaling`.
+    """
+    l1 = geometry.l1
+    start, end = UPPER_ARM_TUBE_SPAN
+    hub_half, hub_radius = UPPER_ARM_HUB
+    bar_half = FOREARM_SPACING / 2.0 + ELBOW_BAR_OVERHANG
+    return {
+        "hub": ((0.0, -hub_half, 0.0, 0.0, hub_half, 0.0), hub_radius),
+        "tube": ((start * l1, 0.0, 0.0, end * l1, 0.0, 0.0), upper_arm_tube_radius(l1)),
+        "bar": ((l1, -bar_half, 0.0, l1, bar_half, 0.0), ELBOW_BAR_RADIUS),
+    }
+
+
 def _set_inertial(body: mujoco.MjsBody, pos: tuple[float, ...], mass: float, diaginertia: tuple[float, ...]) -> None:
     """An explicit inertial (MJCF ``<inertial>``): the body's geoms then carry no mass."""
     body.explicitinertial = True
@@ -226,11 +309,7 @@ def _add_upper_arm_geoms(
     arm: mujoco.MjsBody, config: PlantConfig, label: str, classes: dict[str, mujoco.MjsDefault]
 ) -> None:
     g, m = config.geometry, config.masses
-    parts = {
-        "hub": ((0.0, -0.045, 0.0, 0.0, 0.045, 0.0), 0.05),
-        "tube": ((0.12 * g.l1, 0.0, 0.0, 0.96 * g.l1, 0.0, 0.0), 0.025),
-        "bar": ((g.l1, -FOREARM_SPACING / 2.0 - 0.015, 0.0, g.l1, FOREARM_SPACING / 2.0 + 0.015, 0.0), 0.018),
-    }
+    parts = upper_arm_parts(g)
     ideal = config.variant == "ideal"
     if ideal:
         # MKH: rod m1 plus the elbow half m2 of the forearm pair, lumped exactly; the geoms are visual.
@@ -284,16 +363,15 @@ def _add_chain(
         forearm.add_joint(classes["elbow"], name=f"elbow_{name}_roll", axis=(1.0, 0.0, 0.0))
         home_qpos.extend([0.0, 0.0])
         rod_line = (0.0, 0.0, 0.0, 0.0, 0.0, -g.l2)
+        rod_radius = forearm_rod_radius(g.l2)
         if config.variant == "ideal":
             # MKH: the platform half m2 of the pair, a point at the lower end; the geom is visual.
             _set_inertial(forearm, (0.0, 0.0, -g.l2), m.m2, (POINT_INERTIA,) * 3)
             forearm.add_geom(
-                classes["visual"], name=f"forearm_{name}_rod", material="rod", **_cylinder(rod_line, FOREARM_ROD_RADIUS)
+                classes["visual"], name=f"forearm_{name}_rod", material="rod", **_cylinder(rod_line, rod_radius)
             )
         else:
-            forearm.add_geom(
-                name=f"forearm_{name}_rod", material="rod", mass=m.m2, **_cylinder(rod_line, FOREARM_ROD_RADIUS)
-            )
+            forearm.add_geom(name=f"forearm_{name}_rod", material="rod", mass=m.m2, **_cylinder(rod_line, rod_radius))
         forearm.add_site(name=f"forearm_{name}_end", pos=(0.0, 0.0, -g.l2))
 
 

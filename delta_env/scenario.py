@@ -281,10 +281,13 @@ def plant_identity(plant: PlantConfig) -> str:
 
 
 def _plant_table(plant: PlantConfig) -> dict[str, Any]:
-    """The table of ``plant`` that its hashes cover: without ``drive`` when it is the default drive."""
+    """The table of ``plant`` that its hashes cover: without ``drive`` when it is the default drive and without
+    ``collisions`` when they are off (both came later; earlier robots keep their hashes)."""
     table = to_table(plant)
     if plant.drive == DriveLimits():
         del table["drive"]
+    if not plant.collisions:
+        del table["collisions"]
     return table
 
 

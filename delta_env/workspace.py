@@ -4,8 +4,9 @@ Everything here follows from :class:`~delta_env.geometry.DeltaGeometry` alone an
 points ``(..., 3)`` (m, base frame). A point is *admissible* when
 
 - the elbow-out inverse kinematics exists with every theta_i in ``theta_range`` (rad, theta > 0 down),
-- every forearm leans at most ``max_forearm_tilt`` from the vertical (the ball-joint cone; the platform
-  stays horizontal, so this is the angle the ball joints must accept), and
+- every ball joint, at the elbow and on the platform, holds its forearm within ``max_forearm_tilt`` of its cup
+  axis (the ball-joint cone; :func:`delta_env.buildability.joint_angles`),
+- every parallelogram leaves its rectangle by at most ``max_skew`` (the forearms' tilt along the elbow axis), and
 - the local conditioning index 1 / cond_2(J) (J: xd = J thd) is at least ``min_conditioning``.
 
 With rows a_i of A (|a_i| = l2) and k_i of the velocity constraint A xd + K thd = 0, J^{-1} = -K^{-1} A has
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env import kinematics
+from delta_env import buildability, kinematics
 from delta_env.geometry import DeltaGeometry
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
@@ -35,7 +36,13 @@ THETA_RANGE = (-0.6, 1.5)
 86 deg, just short of hanging vertically under its motor."""
 
 MAX_FOREARM_TILT = math.radians(60.0)
-"""Default ball-joint cone (rad): forearm angle from the vertical that ball joints with inclined cups accept."""
+"""Default ball-joint cone (rad): the half-angle about its cup axis within which a ball joint holds its forearm
+(assumed, for ball-cup joints with inclined cups; the cup axes are those of :mod:`delta_env.buildability`)."""
+
+MAX_PARALLELOGRAM_SKEW = math.radians(30.0)
+"""Default parallelogram skew limit (rad): the forearms may tilt at most this far along the elbow axis, where
+the rods' distance across the pair, which holds the platform level about the chain, is still cos 30 deg = 87 %
+of their spacing (assumed)."""
 
 DEXTEROUS_CONDITIONING = 0.25
 """Default dexterity threshold on 1 / cond_2(J): beyond a condition number of 4 a joint error moves the
@@ -63,20 +70,23 @@ class Criteria:
 
     Attributes:
         theta_range: (min, max) motor angle (rad).
-        max_forearm_tilt: Largest forearm angle from the vertical (rad), in (0, pi/2].
+        max_forearm_tilt: Ball-joint cone: largest forearm angle from a cup axis (rad), in (0, pi].
         min_conditioning: Smallest 1 / cond_2(J), in [0, 1].
+        max_skew: Largest parallelogram skew (rad), in (0, pi/2].
     """
 
     theta_range: tuple[float, float] = THETA_RANGE
     max_forearm_tilt: float = MAX_FOREARM_TILT
     min_conditioning: float = DEXTEROUS_CONDITIONING
+    max_skew: float = MAX_PARALLELOGRAM_SKEW
 
     def __post_init__(self) -> None:
         object.__setattr__(
             self, "theta_range", require_interval("theta_range", self.theta_range, -math.pi, math.pi, unit="rad")
         )
-        require_in("max_forearm_tilt", self.max_forearm_tilt, 0.0, math.pi / 2, unit="rad", low_open=True)
+        require_in("max_forearm_tilt", self.max_forearm_tilt, 0.0, math.pi, unit="rad", low_open=True)
         require_in("min_conditioning", self.min_conditioning, 0.0, 1.0)
+        require_in("max_skew", self.max_skew, 0.0, math.pi / 2, unit="rad", low_open=True)
 
 
 DEXTEROUS = Criteria()
@@ -97,7 +107,9 @@ class PoseMeasures:
         imi: Inverse measurement index 1 / sqrt(det(J J^T)) (rad^3/m^3).
         det_a: det A (m^3), zero at parallel-type singularities.
         min_abs_k: min_i |k_i| (m^2/rad), zero at serial-type singularities.
-        forearm_tilt: Largest forearm angle from the vertical (rad).
+        forearm_tilt: Largest forearm angle from a ball-joint cup axis (rad), over the chains' elbow and platform
+            joints.
+        skew: Largest parallelogram skew (rad).
     """
 
     reachable: NDArray[np.bool_]
@@ -107,6 +119,7 @@ class PoseMeasures:
     det_a: NDArray[np.float64]
     min_abs_k: NDArray[np.float64]
     forearm_tilt: NDArray[np.float64]
+    skew: NDArray[np.float64]
 
     def admissible(self, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
         """Whether each point satisfies ``criteria``, ``(...)``."""
@@ -114,6 +127,7 @@ class PoseMeasures:
         with np.errstate(invalid="ignore"):
             inside = np.all((self.theta >= low) & (self.theta <= high), axis=-1)
             inside &= self.forearm_tilt <= criteria.max_forearm_tilt
+            inside &= self.skew <= criteria.max_skew
             inside &= self.conditioning >= criteria.min_conditioning
         return self.reachable & inside
 
@@ -140,7 +154,7 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
         conditioning = np.where(np.all(abs_k > 0.0, axis=-1), singular[..., -1] / singular[..., 0], 0.0)
         det_a = np.linalg.det(np.nan_to_num(a))
         imi = np.abs(det_a) / np.prod(abs_k, axis=-1)
-        tilt = np.max(np.arccos(np.clip(-a[..., 2] / geometry.l2, -1.0, 1.0)), axis=-1)
+    cone, skew = buildability.joint_angles(geometry, xyz, np.nan_to_num(theta))
     nan = np.where(reachable, 0.0, np.nan)
     return PoseMeasures(
         reachable=reachable,
@@ -149,7 +163,8 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
         imi=imi + nan,
         det_a=det_a + nan,
         min_abs_k=np.min(abs_k, axis=-1) + nan,
-        forearm_tilt=tilt + nan,
+        forearm_tilt=np.max(cone, axis=-1) + nan,
+        skew=np.max(skew, axis=-1) + nan,
     )
 
 
@@ -247,6 +262,7 @@ def reachable_volume(
     seed: int = 0,
     *,
     max_forearm_tilt: float = MAX_FOREARM_TILT,
+    max_skew: float = MAX_PARALLELOGRAM_SKEW,
 ) -> float:
     """Volume (m^3) of the points reachable with theta in ``theta_range`` and 1/cond(J) >= ``min_conditioning``.
 
@@ -260,8 +276,9 @@ def reachable_volume(
         samples: Monte Carlo samples, >= 100.
         seed: Seed of the sample points.
         max_forearm_tilt: Ball-joint cone (rad).
+        max_skew: Parallelogram skew limit (rad).
     """
-    criteria = Criteria(theta_range, max_forearm_tilt, min_conditioning)
+    criteria = Criteria(theta_range, max_forearm_tilt, min_conditioning, max_skew)
     return reachable_volume_estimate(geometry, criteria, samples, seed)[0]
 
 

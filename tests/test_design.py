@@ -108,8 +108,8 @@ def test_impossible_constraints_give_a_clear_error(nominal):
 
 
 def test_pareto_front_is_reproducible_and_non_dominated(nominal):
-    first = optimize.pareto_front(nominal, optimize.SearchSettings(6, 2, seed=5))
-    again = optimize.pareto_front(nominal, optimize.SearchSettings(6, 2, seed=5))
+    first = optimize.pareto_front(nominal, optimize.SearchSettings(10, 2, seed=5))
+    again = optimize.pareto_front(nominal, optimize.SearchSettings(10, 2, seed=5))
     assert np.array_equal(np.array(first.archive.x), np.array(again.archive.x))
     assert np.array_equal(first.front, again.front)
     objectives = np.array([first.archive.f[i] for i in first.front])
@@ -126,8 +126,8 @@ def test_pareto_front_is_reproducible_and_non_dominated(nominal):
 
 def test_weighted_cost_is_one_at_nominal_and_ga_is_reproducible(nominal):
     assert optimize.weighted_cost(nominal, nominal) == pytest.approx(1.0)
-    first = optimize.single_objective(nominal, optimize.SearchSettings(6, 2, seed=2))
-    again = optimize.single_objective(nominal, optimize.SearchSettings(6, 2, seed=2))
+    first = optimize.single_objective(nominal, optimize.SearchSettings(10, 2, seed=2))
+    again = optimize.single_objective(nominal, optimize.SearchSettings(10, 2, seed=2))
     assert first.best == again.best
     best = first.archive.performance[first.best]
     costs = [optimize.weighted_cost(p, nominal) for p in first.archive.performance if p.feasible]
@@ -186,7 +186,7 @@ def test_nominal_verification_runs_every_controller_with_closed_loops(nominal):
 
 
 def test_a_design_is_identified_on_its_own_plant():
-    design = performance.evaluate(DeltaGeometry(0.244, 0.030, 0.318, 1.054))
+    design = performance.evaluate(DeltaGeometry(0.244, 0.050, 0.318, 1.054))
     assert design.feasible, design.reason
     result = verify.verify_design("short arm", design, episodes=1, seed=1)
     assert result.feasible, result.reason

@@ -9,8 +9,10 @@ from delta_env import kinematics, workspace
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.scaling import GRIPPER_MASS, scaled_masses
 
-# Reachable-only criteria without joint or cone limits: the bare inverse kinematics.
-BARE = workspace.Criteria(theta_range=(-math.pi, math.pi), max_forearm_tilt=math.pi / 2, min_conditioning=0.0)
+# Reachable-only criteria without joint, cone or skew limits: the bare inverse kinematics.
+BARE = workspace.Criteria(
+    theta_range=(-math.pi, math.pi), max_forearm_tilt=math.pi, min_conditioning=0.0, max_skew=math.pi / 2
+)
 
 
 def _random_reachable_points(geometry: DeltaGeometry, count: int, seed: int) -> np.ndarray:
@@ -207,8 +209,8 @@ def test_bad_arguments_are_named(call, match):
 def test_scaled_masses_follow_the_stated_rule():
     assert scaled_masses(NOMINAL_GEOMETRY) == NOMINAL_MASSES
     longer = scaled_masses(DeltaGeometry(0.2, 0.1, 0.74, 1.9))
-    assert longer.m1 == pytest.approx(2 * NOMINAL_MASSES.m1)
-    assert longer.m2 == pytest.approx(2 * NOMINAL_MASSES.m2)
+    assert longer.m1 == pytest.approx(2**2.5 * NOMINAL_MASSES.m1)  # constant tip stiffness: l1^(5/2)
+    assert longer.m2 == pytest.approx(4 * NOMINAL_MASSES.m2)  # constant axial stiffness: l2^2
     assert longer.m0 == pytest.approx(GRIPPER_MASS + 4 * (NOMINAL_MASSES.m0 - GRIPPER_MASS))
     with pytest.raises(ValueError, match=r"reference_masses\.m0"):
         scaled_masses(NOMINAL_GEOMETRY, reference_masses=DeltaMasses(m1=2.0, m2=0.2, m0=0.2))

@@ -5,7 +5,9 @@ Design variables: the four lengths of the second paper's Table 1 (ra, rb, l1, l2
 cylinder holding the task region (maximized), the peak torque of the 3.8 kg standard cycles at 3 g
 (minimized) and the motion time of those cycles at the torque limit (minimized). Constraints (<= 0):
 the task region lies in the dexterous cylinder (so no singularity and no conditioning below the threshold
-inside it), the robot assembles with its arms horizontal, and the peak torque stays under the motor limit.
+inside it), the robot assembles with its arms horizontal, the peak torque stays under the motor limit, and the
+platform is wide enough for its ball joints (:func:`delta_env.buildability.platform_radius_shortfall`, which
+also sets the lower bound of rb).
 
 The paper does not print its weighted cost; :func:`weighted_cost` is our reading of it: the three
 objectives, each relative to the nominal design, weighted equally (nominal cost 1).
@@ -27,6 +29,7 @@ from pymoo.indicators.hv import HV
 from pymoo.optimize import minimize
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 
+from delta_env.buildability import min_platform_radius, platform_radius_shortfall
 from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry
 from delta_env.validation import require_count, require_interval
 from eval.design.performance import Performance, assembly_gap, evaluate
@@ -36,6 +39,9 @@ VARIABLES = ("ra", "rb", "l1", "l2")
 
 OBJECTIVES = ("workspace_m3", "peak_torque_nm", "cycle_time_s")
 """Objectives: workspace up, peak torque down, cycle time down."""
+
+CONSTRAINTS = 4
+"""Number of constraints of :func:`constraint_vector`."""
 
 PENALTY_TORQUE = 10.0 * TORQUE_LIMIT
 """Objective value (N m) given to a design whose task cycles cannot run: far beyond any feasible one."""
@@ -65,13 +71,13 @@ workspace, twice the nominal torque and cycle time."""
 class DesignBounds:
     """Box bounds (min, max) of the design variables (m).
 
-    The defaults span roughly -40 % to +50 % around the nominal robot: rb from the 30 mm a platform needs for
-    its ball joints to 100 mm; ra above rb_max so that every design has its platform inside the base; l1
-    and l2 keep l2 > l1 with margin.
+    The defaults span roughly -40 % to +50 % around the nominal robot: rb from the smallest platform whose ball
+    joints do not touch (:func:`delta_env.buildability.min_platform_radius`, 45.6 mm) to 100 mm; ra above
+    rb_max so that every design has its platform inside the base; l1 and l2 keep l2 > l1 with margin.
     """
 
     ra: tuple[float, float] = (0.12, 0.35)
-    rb: tuple[float, float] = (0.03, 0.10)
+    rb: tuple[float, float] = (min_platform_radius(), 0.10)
     l1: tuple[float, float] = (0.25, 0.55)
     l2: tuple[float, float] = (0.70, 1.40)
 
@@ -122,10 +128,12 @@ def objective_vector(performance: Performance) -> NDArray[np.float64]:
 
 
 def constraint_vector(performance: Performance) -> NDArray[np.float64]:
-    """pymoo constraints (<= 0): task shortfall (m), assembly gap (m), torque excess (N m)."""
+    """pymoo constraints (<= 0): task shortfall (m), assembly gap (m), torque excess (N m), platform radius
+    shortfall for the ball joints (m)."""
     shortfall = min(performance.shortfall, MAX_SHORTFALL)
     torque = min(performance.peak_torque_nm, PENALTY_TORQUE)
-    return np.array([shortfall, assembly_gap(performance.geometry), torque - TORQUE_LIMIT])
+    geometry = performance.geometry
+    return np.array([shortfall, assembly_gap(geometry), torque - TORQUE_LIMIT, platform_radius_shortfall(geometry)])
 
 
 def weighted_cost(performance: Performance, nominal: Performance, weights: tuple[float, ...] = WEIGHTS) -> float:
@@ -191,7 +199,7 @@ class DesignProblem(ElementwiseProblem):
         cost: Callable[[Performance], float] | None = None,
         evaluate_design: Callable[[DeltaGeometry], Performance] = evaluate,
     ) -> None:
-        super().__init__(n_var=4, n_obj=1 if cost else 3, n_ieq_constr=3, xl=bounds.lower, xu=bounds.upper)
+        super().__init__(n_var=4, n_obj=1 if cost else 3, n_ieq_constr=CONSTRAINTS, xl=bounds.lower, xu=bounds.upper)
         self.archive = archive
         self.cost = cost
         self.evaluate_design = evaluate_design
@@ -270,7 +278,12 @@ class SearchSettings:
 
 def _no_feasible(archive: Archive, what: str) -> RuntimeError:
     g = np.array(archive.g)
-    names = ("task region shortfall (m)", "assembly gap l2 - (ra - rb + l1) short by (m)", "torque excess (N m)")
+    names = (
+        "task region shortfall (m)",
+        "assembly gap l2 - (ra - rb + l1) short by (m)",
+        "torque excess (N m)",
+        "platform radius short of the ball joints' by (m)",
+    )
     worst = ", ".join(f"{name}: best {value:.3g}" for name, value in zip(names, g.min(axis=0), strict=True))
     return RuntimeError(f"{what}: no feasible design in {len(g)} evaluations ({worst}); widen the bounds")
 

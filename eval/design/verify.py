@@ -5,8 +5,10 @@ identification (:func:`eval.identification.run_identification`, the same excitat
 inside the design's dexterous cylinder, the same fits on that geometry's models, the drive lag), tare the
 payload estimator by :func:`eval.calibration.calibrate_tares` on payload-free standard cycles, then run PD,
 MId+F+R+RLS+PD and the oracle with the episode runner :func:`eval.episodes.run_episode` on seeded standard
-cycles carrying 3.8 kg. A design is infeasible, and reported as such, when its plant cannot be assembled,
-a run diverges or a loop opens by more than :data:`LOOP_GAP_LIMIT`.
+cycles carrying 3.8 kg. The plant is built with its collision geometry on (``PlantConfig.collisions``: links and
+base collide, :func:`delta_env.robot.collision_geom_names`), and every episode checks the contacts it saw. A
+design is infeasible, and reported as such, when its plant cannot be assembled, a run diverges, a loop opens by
+more than :data:`LOOP_GAP_LIMIT` or its links touch each other or the base.
 """
 
 from __future__ import annotations
@@ -120,7 +122,7 @@ class Verification:
 
 
 class DesignInfeasible(RuntimeError):
-    """The plant of a design cannot be assembled, diverged, or opened a loop beyond the limit."""
+    """The plant of a design cannot be assembled, diverged, opened a loop beyond the limit, or its links collided."""
 
 
 def episode_reference(geometry: DeltaGeometry, seed: int) -> Trajectory:
@@ -162,6 +164,12 @@ def _check(diverged: bool, loop_gap: float, what: str) -> None:
         raise DesignInfeasible(f"{what} diverged")
     if not loop_gap <= LOOP_GAP_LIMIT:
         raise DesignInfeasible(f"{what} opened a loop by {1e3 * loop_gap:.3f} mm (> {1e3 * LOOP_GAP_LIMIT} mm)")
+
+
+def _check_contacts(contacts: dict[tuple[str, str], float], what: str) -> None:
+    if contacts:
+        touching = ", ".join(f"{a} / {b} ({1e3 * depth:.1f} mm)" for (a, b), depth in sorted(contacts.items()))
+        raise DesignInfeasible(f"{what}: links collide: {touching}")
 
 
 def excitation_region(performance: Performance) -> ExcitationRegion:
@@ -222,6 +230,7 @@ def verify_design(
     base = {"name": name, "geometry": geometry, "masses": masses}
     try:
         scenario = with_geometry(preset("nominal"), geometry, masses)
+        scenario = dataclasses.replace(scenario, plant=dataclasses.replace(scenario.plant, collisions=True))
         plant = scenario.plant
         env = DeltaPickPlaceEnv(plant=plant, n_cycles=EPISODE_CYCLES)
     except (ValueError, RuntimeError) as error:
@@ -255,6 +264,7 @@ def verify_design(
             for label, controller in zip(CONTROLLERS, controllers, strict=True):
                 record = run_episode(env, controller, episode_seed, [PAYLOAD] * EPISODE_CYCLES, reference=reference)
                 _check(record.diverged, record.max_loop_gap, f"{label} episode {episode_seed}")
+                _check_contacts(env.plant.robot_contacts, f"{label} episode {episode_seed}")
                 results.append(_result(record, label, episode_seed))
     except DesignInfeasible as error:
         return Verification(**base, feasible=False, reason=str(error))
