@@ -212,7 +212,15 @@ def drive_check(model: DeltaDynamics, trajectory: Trajectory, payload: float, li
     )
 
 
-def _rate(geometry: DeltaGeometry, option: DriveOption, payload: float, cycles: TimedCycles, exact: bool, masses):
+def _rate(
+    geometry: DeltaGeometry,
+    option: DriveOption,
+    payload: float,
+    cycles: TimedCycles,
+    exact: bool,
+    masses: DeltaMasses | None,
+) -> PickRate:
+    """The pick rate and drive check of ``cycles`` (one period of the repeated cycle) on ``option``."""
     reference = cycles.trajectory()
     check = drive_check(drive_model(geometry, option, masses), reference, payload, option.limits)
     rate = metrics.picks_per_min(reference.xyz_dot, reference.pick_indices, reference.dt)
