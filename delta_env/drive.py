@@ -54,18 +54,21 @@ class ServoMotor:
         rated_torque: Rated continuous torque (N m): the thermal (RMS) limit.
         corner_speed: Speed (rad/s) up to which the peak torque is available.
         max_speed: Maximum speed (rad/s), where the motoring torque has fallen to zero.
+        rotor_inertia: Rotor moment of inertia (kg m^2); 0 where the data sheet's value is not used.
     """
 
     peak_torque: float
     rated_torque: float
     corner_speed: float
     max_speed: float
+    rotor_inertia: float = 0.0
 
     def __post_init__(self) -> None:
         require_positive("peak_torque", self.peak_torque, "N m")
         require_in("rated_torque", self.rated_torque, 0.0, self.peak_torque, unit="N m", low_open=True)
         require_positive("corner_speed", self.corner_speed, "rad/s")
         require_in("max_speed", self.max_speed, self.corner_speed, unit="rad/s", low_open=True)
+        require_in("rotor_inertia", self.rotor_inertia, 0.0, 1.0, unit="kg m^2")
 
 
 REPRESENTATIVE_MOTOR = ServoMotor(peak_torque=20.0, rated_torque=6.4, corner_speed=3000.0 * RPM, max_speed=6000.0 * RPM)

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from controllers.feedforward import model_controller
+from delta_env.catalogue import GEAR_RATIOS
 from delta_env.config import PlantRealism
-from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
+from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
 from eval.design import optimize, performance, reconfigure, report, verify
@@ -32,41 +33,10 @@ def test_nominal_design_is_feasible_with_plausible_figures(nominal):
     assert len(nominal.cycles) == len(performance.TASK_CYCLES)
     heavier = performance.evaluate(NOMINAL_GEOMETRY, payload=8.0)
     assert heavier.peak_torque_nm > nominal.peak_torque_nm
-    assert heavier.cycle_time_s > nominal.cycle_time_s
-
-
-def test_cycle_time_at_the_limit_is_exact_when_retimed(nominal):
-    # retiming the cycle to the found speed-up must put its peak torque on the motor limit
-    model = performance.design_model(NOMINAL_GEOMETRY)
-    centre, heading = performance.TASK_CYCLES[0]
-    reference = performance.task_cycle(NOMINAL_GEOMETRY, centre, heading)
-    figures = performance.cycle_figures(model, reference, performance.PAYLOAD)
-    speed_up = (figures.motion_time / figures.fastest_motion_time) ** 2
-    fast = performance.task_cycle(
-        NOMINAL_GEOMETRY, centre, heading, peak_acceleration=performance.CYCLE_ACCELERATION * speed_up, dt=0.0005
-    )
-    retimed = performance.cycle_figures(model, fast, performance.PAYLOAD)
-    assert retimed.peak_torque == pytest.approx(TORQUE_LIMIT, rel=2e-3)
-    assert retimed.motion_time == pytest.approx(figures.fastest_motion_time, abs=2e-3)
-
-
-def test_fastest_speed_up_solves_the_torque_quadratics():
-    zero = np.zeros(2)
-    # joint 2: |-20 - 40 s^2| = 100 at s^2 = 2
-    speed_up = performance.fastest_speed_up(np.array([10.0, -20.0]), zero, np.array([5.0, -40.0]), 100.0)
-    assert speed_up == pytest.approx(math.sqrt(2.0))
-    # viscous only: 10 + 30 s = 100 at s = 3; the quadratic one first: 10 + 30 s + 10 s^2 = 100 at s = 1.85
-    assert performance.fastest_speed_up(np.array([10.0]), np.array([30.0]), np.zeros(1), 100.0) == pytest.approx(3.0)
-    root = (-30.0 + math.sqrt(30.0**2 + 4 * 10.0 * 90.0)) / 20.0
-    assert performance.fastest_speed_up(np.array([10.0]), np.array([30.0]), np.array([10.0]), 100.0) == pytest.approx(
-        root
-    )
-    # a torque that turns back before the limit never binds
-    assert performance.fastest_speed_up(np.array([0.0]), np.array([10.0]), np.array([-1.0]), 100.0) == pytest.approx(
-        (10.0 + math.sqrt(100.0 + 400.0)) / 2.0
-    )
-    assert performance.fastest_speed_up(np.array([150.0]), np.zeros(1), np.array([1.0]), 100.0) == 0.0
-    assert performance.fastest_speed_up(np.zeros(1), np.zeros(1), np.zeros(1), 100.0) == math.inf
+    # its own catalogue drive: picks/min on the standard cycle, the light payload faster than the rated one
+    assert nominal.drive.option is not None and nominal.drive.rated.check.holds
+    assert 100.0 < nominal.picks_per_min < nominal.picks_per_min_light < 250.0
+    assert optimize.objective_vector(nominal)[2] == -nominal.picks_per_min
 
 
 def test_design_model_adds_the_same_drive_to_every_design():
@@ -138,7 +108,7 @@ def test_reconfiguration_finds_each_profile_best_and_nonnegative_gains():
     study = reconfigure.study(NOMINAL_GEOMETRY, settings=5)
     assert len(study.outcomes) == len(reconfigure.PROFILES)
     for outcome, values, profile in zip(study.outcomes, study.values, reconfigure.PROFILES, strict=True):
-        best = np.nanmax(values) if profile.objective == "workspace" else np.nanmin(values)
+        best = np.nanmax(values) if profile.objective in reconfigure.MAXIMIZED else np.nanmin(values)
         assert outcome.best_value == pytest.approx(best)
         assert outcome.gain_percent >= 0.0
     torque = study.values[0]
@@ -208,10 +178,10 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
     assert main(["--quick", "--seed", "3", "--workers", "1", "--out", str(out)]) == 0
     with (out / "pareto.csv").open() as file:
         rows = list(csv.DictReader(file))
-    for column in ("ra", "rb", "l1", "l2", "workspace_m3", "peak_torque_nm", "cycle_time_s"):
+    for column in ("ra", "rb", "l1", "l2", "workspace_m3", "peak_torque_nm", "picks_per_min", "picks_per_min_light"):
         assert column in rows[0]
     objectives = np.array(
-        [[-float(r["workspace_m3"]), float(r["peak_torque_nm"]), float(r["cycle_time_s"])] for r in rows]
+        [[-float(r["workspace_m3"]), float(r["peak_torque_nm"]), -float(r["picks_per_min"])] for r in rows]
     )
     for i, a in enumerate(objectives):
         assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
@@ -219,7 +189,7 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
         rows_by_design = {row["design"]: row for row in csv.DictReader(file)}
     config = json.loads((out / "config.json").read_text())
     assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
-    assert config["config"]["drive"]["armature_kg_m2"] == PlantRealism().armature
+    assert config["config"]["drive"]["gear_ratios"] == list(GEAR_RATIOS)
     assert "git_commit" in config and "versions" in config
     compromise = load_geometry(out / "design-compromise.toml")  # the file --geometry reads
     assert compromise == DeltaGeometry(*(float(rows_by_design["compromise"][k]) for k in ("ra", "rb", "l1", "l2")))

@@ -33,9 +33,7 @@ def study() -> tuple[list[performance.Performance], dict[str, performance.Perfor
 @pytest.fixture(scope="module")
 def page(study, tmp_path_factory) -> Path:
     front, named = study
-    return explorer.write_explorer(
-        front, named, tmp_path_factory.mktemp("explorer") / "explorer.html", colour="cycle_time_s"
-    )
+    return explorer.write_explorer(front, named, tmp_path_factory.mktemp("explorer") / "explorer.html")
 
 
 def test_named_designs_come_first_and_front_duplicates_are_merged(study):

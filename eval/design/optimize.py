@@ -3,7 +3,8 @@
 Design variables: the four lengths of the second paper's Table 1 (ra, rb, l1, l2), within
 :class:`DesignBounds`. Objectives (all from :func:`eval.design.performance.evaluate`): the dexterous
 cylinder holding the task region (maximized), the peak torque of the 3.8 kg standard cycles at 3 g
-(minimized) and the motion time of those cycles at the torque limit (minimized). Constraints (<= 0):
+(minimized) and the picks per minute on the standard cycle at the rated payload with the design's own
+catalogue drive (maximized; :mod:`eval.design.codesign`). Constraints (<= 0):
 the task region lies in the dexterous cylinder (so no singularity and no conditioning below the threshold
 inside it), the robot assembles with its arms horizontal, the peak torque stays under the motor limit, and the
 platform is wide enough for its ball joints (:func:`delta_env.buildability.platform_radius_shortfall`, which
@@ -37,17 +38,14 @@ from eval.design.performance import Performance, assembly_gap, evaluate
 VARIABLES = ("ra", "rb", "l1", "l2")
 """Design variables, in the order of the optimizer's vectors (m)."""
 
-OBJECTIVES = ("workspace_m3", "peak_torque_nm", "cycle_time_s")
-"""Objectives: workspace up, peak torque down, cycle time down."""
+OBJECTIVES = ("workspace_m3", "peak_torque_nm", "picks_per_min")
+"""Objectives: workspace up, peak torque down, picks per minute up (pymoo minimizes their negatives)."""
 
 CONSTRAINTS = 4
 """Number of constraints of :func:`constraint_vector`."""
 
 PENALTY_TORQUE = 10.0 * TORQUE_LIMIT
 """Objective value (N m) given to a design whose task cycles cannot run: far beyond any feasible one."""
-
-PENALTY_TIME = 10.0
-"""Objective value (s) given to a design that cannot hold the payload: far beyond any feasible one."""
 
 PENALTY_COST = 1000.0
 """Weighted cost given to a design without a dexterous cylinder (whose :func:`weighted_cost` is inf): far
@@ -57,14 +55,14 @@ MAX_SHORTFALL = 1.0
 """Constraint value (m) of a design whose task band is not even reachable on the axis."""
 
 WEIGHTS = (1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0)
-"""Weights of workspace, peak torque and cycle time in :func:`weighted_cost`: no objective preferred."""
+"""Weights of workspace, peak torque and pick rate in :func:`weighted_cost`: no objective preferred."""
 
 PAPER_TARGETS = (0.15, 0.12, 0.08)
 """The second paper's reported gains over its nominal robot: +15 % workspace, -12 % torque, +8 % speed."""
 
-HYPERVOLUME_REFERENCE = (0.0, 2.0, 2.0)
-"""Reference point of the convergence hypervolume in nominal-relative objectives (-W/W0, T/T0, C/C0): no
-workspace, twice the nominal torque and cycle time."""
+HYPERVOLUME_REFERENCE = (0.0, 2.0, 0.0)
+"""Reference point of the convergence hypervolume in nominal-relative objectives (-W/W0, T/T0, -P/P0): no
+workspace, twice the nominal torque, no picks."""
 
 
 @dataclass(frozen=True)
@@ -121,10 +119,9 @@ def geometry_of(x: NDArray[np.float64]) -> DeltaGeometry:
 
 
 def objective_vector(performance: Performance) -> NDArray[np.float64]:
-    """pymoo objectives (minimized): (-workspace, peak torque, cycle time), penalties for missing figures."""
+    """pymoo objectives (minimized): (-workspace, peak torque, -picks per minute), a penalty for a missing torque."""
     torque = performance.peak_torque_nm if math.isfinite(performance.peak_torque_nm) else PENALTY_TORQUE
-    cycle = performance.cycle_time_s if math.isfinite(performance.cycle_time_s) else PENALTY_TIME
-    return np.array([-performance.workspace_m3, torque, cycle])
+    return np.array([-performance.workspace_m3, torque, -performance.picks_per_min])
 
 
 def constraint_vector(performance: Performance) -> NDArray[np.float64]:
@@ -139,16 +136,16 @@ def constraint_vector(performance: Performance) -> NDArray[np.float64]:
 def weighted_cost(performance: Performance, nominal: Performance, weights: tuple[float, ...] = WEIGHTS) -> float:
     """The paper-style single cost: sum of w_j times each objective relative to nominal (nominal = 1).
 
-    Workspace enters as W0 / W (a smaller workspace costs more); a design without a dexterous cylinder
-    costs +inf.
+    Workspace and pick rate enter as W0 / W and P0 / P (less costs more); a design without a dexterous cylinder
+    or a drive costs +inf.
     """
-    if performance.workspace_m3 <= 0.0:
+    if performance.workspace_m3 <= 0.0 or performance.picks_per_min <= 0.0:
         return math.inf
     f = objective_vector(performance)
     terms = (
         nominal.workspace_m3 / performance.workspace_m3,
         f[1] / nominal.peak_torque_nm,
-        f[2] / nominal.cycle_time_s,
+        nominal.picks_per_min / performance.picks_per_min,
     )
     return float(sum(w * t for w, t in zip(weights, terms, strict=True)))
 
@@ -320,7 +317,7 @@ def pareto_front(
         RuntimeError: if no evaluated design satisfies the constraints.
     """
     archive = Archive()
-    scale = np.array([nominal.workspace_m3, nominal.peak_torque_nm, nominal.cycle_time_s])
+    scale = np.array([nominal.workspace_m3, nominal.peak_torque_nm, nominal.picks_per_min])
     indicator = HV(ref_point=np.array(HYPERVOLUME_REFERENCE))
 
     def record(algorithm: object) -> dict[str, float]:
@@ -372,7 +369,7 @@ def choose_designs(result: ParetoResult, nominal: Performance) -> dict[str, int]
 
     - ``compromise``: closest to the ideal point in objectives relative to the front's range;
     - ``paper_targets``: the design that beats all three of :data:`PAPER_TARGETS` (workspace gain, torque
-      reduction, cycle-speed gain C0 / C - 1) by the largest common factor;
+      reduction, pick-rate gain P / P0 - 1) by the largest common factor;
     - ``low_torque``: least peak torque among designs with at least the nominal workspace;
     - ``large_workspace``: largest workspace among designs with at most the nominal peak torque.
     Designs missing a qualifying candidate are left out.
@@ -388,7 +385,7 @@ def choose_designs(result: ParetoResult, nominal: Performance) -> dict[str, int]
         (
             workspace / nominal.workspace_m3 - 1.0,
             1.0 - torque / nominal.peak_torque_nm,
-            nominal.cycle_time_s / f[:, 2] - 1.0,
+            -f[:, 2] / nominal.picks_per_min - 1.0,
         )
     )
     margin = np.min(gains / np.array(PAPER_TARGETS), axis=1)

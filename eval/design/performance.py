@@ -1,4 +1,4 @@
-"""The figures of merit of one Delta geometry: workspace, torque on the standard cycle, speed.
+"""The figures of merit of one Delta geometry: workspace, torque on the standard cycle, pick rate, speed.
 
 Every design carries the masses of :func:`delta_env.scaling.scaled_masses` and is judged by the model with
 rod forearms (``DeltaDynamics(..., forearm_rods=True)``) plus its drives, on the same task: the industry's
@@ -11,19 +11,16 @@ rotor inertia (armature) Ia, viscous friction fv and Coulomb friction fc of the 
 armature is rho1 = 1 + Ia / I, with I = (m1/3 + m2) l1^2 the design's own arm inertia, and the friction
 is its (fv, fc) on every joint.
 
-Cycle time at the torque limit: along a fixed path, speeding time up by s scales every velocity by s and
-every acceleration by s^2, so the torque is exactly tau(s) = a + b s + c s^2 for s > 0: a the gravity and
-Coulomb torque, b the viscous torque and c the inertial and velocity-product torques at the reference
-timing (the rod-forearm terms are quadratic in the rates too). Three evaluations of the model (s = 1, 2,
-3) give a, b and c; the first s at which some sample and joint reaches |tau| = limit is the smallest
-positive root of c s^2 + b s + a = +-limit over all of them: the fastest admissible timing, exactly, with
-no search.
+Pick rate: each design gets the drive (a catalogue motor behind a planetary gearbox) that gives it the most
+picks per minute on the standard cycle at the rated payload, timed by the time-optimal planner within that
+drive's envelope and thermal rating (:mod:`eval.design.codesign`); the light payload's rate is that drive's.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +34,9 @@ from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
 from delta_env.trajectories import STANDARD_PEAK_ACCELERATION, WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_in, require_positive
+
+if TYPE_CHECKING:
+    from eval.design.codesign import DriveChoice
 
 PAYLOAD = 3.8
 """Payload of the standard cycle (kg): the test payload of the dynamic-model paper (docs/design.md section 4)."""
@@ -79,8 +79,6 @@ stays a usable height below the base."""
 DRIVE = PlantRealism()
 """The motor datasheet of every design: armature, viscous and Coulomb friction of the plant's nominal drive."""
 
-_QUADRATIC_EPS = 1e-12  # |c| (N m) below which c s^2 + b s + a is solved as linear
-
 
 @dataclass(frozen=True)
 class CycleFigures:
@@ -89,15 +87,10 @@ class CycleFigures:
     Attributes:
         peak_torque: Largest |tau_i| over the cycle (N m).
         rms_torque: RMS of tau over samples and joints (N m).
-        motion_time: Duration of the two moves at the reference acceleration (s), dwells left out.
-        fastest_motion_time: Duration of the two moves at the fastest timing whose peak torque is the
-            motor limit (s); inf when even the slowest timing (gravity and Coulomb friction) exceeds it.
     """
 
     peak_torque: float
     rms_torque: float
-    motion_time: float
-    fastest_motion_time: float
 
 
 @dataclass(frozen=True)
@@ -112,12 +105,15 @@ class Performance:
         workspace_m3: Volume of ``cylinder`` (m^3), 0 without one.
         peak_torque_nm: Largest peak |tau| over the task cycles at :data:`CYCLE_ACCELERATION` (N m).
         rms_torque_nm: Largest RMS torque over the task cycles (N m).
-        cycle_time_s: Motion time of the slowest task cycle at the torque limit (s).
+        picks_per_min: Picks per minute on the standard cycle at the rated payload with the design's drive
+            (:func:`eval.design.codesign.choose_drive`); 0 without a drive that runs it.
+        picks_per_min_light: The same drive's picks per minute at the light payload.
         speed_m_s: Platform speed reachable in every direction over the task region at
             :data:`JOINT_SPEED_LIMIT` (m/s), its minimum over the region.
         min_conditioning: Smallest 1 / cond(J) over the task region.
         cycles: Figures of each task cycle.
         reason: Why the design is infeasible ("" when feasible).
+        drive: The chosen drive, its timed cycles and their checks (None without one).
     """
 
     geometry: DeltaGeometry
@@ -127,15 +123,17 @@ class Performance:
     workspace_m3: float
     peak_torque_nm: float
     rms_torque_nm: float
-    cycle_time_s: float
+    picks_per_min: float
+    picks_per_min_light: float
     speed_m_s: float
     min_conditioning: float
     cycles: tuple[CycleFigures, ...] = field(default_factory=tuple)
     reason: str = ""
+    drive: DriveChoice | None = None
 
     @property
     def feasible(self) -> bool:
-        """True if the task fits and the torque limit holds."""
+        """True if the task fits, the torque limit holds and a catalogue drive runs the rated payload."""
         return not self.reason
 
 
@@ -203,66 +201,12 @@ def payload_profile(trajectory: Trajectory, payload: float) -> NDArray[np.float6
     return np.where(trajectory.gripper, payload, 0.0)
 
 
-def _first_positive_root(
-    quadratic: NDArray[np.float64], linear: NDArray[np.float64], constant: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Smallest root s > 0 of quadratic s^2 + linear s + constant = 0, elementwise; inf where none."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        root = np.sqrt(linear**2 - 4.0 * quadratic * constant)  # NaN where there is no real root
-        curved = np.abs(quadratic) > _QUADRATIC_EPS
-        first = np.where(curved, (-linear - root) / (2.0 * quadratic), -constant / linear)
-        second = np.where(curved, (-linear + root) / (2.0 * quadratic), np.nan)
-    candidates = np.stack((first, second))
-    candidates = np.where(np.isfinite(candidates) & (candidates > 0.0), candidates, np.inf)
-    return np.min(candidates, axis=0)
-
-
-def fastest_speed_up(
-    constant: NDArray[np.float64], linear: NDArray[np.float64], quadratic: NDArray[np.float64], limit: float
-) -> float:
-    """Largest s with |constant + s linear + s^2 quadratic| <= limit for every s' in (0, s] (module docstring).
-
-    Args:
-        constant: Torques independent of the timing (N m), any shape: gravity and Coulomb friction.
-        linear: Torques proportional to the speed-up s at s = 1 (N m), same shape: viscous friction.
-        quadratic: Torques proportional to s^2 at s = 1 (N m), same shape: inertia and velocity products.
-        limit: Torque limit (N m), > 0.
-
-    Returns:
-        s (dimensionless); 0 if ``constant`` already exceeds the limit, inf if no torque ever reaches it.
-    """
-    require_positive("limit", limit, "N m")
-    if np.any(np.abs(constant) > limit):
-        return 0.0
-    upper = _first_positive_root(quadratic, linear, constant - limit)
-    lower = _first_positive_root(quadratic, linear, constant + limit)
-    return float(min(np.min(upper, initial=math.inf), np.min(lower, initial=math.inf)))
-
-
-def cycle_figures(
-    model: DeltaDynamics, trajectory: Trajectory, payload: float, limit: float = TORQUE_LIMIT
-) -> CycleFigures:
-    """Peak and RMS torque along ``trajectory`` and its fastest timing under ``limit``."""
-    carried = payload_profile(trajectory, payload)
-
-    def torque_at(speed_up: float) -> NDArray[np.float64]:
-        rates, accelerations = speed_up * trajectory.theta_dot, speed_up**2 * trajectory.theta_ddot
-        return model.inverse_dynamics(trajectory.theta, rates, accelerations, carried)
-
-    # tau(s) = a + b s + c s^2 through s = 1, 2, 3
-    once, twice, thrice = torque_at(1.0), torque_at(2.0), torque_at(3.0)
-    quadratic = (thrice - 2.0 * twice + once) / 2.0
-    linear = twice - once - 3.0 * quadratic
-    constant = once - linear - quadratic
-    moving = np.any(trajectory.theta_dot != 0.0, axis=-1) | np.any(trajectory.theta_ddot != 0.0, axis=-1)
-    motion_time = float(np.count_nonzero(moving)) * trajectory.dt
-    speed_up = fastest_speed_up(constant, linear, quadratic, limit)
-    return CycleFigures(
-        peak_torque=float(np.max(np.abs(once))),
-        rms_torque=float(np.sqrt(np.mean(once**2))),
-        motion_time=motion_time,
-        fastest_motion_time=motion_time / speed_up if speed_up > 0.0 else math.inf,
+def cycle_figures(model: DeltaDynamics, trajectory: Trajectory, payload: float) -> CycleFigures:
+    """Peak and RMS torque along ``trajectory`` carrying ``payload`` (kg) while the gripper holds."""
+    torque = model.inverse_dynamics(
+        trajectory.theta, trajectory.theta_dot, trajectory.theta_ddot, payload_profile(trajectory, payload)
     )
+    return CycleFigures(peak_torque=float(np.max(np.abs(torque))), rms_torque=float(np.sqrt(np.mean(torque**2))))
 
 
 def task_region_points(radius: float = TASK_RADIUS, band: tuple[float, float] = TASK_BAND) -> NDArray[np.float64]:
@@ -282,6 +226,7 @@ def evaluate(
     task_radius: float = TASK_RADIUS,
     cycles: tuple[tuple[tuple[float, float, float], float], ...] = TASK_CYCLES,
     masses: DeltaMasses | None = None,
+    exact_drive: bool = False,
 ) -> Performance:
     """All figures of merit of ``geometry`` (see :class:`Performance`).
 
@@ -292,7 +237,11 @@ def evaluate(
         task_radius: Radius (m) the dexterous cylinder must have over :data:`TASK_BAND`.
         cycles: (centre, heading) of the task cycles, inside the task region.
         masses: The design's masses; :func:`delta_env.scaling.scaled_masses` when None.
+        exact_drive: Choose the drive with the full planner (:func:`eval.design.codesign.choose_drive`), not the
+            cheap path of the optimizer.
     """
+    from eval.design.codesign import choose_drive  # here: the co-design builds on this module's design model
+
     require_in("payload", payload, 0.0, math.inf, unit="kg")
     masses = scaled_masses(geometry) if masses is None else masses
     search = workspace.largest_cylinder(geometry, criteria, required_radius=task_radius, required_band=TASK_BAND)
@@ -310,12 +259,13 @@ def evaluate(
             figures.append(cycle_figures(model, task_cycle(geometry, centre, heading), payload))
     except ValueError as error:
         reasons.append(f"task cycle not reachable: {error}")
-    if figures and all(math.isfinite(f.fastest_motion_time) for f in figures):
-        peak = max(f.peak_torque for f in figures)
-        if peak > TORQUE_LIMIT:
-            reasons.append(f"peak torque {peak:.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
-    elif figures:
-        reasons.append("gravity and Coulomb friction alone exceed the torque limit")
+    if figures and max(f.peak_torque for f in figures) > TORQUE_LIMIT:
+        reasons.append(f"peak torque {max(f.peak_torque for f in figures):.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
+    drive = None
+    if len(figures) == len(cycles):
+        drive = choose_drive(geometry, masses, exact=exact_drive)
+        if drive.option is None:
+            reasons.append("no catalogue drive runs the rated payload on the standard cycle")
     speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)
     return Performance(
         geometry=geometry,
@@ -325,11 +275,13 @@ def evaluate(
         workspace_m3=search.cylinder.volume if search.cylinder else 0.0,
         peak_torque_nm=max((f.peak_torque for f in figures), default=math.inf),
         rms_torque_nm=max((f.rms_torque for f in figures), default=math.inf),
-        cycle_time_s=max((f.fastest_motion_time for f in figures), default=math.inf),
+        picks_per_min=drive.picks_per_min if drive else 0.0,
+        picks_per_min_light=drive.picks_per_min_light if drive else 0.0,
         speed_m_s=float(np.min(speed)) if region.reachable.all() else 0.0,
         min_conditioning=float(np.min(np.nan_to_num(region.conditioning))),
         cycles=tuple(figures),
         reason="; ".join(reasons),
+        drive=drive,
     )
 
 

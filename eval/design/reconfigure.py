@@ -36,7 +36,8 @@ class TaskProfile:
         name: Short name.
         payload: Carried mass (kg).
         zone_radius: Radius (m) of the axis-centred task disc that must be dexterous.
-        objective: ``"peak_torque"`` (minimized), ``"workspace"`` (maximized) or ``"cycle_time"`` (minimized).
+        objective: ``"peak_torque"`` (minimized), ``"workspace"`` or ``"pick_rate"`` (maximized: picks
+            per minute at the rated payload, :mod:`eval.design.codesign`).
     """
 
     name: str
@@ -47,18 +48,18 @@ class TaskProfile:
     def __post_init__(self) -> None:
         require_in("payload", self.payload, 0.0, math.inf, unit="kg")
         require_in("zone_radius", self.zone_radius, STANDARD_TRAVEL_HALF, math.inf, unit="m", low_open=True)
-        if self.objective not in ("peak_torque", "workspace", "cycle_time"):
-            raise ValueError(f"objective must be 'peak_torque', 'workspace' or 'cycle_time', got {self.objective!r}")
+        if self.objective not in ("peak_torque", "workspace", "pick_rate"):
+            raise ValueError(f"objective must be 'peak_torque', 'workspace' or 'pick_rate', got {self.objective!r}")
 
     def score(self, performance: Performance) -> float:
-        """The objective as a quantity to minimize (workspace negated); +inf when infeasible."""
+        """The objective as a quantity to minimize (workspace and pick rate negated); +inf when infeasible."""
         if not performance.feasible:
             return math.inf
         if self.objective == "peak_torque":
             return performance.peak_torque_nm
         if self.objective == "workspace":
             return -performance.workspace_m3
-        return performance.cycle_time_s
+        return -performance.picks_per_min
 
     def cycles(self) -> tuple[tuple[tuple[float, float, float], float], ...]:
         """Standard cycles spread over the zone: across and along it at the centre, and at both sides."""
@@ -72,10 +73,13 @@ class TaskProfile:
         )
 
 
+MAXIMIZED = ("workspace", "pick_rate")
+"""Objectives of :class:`TaskProfile` that are maximized."""
+
 PROFILES = (
     TaskProfile("heavy payload, small zone", payload=8.0, zone_radius=0.25, objective="peak_torque"),
     TaskProfile("light payload, wide zone", payload=0.5, zone_radius=0.50, objective="workspace"),
-    TaskProfile("fastest cycle", payload=1.0, zone_radius=0.35, objective="cycle_time"),
+    TaskProfile("fastest cycle", payload=1.0, zone_radius=0.35, objective="pick_rate"),
 )
 """The three task profiles: 8 kg (twice the rating) near the centre, torque down; 0.5 kg over a 1.0 m disc,
 workspace up; 1 kg over a 0.7 m disc, cycle time down."""
@@ -88,7 +92,7 @@ class ProfileOutcome:
     Attributes:
         profile: The task.
         best_ra: Its best setting (m), or NaN if no setting is feasible.
-        best_value: Its objective there (N m, m^3 or s).
+        best_value: Its objective there (N m, m^3 or picks/min).
         fixed_value: Its objective at the best fixed setting.
         gain_percent: Improvement of reconfiguring over the fixed setting (%, >= 0): the share of the fixed
             setting's objective saved (torque, time) or 1 - W_fixed / W_best (workspace).
@@ -161,7 +165,7 @@ def study(
             for profile in profiles
         ]
     )
-    signs = np.array([-1.0 if profile.objective == "workspace" else 1.0 for profile in profiles])[:, None]
+    signs = np.array([-1.0 if profile.objective in MAXIMIZED else 1.0 for profile in profiles])[:, None]
     values = np.where(np.isfinite(scores), signs * scores, np.nan)  # the objectives in their own sense
     own = np.argmin(scores, axis=1)
     best = values[np.arange(len(profiles)), own]

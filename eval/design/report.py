@@ -25,8 +25,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from delta_env import workspace
+from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
+from eval.design.codesign import LIGHT_PAYLOAD
 from eval.design.optimize import PAPER_TARGETS, ParetoResult, SingleObjectiveResult
 from eval.design.performance import Performance, peak_torque_map
 from eval.design.reconfigure import Reconfiguration
@@ -62,7 +64,7 @@ def performance_row(performance: Performance) -> dict[str, Any]:
         "l2": g.l2,
         "workspace_m3": performance.workspace_m3,
         "peak_torque_nm": performance.peak_torque_nm,
-        "cycle_time_s": performance.cycle_time_s,
+        **drive_columns(performance),
         "rms_torque_nm": performance.rms_torque_nm,
         "speed_m_s": performance.speed_m_s,
         "min_conditioning": performance.min_conditioning,
@@ -90,10 +92,28 @@ def design_record(name: str, performance: Performance) -> dict[str, Any]:
     return {"design": {"name": name, **{k: v for k, v in row.items() if k not in GEOMETRY_COLUMNS}}}
 
 
-def _change(value: float, reference: float, *, inverse: bool = False) -> float:
-    """Change (%) of ``value`` against ``reference``; ``inverse`` for a time turned into a speed."""
-    if inverse:
-        return 100.0 * (reference / value - 1.0)
+def drive_columns(performance: Performance) -> dict[str, Any]:
+    """The CSV columns of a design's pick rates and chosen drive (:mod:`eval.design.codesign`)."""
+    drive = performance.drive
+    rated = drive.rated if drive else None
+    check = rated.check if rated else None
+    return {
+        "picks_per_min": performance.picks_per_min,
+        "picks_per_min_light": performance.picks_per_min_light,
+        "motor": rated.option.motor_name if rated else "",
+        "gear_ratio": rated.option.ratio if rated else math.nan,
+        "drive_peak_torque_nm": check.peak_torque if check else math.nan,
+        "drive_rms_torque_nm": check.rms_torque if check else math.nan,
+        "drive_max_speed_rad_s": check.max_speed if check else math.nan,
+        "drive_peak_share": check.peak_share if check else math.nan,
+        "drive_rms_share": check.rms_share if check else math.nan,
+        "drive_speed_share": check.speed_share if check else math.nan,
+        "drive_exact": rated.exact if rated else False,
+    }
+
+
+def _change(value: float, reference: float) -> float:
+    """Change (%) of ``value`` against ``reference``."""
     return 100.0 * (value / reference - 1.0)
 
 
@@ -114,8 +134,9 @@ def summary_table(
         "Dexterous cylinder ⌀ x h (m)",
         "Workspace (m³)",
         "Peak torque (N m)",
-        "Cycle time at 400 N m (s)",
-        "Cycle speed",
+        f"Picks/min at {RATED_PAYLOAD:g} kg",
+        f"Picks/min at {LIGHT_PAYLOAD:g} kg",
+        "Drive",
         "Speed at 30 rad/s (m/s)",
         "Masses m1, m2, m0 (kg)",
     ]
@@ -131,8 +152,9 @@ def summary_table(
                 f"{c.diameter:.2f} x {c.height:.3f}" if c else "none",
                 f"{p.workspace_m3:.4f} ({_change(p.workspace_m3, nominal.workspace_m3):+.1f} %)",
                 f"{p.peak_torque_nm:.1f} ({_change(p.peak_torque_nm, nominal.peak_torque_nm):+.1f} %)",
-                f"{p.cycle_time_s:.3f} ({_change(p.cycle_time_s, nominal.cycle_time_s):+.1f} %)",
-                f"{_change(p.cycle_time_s, nominal.cycle_time_s, inverse=True):+.1f} %",
+                f"{p.picks_per_min:.1f} ({_change(p.picks_per_min, nominal.picks_per_min):+.1f} %)",
+                f"{p.picks_per_min_light:.1f} ({_change(p.picks_per_min_light, nominal.picks_per_min_light):+.1f} %)",
+                p.drive.option.label if p.drive and p.drive.option else "none",
                 f"{p.speed_m_s:.2f} ({_change(p.speed_m_s, nominal.speed_m_s):+.1f} %)",
                 f"{m.m1:.2f}, {m.m2:.3f}, {m.m0:.2f}",
             ]
@@ -147,8 +169,9 @@ def summary_table(
             f"{paper['workspace']:+.0f} %",
             f"{paper['torque']:+.0f} %",
             "",
-            f"{paper['speed']:+.0f} % (end-effector speed)",
             "",
+            "",
+            f"{paper['speed']:+.0f} % (end-effector speed)",
             "",
         ]
     )
@@ -277,7 +300,7 @@ def torque_changes(verifications: Sequence[Verification]) -> list[TorqueChange]:
 
 def reconfiguration_table(study: Reconfiguration) -> str:
     """Best ra per profile, the best fixed ra and what reconfiguring gains."""
-    units = {"peak_torque": "N m", "workspace": "m³", "cycle_time": "s"}
+    units = {"peak_torque": "N m", "workspace": "m³", "pick_rate": "picks/min"}
     fixed = f"At fixed ra = {study.fixed_ra:.3f} m"
     header = ["Task profile", "Objective", "Best ra (m)", "Value there", fixed, "Gain"]
     rows = []
@@ -320,16 +343,16 @@ def plot_convergence(pareto: ParetoResult, single: SingleObjectiveResult, path: 
 def plot_pareto(
     front: Sequence[Performance], nominal: Performance, marked: Mapping[str, Performance], path: Path, dpi: int = 110
 ) -> None:
-    """Workspace against peak torque of the front, coloured by cycle time (the paper's Fig. 10)."""
+    """Workspace against peak torque of the front, coloured by picks per minute (the paper's Fig. 10)."""
     figure, axis = plt.subplots(figsize=(7, 5))
     points = axis.scatter(
         [p.workspace_m3 for p in front],
         [p.peak_torque_nm for p in front],
-        c=[p.cycle_time_s for p in front],
+        c=[p.picks_per_min for p in front],
         cmap="viridis",
         s=22,
     )
-    figure.colorbar(points, label="cycle time at the 400 N m limit (s)")
+    figure.colorbar(points, label=f"picks/min at {RATED_PAYLOAD:g} kg, own drive")
     axis.plot(nominal.workspace_m3, nominal.peak_torque_nm, "k*", ms=14, label="nominal")
     for (name, p), marker in zip(marked.items(), "oDs^v", strict=False):
         axis.plot(p.workspace_m3, p.peak_torque_nm, marker, mfc="none", mec="red", ms=11, mew=1.8, label=name)
