@@ -60,7 +60,7 @@ def test_ratio_is_the_derivative_of_the_radius():
     h = 1e-6
     numeric = (linkage.base_radius(travel + h) - linkage.base_radius(travel - h)) / (2 * h)
     np.testing.assert_allclose(linkage.ratio(travel), numeric, rtol=1e-6)
-    assert np.all((MIN_RATIO <= np.abs(numeric)) & (np.abs(numeric) <= MAX_RATIO))
+    assert np.all((np.abs(numeric) >= MIN_RATIO) & (np.abs(numeric) <= MAX_RATIO))
 
 
 def test_stroke_limits_and_impossible_linkages_are_refused(hand_case):

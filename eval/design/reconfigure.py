@@ -38,13 +38,15 @@ TRAVEL_TOLERANCE = 1e-4
 
 _PICKS_PER_MIN = "picks_per_min" in {f.name for f in fields(Performance)}
 
-OBJECTIVES: dict[str, tuple[str, str, bool]] = {
-    "peak_torque": ("peak_torque_nm", "N m", False),
-    "workspace": ("workspace_m3", "m³", True),
-    "speed": ("picks_per_min", "picks/min", True) if _PICKS_PER_MIN else ("cycle_time_s", "s", False),
+OBJECTIVES: dict[str, tuple[str, str, str, bool]] = {
+    "peak_torque": ("peak_torque_nm", "peak torque", "N m", False),
+    "workspace": ("workspace_m3", "workspace", "m³", True),
+    "speed": ("picks_per_min", "pick rate", "picks/min", True)
+    if _PICKS_PER_MIN
+    else ("cycle_time_s", "cycle time", "s", False),
 }
-"""Objective name -> (Performance field, unit, True if maximized). The speed objective is the pick rate when
-performance.py reports it, else the cycle time at the torque limit: the one place that knows which."""
+"""Objective name -> (Performance field, what it is, unit, True if maximized). The speed objective is the pick
+rate when performance.py reports it, else the cycle time at the torque limit: the one place that knows which."""
 
 
 @dataclass(frozen=True)
@@ -70,14 +72,19 @@ class TaskProfile:
             raise ValueError(f"objective must be one of {sorted(OBJECTIVES)}, got {self.objective!r}")
 
     @property
+    def label(self) -> str:
+        """What the objective measures, e.g. "cycle time"."""
+        return OBJECTIVES[self.objective][1]
+
+    @property
     def unit(self) -> str:
         """Unit of the objective."""
-        return OBJECTIVES[self.objective][1]
+        return OBJECTIVES[self.objective][2]
 
     @property
     def maximized(self) -> bool:
         """True if a larger objective is better."""
-        return OBJECTIVES[self.objective][2]
+        return OBJECTIVES[self.objective][3]
 
     def value(self, performance: Performance) -> float:
         """The objective in its own sense and unit; NaN when the task is infeasible."""

@@ -7,7 +7,8 @@
 - ``maps_horizontal.png`` and ``maps_vertical.png``: conditioning, IMI, det A, min |k_i| and the peak
   torque to accelerate 3.8 kg at 3 g, nominal against the chosen design, on the conveyor plane z = -0.9 m
   and on the vertical plane y = 0;
-- ``reconfiguration.png``: each task profile's objective against the base radius setting.
+- ``reconfiguration.png`` (``reconfiguration-<design>.png``): each task profile's objective against the base
+  radius its pitch-screw setting gives, over the stroke.
 """
 
 from __future__ import annotations
@@ -268,12 +269,12 @@ def reconfiguration_table(study: Reconfiguration) -> str:
     for o in study.outcomes:
         p = o.profile
         if math.isnan(o.best_ra):
-            rows.append([p.name, p.objective, "no feasible setting", "", "", "", ""])
+            rows.append([p.name, p.label, "no feasible setting", "", "", "", ""])
             continue
         rows.append(
             [
                 f"{p.name} ({p.payload:g} kg, zone radius {p.zone_radius:g} m)",
-                p.objective.replace("_", " "),
+                f"{p.label} ({'max' if p.maximized else 'min'})",
                 f"ra = {o.best_ra:.3f} m (travel {1e3 * o.best_travel:.1f} mm)",
                 f"{o.best_value:.4g} {p.unit}",
                 f"{o.fixed_value:.4g} {p.unit}",
@@ -389,7 +390,7 @@ def plot_reconfiguration(study: Reconfiguration, path: Path) -> None:
             axis.axvline(study.fixed_ra, color="grey", ls=":", label="best fixed")
         for end in study.settings[[0, -1]]:
             axis.axvline(end, color="black", lw=0.8)
-        label = f"{profile.objective.replace('_', ' ')} ({profile.unit})"
+        label = f"{profile.label} ({profile.unit})"
         axis.set(xlabel="base radius ra (m); black: screw end stops", ylabel=label, title=profile.name)
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
