@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from delta_env.geometry import NOMINAL_GEOMETRY
-from eval.design import reconfigure
+from delta_env.trajectories import WORKING_HEIGHT
+from eval.design import performance, reconfigure
 from eval.design.mechanism import MAX_RATIO, MIN_RATIO, PitchScrewLinkage
 from eval.design.reconfigure import refine
 
@@ -119,5 +121,17 @@ def test_study_optima_beat_every_grid_setting_and_name_what_holds_them():
     heavy = study.outcomes[0]
     assert heavy.limit == "upper end stop"  # on the nominal robot a wider base always spreads the 8 kg load
     assert heavy.best_ra == pytest.approx(study.settings[-1])
+    # at the end stop the motors ride 26 mm higher: the fixed belt lies that much lower in the base frame
+    rise = float(study.linkage.height_offset(study.linkage.stroke))
+    assert rise == pytest.approx(0.026, abs=0.001)
+    design = replace(NOMINAL_GEOMETRY, ra=float(study.settings[-1]))
+
+    def torque(belt: float) -> float:
+        profile = heavy.profile
+        kwargs = {"payload": profile.payload, "task_radius": profile.zone_radius, "cycles": profile.cycles(belt)}
+        return performance.evaluate(design, belt_height=belt, **kwargs).peak_torque_nm
+
+    assert heavy.best_value == pytest.approx(torque(WORKING_HEIGHT - rise), rel=1e-12)
+    assert abs(torque(WORKING_HEIGHT) - heavy.best_value) > 1e-3 * heavy.best_value  # the rise matters
     with pytest.raises(ValueError, match="objective"):
         reconfigure.TaskProfile("bad", 1.0, 0.3, "energy")
