@@ -191,7 +191,7 @@ class PitchScrewLinkage:
         gap_w = self.rocker_length * np.sin(angle) - (self.nut_start_height + s)
         # |A - D|^2 = d2^2: (A - D) . dA/da da + (A - D) . (0, -1) ds = 0
         along_rocker = self.rocker_length * (-gap_u * np.sin(angle) + gap_w * np.cos(angle))
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # a dead point: infinite or undefined, refused
             angle_rate = gap_w / along_rocker
         return -self.rocker_length * np.sin(angle) * angle_rate
 
