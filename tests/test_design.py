@@ -13,7 +13,7 @@ from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
-from eval.design import optimize, performance, reconfigure, report, verify
+from eval.design import optimize, performance, report, verify
 from eval.design.__main__ import main
 
 
@@ -104,21 +104,6 @@ def test_weighted_cost_is_one_at_nominal_and_ga_is_reproducible(nominal):
     assert optimize.weighted_cost(best, nominal) == pytest.approx(min(costs))
 
 
-def test_reconfiguration_finds_each_profile_best_and_nonnegative_gains():
-    study = reconfigure.study(NOMINAL_GEOMETRY, settings=5)
-    assert len(study.outcomes) == len(reconfigure.PROFILES)
-    for outcome, values, profile in zip(study.outcomes, study.values, reconfigure.PROFILES, strict=True):
-        best = np.nanmax(values) if profile.objective in reconfigure.MAXIMIZED else np.nanmin(values)
-        assert outcome.best_value == pytest.approx(best)
-        assert outcome.gain_percent >= 0.0
-    torque = study.values[0]
-    assert torque[0] > torque[-1]  # a wider base spreads the heavy load over the arms
-    with pytest.raises(ValueError, match="ra below rb"):
-        reconfigure.study(NOMINAL_GEOMETRY, travel=0.16)
-    with pytest.raises(ValueError, match="objective"):
-        reconfigure.TaskProfile("bad", 1.0, 0.3, "energy")
-
-
 def test_a_plant_that_cannot_assemble_is_reported_not_dropped():
     design = performance.evaluate(DeltaGeometry(0.3, 0.05, 0.5, 0.72))
     result = verify.verify_design("too short", design, episodes=1)
@@ -196,8 +181,11 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
     with (out / "torque_changes.csv").open() as file:
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
+    with (out / "reconfiguration.csv").open() as file:
+        assert {row["design"] for row in csv.DictReader(file)} == {"nominal", "compromise"}
     names = ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "verification.csv")
     names += ("profiles_joints.png", "profiles_end_effector.png", "profiles_torque.png", "explorer.html")
+    names += ("reconfiguration.png", "reconfiguration-compromise.png")
     for name in (*names, "summary.md"):
         assert (out / name).stat().st_size > 0
     assert math.isfinite(config["seconds"]["total"])

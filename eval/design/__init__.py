@@ -3,7 +3,8 @@
 - :mod:`eval.design.performance`: the figures of merit of one geometry (workspace, torque on the 3.8 kg
   standard cycles, cycle time at the torque limit, speed at a joint-speed limit, peak-torque maps);
 - :mod:`eval.design.optimize`: the pymoo problems (NSGA-II Pareto front, GA on the weighted cost);
-- :mod:`eval.design.reconfigure`: the adjustable base radius over task profiles;
+- :mod:`eval.design.mechanism`: the paper's pitch-screw linkage, screw travel -> base radius and motor height;
+- :mod:`eval.design.reconfigure`: the best screw setting per task profile, against the best fixed one;
 - :mod:`eval.design.verify`: closed-loop verification on each design's own MuJoCo plant (the only module
   here that calls identification, controllers and episodes);
 - :mod:`eval.design.report`: tables and figures.

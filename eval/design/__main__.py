@@ -4,7 +4,8 @@
 2. NSGA-II over (ra, rb, l1, l2): the Pareto front of workspace, peak torque and pick rate; and a GA on the
    paper-style weighted cost.
 3. Designs chosen from the front (compromise, low torque, large workspace) and the GA optimum.
-4. Reconfiguration of the base radius for three task profiles.
+4. Reconfiguration by the pitch-screw linkage (:mod:`eval.design.mechanism`) for three task profiles, of the
+   nominal robot and of the compromise design.
 5. Closed-loop verification (unless ``--no-verify``): nominal and chosen designs on their own plants,
    identified, with PD, MId+F+R+RLS+PD and the oracle.
 6. The run folder (``--out``, default ``<runs root>/design/<UTC time>``): ``config.json`` (the manifest of
@@ -37,7 +38,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from eval import calibration, excitation, identification
-from eval.design import codesign, explorer, optimize, performance, profiles, reconfigure, report, verify
+from eval.design import codesign, explorer, mechanism, optimize, performance, profiles, reconfigure, report, verify
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
 from eval.scenario_args import check_ranges
 
@@ -90,7 +91,7 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
     return kept
 
 
-def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) -> dict[str, object]:
+def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None = None) -> dict[str, object]:
     """The run's arguments and every setting of the study, for ``config.json``."""
     drive = PlantRealism()
     return {
@@ -119,8 +120,16 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: float | None = None) ->
         },
         "weights": optimize.WEIGHTS,
         "reconfiguration": {
-            "travel_m": reconfigure.RA_TRAVEL,
-            "settings": reconfigure.RA_SETTINGS,
+            "linkage": {
+                "screw_lead_m": mechanism.SCREW_LEAD,
+                "thread_length_m": mechanism.THREAD_LENGTH,
+                "nut_length_m": mechanism.NUT_LENGTH,
+                "rocker_length_m": mechanism.ROCKER_LENGTH,
+                "coupler_length_m": mechanism.COUPLER_LENGTH,
+                "coupler_angle_rad": mechanism.COUPLER_ANGLE,
+            },
+            "grid_settings": reconfigure.GRID_SETTINGS,
+            "travel_tolerance_m": reconfigure.TRAVEL_TOLERANCE,
             "profiles": [dataclasses.asdict(p) for p in reconfigure.PROFILES],
             "fixed_ra_m": fixed_ra,
         },
@@ -170,7 +179,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     front = [pareto.archive.performance[i] for i in pareto.front]
 
     reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=args.seed) for name, p in designs.items()}
-    reconfiguration = reconfigure.study(NOMINAL_GEOMETRY)
+    reconfigured = {name: reconfigure.study(designs[name].geometry) for name in ("nominal", "compromise")}
     seconds["reconfiguration"] = time.perf_counter() - started - seconds["optimization"]
 
     verifications: list[verify.Verification] = []
@@ -203,9 +212,18 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     write_csv(
         out / "reconfiguration.csv",
         [
-            {"profile": o.profile.name, "objective": o.profile.objective, "ra": ra, "value": value}
-            for o, values in zip(reconfiguration.outcomes, reconfiguration.values, strict=True)
-            for ra, value in zip(reconfiguration.settings, values, strict=True)
+            {
+                "design": name,
+                "profile": o.profile.name,
+                "objective": o.profile.objective,
+                "travel_m": travel,
+                "ra": ra,
+                "motor_rise_m": float(study.linkage.height_offset(travel)),
+                "value": value,
+            }
+            for name, study in reconfigured.items()
+            for o, values in zip(study.outcomes, study.values, strict=True)
+            for travel, ra, value in zip(study.travel, study.settings, values, strict=True)
         ],
     )
     if verifications:
@@ -231,7 +249,9 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     map_designs = {"nominal": NOMINAL_GEOMETRY, "compromise": chosen["compromise"].geometry}
     report.plot_maps(map_designs, "horizontal", out / "maps_horizontal.png")
     report.plot_maps(map_designs, "vertical", out / "maps_vertical.png")
-    report.plot_reconfiguration(reconfiguration, out / "reconfiguration.png")
+    for name, study in reconfigured.items():
+        suffix = "" if name == "nominal" else f"-{report.file_slug(name)}"
+        report.plot_reconfiguration(study, out / f"reconfiguration{suffix}.png")
     # Figures 3-6 of the paper and the explorer page: every design on the nominal robot's worst task cycle
     profile_cycle = profiles.worst_cycle(nominal)
     profiles.plot_profiles({n: profiles.design_profile(p, profile_cycle) for n, p in _distinct(designs).items()}, out)
@@ -260,10 +280,16 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         f"Pareto front: {len(front)} designs of {len(pareto.archive.x)} evaluated; GA: {len(single.archive.x)} "
         "evaluated.",
         "",
-        "## Reconfiguration of the base radius (nominal rb, l1, l2)",
-        "",
-        report.reconfiguration_table(reconfiguration),
     ]
+    for name, study in reconfigured.items():
+        stroke = study.linkage.stroke
+        lines += [
+            "",
+            f"## Reconfiguration of the {name} design by its pitch screws: ra {study.settings[0]:.3f} to "
+            f"{study.settings[-1]:.3f} m over the {1e3 * stroke:.0f} mm stroke ({study.linkage.turns:.0f} turns)",
+            "",
+            report.reconfiguration_table(study),
+        ]
     if verifications:
         table, checks = report.verification_table(verifications)
         lines += [
@@ -283,7 +309,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")
 
-    run.record(config=_resolved_config(args, reconfiguration.fixed_ra), seconds=seconds)
+    run.record(config=_resolved_config(args, {n: s.fixed_ra for n, s in reconfigured.items()}), seconds=seconds)
     print(summary)
 
 

@@ -227,6 +227,7 @@ def evaluate(
     cycles: tuple[tuple[tuple[float, float, float], float], ...] = TASK_CYCLES,
     masses: DeltaMasses | None = None,
     exact_drive: bool = False,
+    belt_height: float = WORKING_HEIGHT,
 ) -> Performance:
     """All figures of merit of ``geometry`` (see :class:`Performance`).
 
@@ -234,18 +235,22 @@ def evaluate(
         geometry: The design.
         payload: Carried mass on the task cycles (kg), >= 0.
         criteria: Dexterity criteria of the workspace.
-        task_radius: Radius (m) the dexterous cylinder must have over :data:`TASK_BAND`.
+        task_radius: Radius (m) the dexterous cylinder must have over the task band.
         cycles: (centre, heading) of the task cycles, inside the task region.
         masses: The design's masses; :func:`delta_env.scaling.scaled_masses` when None.
         exact_drive: Choose the drive with the full planner (:func:`eval.design.codesign.choose_drive`), not the
             cheap path of the optimizer.
+        belt_height: Height of the conveyor surface in the base frame (m): the task band is it and the lift
+            above it (:data:`TASK_BAND` at the default); a reconfigured base moves it (eval.design.mechanism).
     """
     from eval.design.codesign import choose_drive  # here: the co-design builds on this module's design model
 
     require_in("payload", payload, 0.0, math.inf, unit="kg")
+    belt_height = require_in("belt_height", belt_height, -math.inf, 0.0, unit="m", high_open=True)
+    band = (belt_height, belt_height + STANDARD_LIFT)
     masses = scaled_masses(geometry) if masses is None else masses
-    search = workspace.largest_cylinder(geometry, criteria, required_radius=task_radius, required_band=TASK_BAND)
-    points = task_region_points(task_radius)
+    search = workspace.largest_cylinder(geometry, criteria, required_radius=task_radius, required_band=band)
+    points = task_region_points(task_radius, band)
     region = workspace.pose_measures(geometry, points)
     reasons = []
     if search.cylinder is None:

@@ -1,31 +1,48 @@
-"""The second paper's reconfigurable mechanism: the effective base radius ra, set between tasks.
+"""Reconfiguring a design for each task with its pitch screws: the best screw setting per task profile.
 
-A pitch screw moves the motors radially, so ra can change between tasks while rb, l1 and l2 stay; the masses
-that move do not change (the motors are on the base). For each task profile the best setting of ra is found
-on a grid over :data:`RA_TRAVEL` around the base design, and compared with the best *fixed* ra: the single
-setting, feasible for every profile, that is best on average (each profile's objective relative to its own
-best). What reconfiguring gains is the profile's objective at its own best setting against the fixed one.
+Each design carries the linkage of :class:`eval.design.mechanism.PitchScrewLinkage` built around it: at
+mid-stroke its motor axes sit at the design's ra and height. A screw setting (the nut's travel s in the
+stroke) gives a base radius ra(s) and a rise of the motor axes; rb, l1, l2 and the masses stay, and the
+conveyor stays where it is, so in the base frame it lies that rise lower. Every setting is judged by
+:func:`eval.design.performance.evaluate` on the profile's task.
+
+For each profile the best setting is a bounded scalar optimization over the stroke: a grid of
+:data:`GRID_SETTINGS` settings, then Brent's bounded method (``scipy.optimize.minimize_scalar``) between the best
+grid setting's neighbours, to :data:`TRAVEL_TOLERANCE`. The best *fixed* setting is the one setting, feasible
+for every profile, that minimizes the profiles' mean objective relative to their own bests, found the same way.
+What reconfiguring gains is each profile's objective at its own best setting against the fixed one.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import minimize_scalar
 
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
 from delta_env.validation import require_count, require_in, require_positive
 from delta_env.workspace import DEXTEROUS
+from eval.design.codesign import LIGHT_PAYLOAD
+from eval.design.mechanism import PitchScrewLinkage
 from eval.design.performance import STANDARD_TRAVEL_HALF, Performance, evaluate
 
-RA_TRAVEL = 0.08
-"""Pitch-screw travel (m) either side of the base design's ra: a 160 mm stroke, as wide as the nominal
-base allows while ra stays well above rb."""
+GRID_SETTINGS = 21
+"""Screw settings of the grid over the stroke (10 mm of nut travel apart on the default 200 mm stroke)."""
 
-RA_SETTINGS = 9
-"""Settings of ra tested over the travel (20 mm apart)."""
+TRAVEL_TOLERANCE = 1e-4
+"""Nut travel (m) to which the best settings are refined: 0.1 mm, under 0.14 mm of base radius."""
+
+OBJECTIVES: dict[str, tuple[str, str, str, bool]] = {
+    "peak_torque": ("peak_torque_nm", "peak torque", "N m", False),
+    "workspace": ("workspace_m3", "workspace", "m³", True),
+    "speed": ("picks_per_min_light", f"pick rate at {LIGHT_PAYLOAD} kg", "picks/min", True),
+}
+"""Objective name -> (Performance field, what it is, unit, True if maximized)."""
 
 
 @dataclass(frozen=True)
@@ -36,8 +53,7 @@ class TaskProfile:
         name: Short name.
         payload: Carried mass (kg).
         zone_radius: Radius (m) of the axis-centred task disc that must be dexterous.
-        objective: ``"peak_torque"`` (minimized), ``"workspace"`` or ``"pick_rate"`` (maximized: picks
-            per minute at the rated payload, :mod:`eval.design.codesign`).
+        objective: A key of :data:`OBJECTIVES`.
     """
 
     name: str
@@ -48,23 +64,33 @@ class TaskProfile:
     def __post_init__(self) -> None:
         require_in("payload", self.payload, 0.0, math.inf, unit="kg")
         require_in("zone_radius", self.zone_radius, STANDARD_TRAVEL_HALF, math.inf, unit="m", low_open=True)
-        if self.objective not in ("peak_torque", "workspace", "pick_rate"):
-            raise ValueError(f"objective must be 'peak_torque', 'workspace' or 'pick_rate', got {self.objective!r}")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {sorted(OBJECTIVES)}, got {self.objective!r}")
 
-    def score(self, performance: Performance) -> float:
-        """The objective as a quantity to minimize (workspace and pick rate negated); +inf when infeasible."""
-        if not performance.feasible:
-            return math.inf
-        if self.objective == "peak_torque":
-            return performance.peak_torque_nm
-        if self.objective == "workspace":
-            return -performance.workspace_m3
-        return -performance.picks_per_min
+    @property
+    def label(self) -> str:
+        """What the objective measures, e.g. "cycle time"."""
+        return OBJECTIVES[self.objective][1]
 
-    def cycles(self) -> tuple[tuple[tuple[float, float, float], float], ...]:
-        """Standard cycles spread over the zone: across and along it at the centre, and at both sides."""
+    @property
+    def unit(self) -> str:
+        """Unit of the objective."""
+        return OBJECTIVES[self.objective][2]
+
+    @property
+    def maximized(self) -> bool:
+        """True if a larger objective is better."""
+        return OBJECTIVES[self.objective][3]
+
+    def value(self, performance: Performance) -> float:
+        """The objective in its own sense and unit; NaN when the task is infeasible."""
+        return getattr(performance, OBJECTIVES[self.objective][0]) if performance.feasible else math.nan
+
+    def cycles(self, belt_height: float = WORKING_HEIGHT) -> tuple[tuple[tuple[float, float, float], float], ...]:
+        """Standard cycles on the belt (``belt_height`` m in the base frame) spread over the zone: across and along
+        it at the centre, and at both sides."""
         offset = 0.9 * math.sqrt(self.zone_radius**2 - STANDARD_TRAVEL_HALF**2)
-        z = WORKING_HEIGHT
+        z = belt_height
         return (
             ((0.0, 0.0, z), math.pi / 2),
             ((0.0, 0.0, z), 0.0),
@@ -73,36 +99,38 @@ class TaskProfile:
         )
 
 
-MAXIMIZED = ("workspace", "pick_rate")
-"""Objectives of :class:`TaskProfile` that are maximized."""
-
 PROFILES = (
     TaskProfile("heavy payload, small zone", payload=8.0, zone_radius=0.25, objective="peak_torque"),
     TaskProfile("light payload, wide zone", payload=0.5, zone_radius=0.50, objective="workspace"),
-    TaskProfile("fastest cycle", payload=1.0, zone_radius=0.35, objective="pick_rate"),
+    TaskProfile("fastest cycle", payload=LIGHT_PAYLOAD, zone_radius=0.35, objective="speed"),
 )
 """The three task profiles: 8 kg (twice the rating) near the centre, torque down; 0.5 kg over a 1.0 m disc,
-workspace up; 1 kg over a 0.7 m disc, cycle time down."""
+workspace up; the light payload (0.1 kg, :data:`eval.design.codesign.LIGHT_PAYLOAD`) over a 0.7 m disc, picks/min up."""
 
 
 @dataclass(frozen=True)
 class ProfileOutcome:
-    """One profile's result.
+    """One profile's result; NaN fields when no setting is feasible.
 
     Attributes:
         profile: The task.
-        best_ra: Its best setting (m), or NaN if no setting is feasible.
-        best_value: Its objective there (N m, m^3 or picks/min).
+        best_travel: Its best screw setting, nut travel (m) in the stroke.
+        best_ra: The base radius there (m).
+        best_value: Its objective there (the profile's unit).
         fixed_value: Its objective at the best fixed setting.
         gain_percent: Improvement of reconfiguring over the fixed setting (%, >= 0): the share of the fixed
-            setting's objective saved (torque, time) or 1 - W_fixed / W_best (workspace).
+            setting's objective saved (minimized) or 1 - fixed / best (maximized).
+        limit: What stops the optimum: "lower end stop", "upper end stop", "feasibility" (an infeasible
+            setting within :data:`TRAVEL_TOLERANCE`) or "" (an interior optimum).
     """
 
     profile: TaskProfile
+    best_travel: float
     best_ra: float
     best_value: float
     fixed_value: float
     gain_percent: float
+    limit: str
 
 
 @dataclass(frozen=True)
@@ -110,82 +138,178 @@ class Reconfiguration:
     """The study's result.
 
     Attributes:
-        base: The design whose ra is adjusted.
-        settings: The ra values tested (m), ``(S,)``.
-        values: Objective of each profile at each setting, ``(P, S)`` (NaN where infeasible).
-        fixed_ra: The best fixed setting (m), NaN if none is feasible for every profile.
+        base: The design whose base radius is set by the screws.
+        linkage: Its linkage.
+        travel: The grid's nut travels (m), ``(S,)``.
+        settings: The base radius at each, ra(travel) (m), ``(S,)``.
+        values: Objective of each profile at each grid setting, ``(P, S)`` (NaN where infeasible).
+        fixed_travel: The best fixed setting (m of nut travel), NaN if none is feasible for every profile.
+        fixed_ra: The base radius there (m).
         outcomes: One per profile.
+        evaluations: Settings evaluated (profile x setting), grid and refinement.
     """
 
     base: DeltaGeometry
-    settings: np.ndarray
-    values: np.ndarray
+    linkage: PitchScrewLinkage
+    travel: NDArray[np.float64]
+    settings: NDArray[np.float64]
+    values: NDArray[np.float64]
+    fixed_travel: float
     fixed_ra: float
     outcomes: tuple[ProfileOutcome, ...]
+    evaluations: int
+
+
+def refine(
+    score: Callable[[float], float], grid: NDArray[np.float64], grid_scores: NDArray[np.float64], tolerance: float
+) -> tuple[float, float]:
+    """The minimum of ``score`` on [grid[0], grid[-1]]: Brent's bounded method between the neighbours of the best
+    grid point, which stays the answer if nothing inside beats it (so an optimum at an end stop is the end stop).
+
+    Args:
+        score: Objective to minimize; +inf where infeasible.
+        grid: Increasing settings, ``(S,)``, S >= 2.
+        grid_scores: ``score`` at each, ``(S,)``.
+        tolerance: Absolute tolerance on the setting, > 0.
+
+    Returns:
+        (setting, score there); (NaN, inf) if every grid point is infeasible.
+    """
+    require_positive("tolerance", tolerance)
+    finite = np.isfinite(grid_scores)
+    if not finite.any():
+        return math.nan, math.inf
+    best = int(np.argmin(np.where(finite, grid_scores, np.inf)))
+    # an infeasible setting as a finite value worse than any feasible grid one, so Brent's steps stay defined
+    worst = float(np.max(grid_scores[finite]))
+    penalty = worst + abs(worst) + 1.0
+
+    def penalized(x: float) -> float:
+        value = score(x)
+        return value if math.isfinite(value) else penalty
+
+    low, high = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    found = minimize_scalar(penalized, bounds=(low, high), method="bounded", options={"xatol": tolerance})
+    inside = score(float(found.x))
+    if math.isfinite(inside) and inside < grid_scores[best]:
+        return float(found.x), inside
+    return float(grid[best]), float(grid_scores[best])
 
 
 def study(
     base: DeltaGeometry,
     profiles: tuple[TaskProfile, ...] = PROFILES,
     *,
-    travel: float = RA_TRAVEL,
-    settings: int = RA_SETTINGS,
+    linkage: PitchScrewLinkage | None = None,
+    grid_settings: int = GRID_SETTINGS,
+    tolerance: float = TRAVEL_TOLERANCE,
 ) -> Reconfiguration:
-    """Best ra per profile and the gain over the best fixed ra (module docstring).
+    """Best screw setting per profile and the gain over the best fixed setting (module docstring).
 
     Args:
-        base: The design whose ra is adjusted; rb, l1, l2 are kept.
+        base: The design; rb, l1, l2 are kept and its ra is the one at mid-stroke.
         profiles: Task profiles, at least one.
-        travel: Adjustment either side of ``base.ra`` (m), > 0; settings must keep ra > rb.
-        settings: Settings tested, >= 2.
+        linkage: The screws' linkage; :meth:`PitchScrewLinkage.for_design` of ``base.ra`` when None.
+        grid_settings: Grid settings over the stroke, >= 3.
+        tolerance: Nut travel (m) to which the optima are refined, > 0.
     """
-    require_positive("travel", travel, "m")
-    require_count("settings", settings, minimum=2)
+    require_count("grid_settings", grid_settings, minimum=3)
+    require_positive("tolerance", tolerance, "m")
     if not profiles:
         raise ValueError("profiles must hold at least one TaskProfile, got none")
-    if base.ra - travel <= base.rb:
-        raise ValueError(
-            f"travel {travel} m takes ra below rb: ra - travel = {base.ra - travel:.3f} m <= rb = {base.rb} m"
-        )
-    ras = np.linspace(base.ra - travel, base.ra + travel, settings)
-    scores = np.array(
-        [
-            [
-                profile.score(
-                    evaluate(
-                        replace(base, ra=float(ra)),
-                        payload=profile.payload,
-                        criteria=DEXTEROUS,
-                        task_radius=profile.zone_radius,
-                        cycles=profile.cycles(),
-                    )
-                )
-                for ra in ras
-            ]
-            for profile in profiles
-        ]
-    )
-    signs = np.array([-1.0 if profile.objective in MAXIMIZED else 1.0 for profile in profiles])[:, None]
-    values = np.where(np.isfinite(scores), signs * scores, np.nan)  # the objectives in their own sense
-    own = np.argmin(scores, axis=1)
-    best = values[np.arange(len(profiles)), own]
-    # each setting's objective relative to the profile's best (>= 1, larger is worse)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        relative = np.where(signs > 0, values / best[:, None], best[:, None] / values)
-    all_feasible = np.all(np.isfinite(values), axis=0)
-    fixed = int(np.nanargmin(np.where(all_feasible, relative.mean(axis=0), np.nan))) if all_feasible.any() else None
+    linkage = PitchScrewLinkage.for_design(base.ra) if linkage is None else linkage
+    evaluated: dict[tuple[int, float], float] = {}
+
+    def value(p: int, travel: float) -> float:
+        """Profile p's objective at a screw setting (NaN if infeasible), each setting evaluated once."""
+        key = (p, travel)
+        if key not in evaluated:
+            performance = _performance(base, linkage, travel, profiles[p])
+            evaluated[key] = math.nan if performance is None else profiles[p].value(performance)
+        return evaluated[key]
+
+    def score(p: int, travel: float) -> float:
+        """Profile p's objective as a quantity to minimize; +inf if infeasible."""
+        v = value(p, travel)
+        return math.inf if math.isnan(v) else (-v if profiles[p].maximized else v)
+
+    travel = np.linspace(0.0, linkage.stroke, grid_settings)
+    values = np.array([[value(p, float(s)) for s in travel] for p in range(len(profiles))])
+    bests = []
+    for p in range(len(profiles)):
+        grid_scores = np.array([score(p, float(s)) for s in travel])
+        bests.append(refine(lambda s, p=p: score(p, s), travel, grid_scores, tolerance))
+    best_values = [math.nan if math.isinf(b[1]) else value(p, b[0]) for p, b in enumerate(bests)]
+
+    def relative(p: int, travel: float) -> float:
+        """Profile p's objective at ``travel`` relative to its best (>= 1, larger is worse); inf if infeasible."""
+        v = value(p, travel)
+        if math.isnan(v):
+            return math.inf
+        return best_values[p] / v if profiles[p].maximized else v / best_values[p]
+
+    def mean_relative(travel: float) -> float:
+        return float(np.mean([relative(p, travel) for p in range(len(profiles))]))
+
+    if all(math.isfinite(v) for v in best_values):
+        fixed_travel, _ = refine(mean_relative, travel, np.array([mean_relative(float(s)) for s in travel]), tolerance)
+    else:
+        fixed_travel = math.nan
     outcomes = []
     for p, profile in enumerate(profiles):
-        if not np.isfinite(best[p]):
-            outcomes.append(ProfileOutcome(profile, math.nan, math.nan, math.nan, math.nan))
+        best_travel = bests[p][0]
+        if math.isnan(best_travel):
+            outcomes.append(ProfileOutcome(profile, math.nan, math.nan, math.nan, math.nan, math.nan, ""))
             continue
-        fixed_value = float(values[p, fixed]) if fixed is not None else math.nan
-        gain = 100.0 * (1.0 - 1.0 / relative[p, fixed]) if fixed is not None else math.nan
-        outcomes.append(ProfileOutcome(profile, float(ras[own[p]]), float(best[p]), fixed_value, float(gain)))
+        at_fixed = relative(p, fixed_travel) if math.isfinite(fixed_travel) else math.nan
+        outcomes.append(
+            ProfileOutcome(
+                profile=profile,
+                best_travel=best_travel,
+                best_ra=float(linkage.base_radius(best_travel)),
+                best_value=best_values[p],
+                fixed_value=value(p, fixed_travel) if math.isfinite(fixed_travel) else math.nan,
+                gain_percent=100.0 * (1.0 - 1.0 / at_fixed),
+                limit=_limit(lambda s, p=p: score(p, s), best_travel, linkage.stroke, tolerance),
+            )
+        )
     return Reconfiguration(
         base=base,
-        settings=ras,
+        linkage=linkage,
+        travel=travel,
+        settings=linkage.base_radius(travel),
         values=values,
-        fixed_ra=float(ras[fixed]) if fixed is not None else math.nan,
+        fixed_travel=fixed_travel,
+        fixed_ra=float(linkage.base_radius(fixed_travel)) if math.isfinite(fixed_travel) else math.nan,
         outcomes=tuple(outcomes),
+        evaluations=len(evaluated),
     )
+
+
+def _performance(
+    base: DeltaGeometry, linkage: PitchScrewLinkage, travel: float, profile: TaskProfile
+) -> Performance | None:
+    """The design with its screws at ``travel`` (m) on the profile's task, the conveyor staying put in the world;
+    None where the motor axes come inside the platform radius (no robot to evaluate)."""
+    ra = float(linkage.base_radius(travel))
+    if ra <= base.rb:
+        return None
+    belt = WORKING_HEIGHT - float(linkage.height_offset(travel))
+    return evaluate(
+        replace(base, ra=ra),
+        payload=profile.payload,
+        criteria=DEXTEROUS,
+        task_radius=profile.zone_radius,
+        cycles=profile.cycles(belt),
+        belt_height=belt,
+    )
+
+
+def _limit(score: Callable[[float], float], best: float, stroke: float, tolerance: float) -> str:
+    """What stops the optimum at ``best`` (see :attr:`ProfileOutcome.limit`)."""
+    if best <= tolerance:
+        return "lower end stop"
+    if best >= stroke - tolerance:
+        return "upper end stop"
+    neighbours = (max(best - 2.0 * tolerance, 0.0), min(best + 2.0 * tolerance, stroke))
+    return "feasibility" if any(math.isinf(score(s)) for s in neighbours) else ""

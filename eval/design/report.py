@@ -7,7 +7,8 @@
 - ``maps_horizontal.png`` and ``maps_vertical.png``: conditioning, IMI, det A, min |k_i| and the peak
   torque to accelerate 3.8 kg at 3 g, nominal against the chosen design, on the conveyor plane z = -0.9 m
   and on the vertical plane y = 0;
-- ``reconfiguration.png``: each task profile's objective against the base radius setting.
+- ``reconfiguration.png`` (``reconfiguration-<design>.png``): each task profile's objective against the base
+  radius its pitch-screw setting gives, over the stroke.
 """
 
 from __future__ import annotations
@@ -81,9 +82,14 @@ GEOMETRY_COLUMNS = ("ra", "rb", "l1", "l2")
 """The columns of :func:`performance_row` that are the design's lengths (m); the others are its figures."""
 
 
+def file_slug(name: str) -> str:
+    """A design's name as a file-name part: "GA optimum (weighted cost)" -> "ga-optimum-weighted-cost"."""
+    return "-".join("".join(c if c.isalnum() else " " for c in name.lower()).split())
+
+
 def design_file_name(name: str) -> str:
     """A design's geometry file name: "GA optimum (weighted cost)" -> "design-ga-optimum-weighted-cost.toml"."""
-    return "design-" + "-".join("".join(c if c.isalnum() else " " for c in name.lower()).split()) + ".toml"
+    return f"design-{file_slug(name)}.toml"
 
 
 def design_record(name: str, performance: Performance) -> dict[str, Any]:
@@ -299,24 +305,24 @@ def torque_changes(verifications: Sequence[Verification]) -> list[TorqueChange]:
 
 
 def reconfiguration_table(study: Reconfiguration) -> str:
-    """Best ra per profile, the best fixed ra and what reconfiguring gains."""
-    units = {"peak_torque": "N m", "workspace": "m³", "pick_rate": "picks/min"}
-    fixed = f"At fixed ra = {study.fixed_ra:.3f} m"
-    header = ["Task profile", "Objective", "Best ra (m)", "Value there", fixed, "Gain"]
+    """Best screw setting per profile, the best fixed setting and what reconfiguring gains."""
+    fixed = f"At fixed ra = {study.fixed_ra:.3f} m (travel {1e3 * study.fixed_travel:.1f} mm)"
+    header = ["Task profile", "Objective", "Best setting", "Value there", fixed, "Gain", "Held by"]
     rows = []
     for o in study.outcomes:
         p = o.profile
         if math.isnan(o.best_ra):
-            rows.append([p.name, p.objective, "no feasible setting", "", "", ""])
+            rows.append([p.name, p.label, "no feasible setting", "", "", "", ""])
             continue
         rows.append(
             [
                 f"{p.name} ({p.payload:g} kg, zone radius {p.zone_radius:g} m)",
-                p.objective.replace("_", " "),
-                f"{o.best_ra:.3f}",
-                f"{o.best_value:.4g} {units[p.objective]}",
-                f"{o.fixed_value:.4g} {units[p.objective]}",
+                f"{p.label} ({'max' if p.maximized else 'min'})",
+                f"ra = {o.best_ra:.3f} m (travel {1e3 * o.best_travel:.1f} mm)",
+                f"{o.best_value:.4g} {p.unit}",
+                f"{o.fixed_value:.4g} {p.unit}",
                 f"{o.gain_percent:.1f} %",
+                o.limit or "interior optimum",
             ]
         )
     return markdown_table(header, rows)
@@ -416,16 +422,19 @@ def plot_maps(designs: Mapping[str, DeltaGeometry], plane: str, path: Path) -> N
 
 
 def plot_reconfiguration(study: Reconfiguration, path: Path) -> None:
-    """Each profile's objective against the base radius setting."""
+    """Each profile's objective against the base radius its screw setting gives, over the whole stroke."""
     profiles = [o.profile for o in study.outcomes]
     figure, axes = plt.subplots(1, len(profiles), figsize=(4.5 * len(profiles), 3.6), squeeze=False)
     for axis, profile, values, outcome in zip(axes[0], profiles, study.values, study.outcomes, strict=True):
-        axis.plot(study.settings, values, "o-")
+        axis.plot(study.settings, values, "o-", ms=3)
         if not math.isnan(outcome.best_ra):
-            axis.axvline(outcome.best_ra, color="green", ls="--", label="best for this task")
+            axis.plot(outcome.best_ra, outcome.best_value, "g*", ms=12, label="best for this task")
         if not math.isnan(study.fixed_ra):
             axis.axvline(study.fixed_ra, color="grey", ls=":", label="best fixed")
-        axis.set(xlabel="base radius ra (m)", ylabel=profile.objective.replace("_", " "), title=profile.name)
+        for end in study.settings[[0, -1]]:
+            axis.axvline(end, color="black", lw=0.8)
+        label = f"{profile.label} ({profile.unit})"
+        axis.set(xlabel="base radius ra (m); black: screw end stops", ylabel=label, title=profile.name)
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
     figure.tight_layout()
