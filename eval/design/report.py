@@ -96,7 +96,7 @@ def summary_table(
         "Design",
         "ra, rb, l1, l2 (m)",
         "Reachable volume (m³)",
-        "Dexterous cylinder ⌀ x h (m)",
+        "Data-sheet cylinder ⌀ x h, top (m)",
         "Workspace (m³)",
         "Peak torque (N m)",
         "Cycle time at 400 N m (s)",
@@ -113,7 +113,7 @@ def summary_table(
                 name,
                 f"{g.ra:.3f}, {g.rb:.3f}, {g.l1:.3f}, {g.l2:.3f}",
                 f"{volume:.3f} ± {error:.3f} ({_change(volume, reachable['nominal'][0]):+.1f} %)",
-                f"{c.diameter:.2f} x {c.height:.3f}" if c else "none",
+                f"{c.diameter:.3f} x {c.height:.3f}, {c.top:.3f}" if c else "none",
                 f"{p.workspace_m3:.4f} ({_change(p.workspace_m3, nominal.workspace_m3):+.1f} %)",
                 f"{p.peak_torque_nm:.1f} ({_change(p.peak_torque_nm, nominal.peak_torque_nm):+.1f} %)",
                 f"{p.cycle_time_s:.3f} ({_change(p.cycle_time_s, nominal.cycle_time_s):+.1f} %)",
@@ -319,7 +319,7 @@ def plot_pareto(
     for (name, p), marker in zip(marked.items(), "oDs^v", strict=False):
         axis.plot(p.workspace_m3, p.peak_torque_nm, marker, mfc="none", mec="red", ms=11, mew=1.8, label=name)
     axis.set(
-        xlabel="dexterous cylinder holding the conveyors (m³)",
+        xlabel="data-sheet cylinder above the belt (m³)",
         ylabel="peak torque, 3.8 kg standard cycles at 3 g (N m)",
         title="Pareto front (NSGA-II), design model: rod forearms, scaled masses, drives",
     )
