@@ -54,7 +54,7 @@ MAP_HEIGHTS = (-1.3, -0.5)
 
 def performance_row(performance: Performance) -> dict[str, Any]:
     """One CSV row of a design's figures."""
-    g, m, c = performance.geometry, performance.masses, performance.cylinder
+    g, m = performance.geometry, performance.masses
     return {
         "ra": g.ra,
         "rb": g.rb,
@@ -66,9 +66,9 @@ def performance_row(performance: Performance) -> dict[str, Any]:
         "rms_torque_nm": performance.rms_torque_nm,
         "speed_m_s": performance.speed_m_s,
         "min_conditioning": performance.min_conditioning,
-        "cylinder_diameter_m": c.diameter if c else 0.0,
-        "cylinder_height_m": c.height if c else 0.0,
-        "cylinder_top_m": c.top if c else math.nan,
+        "cylinder_diameter_m": performance.cylinder_diameter_m,
+        "cylinder_height_m": performance.cylinder_height_m,
+        "cylinder_top_m": performance.cylinder_top_m,
         "m1_kg": m.m1,
         "m2_kg": m.m2,
         "m0_kg": m.m0,
