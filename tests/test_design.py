@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from controllers.feedforward import model_controller
+from delta_env import cylinder
 from delta_env.catalogue import GEAR_RATIOS
 from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
@@ -28,7 +29,9 @@ def _dominates(a: np.ndarray, b: np.ndarray) -> bool:
 
 def test_nominal_design_is_feasible_with_plausible_figures(nominal):
     assert nominal.feasible, nominal.reason
-    assert 0.9 < nominal.cylinder.diameter < 1.0  # an industrial-size dexterous cylinder
+    assert 0.8 < nominal.cylinder_diameter_m < 0.86  # an industrial-size data-sheet cylinder
+    assert nominal.cylinder_top_m >= cylinder.REQUIRED_TOP and nominal.cylinder.bottom >= performance.TASK_BAND[0]
+    assert nominal.workspace_m3 == pytest.approx(nominal.cylinder.volume)
     assert 40.0 < nominal.peak_torque_nm < 100.0  # 3.8 kg at 3 g; DESIGN's 170 N m is at 6 g
     assert len(nominal.cycles) == len(performance.TASK_CYCLES)
     heavier = performance.evaluate(NOMINAL_GEOMETRY, payload=8.0)
@@ -56,8 +59,10 @@ def test_design_model_adds_the_same_drive_to_every_design():
 
 def test_infeasible_designs_say_why():
     short = performance.evaluate(DeltaGeometry(0.15, 0.04, 0.3, 0.72))
-    assert not short.feasible and "task region" in short.reason
-    assert short.workspace_m3 == 0.0
+    assert not short.feasible and "task region" in short.reason and short.shortfall > 0.2
+    low = performance.evaluate(DeltaGeometry(0.24, 0.10, 0.29, 1.36))  # its dexterous axis starts below the belt
+    assert not low.feasible and "no dexterous cylinder above the belt" in low.reason
+    assert low.workspace_m3 == 0.0 and low.clearance_shortfall > 0.0 and math.isnan(low.cylinder_top_m)
 
 
 def test_bad_bounds_are_named():

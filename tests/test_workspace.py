@@ -136,49 +136,6 @@ def test_unreachable_points_are_nan_and_never_admissible():
     assert list(measures.admissible(BARE)) == [False, True]
 
 
-def test_largest_cylinder_is_admissible_and_holds_the_required_band():
-    search = workspace.largest_cylinder(NOMINAL_GEOMETRY, required_radius=0.46, required_band=(-0.9, -0.875))
-    cylinder = search.cylinder
-    assert cylinder is not None and search.shortfall <= 0.0
-    assert cylinder.diameter >= 0.92 and cylinder.bottom <= -0.9 + 1e-9 and cylinder.top >= -0.875 - 1e-9
-    rng = np.random.default_rng(7)
-    count = 5000
-    radius = 0.98 * cylinder.diameter / 2 * np.sqrt(rng.random(count))
-    phi = rng.uniform(0.0, 2 * math.pi, count)
-    heights = search.heights[(search.heights >= cylinder.bottom - 1e-9) & (search.heights <= cylinder.top + 1e-9)]
-    z = rng.choice(heights, count)
-    points = np.column_stack((radius * np.cos(phi), radius * np.sin(phi), z))
-    assert np.mean(workspace.admissible(NOMINAL_GEOMETRY, points)) > 0.995
-    # unconstrained, it can only be as large or larger
-    assert workspace.largest_cylinder(NOMINAL_GEOMETRY).cylinder.volume >= cylinder.volume - 1e-12
-
-
-def test_largest_cylinder_axis_extent_matches_the_symmetric_pose_formula():
-    # on the axis all arms share theta and z(theta) = -l1 sin th - sqrt(l2^2 - (r + l1 cos th)^2)
-    geometry = NOMINAL_GEOMETRY
-    low, high = 0.0, 1.0
-    criteria = workspace.Criteria(theta_range=(low, high), max_forearm_tilt=math.pi / 2, min_conditioning=0.0)
-    search = workspace.largest_cylinder(geometry, criteria, height_step=0.005)
-
-    def z_of(theta):
-        return -geometry.l1 * math.sin(theta) - math.sqrt(
-            geometry.l2**2 - (geometry.r + geometry.l1 * math.cos(theta)) ** 2
-        )
-
-    on_axis = search.heights[np.isfinite(search.radii)]
-    assert on_axis.max() == pytest.approx(z_of(low), abs=0.005)
-    assert on_axis.min() == pytest.approx(z_of(high), abs=0.005)
-
-
-def test_an_impossible_requirement_gives_no_cylinder_and_a_positive_shortfall():
-    search = workspace.largest_cylinder(NOMINAL_GEOMETRY, required_radius=2.0, required_band=(-0.9, -0.875))
-    assert search.cylinder is None and search.shortfall > 1.0
-    beyond = workspace.largest_cylinder(NOMINAL_GEOMETRY, required_band=(-9.0, -8.0))
-    assert beyond.cylinder is None and beyond.shortfall == math.inf
-    with pytest.raises(ValueError, match="required_band"):
-        workspace.largest_cylinder(NOMINAL_GEOMETRY, required_band=(-0.8, -0.9))
-
-
 def test_slice_maps_have_the_grid_shape_and_nominal_centre_values():
     slice_ = workspace.slice_map(NOMINAL_GEOMETRY, "horizontal", -0.9, (-0.5, 0.5), (-0.5, 0.5), resolution=21)
     assert slice_.points.shape == (21, 21, 3) and slice_.measures.det_a.shape == (21, 21)

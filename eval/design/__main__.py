@@ -32,11 +32,12 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from delta_env import catalogue, workspace
+from delta_env import catalogue, cylinder, workspace
 from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
+from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
 from eval.design import codesign, explorer, mechanism, optimize, performance, profiles, reconfigure, report, verify
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
@@ -263,10 +264,12 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         f"seed {args.seed}",
         "",
         "Objectives relative to the nominal robot. Reachable volume: Monte Carlo over the points with the motor "
-        "range and ball-joint cone (no dexterity threshold), ± its standard error. Workspace: the largest "
-        "dexterous vertical cylinder (1/cond(J) >= "
+        "range and ball-joint cone (no dexterity threshold), ± its standard error. Workspace: the data-sheet "
+        "cylinder, the largest dexterous vertical cylinder (1/cond(J) >= "
         f"{workspace.DEXTEROUS_CONDITIONING}, motor range {workspace.THETA_RANGE} rad, ball-joint cone "
-        f"{workspace.MAX_FOREARM_TILT:.3f} rad) that holds both conveyor zones and the lift. Peak torque: the "
+        f"{workspace.MAX_FOREARM_TILT:.3f} rad) standing on the belt and reaching "
+        f"{cylinder.REQUIRED_TOP - WORKING_HEIGHT:.3f} m above it (the lift and the product clearance); both "
+        "conveyor zones must be dexterous. Peak torque: the "
         f"{performance.PAYLOAD} kg 25/305/25 mm cycles at 3 g in five places of the conveyor region (rod-forearm "
         "model, masses scaled with the lengths, the same motors' friction on every design). Picks/min: the "
         "25/305/25 mm standard cycle at the centre, time-optimal within the design's own drive (the catalogue motor "

@@ -1,5 +1,10 @@
 """The figures of merit of one Delta geometry: workspace, torque on the standard cycle, pick rate, speed.
 
+The workspace is the data-sheet cylinder (:func:`delta_env.cylinder.data_sheet_cylinder`): the largest
+dexterous axis-centred cylinder standing on the belt whose top reaches 100 mm above it (the lift and a
+product's clearance). The task region, the disc of radius :data:`TASK_RADIUS` holding both conveyor zones
+over :data:`TASK_BAND`, must be dexterous too: a constraint, not a credit.
+
 Every design carries the masses of :func:`delta_env.scaling.scaled_masses` and is judged by the model with
 rod forearms (``DeltaDynamics(..., forearm_rods=True)``) plus its drives, on the same task: the industry's
 25/305/25 mm cycle carrying :data:`PAYLOAD` at the places :data:`TASK_CYCLES`, which lie in the
@@ -29,6 +34,7 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from delta_env import kinematics, workspace
 from delta_env.config import PlantRealism
 from delta_env.cycles import PICK_ZONE, PLACE_ZONE, STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
+from delta_env.cylinder import PRODUCT_CLEARANCE, Cylinder, axis_stretch, data_sheet_cylinder, disc_radii
 from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
@@ -55,6 +61,9 @@ CYCLE_DWELL = 0.1
 
 TASK_BAND = (WORKING_HEIGHT, WORKING_HEIGHT + STANDARD_LIFT)
 """Heights (m) the task needs: the conveyors and the 25 mm lift above them."""
+
+TASK_BAND_HEIGHTS = 3
+"""Heights of :data:`TASK_BAND` (its ends and middle) at which the task disc must be dexterous."""
 
 TASK_RADIUS = float(np.max(np.hypot(*np.vstack((PICK_ZONE.corners(), PLACE_ZONE.corners()))[:, :2].T)))
 """Radius (m) of the smallest axis-centred disc holding both conveyor zones (0.461 m)."""
@@ -100,8 +109,11 @@ class Performance:
     Attributes:
         geometry: The design (m).
         masses: Its masses (kg), :func:`delta_env.scaling.scaled_masses`.
-        cylinder: Largest dexterous cylinder holding the task region, or None.
-        shortfall: Task radius minus the dexterous radius over the task band (m), <= 0 when met.
+        cylinder: The data-sheet cylinder (module docstring), or None when the dexterous axis from the belt
+            does not reach :data:`~delta_env.cylinder.REQUIRED_TOP`.
+        shortfall: Task radius minus the dexterous disc radius over the task band (m), <= 0 when met.
+        clearance_shortfall: :data:`~delta_env.cylinder.REQUIRED_TOP` minus the top of the dexterous axis
+            from the belt (m), <= 0 when met (inf when the belt's axis point is not dexterous).
         workspace_m3: Volume of ``cylinder`` (m^3), 0 without one.
         peak_torque_nm: Largest peak |tau| over the task cycles at :data:`CYCLE_ACCELERATION` (N m).
         rms_torque_nm: Largest RMS torque over the task cycles (N m).
@@ -118,8 +130,9 @@ class Performance:
 
     geometry: DeltaGeometry
     masses: DeltaMasses
-    cylinder: workspace.Cylinder | None
+    cylinder: Cylinder | None
     shortfall: float
+    clearance_shortfall: float
     workspace_m3: float
     peak_torque_nm: float
     rms_torque_nm: float
@@ -130,6 +143,21 @@ class Performance:
     cycles: tuple[CycleFigures, ...] = field(default_factory=tuple)
     reason: str = ""
     drive: DriveChoice | None = None
+
+    @property
+    def cylinder_diameter_m(self) -> float:
+        """Diameter of the data-sheet cylinder (m), 0 without one."""
+        return self.cylinder.diameter if self.cylinder else 0.0
+
+    @property
+    def cylinder_height_m(self) -> float:
+        """Height of the data-sheet cylinder (m), 0 without one."""
+        return self.cylinder.height if self.cylinder else 0.0
+
+    @property
+    def cylinder_top_m(self) -> float:
+        """Height of the data-sheet cylinder's top (m), NaN without one."""
+        return self.cylinder.top if self.cylinder else math.nan
 
     @property
     def feasible(self) -> bool:
@@ -235,7 +263,7 @@ def evaluate(
         geometry: The design.
         payload: Carried mass on the task cycles (kg), >= 0.
         criteria: Dexterity criteria of the workspace.
-        task_radius: Radius (m) the dexterous cylinder must have over the task band.
+        task_radius: Radius (m) of the disc that must be dexterous over the task band.
         cycles: (centre, heading) of the task cycles, inside the task region.
         masses: The design's masses; :func:`delta_env.scaling.scaled_masses` when None.
         exact_drive: Choose the drive with the full planner (:func:`eval.design.codesign.choose_drive`), not the
@@ -249,12 +277,18 @@ def evaluate(
     belt_height = require_in("belt_height", belt_height, -math.inf, 0.0, unit="m", high_open=True)
     band = (belt_height, belt_height + STANDARD_LIFT)
     masses = scaled_masses(geometry) if masses is None else masses
-    search = workspace.largest_cylinder(geometry, criteria, required_radius=task_radius, required_band=band)
+    shortfall = task_radius - float(np.min(disc_radii(geometry, np.linspace(*band, TASK_BAND_HEIGHTS), criteria)))
+    cylinder = data_sheet_cylinder(geometry, criteria, belt=belt_height)
+    required_top = belt_height + STANDARD_LIFT + PRODUCT_CLEARANCE
+    from_belt = axis_stretch(geometry, belt_height, criteria, floor=belt_height)
+    clearance_shortfall = required_top - from_belt[1] if from_belt else math.inf
     points = task_region_points(task_radius, band)
     region = workspace.pose_measures(geometry, points)
     reasons = []
-    if search.cylinder is None:
-        reasons.append(f"task region (radius {task_radius:.3f} m) not dexterous: short by {search.shortfall:.3f} m")
+    if shortfall > 0.0:
+        reasons.append(f"task region (radius {task_radius:.3f} m) not dexterous: short by {shortfall:.3f} m")
+    if cylinder is None:
+        reasons.append(f"no dexterous cylinder above the belt reaches {required_top:.3f} m")
     if assembly_gap(geometry) > 0.0:
         reasons.append(f"l2 = {geometry.l2:.3f} m < ra - rb + l1 + {ASSEMBLY_MARGIN} m (cannot assemble)")
     model = design_model(geometry, masses)
@@ -275,9 +309,10 @@ def evaluate(
     return Performance(
         geometry=geometry,
         masses=masses,
-        cylinder=search.cylinder,
-        shortfall=search.shortfall,
-        workspace_m3=search.cylinder.volume if search.cylinder else 0.0,
+        cylinder=cylinder,
+        shortfall=shortfall,
+        clearance_shortfall=clearance_shortfall,
+        workspace_m3=cylinder.volume if cylinder else 0.0,
         peak_torque_nm=max((f.peak_torque for f in figures), default=math.inf),
         rms_torque_nm=max((f.rms_torque for f in figures), default=math.inf),
         picks_per_min=drive.picks_per_min if drive else 0.0,

@@ -57,7 +57,7 @@ MAP_HEIGHTS = (-1.3, -0.5)
 
 def performance_row(performance: Performance) -> dict[str, Any]:
     """One CSV row of a design's figures."""
-    g, m, c = performance.geometry, performance.masses, performance.cylinder
+    g, m = performance.geometry, performance.masses
     return {
         "ra": g.ra,
         "rb": g.rb,
@@ -69,9 +69,9 @@ def performance_row(performance: Performance) -> dict[str, Any]:
         "rms_torque_nm": performance.rms_torque_nm,
         "speed_m_s": performance.speed_m_s,
         "min_conditioning": performance.min_conditioning,
-        "cylinder_diameter_m": c.diameter if c else 0.0,
-        "cylinder_height_m": c.height if c else 0.0,
-        "cylinder_top_m": c.top if c else math.nan,
+        "cylinder_diameter_m": performance.cylinder_diameter_m,
+        "cylinder_height_m": performance.cylinder_height_m,
+        "cylinder_top_m": performance.cylinder_top_m,
         "m1_kg": m.m1,
         "m2_kg": m.m2,
         "m0_kg": m.m0,
@@ -137,7 +137,7 @@ def summary_table(
         "Design",
         "ra, rb, l1, l2 (m)",
         "Reachable volume (m³)",
-        "Dexterous cylinder ⌀ x h (m)",
+        "Data-sheet cylinder ⌀ x h, top (m)",
         "Workspace (m³)",
         "Peak torque (N m)",
         f"Picks/min at {RATED_PAYLOAD:g} kg",
@@ -155,7 +155,7 @@ def summary_table(
                 name,
                 f"{g.ra:.3f}, {g.rb:.3f}, {g.l1:.3f}, {g.l2:.3f}",
                 f"{volume:.3f} ± {error:.3f} ({_change(volume, reachable['nominal'][0]):+.1f} %)",
-                f"{c.diameter:.2f} x {c.height:.3f}" if c else "none",
+                f"{c.diameter:.3f} x {c.height:.3f}, {c.top:.3f}" if c else "none",
                 f"{p.workspace_m3:.4f} ({_change(p.workspace_m3, nominal.workspace_m3):+.1f} %)",
                 f"{p.peak_torque_nm:.1f} ({_change(p.peak_torque_nm, nominal.peak_torque_nm):+.1f} %)",
                 f"{p.picks_per_min:.1f} ({_change(p.picks_per_min, nominal.picks_per_min):+.1f} %)",
@@ -363,7 +363,7 @@ def plot_pareto(
     for (name, p), marker in zip(marked.items(), "oDs^v", strict=False):
         axis.plot(p.workspace_m3, p.peak_torque_nm, marker, mfc="none", mec="red", ms=11, mew=1.8, label=name)
     axis.set(
-        xlabel="dexterous cylinder holding the conveyors (m³)",
+        xlabel="data-sheet cylinder above the belt (m³)",
         ylabel="peak torque, 3.8 kg standard cycles at 3 g (N m)",
         title="Pareto front (NSGA-II), design model: rod forearms, scaled masses, drives",
     )

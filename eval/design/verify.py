@@ -22,6 +22,7 @@ import numpy as np
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.registry import ControllerSetup, build_controller, controller_label
 from delta_env.config import PlantConfig
+from delta_env.cylinder import Cylinder, largest_cylinder
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.limits import WorkspaceLimits
@@ -31,7 +32,15 @@ from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds, tare_setup
-from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
+from eval.design.performance import (
+    PAYLOAD,
+    TASK_BAND,
+    TASK_CYCLES,
+    Performance,
+    design_model,
+    payload_profile,
+    task_cycle,
+)
 from eval.episodes import EpisodeRecord, run_episode
 from eval.excitation import ExcitationRegion
 from eval.identification import run_identification
@@ -131,11 +140,18 @@ def episode_reference(geometry: DeltaGeometry, seed: int) -> Trajectory:
     return task_cycle(geometry, centre, heading, n_cycles=EPISODE_CYCLES, dt=CONTROL_PERIOD)
 
 
-def excitation_limits(performance: Performance) -> WorkspaceLimits:
-    """The region identification paths of a design may visit: its dexterous cylinder with margins."""
-    cylinder = performance.cylinder
+def excitation_cylinder(performance: Performance) -> Cylinder:
+    """The design's largest dexterous cylinder reaching the lifted belt, below it too: room to excite the
+    robot where it works (the data-sheet cylinder above the belt can be a thin disc)."""
+    cylinder = largest_cylinder(performance.geometry, required_top=TASK_BAND[1])
     if cylinder is None:
         raise DesignInfeasible("the design has no dexterous cylinder to identify it in")
+    return cylinder
+
+
+def excitation_limits(performance: Performance) -> WorkspaceLimits:
+    """The region identification paths of a design may visit: :func:`excitation_cylinder` with margins."""
+    cylinder = excitation_cylinder(performance)
     centre = pose_measures(performance.geometry, np.array([0.0, 0.0, cylinder.top - cylinder.height / 2]))
     return WorkspaceLimits(
         radius=cylinder.diameter / 2,
@@ -173,9 +189,9 @@ def _check_contacts(contacts: dict[tuple[str, str], float], what: str) -> None:
 
 
 def excitation_region(performance: Performance) -> ExcitationRegion:
-    """Where the design's excitation trajectories start and move: its dexterous cylinder, from its centre."""
-    limits = excitation_limits(performance)
-    return ExcitationRegion(start=(0.0, 0.0, performance.cylinder.top - performance.cylinder.height / 2), limits=limits)
+    """Where the design's excitation trajectories start and move: :func:`excitation_cylinder`, from its centre."""
+    cylinder = excitation_cylinder(performance)
+    return ExcitationRegion(start=(0.0, 0.0, cylinder.top - cylinder.height / 2), limits=excitation_limits(performance))
 
 
 def identify_design(plant: PlantConfig, performance: Performance, seed: int, workers: int = 1) -> ControllerSetup:
