@@ -6,7 +6,11 @@ import csv
 import datetime
 import importlib.util
 import json
+import os
+import signal
+import subprocess
 import sys
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -21,7 +25,7 @@ from eval import identify, rate
 from eval.design import __main__ as design_cli
 from eval.engine import Prepared
 from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, run_folder, runs_root
+from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated, create_run_folder, run_folder, runs_root
 from eval.sweep import __main__ as sweep_cli
 from tests.conftest import NOMINAL_SETUP as SETUP
 
@@ -89,6 +93,61 @@ def test_a_run_that_raises_is_marked_with_its_error(
     written = manifest(run.folder)
     assert (written["status"], written["error"]) == (status, error)
     assert utc(written["ended"]) >= utc(written["started"])
+
+
+INTERRUPTED_RUN = textwrap.dedent(
+    """
+    import sys, time
+    from pathlib import Path
+    from eval.run_folder import append_csv_rows, run_folder
+
+    with run_folder("tool", "python -m tool", {}, out=Path(sys.argv[1])) as run:
+        append_csv_rows(run.folder / "rows.csv", ["seed", "rms_mm"], [{"seed": 0, "rms_mm": 0.5}])
+        print("ready", flush=True)
+        time.sleep(60)
+    """
+)
+"""A long run that has written one row when it says ``ready``."""
+
+
+@pytest.mark.parametrize(
+    ("sent", "error"), [(signal.SIGTERM, "Terminated: SIGTERM"), (signal.SIGINT, "KeyboardInterrupt")]
+)
+def test_a_run_stopped_by_a_signal_is_marked_interrupted_and_keeps_what_it_wrote(
+    tmp_path: Path, sent: signal.Signals, error: str
+) -> None:
+    root = Path(__file__).resolve().parent.parent
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    with subprocess.Popen(
+        [sys.executable, "-c", INTERRUPTED_RUN, str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=environment,
+    ) as child:
+        assert child.stdout.readline() == "ready\n", child.stderr.read()
+        assert manifest(tmp_path)["status"] == "running"
+        child.send_signal(sent)
+        _, stderr = child.communicate(timeout=30)
+    assert child.returncode != 0, stderr
+    written = manifest(tmp_path)
+    assert (written["status"], written["error"]) == ("interrupted", error)
+    assert utc(written["ended"]) >= utc(written["started"])
+    assert (tmp_path / "rows.csv").read_text() == "seed,rms_mm\n0,0.5\n"
+
+
+def test_run_folder_puts_the_previous_sigterm_handler_back(tmp_path: Path) -> None:
+    def previous(signum: int, frame: Any) -> None:
+        raise AssertionError("the run's handler should have answered")
+
+    before = signal.signal(signal.SIGTERM, previous)
+    try:
+        with pytest.raises(Terminated), run_folder("tool", "python -m tool", {}, out=tmp_path):
+            os.kill(os.getpid(), signal.SIGTERM)
+        assert signal.getsignal(signal.SIGTERM) is previous
+        assert manifest(tmp_path)["status"] == "interrupted"
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 def test_runs_root_is_the_argument_else_the_environment_else_runs(
