@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -211,3 +212,86 @@ class SampledLag:
         """Hold ``command`` (N m) over one period; returns the drive output at the next instant."""
         self.output = self.pole * self.output + (1.0 - self.pole) * np.asarray(command, dtype=float)
         return self.output.copy()
+
+
+class DriveMonitor:
+    """The drive's limits as the env enforces and reports them at each control step (docs/design.md section 5):
+    the command clipped to the torque-speed envelope at the joint speeds before the physics, and after it the
+    speed and the thermal RMS torque over the last window against their limits.
+
+    Scalar math on three joints: it runs in the env's 1 kHz step.
+
+    Args:
+        limits: The drive.
+        period: Control period (s): one sample of the thermal window per step.
+    """
+
+    def __init__(self, limits: DriveLimits, period: float) -> None:
+        self.limits = limits
+        self._envelope = (
+            limits.peak_torque,
+            limits.corner_speed,
+            limits.max_speed,
+            limits.max_speed - limits.corner_speed,
+        )
+        self.window = max(1, round(limits.thermal_window / period))
+        """Samples (control steps) of the thermal window."""
+        # A ring buffer of the squared output torques of the last window and their running sums.
+        self._squares: list[tuple[float, float, float]] = []
+        self._sums = (0.0, 0.0, 0.0)
+
+    def reset(self) -> None:
+        """Empty the thermal window (at the start of an episode)."""
+        self._squares = [(0.0, 0.0, 0.0)] * self.window
+        self._sums = (0.0, 0.0, 0.0)
+
+    def clip(
+        self, torque: NDArray[np.float64], speeds: tuple[float, float, float]
+    ) -> tuple[NDArray[np.float64], tuple[float, float, float], bool]:
+        """``torque`` (N m, shape (3,), finite) within the envelope at the joint ``speeds`` (rad/s): the torque the
+        drive applies (``torque`` itself when nothing is clipped), each joint's margin (N m: the bound in the
+        command's direction minus its magnitude, negative where clipped, :func:`clip_to_envelope`) and whether any
+        joint was clipped."""
+        peak, corner, max_speed, span = self._envelope
+        t0, t1, t2 = torque.tolist()
+        w0, w1, w2 = speeds
+        if abs(w0) <= corner and abs(w1) <= corner and abs(w2) <= corner:  # the peak both ways: the usual case
+            margins = (peak - abs(t0), peak - abs(t1), peak - abs(t2))
+            saturated = min(margins) < 0.0
+            if saturated:
+                torque = np.clip(torque, -peak, peak)
+            return torque, margins, saturated
+        t0, m0 = clip_to_envelope(t0, w0, peak, max_speed, span)
+        t1, m1 = clip_to_envelope(t1, w1, peak, max_speed, span)
+        t2, m2 = clip_to_envelope(t2, w2, peak, max_speed, span)
+        saturated = min(m0, m1, m2) < 0.0
+        if saturated:
+            torque = np.array([t0, t1, t2])
+        return torque, (m0, m1, m2), saturated
+
+    def report(
+        self, step: int, speeds: tuple[float, float, float], applied: tuple[float, float, float]
+    ) -> dict[str, Any]:
+        """The ``info`` entries of the speed and thermal limits after control step ``step`` (>= 1 since the reset),
+        from the joint ``speeds`` (rad/s) and the drive's output torques ``applied`` (N m) after it:
+        ``speed_margin``, ``speed_exceeded``, ``thermal_rms`` (over the last window, or since the reset while
+        shorter), ``thermal_margin`` and ``thermal_exceeded`` (only once a full window has elapsed)."""
+        max_speed, rated = self.limits.max_speed, self.limits.rated_torque
+        v0, v1, v2 = abs(speeds[0]), abs(speeds[1]), abs(speeds[2])
+        a0, a1, a2 = applied
+        window = self.window
+        squares, index = self._squares, step % window
+        o0, o1, o2 = squares[index]
+        squares[index] = q0, q1, q2 = a0 * a0, a1 * a1, a2 * a2
+        s0, s1, s2 = self._sums
+        self._sums = s0, s1, s2 = s0 + q0 - o0, s1 + q1 - o1, s2 + q2 - o2
+        full = step >= window  # one sample per step since the reset
+        scale = 1.0 / window if full else 1.0 / step
+        r0, r1, r2 = math.sqrt(max(s0, 0.0) * scale), math.sqrt(max(s1, 0.0) * scale), math.sqrt(max(s2, 0.0) * scale)
+        return {
+            "speed_margin": np.array((max_speed - v0, max_speed - v1, max_speed - v2)),
+            "speed_exceeded": max(v0, v1, v2) > max_speed,
+            "thermal_rms": np.array((r0, r1, r2)),
+            "thermal_margin": np.array((rated - r0, rated - r1, rated - r2)),
+            "thermal_exceeded": full and max(r0, r1, r2) > rated,
+        }

@@ -22,17 +22,17 @@ from delta_env.config import (
     RandomizationRanges,
 )
 from delta_env.cycles import require_start
-from delta_env.drive import clip_to_envelope
+from delta_env.drive import DriveMonitor
 from delta_env.fault_injection import FaultInjector
-from delta_env.faults import FaultSpec, InjectedFault
-from delta_env.measurement import Sensors
+from delta_env.faults import FaultSpec, InjectedFault, require_fault_specs
+from delta_env.measurement import Sensors, observation_space
 from delta_env.plant import DeltaPlant
 from delta_env.reference import EpisodeReference
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
 from delta_env.trajectories import Trajectory, require_peak_acceleration
-from delta_env.validation import require_count, require_in, require_instance, require_interval
+from delta_env.validation import require_count, require_in, require_instance, require_interval, require_torques
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -188,14 +188,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
-        if isinstance(faults, FaultSpec | str):
-            raise ValueError(f"faults must be a sequence of FaultSpec (e.g. [FaultSpec('slip')]), got {faults!r}")
-        faults = tuple(base.task.faults if faults is None else faults)
-        obstacles = sum(getattr(spec, "target", None) == "obstacle" for spec in faults)
-        if obstacles > 1:
-            raise ValueError(f"the scene has one obstacle: at most one obstacle collision fault, got {obstacles}")
-        for index, spec in enumerate(faults):
-            require_instance(f"faults[{index}]", spec, FaultSpec)
+        faults = require_fault_specs(base.task.faults if faults is None else faults)
 
         self.plant_config = plant if plant is not None else PlantConfig()
         self.plant = DeltaPlant(self.plant_config, obstacle=any(spec.target == "obstacle" for spec in faults))
@@ -220,30 +213,14 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std)
         drive = self.plant_config.drive
         self._motor_dofs = tuple(self.plant.motor_dofs.tolist())
-        self._envelope = (drive.peak_torque, drive.corner_speed, drive.max_speed, drive.max_speed - drive.corner_speed)
-        self._rated_torque = drive.rated_torque
-        # Thermal RMS: a ring buffer of the squared output torques of the last window and their running sums.
-        self._thermal_steps = max(1, round(drive.thermal_window / self.dt))
-        self._thermal_squares: list[tuple[float, float, float]] = []
-        self._thermal_sums = (0.0, 0.0, 0.0)
+        self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
         self._reference = EpisodeReference(
             self.plant_config.geometry, self.n_cycles, cycle, start, self.peak_acceleration
         )
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
-        unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
-        self.observation_space = spaces.Dict(
-            {
-                "joint_angles": spaces.Box(**unbounded),
-                "joint_velocities": spaces.Box(**unbounded),
-                "joint_torques": spaces.Box(**unbounded),
-                "reference_angles": spaces.Box(**unbounded),
-                "reference_velocities": spaces.Box(**unbounded),
-                "reference_accelerations": spaces.Box(**unbounded),
-                "gripper": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float64),
-            }
-        )
+        self.observation_space = observation_space()
 
         self.render_mode = render_mode
         self._renderer = None
@@ -334,8 +311,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._holding = False
         self._carried_mass = 0.0
         self._episode_over = False
-        self._thermal_squares = [(0.0, 0.0, 0.0)] * self._thermal_steps
-        self._thermal_sums = (0.0, 0.0, 0.0)
+        self._drive.reset()
 
         # A fresh mjData state (time, solver warm start, constraint states, applied forces) so that an
         # episode repeats bit for bit whatever ran before it.
@@ -399,43 +375,17 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if self._episode_over or self.trajectory is None:
             reason = "the episode has ended" if self._episode_over else "no episode started"
             raise RuntimeError(f"call reset() before step(): {reason}")
-        try:
-            raw = np.asarray(action)
-        except ValueError:  # a ragged sequence
-            raw = None
-        # integer and floating kinds only: bool, complex, str and object actions are refused before converting
-        if raw is None or raw.dtype.kind not in "iuf":
-            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
-        torque = np.asarray(raw, dtype=float)
-        if torque.shape != (3,):
-            raise ValueError(f"action must be 3 finite real motor torques (N m), got shape {torque.shape}")
-        t0, t1, t2 = torque.tolist()
-        if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
-            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
+        torque = require_torques(action)
         # The drive's envelope at the true joint speeds at the start of the step (it measures its own motor).
         plant = self.plant
         qvel = plant.data.qvel
         d0, d1, d2 = self._motor_dofs
-        peak, corner, max_speed, span = self._envelope
-        w0, w1, w2 = qvel.item(d0), qvel.item(d1), qvel.item(d2)
-        if abs(w0) <= corner and abs(w1) <= corner and abs(w2) <= corner:  # the peak both ways: the usual case
-            m0, m1, m2 = peak - abs(t0), peak - abs(t1), peak - abs(t2)
-            saturated = min(m0, m1, m2) < 0.0
-            if saturated:
-                torque = np.clip(torque, -peak, peak)
-                t0, t1, t2 = torque.tolist()
-        else:
-            t0, m0 = clip_to_envelope(t0, w0, peak, max_speed, span)
-            t1, m1 = clip_to_envelope(t1, w1, peak, max_speed, span)
-            t2, m2 = clip_to_envelope(t2, w2, peak, max_speed, span)
-            saturated = min(m0, m1, m2) < 0.0
-            if saturated:
-                torque = np.array([t0, t1, t2])
+        torque, margins, saturated = self._drive.clip(torque, (qvel.item(d0), qvel.item(d1), qvel.item(d2)))
         faulty = self._faults.faulty
         if faulty:
             carrying = self._cycle if self._holding else None
             torque = self._faults.before_physics(self._step_index, torque, self.trajectory, carrying)
-            t0, t1, t2 = torque.tolist()
+        t0, t1, t2 = torque.tolist()  # what the drive holds over the step
 
         plant.step(torque, self.n_substeps)
         self._step_index += 1
@@ -474,21 +424,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
 
-        # Speed after the step; thermal RMS of the output torque over the last window (running sums).
-        v0, v1, v2 = abs(qvel.item(d0)), abs(qvel.item(d1)), abs(qvel.item(d2))
         applied = data.actuator_force.copy()
-        a0, a1, a2 = applied.tolist()
-        window = self._thermal_steps
-        squares, index = self._thermal_squares, k % window
-        o0, o1, o2 = squares[index]
-        squares[index] = q0, q1, q2 = a0 * a0, a1 * a1, a2 * a2
-        s0, s1, s2 = self._thermal_sums
-        self._thermal_sums = s0, s1, s2 = s0 + q0 - o0, s1 + q1 - o1, s2 + q2 - o2
-        full = k >= window  # k steps since the reset, one sample each
-        scale = 1.0 / window if full else 1.0 / k
-        r0, r1, r2 = math.sqrt(max(s0, 0.0) * scale), math.sqrt(max(s1, 0.0) * scale), math.sqrt(max(s2, 0.0) * scale)
-        rated = self._rated_torque
-
         info = {
             "payload_mass": self._carried_mass,
             "platform_position": platform,
@@ -500,12 +436,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "cycle": self._cycle,
             "diverged": diverged,
             "torque_saturated": saturated,
-            "torque_margin": np.array((m0, m1, m2)),
-            "speed_margin": np.array((max_speed - v0, max_speed - v1, max_speed - v2)),
-            "speed_exceeded": max(v0, v1, v2) > max_speed,
-            "thermal_rms": np.array((r0, r1, r2)),
-            "thermal_margin": np.array((rated - r0, rated - r1, rated - r2)),
-            "thermal_exceeded": full and max(r0, r1, r2) > rated,
+            "torque_margin": np.array(margins),
+            # the speed after the step, the thermal RMS of the output torque over the last window
+            **self._drive.report(k, (qvel.item(d0), qvel.item(d1), qvel.item(d2)), tuple(applied.tolist())),
             "reward_tracking": reward_tracking,
             "reward_torque": reward_torque,
             "speed_override": reference.speed_override,

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from delta_env.validation import require_count, require_in, require_interval
+from delta_env.validation import require_count, require_in, require_instance, require_interval
 
 FAULT_KINDS = ("slip", "encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch", "collision", "drive_fault")
 """The kinds of fault an episode may carry; detectors report the same names."""
@@ -198,6 +199,20 @@ class FaultSpec:
             direction=unit,
             detail=self.sensor or self.target or "",
         )
+
+
+def require_fault_specs(faults: Sequence[FaultSpec]) -> tuple[FaultSpec, ...]:
+    """``faults`` as a tuple if it is a sequence of :class:`FaultSpec` with at most one obstacle collision (the scene
+    has one obstacle), else ``ValueError``."""
+    if isinstance(faults, FaultSpec | str):
+        raise ValueError(f"faults must be a sequence of FaultSpec (e.g. [FaultSpec('slip')]), got {faults!r}")
+    faults = tuple(faults)
+    obstacles = sum(getattr(spec, "target", None) == "obstacle" for spec in faults)
+    if obstacles > 1:
+        raise ValueError(f"the scene has one obstacle: at most one obstacle collision fault, got {obstacles}")
+    for index, spec in enumerate(faults):
+        require_instance(f"faults[{index}]", spec, FaultSpec)
+    return faults
 
 
 def _uniform(bounds: tuple[float, float] | None, u: float) -> float:

@@ -6,12 +6,30 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from gymnasium import spaces
 from numpy.typing import NDArray
 
 from delta_env.fault_injection import FaultInjector
 from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
+
+
+def observation_space() -> spaces.Dict:
+    """The env's observation space: the keys :class:`Sensors` fills, float64, shape (3,) but ``gripper`` (1,)
+    (units and meanings: :class:`~delta_env.env.DeltaPickPlaceEnv`)."""
+    unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
+    return spaces.Dict(
+        {
+            "joint_angles": spaces.Box(**unbounded),
+            "joint_velocities": spaces.Box(**unbounded),
+            "joint_torques": spaces.Box(**unbounded),
+            "reference_angles": spaces.Box(**unbounded),
+            "reference_velocities": spaces.Box(**unbounded),
+            "reference_accelerations": spaces.Box(**unbounded),
+            "gripper": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float64),
+        }
+    )
 
 
 class Sensors:

@@ -99,6 +99,24 @@ def require_joint_vector(
     return array
 
 
+def require_torques(action: object) -> NDArray[np.float64]:
+    """``action`` as a float array of 3 motor torques (N m) if it is 3 finite real numbers (integer or floating
+    kinds; bool, complex, str and object arrays are refused before converting), else ``ValueError``."""
+    try:
+        raw = np.asarray(action)
+    except ValueError:  # a ragged sequence
+        raw = None
+    if raw is None or raw.dtype.kind not in "iuf":
+        raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
+    torque = np.asarray(raw, dtype=float)
+    if torque.shape != (3,):
+        raise ValueError(f"action must be 3 finite real motor torques (N m), got shape {torque.shape}")
+    t0, t1, t2 = torque.tolist()
+    if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
+        raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
+    return torque
+
+
 def require_vectors(name: str, value: ArrayLike) -> NDArray[np.float64]:
     """``value`` as a float array of shape (..., 3) (joint or Cartesian vectors) if every entry is finite."""
     array = np.asarray(value, dtype=float)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -64,6 +63,7 @@ from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_workers_argument,
     check_ranges,
     scenario_from_arguments,
 )
@@ -115,7 +115,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=DEFAULT_POLICY_PATH,
         help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
     )
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
+    add_workers_argument(parser)
     args = parser.parse_args(argv)
     chosen = args.controllers is not None
     args.left_out = ""

@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -51,6 +50,7 @@ from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_workers_argument,
     check_ranges,
     scenario_from_arguments,
 )
@@ -117,7 +117,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
+    add_workers_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     args.scenario = scenario_from_arguments(args, parser)

@@ -17,11 +17,14 @@ import json
 import os
 import platform
 import shlex
+import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -53,7 +56,66 @@ MANIFEST = "config.json"
 
 STATUSES = ("running", "finished", "failed", "interrupted")
 """Outcomes a manifest records: the run is under way, ended normally, raised (the error is recorded) or was
-interrupted (Ctrl-C)."""
+interrupted (Ctrl-C, or SIGTERM: :class:`Terminated`)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received inside :func:`run_folder` (a job scheduler, ``kill``, a container stopping): raised where the
+    run is, so that it unwinds like a Ctrl-C and its manifest records it."""
+
+
+class _TerminationHandler:
+    """SIGTERM -> :class:`Terminated` in this process while installed; the previous handler back on leaving.
+
+    Once :meth:`hold` is called (the manifest is being written) a SIGTERM no longer raises: it is kept and delivered
+    again to the previous handler by :meth:`restore` unless the run is already unwinding from the first one. A child
+    forked while it is installed (which inherits it) gets the previous behaviour instead.
+    """
+
+    def __init__(self) -> None:
+        self.owner = os.getpid()
+        self.holding = False
+        self.pending = False
+        self.previous: Any = None
+        # signal.signal works in the main thread only; elsewhere SIGTERM keeps its handler.
+        self.installed = threading.current_thread() is threading.main_thread()
+        if self.installed:
+            self.previous = signal.signal(signal.SIGTERM, self)
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        if os.getpid() != self.owner:  # a forked child: act as the process would without us
+            self.restore()
+            os.kill(os.getpid(), signum)
+        elif self.holding:
+            self.pending = True
+        else:
+            self.holding = True
+            raise Terminated(signal.Signals(signum).name)
+
+    def hold(self) -> None:
+        """Keep SIGTERMs from now on instead of raising them."""
+        self.holding = True
+
+    def restore(self, *, deliver: bool = False) -> None:
+        """Put the previous SIGTERM handler back (the default one if it was not set from Python); with ``deliver``,
+        send it a SIGTERM that came while holding."""
+        if not self.installed:
+            return
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if self.previous is None else self.previous)
+        self.installed = False
+        if deliver and self.pending:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _outcome(error: BaseException) -> tuple[str, str | None]:
+    """The manifest's ``status`` and ``error`` of a run that raised ``error``."""
+    if isinstance(error, Terminated):
+        return "interrupted", f"Terminated: {error}"
+    if isinstance(error, KeyboardInterrupt):
+        return "interrupted", "KeyboardInterrupt"
+    if isinstance(error, SystemExit):
+        return ("finished", None) if error.code in (None, 0) else ("failed", f"SystemExit: {error.code}")
+    return "failed", f"{type(error).__name__}: {error}"
 
 
 def runs_root(runs_dir: str | os.PathLike[str] | None = None) -> Path:
@@ -261,7 +323,10 @@ def run_folder(
     Yields:
         The open run: its ``folder``, and :meth:`Run.record` to add to the manifest. On leaving, ``status``
         becomes ``finished``, ``failed`` (any exception, or a non-zero ``SystemExit``) or ``interrupted``
-        (``KeyboardInterrupt``); the exception goes on.
+        (``KeyboardInterrupt``, or SIGTERM, which raises :class:`Terminated` inside the run while it is under way);
+        ``ended`` is stamped and the exception goes on. What the run wrote before stays (tables appended as they
+        grow, :func:`append_csv_rows`, are whole up to the last row). The SIGTERM handler in place before is put back
+        on leaving.
     """
     folder = create_run_folder(tool, out, runs_dir=runs_dir, stamp=stamp)
     single = len(scenarios) == 1
@@ -292,19 +357,19 @@ def run_folder(
             "git_commit": git_commit(),
         },
     )
-    run.write()
+    termination = _TerminationHandler()
     try:
+        run.write()
         yield run
-    except KeyboardInterrupt:
-        run.end("interrupted", "KeyboardInterrupt")
+    except BaseException as error:
+        termination.hold()
+        try:
+            run.end(*_outcome(error))
+        finally:
+            termination.restore()
         raise
-    except SystemExit as stop:
-        if stop.code in (None, 0):
-            run.end("finished")
-        else:
-            run.end("failed", f"SystemExit: {stop.code}")
-        raise
-    except Exception as error:
-        run.end("failed", f"{type(error).__name__}: {error}")
-        raise
-    run.end("finished")
+    termination.hold()
+    try:
+        run.end("finished")
+    finally:
+        termination.restore(deliver=True)

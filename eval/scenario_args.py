@@ -1,5 +1,5 @@
-"""``--scenario NAME|FILE``, ``--geometry FILE`` and ``--parameters FILE``: the same options on every command line, and
-the range checks of their numeric options (:func:`check_ranges`)."""
+"""``--scenario NAME|FILE``, ``--geometry FILE``, ``--parameters FILE`` and ``--workers N``: the same options on every
+command line, and the range checks of their numeric options (:func:`check_ranges`)."""
 
 from __future__ import annotations
 
@@ -52,6 +52,16 @@ def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
         help="identified parameter file of the scenario's robot (default: <runs root>/identification/<robot "
         "identity>/parameters.json, identified when missing)",
     )
+
+
+DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
+"""Worker processes of a command line unless ``--workers`` says otherwise: up to 2."""
+
+
+def add_workers_argument(parser: argparse.ArgumentParser, help: str = "processes (default: up to 2)") -> None:
+    """Add ``--workers`` (default :data:`DEFAULT_WORKERS`; check it with :func:`check_ranges`, minimum 1) to
+    ``parser``."""
+    parser.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help=help)
 
 
 def on_geometry(scenario: Scenario, path: str | os.PathLike[str]) -> Scenario:

@@ -373,12 +373,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--base", choices=BASE_KEYS, default=BASE_KEYS[0], help="base controller (eval key; default: %(default)s)"
     )
     parser.add_argument(
-        "--cycles",
-        "--n-cycles",  # the old spelling, kept as an alias
-        dest="cycles",
-        type=int,
-        default=None,
-        help="pick-and-place cycles per episode (default: the scenario's)",
+        "--cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )
     parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")

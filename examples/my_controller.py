@@ -3,7 +3,7 @@
 Run it from the repository's root::
 
     PYTHONPATH=examples python -m eval --controllers pd,mid_f_rls_lag,my_controller:gravity_pd
-    PYTHONPATH=examples python -m eval.sweep --controllers pd,my_controller:gravity_pd --seeds 0-3
+    PYTHONPATH=examples python -m eval.sweep --controllers pd,my_controller:gravity_pd --episodes 4
 
 ``my_controller:gravity_pd`` names a factory: it receives what a controller may know about the robot
 (:class:`controllers.registry.ControllerSetup`: the identified parameters, the datasheet geometry and masses, the

@@ -36,6 +36,7 @@ from controllers.registry import (
     fault_monitor,
 )
 from delta_env.env import DeltaPickPlaceEnv
+from eval.scenario_args import check_ranges
 
 # Representative identified values (python -m eval.identify on the default plant, rounded).
 SETUP = ControllerSetup(
@@ -71,6 +72,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200, help="control steps per timing block")
     parser.add_argument("--blocks", type=int, default=12, help="timing blocks (the median is reported)")
     args = parser.parse_args()
+    check_ranges(parser, args, {"steps": 1, "blocks": 1})
 
     env = DeltaPickPlaceEnv(n_cycles=3)
     masses = {"payload_masses": np.full(3, 2.0)}

@@ -2,8 +2,8 @@
 
 For every fault kind, runs ``--episodes`` episodes of ``--scenario`` (a preset or file; its own faults are replaced)
 with one fault of that kind at a random point of a random carry (the ``FaultSpec`` default ranges), and the same
-episodes without it (the fault-free twins: the same seed, path, objects and noise). Reports per kind, for
-``--controller`` (a monitored row of the registry, ``mid_f_rls`` by default):
+episodes without it (the fault-free twins: the same seed, path, objects and noise). Reports per kind, for each of
+``--controllers`` (rows of the registry, ``mid_f_rls`` by default):
 
 - detected / injected, median and worst latency (ms), consequences and false alarms (:mod:`eval.faults`);
 - for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
@@ -13,11 +13,11 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 
 Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
 ``summary.md`` into ``--out`` (default ``<runs root>/fault_campaign/<UTC time>``, with the manifest ``config.json`` of
-:mod:`eval.run_folder`), and prints the table. The controller
-is tared on fault-free payload-free episodes, as ``python -m eval`` tares it.
+:mod:`eval.run_folder`), and prints the tables. The controllers
+are tared on fault-free payload-free episodes, as ``python -m eval`` tares them.
 
-Usage: python scripts/fault_campaign.py [--scenario nominal] [--episodes 20] [--kinds all] [--seed 0] [--out DIR]
-                                        [--controller mid_f_rls] [--workers 2] [--runs-dir DIR]
+Usage: python scripts/fault_campaign.py [--scenario nominal] [--geometry FILE] [--episodes 20] [--kinds all] [--seed 0]
+                                        [--controllers mid_f_rls] [--out DIR] [--workers 2] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -27,14 +27,15 @@ import dataclasses
 import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from controllers.monitor import TORQUE_MARGIN
-from controllers.registry import controller_entry, controller_label
+from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
-from delta_env.scenario import Scenario, resolve_scenario
+from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
 from eval.engine import prepare
@@ -42,7 +43,7 @@ from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
 from eval.processes import process_pool
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
-from eval.scenario_args import check_ranges
+from eval.scenario_args import add_scenario_arguments, add_workers_argument, check_ranges, scenario_from_arguments
 from eval.tasks import Task, iterate_tasks
 
 GONE_MASS = 0.1
@@ -51,15 +52,17 @@ GONE_MASS = 0.1
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python scripts/fault_campaign.py", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenario", default="nominal", help="preset or scenario TOML file (default nominal)")
+    add_scenario_arguments(parser)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--episodes", type=int, default=20, help="episodes per fault kind (default 20)")
     kinds = ", ".join(FAULT_KINDS)
     parser.add_argument("--kinds", default="all", help=f"comma-separated fault kinds or 'all' ({kinds})")
-    parser.add_argument("--controller", default="mid_f_rls", help="monitored controller key (default mid_f_rls)")
-    parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
-    parser.add_argument("--out", default=None, help="run folder (default <runs root>/fault_campaign/<UTC time>)")
+    parser.add_argument("--controllers", default="mid_f_rls", help=controllers_help("mid_f_rls"))
+    parser.add_argument(
+        "--out", type=Path, default=None, help="run folder (default <runs root>/fault_campaign/<UTC time>)"
+    )
     add_runs_dir_argument(parser)
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    add_workers_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"episodes": 1, "seed": 0, "workers": 1})
     args.kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
@@ -67,13 +70,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if unknown:
         parser.error(f"--kinds: unknown {unknown}; choose from {list(FAULT_KINDS)} or 'all'")
     try:
-        controller_entry(args.controller)
+        args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
-        parser.error(f"--controller: {error}")
-    try:
-        args.scenario = resolve_scenario(args.scenario)
-    except (ValueError, OSError) as error:
-        parser.error(f"--scenario: {error}")
+        parser.error(f"--controllers: {error}")
+    args.scenario = scenario_from_arguments(args, parser)
     return args
 
 
@@ -176,33 +176,45 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def campaign(args: argparse.Namespace, run: Run) -> None:
-    """The campaign of ``args`` (:func:`parse_args`) into ``run``'s folder, its table printed."""
+    """The campaign of ``args`` (:func:`parse_args`) into ``run``'s folder, its tables printed."""
     out = run.folder
     healthy = with_faults(args.scenario, ())
-    key, n_cycles = args.controller, healthy.task.n_cycles
-    setup = prepare(healthy, [key], runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
+    n_cycles = healthy.task.n_cycles
+    setup = prepare(healthy, args.controllers, runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
-    tasks = [Task("episode", key, i, seed, n_cycles, setup, scenario=healthy) for i, seed in enumerate(seeds)]
-    for kind in args.kinds:
-        faulty = with_faults(healthy, (FaultSpec(kind),))
-        tasks += [Task("episode", key, i, seed, n_cycles, setup, scenario=faulty) for i, seed in enumerate(seeds)]
+    scenarios = [healthy, *(with_faults(healthy, (FaultSpec(kind),)) for kind in args.kinds)]
+    tasks = [
+        Task("episode", key, i, seed, n_cycles, setup, scenario=scenario)
+        for key in args.controllers
+        for scenario in scenarios
+        for i, seed in enumerate(seeds)
+    ]
     with process_pool(args.workers) as pool:
         records = list(iterate_tasks(tasks, args.workers, None, pool))
-    twins = {task.seed: record for task, record in records[: len(seeds)]}
     rows: list[dict[str, Any]] = []
-    by_kind: dict[str, list[dict[str, Any]]] = {kind: [] for kind in args.kinds}
-    for task, record in records[len(seeds) :]:
-        kind = task.scenario.task.faults[0].kind
-        identity = {"controller": controller_label(key), "key": key, "episode": task.index, "seed": task.seed}
-        by_kind[kind] += fault_rows(identity, record.faults())
-        if record.injected_faults:  # else the drawn carry fault fell after the episode's end
-            rows.append({"kind": kind, "seed": task.seed, **fault_effect(record, twins[task.seed])})
-    twin_alarms = sum(len(record.detected_faults) for record in twins.values())
-    write_fault_csv(out / "faults.csv", [row for kind in args.kinds for row in by_kind[kind]])
+    fault_csv_rows: list[dict[str, Any]] = []
+    text = f"# Fault campaign: {args.scenario.name}, {args.episodes} episodes per kind\n"
+    for key in args.controllers:
+        label = controller_label(key)
+        mine = [(task, record) for task, record in records if task.key == key]
+        twins = {task.seed: record for task, record in mine if not task.scenario.task.faults}
+        key_rows: list[dict[str, Any]] = []
+        by_kind: dict[str, list[dict[str, Any]]] = {kind: [] for kind in args.kinds}
+        for task, record in mine:
+            if not task.scenario.task.faults:
+                continue
+            kind = task.scenario.task.faults[0].kind
+            identity = {"controller": label, "key": key, "episode": task.index, "seed": task.seed}
+            by_kind[kind] += fault_rows(identity, record.faults())
+            if record.injected_faults:  # else the drawn carry fault fell after the episode's end
+                key_rows.append({"kind": kind, "seed": task.seed, **fault_effect(record, twins[task.seed])})
+        twin_alarms = sum(len(record.detected_faults) for record in twins.values())
+        fault_csv_rows += [row for kind in args.kinds for row in by_kind[kind]]
+        rows += [{"controller": label, "key": key, **row} for row in key_rows]
+        text += f"\n## {label}\n\n{summary_table(key_rows, by_kind, args.kinds)}\n\n"
+        text += f"The {len(twins)} fault-free twins raised {twin_alarms} false alarm(s).\n"
+    write_fault_csv(out / "faults.csv", fault_csv_rows)
     write_csv(out / "campaign.csv", rows)
-    table = summary_table(rows, by_kind, args.kinds)
-    text = f"# Fault campaign: {args.scenario.name}, {controller_label(key)}, {args.episodes} episodes per kind\n\n"
-    text += table + f"\n\nThe {len(twins)} fault-free twins raised {twin_alarms} false alarm(s).\n"
     (out / "summary.md").write_text(text)
     print(text)
     print(f"\nRun folder: {out}")

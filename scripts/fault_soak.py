@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,7 +43,7 @@ from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
 from eval.processes import process_pool
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
-from eval.scenario_args import check_ranges
+from eval.scenario_args import add_workers_argument, check_ranges
 from eval.tasks import Task, iterate_tasks
 
 SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
@@ -102,7 +101,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--out", type=Path, default=None, help="output folder (default <runs root>/fault_soak/<UTC time>)"
     )
     add_runs_dir_argument(parser)
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
+    add_workers_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "workers": 1}, ("minutes",))
     try:

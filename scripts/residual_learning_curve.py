@@ -1,11 +1,12 @@
 """Learning-curve benchmark of the residual policy: policy steps and training wall time to a tracking gain.
 
-    python scripts/residual_learning_curve.py --recipe old new --seeds 0 1 2 --max-minutes 20
+    python scripts/residual_learning_curve.py --recipe old new --seed 0 --runs 3 --max-minutes 20
     python scripts/residual_learning_curve.py --algo crossq --hyperparams policy_kwargs.net_arch:[256,256] \\
-        --label crossq256 --seeds 0 --max-minutes 12 --out /tmp/rl-runs/crossq256
-    python scripts/residual_learning_curve.py --recipe new --seeds 0 -- --reward-scale 0.1
+        --label crossq256 --seed 0 --runs 1 --max-minutes 12 --out /tmp/rl-runs/crossq256
+    python scripts/residual_learning_curve.py --recipe new --runs 1 -- --reward-scale 0.1
 
-Each run trains with :func:`eval.train_residual.train` (one env, ``DummyVecEnv``) and every ``--eval-every``
+Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--seed + --runs - 1``, with
+:func:`eval.train_residual.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
 policy steps pauses to run the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
 scenario unless other training arguments follow ``--``) with the base controller alone and with the residual,
 scored as :func:`eval.scoring.score_policy` scores the test (tracking RMS and torque RMS pooled over every
@@ -44,6 +45,7 @@ from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
+from eval.scenario_args import check_ranges
 from eval.scoring import pooled_scores
 from eval.train_residual import parse_args, residual_config, train
 
@@ -220,7 +222,9 @@ def check_settings(out: Path, args: argparse.Namespace, recipes: Sequence[Recipe
     under other settings or another recipe of the same label, whose rows would otherwise mix with these."""
     path = out / SETTINGS_NAME
     settings = json.loads(path.read_text()) if path.is_file() else {"recipes": {}}
-    common = {name: getattr(args, name) for name in ("timesteps", "eval_every", "max_minutes", "max_torque_change")}
+    # "eval_every" is --eval-freq's name in the settings files written before the flag took train_residual's name.
+    common = {"timesteps": args.timesteps, "eval_every": args.eval_freq, "max_minutes": args.max_minutes}
+    common["max_torque_change"] = args.max_torque_change
     common["full_curve"] = args.full_curve
     if settings.get("common", common) != common:
         raise SystemExit(f"{out} holds runs made with {settings['common']}, not {common}: use another --out")
@@ -326,7 +330,7 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
         env_kwargs=env_kwargs,
         base_scores=base_scores,
         curve_path=out / "curve.csv",
-        eval_every=args.eval_every,
+        eval_every=args.eval_freq,
         max_minutes=args.max_minutes,
         max_torque_change=args.max_torque_change,
         stop_when_reached=not args.full_curve,
@@ -350,9 +354,10 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--algo", choices=ALGORITHMS, default="sac", help="without --recipe")
     parser.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY:VALUE", help="without --recipe")
     parser.add_argument("--label", default=None, help="name of the --algo recipe in the tables")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    parser.add_argument("--seed", type=int, default=0, help="training seed of the first run (default 0)")
+    parser.add_argument("--runs", type=int, default=3, help="runs per recipe, one per training seed (default 3)")
     parser.add_argument("--timesteps", type=int, default=1_000_000, help="policy steps per run at most")
-    parser.add_argument("--eval-every", type=int, default=10_000, help="policy steps between evaluations")
+    parser.add_argument("--eval-freq", type=int, default=10_000, help="policy steps between held-out evaluations")
     parser.add_argument("--max-minutes", type=float, default=20.0, help="training wall time per run at most")
     parser.add_argument(
         "--max-torque-change", type=float, default=0.02, help="torque RMS rise allowed at a crossing (fraction)"
@@ -364,8 +369,8 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.recipe and (args.hyperparams or args.label):
         parser.error("--hyperparams and --label go with --algo, not with --recipe")
-    if args.eval_every < 1 or args.timesteps < 1 or args.max_minutes <= 0:
-        parser.error("--eval-every and --timesteps must be >= 1 and --max-minutes > 0")
+    check_ranges(parser, args, {"seed": 0, "runs": 1, "timesteps": 1, "eval_freq": 1}, ("max_minutes",))
+    args.seeds = list(range(args.seed, args.seed + args.runs))
     return args
 
 

@@ -1,14 +1,16 @@
 """Sweep throughput (episodes/s) of both backends with 1 and 2 workers, and a cluster projection.
 
-Runs the same grid (one scenario, PD and MId+F+R+RLS+PD, ``--seeds`` seeds) into a fresh results table
-for each (backend, workers) and prints, per configuration: the wall time including start-up (pool or Ray),
+Runs the same grid (one scenario, PD and MId+F+R+RLS+PD, ``--episodes`` seeds from ``--seed``) into a fresh
+results table for each (backend, workers) and prints, per configuration: the wall time including start-up (pool or Ray),
 the start-up time (until the first episode is written), the steady rate after it, with ratios to the
 local backend with one worker (episodes run in this process), and the mean CPU time of an episode. On a
 machine shared with other jobs the wall rates carry their load; the CPU time does not. The projection
 scales to ``--nodes`` nodes of ``--cpus-per-node`` workers twice: from the measured steady rate per Ray
-worker, and from the CPU time per episode (one idle core per worker), each plus the Ray start-up.
+worker, and from the CPU time per episode (one idle core per worker), each plus the Ray start-up, for a sweep of
+``--projected-episodes`` episodes.
 
-Usage: python scripts/sweep_throughput.py [--seeds 20] [--scenario nominal] [--nodes 10 --cpus-per-node 2]
+Usage: python scripts/sweep_throughput.py [--seed 0 --episodes 20] [--scenario nominal] [--geometry FILE]
+                                         [--nodes 10 --cpus-per-node 2] [--projected-episodes 10000]
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from delta_env.scenario import resolve_scenario
 from eval.engine import prepare
+from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 from eval.sweep.runner import ResultsTable, run_sweep
 from eval.sweep.work import WorkUnit, code_version, setup_digest
 
@@ -66,18 +68,24 @@ def measure(units: list[WorkUnit], backend: str, workers: int, setup, version: s
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seeds", type=int, default=20, help="seeds per controller (default 20)")
-    parser.add_argument("--scenario", default="nominal", help="preset or TOML file (default nominal)")
+    add_scenario_arguments(parser)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    parser.add_argument("--episodes", type=int, default=20, help="episodes per controller (default 20)")
     parser.add_argument("--nodes", type=int, default=10, help="nodes of the projected cluster (default 10)")
     parser.add_argument("--cpus-per-node", type=int, default=2, help="workers per projected node (default 2)")
-    parser.add_argument("--episodes", type=int, default=10_000, help="episodes of the projected sweep")
+    parser.add_argument(
+        "--projected-episodes", type=int, default=10_000, help="episodes of the projected sweep (default 10000)"
+    )
     args = parser.parse_args()
-
-    scenario = resolve_scenario(args.scenario)
+    counts = {"seed": 0, "episodes": 1, "nodes": 1, "cpus_per_node": 1, "projected_episodes": 1}
+    check_ranges(parser, args, counts)
+    scenario = scenario_from_arguments(args, parser)
     controllers = ("pd", "mid_f_rls")
     setup = prepare(scenario, controllers).setup
     version = code_version()
-    units = [WorkUnit(scenario, key, seed) for key in controllers for seed in range(args.seeds)]
+    units = [
+        WorkUnit(scenario, key, seed) for key in controllers for seed in range(args.seed, args.seed + args.episodes)
+    ]
     print(f"{len(units)} episodes of {scenario.name} ({scenario.task.n_cycles} cycles), PD and MId+F+R+RLS+PD")
     load_before = f"{os.getloadavg()[0]:.2f}"
     results = {}
@@ -98,10 +106,10 @@ def main() -> int:
     ray2 = results["ray", 2]
     workers = args.nodes * args.cpus_per_node
     for basis, per_worker in (("measured steady rate", ray2["rate_steady"] / 2), ("CPU time", 1.0 / ray2["cpu_s"])):
-        minutes = (ray2["startup_s"] + args.episodes / (per_worker * workers)) / 60
+        minutes = (ray2["startup_s"] + args.projected_episodes / (per_worker * workers)) / 60
         print(
-            f"Projection from the {basis} ({per_worker:.2f} episodes/s per worker): {args.episodes} episodes on "
-            f"{args.nodes} nodes x {args.cpus_per_node} workers take {minutes:.1f} min"
+            f"Projection from the {basis} ({per_worker:.2f} episodes/s per worker): {args.projected_episodes} "
+            f"episodes on {args.nodes} nodes x {args.cpus_per_node} workers take {minutes:.1f} min"
         )
     return 0
 

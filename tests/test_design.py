@@ -1,6 +1,7 @@
 """The design study (eval.design): figures of merit, optimization, reconfiguration, verification, CLI."""
 
 import csv
+import functools
 import json
 import math
 
@@ -16,6 +17,7 @@ from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
 from eval.design import optimize, performance, report, verify
 from eval.design.__main__ import main
+from eval.identification import run_identification
 
 
 @pytest.fixture(scope="module")
@@ -133,8 +135,17 @@ def test_model_controller_uses_the_robot_it_is_given():
     assert model_controller(None).dynamics.geometry == NOMINAL_GEOMETRY
 
 
-def test_nominal_verification_runs_every_controller_with_closed_loops(nominal):
-    result = verify.verify_design("nominal", nominal, episodes=1)
+@pytest.fixture(scope="module")
+def short_arm() -> verify.Verification:
+    """The closed-loop verification of a design unlike the nominal robot (shorter arms and forearms), one
+    episode per controller: one identification of its plant for every test of it."""
+    design = performance.evaluate(DeltaGeometry(0.244, 0.050, 0.318, 1.054))
+    assert design.feasible, design.reason
+    return verify.verify_design("short arm", design, episodes=1, seed=1)
+
+
+def test_verification_runs_every_controller_with_closed_loops(short_arm):
+    result = short_arm
     assert result.feasible, result.reason
     assert {e.controller for e in result.episodes} == set(verify.CONTROLLERS)
     assert all(e.max_loop_gap_m < verify.LOOP_GAP_LIMIT for e in result.episodes)
@@ -145,12 +156,9 @@ def test_nominal_verification_runs_every_controller_with_closed_loops(nominal):
     assert result.predicted_mean("predicted", 1) == pytest.approx(oracle_rms, rel=0.05)
 
 
-def test_a_design_is_identified_on_its_own_plant():
-    design = performance.evaluate(DeltaGeometry(0.244, 0.050, 0.318, 1.054))
-    assert design.feasible, design.reason
-    result = verify.verify_design("short arm", design, episodes=1, seed=1)
+def test_a_design_is_identified_on_its_own_plant(short_arm):
+    result = short_arm
     assert result.feasible, result.reason
-    assert result.mean("MId+F+R+RLS+PD", "tracking_rms_mm") < 0.2 * result.mean("PD", "tracking_rms_mm")
     # the identified friction is the plant's drive, whatever the links (measured within 0.56 %, as on the nominal
     # robot's identification: about 1 %)
     drive = PlantRealism()
@@ -159,11 +167,18 @@ def test_a_design_is_identified_on_its_own_plant():
     # and so is the drive's current loop, identified like the nominal robot's (measured within 0.51 %)
     np.testing.assert_allclose(result.drive_lag, drive.actuator_lag, rtol=0.01)
     # rho1 holds the armature relative to this design's own arm inertia (plus the forearms' share)
-    links = performance.design_model(design.geometry, drive=None)
+    links = performance.design_model(result.geometry, drive=None)
     assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)
 
 
-def test_quick_cli_writes_the_run_folder(tmp_path):
+def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
+    # The identification's accuracy and the verification's figures are checked above (short_arm); here a small
+    # identification (two 2 s runs) and a tare of two episodes feed the verification, whose plumbing into the run
+    # folder is what this test checks.
+    monkeypatch.setattr(
+        verify, "run_identification", functools.partial(run_identification, 2, duration=2.0, validation_duration=2.0)
+    )
+    monkeypatch.setattr(verify, "DEFAULT_CALIBRATION_EPISODES", 2)
     out = tmp_path / "run"
     assert main(["--quick", "--seed", "3", "--workers", "1", "--out", str(out)]) == 0
     with (out / "pareto.csv").open() as file:

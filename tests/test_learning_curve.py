@@ -75,8 +75,8 @@ def test_named_recipes_exist_in_the_hyperparameter_file() -> None:
     for algo, items, train_args in curve.RECIPES.values():
         override_hyperparameters(load_hyperparameters(algo), items, algo)
         parse_args(list(train_args))
-    old = curve.recipes_from_arguments(curve.parse_arguments(["--recipe", "old", "--", "--n-cycles", "2"]))[0]
-    assert old.train_args == ("--residual-limit", "40", "--n-cycles", "2")
+    old = curve.recipes_from_arguments(curve.parse_arguments(["--recipe", "old", "--", "--cycles", "2"]))[0]
+    assert old.train_args == ("--residual-limit", "40", "--cycles", "2")
 
 
 def test_a_folder_of_other_settings_or_another_recipe_under_the_same_label_is_refused(tmp_path: Path) -> None:
@@ -90,3 +90,11 @@ def test_a_folder_of_other_settings_or_another_recipe_under_the_same_label_is_re
     renamed = [curve.Recipe("new", "sac", ("train_freq:1",), ())]
     with pytest.raises(SystemExit, match="'new' runs of"):
         curve.check_settings(tmp_path, args, renamed)
+
+
+def test_training_seeds_are_seed_and_runs_like_the_other_command_lines() -> None:
+    args = curve.parse_arguments(["--seed", "2", "--runs", "2", "--eval-freq", "500"])
+    assert (args.seeds, args.eval_freq) == ([2, 3], 500)
+    assert curve.parse_arguments([]).seeds == [0, 1, 2]
+    with pytest.raises(SystemExit):
+        curve.parse_arguments(["--runs", "0"])

@@ -263,7 +263,7 @@ def test_training_and_held_out_seeds_are_disjoint() -> None:
 def tiny_training_args(out: Path, seed: int, *extra: str):
     return parse_args(
         [
-            "--seed", str(seed), "--timesteps", "60", "--n-envs", "1", "--n-cycles", "1",
+            "--seed", str(seed), "--timesteps", "60", "--n-envs", "1", "--cycles", "1",
             "--hyperparams", "learning_starts:30", "batch_size:16", "buffer_size:500", "policy_kwargs.net_arch:[16,16]",
             "train_freq:1",  # steps in multiples of 30, as the checkpoints
             "--eval-freq", "60", "--checkpoint-freq", "30", "--no-progress", "--no-score", "--out", str(out),

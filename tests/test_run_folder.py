@@ -6,7 +6,11 @@ import csv
 import datetime
 import importlib.util
 import json
+import os
+import signal
+import subprocess
 import sys
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -21,7 +25,7 @@ from eval import identify, rate
 from eval.design import __main__ as design_cli
 from eval.engine import Prepared
 from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, run_folder, runs_root
+from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated, create_run_folder, run_folder, runs_root
 from eval.sweep import __main__ as sweep_cli
 from tests.conftest import NOMINAL_SETUP as SETUP
 
@@ -91,6 +95,56 @@ def test_a_run_that_raises_is_marked_with_its_error(
     assert utc(written["ended"]) >= utc(written["started"])
 
 
+INTERRUPTED_RUN = textwrap.dedent(
+    """
+    import sys, time
+    from pathlib import Path
+    from eval.run_folder import append_csv_rows, run_folder
+
+    with run_folder("tool", "python -m tool", {}, out=Path(sys.argv[1])) as run:
+        append_csv_rows(run.folder / "rows.csv", ["seed", "rms_mm"], [{"seed": 0, "rms_mm": 0.5}])
+        print("ready", flush=True)
+        time.sleep(60)
+    """
+)
+"""A long run that has written one row when it says ``ready``."""
+
+
+def test_a_run_stopped_by_sigterm_is_marked_interrupted_and_keeps_what_it_wrote(tmp_path: Path) -> None:
+    root = Path(__file__).resolve().parent.parent
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    with subprocess.Popen(
+        [sys.executable, "-c", INTERRUPTED_RUN, str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=environment,
+    ) as child:
+        assert child.stdout.readline() == "ready\n", child.stderr.read()
+        assert manifest(tmp_path)["status"] == "running"
+        child.send_signal(signal.SIGTERM)
+        _, stderr = child.communicate(timeout=30)
+    assert child.returncode != 0, stderr
+    written = manifest(tmp_path)
+    assert (written["status"], written["error"]) == ("interrupted", "Terminated: SIGTERM")
+    assert utc(written["ended"]) >= utc(written["started"])
+    assert (tmp_path / "rows.csv").read_text() == "seed,rms_mm\n0,0.5\n"
+
+
+def test_run_folder_puts_the_previous_sigterm_handler_back(tmp_path: Path) -> None:
+    def previous(signum: int, frame: Any) -> None:
+        raise AssertionError("the run's handler should have answered")
+
+    before = signal.signal(signal.SIGTERM, previous)
+    try:
+        with pytest.raises(Terminated), run_folder("tool", "python -m tool", {}, out=tmp_path):
+            os.kill(os.getpid(), signal.SIGTERM)
+        assert signal.getsignal(signal.SIGTERM) is previous
+        assert manifest(tmp_path)["status"] == "interrupted"
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
 def test_runs_root_is_the_argument_else_the_environment_else_runs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -138,7 +192,7 @@ def test_a_finished_sweep_rerun_on_ray_runs_nothing_and_force_runs_it_again(
     monkeypatch.setattr(sweep_cli, "prepare", lambda scenario, *args, **kwargs: Prepared(SETUP, Path(), None, None))
     monkeypatch.setitem(sys.modules, "ray", None)  # Ray is not installed
     out = tmp_path / "sweep"
-    argv = ["--controllers", "pd", "--seeds", "0,1", "--cycles", "1", "--workers", "1", "--out", str(out)]
+    argv = ["--controllers", "pd", "--episodes", "2", "--cycles", "1", "--workers", "1", "--out", str(out)]
     assert sweep_cli.main(argv) == 0
     capsys.readouterr()
     # The same grid on Ray: every key is in the table already, so nothing runs and Ray is not needed.
@@ -207,12 +261,12 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
         ("eval", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
         ("eval", ["--seed", "-1"], "--seed must be an integer >= 0, got -1"),
         ("sweep", ["--cycles", "0"], "--cycles must be an integer >= 1, got 0"),
-        ("sweep", ["--seed", "3", "--seeds", "0-9"], "give --seed/--episodes or --seeds, not both"),
+        ("sweep", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
         ("rate", ["--workers", "0"], "--workers must be an integer >= 1, got 0"),
         ("design", ["--population", "2"], "--population must be an integer >= 4, got 2"),
         ("train_residual", ["--timesteps", "0"], "--timesteps must be an integer >= 1, got 0"),
         ("train_residual", ["--max-minutes", "0"], "--max-minutes must be a finite number in (0, inf), got 0.0"),
-        ("train_residual", ["--n-cycles", "0"], "--cycles must be an integer >= 1, got 0"),
+        ("train_residual", ["--cycles", "0"], "--cycles must be an integer >= 1, got 0"),
         ("train_residual", ["--residual-limit", "-1"], "residual_limit must be a finite number in (0, 400] N m"),
         ("fault_soak", ["--minutes", "-5"], "--minutes must be a finite number in (0, inf), got -5.0"),
         ("fault_campaign", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
@@ -227,8 +281,12 @@ def test_argument_errors_are_parser_errors_naming_the_value_and_range(
     assert message in capsys.readouterr().err
 
 
-def test_one_spelling_of_cycles_and_seeds(monkeypatch: pytest.MonkeyPatch) -> None:
-    assert train_residual_parser(["--cycles", "2"]).cycles == train_residual_parser(["--n-cycles", "2"]).cycles == 2
+def test_one_spelling_of_cycles_and_seeds(capsys: pytest.CaptureFixture) -> None:
+    assert train_residual_parser(["--cycles", "2"]).cycles == 2
     assert sweep_cli.parse_args(["--seed", "3", "--episodes", "2"]).seeds == [3, 4]
-    default = sweep_cli.parse_args([])
-    assert default.seeds == list(range(10)) and default.seeds == sweep_cli.parse_args(["--seeds", "0-9"]).seeds
+    assert sweep_cli.parse_args([]).seeds == list(range(10))
+    assert PARSERS["fault_campaign"](["--controllers", "pd,mid_f_rls"]).controllers == ["pd", "mid_f_rls"]
+    for tool, old_spelling in [("train_residual", ["--n-cycles", "2"]), ("sweep", ["--seeds", "0-9"])]:
+        with pytest.raises(SystemExit) as exit:
+            PARSERS[tool](old_spelling)
+        assert exit.value.code == 2 and f"unrecognized arguments: {old_spelling[0]}" in capsys.readouterr().err

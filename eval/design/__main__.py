@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -41,7 +40,7 @@ from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
 from eval.design import codesign, explorer, mechanism, optimize, performance, profiles, reconfigure, report, verify
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
-from eval.scenario_args import check_ranges
+from eval.scenario_args import add_workers_argument, check_ranges
 
 QUICK = {"population": 12, "generations": 3, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
@@ -64,9 +63,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"a small run for tests: {QUICK}, unless given explicitly; pick rates by the optimizer's cheap path",
     )
     parser.add_argument("--no-verify", action="store_true", help="skip the closed-loop verification")
-    parser.add_argument(
-        "--workers", type=int, default=None, help="processes of each design's identification runs (default: up to 2)"
-    )
+    add_workers_argument(parser, help="processes of each design's identification runs (default: up to 2)")
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/design/<UTC time>)")
     add_runs_dir_argument(parser)
     args = parser.parse_args(argv)
@@ -75,8 +72,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         for key, value in QUICK.items():
             if getattr(args, key) == parser.get_default(key):
                 setattr(args, key, value)
-    if args.workers is None:
-        args.workers = min(2, os.cpu_count() or 1)
     minimums = {"seed": 0, "population": 4, "generations": 1, "episodes": 1, "verified_designs": 1, "workers": 1}
     check_ranges(parser, args, minimums)
     return args

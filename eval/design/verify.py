@@ -262,6 +262,7 @@ def verify_design(
                 setup,
                 CONTROLLER_KEYS,
                 seed=seed,
+                episodes=len(seeds),
                 workers=workers,
                 references=[episode_reference(geometry, s) for s in seeds],
                 max_loop_gap=LOOP_GAP_LIMIT,

@@ -25,8 +25,10 @@ With ``--geometry FILE`` every scenario runs on the robot of that geometry file 
 lines: masses scaled with the lengths, a new robot identified once), named ``<scenario>+<file stem>``.
 
 Usage: python -m eval.sweep --scenarios nominal,stress-6g,randomized --controllers pd,mid_f_rls --seed 0 --episodes 10
-           [--seeds 0-9 | 0,3,7] [--geometry FILE] [--backend local|ray] [--address auto|ray://host:port]
-           [--workers 2] [--cycles N] [--out DIR] [--runs-dir DIR] [--force]
+           [--geometry FILE] [--backend local|ray] [--address auto|ray://host:port] [--workers 2] [--cycles N]
+           [--out DIR] [--runs-dir DIR] [--force]
+
+The seeds are ``--seed`` to ``--seed + --episodes - 1``, as on the other command lines.
 """
 
 from __future__ import annotations
@@ -35,7 +37,6 @@ import argparse
 import dataclasses
 import hashlib
 import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -47,7 +48,7 @@ from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
-from eval.scenario_args import add_geometry_argument, check_ranges, on_geometry
+from eval.scenario_args import add_geometry_argument, add_workers_argument, check_ranges, on_geometry
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
@@ -55,25 +56,6 @@ from eval.sweep.work import (
     code_version,
     setup_digest,
 )
-
-
-def parse_seeds(text: str) -> list[int]:
-    """Seeds from ``"0-9"``, ``"0,3,7"`` or a mix (``"0-4,10"``), each >= 0, in order, without repeats."""
-    seeds: list[int] = []
-    for part in (p.strip() for p in text.split(",")):
-        try:
-            if "-" in part:
-                first, last = (int(v) for v in part.split("-"))
-                if first > last:
-                    raise ValueError
-                seeds.extend(range(first, last + 1))
-            else:
-                seeds.append(int(part))
-        except ValueError:
-            raise ValueError(f"seeds must look like 0-9 or 0,3,7 (integers >= 0), got {text!r}") from None
-    if any(seed < 0 for seed in seeds):
-        raise ValueError(f"seeds must be >= 0, got {text!r}")
-    return list(dict.fromkeys(seeds))
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -84,19 +66,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--scenarios", default="nominal", help=f"comma-separated presets ({', '.join(preset_names())}) or TOML files"
     )
     parser.add_argument("--controllers", default="pd,mid_f_rls", help=controllers_help("pd,mid_f_rls"))
-    parser.add_argument("--seed", type=int, default=None, help="seed of the first episode (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument(
-        "--episodes", type=int, default=None, help="episodes per scenario and controller, from --seed (default 10)"
+        "--episodes", type=int, default=10, help="episodes per scenario and controller, from --seed (default 10)"
     )
-    parser.add_argument("--seeds", default=None, help="the seeds as a list instead, e.g. 0-9 or 0,3,7")
     parser.add_argument("--cycles", type=int, default=None, help="override every scenario's cycles per episode")
     parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
     parser.add_argument("--address", default=None, help="Ray cluster to join: auto or ray://host:port (ray only)")
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=min(2, os.cpu_count() or 1),
-        help="local processes, or the CPUs of a Ray started here (default 2); a joined cluster uses all its CPUs",
+    add_workers_argument(
+        parser,
+        help="local processes, or the CPUs of a Ray started here (default: up to 2); a joined cluster uses all CPUs",
     )
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default <runs root>/sweep/sweep-<grid hash>)"
@@ -107,14 +86,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_geometry_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
-    if args.seeds is not None and (args.seed, args.episodes) != (None, None):
-        parser.error("give --seed/--episodes or --seeds, not both")
+    args.seeds = list(range(args.seed, args.seed + args.episodes))
     try:
-        if args.seeds is None:
-            first, count = args.seed or 0, args.episodes or 10
-            args.seeds = list(range(first, first + count))
-        else:
-            args.seeds = parse_seeds(args.seeds)
         scenarios = [resolve_scenario(spec.strip()) for spec in args.scenarios.split(",") if spec.strip()]
         if args.geometry is not None:
             scenarios = [on_geometry(scenario, args.geometry) for scenario in scenarios]
