@@ -180,7 +180,7 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
     out = run.folder
     healthy = with_faults(args.scenario, ())
     key, n_cycles = args.controller, healthy.task.n_cycles
-    setup = prepare(healthy, [key], runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
+    setup = prepare(healthy, [key], runs_dir=args.runs_dir, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
     tasks = [Task("episode", key, i, seed, n_cycles, setup, scenario=healthy) for i, seed in enumerate(seeds)]
     for kind in args.kinds:
