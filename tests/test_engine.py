@@ -14,7 +14,7 @@ from delta_env.records import content_hash
 from delta_env.scenario import preset
 from eval import calibration
 from eval.calibration import calibration_seeds, tare_setup
-from eval.engine import grid, run_grid
+from eval.engine import grid, kept_tares, prepare, run_grid
 from eval.sweep.work import METRIC_FIELDS, run_unit, unit_record
 from tests.conftest import NOMINAL_SETUP as SETUP
 
@@ -108,6 +108,27 @@ def test_a_tare_is_measured_once_and_kept_for_every_later_experiment(tmp_path: P
     kept.write_text("{")
     with pytest.raises(ValueError, match=f"{kept.name}: unreadable kept tare"):
         tare_setup(scenario, SETUP, ["mid_f_rls"], episodes=1, kept=tmp_path)
+
+
+def test_the_comparison_and_the_sweep_use_one_kept_tare(parameter_file: Path, tmp_path: Path, monkeypatch) -> None:
+    scenario = tiny()
+    # The comparison: its rows and its residual policy.
+    compared = prepare(
+        scenario, ["mid_f_rls"], parameters=parameter_file, runs_dir=tmp_path, calibration_episodes=1,
+        residual_policy=Path("policy.zip"),
+    )  # fmt: skip
+    folder = kept_tares(scenario, tmp_path)
+    assert folder == tmp_path / "identification" / scenario.robot_identity / "tares"
+    assert [path.name.split("-")[0] for path in folder.iterdir()] == ["mid_f_rls"]
+    monkeypatch.setattr(calibration, "calibrate_tares", lambda *args, **kwargs: pytest.fail("measured again"))
+    # The sweep of another grid of the same scenario reads it.
+    swept = prepare(scenario, ["pd", "mid_f_rls"], parameters=parameter_file, runs_dir=tmp_path, calibration_episodes=1)
+    assert swept.calibration.tares == compared.calibration.tares and swept.setup.tares == compared.setup.tares
+    # A worn drive is the same robot (its folder) but other work for the estimator: a tare of its own.
+    worn = tiny("worn")
+    assert kept_tares(worn, tmp_path) == folder
+    with pytest.raises(pytest.fail.Exception, match="measured again"):
+        prepare(worn, ["mid_f_rls"], parameters=parameter_file, runs_dir=tmp_path, calibration_episodes=1)
 
 
 def test_the_calibration_seeds_are_the_same_for_every_experiment() -> None:

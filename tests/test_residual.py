@@ -305,7 +305,7 @@ def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
 
 OLD_BASE = {
     "name": "MId+F+R+RLS+lag+PD",
-    "parameters": dataclasses.asdict(PARAMETERS),
+    "parameters": json.loads(json.dumps(dataclasses.asdict(PARAMETERS))),  # as read from a file
     "tare": -0.1,
     "forearm_rods": True,
     "regressor": "smoothed",
