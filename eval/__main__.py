@@ -121,6 +121,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     chosen = args.controllers is not None
     args.left_out = ""
     args.residual_base = None
+    args.residual_base_moves = False
     try:
         args.controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
@@ -137,6 +138,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
         args.residual_base = None if base is None else base.name
+        args.residual_base_moves = base is not None and bool(base.setup.empty_moves)
         robot = args.scenario.plant
         if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
             if not chosen:
@@ -217,11 +219,12 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
         return []
     base = args.residual_base or "a custom base"
     label = controller_label("residual")
+    moves = "has its own, from its training" if args.residual_base_moves else "does not carry"
     lines = [
         f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
         "file; the gain below is against this run's row of that controller (same identification; this run's "
-        "tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
-        "file's base does not carry).",
+        f"tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
+        f"file's base {moves}).",
         "",
     ]
     if args.residual_base is not None:

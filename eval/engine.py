@@ -2,7 +2,7 @@
 
 :func:`robot_knowledge` gives what every row knows of a scenario's robot: its identification (a given parameter
 file, or the robot's own, identified once and cached per robot identity:
-:func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.registry.ControllerSetup` built from
+:func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.setup.ControllerSetup` built from
 it with the scenario's fault reaction. :func:`prepare` adds the tares and empty-move sums of the tared controllers,
 measured once on the scenario's payload-free episodes on the calibration seeds and kept beside the identification
 (:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`run_grid` runs the episodes: one work unit
