@@ -1,15 +1,15 @@
 """The controllers of the experiments, by key: an open registry of entries (docs/design.md section 6).
 
 An entry (:class:`ControllerEntry`) is a key, a label, a factory that receives what the controller may know
-(:class:`ControllerSetup`; a privileged row also the plant) and its declared capabilities. The built-in rows are
-entries like any other; a user's controller joins by import path (``my_module:MyController``) or through the
-entry-point group :data:`ENTRY_POINT_GROUP`, and gets what a built-in gets (:func:`controller_entry`).
+(:class:`~controllers.setup.ControllerSetup`; a privileged row also the plant) and its declared capabilities. The
+built-in rows are entries like any other; a user's controller joins by import path (``my_module:MyController``) or
+through the entry-point group :data:`ENTRY_POINT_GROUP`, and gets what a built-in gets (:func:`controller_entry`).
 
 Every built-in controller is built from the datasheet geometry and masses of the robot it was identified on
-(:attr:`ControllerSetup.geometry`, :attr:`ControllerSetup.masses`) and the identified parameters only; the
+(``ControllerSetup.geometry``, ``ControllerSetup.masses``) and the identified parameters only; the
 oracle row is the labelled exception that knows the plant (and, from the evaluation, the payloads).
-:func:`controllers.feedforward.model_controller` is the one builder of a model-based controller:
-:func:`build_controller` uses it for every model row, and the residual policy file rebuilds its base with it.
+:func:`controllers.setup.model_row` is the one builder of a model row: :func:`build_controller` uses it for every
+model row, and the residual policy file rebuilds its base with it.
 """
 
 from __future__ import annotations
@@ -17,75 +17,22 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from types import ModuleType
-from typing import Literal
 
-from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, PDController, Privileged
-from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.feedforward import OracleController, model_controller
+from controllers.base import Controller, PDController, Privileged
+from controllers.dynamics import DeltaDynamics
+from controllers.feedforward import OracleController
 from controllers.monitor import FaultMonitor, MonitoredController
-from controllers.payload import EmptyMoveSums, PayloadEstimator
+from controllers.payload import PayloadEstimator
 from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, residual_controller
+from controllers.setup import ESTIMATOR_REGRESSORS, ControllerSetup, model_row
 from delta_env.config import PlantConfig
-from delta_env.drive import DriveLimits
 from delta_env.env import DeltaPickPlaceEnv
-from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
-from delta_env.records import content_hash, to_table
-from delta_env.sensors import ENCODER_BITS, encoder_resolution
-
-ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
-    "mid_f_rls": "smoothed",
-    "mid_f_rls_ref": "reference",
-    "mid_f_rls_lag": "smoothed",
-}
-"""The payload estimator variant of each built-in RLS controller key."""
-
-
-@dataclass(frozen=True)
-class ControllerSetup:
-    """What the controllers may know besides the observation.
-
-    Attributes:
-        mid: Identified MId parameters (rho1, rho2).
-        mid_f: Identified MId+F parameters (rho1, rho2, friction).
-        mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
-        drive_lag: Identified drive lag T (s) per joint; None if unknown (then ``mid_f_rls_lag`` cannot be built).
-        tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
-        empty_moves: Sums of the robot's earlier empty moves per RLS controller key (its calibration episodes,
-            :class:`~controllers.payload.EmptyMoveSums`), which seed the estimator's fit of the robot's mass and
-            friction errors at every episode; only for the robot they were measured on. Missing keys: none.
-        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
-        residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
-        geometry: Lengths (m) of the robot the parameters were identified on; the models are of this robot.
-        masses: Datasheet masses (kg) of that robot.
-        drive: The robot's drive (its data sheet), for the fault monitor's plausibility checks.
-        encoder_bits: Its encoders' resolution (bits per revolution; None: exact), likewise.
-        fault_reaction: What the monitored rows do after detecting a collision, a slip or a drive fault
-            (:data:`delta_env.faults.FAULT_REACTIONS`).
-    """
-
-    mid: ModelParameters
-    mid_f: ModelParameters
-    mid_f_rods: ModelParameters
-    drive_lag: tuple[float, float, float] | None = None
-    tares: Mapping[str, float] = field(default_factory=dict)
-    empty_moves: Mapping[str, EmptyMoveSums] = field(default_factory=dict)
-    pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
-    residual_policy: Path | None = None
-    geometry: DeltaGeometry = NOMINAL_GEOMETRY
-    masses: DeltaMasses = NOMINAL_MASSES
-    drive: DriveLimits = field(default_factory=DriveLimits)
-    encoder_bits: int | None = ENCODER_BITS
-    fault_reaction: Literal["continue", "slow", "stop"] = "continue"
-
-    def content_hash(self) -> str:
-        """16 hex digits of every field as a table (:mod:`delta_env.records`): the cache key of what the controllers
-        know, which no field can be left out of."""
-        return content_hash(to_table(self))
+from delta_env.sensors import encoder_resolution
 
 
 def residual_policy_path(setup: ControllerSetup) -> Path:
@@ -161,30 +108,8 @@ ENTRY_POINT_GROUP = "delta_pick_place.controllers"
 
 
 def _model_row(key: str, label: str) -> ControllerFactory:
-    """The factory of a model-based row (its feedforward from the identified model, its PD, its estimator)."""
-
-    def factory(setup: ControllerSetup) -> Controller:
-        if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
-            if key == "mid_f_rls_lag" and setup.drive_lag is None:
-                raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
-            return model_controller(
-                setup.mid_f_rods,
-                forearm_rods=True,
-                regressor=ESTIMATOR_REGRESSORS.get(key),
-                tare=setup.tares.get(key, 0.0),
-                empty_moves=setup.empty_moves.get(key),
-                pd_gains=setup.pd_gains,
-                name=label,
-                geometry=setup.geometry,
-                masses=setup.masses,
-                drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
-            )
-        parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
-        return model_controller(
-            parameters, pd_gains=setup.pd_gains, name=label, geometry=setup.geometry, masses=setup.masses
-        )
-
-    return factory
+    """The factory of a model-based row (:func:`controllers.setup.model_row`) labelled ``label``."""
+    return lambda setup: model_row(key, setup, label)
 
 
 @functools.cache
@@ -196,12 +121,15 @@ def _loaded_policy(path: Path, modified_ns: int, size: int) -> ResidualPolicy:
     return load_residual_policy(path)
 
 
-def _residual(setup: ControllerSetup) -> Controller:
+def loaded_policy(setup: ControllerSetup) -> ResidualPolicy:
+    """The residual policy of ``setup`` (:func:`residual_policy_path`), loaded once per process and file version."""
     path = residual_policy_path(setup).resolve()
     status = path.stat()
-    return residual_controller(
-        _loaded_policy(path, status.st_mtime_ns, status.st_size), name=CONTROLLER_LABELS["residual"]
-    )
+    return _loaded_policy(path, status.st_mtime_ns, status.st_size)
+
+
+def _residual(setup: ControllerSetup) -> Controller:
+    return residual_controller(loaded_policy(setup), name=CONTROLLER_LABELS["residual"])
 
 
 def _oracle(setup: ControllerSetup, plant: PlantConfig) -> Controller:
@@ -227,7 +155,7 @@ reference, for comparison. ``mid_f_rls_lag`` is ``mid_f_rls`` with its feedforwa
 inverse of the identified drive lag (:class:`~controllers.feedforward.LagCompensatedController`). The oracle
 knows the plant and the true payloads: an upper bound, not a controller. ``residual`` is the learned
 residual policy (:mod:`controllers.residual`) on the base it was trained on, rebuilt from the policy file (the
-policy file names its base: ``BaseSetup.name``)."""
+policy file records its base's key and setup: :class:`~controllers.residual.PolicyBase`)."""
 
 BUILTIN_CONTROLLERS: dict[str, ControllerEntry] = {
     "pd": ControllerEntry("pd", CONTROLLER_LABELS["pd"], lambda setup: PDController(*setup.pd_gains)),

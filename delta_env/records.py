@@ -1,10 +1,11 @@
 """Records as tables: the one writer of every value the project saves or hashes, scenarios, robot files and what a
-controller knows (:class:`controllers.registry.ControllerSetup`), and the one reader of the TOML files back into
-dataclasses (:func:`from_table`, driven by their type hints).
+controller knows (:class:`controllers.setup.ControllerSetup`), and the one reader of the tables back into
+dataclasses (:func:`from_table`, driven by their type hints), whether they were stored as TOML or JSON.
 
 A table holds TOML values only: dataclasses and named tuples become tables of their fields, mappings tables of
 their entries, tuples, lists and arrays lists, paths strings and None the string :data:`NONE_MARKER` (TOML has no
-null). A record's content hash is that of its table, so that no field can be left out of a cache key.
+null); the reader turns them back into the types the hints name (named tuples, ``Mapping[str, X]``, ``NDArray``,
+``Path``). A record's content hash is that of its table, so that no field can be left out of a cache key.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import tomllib
 import types
 import typing
 from collections.abc import Mapping
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import Any, Literal
 
 import numpy as np
@@ -57,6 +58,11 @@ def _is_table(hint: Any) -> bool:
     return isinstance(hint, type) and dataclasses.is_dataclass(hint)
 
 
+def _is_named_tuple(hint: Any) -> bool:
+    """Whether ``hint`` is a named tuple class (written as a table of its fields)."""
+    return isinstance(hint, type) and issubclass(hint, tuple) and hasattr(hint, "_fields")
+
+
 def read_toml(text: str, source: str) -> dict[str, Any]:
     """The table of TOML ``text``; ValueError naming ``source`` if it is not valid TOML."""
     try:
@@ -75,8 +81,12 @@ def _describe(hint: Any) -> str:
         return f"an array of {_describe(args[0]).split()[-1]}s"
     if origin is tuple:
         return f"an array of {len(args)} {_describe(args[0]).split()[-1]}s"
-    if _is_table(hint):
+    if _is_table(hint) or _is_named_tuple(hint) or origin in (Mapping, dict):
         return "a table"
+    if origin is np.ndarray:
+        return "an array of numbers"
+    if hint is Path:
+        return "a path string"
     return {float: "a number", int: "an integer", bool: "a boolean", str: "a string"}.get(hint, str(hint))
 
 
@@ -115,11 +125,40 @@ def _convert(path: str, hint: Any, value: Any) -> Any:
         ok = isinstance(value, dict)
         if ok:
             return from_table(hint, value, path)
+    elif _is_named_tuple(hint):
+        ok = isinstance(value, dict)
+        if ok:
+            return _named_tuple(hint, value, path)
+    elif origin in (Mapping, dict):  # Mapping[str, X]: a table of entries
+        ok = isinstance(value, dict)
+        if ok:
+            return {key: _convert(f"{path}.{key}", args[1], item) for key, item in value.items()}
+    elif origin is np.ndarray:  # NDArray[np.float64]: nested lists of numbers
+        try:
+            array = np.array(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            ok = False
+        else:
+            ok = isinstance(value, list) and bool(np.all(np.isfinite(array)))
+            if ok:
+                return array
+    elif hint is Path:
+        ok = isinstance(value, str)
+        if ok:
+            return Path(value)
     else:  # pragma: no cover - a field type this reader does not know is a programming error
         raise TypeError(f"{path}: no TOML conversion for {hint!r}")
     if not ok:
         raise ValueError(f"{path} must be {_describe(hint)}, got {value!r}")
     return value
+
+
+def _named_tuple(cls: type, table: dict[str, Any], path: str) -> Any:
+    """Named tuple ``cls`` from its table: every field given, each converted and checked."""
+    hints = typing.get_type_hints(cls)
+    if set(table) != set(cls._fields):
+        raise ValueError(f"{path} must have the fields {', '.join(cls._fields)}, got {', '.join(sorted(table))}")
+    return cls(**{name: _convert(f"{path}.{name}", hints[name], table[name]) for name in cls._fields})
 
 
 def from_table(cls: type, table: dict[str, Any], path: str) -> Any:

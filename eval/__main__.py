@@ -8,7 +8,8 @@ robot (``--geometry``, a design of the design study).
    (``eval.parameter_files.identify_robot``: one file per robot identity, identified when missing, about a
    minute; ``worn`` and ``randomized`` are the nominal robot and share its file).
 2. Runs the comparison (:mod:`eval.comparison`): tares each payload estimator on ``--calibration-episodes``
-   payload-free episodes, runs every controller on episodes ``seed, seed + 1, ...`` and the Table 2 run.
+   payload-free episodes (measured once per robot and setup, kept beside the identification), runs every
+   controller on episodes ``seed, seed + 1, ...`` and the Table 2 run.
    The ``residual`` row is the learned residual policy (``--residual``, by default the shipped one) on
    the base it was trained on, rebuilt from the policy file.
 3. Writes the run folder (``--out``, else ``<runs root>/eval/<UTC time stamp>``; :mod:`eval.run_folder`):
@@ -57,7 +58,7 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
-from eval.engine import robot_knowledge
+from eval.engine import kept_tares
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
@@ -120,14 +121,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     chosen = args.controllers is not None
     args.left_out = ""
     args.residual_base = None
+    args.residual_base_moves = False
     try:
         args.controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
         parser.error(f"--controllers: {error}")
     args.scenario = scenario_from_arguments(args, parser)
+    check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
-    check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     if "residual" in args.controllers:
         # Fail now, not after the other controllers have run. Only the settings are read here: the model
         # (torch) is loaded by the worker that runs the residual episodes, which the comparison runs first.
@@ -136,8 +138,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
         args.residual_base = None if base is None else base.name
+        args.residual_base_moves = base is not None and bool(base.setup.empty_moves)
         robot = args.scenario.plant
-        if base is not None and (base.geometry, base.masses) != (robot.geometry, robot.masses):
+        if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
             if not chosen:
                 args.controllers.remove("residual")
                 args.left_out = (
@@ -145,8 +148,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                 )
                 return args
             parser.error(
-                f"--residual: {args.residual} was trained on a robot with {base.geometry} and "
-                f"{base.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
+                f"--residual: {args.residual} was trained on a robot with {base.setup.geometry} and "
+                f"{base.setup.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
                 "'residual' out of --controllers or train a policy on this robot (python -m eval.train_residual "
                 "--scenario/--geometry)"
             )
@@ -216,11 +219,12 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
         return []
     base = args.residual_base or "a custom base"
     label = controller_label("residual")
+    moves = "has its own, from its training" if args.residual_base_moves else "does not carry"
     lines = [
         f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
         "file; the gain below is against this run's row of that controller (same identification; this run's "
-        "tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
-        "file's base does not carry).",
+        f"tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
+        f"file's base {moves}).",
         "",
     ]
     if args.residual_base is not None:
@@ -249,15 +253,13 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
     is the :func:`time.perf_counter` time at the start of the command."""
     out = args.out = run.folder
     scenario = args.scenario
-    args.parameters, identification, setup = robot_knowledge(
-        scenario, args.parameters, args.runs_dir, residual_policy=args.residual
-    )
-    identified_time = time.perf_counter() - started
     keys = args.controllers
-    results, tares, tare_spreads = run_all(args, setup)
-    episode_rows, carry_rows, traces = tabulate(results, keys)
-    fault_rows = tabulate_faults(results, keys)
-    table2_record = next(record for task, record in results if task.kind == "table2")
+    prepared, results = run_all(args)
+    args.parameters, identification, setup = prepared.parameter_file, prepared.identification, prepared.setup
+    tares, tare_spreads = prepared.calibration.tares, prepared.calibration.spreads
+    episode_rows, carry_rows, traces = tabulate(results, keys, args.seed)
+    fault_rows = tabulate_faults(results, keys, args.seed)
+    table2_record = results[-1][1]
     model_torques = table2_record.model_torques(estimation_model(setup), tares[TABLE2_KEY])
     table2_rows = table2_statistics(model_torques)
 
@@ -287,7 +289,8 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
             "robot_identity": scenario.robot_identity,
         },
         "episode_seeds": [args.seed + i for i in range(args.episodes)],
-        "calibration_seeds": calibration_seeds(args.seed, args.calibration_episodes),
+        "calibration_seeds": calibration_seeds(args.calibration_episodes),
+        "tares": str(kept_tares(scenario, args.runs_dir)),
         "env": {
             "id": "DeltaPickPlace-v0",
             "n_cycles": args.cycles,
@@ -311,7 +314,7 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
     results_entry = {
         "tare_kg": tares,
         "tare_spread_kg": tare_spreads,
-        "seconds": {"identification_or_load": identified_time, "total": total_time},
+        "seconds": {"total": total_time},
     }
     run.record(config=config, results=results_entry)
 

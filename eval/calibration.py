@@ -4,25 +4,34 @@ Each RLS controller runs pick-and-place episodes with nothing to pick (0 kg obje
 closes and opens) on seeds of their own; :func:`controllers.payload.tare_from_observations` turns their
 observations into the tare (kg) and its spread over the carries. ``python -m eval``, the sweep, the residual
 training and the design verification (on its standard cycles, given as references) tare their estimators
-with these functions.
+with these functions; :func:`tare_setup` keeps each tare as a file keyed by the content hash of what decides it
+(the robot and what its controllers know, the scenario's work, the seeds and the code), so that the comparison and
+every seed of the sweep use one tare, measured once.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Sequence
+import hashlib
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 from controllers.payload import EmptyMoveSums, tare_from_observations
-from controllers.registry import ControllerSetup, controller_entry, payload_estimator
+from controllers.registry import ControllerSetup, controller_entry, controller_source, payload_estimator
+from delta_env.records import content_hash, from_table, to_table
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord
 from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
 
 CALIBRATION_SEED_OFFSET = 100_000
-"""Calibration (tare) episodes of an experiment from seed ``s`` use seeds ``s + 100000 + j``: paths and noise unlike
-its episodes'."""
+"""The tare's payload-free episodes use seeds ``100000 + j``: paths and noise unlike those of the experiments' episodes
+(seeds below 100000 by convention), the same for every experiment, so that a tare is one fact of a robot and what
+its controllers know (:func:`tare_setup` keeps it)."""
 
 DEFAULT_CALIBRATION_EPISODES = 6
 """Payload-free episodes per tare: the apparent payload of an empty gripper varies by about 10 g from episode to
@@ -30,9 +39,9 @@ episode (noise and path), so six of them put the tare's own standard error near 
 light objects."""
 
 
-def calibration_seeds(seed: int, episodes: int) -> list[int]:
-    """Seeds of the tare calibration of an experiment whose episodes start at ``seed``: ``seed + 100000 + j``."""
-    return [seed + CALIBRATION_SEED_OFFSET + j for j in range(episodes)]
+def calibration_seeds(episodes: int) -> list[int]:
+    """Seeds of the tare's ``episodes`` payload-free episodes: ``100000 + j``, whatever the experiment's seeds."""
+    return [CALIBRATION_SEED_OFFSET + j for j in range(episodes)]
 
 
 def tared_keys(controllers: Iterable[str], scenario: Scenario | None) -> list[str]:
@@ -73,6 +82,13 @@ def calibrated_setup(setup: ControllerSetup, calibration: Calibration, scenario:
     return dataclasses.replace(setup, tares=dict(calibration.tares), empty_moves=empty_moves, fault_reaction=reaction)
 
 
+def _healthy(scenario: Scenario) -> Scenario:
+    """``scenario`` without its faults: a tare is measured on healthy work."""
+    if not scenario.task.faults:
+        return scenario
+    return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
+
+
 def calibration_tasks(
     keys: Iterable[str],
     setup: ControllerSetup,
@@ -87,8 +103,7 @@ def calibration_tasks(
     if references is not None and len(references) != len(seeds):
         raise ValueError(f"references must be one per seed: {len(references)} references for {len(seeds)} seeds")
     paths = [None] * len(seeds) if references is None else list(references)
-    if scenario is not None and scenario.task.faults:  # a tare is measured on healthy work
-        scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
+    scenario = None if scenario is None else _healthy(scenario)
     tasks = []
     for key in keys:
         if not controller_entry(key).tared:
@@ -154,34 +169,119 @@ def calibrate_tares(
     return tares_from_results(run_tasks(tasks, workers, progress), setup, max_loop_gap)
 
 
+@dataclass(frozen=True)
+class KeptTare:
+    """One controller's tare as :func:`tare_setup` keeps it (written and read by :mod:`delta_env.records`).
+
+    Attributes:
+        controller: Its key.
+        tare_kg: The tare (kg).
+        spread_kg: Its carry-to-carry standard deviation (kg); None for a single carry.
+        empty_moves: The sums of the calibration's empty moves.
+        content: What decided it (:func:`tare_content`), for the reader.
+    """
+
+    controller: str
+    tare_kg: float
+    spread_kg: float | None
+    empty_moves: EmptyMoveSums
+    content: Mapping[str, str]
+
+
+def tare_content(
+    key: str, scenario: Scenario, setup: ControllerSetup, seeds: Sequence[int], max_loop_gap: float | None
+) -> dict[str, str]:
+    """What decides the tare of ``key``, as content hashes: the scenario's healthy work, what the controllers know
+    (:meth:`~controllers.setup.ControllerSetup.content_hash`, without tares, empty moves or residual policy), the
+    key and a user controller's source, the seeds, the loop-gap limit and the code
+    (:func:`eval.sweep.work.code_version`)."""
+    from eval.sweep.work import code_version
+
+    untared = dataclasses.replace(setup, tares={}, empty_moves={}, residual_policy=None)
+    run = {"seeds": list(seeds), "max_loop_gap": max_loop_gap}
+    return {
+        "scenario": _healthy(scenario).content_hash,
+        "setup": untared.content_hash(),
+        "controller": key,
+        "controller_source": hashlib.sha256(controller_source(key)).hexdigest()[:16],
+        "run": content_hash(to_table(run)),
+        "code": code_version(),
+    }
+
+
+def _read_kept(path: Path) -> Calibration:
+    """The calibration of one controller kept at ``path``; ValueError naming the file if it cannot be read."""
+    try:
+        kept = from_table(KeptTare, json.loads(path.read_text()), "")
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{path}: unreadable kept tare ({error}); delete it to measure the tare again") from None
+    spread = math.nan if kept.spread_kg is None else kept.spread_kg
+    key = kept.controller
+    return Calibration({key: kept.tare_kg}, {key: spread}, {key: kept.empty_moves})
+
+
+def _keep(path: Path, key: str, calibration: Calibration, content: dict[str, str]) -> None:
+    """Write ``key``'s part of ``calibration`` to ``path`` (whole or not at all)."""
+    spread = calibration.spreads[key]
+    spread_kg = None if math.isnan(spread) else spread
+    kept = KeptTare(key, calibration.tares[key], spread_kg, calibration.empty_moves[key], content)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(json.dumps(to_table(kept), indent=2) + "\n")
+    partial.replace(path)
+
+
 def tare_setup(
     scenario: Scenario,
     setup: ControllerSetup,
     controllers: Iterable[str],
     *,
-    seed: int = 0,
     episodes: int = DEFAULT_CALIBRATION_EPISODES,
     workers: int = 1,
     progress: Any = None,
     references: Sequence[Trajectory] | None = None,
     max_loop_gap: float | None = None,
+    kept: Path | None = None,
 ) -> tuple[ControllerSetup, Calibration]:
     """``setup`` tared for ``controllers`` on ``scenario`` (:func:`calibrated_setup`), and the calibration: the
-    payload-free episodes of :func:`tared_keys` on the :func:`calibration_seeds` of ``seed`` (along ``references``,
-    one per calibration seed, if given). Nothing runs when no controller is tared."""
+    payload-free episodes of :func:`tared_keys` on the :func:`calibration_seeds` (along ``references``, one per
+    calibration seed, if given). Nothing runs when no controller is tared.
+
+    Args:
+        kept: Folder of the kept tares (one file per controller, named by the hash of :func:`tare_content`): a tare
+            found there is read, not measured; one measured is written there. None (or ``references`` given):
+            measure every tare.
+    """
     keys = tared_keys(controllers, scenario)
-    if not keys:
-        return calibrated_setup(setup, Calibration({}, {}, {}), scenario), Calibration({}, {}, {})
-    seeds = calibration_seeds(seed, episodes)
-    calibration = calibrate_tares(
-        keys,
-        setup,
-        seeds,
-        scenario.task.n_cycles,
-        workers=workers,
-        progress=progress,
-        scenario=scenario,
-        references=references,
-        max_loop_gap=max_loop_gap,
-    )
+    seeds = calibration_seeds(episodes)
+    calibration = Calibration({}, {}, {})
+    files = {}
+    if kept is not None and references is None:
+        for key in keys:
+            content = tare_content(key, scenario, setup, seeds, max_loop_gap)
+            files[key] = (kept / f"{key.replace(':', '-')}-{content_hash(content)}.json", content)
+    found = {key: _read_kept(path) for key, (path, _) in files.items() if path.is_file()}
+    missing = [key for key in keys if key not in found]
+    measured = Calibration({}, {}, {})
+    if missing:
+        measured = calibrate_tares(
+            missing,
+            setup,
+            seeds,
+            scenario.task.n_cycles,
+            workers=workers,
+            progress=progress,
+            scenario=scenario,
+            references=references,
+            max_loop_gap=max_loop_gap,
+        )
+    for key in keys:
+        one = found.get(key, measured)
+        if key in files and key not in found:
+            path, content = files[key]
+            _keep(path, key, measured, content)
+        calibration.tares[key], calibration.spreads[key] = one.tares[key], one.spreads[key]
+        calibration.empty_moves[key] = one.empty_moves[key]
+    if progress is not None:
+        progress.update(episodes * len(found))
     return calibrated_setup(setup, calibration, scenario), calibration

@@ -1,9 +1,11 @@
 """The controller comparison of ``python -m eval``: every controller on the same seeded episodes.
 
-1. Tares each payload estimator (:mod:`eval.calibration`): its controller runs payload-free pick-and-place
-   episodes on seeds of their own.
-2. Runs every controller on episodes ``seed, seed + 1, ...`` of the scenario (by default ``nominal``:
-   realistic plant, 3 g conveyor cycles, objects drawn from U[0, 4] kg): the same paths and objects for all.
+1. Prepares what the controllers know (:func:`eval.engine.prepare`): the robot's identification and the tare of
+   each payload estimator (:mod:`eval.calibration`: its controller's payload-free pick-and-place episodes on seeds
+   of their own, measured once per robot and setup and kept beside the identification).
+2. Runs every controller on episodes ``seed, seed + 1, ...`` of the scenario (:func:`eval.engine.run_grid`; by
+   default ``nominal``: realistic plant, 3 g conveyor cycles, objects drawn from U[0, 4] kg): the same paths and
+   objects for all.
 3. Runs the Table 2 analogue, without the scenario's faults: MId+F+R+RLS on the path of the first episode with
    every object 3.8 kg (the paper's experiment when the scenario is ``paper``: standard cycles, 3.8 kg on every
    pick); the
@@ -16,19 +18,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import itertools
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from controllers.registry import ControllerSetup, controller_entry
+from controllers.registry import controller_entry
 from eval import metrics
-from eval.calibration import calibrated_setup, calibration_seeds, calibration_tasks, tared_keys, tares_from_results
+from eval.calibration import tared_keys
+from eval.engine import Prepared, grid, prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows
-from eval.processes import process_pool
-from eval.tasks import Task, iterate_tasks
+from eval.sweep.work import WorkUnit
 
 TABLE2_KEY = "mid_f_rls"
 """The controller of the Table 2 run: MId+F+R with the default payload estimator."""
@@ -41,75 +42,68 @@ SLOW_KEYS = ("residual", "oracle")
 first, so that the short episodes even out the end of the run across the workers."""
 
 
-def run_all(
-    args: argparse.Namespace, setup: ControllerSetup
-) -> tuple[list[tuple[Task, EpisodeRecord]], dict[str, float], dict[str, float]]:
-    """Calibrate the tares, then run every episode and the Table 2 run.
+def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, EpisodeRecord]]]:
+    """Prepare the robot's knowledge (identification and tares, :func:`eval.engine.prepare`), then run every episode
+    and the Table 2 run (:func:`eval.engine.run_grid`).
 
     Args:
-        args: The parsed command line of ``python -m eval`` (seed, episodes, cycles, controllers,
-            calibration_episodes, workers, scenario: the resolved Scenario).
-        setup: What the controllers may know (identified parameters, gains, residual policy).
+        args: The parsed command line of ``python -m eval`` (seed, episodes, controllers, parameters, runs_dir,
+            calibration_episodes, residual, workers, cycles, scenario: the resolved Scenario).
 
     Returns:
-        The (task, record) of every run, and the tare (kg) and its spread (kg) per estimating controller.
+        What the controllers knew, and the (unit, record) of every episode: the comparison's, then the Table 2 run.
     """
     from tqdm.auto import tqdm
 
     keys = args.controllers
-    tared = sorted(set(tared_keys([*keys, TABLE2_KEY], args.scenario)))
-    untared = [key for key in keys if key not in tared]
-
-    def episodes(selected: list[str], task_setup: ControllerSetup) -> list[Task]:
-        return [
-            Task("episode", key, i, args.seed + i, args.cycles, task_setup, scenario=args.scenario)
-            for key in selected
-            for i in range(args.episodes)
-        ]
-
-    seeds = calibration_seeds(args.seed, args.calibration_episodes)
-    calibrations = calibration_tasks(tared, setup, seeds, args.cycles, args.scenario)
-    slow_first = [*(key for key in SLOW_KEYS if key in untared), *(key for key in untared if key not in SLOW_KEYS)]
-    first = calibrations + episodes(slow_first, setup)
-    total = len(first) + args.episodes * (len(keys) - len(untared)) + 1
-    # One pool, and no barrier between the batches: the second needs the tares, which the calibrations (the
-    # first results) give, and queues behind the rest of the first batch while it runs.
-    with process_pool(args.workers) as pool, tqdm(total=total, desc="episodes", unit="ep") as progress:
-        running = iterate_tasks(first, args.workers, progress, pool)
-        results = list(itertools.islice(running, len(calibrations)))
-        calibration = tares_from_results(results, setup)
-        tared_setup = calibrated_setup(setup, calibration, args.scenario)
-        payloads = (TABLE2_PAYLOAD,) * args.cycles
-        healthy = dataclasses.replace(args.scenario, task=dataclasses.replace(args.scenario.task, faults=()))
-        table2 = Task("table2", TABLE2_KEY, 0, args.seed, args.cycles, tared_setup, payloads, healthy)
-        second = [*episodes([key for key in keys if key not in untared], tared_setup), table2]
-        queued = iterate_tasks(second, args.workers, progress, pool)
-        results += [*running, *queued]
-    return results, calibration.tares, calibration.spreads
+    scenario = dataclasses.replace(args.scenario, task=dataclasses.replace(args.scenario.task, n_cycles=args.cycles))
+    tared = sorted(set(tared_keys([*keys, TABLE2_KEY], scenario)))
+    with tqdm(total=len(tared) * args.calibration_episodes, desc="tares", unit="ep") as progress:
+        prepared = prepare(
+            scenario,
+            tared,
+            parameters=args.parameters,
+            runs_dir=args.runs_dir,
+            calibration_episodes=args.calibration_episodes,
+            workers=args.workers,
+            progress=progress,
+            residual_policy=args.residual,
+        )
+    slow_first = [*(key for key in SLOW_KEYS if key in keys), *(key for key in keys if key not in SLOW_KEYS)]
+    units = grid([scenario], slow_first, range(args.seed, args.seed + args.episodes))
+    healthy = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
+    units.append(WorkUnit(healthy, TABLE2_KEY, args.seed, (TABLE2_PAYLOAD,) * args.cycles))
+    setups = {s.content_hash: prepared.setup for s in (scenario, healthy)}
+    with tqdm(total=len(units), desc="episodes", unit="ep") as progress:
+        records = run_grid(units, setups, workers=args.workers, progress=progress)
+    return prepared, list(zip(units, records, strict=True))
 
 
 def _episodes_in_order(
-    results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]
-) -> list[tuple[Task, EpisodeRecord]]:
-    """The comparison's episodes, by controller in the order of ``keys``, then by episode index."""
+    results: list[tuple[WorkUnit, EpisodeRecord]], keys: Sequence[str]
+) -> list[tuple[WorkUnit, EpisodeRecord]]:
+    """The comparison's episodes (the Table 2 run left out), by controller in the order of ``keys``, then by seed."""
     order = {key: n for n, key in enumerate(keys)}
-    episodes = ((task, record) for task, record in results if task.kind == "episode")
-    return sorted(episodes, key=lambda item: (order[item[0].key], item[0].index))
+    episodes = ((unit, record) for unit, record in results if unit.masses is None)
+    return sorted(episodes, key=lambda item: (order[item[0].controller], item[0].seed))
 
 
-def _identity(task: Task) -> dict[str, Any]:
-    """The identity columns of an episode's rows: controller label and key, episode index and seed."""
-    return {"controller": controller_entry(task.key).label, "key": task.key, "episode": task.index, "seed": task.seed}
+def _identity(unit: WorkUnit, first_seed: int) -> dict[str, Any]:
+    """The identity columns of an episode's rows: controller label and key, episode index (from ``first_seed``) and
+    seed."""
+    key = unit.controller
+    return {"controller": controller_entry(key).label, "key": key, "episode": unit.seed - first_seed, "seed": unit.seed}
 
 
 def tabulate(
-    results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]
+    results: list[tuple[WorkUnit, EpisodeRecord]], keys: Sequence[str], first_seed: int
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, EpisodeRecord]]:
-    """Per-episode rows, per-carry rows (estimating controllers) and the first episode of each controller."""
+    """Per-episode rows, per-carry rows (estimating controllers) and the first episode (seed ``first_seed``) of each
+    controller."""
     episode_rows, carry_rows, first = [], [], {}
-    for task, record in _episodes_in_order(results, keys):
-        entry = controller_entry(task.key)
-        identity = _identity(task)
+    for unit, record in _episodes_in_order(results, keys):
+        entry = controller_entry(unit.controller)
+        identity = _identity(unit, first_seed)
         episode_rows.append({**identity, **record.metrics()})
         if entry.estimates_payload:
             for n, carry in enumerate(record.carries()):
@@ -125,17 +119,19 @@ def tabulate(
                         "peak_estimate_kg": carry.peak_estimate,
                     }
                 )
-        if task.index == 0:
-            first[task.key] = record
+        if unit.seed == first_seed:
+            first[unit.controller] = record
     return episode_rows, carry_rows, first
 
 
-def tabulate_faults(results: list[tuple[Task, EpisodeRecord]], keys: Sequence[str]) -> list[dict[str, Any]]:
+def tabulate_faults(
+    results: list[tuple[WorkUnit, EpisodeRecord]], keys: Sequence[str], first_seed: int
+) -> list[dict[str, Any]]:
     """The rows of ``faults.csv`` (:func:`eval.faults.fault_rows`) of the comparison's episodes, in the order of
     :func:`tabulate`: every injected fault, detected or missed, and every detection that matched none."""
     rows = []
-    for task, record in _episodes_in_order(results, keys):
-        rows += fault_rows(_identity(task), record.faults())
+    for unit, record in _episodes_in_order(results, keys):
+        rows += fault_rows(_identity(unit, first_seed), record.faults())
     return rows
 
 

@@ -2,15 +2,19 @@
 
 :func:`robot_knowledge` gives what every row knows of a scenario's robot: its identification (a given parameter
 file, or the robot's own, identified once and cached per robot identity:
-:func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.registry.ControllerSetup` built from
+:func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.setup.ControllerSetup` built from
 it with the scenario's fault reaction. :func:`prepare` adds the tares and empty-move sums of the tared controllers,
-measured on the scenario's payload-free episodes on the calibration seeds (:func:`eval.calibration.tare_setup`).
-The episodes themselves are tasks (:mod:`eval.tasks`), one work unit for every experiment and both sweep backends.
+measured once on the scenario's payload-free episodes on the calibration seeds and kept beside the identification
+(:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`run_grid` runs the episodes: one work unit
+(:class:`eval.sweep.work.WorkUnit`: a scenario, a controller, a seed) on either backend of the sweep (a local
+process pool or Ray, :func:`eval.sweep.runner.run_units`), returning each unit's row (:func:`eval.sweep.work.run_unit`)
+or record (:func:`eval.sweep.work.unit_record`). The comparison (:mod:`eval.comparison`), the sweep and the residual
+scores (:mod:`eval.scoring`) are its callers.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -18,7 +22,9 @@ from controllers.identification import IdentificationResult
 from controllers.registry import ControllerSetup
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
-from eval.parameter_files import identification_root, robot_identification, robot_setup
+from eval.parameter_files import identification_root, parameter_path, robot_identification, robot_setup
+from eval.sweep.runner import Setups, Work, run_units
+from eval.sweep.work import WorkUnit, unit_record
 
 
 class Prepared(NamedTuple):
@@ -47,13 +53,18 @@ def robot_knowledge(
     return parameter_file, identification, robot_setup(scenario.plant, identification, **fields)
 
 
+def kept_tares(scenario: Scenario, runs_dir: str | Path | None = None) -> Path:
+    """Folder of the kept tares of ``scenario``'s robot (:func:`eval.calibration.tare_setup`): ``tares`` beside its
+    identification under the runs root (:func:`eval.parameter_files.parameter_path`)."""
+    return parameter_path(scenario.plant, identification_root(runs_dir)).parent / "tares"
+
+
 def prepare(
     scenario: Scenario,
     controllers: Iterable[str],
     *,
     parameters: str | Path | None = None,
     runs_dir: str | Path | None = None,
-    seed: int = 0,
     calibration_episodes: int = DEFAULT_CALIBRATION_EPISODES,
     workers: int = 1,
     progress: Any = None,
@@ -67,7 +78,6 @@ def prepare(
         parameters: A parameter file of this robot (identified there when missing); None: the robot's own, under
             the runs root (:func:`eval.parameter_files.identification_root` of ``runs_dir``).
         runs_dir: The runs root (:func:`eval.run_folder.runs_root`).
-        seed: Seed of the experiment's first episode; the calibration runs on its calibration seeds.
         calibration_episodes: Payload-free episodes per tared controller.
         workers: Processes of the identification's and the calibration's episodes.
         progress: tqdm bar advanced once per calibration episode.
@@ -75,6 +85,58 @@ def prepare(
     """
     parameter_file, identification, setup = robot_knowledge(scenario, parameters, runs_dir, **setup_fields)
     setup, calibration = tare_setup(
-        scenario, setup, controllers, seed=seed, episodes=calibration_episodes, workers=workers, progress=progress
+        scenario,
+        setup,
+        controllers,
+        episodes=calibration_episodes,
+        workers=workers,
+        progress=progress,
+        kept=kept_tares(scenario, runs_dir),
     )
     return Prepared(setup, parameter_file, identification, calibration)
+
+
+def grid(scenarios: Iterable[Scenario], controllers: Iterable[str], seeds: Iterable[int]) -> list[WorkUnit]:
+    """The work units of scenarios x controllers x seeds, in that nesting order."""
+    controllers, seeds = list(controllers), list(seeds)
+    return [WorkUnit(scenario, key, seed) for scenario in scenarios for key in controllers for seed in seeds]
+
+
+def run_grid(
+    units: Sequence[WorkUnit],
+    setups: Setups,
+    *,
+    work: Work = unit_record,
+    backend: str = "local",
+    workers: int = 1,
+    address: str | None = None,
+    progress: Any = None,
+) -> list[Any]:
+    """``work(unit, setups[unit.scenario.content_hash])`` of every unit (:func:`grid` builds a product), on the
+    sweep's ``backend`` (:func:`eval.sweep.runner.run_units`), in the order of ``units``.
+
+    Args:
+        units: The episodes.
+        setups: What the controllers know, by scenario content hash (:func:`prepare`'s setup of each scenario).
+        work: :func:`eval.sweep.work.unit_record` (the episode's record; an episode's error is raised) or
+            :func:`eval.sweep.work.run_unit` (its row of metrics; an error is recorded in the row).
+        backend: ``"local"`` (a process pool of ``workers``, this process if 1) or ``"ray"``.
+        workers: Local processes, or the CPUs of a Ray started here.
+        address: Ray cluster to join (``ray`` only).
+        progress: tqdm bar advanced once per finished unit.
+    """
+    results: list[Any] = [None] * len(units)
+    position = {id(unit): n for n, unit in enumerate(units)}
+    if len(position) != len(units):
+        raise ValueError("run_grid needs distinct unit objects (the same object twice)")
+
+    def on_result(unit: WorkUnit, result: Any) -> None:
+        results[position[id(unit)]] = result
+        if progress is not None:
+            progress.update()
+
+    def on_lost(unit: WorkUnit, error: str) -> None:
+        raise RuntimeError(f"the episode of {unit.controller!r} on seed {unit.seed} ({unit.scenario.name}): {error}")
+
+    run_units(units, setups, on_result, backend=backend, workers=workers, address=address, work=work, on_lost=on_lost)
+    return results

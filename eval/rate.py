@@ -306,7 +306,6 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
         tared,
         parameters=args.parameters,
         runs_dir=args.runs_dir,
-        seed=args.seed,
         calibration_episodes=CALIBRATION_EPISODES,
         workers=args.workers,
     )
@@ -328,7 +327,7 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
             "arguments": {**vars(args), "scenario": scenario.name},
             "identification": str(args.parameters),
             "tares_kg": calibration.tares,
-            "calibration_seeds": calibration_seeds(args.seed, CALIBRATION_EPISODES),
+            "calibration_seeds": calibration_seeds(CALIBRATION_EPISODES),
             "goals_mm": {"tracking_rms": TRACKING_GOAL_MM, "place_error": PLACE_GOAL_MM},
         }
     )

@@ -20,10 +20,10 @@ from stable_baselines3.common.monitor import Monitor
 from controllers.base import Controller
 from controllers.dynamics import ModelParameters
 from controllers.registry import ControllerSetup
-from controllers.residual import BaseSetup, DeltaResidualEnv, ResidualConfig
+from controllers.residual import DeltaResidualEnv, PolicyBase, ResidualConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
-from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
 
 TRAINING_SEEDS = range(10_000_000, 20_000_000)
 """Env seeds of the training episodes (drawn at random per worker)."""
@@ -81,15 +81,16 @@ def base_setup(
     *,
     base: str = BASE_KEYS[0],
     runs_dir: Path | None = None,
-) -> BaseSetup:
-    """The base controller's setup: identified MId+F+R parameters (and drive lag) of the scenario's robot and
-    its tare calibrated on the scenario.
+) -> PolicyBase:
+    """The base controller's row and what it knows: the identification of the scenario's robot and the base's tare
+    (and, unless the scenario randomizes the plant, its empty moves) calibrated on the scenario
+    (:func:`eval.calibration.calibrated_setup`), as the eval's rows know them.
 
     Args:
         env_kwargs: Keyword arguments of the calibration episodes' :class:`DeltaPickPlaceEnv`: ``n_cycles``
             and optionally ``scenario`` (a Scenario; None or absent is ``nominal``).
         parameters: Identified MId+F+R parameters; None loads (or identifies) those of the scenario's robot
-            with :func:`eval.parameter_files.identify_robot` (kept under the runs root of ``runs_dir``,
+            (:func:`eval.engine.robot_knowledge`, kept under the runs root of ``runs_dir``,
             :func:`eval.run_folder.runs_root`), and with them its drive lag.
         drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
         base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
@@ -100,38 +101,32 @@ def base_setup(
     if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
         raise ValueError(f"the tare calibration takes n_cycles and scenario only, got {sorted(env_kwargs)}")
     scenario = env_kwargs.get("scenario") or Scenario()
-    robot = scenario.plant
     if parameters is None:
-        from eval.parameter_files import identification_root, identify_robot
+        from eval.engine import robot_knowledge
 
-        result = identify_robot(robot, identification_root(runs_dir))
-        parameters, drive_lag = result.mid_f_rods, result.drive_lag
-    if base == "mid_f_rls_lag" and drive_lag is None:
+        setup = robot_knowledge(scenario, runs_dir=runs_dir)[2]
+    else:  # the base uses the MId+F+R set only
+        robot = scenario.plant
+        setup = ControllerSetup(
+            mid=parameters,
+            mid_f=parameters,
+            mid_f_rods=parameters,
+            drive_lag=drive_lag,
+            geometry=robot.geometry,
+            masses=robot.masses,
+            fault_reaction=scenario.task.fault_reaction,
+        )
+    if base == "mid_f_rls_lag" and setup.drive_lag is None:
         raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")
-    # The registry builds this base; the lumped parameter sets are not used by it.
-    setup = ControllerSetup(
-        mid=parameters,
-        mid_f=parameters,
-        mid_f_rods=parameters,
-        drive_lag=drive_lag,
-        geometry=robot.geometry,
-        masses=robot.masses,
-    )
     calibration = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
-    return BaseSetup(
-        parameters,
-        tare=calibration.tares[base],
-        geometry=robot.geometry,
-        masses=robot.masses,
-        drive_lag=drive_lag if base == "mid_f_rls_lag" else None,
-    )
+    return PolicyBase(base, calibrated_setup(setup, calibration, scenario))
 
 
 def make_env(
     *,
     config: ResidualConfig,
     env_kwargs: dict[str, Any],
-    base: BaseSetup | None,
+    base: PolicyBase | None,
     seed: int = 0,
     rank: int = 0,
     seeds: Sequence[int] | None = None,
@@ -142,7 +137,7 @@ def make_env(
     Args:
         config: Residual settings.
         env_kwargs: Keyword arguments of :class:`DeltaPickPlaceEnv`.
-        base: Setup of the default base controller (None: ``base_factory`` must be given).
+        base: The base controller's row and setup (None: ``base_factory`` must be given).
         seed: Seed of the training episode seeds.
         rank: Worker index.
         seeds: Fixed held-out seeds instead of drawn training seeds.

@@ -1,24 +1,28 @@
 """Scores of a residual policy against its base controller on held-out episodes.
 
-The episodes are run by :func:`eval.episodes.run_episode` and scored by :mod:`eval.metrics`, exactly as
-``python -m eval`` scores its rows: tracking error of the platform (mm) and the motor torque that acted
-(N m).
+The episodes are work units of :func:`eval.engine.run_grid` (two rows registered here, :data:`POLICY_BASE` and
+:data:`POLICY_RESIDUAL`, as a user's controller is) and scored by :mod:`eval.metrics`, as ``python -m eval`` scores
+its rows: tracking error of the platform (mm) and the motor torque that acted (N m).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from controllers.base import Controller
-from controllers.residual import ResidualController, load_residual_policy
-from delta_env.env import DeltaPickPlaceEnv
+from controllers.registry import ControllerEntry, ControllerSetup, loaded_policy, residual_policy_path
+from controllers.residual import read_policy_settings, residual_controller
+from delta_env.scenario import Scenario
 from eval import metrics
-from eval.episodes import EpisodeRecord, run_episode
+from eval.engine import run_grid
+from eval.episodes import EpisodeRecord
+from eval.sweep.work import WorkUnit
 
 TEST_SEEDS = tuple(range(2_000_000, 2_000_010))
 """Held-out episodes of the final scores: never seen in training nor in model selection."""
@@ -34,53 +38,77 @@ def pooled_scores(records: Sequence[EpisodeRecord]) -> dict[str, float]:
     return {"tracking_rms_mm": tracking_rms, "tracking_max_mm": tracking_max, "torque_rms_nm": torque_rms}
 
 
+def _policy_base(setup: ControllerSetup) -> Controller:
+    """The base controller recorded in the policy file of ``setup``."""
+    base = read_policy_settings(residual_policy_path(setup)).base
+    if base is None:
+        raise ValueError(f"{residual_policy_path(setup)} was trained on a custom base controller: it records no base")
+    return base.controller()
+
+
+def _policy_residual(setup: ControllerSetup) -> Controller:
+    """The policy of ``setup`` on the base recorded in its file (:func:`controllers.registry.loaded_policy`)."""
+    return residual_controller(loaded_policy(setup))
+
+
+POLICY_BASE = ControllerEntry("policy_base", "the policy's base", _policy_base, estimates_payload=True, monitored=False)
+"""The scores' base row: the base the policy file records, as the policy saw it in training (no fault monitor)."""
+
+POLICY_RESIDUAL = ControllerEntry(
+    "policy_residual", "the policy on its base", _policy_residual, estimates_payload=True, monitored=False
+)
+"""The scores' residual row: the policy on the base its file records (no fault monitor)."""
+
+ROWS = {"base": f"{__name__}:POLICY_BASE", "residual": f"{__name__}:POLICY_RESIDUAL"}
+"""The two rows of the scores, by name, as registry keys (:func:`controllers.registry.controller_entry`)."""
+
+
 def score_policy(
     path: str | Path,
     env_kwargs: dict[str, Any] | None = None,
     *,
     seeds: Sequence[int] = TEST_SEEDS,
     payloads: Sequence[float] = TEST_PAYLOADS,
-    base_factory: Callable[[], Controller] | None = None,
+    workers: int = 1,
 ) -> dict[str, Any]:
-    """Base controller vs base + residual on held-out episodes (the same episodes for both).
+    """Base controller vs base + residual on held-out episodes (the same episodes for both), run by
+    :func:`eval.engine.run_grid`.
 
     Episodes: one per seed with its drawn payloads, and one per fixed payload mass (every object of
     the episode that mass) on the first seed. The summary pools every control step of every episode;
-    per-episode values are listed too. The base is the one stored in the policy file unless
-    ``base_factory`` is given.
+    per-episode values are listed too. Both rows know what the policy file records of its base.
 
     Args:
-        path: The policy zip.
-        env_kwargs: Keyword arguments of :class:`DeltaPickPlaceEnv`; None is 3 cycles.
+        path: The policy zip; its base must be recorded (a policy trained on a custom base is scored by its caller).
+        env_kwargs: ``n_cycles`` and optionally ``scenario`` (a Scenario; None or absent is ``nominal``); None is
+            3 cycles.
         seeds: Episode seeds.
         payloads: Fixed payload masses (kg) of the extra episodes.
-        base_factory: Builds the base controller instead of the one in the policy file.
+        workers: Processes of the episodes (1: this process).
     """
     env_kwargs = {"n_cycles": 3} if env_kwargs is None else env_kwargs
-    policy = load_residual_policy(path)
-    if base_factory is None and policy.base is None:
-        raise ValueError(f"{path} was trained on a custom base controller: pass base_factory")
-
-    def base() -> Controller:
-        return base_factory() if base_factory is not None else policy.base.controller()
-
-    controllers = {"base": base(), "residual": ResidualController(base(), policy, policy.config)}
-    n_cycles = env_kwargs.get("n_cycles", 3)
-    episodes = [(seed, None) for seed in seeds] + [(seeds[0], [mass] * n_cycles) for mass in payloads]
-    records: dict[str, list[EpisodeRecord]] = {name: [] for name in controllers}
-    per_episode = []
+    if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
+        raise ValueError(f"the scores take n_cycles and scenario only, got {sorted(env_kwargs)}")
+    settings = read_policy_settings(path)
+    if settings.base is None:
+        raise ValueError(f"{path} was trained on a custom base controller: it records no base to score against")
+    n_cycles = env_kwargs["n_cycles"]
+    scenario = env_kwargs.get("scenario") or Scenario()
+    scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, n_cycles=n_cycles))
+    setup = dataclasses.replace(settings.base.setup, residual_policy=Path(path))
+    episodes = [(seed, None) for seed in seeds] + [(seeds[0], (mass,) * n_cycles) for mass in payloads]
+    units = [WorkUnit(scenario, key, seed, masses) for seed, masses in episodes for key in ROWS.values()]
     start = time.monotonic()
-    for seed, masses in episodes:
-        entry: dict[str, Any] = {"seed": seed, "payload_masses": masses}
-        for name, controller in controllers.items():
-            env = DeltaPickPlaceEnv(**env_kwargs)
-            record = run_episode(env, controller, seed, masses)
-            env.close()
-            records[name].append(record)
-            scores = record.metrics()
+    records = run_grid(units, {scenario.content_hash: setup}, workers=workers)
+    by_row: dict[str, list[EpisodeRecord]] = {name: records[n :: len(ROWS)] for n, name in enumerate(ROWS)}
+    per_episode = []
+    for n, (seed, masses) in enumerate(episodes):
+        entry: dict[str, Any] = {"seed": seed, "payload_masses": None if masses is None else list(masses)}
+        for name, group in by_row.items():
+            scores = group[n].metrics()
             entry[name] = {key: scores[key] for key in ("tracking_rms_mm", "torque_rms_nm", "diverged")}
         per_episode.append(entry)
-    summary: dict[str, Any] = {name: pooled_scores(group) for name, group in records.items()}
+    summary: dict[str, Any] = {name: pooled_scores(group) for name, group in by_row.items()}
     for quantity in ("tracking_rms", "torque_rms"):
         unit = "mm" if quantity == "tracking_rms" else "nm"
         ratio = summary["residual"][f"{quantity}_{unit}"] / summary["base"][f"{quantity}_{unit}"]
@@ -89,8 +117,8 @@ def score_policy(
     summary["episodes_improved"] = f"{sum(change < 0 for change in changes)}/{len(changes)}"
     return {
         "policy": str(path),
-        "base": controllers["base"].name,
-        "residual": controllers["residual"].name,
+        "base": settings.base.name,
+        "residual": f"{settings.base.name} + residual",
         "env_kwargs": env_kwargs,
         "seeds": list(seeds),
         "payloads": list(payloads),

@@ -1,4 +1,6 @@
-"""The unit of work of the experiments: one episode of one registered controller, run in a process pool.
+"""One episode of one registered controller (:class:`Task`, :func:`run_task`): what every work unit of
+:func:`eval.engine.run_grid` runs (:func:`eval.sweep.work.unit_record`), and what the tare calibration and the pick-rate
+study run in a process pool (:func:`run_tasks`).
 
 It lives in an importable module (not ``eval.__main__``) so that forkserver / spawn workers can unpickle it.
 """
@@ -27,7 +29,7 @@ class Task:
     """One episode to run.
 
     Attributes:
-        kind: ``"episode"``, ``"calibration"`` (0 kg objects, observations kept) or ``"table2"``.
+        kind: ``"episode"`` or ``"calibration"`` (0 kg objects, observations kept).
         key: Controller key.
         index: Episode index within its kind.
         seed: Episode seed.

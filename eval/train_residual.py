@@ -63,7 +63,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm import tqdm
 
 from controllers.base import Controller
-from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, algorithm_class, save_residual_policy
+from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, algorithm_class, save_residual_policy
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
 from eval.residual_envs import (
     BASE_KEYS,
@@ -193,7 +193,7 @@ def train(
     args: argparse.Namespace,
     base_factory: Callable[[], Controller] | None = None,
     *,
-    base: BaseSetup | None = None,
+    base: PolicyBase | None = None,
     callbacks: Sequence[BaseCallback] = (),
 ) -> Path:
     """Train per ``args`` (see :func:`parse_args`); returns the run folder.
@@ -222,7 +222,7 @@ def _train(
     args: argparse.Namespace,
     run: Run,
     base_factory: Callable[[], Controller] | None,
-    base: BaseSetup | None,
+    base: PolicyBase | None,
     callbacks: Sequence[BaseCallback],
 ) -> None:
     """The training of :func:`train` into ``run``'s folder."""
@@ -241,7 +241,7 @@ def _train(
         "env_kwargs": {**env_kwargs, "scenario": args.scenario.name},
         "scenario": {"name": args.scenario.name, "file": "scenario.toml", "robot": args.scenario.robot_identity},
         "hyperparameters": hyperparameters,
-        "base_controller": "custom (base_factory)" if base is None else base.to_dict(),
+        "base_controller": "custom (base_factory)" if base is None else base.to_table(),
         "seeds": {
             "training": f"per worker from default_rng([seed, rank]) in {TRAINING_SEEDS}",
             "calibration": list(CALIBRATION_SEEDS),
@@ -337,9 +337,11 @@ def _train(
     vec_env.close()
     eval_env.close()
     run.record(training={"wall_time_s": round(wall_time, 1), "num_timesteps": model.num_timesteps})
-    if args.score:
+    if args.score and base is None:
+        print("No scores: the policy was trained on a custom base (base_factory), which its file does not record.")
+    elif args.score:
         policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
-        scores = score_policy(policy, env_kwargs, base_factory=base_factory)
+        scores = score_policy(policy, env_kwargs)
         write_json(out / "scores.json", scores)
         print(json.dumps(scores["summary"], indent=2))
 

@@ -180,7 +180,7 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
     out = run.folder
     healthy = with_faults(args.scenario, ())
     n_cycles = healthy.task.n_cycles
-    setup = prepare(healthy, args.controllers, runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
+    setup = prepare(healthy, args.controllers, runs_dir=args.runs_dir, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
     scenarios = [healthy, *(with_faults(healthy, (FaultSpec(kind),)) for kind in args.kinds)]
     tasks = [

@@ -213,7 +213,7 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
     from tqdm.auto import tqdm
 
     out, keys = run.folder, args.controllers
-    setup = prepare(scenario, keys, runs_dir=args.runs_dir, seed=args.seed, workers=args.workers).setup
+    setup = prepare(scenario, keys, runs_dir=args.runs_dir, workers=args.workers).setup
 
     target = 60.0 * args.minutes
     finished = {(row["key"], int(row["seed"])) for row in rows}

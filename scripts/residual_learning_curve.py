@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from controllers.residual import ALGORITHMS, BaseSetup, ResidualConfig, ResidualController
+from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
 from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
@@ -99,7 +99,7 @@ def first_crossing(rows: Sequence[dict[str, Any]], threshold: float, max_torque_
 
 
 def validation_scores(
-    policy: Any, base: BaseSetup, config: ResidualConfig, env_kwargs: dict[str, Any]
+    policy: Any, base: PolicyBase, config: ResidualConfig, env_kwargs: dict[str, Any]
 ) -> dict[str, float]:
     """Pooled tracking and torque RMS of the validation episodes (``policy`` None: the base alone)."""
     records = []
@@ -123,7 +123,7 @@ class ValidationCurve(BaseCallback):
         *,
         recipe: Recipe,
         seed: int,
-        base: BaseSetup,
+        base: PolicyBase,
         config: ResidualConfig,
         env_kwargs: dict[str, Any],
         base_scores: dict[str, float],

@@ -288,6 +288,7 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     out = tmp_path / "run"
     argv = ["--episodes", "1", "--cycles", "1", "--controllers", "pd,mid_f_rls", "--out", str(out)]
     argv += ["--parameters", str(parameter_file), "--calibration-episodes", "1", "--seed", "4", "--scenario", "paper"]
+    argv += ["--runs-dir", str(tmp_path / "runs")]
     assert main(argv) == 0
 
     printed = capsys.readouterr().out
@@ -355,7 +356,7 @@ def test_default_comparison_meets_the_projects_targets(tmp_path_factory: pytest.
     parameters = folder / "parameters.json"
     load_or_identify(parameters, n_trajectories=4, progress=False)
     out = folder / "run"
-    main(["--episodes", "3", "--parameters", str(parameters), "--out", str(out)])
+    main(["--episodes", "3", "--parameters", str(parameters), "--out", str(out), "--runs-dir", str(folder / "runs")])
 
     episodes = read_csv(out / "episodes.csv")
     assert all(row["diverged"] == "False" for row in episodes)

@@ -162,6 +162,7 @@ def test_rate_cli_writes_the_data_sheet(parameter_file: Path, tmp_path: Path, ca
     out = tmp_path / "rate"
     argv = ["--episodes", "1", "--cycles", "2", "--payloads", "1", "--planners", "fixed,worst_case,declared,online"]
     argv += ["--no-fastest", "--parameters", str(parameter_file), "--out", str(out), "--workers", "1"]
+    argv += ["--runs-dir", str(tmp_path / "runs")]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert printed.startswith("# Pick rate, scenario nominal") and (out / "summary.md").read_text() == printed + ""

@@ -25,11 +25,11 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 import controllers  # noqa: F401  (registers DeltaPickPlaceResidual-v0)
 import delta_env  # noqa: F401  (registers DeltaPickPlace-v0)
 from controllers.dynamics import ModelParameters
-from controllers.feedforward import LagCompensatedController
+from controllers.feedforward import LagCompensatedController, model_controller
 from controllers.residual import (
     DEFAULT_POLICY_PATH,
-    BaseSetup,
     DeltaResidualEnv,
+    PolicyBase,
     ResidualConfig,
     ResidualController,
     ResidualFeatures,
@@ -41,11 +41,14 @@ from controllers.residual import (
     shipped_base_setup,
 )
 from controllers.residual.policy_file import METADATA_NAME, actor_layers
+from controllers.setup import ControllerSetup
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.scenario import preset
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import parse_args, resume_mismatch, train
+from tests.conftest import NOMINAL_SETUP
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
 PARAMETERS = ModelParameters(rho1=1.76, rho2=0.88, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
@@ -53,9 +56,15 @@ SEED = 3
 CONTROL_STEPS = 400
 
 
+def policy_base(tare: float = 0.0, key: str = "mid_f_rls") -> PolicyBase:
+    """A base row with fixed parameters (MId+F+R + RLS by default) and ``tare`` (kg)."""
+    setup = ControllerSetup(mid=PARAMETERS, mid_f=PARAMETERS, mid_f_rods=PARAMETERS, tares={key: tare})
+    return PolicyBase(key, setup)
+
+
 def make_base():
     """The default base controller (MId+F+R + RLS) with fixed parameters."""
-    return BaseSetup(PARAMETERS).controller()
+    return policy_base().controller()
 
 
 def linear_policy(observation: np.ndarray) -> np.ndarray:
@@ -225,7 +234,7 @@ def test_config_rejects_bad_values(kwargs: dict) -> None:
 
 def test_vector_envs() -> None:
     config = ResidualConfig()
-    base = BaseSetup(PARAMETERS)
+    base = policy_base()
     factories = [make_env(config=config, env_kwargs={"n_cycles": 1}, base=base, rank=r) for r in range(2)]
     for vec_cls in (DummyVecEnv, SubprocVecEnv):
         vec_env = vec_cls(factories)
@@ -306,7 +315,7 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path) -> None:
 
 def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
     config = ResidualConfig(residual_limit=25.0, action_period=5)
-    base = BaseSetup(PARAMETERS, tare=-0.1)
+    base = policy_base(tare=-0.1)
     env = DeltaResidualEnv(base=base.controller(), config=config, n_cycles=1)
     model = SAC("MlpPolicy", env, seed=1, policy_kwargs={"net_arch": [32, 32]}, device="cpu")
     path = save_residual_policy(model, tmp_path / "policy.zip", config, "sac", base=base, extra={"note": "untrained"})
@@ -323,35 +332,84 @@ def test_saved_policy_reloads_with_identical_actions(tmp_path: Path) -> None:
     assert not np.array_equal(torques, controller_rollout(base.controller(), 100)[0])
 
 
-def test_policy_files_from_before_the_rod_model_keep_their_base() -> None:
+OLD_BASE = {
+    "name": "MId+F+R+RLS+lag+PD",
+    "parameters": json.loads(json.dumps(dataclasses.asdict(PARAMETERS))),  # as read from a file
+    "tare": -0.1,
+    "forearm_rods": True,
+    "regressor": "smoothed",
+    "friction_velocity": 1.0,
+    "geometry": {"ra": 0.2, "rb": 0.05, "l1": 0.37, "l2": 0.95},
+    "masses": {"m1": 2.0, "m2": 0.2, "m0": 0.8},
+    "drive_lag": [1e-3, 1.2e-3, 0.9e-3],
+}
+"""A base as the policy files before the setup record held it (a separate record of its own)."""
+
+
+def test_an_old_policy_file_loads_and_rebuilds_the_same_base(tmp_path: Path) -> None:
+    config = ResidualConfig()
+    model = SAC("MlpPolicy", DeltaResidualEnv(base=make_base(), n_cycles=1), seed=0, policy_kwargs={"net_arch": [8]})
+    path = save_residual_policy(model, tmp_path / "old.zip", config, "sac")
+    with zipfile.ZipFile(path) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    metadata = json.loads(members[METADATA_NAME])
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, json.dumps({**metadata, "base": OLD_BASE}) if name == METADATA_NAME else data)
+    base = load_residual_policy(path).base
+    assert base.key == "mid_f_rls_lag" and base.name == OLD_BASE["name"]
+    assert base.setup.tares == {"mid_f_rls_lag": -0.1} and base.setup.mid_f_rods == PARAMETERS
+    # The controller the old record built, with the same arguments.
+    old = model_controller(
+        PARAMETERS, forearm_rods=True, regressor="smoothed", tare=-0.1, drive_lag=OLD_BASE["drive_lag"]
+    )
+    assert_array_equal(controller_rollout(base.controller(), 200)[0], controller_rollout(old, 200)[0])
+    # Without a lag it was the row without the lead, with the reference regressor the (ref) row.
+    assert PolicyBase.from_table({**OLD_BASE, "drive_lag": None}).key == "mid_f_rls"
+    assert PolicyBase.from_table({**OLD_BASE, "regressor": "reference"}).key == "mid_f_rls_ref"
+
+
+def test_a_base_no_row_of_this_version_builds_is_refused_with_the_reason() -> None:
     legacy = {"name": "MId+F+RLS+PD", "parameters": dataclasses.asdict(PARAMETERS), "tare": -0.1}
-    setup = BaseSetup.from_dict(legacy)
-    assert (setup.forearm_rods, setup.regressor, setup.friction_velocity) == (False, "filtered", 0.1)
-    controller = setup.controller()
-    assert controller.name == "MId+F+RLS+PD" and not controller.dynamics.forearm_rods
-    assert (controller.estimator.regressor, controller.estimator.friction_velocity) == ("filtered", 0.1)
-    assert BaseSetup.from_dict(setup.to_dict()) == setup
+    with pytest.raises(ValueError, match=r"forearm_rods=False, regressor 'filtered'.*retrain"):
+        PolicyBase.from_table(legacy)
+    with pytest.raises(ValueError, match=r"friction band of 0\.3 rad/s"):
+        PolicyBase.from_table({**OLD_BASE, "friction_velocity": 0.3})
+
+
+def test_a_policy_file_stores_the_setup_record_and_checks_its_hash(tmp_path: Path) -> None:
+    base = PolicyBase("mid_f_rls_lag", dataclasses.replace(NOMINAL_SETUP, tares={"mid_f_rls_lag": 0.01}))
+    table = json.loads(json.dumps(base.to_table()))
+    assert table["setup"] == base.setup.to_table() and table["setup_hash"] == base.setup.content_hash()
+    assert PolicyBase.from_table(table) == base
+    table["setup"]["tares"]["mid_f_rls_lag"] = 0.02
+    with pytest.raises(ValueError, match="edited or damaged"):
+        PolicyBase.from_table(table)
+    with pytest.raises(ValueError, match="a residual's base is one of"):
+        PolicyBase("pd", NOMINAL_SETUP)
 
 
 def test_base_setup_calibrates_a_small_tare() -> None:
-    setup = base_setup({"n_cycles": 1}, PARAMETERS, base="mid_f_rls")
-    assert setup.parameters == PARAMETERS and setup.drive_lag is None
-    assert 0.0 < abs(setup.tare) < 0.5, "the tare is the model's small error along phi (kg)"
-    assert BaseSetup.from_dict(setup.to_dict()) == setup
-    assert setup.controller().name == "MId+F+R+RLS+PD"
+    base = base_setup({"n_cycles": 1}, PARAMETERS, base="mid_f_rls")
+    assert base.key == "mid_f_rls" and base.setup.mid_f_rods == PARAMETERS and base.setup.drive_lag is None
+    assert 0.0 < abs(base.setup.tares["mid_f_rls"]) < 0.5, "the tare is the model's small error along phi (kg)"
+    assert "mid_f_rls" in base.setup.empty_moves, "the nominal plant is not randomized: its empty moves are kept"
+    assert (
+        PolicyBase.from_table(json.loads(json.dumps(base.to_table()))).setup.content_hash() == base.setup.content_hash()
+    )
+    assert base.controller().name == "MId+F+R+RLS+PD"
 
 
 def test_lag_base_setup_round_trips_and_leads_the_drive() -> None:
     with pytest.raises(ValueError, match="drive lag"):
         base_setup({"n_cycles": 1}, PARAMETERS)
-    setup = base_setup({"n_cycles": 1}, PARAMETERS, (1e-3, 1e-3, 1e-3))
-    assert setup.drive_lag == (1e-3, 1e-3, 1e-3)
-    assert BaseSetup.from_dict(setup.to_dict()) == setup
-    controller = setup.controller()
-    assert controller.name == setup.name == "MId+F+R+RLS+lag+PD"
+    base = base_setup({"n_cycles": 1, "scenario": preset("randomized")}, PARAMETERS, (1e-3, 1e-3, 1e-3))
+    assert base.setup.drive_lag == (1e-3, 1e-3, 1e-3)
+    assert base.setup.empty_moves == {}, "a randomized plant is another robot every episode: no empty moves"
+    assert PolicyBase.from_table(base.to_table()) == base
+    controller = base.controller()
+    assert controller.name == base.name == "MId+F+R+RLS+lag+PD"
     assert isinstance(controller, LagCompensatedController)
-    with pytest.raises(ValueError, match="drive_lag"):
-        BaseSetup.from_dict({**setup.to_dict(), "drive_lag": [1e-3, -1.0, 1e-3]})
 
 
 def test_missing_or_corrupt_policy_files_raise_naming_the_path(tmp_path: Path) -> None:
@@ -384,8 +442,8 @@ def test_shipped_policy_loads_and_beats_its_base_on_a_held_out_episode() -> None
     assert DEFAULT_POLICY_PATH.stat().st_size < 5_000_000
     policy = load_residual_policy()
     assert policy.algo == "sac" and policy.base is not None
-    # Trained on the eval's mid_f_rls controller: MId+F+R, smoothed joint states, 1 rad/s friction band.
-    assert (policy.base.forearm_rods, policy.base.regressor, policy.base.friction_velocity) == (True, "smoothed", 1.0)
+    # Trained on the eval's mid_f_rls_lag row (an old policy file: its base is read from the old record).
+    assert policy.base.key == "mid_f_rls_lag" and "setup" not in read_policy_metadata()["base"]
     controller = load_residual_controller(name="residual")
     assert controller.name == "residual"
     # A test seed of the training CLI, one cycle: never trained on, never used for model selection.
@@ -411,9 +469,9 @@ def test_gym_make_runs_the_shipped_base_without_identifying_or_writing_files(tmp
     monkeypatch.chdir(tmp_path)
     env = gym.make("DeltaPickPlaceResidual-v0", n_cycles=1)
     residual_env = env.get_wrapper_attr("base")
-    shipped = read_policy_metadata(DEFAULT_POLICY_PATH)["base"]
-    assert residual_env.estimator.tare == shipped["tare"]
-    assert residual_env.dynamics.parameters.rho1 == shipped["parameters"]["rho1"]
+    shipped = shipped_base_setup()
+    assert residual_env.estimator.tare == shipped.setup.tares[shipped.key]
+    assert residual_env.dynamics.parameters == shipped.setup.mid_f_rods
     env.reset(seed=0)
     env.step(np.zeros(3, dtype=np.float32))
     env.close()

@@ -178,6 +178,7 @@ def test_eval_compares_the_example_controllers_beside_the_builtin_rows(
     out = tmp_path / "run"
     controllers = "pd,my_controller:gravity_pd,my_controller:StiffPD,oracle"
     argv = ["--controllers", controllers, "--episodes", "1", "--cycles", "1", "--calibration-episodes", "1"]
+    argv += ["--runs-dir", str(tmp_path / "runs")]
     assert eval_main([*argv, "--workers", "2", "--parameters", str(parameter_file), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     with (out / "episodes.csv").open(newline="") as file:

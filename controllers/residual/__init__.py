@@ -24,7 +24,7 @@ from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
 from controllers.residual.policy_file import (
     ALGORITHMS,
     DEFAULT_POLICY_PATH,
-    BaseSetup,
+    PolicyBase,
     PolicySettings,
     ResidualPolicy,
     algorithm_class,
@@ -41,8 +41,8 @@ __all__ = [
     "ALGORITHMS",
     "DEFAULT_POLICY_PATH",
     "FEATURE_VERSION",
-    "BaseSetup",
     "DeltaResidualEnv",
+    "PolicyBase",
     "PolicyFunction",
     "PolicySettings",
     "ResidualConfig",

@@ -1,31 +1,32 @@
 """The residual policy file: an SB3 zip with the settings and the base controller it was trained with.
 
 :func:`save_residual_policy` adds a member ``residual.json`` to the SB3 zip: the algorithm, the feature
-layout version, the :class:`~controllers.residual.config.ResidualConfig` and the :class:`BaseSetup` of the
-base controller (identified parameters, estimator, tare). :func:`load_residual_controller` rebuilds the
-whole 1 kHz controller from the file alone. SB3 (and torch) are imported only when a model is loaded.
+layout version, the :class:`~controllers.residual.config.ResidualConfig` and the :class:`PolicyBase` of the
+base controller: its row and what it knew, the experiments' :class:`~controllers.setup.ControllerSetup` record
+(identified parameters, drive lag, tare, gains, geometry and datasheet masses), written by the generic writer of
+:mod:`delta_env.records` with its content hash. :func:`load_residual_controller` rebuilds the whole 1 kHz controller
+from the file alone; files written before the record held a separate base record, which still loads. SB3 (and
+torch) are imported only when a model is loaded.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Controller
-from controllers.dynamics import ModelParameters
-from controllers.feedforward import controller_name, model_controller
+from controllers.feedforward import controller_name
 from controllers.payload import FRICTION_VELOCITY
 from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
-from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+from controllers.setup import ESTIMATOR_REGRESSORS, ControllerSetup, model_row
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -65,7 +66,7 @@ def save_residual_policy(
     config: ResidualConfig,
     algo: str,
     *,
-    base: BaseSetup | None = None,
+    base: PolicyBase | None = None,
     extra: dict[str, Any] | None = None,
 ) -> Path:
     """Save an SB3 model with its residual settings inside the zip (member ``residual.json``).
@@ -91,7 +92,7 @@ def save_residual_policy(
         "algo": algo,
         "feature_version": FEATURE_VERSION,
         "config": asdict(config),
-        "base": None if base is None else base.to_dict(),
+        "base": None if base is None else base.to_table(),
         "extra": extra or {},
     }
     with zipfile.ZipFile(path, "a") as archive:
@@ -99,94 +100,90 @@ def save_residual_policy(
     return path
 
 
-_LEGACY_BASE = {"forearm_rods": False, "regressor": "filtered", "friction_velocity": 0.1, "drive_lag": None}
-"""The base settings of policy files written before these keys existed: the lumped model, the causal
-filter, a 0.1 rad/s friction band and no drive-lag lead."""
-
-
 @dataclass(frozen=True)
-class BaseSetup:
-    """What the default base controller was built from: model, identified parameters, estimator and tare.
+class PolicyBase:
+    """The base controller a policy was trained on: a built-in RLS row and what it knew.
 
     Attributes:
-        parameters: Identified parameters of the model.
-        tare: Apparent payload of the empty gripper (kg).
-        forearm_rods: MId+F+R (True) or the paper's lumped MId+F.
-        regressor: Joint states of the payload estimator.
-        friction_velocity: The estimator's friction band (rad/s).
-        geometry: Lengths (m) of the robot the parameters were identified on.
-        masses: Datasheet masses (kg) of that robot.
-        drive_lag: Identified drive lag T (s) per joint that the feedforward leads; None: no lead.
+        key: Its row (a key of :data:`controllers.setup.ESTIMATOR_REGRESSORS`: the residual reads its payload
+            estimate).
+        setup: What it knew (:class:`~controllers.setup.ControllerSetup`: identified parameters, drive lag, its tare
+            and empty moves, gains, geometry and datasheet masses), as every row of the experiments does.
     """
 
-    parameters: ModelParameters
-    tare: float = 0.0
-    forearm_rods: bool = True
-    regressor: Literal["smoothed", "filtered", "reference"] = "smoothed"
-    friction_velocity: float = FRICTION_VELOCITY
-    geometry: DeltaGeometry = NOMINAL_GEOMETRY
-    masses: DeltaMasses = NOMINAL_MASSES
-    drive_lag: tuple[float, float, float] | None = None
+    key: str
+    setup: ControllerSetup
+
+    def __post_init__(self) -> None:
+        if self.key not in ESTIMATOR_REGRESSORS:
+            raise ValueError(f"a residual's base is one of {', '.join(ESTIMATOR_REGRESSORS)}, got {self.key!r}")
 
     def controller(self) -> Controller:
-        """A fresh base controller with these settings: model feedforward (leading the drive lag when known)
-        + PD with the payload RLS."""
-        return model_controller(
-            self.parameters,
-            forearm_rods=self.forearm_rods,
-            regressor=self.regressor,
-            tare=self.tare,
-            friction_velocity=self.friction_velocity,
-            geometry=self.geometry,
-            masses=self.masses,
-            drive_lag=self.drive_lag,
-        )
+        """A fresh base controller: the row ``key`` built from ``setup`` (:func:`controllers.setup.model_row`)."""
+        return model_row(self.key, self.setup)
 
     @property
     def name(self) -> str:
         """The base controller's label, e.g. ``"MId+F+R+RLS+lag+PD"``."""
-        return controller_name(self.forearm_rods, estimates_payload=True, leads_lag=self.drive_lag is not None)
+        return controller_name(True, estimates_payload=True, leads_lag=self.key == "mid_f_rls_lag")
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "parameters": asdict(self.parameters),
-            "tare": self.tare,
-            "forearm_rods": self.forearm_rods,
-            "regressor": self.regressor,
-            "friction_velocity": self.friction_velocity,
-            "geometry": asdict(self.geometry),
-            "masses": asdict(self.masses),
-            "drive_lag": None if self.drive_lag is None else list(self.drive_lag),
-        }
+    def to_table(self) -> dict[str, Any]:
+        """What a policy file stores: the key, the setup's table (:meth:`ControllerSetup.to_table`) and its content
+        hash, which :meth:`from_table` checks."""
+        setup = self.setup
+        return {"name": self.name, "key": self.key, "setup": setup.to_table(), "setup_hash": setup.content_hash()}
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> BaseSetup:
-        values = {**_LEGACY_BASE, **values}
-        parameters = values["parameters"]
-        return cls(
-            parameters=ModelParameters(
-                rho1=parameters["rho1"],
-                rho2=parameters["rho2"],
-                viscous=tuple(parameters["viscous"]),
-                coulomb=tuple(parameters["coulomb"]),
-            ),
-            tare=float(values["tare"]),
-            forearm_rods=bool(values["forearm_rods"]),
-            regressor=values["regressor"],
-            friction_velocity=float(values["friction_velocity"]),
-            geometry=DeltaGeometry(**values.get("geometry", asdict(NOMINAL_GEOMETRY))),
-            masses=DeltaMasses(**values.get("masses", asdict(NOMINAL_MASSES))),
-            drive_lag=None if values["drive_lag"] is None else _drive_lag(values["drive_lag"]),
+    def from_table(cls, values: dict[str, Any]) -> PolicyBase:
+        """The base of a policy file's ``base`` table: the record of :meth:`to_table` (its hash checked), or the
+        separate base record of the files written before it (:func:`_legacy_base`).
+
+        Raises:
+            ValueError: if the table is unreadable, its setup does not match its hash, or an old base is not a row
+                of this version.
+        """
+        if "setup" not in values:
+            return _legacy_base(values)
+        setup = ControllerSetup.from_table(values["setup"], "base.setup")
+        recorded = values.get("setup_hash")
+        if setup.content_hash() != recorded:
+            raise ValueError(
+                f"base.setup hashes to {setup.content_hash()}, not to the recorded setup_hash {recorded!r}: the record "
+                "was edited or damaged"
+            )
+        return cls(values["key"], setup)
+
+
+def _legacy_base(values: dict[str, Any]) -> PolicyBase:
+    """The base of a policy file written before the base was a :class:`~controllers.setup.ControllerSetup`: its one
+    parameter set (MId+F+R), tare, geometry, datasheet masses and drive lag (a lag means the lag row).
+
+    Raises:
+        ValueError: for a base no row of this version builds (the lumped forearms, the causal filter's regressor or
+            another friction band, which the files before the rod model recorded).
+    """
+    regressor = values.get("regressor", "filtered")
+    friction_velocity = float(values.get("friction_velocity", 0.1))
+    if not values.get("forearm_rods", False) or regressor not in ("smoothed", "reference"):
+        raise ValueError(
+            f"the base {values.get('name')!r} (forearm_rods={values.get('forearm_rods', False)}, regressor "
+            f"{regressor!r}) is no row of this version (MId+F+R with the smoothed or reference regressor): retrain "
+            "the policy on a current base, or pass base= when loading it"
         )
-
-
-def _drive_lag(values: Any) -> tuple[float, float, float]:
-    """Three finite, non-negative time constants (s) from a policy file."""
-    lags = tuple(float(v) for v in values)
-    if len(lags) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in lags):
-        raise ValueError(f"drive_lag must be 3 finite time constants >= 0 s, got {values!r}")
-    return lags
+    if friction_velocity != FRICTION_VELOCITY:
+        raise ValueError(
+            f"the base {values.get('name')!r} has a friction band of {friction_velocity} rad/s, the rows of this "
+            f"version {FRICTION_VELOCITY} rad/s: retrain the policy on a current base, or pass base= when loading it"
+        )
+    lag = values.get("drive_lag")
+    key = "mid_f_rls_ref" if regressor == "reference" else "mid_f_rls" if lag is None else "mid_f_rls_lag"
+    table = {"mid": values["parameters"], "mid_f": values["parameters"], "mid_f_rods": values["parameters"]}
+    # The lumped parameter sets are unknown to these files; the base row does not use them.
+    for name in ("drive_lag", "geometry", "masses"):
+        if values.get(name) is not None:
+            table[name] = values[name]
+    table["tares"] = {key: values["tare"]}
+    return PolicyBase(key, ControllerSetup.from_table(table, "base"))
 
 
 @dataclass(frozen=True)
@@ -196,7 +193,7 @@ class ResidualPolicy:
     model: BaseAlgorithm
     config: ResidualConfig
     algo: str
-    base: BaseSetup | None
+    base: PolicyBase | None
     metadata: dict[str, Any]
     layers: tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...] | None = None
     """The deterministic actor as float32 (weight, bias) pairs of its Linear layers (ReLU between them, tanh
@@ -257,7 +254,7 @@ class PolicySettings(NamedTuple):
 
     config: ResidualConfig
     algo: str
-    base: BaseSetup | None
+    base: PolicyBase | None
     metadata: dict[str, Any]
 
 
@@ -275,7 +272,7 @@ def read_policy_settings(path: str | Path = DEFAULT_POLICY_PATH) -> PolicySettin
         if metadata["feature_version"] != FEATURE_VERSION:
             raise ValueError(f"feature version {metadata['feature_version']}, this code reads {FEATURE_VERSION}")
         config = ResidualConfig.from_dict(metadata["config"])
-        base = None if metadata["base"] is None else BaseSetup.from_dict(metadata["base"])
+        base = None if metadata["base"] is None else PolicyBase.from_table(metadata["base"])
         algo = metadata["algo"]
         if algo not in ALGORITHMS:
             raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
@@ -371,7 +368,7 @@ def read_policy_metadata(path: str | Path = DEFAULT_POLICY_PATH) -> dict[str, An
         raise ValueError(f"{path} is not a residual policy written by save_residual_policy: {error}") from error
 
 
-def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> BaseSetup:
+def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> PolicyBase:
     """The base controller the policy at ``path`` was trained on: identified parameters and tare as recorded.
 
     The default env of ``DeltaPickPlaceResidual-v0`` runs this base, so making it needs no parameter file.
@@ -393,6 +390,6 @@ def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> BaseSetup:
             "parameters from `python -m eval.identify`)"
         )
     try:
-        return BaseSetup.from_dict(metadata["base"])
+        return PolicyBase.from_table(metadata["base"])
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"{path}: unreadable base controller settings: {error}") from error

@@ -255,13 +255,12 @@ def verify_design(
     try:
         setup = identify_design(plant, performance, seed, workers)
         standard = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, n_cycles=EPISODE_CYCLES))
-        seeds = calibration_seeds(seed, DEFAULT_CALIBRATION_EPISODES)
+        seeds = calibration_seeds(DEFAULT_CALIBRATION_EPISODES)
         try:
             setup, calibration = tare_setup(
                 standard,
                 setup,
                 CONTROLLER_KEYS,
-                seed=seed,
                 episodes=len(seeds),
                 workers=workers,
                 references=[episode_reference(geometry, s) for s in seeds],

@@ -18,8 +18,9 @@ the same folder; :func:`eval.run_folder.runs_root`) holds:
 
 Controllers know the identification of each scenario's robot (one per robot identity, identified once and
 kept in ``<runs root>/identification/<identity>/``; ``worn`` and ``randomized`` share the nominal robot's) and
-the tares of their payload estimators measured on that scenario (:mod:`eval.calibration`, as
-``python -m eval`` measures them), before the grid runs.
+the tares of their payload estimators measured on that scenario (:mod:`eval.calibration`), before the grid runs:
+measured once and kept beside the identification (:func:`eval.engine.kept_tares`), so that every seed of the grid,
+a rerun and ``python -m eval`` on the same scenario use the same tare.
 
 With ``--geometry FILE`` every scenario runs on the robot of that geometry file (as on the other command
 lines: masses scaled with the lengths, a new robot identified once), named ``<scenario>+<file stem>``.

@@ -14,7 +14,8 @@ what the controllers know), and nothing of how it runs (backend, workers, host);
 in the table, failed ones included (a failure is a result; changing the code changes the key and so recomputes it),
 whichever backend ran it.
 
-Backends, one work function (:func:`eval.sweep.work.run_unit`):
+Backends (:func:`run_units`, which :func:`eval.engine.run_grid` calls too), one work function
+(:func:`eval.sweep.work.run_unit` for the sweep's rows):
 
 - ``local``: a process pool of ``workers`` processes on this machine (forkserver or spawn, never fork:
   torch may be loaded), or this process itself when ``workers`` is 1. At most ``workers`` units are in
@@ -60,8 +61,11 @@ RESULT_FIELDS = (*IDENTITY_FIELDS, "status", "error", *METRIC_FIELDS, "seconds",
 DEFAULT_MAX_ATTEMPTS = 3
 """Runs of a unit whose worker died before it is recorded as failed."""
 
-Work = Callable[[WorkUnit, ControllerSetup], dict[str, Any]]
-OnResult = Callable[[WorkUnit, dict[str, Any]], None]
+Work = Callable[[WorkUnit, ControllerSetup], Any]
+"""A work function: :func:`eval.sweep.work.run_unit` (a row) or :func:`eval.sweep.work.unit_record` (a record)."""
+OnResult = Callable[[WorkUnit, Any], None]
+OnLost = Callable[[WorkUnit, str], None]
+"""Told a unit whose worker died too often, and why; by default its row is :func:`failed_row`."""
 Setups = Mapping[str, ControllerSetup]
 """What the controllers know on each scenario, by the scenario's content hash."""
 
@@ -75,6 +79,8 @@ def unit_key(unit: WorkUnit, code_version: str, setup_digest: str) -> str:
         "code": code_version,
         "setup": setup_digest,
     }
+    if unit.masses is not None:
+        content["masses"] = list(unit.masses)
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -171,8 +177,10 @@ def run_local(
     on_result: OnResult,
     work: Work = run_unit,
     max_attempts: int = DEFAULT_MAX_ATTEMPTS,
+    on_lost: OnLost | None = None,
 ) -> None:
     """Run ``units`` on a local process pool (in this process if ``workers`` is 1), in any order."""
+    lost = on_lost or _lost_row(on_result)
     if workers == 1:
         for unit in units:
             on_result(unit, work(unit, setups[unit.scenario.content_hash]))
@@ -196,20 +204,25 @@ def run_local(
                         on_result(unit, future.result())
                     except BrokenProcessPool:
                         broken = True
-                        _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, on_result)
+                        _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, lost)
             if broken:  # the other units in flight died with the pool
                 for future, unit in running.items():
                     if future.done() and not future.exception():
                         on_result(unit, future.result())
                     else:
-                        _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, on_result)
+                        _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, lost)
 
 
-def _retry_or_fail(unit: WorkUnit, attempts: int, max_attempts: int, queue: list, on_result: OnResult) -> None:
+def _lost_row(on_result: OnResult) -> OnLost:
+    """Record a lost unit as a :func:`failed_row`."""
+    return lambda unit, error: on_result(unit, failed_row(error))
+
+
+def _retry_or_fail(unit: WorkUnit, attempts: int, max_attempts: int, queue: list, on_lost: OnLost) -> None:
     if attempts < max_attempts:
         queue.append(unit)
     else:
-        on_result(unit, failed_row(f"worker died {attempts} times running this unit"))
+        on_lost(unit, f"worker died {attempts} times running this unit")
 
 
 def run_ray(
@@ -220,10 +233,12 @@ def run_ray(
     work: Work = run_unit,
     address: str | None = None,
     max_attempts: int = DEFAULT_MAX_ATTEMPTS,
+    on_lost: OnLost | None = None,
 ) -> None:
     """Run ``units`` as Ray tasks, in any order: on a Ray started here with ``workers`` CPUs, or on the
     cluster at ``address`` (``"auto"``, ``"ray://host:port"``)."""
     ray = import_ray()
+    lost = on_lost or _lost_row(on_result)
     started_here = not ray.is_initialized()
     if started_here:
         if address is None:
@@ -251,10 +266,13 @@ def run_ray(
             for ref in done:
                 unit = running.pop(ref)
                 try:
-                    row = ray.get(ref)
+                    result = ray.get(ref)
+                except ray.exceptions.RayTaskError:  # the work function raised: the caller's error
+                    raise
                 except ray.exceptions.RayError as error:  # the worker died max_attempts times, or Ray failed
-                    row = failed_row(f"{type(error).__name__}: {error}")
-                on_result(unit, row)
+                    lost(unit, f"{type(error).__name__}: {error}")
+                else:
+                    on_result(unit, result)
     finally:
         if started_here:
             ray.shutdown()
@@ -269,6 +287,40 @@ def import_ray() -> Any:
             "--backend ray needs Ray: install the 'distributed' extra (pip install '.[distributed]')"
         ) from None
     return ray
+
+
+def _check_run(units: Sequence[WorkUnit], setups: Setups, backend: str, address: str | None) -> None:
+    """ValueError for an unknown backend, an address without Ray, or a unit whose scenario has no setup."""
+    if backend not in ("local", "ray"):
+        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+    if address is not None and backend != "ray":
+        raise ValueError("address is for the ray backend only")
+    missing = sorted({unit.scenario.name for unit in units if unit.scenario.content_hash not in setups})
+    if missing:
+        raise ValueError(f"no controller setup for the scenarios {missing}")
+
+
+def run_units(
+    units: Sequence[WorkUnit],
+    setups: Setups,
+    on_result: OnResult,
+    *,
+    backend: str = "local",
+    workers: int = 1,
+    address: str | None = None,
+    work: Work = run_unit,
+    on_lost: OnLost | None = None,
+) -> None:
+    """Run ``work`` on every unit with its scenario's setup on ``backend`` (``"local"`` or ``"ray"``; ``address``:
+    the Ray cluster to join), in any order, calling ``on_result(unit, result)`` as each finishes and ``on_lost(unit,
+    error)`` for a unit whose worker died too often (None: its result is a :func:`failed_row`)."""
+    _check_run(units, setups, backend, address)
+    if not units:
+        return
+    if backend == "local":
+        run_local(units, setups, workers, on_result, work, on_lost=on_lost)
+    else:
+        run_ray(units, setups, workers, on_result, work, address, on_lost=on_lost)
 
 
 def run_sweep(
@@ -302,14 +354,8 @@ def run_sweep(
     Returns:
         ``{"total", "skipped", "ran", "failed"}`` unit counts.
     """
-    if backend not in ("local", "ray"):
-        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
-    if address is not None and backend != "ray":
-        raise ValueError("address is for the ray backend only")
     units = list(units)
-    missing = sorted({unit.scenario.name for unit in units if unit.scenario.content_hash not in setups})
-    if missing:
-        raise ValueError(f"no controller setup for the scenarios {missing}")
+    _check_run(units, setups, backend, address)
     keys = [unit_key(unit, code_version, setup_digests[unit.scenario.content_hash, unit.controller]) for unit in units]
     if len(set(keys)) != len(keys):
         raise ValueError("the grid holds the same unit twice (same scenario content, controller and seed)")
@@ -329,10 +375,6 @@ def run_sweep(
         if progress is not None:
             progress.update()
 
-    if not pending:
-        return counts
-    if backend == "local":
-        run_local(pending, setups, workers, on_result, work)
-    else:
-        run_ray(pending, setups, workers, on_result, work, address)
+    if pending:
+        run_units(pending, setups, on_result, backend=backend, workers=workers, address=address, work=work)
     return counts

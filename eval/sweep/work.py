@@ -1,7 +1,9 @@
-"""The sweep's unit of work: one episode of one controller on one scenario, reduced to one row of metrics.
+"""The experiments' unit of work: one episode of one controller on one scenario (:class:`WorkUnit`).
 
-Both backends run :func:`run_unit`; it never raises for a failing episode: the row says
-``status = "failed"`` with the error, so the failure is recorded, never dropped.
+:func:`unit_record` runs it and returns its :class:`~eval.episodes.EpisodeRecord` (the comparison and the residual
+scores read whole records); :func:`run_unit` reduces it to one row of metrics (the sweep's table) and never raises
+for a failing episode: the row says ``status = "failed"`` with the error, so the failure is recorded, never dropped.
+Both backends of :func:`eval.engine.run_grid` run either.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any
 from controllers.registry import ControllerSetup, controller_entry, controller_source, residual_policy_path
 from delta_env.scenario import Scenario
 from eval import metrics
+from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
 from eval.run_folder import package_versions
 from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_task
@@ -68,11 +71,21 @@ class WorkUnit:
         scenario: The robot and the work.
         controller: Controller key (:func:`controllers.registry.controller_entry`).
         seed: Episode seed: the same seed gives every controller the same path and objects.
+        masses: Object masses (kg) instead of the drawn ones (one per cycle), or None.
     """
 
     scenario: Scenario
     controller: str
     seed: int
+    masses: tuple[float, ...] | None = None
+
+
+def unit_record(unit: WorkUnit, setup: ControllerSetup) -> EpisodeRecord:
+    """Run one episode of ``unit`` with what its controller knows (``setup``) and return its record."""
+    task = Task(
+        "episode", unit.controller, 0, unit.seed, unit.scenario.task.n_cycles, setup, unit.masses, unit.scenario
+    )
+    return run_task(task)[1]
 
 
 def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
@@ -82,10 +95,7 @@ def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
     started, cpu_started = time.perf_counter(), time.process_time()
     row: dict[str, Any] = {"status": "ok", "error": "", **dict.fromkeys(METRIC_FIELDS, math.nan)}
     try:
-        task = Task(
-            "episode", unit.controller, 0, unit.seed, unit.scenario.task.n_cycles, setup, scenario=unit.scenario
-        )
-        _, record = run_task(task)
+        record = unit_record(unit, setup)
         episode = record.metrics()
         row.update({name: episode[name] for name in (*EPISODE_METRICS, *FAULT_METRICS)})
         row.update(fault_kind_metrics(record.faults()))
