@@ -4,8 +4,9 @@ A robot's data sheet states its working range as an axis-centred cylinder, diame
 every point is admissible (:func:`delta_env.workspace.admissible` with the given
 :class:`~delta_env.workspace.Criteria`: inverse kinematics, motor range, conditioning, ball-joint cone
 and whatever else the criteria check). For a pick-and-place cell it stands on the conveyor surface
-(``belt``): its bottom is at or above the belt, so depth below the belt earns nothing, and its top must
-reach ``lift + clearance`` above the belt, the lifted gripper plus room for the product. It lies in the
+(``belt``): its bottom is the belt, so depth below the belt earns nothing and the robot reaches the belt
+everywhere in it, and its top must reach ``lift + clearance`` above the belt, the lifted gripper plus room
+for the product. It lies in the
 admissible stretch of the axis through that top (:func:`largest_cylinder` is the same search for any
 required top and floor).
 
@@ -241,15 +242,17 @@ def axis_stretch(
 
 
 def _best_pair(
-    heights: NDArray[np.float64], radii: NDArray[np.float64], required_top: float
+    heights: NDArray[np.float64], radii: NDArray[np.float64], required_top: float, standing: bool
 ) -> tuple[int, int, float] | None:
     """(bottom index, top index, radius) of the largest cylinder on the grid whose top reaches
-    ``required_top``; None if none has a volume."""
+    ``required_top`` (whose bottom is the grid's first height if ``standing``); None if none has a volume."""
     count = heights.size
     below = np.tril(np.ones((count, count), dtype=bool), -1)
     running = np.minimum.accumulate(np.where(below, np.inf, np.maximum(radii, 0.0)), axis=1)
     volume = math.pi * running**2 * (heights[None, :] - heights[:, None])
     volume[below | (heights[None, :] < required_top - 1e-12)] = 0.0
+    if standing:
+        volume[1:] = 0.0
     bottom, top = np.unravel_index(int(np.argmax(volume)), volume.shape)
     if volume[bottom, top] <= 0.0:
         return None
@@ -274,19 +277,25 @@ def _refinement(heights: NDArray[np.float64], radii: NDArray[np.float64], pair: 
 
 
 def largest_cylinder(
-    geometry: DeltaGeometry, criteria: Criteria = DEXTEROUS, *, required_top: float, floor: float = -math.inf
+    geometry: DeltaGeometry,
+    criteria: Criteria = DEXTEROUS,
+    *,
+    required_top: float,
+    floor: float = -math.inf,
+    standing: bool = False,
 ) -> Cylinder | None:
     """The largest-volume admissible vertical cylinder on the z axis whose top reaches ``required_top`` (m)
-    and whose bottom stays at or above ``floor`` (m), in the axis stretch through ``required_top`` (module
-    docstring: disc radii on a height grid refined at the limiting heights); None if that axis point is
-    not admissible."""
+    and whose bottom stays at or above ``floor`` (m), at ``floor`` if ``standing``, in the axis stretch
+    through ``required_top`` (module docstring: disc radii on a height grid refined at the limiting
+    heights); None if that axis point is not admissible, or if ``standing`` and the stretch does not reach
+    down to ``floor``."""
     stretch = axis_stretch(geometry, required_top, criteria, floor)
-    if stretch is None:
+    if stretch is None or (standing and stretch[0] > floor):
         return None
     bottom, top = stretch
     heights = np.union1d(np.arange(bottom, top, HEIGHT_STEP), [required_top, top])
     radii = disc_radii(geometry, heights, criteria)
-    pair = _best_pair(heights, radii, required_top)
+    pair = _best_pair(heights, radii, required_top, standing)
     for _ in range(_MAX_HEIGHT_ROUNDS):
         if pair is None:
             return None
@@ -296,7 +305,7 @@ def largest_cylinder(
         order = np.argsort(np.concatenate((heights, new)), kind="stable")
         heights = np.concatenate((heights, new))[order]
         radii = np.concatenate((radii, disc_radii(geometry, new, criteria)))[order]
-        pair = _best_pair(heights, radii, required_top)
+        pair = _best_pair(heights, radii, required_top, standing)
     if pair is None:
         return None
     low, high, radius = pair
@@ -311,19 +320,19 @@ def data_sheet_cylinder(
     lift: float = STANDARD_LIFT,
     clearance: float = PRODUCT_CLEARANCE,
 ) -> Cylinder | None:
-    """The data-sheet workspace: the largest admissible vertical cylinder on the z axis standing above the
-    belt whose top reaches ``belt + lift + clearance`` (module docstring).
+    """The data-sheet workspace: the largest admissible vertical cylinder on the z axis standing on the belt
+    whose top reaches ``belt + lift + clearance`` (module docstring).
 
     Args:
         geometry: Robot geometry.
         criteria: What makes a point admissible.
-        belt: Height of the conveyor surface (m): the cylinder's bottom is at or above it.
+        belt: Height of the conveyor surface (m): the cylinder's bottom.
         lift: Lift of the gripper above the belt (m), >= 0.
         clearance: Room the cylinder must have above the lift (m), >= 0.
 
     Returns:
-        The cylinder, or None when the axis point at the required top is not admissible.
+        The cylinder, or None when the axis is not admissible from the belt up to the required top.
     """
     belt = require_in("belt", belt, unit="m")
     required_top = belt + require_in("lift", lift, 0.0, unit="m") + require_in("clearance", clearance, 0.0, unit="m")
-    return largest_cylinder(geometry, criteria, required_top=required_top, floor=belt)
+    return largest_cylinder(geometry, criteria, required_top=required_top, floor=belt, standing=True)

@@ -44,7 +44,9 @@ def test_the_plant_and_the_optimizer_use_the_same_ball_joints():
     first, second = (plant.data.site(name).xpos for name in ("platform_1a", "platform_2b"))
     assert np.linalg.norm(first - second) == pytest.approx(NEED, abs=1e-9)
     assert optimize.DEFAULT_BOUNDS.rb[0] == rb
-    assert optimize.constraint_vector(optimize.evaluate(DeltaGeometry(0.2, 0.03, 0.37, 0.95)))[-1] > 0.0
+    narrow = optimize.constraint_vector(optimize.evaluate(DeltaGeometry(0.2, 0.03, 0.37, 0.95)))
+    assert narrow[3] == pytest.approx(buildability.platform_radius_shortfall(DeltaGeometry(0.2, 0.03, 0.37, 0.95)))
+    assert narrow[3] > 0.0
 
 
 def test_cone_is_zero_at_home_and_follows_the_arms():
