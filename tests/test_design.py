@@ -217,6 +217,12 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
         assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
     with (out / "designs.csv").open() as file:
         rows_by_design = {row["design"]: row for row in csv.DictReader(file)}
+    # every chosen design is on the merged front, non-dominated against every evaluation (test_design_robustness.py)
+    on_front = {tuple(r[k] for k in ("ra", "rb", "l1", "l2")) for r in rows}
+    for name, row in rows_by_design.items():
+        assert name == "nominal" or tuple(row[k] for k in ("ra", "rb", "l1", "l2")) in on_front, name
+    with (out / "robustness.csv").open() as file:
+        assert {row["design"] for row in csv.DictReader(file)} >= {"nominal", "compromise"}
     config = json.loads((out / "config.json").read_text())
     assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
     assert config["config"]["drive"]["armature_kg_m2"] == PlantRealism().armature
@@ -226,7 +232,8 @@ def test_quick_cli_writes_the_run_folder(tmp_path):
     with (out / "torque_changes.csv").open() as file:
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
-    names = ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "verification.csv")
+    names = ("convergence.png", "robustness.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png")
+    names += ("verification.csv", "convergence.csv")
     for name in (*names, "summary.md"):
         assert (out / name).stat().st_size > 0
     assert math.isfinite(config["seconds"]["total"])
