@@ -280,7 +280,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         f"Position error: {robustness.LENGTH_SAMPLES} robots, each of the 12 lengths (ra, rb, l1, l2 of each chain) "
         "uniform in its band, commanded by the drawn lengths' inverse kinematics at points filling the workspace "
         f"cylinder. Masses: {robustness.MASS_SAMPLES} robots, m1, m2, m0 each uniform in its band; last column: each "
-        "mass alone +10 %. Mean ± std [5 %, 95 %]:",
+        f"mass alone +{100 * robustness.MASS_TOLERANCE:.0f} %. Mean ± std [5 %, 95 %]:",
         "",
         robustness.table(sensitivity),
         "",
