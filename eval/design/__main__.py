@@ -105,7 +105,7 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
 
 
 def _file_name(design: str) -> str:
-    """A design's name as a file-name part: "GA optimum (weighted cost)" -> "ga-optimum-weighted-cost"."""
+    """A design's name as a file-name part: "weighted-cost optimum" -> "weighted-cost-optimum"."""
     return "-".join("".join(c if c.isalnum() else " " for c in design.lower()).split())
 
 
