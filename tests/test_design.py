@@ -192,6 +192,12 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
         assert not any(_dominates(b, a) for j, b in enumerate(objectives) if j != i)
     with (out / "designs.csv").open() as file:
         rows_by_design = {row["design"]: row for row in csv.DictReader(file)}
+    # every chosen design is on the merged front, non-dominated against every evaluation (test_design_robustness.py)
+    on_front = {tuple(r[k] for k in ("ra", "rb", "l1", "l2")) for r in rows}
+    for name, row in rows_by_design.items():
+        assert name == "nominal" or tuple(row[k] for k in ("ra", "rb", "l1", "l2")) in on_front, name
+    with (out / "robustness.csv").open() as file:
+        assert {row["design"] for row in csv.DictReader(file)} >= {"nominal", "compromise"}
     config = json.loads((out / "config.json").read_text())
     assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
     assert config["config"]["drive"]["gear_ratios"] == list(GEAR_RATIOS)
@@ -203,7 +209,15 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
     with (out / "reconfiguration.csv").open() as file:
         assert {row["design"] for row in csv.DictReader(file)} == {"nominal", "compromise"}
-    names = ("convergence.png", "pareto.png", "maps_horizontal.png", "maps_vertical.png", "verification.csv")
+    names = (
+        "convergence.png",
+        "robustness.png",
+        "convergence.csv",
+        "pareto.png",
+        "maps_horizontal.png",
+        "maps_vertical.png",
+        "verification.csv",
+    )
     names += ("profiles_joints.png", "profiles_end_effector.png", "profiles_torque.png", "explorer.html")
     names += ("reconfiguration.png", "reconfiguration-compromise.png")
     for name in (*names, "summary.md"):

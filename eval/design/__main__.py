@@ -1,23 +1,26 @@
 """``python -m eval.design``: the second paper's design study, verified in closed loop.
 
 1. Figures of the nominal robot (workspace, torque on the 3.8 kg standard cycles, pick rate, speed).
-2. NSGA-II over (ra, rb, l1, l2): the Pareto front of workspace, peak torque and pick rate; and a GA on the
-   paper-style weighted cost.
-3. Designs chosen from the front (compromise, low torque, large workspace) and the GA optimum.
+2. NSGA-II over (ra, rb, l1, l2) (workspace, peak torque and pick rate) and a GA on the paper-style weighted
+   cost, each on ``--search-seeds`` seeds from ``--seed``, in processes; every archive merged into one front
+   (:mod:`eval.design.front`).
+3. Designs chosen from the merged front (compromise, low torque, large workspace, the weighted-cost optimum),
+   their drives by the full planner, and their tolerance and sensitivity (:mod:`eval.design.robustness`).
 4. Reconfiguration by the pitch-screw linkage (:mod:`eval.design.mechanism`) for three task profiles, of the
    nominal robot and of the compromise design.
 5. Closed-loop verification (unless ``--no-verify``): nominal and chosen designs on their own plants,
    identified, with PD, MId+F+R+RLS+PD and the oracle.
 6. The run folder (``--out``, default ``<runs root>/design/<UTC time>``): ``config.json`` (the manifest of
    :mod:`eval.run_folder`: resolved configuration, command, status, times), ``pareto.csv``, ``designs.csv``,
-   ``convergence.csv``, ``reconfiguration.csv``, ``verification.csv``, ``torque_changes.csv``, ``summary.md``,
-   the figures of :mod:`eval.design.report` and of :mod:`eval.design.profiles` (motion and torques over the
-   nominal robot's worst cycle), ``explorer.html`` (:mod:`eval.design.explorer`: the interactive front) and a
-   geometry file ``design-<name>.toml`` per chosen design (``--geometry`` of the other command lines, format of
-   :mod:`delta_env.scenario`); the summary is printed.
+   ``convergence.csv`` (per optimizer, seed and generation), ``robustness.csv``, ``reconfiguration.csv``,
+   ``verification.csv``, ``torque_changes.csv``, ``summary.md``, the figures of :mod:`eval.design.report`,
+   ``convergence.png``, ``robustness.png`` and the figures of :mod:`eval.design.profiles` (motion and torques
+   over the nominal robot's worst cycle), ``explorer.html`` (:mod:`eval.design.explorer`: the interactive
+   front) and a geometry file ``design-<name>.toml`` per chosen design (``--geometry`` of the other command
+   lines, format of :mod:`delta_env.scenario`); the summary is printed.
 
-Usage: python -m eval.design [--seed 0] [--population 40] [--generations 25] [--quick] [--no-verify] [--out DIR]
-                             [--runs-dir DIR]
+Usage: python -m eval.design [--seed 0] [--search-seeds 3] [--population 40] [--generations 25] [--quick]
+                             [--no-verify] [--out DIR] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -38,11 +41,23 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
-from eval.design import codesign, explorer, mechanism, optimize, performance, profiles, reconfigure, report, verify
+from eval.design import (
+    codesign,
+    explorer,
+    front,
+    mechanism,
+    optimize,
+    performance,
+    profiles,
+    reconfigure,
+    report,
+    robustness,
+    verify,
+)
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
 from eval.scenario_args import add_workers_argument, check_ranges
 
-QUICK = {"population": 12, "generations": 3, "episodes": 1, "verified_designs": 1}
+QUICK = {"population": 12, "generations": 3, "search_seeds": 2, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
 
 
@@ -51,6 +66,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="python -m eval.design", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the optimizers and episodes (default 0)")
+    parser.add_argument(
+        "--search-seeds",
+        type=int,
+        default=front.SEARCH_SEEDS,
+        help=f"seeds of each optimizer, from --seed (default {front.SEARCH_SEEDS})",
+    )
     parser.add_argument("--population", type=int, default=40, help="population of NSGA-II and the GA (default 40)")
     parser.add_argument("--generations", type=int, default=25, help="generations of each optimizer (default 25)")
     parser.add_argument("--episodes", type=int, default=2, help="verification episodes per controller (default 2)")
@@ -72,7 +93,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         for key, value in QUICK.items():
             if getattr(args, key) == parser.get_default(key):
                 setattr(args, key, value)
-    minimums = {"seed": 0, "population": 4, "generations": 1, "episodes": 1, "verified_designs": 1, "workers": 1}
+    minimums = {
+        "seed": 0,
+        "search_seeds": 1,
+        "population": 4,
+        "generations": 1,
+        "episodes": 1,
+        "verified_designs": 1,
+        "workers": 1,
+    }
     check_ranges(parser, args, minimums)
     return args
 
@@ -115,6 +144,12 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None
             "torque_share": codesign.TORQUE_SHARE,
         },
         "weights": optimize.WEIGHTS,
+        "robustness": {
+            "length_tolerance_m": robustness.LENGTH_TOLERANCE,
+            "length_samples": robustness.LENGTH_SAMPLES,
+            "mass_tolerance": robustness.MASS_TOLERANCE,
+            "mass_samples": robustness.MASS_SAMPLES,
+        },
         "reconfiguration": {
             "linkage": {
                 "screw_lead_m": mechanism.SCREW_LEAD,
@@ -160,23 +195,24 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     nominal = performance.evaluate(NOMINAL_GEOMETRY)
     if not nominal.feasible:
         raise RuntimeError(f"the nominal robot does not meet the study's own constraints: {nominal.reason}")
-    settings = optimize.SearchSettings(args.population, args.generations, args.seed)
-    with tqdm(total=args.generations, desc="NSGA-II", unit="gen") as bar:
-        pareto = optimize.pareto_front(nominal, settings, progress=bar)
-    with tqdm(total=args.generations, desc="GA (weighted cost)", unit="gen") as bar:
-        single = optimize.single_objective(nominal, settings, progress=bar)
+    seeds = list(range(args.seed, args.seed + args.search_seeds))
+    with tqdm(total=2 * len(seeds), desc="NSGA-II and GA, every seed", unit="run") as bar:
+        searches = front.search(nominal, args.population, args.generations, seeds, workers=args.workers, progress=bar)
+    pareto = searches.result
     seconds["optimization"] = time.perf_counter() - started
 
     chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(pareto, nominal).items()}
-    ga_best = single.archive.performance[single.best]
-    designs = {"nominal": nominal, **chosen, "GA optimum (weighted cost)": ga_best}
+    weighted = pareto.archive.performance[optimize.weighted_cost_optimum(pareto, nominal)]
+    designs = {"nominal": nominal, **chosen, "weighted-cost optimum": weighted}
     if not args.quick:  # the reported designs' drives by the full planner (the optimizer used the cheap path)
         designs = {n: performance.evaluate(p.geometry, masses=p.masses, exact_drive=True) for n, p in designs.items()}
-    front = [pareto.archive.performance[i] for i in pareto.front]
+    front_designs = [pareto.archive.performance[i] for i in pareto.front]
+    sensitivity = {name: robustness.analyse(p, seed=args.seed) for name, p in _distinct(designs).items()}
+    seconds["robustness"] = time.perf_counter() - started - seconds["optimization"]
 
     reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=args.seed) for name, p in designs.items()}
     reconfigured = {name: reconfigure.study(designs[name].geometry) for name in ("nominal", "compromise")}
-    seconds["reconfiguration"] = time.perf_counter() - started - seconds["optimization"]
+    seconds["reconfiguration"] = time.perf_counter() - started - sum(seconds.values())
 
     verifications: list[verify.Verification] = []
     if not args.no_verify:
@@ -187,7 +223,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
             )
         seconds["verification"] = time.perf_counter() - started - sum(seconds.values())
 
-    write_csv(out / "pareto.csv", [report.performance_row(p) for p in front])
+    write_csv(out / "pareto.csv", [report.performance_row(p) for p in front_designs])
     write_csv(
         out / "designs.csv",
         [
@@ -200,11 +236,8 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
             for n, p in designs.items()
         ],
     )
-    write_csv(
-        out / "convergence.csv",
-        [{"optimizer": "NSGA-II", **row} for row in pareto.convergence]
-        + [{"optimizer": "GA", **row} for row in single.convergence],
-    )
+    write_csv(out / "convergence.csv", pareto.convergence)
+    write_csv(out / "robustness.csv", robustness.rows(sensitivity))
     write_csv(
         out / "reconfiguration.csv",
         [
@@ -240,8 +273,9 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     for name, design in designs.items():
         if name != "nominal":
             save_geometry(design.geometry, out / report.design_file_name(name), report.design_record(name, design))
-    report.plot_convergence(pareto, single, out / "convergence.png")
-    report.plot_pareto(front, nominal, {n: p for n, p in designs.items() if n != "nominal"}, out / "pareto.png")
+    front.plot_convergence(searches, nominal, out / "convergence.png")
+    robustness.plot(sensitivity, out / "robustness.png")
+    report.plot_pareto(front_designs, nominal, {n: p for n, p in designs.items() if n != "nominal"}, out / "pareto.png")
     map_designs = {"nominal": NOMINAL_GEOMETRY, "compromise": chosen["compromise"].geometry}
     report.plot_maps(map_designs, "horizontal", out / "maps_horizontal.png")
     report.plot_maps(map_designs, "vertical", out / "maps_vertical.png")
@@ -251,12 +285,12 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     # Figures 3-6 of the paper and the explorer page: every design on the nominal robot's worst task cycle
     profile_cycle = profiles.worst_cycle(nominal)
     profiles.plot_profiles({n: profiles.design_profile(p, profile_cycle) for n, p in _distinct(designs).items()}, out)
-    explorer.write_explorer(front, designs, out / "explorer.html", cycle=profile_cycle)
+    explorer.write_explorer(front_designs, designs, out / "explorer.html", cycle=profile_cycle)
     seconds["total"] = time.perf_counter() - started
 
     lines = [
         f"# Design study: NSGA-II and GA, population {args.population}, {args.generations} generations, "
-        f"seed {args.seed}",
+        f"seeds {seeds[0]}-{seeds[-1]}",
         "",
         "Objectives relative to the nominal robot. Reachable volume: Monte Carlo over the points with the motor "
         "range and ball-joint cone (no dexterity threshold), ± its standard error. Workspace: the data-sheet "
@@ -275,8 +309,18 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "",
         report.summary_table(designs, designs["nominal"], reachable),
         "",
-        f"Pareto front: {len(front)} designs of {len(pareto.archive.x)} evaluated; GA: {len(single.archive.x)} "
-        "evaluated.",
+        "Every design chosen from the front of all runs merged (NSGA-II and the GA on every seed): none is "
+        "dominated by any design evaluated. " + front.convergence_text(searches, nominal),
+        "",
+        f"## Tolerance and sensitivity: lengths ±{1e3 * robustness.LENGTH_TOLERANCE:.1f} mm, masses "
+        f"±{100 * robustness.MASS_TOLERANCE:.0f} %",
+        "",
+        f"Position error: {robustness.LENGTH_SAMPLES} robots, each of the 12 lengths (ra, rb, l1, l2 of each chain) "
+        "uniform in its band, commanded by the drawn lengths' inverse kinematics at points filling the workspace "
+        f"cylinder. Masses: {robustness.MASS_SAMPLES} robots, m1, m2, m0 each uniform in its band; last column: each "
+        f"mass alone +{100 * robustness.MASS_TOLERANCE:.0f} %. Mean ± std [5 %, 95 %]:",
+        "",
+        robustness.table(sensitivity),
         "",
     ]
     for name, study in reconfigured.items():

@@ -17,7 +17,7 @@ objectives, each relative to the nominal design, weighted equally (nominal cost 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -153,6 +153,16 @@ def weighted_cost(performance: Performance, nominal: Performance, weights: tuple
     return float(sum(w * t for w, t in zip(weights, terms, strict=True)))
 
 
+def hypervolume(objectives: NDArray[np.float64], nominal: Performance) -> float:
+    """Hypervolume of feasible designs' objectives ``(n, 3)`` (:func:`objective_vector`) relative to the nominal
+    design's, against :data:`HYPERVOLUME_REFERENCE`; 0 for none."""
+    objectives = np.asarray(objectives, dtype=float).reshape(-1, len(OBJECTIVES))
+    if objectives.size == 0:
+        return 0.0
+    scale = np.array([nominal.workspace_m3, nominal.peak_torque_nm, nominal.picks_per_min])
+    return float(HV(ref_point=np.array(HYPERVOLUME_REFERENCE))(objectives / scale))
+
+
 @dataclass
 class Archive:
     """Every design evaluated, in order: vectors (m), objectives, constraints and figures."""
@@ -169,6 +179,17 @@ class Archive:
         self.g.append(g)
         self.performance.append(performance)
         return f, g
+
+    @classmethod
+    def merged(cls, archives: Sequence[Archive]) -> Archive:
+        """One archive of every evaluation of ``archives``, in their order (the front of every search at once)."""
+        merged = cls()
+        for archive in archives:
+            merged.x += archive.x
+            merged.f += archive.f
+            merged.g += archive.g
+            merged.performance += archive.performance
+        return merged
 
     def pareto_indices(self) -> NDArray[np.int_]:
         """Indices of the feasible, non-dominated, distinct designs among everything evaluated."""
@@ -321,15 +342,10 @@ def pareto_front(
         RuntimeError: if no evaluated design satisfies the constraints.
     """
     archive = Archive()
-    scale = np.array([nominal.workspace_m3, nominal.peak_torque_nm, nominal.picks_per_min])
-    indicator = HV(ref_point=np.array(HYPERVOLUME_REFERENCE))
 
     def record(algorithm: object) -> dict[str, float]:
         pop = algorithm.pop
-        feasible = pop.get("FEAS").ravel()
-        if not feasible.any():
-            return {"hypervolume": 0.0}
-        return {"hypervolume": float(indicator(pop.get("F")[feasible] / scale))}
+        return {"hypervolume": hypervolume(pop.get("F")[pop.get("FEAS").ravel()], nominal)}
 
     history = _search(DesignProblem(bounds, archive), NSGA2(pop_size=settings.population), settings, progress, record)
     front = archive.pareto_indices()
@@ -402,3 +418,9 @@ def choose_designs(result: ParetoResult, nominal: Performance) -> dict[str, int]
     if light.size:
         chosen["large_workspace"] = int(front[light[np.argmax(workspace[light])]])
     return chosen
+
+
+def weighted_cost_optimum(result: ParetoResult, nominal: Performance) -> int:
+    """Archive index of the front design of least :func:`weighted_cost`: the least over every feasible design
+    evaluated, since the cost grows with each objective (so its minimum is never dominated)."""
+    return int(min(result.front, key=lambda i: weighted_cost(result.archive.performance[i], nominal)))

@@ -1,9 +1,7 @@
 """Tables and figures of the design study, written into its run folder.
 
-- ``convergence.png``: GA best and mean weighted cost and NSGA-II hypervolume per generation (the second
-  paper's Fig. 9);
-- ``pareto.png``: the Pareto front, workspace against peak torque coloured by cycle time, with the nominal,
-  the chosen and the single-objective designs (its Fig. 10);
+- ``pareto.png``: the Pareto front, workspace against peak torque coloured by cycle time, with the nominal
+  and the chosen designs (the second paper's Fig. 10);
 - ``maps_horizontal.png`` and ``maps_vertical.png``: conditioning, IMI, det A, min |k_i| and the peak
   torque to accelerate 3.8 kg at 3 g, nominal against the chosen design, on the conveyor plane z = -0.9 m
   and on the vertical plane y = 0;
@@ -30,7 +28,7 @@ from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval.design.codesign import LIGHT_PAYLOAD
-from eval.design.optimize import PAPER_TARGETS, ParetoResult, SingleObjectiveResult
+from eval.design.optimize import PAPER_TARGETS
 from eval.design.performance import Performance, peak_torque_map
 from eval.design.reconfigure import Reconfiguration
 from eval.design.verify import CONTROLLERS, Verification
@@ -328,24 +326,6 @@ def reconfiguration_table(study: Reconfiguration) -> str:
     return markdown_table(header, rows)
 
 
-def plot_convergence(pareto: ParetoResult, single: SingleObjectiveResult, path: Path) -> None:
-    """GA cost and NSGA-II hypervolume per generation (the paper's Fig. 9)."""
-    figure, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
-    generations = [row["generation"] for row in single.convergence]
-    left.plot(generations, [row["best_cost"] for row in single.convergence], "o-", label="best")
-    left.plot(generations, [row["mean_cost"] for row in single.convergence], "s--", label="mean (feasible)")
-    left.axhline(1.0, color="grey", lw=0.8, label="nominal")
-    left.set(xlabel="generation", ylabel="weighted cost (nominal = 1)", title="Single-objective GA")
-    left.legend()
-    right.plot([r["generation"] for r in pareto.convergence], [r["hypervolume"] for r in pareto.convergence], "o-")
-    right.set(xlabel="generation", ylabel="hypervolume (nominal-relative objectives)", title="NSGA-II")
-    for axis in (left, right):
-        axis.grid(alpha=0.3)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-
-
 def plot_pareto(
     front: Sequence[Performance], nominal: Performance, marked: Mapping[str, Performance], path: Path, dpi: int = 110
 ) -> None:
@@ -365,7 +345,7 @@ def plot_pareto(
     axis.set(
         xlabel="data-sheet cylinder above the belt (m³)",
         ylabel="peak torque, 3.8 kg standard cycles at 3 g (N m)",
-        title="Pareto front (NSGA-II), design model: rod forearms, scaled masses, drives",
+        title="Pareto front (every run merged), design model: rod forearms, scaled masses, drives",
     )
     axis.grid(alpha=0.3)
     axis.legend(fontsize=8)
