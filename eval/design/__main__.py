@@ -1,8 +1,8 @@
 """``python -m eval.design``: the second paper's design study, verified in closed loop.
 
 1. Figures of the nominal robot (workspace, torque on the 3.8 kg standard cycles, pick rate, speed).
-2. NSGA-II over (ra, rb, l1, l2) (workspace, peak torque and pick rate) and a GA on the paper-style weighted
-   cost, each on ``--search-seeds`` seeds from ``--seed``, in processes; every archive merged into one front
+2. NSGA-II over (ra, rb, l1, l2) (workspace, peak torque and pick rate) on ``--search-seeds`` seeds from
+   ``--seed`` and a GA on the paper-style weighted cost on the first, in processes; every archive merged into one front
    (:mod:`eval.design.front`).
 3. Designs chosen from the merged front (compromise, low torque, large workspace, the weighted-cost optimum),
    their drives by the full planner, and their tolerance and sensitivity (:mod:`eval.design.robustness`).
@@ -196,7 +196,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     if not nominal.feasible:
         raise RuntimeError(f"the nominal robot does not meet the study's own constraints: {nominal.reason}")
     seeds = list(range(args.seed, args.seed + args.search_seeds))
-    with tqdm(total=2 * len(seeds), desc="NSGA-II and GA, every seed", unit="run") as bar:
+    with tqdm(total=len(seeds) + 1, desc="NSGA-II on every seed, the GA", unit="run") as bar:
         searches = front.search(nominal, args.population, args.generations, seeds, workers=args.workers, progress=bar)
     pareto = searches.result
     seconds["optimization"] = time.perf_counter() - started
@@ -309,7 +309,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "",
         report.summary_table(designs, designs["nominal"], reachable),
         "",
-        "Every design chosen from the front of all runs merged (NSGA-II and the GA on every seed): none is "
+        "Every design chosen from the front of all runs merged (NSGA-II on every seed and the GA): none is "
         "dominated by any design evaluated. " + front.convergence_text(searches, nominal),
         "",
         f"## Tolerance and sensitivity: lengths ±{1e3 * robustness.LENGTH_TOLERANCE:.1f} mm, masses "
