@@ -59,13 +59,13 @@ def test_merged_front_is_non_dominated_against_every_run(nominal):
     assert optimize.weighted_cost(result.archive.performance[chosen["weighted"]], nominal) == min(every_cost)
     assert {merged.source(i) for i in range(len(result.archive.x))} == {(r.optimizer, r.seed) for r in merged.runs}
     rows = {(row["optimizer"], row["seed"]) for row in result.convergence}
-    assert rows == {(r.optimizer, r.seed) for r in merged.runs} and len(result.convergence) == 4 * 2
+    assert rows == {(r.optimizer, r.seed) for r in merged.runs} and len(result.convergence) == 3 * 2
     with pytest.raises(ValueError, match="distinct"):
         front.search(nominal, population=6, generations=1, seeds=[1, 1])
 
 
 def test_convergence_summary_reads_the_last_rise(nominal):
-    objectives = [-nominal.workspace_m3, nominal.peak_torque_nm, nominal.cycle_time_s]
+    objectives = list(optimize.objective_vector(nominal))
     archive = _archive([objectives], [[0.0] * 3], [nominal])
 
     def run(seed: int, values: list[float]) -> front.SearchRun:
@@ -148,7 +148,10 @@ def test_mass_sensitivity_is_monotone_and_linear_in_the_masses(nominal):
         half = robustness.with_masses(nominal, 1.0 + 0.05 * (np.arange(3) == k))
         down = robustness.with_masses(nominal, 1.0 - 0.1 * (np.arange(3) == k))
         assert down.peak_torque_nm < torque < up.peak_torque_nm, k
-        assert robustness.speed_figure(down) < speed < robustness.speed_figure(up), k
+        # picks/min fall with mass, in steps of the cycle's 1 ms samples (0.26 % at 155/min): +-10 % of one
+        # mass may not move them, +30 % must
+        assert robustness.speed_figure(up) <= speed <= robustness.speed_figure(down), k
+        assert robustness.speed_figure(robustness.with_masses(nominal, 1.0 + 0.3 * (np.arange(3) == k))) < speed, k
         # inverse dynamics is linear in the masses: at a fixed peak sample, the change doubles with the step
         assert up.peak_torque_nm - torque == pytest.approx(2.0 * (half.peak_torque_nm - torque), rel=0.02), k
         assert 0.001 < up.peak_torque_nm / torque - 1.0 < 0.1, k  # a share of the torque, never more than 10 %
