@@ -153,7 +153,7 @@ class FaultInjector:
             if not len(moving):
                 return
             hit = step + 1 + int(moving[0])
-            self.plant.place_obstacle(trajectory.xyz[hit], trajectory.xyz_dot[hit])
+            self.plant.obstacle.place(trajectory.xyz[hit], trajectory.xyz_dot[hit])
             self._running.append(_RunningFault(draw, n, hit - 1 + max(1, round(draw.duration / dt))))
             return
         else:
@@ -169,12 +169,12 @@ class FaultInjector:
         for fault in self._running:
             draw = fault.draw
             if draw.detail == "obstacle":
-                force = self.plant.obstacle_contact_force()
+                force = self.plant.obstacle.contact_force()
                 if force > 0.0:
                     kinds.append(draw.kind)
                     self._record_contact(fault, n, force)
                 if fault.last == n:
-                    self.plant.park_obstacle()
+                    self.plant.obstacle.park()
                 continue
             kinds.append(draw.kind)
             if fault.last == n and draw.kind == "collision":

@@ -2,12 +2,13 @@
 
 :class:`DeltaPlant` builds the model of a :class:`~delta_env.config.PlantConfig` (:mod:`delta_env.scene`),
 caches every id and address once, assembles closed-loop states, steps the 1 kHz hot path, handles the
-payload and applies domain randomization.
+payload, applies external forces and domain randomization; its parts are the loop closures
+(:mod:`delta_env.loops`), the suction payload (:mod:`delta_env.suction`) and the contacts
+(:mod:`delta_env.contacts`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import mujoco
@@ -24,9 +25,10 @@ from delta_env.config import (
     PlantRealism,
     RandomizationRanges,
 )
+from delta_env.contacts import Obstacle, RobotContacts
 from delta_env.loops import LoopClosures
-from delta_env.robot import CHAIN_LABELS, ROBOT_CONTACT_BIT, ROD_LABELS, forearm_home_tilt
-from delta_env.scene import OBSTACLE_PARKED, OBSTACLE_RADIUS, build_model
+from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
+from delta_env.scene import build_model
 from delta_env.suction import SuctionPayload, quat_to_matrix
 from delta_env.validation import require_in, require_joint_vector
 
@@ -68,10 +70,8 @@ class DeltaPlant:
         self._motor_dofs = model.jnt_dofadr[motor_joints].copy()
         self._platform_body = ident(body, "platform")
         self._arm_bodies = [ident(body, f"upper_arm_{label}") for label in CHAIN_LABELS]
-        self._obstacle = ident(body, "obstacle") if obstacle else -1
-        self._obstacle_geom = ident(mujoco.mjtObj.mjOBJ_GEOM, "obstacle") if obstacle else -1
-        disc = model.geom_size[ident(mujoco.mjtObj.mjOBJ_GEOM, "platform_disc")]
-        self._disc_radius, self._disc_half_height = float(disc[0]), float(disc[1])
+        self.obstacle = Obstacle(model, data) if obstacle else None
+        """The obstacle of collision faults; None unless built with ``obstacle=True``."""
         first_platform_joint = model.body_jntadr[self._platform_body]
         self._platform_qpos = int(model.jnt_qposadr[first_platform_joint])
         self._platform_dof = int(model.jnt_dofadr[first_platform_joint])
@@ -102,15 +102,14 @@ class DeltaPlant:
             raise RuntimeError(f"model has {self.loops.n_rows} loop rows for {len(self._passive_dofs)} passive dofs")
 
         # Domain-randomizable parameters: the nominal ones come from the config.
-        others = (payload_body, self._obstacle)
+        others = (payload_body, -1 if self.obstacle is None else self.obstacle.body)
         self._robot_bodies = np.array([b for b in range(1, model.nbody) if b not in others])
         self._has_lag = self.config.realism.actuator_lag > 0.0
         self._parameters = self.nominal_parameters
         self._set_disturbance_coefficients(self.config.realism)
 
-        # Robot self-contacts seen since the last reset (collision geometry on): geom-name pair -> deepest (m).
-        self._tracks_contacts = self.config.collisions
-        self._robot_contacts: dict[tuple[str, str], float] = {}
+        # Robot self-contacts seen since the last reset, tracked only with the collision geometry on.
+        self._contacts = RobotContacts(model, data) if self.config.collisions else None
 
         # Views into mjData for the hot path (the buffers never move).
         self._qpos, self._qvel = data.qpos, data.qvel
@@ -138,7 +137,8 @@ class DeltaPlant:
             theta: Motor angles (rad), shape (3,); home (arms horizontal) when None.
         """
         mujoco.mj_resetData(self.model, self.data)
-        self._robot_contacts = {}
+        if self._contacts is not None:
+            self._contacts.clear()
         if self._payload is not None:
             self.model.body_gravcomp[self._payload.body] = 1.0
         self.assemble(np.zeros(3) if theta is None else theta)
@@ -285,23 +285,15 @@ class DeltaPlant:
                 self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
             )
         mujoco.mj_step(self.model, self.data, n_substeps)
-        if self._tracks_contacts and self.data.ncon:
-            self._record_robot_contacts()
-
-    def _record_robot_contacts(self) -> None:
-        contype = self.model.geom_contype
-        for index in range(self.data.ncon):
-            contact = self.data.contact[index]
-            if contype[contact.geom1] & contype[contact.geom2] & ROBOT_CONTACT_BIT:
-                pair = tuple(sorted(self.model.geom(g).name for g in (contact.geom1, contact.geom2)))
-                self._robot_contacts[pair] = max(self._robot_contacts.get(pair, 0.0), -float(contact.dist))
+        if self._contacts is not None and self.data.ncon:
+            self._contacts.record()
 
     @property
     def robot_contacts(self) -> dict[tuple[str, str], float]:
         """Robot self-contacts since the last :meth:`reset`, checked after every :meth:`step` (a copy): each pair of
         geom names with its deepest penetration (m). Always empty unless the plant was built with
         ``PlantConfig.collisions``; a touch shorter than one control step can pass unseen."""
-        return dict(self._robot_contacts)
+        return {} if self._contacts is None else self._contacts.seen()
 
     # --------------------------------------------------------------------------------------------
     # Payload
@@ -384,7 +376,7 @@ class DeltaPlant:
         self._payload.match_velocity(platform_position, linear, angular)
 
     # --------------------------------------------------------------------------------------------
-    # External forces and the obstacle (fault injection); mj_resetData clears both
+    # External forces (fault injection; the obstacle is :attr:`obstacle`); mj_resetData clears them
     # --------------------------------------------------------------------------------------------
 
     def apply_external_force(self, force: NDArray[np.float64], joint: int | None = None) -> None:
@@ -405,41 +397,6 @@ class DeltaPlant:
     def clear_external_forces(self) -> None:
         """Remove every force of :meth:`apply_external_force`."""
         self.data.xfrc_applied[:] = 0.0
-
-    @property
-    def has_obstacle(self) -> bool:
-        """True if the model was built with the obstacle of collision faults."""
-        return self._obstacle >= 0
-
-    def place_obstacle(self, point: NDArray[np.float64], direction: NDArray[np.float64]) -> None:
-        """Put the obstacle sphere where the platform disc touches it when its centre E0 is at ``point`` (m) moving
-        along ``direction`` (any length > 0): at the disc's extent in that direction plus the sphere's radius.
-
-        Raises:
-            RuntimeError: if the plant was built without the obstacle.
-        """
-        unit = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
-        reach = self._disc_radius * math.hypot(unit[0], unit[1]) + self._disc_half_height * abs(unit[2])
-        self._move_obstacle(np.asarray(point) + (reach + OBSTACLE_RADIUS) * unit)
-
-    def park_obstacle(self) -> None:
-        """Move the obstacle back out of the way."""
-        self._move_obstacle(np.array(OBSTACLE_PARKED))
-
-    def _move_obstacle(self, position: NDArray[np.float64]) -> None:
-        if not self.has_obstacle:
-            raise RuntimeError("this plant was built without the obstacle (DeltaPlant(config, obstacle=True))")
-        self.data.mocap_pos[self.model.body_mocapid[self._obstacle]] = position
-
-    def obstacle_contact_force(self) -> float:
-        """Normal force (N) between the obstacle and the platform at the last physics step; 0 without contact."""
-        force, total = np.zeros(6), 0.0
-        for index in range(self.data.ncon):
-            contact = self.data.contact[index]
-            if self._obstacle_geom in (contact.geom1, contact.geom2):
-                mujoco.mj_contactForce(self.model, self.data, index, force)
-                total += force.item(0)
-        return total
 
     # --------------------------------------------------------------------------------------------
     # Domain randomization: every per-episode model edit happens here

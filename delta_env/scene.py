@@ -86,7 +86,7 @@ def scene_spec(config: PlantConfig, obstacle: bool = False) -> mujoco.MjSpec:
 def _add_obstacle(spec: mujoco.MjSpec) -> None:
     """A sphere on a mocap body, parked far away, that collides with the platform disc and nothing else.
 
-    It is moved by :meth:`DeltaPlant.place_obstacle`; its contact is compliant (:data:`OBSTACLE_SOLREF`).
+    It is moved by :meth:`delta_env.contacts.Obstacle.place`; its contact is compliant (:data:`OBSTACLE_SOLREF`).
     """
     spec.geom("platform_disc").conaffinity = OBSTACLE_CONTACT_BIT
     body = spec.worldbody.add_body(name="obstacle", pos=OBSTACLE_PARKED, mocap=True)

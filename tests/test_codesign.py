@@ -1,4 +1,5 @@
-"""Motor and gearbox co-design (delta_env.catalogue, eval.design.codesign): catalogue, checks, choice, cheap path."""
+"""Motor and gearbox co-design (delta_env.catalogue, eval.design.codesign, .drive_rate, .screening): catalogue,
+checks, choice, cheap path."""
 
 import dataclasses
 import math
@@ -10,7 +11,7 @@ from delta_env.catalogue import CATALOGUE, GEAR_RATIOS, MOTORS, STAGE_EFFICIENCY
 from delta_env.config import RATED_PAYLOAD
 from delta_env.drive import RPM, ServoMotor
 from delta_env.geometry import NOMINAL_GEOMETRY
-from eval.design import codesign, optimize, performance
+from eval.design import codesign, drive_rate, optimize, performance, screening
 
 MOTOR = MOTORS["SGM7A-20A"]
 
@@ -53,7 +54,7 @@ def test_bad_co_design_inputs_are_named():
     with pytest.raises(ValueError, match="option"):
         codesign.choose_drive(NOMINAL_GEOMETRY, options=())
     with pytest.raises(ValueError, match="option"):
-        codesign.screened_rates(NOMINAL_GEOMETRY, options=[])
+        screening.screened_rates(NOMINAL_GEOMETRY, options=[])
 
 
 def test_a_motor_better_in_every_respect_is_chosen():
@@ -61,16 +62,16 @@ def test_a_motor_better_in_every_respect_is_chosen():
     options = drive_options({"weak": MOTOR, "strong": stronger}, [20.0, 35.0])
     choice = codesign.choose_drive(NOMINAL_GEOMETRY, options=options)
     assert choice.option.motor_name == "strong"
-    rates = codesign.screened_rates(NOMINAL_GEOMETRY, options)
+    rates = screening.screened_rates(NOMINAL_GEOMETRY, options)
     assert rates[2:].max() > 1.05 * rates[:2].max()  # twice the torque is clearly faster, not a tie
 
 
 def test_the_gear_ratio_trades_torque_against_speed():
     options = drive_options({"SGM7A-20A": MOTOR}, [3.0, 40.0, 100.0])
-    rates = codesign.screened_rates(NOMINAL_GEOMETRY, options)
+    rates = screening.screened_rates(NOMINAL_GEOMETRY, options)
     assert rates[1] > 1.08 * rates[2] and rates[1] > 2.0 * rates[0]
     assert codesign.choose_drive(NOMINAL_GEOMETRY, options=options).option.ratio == 40.0
-    low, high = (codesign.screened_rate(NOMINAL_GEOMETRY, options[i], RATED_PAYLOAD) for i in (0, 2))
+    low, high = (screening.screened_rate(NOMINAL_GEOMETRY, options[i], RATED_PAYLOAD) for i in (0, 2))
     # 1:3 runs out of torque (peak or thermal) far below its speed; 1:100 reaches the planner's speed cap (90 %)
     assert max(low.check.peak_share, low.check.rms_share) > 0.8 and low.check.speed_share < 0.1
     assert high.check.speed_share > 0.85
@@ -78,7 +79,7 @@ def test_the_gear_ratio_trades_torque_against_speed():
 
 def test_a_drive_that_cannot_hold_the_payload_is_refused():
     weak = drive_options({"SGM7J-04A": MOTORS["SGM7J-04A"]}, [3.0])  # 3.7 N m rated at the joint
-    assert codesign.screened_rates(NOMINAL_GEOMETRY, weak)[0] == 0.0
+    assert screening.screened_rates(NOMINAL_GEOMETRY, weak)[0] == 0.0
     choice = codesign.choose_drive(NOMINAL_GEOMETRY, options=weak)
     assert choice.option is None and choice.picks_per_min == 0.0 and choice.picks_per_min_light == 0.0
 
@@ -87,10 +88,10 @@ def test_drive_check_measures_each_limit(exact_nominal):
     rated = exact_nominal.rated
     assert rated.check.holds
     trajectory = rated.cycles.trajectory()
-    model = codesign.drive_model(NOMINAL_GEOMETRY, rated.option)
+    model = drive_rate.drive_model(NOMINAL_GEOMETRY, rated.option)
     limits = rated.option.limits
     halved = dataclasses.replace(limits, peak_torque=limits.peak_torque / 2, rated_torque=limits.rated_torque / 2)
-    weaker = codesign.drive_check(model, trajectory, RATED_PAYLOAD, halved)
+    weaker = drive_rate.drive_check(model, trajectory, RATED_PAYLOAD, halved)
     assert weaker.peak_share == pytest.approx(2 * rated.check.peak_share) and weaker.rms_share == pytest.approx(
         2 * rated.check.rms_share
     )
@@ -107,7 +108,7 @@ def test_nominal_co_design_meets_every_limit_and_the_cheap_path_agrees(exact_nom
     assert cheap.picks_per_min == pytest.approx(exact_nominal.picks_per_min, rel=0.03)
     assert cheap.picks_per_min_light == pytest.approx(exact_nominal.picks_per_min_light, rel=0.03)
     # the cheap path scores a drive at most a little above the full planner (it checks at 2 ms, not 1 ms)
-    planned = codesign.planned_rate(NOMINAL_GEOMETRY, cheap.option, RATED_PAYLOAD)
+    planned = drive_rate.planned_rate(NOMINAL_GEOMETRY, cheap.option, RATED_PAYLOAD)
     assert cheap.picks_per_min <= 1.01 * planned.picks_per_min
 
 
@@ -127,7 +128,7 @@ def test_cheap_path_agrees_with_the_full_planner_on_random_designs():
 
 def test_pick_rate_falls_with_the_payload():
     option = DriveOption("SGM7A-25A", MOTORS["SGM7A-25A"], 40.0)
-    planned = [codesign.planned_rate(NOMINAL_GEOMETRY, option, load).picks_per_min for load in (0.1, 2.0, 4.0)]
+    planned = [drive_rate.planned_rate(NOMINAL_GEOMETRY, option, load).picks_per_min for load in (0.1, 2.0, 4.0)]
     assert planned[0] > planned[1] > planned[2]
-    screened = [codesign.screened_rate(NOMINAL_GEOMETRY, option, load).picks_per_min for load in (0.1, 2.0, 4.0)]
+    screened = [screening.screened_rate(NOMINAL_GEOMETRY, option, load).picks_per_min for load in (0.1, 2.0, 4.0)]
     assert screened[0] > screened[1] > screened[2]

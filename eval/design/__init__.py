@@ -2,6 +2,8 @@
 
 - :mod:`eval.design.performance`: the figures of merit of one geometry (workspace, torque on the 3.8 kg
   standard cycles, cycle time at the torque limit, speed at a joint-speed limit, peak-torque maps);
+- :mod:`eval.design.codesign`: the catalogue drive of each geometry with the most picks per minute (one
+  drive's pick rate: :mod:`eval.design.drive_rate`; the cheap path of the optimizer: :mod:`eval.design.screening`);
 - :mod:`eval.design.optimize`: the pymoo problems (NSGA-II Pareto front, GA on the weighted cost);
 - :mod:`eval.design.mechanism`: the paper's pitch-screw linkage, screw travel -> base radius and motor height;
 - :mod:`eval.design.reconfigure`: the best screw setting per task profile, against the best fixed one;

@@ -43,6 +43,7 @@ from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
 from eval.design import (
     codesign,
+    drive_rate,
     explorer,
     front,
     mechanism,
@@ -141,7 +142,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None
             "gear_ratios": catalogue.GEAR_RATIOS,
             "stage_efficiency": catalogue.STAGE_EFFICIENCY,
             "light_payload_kg": codesign.LIGHT_PAYLOAD,
-            "torque_share": codesign.TORQUE_SHARE,
+            "torque_share": drive_rate.TORQUE_SHARE,
         },
         "weights": optimize.WEIGHTS,
         "robustness": {

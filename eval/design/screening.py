@@ -1,0 +1,325 @@
+"""The cheap path of the co-design: every drive's pick rate from time laws planned once (the optimizer's objective).
+
+Planning every drive with the full planner (:func:`eval.design.drive_rate.planned_rate`) costs about 1 s each.
+Instead, the time laws tau(t) of the cycle's two moves are planned once (per process) on the nominal robot with
+:data:`REFERENCE_DRIVES` (a balanced and a speed-limited gearing); the shape x(tau) is the same Cartesian path
+for every design. Run k times faster, a law's joint rates scale by k and its accelerations by k^2, so along it
+every design's torque is exactly a + b k + c k^2 (gravity and Coulomb; viscous; inertia, velocity products and
+the armature), its lag-inverse command adds lead k d/dt of that, its speeds k |q'|, and its RMS over the move
+and the dwell follows. For every drive and move a bisection finds the largest k that keeps the planner's
+envelope, speed limit and the thermal limit: a feasible, slightly sub-optimal law of that drive (each move from
+its best reference). :func:`eval.design.codesign.choose_drive` with ``exact=True`` then plans the best
+screened drives with the full planner and keeps the fastest (tests/test_codesign.py: the two agree within 3 %
+near the optimum).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.payload_timing import THERMAL_MARGIN
+from controllers.timing import DEFAULT_MARGIN, TimeOptimalPlanner
+from delta_env import kinematics
+from delta_env.catalogue import CATALOGUE, MOTORS, DriveOption
+from delta_env.config import RATED_PAYLOAD
+from delta_env.cycles import TimedCycles
+from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
+from delta_env.timing import TimeLaw, move_samples
+from delta_env.trajectories import Segment
+from delta_env.validation import require_in
+from eval.design.drive_rate import PickRate, cycle_rate, drive_timing, timed_cycle
+from eval.design.performance import CYCLE_DWELL, DRIVE, design_model
+
+REFERENCE_DRIVES = tuple(DriveOption("SGM7A-20A", MOTORS["SGM7A-20A"], ratio) for ratio in (50.0, 100.0))
+"""Drives whose time laws on the nominal robot the cheap path scales: balanced and speed-limited (a third,
+torque-limited one at 1:20 gave no drive a faster law)."""
+
+BISECTIONS = 12
+"""Bisection steps of a move's speed-up in the cheap path, per constraint (resolution 2^-12 of its upper bound)."""
+
+SCREEN_STRIDE = 2
+"""The cheap path checks the envelope at every second sample of a law (2 ms)."""
+
+SCREEN_CHUNK = 8
+"""Drive options scored together by the cheap path's branch and bound."""
+
+MAX_SPEED_UP = 1e3
+"""Upper bound of a speed-up where no joint moves (no speed limit applies)."""
+
+
+@dataclass(frozen=True)
+class _ScaledTiming:
+    """A :class:`delta_env.timing.MoveTiming` that returns one fixed law for the carry and one for the empty move."""
+
+    carry_law: TimeLaw
+    empty_law: TimeLaw
+    retimes_online: bool = False
+
+    def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
+        return self.carry_law
+
+    def empty(self, shape: Segment) -> TimeLaw:
+        return self.empty_law
+
+    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+        return None
+
+
+@dataclass(frozen=True)
+class _Recorder:
+    """Plans every move of a cycle with one planner, carries for a fixed payload."""
+
+    planner: TimeOptimalPlanner
+    payload: float
+    retimes_online: bool = False
+
+    def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
+        return self.planner.plan(shape, self.payload)
+
+    def empty(self, shape: Segment) -> TimeLaw:
+        return self.planner.plan(shape, 0.0)
+
+    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+        return None
+
+
+@functools.cache
+def reference_cycles(payload: float) -> tuple[TimedCycles, ...]:
+    """The standard cycle on the nominal robot planned with each of :data:`REFERENCE_DRIVES`, carries with
+    ``payload`` (kg); planned once per process."""
+    return tuple(
+        timed_cycle(
+            NOMINAL_GEOMETRY, _Recorder(drive_timing(NOMINAL_GEOMETRY, option, payload).planner, payload), payload
+        )
+        for option in REFERENCE_DRIVES
+    )
+
+
+def _moves(cycles: TimedCycles) -> list[tuple[Segment, TimeLaw, bool]]:
+    """(shape, law, carries) of the carry and the empty move of one cycle."""
+    return [(piece.shape, piece.law, piece.carry is not None) for piece in cycles.pieces if piece.law is not None]
+
+
+class _Drives:
+    """Peak and rated torque (N m), corner and maximum speed (rad/s) and armature (kg m^2) of drive options, each
+    ``(n, 1, 1)`` to broadcast over (option, sample, joint)."""
+
+    def __init__(self, options: Sequence[DriveOption]) -> None:
+        limits = [option.limits for option in options]
+        self.peak, self.rated, self.corner, self.top, self.armature = (
+            np.array(values, dtype=float)[:, None, None]
+            for values in zip(
+                *(
+                    (d.peak_torque, d.rated_torque, d.corner_speed, d.max_speed, o.armature)
+                    for d, o in zip(limits, options, strict=True)
+                ),
+                strict=True,
+            )
+        )
+
+    def subset(self, index: NDArray[np.int_]) -> _Drives:
+        """The drives at ``index``."""
+        chosen = object.__new__(_Drives)
+        for name in ("peak", "rated", "corner", "top", "armature"):
+            setattr(chosen, name, getattr(self, name)[index])
+        return chosen
+
+
+class _MoveScaling:
+    """A reference law of one move on a design, to be run k times faster by drive options (module docstring).
+
+    Along the law the torque is a + b k + (c + J qdd) k^2 for a drive of armature J; the lag-inverse command leads
+    it by dt / (1 - p) (:class:`delta_env.drive.SampledLag`'s inverse). The envelope is checked at every
+    :data:`SCREEN_STRIDE`-th sample, the RMS over the move and the dwell after it exactly.
+    """
+
+    def __init__(
+        self, geometry: DeltaGeometry, masses: DeltaMasses | None, shape: Segment, law: TimeLaw, load: float
+    ) -> None:
+        links = design_model(geometry, masses, dataclasses.replace(DRIVE, armature=0.0, viscous=0.0, coulomb=0.0))
+        x, velocity, acceleration = move_samples(shape, law)
+        q, qd, qdd = kinematics.cartesian_to_joint(geometry, x, velocity, acceleration)
+        static = links.inverse_dynamics(q, np.zeros_like(q), np.zeros_like(q), load)
+        parts = (
+            static + DRIVE.coulomb * np.sign(qd),
+            DRIVE.viscous * qd,
+            links.inverse_dynamics(q, qd, qdd, load) - static,
+            qdd,
+        )
+        self.law, self.dt = law, law.dt
+        # Sums over the move's samples (the last one starts the dwell) of products of the parts: the squared torque.
+        moving = [part[:-1] for part in parts]
+        self._sums = {(i, j): np.sum(moving[i] * moving[j], axis=0) for i in range(4) for j in range(i, 4)}
+        self._resting = parts[0][-1] ** 2
+        lag = DRIVE.actuator_lag
+        self._lead = self.dt / (1.0 - math.exp(-self.dt / lag)) if lag > 0.0 else 0.0
+        self._parts = [part[::SCREEN_STRIDE] for part in parts]
+        self._rates = [np.gradient(part, self.dt, axis=0)[::SCREEN_STRIDE] for part in parts]
+        self._speed, self._sign = np.abs(qd[::SCREEN_STRIDE]), np.sign(qd[::SCREEN_STRIDE])
+        self._fastest = float(np.max(np.abs(qd)))
+
+    def cool(self, drives: _Drives) -> NDArray[np.float64]:
+        """Largest k (per option) within the speed limit and the thermal limit: an upper bound of the speed-up."""
+        sums, j = self._sums, drives.armature[:, :, 0]
+        mixed = (sums[0, 2] + j * sums[0, 3], sums[1, 2] + j * sums[1, 3])
+        inertial = sums[2, 2] + 2.0 * j * sums[2, 3] + j**2 * sums[3, 3]
+        limit = ((1.0 - THERMAL_MARGIN) * drives.rated[:, :, 0]) ** 2
+
+        def passes(k: NDArray[np.float64]) -> NDArray[np.bool_]:
+            s = k[:, None]
+            squared = sums[0, 0] + 2 * s * sums[0, 1] + s**2 * (sums[1, 1] + 2 * mixed[0]) + 2 * s**3 * mixed[1]
+            squared = squared + s**4 * inertial
+            heat = squared * self.dt / s + CYCLE_DWELL * self._resting
+            return np.all(heat <= limit * (self.law.duration / s + CYCLE_DWELL), axis=1)
+
+        speed = (1.0 - DEFAULT_MARGIN) * drives.top[:, 0, 0]
+        high = speed / self._fastest if self._fastest > 0.0 else np.full(len(speed), MAX_SPEED_UP)
+        return _largest(passes, high)
+
+    def within(self, drives: _Drives, high: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Largest k (per option) up to ``high`` whose torque and command keep the planner's envelope."""
+        (a, b, c, w), rates = self._parts, self._rates
+        peak, held = drives.peak, DEFAULT_MARGIN * drives.peak
+        inertial, inertial_rate = c + drives.armature * w, rates[2] + drives.armature * rates[3]
+        span = drives.top - drives.corner
+
+        def passes(k: NDArray[np.float64]) -> NDArray[np.bool_]:
+            s = k[:, None, None]
+            torque = a + b * s + inertial * s**2
+            command = torque + self._lead * s * (rates[0] + rates[1] * s + inertial_rate * s**2)
+            motoring = np.clip(peak * (drives.top - s * self._speed) / span, 0.0, peak) - held
+            ok = np.ones(len(k), dtype=bool)
+            for tau in (torque, command):
+                ok &= np.all(np.abs(tau) <= np.where(tau * self._sign >= 0.0, motoring, peak - held), axis=(1, 2))
+            return ok
+
+        return _largest(passes, high)
+
+
+def _largest(passes: Callable[[NDArray[np.float64]], NDArray[np.bool_]], high: NDArray[np.float64]) -> NDArray:
+    """The largest k in [0, ``high``] (elementwise) that ``passes``, by bisection that keeps its low end passing;
+    0 where nothing tried passes."""
+    low = np.where(passes(high), high, 0.0)
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (low + high)
+        passed = passes(np.maximum(middle, 1e-9))
+        low, high = np.where(passed, middle, low), np.where(passed, high, middle)
+    return low
+
+
+def _scaled(law: TimeLaw, k: float) -> TimeLaw:
+    """``law`` run about k times faster, on whole samples: tau_k(t) = tau(k' t) with the k' <= k that ends on one."""
+    samples = math.ceil(law.duration / k / law.dt - 1e-9)
+    k = law.duration / (samples * law.dt)
+    time = np.minimum(np.arange(samples + 1) * law.dt * k, law.duration)
+    reference = np.arange(len(law)) * law.dt
+    tau = np.interp(time, reference, law.tau)
+    tau_dot = k * np.interp(time, reference, law.tau_dot)
+    tau_ddot = k**2 * np.interp(time, reference, law.tau_ddot)
+    tau[-1], tau_dot[-1] = 1.0, 0.0
+    return TimeLaw(law.dt, tau, tau_dot, tau_ddot)
+
+
+@dataclass(frozen=True)
+class Screen:
+    """The cheap path's outcome for drive options.
+
+    Attributes:
+        rates: Picks per minute of each option (0: cannot run; NaN: not evaluated, beaten by ``keep`` others).
+        laws: Per evaluated option, the (reference law, speed-up) of each move.
+    """
+
+    rates: NDArray[np.float64]
+    laws: dict[int, list[tuple[TimeLaw, float]]]
+
+
+def screen_drives(
+    geometry: DeltaGeometry,
+    options: Sequence[DriveOption],
+    payload: float,
+    masses: DeltaMasses | None,
+    keep: int | None = None,
+) -> Screen:
+    """Picks per minute of the options by the cheap path. With ``keep``, options are scored in order of their upper
+    bound (speed and thermal limits alone) in chunks of :data:`SCREEN_CHUNK`, until ``keep`` options are known to
+    be the best: branch and bound, the same best options as scoring all."""
+    references = [_moves(cycles) for cycles in reference_cycles(float(payload))]
+    moves = [
+        [_MoveScaling(geometry, masses, shape, law, payload if carries else 0.0) for shape, law, carries in cycle]
+        for cycle in zip(*references, strict=True)
+    ]  # moves[move][reference]
+    drives = _Drives(options)
+    bounds = [[scaling.cool(drives) for scaling in move] for move in moves]
+
+    def rate(speed_ups: list[list[NDArray[np.float64]]]) -> NDArray[np.float64]:
+        total = 2.0 * CYCLE_DWELL
+        for move, ks in zip(moves, speed_ups, strict=True):
+            with np.errstate(divide="ignore"):
+                total = total + np.min(
+                    [np.where(k > 0.0, s.law.duration / k, math.inf) for s, k in zip(move, ks, strict=True)], axis=0
+                )
+        return 60.0 / total
+
+    upper = rate(bounds)
+    rates, laws = np.full(len(options), math.nan), {}
+    order = np.argsort(-upper, kind="stable")
+    for start in range(0, len(order), SCREEN_CHUNK):
+        chunk = order[start : start + SCREEN_CHUNK]
+        known = np.sort(rates[np.isfinite(rates)])[::-1]
+        if keep is not None and len(known) >= keep and upper[chunk[0]] <= known[keep - 1]:
+            break
+        subset = drives.subset(chunk)
+        speed_ups = [
+            [s.within(subset, bound[chunk]) for s, bound in zip(move, move_bounds, strict=True)]
+            for move, move_bounds in zip(moves, bounds, strict=True)
+        ]
+        rates[chunk] = rate(speed_ups)
+        for position, index in enumerate(chunk):
+            laws[int(index)] = []
+            for move, ks in zip(moves, speed_ups, strict=True):
+                best = int(np.argmax([k[position] / s.law.duration for s, k in zip(move, ks, strict=True)]))
+                laws[int(index)].append((move[best].law, float(ks[best][position])))
+    return Screen(rates, laws)
+
+
+def screened_rates(
+    geometry: DeltaGeometry,
+    options: Sequence[DriveOption] = CATALOGUE,
+    payload: float = RATED_PAYLOAD,
+    masses: DeltaMasses | None = None,
+) -> NDArray[np.float64]:
+    """Picks per minute of each drive option with ``payload`` (kg) by the cheap path (module docstring), ``(n,)``;
+    0 for a drive that cannot run the payload's moves at any speed."""
+    require_in("payload", payload, 0.0, unit="kg")
+    if not options:
+        raise ValueError("screened_rates needs at least one drive option")
+    return screen_drives(geometry, options, payload, masses).rates
+
+
+def scaled_rate(
+    geometry: DeltaGeometry,
+    option: DriveOption,
+    payload: float,
+    laws: list[tuple[TimeLaw, float]],
+    masses: DeltaMasses | None,
+) -> PickRate:
+    """The standard cycle of ``option`` with its moves' reference laws run at their speed-ups."""
+    (carry, carry_k), (empty, empty_k) = laws
+    cycles = timed_cycle(geometry, _ScaledTiming(_scaled(carry, carry_k), _scaled(empty, empty_k)), payload)
+    return cycle_rate(geometry, option, payload, cycles, False, masses)
+
+
+def screened_rate(
+    geometry: DeltaGeometry, option: DriveOption, payload: float, masses: DeltaMasses | None = None
+) -> PickRate | None:
+    """The standard cycle of ``option`` with ``payload`` (kg) timed by the cheap path, or None if it cannot run it."""
+    require_in("payload", payload, 0.0, unit="kg")
+    scored = screen_drives(geometry, [option], payload, masses)
+    return scaled_rate(geometry, option, payload, scored.laws[0], masses) if scored.rates[0] > 0.0 else None
