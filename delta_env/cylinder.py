@@ -10,13 +10,13 @@ for the product. It lies in the
 admissible stretch of the axis through that top (:func:`largest_cylinder` is the same search for any
 required top and floor).
 
-The search (docs/design-study.md, "The data-sheet workspace"):
+The search (docs/design-study.md section 9):
 
 - **Disc radius at a height** (:func:`disc_radii`): rings of :data:`RING_AZIMUTHS` points over the
   symmetry sector [0, pi/3], every :data:`RING_STEP` from the axis outward, until a ring has an
-  inadmissible point; the first exit of each failing ray is then bisected to :data:`RADIUS_TOLERANCE`,
-  and the azimuth of the smallest exit refined by :data:`AZIMUTH_ROUNDS` rounds of rays at a quarter
-  of the previous spacing. So the whole disc is checked, not only its rim: near the top of the
+  inadmissible point; the first exit of each failing ray is then bracketed down to :data:`RADIUS_TOLERANCE`
+  (eight sections a round), and the azimuth of the smallest exit refined by :data:`AZIMUTH_ROUNDS` rounds
+  of rays at half the previous spacing either side. So the whole disc is checked, not only its rim: near the top of the
   workspace the admissible set is not star-shaped around the axis (rays leave it and enter it again).
 - **Heights**: a grid of :data:`HEIGHT_STEP` over the axis stretch, the best (bottom, top) pair on it,
   then rounds that halve the grid intervals next to the limiting heights (the top, the bottom, the height

@@ -197,7 +197,7 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
 def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
     """Whether platform positions ``xyz`` (m), ``(..., 3)``, satisfy ``criteria``, ``(...)``.
 
-    The joint-range test runs first on all points; the conditioning (an SVD) only on the points that pass.
+    The joint-range test runs first on all points; the conditioning only on the points that pass.
     """
     xyz = _points(xyz)
     flat = xyz.reshape(-1, 3)

@@ -15,6 +15,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,7 +227,8 @@ def _keep(path: Path, key: str, calibration: Calibration, content: dict[str, str
     spread_kg = None if math.isnan(spread) else spread
     kept = KeptTare(key, calibration.tares[key], spread_kg, calibration.empty_moves[key], content)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")
+    # a name of this process's own: two runs keeping the same tare at once each replace the file whole
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
     partial.write_text(json.dumps(to_table(kept), indent=2) + "\n")
     partial.replace(path)
 

@@ -204,6 +204,7 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     assert "git_commit" in config and "versions" in config
     compromise = load_geometry(out / "design-compromise.toml")  # the file --geometry reads
     assert compromise == DeltaGeometry(*(float(rows_by_design["compromise"][k]) for k in ("ra", "rb", "l1", "l2")))
+    assert 20.0 < float(rows_by_design["nominal"]["first_natural_frequency_hz"]) < 40.0  # 27 Hz at 4 kg
     with (out / "torque_changes.csv").open() as file:
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified

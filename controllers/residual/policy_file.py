@@ -168,12 +168,12 @@ def _legacy_base(values: dict[str, Any]) -> PolicyBase:
         raise ValueError(
             f"the base {values.get('name')!r} (forearm_rods={values.get('forearm_rods', False)}, regressor "
             f"{regressor!r}) is no row of this version (MId+F+R with the smoothed or reference regressor): retrain "
-            "the policy on a current base, or pass base= when loading it"
+            "the policy on a current base"
         )
     if friction_velocity != FRICTION_VELOCITY:
         raise ValueError(
             f"the base {values.get('name')!r} has a friction band of {friction_velocity} rad/s, the rows of this "
-            f"version {FRICTION_VELOCITY} rad/s: retrain the policy on a current base, or pass base= when loading it"
+            f"version {FRICTION_VELOCITY} rad/s: retrain the policy on a current base"
         )
     lag = values.get("drive_lag")
     key = "mid_f_rls_ref" if regressor == "reference" else "mid_f_rls" if lag is None else "mid_f_rls_lag"

@@ -32,10 +32,11 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 from tqdm.auto import tqdm
 
-from delta_env import catalogue, cylinder, workspace
-from delta_env.config import PlantRealism
+from delta_env import catalogue, cylinder, scaling, workspace
+from delta_env.config import RATED_PAYLOAD, PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
@@ -53,6 +54,7 @@ from eval.design import (
     reconfigure,
     report,
     robustness,
+    stiffness,
     verify,
 )
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
@@ -132,7 +134,11 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None
             "cycles": performance.TASK_CYCLES,
             "joint_speed_limit_rad_s": performance.JOINT_SPEED_LIMIT,
         },
-        "scaling": {"rule": "m1 ~ l1, m2 ~ l2, m0 = gripper + plate ~ rb^2", "gripper_kg": GRIPPER_MASS},
+        "scaling": {
+            "rule": f"m1 ~ l1^{scaling.UPPER_ARM_MASS_EXPONENT}, m2 ~ l2^{scaling.FOREARM_MASS_EXPONENT} (links as "
+            "stiff as the nominal ones), m0 = gripper + plate ~ rb^2",
+            "gripper_kg": GRIPPER_MASS,
+        },
         "drive": {
             "rule": "each design's own catalogue motor and planetary ratio (most picks/min at the rated payload), "
             "armature = rotor inertia x ratio^2; friction of the plant's nominal drive",
@@ -212,6 +218,11 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     seconds["robustness"] = time.perf_counter() - started - seconds["optimization"]
 
     reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=args.seed) for name, p in designs.items()}
+    region = performance.task_region_points()
+    frequency = {  # lowest over the conveyors' region, rated payload (eval.design.stiffness: an upper bound)
+        name: float(np.min(stiffness.first_natural_frequency(p.geometry, region, RATED_PAYLOAD, p.masses)))
+        for name, p in designs.items()
+    }
     reconfigured = {name: reconfigure.study(designs[name].geometry) for name in ("nominal", "compromise")}
     seconds["reconfiguration"] = time.perf_counter() - started - sum(seconds.values())
 
@@ -233,6 +244,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
                 **report.performance_row(p),
                 "reachable_volume_m3": reachable[n][0],
                 "reachable_volume_error_m3": reachable[n][1],
+                "first_natural_frequency_hz": frequency[n],
             }
             for n, p in designs.items()
         ],

@@ -247,7 +247,8 @@ body {{ font-family: sans-serif; margin: 1em; }}
 </style></head>
 <body>
 <h1>Delta design explorer</h1>
-<p>Design model: rod forearms, masses scaled with the lengths, the same drives on every design. Profiles: {cycle_text}.
+<p>Design model: rod forearms, masses scaled with the lengths, its own catalogue drive each.
+Profiles: {cycle_text}.
 <label>Design: <select id="design-select"></select></label></p>
 <div id="top">
 <div id="front-box">{front}</div>

@@ -24,6 +24,7 @@ drive's envelope and thermal rating (:mod:`eval.design.codesign`); the light pay
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -32,6 +33,7 @@ from numpy.typing import NDArray
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from delta_env import kinematics, workspace
+from delta_env.catalogue import CATALOGUE, DriveOption
 from delta_env.config import PlantRealism
 from delta_env.cycles import PICK_ZONE, PLACE_ZONE, STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.cylinder import PRODUCT_CLEARANCE, Cylinder, axis_stretch, data_sheet_cylinder, disc_radii
@@ -256,6 +258,7 @@ def evaluate(
     masses: DeltaMasses | None = None,
     exact_drive: bool = False,
     belt_height: float = WORKING_HEIGHT,
+    drives: Sequence[DriveOption] | None = None,
 ) -> Performance:
     """All figures of merit of ``geometry`` (see :class:`Performance`).
 
@@ -270,6 +273,9 @@ def evaluate(
             cheap path of the optimizer.
         belt_height: Height of the conveyor surface in the base frame (m): the task band is it and the lift
             above it (:data:`TASK_BAND` at the default); a reconfigured base moves it (eval.design.mechanism).
+            The pick-rate cycle stays at the data-sheet placement on :data:`WORKING_HEIGHT`.
+        drives: The drives to choose from; None for the whole catalogue (a design already built keeps its own:
+            ``(performance.drive.option,)``).
     """
     from eval.design.codesign import choose_drive  # here: the co-design builds on this module's design model
 
@@ -302,7 +308,7 @@ def evaluate(
         reasons.append(f"peak torque {max(f.peak_torque for f in figures):.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
     drive = None
     if len(figures) == len(cycles):
-        drive = choose_drive(geometry, masses, exact=exact_drive)
+        drive = choose_drive(geometry, masses, CATALOGUE if drives is None else drives, exact=exact_drive)
         if drive.option is None:
             reasons.append("no catalogue drive runs the rated payload on the standard cycle")
     speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)

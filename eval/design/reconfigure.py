@@ -23,11 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize_scalar
 
+from delta_env.catalogue import DriveOption
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
 from delta_env.validation import require_count, require_in, require_positive
 from delta_env.workspace import DEXTEROUS
-from eval.design.codesign import LIGHT_PAYLOAD
+from eval.design.codesign import LIGHT_PAYLOAD, choose_drive
 from eval.design.mechanism import PitchScrewLinkage
 from eval.design.performance import STANDARD_TRAVEL_HALF, Performance, evaluate
 
@@ -220,13 +221,15 @@ def study(
     if not profiles:
         raise ValueError("profiles must hold at least one TaskProfile, got none")
     linkage = PitchScrewLinkage.for_design(base.ra) if linkage is None else linkage
+    built = choose_drive(base).option  # the design's own drive, chosen at its mid-stroke ra
+    drives = None if built is None else (built,)
     evaluated: dict[tuple[int, float], float] = {}
 
     def value(p: int, travel: float) -> float:
         """Profile p's objective at a screw setting (NaN if infeasible), each setting evaluated once."""
         key = (p, travel)
         if key not in evaluated:
-            performance = _performance(base, linkage, travel, profiles[p])
+            performance = _performance(base, linkage, travel, profiles[p], drives)
             evaluated[key] = math.nan if performance is None else profiles[p].value(performance)
         return evaluated[key]
 
@@ -296,10 +299,15 @@ def study(
 
 
 def _performance(
-    base: DeltaGeometry, linkage: PitchScrewLinkage, travel: float, profile: TaskProfile
+    base: DeltaGeometry,
+    linkage: PitchScrewLinkage,
+    travel: float,
+    profile: TaskProfile,
+    drives: tuple[DriveOption, ...] | None,
 ) -> Performance | None:
-    """The design with its screws at ``travel`` (m) on the profile's task, the conveyor staying put in the world;
-    None where the motor axes come inside the platform radius (no robot to evaluate)."""
+    """The design with its screws at ``travel`` (m) on the profile's task, the conveyor staying put in the world,
+    with the drives it was built with (a screw setting moves the motors, it does not change them); None where
+    the motor axes come inside the platform radius (no robot to evaluate)."""
     ra = float(linkage.base_radius(travel))
     if ra <= base.rb:
         return None
@@ -311,6 +319,7 @@ def _performance(
         task_radius=profile.zone_radius,
         cycles=profile.cycles(belt),
         belt_height=belt,
+        drives=drives,
     )
 
 

@@ -1,6 +1,6 @@
 """Tables and figures of the design study, written into its run folder.
 
-- ``pareto.png``: the Pareto front, workspace against peak torque coloured by cycle time, with the nominal
+- ``pareto.png``: the Pareto front, workspace against peak torque coloured by picks/min, with the nominal
   and the chosen designs (the second paper's Fig. 10);
 - ``maps_horizontal.png`` and ``maps_vertical.png``: conditioning, IMI, det A, min |k_i| and the peak
   torque to accelerate 3.8 kg at 3 g, nominal against the chosen design, on the conveyor plane z = -0.9 m
@@ -81,12 +81,12 @@ GEOMETRY_COLUMNS = ("ra", "rb", "l1", "l2")
 
 
 def file_slug(name: str) -> str:
-    """A design's name as a file-name part: "GA optimum (weighted cost)" -> "ga-optimum-weighted-cost"."""
+    """A design's name as a file-name part: "weighted-cost optimum" -> "weighted-cost-optimum"."""
     return "-".join("".join(c if c.isalnum() else " " for c in name.lower()).split())
 
 
 def design_file_name(name: str) -> str:
-    """A design's geometry file name: "GA optimum (weighted cost)" -> "design-ga-optimum-weighted-cost.toml"."""
+    """A design's geometry file name: "weighted-cost optimum" -> "design-weighted-cost-optimum.toml"."""
     return f"design-{file_slug(name)}.toml"
 
 

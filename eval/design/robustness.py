@@ -188,10 +188,14 @@ def speed_figure(performance: Performance) -> float:
 
 
 def with_masses(performance: Performance, factors: Sequence[float]) -> Performance:
-    """The design re-evaluated with its masses m1, m2, m0 multiplied by ``factors``."""
+    """The design re-evaluated with its masses m1, m2, m0 multiplied by ``factors``: its own drive, timed the way
+    its figures were (the full planner or the optimizer's cheap path)."""
     m = performance.masses
     masses = DeltaMasses(*(getattr(m, name) * float(f) for name, f in zip(MASS_NAMES, factors, strict=True)))
-    return evaluate(performance.geometry, masses=masses)
+    drive = performance.drive
+    if drive is None or drive.option is None:
+        return evaluate(performance.geometry, masses=masses)
+    return evaluate(performance.geometry, masses=masses, drives=(drive.option,), exact_drive=drive.rated.exact)
 
 
 def analyse(

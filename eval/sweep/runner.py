@@ -34,6 +34,8 @@ import hashlib
 import json
 import math
 import os
+import signal
+import threading
 import time
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from concurrent.futures.process import BrokenProcessPool
@@ -241,6 +243,8 @@ def run_ray(
     lost = on_lost or _lost_row(on_result)
     started_here = not ray.is_initialized()
     if started_here:
+        # ray.init installs its own SIGTERM handler (sys.exit); the run folder's records the run as interrupted
+        handler = signal.getsignal(signal.SIGTERM)
         if address is None:
             # "local": a new instance even when the machine runs (or ran) another cluster.
             ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
@@ -252,6 +256,8 @@ def run_ray(
             folders = [str(Path(package.__file__).parent) for package in (controllers, delta_env, eval_package)]
             folders += controller_packages({unit.controller for unit in units})
             ray.init(address=address, runtime_env={"py_modules": folders}, log_to_driver=False)
+        if handler is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, handler)
     try:
         remote = ray.remote(num_cpus=1, max_retries=max_attempts - 1)(work)
         setup_refs = {content: ray.put(setup) for content, setup in setups.items()}
