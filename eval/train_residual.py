@@ -102,6 +102,23 @@ def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:
     return None
 
 
+REWARD_FIELDS = ("reward_scale", "torque_weight")
+"""The :class:`ResidualConfig` fields a replay buffer's rewards were computed with."""
+
+
+def reward_change(checkpoint: Path, config: ResidualConfig) -> str | None:
+    """What of the reward (:data:`REWARD_FIELDS`) differs between the run a checkpoint comes from and ``config``,
+    as a sentence; None when nothing differs or no record is found."""
+    for folder in (checkpoint.parent, checkpoint.parent.parent):
+        record = folder / "config.json"
+        if record.is_file():
+            trained = {**asdict(ResidualConfig()), **json.loads(record.read_text())["config"]["residual_config"]}
+            now = asdict(config)
+            changed = [f"{key} {trained[key]} -> {now[key]}" for key in REWARD_FIELDS if trained[key] != now[key]]
+            return f"the reward changed since {checkpoint}: {', '.join(changed)}" if changed else None
+    return None
+
+
 class LatestReplayCheckpoint(CheckpointCallback):
     """CheckpointCallback that keeps only the newest replay buffer (each is ~100 MB; models are kept)."""
 
@@ -293,7 +310,12 @@ def _train(
             )
         off_policy = isinstance(model, OffPolicyAlgorithm)
         replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
-        if off_policy and replay.is_file():
+        reward = reward_change(args.resume, config)
+        if off_policy and reward is not None:
+            # its transitions carry the old reward: the critic would learn from two rewards at once
+            warnings.warn(f"{reward}: resuming with an empty replay buffer", stacklevel=1)
+            replay = None
+        elif off_policy and replay.is_file():
             model.load_replay_buffer(replay)
         elif off_policy:
             # Only the newest replay buffer is kept: an older checkpoint restarts with an empty one.

@@ -47,7 +47,7 @@ from delta_env.scenario import preset
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
 from eval.scoring import TEST_SEEDS
-from eval.train_residual import parse_args, resume_mismatch, train
+from eval.train_residual import parse_args, resume_mismatch, reward_change, train
 from tests.conftest import NOMINAL_SETUP
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
@@ -626,3 +626,14 @@ def test_resuming_under_another_scenario_or_base_is_named(tmp_path: Path) -> Non
     message = resume_mismatch(checkpoint, "randomized", "mid_f_rls_lag")
     assert "scenario nominal -> randomized" in message and "base mid_f_rls -> mid_f_rls_lag" in message
     assert resume_mismatch(tmp_path / "elsewhere.zip", "randomized", "mid_f_rls_lag") is None
+
+
+def test_a_changed_reward_is_named_so_the_old_replay_buffer_is_left(tmp_path: Path) -> None:
+    checkpoint = tmp_path / "checkpoints" / "residual_60_steps.zip"
+    checkpoint.parent.mkdir()
+    record = {"config": {"residual_config": {"residual_limit": 15.0, "action_period": 10, "reward_scale": 1.0}}}
+    (tmp_path / "config.json").write_text(json.dumps(record))  # a run from before torque_weight existed
+    assert reward_change(checkpoint, ResidualConfig()) is None
+    changed = reward_change(checkpoint, ResidualConfig(torque_weight=1e-4, reward_scale=2.0))
+    assert "torque_weight 0.0 -> 0.0001" in changed and "reward_scale 1.0 -> 2.0" in changed
+    assert reward_change(tmp_path / "a" / "b" / "x.zip", ResidualConfig(torque_weight=1e-4)) is None

@@ -31,8 +31,9 @@ class ResidualConfig:
             section 4): the policy sees the ripple phase sin / cos(ripple_periods * theta).
         stribeck_velocity: Speed (rad/s) under which Stribeck friction rises (docs/design.md section 4):
             the policy sees tanh(theta_dot_ref / stribeck_velocity).
-        torque_weight: Weight ((N m)^-2) of the squared commanded torque per control step, added to the plant
-            env's own (``RewardWeights.torque``, 1e-5). With the plant's alone a percent of torque RMS costs a few
+        torque_weight: Weight ((N m)^-2) of the squared commanded torque per control step (the torque the policy
+            sets, before the drive's envelope clips it), besides the plant env's own term (``RewardWeights.torque``,
+            1e-5, on the applied torque). With the plant's alone a percent of torque RMS costs a few
             per mille of the tracking term, so a policy buys its last tenths of a millimetre with it; at 1.5e-4 a
             percent of torque RMS (about 20 (N m)^2 per step at 20 N m per joint) costs about half the tracking
             term of a 0.07 mm RMS controller. 0 (the default) leaves the plant env's reward.
