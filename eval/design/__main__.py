@@ -323,7 +323,8 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         report.summary_table(designs, designs["nominal"], reachable),
         "",
         "Every design chosen from the front of all runs merged (NSGA-II on every seed and the GA): none is "
-        "dominated by any design evaluated. " + front.convergence_text(searches, nominal),
+        "dominated by any design evaluated (on the optimizer's figures; the table's pick rates are the full "
+        "planner's). " + front.convergence_text(searches, nominal),
         "",
         f"## Tolerance and sensitivity: lengths ±{1e3 * robustness.LENGTH_TOLERANCE:.1f} mm, masses "
         f"±{100 * robustness.MASS_TOLERANCE:.0f} %",
