@@ -65,6 +65,7 @@ from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
     add_workers_argument,
+    check_episode_seeds,
     check_ranges,
     scenario_from_arguments,
 )
@@ -128,6 +129,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error(f"--controllers: {error}")
     args.scenario = scenario_from_arguments(args, parser)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
+    check_episode_seeds(parser, args)
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
     if "residual" in args.controllers:

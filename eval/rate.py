@@ -51,6 +51,7 @@ from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
     add_workers_argument,
+    check_episode_seeds,
     check_ranges,
     scenario_from_arguments,
 )
@@ -120,6 +121,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_workers_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
+    check_episode_seeds(parser, args)
     args.scenario = scenario_from_arguments(args, parser)
     if args.torque_share is not None:
         try:

@@ -93,6 +93,21 @@ def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentP
     return scenario
 
 
+def check_episode_seeds(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A parser error when the episodes ``--seed`` .. ``--seed + --episodes - 1`` reach the tare calibration's
+    seeds (:data:`eval.calibration.CALIBRATION_SEED_OFFSET` and up): a tare measured on the episodes it is
+    scored on would flatter the estimator."""
+    from eval.calibration import CALIBRATION_SEED_OFFSET  # here: the calibration imports the controllers
+
+    last = args.seed + getattr(args, "episodes", 1) - 1
+    if last >= CALIBRATION_SEED_OFFSET:
+        parser.error(
+            f"--seed {args.seed} with --episodes {getattr(args, 'episodes', 1)} reaches seed {last}: episode seeds "
+            f"must lie in [0, {CALIBRATION_SEED_OFFSET - 1}], the seeds from {CALIBRATION_SEED_OFFSET} on are the "
+            "tare calibration's"
+        )
+
+
 def check_ranges(
     parser: argparse.ArgumentParser,
     args: argparse.Namespace,

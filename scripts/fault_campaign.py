@@ -43,7 +43,13 @@ from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
 from eval.processes import process_pool
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
-from eval.scenario_args import add_scenario_arguments, add_workers_argument, check_ranges, scenario_from_arguments
+from eval.scenario_args import (
+    add_scenario_arguments,
+    add_workers_argument,
+    check_episode_seeds,
+    check_ranges,
+    scenario_from_arguments,
+)
 from eval.tasks import Task, iterate_tasks
 
 GONE_MASS = 0.1
@@ -65,6 +71,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_workers_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"episodes": 1, "seed": 0, "workers": 1})
+    check_episode_seeds(parser, args)
     args.kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
     unknown = sorted(set(args.kinds) - set(FAULT_KINDS))
     if unknown:

@@ -510,3 +510,17 @@ def test_residual_gain_compares_the_residual_with_its_base_on_the_episodes_both_
     (missed,) = (line for line in residual_gain(rows, "res", "base") if line)
     assert "torque RMS +5.5 %" in missed and "not met" in missed
     assert residual_gain(rows, "res", "absent") == []
+
+
+@pytest.mark.parametrize("module", ["eval.__main__", "eval.sweep.__main__", "eval.rate", "eval.design.__main__"])
+def test_episode_seeds_may_not_reach_the_tare_seeds(module: str, capsys: pytest.CaptureFixture) -> None:
+    import importlib
+
+    from eval.calibration import CALIBRATION_SEED_OFFSET
+
+    parse_args = importlib.import_module(module).parse_args
+    last = CALIBRATION_SEED_OFFSET - 1
+    assert parse_args(["--seed", str(last - 1), "--episodes", "2"]).seed == last - 1  # seeds up to 99999: fine
+    with pytest.raises(SystemExit):
+        parse_args(["--seed", str(last), "--episodes", "2"])
+    assert f"reaches seed {CALIBRATION_SEED_OFFSET}" in capsys.readouterr().err

@@ -58,7 +58,7 @@ from eval.design import (
     verify,
 )
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
-from eval.scenario_args import add_workers_argument, check_ranges
+from eval.scenario_args import add_workers_argument, check_episode_seeds, check_ranges
 
 QUICK = {"population": 12, "generations": 3, "search_seeds": 2, "episodes": 1, "verified_designs": 1}
 """Settings of ``--quick`` (tests and smoke runs)."""
@@ -106,6 +106,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "workers": 1,
     }
     check_ranges(parser, args, minimums)
+    check_episode_seeds(parser, args)
     return args
 
 

@@ -49,7 +49,13 @@ from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
-from eval.scenario_args import add_geometry_argument, add_workers_argument, check_ranges, on_geometry
+from eval.scenario_args import (
+    add_geometry_argument,
+    add_workers_argument,
+    check_episode_seeds,
+    check_ranges,
+    on_geometry,
+)
 from eval.sweep import report
 from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import (
@@ -87,6 +93,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_geometry_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
+    check_episode_seeds(parser, args)
     args.seeds = list(range(args.seed, args.seed + args.episodes))
     try:
         scenarios = [resolve_scenario(spec.strip()) for spec in args.scenarios.split(",") if spec.strip()]
