@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from controllers.monitor import TORQUE_MARGIN
+from controllers.monitor.tuning import TORQUE_MARGIN
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario
