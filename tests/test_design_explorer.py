@@ -61,7 +61,7 @@ def test_profiles_in_the_page_are_the_designs_own(study):
     design = explorer.explorer_designs(front, named, cycle)[2]
     profile = profiles.design_profile(front[0], cycle)
     stride = explorer.PROFILE_STRIDE
-    assert design["profile"]["time"] == pytest.approx(profile.time[::stride].tolist(), abs=1e-5)
+    assert design["profile"]["time"] == pytest.approx(profile.trajectory.time[::stride].tolist(), abs=1e-5)
     assert design["profile"]["torque"][1] == pytest.approx(profile.torque[::stride, 1].tolist(), abs=0.006)
 
 

@@ -29,23 +29,23 @@ def _direction(profile: profiles.CycleProfile) -> np.ndarray:
 def test_platform_starts_and_ends_at_the_pick_point_and_reaches_the_place_point(profile):
     centre, direction = np.asarray(profile.centre), _direction(profile)
     pick, place = centre - STANDARD_TRAVEL / 2 * direction, centre + STANDARD_TRAVEL / 2 * direction
-    np.testing.assert_allclose(profile.xyz[0], pick, atol=1e-9)
-    np.testing.assert_allclose(profile.xyz[-1], pick, atol=1e-9)
-    farthest = np.argmax((profile.xyz - centre) @ direction)
-    np.testing.assert_allclose(profile.xyz[farthest], place, atol=1e-9)
-    assert np.max(profile.xyz[:, 2]) == pytest.approx(centre[2] + STANDARD_LIFT, abs=1e-9)  # the 25 mm lift
+    np.testing.assert_allclose(profile.trajectory.xyz[0], pick, atol=1e-9)
+    np.testing.assert_allclose(profile.trajectory.xyz[-1], pick, atol=1e-9)
+    farthest = np.argmax((profile.trajectory.xyz - centre) @ direction)
+    np.testing.assert_allclose(profile.trajectory.xyz[farthest], place, atol=1e-9)
+    assert np.max(profile.trajectory.xyz[:, 2]) == pytest.approx(centre[2] + STANDARD_LIFT, abs=1e-9)  # the 25 mm lift
     # carried from pick to place only: the payload is on the outbound move and off on the way back
     held = profile.payload > 0.0
-    assert held[np.argmax((profile.xyz - centre) @ direction) - 1] and not held[0] and not held[-1]
+    assert held[np.argmax((profile.trajectory.xyz - centre) @ direction) - 1] and not held[0] and not held[-1]
 
 
 def test_rates_are_the_derivatives_of_the_positions(profile):
     """Integrating the acceleration gives the velocity and integrating that the position (trapezoids at the
     profile's own period; integration, unlike differencing, is not thrown off by the jerk's jumps)."""
-    dt = profile.time[1] - profile.time[0]
+    dt = profile.trajectory.time[1] - profile.trajectory.time[0]
     for position, rate, acceleration in (
-        (profile.xyz, profile.xyz_dot, profile.xyz_ddot),
-        (profile.theta, profile.theta_dot, profile.theta_ddot),
+        (profile.trajectory.xyz, profile.trajectory.xyz_dot, profile.trajectory.xyz_ddot),
+        (profile.trajectory.theta, profile.trajectory.theta_dot, profile.trajectory.theta_ddot),
     ):
         from_rate = position[0] + cumulative_trapezoid(rate, dx=dt, axis=0, initial=0.0)
         np.testing.assert_allclose(from_rate, position, atol=1e-3 * np.max(np.abs(position - position[0])))
@@ -55,16 +55,25 @@ def test_rates_are_the_derivatives_of_the_positions(profile):
 
 def test_joint_angles_give_back_the_platform_path(profile):
     """The paper's direct-kinematics view (its Figs. 3-4): forward kinematics of the joint profile is the path."""
-    np.testing.assert_allclose(kinematics.forward(NOMINAL_GEOMETRY, profile.theta), profile.xyz, atol=1e-9)
+    np.testing.assert_allclose(
+        kinematics.forward(NOMINAL_GEOMETRY, profile.trajectory.theta), profile.trajectory.xyz, atol=1e-9
+    )
 
 
 def test_torques_are_the_design_models_with_the_payload_while_carried(nominal, profile):
     model = performance.design_model(nominal.geometry, nominal.masses)
-    samples = [0, int(np.argmax(profile.payload)) + 30, len(profile.time) - 40]  # rest, carrying, returning empty
+    samples = [
+        0,
+        int(np.argmax(profile.payload)) + 30,
+        len(profile.trajectory.time) - 40,
+    ]  # rest, carrying, returning empty
     for k in samples:
         # the virtual-work form reaches the torques through the Jacobian, not the multipliers
         expected = model.inverse_dynamics_virtual_work(
-            profile.theta[k], profile.theta_dot[k], profile.theta_ddot[k], profile.payload[k]
+            profile.trajectory.theta[k],
+            profile.trajectory.theta_dot[k],
+            profile.trajectory.theta_ddot[k],
+            profile.payload[k],
         )
         np.testing.assert_allclose(profile.torque[k], expected, atol=1e-6)
     empty = profiles.cycle_profile(nominal.geometry, profile.centre, profile.heading, payload=0.0)

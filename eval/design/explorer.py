@@ -80,9 +80,9 @@ def _profile_data(profile: CycleProfile | None) -> dict[str, Any] | None:
         return None
     thin = slice(None, None, PROFILE_STRIDE)
     return {
-        "time": np.round(profile.time[thin], 5).tolist(),
+        "time": np.round(profile.trajectory.time[thin], 5).tolist(),
         "torque": np.round(profile.torque[thin].T, 2).tolist(),
-        "theta": np.round(profile.theta[thin].T, 4).tolist(),
+        "theta": np.round(profile.trajectory.theta[thin].T, 4).tolist(),
     }
 
 

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
+from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count, require_in
 from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
 
@@ -42,22 +43,15 @@ class CycleProfile:
     """Time profiles of one standard cycle of a design (SI units, one row per sample).
 
     Attributes:
-        time: Sample times (s), ``(N,)``, from rest at the pick point.
-        theta, theta_dot, theta_ddot: Motor angles (rad), rates (rad/s) and accelerations (rad/s^2), ``(N, 3)``.
-        xyz, xyz_dot, xyz_ddot: Platform position (m), velocity (m/s) and acceleration (m/s^2), ``(N, 3)``.
+        trajectory: The cycle's samples from rest at the pick point: motor angles, rates and accelerations,
+            platform position, velocity and acceleration, and their times (``trajectory.time``).
         torque: Actuator torques of the design model (N m), ``(N, 3)``.
         payload: Carried mass (kg), ``(N,)``: the payload between pick and place, else 0.
         centre: Centre of the cycle (m).
         heading: Direction of the travel (rad, from the x axis).
     """
 
-    time: NDArray[np.float64]
-    theta: NDArray[np.float64]
-    theta_dot: NDArray[np.float64]
-    theta_ddot: NDArray[np.float64]
-    xyz: NDArray[np.float64]
-    xyz_dot: NDArray[np.float64]
-    xyz_ddot: NDArray[np.float64]
+    trajectory: Trajectory
     torque: NDArray[np.float64]
     payload: NDArray[np.float64]
     centre: tuple[float, float, float]
@@ -99,13 +93,7 @@ def cycle_profile(
         trajectory.theta, trajectory.theta_dot, trajectory.theta_ddot, carried
     )
     return CycleProfile(
-        time=trajectory.dt * np.arange(len(trajectory.xyz)),
-        theta=trajectory.theta,
-        theta_dot=trajectory.theta_dot,
-        theta_ddot=trajectory.theta_ddot,
-        xyz=trajectory.xyz,
-        xyz_dot=trajectory.xyz_dot,
-        xyz_ddot=trajectory.xyz_ddot,
+        trajectory=trajectory,
         torque=torque,
         payload=carried,
         centre=tuple(float(c) for c in centre),
@@ -140,7 +128,9 @@ def _shade_carry(axis: plt.Axes, profile: CycleProfile) -> None:
     """Shade the samples where the payload is carried."""
     held = profile.payload > 0.0
     if np.any(held):
-        axis.axvspan(profile.time[held][0], profile.time[held][-1], color="orange", alpha=0.12, lw=0)
+        axis.axvspan(
+            profile.trajectory.time[held][0], profile.trajectory.time[held][-1], color="orange", alpha=0.12, lw=0
+        )
 
 
 def _plot_joints(profiles: Mapping[str, CycleProfile], path: Path) -> None:
@@ -150,7 +140,7 @@ def _plot_joints(profiles: Mapping[str, CycleProfile], path: Path) -> None:
         for joint in range(3):
             axis = axes[row, joint]
             for name, profile in profiles.items():
-                axis.plot(profile.time, getattr(profile, field)[:, joint], lw=1.2, label=name)
+                axis.plot(profile.trajectory.time, getattr(profile.trajectory, field)[:, joint], lw=1.2, label=name)
             axis.set(ylabel=f"joint {joint + 1} {label}")
             axis.grid(alpha=0.3)
     for axis in axes[-1]:
@@ -166,9 +156,9 @@ def _plot_joints(profiles: Mapping[str, CycleProfile], path: Path) -> None:
 def _plot_end_effector(profile: CycleProfile, path: Path) -> None:
     figure, axes = plt.subplots(2, 3, figsize=(13, 7))
     direction = np.array([math.cos(profile.heading), math.sin(profile.heading), 0.0])
-    along = (profile.xyz - np.asarray(profile.centre)) @ direction
+    along = (profile.trajectory.xyz - np.asarray(profile.centre)) @ direction
     path_axis = axes[0, 0]
-    path_axis.plot(1e3 * along, 1e3 * (profile.xyz[:, 2] - profile.centre[2]), "k-")
+    path_axis.plot(1e3 * along, 1e3 * (profile.trajectory.xyz[:, 2] - profile.centre[2]), "k-")
     path_axis.set(xlabel="along the travel (mm)", ylabel="height above the conveyor (mm)", title="path (side view)")
     path_axis.set_aspect("equal", adjustable="datalim")
     quantities = (
@@ -177,15 +167,15 @@ def _plot_end_effector(profile: CycleProfile, path: Path) -> None:
         ("xyz_ddot", 1.0, "acceleration (m/s²)"),
     )
     for axis, (field, scale, label) in zip((axes[0, 1], axes[0, 2], axes[1, 0]), quantities, strict=True):
-        values = getattr(profile, field)
+        values = getattr(profile.trajectory, field)
         for component, name in enumerate(AXES):
-            axis.plot(profile.time, scale * values[:, component], label=name)
+            axis.plot(profile.trajectory.time, scale * values[:, component], label=name)
         axis.set(xlabel="time (s)", ylabel=label, title=label.split(" (")[0])
         axis.legend(fontsize=8)
     speed_axis, magnitude_axis = axes[1, 1], axes[1, 2]
-    speed_axis.plot(profile.time, np.linalg.norm(profile.xyz_dot, axis=1), "k-")
+    speed_axis.plot(profile.trajectory.time, np.linalg.norm(profile.trajectory.xyz_dot, axis=1), "k-")
     speed_axis.set(xlabel="time (s)", ylabel="|v| (m/s)", title="speed")
-    magnitude_axis.plot(profile.time, np.linalg.norm(profile.xyz_ddot, axis=1) / GRAVITY, "k-")
+    magnitude_axis.plot(profile.trajectory.time, np.linalg.norm(profile.trajectory.xyz_ddot, axis=1) / GRAVITY, "k-")
     magnitude_axis.set(xlabel="time (s)", ylabel="|a| (g)", title="acceleration magnitude")
     for axis in axes.ravel():
         axis.grid(alpha=0.3)
@@ -205,7 +195,7 @@ def _plot_torques(profiles: Mapping[str, CycleProfile], path: Path) -> None:
     for joint, axis in enumerate(axes):
         for name, profile in profiles.items():
             peak = np.max(np.abs(profile.torque))
-            axis.plot(profile.time, profile.torque[:, joint], lw=1.2, label=f"{name} (peak {peak:.1f} N m)")
+            axis.plot(profile.trajectory.time, profile.torque[:, joint], lw=1.2, label=f"{name} (peak {peak:.1f} N m)")
         axis.set(ylabel=f"joint {joint + 1} torque (N m)")
         axis.grid(alpha=0.3)
         _shade_carry(axis, next(iter(profiles.values())))
