@@ -114,7 +114,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         residual = self.config.residual_limit * action
         n = self.config.action_period
         errors, commanded, base_torques = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3))
-        reward_sum = reward_tracking = reward_torque = torque_squared = 0.0
+        reward_sum = reward_tracking = reward_torque = 0.0
         terminated = truncated = False
         info: dict[str, Any] = {}
         steps = 0
@@ -127,14 +127,13 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             reward_sum += reward
             reward_tracking += info["reward_tracking"]
             reward_torque += info["reward_torque"]
-            torque_squared += float(torque @ torque)
             steps += 1
             self._base_torque = self.base(observation)
             self._features.update(observation, self._base_torque, self._base_estimate())
         self._previous_action = action
         self._needs_reset = terminated or truncated
         scale = self.config.reward_scale
-        extra_torque = -self.config.torque_weight * torque_squared
+        extra_torque = -self.config.torque_weight * float(np.sum(commanded[:steps] ** 2))
         reward_sum += extra_torque
         reward_torque += extra_torque
         info.update(
