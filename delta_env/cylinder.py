@@ -267,7 +267,11 @@ def _refinement(heights: NDArray[np.float64], radii: NDArray[np.float64], pair: 
     intervals = {(bottom - 1, bottom), (top - 1, top), (top, top + 1)}
     intervals |= {(limiting - 1, limiting), (limiting, limiting + 1)}
     for node in range(bottom + 1, top):  # near-smallest local minima: a dip between grid heights
-        if radii[node] <= min(radii[node - 1], radii[node + 1]) and radii[node] <= (1.0 + NEAR_MINIMUM) * radius:
+        neighbours = (radii[node - 1], radii[node + 1])
+        # a minimum below at least one neighbour: on a plateau (a constraint that does not depend on the height, such
+        # as the parallelogram skew's prism) every node would tie with its neighbours and the grid double each round
+        dip = min(neighbours) >= radii[node] and max(neighbours) > radii[node]
+        if dip and radii[node] <= (1.0 + NEAR_MINIMUM) * radius:
             intervals |= {(node - 1, node), (node, node + 1)}
     new: list[float] = []
     for low, high in intervals:

@@ -153,3 +153,23 @@ def test_nominal_data_sheet_cylinder():
 def test_bad_arguments_are_named(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_a_height_independent_limit_does_not_multiply_the_heights(monkeypatch):
+    # Forearms of 0.959 m: the parallelogram skew limit (a vertical prism, |y in the chain's frame| <= l2 sin 30 deg)
+    # sets the same disc radius at every height near the belt. Those ties are no dip to refine: the search must look
+    # at tens of heights, as on any geometry, not double its grid every round (it evaluated 433 heights before).
+    geometry = DeltaGeometry(0.2813, 0.0588, 0.3910, 0.9594)
+    plateau = cylinder.disc_radii(geometry, np.linspace(-0.9, -0.76, 8))
+    np.testing.assert_allclose(plateau, geometry.l2 * math.sin(workspace.MAX_PARALLELOGRAM_SKEW), rtol=1e-3)
+    measured = []
+    disc_radii = cylinder.disc_radii
+
+    def counted(geometry, heights, criteria=workspace.DEXTEROUS):
+        measured.append(np.size(heights))
+        return disc_radii(geometry, heights, criteria)
+
+    monkeypatch.setattr(cylinder, "disc_radii", counted)
+    found = cylinder.data_sheet_cylinder(geometry)
+    assert sum(measured) < 80
+    assert found.volume == pytest.approx(_brute_force_volume(geometry), rel=0.01)
