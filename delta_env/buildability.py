@@ -100,8 +100,16 @@ def joint_angles(
     """
     xyz = require_vectors("xyz", xyz)
     theta = require_vectors("theta", theta)
-    a, _ = kinematics.constraint_terms(geometry, xyz, theta)  # x - J'_i: elbow to platform, length l2
-    direction = a / geometry.l2
+    a, _ = kinematics.constraint_terms(geometry, xyz, theta)
+    return forearm_angles(geometry, a, theta)
+
+
+def forearm_angles(
+    geometry: DeltaGeometry, rows: NDArray[np.float64], theta: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`joint_angles` from the rows a_i = x - J'_i (m) of :func:`delta_env.kinematics.constraint_terms`,
+    ``(..., 3, 3)``, and the motor angles (rad) ``(..., 3)``: for callers that already have the rows."""
+    direction = rows / geometry.l2  # elbow to platform, unit length
     along_u = direction[..., 0] * _COS_ALPHA + direction[..., 1] * _SIN_ALPHA
     along_t = -direction[..., 0] * _SIN_ALPHA + direction[..., 1] * _COS_ALPHA
     along_z = direction[..., 2]

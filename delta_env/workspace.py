@@ -165,6 +165,14 @@ def singular_value_ratio(m: ArrayLike) -> NDArray[np.float64]:
         return np.where(largest > 0.0, np.sqrt(np.clip(smallest, 0.0, None) / largest), 0.0)
 
 
+def _conditioning(a: NDArray[np.float64], k: NDArray[np.float64]) -> NDArray[np.float64]:
+    """1 / cond_2(J) from the velocity constraint's rows a_i (m) and k_i (m^2/rad): 0 where some k_i is 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse_jacobian = a / k[..., None]  # J^{-1} = -K^{-1} A up to sign
+        matrix = np.nan_to_num(inverse_jacobian, nan=0.0, posinf=0.0, neginf=0.0)
+        return np.where(np.all(np.abs(k) > 0.0, axis=-1), singular_value_ratio(matrix), 0.0)
+
+
 def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
     """Kinematic measures at platform positions ``xyz`` (m), ``(..., 3)``; unreachable points get NaN."""
     xyz = _points(xyz)
@@ -174,13 +182,11 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
     # rows a_i = x - J'_i (|a_i| = l2 where reachable) and k_i; unreachable points are masked below
     a, k = kinematics.constraint_terms(geometry, xyz, np.nan_to_num(theta))
     abs_k = np.abs(k)
+    conditioning = _conditioning(a, k)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inverse_jacobian = a / k[..., None]  # J^{-1} = -K^{-1} A up to sign
-        matrix = np.nan_to_num(inverse_jacobian, nan=0.0, posinf=0.0, neginf=0.0)
-        conditioning = np.where(np.all(abs_k > 0.0, axis=-1), singular_value_ratio(matrix), 0.0)
         det_a = np.linalg.det(np.nan_to_num(a))
         imi = np.abs(det_a) / np.prod(abs_k, axis=-1)
-    cone, skew = buildability.joint_angles(geometry, xyz, np.nan_to_num(theta))
+    cone, skew = buildability.forearm_angles(geometry, a, np.nan_to_num(theta))
     nan = np.where(reachable, 0.0, np.nan)
     return PoseMeasures(
         reachable=reachable,
@@ -197,7 +203,9 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
 def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
     """Whether platform positions ``xyz`` (m), ``(..., 3)``, satisfy ``criteria``, ``(...)``.
 
-    The joint-range test runs first on all points; the conditioning only on the points that pass.
+    The same test as :meth:`PoseMeasures.admissible` of :func:`pose_measures`, computing only what it needs: the
+    joint range first on all points, the ball-joint cone and skew on the points that pass, the conditioning on the
+    points that pass those.
     """
     xyz = _points(xyz)
     flat = xyz.reshape(-1, 3)
@@ -207,11 +215,14 @@ def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEX
         chunk = flat[start : start + _CHUNK]
         theta = kinematics.elbow_out_angles(geometry, chunk)
         with np.errstate(invalid="ignore"):
-            candidate = np.all((theta >= low) & (theta <= high), axis=-1)
-        if np.any(candidate):
-            result[start : start + len(chunk)][candidate] = pose_measures(geometry, chunk[candidate]).admissible(
-                criteria
-            )
+            candidate = np.flatnonzero(np.all((theta >= low) & (theta <= high), axis=-1))  # NaN (unreachable) fails
+        if candidate.size == 0:
+            continue
+        a, k = kinematics.constraint_terms(geometry, chunk[candidate], theta[candidate])
+        cone, skew = buildability.forearm_angles(geometry, a, theta[candidate])
+        held = (np.max(cone, axis=-1) <= criteria.max_forearm_tilt) & (np.max(skew, axis=-1) <= criteria.max_skew)
+        held[held] = _conditioning(a[held], k[held]) >= criteria.min_conditioning
+        result[start + candidate] = held
     return result.reshape(xyz.shape[:-1])
 
 
