@@ -182,6 +182,5 @@ def planned_rate(
             within the envelope and the rating).
     """
     require_in("payload", payload, 0.0, unit="kg")
-    require_belt_height(belt_height)
     cycles = timed_cycle(geometry, drive_timing(geometry, option, payload, masses), payload, belt_height)
     return cycle_rate(geometry, option, payload, cycles, True, masses)
