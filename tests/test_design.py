@@ -15,7 +15,7 @@ from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
-from eval.design import optimize, performance, report, verify
+from eval.design import codesign, optimize, performance, report, verify
 from eval.design.__main__ import main
 from eval.identification import run_identification
 
@@ -42,6 +42,9 @@ def test_nominal_design_is_feasible_with_plausible_figures(nominal):
     assert nominal.drive.option is not None and nominal.drive.rated.check.holds
     assert 100.0 < nominal.picks_per_min < nominal.picks_per_min_light < 250.0
     assert optimize.objective_vector(nominal)[2] == -nominal.picks_per_min
+    # on the default belt the pick rate is the co-design's at the data-sheet placement
+    alone = codesign.choose_drive(NOMINAL_GEOMETRY)
+    assert (nominal.picks_per_min, nominal.picks_per_min_light) == (alone.picks_per_min, alone.picks_per_min_light)
 
 
 def test_design_model_adds_the_same_drive_to_every_design():

@@ -1,14 +1,16 @@
 """One drive's pick rate on a design: the timed standard cycle, its check against the drive, the full planner.
 
-Picks per minute on the industry's 25/305/25 mm standard cycle at the data-sheet placement
-(:func:`delta_env.cycles.standard_cycle`'s default: centred on the axis at the conveyor height, across the
-conveyors), as ``python -m eval.rate`` scores it (:func:`eval.metrics.picks_per_min`: one cycle of dwell,
-carry, dwell and empty move, repeated), every move timed by the time-optimal planner of the pick-rate work
+Picks per minute on the industry's 25/305/25 mm standard cycle centred on the axis on the belt, across the
+conveyors (at the default :data:`~delta_env.trajectories.WORKING_HEIGHT`, the data-sheet placement of
+:func:`delta_env.cycles.standard_cycle`; a reconfigured base moves the belt in its frame), as ``python -m
+eval.rate`` scores it (:func:`eval.metrics.picks_per_min`: one cycle of dwell, carry, dwell and empty move,
+repeated), every move timed by the time-optimal planner of the pick-rate work
 (:class:`controllers.payload_timing.PayloadTiming` in ``"declared"`` mode over
-:class:`controllers.timing.TimeOptimalPlanner`) on the design's model (:func:`eval.design.performance.design_model`)
-whose armature is the drive's rotor inertia times the ratio squared. The planner keeps its 10 % margin of the
-peak torque and of the maximum speed; the moves may use the whole envelope left (:data:`TORQUE_SHARE`), and
-each move with the dwell after it keeps 95 % of the rated torque RMS (the thermal limit of the repeated cycle).
+:class:`controllers.timing.TimeOptimalPlanner`) on the design's model
+(:func:`eval.design.performance.design_model`) whose armature is the drive's rotor inertia times the ratio
+squared. The planner keeps its 10 % margin of the peak torque and of the maximum speed; the moves may use the
+whole envelope left (:data:`TORQUE_SHARE`), and each move with the dwell after it keeps 95 % of the rated torque
+RMS (the thermal limit of the repeated cycle).
 :func:`planned_rate` is this full path (about 1 s per drive); :mod:`eval.design.screening` is the cheap one and
 :mod:`eval.design.codesign` chooses the drive.
 """
@@ -28,10 +30,17 @@ from delta_env.cycles import TimedCycles, standard_cycle
 from delta_env.drive import DriveLimits
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.sensors import CONTROL_PERIOD
-from delta_env.trajectories import Trajectory
+from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_in
 from eval import metrics
-from eval.design.performance import CYCLE_DWELL, DRIVE, design_model, path_limits, payload_profile
+from eval.design.performance import (
+    CYCLE_DWELL,
+    DRIVE,
+    design_model,
+    path_limits,
+    payload_profile,
+    require_belt_height,
+)
 
 TORQUE_SHARE = 1.0
 """Share of the planner's envelope (after its margin) the moves may use: the drive's whole capability. The
@@ -103,12 +112,15 @@ def drive_timing(
     return PayloadTiming(planner, "declared", payload, dwell=CYCLE_DWELL, torque_share=torque_share)
 
 
-def timed_cycle(geometry: DeltaGeometry, timing: object, payload: float) -> TimedCycles:
-    """One standard cycle from rest at its pick point, at the data-sheet placement, every move timed by ``timing``
-    (a :class:`delta_env.timing.MoveTiming`)."""
+def timed_cycle(
+    geometry: DeltaGeometry, timing: object, payload: float, belt_height: float = WORKING_HEIGHT
+) -> TimedCycles:
+    """One standard cycle from rest at its pick point, centred on the axis on the belt at ``belt_height`` (m, base
+    frame; < 0), every move timed by ``timing`` (a :class:`delta_env.timing.MoveTiming`)."""
     return standard_cycle(
         geometry,
         n_cycles=1,
+        center=(0.0, 0.0, require_belt_height(belt_height)),
         start="pick",
         dwell=CYCLE_DWELL,
         limits=path_limits(geometry),
@@ -156,13 +168,19 @@ def cycle_rate(
 
 
 def planned_rate(
-    geometry: DeltaGeometry, option: DriveOption, payload: float, masses: DeltaMasses | None = None
+    geometry: DeltaGeometry,
+    option: DriveOption,
+    payload: float,
+    masses: DeltaMasses | None = None,
+    belt_height: float = WORKING_HEIGHT,
 ) -> PickRate:
-    """The standard cycle of ``option`` with ``payload`` (kg) timed by the full planner.
+    """The standard cycle of ``option`` with ``payload`` (kg) on the belt at ``belt_height`` (m, base frame) timed
+    by the full planner.
 
     Raises:
-        ValueError: if the drive cannot run the payload (no verified law within the envelope and the rating).
+        ValueError: on a bad payload or belt height, or if the drive cannot run the payload (no verified law
+            within the envelope and the rating).
     """
     require_in("payload", payload, 0.0, unit="kg")
-    cycles = timed_cycle(geometry, drive_timing(geometry, option, payload, masses), payload)
+    cycles = timed_cycle(geometry, drive_timing(geometry, option, payload, masses), payload, belt_height)
     return cycle_rate(geometry, option, payload, cycles, True, masses)

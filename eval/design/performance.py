@@ -19,6 +19,8 @@ is its (fv, fc) on every joint.
 Pick rate: each design gets the drive (a catalogue motor behind a planetary gearbox) that gives it the most
 picks per minute on the standard cycle at the rated payload, timed by the time-optimal planner within that
 drive's envelope and thermal rating (:mod:`eval.design.codesign`); the light payload's rate is that drive's.
+The cycle is centred on the axis on the belt: at :data:`WORKING_HEIGHT` (the data-sheet placement) unless a
+reconfigured base moves the belt in the base frame (``evaluate(..., belt_height=...)``).
 """
 
 from __future__ import annotations
@@ -119,8 +121,8 @@ class Performance:
         workspace_m3: Volume of ``cylinder`` (m^3), 0 without one.
         peak_torque_nm: Largest peak |tau| over the task cycles at :data:`CYCLE_ACCELERATION` (N m).
         rms_torque_nm: Largest RMS torque over the task cycles (N m).
-        picks_per_min: Picks per minute on the standard cycle at the rated payload with the design's drive
-            (:func:`eval.design.codesign.choose_drive`); 0 without a drive that runs it.
+        picks_per_min: Picks per minute on the standard cycle on the belt at the rated payload with the design's
+            drive (:func:`eval.design.codesign.choose_drive`); 0 without a drive that runs it.
         picks_per_min_light: The same drive's picks per minute at the light payload.
         speed_m_s: Platform speed reachable in every direction over the task region at
             :data:`JOINT_SPEED_LIMIT` (m/s), its minimum over the region.
@@ -165,6 +167,11 @@ class Performance:
     def feasible(self) -> bool:
         """True if the task fits, the torque limit holds and a catalogue drive runs the rated payload."""
         return not self.reason
+
+
+def require_belt_height(belt_height: float) -> float:
+    """``belt_height`` (m, base frame) as a float if it is finite and below the base (< 0), else ``ValueError``."""
+    return require_in("belt_height", belt_height, -math.inf, 0.0, unit="m", high_open=True)
 
 
 def assembly_gap(geometry: DeltaGeometry) -> float:
@@ -272,15 +279,15 @@ def evaluate(
         exact_drive: Choose the drive with the full planner (:func:`eval.design.codesign.choose_drive`), not the
             cheap path of the optimizer.
         belt_height: Height of the conveyor surface in the base frame (m): the task band is it and the lift
-            above it (:data:`TASK_BAND` at the default); a reconfigured base moves it (eval.design.mechanism).
-            The pick-rate cycle stays at the data-sheet placement on :data:`WORKING_HEIGHT`.
+            above it (:data:`TASK_BAND` at the default), and the pick-rate cycle is centred on the axis on it;
+            a reconfigured base moves it (eval.design.mechanism).
         drives: The drives to choose from; None for the whole catalogue (a design already built keeps its own:
             ``(performance.drive.option,)``).
     """
     from eval.design.codesign import choose_drive  # here: the co-design builds on this module's design model
 
     require_in("payload", payload, 0.0, math.inf, unit="kg")
-    belt_height = require_in("belt_height", belt_height, -math.inf, 0.0, unit="m", high_open=True)
+    belt_height = require_belt_height(belt_height)
     band = (belt_height, belt_height + STANDARD_LIFT)
     masses = scaled_masses(geometry) if masses is None else masses
     shortfall = task_radius - float(np.min(disc_radii(geometry, np.linspace(*band, TASK_BAND_HEIGHTS), criteria)))
@@ -308,7 +315,8 @@ def evaluate(
         reasons.append(f"peak torque {max(f.peak_torque for f in figures):.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
     drive = None
     if len(figures) == len(cycles):
-        drive = choose_drive(geometry, masses, CATALOGUE if drives is None else drives, exact=exact_drive)
+        options = CATALOGUE if drives is None else drives
+        drive = choose_drive(geometry, masses, options, exact=exact_drive, belt_height=belt_height)
         if drive.option is None:
             reasons.append("no catalogue drive runs the rated payload on the standard cycle")
     speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)

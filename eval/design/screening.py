@@ -2,15 +2,16 @@
 
 Planning every drive with the full planner (:func:`eval.design.drive_rate.planned_rate`) costs about 1 s each.
 Instead, the time laws tau(t) of the cycle's two moves are planned once (per process) on the nominal robot with
-:data:`REFERENCE_DRIVES` (a balanced and a speed-limited gearing); the shape x(tau) is the same Cartesian path
-for every design. Run k times faster, a law's joint rates scale by k and its accelerations by k^2, so along it
-every design's torque is exactly a + b k + c k^2 (gravity and Coulomb; viscous; inertia, velocity products and
-the armature), its lag-inverse command adds lead k d/dt of that, its speeds k |q'|, and its RMS over the move
-and the dwell follows. For every drive and move a bisection finds the largest k that keeps the planner's
-envelope, speed limit and the thermal limit: a feasible, slightly sub-optimal law of that drive (each move from
-its best reference). :func:`eval.design.codesign.choose_drive` with ``exact=True`` then plans the best
-screened drives with the full planner and keeps the fastest (tests/test_codesign.py: the two agree within 3 %
-near the optimum).
+:data:`REFERENCE_DRIVES` (a balanced and a speed-limited gearing) at the data-sheet placement; the shape x(tau) is
+the same Cartesian path for every design, moved onto the design's belt (a law parametrizes any path, so the
+reference laws serve every belt height and only the shapes move). Run k times faster, a law's joint rates scale by
+k and its accelerations by k^2, so along it every design's torque is exactly a + b k + c k^2 (gravity and Coulomb;
+viscous; inertia, velocity products and the armature), its lag-inverse command adds lead k d/dt of that, its
+speeds k |q'|, and its RMS over the move and the dwell follows. For every drive and move a bisection finds the
+largest k that keeps the planner's envelope, speed limit and the thermal limit: a feasible, slightly sub-optimal
+law of that drive (each move from its best reference). :func:`eval.design.codesign.choose_drive` with
+``exact=True`` then plans the best screened drives with the full planner and keeps the fastest
+(tests/test_codesign.py: the two agree within 3 % near the optimum).
 """
 
 from __future__ import annotations
@@ -32,10 +33,10 @@ from delta_env.config import RATED_PAYLOAD
 from delta_env.cycles import TimedCycles
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
 from delta_env.timing import TimeLaw, move_samples
-from delta_env.trajectories import Segment
+from delta_env.trajectories import WORKING_HEIGHT, Segment
 from delta_env.validation import require_in
 from eval.design.drive_rate import PickRate, cycle_rate, drive_timing, timed_cycle
-from eval.design.performance import CYCLE_DWELL, DRIVE, design_model
+from eval.design.performance import CYCLE_DWELL, DRIVE, design_model, require_belt_height
 
 REFERENCE_DRIVES = tuple(DriveOption("SGM7A-20A", MOTORS["SGM7A-20A"], ratio) for ratio in (50.0, 100.0))
 """Drives whose time laws on the nominal robot the cheap path scales: balanced and speed-limited (a third,
@@ -92,8 +93,8 @@ class _Recorder:
 
 @functools.cache
 def reference_cycles(payload: float) -> tuple[TimedCycles, ...]:
-    """The standard cycle on the nominal robot planned with each of :data:`REFERENCE_DRIVES`, carries with
-    ``payload`` (kg); planned once per process."""
+    """The standard cycle on the nominal robot at the data-sheet placement planned with each of
+    :data:`REFERENCE_DRIVES`, carries with ``payload`` (kg); planned once per process."""
     return tuple(
         timed_cycle(
             NOMINAL_GEOMETRY, _Recorder(drive_timing(NOMINAL_GEOMETRY, option, payload).planner, payload), payload
@@ -102,9 +103,16 @@ def reference_cycles(payload: float) -> tuple[TimedCycles, ...]:
     )
 
 
-def _moves(cycles: TimedCycles) -> list[tuple[Segment, TimeLaw, bool]]:
-    """(shape, law, carries) of the carry and the empty move of one cycle."""
-    return [(piece.shape, piece.law, piece.carry is not None) for piece in cycles.pieces if piece.law is not None]
+def _moves(cycles: TimedCycles, belt_height: float) -> list[tuple[Segment, TimeLaw, bool]]:
+    """(shape, law, carries) of the carry and the empty move of a reference cycle, the shapes moved from
+    :data:`WORKING_HEIGHT` onto the belt at ``belt_height`` (m, base frame)."""
+    rise = np.array([0.0, 0.0, belt_height - WORKING_HEIGHT])
+    moves = []
+    for piece in cycles.pieces:
+        if piece.law is not None:
+            shape = dataclasses.replace(piece.shape, start=piece.shape.start + rise, end=piece.shape.end + rise)
+            moves.append((shape, piece.law, piece.carry is not None))
+    return moves
 
 
 class _Drives:
@@ -246,11 +254,14 @@ def screen_drives(
     payload: float,
     masses: DeltaMasses | None,
     keep: int | None = None,
+    belt_height: float = WORKING_HEIGHT,
 ) -> Screen:
-    """Picks per minute of the options by the cheap path. With ``keep``, options are scored in order of their upper
-    bound (speed and thermal limits alone) in chunks of :data:`SCREEN_CHUNK`, until ``keep`` options are known to
-    be the best: branch and bound, the same best options as scoring all."""
-    references = [_moves(cycles) for cycles in reference_cycles(float(payload))]
+    """Picks per minute of the options by the cheap path on the belt at ``belt_height`` (m, base frame). With
+    ``keep``, options are scored in order of their upper bound (speed and thermal limits alone) in chunks of
+    :data:`SCREEN_CHUNK`, until ``keep`` options are known to be the best: branch and bound, the same best options
+    as scoring all."""
+    belt_height = require_belt_height(belt_height)
+    references = [_moves(cycles, belt_height) for cycles in reference_cycles(float(payload))]
     moves = [
         [_MoveScaling(geometry, masses, shape, law, payload if carries else 0.0) for shape, law, carries in cycle]
         for cycle in zip(*references, strict=True)
@@ -294,13 +305,15 @@ def screened_rates(
     options: Sequence[DriveOption] = CATALOGUE,
     payload: float = RATED_PAYLOAD,
     masses: DeltaMasses | None = None,
+    belt_height: float = WORKING_HEIGHT,
 ) -> NDArray[np.float64]:
-    """Picks per minute of each drive option with ``payload`` (kg) by the cheap path (module docstring), ``(n,)``;
-    0 for a drive that cannot run the payload's moves at any speed."""
+    """Picks per minute of each drive option with ``payload`` (kg) on the belt at ``belt_height`` (m, base frame)
+    by the cheap path (module docstring), ``(n,)``; 0 for a drive that cannot run the payload's moves at any
+    speed."""
     require_in("payload", payload, 0.0, unit="kg")
     if not options:
         raise ValueError("screened_rates needs at least one drive option")
-    return screen_drives(geometry, options, payload, masses).rates
+    return screen_drives(geometry, options, payload, masses, belt_height=belt_height).rates
 
 
 def scaled_rate(
@@ -309,17 +322,27 @@ def scaled_rate(
     payload: float,
     laws: list[tuple[TimeLaw, float]],
     masses: DeltaMasses | None,
+    belt_height: float = WORKING_HEIGHT,
 ) -> PickRate:
-    """The standard cycle of ``option`` with its moves' reference laws run at their speed-ups."""
+    """The standard cycle of ``option`` on the belt at ``belt_height`` (m, base frame) with its moves' reference
+    laws run at their speed-ups (:attr:`Screen.laws` of :func:`screen_drives` at the same belt height)."""
     (carry, carry_k), (empty, empty_k) = laws
-    cycles = timed_cycle(geometry, _ScaledTiming(_scaled(carry, carry_k), _scaled(empty, empty_k)), payload)
+    timing = _ScaledTiming(_scaled(carry, carry_k), _scaled(empty, empty_k))
+    cycles = timed_cycle(geometry, timing, payload, belt_height)
     return cycle_rate(geometry, option, payload, cycles, False, masses)
 
 
 def screened_rate(
-    geometry: DeltaGeometry, option: DriveOption, payload: float, masses: DeltaMasses | None = None
+    geometry: DeltaGeometry,
+    option: DriveOption,
+    payload: float,
+    masses: DeltaMasses | None = None,
+    belt_height: float = WORKING_HEIGHT,
 ) -> PickRate | None:
-    """The standard cycle of ``option`` with ``payload`` (kg) timed by the cheap path, or None if it cannot run it."""
+    """The standard cycle of ``option`` with ``payload`` (kg) on the belt at ``belt_height`` (m, base frame) timed
+    by the cheap path, or None if it cannot run it."""
     require_in("payload", payload, 0.0, unit="kg")
-    scored = screen_drives(geometry, [option], payload, masses)
-    return scaled_rate(geometry, option, payload, scored.laws[0], masses) if scored.rates[0] > 0.0 else None
+    scored = screen_drives(geometry, [option], payload, masses, belt_height=belt_height)
+    if scored.rates[0] <= 0.0:
+        return None
+    return scaled_rate(geometry, option, payload, scored.laws[0], masses, belt_height)
