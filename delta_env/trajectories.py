@@ -25,6 +25,8 @@ and :mod:`delta_env.excitation` (identification, docs/design.md section 7), insi
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import itertools
 import math
 from collections.abc import Sequence
@@ -134,6 +136,14 @@ class Trajectory:
 
     def __len__(self) -> int:
         return len(self.xyz)
+
+    def content_hash(self) -> str:
+        """Hash (16 hex digits) of the sample period and every array's values: equal paths, equal hashes."""
+        digest = hashlib.sha256(repr(self.dt).encode())
+        for array in dataclasses.fields(self)[1:]:  # after dt
+            digest.update(array.name.encode())
+            digest.update(np.ascontiguousarray(getattr(self, array.name)).tobytes())
+        return digest.hexdigest()[:16]
 
 
 def concatenate(trajectories: Sequence[Trajectory]) -> Trajectory:

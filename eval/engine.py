@@ -8,8 +8,8 @@ measured once on the scenario's payload-free episodes on the calibration seeds a
 (:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`run_grid` runs the episodes: one work unit
 (:class:`eval.sweep.work.WorkUnit`: a scenario, a controller, a seed) on either backend of the sweep (a local
 process pool or Ray, :func:`eval.sweep.runner.run_units`), returning each unit's row (:func:`eval.sweep.work.run_unit`)
-or record (:func:`eval.sweep.work.unit_record`). The comparison (:mod:`eval.comparison`), the sweep and the residual
-scores (:mod:`eval.scoring`) are its callers.
+or record (:func:`eval.sweep.work.unit_record`). The comparison (:mod:`eval.comparison`), the sweep, the residual
+scores (:mod:`eval.scoring`) and the design verification (:mod:`eval.design.verify`) are its callers.
 """
 
 from __future__ import annotations

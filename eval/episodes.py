@@ -68,6 +68,9 @@ class EpisodeRecord:
         detected_faults: The faults the controller detected (its ``detected_faults`` at the episode's end, if it
             :class:`~controllers.monitor.ReportsFaults`; else none), in time order. :mod:`eval.faults` matches
             them to the injected ones.
+        robot_contacts: Pairs of robot links (or a link and the base) that touched during the episode, each with its
+            deepest penetration (m): ``plant.robot_contacts`` at its end, empty unless the plant was built with
+            ``PlantConfig.collisions``.
     """
 
     tracking_error: NDArray[np.float64]
@@ -96,6 +99,7 @@ class EpisodeRecord:
     stopped: bool = False
     injected_faults: list[InjectedFault] = field(default_factory=list)
     detected_faults: list[DetectedFault] = field(default_factory=list)
+    robot_contacts: dict[tuple[str, str], float] = field(default_factory=dict)
 
     def metrics(self) -> dict[str, Any]:
         """Scalar metrics of the episode (see :mod:`eval.metrics` for the definitions), and its faults'
@@ -317,4 +321,5 @@ def run_episode(
         stopped=stopped,
         injected_faults=list(env.injected_faults),
         detected_faults=list(inner.detected_faults) if isinstance(inner, ReportsFaults) else [],
+        robot_contacts=plant.robot_contacts,
     )

@@ -5,11 +5,14 @@ import math
 import numpy as np
 import pytest
 
+from controllers.registry import build_controller
 from delta_env import collisions, kinematics, workspace
 from delta_env.config import PlantConfig
+from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.plant import DeltaPlant
 from delta_env.scaling import forearm_rod_radius
+from eval.episodes import run_episode
 
 NARROW = DeltaGeometry(0.2, 0.03, 0.37, 0.95)  # neighbouring ball joints 2 mm apart: their rods overlap
 
@@ -76,3 +79,13 @@ def test_default_plant_has_no_collisions_and_ideal_refuses_them():
     assert plant.data.ncon == 0 and plant.robot_contacts == {}
     with pytest.raises(ValueError, match="collisions"):
         PlantConfig.ideal(collisions=True)
+
+
+def test_an_episode_records_the_contacts_its_plant_saw(controller_setup):
+    seen = {}
+    for name, geometry in (("narrow", NARROW), ("nominal", NOMINAL_GEOMETRY)):
+        env = DeltaPickPlaceEnv(plant=PlantConfig(geometry=geometry, collisions=True), n_cycles=1)
+        seen[name] = run_episode(env, build_controller("pd", controller_setup, env), 0).robot_contacts
+        env.close()
+    assert ("forearm_1a_rod", "forearm_2b_rod") in seen["narrow"]
+    assert seen["nominal"] == {}

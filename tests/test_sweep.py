@@ -13,8 +13,9 @@ import pytest
 
 from controllers.dynamics import ModelParameters
 from controllers.payload import EmptyMoveSums
+from delta_env.cycles import standard_cycle
 from delta_env.drive import DriveLimits
-from delta_env.geometry import DeltaGeometry, DeltaMasses
+from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import Scenario, preset, save_geometry
 from eval.engine import Prepared
@@ -278,3 +279,16 @@ def test_the_setup_digest_covers_every_field_a_controller_knows_and_nothing_of_t
     assert setup_digest(with_policy, "residual") == setup_digest(with_copy, "residual")
     copy.write_bytes(b"other weights")
     assert setup_digest(with_policy, "residual") != setup_digest(with_copy, "residual")
+
+
+def test_a_unit_that_follows_a_given_path_is_keyed_by_that_path() -> None:
+    path = standard_cycle(NOMINAL_GEOMETRY, n_cycles=1, start="pick")
+    same = standard_cycle(NOMINAL_GEOMETRY, n_cycles=1, start="pick")
+    turned = standard_cycle(NOMINAL_GEOMETRY, n_cycles=1, start="pick", heading=0.0)
+    scenario = tiny("nominal")
+    keys = [unit_key(WorkUnit(scenario, "pd", 0, None, p), CODE, DIGEST) for p in (None, path, same, turned)]
+    assert keys[1] == keys[2] and len({keys[0], keys[1], keys[3]}) == 3
+    # and the episode follows it: its record's reference is the given path, untimed
+    row = run_unit(WorkUnit(scenario, "pd", 0, None, turned), SETUP)
+    assert row["status"] == "ok", row["error"]
+    assert row["steps"] == len(turned) - 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import re
@@ -357,3 +358,11 @@ def test_the_peak_acceleration_limit_admits_every_preset() -> None:
     for peak in (tr.STANDARD_PEAK_ACCELERATION, tr.STRESS_PEAK_ACCELERATION, tr.MAX_PEAK_ACCELERATION):
         assert tr.require_peak_acceleration(peak) == peak
     assert cycles.standard_cycle(G, tr.MAX_PEAK_ACCELERATION, start="pick").duration > 0.0
+
+
+def test_content_hash_follows_the_samples():
+    path = cycles.standard_cycle(G, n_cycles=1)
+    assert path.content_hash() == cycles.standard_cycle(G, n_cycles=1).content_hash()
+    moved = dataclasses.replace(path, xyz=path.xyz + np.array([0.0, 0.0, 1e-9]))
+    assert moved.content_hash() != path.content_hash()
+    assert dataclasses.replace(path, dt=2 * path.dt).content_hash() != path.content_hash()

@@ -4,7 +4,7 @@ For a geometry: build the realistic plant with the scaled masses, identify it by
 identification (:func:`eval.identification.run_identification`, the same excitation runs in closed loop but
 inside the design's dexterous cylinder, the same fits on that geometry's models, the drive lag), tare the
 payload estimator by :func:`eval.calibration.calibrate_tares` on payload-free standard cycles, then run PD,
-MId+F+R+RLS+PD and the oracle with the episode runner :func:`eval.episodes.run_episode` on seeded standard
+MId+F+R+RLS+PD and the oracle by the experiment engine (:func:`eval.engine.run_grid`) on seeded standard
 cycles carrying 3.8 kg. The plant is built with its collision geometry on (``PlantConfig.collisions``: links and
 base collide, :func:`delta_env.robot.collision_geom_names`), and every episode checks the contacts it saw. A
 design is infeasible, and reported as such, when its plant cannot be assembled, a run diverges, a loop opens by
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.registry import ControllerSetup, build_controller, controller_label
+from controllers.registry import ControllerSetup, controller_label
 from delta_env.config import PlantConfig
 from delta_env.cylinder import Cylinder, largest_cylinder
 from delta_env.env import DeltaPickPlaceEnv
@@ -41,10 +41,12 @@ from eval.design.performance import (
     payload_profile,
     task_cycle,
 )
-from eval.episodes import EpisodeRecord, run_episode
+from eval.engine import run_grid
+from eval.episodes import EpisodeRecord
 from eval.excitation import ExcitationRegion
 from eval.identification import run_identification
 from eval.parameter_files import robot_setup
+from eval.sweep.work import WorkUnit
 
 LOOP_GAP_LIMIT = 1e-4
 """Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""
@@ -239,7 +241,7 @@ def verify_design(
         performance: The design's figures (geometry, scaled masses, dexterous cylinder).
         seed: Seed of the identification and of the first episode (episodes ``seed .. seed + episodes - 1``).
         episodes: Episodes per controller, >= 1.
-        workers: Processes running the identification's excitation trajectories.
+        workers: Processes running the identification's excitation trajectories, the tare's and the episodes.
     """
     require_count("episodes", episodes)
     geometry, masses = performance.geometry, performance.masses
@@ -248,7 +250,7 @@ def verify_design(
         scenario = with_geometry(preset("nominal"), geometry, masses)
         scenario = dataclasses.replace(scenario, plant=dataclasses.replace(scenario.plant, collisions=True))
         plant = scenario.plant
-        env = DeltaPickPlaceEnv(plant=plant, n_cycles=EPISODE_CYCLES)
+        DeltaPickPlaceEnv(plant=plant, n_cycles=EPISODE_CYCLES).close()  # the plant assembles
     except (ValueError, RuntimeError) as error:
         return Verification(**base, feasible=False, reason=f"plant cannot be assembled: {error}")
     model = design_model(geometry, masses)
@@ -269,23 +271,26 @@ def verify_design(
         except RuntimeError as error:
             raise DesignInfeasible(f"tare calibration failed: {error}") from error
         tare = calibration.tares[RLS_KEY]
-        controllers = [build_controller(key, setup, env) for key in CONTROLLER_KEYS]
         parameters, drive_lag = setup.mid_f_rods, setup.drive_lag
         identified = model.with_parameters(parameters)
-        results, predicted, identified_figures = [], {}, {}
-        for episode_seed in range(seed, seed + episodes):
-            reference = episode_reference(geometry, episode_seed)
-            predicted[episode_seed] = _reference_torques(model, reference)
-            identified_figures[episode_seed] = _reference_torques(identified, reference)
-            for label, controller in zip(CONTROLLERS, controllers, strict=True):
-                record = run_episode(env, controller, episode_seed, [PAYLOAD] * EPISODE_CYCLES, reference=reference)
-                _check(record.diverged, record.max_loop_gap, f"{label} episode {episode_seed}")
-                _check_contacts(env.plant.robot_contacts, f"{label} episode {episode_seed}")
-                results.append(_result(record, label, episode_seed))
+        episode_seeds = range(seed, seed + episodes)
+        references = {s: episode_reference(geometry, s) for s in episode_seeds}
+        predicted = {s: _reference_torques(model, references[s]) for s in episode_seeds}
+        identified_figures = {s: _reference_torques(identified, references[s]) for s in episode_seeds}
+        units = [
+            WorkUnit(standard, key, s, (PAYLOAD,) * EPISODE_CYCLES, references[s])
+            for s in episode_seeds
+            for key in CONTROLLER_KEYS
+        ]
+        records = run_grid(units, {standard.content_hash: setup}, workers=workers)
+        results = []
+        for unit, record in zip(units, records, strict=True):
+            what = f"{controller_label(unit.controller)} episode {unit.seed}"
+            _check(record.diverged, record.max_loop_gap, what)
+            _check_contacts(record.robot_contacts, what)
+            results.append(_result(record, controller_label(unit.controller), unit.seed))
     except DesignInfeasible as error:
         return Verification(**base, feasible=False, reason=str(error))
-    finally:
-        env.close()
     return Verification(
         **base,
         feasible=True,

@@ -83,6 +83,8 @@ def unit_key(unit: WorkUnit, code_version: str, setup_digest: str) -> str:
     }
     if unit.masses is not None:
         content["masses"] = list(unit.masses)
+    if unit.reference is not None:
+        content["reference"] = unit.reference.content_hash()
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
 
 

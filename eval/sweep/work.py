@@ -21,6 +21,7 @@ from typing import Any
 
 from controllers.registry import ControllerSetup, controller_entry, controller_source, residual_policy_path
 from delta_env.scenario import Scenario
+from delta_env.trajectories import Trajectory
 from eval import metrics
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
@@ -72,18 +73,28 @@ class WorkUnit:
         controller: Controller key (:func:`controllers.registry.controller_entry`).
         seed: Episode seed: the same seed gives every controller the same path and objects.
         masses: Object masses (kg) instead of the drawn ones (one per cycle), or None.
+        reference: A path (1 kHz) to follow instead of the scenario's pick-and-place cycles, or None; it is not timed.
     """
 
     scenario: Scenario
     controller: str
     seed: int
     masses: tuple[float, ...] | None = None
+    reference: Trajectory | None = None
 
 
 def unit_record(unit: WorkUnit, setup: ControllerSetup) -> EpisodeRecord:
     """Run one episode of ``unit`` with what its controller knows (``setup``) and return its record."""
     task = Task(
-        "episode", unit.controller, 0, unit.seed, unit.scenario.task.n_cycles, setup, unit.masses, unit.scenario
+        "episode",
+        unit.controller,
+        0,
+        unit.seed,
+        unit.scenario.task.n_cycles,
+        setup,
+        unit.masses,
+        unit.scenario,
+        unit.reference,
     )
     return run_task(task)[1]
 
