@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from delta_env import kinematics
 from delta_env.config import FOREARM_SPACING
 from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaGeometry
 from delta_env.robot import (
@@ -188,3 +189,11 @@ def arm_base_clearance(geometry: DeltaGeometry, xyz: ArrayLike, theta: ArrayLike
     apart = np.hypot(np.maximum(radial, 0.0), np.maximum(vertical, 0.0))
     disc = np.where((radial > 0.0) | (vertical > 0.0), apart, np.maximum(radial, vertical))
     return np.minimum(np.min(np.concatenate(clearances, axis=-1), axis=-1), disc)
+
+
+def smallest_clearances(geometry: DeltaGeometry, xyz: ArrayLike) -> tuple[float, float]:
+    """Smallest arm-arm and arm-base clearance (m) over platform positions ``xyz`` (m), ``(n, 3)``, each with its
+    elbow-out motor angles (:func:`delta_env.kinematics.inverse`, which raises for an unreachable point)."""
+    theta = kinematics.inverse(geometry, xyz)
+    arm = float(np.min(arm_arm_clearance(geometry, xyz, theta)))
+    return arm, float(np.min(arm_base_clearance(geometry, xyz, theta)))

@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from delta_env.cycles import STANDARD_LIFT
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
-from delta_env.validation import require_in
+from delta_env.validation import require_count, require_in
 from delta_env.workspace import DEXTEROUS, Criteria, admissible, reach_bounds
 
 PRODUCT_CLEARANCE = 0.075
@@ -103,6 +103,18 @@ class Cylinder:
     def volume(self) -> float:
         """Volume (m^3)."""
         return math.pi * self.diameter**2 / 4.0 * self.height
+
+    def surface_points(self, azimuths: int = 36, levels: int = 5) -> NDArray[np.float64]:
+        """Points (m) on its surface, ``(n, 3)``: the rim at ``levels`` heights from the bottom to the top, and
+        rings at a third and two thirds of the radius and the centre on the two faces, ``azimuths`` per ring."""
+        require_count("azimuths", azimuths)
+        require_count("levels", levels, minimum=2)
+        phi = np.linspace(0.0, 2.0 * math.pi, azimuths, endpoint=False)
+        radius = self.diameter / 2.0
+        rings = [(radius, z) for z in np.linspace(self.bottom, self.top, levels)]
+        rings += [(share * radius, z) for share in (1.0 / 3.0, 2.0 / 3.0) for z in (self.bottom, self.top)]
+        points = [np.column_stack((r * np.cos(phi), r * np.sin(phi), np.full(azimuths, z))) for r, z in rings]
+        return np.vstack([*points, [[0.0, 0.0, self.bottom], [0.0, 0.0, self.top]]])
 
 
 def _boundary(

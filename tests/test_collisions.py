@@ -8,6 +8,7 @@ import pytest
 from controllers.registry import build_controller
 from delta_env import collisions, kinematics, workspace
 from delta_env.config import PlantConfig
+from delta_env.cylinder import data_sheet_cylinder
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.plant import DeltaPlant
@@ -89,3 +90,16 @@ def test_an_episode_records_the_contacts_its_plant_saw(controller_setup):
         env.close()
     assert ("forearm_1a_rod", "forearm_2b_rod") in seen["narrow"]
     assert seen["nominal"] == {}
+
+
+def test_smallest_clearances_over_points_find_the_touching_pose():
+    cylinder = data_sheet_cylinder(NOMINAL_GEOMETRY)
+    points = cylinder.surface_points()
+    arm, base = collisions.smallest_clearances(NOMINAL_GEOMETRY, points)
+    theta = kinematics.inverse(NOMINAL_GEOMETRY, points)
+    assert arm == pytest.approx(float(np.min(collisions.arm_arm_clearance(NOMINAL_GEOMETRY, points, theta))))
+    assert base == pytest.approx(float(np.min(collisions.arm_base_clearance(NOMINAL_GEOMETRY, points, theta))))
+    assert arm > 0.0 and base > 0.0
+    assert collisions.smallest_clearances(NARROW, points)[0] < 0.0  # its rods overlap everywhere
+    with pytest.raises(ValueError, match="outside the reachable workspace"):
+        collisions.smallest_clearances(NOMINAL_GEOMETRY, [[0.0, 0.0, -3.0]])

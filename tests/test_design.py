@@ -208,6 +208,8 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     compromise = load_geometry(out / "design-compromise.toml")  # the file --geometry reads
     assert compromise == DeltaGeometry(*(float(rows_by_design["compromise"][k]) for k in ("ra", "rb", "l1", "l2")))
     assert 20.0 < float(rows_by_design["nominal"]["first_natural_frequency_hz"]) < 40.0  # 27 Hz at 4 kg
+    for name, row in rows_by_design.items():  # no chosen design's links touch in its cylinder or the task region
+        assert float(row["arm_clearance_m"]) > 0.0 and float(row["base_clearance_m"]) > 0.0, name
     with (out / "torque_changes.csv").open() as file:
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified

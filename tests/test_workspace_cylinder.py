@@ -173,3 +173,15 @@ def test_a_height_independent_limit_does_not_multiply_the_heights(monkeypatch):
     found = cylinder.data_sheet_cylinder(geometry)
     assert sum(measured) < 80
     assert found.volume == pytest.approx(_brute_force_volume(geometry), rel=0.01)
+
+
+def test_surface_points_lie_on_the_cylinder():
+    found = cylinder.Cylinder(diameter=0.8, height=0.2, top=-0.7)
+    points = found.surface_points(azimuths=12, levels=3)
+    radius, z = np.hypot(points[:, 0], points[:, 1]), points[:, 2]
+    on_rim = np.isclose(radius, 0.4)
+    on_face = np.isclose(z, -0.9) | np.isclose(z, -0.7)
+    assert np.all(on_rim | on_face) and np.all((radius <= 0.4 + 1e-12) & (z >= -0.9 - 1e-12) & (z <= -0.7 + 1e-12))
+    assert points.shape == (12 * (3 + 4) + 2, 3) and np.count_nonzero(on_rim) == 36
+    with pytest.raises(ValueError, match="levels"):
+        found.surface_points(levels=1)

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from delta_env import catalogue, cylinder, scaling, workspace
+from delta_env import catalogue, collisions, cylinder, scaling, workspace
 from delta_env.config import RATED_PAYLOAD, PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
@@ -224,6 +224,10 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         name: float(np.min(stiffness.first_natural_frequency(p.geometry, region, RATED_PAYLOAD, p.masses)))
         for name, p in designs.items()
     }
+    clearance = {  # over the cylinder's surface and the conveyors' region: the plant's links never touch there
+        name: collisions.smallest_clearances(p.geometry, np.vstack((p.cylinder.surface_points(), region)))
+        for name, p in designs.items()
+    }
     reconfigured = {name: reconfigure.study(designs[name].geometry) for name in ("nominal", "compromise")}
     seconds["reconfiguration"] = time.perf_counter() - started - sum(seconds.values())
 
@@ -246,6 +250,8 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
                 "reachable_volume_m3": reachable[n][0],
                 "reachable_volume_error_m3": reachable[n][1],
                 "first_natural_frequency_hz": frequency[n],
+                "arm_clearance_m": clearance[n][0],
+                "base_clearance_m": clearance[n][1],
             }
             for n, p in designs.items()
         ],
@@ -322,6 +328,8 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "every direction over the conveyor region at that joint speed.",
         "",
         report.summary_table(designs, designs["nominal"], reachable),
+        "",
+        report.clearance_sentence(clearance),
         "",
         "Every design chosen from the front of all runs merged (NSGA-II on every seed and the GA): none is "
         "dominated by any design evaluated (on the optimizer's figures; the table's pick rates are the full "

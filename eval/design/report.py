@@ -182,6 +182,17 @@ def summary_table(
     return markdown_table(header, rows)
 
 
+def clearance_sentence(clearance: Mapping[str, tuple[float, float]]) -> str:
+    """What the collision checks found: each design's smallest (arm-arm, arm-base) clearance (m) in a sentence."""
+    figures = ", ".join(f"{name} {1e3 * arm:.0f} / {1e3 * base:.0f} mm" for name, (arm, base) in clearance.items())
+    touching = [name for name, (arm, base) in clearance.items() if min(arm, base) <= 0.0]
+    verdict = f"Links touch on: {', '.join(touching)}." if touching else "No design's links touch."
+    return (
+        "Smallest link clearances, arm-arm / arm-base, over each design's cylinder surface and the conveyors' region "
+        f"(the plant's link capsules, delta_env.collisions): {figures}. {verdict}"
+    )
+
+
 def verification_rows(verifications: Sequence[Verification]) -> list[dict[str, Any]]:
     """One CSV row per design, controller and figure."""
     rows = []
