@@ -9,6 +9,7 @@ payload, applies external forces and domain randomization; its parts are the loo
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 
 import mujoco
@@ -31,6 +32,18 @@ from delta_env.robot import CHAIN_LABELS, ROD_LABELS, forearm_home_tilt
 from delta_env.scene import build_model
 from delta_env.suction import SuctionPayload, quat_to_matrix
 from delta_env.validation import require_in, require_joint_vector
+
+_LOG = logging.getLogger(__name__)
+
+
+def _log_mujoco_warning(message: str) -> None:
+    """MuJoCo's warnings (an unstable simulation, which the env also flags in ``info``) to this module's logger:
+    MuJoCo's default prints them and appends them to ``MUJOCO_LOG.TXT`` in the working directory."""
+    _LOG.warning("MuJoCo: %s", message.strip())
+
+
+if mujoco.get_mju_user_warning() is None:  # a handler installed before is kept: the hook is process-wide
+    mujoco.set_mju_user_warning(_log_mujoco_warning)
 
 _IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
 

@@ -1,5 +1,7 @@
 """DeltaPickPlace-v0: API checkers, determinism, hidden payload, bad input, divergence, rendering."""
 
+import logging
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -230,14 +232,19 @@ def test_torque_beyond_limit_is_saturated_and_flagged(env: DeltaPickPlaceEnv) ->
     assert_array_equal(info["torque_command"], [5.0, -3.0, 1.0])
 
 
-def test_divergence_terminates_with_flag_and_finite_observation() -> None:
+def test_divergence_terminates_with_flag_and_finite_observation(tmp_path, monkeypatch, caplog) -> None:
+    monkeypatch.chdir(tmp_path)
     env = DeltaPickPlaceEnv(n_cycles=1)  # fresh: a blow-up in the first step of the first episode counts too
     observation, _ = env.reset(seed=0)
     env.plant.data.qvel[:] = 1e12  # a blow-up, as a far too stiff controller would cause
-    observation, reward, terminated, _, info = env.step(np.zeros(3))
+    with caplog.at_level(logging.WARNING, logger="delta_env.plant"):
+        observation, reward, terminated, _, info = env.step(np.zeros(3))
     assert terminated and info["diverged"]
     assert np.isfinite(reward)
     assert all(np.all(np.isfinite(value)) for value in observation.values())
+    # MuJoCo's warning goes to the package's logger, not into a MUJOCO_LOG.TXT in the working directory
+    assert "MuJoCo: Nan, Inf or huge value in QVEL" in caplog.text
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_episode_truncates_at_end_of_reference_and_refuses_further_steps() -> None:
