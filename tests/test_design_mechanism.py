@@ -11,7 +11,7 @@ import pytest
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT
-from eval.design import codesign, performance, reconfigure
+from eval.design import codesign, performance, reconfigure, report
 from eval.design.mechanism import MAX_RATIO, MIN_RATIO, PitchScrewLinkage
 from eval.design.reconfigure import refine
 
@@ -147,3 +147,13 @@ def test_study_optima_beat_every_grid_setting_and_name_what_holds_them():
     assert cycle_time(WORKING_HEIGHT) - 60.0 / study.values[2, -1] >= 2.0 * CONTROL_PERIOD - 1e-9
     with pytest.raises(ValueError, match="objective"):
         reconfigure.TaskProfile("bad", 1.0, 0.3, "energy")
+    # the report names the fixed setting, or says there is none (as on the compromise design) instead of NaNs
+    assert f"At fixed ra = {study.fixed_ra:.3f} m" in report.reconfiguration_table(study)
+    unserved = replace(
+        study,
+        fixed_travel=math.nan,
+        fixed_ra=math.nan,
+        outcomes=tuple(replace(o, fixed_value=math.nan, gain_percent=math.nan) for o in study.outcomes),
+    )
+    table = report.reconfiguration_table(unserved)
+    assert "none serves every profile" in table and "nan" not in table

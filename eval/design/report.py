@@ -315,7 +315,10 @@ def torque_changes(verifications: Sequence[Verification]) -> list[TorqueChange]:
 
 def reconfiguration_table(study: Reconfiguration) -> str:
     """Best screw setting per profile, the best fixed setting and what reconfiguring gains."""
-    fixed = f"At fixed ra = {study.fixed_ra:.3f} m (travel {1e3 * study.fixed_travel:.1f} mm)"
+    if math.isfinite(study.fixed_ra):
+        fixed = f"At fixed ra = {study.fixed_ra:.3f} m (travel {1e3 * study.fixed_travel:.1f} mm)"
+    else:
+        fixed = "At a fixed setting (none serves every profile)"
     header = ["Task profile", "Objective", "Best setting", "Value there", fixed, "Gain", "Held by"]
     rows = []
     for o in study.outcomes:
@@ -329,8 +332,8 @@ def reconfiguration_table(study: Reconfiguration) -> str:
                 f"{p.label} ({'max' if p.maximized else 'min'})",
                 f"ra = {o.best_ra:.3f} m (travel {1e3 * o.best_travel:.1f} mm)",
                 f"{o.best_value:.4g} {p.unit}",
-                f"{o.fixed_value:.4g} {p.unit}",
-                f"{o.gain_percent:.1f} %",
+                f"{o.fixed_value:.4g} {p.unit}" if math.isfinite(o.fixed_value) else "-",
+                f"{o.gain_percent:.1f} %" if math.isfinite(o.gain_percent) else "-",
                 o.limit or "interior optimum",
             ]
         )
