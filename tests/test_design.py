@@ -16,7 +16,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
 from eval.design import codesign, optimize, performance, report, verify
-from eval.design.__main__ import main
+from eval.design.__main__ import QUICK, main, parse_args
 from eval.identification import run_identification
 
 
@@ -229,3 +229,12 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     for name in (*names, "summary.md"):
         assert (out / name).stat().st_size > 0
     assert math.isfinite(config["seconds"]["total"])
+
+
+def test_design_arguments_are_checked_and_quick_keeps_the_explicit_ones(capsys):
+    for flag in ("--screw-settings", "--mass-samples"):
+        with pytest.raises(SystemExit):
+            parse_args([flag, "1"])
+        assert flag in capsys.readouterr().err
+    args = parse_args(["--quick", "--screw-settings", "7"])
+    assert args.screw_settings == 7 and args.mass_samples == QUICK["mass_samples"]

@@ -19,8 +19,9 @@
    front) and a geometry file ``design-<name>.toml`` per chosen design (``--geometry`` of the other command
    lines, format of :mod:`delta_env.scenario`); the summary is printed.
 
-Usage: python -m eval.design [--seed 0] [--search-seeds 3] [--population 40] [--generations 25] [--quick]
-                             [--no-verify] [--out DIR] [--runs-dir DIR]
+Usage: python -m eval.design [--seed 0] [--search-seeds 3] [--population 40] [--generations 25]
+                             [--screw-settings 21] [--mass-samples 24] [--quick] [--no-verify] [--out DIR]
+                             [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -60,7 +61,15 @@ from eval.design import (
 from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
 from eval.scenario_args import add_workers_argument, check_episode_seeds, check_ranges
 
-QUICK = {"population": 12, "generations": 3, "search_seeds": 2, "episodes": 1, "verified_designs": 1}
+QUICK = {
+    "population": 12,
+    "generations": 3,
+    "search_seeds": 2,
+    "episodes": 1,
+    "verified_designs": 1,
+    "screw_settings": 5,
+    "mass_samples": 6,
+}
 """Settings of ``--quick`` (tests and smoke runs)."""
 
 
@@ -80,6 +89,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--episodes", type=int, default=2, help="verification episodes per controller (default 2)")
     parser.add_argument(
         "--verified-designs", type=int, default=5, help="chosen designs verified besides the nominal (default 5)"
+    )
+    parser.add_argument(
+        "--screw-settings",
+        type=int,
+        default=reconfigure.GRID_SETTINGS,
+        help=f"settings of the reconfiguration's grid over the screw stroke (default {reconfigure.GRID_SETTINGS})",
+    )
+    parser.add_argument(
+        "--mass-samples",
+        type=int,
+        default=robustness.MASS_SAMPLES,
+        help=f"robots drawn by the mass sensitivity of each chosen design (default {robustness.MASS_SAMPLES})",
     )
     parser.add_argument(
         "--quick",
@@ -104,6 +125,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "episodes": 1,
         "verified_designs": 1,
         "workers": 1,
+        "screw_settings": 3,
+        "mass_samples": 2,
     }
     check_ranges(parser, args, minimums)
     check_episode_seeds(parser, args)
@@ -156,7 +179,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None
             "length_tolerance_m": robustness.LENGTH_TOLERANCE,
             "length_samples": robustness.LENGTH_SAMPLES,
             "mass_tolerance": robustness.MASS_TOLERANCE,
-            "mass_samples": robustness.MASS_SAMPLES,
+            "mass_samples": args.mass_samples,
         },
         "reconfiguration": {
             "linkage": {
@@ -167,7 +190,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None
                 "coupler_length_m": mechanism.COUPLER_LENGTH,
                 "coupler_angle_rad": mechanism.COUPLER_ANGLE,
             },
-            "grid_settings": reconfigure.GRID_SETTINGS,
+            "grid_settings": args.screw_settings,
             "travel_tolerance_m": reconfigure.TRAVEL_TOLERANCE,
             "profiles": [dataclasses.asdict(p) for p in reconfigure.PROFILES],
             "fixed_ra_m": fixed_ra,
@@ -215,7 +238,10 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     if not args.quick:  # the reported designs' drives by the full planner (the optimizer used the cheap path)
         designs = {n: performance.evaluate(p.geometry, masses=p.masses, exact_drive=True) for n, p in designs.items()}
     front_designs = [pareto.archive.performance[i] for i in pareto.front]
-    sensitivity = {name: robustness.analyse(p, seed=args.seed) for name, p in _distinct(designs).items()}
+    sensitivity = {
+        name: robustness.analyse(p, seed=args.seed, mass_samples=args.mass_samples)
+        for name, p in _distinct(designs).items()
+    }
     seconds["robustness"] = time.perf_counter() - started - seconds["optimization"]
 
     reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=args.seed) for name, p in designs.items()}
@@ -228,7 +254,10 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         name: collisions.smallest_clearances(p.geometry, np.vstack((p.cylinder.surface_points(), region)))
         for name, p in designs.items()
     }
-    reconfigured = {name: reconfigure.study(designs[name].geometry) for name in ("nominal", "compromise")}
+    reconfigured = {
+        name: reconfigure.study(designs[name].geometry, grid_settings=args.screw_settings)
+        for name in ("nominal", "compromise")
+    }
     seconds["reconfiguration"] = time.perf_counter() - started - sum(seconds.values())
 
     verifications: list[verify.Verification] = []
@@ -340,7 +369,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "",
         f"Position error: {robustness.LENGTH_SAMPLES} robots, each of the 12 lengths (ra, rb, l1, l2 of each chain) "
         "uniform in its band, commanded by the drawn lengths' inverse kinematics at points filling the workspace "
-        f"cylinder. Masses: {robustness.MASS_SAMPLES} robots, m1, m2, m0 each uniform in its band; last column: each "
+        f"cylinder. Masses: {args.mass_samples} robots, m1, m2, m0 each uniform in its band; last column: each "
         f"mass alone +{100 * robustness.MASS_TOLERANCE:.0f} %. Mean ± std [5 %, 95 %]:",
         "",
         robustness.table(sensitivity),
