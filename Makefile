@@ -14,10 +14,10 @@ eval: $(VENV)/.installed
 	$(PY) -m eval
 
 test: $(VENV)/.installed
-	$(PY) -m pytest
+	$(PY) -m pytest -n auto --dist loadfile
 
 test-slow: $(VENV)/.installed
-	$(PY) -m pytest -m slow
+	$(PY) -m pytest -n auto --dist loadfile -m slow
 
 bench: $(VENV)/.installed
 	$(PY) scripts/bench.py
