@@ -44,7 +44,7 @@ from delta_env.scenario import TIMINGS, Scenario
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from eval import metrics
 from eval.calibration import calibration_seeds
-from eval.engine import prepare
+from eval.engine import grid, prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
@@ -55,7 +55,8 @@ from eval.scenario_args import (
     check_ranges,
     scenario_from_arguments,
 )
-from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
+from eval.sweep.work import WorkUnit
+from eval.tasks import CELL_ESTIMATOR_KEY
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
 """Payloads (kg) of the data sheet; the last is the robot's rated payload."""
@@ -123,6 +124,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     check_episode_seeds(parser, args)
     args.scenario = scenario_from_arguments(args, parser)
+    cycles = dataclasses.replace(args.scenario.task, n_cycles=args.cycles)  # one home: the scenario every row derives
+    args.scenario = dataclasses.replace(args.scenario, task=cycles)
     if args.torque_share is not None:
         try:
             task = dataclasses.replace(args.scenario.task, torque_share=args.torque_share)
@@ -205,38 +208,25 @@ def holds(row: dict[str, Any]) -> bool:
 def run_rows(args: argparse.Namespace, setup: Any) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Every planner x payload row of the first controller, then the others on the same references."""
     lead, others = args.controllers[0], args.controllers[1:]
-    loads: list[float | str] = [*args.payloads, MIXED]
-    tasks = [
-        Task("episode", lead, i, args.seed + i, args.cycles, setup, scenario=rate_scenario(args.scenario, timing, load))
-        for timing in args.planners
-        for load in loads
-        for i in range(args.episodes)
-    ]
-    results = run_tasks(tasks, args.workers)
+    loads = [*args.payloads, MIXED]
+    scenarios = [rate_scenario(args.scenario, timing, load) for timing in args.planners for load in loads]
+    setups = {scenario.content_hash: setup for scenario in scenarios}
+    units = grid(scenarios, [lead], range(args.seed, args.seed + args.episodes))
+    records = run_grid(units, setups, workers=args.workers)
     replays = [
-        Task(
-            "episode",
-            key,
-            task.index,
-            task.seed,
-            args.cycles,
-            setup,
-            masses=tuple(record.masses.tolist()),
-            scenario=task.scenario,
-            reference=record.reference,
-        )
+        WorkUnit(unit.scenario, key, unit.seed, tuple(record.masses.tolist()), record.reference)
         for key in others
-        for task, record in results
+        for unit, record in zip(units, records, strict=True)
     ]
-    results += run_tasks(replays, args.workers)
+    records += run_grid(replays, setups, workers=args.workers)
     grouped: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
     episode_rows = []
-    for task, record in results:
-        timing, (low, high) = task.scenario.task.timing, task.scenario.task.payload_mass_range
+    for unit, record in zip([*units, *replays], records, strict=True):
+        timing, (low, high) = unit.scenario.task.timing, unit.scenario.task.payload_mass_range
         load = payload_label(low) if low == high else MIXED
-        grouped.setdefault((timing, controller_label(task.key), load), []).append(record)
+        grouped.setdefault((timing, controller_label(unit.controller), load), []).append(record)
         episode_rows.append(
-            {"planner": timing, "controller": controller_label(task.key), "payload": load, "seed": task.seed}
+            {"planner": timing, "controller": controller_label(unit.controller), "payload": load, "seed": unit.seed}
             | record.metrics()
         )
     rows = [
@@ -259,11 +249,8 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[s
                 args.scenario, task=dataclasses.replace(args.scenario.task, peak_acceleration=acceleration)
             )
             scenario = rate_scenario(base, "fixed", load)
-            tasks = [
-                Task("episode", key, i, args.seed + i, args.cycles, setup, scenario=scenario)
-                for i in range(args.episodes)
-            ]
-            row = summarize([record for _, record in run_tasks(tasks, args.workers)])
+            units = grid([scenario], [key], range(args.seed, args.seed + args.episodes))
+            row = summarize(run_grid(units, {scenario.content_hash: setup}, workers=args.workers))
             if holds(row):
                 lower, best = math.log(acceleration), row | {"peak_acceleration_g": acceleration / GRAVITY}
             else:
@@ -299,12 +286,8 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
     tared = [key for key in args.controllers if controller_entry(key).tared]
     if not controller_entry(args.controllers[0]).tared:
         tared.append(CELL_ESTIMATOR_KEY)
-    calibration_scenario = rate_scenario(scenario, "declared", MIXED)
-    calibration_scenario = dataclasses.replace(
-        calibration_scenario, task=dataclasses.replace(calibration_scenario.task, n_cycles=args.cycles)
-    )
     prepared = prepare(
-        calibration_scenario,
+        rate_scenario(scenario, "declared", MIXED),
         tared,
         parameters=args.parameters,
         runs_dir=args.runs_dir,
