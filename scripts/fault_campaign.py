@@ -38,10 +38,9 @@ from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.engine import prepare
+from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
-from eval.processes import process_pool
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_scenario_arguments,
@@ -50,7 +49,7 @@ from eval.scenario_args import (
     check_ranges,
     scenario_from_arguments,
 )
-from eval.tasks import Task, iterate_tasks
+from eval.sweep.work import WorkUnit
 
 GONE_MASS = 0.1
 """Estimate (kg) below which a slipped object counts as forgotten."""
@@ -186,35 +185,29 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
     """The campaign of ``args`` (:func:`parse_args`) into ``run``'s folder, its tables printed."""
     out = run.folder
     healthy = with_faults(args.scenario, ())
-    n_cycles = healthy.task.n_cycles
     setup = prepare(healthy, args.controllers, runs_dir=args.runs_dir, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
     scenarios = [healthy, *(with_faults(healthy, (FaultSpec(kind),)) for kind in args.kinds)]
-    tasks = [
-        Task("episode", key, i, seed, n_cycles, setup, scenario=scenario)
-        for key in args.controllers
-        for scenario in scenarios
-        for i, seed in enumerate(seeds)
-    ]
-    with process_pool(args.workers) as pool:
-        records = list(iterate_tasks(tasks, args.workers, None, pool))
+    units = [WorkUnit(scenario, key, seed) for key in args.controllers for scenario in scenarios for seed in seeds]
+    setups = {scenario.content_hash: setup for scenario in scenarios}
+    records = list(zip(units, run_grid(units, setups, workers=args.workers), strict=True))
     rows: list[dict[str, Any]] = []
     fault_csv_rows: list[dict[str, Any]] = []
     text = f"# Fault campaign: {args.scenario.name}, {args.episodes} episodes per kind\n"
     for key in args.controllers:
         label = controller_label(key)
-        mine = [(task, record) for task, record in records if task.key == key]
-        twins = {task.seed: record for task, record in mine if not task.scenario.task.faults}
+        mine = [(unit, record) for unit, record in records if unit.controller == key]
+        twins = {unit.seed: record for unit, record in mine if not unit.scenario.task.faults}
         key_rows: list[dict[str, Any]] = []
         by_kind: dict[str, list[dict[str, Any]]] = {kind: [] for kind in args.kinds}
-        for task, record in mine:
-            if not task.scenario.task.faults:
+        for unit, record in mine:
+            if not unit.scenario.task.faults:
                 continue
-            kind = task.scenario.task.faults[0].kind
-            identity = {"controller": label, "key": key, "episode": task.index, "seed": task.seed}
+            kind = unit.scenario.task.faults[0].kind
+            identity = {"controller": label, "key": key, "episode": unit.seed - args.seed, "seed": unit.seed}
             by_kind[kind] += fault_rows(identity, record.faults())
             if record.injected_faults:  # else the drawn carry fault fell after the episode's end
-                key_rows.append({"kind": kind, "seed": task.seed, **fault_effect(record, twins[task.seed])})
+                key_rows.append({"kind": kind, "seed": unit.seed, **fault_effect(record, twins[unit.seed])})
         twin_alarms = sum(len(record.detected_faults) for record in twins.values())
         fault_csv_rows += [row for kind in args.kinds for row in by_kind[kind]]
         rows += [{"controller": label, "key": key, **row} for row in key_rows]
