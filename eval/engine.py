@@ -9,12 +9,13 @@ measured once on the scenario's payload-free episodes on the calibration seeds a
 (:class:`eval.sweep.work.WorkUnit`: a scenario, a controller, a seed) on either backend of the sweep (a local
 process pool or Ray, :func:`eval.sweep.runner.run_units`), returning each unit's row (:func:`eval.sweep.work.run_unit`)
 or record (:func:`eval.sweep.work.unit_record`). The comparison (:mod:`eval.comparison`), the sweep, the residual
-scores (:mod:`eval.scoring`) and the design verification (:mod:`eval.design.verify`) are its callers.
+scores (:mod:`eval.scoring`), the design verification (:mod:`eval.design.verify`), the pick-rate study
+(:mod:`eval.rate`) and the fault campaign and soak (``scripts/``) are its callers.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -111,6 +112,7 @@ def run_grid(
     workers: int = 1,
     address: str | None = None,
     progress: Any = None,
+    on_result: Callable[[WorkUnit, Any], None] | None = None,
 ) -> list[Any]:
     """``work(unit, setups[unit.scenario.content_hash])`` of every unit (:func:`grid` builds a product), on the
     sweep's ``backend`` (:func:`eval.sweep.runner.run_units`), in the order of ``units``.
@@ -124,19 +126,23 @@ def run_grid(
         workers: Local processes, or the CPUs of a Ray started here.
         address: Ray cluster to join (``ray`` only).
         progress: tqdm bar advanced once per finished unit.
+        on_result: Called with each unit and its result as it finishes, in the order they finish (a long run writes
+            them as they come, so an interruption loses only the units still running).
     """
     results: list[Any] = [None] * len(units)
     position = {id(unit): n for n, unit in enumerate(units)}
     if len(position) != len(units):
         raise ValueError("run_grid needs distinct unit objects (the same object twice)")
 
-    def on_result(unit: WorkUnit, result: Any) -> None:
+    def finished(unit: WorkUnit, result: Any) -> None:
         results[position[id(unit)]] = result
+        if on_result is not None:
+            on_result(unit, result)
         if progress is not None:
             progress.update()
 
     def on_lost(unit: WorkUnit, error: str) -> None:
         raise RuntimeError(f"the episode of {unit.controller!r} on seed {unit.seed} ({unit.scenario.name}): {error}")
 
-    run_units(units, setups, on_result, backend=backend, workers=workers, address=address, work=work, on_lost=on_lost)
+    run_units(units, setups, finished, backend=backend, workers=workers, address=address, work=work, on_lost=on_lost)
     return results

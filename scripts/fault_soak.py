@@ -38,13 +38,12 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.engine import prepare
+from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
-from eval.processes import process_pool
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
-from eval.tasks import Task, iterate_tasks
+from eval.sweep.work import WorkUnit
 
 SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
 """Peak Cartesian acceleration of the soak's cycles (m/s^2): twice the default's."""
@@ -111,15 +110,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-def episode_row(task: Task, record: EpisodeRecord) -> dict[str, Any]:
-    """The row of ``episodes.csv`` of one finished episode."""
+def episode_row(unit: WorkUnit, record: EpisodeRecord, first_seed: int) -> dict[str, Any]:
+    """The row of ``episodes.csv`` of one finished episode of a soak from seed ``first_seed``."""
     scores = record.metrics()
     carries = record.carries()
     return {
-        "controller": controller_label(task.key),
-        "key": task.key,
-        "episode": task.index,
-        "seed": task.seed,
+        "controller": controller_label(unit.controller),
+        "key": unit.controller,
+        "episode": unit.seed - first_seed,
+        "seed": unit.seed,
         "simulated_s": scores["steps"] * CONTROL_PERIOD,
         "carries": len(carries),
         "carries_over": metrics.payload_targets(carries).overshoots[0],
@@ -219,31 +218,30 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
     finished = {(row["key"], int(row["seed"])) for row in rows}
     simulated = {key: sum(float(row["simulated_s"]) for row in rows if row["key"] == key) for key in keys}
     batch = 4 * args.workers
-    n_cycles = scenario.task.n_cycles
     index = 0
-    with (
-        process_pool(args.workers) as pool,
-        tqdm(total=len(keys) * target, desc="simulated s", unit="s") as progress,
-    ):
+    with tqdm(total=len(keys) * target, desc="simulated s", unit="s") as progress:
         progress.update(sum(min(seconds, target) for seconds in simulated.values()))
+
+        def record_episode(unit: WorkUnit, record: EpisodeRecord) -> None:  # as each episode finishes
+            row = episode_row(unit, record, args.seed)
+            identity = {name: row[name] for name in ("controller", "key", "episode", "seed")}
+            append_csv_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
+            append_csv_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
+            rows.append(row)
+            before = simulated[unit.controller]
+            simulated[unit.controller] += row["simulated_s"]
+            progress.update(min(simulated[unit.controller], target) - min(before, target))
+
         while any(simulated[key] < target for key in keys):
-            tasks = [
-                Task("episode", key, i, args.seed + i, n_cycles, setup, scenario=scenario)
+            units = [
+                WorkUnit(scenario, key, args.seed + i)
                 for key in keys
                 if simulated[key] < target
                 for i in range(index, index + batch)
                 if (key, args.seed + i) not in finished
             ]
             index += batch
-            for task, record in iterate_tasks(tasks, args.workers, None, pool):
-                row = episode_row(task, record)
-                identity = {name: row[name] for name in ("controller", "key", "episode", "seed")}
-                append_csv_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
-                append_csv_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
-                rows.append(row)
-                before = simulated[task.key]
-                simulated[task.key] += row["simulated_s"]
-                progress.update(min(simulated[task.key], target) - min(before, target))
+            run_grid(units, {scenario.content_hash: setup}, workers=args.workers, on_result=record_episode)
 
     faulted = sum(int(row["faults_injected"]) > 0 for row in rows)
     lines = [

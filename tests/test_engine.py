@@ -147,8 +147,11 @@ def test_run_grid_gives_the_same_rows_and_records_in_this_process_and_on_a_pool(
             {name: other[name] for name in METRIC_FIELDS}, rel=0, abs=0, nan_ok=True
         )
     assert here[0]["tracking_rms_mm"] != here[2]["tracking_rms_mm"], "rows in the order of the units"
-    records = run_grid(units[:2], setups, work=unit_record, workers=2)
+    seen = []
+    records = run_grid(units[:2], setups, work=unit_record, workers=2, on_result=lambda u, r: seen.append((u, r)))
     np.testing.assert_array_equal(records[1].tracking_error, unit_record(units[1], SETUP).tracking_error)
+    # each unit is handed over as it finishes, with the record that the returned list holds at its place
+    assert sorted((units.index(u), id(r)) for u, r in seen) == [(0, id(records[0])), (1, id(records[1]))]
 
 
 def test_run_grid_raises_an_episodes_error() -> None:
