@@ -16,6 +16,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
 from eval.design import codesign, optimize, performance, report, verify
+from eval.design import model as design_model
 from eval.design.__main__ import QUICK, main, parse_args
 from eval.identification import run_identification
 
@@ -48,10 +49,10 @@ def test_nominal_design_is_feasible_with_plausible_figures(nominal):
 
 
 def test_design_model_adds_the_same_drive_to_every_design():
-    drive = performance.DRIVE
+    drive = design_model.DRIVE
     for geometry in (NOMINAL_GEOMETRY, DeltaGeometry(0.25, 0.03, 0.32, 1.05)):
-        links = performance.design_model(geometry, drive=None)
-        model = performance.design_model(geometry)
+        links = design_model.design_model(geometry, drive=None)
+        model = design_model.design_model(geometry)
         assert model.inertia * model.parameters.rho1 == pytest.approx(links.inertia + drive.armature)
         theta = np.array([[0.3, 0.5, 0.4]])
         rate, acceleration = np.array([[1.0, -2.0, 0.0]]), np.array([[5.0, 0.0, -3.0]])
@@ -170,7 +171,7 @@ def test_a_design_is_identified_on_its_own_plant(short_arm):
     # and so is the drive's current loop, identified like the nominal robot's (measured within 0.51 %)
     np.testing.assert_allclose(result.drive_lag, drive.actuator_lag, rtol=0.01)
     # rho1 holds the armature relative to this design's own arm inertia (plus the forearms' share)
-    links = performance.design_model(result.geometry, drive=None)
+    links = design_model.design_model(result.geometry, drive=None)
     assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)
 
 

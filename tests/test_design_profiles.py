@@ -9,6 +9,7 @@ from scipy.integrate import cumulative_trapezoid
 from delta_env import kinematics
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
+from eval.design import model as design_model
 from eval.design import performance, profiles
 
 
@@ -61,7 +62,7 @@ def test_joint_angles_give_back_the_platform_path(profile):
 
 
 def test_torques_are_the_design_models_with_the_payload_while_carried(nominal, profile):
-    model = performance.design_model(nominal.geometry, nominal.masses)
+    model = design_model.design_model(nominal.geometry, nominal.masses)
     samples = [
         0,
         int(np.argmax(profile.payload)) + 30,

@@ -20,7 +20,7 @@ from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.trajectories import WORKING_HEIGHT
 from delta_env.validation import require_count, require_in
 from eval.design.drive_rate import PickRate, planned_rate
-from eval.design.performance import require_belt_height
+from eval.design.model import require_belt_height
 from eval.design.screening import scaled_rate, screen_drives, screened_rate
 
 LIGHT_PAYLOAD = 0.1

@@ -7,7 +7,7 @@ eval.rate`` scores it (:func:`eval.metrics.picks_per_min`: one cycle of dwell, c
 repeated), every move timed by the time-optimal planner of the pick-rate work
 (:class:`controllers.payload_timing.PayloadTiming` in ``"declared"`` mode over
 :class:`controllers.timing.TimeOptimalPlanner`) on the design's model
-(:func:`eval.design.performance.design_model`) whose armature is the drive's rotor inertia times the ratio
+(:func:`eval.design.model.design_model`) whose armature is the drive's rotor inertia times the ratio
 squared. The planner keeps its 10 % margin of the peak torque and of the maximum speed; the moves may use the
 whole envelope left (:data:`TORQUE_SHARE`), and each move with the dwell after it keeps 95 % of the rated torque
 RMS (the thermal limit of the repeated cycle).
@@ -33,7 +33,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_in
 from eval import metrics
-from eval.design.performance import (
+from eval.design.model import (
     CYCLE_DWELL,
     DRIVE,
     design_model,
@@ -96,7 +96,7 @@ class PickRate:
 
 
 def drive_model(geometry: DeltaGeometry, option: DriveOption, masses: DeltaMasses | None = None) -> DeltaDynamics:
-    """The design's model (:func:`eval.design.performance.design_model`) with ``option``'s reflected rotor inertia."""
+    """The design's model (:func:`eval.design.model.design_model`) with ``option``'s reflected rotor inertia."""
     return design_model(geometry, masses, dataclasses.replace(DRIVE, armature=option.armature))
 
 

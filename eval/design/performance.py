@@ -5,16 +5,10 @@ dexterous axis-centred cylinder standing on the belt whose top reaches 100 mm ab
 product's clearance). The task region, the disc of radius :data:`TASK_RADIUS` holding both conveyor zones
 over :data:`TASK_BAND`, must be dexterous too: a constraint, not a credit.
 
-Every design carries the masses of :func:`delta_env.scaling.scaled_masses` and is judged by the model with
-rod forearms (``DeltaDynamics(..., forearm_rods=True)``) plus its drives, on the same task: the industry's
+Every design is judged by the design model (:mod:`eval.design.model`: rod forearms, the masses of
+:func:`delta_env.scaling.scaled_masses` and the same motors on every design) on the same task: the industry's
 25/305/25 mm cycle carrying :data:`PAYLOAD` at the places :data:`TASK_CYCLES`, which lie in the
 pick-and-place region of the conveyors.
-
-The drives are the same motors on every design, so they do not scale with the links: each joint carries the
-rotor inertia (armature) Ia, viscous friction fv and Coulomb friction fc of the motor datasheet
-(:data:`DRIVE`, the plant's nominal drive values without its per-joint scatter). In the model's terms the
-armature is rho1 = 1 + Ia / I, with I = (m1/3 + m2) l1^2 the design's own arm inertia, and the friction
-is its (fv, fc) on every joint.
 
 Pick rate: each design gets the drive (a catalogue motor behind a planetary gearbox) that gives it the most
 picks per minute on the standard cycle at the rated payload, timed by the time-optimal planner within that
@@ -28,25 +22,21 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.dynamics import DeltaDynamics
 from delta_env import kinematics, workspace
 from delta_env.catalogue import CATALOGUE, DriveOption
-from delta_env.config import PlantRealism
 from delta_env.cycles import PICK_ZONE, PLACE_ZONE, STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.cylinder import PRODUCT_CLEARANCE, Cylinder, axis_stretch, data_sheet_cylinder, disc_radii
 from delta_env.geometry import TORQUE_LIMIT, DeltaGeometry, DeltaMasses
-from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
 from delta_env.trajectories import STANDARD_PEAK_ACCELERATION, WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_in, require_positive
-
-if TYPE_CHECKING:
-    from eval.design.codesign import DriveChoice
+from eval.design.codesign import DriveChoice, choose_drive
+from eval.design.model import CYCLE_DWELL, design_model, path_limits, payload_profile, require_belt_height
 
 PAYLOAD = 3.8
 """Payload of the standard cycle (kg): the test payload of the dynamic-model paper (docs/design.md section 4)."""
@@ -59,9 +49,6 @@ JOINT_SPEED_LIMIT = 30.0
 
 ANALYSIS_PERIOD = 0.002
 """Sample period (s) of the analysed cycles: peaks of the smooth quintic profiles move < 0.1 % from 1 ms."""
-
-CYCLE_DWELL = 0.1
-"""Rest at the pick and at the place point (s); process time, left out of the cycle time."""
 
 TASK_BAND = (WORKING_HEIGHT, WORKING_HEIGHT + STANDARD_LIFT)
 """Heights (m) the task needs: the conveyors and the 25 mm lift above them."""
@@ -88,9 +75,6 @@ STANDARD_TRAVEL_HALF = STANDARD_TRAVEL / 2.0
 ASSEMBLY_MARGIN = 0.05
 """The forearm must exceed r + l1 by this much (m): the plant assembles with its arms horizontal, and home
 stays a usable height below the base."""
-
-DRIVE = PlantRealism()
-"""The motor datasheet of every design: armature, viscous and Coulomb friction of the plant's nominal drive."""
 
 
 @dataclass(frozen=True)
@@ -169,44 +153,9 @@ class Performance:
         return not self.reason
 
 
-def require_belt_height(belt_height: float) -> float:
-    """``belt_height`` (m, base frame) as a float if it is finite and below the base (< 0), else ``ValueError``."""
-    return require_in("belt_height", belt_height, -math.inf, 0.0, unit="m", high_open=True)
-
-
 def assembly_gap(geometry: DeltaGeometry) -> float:
     """How far (m) the forearm falls short of r + l1 + :data:`ASSEMBLY_MARGIN`; <= 0 when the design assembles."""
     return geometry.r + geometry.l1 + ASSEMBLY_MARGIN - geometry.l2
-
-
-def design_model(
-    geometry: DeltaGeometry, masses: DeltaMasses | None = None, drive: PlantRealism | None = DRIVE
-) -> DeltaDynamics:
-    """The rod-forearm model of a design with its scaled masses (or ``masses``) and its drives.
-
-    Args:
-        geometry: The design (m).
-        masses: Its masses (kg); :func:`delta_env.scaling.scaled_masses` when None.
-        drive: The motors (module docstring): ``armature``, ``viscous`` and ``coulomb`` are used, the same on
-            every joint; None leaves the drives out (the links alone).
-    """
-    m = scaled_masses(geometry) if masses is None else masses
-    links = DeltaDynamics(geometry, m1=m.m1, m2=m.m2, m0=m.m0, forearm_rods=True)
-    if drive is None:
-        return links
-    return links.with_parameters(
-        ModelParameters(
-            rho1=1.0 + drive.armature / links.inertia,
-            viscous=(drive.viscous,) * 3,
-            coulomb=(drive.coulomb,) * 3,
-        )
-    )
-
-
-def path_limits(geometry: DeltaGeometry, criteria: workspace.Criteria = workspace.DEXTEROUS) -> WorkspaceLimits:
-    """Limits for paths of any design: its whole reach; the dexterity checks are the design study's own."""
-    radius, z_min, z_max = workspace.reach_bounds(geometry, criteria.theta_range)
-    return WorkspaceLimits(radius=radius, z_min=z_min, z_max=z_max, min_abs_k=1e-9, min_abs_det_a=1e-9)
 
 
 def task_cycle(
@@ -231,11 +180,6 @@ def task_cycle(
         limits=path_limits(geometry),
         dt=dt,
     )
-
-
-def payload_profile(trajectory: Trajectory, payload: float) -> NDArray[np.float64]:
-    """The carried mass (kg) at each sample: ``payload`` while the gripper holds, else 0, ``(N,)``."""
-    return np.where(trajectory.gripper, payload, 0.0)
 
 
 def cycle_figures(model: DeltaDynamics, trajectory: Trajectory, payload: float) -> CycleFigures:
@@ -284,8 +228,6 @@ def evaluate(
         drives: The drives to choose from; None for the whole catalogue (a design already built keeps its own:
             ``(performance.drive.option,)``).
     """
-    from eval.design.codesign import choose_drive  # here: the co-design builds on this module's design model
-
     require_in("payload", payload, 0.0, math.inf, unit="kg")
     belt_height = require_belt_height(belt_height)
     band = (belt_height, belt_height + STANDARD_LIFT)

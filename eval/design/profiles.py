@@ -2,7 +2,7 @@
 
 A profile is one 25/305/25 mm cycle of :func:`eval.design.performance.task_cycle` carrying
 :data:`eval.design.performance.PAYLOAD` from pick to place, judged by the same design model as the figures of merit
-(:func:`eval.design.performance.design_model`: rod forearms, the design's masses and drives). The cycle is given in
+(:func:`eval.design.model.design_model`: rod forearms, the design's masses and drives). The cycle is given in
 Cartesian space, so the platform's motion is the same for every design and only the joint motion and the torques
 differ. :func:`plot_profiles` writes into the run folder
 
@@ -32,7 +32,8 @@ from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count, require_in
-from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, design_model, payload_profile, task_cycle
+from eval.design.model import design_model, payload_profile
+from eval.design.performance import PAYLOAD, TASK_CYCLES, Performance, task_cycle
 
 AXES = ("x", "y", "z")
 """Names of the Cartesian components."""

@@ -36,7 +36,7 @@ from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import WORKING_HEIGHT, Segment
 from delta_env.validation import require_in
 from eval.design.drive_rate import PickRate, cycle_rate, drive_timing, timed_cycle
-from eval.design.performance import CYCLE_DWELL, DRIVE, design_model, require_belt_height
+from eval.design.model import CYCLE_DWELL, DRIVE, design_model, require_belt_height
 
 REFERENCE_DRIVES = tuple(DriveOption("SGM7A-20A", MOTORS["SGM7A-20A"], ratio) for ratio in (50.0, 100.0))
 """Drives whose time laws on the nominal robot the cheap path scales: balanced and speed-limited (a third,

@@ -31,7 +31,7 @@ from delta_env import kinematics
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scaling import arm_tip_stiffness, rod_axial_stiffness, scaled_masses
 from delta_env.validation import require_in
-from eval.design.performance import design_model
+from eval.design.model import design_model
 
 GEARBOX_TORSIONAL_STIFFNESS = 50.0 * 60.0 * 180.0 / math.pi
 """Torsional stiffness (N m/rad) of each joint's gearbox at its output: 50 N m/arcmin (1.7e5 N m/rad), the order

@@ -32,15 +32,8 @@ from delta_env.trajectories import Trajectory
 from delta_env.validation import require_count
 from delta_env.workspace import pose_measures
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds, tare_setup
-from eval.design.performance import (
-    PAYLOAD,
-    TASK_BAND,
-    TASK_CYCLES,
-    Performance,
-    design_model,
-    payload_profile,
-    task_cycle,
-)
+from eval.design.model import design_model, payload_profile
+from eval.design.performance import PAYLOAD, TASK_BAND, TASK_CYCLES, Performance, task_cycle
 from eval.engine import run_grid
 from eval.episodes import EpisodeRecord
 from eval.excitation import ExcitationRegion
