@@ -1,6 +1,6 @@
 """One episode of one registered controller (:class:`Task`, :func:`run_task`): what every work unit of
-:func:`eval.engine.run_grid` runs (:func:`eval.sweep.work.unit_record`), and what the tare calibration and the pick-rate
-study run in a process pool (:func:`run_tasks`).
+:func:`eval.engine.run_grid` runs (:func:`eval.sweep.work.unit_record`), and what the tare calibration runs in a
+process pool (:func:`run_tasks`).
 
 It lives in an importable module (not ``eval.__main__``) so that forkserver / spawn workers can unpickle it.
 """
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from multiprocessing.pool import Pool
 from typing import Any
 
 from controllers.base import Controller
@@ -129,19 +128,6 @@ def task_groups(tasks: Sequence[Task], workers: int) -> list[list[int]]:
     return groups
 
 
-def iterate_tasks(
-    tasks: Sequence[Task], workers: int, progress: Any = None, pool: Pool | None = None
-) -> Iterator[tuple[Task, EpisodeRecord]]:
-    """Run ``tasks`` on ``pool`` (in this process if None); (task, record) in the order of :func:`task_groups`
-    as the results arrive, advancing the tqdm bar ``progress`` once per task.
-
-    With a pool, every task is queued by this call (:func:`~eval.processes.parallel_imap`): the caller can give
-    the pool more work that depends on the first results while the rest still runs.
-    """
-    groups = [[tasks[n] for n in group] for group in task_groups(tasks, workers)]
-    return _each_result(parallel_imap(run_task_group, groups, pool), progress)
-
-
 def _each_result(
     groups: Iterator[list[tuple[Task, EpisodeRecord]]], progress: Any
 ) -> Iterator[tuple[Task, EpisodeRecord]]:
@@ -152,16 +138,15 @@ def _each_result(
             yield result
 
 
-def run_tasks(
-    tasks: Sequence[Task], workers: int, progress: Any = None, pool: Pool | None = None
-) -> list[tuple[Task, EpisodeRecord]]:
-    """Run ``tasks`` on ``workers`` processes (in this one if 1) or on ``pool``, advancing the tqdm bar
-    ``progress``; the results in the order of ``tasks``."""
-    if pool is not None or workers == 1 or len(tasks) <= 1:
-        results = list(iterate_tasks(tasks, workers, progress, pool))
+def run_tasks(tasks: Sequence[Task], workers: int, progress: Any = None) -> list[tuple[Task, EpisodeRecord]]:
+    """Run ``tasks`` on ``workers`` processes (in this one if 1), in the groups of :func:`task_groups`, advancing the
+    tqdm bar ``progress`` once per task; the results in the order of ``tasks``."""
+    groups = [[tasks[n] for n in group] for group in task_groups(tasks, workers)]
+    if workers == 1 or len(tasks) <= 1:
+        results = list(_each_result(parallel_imap(run_task_group, groups, None), progress))
     else:
-        with process_pool(min(workers, len(tasks))) as own_pool:
-            results = list(iterate_tasks(tasks, workers, progress, own_pool))
+        with process_pool(min(workers, len(tasks))) as pool:
+            results = list(_each_result(parallel_imap(run_task_group, groups, pool), progress))
     arrival = [n for group in task_groups(tasks, workers) for n in group]
     by_index = dict(zip(arrival, results, strict=True))
     return [by_index[n] for n in range(len(tasks))]
