@@ -15,6 +15,7 @@ from delta_env.config import PlantRealism
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import load_geometry
+from delta_env.trajectories import WORKING_HEIGHT
 from eval.design import codesign, optimize, performance, report, verify
 from eval.design import model as design_model
 from eval.design.__main__ import QUICK, main, parse_args
@@ -211,6 +212,10 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     assert 20.0 < float(rows_by_design["nominal"]["first_natural_frequency_hz"]) < 40.0  # 27 Hz at 4 kg
     for name, row in rows_by_design.items():  # no chosen design's links touch in its cylinder or the task region
         assert float(row["arm_clearance_m"]) > 0.0 and float(row["base_clearance_m"]) > 0.0, name
+        # and its cylinder stands on the belt and reaches the lift and the product clearance above it
+        bottom = float(row["cylinder_top_m"]) - float(row["cylinder_height_m"])
+        assert bottom == pytest.approx(WORKING_HEIGHT, abs=1e-9), name
+        assert float(row["cylinder_top_m"]) >= cylinder.REQUIRED_TOP - 1e-9, name
     with (out / "torque_changes.csv").open() as file:
         changes = list(csv.DictReader(file))
     assert {row["figure"] for row in changes} == {"peak", "RMS"}  # the nominal and one chosen design verified
