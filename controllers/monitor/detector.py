@@ -151,7 +151,9 @@ class FaultMonitor:
 
     # -- sensors --------------------------------------------------------------------------------
 
-    def _healthy_encoders(self, raw: NDArray[np.float64], rates: NDArray[np.float64]) -> bool:
+    def _healthy_encoders(
+        self, raw: NDArray[np.float64], rates: NDArray[np.float64], reference_rates: NDArray[np.float64]
+    ) -> bool:
         """The 1 kHz fast path, in scalars: nothing flagged before, and these readings finite, within the jump bound
         and not a suspect repeat. Then the full check would pass them unchanged."""
         if not self._encoders_clean or len(self._angles) < 2:
@@ -160,18 +162,33 @@ class FaultMonitor:
         v0, v1, v2 = rates.tolist()
         if not math.isfinite(r0 + r1 + r2 + v0 + v1 + v2):
             return False
-        (l0, l1, l2), (b0, b1, b2) = self._angles[0].tolist(), self._angles[1].tolist()
+        last, before = self._angles[0].tolist(), self._angles[1].tolist()
+        (l0, l1, l2), (b0, b1, b2) = last, before
         bound = self._jump_bound
         if abs(r0 - 2.0 * l0 + b0) > bound or abs(r1 - 2.0 * l1 + b1) > bound or abs(r2 - 2.0 * l2 + b2) > bound:
             return False
-        p0, p1, p2 = self._raw_previous.tolist()
-        return r0 != p0 and r1 != p1 and r2 != p2  # a repeat: the full check decides whether it is suspect
+        previous = self._raw_previous.tolist()
+        if r0 != previous[0] and r1 != previous[1] and r2 != previous[2]:
+            return True
+        # a repeat is suspect (the full check's) while the joint was moving and its reference moves several counts
+        # per sample; nothing is stuck while the readings are clean
+        step = self._stuck_step
+        for reading, previous_reading, angle, angle_before, reference_rate in zip(
+            (r0, r1, r2), previous, last, before, reference_rates.tolist(), strict=True
+        ):
+            if (
+                reading == previous_reading
+                and abs(reference_rate) * CONTROL_PERIOD >= step
+                and abs(angle - angle_before) >= step
+            ):
+                return False
+        return True
 
     def _clean_encoders(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         raw = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         reference = observation["reference_angles"]
-        if self._healthy_encoders(raw, rates):
+        if self._healthy_encoders(raw, rates, observation["reference_velocities"]):
             self._raw_previous = raw
             self._error = raw - reference
             self._angles = [raw, self._angles[0]]
@@ -266,7 +283,7 @@ class FaultMonitor:
         if previous is None or command is None:
             clean = np.where(finite, torque, 0.0 if previous is None else previous)
             self._torque_previous = self._torque_measured = clean
-            self._torques_clean = bool(finite.all())
+            self._torques_clean = bool(finite.all()) and not self._torque_bad.any()
             return clean
         held = np.clip(command, -self.peak_torque, self.peak_torque)
         predicted = previous + self._loop_gain * (held - previous)
@@ -412,8 +429,11 @@ class FaultMonitor:
         self.resynced = False
         angles, rates = self._clean_encoders(observation)
         torque = self._clean_torques(observation, command)
-        self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
-        self.suspect = bool(self._stuck.any())
+        if self._encoders_clean and self._torques_clean:  # nothing replaced, missing or repeated: no array to scan
+            self.faulty = self.suspect = False
+        else:
+            self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
+            self.suspect = bool(self._stuck.any())
         self._faulty_run = self._faulty_run + 1 if self.faulty else 0
         # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago,
         # or the current loop's prediction): the model's equations keep it. Replacements in a row drift from the
