@@ -203,11 +203,15 @@ def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells
 
 
 def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(controller_setup: ControllerSetup) -> None:
-    # A stuck spell, a glitch and the rests at the picks and places (where quantized readings repeat rightly): the
+    # A stuck spell, glitches and the rests at the picks and places (where quantized readings repeat rightly): the
     # monitor with its fast paths and one without must agree on every number.
     faults = [
         FaultSpec("encoder_stuck", carry_fraction=(0.5, 0.5), duration=(0.03, 0.03), joint=0),
         FaultSpec("encoder_glitch", carry_fraction=(0.8, 0.8), size=(0.02, 0.02), joint=2),
+        *(  # their signs are drawn: some fall short of the command, some overshoot it
+            FaultSpec("torque_glitch", carry_fraction=(fraction, fraction), size=(50.0, 50.0), joint=joint)
+            for joint, fraction in enumerate((0.2, 0.3, 0.4))
+        ),
     ]
     env = DeltaPickPlaceEnv(faults=faults, n_cycles=1)
     controller = _monitored_rls(controller_setup)
@@ -240,5 +244,5 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(controller
         for name in ("faulty", "suspect", "quiet_samples", "collision", "held_mass", "events"):
             assert getattr(fast, name) == getattr(full, name), f"{name} at step {index}"
         np.testing.assert_array_equal(fast.force, full.force)
-    assert {event.kind for event in fast.events} >= {"encoder_stuck", "encoder_glitch"}
+    assert {event.kind for event in fast.events} >= {"encoder_stuck", "encoder_glitch", "torque_glitch"}
     assert repeats_passed > 100  # repeated readings that are not suspect took the fast path

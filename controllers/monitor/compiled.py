@@ -167,3 +167,47 @@ def slip_moments(
     information = weighted[0] * terms[1, 0] + weighted[1] * terms[1, 1] + weighted[2] * terms[1, 2]
     moment = weighted[0] * terms[0, 0] + weighted[1] * terms[0, 1] + weighted[2] * terms[0, 2]
     return information, moment
+
+
+@numba.njit(cache=True)
+def torques_plausible(
+    torque: NDArray[np.float64],
+    last: NDArray[np.float64],
+    command: NDArray[np.float64],
+    slowest_gain: NDArray[np.float64],
+    peak: float,
+    margin: float,
+    drift: float,
+    largest_shortfall: float,
+) -> bool:
+    """Whether measured torques (N m) are finite, within ``margin`` of the span between the ``last`` measured and
+    the ``command`` held at ``peak``, and fall at most ``drift`` short (each shortfall capped at
+    ``largest_shortfall``) of the slowest healthy loop's step (``slowest_gain`` per sample) towards it: the full
+    check's span test and drive-fault CUSUM would then add nothing. Python's ``min``/``max`` order, NaN included;
+    False for vectors not of 3 (the full check says what is wrong)."""
+    if torque.shape[0] != 3 or last.shape[0] != 3 or command.shape[0] != 3 or slowest_gain.shape[0] != 3:
+        return False
+    for joint in range(3):
+        now, previous = torque[joint], last[joint]
+        if not math.isfinite(now):
+            return False
+        held = command[joint]  # min(max(command, -peak), peak): a NaN command stays NaN
+        if -peak > held:
+            held = -peak
+        if peak < held:
+            held = peak
+        low, high = previous, previous  # min(previous, held) and max(previous, held)
+        if held < low:
+            low = held
+        if held > high:
+            high = held
+        if now < low - margin or now > high + margin:
+            return False
+        step = held - previous
+        direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
+        shortfall = (previous + slowest_gain[joint] * step - now) * direction
+        if largest_shortfall < shortfall:
+            shortfall = largest_shortfall
+        if shortfall > drift:
+            return False
+    return True

@@ -19,6 +19,7 @@ from controllers.monitor.compiled import (
     model_residual,
     platform_force,
     slip_moments,
+    torques_plausible,
 )
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.tuning import (
@@ -95,10 +96,9 @@ class FaultMonitor:
         self._jump_bound = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
         self._stuck_step = max(STUCK_COUNTS * step, 1e-9)
         self._loop_gain = np.array([1.0 - math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 1.0 for lag in lags])
-        self._slowest_gain_list = [
-            1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags
-        ]
-        self._slowest_gain = np.array(self._slowest_gain_list)
+        self._slowest_gain = np.array(
+            [1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags]
+        )
         self._delayed = _DelayedState(SMOOTHER_LAG)
         self.lag = SMOOTHER_LAG
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
@@ -251,24 +251,18 @@ class FaultMonitor:
         return clean, rates
 
     def _healthy_torques(self, torque: NDArray[np.float64], command: NDArray[np.float64]) -> bool:
-        """The 1 kHz fast path, in scalars: nothing flagged before, and these torques finite, within the current
+        """The 1 kHz fast path, compiled: nothing flagged before, and these torques finite, within the current
         loop's span and adding nothing to the drive-fault CUSUM. Then the full check would pass them unchanged."""
-        if not self._torques_clean:
-            return False
-        peak, margin = self.peak_torque, TORQUE_MARGIN
-        for now, last, asked, slowest_gain in zip(
-            torque.tolist(), self._torque_measured.tolist(), command.tolist(), self._slowest_gain_list, strict=True
-        ):
-            if not math.isfinite(now):
-                return False
-            held = min(max(asked, -peak), peak)
-            if now < min(last, held) - margin or now > max(last, held) + margin:
-                return False
-            step = held - last
-            direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
-            if min((last + slowest_gain * step - now) * direction, DRIVE_FAULT_STEP) > DRIVE_FAULT_DRIFT:
-                return False
-        return True
+        return self._torques_clean and torques_plausible(
+            torque,
+            self._torque_measured,
+            command,
+            self._slowest_gain,
+            self.peak_torque,
+            TORQUE_MARGIN,
+            DRIVE_FAULT_DRIFT,
+            DRIVE_FAULT_STEP,
+        )
 
     def _clean_torques(self, observation: Observation, command: NDArray[np.float64] | None) -> NDArray[np.float64]:
         torque = np.asarray(observation["joint_torques"], dtype=float)
