@@ -9,7 +9,7 @@ from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import model_controller
 from controllers.monitor import FaultMonitor, MonitoredController
-from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller
+from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller, fault_monitor
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec
@@ -200,3 +200,49 @@ def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells
     record = run_episode(env, controller, 2)
     assert [event.kind for event in record.detected_faults] == ["sensor_nan"]
     assert np.isfinite(record.payload_estimate).all() and not record.diverged
+
+
+def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(controller_setup: ControllerSetup) -> None:
+    # A stuck spell, glitches and the rests at the picks and places (where quantized readings repeat rightly): the
+    # monitor with its fast paths and one without must agree on every number.
+    faults = [
+        FaultSpec("encoder_stuck", carry_fraction=(0.5, 0.5), duration=(0.03, 0.03), joint=0),
+        FaultSpec("encoder_glitch", carry_fraction=(0.8, 0.8), size=(0.02, 0.02), joint=2),
+        *(  # their signs are drawn: some fall short of the command, some overshoot it
+            FaultSpec("torque_glitch", carry_fraction=(fraction, fraction), size=(50.0, 50.0), joint=joint)
+            for joint, fraction in enumerate((0.2, 0.3, 0.4))
+        ),
+    ]
+    env = DeltaPickPlaceEnv(faults=faults, n_cycles=1)
+    controller = _monitored_rls(controller_setup)
+    observation, _ = env.reset(seed=3)
+    controller.reset()
+    steps: list[tuple[dict, np.ndarray | None]] = []
+    command = None
+    done = False
+    while not done:
+        steps.append((observation, command))
+        command = controller(observation)
+        observation, _, terminated, truncated, _ = env.step(command)
+        done = terminated or truncated
+    fast, full = fault_monitor(controller_setup), fault_monitor(controller_setup)
+    full._healthy_encoders = full._healthy_torques = lambda *args: False
+    repeats_passed = 0
+    healthy_encoders = fast._healthy_encoders
+
+    def counting(raw: np.ndarray, *rates: np.ndarray) -> bool:
+        nonlocal repeats_passed
+        passed = healthy_encoders(raw, *rates)
+        repeats_passed += bool(passed and np.any(raw == fast._raw_previous))
+        return passed
+
+    fast._healthy_encoders = counting
+    for index, (observation, command) in enumerate(steps):
+        fast_clean, full_clean = fast.update(observation, command), full.update(observation, command)
+        for key in ("joint_angles", "joint_velocities", "joint_torques"):
+            np.testing.assert_array_equal(fast_clean[key], full_clean[key], err_msg=f"{key} at step {index}")
+        for name in ("faulty", "suspect", "quiet_samples", "collision", "held_mass", "events"):
+            assert getattr(fast, name) == getattr(full, name), f"{name} at step {index}"
+        np.testing.assert_array_equal(fast.force, full.force)
+    assert {event.kind for event in fast.events} >= {"encoder_stuck", "encoder_glitch", "torque_glitch"}
+    assert repeats_passed > 100  # repeated readings that are not suspect took the fast path

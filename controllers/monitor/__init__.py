@@ -22,8 +22,9 @@ monitor, keeps what a fault corrupted out of its payload estimator and reacts to
 
 The modules: :mod:`~controllers.monitor.tuning` (the thresholds and reactions, each with its reason),
 :mod:`~controllers.monitor.events` (:class:`DetectedFault`, :class:`ReportsFaults`),
-:mod:`~controllers.monitor.detector` (:class:`FaultMonitor`) and :mod:`~controllers.monitor.wrapper`
-(:class:`MonitoredController`: its reactions and the payload estimator's rollback).
+:mod:`~controllers.monitor.detector` (:class:`FaultMonitor`), :mod:`~controllers.monitor.compiled` (its per-sample
+arithmetic, compiled) and :mod:`~controllers.monitor.wrapper` (:class:`MonitoredController`: its reactions and the
+payload estimator's rollback).
 """
 
 from controllers.monitor.detector import FaultMonitor

@@ -13,6 +13,14 @@ from numpy.typing import NDArray
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.monitor.compiled import (
+    correction_terms,
+    learn_scatter,
+    model_residual,
+    platform_force,
+    slip_moments,
+    torques_plausible,
+)
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
@@ -38,6 +46,7 @@ from controllers.monitor.tuning import (
     TORQUE_MARGIN,
 )
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
+from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_in, require_positive
 
@@ -87,16 +96,14 @@ class FaultMonitor:
         self._jump_bound = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
         self._stuck_step = max(STUCK_COUNTS * step, 1e-9)
         self._loop_gain = np.array([1.0 - math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 1.0 for lag in lags])
-        self._slowest_gain_list = [
-            1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags
-        ]
-        self._slowest_gain = np.array(self._slowest_gain_list)
+        self._slowest_gain = np.array(
+            [1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags]
+        )
         self._delayed = _DelayedState(SMOOTHER_LAG)
         self.lag = SMOOTHER_LAG
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
         self._static_friction = np.array(dynamics.parameters.coulomb)
-        self._viscous = np.array(dynamics.parameters.viscous)
-        self._corrections: ModelCorrections | None = None
+        self.set_corrections(None)
         self.events: list[DetectedFault] = []
         self.reset()
 
@@ -144,7 +151,9 @@ class FaultMonitor:
 
     # -- sensors --------------------------------------------------------------------------------
 
-    def _healthy_encoders(self, raw: NDArray[np.float64], rates: NDArray[np.float64]) -> bool:
+    def _healthy_encoders(
+        self, raw: NDArray[np.float64], rates: NDArray[np.float64], reference_rates: NDArray[np.float64]
+    ) -> bool:
         """The 1 kHz fast path, in scalars: nothing flagged before, and these readings finite, within the jump bound
         and not a suspect repeat. Then the full check would pass them unchanged."""
         if not self._encoders_clean or len(self._angles) < 2:
@@ -153,18 +162,33 @@ class FaultMonitor:
         v0, v1, v2 = rates.tolist()
         if not math.isfinite(r0 + r1 + r2 + v0 + v1 + v2):
             return False
-        (l0, l1, l2), (b0, b1, b2) = self._angles[0].tolist(), self._angles[1].tolist()
+        last, before = self._angles[0].tolist(), self._angles[1].tolist()
+        (l0, l1, l2), (b0, b1, b2) = last, before
         bound = self._jump_bound
         if abs(r0 - 2.0 * l0 + b0) > bound or abs(r1 - 2.0 * l1 + b1) > bound or abs(r2 - 2.0 * l2 + b2) > bound:
             return False
-        p0, p1, p2 = self._raw_previous.tolist()
-        return r0 != p0 and r1 != p1 and r2 != p2  # a repeat: the full check decides whether it is suspect
+        previous = self._raw_previous.tolist()
+        if r0 != previous[0] and r1 != previous[1] and r2 != previous[2]:
+            return True
+        # a repeat is suspect (the full check's) while the joint was moving and its reference moves several counts
+        # per sample; nothing is stuck while the readings are clean
+        step = self._stuck_step
+        for reading, previous_reading, angle, angle_before, reference_rate in zip(
+            (r0, r1, r2), previous, last, before, reference_rates.tolist(), strict=True
+        ):
+            if (
+                reading == previous_reading
+                and abs(reference_rate) * CONTROL_PERIOD >= step
+                and abs(angle - angle_before) >= step
+            ):
+                return False
+        return True
 
     def _clean_encoders(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         raw = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         reference = observation["reference_angles"]
-        if self._healthy_encoders(raw, rates):
+        if self._healthy_encoders(raw, rates, observation["reference_velocities"]):
             self._raw_previous = raw
             self._error = raw - reference
             self._angles = [raw, self._angles[0]]
@@ -227,24 +251,18 @@ class FaultMonitor:
         return clean, rates
 
     def _healthy_torques(self, torque: NDArray[np.float64], command: NDArray[np.float64]) -> bool:
-        """The 1 kHz fast path, in scalars: nothing flagged before, and these torques finite, within the current
+        """The 1 kHz fast path, compiled: nothing flagged before, and these torques finite, within the current
         loop's span and adding nothing to the drive-fault CUSUM. Then the full check would pass them unchanged."""
-        if not self._torques_clean:
-            return False
-        peak, margin = self.peak_torque, TORQUE_MARGIN
-        for now, last, asked, slowest_gain in zip(
-            torque.tolist(), self._torque_measured.tolist(), command.tolist(), self._slowest_gain_list, strict=True
-        ):
-            if not math.isfinite(now):
-                return False
-            held = min(max(asked, -peak), peak)
-            if now < min(last, held) - margin or now > max(last, held) + margin:
-                return False
-            step = held - last
-            direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
-            if min((last + slowest_gain * step - now) * direction, DRIVE_FAULT_STEP) > DRIVE_FAULT_DRIFT:
-                return False
-        return True
+        return self._torques_clean and torques_plausible(
+            torque,
+            self._torque_measured,
+            command,
+            self._slowest_gain,
+            self.peak_torque,
+            TORQUE_MARGIN,
+            DRIVE_FAULT_DRIFT,
+            DRIVE_FAULT_STEP,
+        )
 
     def _clean_torques(self, observation: Observation, command: NDArray[np.float64] | None) -> NDArray[np.float64]:
         torque = np.asarray(observation["joint_torques"], dtype=float)
@@ -259,7 +277,7 @@ class FaultMonitor:
         if previous is None or command is None:
             clean = np.where(finite, torque, 0.0 if previous is None else previous)
             self._torque_previous = self._torque_measured = clean
-            self._torques_clean = bool(finite.all())
+            self._torques_clean = bool(finite.all()) and not self._torque_bad.any()
             return clean
         held = np.clip(command, -self.peak_torque, self.peak_torque)
         predicted = previous + self._loop_gain * (held - previous)
@@ -304,55 +322,40 @@ class FaultMonitor:
         delayed = self._delayed.update(angles, torque, holding, self._k <= self._quiet_until)
         if delayed is None:
             return
-        state, torque_then, held_then, quiet = delayed
-        try:
-            tau0, phi, force_map = self.dynamics.torque_regressor_and_force_map(*state)
-        except ValueError:  # a state the model cannot take (e.g. out of reach): no check
+        state, previous, torque_then, held_then, quiet = delayed
+        # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
+        status, terms = model_residual(
+            self.dynamics.model_constants, state, previous, TORQUE_AGE, torque_then, self._correction_terms
+        )
+        if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
             return
-        residual = torque_then - tau0
-        if self._corrections is not None:
-            residual = residual - self._correction(state, phi)
-        self._check_payload(residual, phi, state[1], held_then, quiet)
-        self._check_force(force_map, residual, phi, held_then, quiet)
+        self._check_payload(terms, held_then, quiet)
+        self._check_force(terms, held_then, quiet)
 
     def set_corrections(self, corrections: ModelCorrections | None) -> None:
         """Take the model's corrections to this robot (fitted by a payload estimator on its empty moves) into the
         residual from now on; None uses the identified model as it is."""
-        self._corrections = corrections
-
-    def _correction(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> NDArray[np.float64]:
-        """What the corrections add to the model's torque at ``state`` (N m), as :class:`ModelCorrections` says."""
-        theta, theta_dot, theta_ddot = state
-        dynamics, corrections = self.dynamics, self._corrections
-        arm = dynamics.inertia * theta_ddot + dynamics.gravity_amplitude * np.cos(theta)
-        friction = self._viscous * theta_dot + self._static_friction * np.sign(theta_dot)
-        return (
-            corrections.platform_mass * phi + corrections.arm_mass_scale * arm + corrections.friction_scale * friction
+        dynamics = self.dynamics
+        self._correction_terms = correction_terms(
+            corrections,
+            dynamics.inertia,
+            dynamics.gravity_amplitude,
+            dynamics.parameters.viscous,
+            dynamics.parameters.coulomb,
         )
 
-    def _check_force(
-        self,
-        force_map: NDArray[np.float64],
-        residual: NDArray[np.float64],
-        phi: NDArray[np.float64],
-        holding: bool,
-        quiet: bool,
-    ) -> None:
+    def _check_force(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
         """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
-        residual less the mass held times phi (or, before the mass is known, without its part along phi)."""
+        residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
+        without its part along phi)."""
         if quiet:
             self._force_evidence = 0.0
             self.collision = False
             return
-        if holding and self.held_mass is not None:
-            residual = residual - self.held_mass * phi
-        elif holding:  # the mass is not known yet: leave out the part an unknown mass would explain
-            information = float(phi @ phi)
-            if information > 0.0:
-                residual = residual - (residual @ phi) / information * phi
-        force = force_map @ residual
-        self.force = force
-        magnitude = float(np.linalg.norm(force))
+        held_mass = self.held_mass
+        self.force, magnitude = platform_force(
+            terms, 0.0 if held_mass is None else held_mass, holding and held_mass is not None, holding
+        )
         self._force_evidence = max(0.0, self._force_evidence + magnitude - FORCE_REFERENCE)
         self.collision_samples = self.collision_samples + 1 if self._force_evidence > 0.0 else 0
         if self._force_evidence > FORCE_EVIDENCE and not self.collision:
@@ -363,21 +366,15 @@ class FaultMonitor:
             if self._held_since is not None and self._slip_armed:  # what the collision left in the mass held: afresh
                 self._restart_held()
 
-    def _check_payload(
-        self,
-        residual: NDArray[np.float64],
-        phi: NDArray[np.float64],
-        theta_dot: NDArray[np.float64],
-        holding: bool,
-        quiet: bool,
-    ) -> None:
+    def _check_payload(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
         """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
-        since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it."""
+        since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi
+        are ``terms`` of :func:`model_residual`."""
         if not holding:
             self._held_since = None
             self.held_mass = None
             if not quiet:
-                self._learn_scatter(residual, theta_dot)
+                self._learn_scatter(terms, 0.0)
             return
         if self._held_since is None:
             self._restart_held()
@@ -385,11 +382,9 @@ class FaultMonitor:
         if quiet or not self._slip_armed:
             return
         if self.held_mass is not None:
-            self._learn_scatter(residual - self.held_mass * phi, theta_dot)
-        band = residual_std(theta_dot, self._static_friction, 0.0)
-        weight = 1.0 / (band * band + self._scatter)
-        information = float(np.sum(weight * phi * phi))
-        moment = float(np.sum(weight * phi * residual))
+            self._learn_scatter(terms, self.held_mass)
+        band = residual_std(terms[2], self._static_friction, 0.0)
+        information, moment = slip_moments(terms, band, self._scatter)
         if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
             held = self._held_moment / self._held_information
             if self._held_information**-0.5 < HELD_MASS_STD:
@@ -413,11 +408,10 @@ class FaultMonitor:
         self._held_information = self._held_moment = self._evidence = 0.0
         self.held_mass = None
 
-    def _learn_scatter(self, deviation: NDArray[np.float64], theta_dot: NDArray[np.float64]) -> None:
-        """Follow the model's residual variance per joint while moving (N^2 m^2), at least the nominal's."""
-        moving = np.abs(theta_dot) > FRICTION_VELOCITY
-        learned = (1.0 - SCATTER_RATE) * self._scatter + SCATTER_RATE * deviation * deviation
-        self._scatter = np.where(moving, np.maximum(learned, RESIDUAL_STD**2), self._scatter)
+    def _learn_scatter(self, terms: NDArray[np.float64], held_mass: float) -> None:
+        """Follow the model's residual variance per joint while moving (N^2 m^2), at least the nominal's: of r -
+        ``held_mass`` phi (kg; 0 for the residual itself), r and phi ``terms`` of :func:`model_residual`."""
+        learn_scatter(self._scatter, terms, held_mass, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
 
     # -- the step -------------------------------------------------------------------------------
 
@@ -429,8 +423,11 @@ class FaultMonitor:
         self.resynced = False
         angles, rates = self._clean_encoders(observation)
         torque = self._clean_torques(observation, command)
-        self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
-        self.suspect = bool(self._stuck.any())
+        if self._encoders_clean and self._torques_clean:  # nothing replaced, missing or repeated: no array to scan
+            self.faulty = self.suspect = False
+        else:
+            self.faulty = bool(self._encoder_bad.any() or self._torque_bad.any() or self._nan_active.any())
+            self.suspect = bool(self._stuck.any())
         self._faulty_run = self._faulty_run + 1 if self.faulty else 0
         # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago,
         # or the current loop's prediction): the model's equations keep it. Replacements in a row drift from the
@@ -467,9 +464,9 @@ class _DelayedState:
 
     def update(
         self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool, quiet: bool
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], bool, bool] | None:
-        """Take one reading; return (state (3, 3) at the torque's instant, torque, holding, quiet) of the reading
-        ``lag`` samples ago, or None while the smoother fills."""
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool] | None:
+        """Take one reading; return (smoothed state (3, 3), the one before (itself at the first), torque, holding,
+        quiet) of the reading ``lag`` samples ago, or None while the smoother fills."""
         if not self._started:
             self._smoother.reset(angles)
             self._started = True
@@ -481,6 +478,4 @@ class _DelayedState:
             return None
         torque_then, held_then, quiet_then = self._pending.popleft()
         quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
-        # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
-        at_torque = state if previous is None else state - TORQUE_AGE * (state - previous)
-        return at_torque, torque_then, held_then, quiet_then
+        return state, state if previous is None else previous, torque_then, held_then, quiet_then

@@ -1,0 +1,213 @@
+"""The fault monitor's per-sample arithmetic, compiled for the 1 kHz loop (docs/design.md section 6, "Fault monitor").
+
+The model check works on three-element vectors, where NumPy's cost is its call overhead, not the arithmetic: these
+kernels do in one call what took a dozen NumPy calls, with the same numbers to the last bit. Elementwise operations
+keep NumPy's order; a three-element ``np.sum`` adds left to right; the dot products that NumPy hands to OpenBLAS
+(``@``, ``np.linalg.norm``) are summed as its kernels sum them, one fused multiply-add per term after the first
+(``_dot3``, which alone may contract). ``tests/test_monitor_compiled.py`` checks every kernel against the NumPy
+expressions it replaces.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.compiled_model import single_sample_model
+
+CORRECTION_TERMS = np.dtype(
+    (
+        np.record,
+        [
+            ("enabled", np.bool_),
+            ("platform_mass", np.float64),
+            ("arm_mass_scale", np.float64),
+            ("friction_scale", np.float64, 3),
+            ("inertia", np.float64),
+            ("gravity_amplitude", np.float64),
+            ("viscous", np.float64, 3),
+            ("coulomb", np.float64, 3),
+        ],
+    )
+)
+"""What :func:`model_residual` takes off the residual: the fields of
+:class:`~controllers.payload.ModelCorrections` (kg, dimensionless, (3,)) and the model's unscaled I (kg m^2), G
+amplitude (N m), fv_i (N m s/rad) and fc_i (N m); nothing unless ``enabled``. Passed as the record's bytes."""
+
+
+def correction_terms(
+    corrections: object | None, inertia: float, gravity_amplitude: float, viscous: object, coulomb: object
+) -> NDArray[np.uint8]:
+    """The bytes of a :data:`CORRECTION_TERMS` record: ``corrections`` (a ModelCorrections, or None for none) with
+    the model's I (kg m^2), G amplitude (N m), fv (N m s/rad) and fc (N m)."""
+    if corrections is None:
+        fields = (False, 0.0, 0.0, (0.0, 0.0, 0.0))
+    else:
+        fields = (True, corrections.platform_mass, corrections.arm_mass_scale, corrections.friction_scale)
+    record = np.array([(*fields, inertia, gravity_amplitude, viscous, coulomb)], dtype=CORRECTION_TERMS)
+    return record.view(np.uint8)
+
+
+@numba.njit(cache=True, fastmath=False)  # explicit: a callee inherits its caller's fastmath otherwise
+def _product(a: float, b: float) -> float:
+    """a b rounded: compiled without contraction, so that no caller can fuse it into an addition."""
+    return a * b
+
+
+@numba.njit(cache=True, fastmath={"contract"})
+def _dot3(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float) -> float:
+    """a . b as OpenBLAS's ddot and dgemv sum three terms: from 0, one fused multiply-add per term.
+
+    The first product is rounded on its own (``_product``): with two products in one sum, contraction could fuse
+    either, and inlined into a caller that squares a vector the compiler fused the second.
+    """
+    total = 0.0 + _product(a0, b0)
+    total = total + a1 * b1
+    total = total + a2 * b2
+    return total
+
+
+@numba.njit(cache=True)
+def model_residual(
+    constants: NDArray[np.uint8],
+    state: NDArray[np.float64],
+    previous: NDArray[np.float64],
+    torque_age: float,
+    torque: NDArray[np.float64],
+    corrections: NDArray[np.uint8],
+) -> tuple[int, NDArray[np.float64]]:
+    """The model's residual at the smoothed state interpolated back to the torque's instant.
+
+    ``state`` and ``previous`` are the smoother's (3, 3) states (rows theta, theta_dot, theta_ddot) of this sample
+    and the one before; the state used is ``state - torque_age (state - previous)`` (``torque_age`` periods). Returns
+    the status of :func:`~controllers.compiled_model.single_sample_model` and a (6, 3): the residual r = torque - tau0
+    - corrections (N m), phi (N m/kg), theta_dot at the torque's instant (rad/s), then the force map J^-T (N per N m,
+    rows 3-5, as :meth:`~controllers.dynamics.DeltaDynamics.torque_regressor_and_force_map`).
+    """
+    out = np.zeros((6, 3))
+    at = state - torque_age * (state - previous)
+    status, terms = single_sample_model(
+        constants, at[0, 0], at[0, 1], at[0, 2], at[1, 0], at[1, 1], at[1, 2], at[2, 0], at[2, 1], at[2, 2]
+    )
+    if status != 0:
+        return status, out
+    correction = corrections.view(CORRECTION_TERMS)[0]
+    for joint in range(3):
+        theta, theta_dot, theta_ddot = at[0, joint], at[1, joint], at[2, joint]
+        phi = terms[1, joint]
+        residual = torque[joint] - terms[0, joint]
+        if correction.enabled:
+            arm = correction.inertia * theta_ddot + correction.gravity_amplitude * math.cos(theta)
+            sign = (theta_dot > 0.0) - (theta_dot < 0.0)
+            friction = correction.viscous[joint] * theta_dot + correction.coulomb[joint] * sign
+            residual = residual - (
+                correction.platform_mass * phi
+                + correction.arm_mass_scale * arm
+                + correction.friction_scale[joint] * friction
+            )
+        out[0, joint], out[1, joint], out[2, joint] = residual, phi, theta_dot
+        for axis in range(3):  # F = -sum_i a_i tau_i / k_i: column i of the map is -a_i / k_i
+            out[3 + axis, joint] = -terms[2 + joint, axis] / terms[5, joint]
+    return status, out
+
+
+@numba.njit(cache=True)
+def platform_force(
+    terms: NDArray[np.float64], held_mass: float, subtract_held: bool, project_out_phi: bool
+) -> tuple[NDArray[np.float64], float]:
+    """The platform force F = J^-T r (N), (3,), and its norm, of :func:`model_residual`'s ``terms``; r the residual
+    less ``held_mass`` (kg) phi if ``subtract_held``, or without its part along phi if ``project_out_phi``."""
+    r0, r1, r2 = terms[0, 0], terms[0, 1], terms[0, 2]
+    p0, p1, p2 = terms[1, 0], terms[1, 1], terms[1, 2]
+    if subtract_held:
+        r0, r1, r2 = r0 - held_mass * p0, r1 - held_mass * p1, r2 - held_mass * p2
+    elif project_out_phi:
+        information = _dot3(p0, p1, p2, p0, p1, p2)
+        if information > 0.0:
+            share = _dot3(r0, r1, r2, p0, p1, p2) / information
+            r0, r1, r2 = r0 - share * p0, r1 - share * p1, r2 - share * p2
+    force = np.empty(3)
+    for axis in range(3):
+        force[axis] = _dot3(terms[3 + axis, 0], terms[3 + axis, 1], terms[3 + axis, 2], r0, r1, r2)
+    return force, math.sqrt(_dot3(force[0], force[1], force[2], force[0], force[1], force[2]))
+
+
+@numba.njit(cache=True)
+def learn_scatter(
+    scatter: NDArray[np.float64],
+    terms: NDArray[np.float64],
+    held_mass: float,
+    moving_speed: float,
+    rate: float,
+    floor: float,
+) -> None:
+    """Update ``scatter`` (N^2 m^2), in place: the running mean square (weight ``rate``) of the deviation r - m phi
+    (``held_mass`` m, kg) of :func:`model_residual`'s ``terms``, per joint faster than ``moving_speed`` (rad/s), at
+    least ``floor``."""
+    for joint in range(3):
+        if abs(terms[2, joint]) > moving_speed:
+            deviation = terms[0, joint] - held_mass * terms[1, joint]
+            learned = (1.0 - rate) * scatter[joint] + rate * deviation * deviation
+            scatter[joint] = learned if not learned < floor else floor  # np.maximum: a NaN stays
+
+
+@numba.njit(cache=True)
+def slip_moments(
+    terms: NDArray[np.float64], band: NDArray[np.float64], scatter: NDArray[np.float64]
+) -> tuple[float, float]:
+    """phi^T W phi (kg^-2) and phi^T W r (kg^-1) of :func:`model_residual`'s ``terms``, W = diag 1 / (band^2 +
+    scatter) (band N m, scatter N^2 m^2)."""
+    weighted = np.empty(3)
+    for joint in range(3):
+        weighted[joint] = 1.0 / (band[joint] * band[joint] + scatter[joint]) * terms[1, joint]
+    # np.sum of three: left to right from the first term
+    information = weighted[0] * terms[1, 0] + weighted[1] * terms[1, 1] + weighted[2] * terms[1, 2]
+    moment = weighted[0] * terms[0, 0] + weighted[1] * terms[0, 1] + weighted[2] * terms[0, 2]
+    return information, moment
+
+
+@numba.njit(cache=True)
+def torques_plausible(
+    torque: NDArray[np.float64],
+    last: NDArray[np.float64],
+    command: NDArray[np.float64],
+    slowest_gain: NDArray[np.float64],
+    peak: float,
+    margin: float,
+    drift: float,
+    largest_shortfall: float,
+) -> bool:
+    """Whether measured torques (N m) are finite, within ``margin`` of the span between the ``last`` measured and
+    the ``command`` held at ``peak``, and fall at most ``drift`` short (each shortfall capped at
+    ``largest_shortfall``) of the slowest healthy loop's step (``slowest_gain`` per sample) towards it: the full
+    check's span test and drive-fault CUSUM would then add nothing. Python's ``min``/``max`` order, NaN included;
+    False for vectors not of 3 (the full check says what is wrong)."""
+    if torque.shape[0] != 3 or last.shape[0] != 3 or command.shape[0] != 3 or slowest_gain.shape[0] != 3:
+        return False
+    for joint in range(3):
+        now, previous = torque[joint], last[joint]
+        if not math.isfinite(now):
+            return False
+        held = command[joint]  # min(max(command, -peak), peak): a NaN command stays NaN
+        if -peak > held:
+            held = -peak
+        if peak < held:
+            held = peak
+        low, high = previous, previous  # min(previous, held) and max(previous, held)
+        if held < low:
+            low = held
+        if held > high:
+            high = held
+        if now < low - margin or now > high + margin:
+            return False
+        step = held - previous
+        direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
+        shortfall = (previous + slowest_gain[joint] * step - now) * direction
+        if largest_shortfall < shortfall:
+            shortfall = largest_shortfall
+        if shortfall > drift:
+            return False
+    return True

@@ -1,0 +1,115 @@
+"""The fault monitor's compiled arithmetic gives the NumPy expressions' numbers to the last bit
+(controllers.monitor.compiled): the detections of a run must not depend on which of the two computed them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.monitor.compiled import (
+    correction_terms,
+    learn_scatter,
+    model_residual,
+    platform_force,
+    slip_moments,
+)
+from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
+from delta_env import kernels
+
+PARAMETERS = ModelParameters(rho1=1.8, rho2=0.9, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
+CORRECTIONS = ModelCorrections(platform_mass=0.3, arm_mass_scale=-0.05, friction_scale=np.array([0.1, -0.2, 0.05]))
+
+
+def _samples(count: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Smoothed states (3, 3) and the ones before around the workspace's middle, and measured torques (N m)."""
+    rng = np.random.default_rng(seed)
+    samples = []
+    for _ in range(count):
+        state = np.stack((rng.uniform(0.1, 0.8, 3), rng.normal(0.0, 3.0, 3), rng.normal(0.0, 60.0, 3)))
+        previous = state + rng.normal(0.0, 1e-3, (3, 3))
+        samples.append((state, previous, rng.normal(0.0, 40.0, 3)))
+    return samples
+
+
+@pytest.mark.parametrize("corrections", [None, CORRECTIONS])
+@pytest.mark.parametrize("forearm_rods", [False, True])
+def test_model_residual_is_the_dynamics_residual_bit_for_bit(
+    corrections: ModelCorrections | None, forearm_rods: bool
+) -> None:
+    dynamics = DeltaDynamics.nominal(PARAMETERS, forearm_rods=forearm_rods)
+    terms_bytes = correction_terms(
+        corrections, dynamics.inertia, dynamics.gravity_amplitude, PARAMETERS.viscous, PARAMETERS.coulomb
+    )
+    viscous, coulomb = np.array(PARAMETERS.viscous), np.array(PARAMETERS.coulomb)
+    for state, previous, torque in _samples(200):
+        status, terms = model_residual(dynamics.model_constants, state, previous, TORQUE_AGE, torque, terms_bytes)
+        assert status == kernels.VALID
+        at = state - TORQUE_AGE * (state - previous)
+        tau0, phi, force_map = dynamics.torque_regressor_and_force_map(*at)
+        residual = torque - tau0
+        if corrections is not None:
+            theta, theta_dot, theta_ddot = at
+            arm = dynamics.inertia * theta_ddot + dynamics.gravity_amplitude * np.cos(theta)
+            friction = viscous * theta_dot + coulomb * np.sign(theta_dot)
+            residual = residual - (
+                corrections.platform_mass * phi
+                + corrections.arm_mass_scale * arm
+                + corrections.friction_scale * friction
+            )
+        np.testing.assert_array_equal(terms[0], residual)
+        np.testing.assert_array_equal(terms[1], phi)
+        np.testing.assert_array_equal(terms[2], at[1])
+        np.testing.assert_array_equal(terms[3:], force_map)
+
+
+def test_model_residual_reports_a_state_the_model_cannot_take() -> None:
+    dynamics = DeltaDynamics.nominal(PARAMETERS)
+    state = np.zeros((3, 3))
+    state[0] = (0.3, 0.3, np.nan)
+    no_corrections = correction_terms(None, 1.0, 1.0, (0.0,) * 3, (0.0,) * 3)
+    status, _ = model_residual(dynamics.model_constants, state, state, TORQUE_AGE, np.zeros(3), no_corrections)
+    assert status != kernels.VALID
+    with pytest.raises(ValueError, match=kernels.INVALID_STATE[status]):
+        dynamics.torque_regressor_and_force_map(*state)
+
+
+def test_platform_force_is_the_numpy_force_bit_for_bit() -> None:
+    dynamics = DeltaDynamics.nominal(PARAMETERS)
+    no_corrections = correction_terms(None, 1.0, 1.0, (0.0,) * 3, (0.0,) * 3)
+    for state, previous, torque in _samples(300, seed=1):
+        _, terms = model_residual(dynamics.model_constants, state, previous, TORQUE_AGE, torque, no_corrections)
+        residual, phi = terms[0], terms[1]
+        # the map as the model gives it: its memory layout picks OpenBLAS's kernel, and so the order of the sums
+        _, _, force_map = dynamics.torque_regressor_and_force_map(*(state - TORQUE_AGE * (state - previous)))
+        projected = residual - (residual @ phi) / float(phi @ phi) * phi
+        for held_mass, subtract, project, expected in (
+            (0.0, False, False, residual),
+            (1.7, True, True, residual - 1.7 * phi),
+            (0.0, False, True, projected),
+        ):
+            force, magnitude = platform_force(terms, held_mass, subtract, project)
+            np.testing.assert_array_equal(force, force_map @ expected)
+            assert magnitude == float(np.linalg.norm(force_map @ expected))
+
+
+def test_scatter_and_slip_moments_are_the_numpy_ones_bit_for_bit() -> None:
+    dynamics = DeltaDynamics.nominal(PARAMETERS)
+    coulomb = np.array(PARAMETERS.coulomb)
+    no_corrections = correction_terms(None, 1.0, 1.0, (0.0,) * 3, (0.0,) * 3)
+    scatter = np.full(3, 16.0)
+    expected_scatter = scatter.copy()
+    for state, previous, torque in _samples(300, seed=2):
+        _, terms = model_residual(dynamics.model_constants, state, previous, TORQUE_AGE, torque, no_corrections)
+        residual, phi, theta_dot = terms[0], terms[1], terms[2]
+        deviation = residual - 2.5 * phi
+        learned = 0.99 * expected_scatter + 0.01 * deviation * deviation
+        moving = np.abs(theta_dot) > FRICTION_VELOCITY
+        expected_scatter = np.where(moving, np.maximum(learned, RESIDUAL_STD**2), expected_scatter)
+        learn_scatter(scatter, terms, 2.5, FRICTION_VELOCITY, 0.01, RESIDUAL_STD**2)
+        np.testing.assert_array_equal(scatter, expected_scatter)
+        band = residual_std(theta_dot, coulomb, 0.0)
+        weight = 1.0 / (band * band + scatter)
+        information, moment = slip_moments(terms, band, scatter)
+        assert information == float(np.sum(weight * phi * phi))
+        assert moment == float(np.sum(weight * phi * residual))
