@@ -194,6 +194,9 @@ def arm_base_clearance(geometry: DeltaGeometry, xyz: ArrayLike, theta: ArrayLike
 def smallest_clearances(geometry: DeltaGeometry, xyz: ArrayLike) -> tuple[float, float]:
     """Smallest arm-arm and arm-base clearance (m) over platform positions ``xyz`` (m), ``(n, 3)``, each with its
     elbow-out motor angles (:func:`delta_env.kinematics.inverse`, which raises for an unreachable point)."""
+    xyz = require_vectors("xyz", xyz)
+    if xyz.size == 0:
+        raise ValueError("smallest_clearances needs at least one point")
     theta = kinematics.inverse(geometry, xyz)
     arm = float(np.min(arm_arm_clearance(geometry, xyz, theta)))
     return arm, float(np.min(arm_base_clearance(geometry, xyz, theta)))

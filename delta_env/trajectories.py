@@ -138,11 +138,13 @@ class Trajectory:
         return len(self.xyz)
 
     def content_hash(self) -> str:
-        """Hash (16 hex digits) of the sample period and every array's values: equal paths, equal hashes."""
+        """Hash (16 hex digits) of the sample period and every array's name, type, shape and values: equal paths,
+        equal hashes, on any platform."""
         digest = hashlib.sha256(repr(self.dt).encode())
-        for array in dataclasses.fields(self)[1:]:  # after dt
-            digest.update(array.name.encode())
-            digest.update(np.ascontiguousarray(getattr(self, array.name)).tobytes())
+        for name in (field.name for field in dataclasses.fields(self) if field.name != "dt"):
+            array = np.ascontiguousarray(getattr(self, name))
+            digest.update(f"{name} {array.dtype.str} {array.shape}".encode())
+            digest.update(array.tobytes())
         return digest.hexdigest()[:16]
 
 

@@ -15,7 +15,7 @@ scores (:mod:`eval.scoring`), the design verification (:mod:`eval.design.verify`
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -24,7 +24,7 @@ from controllers.registry import ControllerSetup
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
 from eval.parameter_files import identification_root, parameter_path, robot_identification, robot_setup
-from eval.sweep.runner import Setups, Work, run_units
+from eval.sweep.runner import OnResult, Setups, Work, run_units
 from eval.sweep.work import WorkUnit, unit_record
 
 
@@ -112,7 +112,7 @@ def run_grid(
     workers: int = 1,
     address: str | None = None,
     progress: Any = None,
-    on_result: Callable[[WorkUnit, Any], None] | None = None,
+    on_result: OnResult | None = None,
 ) -> list[Any]:
     """``work(unit, setups[unit.scenario.content_hash])`` of every unit (:func:`grid` builds a product), on the
     sweep's ``backend`` (:func:`eval.sweep.runner.run_units`), in the order of ``units``.

@@ -349,7 +349,7 @@ def _summary(
     ]
     lines = [
         f"# Pick rate, scenario {args.scenario.name}: 25/305/25 mm standard cycle, {args.episodes} episodes x "
-        f"{args.cycles} cycles per row from seed {args.seed}",
+        f"{args.scenario.task.n_cycles} cycles per row from seed {args.seed}",
         "",
         f"Planned timings use {100 * args.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
         "planner's 10 % margin) and keep its thermal rating.",

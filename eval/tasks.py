@@ -7,7 +7,7 @@ It lives in an importable module (not ``eval.__main__``) so that forkserver / sp
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,52 +101,13 @@ def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
     return task, record
 
 
-def run_task_group(tasks: Sequence[Task]) -> list[tuple[Task, EpisodeRecord]]:
-    """:func:`run_task` of each of ``tasks`` in turn, in one process (picklable)."""
-    return [run_task(task) for task in tasks]
-
-
-def task_groups(tasks: Sequence[Task], workers: int) -> list[list[int]]:
-    """The units of work of ``tasks`` on a pool of ``workers``, as lists of indices into ``tasks``: one task
-    each, except the residual episodes.
-
-    Every process that runs a residual episode first loads torch and the policy, which costs more than many
-    episodes; so the residual episodes share as few processes as their share of the work needs,
-    max(1, round(workers * residual / all)) groups dealt round-robin (one group on the default comparison),
-    placed where the first of them is. The order is otherwise kept.
-    """
-    residual = [n for n, task in enumerate(tasks) if task.key == "residual"]
-    if not residual:
-        return [[n] for n in range(len(tasks))]
-    n_groups = min(len(residual), max(1, round(workers * len(residual) / len(tasks))))
-    groups: list[list[int]] = []
-    for n, task in enumerate(tasks):
-        if task.key != "residual":
-            groups.append([n])
-        elif n == residual[0]:
-            groups += [residual[start::n_groups] for start in range(n_groups)]
-    return groups
-
-
-def _each_result(
-    groups: Iterator[list[tuple[Task, EpisodeRecord]]], progress: Any
-) -> Iterator[tuple[Task, EpisodeRecord]]:
-    for results in groups:
-        for result in results:
+def run_tasks(tasks: Sequence[Task], workers: int, progress: Any = None) -> list[tuple[Task, EpisodeRecord]]:
+    """Run ``tasks`` on ``workers`` processes (in this one if 1), advancing the tqdm bar ``progress`` once per task;
+    the results in the order of ``tasks``."""
+    results = []
+    with process_pool(max(1, min(workers, len(tasks)))) as pool:  # None: in this process
+        for result in parallel_imap(run_task, tasks, pool):
+            results.append(result)
             if progress is not None:
                 progress.update()
-            yield result
-
-
-def run_tasks(tasks: Sequence[Task], workers: int, progress: Any = None) -> list[tuple[Task, EpisodeRecord]]:
-    """Run ``tasks`` on ``workers`` processes (in this one if 1), in the groups of :func:`task_groups`, advancing the
-    tqdm bar ``progress`` once per task; the results in the order of ``tasks``."""
-    groups = [[tasks[n] for n in group] for group in task_groups(tasks, workers)]
-    if workers == 1 or len(tasks) <= 1:
-        results = list(_each_result(parallel_imap(run_task_group, groups, None), progress))
-    else:
-        with process_pool(min(workers, len(tasks))) as pool:
-            results = list(_each_result(parallel_imap(run_task_group, groups, pool), progress))
-    arrival = [n for group in task_groups(tasks, workers) for n in group]
-    by_index = dict(zip(arrival, results, strict=True))
-    return [by_index[n] for n in range(len(tasks))]
+    return results

@@ -103,3 +103,5 @@ def test_smallest_clearances_over_points_find_the_touching_pose():
     assert collisions.smallest_clearances(NARROW, points)[0] < 0.0  # its rods overlap everywhere
     with pytest.raises(ValueError, match="outside the reachable workspace"):
         collisions.smallest_clearances(NOMINAL_GEOMETRY, [[0.0, 0.0, -3.0]])
+    with pytest.raises(ValueError, match="at least one point"):
+        collisions.smallest_clearances(NOMINAL_GEOMETRY, np.zeros((0, 3)))

@@ -203,7 +203,8 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
         assert name == "nominal" or tuple(row[k] for k in ("ra", "rb", "l1", "l2")) in on_front, name
     with (out / "robustness.csv").open() as file:
         assert {row["design"] for row in csv.DictReader(file)} >= {"nominal", "compromise"}
-    config = json.loads((out / "config.json").read_text())
+    # strict JSON: a design with no fixed screw setting for every profile must not write a bare NaN
+    config = json.loads((out / "config.json").read_text(), parse_constant=lambda name: pytest.fail(f"{name} written"))
     assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)
     assert config["config"]["drive"]["gear_ratios"] == list(GEAR_RATIOS)
     assert "git_commit" in config and "versions" in config

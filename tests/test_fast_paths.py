@@ -13,12 +13,10 @@ from controllers.compiled_model import single_sample_model
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateSmoother, PayloadRLS
 from controllers.payload import FRICTION_SCALE_STD, MASS_CORRECTION_STD, REST_RATE, PayloadEstimator, residual_std
-from controllers.registry import ControllerSetup
 from controllers.residual import ResidualFeatures, load_residual_controller, load_residual_policy, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from eval.processes import parallel_imap, parallel_map, process_pool
-from eval.tasks import Task, task_groups
 
 
 def reference_filter(forgetting_factor: float, noise_std: float, variance: float, mass: float) -> KalmanFilter:
@@ -141,22 +139,6 @@ def test_work_given_to_the_pool_later_queues_behind_the_first_batch() -> None:
         assert [first, *running, *queued] == [2.0, 3.0, 4.0, 5.0, 2.0, 6.0]
     in_process = parallel_imap(math.sqrt, [4.0, 9.0], None)
     assert next(in_process) == 2.0 and list(in_process) == [3.0]
-
-
-@pytest.mark.parametrize(
-    ("keys", "workers", "expected"),
-    [
-        ("ab", 2, [[0], [1]]),
-        ("arrrb", 2, [[0], [1, 2, 3], [4]]),  # 3 of 5 on 2 workers: round(1.2) = 1 group
-        ("rrrr", 2, [[0, 2], [1, 3]]),  # only residual episodes: both workers load the policy
-        ("rrrr", 1, [[0, 1, 2, 3]]),
-        ("ararar", 2, [[0], [1, 3, 5], [2], [4]]),
-    ],
-)
-def test_residual_episodes_share_few_processes(keys: str, workers: int, expected: list[list[int]]) -> None:
-    setup = ControllerSetup(*(ModelParameters(rho1=1.8, rho2=0.9),) * 3)
-    tasks = [Task("episode", "residual" if key == "r" else key, n, n, 1, setup) for n, key in enumerate(keys)]
-    assert task_groups(tasks, workers) == expected
 
 
 def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:

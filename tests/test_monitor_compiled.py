@@ -17,6 +17,7 @@ from controllers.monitor.compiled import (
     model_residual,
     platform_force,
     slip_moments,
+    torques_plausible,
 )
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
 from delta_env import kernels
@@ -123,3 +124,41 @@ def test_scatter_and_slip_moments_are_the_numpy_ones() -> None:
         information, moment = slip_moments(terms, band, scatter)
         assert information == pytest.approx(float(np.sum(weight * phi * phi)), rel=TOLERANCE)
         assert moment == pytest.approx(float(np.sum(weight * phi * residual)), rel=TOLERANCE, abs=1e-12)
+
+
+def _plausible_reference(torque, last, command, slowest_gain, peak, margin, drift, largest) -> bool:
+    """The torque fast path as it was written in Python (min/max, NaN included)."""
+    for now, previous, asked, gain in zip(
+        *(np.asarray(v).tolist() for v in (torque, last, command, slowest_gain)), strict=True
+    ):
+        if not np.isfinite(now):
+            return False
+        held = min(max(asked, -peak), peak)
+        if now < min(previous, held) - margin or now > max(previous, held) + margin:
+            return False
+        step = held - previous
+        direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
+        if min((previous + gain * step - now) * direction, largest) > drift:
+            return False
+    return True
+
+
+def test_torques_plausible_is_the_python_check_with_nan_and_infinities() -> None:
+    rng = np.random.default_rng(3)
+    special = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 200.0, -200.0])
+    peak, margin, drift, largest = 100.0, 2.0, 0.5, 5.0
+    outcomes = []
+    for _ in range(20000):
+        values = rng.normal(0.0, 30.0, (4, 3))
+        values[3] = rng.uniform(0.3, 0.9, 3)  # the slowest loop's gain per sample
+        mask = rng.random((3, 3)) < 0.05
+        values[:3][mask] = rng.choice(special, int(mask.sum()))
+        with np.errstate(invalid="ignore"):  # inf - inf where a special value was drawn
+            healthy = values[1] + values[3] * (np.clip(values[2], -peak, peak) - values[1]) + rng.normal(0.0, 0.3, 3)
+        values[0] = np.where(rng.random(3) < 0.9, healthy, values[0])  # mostly where a healthy loop would be
+        torque, last, command, gain = values
+        expected = _plausible_reference(torque, last, command, gain, peak, margin, drift, largest)
+        assert torques_plausible(torque, last, command, gain, peak, margin, drift, largest) == expected
+        outcomes.append(expected)
+    assert 0.05 < np.mean(outcomes) < 0.95  # both answers are exercised
+    assert not torques_plausible(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), peak, margin, drift, largest)

@@ -1,5 +1,7 @@
 """The design study of the reconfigurable-Delta paper (``python -m eval.design``).
 
+- :mod:`eval.design.model`: the design model every figure is judged by (rod forearms, scaled masses, the motor
+  datasheet) and its cycles' conventions;
 - :mod:`eval.design.performance`: the figures of merit of one geometry (workspace, torque on the 3.8 kg
   standard cycles, picks per minute with its own drive, speed at a joint-speed limit, peak-torque maps);
 - :mod:`eval.design.codesign`: the catalogue drive of each geometry with the most picks per minute (one
@@ -11,7 +13,7 @@
 - :mod:`eval.design.mechanism`: the paper's pitch-screw linkage, screw travel -> base radius and motor height;
 - :mod:`eval.design.reconfigure`: the best screw setting per task profile, against the best fixed one;
 - :mod:`eval.design.verify`: closed-loop verification on each design's own MuJoCo plant (the only module
-  here that calls identification, controllers and episodes);
+  here that calls identification, the tare and the experiment engine's episodes);
 - :mod:`eval.design.report`, :mod:`eval.design.profiles`, :mod:`eval.design.explorer`: tables, figures (the
   paper's Figs. 3-6 among them) and the interactive Pareto explorer page.
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -108,7 +109,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"a small run for tests: {QUICK}, unless given explicitly; pick rates by the optimizer's cheap path",
     )
     parser.add_argument("--no-verify", action="store_true", help="skip the closed-loop verification")
-    add_workers_argument(parser, help="processes of each design's identification runs (default: up to 2)")
+    add_workers_argument(
+        parser,
+        help="processes of the searches and of each design's identification, tare and episodes (default: up to 2)",
+    )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/design/<UTC time>)")
     add_runs_dir_argument(parser)
     args = parser.parse_args(argv)
@@ -143,7 +147,7 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
     return kept
 
 
-def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None = None) -> dict[str, object]:
+def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None] | None = None) -> dict[str, object]:
     """The run's arguments and every setting of the study, for ``config.json``."""
     drive = PlantRealism()
     return {
@@ -193,7 +197,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float] | None
             "grid_settings": args.screw_settings,
             "travel_tolerance_m": reconfigure.TRAVEL_TOLERANCE,
             "profiles": [dataclasses.asdict(p) for p in reconfigure.PROFILES],
-            "fixed_ra_m": fixed_ra,
+            "fixed_ra_m": fixed_ra,  # None where no setting serves every profile (JSON has no NaN)
         },
         "verification": {
             "identification_trajectories": identification.DEFAULT_TRAJECTORIES,
@@ -403,7 +407,8 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")
 
-    run.record(config=_resolved_config(args, {n: s.fixed_ra for n, s in reconfigured.items()}), seconds=seconds)
+    fixed_ra = {n: s.fixed_ra if math.isfinite(s.fixed_ra) else None for n, s in reconfigured.items()}
+    run.record(config=_resolved_config(args, fixed_ra), seconds=seconds)
     print(summary)
 
 

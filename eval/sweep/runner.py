@@ -366,7 +366,7 @@ def run_sweep(
     _check_run(units, setups, backend, address)
     keys = [unit_key(unit, code_version, setup_digests[unit.scenario.content_hash, unit.controller]) for unit in units]
     if len(set(keys)) != len(keys):
-        raise ValueError("the grid holds the same unit twice (same scenario content, controller and seed)")
+        raise ValueError("the grid holds the same unit twice (same scenario content, controller, seed, masses, path)")
     finished = {row["key"] for row in table.load()}
     pending = [unit for unit, key in zip(units, keys, strict=True) if key not in finished]
     key_of = {id(unit): key for unit, key in zip(units, keys, strict=True)}
