@@ -171,3 +171,19 @@ def test_scaled_masses_follow_the_stated_rule():
     assert longer.m0 == pytest.approx(GRIPPER_MASS + 4 * (NOMINAL_MASSES.m0 - GRIPPER_MASS))
     with pytest.raises(ValueError, match=r"reference_masses\.m0"):
         scaled_masses(NOMINAL_GEOMETRY, reference_masses=DeltaMasses(m1=2.0, m2=0.2, m0=0.2))
+
+
+@pytest.mark.parametrize(
+    "criteria",
+    [workspace.DEXTEROUS, workspace.REACHABLE, workspace.Criteria(min_conditioning=0.35, max_skew=0.3)],
+    ids=["dexterous", "reachable", "strict"],
+)
+def test_admissible_is_the_pose_measures_test(criteria: workspace.Criteria) -> None:
+    # admissible computes only what its test reads, in stages; it must answer as the full measures do
+    rng = np.random.default_rng(4)
+    geometry = DeltaGeometry(0.25, 0.06, 0.42, 1.1)
+    points = np.column_stack((rng.uniform(-1, 1, 20000), rng.uniform(-1, 1, 20000), rng.uniform(-1.6, -0.1, 20000)))
+    inside = workspace.admissible(geometry, points, criteria)
+    assert 0.01 < np.mean(inside) < 0.95
+    np.testing.assert_array_equal(inside, workspace.pose_measures(geometry, points).admissible(criteria))
+    assert workspace.admissible(geometry, np.zeros((0, 3)), criteria).shape == (0,)
