@@ -144,19 +144,6 @@ def excitation_cylinder(performance: Performance) -> Cylinder:
     return cylinder
 
 
-def excitation_limits(performance: Performance) -> WorkspaceLimits:
-    """The region identification paths of a design may visit: :func:`excitation_cylinder` with margins."""
-    cylinder = excitation_cylinder(performance)
-    centre = pose_measures(performance.geometry, np.array([0.0, 0.0, cylinder.top - cylinder.height / 2]))
-    return WorkspaceLimits(
-        radius=cylinder.diameter / 2,
-        z_min=cylinder.bottom,
-        z_max=cylinder.top,
-        min_abs_k=EXCITATION_MARGIN * float(centre.min_abs_k),
-        min_abs_det_a=EXCITATION_MARGIN * abs(float(centre.det_a)),
-    )
-
-
 def _result(record: EpisodeRecord, controller: str, seed: int) -> EpisodeResult:
     figures = record.metrics()
     return EpisodeResult(
@@ -184,9 +171,19 @@ def _check_contacts(contacts: dict[tuple[str, str], float], what: str) -> None:
 
 
 def excitation_region(performance: Performance) -> ExcitationRegion:
-    """Where the design's excitation trajectories start and move: :func:`excitation_cylinder`, from its centre."""
+    """Where the design's excitation trajectories start and move: from the centre of :func:`excitation_cylinder`,
+    inside it, with min |k_i| and |det A| above :data:`EXCITATION_MARGIN` of their values at that centre."""
     cylinder = excitation_cylinder(performance)
-    return ExcitationRegion(start=(0.0, 0.0, cylinder.top - cylinder.height / 2), limits=excitation_limits(performance))
+    start = (0.0, 0.0, cylinder.top - cylinder.height / 2)
+    centre = pose_measures(performance.geometry, np.array(start))
+    limits = WorkspaceLimits(
+        radius=cylinder.diameter / 2,
+        z_min=cylinder.bottom,
+        z_max=cylinder.top,
+        min_abs_k=EXCITATION_MARGIN * float(centre.min_abs_k),
+        min_abs_det_a=EXCITATION_MARGIN * abs(float(centre.det_a)),
+    )
+    return ExcitationRegion(start=start, limits=limits)
 
 
 def identify_design(plant: PlantConfig, performance: Performance, seed: int, workers: int = 1) -> ControllerSetup:
