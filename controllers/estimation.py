@@ -15,6 +15,7 @@ x = (theta_1..3 (rad), theta_dot_1..3 (rad/s), theta_ddot_1..3 (rad/s^2)).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -192,6 +193,29 @@ class JointStateFilter:
         return state[:3], state[3:6], state[6:]
 
 
+@functools.lru_cache(maxsize=16)
+def _fixed_lag_weights(
+    lag: int, history: int, dt: float, measurement_std: float, jerk_std: float
+) -> NDArray[np.float64]:
+    """:class:`JointStateSmoother`'s weights, ``(3, history + lag + 1)`` (read-only): filterpy's RTS smoother of one
+    joint run on each unit reading of the window. Computed once per process and model, not per controller: every
+    episode builds several smoothers."""
+    window = history + lag + 1
+    # One joint of the block model; the diffuse prior leaves the window's readings alone to decide.
+    kf = _joint_kalman_filter(dt, measurement_std, jerk_std, np.zeros(1))
+    diffuse = np.diag([1.0, 1.0 / dt**2, 1.0 / dt**4])
+    weights = np.empty((3, window))
+    for reading in range(window):
+        unit = np.zeros(window)
+        unit[reading] = 1.0
+        kf.x, kf.P = np.zeros(3), diffuse.copy()
+        means, covariances, _, _ = kf.batch_filter(unit)
+        smoothed, _, _, _ = kf.rts_smoother(means, covariances)
+        weights[:, reading] = smoothed[history]
+    weights.flags.writeable = False
+    return weights
+
+
 SMOOTHER_LAG = 5
 """Default delay (samples) of :class:`JointStateSmoother`'s estimates: the readings after the estimated
 sample that it uses: the shortest delay at which the payload RLS loses the causal filter's bias (with 3
@@ -209,8 +233,8 @@ class JointStateSmoother:
     :func:`smooth_joint_motion`'s model (with :data:`FIXED_LAG_JERK_STD`; filterpy's ``batch_filter`` and
     ``rts_smoother``) over the window
     of the last ``history + lag + 1`` readings, with a diffuse prior at the window start. That estimate is
-    linear in the window's readings, so the smoother is computed once, at construction, as the weights of
-    each reading (filterpy's smoother run on unit readings), and each update is one small matrix product,
+    linear in the window's readings, so the smoother is computed once per model (and process) as the weights
+    of each reading (filterpy's smoother run on unit readings), and each update is one small matrix product,
     several times cheaper than :class:`JointStateFilter`'s filterpy predict and update.
 
     Unlike :class:`JointStateFilter`, whose acceleration lags about 3 ms behind a constant jerk and has a
@@ -245,17 +269,7 @@ class JointStateSmoother:
             raise ValueError(f"history must be an integer >= 2 samples, got {history!r}")
         self.lag, self.history = lag, history
         window = history + lag + 1
-        # One joint of the block model; the diffuse prior leaves the window's readings alone to decide.
-        kf = _joint_kalman_filter(dt, measurement_std, jerk_std, np.zeros(1))
-        diffuse = np.diag([1.0, 1.0 / dt**2, 1.0 / dt**4])
-        self.weights = np.empty((3, window))
-        for reading in range(window):
-            unit = np.zeros(window)
-            unit[reading] = 1.0
-            kf.x, kf.P = np.zeros(3), diffuse.copy()
-            means, covariances, _, _ = kf.batch_filter(unit)
-            smoothed, _, _, _ = kf.rts_smoother(means, covariances)
-            self.weights[:, reading] = smoothed[history]
+        self.weights = _fixed_lag_weights(lag, history, dt, measurement_std, jerk_std)
         # Every reading is written twice, so the last `window` readings are always one contiguous slice.
         self._readings = np.zeros((2 * window, 3))
         self._window = window

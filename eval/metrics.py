@@ -38,6 +38,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -61,8 +62,6 @@ SETTLING_DEADLINE_MS = 150.0
 REST_SPEED = 1e-9
 """Reference speed (m/s) at or below which the reference is at rest: the dwells of the sampled references are
 exactly at rest, moves are not on any sample inside them."""
-
-_PATH_CHUNK = 512  # samples per block of path_deviation's search
 
 PATH_WINDOW = 100
 """Reference segments searched on either side of a sample's own reference sample by :func:`path_deviation`:
@@ -170,22 +169,42 @@ def path_deviation(
     # A single vertex is a zero-length segment onto itself.
     starts, ends = (path[:-1], path[1:]) if len(path) > 1 else (path, path)
     if index is None:
-        offsets, centers = np.arange(len(starts)), np.zeros(len(positions), dtype=np.int64)
+        centers, first, last = np.zeros(len(positions), dtype=np.int64), 0, len(starts) - 1
     else:
-        offsets, centers = np.arange(-window, window + 1), np.asarray(index, dtype=np.int64)[finite]
-    distance = np.empty(len(positions))
-    # Chunks of samples keep the (chunk, segments, 3) temporaries to a few MB.
-    for chunk in range(0, len(positions), _PATH_CHUNK):
-        rows = slice(chunk, chunk + _PATH_CHUNK)
-        segments = np.clip(centers[rows, None] + offsets, 0, len(starts) - 1)
-        start, direction = starts[segments], ends[segments] - starts[segments]
-        relative = positions[rows, None, :] - start
-        length2 = np.einsum("nki,nki->nk", direction, direction)
-        # Zero-length segments (dwells) project onto their start point.
-        along = np.einsum("nki,nki->nk", relative, direction) / np.where(length2 > 0.0, length2, 1.0)
-        gap = relative - np.clip(along, 0.0, 1.0)[..., None] * direction
-        distance[rows] = np.sqrt(np.min(np.einsum("nki,nki->nk", gap, gap), axis=1))
+        centers, first, last = np.asarray(index, dtype=np.int64)[finite], -window, window
+    distance = _nearest_segment_distances(
+        positions, np.ascontiguousarray(starts), np.ascontiguousarray(ends), centers, first, last
+    )
     return 1e3 * float(np.sqrt(np.mean(distance**2))), 1e3 * float(np.max(distance))
+
+
+@numba.njit(cache=True)
+def _nearest_segment_distances(
+    positions: NDArray[np.float64],
+    starts: NDArray[np.float64],
+    ends: NDArray[np.float64],
+    centers: NDArray[np.int64],
+    first: int,
+    last: int,
+) -> NDArray[np.float64]:
+    """Distance (m) of each position, ``(N, 3)``, to the nearest of the segments ``starts[j] -> ends[j]``, ``(M, 3)``,
+    searched over j = ``centers[n] + first .. centers[n] + last`` (clipped to the segments)."""
+    distance = np.empty(len(positions))
+    for n in range(len(positions)):
+        low = min(max(centers[n] + first, 0), len(starts) - 1)
+        high = max(min(centers[n] + last, len(starts) - 1), low)
+        nearest = np.inf
+        for j in range(low, high + 1):
+            dx, dy, dz = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1], ends[j, 2] - starts[j, 2]
+            rx, ry, rz = positions[n, 0] - starts[j, 0], positions[n, 1] - starts[j, 1], positions[n, 2] - starts[j, 2]
+            length2 = dx * dx + dy * dy + dz * dz
+            # Zero-length segments (dwells) project onto their start point.
+            along = (rx * dx + ry * dy + rz * dz) / (length2 if length2 > 0.0 else 1.0)
+            along = min(max(along, 0.0), 1.0)
+            gx, gy, gz = rx - along * dx, ry - along * dy, rz - along * dz
+            nearest = min(nearest, gx * gx + gy * gy + gz * gz)
+        distance[n] = math.sqrt(nearest)
+    return distance
 
 
 def torque_ratios(torque: ArrayLike, peak_torque: float, rated_torque: float) -> tuple[float, float]:

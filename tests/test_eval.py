@@ -146,6 +146,22 @@ def test_path_deviation_is_the_distance_to_the_nearest_segment() -> None:
     assert peak == pytest.approx(5.0, rel=1e-9)
 
 
+def test_path_deviation_searches_the_window_around_each_sample_clipped_to_the_path() -> None:
+    # A zig-zag whose nearest segment lies 1-3 segments away from each sample's own index, also at both ends.
+    rng = np.random.default_rng(7)
+    path = np.cumsum(rng.normal(size=(40, 3)), axis=0)
+    positions = path + 0.1 * rng.normal(size=path.shape)
+    index = np.clip(np.arange(40) + rng.integers(-2, 3, size=40), 0, 39)
+    full = metrics.path_deviation(positions, path)
+    assert metrics.path_deviation(positions, path, index, window=45) == pytest.approx(full, rel=1e-12)
+    # a window of 0 searches only the sample's own segment (the last one for the last vertex): never nearer
+    own = metrics.path_deviation(positions, path, index, window=0)
+    assert own[0] > full[0] and own[1] >= full[1]
+    # an index past either end of the path searches the end segment
+    end = metrics.path_deviation(positions[-1:], path, [60], window=3)
+    assert end == pytest.approx(metrics.path_deviation(positions[-1:], path[-2:]), rel=1e-12)
+
+
 def test_path_deviation_does_not_score_a_lag_along_the_path() -> None:
     # A half circle of radius 0.1 m in 2001 samples; the platform runs 2 mm outside it, 30 samples late.
     angle = np.linspace(0.0, math.pi, 2001)
