@@ -14,10 +14,10 @@ eval: $(VENV)/.installed
 	$(PY) -m eval
 
 test: $(VENV)/.installed
-	$(PY) -m pytest -n auto --dist loadfile
+	$(PY) -m pytest -n auto --dist loadfile --no-loadscope-reorder
 
 test-slow: $(VENV)/.installed
-	$(PY) -m pytest -n auto --dist loadfile -m slow
+	$(PY) -m pytest -n auto --dist loadfile --no-loadscope-reorder -m slow
 
 bench: $(VENV)/.installed
 	$(PY) scripts/bench.py

@@ -19,6 +19,7 @@ reconfigured base moves the belt in the base frame (``evaluate(..., belt_height=
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -232,10 +233,9 @@ def evaluate(
     belt_height = require_belt_height(belt_height)
     band = (belt_height, belt_height + STANDARD_LIFT)
     masses = scaled_masses(geometry) if masses is None else masses
-    shortfall = task_radius - float(np.min(disc_radii(geometry, np.linspace(*band, TASK_BAND_HEIGHTS), criteria)))
-    cylinder = data_sheet_cylinder(geometry, criteria, belt=belt_height)
+    band_radius, cylinder, from_belt = _workspace_figures(geometry, criteria, belt_height)
+    shortfall = task_radius - band_radius
     required_top = belt_height + STANDARD_LIFT + PRODUCT_CLEARANCE
-    from_belt = axis_stretch(geometry, belt_height, criteria, floor=belt_height)
     clearance_shortfall = required_top - from_belt[1] if from_belt else math.inf
     points = task_region_points(task_radius, band)
     region = workspace.pose_measures(geometry, points)
@@ -257,8 +257,8 @@ def evaluate(
         reasons.append(f"peak torque {max(f.peak_torque for f in figures):.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
     drive = None
     if len(figures) == len(cycles):
-        options = CATALOGUE if drives is None else drives
-        drive = choose_drive(geometry, masses, options, exact=exact_drive, belt_height=belt_height)
+        options = CATALOGUE if drives is None else tuple(drives)
+        drive = _chosen_drive(geometry, masses, options, exact_drive, belt_height)
         if drive.option is None:
             reasons.append("no catalogue drive runs the rated payload on the standard cycle")
     speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)
@@ -279,6 +279,28 @@ def evaluate(
         reason="; ".join(reasons),
         drive=drive,
     )
+
+
+@functools.lru_cache(maxsize=1024)
+def _workspace_figures(
+    geometry: DeltaGeometry, criteria: workspace.Criteria, belt_height: float
+) -> tuple[float, Cylinder | None, tuple[float, float] | None]:
+    """What :func:`evaluate` needs of the workspace above a belt, whatever the task: the smallest dexterous disc
+    radius (m) over the task band, the data-sheet cylinder and the axis stretch from the belt. Kept per process:
+    the reconfiguration evaluates each screw setting for every task profile."""
+    band = np.linspace(belt_height, belt_height + STANDARD_LIFT, TASK_BAND_HEIGHTS)
+    band_radius = float(np.min(disc_radii(geometry, band, criteria)))
+    cylinder = data_sheet_cylinder(geometry, criteria, belt=belt_height)
+    return band_radius, cylinder, axis_stretch(geometry, belt_height, criteria, floor=belt_height)
+
+
+@functools.lru_cache(maxsize=1024)
+def _chosen_drive(
+    geometry: DeltaGeometry, masses: DeltaMasses, options: tuple[DriveOption, ...], exact: bool, belt_height: float
+) -> DriveChoice:
+    """:func:`~eval.design.codesign.choose_drive`, kept per process: it depends on the design and the belt, not on
+    the task profile."""
+    return choose_drive(geometry, masses, options, exact=exact, belt_height=belt_height)
 
 
 def peak_torque_map(
