@@ -28,6 +28,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
+import statistics
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -131,6 +133,31 @@ def episode_row(unit: WorkUnit, record: EpisodeRecord, first_seed: int) -> dict[
     }
 
 
+def episodes_to_go(rows: Sequence[dict[str, Any]], key: str, remaining_s: float, first_batch: int) -> int:
+    """Episodes of ``key`` to run for ``remaining_s`` more simulated seconds: by the mean simulated time of its
+    episodes in ``rows``, or ``first_batch`` before it has any."""
+    lengths = [float(row["simulated_s"]) for row in rows if row["key"] == key]
+    if not lengths:
+        return first_batch
+    return max(1, math.ceil(remaining_s / statistics.fmean(lengths)))
+
+
+def next_units(
+    scenario: Scenario, keys: Sequence[str], first_seed: int, finished: set[tuple[str, int]], start: int, count: int
+) -> tuple[list[WorkUnit], int]:
+    """The episodes of ``keys`` on the next ``count`` seeds from ``first_seed + start`` that are not all ``finished``
+    already (so a resumed soak fills its gaps first), and the seed index after the last of them."""
+    units: list[WorkUnit] = []
+    index = start
+    while count > 0:
+        seed = first_seed + index
+        new = [WorkUnit(scenario, key, seed) for key in keys if (key, seed) not in finished]
+        units += new
+        count -= bool(new)
+        index += 1
+    return units, index
+
+
 def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
     """The episodes already in the folder ``out`` (none if new); ``faults.csv`` trimmed to them. Refuses a folder of a
     soak under other conditions (another seed, scenario or code of the conditions), before its manifest is
@@ -217,10 +244,15 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
     target = 60.0 * args.minutes
     finished = {(row["key"], int(row["seed"])) for row in rows}
     simulated = {key: sum(float(row["simulated_s"]) for row in rows if row["key"] == key) for key in keys}
-    batch = 4 * args.workers
+    first_batch = 4 * args.workers
     index = 0
     with tqdm(total=len(keys) * target, desc="simulated s", unit="s") as progress:
-        progress.update(sum(min(seconds, target) for seconds in simulated.values()))
+
+        def show_progress() -> None:  # set, not added up: sums of float steps overshoot the total in the last bit
+            progress.n = sum(min(seconds, target) for seconds in simulated.values())
+            progress.refresh()
+
+        show_progress()
 
         def record_episode(unit: WorkUnit, record: EpisodeRecord) -> None:  # as each episode finishes
             row = episode_row(unit, record, args.seed)
@@ -228,19 +260,15 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
             append_csv_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
             append_csv_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
             rows.append(row)
-            before = simulated[unit.controller]
             simulated[unit.controller] += row["simulated_s"]
-            progress.update(min(simulated[unit.controller], target) - min(before, target))
+            show_progress()
 
+        # A first batch shows how long the episodes run; then one grid of as many episodes as that says are missing (one
+        # process pool for nearly the whole soak), and another for what shorter episodes (a divergence) left missing.
         while any(simulated[key] < target for key in keys):
-            units = [
-                WorkUnit(scenario, key, args.seed + i)
-                for key in keys
-                if simulated[key] < target
-                for i in range(index, index + batch)
-                if (key, args.seed + i) not in finished
-            ]
-            index += batch
+            short = [key for key in keys if simulated[key] < target]
+            count = max(episodes_to_go(rows, key, target - simulated[key], first_batch) for key in short)
+            units, index = next_units(scenario, short, args.seed, finished, index, count)
             run_grid(units, {scenario.content_hash: setup}, workers=args.workers, on_result=record_episode)
 
     faulted = sum(int(row["faults_injected"]) > 0 for row in rows)

@@ -290,3 +290,26 @@ def test_one_spelling_of_cycles_and_seeds(capsys: pytest.CaptureFixture) -> None
         with pytest.raises(SystemExit) as exit:
             PARSERS[tool](old_spelling)
         assert exit.value.code == 2 and f"unrecognized arguments: {old_spelling[0]}" in capsys.readouterr().err
+
+
+def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs_gaps() -> None:
+    soak = script("fault_soak")
+    rows = [
+        {"key": "pd", "simulated_s": "9.0"},
+        {"key": "pd", "simulated_s": "11.0"},
+        {"key": "mid", "simulated_s": "4"},
+    ]
+    assert soak.episodes_to_go(rows, "pd", 95.0, first_batch=8) == 10  # mean 10 s: 9.5 episodes
+    assert soak.episodes_to_go(rows, "mid", 0.5, first_batch=8) == 1
+    assert soak.episodes_to_go(rows, "oracle", 95.0, first_batch=8) == 8  # nothing run yet: the first batch
+    scenario = preset("nominal")
+    finished = {("pd", 100), ("mid", 100), ("pd", 101), ("pd", 103), ("mid", 103)}
+    units, after = soak.next_units(scenario, ["pd", "mid"], 100, finished, 0, 3)
+    assert [(u.controller, u.seed) for u in units] == [
+        ("mid", 101),
+        ("pd", 102),
+        ("mid", 102),
+        ("pd", 104),
+        ("mid", 104),
+    ]
+    assert after == 5 and all(u.scenario is scenario for u in units)
