@@ -202,18 +202,42 @@ def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells
     assert np.isfinite(record.payload_estimate).all() and not record.diverged
 
 
-def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(controller_setup: ControllerSetup) -> None:
-    # A stuck spell, glitches and the rests at the picks and places (where quantized readings repeat rightly): the
-    # monitor with its fast paths and one without must agree on every number.
-    faults = [
-        FaultSpec("encoder_stuck", carry_fraction=(0.5, 0.5), duration=(0.03, 0.03), joint=0),
-        FaultSpec("encoder_glitch", carry_fraction=(0.8, 0.8), size=(0.02, 0.02), joint=2),
-        *(  # their signs are drawn: some fall short of the command, some overshoot it
-            FaultSpec("torque_glitch", carry_fraction=(fraction, fraction), size=(50.0, 50.0), joint=joint)
-            for joint, fraction in enumerate((0.2, 0.3, 0.4))
-        ),
-    ]
-    env = DeltaPickPlaceEnv(faults=faults, n_cycles=1)
+SENSOR_SPELLS = (
+    FaultSpec("encoder_stuck", carry_fraction=(0.5, 0.5), duration=(0.03, 0.03), joint=0),
+    FaultSpec("encoder_glitch", carry_fraction=(0.8, 0.8), size=(0.02, 0.02), joint=2),
+    *(  # their signs are drawn: some fall short of the command, some overshoot it
+        FaultSpec("torque_glitch", carry_fraction=(fraction, fraction), size=(50.0, 50.0), joint=joint)
+        for joint, fraction in enumerate((0.2, 0.3, 0.4))
+    ),
+)
+DRIVE_SPELLS = (  # a partial loss (the CUSUM's), a total one (the implausible run's) and a NaN torque reading
+    FaultSpec("drive_fault", carry_fraction=(0.3, 0.3), size=(0.6, 0.6), duration=(0.06, 0.06), joint=0),
+    FaultSpec("drive_fault", carry_fraction=(0.6, 0.6), size=(0.0, 0.0), duration=(0.05, 0.05), joint=2),
+    FaultSpec("sensor_nan", carry_fraction=(0.9, 0.9), duration=(0.002, 0.002), joint=1),
+)
+
+
+class _WithoutFastPaths(FaultMonitor):
+    """A monitor that always runs the full checks: neither scalar fast path, nor update's skip of the array scans."""
+
+    _encoders_clean = property(lambda self: False, lambda self, value: None)
+    _torques_clean = property(lambda self: False, lambda self, value: None)
+
+
+@pytest.mark.parametrize(
+    ("faults", "kinds"),
+    [
+        (SENSOR_SPELLS, {"encoder_stuck", "encoder_glitch", "torque_glitch"}),
+        (DRIVE_SPELLS, {"drive_fault", "sensor_nan"}),
+    ],
+    ids=["sensor", "drive"],
+)
+def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
+    controller_setup: ControllerSetup, faults: tuple[FaultSpec, ...], kinds: set[str]
+) -> None:
+    # Fault spells and the rests at the picks and places (where quantized readings repeat rightly): the monitor with
+    # its fast paths and one without must agree on every number.
+    env = DeltaPickPlaceEnv(faults=list(faults), n_cycles=1)
     controller = _monitored_rls(controller_setup)
     observation, _ = env.reset(seed=3)
     controller.reset()
@@ -226,8 +250,8 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(controller
         observation, _, terminated, truncated, _ = env.step(command)
         done = terminated or truncated
     fast, full = fault_monitor(controller_setup), fault_monitor(controller_setup)
-    full._healthy_encoders = full._healthy_torques = lambda *args: False
-    repeats_passed = 0
+    full.__class__ = _WithoutFastPaths
+    repeats_passed = skipped_scans = 0
     healthy_encoders = fast._healthy_encoders
 
     def counting(raw: np.ndarray, *rates: np.ndarray) -> bool:
@@ -239,10 +263,12 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(controller
     fast._healthy_encoders = counting
     for index, (observation, command) in enumerate(steps):
         fast_clean, full_clean = fast.update(observation, command), full.update(observation, command)
+        skipped_scans += fast._encoders_clean and fast._torques_clean
         for key in ("joint_angles", "joint_velocities", "joint_torques"):
             np.testing.assert_array_equal(fast_clean[key], full_clean[key], err_msg=f"{key} at step {index}")
         for name in ("faulty", "suspect", "quiet_samples", "collision", "held_mass", "events"):
             assert getattr(fast, name) == getattr(full, name), f"{name} at step {index}"
         np.testing.assert_array_equal(fast.force, full.force)
-    assert {event.kind for event in fast.events} >= {"encoder_stuck", "encoder_glitch", "torque_glitch"}
+    assert {event.kind for event in fast.events} >= kinds
     assert repeats_passed > 100  # repeated readings that are not suspect took the fast path
+    assert skipped_scans > len(steps) // 2  # and most steps skipped the array scans
