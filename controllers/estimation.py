@@ -251,7 +251,7 @@ class JointStateSmoother:
 
     Attributes:
         weights: ``(3, history + lag + 1)``: row d gives derivative d (rad, rad/s, rad/s^2) of the
-            estimated sample from the window's readings, oldest first.
+            estimated sample from the window's readings, oldest first (read-only: smoothers of one model share it).
     """
 
     def __init__(

@@ -162,6 +162,10 @@ def path_deviation(
     """
     positions = np.asarray(positions, dtype=float).reshape(-1, 3)
     path = np.asarray(path, dtype=float).reshape(-1, 3)
+    if len(path) == 0 or not np.all(np.isfinite(path)):
+        raise ValueError(f"path must hold at least one vertex, all finite; got {len(path)} vertices")
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 0:
+        raise ValueError(f"window must be an integer >= 0 segments, got {window!r}")
     finite = np.all(np.isfinite(positions), axis=1)
     positions = positions[finite]
     if positions.shape[0] == 0:

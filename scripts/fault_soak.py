@@ -39,6 +39,7 @@ from controllers.registry import controller_label, controllers_help, parse_contr
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.validation import require_count
 from eval import metrics
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
@@ -133,27 +134,37 @@ def episode_row(unit: WorkUnit, record: EpisodeRecord, first_seed: int) -> dict[
     }
 
 
+GRID_EPISODES_PER_WORKER = 16
+"""Episodes per worker in one grid of the soak: one process pool runs them, and their records (about 350 bytes per
+simulated millisecond) stay in memory until the grid ends."""
+
+
 def episodes_to_go(rows: Sequence[dict[str, Any]], key: str, remaining_s: float, first_batch: int) -> int:
-    """Episodes of ``key`` to run for ``remaining_s`` more simulated seconds: by the mean simulated time of its
-    episodes in ``rows``, or ``first_batch`` before it has any."""
+    """Episodes of ``key`` to run for ``remaining_s`` more simulated seconds (s): by the mean simulated time of its
+    episodes in ``rows`` (at least one control period), or ``first_batch`` before it has any."""
     lengths = [float(row["simulated_s"]) for row in rows if row["key"] == key]
     if not lengths:
         return first_batch
-    return max(1, math.ceil(remaining_s / statistics.fmean(lengths)))
+    return max(1, math.ceil(remaining_s / max(statistics.fmean(lengths), CONTROL_PERIOD)))
 
 
 def next_units(
-    scenario: Scenario, keys: Sequence[str], first_seed: int, finished: set[tuple[str, int]], start: int, count: int
+    scenario: Scenario, wanted: dict[str, int], first_seed: int, finished: set[tuple[str, int]], start: int, limit: int
 ) -> tuple[list[WorkUnit], int]:
-    """The episodes of ``keys`` on the next ``count`` seeds from ``first_seed + start`` that are not all ``finished``
-    already (so a resumed soak fills its gaps first), and the seed index after the last of them."""
+    """The next episodes: ``wanted[key]`` of each controller, on the seeds from ``first_seed + start`` on, skipping
+    those ``finished`` already (so a resumed soak fills its gaps first), seed by seed until there are ``limit`` or
+    more (a seed is never split); and the seed index after the last seed used."""
+    require_count("limit", limit)
     units: list[WorkUnit] = []
+    to_go = {key: count for key, count in wanted.items() if count > 0}
     index = start
-    while count > 0:
+    while to_go and len(units) < limit:
         seed = first_seed + index
-        new = [WorkUnit(scenario, key, seed) for key in keys if (key, seed) not in finished]
-        units += new
-        count -= bool(new)
+        for key in [key for key in to_go if (key, seed) not in finished]:
+            units.append(WorkUnit(scenario, key, seed))
+            to_go[key] -= 1
+            if to_go[key] == 0:
+                del to_go[key]
         index += 1
     return units, index
 
@@ -244,7 +255,7 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
     target = 60.0 * args.minutes
     finished = {(row["key"], int(row["seed"])) for row in rows}
     simulated = {key: sum(float(row["simulated_s"]) for row in rows if row["key"] == key) for key in keys}
-    first_batch = 4 * args.workers
+    first_batch, grid_limit = 4 * args.workers, GRID_EPISODES_PER_WORKER * args.workers
     index = 0
     with tqdm(total=len(keys) * target, desc="simulated s", unit="s") as progress:
 
@@ -263,12 +274,15 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
             simulated[unit.controller] += row["simulated_s"]
             show_progress()
 
-        # A first batch shows how long the episodes run; then one grid of as many episodes as that says are missing (one
-        # process pool for nearly the whole soak), and another for what shorter episodes (a divergence) left missing.
+        # A first batch shows how long each controller's episodes run; then grids of as many episodes as that says are
+        # missing, each of at most GRID_EPISODES_PER_WORKER per worker on one process pool, planned again after each.
         while any(simulated[key] < target for key in keys):
-            short = [key for key in keys if simulated[key] < target]
-            count = max(episodes_to_go(rows, key, target - simulated[key], first_batch) for key in short)
-            units, index = next_units(scenario, short, args.seed, finished, index, count)
+            wanted = {
+                key: episodes_to_go(rows, key, target - simulated[key], first_batch)
+                for key in keys
+                if simulated[key] < target
+            }
+            units, index = next_units(scenario, wanted, args.seed, finished, index, grid_limit)
             run_grid(units, {scenario.content_hash: setup}, workers=args.workers, on_result=record_episode)
 
     faulted = sum(int(row["faults_injected"]) > 0 for row in rows)

@@ -25,11 +25,12 @@ from eval.parameter_files import load_or_identify
 LONGEST_FILES = ("test_design.py", "test_design_mechanism.py", "test_controllers.py", "test_residual.py")
 """The test files that take longest, collected first so that
 ``make test``'s pytest-xdist workers (``--dist loadfile --no-loadscope-reorder``: whole files, in this order) start
-on them and finish together. By default xdist starts with the files of most tests, and a worker that got
-``test_design.py`` last ran it alone for a minute after the other had finished."""
+on them and finish together. By default xdist starts with the files of most tests, and the worker that got
+``test_design.py`` last still ran it long after the other had finished."""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Collect :data:`LONGEST_FILES` first, in their order; every other file keeps its place."""
     rank = {name: n for n, name in enumerate(LONGEST_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 

@@ -185,6 +185,16 @@ def test_joint_state_smoother_is_filterpys_rts_smoother_over_its_window() -> Non
         assert_allclose(estimate[:, joint], expected, rtol=1e-7, atol=1e-9)
 
 
+def test_smoothers_of_one_model_share_their_read_only_weights() -> None:
+    first, second = JointStateSmoother(lag=4, history=12), JointStateSmoother(lag=4, history=12)
+    assert second.weights is first.weights and not first.weights.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        first.weights[0, 0] = 1.0
+    # another model has weights of its own: a stiffer one smooths less, weighting the estimated sample's reading more
+    stiffer = JointStateSmoother(lag=4, history=12, jerk_std=10.0 * FIXED_LAG_JERK_STD)
+    assert stiffer.weights is not first.weights and stiffer.weights[0, 12] > 1.5 * first.weights[0, 12]
+
+
 def test_joint_state_smoother_beats_the_causal_filter_on_a_pick_move(
     joint_min_jerk_move,
 ) -> None:

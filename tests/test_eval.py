@@ -146,20 +146,37 @@ def test_path_deviation_is_the_distance_to_the_nearest_segment() -> None:
     assert peak == pytest.approx(5.0, rel=1e-9)
 
 
+def _nearest_in_window(positions: np.ndarray, path: np.ndarray, index: np.ndarray, window: int) -> np.ndarray:
+    """path_deviation's definition, one sample and one segment at a time (mm)."""
+    distances = []
+    for position, center in zip(positions, index, strict=True):
+        nearest = math.inf
+        for j in range(center - window, center + window + 1):
+            start, end = path[min(max(j, 0), len(path) - 2)], path[min(max(j, 0), len(path) - 2) + 1]
+            along = np.clip(np.dot(position - start, end - start) / np.dot(end - start, end - start), 0.0, 1.0)
+            nearest = min(nearest, float(np.linalg.norm(position - start - along * (end - start))))
+        distances.append(1e3 * nearest)
+    return np.array(distances)
+
+
 def test_path_deviation_searches_the_window_around_each_sample_clipped_to_the_path() -> None:
-    # A zig-zag whose nearest segment lies 1-3 segments away from each sample's own index, also at both ends.
+    # A random walk whose nearest segment lies a few segments from each sample's own index; indices also past both
+    # ends of the path.
     rng = np.random.default_rng(7)
     path = np.cumsum(rng.normal(size=(40, 3)), axis=0)
     positions = path + 0.1 * rng.normal(size=path.shape)
     index = np.clip(np.arange(40) + rng.integers(-2, 3, size=40), 0, 39)
-    full = metrics.path_deviation(positions, path)
-    assert metrics.path_deviation(positions, path, index, window=45) == pytest.approx(full, rel=1e-12)
-    # a window of 0 searches only the sample's own segment (the last one for the last vertex): never nearer
-    own = metrics.path_deviation(positions, path, index, window=0)
-    assert own[0] > full[0] and own[1] >= full[1]
-    # an index past either end of the path searches the end segment
-    end = metrics.path_deviation(positions[-1:], path, [60], window=3)
-    assert end == pytest.approx(metrics.path_deviation(positions[-1:], path[-2:]), rel=1e-12)
+    index[:3], index[-3:] = (-60, -10, -1), (40, 45, 60)
+    for window in (0, 1, 3, 12):
+        expected = _nearest_in_window(positions, path, index, window)
+        rms, peak = metrics.path_deviation(positions, path, index, window=window)
+        assert (rms, peak) == pytest.approx((np.sqrt(np.mean(expected**2)), expected.max()), rel=1e-12)
+    assert metrics.path_deviation(positions, path, index, window=60) == pytest.approx(
+        metrics.path_deviation(positions, path), rel=1e-12
+    )
+    for path_, window in ((np.zeros((0, 3)), 5), (np.full((4, 3), math.nan), 5), (path, -1)):
+        with pytest.raises(ValueError, match=r"path must|window must"):
+            metrics.path_deviation(positions, path_, index, window=window)
 
 
 def test_path_deviation_does_not_score_a_lag_along_the_path() -> None:

@@ -210,10 +210,10 @@ SENSOR_SPELLS = (
         for joint, fraction in enumerate((0.2, 0.3, 0.4))
     ),
 )
-DRIVE_SPELLS = (  # a partial loss (the CUSUM's), a total one (the implausible run's) and a NaN torque reading
-    FaultSpec("drive_fault", carry_fraction=(0.3, 0.3), size=(0.6, 0.6), duration=(0.06, 0.06), joint=0),
-    FaultSpec("drive_fault", carry_fraction=(0.6, 0.6), size=(0.0, 0.0), duration=(0.05, 0.05), joint=2),
-    FaultSpec("sensor_nan", carry_fraction=(0.9, 0.9), duration=(0.002, 0.002), joint=1),
+DRIVE_SPELLS = (  # two total losses, one found by the implausible run, one by the CUSUM; a NaN torque reading
+    FaultSpec("drive_fault", carry_fraction=(0.2, 0.2), size=(0.0, 0.0), duration=(0.03, 0.03), joint=0),
+    FaultSpec("drive_fault", carry_fraction=(0.5, 0.5), size=(0.0, 0.0), duration=(0.03, 0.03), joint=2),
+    FaultSpec("sensor_nan", carry_fraction=(0.9, 0.9), duration=(0.002, 0.002), joint=1, sensor="torque"),
 )
 
 
@@ -227,13 +227,13 @@ class _WithoutFastPaths(FaultMonitor):
 @pytest.mark.parametrize(
     ("faults", "kinds"),
     [
-        (SENSOR_SPELLS, {"encoder_stuck", "encoder_glitch", "torque_glitch"}),
-        (DRIVE_SPELLS, {"drive_fault", "sensor_nan"}),
+        (SENSOR_SPELLS, {("encoder_stuck", 0), ("encoder_glitch", 2), ("torque_glitch", 0)}),
+        (DRIVE_SPELLS, {("drive_fault", 0), ("drive_fault", 2), ("sensor_nan", 1)}),
     ],
     ids=["sensor", "drive"],
 )
 def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
-    controller_setup: ControllerSetup, faults: tuple[FaultSpec, ...], kinds: set[str]
+    controller_setup: ControllerSetup, faults: tuple[FaultSpec, ...], kinds: set[tuple[str, int]]
 ) -> None:
     # Fault spells and the rests at the picks and places (where quantized readings repeat rightly): the monitor with
     # its fast paths and one without must agree on every number.
@@ -251,7 +251,7 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
         done = terminated or truncated
     fast, full = fault_monitor(controller_setup), fault_monitor(controller_setup)
     full.__class__ = _WithoutFastPaths
-    repeats_passed = skipped_scans = 0
+    repeats_passed = skipped_scans = implausible_runs = cusum_steps = 0
     healthy_encoders = fast._healthy_encoders
 
     def counting(raw: np.ndarray, *rates: np.ndarray) -> bool:
@@ -264,11 +264,15 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
     for index, (observation, command) in enumerate(steps):
         fast_clean, full_clean = fast.update(observation, command), full.update(observation, command)
         skipped_scans += fast._encoders_clean and fast._torques_clean
+        implausible_runs += bool(fast._short_run.any())
+        cusum_steps += bool(fast._shortfall.max() > 1.0)
         for key in ("joint_angles", "joint_velocities", "joint_torques"):
             np.testing.assert_array_equal(fast_clean[key], full_clean[key], err_msg=f"{key} at step {index}")
         for name in ("faulty", "suspect", "quiet_samples", "collision", "held_mass", "events"):
             assert getattr(fast, name) == getattr(full, name), f"{name} at step {index}"
         np.testing.assert_array_equal(fast.force, full.force)
-    assert {event.kind for event in fast.events} >= kinds
+    assert {(event.kind, event.joint) for event in fast.events} >= kinds
+    if faults is DRIVE_SPELLS:  # both drive-fault checks ran, with the scans
+        assert implausible_runs > 10 and cusum_steps > 10
     assert repeats_passed > 100  # repeated readings that are not suspect took the fast path
     assert skipped_scans > len(steps) // 2  # and most steps skipped the array scans

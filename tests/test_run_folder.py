@@ -24,6 +24,7 @@ from eval import __main__ as eval_cli
 from eval import identify, rate
 from eval.design import __main__ as design_cli
 from eval.engine import Prepared
+from eval.faults import EpisodeFaults
 from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated, create_run_folder, run_folder, runs_root
 from eval.sweep import __main__ as sweep_cli
@@ -297,14 +298,14 @@ def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs
     rows = [
         {"key": "pd", "simulated_s": "9.0"},
         {"key": "pd", "simulated_s": "11.0"},
-        {"key": "mid", "simulated_s": "4"},
+        {"key": "mid", "simulated_s": "0"},
     ]
     assert soak.episodes_to_go(rows, "pd", 95.0, first_batch=8) == 10  # mean 10 s: 9.5 episodes
-    assert soak.episodes_to_go(rows, "mid", 0.5, first_batch=8) == 1
     assert soak.episodes_to_go(rows, "oracle", 95.0, first_batch=8) == 8  # nothing run yet: the first batch
+    assert soak.episodes_to_go(rows, "mid", 0.5, first_batch=8) == 500  # episodes of no time count a control period
     scenario = preset("nominal")
     finished = {("pd", 100), ("mid", 100), ("pd", 101), ("pd", 103), ("mid", 103)}
-    units, after = soak.next_units(scenario, ["pd", "mid"], 100, finished, 0, 3)
+    units, after = soak.next_units(scenario, {"pd": 2, "mid": 3}, 100, finished, 0, limit=50)
     assert [(u.controller, u.seed) for u in units] == [
         ("mid", 101),
         ("pd", 102),
@@ -313,3 +314,50 @@ def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs
         ("mid", 104),
     ]
     assert after == 5 and all(u.scenario is scenario for u in units)
+    # a limit ends the grid after the seed that reaches it, never inside a seed
+    units, after = soak.next_units(scenario, {"pd": 9, "mid": 9}, 0, set(), 3, limit=3)
+    assert [(u.controller, u.seed) for u in units] == [("pd", 3), ("mid", 3), ("pd", 4), ("mid", 4)] and after == 5
+    assert soak.next_units(scenario, {}, 0, set(), 7, limit=3) == ([], 7)
+
+
+def test_the_soak_runs_each_controller_to_its_target_in_bounded_grids(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # PD's episodes last 0.5 s (say they diverge), MId's 10 s: each runs as many as its own target needs, in grids of
+    # at most GRID_EPISODES_PER_WORKER per worker (plus one seed's), never an episode twice.
+    soak = script("fault_soak")
+    lengths = {"pd": 0.5, "mid_f_rls": 10.0}
+    grids: list[list[tuple[str, int]]] = []
+
+    class Record:
+        def __init__(self, key: str) -> None:
+            self.steps, self.diverged = round(lengths[key] / 1e-3), key == "pd"
+
+        def metrics(self) -> dict[str, float]:
+            names = ("faults_injected", "detections", "false_alarms", "tracking_rms_mm", "torque_peak_nm")
+            return {"steps": self.steps, **dict.fromkeys(names, 0)}
+
+        def carries(self) -> list:
+            return []
+
+        def faults(self) -> EpisodeFaults:
+            return EpisodeFaults((), (), ())
+
+    def run_grid(units, setups, *, workers, on_result):
+        grids.append([(unit.controller, unit.seed) for unit in units])
+        for unit in units:
+            on_result(unit, Record(unit.controller))
+
+    monkeypatch.setattr(soak, "prepare", lambda *args, **kwargs: Prepared(SETUP, None, None, None))
+    monkeypatch.setattr(soak, "run_grid", run_grid)
+    args = soak.parse_args(["--minutes", "2", "--controllers", "pd,mid_f_rls", "--workers", "2"])
+    folder = tmp_path / "soak"
+    folder.mkdir()
+    rows: list[dict] = []
+    soak.soak(args, type("Run", (), {"folder": folder})(), preset("nominal"), rows)
+    ran = [pair for grid in grids for pair in grid]
+    assert len(ran) == len(set(ran))  # no episode twice
+    # a first batch of 4 per worker (80 s of MId, 4 s of PD), then exactly the 4 and 232 episodes missing
+    assert sum(key == "pd" for key, _ in ran) == 240 and sum(key == "mid_f_rls" for key, _ in ran) == 12
+    assert all(len(grid) <= 2 * soak.GRID_EPISODES_PER_WORKER + 1 for grid in grids) and len(grids) == 9
+    assert len(rows) == 252 and (folder / "summary.md").exists()
