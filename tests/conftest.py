@@ -22,7 +22,7 @@ from eval.parameter_files import load_or_identify
 # ---------------------------------------------------------------------------------------------
 # Order of the test files
 
-LONGEST_FILES = ("test_design.py", "test_design_mechanism.py", "test_controllers.py", "test_residual.py")
+LONGEST_FILES = ("test_design.py", "test_residual.py", "test_controllers.py", "test_engine.py")
 """The test files that take longest, collected first so that
 ``make test``'s pytest-xdist workers (``--dist loadfile --no-loadscope-reorder``: whole files, in this order) start
 on them and finish together. By default xdist starts with the files of most tests, and the worker that got
