@@ -510,8 +510,8 @@ def test_shipped_policy_loads_and_beats_its_base_on_a_held_out_episode() -> None
     assert DEFAULT_POLICY_PATH.stat().st_size < 5_000_000
     policy = load_residual_policy()
     assert policy.algo == "sac" and policy.base is not None
-    # Trained on the eval's mid_f_rls_lag row (an old policy file: its base is read from the old record).
-    assert policy.base.key == "mid_f_rls_lag" and "setup" not in read_policy_metadata()["base"]
+    # Trained on the eval's mid_f_rls_lag row, stored as the setup record (old records: test_an_old_policy_file_...).
+    assert policy.base.key == "mid_f_rls_lag" and "setup" in read_policy_metadata()["base"]
     controller = load_residual_controller(name="residual")
     assert controller.name == "residual"
     # A test seed of the training CLI, one cycle: never trained on, never used for model selection.
