@@ -55,6 +55,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import torch
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 from stable_baselines3.common.logger import configure, make_output_format
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -64,6 +65,8 @@ from tqdm import tqdm
 
 from controllers.base import Controller
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, algorithm_class, save_residual_policy
+from controllers.residual.env import action_rate_penalty
+from controllers.residual.features import PREVIOUS_ACTION
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
 from eval.residual_envs import (
     BASE_KEYS,
@@ -102,21 +105,60 @@ def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:
     return None
 
 
-REWARD_FIELDS = ("reward_scale", "torque_weight")
+REWARD_FIELDS = ("reward_scale", "torque_weight", "action_rate_weight")
 """The :class:`ResidualConfig` fields a replay buffer's rewards were computed with."""
+
+
+def trained_config(checkpoint: Path) -> ResidualConfig | None:
+    """The residual settings of the run a checkpoint comes from, from the ``config.json`` of its run folder (fields
+    its record predates take their defaults); None when no record is found (a checkpoint outside a run folder)."""
+    for folder in (checkpoint.parent, checkpoint.parent.parent):
+        record = folder / "config.json"
+        if record.is_file():
+            return ResidualConfig.from_dict(json.loads(record.read_text())["config"]["residual_config"])
+    return None
 
 
 def reward_change(checkpoint: Path, config: ResidualConfig) -> str | None:
     """What of the reward (:data:`REWARD_FIELDS`) differs between the run a checkpoint comes from and ``config``,
     as a sentence; None when nothing differs or no record is found."""
-    for folder in (checkpoint.parent, checkpoint.parent.parent):
-        record = folder / "config.json"
-        if record.is_file():
-            trained = {**asdict(ResidualConfig()), **json.loads(record.read_text())["config"]["residual_config"]}
-            now = asdict(config)
-            changed = [f"{key} {trained[key]} -> {now[key]}" for key in REWARD_FIELDS if trained[key] != now[key]]
-            return f"the reward changed since {checkpoint}: {', '.join(changed)}" if changed else None
-    return None
+    trained = trained_config(checkpoint)
+    if trained is None:
+        return None
+    changed = [
+        f"{key} {getattr(trained, key)} -> {getattr(config, key)}"
+        for key in REWARD_FIELDS
+        if getattr(trained, key) != getattr(config, key)
+    ]
+    return f"the reward changed since {checkpoint}: {', '.join(changed)}" if changed else None
+
+
+def relabelable(trained: ResidualConfig, config: ResidualConfig) -> bool:
+    """Whether a replay buffer filled under ``trained`` can be relabelled for ``config``: of the reward
+    (:data:`REWARD_FIELDS`) and the residual's scale only ``action_rate_weight`` changed. The other terms depend on
+    the plant's response, which a buffer does not keep."""
+    fixed = [key for key in (*REWARD_FIELDS, "residual_limit") if key != "action_rate_weight"]
+    return all(getattr(trained, key) == getattr(config, key) for key in fixed)
+
+
+def relabel_action_rate(buffer: ReplayBuffer, trained: ResidualConfig, config: ResidualConfig) -> None:
+    """Recompute, in place, the action-rate term of the rewards in ``buffer`` (filled under ``trained``) for
+    ``config``: the term is a function of a transition's action and of the previous action its observation holds
+    (:data:`~controllers.residual.features.PREVIOUS_ACTION`), so the relabelled rewards are those the transitions
+    would have had under ``config``, to float32 round-off.
+
+    Raises:
+        ValueError: if the buffer cannot be relabelled (:func:`relabelable`).
+    """
+    if not relabelable(trained, config):
+        raise ValueError(
+            f"only action_rate_weight can be relabelled in a replay buffer: it was filled under {trained}, not {config}"
+        )
+    filled = buffer.buffer_size if buffer.full else buffer.pos
+    actions = buffer.actions[:filled]
+    previous = buffer.observations[:filled, ..., PREVIOUS_ACTION]
+    change = action_rate_penalty(actions, previous, config) - action_rate_penalty(actions, previous, trained)
+    buffer.rewards[:filled] += (config.reward_scale * change).astype(buffer.rewards.dtype)
 
 
 class LatestReplayCheckpoint(CheckpointCallback):
@@ -203,6 +245,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         action_period=args.action_period,
         reward_scale=args.reward_scale,
         torque_weight=args.torque_weight,
+        action_rate_weight=args.action_rate_weight,
     )
 
 
@@ -311,12 +354,16 @@ def _train(
         off_policy = isinstance(model, OffPolicyAlgorithm)
         replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
         reward = reward_change(args.resume, config)
-        if off_policy and reward is not None:
+        trained = trained_config(args.resume)
+        relabel = reward is not None and trained is not None and relabelable(trained, config)
+        if off_policy and reward is not None and not (relabel and replay.is_file()):
             # its transitions carry the old reward: the critic would learn from two rewards at once
             warnings.warn(f"{reward}: resuming with an empty replay buffer", stacklevel=1)
             replay = None
         elif off_policy and replay.is_file():
             model.load_replay_buffer(replay)
+            if relabel:
+                relabel_action_rate(model.replay_buffer, trained, config)
         elif off_policy:
             # Only the newest replay buffer is kept: an older checkpoint restarts with an empty one.
             warnings.warn(f"no replay buffer at {replay}: resuming with an empty one", stacklevel=1)
@@ -326,6 +373,7 @@ def _train(
             "setting_changed": mismatch,
             "num_timesteps": model.num_timesteps,
             "replay_buffer": replay if off_policy else None,
+            "replay_buffer_relabelled": off_policy and replay is not None and relabel,
             "hyperparameters_changed": overrides,
         }
         run.record(config=resolved)
@@ -409,6 +457,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="reward weight ((N m)^-2) of the squared torque per control step, added to the plant env's (default 0)",
     )
     parser.add_argument(
+        "--action-rate-weight",
+        type=float,
+        default=ResidualConfig.action_rate_weight,
+        help="reward weight ((N m)^-2) of the squared change of the residual torque per policy step (default 0)",
+    )
+    parser.add_argument(
         "--hyperparams",
         nargs="+",
         default=[],
@@ -434,7 +488,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     try:
         residual_config(args)
     except ValueError as error:
-        parser.error(f"--residual-limit, --action-period, --reward-scale, --torque-weight: {error}")
+        flags = "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight"
+        parser.error(f"{flags}: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:

@@ -19,6 +19,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 pytest.importorskip("stable_baselines3", reason="the residual policy needs the rl extra (stable-baselines3)")
 
 from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.env_checker import check_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -40,6 +41,7 @@ from controllers.residual import (
     save_residual_policy,
     shipped_base_setup,
 )
+from controllers.residual.features import PREVIOUS_ACTION
 from controllers.residual.policy_file import METADATA_NAME, actor_layers
 from controllers.setup import ControllerSetup
 from delta_env.env import DeltaPickPlaceEnv
@@ -47,7 +49,7 @@ from delta_env.scenario import preset
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
 from eval.scoring import TEST_SEEDS
-from eval.train_residual import parse_args, resume_mismatch, reward_change, train
+from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
 from tests.conftest import NOMINAL_SETUP
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
@@ -161,6 +163,59 @@ def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
         assert charged_info["reward_tracking"] == info["reward_tracking"]
 
 
+def test_action_rate_weight_charges_the_squared_change_of_the_residual_torque() -> None:
+    weight, scale = 3e-3, 0.5
+    config = ResidualConfig(residual_limit=15.0, reward_scale=scale, action_rate_weight=weight)
+    envs = [
+        DeltaResidualEnv(base=make_base(), config=dataclasses.replace(config, action_rate_weight=w), n_cycles=1)
+        for w in (0.0, weight)
+    ]
+    for env in envs:
+        env.reset(seed=SEED)
+    # Residuals (N m) of 15 * a: (6, -3, 0) from zero, then (-3, 0, 12): squared changes 36 + 9 + 0 = 45 (N m)^2,
+    # then 81 + 9 + 144 = 234 (N m)^2.
+    actions = [np.array([0.4, -0.2, 0.0], dtype=np.float32), np.array([-0.2, 0.0, 0.8], dtype=np.float32)]
+    for action, squared_change in zip(actions, (45.0, 234.0), strict=True):
+        (_, reward, _, _, info), (_, charged_reward, _, _, charged_info) = (env.step(action) for env in envs)
+        assert info["reward_action_rate"] == 0.0
+        assert charged_info["reward_action_rate"] == pytest.approx(-scale * weight * squared_change, rel=1e-6)
+        assert charged_reward == pytest.approx(reward + charged_info["reward_action_rate"], rel=1e-12)
+        assert charged_info["reward_tracking"] == info["reward_tracking"]
+        assert charged_info["reward_torque"] == info["reward_torque"]
+
+
+def test_a_constant_zero_action_costs_no_action_rate() -> None:
+    env = DeltaResidualEnv(base=make_base(), config=ResidualConfig(action_rate_weight=1.0), n_cycles=1)
+    observation, _ = env.reset(seed=SEED)
+    for _ in range(10):
+        observation, _, _, _, info = env.step(np.zeros(3, dtype=np.float32))
+        assert info["reward_action_rate"] == 0.0
+        assert_array_equal(observation[PREVIOUS_ACTION], 0.0)
+
+
+def test_relabelling_a_replay_buffer_gives_the_rewards_of_the_new_action_rate_weight() -> None:
+    """Transitions of one episode and action sequence, stored under one weight and relabelled for another, carry
+    the rewards the env gives under the other (the episode is the same: the term does not act on the plant)."""
+    old, new = ResidualConfig(action_rate_weight=2e-3), ResidualConfig(action_rate_weight=5e-3)
+    buffers = {}
+    for config in (old, new):
+        env = DeltaResidualEnv(base=make_base(), config=config, n_cycles=1)
+        buffer = ReplayBuffer(40, env.observation_space, env.action_space, device="cpu")
+        observation, _ = env.reset(seed=SEED)
+        for step in range(30):
+            action = np.float32(0.9) * np.cos(np.arange(3, dtype=np.float32) + step).astype(np.float32)
+            next_observation, reward, _, _, info = env.step(action)
+            buffer.add(observation, next_observation, action, np.array([reward]), np.array([False]), [info])
+            observation = next_observation
+        buffers[config] = buffer
+    assert np.max(np.abs(buffers[old].rewards[:30] - buffers[new].rewards[:30])) > 0.1
+    relabel_action_rate(buffers[old], old, new)
+    assert_allclose(buffers[old].rewards[:30], buffers[new].rewards[:30], rtol=1e-5, atol=1e-5)
+    assert_array_equal(buffers[old].rewards[30:], 0.0)
+    with pytest.raises(ValueError, match="only action_rate_weight"):
+        relabel_action_rate(buffers[new], new, dataclasses.replace(new, action_rate_weight=0.0, torque_weight=1e-4))
+
+
 def test_sb3_check_env_passes_without_warnings() -> None:
     env = DeltaResidualEnv(base=make_base(), n_cycles=1)
     with warnings.catch_warnings():
@@ -225,11 +280,24 @@ def test_bad_actions_raise(action: np.ndarray) -> None:
         {"action_period": 0},
         {"reward_scale": -1.0},
         {"torque_weight": -1e-4},
+        {"action_rate_weight": -1e-3},
+        {"action_rate_weight": 2.0},
+        {"action_rate_weight": float("nan")},
     ],
 )
 def test_config_rejects_bad_values(kwargs: dict) -> None:
     with pytest.raises(ValueError):
         ResidualConfig(**kwargs)
+
+
+def test_a_bad_action_rate_weight_names_the_value_and_the_range(capsys) -> None:
+    with pytest.raises(
+        ValueError, match=r"action_rate_weight must be a finite number in \[0, 1\] \(N m\)\^-2, got -0\.001"
+    ):
+        ResidualConfig(action_rate_weight=-1e-3)
+    with pytest.raises(SystemExit):
+        parse_args(["--action-rate-weight", "-0.001"])
+    assert "action_rate_weight must be a finite number in [0, 1] (N m)^-2, got -0.001" in capsys.readouterr().err
 
 
 def test_vector_envs() -> None:
@@ -442,8 +510,8 @@ def test_shipped_policy_loads_and_beats_its_base_on_a_held_out_episode() -> None
     assert DEFAULT_POLICY_PATH.stat().st_size < 5_000_000
     policy = load_residual_policy()
     assert policy.algo == "sac" and policy.base is not None
-    # Trained on the eval's mid_f_rls_lag row (an old policy file: its base is read from the old record).
-    assert policy.base.key == "mid_f_rls_lag" and "setup" not in read_policy_metadata()["base"]
+    # Trained on the eval's mid_f_rls_lag row, stored as the setup record (old records: test_an_old_policy_file_...).
+    assert policy.base.key == "mid_f_rls_lag" and "setup" in read_policy_metadata()["base"]
     controller = load_residual_controller(name="residual")
     assert controller.name == "residual"
     # A test seed of the training CLI, one cycle: never trained on, never used for model selection.
@@ -636,4 +704,6 @@ def test_a_changed_reward_is_named_so_the_old_replay_buffer_is_left(tmp_path: Pa
     assert reward_change(checkpoint, ResidualConfig()) is None
     changed = reward_change(checkpoint, ResidualConfig(torque_weight=1e-4, reward_scale=2.0))
     assert "torque_weight 0.0 -> 0.0001" in changed and "reward_scale 1.0 -> 2.0" in changed
+    assert "action_rate_weight 0.0 -> 0.001" in reward_change(checkpoint, ResidualConfig(action_rate_weight=1e-3))
+    assert trained_config(checkpoint) == ResidualConfig()  # fields the record predates take their defaults
     assert reward_change(tmp_path / "a" / "b" / "x.zip", ResidualConfig(torque_weight=1e-4)) is None

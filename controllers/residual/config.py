@@ -37,6 +37,11 @@ class ResidualConfig:
             per mille of the tracking term, so a policy buys its last tenths of a millimetre with it; at 1.5e-4 a
             percent of torque RMS (about 20 (N m)^2 per step at 20 N m per joint) costs about half the tracking
             term of a 0.07 mm RMS controller. 0 (the default) leaves the plant env's reward.
+        action_rate_weight: Weight ((N m)^-2) of the squared change of the residual torque between successive
+            policy steps, summed over the joints, once per policy step (the first step's change is from zero).
+            It prices the step-to-step jitter of the residual, which the tracking does not need but the torque RMS
+            pays for; a change that follows the reference's slow errors costs little. 0 (the default) leaves it
+            unpriced.
     """
 
     residual_limit: float = 15.0
@@ -45,6 +50,7 @@ class ResidualConfig:
     ripple_periods: int = field(default=_DATASHEET.ripple_periods)
     stribeck_velocity: float = field(default=_DATASHEET.stribeck_velocity)
     torque_weight: float = 0.0
+    action_rate_weight: float = 0.0
 
     def __post_init__(self) -> None:
         require_in("residual_limit", self.residual_limit, 0.0, TORQUE_LIMIT, unit="N m", low_open=True)
@@ -53,6 +59,7 @@ class ResidualConfig:
         require_count("ripple_periods", self.ripple_periods, minimum=0)
         require_positive("stribeck_velocity", self.stribeck_velocity, unit="rad/s")
         require_in("torque_weight", self.torque_weight, 0.0, 1.0, unit="(N m)^-2")
+        require_in("action_rate_weight", self.action_rate_weight, 0.0, 1.0, unit="(N m)^-2")
         object.__setattr__(self, "action_period", int(self.action_period))
         object.__setattr__(self, "ripple_periods", int(self.ripple_periods))
 

@@ -17,6 +17,16 @@ from controllers.residual.policy_file import shipped_base_setup
 from delta_env.env import DeltaPickPlaceEnv
 
 
+def action_rate_penalty(
+    action: NDArray[np.floating], previous_action: NDArray[np.floating], config: ResidualConfig
+) -> NDArray[np.float64]:
+    """The action-rate term of a policy step's reward before ``reward_scale``: ``-config.action_rate_weight`` times
+    the squared change of the residual torque ((N m)^2, summed over the joints) from ``previous_action`` to
+    ``action`` (both in [-1, 1], the last axis the joints; any leading axes are kept: a replay buffer's)."""
+    change = config.residual_limit * (np.asarray(action, dtype=float) - np.asarray(previous_action, dtype=float))
+    return -config.action_rate_weight * np.sum(change**2, axis=-1)
+
+
 class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dict[str, Any], NDArray[np.float64]]):
     """DeltaPickPlace-v0 with a base controller inside; the agent adds a bounded, held torque residual.
 
@@ -37,8 +47,10 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
     ## Rewards
     ``reward_scale`` times the sum of the plant env's rewards over the control steps of this policy
     step: -(tracking error in mm^2 + 1e-5 (N m)^-2 torque^2) per control step by default, with
-    ``config.torque_weight`` added to the torque weight. ``info`` holds the summed terms ``reward_tracking``
-    and ``reward_torque``.
+    ``config.torque_weight`` added to the torque weight; plus, once per policy step, ``-config.action_rate_weight``
+    times the squared change of the residual torque since the previous policy step ((N m)^2 summed over the joints;
+    from zero at the first step; :func:`action_rate_penalty`), times ``reward_scale`` too. ``info`` holds the
+    summed terms ``reward_tracking``, ``reward_torque`` and ``reward_action_rate``.
 
     ## Starting State
     The plant env's: at rest at a place point (``start="place"``, the default) or at the first pick point
@@ -130,20 +142,22 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             steps += 1
             self._base_torque = self.base(observation)
             self._features.update(observation, self._base_torque, self._base_estimate())
-        self._previous_action = action
         self._needs_reset = terminated or truncated
         scale = self.config.reward_scale
         extra_torque = -self.config.torque_weight * float(np.sum(commanded[:steps] ** 2))
-        reward_sum += extra_torque
+        action_rate = float(action_rate_penalty(action, self._previous_action, self.config))
+        reward_sum += extra_torque + action_rate
         reward_torque += extra_torque
         info.update(
             reward_tracking=scale * reward_tracking,
             reward_torque=scale * reward_torque,
+            reward_action_rate=scale * action_rate,
             tracking_errors=errors[:steps],
             commanded_torques=commanded[:steps],
             base_torques=base_torques[:steps],
             residual_torque=residual,
             control_steps=steps,
         )
+        self._previous_action = action
         observation = self._features.policy_observation(self._previous_action)
         return observation, scale * reward_sum, terminated, truncated, info

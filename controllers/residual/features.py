@@ -28,6 +28,9 @@ _EVENT_HORIZON = 0.5  # s: time since the last pick or place, saturated here
 FEATURE_CLIP = 10.0
 """Bound of every normalized feature (the observation space is [-FEATURE_CLIP, FEATURE_CLIP]^43)."""
 
+PREVIOUS_ACTION = slice(40, 43)
+"""Where the policy observation holds the previous policy action (unnormalized, in [-1, 1])."""
+
 
 class ResidualFeatures:
     """The policy's observation, built from the 1 kHz observations between two policy steps.
