@@ -28,8 +28,9 @@ _EVENT_HORIZON = 0.5  # s: time since the last pick or place, saturated here
 FEATURE_CLIP = 10.0
 """Bound of every normalized feature (the observation space is [-FEATURE_CLIP, FEATURE_CLIP]^43)."""
 
-PREVIOUS_ACTION = slice(40, 43)
-"""Where the policy observation holds the previous policy action (unnormalized, in [-1, 1])."""
+PREVIOUS_ACTION = slice(-3, None)
+"""Where the policy observation holds the previous policy action (unnormalized, in [-1, 1]): its last block
+(:meth:`ResidualFeatures.policy_observation` appends it after every other feature)."""
 
 
 class ResidualFeatures:
