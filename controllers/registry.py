@@ -115,10 +115,10 @@ def _model_row(key: str, label: str) -> ControllerFactory:
 @functools.cache
 def _loaded_policy(path: Path, modified_ns: int, size: int) -> ResidualPolicy:
     """The residual policy file at ``path``, loaded once per process and version of the file (its modification time
-    and size): a policy holds no episode state."""
+    and size), for deployment (its actor without torch when it can): a policy holds no episode state."""
     from controllers.residual import load_residual_policy
 
-    return load_residual_policy(path)
+    return load_residual_policy(path, deploy=True)
 
 
 def loaded_policy(setup: ControllerSetup) -> ResidualPolicy:

@@ -70,7 +70,7 @@ def test_payload_rls_rejects_bad_samples(value: list) -> None:
 
 def test_residual_policy_action_is_sb3_predict_to_float32_round_off() -> None:
     policy = load_residual_policy()
-    assert policy.layers is not None, "the shipped SAC actor is a plain MLP: it runs as NumPy matrix products"
+    assert policy.actor is not None, "the shipped SAC actor is a plain MLP: it runs as NumPy matrix products"
     observations = np.random.default_rng(5).uniform(-10.0, 10.0, (64, ResidualFeatures.size)).astype(np.float32)
     batch, _ = policy.model.predict(observations, deterministic=True)
     # Observations at the feature clip drive the last layer's sums to about 100 before tanh: float32 rounds them to
@@ -83,7 +83,7 @@ def test_residual_policy_action_is_sb3_predict_to_float32_round_off() -> None:
         action = policy(observation)
         assert action.shape == (3,) and action.dtype == single.dtype
         assert_allclose(action, single, rtol=0.0, atol=round_off)
-    torch_path = dataclasses.replace(policy, layers=None)
+    torch_path = dataclasses.replace(policy, actor=None)
     assert_array_equal(torch_path(observations), batch)  # the torch path is SB3's arithmetic bit for bit
 
 

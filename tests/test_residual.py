@@ -41,8 +41,9 @@ from controllers.residual import (
     save_residual_policy,
     shipped_base_setup,
 )
+from controllers.residual.actor import model_actor, read_actor
 from controllers.residual.features import PREVIOUS_ACTION
-from controllers.residual.policy_file import METADATA_NAME, actor_layers
+from controllers.residual.policy_file import METADATA_NAME
 from controllers.setup import ControllerSetup
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import preset
@@ -558,17 +559,23 @@ def test_shipped_base_setup_is_the_policy_files_base() -> None:
     assert setup.controller().name == "MId+F+R+RLS+lag+PD", "the shipped policy's base leads the drive lag"
 
 
-def test_policy_settings_are_read_without_torch_and_checked(tmp_path: Path) -> None:
-    # python -m eval checks --residual with these settings in its main process; the model loads in a worker.
+def test_policy_settings_are_read_and_the_row_runs_without_torch(tmp_path: Path) -> None:
+    # python -m eval checks --residual with these settings in its main process; a worker runs the row on the actor
+    # read from the file: neither imports torch.
     code = (
         "import sys; from controllers.residual import read_policy_settings; "
         "settings = read_policy_settings(); assert 'torch' not in sys.modules, 'torch imported'; "
-        "print(settings.algo, settings.base.name)"
+        "from controllers.registry import build_controller; "
+        "from delta_env.env import DeltaPickPlaceEnv; from eval.episodes import run_episode; "
+        "setup = settings.base.setup; "
+        "record = run_episode(DeltaPickPlaceEnv(n_cycles=1), build_controller('residual', setup), 0); "
+        "assert 'torch' not in sys.modules, 'torch imported'; "
+        "print(settings.algo, settings.base.name, record.metrics()['tracking_rms_mm'] < 0.2)"
     )
     environment = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["sac", load_residual_policy().base.name]
+    assert done.stdout.split() == ["sac", load_residual_policy().base.name, "True"]
     with zipfile.ZipFile(DEFAULT_POLICY_PATH) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
     metadata = json.loads(members[METADATA_NAME])
@@ -653,10 +660,13 @@ def test_sb3_contrib_algorithms_train_save_and_reload(algo: str, tmp_path: Path)
     run = train(args, base_factory=make_base)
     policy = load_residual_policy(run / "final_policy.zip")
     assert policy.algo == algo and policy.model.num_timesteps == 60
-    assert (policy.layers is not None) == (algo == "tqc"), "TQC's actor is SAC's plain MLP, CrossQ's is not"
+    assert (policy.actor is not None) == (algo == "tqc"), "TQC's actor is SAC's plain MLP, CrossQ's is not"
     observations = np.random.default_rng(0).uniform(-2, 2, (4, ResidualFeatures.size)).astype(np.float32)
     expected, _ = policy.model.predict(observations, deterministic=True)
     assert_allclose(policy(observations), expected, atol=1e-5)
+    deployed = load_residual_policy(run / "final_policy.zip", deploy=True)  # read without torch for TQC only
+    assert (deployed.model is None) == (algo == "tqc")
+    assert_array_equal(deployed(observations), policy(observations))
     checkpoints = sorted(p.name for p in (run / "checkpoints").iterdir())
     assert "residual_replay_buffer_60_steps.pkl" in checkpoints, "off-policy checkpoints keep the replay buffer"
 
@@ -673,15 +683,32 @@ def test_a_missing_shipped_policy_says_how_to_get_a_base(tmp_path: Path) -> None
         shipped_base_setup(tmp_path / "absent.zip")
 
 
-def test_only_a_plain_relu_mlp_actor_runs_as_numpy_layers() -> None:
+def test_only_a_plain_relu_mlp_actor_runs_as_numpy_layers(tmp_path: Path) -> None:
     import torch
 
     env = DeltaResidualEnv(base=make_base(), n_cycles=1)
     plain = SAC("MlpPolicy", env, seed=2, policy_kwargs={"net_arch": [16, 8]}, device="cpu")
-    layers = actor_layers(plain)
-    assert [w.shape for w, _ in layers] == [(16, ResidualFeatures.size), (8, 16), (3, 8)]
-    other = SAC("MlpPolicy", env, seed=2, policy_kwargs={"net_arch": [16], "activation_fn": torch.nn.Tanh})
-    assert actor_layers(other) is None
+    actor = model_actor(plain)
+    assert [w.shape for w, _ in actor.layers] == [(16, ResidualFeatures.size), (8, 16), (3, 8)]
+    plain.save(tmp_path / "plain.zip")
+    read = read_actor(tmp_path / "plain.zip")  # the same actor from the file, without torch
+    for (weight, bias), (read_weight, read_bias) in zip(actor.layers, read.layers, strict=True):
+        assert_array_equal(read_weight, weight)
+        assert_array_equal(read_bias, bias)
+    assert_array_equal(read.low, actor.low) and assert_array_equal(read.high, actor.high)
+    tanh_layers = {"policy_kwargs": {"net_arch": [16], "activation_fn": torch.nn.Tanh}}
+    for kwargs in (tanh_layers, {"policy_kwargs": {"net_arch": [16]}, "use_sde": True}):
+        other = SAC("MlpPolicy", env, seed=2, device="cpu", **kwargs)
+        assert model_actor(other) is None, kwargs
+        other.save(tmp_path / "other.zip")
+        assert read_actor(tmp_path / "other.zip") is None, kwargs
+
+
+def test_a_damaged_policy_archive_is_named(tmp_path: Path) -> None:
+    damaged = tmp_path / "damaged.zip"
+    damaged.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match=r"damaged\.zip"):
+        read_actor(damaged)
 
 
 def test_resuming_under_another_scenario_or_base_is_named(tmp_path: Path) -> None:

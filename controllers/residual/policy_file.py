@@ -6,7 +6,8 @@ base controller: its row and what it knew, the experiments' :class:`~controllers
 (identified parameters, drive lag, tare, gains, geometry and datasheet masses), written by the generic writer of
 :mod:`delta_env.records` with its content hash. :func:`load_residual_controller` rebuilds the whole 1 kHz controller
 from the file alone; files written before the record held a separate base record, which still loads. SB3 (and
-torch) are imported only when a model is loaded.
+torch) are imported only when a model is loaded: a controller reads a SAC actor without them
+(:mod:`controllers.residual.actor`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from numpy.typing import NDArray
 from controllers.base import Controller
 from controllers.feedforward import controller_name
 from controllers.payload import FRICTION_VELOCITY
+from controllers.residual.actor import MlpActor, model_actor, read_actor
 from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
@@ -188,16 +190,17 @@ def _legacy_base(values: dict[str, Any]) -> PolicyBase:
 
 @dataclass(frozen=True)
 class ResidualPolicy:
-    """A loaded residual policy: the SB3 model, the settings and the base it was trained with."""
+    """A loaded residual policy: the SB3 model (None when loaded for deployment), the settings and the base it was
+    trained with."""
 
-    model: BaseAlgorithm
+    model: BaseAlgorithm | None
     config: ResidualConfig
     algo: str
     base: PolicyBase | None
     metadata: dict[str, Any]
-    layers: tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...] | None = None
-    """The deterministic actor as float32 (weight, bias) pairs of its Linear layers (ReLU between them, tanh
-    after the last), when it is that plain MLP (:func:`actor_layers`); None runs the torch modules."""
+    actor: MlpActor | None = None
+    """The deterministic actor as NumPy float32 layers when it is SAC's plain MLP (:mod:`controllers.residual.actor`);
+    None runs the SB3 model."""
 
     def __call__(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
         """The deterministic action (mean of the policy) for one observation ``(43,)`` or a batch ``(N, 43)``.
@@ -208,18 +211,12 @@ class ResidualPolicy:
         float32 weights, as a controller would deploy it: the torch call costs about four times the
         arithmetic at one observation; the actions agree with torch's to float32 round-off.
         """
+        if self.actor is not None:
+            return self.actor(observation)
         policy = self.model.policy
         if self.algo not in SQUASHED_GAUSSIAN_ACTORS or policy.actor.use_sde:
             action, _ = self.model.predict(observation, deterministic=True)
             return action
-        if self.layers is not None:
-            hidden = np.asarray(observation, dtype=np.float32)
-            last = len(self.layers) - 1
-            for index, (weight, bias) in enumerate(self.layers):
-                hidden = hidden @ weight.T + bias
-                if index < last:
-                    np.maximum(hidden, 0.0, out=hidden)
-            return policy.unscale_action(np.tanh(hidden))
         import torch
 
         actor = policy.actor
@@ -227,26 +224,6 @@ class ResidualPolicy:
             features = actor.features_extractor(torch.as_tensor(observation).reshape(-1, ResidualFeatures.size))
             action = policy.unscale_action(torch.tanh(actor.mu(actor.latent_pi(features))).numpy())
         return action if np.ndim(observation) == 2 else action[0]
-
-
-def actor_layers(model: BaseAlgorithm) -> tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...] | None:
-    """The (weight, bias) float32 arrays of a SAC (or TQC) actor that is a plain MLP: flattened input, Linear and ReLU
-    layers, a Linear mean; None for any other actor (PPO, gSDE, other activations or feature extractors)."""
-    import torch
-    from stable_baselines3.common.torch_layers import FlattenExtractor
-
-    actor = getattr(model.policy, "actor", None)
-    if actor is None or getattr(actor, "use_sde", True) or not isinstance(actor.features_extractor, FlattenExtractor):
-        return None
-    modules = [*actor.latent_pi, actor.mu]
-    linear = modules[0::2]
-    if not all(isinstance(m, torch.nn.Linear) for m in linear) or not all(
-        isinstance(m, torch.nn.ReLU) for m in modules[1::2]
-    ):
-        return None
-    return tuple(
-        (m.weight.detach().numpy().astype(np.float32), m.bias.detach().numpy().astype(np.float32)) for m in linear
-    )
 
 
 class PolicySettings(NamedTuple):
@@ -281,8 +258,14 @@ def read_policy_settings(path: str | Path = DEFAULT_POLICY_PATH) -> PolicySettin
     return PolicySettings(config, algo, base, metadata)
 
 
-def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPolicy:
+def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH, *, deploy: bool = False) -> ResidualPolicy:
     """Load a policy written by :func:`save_residual_policy` (on the CPU).
+
+    Args:
+        path: The policy zip.
+        deploy: Read only the deterministic actor, without SB3 or torch, when it is SAC's plain MLP
+            (:func:`controllers.residual.actor.read_actor`; the model is then None); any other policy is loaded
+            whole. What an episode needs: the evaluation's rows and a robot's controller.
 
     Raises:
         FileNotFoundError: if ``path`` does not exist.
@@ -290,25 +273,34 @@ def load_residual_policy(path: str | Path = DEFAULT_POLICY_PATH) -> ResidualPoli
             settings, unreadable model); the message names the path.
     """
     settings = read_policy_settings(path)
+    if deploy and settings.algo in SQUASHED_GAUSSIAN_ACTORS:
+        actor = read_actor(path)
+        if actor is not None:
+            _check_spaces(path, (actor.layers[0][0].shape[1],), actor.low.shape)
+            return ResidualPolicy(None, settings.config, settings.algo, settings.base, settings.metadata, actor)
     try:
         model = algorithm_class(settings.algo).load(path, device="cpu")
         model.policy.set_training_mode(False)
     except Exception as error:  # SB3 and torch raise many kinds on a damaged archive
         raise ValueError(f"could not load the residual policy {path}: {error}") from error
-    expected = (ResidualFeatures.size,)
-    if model.observation_space.shape != expected or model.action_space.shape != (3,):
-        raise ValueError(
-            f"{path}: policy spaces {model.observation_space.shape} -> {model.action_space.shape} do not match "
-            f"the residual observation {expected} -> (3,)"
-        )
+    _check_spaces(path, model.observation_space.shape, model.action_space.shape)
     return ResidualPolicy(
         model=model,
         config=settings.config,
         algo=settings.algo,
         base=settings.base,
         metadata=settings.metadata,
-        layers=actor_layers(model) if settings.algo in SQUASHED_GAUSSIAN_ACTORS else None,
+        actor=model_actor(model) if settings.algo in SQUASHED_GAUSSIAN_ACTORS else None,
     )
+
+
+def _check_spaces(path: str | Path, observation: tuple[int, ...], action: tuple[int, ...]) -> None:
+    """Raise ValueError (naming ``path``) unless the policy maps the residual observation to 3 torques."""
+    expected = (ResidualFeatures.size,)
+    if observation != expected or action != (3,):
+        raise ValueError(
+            f"{path}: policy spaces {observation} -> {action} do not match the residual observation {expected} -> (3,)"
+        )
 
 
 def load_residual_controller(
@@ -327,7 +319,7 @@ def load_residual_controller(
         ValueError: if the file is not a valid residual policy (the message names the path), or if
             ``base`` is None for a policy trained on a custom base.
     """
-    policy = load_residual_policy(path)
+    policy = load_residual_policy(path, deploy=True)
     if base is None and policy.base is None:
         raise ValueError(f"{path} was trained on a custom base controller: pass base=")
     return residual_controller(policy, base, name)
