@@ -133,8 +133,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
     if "residual" in args.controllers:
-        # Fail now, not after the other controllers have run. Only the settings are read here: the model
-        # (torch) is loaded by the worker that runs the residual episodes, which the comparison runs first.
+        # Fail now, not after the other controllers have run. Only the settings are read here: the actor is read
+        # by the workers that run the residual episodes, which the comparison runs first.
         try:
             base = read_policy_settings(args.residual).base
         except (FileNotFoundError, ValueError) as error:

@@ -38,7 +38,7 @@ TABLE2_PAYLOAD = 3.8
 """Mass of every object in the Table 2 run (kg), the paper's test payload."""
 
 SLOW_KEYS = ("residual", "oracle")
-"""Rows whose episodes cost the most (the residual's first episode in a process also loads torch): queued
+"""Rows whose episodes cost the most (the residual's policy network, the oracle's closed-chain inverse): queued
 first, so that the short episodes even out the end of the run across the workers."""
 
 
