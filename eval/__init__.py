@@ -6,24 +6,32 @@
 - ``python -m eval.train_residual``: training the residual policy (stable-baselines3).
 
 Every experiment runs its episodes with :func:`eval.episodes.run_episode` and writes its run folder with
-:mod:`eval.run_folder`. This package imports neither matplotlib nor torch; the modules that need them do.
+:mod:`eval.run_folder`. Importing the package imports none of its modules: the names below load on first use.
 """
 
-from eval.calibration import calibrate_tares
-from eval.episodes import EpisodeRecord, run_episode
-from eval.identification import identify_logs, run_identification
-from eval.parameter_files import identification_root, load_or_identify
-from eval.run_folder import create_run_folder, run_folder, runs_root
+import importlib
+from typing import Any
 
-__all__ = [
-    "EpisodeRecord",
-    "calibrate_tares",
-    "create_run_folder",
-    "identification_root",
-    "identify_logs",
-    "load_or_identify",
-    "run_episode",
-    "run_folder",
-    "run_identification",
-    "runs_root",
-]
+_HOMES = {
+    "EpisodeRecord": "eval.episodes",
+    "calibrate_tares": "eval.calibration",
+    "create_run_folder": "eval.run_folder",
+    "identification_root": "eval.parameter_files",
+    "identify_logs": "eval.identification",
+    "load_or_identify": "eval.parameter_files",
+    "run_episode": "eval.episodes",
+    "run_folder": "eval.run_folder",
+    "run_identification": "eval.identification",
+    "runs_root": "eval.run_folder",
+}
+"""The module of each name this package exports."""
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    """The exported names, imported on first use: ``python -m eval`` starts its worker server
+    (:func:`eval.processes.start_worker_server`) before it imports the experiments."""
+    if name not in _HOMES:
+        raise AttributeError(f"module 'eval' has no attribute {name!r}")
+    return getattr(importlib.import_module(_HOMES[name]), name)

@@ -28,6 +28,13 @@ Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 
 
 from __future__ import annotations
 
+import os
+
+from eval.processes import start_worker_server
+
+if __name__ == "__main__" and (os.cpu_count() or 1) > 1:  # the episodes will run on a pool (--workers, default 2)
+    start_worker_server()  # its imports run beside this module's own, below
+
 import argparse
 import dataclasses
 import sys

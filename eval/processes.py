@@ -1,4 +1,8 @@
-"""Process pools for the experiments, safe next to torch."""
+"""Process pools for the experiments, safe next to torch.
+
+This module imports nothing of the project at its top, so that a command line can start the worker server
+(:func:`start_worker_server`) before it imports the experiments.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +13,6 @@ from multiprocessing.context import BaseContext
 from multiprocessing.pool import Pool
 from typing import Any, TypeVar
 
-from delta_env.validation import require_count
-
 _Item = TypeVar("_Item")
 _Output = TypeVar("_Output")
 
@@ -18,6 +20,17 @@ WORKER_MODULES = ("eval.tasks", "eval.identification")
 """Modules the forkserver imports once before it forks any worker: every worker of the experiments needs
 them (MuJoCo, the env, the controllers, filterpy, numba), and a fork inherits them instead of importing them
 again. None of them imports torch; a worker that runs a residual policy imports it itself."""
+
+
+def start_worker_server() -> None:
+    """Start the forkserver of :func:`pool_context` now, in the background: it imports :data:`WORKER_MODULES` (about
+    as long as a command line's own imports) while the caller imports its own, instead of after them when the
+    first pool starts. Nothing happens where the start method is spawn."""
+    context = pool_context()
+    if context.get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()
 
 
 def pool_context() -> BaseContext:
@@ -41,6 +54,8 @@ def process_pool(workers: int) -> Iterator[Pool | None]:
     One pool for dependent batches of work (the tare episodes, then the episodes that need the tares)
     starts its workers once.
     """
+    from delta_env.validation import require_count  # not at the top: see the module's docstring
+
     require_count("workers", workers)
     if workers == 1:
         yield None
@@ -75,6 +90,8 @@ def parallel_map(
         progress: A tqdm bar advanced once per finished item, or None.
         pool: A running pool of :func:`process_pool` to use instead of a new one.
     """
+    from delta_env.validation import require_count  # not at the top: see the module's docstring
+
     require_count("workers", workers)
     results = []
     with contextlib.ExitStack() as stack:

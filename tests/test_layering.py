@@ -11,13 +11,16 @@ LAYERS = ("delta_env", "controllers", "eval")
 
 EXPERIMENT_MODULES = ("argparse", "matplotlib", "stable_baselines3", "torch", "tqdm")
 """What ``controllers`` must not import at module level or in functions: command lines, figures, training
-loops and progress bars belong to ``eval`` (SB3 and torch are loaded lazily by the policy file only)."""
+loops and progress bars belong to ``eval`` (SB3 and torch are loaded lazily by the policy file and the actor only)."""
 
 LAZY_ALLOWED = {
     ("controllers/residual/policy_file.py", "stable_baselines3"),
     ("controllers/residual/policy_file.py", "torch"),
+    ("controllers/residual/actor.py", "stable_baselines3"),
+    ("controllers/residual/actor.py", "torch"),
 }
-"""(module, import) pairs allowed when deferred: loading a saved policy needs SB3, running its network torch."""
+"""(module, import) pairs allowed when deferred: loading a saved policy needs SB3, running its network torch,
+taking the actor's layers from a loaded model both."""
 
 
 def _type_checking_only(node: ast.AST) -> bool:
