@@ -3,6 +3,10 @@ policy load and one process pool for many episodes."""
 
 import dataclasses
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -143,6 +147,20 @@ def test_work_given_to_the_pool_later_queues_behind_the_first_batch() -> None:
         assert [first, *running, *queued] == [2.0, 3.0, 4.0, 5.0, 2.0, 6.0]
     in_process = parallel_imap(math.sqrt, [4.0, 9.0], None)
     assert next(in_process) == 2.0 and list(in_process) == [3.0]
+
+
+def test_the_worker_server_starts_before_the_project_is_imported() -> None:
+    # python -m eval starts it first, so that its imports overlap the command's own: eval.processes must stay light.
+    code = (
+        "import math, sys; from eval.processes import pool_context, start_worker_server; "
+        "loaded = [m for m in sys.modules if m.split('.')[0] in ('delta_env', 'controllers') or m == 'eval.tasks']; "
+        "assert not loaded, loaded; start_worker_server(); "
+        "pool = pool_context().Pool(1); print(pool.apply(math.sqrt, (16.0,))); pool.close(); pool.join()"
+    )
+    environment = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["4.0"]
 
 
 def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:
