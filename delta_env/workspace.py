@@ -24,11 +24,13 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env import buildability, kinematics
-from delta_env.geometry import DeltaGeometry
+from delta_env import buildability, kernels, kinematics
+from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaGeometry
+from delta_env.robot import forearm_home_tilt
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
 THETA_RANGE = (-0.6, 1.5)
@@ -52,6 +54,7 @@ VOLUME_SAMPLES = 400_000
 """Default Monte Carlo samples of :func:`reachable_volume`: a relative standard error near 1 %."""
 
 _CHUNK = 100_000  # points per vectorized batch: bounds memory at a few tens of MB
+_TINY = float(np.finfo(float).tiny)
 
 
 @dataclass(frozen=True)
@@ -203,27 +206,101 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
 def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
     """Whether platform positions ``xyz`` (m), ``(..., 3)``, satisfy ``criteria``, ``(...)``.
 
-    The same test as :meth:`PoseMeasures.admissible` of :func:`pose_measures`, computing only what it needs: the
-    joint range first on all points, the ball-joint cone and skew on the points that pass, the conditioning on the
-    points that pass those.
+    The same test as :meth:`PoseMeasures.admissible` of :func:`pose_measures`, computing only what it needs, point by
+    point in compiled code (:func:`_admissible_points`): the workspace searches call it thousands of times on a few
+    hundred points, where NumPy's per-call cost dominated.
     """
     xyz = _points(xyz)
-    flat = xyz.reshape(-1, 3)
-    result = np.zeros(len(flat), dtype=bool)
+    flat = np.ascontiguousarray(xyz.reshape(-1, 3))
+    result = np.empty(len(flat), dtype=bool)
     low, high = criteria.theta_range
-    for start in range(0, len(flat), _CHUNK):
-        chunk = flat[start : start + _CHUNK]
-        theta = kinematics.elbow_out_angles(geometry, chunk)
-        with np.errstate(invalid="ignore"):
-            candidate = np.flatnonzero(np.all((theta >= low) & (theta <= high), axis=-1))  # NaN (unreachable) fails
-        if candidate.size == 0:
-            continue
-        a, k = kinematics.constraint_terms(geometry, chunk[candidate], theta[candidate])
-        cone, skew = buildability.forearm_angles(geometry, a, theta[candidate])
-        held = (np.max(cone, axis=-1) <= criteria.max_forearm_tilt) & (np.max(skew, axis=-1) <= criteria.max_skew)
-        held[held] = _conditioning(a[held], k[held]) >= criteria.min_conditioning
-        result[start + candidate] = held
+    bounds = np.array((low, high, criteria.max_forearm_tilt, criteria.max_skew, criteria.min_conditioning))
+    _admissible_points(flat, geometry.r, geometry.l1, geometry.l2, forearm_home_tilt(geometry), bounds, result)
     return result.reshape(xyz.shape[:-1])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _admissible_points(
+    xyz: NDArray[np.float64],
+    r: float,
+    l1: float,
+    l2: float,
+    tilt: float,
+    bounds: NDArray[np.float64],
+    out: NDArray[np.bool_],
+) -> None:
+    """:func:`admissible` of every row of ``xyz`` (n, 3) (m) into ``out`` (n,): the steps of
+    :func:`kinematics.elbow_out_angles`, :func:`kinematics.constraint_terms`, :func:`buildability.forearm_angles`
+    and :func:`_conditioning` in scalar arithmetic, a point left at its first failed test. ``bounds``: the
+    criteria's (theta low, theta high, ball-joint cone, skew) (rad) and conditioning; ``tilt``: the forearms' home
+    tilt (rad)."""
+    low, high, max_tilt, max_skew, min_conditioning = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4]
+    theta = np.empty(3)
+    rows = np.empty((3, 3))  # rows a_i / k_i of J^{-1} (up to sign)
+    for point in range(xyz.shape[0]):
+        out[point] = False
+        x, y, z = xyz[point, 0], xyz[point, 1], xyz[point, 2]
+        in_range = True
+        for chain in range(3):
+            cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
+            x_local = x * cos_a + y * sin_a - r
+            y_local = -x * sin_a + y * cos_a
+            p, q = -2.0 * l1 * x_local, 2.0 * l1 * z
+            ratio = (l2**2 - l1**2 - x_local**2 - y_local**2 - z**2) / math.hypot(p, q)
+            angle = math.atan2(q, p) + math.acos(min(max(ratio, -1.0), 1.0)) if abs(ratio) <= 1.0 else math.nan
+            if not (low <= angle <= high):  # NaN (unreachable) fails
+                in_range = False
+                break
+            theta[chain] = angle
+        if not in_range:
+            continue
+        held, serial = True, False
+        for chain in range(3):
+            cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
+            ex, ey, ez = kernels.elbow(theta[chain], chain, r, l1)
+            ax, ay, az = x - ex, y - ey, z - ez
+            s, c = math.sin(theta[chain]), math.cos(theta[chain])
+            k = -(ax * (-l1 * s * cos_a) + ay * (-l1 * s * sin_a) + az * (-l1 * c))
+            along_u = ax / l2 * cos_a + ay / l2 * sin_a
+            along_t = -ax / l2 * sin_a + ay / l2 * cos_a
+            cone = 0.0
+            for axis_tilt in (tilt, tilt + theta[chain]):
+                cosine = -along_u * math.sin(axis_tilt) - az / l2 * math.cos(axis_tilt)
+                cone = max(cone, math.acos(min(max(cosine, -1.0), 1.0)))
+            if not (cone <= max_tilt and math.asin(min(abs(along_t), 1.0)) <= max_skew):
+                held = False
+                break
+            serial |= not abs(k) > 0.0
+            rows[chain, 0], rows[chain, 1], rows[chain, 2] = ax / k, ay / k, az / k
+        if held:
+            out[point] = (0.0 if serial else _singular_value_ratio(rows)) >= min_conditioning
+
+
+@numba.njit(cache=True, inline="always")
+def _singular_value_ratio(m: NDArray[np.float64]) -> float:
+    """:func:`singular_value_ratio` of one 3 x 3 matrix, its steps in scalar arithmetic."""
+    b = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            b[i, j] = m[0, i] * m[0, j] + m[1, i] * m[1, j] + m[2, i] * m[2, j]
+    q = (b[0, 0] + b[1, 1] + b[2, 2]) / 3.0
+    off = b[0, 1] ** 2 + b[0, 2] ** 2 + b[1, 2] ** 2
+    p = math.sqrt(((b[0, 0] - q) ** 2 + (b[1, 1] - q) ** 2 + (b[2, 2] - q) ** 2 + 2.0 * off) / 6.0)
+    if p <= 1e-15 * max(q, _TINY):
+        largest = smallest = q
+    else:
+        for i in range(3):
+            for j in range(3):
+                b[i, j] = (b[i, j] - (q if i == j else 0.0)) / p
+        determinant = (
+            b[0, 0] * (b[1, 1] * b[2, 2] - b[1, 2] * b[2, 1])
+            - b[0, 1] * (b[1, 0] * b[2, 2] - b[1, 2] * b[2, 0])
+            + b[0, 2] * (b[1, 0] * b[2, 1] - b[1, 1] * b[2, 0])
+        )
+        phi = math.acos(min(max(determinant / 2.0, -1.0), 1.0)) / 3.0
+        largest = q + 2.0 * p * math.cos(phi)
+        smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return math.sqrt(max(smallest, 0.0) / largest) if largest > 0.0 else 0.0
 
 
 def reach_bounds(geometry: DeltaGeometry, theta_range: tuple[float, float] = THETA_RANGE) -> tuple[float, float, float]:
