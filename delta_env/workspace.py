@@ -242,12 +242,7 @@ def _admissible_points(
         x, y, z = xyz[point, 0], xyz[point, 1], xyz[point, 2]
         in_range = True
         for chain in range(3):
-            cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
-            x_local = x * cos_a + y * sin_a - r
-            y_local = -x * sin_a + y * cos_a
-            p, q = -2.0 * l1 * x_local, 2.0 * l1 * z
-            ratio = (l2**2 - l1**2 - x_local**2 - y_local**2 - z**2) / math.hypot(p, q)
-            angle = math.atan2(q, p) + math.acos(min(max(ratio, -1.0), 1.0)) if abs(ratio) <= 1.0 else math.nan
+            angle = kernels.elbow_out_angle(x, y, z, chain, r, l1, l2)
             if not (low <= angle <= high):  # NaN (unreachable) fails
                 in_range = False
                 break
@@ -257,10 +252,7 @@ def _admissible_points(
         held, serial = True, False
         for chain in range(3):
             cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
-            ex, ey, ez = kernels.elbow(theta[chain], chain, r, l1)
-            ax, ay, az = x - ex, y - ey, z - ez
-            s, c = math.sin(theta[chain]), math.cos(theta[chain])
-            k = -(ax * (-l1 * s * cos_a) + ay * (-l1 * s * sin_a) + az * (-l1 * c))
+            ax, ay, az, k = kernels.constraint_row(x, y, z, theta[chain], chain, r, l1)
             along_u = ax / l2 * cos_a + ay / l2 * sin_a
             along_t = -ax / l2 * sin_a + ay / l2 * cos_a
             cone = 0.0
