@@ -170,6 +170,21 @@ def task_cycle(
 ) -> Trajectory:
     """The standard 25/305/25 mm cycle of a design at ``centre`` (m) along ``heading`` (rad), from rest at its pick
     point: the design's figures (motion time, peak and RMS torque) are those of whole cycles and nothing else."""
+    centre = tuple(float(c) for c in centre)
+    return _task_cycle(geometry, centre, float(heading), n_cycles, float(peak_acceleration), float(dt))
+
+
+@functools.lru_cache(maxsize=256)
+def _task_cycle(
+    geometry: DeltaGeometry,
+    centre: tuple[float, ...],
+    heading: float,
+    n_cycles: int,
+    peak_acceleration: float,
+    dt: float,
+) -> Trajectory:
+    """:func:`task_cycle`, kept per process (a :class:`Trajectory` is read-only): the reconfiguration's task
+    profiles share their cycles at the centre of the belt."""
     return standard_cycle(
         geometry,
         peak_acceleration,
