@@ -145,26 +145,24 @@ class _MoveScaling:
 
     Along the law the torque is a + b k + (c + J qdd) k^2 for a drive of armature J; the lag-inverse command leads
     it by dt / (1 - p) (:class:`delta_env.drive.SampledLag`'s inverse). The envelope is checked at every
-    :data:`SCREEN_STRIDE`-th sample, the RMS over the move and the dwell after it exactly.
+    :data:`SCREEN_STRIDE`-th sample, the RMS over the move and the dwell after it exactly. Built by
+    :func:`_move_scalings` from the move's joint rates ``qd`` (rad/s), joint accelerations ``qdd`` (rad/s^2) and the
+    links' torque (N m) at rest (``static``) and along the law (``moving``), each ``(N, 3)``.
     """
 
     def __init__(
-        self, geometry: DeltaGeometry, masses: DeltaMasses | None, shape: Segment, law: TimeLaw, load: float
+        self,
+        law: TimeLaw,
+        qd: NDArray[np.float64],
+        qdd: NDArray[np.float64],
+        static: NDArray[np.float64],
+        moving: NDArray[np.float64],
     ) -> None:
-        links = design_model(geometry, masses, dataclasses.replace(DRIVE, armature=0.0, viscous=0.0, coulomb=0.0))
-        x, velocity, acceleration = move_samples(shape, law)
-        q, qd, qdd = kinematics.cartesian_to_joint(geometry, x, velocity, acceleration)
-        static = links.inverse_dynamics(q, np.zeros_like(q), np.zeros_like(q), load)
-        parts = (
-            static + DRIVE.coulomb * np.sign(qd),
-            DRIVE.viscous * qd,
-            links.inverse_dynamics(q, qd, qdd, load) - static,
-            qdd,
-        )
+        parts = (static + DRIVE.coulomb * np.sign(qd), DRIVE.viscous * qd, moving - static, qdd)
         self.law, self.dt = law, law.dt
         # Sums over the move's samples (the last one starts the dwell) of products of the parts: the squared torque.
-        moving = [part[:-1] for part in parts]
-        self._sums = {(i, j): np.sum(moving[i] * moving[j], axis=0) for i in range(4) for j in range(i, 4)}
+        moving_parts = [part[:-1] for part in parts]
+        self._sums = {(i, j): np.sum(moving_parts[i] * moving_parts[j], axis=0) for i in range(4) for j in range(i, 4)}
         self._resting = parts[0][-1] ** 2
         lag = DRIVE.actuator_lag
         self._lead = self.dt / (1.0 - math.exp(-self.dt / lag)) if lag > 0.0 else 0.0
@@ -209,6 +207,30 @@ class _MoveScaling:
             return ok
 
         return _largest(passes, high)
+
+
+def _move_scalings(
+    geometry: DeltaGeometry, masses: DeltaMasses | None, moves: Sequence[tuple[Segment, TimeLaw, float]]
+) -> list[_MoveScaling]:
+    """A :class:`_MoveScaling` of each (shape, law, load (kg)) on the design: the samples of every move joined, so
+    that one inverse kinematics and one inverse dynamics (at rest and along the laws) serve them all; NumPy's
+    per-sample arithmetic gives each sample the same numbers as a call of its own."""
+    links = design_model(geometry, masses, dataclasses.replace(DRIVE, armature=0.0, viscous=0.0, coulomb=0.0))
+    samples = [move_samples(shape, law) for shape, law, _ in moves]
+    ends = np.cumsum([len(x) for x, _, _ in samples])[:-1]
+    q, qd, qdd = kinematics.cartesian_to_joint(
+        geometry, *(np.concatenate(columns) for columns in zip(*samples, strict=True))
+    )
+    load = np.concatenate([np.full(len(x), float(m)) for (x, _, _), (_, _, m) in zip(samples, moves, strict=True)])
+    rest = np.zeros_like(q)
+    torque = links.inverse_dynamics(
+        np.concatenate((q, q)), np.concatenate((rest, qd)), np.concatenate((rest, qdd)), np.concatenate((load, load))
+    )
+    static, moving = np.split(torque, 2)
+    per_move = zip(*(np.split(array, ends) for array in (qd, qdd, static, moving)), strict=True)
+    return [
+        _MoveScaling(law, *(part.copy() for part in parts)) for (_, law, _), parts in zip(moves, per_move, strict=True)
+    ]
 
 
 def _largest(passes: Callable[[NDArray[np.float64]], NDArray[np.bool_]], high: NDArray[np.float64]) -> NDArray:
@@ -262,10 +284,15 @@ def screen_drives(
     as scoring all."""
     belt_height = require_belt_height(belt_height)
     references = [_moves(cycles, belt_height) for cycles in reference_cycles(float(payload))]
-    moves = [
-        [_MoveScaling(geometry, masses, shape, law, payload if carries else 0.0) for shape, law, carries in cycle]
-        for cycle in zip(*references, strict=True)
-    ]  # moves[move][reference]
+    by_move = list(zip(*references, strict=True))  # by_move[move][reference]
+    scalings = iter(
+        _move_scalings(
+            geometry,
+            masses,
+            [(shape, law, payload if carries else 0.0) for move in by_move for shape, law, carries in move],
+        )
+    )
+    moves = [[next(scalings) for _ in move] for move in by_move]
     drives = _Drives(options)
     bounds = [[scaling.cool(drives) for scaling in move] for move in moves]
 
