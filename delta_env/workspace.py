@@ -441,10 +441,14 @@ def slice_map(
     return SliceMap(plane, float(level), axis_u, axis_v, points, pose_measures(geometry, points))
 
 
-def isotropic_speed(geometry: DeltaGeometry, xyz: ArrayLike, joint_speed_limit: float) -> NDArray[np.float64]:
+def isotropic_speed(
+    geometry: DeltaGeometry, xyz: ArrayLike, joint_speed_limit: float, measures: PoseMeasures | None = None
+) -> NDArray[np.float64]:
     """Platform speed (m/s) reachable in every direction with |thd_i| <= ``joint_speed_limit`` (rad/s).
 
-    omega * min_i |k_i| / l2 (module docstring); NaN where unreachable.
+    omega * min_i |k_i| / l2 (module docstring); NaN where unreachable. ``measures``: :func:`pose_measures` at
+    ``xyz`` if the caller has them already.
     """
     require_positive("joint_speed_limit", joint_speed_limit, "rad/s")
-    return joint_speed_limit * pose_measures(geometry, xyz).min_abs_k / geometry.l2
+    measures = pose_measures(geometry, xyz) if measures is None else measures
+    return joint_speed_limit * measures.min_abs_k / geometry.l2
