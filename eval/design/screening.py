@@ -22,6 +22,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -166,9 +167,10 @@ class _MoveScaling:
         self._resting = parts[0][-1] ** 2
         lag = DRIVE.actuator_lag
         self._lead = self.dt / (1.0 - math.exp(-self.dt / lag)) if lag > 0.0 else 0.0
-        self._parts = [part[::SCREEN_STRIDE] for part in parts]
-        self._rates = [np.gradient(part, self.dt, axis=0)[::SCREEN_STRIDE] for part in parts]
-        self._speed, self._sign = np.abs(qd[::SCREEN_STRIDE]), np.sign(qd[::SCREEN_STRIDE])
+        # what within checks at every SCREEN_STRIDE-th sample: the parts, their rates, the joint speeds and signs
+        rates = [np.gradient(part, self.dt, axis=0) for part in parts]
+        columns = (*parts, *rates, np.abs(qd), np.sign(qd))
+        self._columns = np.stack([column[::SCREEN_STRIDE] for column in columns])
         self._fastest = float(np.max(np.abs(qd)))
 
     def cool(self, drives: _Drives) -> NDArray[np.float64]:
@@ -190,23 +192,10 @@ class _MoveScaling:
         return _largest(passes, high)
 
     def within(self, drives: _Drives, high: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Largest k (per option) up to ``high`` whose torque and command keep the planner's envelope."""
-        (a, b, c, w), rates = self._parts, self._rates
-        peak, held = drives.peak, DEFAULT_MARGIN * drives.peak
-        inertial, inertial_rate = c + drives.armature * w, rates[2] + drives.armature * rates[3]
-        span = drives.top - drives.corner
-
-        def passes(k: NDArray[np.float64]) -> NDArray[np.bool_]:
-            s = k[:, None, None]
-            torque = a + b * s + inertial * s**2
-            command = torque + self._lead * s * (rates[0] + rates[1] * s + inertial_rate * s**2)
-            motoring = np.clip(peak * (drives.top - s * self._speed) / span, 0.0, peak) - held
-            ok = np.ones(len(k), dtype=bool)
-            for tau in (torque, command):
-                ok &= np.all(np.abs(tau) <= np.where(tau * self._sign >= 0.0, motoring, peak - held), axis=(1, 2))
-            return ok
-
-        return _largest(passes, high)
+        """Largest k (per option) up to ``high`` whose torque and command keep the planner's envelope: the
+        bisection of :func:`_largest` in compiled code (:func:`_largest_within`), an option at a time."""
+        ratings = np.stack([rating[:, 0, 0] for rating in (drives.peak, drives.top, drives.corner, drives.armature)])
+        return _largest_within(self._columns, self._lead, ratings, np.asarray(high, dtype=float))
 
 
 def _move_scalings(
@@ -231,6 +220,50 @@ def _move_scalings(
     return [
         _MoveScaling(law, *(part.copy() for part in parts)) for (_, law, _), parts in zip(moves, per_move, strict=True)
     ]
+
+
+@numba.njit(cache=True)
+def _largest_within(
+    columns: NDArray[np.float64], lead: float, ratings: NDArray[np.float64], high: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """:meth:`_MoveScaling.within` by :func:`_largest`'s bisection, an option at a time: the largest k up to
+    ``high`` (n,) for each option of ``ratings`` (4, n) (peak torque (N m), maximum and corner speed (rad/s),
+    armature (kg m^2)) that :func:`_within_envelope` passes with the move's ``columns`` and ``lead`` (s)."""
+    largest = np.empty(high.size)
+    for option in range(high.size):
+        upper = high[option]
+        low = upper if _within_envelope(columns, lead, ratings[:, option], upper) else 0.0
+        for _ in range(BISECTIONS):
+            middle = 0.5 * (low + upper)
+            if _within_envelope(columns, lead, ratings[:, option], max(middle, 1e-9)):
+                low = middle
+            else:
+                upper = middle
+        largest[option] = low
+    return largest
+
+
+@numba.njit(cache=True, inline="always")
+def _within_envelope(columns: NDArray[np.float64], lead: float, rating: NDArray[np.float64], s: float) -> bool:
+    """Whether the move run ``s`` times faster keeps one drive's envelope (``rating``: peak torque, maximum and
+    corner speed, armature): the torque a + b s + (c + J w) s^2 and its lag-inverse command (plus ``lead`` (s) s
+    times the same sum of the parts' rates) at every sample, with the samples' joint speeds (rad/s) and rate
+    signs; ``columns`` (10, N, 3): a, b, c, w, their rates, the speeds and the signs. NumPy's operations of the
+    same order on each element."""
+    a, b, c, w, a_rate, b_rate, c_rate, w_rate, speed, sign = columns
+    peak, top, corner, armature = rating
+    held = DEFAULT_MARGIN * peak
+    for i in range(a.shape[0]):
+        for j in range(3):
+            inertial = c[i, j] + armature * w[i, j]
+            torque = a[i, j] + b[i, j] * s + inertial * (s * s)
+            inertial_rate = c_rate[i, j] + armature * w_rate[i, j]
+            command = torque + lead * s * (a_rate[i, j] + b_rate[i, j] * s + inertial_rate * (s * s))
+            motoring = min(max(peak * (top - s * speed[i, j]) / (top - corner), 0.0), peak) - held
+            for tau in (torque, command):
+                if not abs(tau) <= (motoring if tau * sign[i, j] >= 0.0 else peak - held):
+                    return False
+    return True
 
 
 def _largest(passes: Callable[[NDArray[np.float64]], NDArray[np.bool_]], high: NDArray[np.float64]) -> NDArray:
