@@ -207,65 +207,71 @@ def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEX
     """Whether platform positions ``xyz`` (m), ``(..., 3)``, satisfy ``criteria``, ``(...)``.
 
     The same test as :meth:`PoseMeasures.admissible` of :func:`pose_measures`, computing only what it needs, point by
-    point in compiled code (:func:`_admissible_points`): the workspace searches call it thousands of times on a few
+    point in compiled code (:func:`admissible_point`): the workspace searches call it thousands of times on a few
     hundred points, where NumPy's per-call cost dominated.
     """
     xyz = _points(xyz)
     flat = np.ascontiguousarray(xyz.reshape(-1, 3))
     result = np.empty(len(flat), dtype=bool)
-    low, high = criteria.theta_range
-    bounds = np.array((low, high, criteria.max_forearm_tilt, criteria.max_skew, criteria.min_conditioning))
-    _admissible_points(flat, geometry.r, geometry.l1, geometry.l2, forearm_home_tilt(geometry), bounds, result)
+    _admissible_points(flat, admissible_constants(geometry, criteria), result)
     return result.reshape(xyz.shape[:-1])
 
 
+def admissible_constants(geometry: DeltaGeometry, criteria: Criteria = DEXTEROUS) -> NDArray[np.float64]:
+    """What :func:`admissible_point` needs of a geometry and criteria: r, l1, l2 (m), the forearms' home tilt, the
+    theta range, ball-joint cone and skew (rad) and the conditioning threshold, ``(9,)``."""
+    low, high = criteria.theta_range
+    return np.array(
+        (
+            geometry.r,
+            geometry.l1,
+            geometry.l2,
+            forearm_home_tilt(geometry),
+            low,
+            high,
+            criteria.max_forearm_tilt,
+            criteria.max_skew,
+            criteria.min_conditioning,
+        )
+    )
+
+
 @numba.njit(cache=True, error_model="numpy")
-def _admissible_points(
-    xyz: NDArray[np.float64],
-    r: float,
-    l1: float,
-    l2: float,
-    tilt: float,
-    bounds: NDArray[np.float64],
-    out: NDArray[np.bool_],
-) -> None:
-    """:func:`admissible` of every row of ``xyz`` (n, 3) (m) into ``out`` (n,): the steps of
-    :func:`kinematics.elbow_out_angles`, :func:`kinematics.constraint_terms`, :func:`buildability.forearm_angles`
-    and :func:`_conditioning` in scalar arithmetic, a point left at its first failed test. ``bounds``: the
-    criteria's (theta low, theta high, ball-joint cone, skew) (rad) and conditioning; ``tilt``: the forearms' home
-    tilt (rad)."""
-    low, high, max_tilt, max_skew, min_conditioning = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4]
-    theta = np.empty(3)
-    rows = np.empty((3, 3))  # rows a_i / k_i of J^{-1} (up to sign)
+def _admissible_points(xyz: NDArray[np.float64], constants: NDArray[np.float64], out: NDArray[np.bool_]) -> None:
+    """:func:`admissible_point` of every row of ``xyz`` (n, 3) (m) into ``out`` (n,)."""
+    theta, rows = np.empty(3), np.empty((3, 3))
     for point in range(xyz.shape[0]):
-        out[point] = False
-        x, y, z = xyz[point, 0], xyz[point, 1], xyz[point, 2]
-        in_range = True
-        for chain in range(3):
-            angle = kernels.elbow_out_angle(x, y, z, chain, r, l1, l2)
-            if not (low <= angle <= high):  # NaN (unreachable) fails
-                in_range = False
-                break
-            theta[chain] = angle
-        if not in_range:
-            continue
-        held, serial = True, False
-        for chain in range(3):
-            cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
-            ax, ay, az, k = kernels.constraint_row(x, y, z, theta[chain], chain, r, l1)
-            along_u = ax / l2 * cos_a + ay / l2 * sin_a
-            along_t = -ax / l2 * sin_a + ay / l2 * cos_a
-            cone = 0.0
-            for axis_tilt in (tilt, tilt + theta[chain]):
-                cosine = -along_u * math.sin(axis_tilt) - az / l2 * math.cos(axis_tilt)
-                cone = max(cone, math.acos(min(max(cosine, -1.0), 1.0)))
-            if not (cone <= max_tilt and math.asin(min(abs(along_t), 1.0)) <= max_skew):
-                held = False
-                break
-            serial |= not abs(k) > 0.0
-            rows[chain, 0], rows[chain, 1], rows[chain, 2] = ax / k, ay / k, az / k
-        if held:
-            out[point] = (0.0 if serial else _singular_value_ratio(rows)) >= min_conditioning
+        out[point] = admissible_point(xyz[point, 0], xyz[point, 1], xyz[point, 2], constants, theta, rows)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def admissible_point(
+    x: float, y: float, z: float, constants: NDArray[np.float64], theta: NDArray[np.float64], rows: NDArray[np.float64]
+) -> bool:
+    """:func:`admissible` of one point (m) for compiled callers, with :func:`admissible_constants` and scratch arrays
+    ``theta`` (3,) and ``rows`` (3, 3): the steps of :func:`kinematics.elbow_out_angles`,
+    :func:`kinematics.constraint_terms`, :func:`buildability.forearm_angles` and :func:`_conditioning` in scalar
+    arithmetic, left at the first failed test."""
+    r, l1, l2, tilt, low, high, max_tilt, max_skew, min_conditioning = constants
+    for chain in range(3):
+        theta[chain] = kernels.elbow_out_angle(x, y, z, chain, r, l1, l2)
+        if not (low <= theta[chain] <= high):  # NaN (unreachable) fails
+            return False
+    serial = False
+    for chain in range(3):
+        cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
+        ax, ay, az, k = kernels.constraint_row(x, y, z, theta[chain], chain, r, l1)
+        along_u = ax / l2 * cos_a + ay / l2 * sin_a
+        along_t = -ax / l2 * sin_a + ay / l2 * cos_a
+        cone = 0.0
+        for axis_tilt in (tilt, tilt + theta[chain]):
+            cosine = -along_u * math.sin(axis_tilt) - az / l2 * math.cos(axis_tilt)
+            cone = max(cone, math.acos(min(max(cosine, -1.0), 1.0)))
+        if not (cone <= max_tilt and math.asin(min(abs(along_t), 1.0)) <= max_skew):
+            return False
+        serial |= not abs(k) > 0.0
+        rows[chain, 0], rows[chain, 1], rows[chain, 2] = ax / k, ay / k, az / k  # J^{-1} up to sign
+    return (0.0 if serial else _singular_value_ratio(rows)) >= min_conditioning
 
 
 @numba.njit(cache=True, inline="always")
