@@ -99,7 +99,8 @@ def smooth_joint_motion(
     """Joint angles, rates and accelerations from recorded encoder angles (offline, non-causal).
 
     A Kalman filter forward, then the Rauch-Tung-Striebel smoother backward (filterpy's
-    ``batch_filter`` and ``rts_smoother``): no lag, unlike :class:`JointStateFilter`. The first and
+    ``batch_filter`` and ``rts_smoother``, their gains from :func:`_smoother_gains`): no lag, unlike
+    :class:`JointStateFilter`. The first and
     last 20 or so samples only have data on one side: start and end recordings at rest, or drop
     them (a record that starts at 4.7 rad/s and 1200 rad/s^3 is off by 0.9 rad/s and 220 rad/s^2 at
     its first sample, by 0.06 rad/s and 17 rad/s^2 ten samples later).
