@@ -99,7 +99,8 @@ def smooth_joint_motion(
     """Joint angles, rates and accelerations from recorded encoder angles (offline, non-causal).
 
     A Kalman filter forward, then the Rauch-Tung-Striebel smoother backward (filterpy's
-    ``batch_filter`` and ``rts_smoother``): no lag, unlike :class:`JointStateFilter`. The first and
+    ``batch_filter`` and ``rts_smoother``, their gains from :func:`_smoother_gains`): no lag, unlike
+    :class:`JointStateFilter`. The first and
     last 20 or so samples only have data on one side: start and end recordings at rest, or drop
     them (a record that starts at 4.7 rad/s and 1200 rad/s^3 is off by 0.9 rad/s and 220 rad/s^2 at
     its first sample, by 0.06 rad/s and 17 rad/s^2 ten samples later).
@@ -120,9 +121,44 @@ def smooth_joint_motion(
     if not np.all(np.isfinite(angles)):
         raise ValueError("angles must be finite")
     kf = _joint_kalman_filter(dt, measurement_std, jerk_std, angles[0])
-    means, covariances, _, _ = kf.batch_filter(angles)
-    smoothed, _, _, _ = kf.rts_smoother(means, covariances)
+    filter_gains, smoother_gains = _smoother_gains(dt, measurement_std, jerk_std, len(angles))
+    # batch_filter's and rts_smoother's state updates, with their gains (which do not depend on the angles)
+    means, x = np.zeros((len(angles), kf.dim_x)), kf.x
+    for i, z in enumerate(angles):
+        x = np.dot(kf.F, x)
+        x = x + np.dot(filter_gains[i], z - np.dot(kf.H, x))
+        means[i, :] = x
+    smoothed = means.copy()
+    for k in range(len(angles) - 2, -1, -1):
+        smoothed[k] += np.dot(smoother_gains[k], smoothed[k + 1] - np.dot(kf.F, smoothed[k]))
     return smoothed[:, :3], smoothed[:, 3:6], smoothed[:, 6:]
+
+
+@functools.lru_cache(maxsize=4)
+def _smoother_gains(
+    dt: float, measurement_std: float, jerk_std: float, samples: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The Kalman gains of filterpy's ``batch_filter`` ``(samples, 9, 3)`` and the RTS gains of its ``rts_smoother``
+    ``(samples - 1, 9, 9)`` for :func:`smooth_joint_motion`, computed as they do (read-only). They depend on the
+    model and the record's length alone, not on the angles: kept per process, as the identification smooths many
+    records of a few lengths."""
+    kf = _joint_kalman_filter(dt, measurement_std, jerk_std, np.zeros(3))
+    F, Q, H, R, P = kf.F, kf.Q, kf.H, kf.R, kf.P
+    filtered = np.zeros((samples, kf.dim_x, kf.dim_x))
+    filter_gains = np.zeros((samples, kf.dim_x, kf.dim_z))
+    for i in range(samples):
+        P = kf.alpha**2 * np.dot(np.dot(F, P), F.T) + Q  # predict
+        PHT = np.dot(P, H.T)  # update, Joseph form
+        K = np.dot(PHT, kf.inv(np.dot(H, PHT) + R))
+        I_KH = np.eye(kf.dim_x) - np.dot(K, H)
+        P = np.dot(np.dot(I_KH, P), I_KH.T) + np.dot(np.dot(K, R), K.T)
+        filter_gains[i], filtered[i] = K, P
+    smoother_gains = np.zeros((max(samples - 1, 0), kf.dim_x, kf.dim_x))
+    for k in range(samples - 2, -1, -1):
+        predicted = np.dot(np.dot(F, filtered[k]), F.T) + Q
+        smoother_gains[k] = np.dot(np.dot(filtered[k], F.T), kf.inv(predicted))
+    filter_gains.flags.writeable = smoother_gains.flags.writeable = False
+    return filter_gains, smoother_gains
 
 
 class JointStateFilter:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -39,7 +40,7 @@ from delta_env.cycles import STANDARD_LIFT
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
 from delta_env.validation import require_count, require_in
-from delta_env.workspace import DEXTEROUS, Criteria, admissible, reach_bounds
+from delta_env.workspace import DEXTEROUS, Criteria, admissible, admissible_constants, admissible_point, reach_bounds
 
 PRODUCT_CLEARANCE = 0.075
 """Default room (m) the cylinder must have above the lifted gripper: a product up to 75 mm tall."""
@@ -131,17 +132,44 @@ def _boundary(
     ``bad`` (``(...)``). Each round tests :data:`_SECTIONS` - 1 points between the two and keeps the
     stretch before the first inadmissible one, so the first exit is found (not just any) down to pockets
     of a :data:`_SECTIONS`-th of the bracket; returns the admissible side, within
-    :data:`RADIUS_TOLERANCE` of the exit.
+    :data:`RADIUS_TOLERANCE` of the exit. The rounds run in compiled code (:func:`_bisect_exits`).
     """
     good, bad = np.array(good, dtype=float), np.array(bad, dtype=float)
+    shape = np.broadcast_shapes(good.shape, bad.shape, origin.shape[:-1], direction.shape[:-1])
+    lines = [np.ascontiguousarray(np.broadcast_to(a, (*shape, 3)).reshape(-1, 3)) for a in (origin, direction)]
+    ends = [np.broadcast_to(a, shape).reshape(-1).copy() for a in (good, bad)]
+    return _bisect_exits(*lines, *ends, admissible_constants(geometry, criteria)).reshape(shape)
+
+
+@numba.njit(cache=True)
+def _bisect_exits(
+    origin: NDArray[np.float64],
+    direction: NDArray[np.float64],
+    good: NDArray[np.float64],
+    bad: NDArray[np.float64],
+    constants: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """:func:`_boundary`'s rounds on lines ``(n, 3)`` and brackets ``(n,)`` (``good`` and ``bad`` updated in place
+    and returned) with :func:`~delta_env.workspace.admissible_constants`: every bracket is divided again while any
+    is longer than :data:`RADIUS_TOLERANCE`, as the batched rounds did."""
     fractions = np.arange(1, _SECTIONS + 1) / _SECTIONS  # the last one is ``bad`` itself
-    while np.max(np.abs(bad - good), initial=0.0) > RADIUS_TOLERANCE:
-        t = good[..., None] + (bad - good)[..., None] * fractions
-        inside = admissible(geometry, origin[..., None, :] + t[..., None] * direction[..., None, :], criteria)
-        inside[..., -1] = False
-        first = np.argmin(inside, axis=-1)[..., None]
-        bad = np.take_along_axis(t, first, axis=-1)[..., 0]
-        good = np.where(first[..., 0] > 0, np.take_along_axis(t, np.maximum(first - 1, 0), axis=-1)[..., 0], good)
+    theta, rows = np.empty(3), np.empty((3, 3))
+    t = np.empty(_SECTIONS)
+    while good.size > 0 and np.max(np.abs(bad - good)) > RADIUS_TOLERANCE:
+        for line in range(good.size):
+            first = _SECTIONS - 1
+            for section in range(_SECTIONS):
+                t[section] = good[line] + (bad[line] - good[line]) * fractions[section]
+            for section in range(_SECTIONS - 1):
+                x = origin[line, 0] + t[section] * direction[line, 0]
+                y = origin[line, 1] + t[section] * direction[line, 1]
+                z = origin[line, 2] + t[section] * direction[line, 2]
+                if not admissible_point(x, y, z, constants, theta, rows):
+                    first = section
+                    break
+            bad[line] = t[first]
+            if first > 0:
+                good[line] = t[first - 1]
     return good
 
 

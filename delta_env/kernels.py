@@ -63,6 +63,30 @@ def elbow(theta: float, chain: int, r: float, l1: float) -> tuple[float, float, 
 
 
 @numba.njit(cache=True, inline="always")
+def elbow_out_angle(x: float, y: float, z: float, chain: int, r: float, l1: float, l2: float) -> float:
+    """Motor angle (rad) of chain ``chain`` on the elbow-out branch for the platform at (x, y, z) (m), NaN if the
+    chain cannot reach it: :func:`delta_env.kinematics.elbow_out_angles` in scalar arithmetic."""
+    cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
+    x_local = x * cos_a + y * sin_a - r
+    y_local = -x * sin_a + y * cos_a
+    p, q = -2.0 * l1 * x_local, 2.0 * l1 * z
+    ratio = (l2**2 - l1**2 - x_local**2 - y_local**2 - z**2) / math.hypot(p, q)
+    return math.atan2(q, p) + math.acos(min(max(ratio, -1.0), 1.0)) if abs(ratio) <= 1.0 else math.nan
+
+
+@numba.njit(cache=True, inline="always")
+def constraint_row(
+    x: float, y: float, z: float, theta: float, chain: int, r: float, l1: float
+) -> tuple[float, float, float, float]:
+    """Row a_i = x - J'_i (m) and k_i = -a_i . dJ'_i/dtheta_i (m^2/rad) of the velocity constraint of chain
+    ``chain`` (:func:`delta_env.kinematics.constraint_terms`) at the platform (x, y, z) (m) and angle ``theta``."""
+    ex, ey, ez = elbow(theta, chain, r, l1)
+    ax, ay, az = x - ex, y - ey, z - ez
+    s, c = math.sin(theta), math.cos(theta)
+    return ax, ay, az, -(ax * (-l1 * s * CHAIN_COS[chain]) + ay * (-l1 * s * CHAIN_SIN[chain]) + az * (-l1 * c))
+
+
+@numba.njit(cache=True, inline="always")
 def lower_intersection(
     p1x: float,
     p1y: float,

@@ -9,10 +9,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env import kinematics
+from delta_env import kernels, kinematics
 from delta_env.geometry import DeltaGeometry
 from delta_env.validation import require_interval, require_positive
 
@@ -58,6 +59,9 @@ WORKSPACE_LIMITS = WorkspaceLimits()
 def admissible(geometry: DeltaGeometry, xyz: ArrayLike, limits: WorkspaceLimits = WORKSPACE_LIMITS) -> NDArray:
     """Whether platform positions lie inside ``limits`` (reachable, within margins).
 
+    The measures of :func:`kinematics.singularity_measures` without its SVD, point by point in compiled code
+    (:func:`_inside_limits`): reference cycles check their stations and paths with it thousands of times.
+
     Args:
         geometry: Robot geometry.
         xyz: Platform positions (m), ``(..., 3)``.
@@ -67,16 +71,38 @@ def admissible(geometry: DeltaGeometry, xyz: ArrayLike, limits: WorkspaceLimits 
         Boolean array ``(...)``.
     """
     xyz = np.asarray(xyz, dtype=float)
-    flat = xyz.reshape(-1, 3)
-    inside = (np.hypot(flat[:, 0], flat[:, 1]) <= limits.radius) & (flat[:, 2] >= limits.z_min)
-    inside &= flat[:, 2] <= limits.z_max
-    theta = kinematics.elbow_out_angles(geometry, flat)  # NaN where a chain cannot reach
-    reachable = np.all(np.isfinite(theta), axis=-1)
-    a, k = kinematics.constraint_terms(geometry, flat[reachable], theta[reachable])
-    # the measures of kinematics.singularity_measures, without its SVD (this runs on whole paths)
-    inside[reachable] &= np.min(np.abs(k), axis=-1) >= limits.min_abs_k
-    inside[reachable] &= np.abs(np.linalg.det(a)) >= limits.min_abs_det_a
-    return (inside & reachable).reshape(xyz.shape[:-1])
+    flat = np.ascontiguousarray(xyz.reshape(-1, 3))
+    inside = np.empty(len(flat), dtype=bool)
+    bounds = np.array((limits.radius, limits.z_min, limits.z_max, limits.min_abs_k, limits.min_abs_det_a))
+    _inside_limits(flat, geometry.r, geometry.l1, geometry.l2, bounds, inside)
+    return inside.reshape(xyz.shape[:-1])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _inside_limits(
+    xyz: NDArray[np.float64], r: float, l1: float, l2: float, bounds: NDArray[np.float64], out: NDArray[np.bool_]
+) -> None:
+    """:func:`admissible` of every row of ``xyz`` (n, 3) (m) into ``out`` (n,); ``bounds``: the limits' radius,
+    z_min, z_max (m), min |k_i| (m^2/rad) and min |det A| (m^3)."""
+    radius, z_min, z_max, min_abs_k, min_abs_det_a = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4]
+    a = np.empty((3, 3))
+    for point in range(xyz.shape[0]):
+        x, y, z = xyz[point, 0], xyz[point, 1], xyz[point, 2]
+        inside = math.hypot(x, y) <= radius and z_min <= z <= z_max
+        for chain in range(3):
+            if not inside:
+                break
+            theta = kernels.elbow_out_angle(x, y, z, chain, r, l1, l2)
+            a[chain, 0], a[chain, 1], a[chain, 2], k = kernels.constraint_row(x, y, z, theta, chain, r, l1)
+            inside = abs(k) >= min_abs_k  # False for NaN (unreachable)
+        if inside:
+            determinant = (
+                a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
+                - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+                + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0])
+            )
+            inside = abs(determinant) >= min_abs_det_a
+        out[point] = inside
 
 
 def _why_not_admissible(geometry: DeltaGeometry, point: np.ndarray, limits: WorkspaceLimits) -> str:

@@ -26,6 +26,7 @@ and :mod:`delta_env.excitation` (identification, docs/design.md section 7), insi
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import itertools
 import math
@@ -226,15 +227,23 @@ class Segment:
 
     def timed(self, peak_acceleration: float) -> Segment:
         """The same shape, retimed so that its peak |xdd| equals ``peak_acceleration``."""
-        tau = np.linspace(0.0, 1.0, _SHAPE_GRID)
-        unit = self.unit()
-        _, _, acceleration = evaluate_segments([unit], np.zeros(tau.shape, dtype=int), tau)
-        unit_peak = float(np.max(np.linalg.norm(acceleration, axis=-1)))
+        start, end = tuple(map(float, self.start)), tuple(map(float, self.end))
+        unit_peak = _unit_peak(start, end, float(self.lift_height), float(self.lift_fraction))
         if unit_peak == 0.0:
             raise ValueError(f"a move from {self.start.tolist()} m to itself cannot be timed by acceleration")
         # |xdd| scales with 1 / T^2 for a fixed shape
         duration = math.sqrt(unit_peak / peak_acceleration)
         return Segment(self.start, self.end, duration, self.lift_height, self.lift_fraction)
+
+
+@functools.lru_cache(maxsize=4096)
+def _unit_peak(start: tuple[float, ...], end: tuple[float, ...], lift_height: float, lift_fraction: float) -> float:
+    """Peak |xdd| (m/s^2) of a move shape at unit duration, on :data:`_SHAPE_GRID` samples; kept per process: the
+    design study times the same few shapes for every design."""
+    tau = np.linspace(0.0, 1.0, _SHAPE_GRID)
+    unit = Segment(np.array(start), np.array(end), 1.0, lift_height, lift_fraction)
+    _, _, acceleration = evaluate_segments([unit], np.zeros(tau.shape, dtype=int), tau)
+    return float(np.max(np.linalg.norm(acceleration, axis=-1)))
 
 
 def evaluate_segments(

@@ -24,11 +24,13 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env import buildability, kinematics
-from delta_env.geometry import DeltaGeometry
+from delta_env import buildability, kernels, kinematics
+from delta_env.geometry import CHAIN_COS, CHAIN_SIN, DeltaGeometry
+from delta_env.robot import forearm_home_tilt
 from delta_env.validation import require_count, require_in, require_interval, require_positive
 
 THETA_RANGE = (-0.6, 1.5)
@@ -52,6 +54,7 @@ VOLUME_SAMPLES = 400_000
 """Default Monte Carlo samples of :func:`reachable_volume`: a relative standard error near 1 %."""
 
 _CHUNK = 100_000  # points per vectorized batch: bounds memory at a few tens of MB
+_TINY = float(np.finfo(float).tiny)
 
 
 @dataclass(frozen=True)
@@ -203,27 +206,99 @@ def pose_measures(geometry: DeltaGeometry, xyz: ArrayLike) -> PoseMeasures:
 def admissible(geometry: DeltaGeometry, xyz: ArrayLike, criteria: Criteria = DEXTEROUS) -> NDArray[np.bool_]:
     """Whether platform positions ``xyz`` (m), ``(..., 3)``, satisfy ``criteria``, ``(...)``.
 
-    The same test as :meth:`PoseMeasures.admissible` of :func:`pose_measures`, computing only what it needs: the
-    joint range first on all points, the ball-joint cone and skew on the points that pass, the conditioning on the
-    points that pass those.
+    The same test as :meth:`PoseMeasures.admissible` of :func:`pose_measures`, computing only what it needs, point by
+    point in compiled code (:func:`admissible_point`): the workspace searches call it thousands of times on a few
+    hundred points, where NumPy's per-call cost dominated.
     """
     xyz = _points(xyz)
-    flat = xyz.reshape(-1, 3)
-    result = np.zeros(len(flat), dtype=bool)
-    low, high = criteria.theta_range
-    for start in range(0, len(flat), _CHUNK):
-        chunk = flat[start : start + _CHUNK]
-        theta = kinematics.elbow_out_angles(geometry, chunk)
-        with np.errstate(invalid="ignore"):
-            candidate = np.flatnonzero(np.all((theta >= low) & (theta <= high), axis=-1))  # NaN (unreachable) fails
-        if candidate.size == 0:
-            continue
-        a, k = kinematics.constraint_terms(geometry, chunk[candidate], theta[candidate])
-        cone, skew = buildability.forearm_angles(geometry, a, theta[candidate])
-        held = (np.max(cone, axis=-1) <= criteria.max_forearm_tilt) & (np.max(skew, axis=-1) <= criteria.max_skew)
-        held[held] = _conditioning(a[held], k[held]) >= criteria.min_conditioning
-        result[start + candidate] = held
+    flat = np.ascontiguousarray(xyz.reshape(-1, 3))
+    result = np.empty(len(flat), dtype=bool)
+    _admissible_points(flat, admissible_constants(geometry, criteria), result)
     return result.reshape(xyz.shape[:-1])
+
+
+def admissible_constants(geometry: DeltaGeometry, criteria: Criteria = DEXTEROUS) -> NDArray[np.float64]:
+    """What :func:`admissible_point` needs of a geometry and criteria: r, l1, l2 (m), the forearms' home tilt, the
+    theta range, ball-joint cone and skew (rad) and the conditioning threshold, ``(9,)``."""
+    low, high = criteria.theta_range
+    return np.array(
+        (
+            geometry.r,
+            geometry.l1,
+            geometry.l2,
+            forearm_home_tilt(geometry),
+            low,
+            high,
+            criteria.max_forearm_tilt,
+            criteria.max_skew,
+            criteria.min_conditioning,
+        )
+    )
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _admissible_points(xyz: NDArray[np.float64], constants: NDArray[np.float64], out: NDArray[np.bool_]) -> None:
+    """:func:`admissible_point` of every row of ``xyz`` (n, 3) (m) into ``out`` (n,)."""
+    theta, rows = np.empty(3), np.empty((3, 3))
+    for point in range(xyz.shape[0]):
+        out[point] = admissible_point(xyz[point, 0], xyz[point, 1], xyz[point, 2], constants, theta, rows)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def admissible_point(
+    x: float, y: float, z: float, constants: NDArray[np.float64], theta: NDArray[np.float64], rows: NDArray[np.float64]
+) -> bool:
+    """:func:`admissible` of one point (m) for compiled callers, with :func:`admissible_constants` and scratch arrays
+    ``theta`` (3,) and ``rows`` (3, 3): the steps of :func:`kinematics.elbow_out_angles`,
+    :func:`kinematics.constraint_terms`, :func:`buildability.forearm_angles` and :func:`_conditioning` in scalar
+    arithmetic, left at the first failed test."""
+    r, l1, l2, tilt, low, high, max_tilt, max_skew, min_conditioning = constants
+    for chain in range(3):
+        theta[chain] = kernels.elbow_out_angle(x, y, z, chain, r, l1, l2)
+        if not (low <= theta[chain] <= high):  # NaN (unreachable) fails
+            return False
+    serial = False
+    for chain in range(3):
+        cos_a, sin_a = CHAIN_COS[chain], CHAIN_SIN[chain]
+        ax, ay, az, k = kernels.constraint_row(x, y, z, theta[chain], chain, r, l1)
+        along_u = ax / l2 * cos_a + ay / l2 * sin_a
+        along_t = -ax / l2 * sin_a + ay / l2 * cos_a
+        cone = 0.0
+        for axis_tilt in (tilt, tilt + theta[chain]):
+            cosine = -along_u * math.sin(axis_tilt) - az / l2 * math.cos(axis_tilt)
+            cone = max(cone, math.acos(min(max(cosine, -1.0), 1.0)))
+        if not (cone <= max_tilt and math.asin(min(abs(along_t), 1.0)) <= max_skew):
+            return False
+        serial |= not abs(k) > 0.0
+        rows[chain, 0], rows[chain, 1], rows[chain, 2] = ax / k, ay / k, az / k  # J^{-1} up to sign
+    return (0.0 if serial else _singular_value_ratio(rows)) >= min_conditioning
+
+
+@numba.njit(cache=True, inline="always")
+def _singular_value_ratio(m: NDArray[np.float64]) -> float:
+    """:func:`singular_value_ratio` of one 3 x 3 matrix, its steps in scalar arithmetic."""
+    b = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            b[i, j] = m[0, i] * m[0, j] + m[1, i] * m[1, j] + m[2, i] * m[2, j]
+    q = (b[0, 0] + b[1, 1] + b[2, 2]) / 3.0
+    off = b[0, 1] ** 2 + b[0, 2] ** 2 + b[1, 2] ** 2
+    p = math.sqrt(((b[0, 0] - q) ** 2 + (b[1, 1] - q) ** 2 + (b[2, 2] - q) ** 2 + 2.0 * off) / 6.0)
+    if p <= 1e-15 * max(q, _TINY):
+        largest = smallest = q
+    else:
+        for i in range(3):
+            for j in range(3):
+                b[i, j] = (b[i, j] - (q if i == j else 0.0)) / p
+        determinant = (
+            b[0, 0] * (b[1, 1] * b[2, 2] - b[1, 2] * b[2, 1])
+            - b[0, 1] * (b[1, 0] * b[2, 2] - b[1, 2] * b[2, 0])
+            + b[0, 2] * (b[1, 0] * b[2, 1] - b[1, 1] * b[2, 0])
+        )
+        phi = math.acos(min(max(determinant / 2.0, -1.0), 1.0)) / 3.0
+        largest = q + 2.0 * p * math.cos(phi)
+        smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return math.sqrt(max(smallest, 0.0) / largest) if largest > 0.0 else 0.0
 
 
 def reach_bounds(geometry: DeltaGeometry, theta_range: tuple[float, float] = THETA_RANGE) -> tuple[float, float, float]:
@@ -372,10 +447,14 @@ def slice_map(
     return SliceMap(plane, float(level), axis_u, axis_v, points, pose_measures(geometry, points))
 
 
-def isotropic_speed(geometry: DeltaGeometry, xyz: ArrayLike, joint_speed_limit: float) -> NDArray[np.float64]:
+def isotropic_speed(
+    geometry: DeltaGeometry, xyz: ArrayLike, joint_speed_limit: float, measures: PoseMeasures | None = None
+) -> NDArray[np.float64]:
     """Platform speed (m/s) reachable in every direction with |thd_i| <= ``joint_speed_limit`` (rad/s).
 
-    omega * min_i |k_i| / l2 (module docstring); NaN where unreachable.
+    omega * min_i |k_i| / l2 (module docstring); NaN where unreachable. ``measures``: :func:`pose_measures` at
+    ``xyz`` if the caller has them already.
     """
     require_positive("joint_speed_limit", joint_speed_limit, "rad/s")
-    return joint_speed_limit * pose_measures(geometry, xyz).min_abs_k / geometry.l2
+    measures = pose_measures(geometry, xyz) if measures is None else measures
+    return joint_speed_limit * measures.min_abs_k / geometry.l2

@@ -170,6 +170,21 @@ def task_cycle(
 ) -> Trajectory:
     """The standard 25/305/25 mm cycle of a design at ``centre`` (m) along ``heading`` (rad), from rest at its pick
     point: the design's figures (motion time, peak and RMS torque) are those of whole cycles and nothing else."""
+    centre = tuple(float(c) for c in centre)
+    return _task_cycle(geometry, centre, float(heading), n_cycles, float(peak_acceleration), float(dt))
+
+
+@functools.lru_cache(maxsize=256)
+def _task_cycle(
+    geometry: DeltaGeometry,
+    centre: tuple[float, ...],
+    heading: float,
+    n_cycles: int,
+    peak_acceleration: float,
+    dt: float,
+) -> Trajectory:
+    """:func:`task_cycle`, kept per process (a :class:`Trajectory` is read-only): the reconfiguration's task
+    profiles share their cycles at the centre of the belt."""
     return standard_cycle(
         geometry,
         peak_acceleration,
@@ -183,12 +198,20 @@ def task_cycle(
     )
 
 
-def cycle_figures(model: DeltaDynamics, trajectory: Trajectory, payload: float) -> CycleFigures:
-    """Peak and RMS torque along ``trajectory`` carrying ``payload`` (kg) while the gripper holds."""
+def cycle_figures(model: DeltaDynamics, trajectories: Sequence[Trajectory], payload: float) -> list[CycleFigures]:
+    """Peak and RMS torque along each of ``trajectories`` carrying ``payload`` (kg) while the gripper holds: one
+    inverse dynamics over the samples of all (per-sample arithmetic: each gets the numbers of a call of its own)."""
+    if not trajectories:
+        return []
     torque = model.inverse_dynamics(
-        trajectory.theta, trajectory.theta_dot, trajectory.theta_ddot, payload_profile(trajectory, payload)
+        *(np.concatenate([getattr(t, name) for t in trajectories]) for name in ("theta", "theta_dot", "theta_ddot")),
+        np.concatenate([payload_profile(t, payload) for t in trajectories]),
     )
-    return CycleFigures(peak_torque=float(np.max(np.abs(torque))), rms_torque=float(np.sqrt(np.mean(torque**2))))
+    ends = np.cumsum([len(t.theta) for t in trajectories])[:-1]
+    return [
+        CycleFigures(peak_torque=float(np.max(np.abs(part))), rms_torque=float(np.sqrt(np.mean(part**2))))
+        for part in np.split(torque, ends)
+    ]
 
 
 def task_region_points(radius: float = TASK_RADIUS, band: tuple[float, float] = TASK_BAND) -> NDArray[np.float64]:
@@ -247,12 +270,13 @@ def evaluate(
     if assembly_gap(geometry) > 0.0:
         reasons.append(f"l2 = {geometry.l2:.3f} m < ra - rb + l1 + {ASSEMBLY_MARGIN} m (cannot assemble)")
     model = design_model(geometry, masses)
-    figures = []
+    trajectories = []
     try:
         for centre, heading in cycles:
-            figures.append(cycle_figures(model, task_cycle(geometry, centre, heading), payload))
+            trajectories.append(task_cycle(geometry, centre, heading))
     except ValueError as error:
         reasons.append(f"task cycle not reachable: {error}")
+    figures = cycle_figures(model, trajectories, payload)
     if figures and max(f.peak_torque for f in figures) > TORQUE_LIMIT:
         reasons.append(f"peak torque {max(f.peak_torque for f in figures):.0f} N m > limit {TORQUE_LIMIT:.0f} N m")
     drive = None
@@ -261,7 +285,7 @@ def evaluate(
         drive = _chosen_drive(geometry, masses, options, exact_drive, belt_height)
         if drive.option is None:
             reasons.append("no catalogue drive runs the rated payload on the standard cycle")
-    speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT)
+    speed = workspace.isotropic_speed(geometry, points, JOINT_SPEED_LIMIT, region)
     return Performance(
         geometry=geometry,
         masses=masses,

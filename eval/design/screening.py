@@ -22,6 +22,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -145,32 +146,31 @@ class _MoveScaling:
 
     Along the law the torque is a + b k + (c + J qdd) k^2 for a drive of armature J; the lag-inverse command leads
     it by dt / (1 - p) (:class:`delta_env.drive.SampledLag`'s inverse). The envelope is checked at every
-    :data:`SCREEN_STRIDE`-th sample, the RMS over the move and the dwell after it exactly.
+    :data:`SCREEN_STRIDE`-th sample, the RMS over the move and the dwell after it exactly. Built by
+    :func:`_move_scalings` from the move's joint rates ``qd`` (rad/s), joint accelerations ``qdd`` (rad/s^2) and the
+    links' torque (N m) at rest (``static``) and along the law (``moving``), each ``(N, 3)``.
     """
 
     def __init__(
-        self, geometry: DeltaGeometry, masses: DeltaMasses | None, shape: Segment, law: TimeLaw, load: float
+        self,
+        law: TimeLaw,
+        qd: NDArray[np.float64],
+        qdd: NDArray[np.float64],
+        static: NDArray[np.float64],
+        moving: NDArray[np.float64],
     ) -> None:
-        links = design_model(geometry, masses, dataclasses.replace(DRIVE, armature=0.0, viscous=0.0, coulomb=0.0))
-        x, velocity, acceleration = move_samples(shape, law)
-        q, qd, qdd = kinematics.cartesian_to_joint(geometry, x, velocity, acceleration)
-        static = links.inverse_dynamics(q, np.zeros_like(q), np.zeros_like(q), load)
-        parts = (
-            static + DRIVE.coulomb * np.sign(qd),
-            DRIVE.viscous * qd,
-            links.inverse_dynamics(q, qd, qdd, load) - static,
-            qdd,
-        )
+        parts = (static + DRIVE.coulomb * np.sign(qd), DRIVE.viscous * qd, moving - static, qdd)
         self.law, self.dt = law, law.dt
         # Sums over the move's samples (the last one starts the dwell) of products of the parts: the squared torque.
-        moving = [part[:-1] for part in parts]
-        self._sums = {(i, j): np.sum(moving[i] * moving[j], axis=0) for i in range(4) for j in range(i, 4)}
+        moving_parts = [part[:-1] for part in parts]
+        self._sums = {(i, j): np.sum(moving_parts[i] * moving_parts[j], axis=0) for i in range(4) for j in range(i, 4)}
         self._resting = parts[0][-1] ** 2
         lag = DRIVE.actuator_lag
         self._lead = self.dt / (1.0 - math.exp(-self.dt / lag)) if lag > 0.0 else 0.0
-        self._parts = [part[::SCREEN_STRIDE] for part in parts]
-        self._rates = [np.gradient(part, self.dt, axis=0)[::SCREEN_STRIDE] for part in parts]
-        self._speed, self._sign = np.abs(qd[::SCREEN_STRIDE]), np.sign(qd[::SCREEN_STRIDE])
+        # what within checks at every SCREEN_STRIDE-th sample: the parts, their rates, the joint speeds and signs
+        rates = [np.gradient(part, self.dt, axis=0) for part in parts]
+        columns = (*parts, *rates, np.abs(qd), np.sign(qd))
+        self._columns = np.stack([column[::SCREEN_STRIDE] for column in columns])
         self._fastest = float(np.max(np.abs(qd)))
 
     def cool(self, drives: _Drives) -> NDArray[np.float64]:
@@ -192,23 +192,78 @@ class _MoveScaling:
         return _largest(passes, high)
 
     def within(self, drives: _Drives, high: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Largest k (per option) up to ``high`` whose torque and command keep the planner's envelope."""
-        (a, b, c, w), rates = self._parts, self._rates
-        peak, held = drives.peak, DEFAULT_MARGIN * drives.peak
-        inertial, inertial_rate = c + drives.armature * w, rates[2] + drives.armature * rates[3]
-        span = drives.top - drives.corner
+        """Largest k (per option) up to ``high`` whose torque and command keep the planner's envelope: the
+        bisection of :func:`_largest` in compiled code (:func:`_largest_within`), an option at a time."""
+        ratings = np.stack([rating[:, 0, 0] for rating in (drives.peak, drives.top, drives.corner, drives.armature)])
+        return _largest_within(self._columns, self._lead, ratings, np.asarray(high, dtype=float))
 
-        def passes(k: NDArray[np.float64]) -> NDArray[np.bool_]:
-            s = k[:, None, None]
-            torque = a + b * s + inertial * s**2
-            command = torque + self._lead * s * (rates[0] + rates[1] * s + inertial_rate * s**2)
-            motoring = np.clip(peak * (drives.top - s * self._speed) / span, 0.0, peak) - held
-            ok = np.ones(len(k), dtype=bool)
+
+def _move_scalings(
+    geometry: DeltaGeometry, masses: DeltaMasses | None, moves: Sequence[tuple[Segment, TimeLaw, float]]
+) -> list[_MoveScaling]:
+    """A :class:`_MoveScaling` of each (shape, law, load (kg)) on the design: the samples of every move joined, so
+    that one inverse kinematics and one inverse dynamics (at rest and along the laws) serve them all; NumPy's
+    per-sample arithmetic gives each sample the same numbers as a call of its own."""
+    links = design_model(geometry, masses, dataclasses.replace(DRIVE, armature=0.0, viscous=0.0, coulomb=0.0))
+    samples = [move_samples(shape, law) for shape, law, _ in moves]
+    ends = np.cumsum([len(x) for x, _, _ in samples])[:-1]
+    q, qd, qdd = kinematics.cartesian_to_joint(
+        geometry, *(np.concatenate(columns) for columns in zip(*samples, strict=True))
+    )
+    load = np.concatenate([np.full(len(x), float(m)) for (x, _, _), (_, _, m) in zip(samples, moves, strict=True)])
+    rest = np.zeros_like(q)
+    torque = links.inverse_dynamics(
+        np.concatenate((q, q)), np.concatenate((rest, qd)), np.concatenate((rest, qdd)), np.concatenate((load, load))
+    )
+    static, moving = np.split(torque, 2)
+    per_move = zip(*(np.split(array, ends) for array in (qd, qdd, static, moving)), strict=True)
+    return [
+        _MoveScaling(law, *(part.copy() for part in parts)) for (_, law, _), parts in zip(moves, per_move, strict=True)
+    ]
+
+
+@numba.njit(cache=True)
+def _largest_within(
+    columns: NDArray[np.float64], lead: float, ratings: NDArray[np.float64], high: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """:meth:`_MoveScaling.within` by :func:`_largest`'s bisection, an option at a time: the largest k up to
+    ``high`` (n,) for each option of ``ratings`` (4, n) (peak torque (N m), maximum and corner speed (rad/s),
+    armature (kg m^2)) that :func:`_within_envelope` passes with the move's ``columns`` and ``lead`` (s)."""
+    largest = np.empty(high.size)
+    for option in range(high.size):
+        upper = high[option]
+        low = upper if _within_envelope(columns, lead, ratings[:, option], upper) else 0.0
+        for _ in range(BISECTIONS):
+            middle = 0.5 * (low + upper)
+            if _within_envelope(columns, lead, ratings[:, option], max(middle, 1e-9)):
+                low = middle
+            else:
+                upper = middle
+        largest[option] = low
+    return largest
+
+
+@numba.njit(cache=True, inline="always")
+def _within_envelope(columns: NDArray[np.float64], lead: float, rating: NDArray[np.float64], s: float) -> bool:
+    """Whether the move run ``s`` times faster keeps one drive's envelope (``rating``: peak torque, maximum and
+    corner speed, armature): the torque a + b s + (c + J w) s^2 and its lag-inverse command (plus ``lead`` (s) s
+    times the same sum of the parts' rates) at every sample, with the samples' joint speeds (rad/s) and rate
+    signs; ``columns`` (10, N, 3): a, b, c, w, their rates, the speeds and the signs. NumPy's operations of the
+    same order on each element."""
+    a, b, c, w, a_rate, b_rate, c_rate, w_rate, speed, sign = columns
+    peak, top, corner, armature = rating
+    held = DEFAULT_MARGIN * peak
+    for i in range(a.shape[0]):
+        for j in range(3):
+            inertial = c[i, j] + armature * w[i, j]
+            torque = a[i, j] + b[i, j] * s + inertial * (s * s)
+            inertial_rate = c_rate[i, j] + armature * w_rate[i, j]
+            command = torque + lead * s * (a_rate[i, j] + b_rate[i, j] * s + inertial_rate * (s * s))
+            motoring = min(max(peak * (top - s * speed[i, j]) / (top - corner), 0.0), peak) - held
             for tau in (torque, command):
-                ok &= np.all(np.abs(tau) <= np.where(tau * self._sign >= 0.0, motoring, peak - held), axis=(1, 2))
-            return ok
-
-        return _largest(passes, high)
+                if not abs(tau) <= (motoring if tau * sign[i, j] >= 0.0 else peak - held):
+                    return False
+    return True
 
 
 def _largest(passes: Callable[[NDArray[np.float64]], NDArray[np.bool_]], high: NDArray[np.float64]) -> NDArray:
@@ -262,10 +317,15 @@ def screen_drives(
     as scoring all."""
     belt_height = require_belt_height(belt_height)
     references = [_moves(cycles, belt_height) for cycles in reference_cycles(float(payload))]
-    moves = [
-        [_MoveScaling(geometry, masses, shape, law, payload if carries else 0.0) for shape, law, carries in cycle]
-        for cycle in zip(*references, strict=True)
-    ]  # moves[move][reference]
+    by_move = list(zip(*references, strict=True))  # by_move[move][reference]
+    scalings = iter(
+        _move_scalings(
+            geometry,
+            masses,
+            [(shape, law, payload if carries else 0.0) for move in by_move for shape, law, carries in move],
+        )
+    )
+    moves = [[next(scalings) for _ in move] for move in by_move]
     drives = _Drives(options)
     bounds = [[scaling.cool(drives) for scaling in move] for move in moves]
 
