@@ -24,6 +24,7 @@ from controllers.monitor.compiled import (
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
+    BREAKAWAY_FACTOR,
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_SAMPLES,
@@ -33,6 +34,7 @@ from controllers.monitor.tuning import (
     HELD_MASS_STD,
     INITIAL_RESIDUAL_STD,
     MONITOR_JERK_STD,
+    REST_RATE,
     RESYNC_QUIET,
     SCATTER_RATE,
     SENSOR_QUIET,
@@ -318,8 +320,10 @@ class FaultMonitor:
 
     # -- the model's residual -------------------------------------------------------------------
 
-    def _check_model(self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool) -> None:
-        delayed = self._delayed.update(angles, torque, holding, self._k <= self._quiet_until)
+    def _check_model(
+        self, angles: NDArray[np.float64], reference: NDArray[np.float64], torque: NDArray[np.float64], holding: bool
+    ) -> None:
+        delayed = self._delayed.update(angles, reference, torque, holding, self._k <= self._quiet_until)
         if delayed is None:
             return
         state, previous, torque_then, held_then, quiet = delayed
@@ -343,18 +347,30 @@ class FaultMonitor:
             dynamics.parameters.viscous,
             dynamics.parameters.coulomb,
         )
+        # the Coulomb friction the residual charges (the corrections scale the model's friction by 1 + s_i), and
+        # the breakaway friction a joint at rest may hold
+        scale = 1.0 if corrections is None else 1.0 + np.asarray(corrections.friction_scale, dtype=float)
+        self._charged_coulomb = np.array(dynamics.parameters.coulomb) * scale
+        self._breakaway = BREAKAWAY_FACTOR * np.maximum(self._charged_coulomb, 0.0)
 
     def _check_force(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
         """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
         residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
-        without its part along phi)."""
+        without its part along phi), less on joints slower than :data:`REST_RATE` what friction up to the breakaway
+        can hold."""
         if quiet:
             self._force_evidence = 0.0
             self.collision = False
             return
         held_mass = self.held_mass
         self.force, magnitude = platform_force(
-            terms, 0.0 if held_mass is None else held_mass, holding and held_mass is not None, holding
+            terms,
+            0.0 if held_mass is None else held_mass,
+            holding and held_mass is not None,
+            holding,
+            self._charged_coulomb,
+            self._breakaway,
+            REST_RATE,
         )
         self._force_evidence = max(0.0, self._force_evidence + magnitude - FORCE_REFERENCE)
         self.collision_samples = self.collision_samples + 1 if self._force_evidence > 0.0 else 0
@@ -442,7 +458,14 @@ class FaultMonitor:
         if self.quiet_samples:
             self._quiet_until = max(self._quiet_until, self._k + self.quiet_samples)
         holding = observation["gripper"].item(0) > 0.5
-        self._check_model(angles, torque, holding)
+        reference = np.stack(
+            (
+                observation["reference_angles"],
+                observation["reference_velocities"],
+                observation["reference_accelerations"],
+            )
+        )
+        self._check_model(angles, reference, torque, holding)
         clean = dict(observation)
         clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = angles, rates, torque
         return clean
@@ -450,7 +473,13 @@ class FaultMonitor:
 
 class _DelayedState:
     """A joint-state smoother with the readings it lags behind: pairs each smoothed state with its sample's torque,
-    gripper and quiet flag, at the instant the torque was measured."""
+    gripper and quiet flag, at the instant the torque was measured.
+
+    It smooths the tracking error, the angles less the reference, and adds the reference's own state back: the
+    reference is known, so the smoother's motion model (white jerk) carries only the error's jerk. Smoothing the
+    angles themselves lagged the planned jerk of time-optimal moves by 20-30 rad/s^2 of acceleration, which the
+    whole inertia turned into an apparent force (docs/design.md section 6, "Fault monitor").
+    """
 
     def __init__(self, lag: int) -> None:
         self._smoother = JointStateSmoother(lag=lag, jerk_std=MONITOR_JERK_STD)
@@ -460,22 +489,31 @@ class _DelayedState:
     def reset(self) -> None:
         self._started = False
         self._previous: NDArray[np.float64] | None = None
-        self._pending: collections.deque[tuple[NDArray[np.float64], bool, bool]] = collections.deque()
+        self._pending: collections.deque[tuple[NDArray[np.float64], NDArray[np.float64], bool, bool]] = (
+            collections.deque()
+        )
 
     def update(
-        self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool, quiet: bool
+        self,
+        angles: NDArray[np.float64],
+        reference: NDArray[np.float64],
+        torque: NDArray[np.float64],
+        holding: bool,
+        quiet: bool,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool] | None:
-        """Take one reading; return (smoothed state (3, 3), the one before (itself at the first), torque, holding,
-        quiet) of the reading ``lag`` samples ago, or None while the smoother fills."""
+        """Take one reading (rad) with its reference's state (3, 3) (rows angle, rate, acceleration: rad, rad/s,
+        rad/s^2); return (smoothed state (3, 3), the one before (itself at the first), torque, holding, quiet) of
+        the reading ``lag`` samples ago, or None while the smoother fills."""
+        error = angles - reference[0]
         if not self._started:
-            self._smoother.reset(angles)
+            self._smoother.reset(error)
             self._started = True
-        # the smoother's buffers alternate: the previous call's state holds through this call
-        state = self._smoother.update_state(angles)
-        previous, self._previous = self._previous, state
-        self._pending.append((torque, holding, quiet))
+        smoothed_error = self._smoother.update_state(error)
+        self._pending.append((reference, torque, holding, quiet))
         if len(self._pending) <= self.lag:
             return None
-        torque_then, held_then, quiet_then = self._pending.popleft()
+        reference_then, torque_then, held_then, quiet_then = self._pending.popleft()
+        state = reference_then + smoothed_error
+        previous, self._previous = self._previous, state
         quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
         return state, state if previous is None else previous, torque_then, held_then, quiet_then

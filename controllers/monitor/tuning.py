@@ -4,6 +4,7 @@ controller (docs/design.md section 6, "Fault monitor")."""
 from __future__ import annotations
 
 from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_JERK_STD, SMOOTHER_LAG
+from controllers.identification.least_squares import FRICTION_VELOCITY_THRESHOLD
 
 ACCELERATION_FACTOR = 2.0
 """An encoder step is implausible when its second difference asks more than this many times the acceleration the
@@ -43,6 +44,16 @@ samples that each fall short by more than 7 N m."""
 FORCE_REFERENCE = 60.0
 """Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
 52 N in 99.9 % of the samples at 6 g on randomized plants with up to 6 kg, 77 N at most)."""
+
+BREAKAWAY_FACTOR = 1.5
+"""Breakaway (static) friction of a joint as a multiple of its Coulomb friction fc: the torque its friction can
+hold at rest (the identification's ~1.5 fc, :mod:`controllers.identification.least_squares`)."""
+
+REST_RATE = FRICTION_VELOCITY_THRESHOLD
+"""Speed (rad/s) below which the collision check takes a joint's friction for unknown within +-:data:`BREAKAWAY_FACTOR`
+fc instead of the model's fc sign(theta_dot): the identification's bound of the rate model's validity (0.2 rad/s,
+where the Stribeck excess has decayed). At a stop, the smoothed rate's sign says little, and a joint that sticks
+holds any torque up to its breakaway: at 3 g this made the largest part of the healthy residual's force."""
 
 FORCE_EVIDENCE = 60.0
 """Accumulated force beyond :data:`FORCE_REFERENCE` (N, summed over samples) that makes a collision: one sample of
