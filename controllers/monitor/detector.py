@@ -326,14 +326,14 @@ class FaultMonitor:
         delayed = self._delayed.update(angles, reference, torque, holding, self._k <= self._quiet_until)
         if delayed is None:
             return
-        state, previous, torque_then, held_then, quiet = delayed
+        state, previous, torque_then, held_then, quiet, jerk_variance = delayed
         # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
         status, terms = model_residual(
             self.dynamics.model_constants, state, previous, TORQUE_AGE, torque_then, self._correction_terms
         )
         if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
             return
-        self._check_payload(terms, held_then, quiet)
+        self._check_payload(terms, held_then, quiet, jerk_variance)
         self._check_force(terms, held_then, quiet)
 
     def set_corrections(self, corrections: ModelCorrections | None) -> None:
@@ -382,7 +382,9 @@ class FaultMonitor:
             if self._held_since is not None and self._slip_armed:  # what the collision left in the mass held: afresh
                 self._restart_held()
 
-    def _check_payload(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
+    def _check_payload(
+        self, terms: NDArray[np.float64], holding: bool, quiet: bool, jerk_variance: NDArray[np.float64]
+    ) -> None:
         """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
         since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi
         are ``terms`` of :func:`model_residual`."""
@@ -400,7 +402,7 @@ class FaultMonitor:
         if self.held_mass is not None:
             self._learn_scatter(terms, self.held_mass)
         band = residual_std(terms[2], self._static_friction, 0.0)
-        information, moment = slip_moments(terms, band, self._scatter)
+        information, moment = slip_moments(terms, band, self._scatter + jerk_variance)
         if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
             held = self._held_moment / self._held_information
             if self._held_information**-0.5 < HELD_MASS_STD:
@@ -473,17 +475,26 @@ class FaultMonitor:
 
 class _DelayedState:
     """A joint-state smoother with the readings it lags behind: pairs each smoothed state with its sample's torque,
-    gripper and quiet flag, at the instant the torque was measured.
+    gripper and quiet flag, at the instant the torque was measured, and with the variance its acceleration's error
+    puts into the model's torque.
 
     It smooths the tracking error, the angles less the reference, and adds the reference's own state back: the
     reference is known, so the smoother's motion model (white jerk) carries only the error's jerk. Smoothing the
     angles themselves lagged the planned jerk of time-optimal moves by 20-30 rad/s^2 of acceleration, which the
     whole inertia turned into an apparent force (docs/design.md section 6, "Fault monitor").
+
+    What the error still steps by (a torque the controller steps, as a residual policy does every 10 ms) the smoother
+    smears over its window: a step of the acceleration by da between readings m - 1 and m leaves the estimate of the
+    sample k off by h_m da, h the smoother's response to the step. The joint's torque steps with its acceleration
+    (I da), so the measured torque's steps in the window give the model torque's error variance sum_m h_m^2
+    (tau_m - tau_{m-1})^2 (N^2 m^2), per joint.
     """
 
     def __init__(self, lag: int) -> None:
         self._smoother = JointStateSmoother(lag=lag, jerk_std=MONITOR_JERK_STD)
         self.lag = lag
+        self._step_response = _acceleration_step_response(self._smoother) ** 2
+        self._torques = np.zeros((len(self._step_response) + 1, 3))
         self.reset()
 
     def reset(self) -> None:
@@ -500,20 +511,41 @@ class _DelayedState:
         torque: NDArray[np.float64],
         holding: bool,
         quiet: bool,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool] | None:
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool, NDArray[np.float64]] | None:
         """Take one reading (rad) with its reference's state (3, 3) (rows angle, rate, acceleration: rad, rad/s,
-        rad/s^2); return (smoothed state (3, 3), the one before (itself at the first), torque, holding, quiet) of
-        the reading ``lag`` samples ago, or None while the smoother fills."""
+        rad/s^2) and its measured torque (N m); return (smoothed state (3, 3), the one before (itself at the first),
+        torque, holding, quiet, the variance (N^2 m^2, (3,)) of the model torque's error from the acceleration's
+        steps) of the reading ``lag`` samples ago, or None while the smoother fills."""
         error = angles - reference[0]
+        torques = self._torques
         if not self._started:
             self._smoother.reset(error)
+            torques[:] = torque
             self._started = True
         smoothed_error = self._smoother.update_state(error)
+        torques[:-1] = torques[1:]
+        torques[-1] = torque
         self._pending.append((reference, torque, holding, quiet))
         if len(self._pending) <= self.lag:
             return None
         reference_then, torque_then, held_then, quiet_then = self._pending.popleft()
         state = reference_then + smoothed_error
         previous, self._previous = self._previous, state
+        steps = torques[1:] - torques[:-1]
+        jerk_variance = self._step_response @ (steps * steps)
         quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
-        return state, state if previous is None else previous, torque_then, held_then, quiet_then
+        return state, state if previous is None else previous, torque_then, held_then, quiet_then, jerk_variance
+
+
+def _acceleration_step_response(smoother: JointStateSmoother) -> NDArray[np.float64]:
+    """The error of ``smoother``'s acceleration estimate (per rad/s^2) when the acceleration steps by 1 rad/s^2
+    between readings m - 1 and m of its window, for each m (oldest first; m = 0 steps before the window)."""
+    readings = smoother.weights.shape[1]
+    estimated = smoother.history  # the window's reading whose state the smoother returns
+    times = (np.arange(readings) - estimated) * CONTROL_PERIOD
+    response = np.empty(readings)
+    for m in range(readings):
+        start = (m - estimated - 0.5) * CONTROL_PERIOD
+        angles = np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
+        response[m] = smoother.weights[2] @ angles - (1.0 if estimated >= m else 0.0)
+    return response
