@@ -17,6 +17,7 @@ from controllers.monitor.compiled import (
     model_residual,
     platform_force,
     slip_moments,
+    torque_step_variance,
     torques_plausible,
 )
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
@@ -115,6 +116,19 @@ def test_platform_force_is_the_numpy_force() -> None:
             _same(force, force_map @ expected)
             assert magnitude == pytest.approx(float(np.linalg.norm(force_map @ expected)), rel=TOLERANCE)
     assert slow_rows > 100
+
+
+def test_torque_step_variance_is_the_numpy_sum() -> None:
+    rng = np.random.default_rng(4)
+    squared_response = rng.uniform(0.0, 0.3, 26)
+    torques = rng.normal(0.0, 30.0, (27, 3))
+    expected_torques = torques.copy()
+    for _ in range(40):
+        torque = rng.normal(0.0, 30.0, 3)
+        expected_torques = np.vstack((expected_torques[1:], torque))
+        variance = torque_step_variance(torques, torque, squared_response)
+        _same(torques, expected_torques)
+        _same(variance, squared_response @ np.diff(expected_torques, axis=0) ** 2)
 
 
 def test_scatter_and_slip_moments_are_the_numpy_ones() -> None:

@@ -244,3 +244,25 @@ def torques_plausible(
         if shortfall > drift:
             return False
     return True
+
+
+@numba.njit(cache=True)
+def torque_step_variance(
+    torques: NDArray[np.float64], torque: NDArray[np.float64], squared_response: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Shift ``torque`` (N m, (3,)) into ``torques`` (the window's measured torques and the one before, (n + 1, 3),
+    oldest first; in place) and return, per joint, sum_m ``squared_response``_m (tau_{m+1} - tau_m)^2 (N^2 m^2,
+    (3,)): the NumPy ``squared_response @ np.diff(torques, axis=0) ** 2`` summed from the oldest step."""
+    rows = torques.shape[0]
+    for row in range(rows - 1):
+        for joint in range(3):
+            torques[row, joint] = torques[row + 1, joint]
+    for joint in range(3):
+        torques[rows - 1, joint] = torque[joint]
+    variance = np.zeros(3)
+    for row in range(rows - 1):
+        weight = squared_response[row]
+        for joint in range(3):
+            step = torques[row + 1, joint] - torques[row, joint]
+            variance[joint] += weight * (step * step)
+    return variance

@@ -19,6 +19,7 @@ from controllers.monitor.compiled import (
     model_residual,
     platform_force,
     slip_moments,
+    torque_step_variance,
     torques_plausible,
 )
 from controllers.monitor.events import DetectedFault
@@ -460,7 +461,7 @@ class FaultMonitor:
         if self.quiet_samples:
             self._quiet_until = max(self._quiet_until, self._k + self.quiet_samples)
         holding = observation["gripper"].item(0) > 0.5
-        reference = np.stack(
+        reference = np.array(
             (
                 observation["reference_angles"],
                 observation["reference_velocities"],
@@ -483,18 +484,18 @@ class _DelayedState:
     angles themselves lagged the planned jerk of time-optimal moves by 20-30 rad/s^2 of acceleration, which the
     whole inertia turned into an apparent force (docs/design.md section 6, "Fault monitor").
 
-    What the error still steps by (a torque the controller steps, as a residual policy does every 10 ms) the smoother
-    smears over its window: a step of the acceleration by da between readings m - 1 and m leaves the estimate of the
-    sample k off by h_m da, h the smoother's response to the step. The joint's torque steps with its acceleration
-    (I da), so the measured torque's steps in the window give the model torque's error variance sum_m h_m^2
-    (tau_m - tau_{m-1})^2 (N^2 m^2), per joint.
+    Where the error's acceleration still steps (a controller that steps its torque, as the residual policy does every
+    10 ms), the smoother smears the step over its window: a step da between readings m - 1 and m leaves the
+    estimated sample's acceleration off by h_m da, h the smoother's response to a unit step. The joint's torque steps
+    with its acceleration (I da), so the measured torque's steps in the window give the model torque's error variance
+    sum_m h_m^2 (tau_m - tau_{m-1})^2 (N^2 m^2), per joint.
     """
 
     def __init__(self, lag: int) -> None:
         self._smoother = JointStateSmoother(lag=lag, jerk_std=MONITOR_JERK_STD)
         self.lag = lag
-        self._step_response = _acceleration_step_response(self._smoother) ** 2
-        self._torques = np.zeros((len(self._step_response) + 1, 3))
+        self._squared_response = _acceleration_step_response(self._smoother) ** 2
+        self._torques = np.zeros((len(self._squared_response) + 1, 3))  # the window's torques and the one before
         self.reset()
 
     def reset(self) -> None:
@@ -523,16 +524,13 @@ class _DelayedState:
             torques[:] = torque
             self._started = True
         smoothed_error = self._smoother.update_state(error)
-        torques[:-1] = torques[1:]
-        torques[-1] = torque
+        jerk_variance = torque_step_variance(torques, torque, self._squared_response)
         self._pending.append((reference, torque, holding, quiet))
         if len(self._pending) <= self.lag:
             return None
         reference_then, torque_then, held_then, quiet_then = self._pending.popleft()
         state = reference_then + smoothed_error
         previous, self._previous = self._previous, state
-        steps = torques[1:] - torques[:-1]
-        jerk_variance = self._step_response @ (steps * steps)
         quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
         return state, state if previous is None else previous, torque_then, held_then, quiet_then, jerk_variance
 
