@@ -17,6 +17,7 @@ from controllers.monitor.compiled import (
     model_residual,
     platform_force,
     slip_moments,
+    torque_step_variance,
     torques_plausible,
 )
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
@@ -88,20 +89,46 @@ def test_model_residual_reports_a_state_the_model_cannot_take() -> None:
 def test_platform_force_is_the_numpy_force() -> None:
     dynamics = DeltaDynamics.nominal(PARAMETERS)
     no_corrections = correction_terms(None, 1.0, 1.0, (0.0,) * 3, (0.0,) * 3)
-    for state, previous, torque in _samples(300, seed=1):
+    coulomb = np.array(PARAMETERS.coulomb)
+    breakaway = 1.5 * coulomb
+    rest_rate = 0.2
+    slow_rows = 0
+    for index, (state, previous, torque) in enumerate(_samples(300, seed=1)):
+        if index % 2:  # rates around the friction's unknown band too
+            state, previous = state.copy(), previous.copy()
+            state[1] *= 0.05
+            previous[1] = state[1]
         _, terms = model_residual(dynamics.model_constants, state, previous, TORQUE_AGE, torque, no_corrections)
-        residual, phi = terms[0], terms[1]
+        residual, phi, theta_dot = terms[0], terms[1], terms[2]
+        slow = np.abs(theta_dot) < rest_rate
+        slow_rows += int(slow.any())
+        charged = coulomb * np.sign(theta_dot)
         # the map as the model gives it: its memory layout picks OpenBLAS's kernel, and so the order of the sums
         _, _, force_map = dynamics.torque_regressor_and_force_map(*(state - TORQUE_AGE * (state - previous)))
         projected = residual - (residual @ phi) / float(phi @ phi) * phi
-        for held_mass, subtract, project, expected in (
+        for held_mass, subtract, project, external in (
             (0.0, False, False, residual),
             (1.7, True, True, residual - 1.7 * phi),
             (0.0, False, True, projected),
         ):
-            force, magnitude = platform_force(terms, held_mass, subtract, project)
+            expected = np.where(slow, external - np.clip(external, -breakaway - charged, breakaway - charged), external)
+            force, magnitude = platform_force(terms, held_mass, subtract, project, coulomb, breakaway, rest_rate)
             _same(force, force_map @ expected)
             assert magnitude == pytest.approx(float(np.linalg.norm(force_map @ expected)), rel=TOLERANCE)
+    assert slow_rows > 100
+
+
+def test_torque_step_variance_is_the_numpy_sum() -> None:
+    rng = np.random.default_rng(4)
+    squared_response = rng.uniform(0.0, 0.3, 26)
+    torques = rng.normal(0.0, 30.0, (27, 3))
+    expected_torques = torques.copy()
+    for _ in range(40):
+        torque = rng.normal(0.0, 30.0, 3)
+        expected_torques = np.vstack((expected_torques[1:], torque))
+        variance = torque_step_variance(torques, torque, squared_response)
+        _same(torques, expected_torques)
+        _same(variance, squared_response @ np.diff(expected_torques, axis=0) ** 2)
 
 
 def test_scatter_and_slip_moments_are_the_numpy_ones() -> None:

@@ -9,9 +9,11 @@
   torques that stay short of the prediction, or keep falling short of what the slowest healthy loop would reach (a
   CUSUM, :data:`DRIVE_FAULT_EVIDENCE`), are a drive that does not deliver its command.
 - **External forces** (collisions): the residual of the identified model, measured torque minus the model's
-  torque at the smoothed joint state (with the mass held, once known), mapped to a platform force F = J^-T r. Until
-  the mass held is known, the residual's component along the payload regressor phi is left out (an unknown mass
-  looks exactly like a force along J^T (xdd + g)).
+  torque at the smoothed joint state (the tracking error smoothed, the reference's own derivatives added back; with
+  the mass held, once known), mapped to a platform force F = J^-T r. Until the mass held is known, the residual's
+  component along the payload regressor phi is left out (an unknown mass looks exactly like a force along
+  J^T (xdd + g)). On a joint near rest, what friction up to its breakaway can hold is left out too
+  (:data:`REST_RATE`).
 - **Payload consistency** (slips and drops): the apparent mass of the last few samples against the mass held since
   the pick.
 

@@ -126,10 +126,22 @@ def model_residual(
 
 @numba.njit(cache=True)
 def platform_force(
-    terms: NDArray[np.float64], held_mass: float, subtract_held: bool, project_out_phi: bool
+    terms: NDArray[np.float64],
+    held_mass: float,
+    subtract_held: bool,
+    project_out_phi: bool,
+    coulomb: NDArray[np.float64],
+    breakaway: NDArray[np.float64],
+    rest_rate: float,
 ) -> tuple[NDArray[np.float64], float]:
-    """The platform force F = J^-T r (N), (3,), and its norm, of :func:`model_residual`'s ``terms``; r the residual
-    less ``held_mass`` (kg) phi if ``subtract_held``, or without its part along phi if ``project_out_phi``."""
+    """The platform force F = J^-T e (N), (3,), and its norm, of :func:`model_residual`'s ``terms``.
+
+    e is the residual r less ``held_mass`` (kg) phi if ``subtract_held``, or without its part along phi if
+    ``project_out_phi``; then, on each joint slower than ``rest_rate`` (rad/s), less what its unknown friction
+    can explain: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the friction may be anything
+    within +-``breakaway`` (N m), so e_i loses its part within [-b_i - fc_i s_i, b_i - fc_i s_i] (the NumPy
+    ``e - clip(e, low, high)``).
+    """
     r0, r1, r2 = terms[0, 0], terms[0, 1], terms[0, 2]
     p0, p1, p2 = terms[1, 0], terms[1, 1], terms[1, 2]
     if subtract_held:
@@ -139,9 +151,20 @@ def platform_force(
         if information > 0.0:
             share = _dot3(r0, r1, r2, p0, p1, p2) / information
             r0, r1, r2 = r0 - share * p0, r1 - share * p1, r2 - share * p2
+    external = np.array((r0, r1, r2))
+    for joint in range(3):
+        rate = terms[2, joint]
+        if abs(rate) < rest_rate:
+            charged = coulomb[joint] * ((rate > 0.0) - (rate < 0.0))
+            low, high = -breakaway[joint] - charged, breakaway[joint] - charged
+            value = external[joint]
+            explained = low if value < low else (high if value > high else value)  # np.clip
+            external[joint] = value - explained
     force = np.empty(3)
     for axis in range(3):
-        force[axis] = _dot3(terms[3 + axis, 0], terms[3 + axis, 1], terms[3 + axis, 2], r0, r1, r2)
+        force[axis] = _dot3(
+            terms[3 + axis, 0], terms[3 + axis, 1], terms[3 + axis, 2], external[0], external[1], external[2]
+        )
     return force, math.sqrt(_dot3(force[0], force[1], force[2], force[0], force[1], force[2]))
 
 
@@ -221,3 +244,25 @@ def torques_plausible(
         if shortfall > drift:
             return False
     return True
+
+
+@numba.njit(cache=True)
+def torque_step_variance(
+    torques: NDArray[np.float64], torque: NDArray[np.float64], squared_response: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Shift ``torque`` (N m, (3,)) into ``torques`` (the window's measured torques and the one before, (n + 1, 3),
+    oldest first; in place) and return, per joint, sum_m ``squared_response``_m (tau_{m+1} - tau_m)^2 (N^2 m^2,
+    (3,)): the NumPy ``squared_response @ np.diff(torques, axis=0) ** 2`` summed from the oldest step."""
+    rows = torques.shape[0]
+    for row in range(rows - 1):
+        for joint in range(3):
+            torques[row, joint] = torques[row + 1, joint]
+    for joint in range(3):
+        torques[rows - 1, joint] = torque[joint]
+    variance = np.zeros(3)
+    for row in range(rows - 1):
+        weight = squared_response[row]
+        for joint in range(3):
+            step = torques[row + 1, joint] - torques[row, joint]
+            variance[joint] += weight * (step * step)
+    return variance

@@ -19,11 +19,13 @@ from controllers.monitor.compiled import (
     model_residual,
     platform_force,
     slip_moments,
+    torque_step_variance,
     torques_plausible,
 )
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
+    BREAKAWAY_FACTOR,
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_SAMPLES,
@@ -33,6 +35,7 @@ from controllers.monitor.tuning import (
     HELD_MASS_STD,
     INITIAL_RESIDUAL_STD,
     MONITOR_JERK_STD,
+    REST_RATE,
     RESYNC_QUIET,
     SCATTER_RATE,
     SENSOR_QUIET,
@@ -318,18 +321,20 @@ class FaultMonitor:
 
     # -- the model's residual -------------------------------------------------------------------
 
-    def _check_model(self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool) -> None:
-        delayed = self._delayed.update(angles, torque, holding, self._k <= self._quiet_until)
+    def _check_model(
+        self, angles: NDArray[np.float64], reference: NDArray[np.float64], torque: NDArray[np.float64], holding: bool
+    ) -> None:
+        delayed = self._delayed.update(angles, reference, torque, holding, self._k <= self._quiet_until)
         if delayed is None:
             return
-        state, previous, torque_then, held_then, quiet = delayed
+        state, previous, torque_then, held_then, quiet, jerk_variance = delayed
         # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
         status, terms = model_residual(
             self.dynamics.model_constants, state, previous, TORQUE_AGE, torque_then, self._correction_terms
         )
         if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
             return
-        self._check_payload(terms, held_then, quiet)
+        self._check_payload(terms, held_then, quiet, jerk_variance)
         self._check_force(terms, held_then, quiet)
 
     def set_corrections(self, corrections: ModelCorrections | None) -> None:
@@ -343,18 +348,30 @@ class FaultMonitor:
             dynamics.parameters.viscous,
             dynamics.parameters.coulomb,
         )
+        # the Coulomb friction the residual charges (the corrections scale the model's friction by 1 + s_i), and
+        # the breakaway friction a joint at rest may hold
+        scale = 1.0 if corrections is None else 1.0 + np.asarray(corrections.friction_scale, dtype=float)
+        self._charged_coulomb = np.array(dynamics.parameters.coulomb) * scale
+        self._breakaway = BREAKAWAY_FACTOR * np.maximum(self._charged_coulomb, 0.0)
 
     def _check_force(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
         """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
         residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
-        without its part along phi)."""
+        without its part along phi), less on joints slower than :data:`REST_RATE` what friction up to the breakaway
+        can hold."""
         if quiet:
             self._force_evidence = 0.0
             self.collision = False
             return
         held_mass = self.held_mass
         self.force, magnitude = platform_force(
-            terms, 0.0 if held_mass is None else held_mass, holding and held_mass is not None, holding
+            terms,
+            0.0 if held_mass is None else held_mass,
+            holding and held_mass is not None,
+            holding,
+            self._charged_coulomb,
+            self._breakaway,
+            REST_RATE,
         )
         self._force_evidence = max(0.0, self._force_evidence + magnitude - FORCE_REFERENCE)
         self.collision_samples = self.collision_samples + 1 if self._force_evidence > 0.0 else 0
@@ -366,7 +383,9 @@ class FaultMonitor:
             if self._held_since is not None and self._slip_armed:  # what the collision left in the mass held: afresh
                 self._restart_held()
 
-    def _check_payload(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
+    def _check_payload(
+        self, terms: NDArray[np.float64], holding: bool, quiet: bool, jerk_variance: NDArray[np.float64]
+    ) -> None:
         """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
         since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi
         are ``terms`` of :func:`model_residual`."""
@@ -384,7 +403,7 @@ class FaultMonitor:
         if self.held_mass is not None:
             self._learn_scatter(terms, self.held_mass)
         band = residual_std(terms[2], self._static_friction, 0.0)
-        information, moment = slip_moments(terms, band, self._scatter)
+        information, moment = slip_moments(terms, band, self._scatter + jerk_variance)
         if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
             held = self._held_moment / self._held_information
             if self._held_information**-0.5 < HELD_MASS_STD:
@@ -442,7 +461,14 @@ class FaultMonitor:
         if self.quiet_samples:
             self._quiet_until = max(self._quiet_until, self._k + self.quiet_samples)
         holding = observation["gripper"].item(0) > 0.5
-        self._check_model(angles, torque, holding)
+        reference = np.array(
+            (
+                observation["reference_angles"],
+                observation["reference_velocities"],
+                observation["reference_accelerations"],
+            )
+        )
+        self._check_model(angles, reference, torque, holding)
         clean = dict(observation)
         clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = angles, rates, torque
         return clean
@@ -450,32 +476,74 @@ class FaultMonitor:
 
 class _DelayedState:
     """A joint-state smoother with the readings it lags behind: pairs each smoothed state with its sample's torque,
-    gripper and quiet flag, at the instant the torque was measured."""
+    gripper and quiet flag, at the instant the torque was measured, and with the variance its acceleration's error
+    puts into the model's torque.
+
+    It smooths the tracking error, the angles less the reference, and adds the reference's own state back: the
+    reference is known, so the smoother's motion model (white jerk) carries only the error's jerk. Smoothing the
+    angles themselves lagged the planned jerk of time-optimal moves by 20-30 rad/s^2 of acceleration, which the
+    whole inertia turned into an apparent force (docs/design.md section 6, "Fault monitor").
+
+    Where the error's acceleration still steps (a controller that steps its torque, as the residual policy does every
+    10 ms), the smoother smears the step over its window: a step da between readings m - 1 and m leaves the
+    estimated sample's acceleration off by h_m da, h the smoother's response to a unit step. The joint's torque steps
+    with its acceleration (I da), so the measured torque's steps in the window give the model torque's error variance
+    sum_m h_m^2 (tau_m - tau_{m-1})^2 (N^2 m^2), per joint.
+    """
 
     def __init__(self, lag: int) -> None:
         self._smoother = JointStateSmoother(lag=lag, jerk_std=MONITOR_JERK_STD)
         self.lag = lag
+        self._squared_response = _acceleration_step_response(self._smoother) ** 2
+        self._torques = np.zeros((len(self._squared_response) + 1, 3))  # the window's torques and the one before
         self.reset()
 
     def reset(self) -> None:
         self._started = False
         self._previous: NDArray[np.float64] | None = None
-        self._pending: collections.deque[tuple[NDArray[np.float64], bool, bool]] = collections.deque()
+        self._pending: collections.deque[tuple[NDArray[np.float64], NDArray[np.float64], bool, bool]] = (
+            collections.deque()
+        )
 
     def update(
-        self, angles: NDArray[np.float64], torque: NDArray[np.float64], holding: bool, quiet: bool
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool] | None:
-        """Take one reading; return (smoothed state (3, 3), the one before (itself at the first), torque, holding,
-        quiet) of the reading ``lag`` samples ago, or None while the smoother fills."""
+        self,
+        angles: NDArray[np.float64],
+        reference: NDArray[np.float64],
+        torque: NDArray[np.float64],
+        holding: bool,
+        quiet: bool,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool, NDArray[np.float64]] | None:
+        """Take one reading (rad) with its reference's state (3, 3) (rows angle, rate, acceleration: rad, rad/s,
+        rad/s^2) and its measured torque (N m); return (smoothed state (3, 3), the one before (itself at the first),
+        torque, holding, quiet, the variance (N^2 m^2, (3,)) of the model torque's error from the acceleration's
+        steps) of the reading ``lag`` samples ago, or None while the smoother fills."""
+        error = angles - reference[0]
+        torques = self._torques
         if not self._started:
-            self._smoother.reset(angles)
+            self._smoother.reset(error)
+            torques[:] = torque
             self._started = True
-        # the smoother's buffers alternate: the previous call's state holds through this call
-        state = self._smoother.update_state(angles)
-        previous, self._previous = self._previous, state
-        self._pending.append((torque, holding, quiet))
+        smoothed_error = self._smoother.update_state(error)
+        jerk_variance = torque_step_variance(torques, torque, self._squared_response)
+        self._pending.append((reference, torque, holding, quiet))
         if len(self._pending) <= self.lag:
             return None
-        torque_then, held_then, quiet_then = self._pending.popleft()
+        reference_then, torque_then, held_then, quiet_then = self._pending.popleft()
+        state = reference_then + smoothed_error
+        previous, self._previous = self._previous, state
         quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
-        return state, state if previous is None else previous, torque_then, held_then, quiet_then
+        return state, state if previous is None else previous, torque_then, held_then, quiet_then, jerk_variance
+
+
+def _acceleration_step_response(smoother: JointStateSmoother) -> NDArray[np.float64]:
+    """The error of ``smoother``'s acceleration estimate (per rad/s^2) when the acceleration steps by 1 rad/s^2
+    between readings m - 1 and m of its window, for each m (oldest first; m = 0 steps before the window)."""
+    readings = smoother.weights.shape[1]
+    estimated = smoother.history  # the window's reading whose state the smoother returns
+    times = (np.arange(readings) - estimated) * CONTROL_PERIOD
+    response = np.empty(readings)
+    for m in range(readings):
+        start = (m - estimated - 0.5) * CONTROL_PERIOD
+        angles = np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
+        response[m] = smoother.weights[2] @ angles - (1.0 if estimated >= m else 0.0)
+    return response

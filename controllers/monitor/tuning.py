@@ -4,6 +4,7 @@ controller (docs/design.md section 6, "Fault monitor")."""
 from __future__ import annotations
 
 from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_JERK_STD, SMOOTHER_LAG
+from controllers.identification.least_squares import FRICTION_VELOCITY_THRESHOLD
 
 ACCELERATION_FACTOR = 2.0
 """An encoder step is implausible when its second difference asks more than this many times the acceleration the
@@ -42,11 +43,23 @@ samples that each fall short by more than 7 N m."""
 
 FORCE_REFERENCE = 60.0
 """Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
-52 N in 99.9 % of the samples at 6 g on randomized plants with up to 6 kg, 77 N at most)."""
+38 N, 26 N in 99.9 % of the samples, on 20 fault-free episodes at 6 g on randomized plants with up to 6 kg; at most
+47 N on moves timed to the drive's envelope, 74 N for one sample where the residual policy steps its torque)."""
 
 FORCE_EVIDENCE = 60.0
 """Accumulated force beyond :data:`FORCE_REFERENCE` (N, summed over samples) that makes a collision: one sample of
 120 N, or two of 90 N."""
+
+BREAKAWAY_FACTOR = 1.5
+"""Breakaway (static) friction of a joint as a multiple of its Coulomb friction fc: the torque its friction can
+hold at rest (the identification's ~1.5 fc, :mod:`controllers.identification.least_squares`)."""
+
+REST_RATE = FRICTION_VELOCITY_THRESHOLD
+"""Speed (rad/s) below which the collision check takes a joint's friction for unknown within +-:data:`BREAKAWAY_FACTOR`
+fc instead of the model's fc sign(theta_dot): the identification's bound of the rate model's validity (0.2 rad/s,
+where the Stribeck excess has decayed). At a stop, the smoothed rate's sign says little, and a joint that sticks
+holds any torque up to its breakaway: at 3 g this friction made most of the healthy residual's force (taken out,
+the largest |F| of 30 fault-free episodes fell from 77 to 24 N; docs/measurements.md, "Faults")."""
 
 SLIP_MIN_MASS = 0.3
 """Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
@@ -83,11 +96,12 @@ RESYNC_QUIET = SMOOTHER_HISTORY + 2 * SMOOTHER_LAG + 1
 for a while (a stuck spell): the step sits in the smoother's whole window."""
 
 MONITOR_JERK_STD = SMOOTHER_JERK_STD
-"""Jerk standard deviation (rad/s^3) of the monitor's fixed-lag smoother of the clean angles: the offline smoother's,
-a third of the payload estimator's (:data:`~controllers.estimation.FIXED_LAG_JERK_STD`). The residual force and the
-slip check sum evidence over many samples, which a sample's lag at a jerk step hardly moves, while the acceleration
-noise of a higher value enters the force through the whole inertia; the monitor's thresholds were set, and its
-campaigns and soak measured, with this value (docs/measurements.md, "Faults")."""
+"""Jerk standard deviation (rad/s^3) of the monitor's fixed-lag smoother of the tracking error (the clean angles less
+the reference, whose own derivatives are added back): the offline smoother's, a third of the payload estimator's
+(:data:`~controllers.estimation.FIXED_LAG_JERK_STD`). The residual force and the slip check sum evidence over many
+samples, and the error's jerk is small next to the reference's, while the acceleration noise of a higher value
+enters the force through the whole inertia; the monitor's thresholds were set, and its campaigns and soak measured,
+with this value (docs/measurements.md, "Faults")."""
 
 SLOW_RATE = 0.5
 """Speed override (of the reference's speed) a ``"slow"`` reaction (:data:`~delta_env.faults.FAULT_REACTIONS`)
