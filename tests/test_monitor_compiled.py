@@ -7,6 +7,8 @@ on a last bit."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -14,14 +16,17 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.monitor.compiled import (
     correction_terms,
     learn_scatter,
+    loop_output,
     model_residual,
     platform_force,
     slip_moments,
     torque_step_variance,
     torques_plausible,
 )
+from controllers.monitor.detector import loop_response
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
 from delta_env import kernels
+from delta_env.sensors import CONTROL_PERIOD
 
 PARAMETERS = ModelParameters(rho1=1.8, rho2=0.9, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
 TOLERANCE = 1e-12
@@ -153,19 +158,21 @@ def test_scatter_and_slip_moments_are_the_numpy_ones() -> None:
         assert moment == pytest.approx(float(np.sum(weight * phi * residual)), rel=TOLERANCE, abs=1e-12)
 
 
-def _plausible_reference(torque, last, command, slowest_gain, peak, margin, drift, largest) -> bool:
-    """The torque fast path as it was written in Python (min/max, NaN included)."""
-    for now, previous, asked, gain in zip(
-        *(np.asarray(v).tolist() for v in (torque, last, command, slowest_gain)), strict=True
+def _plausible_reference(torque, last, command, before, hold, keep, peak, margin, drift, largest) -> bool:
+    """The torque fast path written in Python (min/max, NaN included): the span of the last reading and the two
+    commands, and the slowest loop's two-stage output."""
+    for now, previous, asked, asked_before, hold_j, keep_j in zip(
+        *(np.asarray(v).tolist() for v in (torque, last, command, before, hold, keep)), strict=True
     ):
         if not np.isfinite(now):
             return False
-        held = min(max(asked, -peak), peak)
-        if now < min(previous, held) - margin or now > max(previous, held) + margin:
+        held, earlier = min(max(asked, -peak), peak), min(max(asked_before, -peak), peak)
+        if now < min(previous, held, earlier) - margin or now > max(previous, held, earlier) + margin:
             return False
         step = held - previous
         direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
-        if min((previous + gain * step - now) * direction, largest) > drift:
+        slowest = held + (earlier - held) * hold_j + (previous - earlier) * keep_j
+        if min((slowest - now) * direction, largest) > drift:
             return False
     return True
 
@@ -176,16 +183,32 @@ def test_torques_plausible_is_the_python_check_with_nan_and_infinities() -> None
     peak, margin, drift, largest = 100.0, 2.0, 0.5, 5.0
     outcomes = []
     for _ in range(20000):
-        values = rng.normal(0.0, 30.0, (4, 3))
-        values[3] = rng.uniform(0.3, 0.9, 3)  # the slowest loop's gain per sample
-        mask = rng.random((3, 3)) < 0.05
-        values[:3][mask] = rng.choice(special, int(mask.sum()))
+        values = rng.normal(0.0, 30.0, (6, 3))
+        values[4] = rng.uniform(0.1, 0.8, 3)  # the slowest loop's hold and keep per sample (keep < hold)
+        values[5] = values[4] * rng.uniform(0.3, 0.95, 3)
+        mask = rng.random((4, 3)) < 0.05
+        values[:4][mask] = rng.choice(special, int(mask.sum()))
+        torque, last, command, before, hold, keep = values
         with np.errstate(invalid="ignore"):  # inf - inf where a special value was drawn
-            healthy = values[1] + values[3] * (np.clip(values[2], -peak, peak) - values[1]) + rng.normal(0.0, 0.3, 3)
-        values[0] = np.where(rng.random(3) < 0.9, healthy, values[0])  # mostly where a healthy loop would be
-        torque, last, command, gain = values
-        expected = _plausible_reference(torque, last, command, gain, peak, margin, drift, largest)
-        assert torques_plausible(torque, last, command, gain, peak, margin, drift, largest) == expected
+            clipped, clipped_before = np.clip(command, -peak, peak), np.clip(before, -peak, peak)
+            healthy = loop_output(last, clipped_before, clipped, hold, keep) + rng.normal(0.0, 0.3, 3)
+        torque[:] = np.where(rng.random(3) < 0.9, healthy, torque)  # mostly where a healthy loop would be
+        expected = _plausible_reference(torque, last, command, before, hold, keep, peak, margin, drift, largest)
+        assert torques_plausible(torque, last, command, before, hold, keep, peak, margin, drift, largest) == expected
         outcomes.append(expected)
     assert 0.05 < np.mean(outcomes) < 0.95  # both answers are exercised
-    assert not torques_plausible(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), peak, margin, drift, largest)
+    short = np.zeros(2)
+    assert not torques_plausible(short, short, short, short, short, short, peak, margin, drift, largest)
+
+
+def test_loop_output_is_the_first_order_loop_sampled_half_a_period_late() -> None:
+    # The reading at t_k - d: from the last reading (t_{k-1} - d) towards the command before for d, then towards
+    # the command held since t_{k-1}; integrated finely, against the closed form.
+    lag, period, age = 1.3e-3, CONTROL_PERIOD, TORQUE_AGE
+    hold, keep = (value[0] for value in loop_response([lag]))
+    output, substeps = 12.0, 10000
+    for target, duration in ((-40.0, age * period), (25.0, (1.0 - age) * period)):
+        for _ in range(substeps):
+            output += (target - output) * (1.0 - math.exp(-duration / substeps / lag))
+    assert loop_output(12.0, -40.0, 25.0, hold, keep) == pytest.approx(output, abs=1e-9)
+    assert loop_output(12.0, 25.0, 25.0, hold, keep) == pytest.approx(25.0 + (12.0 - 25.0) * math.exp(-period / lag))

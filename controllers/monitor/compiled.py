@@ -203,42 +203,64 @@ def slip_moments(
 
 
 @numba.njit(cache=True)
+def loop_output(previous: float, before: float, held: float, hold: float, keep: float) -> float:
+    """The current loop's output (N m) at the next reading: from the ``previous`` reading towards the command held
+    ``before`` until the command changed, then towards the one ``held`` since, with the ``hold`` and ``keep`` of
+    :func:`controllers.monitor.detector.loop_response`; exact for a first-order loop. Scalars or arrays of one
+    shape."""
+    return held + (before - held) * hold + (previous - before) * keep
+
+
+@numba.njit(cache=True)
+def _clip(value: float, bound: float) -> float:
+    """min(max(value, -bound), bound): a NaN stays NaN."""
+    if -bound > value:
+        value = -bound
+    if bound < value:
+        value = bound
+    return value
+
+
+@numba.njit(cache=True)
 def torques_plausible(
     torque: NDArray[np.float64],
     last: NDArray[np.float64],
     command: NDArray[np.float64],
-    slowest_gain: NDArray[np.float64],
+    before: NDArray[np.float64],
+    slowest_hold: NDArray[np.float64],
+    slowest_keep: NDArray[np.float64],
     peak: float,
     margin: float,
     drift: float,
     largest_shortfall: float,
 ) -> bool:
-    """Whether measured torques (N m) are finite, within ``margin`` of the span between the ``last`` measured and
-    the ``command`` held at ``peak``, and fall at most ``drift`` short (each shortfall capped at
-    ``largest_shortfall``) of the slowest healthy loop's step (``slowest_gain`` per sample) towards it: the full
-    check's span test and drive-fault CUSUM would then add nothing. Python's ``min``/``max`` order, NaN included;
-    False for vectors not of 3 (the full check says what is wrong)."""
-    if torque.shape[0] != 3 or last.shape[0] != 3 or command.shape[0] != 3 or slowest_gain.shape[0] != 3:
-        return False
+    """Whether measured torques (N m) are finite, within ``margin`` of the span of the ``last`` measured, the
+    command held ``before`` and the ``command`` held since (both clipped at ``peak``), and fall at most ``drift``
+    short (each shortfall capped at ``largest_shortfall``) of the slowest healthy loop's output
+    (:func:`loop_output` with ``slowest_hold``, ``slowest_keep``): the full check's span test and drive-fault
+    CUSUM would then add nothing. Python's ``min``/``max`` order, NaN included; False for vectors not of 3 (the full
+    check says what is wrong)."""
+    for vector in (torque, last, command, before, slowest_hold, slowest_keep):
+        if vector.shape[0] != 3:
+            return False
     for joint in range(3):
         now, previous = torque[joint], last[joint]
         if not math.isfinite(now):
             return False
-        held = command[joint]  # min(max(command, -peak), peak): a NaN command stays NaN
-        if -peak > held:
-            held = -peak
-        if peak < held:
-            held = peak
-        low, high = previous, previous  # min(previous, held) and max(previous, held)
-        if held < low:
-            low = held
-        if held > high:
-            high = held
+        held = _clip(command[joint], peak)
+        earlier = _clip(before[joint], peak)
+        low, high = previous, previous  # min(previous, held, earlier) and max(previous, held, earlier)
+        for value in (held, earlier):
+            if value < low:
+                low = value
+            if value > high:
+                high = value
         if now < low - margin or now > high + margin:
             return False
         step = held - previous
         direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
-        shortfall = (previous + slowest_gain[joint] * step - now) * direction
+        slowest = loop_output(previous, earlier, held, slowest_hold[joint], slowest_keep[joint])
+        shortfall = (slowest - now) * direction
         if largest_shortfall < shortfall:
             shortfall = largest_shortfall
         if shortfall > drift:

@@ -16,6 +16,7 @@ from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
 from controllers.monitor.compiled import (
     correction_terms,
     learn_scatter,
+    loop_output,
     model_residual,
     platform_force,
     slip_moments,
@@ -52,6 +53,17 @@ from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, Mod
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_in, require_positive
+
+
+def loop_response(lags: Sequence[float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(hold, keep) per joint of a first-order current loop of time constant ``lags`` (s; 0 for none) over one
+    control period whose torque reading is :data:`~controllers.payload.TORQUE_AGE` periods old: the reading lags
+    the command's change by that much, so the loop ran that long towards the command held before, then the rest of
+    the period towards the one held since (:func:`loop_output`). hold = exp(-(1 - age) T / lag), keep =
+    exp(-T / lag)."""
+    hold = [math.exp(-(1.0 - TORQUE_AGE) * CONTROL_PERIOD / lag) if lag > 0 else 0.0 for lag in lags]
+    keep = [math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 0.0 for lag in lags]
+    return np.array(hold), np.array(keep)
 
 
 class FaultMonitor:
@@ -98,10 +110,8 @@ class FaultMonitor:
         self.encoder_step = step
         self._jump_bound = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
         self._stuck_step = max(STUCK_COUNTS * step, 1e-9)
-        self._loop_gain = np.array([1.0 - math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 1.0 for lag in lags])
-        self._slowest_gain = np.array(
-            [1.0 - math.exp(-CONTROL_PERIOD / (SLOWEST_LAG_FACTOR * lag)) if lag > 0 else 1.0 for lag in lags]
-        )
+        self._loop_response = loop_response(lags)
+        self._slowest_response = loop_response([SLOWEST_LAG_FACTOR * lag for lag in lags])
         self._delayed = _DelayedState(SMOOTHER_LAG)
         self.lag = SMOOTHER_LAG
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
@@ -129,6 +139,7 @@ class FaultMonitor:
         self._after_stuck = np.zeros(3, dtype=bool)  # a stuck spell whose readings are still being replaced
         self._encoder_bad = np.zeros(3, dtype=bool)
         self._torque_previous: NDArray[np.float64] | None = None
+        self._command_before: NDArray[np.float64] | None = None  # the command held before the last one
         self._torque_bad = np.zeros(3, dtype=int)
         self._nan_active = np.zeros(6, dtype=bool)
         self._glitch_active = np.zeros(6, dtype=bool)
@@ -253,23 +264,31 @@ class FaultMonitor:
         )
         return clean, rates
 
-    def _healthy_torques(self, torque: NDArray[np.float64], command: NDArray[np.float64]) -> bool:
+    def _healthy_torques(
+        self, torque: NDArray[np.float64], command: NDArray[np.float64], before: NDArray[np.float64]
+    ) -> bool:
         """The 1 kHz fast path, compiled: nothing flagged before, and these torques finite, within the current
         loop's span and adding nothing to the drive-fault CUSUM. Then the full check would pass them unchanged."""
         return self._torques_clean and torques_plausible(
             torque,
             self._torque_measured,
             command,
-            self._slowest_gain,
+            before,
+            *self._slowest_response,
             self.peak_torque,
             TORQUE_MARGIN,
             DRIVE_FAULT_DRIFT,
             DRIVE_FAULT_STEP,
         )
 
-    def _clean_torques(self, observation: Observation, command: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    def _clean_torques(
+        self, observation: Observation, command: NDArray[np.float64] | None, before: NDArray[np.float64] | None
+    ) -> NDArray[np.float64]:
+        """The torque readings, checked against the current loop driven by ``before`` (N m) for the reading's age
+        (:data:`~controllers.payload.TORQUE_AGE`) past the last reading, then by ``command`` (:func:`loop_output`);
+        faulty ones replaced by the loop's prediction."""
         torque = np.asarray(observation["joint_torques"], dtype=float)
-        if command is not None and self._healthy_torques(torque, command):
+        if command is not None and self._healthy_torques(torque, command, before):
             self._torque_previous = self._torque_measured = torque
             return torque
         finite = np.isfinite(torque)
@@ -283,9 +302,10 @@ class FaultMonitor:
             self._torques_clean = bool(finite.all()) and not self._torque_bad.any()
             return clean
         held = np.clip(command, -self.peak_torque, self.peak_torque)
-        predicted = previous + self._loop_gain * (held - previous)
-        low = np.minimum(previous, held) - TORQUE_MARGIN
-        high = np.maximum(previous, held) + TORQUE_MARGIN
+        before = np.clip(before, -self.peak_torque, self.peak_torque)
+        predicted = loop_output(previous, before, held, *self._loop_response)
+        low = np.minimum(np.minimum(previous, held), before) - TORQUE_MARGIN
+        high = np.maximum(np.maximum(previous, held), before) + TORQUE_MARGIN
         implausible = finite & ((torque < low) | (torque > high))
         self._torque_bad = np.where(implausible, self._torque_bad + 1, 0)
         for joint in np.flatnonzero(self._torque_bad == 1):
@@ -296,7 +316,7 @@ class FaultMonitor:
         # its successor adds nothing to the CUSUM.
         raw_previous = self._torque_measured
         direction = np.where(np.abs(held - raw_previous) > TORQUE_MARGIN, np.sign(held - raw_previous), np.sign(held))
-        slowest = raw_previous + self._slowest_gain * (held - raw_previous)
+        slowest = loop_output(raw_previous, before, held, *self._slowest_response)
         shortfall = np.minimum((slowest - torque) * direction, DRIVE_FAULT_STEP)
         usable = finite & ~implausible & ~self._torque_implausible
         self._shortfall = np.where(usable, np.maximum(0.0, self._shortfall + shortfall - DRIVE_FAULT_DRIFT), 0.0)
@@ -441,7 +461,12 @@ class FaultMonitor:
         self.slipped = False
         self.resynced = False
         angles, rates = self._clean_encoders(observation)
-        torque = self._clean_torques(observation, command)
+        if command is not None:
+            command = np.array(command, dtype=float)  # kept as the next step's command before
+        torque = self._clean_torques(
+            observation, command, command if self._command_before is None else self._command_before
+        )
+        self._command_before = command
         if self._encoders_clean and self._torques_clean:  # nothing replaced, missing or repeated: no array to scan
             self.faulty = self.suspect = False
         else:

@@ -19,8 +19,9 @@ STUCK_SAMPLES = 3
 """Repeated readings of a suspect encoder that make it stuck."""
 
 TORQUE_MARGIN = 6.0
-"""How far (N m) a measured torque may lie outside the span between the last torque and the command held since: the
-sensor's noise (0.5 N m, so about 8 standard deviations of a difference of two readings) with room."""
+"""How far (N m) a measured torque may lie outside the span of the last torque and the commands held since (the one
+before the last command still drove the loop for the reading's age): the sensor's noise (0.5 N m, so about 8
+standard deviations of a difference of two readings) with room."""
 
 DRIVE_FAULT_SAMPLES = 3
 """Consecutive implausible torques of one joint, all short of the prediction, that make a drive fault rather than a
