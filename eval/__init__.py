@@ -20,11 +20,11 @@ _HOMES = {
     "identify_logs": "eval.identification",
     "load_or_identify": "eval.parameter_files",
     "run_episode": "eval.episodes",
-    "run_folder": "eval.run_folder",
     "run_identification": "eval.identification",
     "runs_root": "eval.run_folder",
 }
-"""The module of each name this package exports."""
+"""The module of each name this package exports (none named as a module of the package: importing a submodule
+binds its name on the package)."""
 
 __all__ = sorted(_HOMES)
 
@@ -34,4 +34,9 @@ def __getattr__(name: str) -> Any:
     (:func:`eval.processes.start_worker_server`) before it imports the experiments."""
     if name not in _HOMES:
         raise AttributeError(f"module 'eval' has no attribute {name!r}")
-    return getattr(importlib.import_module(_HOMES[name]), name)
+    value = globals()[name] = getattr(importlib.import_module(_HOMES[name]), name)
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

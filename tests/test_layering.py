@@ -1,6 +1,8 @@
 """The architecture: imports run only eval -> controllers -> delta_env, and controllers hold no experiments."""
 
 import ast
+import pkgutil
+import types
 from pathlib import Path
 
 import pytest
@@ -83,3 +85,16 @@ def test_the_scan_sees_imports_everywhere(tmp_path: Path) -> None:
     )
     expected = [("a.b", False), ("c", False), ("eval", True), ("e", False), ("torch", True)]
     assert imported_modules(module) == expected
+
+
+def test_the_eval_package_exports_functions_not_its_modules() -> None:
+    # The names load on first use (python -m eval starts its worker server first); importing a submodule binds its
+    # name on the package, so no export may share a submodule's name.
+    import eval
+
+    submodules = {module.name for module in pkgutil.iter_modules(eval.__path__)}
+    assert submodules.isdisjoint(eval.__all__)
+    for name in eval.__all__:
+        value = getattr(eval, name)
+        assert callable(value) and not isinstance(value, types.ModuleType), name
+        assert value.__name__ == name and name in dir(eval)
