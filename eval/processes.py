@@ -19,7 +19,8 @@ _Output = TypeVar("_Output")
 WORKER_MODULES = ("eval.tasks", "eval.identification")
 """Modules the forkserver imports once before it forks any worker: every worker of the experiments needs
 them (MuJoCo, the env, the controllers, filterpy, numba), and a fork inherits them instead of importing them
-again. None of them imports torch; a worker that runs a residual policy imports it itself."""
+again. None of them imports torch; a worker that runs a residual policy whose actor is not SAC's plain MLP imports
+it itself (:func:`controllers.residual.load_residual_policy`)."""
 
 
 def start_worker_server() -> None:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import base64
 import dataclasses
+import io
 import json
 import os
+import pickle
 import subprocess
 import sys
 import warnings
@@ -709,6 +712,46 @@ def test_a_damaged_policy_archive_is_named(tmp_path: Path) -> None:
     damaged.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match=r"damaged\.zip"):
         read_actor(damaged)
+
+
+def _rewritten(source: Path, target: Path, member: str, content: bytes) -> Path:
+    """A copy of the zip ``source`` at ``target`` with ``member`` replaced by ``content``."""
+    with zipfile.ZipFile(source) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    with zipfile.ZipFile(target, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, content if name == member else data)
+    return target
+
+
+class _Marker:
+    """Unpickled, it would create the folder ``path``: what a hostile policy file could run."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __reduce__(self) -> tuple:
+        return os.mkdir, (str(self.path),)
+
+
+def test_the_actor_reader_declines_what_it_does_not_know_and_runs_no_code(tmp_path: Path) -> None:
+    env = DeltaResidualEnv(base=make_base(), n_cycles=1)
+    SAC("MlpPolicy", env, seed=2, policy_kwargs={"net_arch": [8]}, device="cpu").save(tmp_path / "plain.zip")
+    plain = tmp_path / "plain.zip"
+    with zipfile.ZipFile(plain) as archive:
+        data, policy = json.loads(archive.read("data")), archive.read("policy.pth")
+    with zipfile.ZipFile(io.BytesIO(policy)) as inner:  # torch's tensors in another byte order
+        members = {name: inner.read(name) for name in inner.namelist()}
+    swapped = io.BytesIO()
+    with zipfile.ZipFile(swapped, "w") as inner:
+        for name, content in members.items():
+            inner.writestr(name, b"big" if name.endswith("/byteorder") else content)
+    assert read_actor(_rewritten(plain, tmp_path / "big.zip", "policy.pth", swapped.getvalue())) is None
+    hostile = dict(
+        data, action_space={":serialized:": base64.b64encode(pickle.dumps(_Marker(tmp_path / "ran"))).decode()}
+    )
+    assert read_actor(_rewritten(plain, tmp_path / "hostile.zip", "data", json.dumps(hostile).encode())) is None
+    assert not (tmp_path / "ran").exists(), "the action space's pickle ran code"
 
 
 def test_resuming_under_another_scenario_or_base_is_named(tmp_path: Path) -> None:

@@ -41,7 +41,7 @@ ACTOR_NEUTRAL_KWARGS = frozenset(
 """``policy_kwargs`` that leave the deterministic actor without gSDE a Linear-ReLU stack (the sizes come from the
 weights); any other (an activation, a features extractor) makes :func:`read_actor` decline the file."""
 
-_STORAGE_DTYPES = {"FloatStorage": np.float32, "DoubleStorage": np.float64, "HalfStorage": np.float16}
+_STORAGE_DTYPES = {"FloatStorage": "<f4", "DoubleStorage": "<f8", "HalfStorage": "<f2"}
 
 
 @dataclass(frozen=True)
@@ -94,24 +94,30 @@ def model_actor(model: BaseAlgorithm) -> MlpActor | None:
 
 def read_actor(path: str | Path) -> MlpActor | None:
     """The actor of the SB3 zip at ``path``, read without SB3 or torch; None when it is not SAC's plain MLP
-    (:data:`POLICY_CLASSES`, :data:`ACTOR_NEUTRAL_KWARGS`, no gSDE, only Linear weights in the actor).
+    (:data:`POLICY_CLASSES`, :data:`ACTOR_NEUTRAL_KWARGS`, no gSDE, only Linear weights in the actor, as many
+    outputs as actions) or when its members are not in the form this reader knows (another torch serialization,
+    dtype or byte order): SB3 then loads the file whole.
 
     Raises:
-        ValueError: if ``path`` is not a readable SB3 zip; the message names the path.
+        ValueError: if ``path`` is not a zip; the message names the path.
     """
     try:
         with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-            if not _is_plain_mlp_policy(data):
+            try:
+                data = json.loads(archive.read("data"))
+                if not _is_plain_mlp_policy(data):
+                    return None
+                state = _state_dict(archive.read("policy.pth"))
+                space = _SpaceUnpickler(io.BytesIO(base64.b64decode(data["action_space"][":serialized:"]))).load()
+                low, high = np.asarray(space.low, "<f4"), np.asarray(space.high, "<f4")
+            except Exception:  # a form this reader does not know; SB3 reads it or says what is wrong
                 return None
-            state = _state_dict(archive.read("policy.pth"))
-            space = pickle.loads(base64.b64decode(data["action_space"][":serialized:"]))
-    except (zipfile.BadZipFile, KeyError, ValueError, TypeError, pickle.UnpicklingError) as error:
+    except zipfile.BadZipFile as error:
         raise ValueError(f"could not read the actor of {path}: {error}") from error
     layers = _mlp_layers(state)
-    if layers is None:
+    if layers is None or layers[-1][0].shape[0] != low.shape[0] or low.shape != high.shape:
         return None
-    return MlpActor(layers, np.asarray(space.low, np.float32), np.asarray(space.high, np.float32))
+    return MlpActor(layers, low, high)
 
 
 def _is_plain_mlp_policy(data: dict[str, Any]) -> bool:
@@ -131,6 +137,8 @@ def _mlp_layers(state: dict[str, NDArray[Any]]) -> Layers | None:
     expected = {f"{name}.{part}" for name in names for part in ("weight", "bias")}
     expected |= {"log_std.weight", "log_std.bias"} & set(actor)  # the stochastic policy's spread: not deployed
     if set(actor) != expected or hidden != list(range(0, 2 * len(hidden), 2)):
+        return None
+    if any(actor[f"{name}.weight"].ndim != 2 or actor[f"{name}.bias"].ndim != 1 for name in names):
         return None
     layers = tuple((actor[f"{name}.weight"], actor[f"{name}.bias"]) for name in names)
     for (weight, bias), (following, _) in itertools.pairwise(layers):
@@ -170,6 +178,28 @@ class _TensorUnpickler(pickle.Unpickler):
         if kind != "storage" or not isinstance(dtype, np.dtype):
             raise pickle.UnpicklingError(f"unknown storage {pid!r}")
         return np.frombuffer(self._archive.read(f"{self._root}data/{key}"), dtype=dtype, count=count)
+
+
+class _SpaceUnpickler(pickle.Unpickler):
+    """Unpickles SB3's action space: only gymnasium's Box and the NumPy arrays, dtypes and random generator state it
+    holds, so that a policy file cannot run other code."""
+
+    ALLOWED = frozenset(
+        {
+            ("gymnasium.spaces.box", "Box"),
+            ("numpy", "dtype"),
+            ("numpy", "ndarray"),
+            ("numpy._core.numeric", "_frombuffer"),
+            ("numpy.core.numeric", "_frombuffer"),
+            ("numpy._core.multiarray", "_reconstruct"),
+            ("numpy.core.multiarray", "_reconstruct"),
+        }
+    )
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) in self.ALLOWED or module.startswith("numpy.random."):
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"an action space holds no {module}.{name}")
 
 
 def _rebuild_tensor(
