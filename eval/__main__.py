@@ -28,16 +28,15 @@ Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 
 
 from __future__ import annotations
 
-import os
+import sys
 
-from eval.processes import start_worker_server
+from eval.processes import runs_a_pool, start_worker_server
 
-if __name__ == "__main__" and (os.cpu_count() or 1) > 1:  # the episodes will run on a pool (--workers, default 2)
+if __name__ == "__main__" and runs_a_pool(sys.argv[1:]):
     start_worker_server()  # its imports run beside this module's own, below
 
 import argparse
 import dataclasses
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.context import BaseContext
 from multiprocessing.pool import Pool
@@ -16,11 +17,29 @@ from typing import Any, TypeVar
 _Item = TypeVar("_Item")
 _Output = TypeVar("_Output")
 
+DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
+"""Worker processes of a command line unless ``--workers`` says otherwise: up to 2."""
+
 WORKER_MODULES = ("eval.tasks", "eval.identification")
 """Modules the forkserver imports once before it forks any worker: every worker of the experiments needs
 them (MuJoCo, the env, the controllers, filterpy, numba), and a fork inherits them instead of importing them
 again. None of them imports torch; a worker that runs a residual policy whose actor is not SAC's plain MLP imports
 it itself (:func:`controllers.residual.load_residual_policy`)."""
+
+
+def runs_a_pool(argv: Sequence[str]) -> bool:
+    """Whether a command line with the arguments ``argv`` will start a pool: it does not ask for help and its
+    ``--workers`` (the last one given, else :data:`DEFAULT_WORKERS`) is above 1. Read before the parser exists,
+    so a malformed value says False and the parser reports it."""
+    if "-h" in argv or "--help" in argv:
+        return False
+    workers = str(DEFAULT_WORKERS)
+    for index, argument in enumerate(argv):
+        if argument == "--workers" and index + 1 < len(argv):
+            workers = argv[index + 1]
+        elif argument.startswith("--workers="):
+            workers = argument.removeprefix("--workers=")
+    return workers.isdigit() and int(workers) > 1
 
 
 def start_worker_server() -> None:

@@ -19,6 +19,7 @@ from delta_env.scenario import (
     with_geometry,
 )
 from delta_env.validation import require_count, require_positive
+from eval.processes import DEFAULT_WORKERS
 
 GEOMETRY_HELP = (
     "geometry TOML file ([geometry] ra, rb, l1, l2 in m, e.g. a design of python -m eval.design): "
@@ -52,10 +53,6 @@ def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
         help="identified parameter file of the scenario's robot (default: <runs root>/identification/<robot "
         "identity>/parameters.json, identified when missing)",
     )
-
-
-DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
-"""Worker processes of a command line unless ``--workers`` says otherwise: up to 2."""
 
 
 def add_workers_argument(parser: argparse.ArgumentParser, help: str = "processes (default: up to 2)") -> None:

@@ -20,7 +20,7 @@ from controllers.payload import FRICTION_SCALE_STD, MASS_CORRECTION_STD, REST_RA
 from controllers.residual import ResidualFeatures, load_residual_controller, load_residual_policy, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from eval.processes import parallel_imap, parallel_map, process_pool
+from eval.processes import DEFAULT_WORKERS, parallel_imap, parallel_map, process_pool, runs_a_pool
 
 
 def reference_filter(forgetting_factor: float, noise_std: float, variance: float, mass: float) -> KalmanFilter:
@@ -161,6 +161,23 @@ def test_the_worker_server_starts_before_the_project_is_imported() -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["4.0"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "pool"),
+    [
+        ([], DEFAULT_WORKERS > 1),
+        (["--seed", "3", "--episodes", "2"], DEFAULT_WORKERS > 1),
+        (["--help"], False),
+        (["--episodes", "2", "-h"], False),
+        (["--workers", "1"], False),
+        (["--workers=3"], True),
+        (["--workers", "2", "--workers", "1"], False),
+        (["--workers", "two"], False),
+    ],
+)
+def test_the_worker_server_starts_only_for_a_command_line_that_runs_a_pool(argv: list[str], pool: bool) -> None:
+    assert runs_a_pool(argv) == pool
 
 
 def test_compiled_payload_equation_equals_the_weighted_least_squares_it_implements() -> None:
