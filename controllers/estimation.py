@@ -121,7 +121,8 @@ def smooth_joint_motion(
     if not np.all(np.isfinite(angles)):
         raise ValueError("angles must be finite")
     kf = _joint_kalman_filter(dt, measurement_std, jerk_std, angles[0])
-    filter_gains, smoother_gains = _smoother_gains(dt, measurement_std, jerk_std, len(angles))
+    gains = _smoother_gains if len(angles) <= CACHED_GAINS_LENGTH else _smoother_gains.__wrapped__
+    filter_gains, smoother_gains = gains(dt, measurement_std, jerk_std, len(angles))
     # batch_filter's and rts_smoother's state updates, with their gains (which do not depend on the angles)
     means, x = np.zeros((len(angles), kf.dim_x)), kf.x
     for i, z in enumerate(angles):
@@ -132,6 +133,11 @@ def smooth_joint_motion(
     for k in range(len(angles) - 2, -1, -1):
         smoothed[k] += np.dot(smoother_gains[k], smoothed[k + 1] - np.dot(kf.F, smoothed[k]))
     return smoothed[:, :3], smoothed[:, 3:6], smoothed[:, 6:]
+
+
+CACHED_GAINS_LENGTH = 20_000
+"""Longest record (samples) whose smoother gains are kept (about 0.9 kB a sample; the four kept lengths at most
+70 MB): a longer one, such as a robot's long drive log, has its gains computed for it alone."""
 
 
 @functools.lru_cache(maxsize=4)

@@ -6,6 +6,7 @@ from filterpy.common import Q_continuous_white_noise, kinematic_state_transition
 from filterpy.kalman import KalmanFilter
 from numpy.testing import assert_allclose
 
+from controllers import estimation
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import (
     FIXED_LAG_JERK_STD,
@@ -282,3 +283,21 @@ def test_bad_smoother_settings_raise(kwargs, name) -> None:
 def test_joint_state_smoother_needs_a_reset() -> None:
     with pytest.raises(RuntimeError, match="reset"):
         JointStateSmoother().update(np.zeros(3))
+
+
+@pytest.mark.parametrize("samples", [80, 150])
+def test_smoothed_motion_is_filterpys_batch_filter_and_rts_smoother_bit_for_bit(
+    samples: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The gains are computed once per record length (kept up to CACHED_GAINS_LENGTH, here 100: one record of each
+    # kind); only the state recursion runs per record. filterpy's own functions on the same filter are the truth.
+    monkeypatch.setattr(estimation, "CACHED_GAINS_LENGTH", 100)
+    rng = np.random.default_rng(samples)
+    time = np.arange(samples) * DT
+    angles = 0.3 * np.sin(np.outer(time, [4.0, 5.0, 6.0])) + rng.normal(0.0, 1e-4, (samples, 3))
+    for jerk_std in (1000.0, 50.0):  # a second filter: the kept gains are per model, not per length only
+        kf = estimation._joint_kalman_filter(DT, 1e-4, jerk_std, angles[0])
+        means, covariances, _, _ = kf.batch_filter(angles)
+        expected, _, _, _ = kf.rts_smoother(means, covariances)
+        smoothed = np.hstack(smooth_joint_motion(angles, DT, measurement_std=1e-4, jerk_std=jerk_std))
+        np.testing.assert_array_equal(smoothed, expected)
