@@ -321,6 +321,27 @@ def test_all_samples_keep_singularity_margins(kind: str, peak: float) -> None:
     assert np.all(workspace_limits.admissible(G, trajectory.xyz))
 
 
+def test_admissible_is_the_limits_written_with_the_kinematics_module() -> None:
+    # The compiled test against its definition in NumPy: the cylinder, then every chain reachable with |k_i| and
+    # |det A| (kinematics.constraint_terms) above their margins. Points fill the workspace's box and beyond, with
+    # unreachable ones; both answers occur often.
+    limits = workspace_limits.WORKSPACE_LIMITS
+    rng = np.random.default_rng(11)
+    points = rng.uniform((-0.8, -0.8, -1.5), (0.8, 0.8, -0.3), (60_000, 3))
+    inside = (np.hypot(points[:, 0], points[:, 1]) <= limits.radius) & (points[:, 2] >= limits.z_min)
+    inside &= points[:, 2] <= limits.z_max
+    theta = kinematics.elbow_out_angles(G, points)
+    reachable = np.all(np.isfinite(theta), axis=-1)
+    a, k = kinematics.constraint_terms(G, points[reachable], theta[reachable])
+    inside[reachable] &= (np.min(np.abs(k), axis=-1) >= limits.min_abs_k) & (
+        np.abs(np.linalg.det(a)) >= limits.min_abs_det_a
+    )
+    expected = inside & reachable
+    assert 0.1 < expected.mean() < 0.9
+    assert_array_equal(workspace_limits.admissible(G, points), expected)
+    assert workspace_limits.admissible(G, points.reshape(200, 300, 3)).shape == (200, 300)
+
+
 def test_excitation_covers_the_workspace_up_to_its_edges() -> None:
     limits = workspace_limits.WORKSPACE_LIMITS
     trajectory = long_excitation()
