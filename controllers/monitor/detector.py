@@ -505,9 +505,8 @@ class _DelayedState:
     puts into the model's torque.
 
     It smooths the tracking error, the angles less the reference, and adds the reference's own state back: the
-    reference is known, so the smoother's motion model (white jerk) carries only the error's jerk. Smoothing the
-    angles themselves lagged the planned jerk of time-optimal moves by 20-30 rad/s^2 of acceleration, which the
-    whole inertia turned into an apparent force (docs/design.md section 6, "Fault monitor").
+    reference is known, so the smoother's motion model (white jerk) carries only the error's jerk; a smoother of the
+    angles themselves lags the planned jerk of time-optimal moves (docs/design.md section 6, "Fault monitor").
 
     Where the error's acceleration still steps (a controller that steps its torque, as the residual policy does every
     10 ms), the smoother smears the step over its window: a step da between readings m - 1 and m leaves the

@@ -59,8 +59,8 @@ REST_RATE = FRICTION_VELOCITY_THRESHOLD
 """Speed (rad/s) below which the collision check takes a joint's friction for unknown within +-:data:`BREAKAWAY_FACTOR`
 fc instead of the model's fc sign(theta_dot): the identification's bound of the rate model's validity (0.2 rad/s,
 where the Stribeck excess has decayed). At a stop, the smoothed rate's sign says little, and a joint that sticks
-holds any torque up to its breakaway: at 3 g this friction made most of the healthy residual's force (taken out,
-the largest |F| of 30 fault-free episodes fell from 77 to 24 N; docs/measurements.md, "Faults")."""
+holds any torque up to its breakaway: at 3 g this friction made most of the healthy residual's force
+(docs/measurements.md, "Faults")."""
 
 SLIP_MIN_MASS = 0.3
 """Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
