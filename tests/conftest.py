@@ -4,6 +4,8 @@ Fixtures are named after what they build (``workzone_points``, ``workzone_angles
 """
 
 import os
+import subprocess
+import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -85,6 +87,15 @@ def random_joint_states() -> Callable[..., tuple[np.ndarray, ...]]:
 def joint_min_jerk_move() -> Callable[..., tuple[np.ndarray, ...]]:
     """``joint_min_jerk_move(theta_start, theta_end, duration, dt)``: a rest-to-rest minimum-jerk move."""
     return _joint_min_jerk_move
+
+
+def run_python(code: str) -> str:
+    """Run ``code`` in a fresh interpreter on this checkout (a clean ``sys.modules``); its standard output. Fails the
+    test with the standard error when it exits with an error."""
+    environment = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
 
 
 NOMINAL_SETUP = ControllerSetup(

@@ -3,10 +3,6 @@ policy load and one process pool for many episodes."""
 
 import dataclasses
 import math
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +17,7 @@ from controllers.residual import ResidualFeatures, load_residual_controller, loa
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from eval.processes import DEFAULT_WORKERS, parallel_imap, parallel_map, process_pool, runs_a_pool
+from tests.conftest import run_python
 
 
 def reference_filter(forgetting_factor: float, noise_std: float, variance: float, mass: float) -> KalmanFilter:
@@ -157,10 +154,7 @@ def test_the_worker_server_starts_before_the_project_is_imported() -> None:
         "assert not loaded, loaded; start_worker_server(); "
         "pool = pool_context().Pool(1); print(pool.apply(math.sqrt, (16.0,))); pool.close(); pool.join()"
     )
-    environment = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["4.0"]
+    assert run_python(code).split() == ["4.0"]
 
 
 @pytest.mark.parametrize(

@@ -8,8 +8,6 @@ import io
 import json
 import os
 import pickle
-import subprocess
-import sys
 import warnings
 import zipfile
 from pathlib import Path
@@ -54,7 +52,7 @@ from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
-from tests.conftest import NOMINAL_SETUP
+from tests.conftest import NOMINAL_SETUP, run_python
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
 PARAMETERS = ModelParameters(rho1=1.76, rho2=0.88, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
@@ -575,10 +573,7 @@ def test_policy_settings_are_read_and_the_row_runs_without_torch(tmp_path: Path)
         "assert 'torch' not in sys.modules, 'torch imported'; "
         "print(settings.algo, settings.base.name, record.metrics()['tracking_rms_mm'] < 0.2)"
     )
-    environment = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=False)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["sac", load_residual_policy().base.name, "True"]
+    assert run_python(code).split() == ["sac", load_residual_policy().base.name, "True"]
     with zipfile.ZipFile(DEFAULT_POLICY_PATH) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
     metadata = json.loads(members[METADATA_NAME])
