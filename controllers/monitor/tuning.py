@@ -53,7 +53,9 @@ FORCE_EVIDENCE = 60.0
 
 BREAKAWAY_FACTOR = 1.5
 """Breakaway (static) friction of a joint as a multiple of its Coulomb friction fc: the torque its friction can
-hold at rest (the identification's ~1.5 fc, :mod:`controllers.identification.least_squares`)."""
+hold at rest. An assumption, not an identified value: the identification leaves rows at rest out
+(:mod:`controllers.identification.least_squares`), so nothing measures it; 1.5 fc is a usual upper figure for
+geared servo joints, and the simulated plant's Stribeck excess (+50 % of Coulomb) reaches it."""
 
 REST_RATE = FRICTION_VELOCITY_THRESHOLD
 """Speed (rad/s) below which the collision check takes a joint's friction for unknown within +-:data:`BREAKAWAY_FACTOR`
