@@ -63,6 +63,16 @@ def elbow(theta: float, chain: int, r: float, l1: float) -> tuple[float, float, 
 
 
 @numba.njit(cache=True, inline="always")
+def determinant3(m: NDArray[np.float64]) -> float:
+    """Determinant of a 3 x 3 matrix by its first row's cofactors."""
+    return (
+        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
+    )
+
+
+@numba.njit(cache=True, inline="always")
 def elbow_out_angle(x: float, y: float, z: float, chain: int, r: float, l1: float, l2: float) -> float:
     """Motor angle (rad) of chain ``chain`` on the elbow-out branch for the platform at (x, y, z) (m), NaN if the
     chain cannot reach it: :func:`delta_env.kinematics.elbow_out_angles` in scalar arithmetic."""

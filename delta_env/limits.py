@@ -96,12 +96,7 @@ def _inside_limits(
             a[chain, 0], a[chain, 1], a[chain, 2], k = kernels.constraint_row(x, y, z, theta, chain, r, l1)
             inside = abs(k) >= min_abs_k  # False for NaN (unreachable)
         if inside:
-            determinant = (
-                a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
-                - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-                + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0])
-            )
-            inside = abs(determinant) >= min_abs_det_a
+            inside = abs(kernels.determinant3(a)) >= min_abs_det_a
         out[point] = inside
 
 

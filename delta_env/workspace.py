@@ -290,12 +290,7 @@ def _singular_value_ratio(m: NDArray[np.float64]) -> float:
         for i in range(3):
             for j in range(3):
                 b[i, j] = (b[i, j] - (q if i == j else 0.0)) / p
-        determinant = (
-            b[0, 0] * (b[1, 1] * b[2, 2] - b[1, 2] * b[2, 1])
-            - b[0, 1] * (b[1, 0] * b[2, 2] - b[1, 2] * b[2, 0])
-            + b[0, 2] * (b[1, 0] * b[2, 1] - b[1, 1] * b[2, 0])
-        )
-        phi = math.acos(min(max(determinant / 2.0, -1.0), 1.0)) / 3.0
+        phi = math.acos(min(max(kernels.determinant3(b) / 2.0, -1.0), 1.0)) / 3.0
         largest = q + 2.0 * p * math.cos(phi)
         smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
     return math.sqrt(max(smallest, 0.0) / largest) if largest > 0.0 else 0.0
