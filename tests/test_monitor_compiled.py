@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
 from controllers.monitor.compiled import (
     correction_terms,
+    encoders_plausible,
     learn_scatter,
     loop_output,
     model_residual,
@@ -24,6 +26,8 @@ from controllers.monitor.compiled import (
     torques_plausible,
 )
 from controllers.monitor.detector import loop_response
+from controllers.monitor.model_check import ModelCheck, _slip_band
+from controllers.monitor.tuning import MONITOR_JERK_STD
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
@@ -212,3 +216,82 @@ def test_loop_output_is_the_first_order_loop_sampled_half_a_period_late() -> Non
             output += (target - output) * (1.0 - math.exp(-duration / substeps / lag))
     assert loop_output(12.0, -40.0, 25.0, hold, keep) == pytest.approx(output, abs=1e-9)
     assert loop_output(12.0, 25.0, 25.0, hold, keep) == pytest.approx(25.0 + (12.0 - 25.0) * math.exp(-period / lag))
+
+
+def test_slip_band_is_the_payload_residual_std_without_its_nominal_part() -> None:
+    rng = np.random.default_rng(7)
+    static_friction = np.array([4.1, 3.4, 4.5])
+    for _ in range(200):
+        theta_dot = rng.normal(0.0, 1.0, 3) * 10.0 ** rng.uniform(-4.0, 1.0)
+        # libm's exp against NumPy's vectorized one: they may differ in the last bit
+        _same(_slip_band(theta_dot, static_friction), residual_std(theta_dot, static_friction, 0.0))
+
+
+def test_model_check_lags_the_smoothed_tracking_error_behind_the_reference() -> None:
+    """The state the checks take is the reference a smoother's lag ago plus the JointStateSmoother estimate of the
+    tracking error (its window, start and lag): the model check's record against the smoother itself."""
+    rng = np.random.default_rng(8)
+    check = ModelCheck(PARAMETERS.coulomb)
+    check.set_friction(np.array(PARAMETERS.coulomb), 1.5 * np.array(PARAMETERS.coulomb))
+    smoother = JointStateSmoother(lag=SMOOTHER_LAG, jerk_std=MONITOR_JERK_STD)
+    dynamics = DeltaDynamics.nominal(PARAMETERS)
+    corrections = correction_terms(
+        None, dynamics.inertia, dynamics.gravity_amplitude, PARAMETERS.viscous, PARAMETERS.coulomb
+    )
+    references = []
+    for k in range(60):
+        reference = np.stack(
+            (0.4 + 0.01 * k + rng.normal(0.0, 1e-4, 3), rng.normal(0.0, 1.0, 3), rng.normal(0.0, 9, 3))
+        )
+        angles = reference[0] + rng.normal(0.0, 1e-3, 3)
+        if k == 0:
+            smoother.reset(angles - reference[0])
+        expected = smoother.update_state(angles - reference[0]).copy()
+        references.append(reference)
+        check.check(
+            dynamics.model_constants, corrections, angles, tuple(reference), rng.normal(0, 5, 3), False, False, k
+        )
+        if k >= SMOOTHER_LAG:
+            _same(check._state["previous"][0], references[k - SMOOTHER_LAG] + expected)
+
+
+def _encoders_reference(
+    raw: np.ndarray,
+    rates: np.ndarray,
+    last: np.ndarray,
+    before: np.ndarray,
+    previous: np.ndarray,
+    reference_rates: np.ndarray,
+    bound: float,
+    step: float,
+) -> bool:
+    """The encoder fast path's conditions in NumPy (FaultMonitor's full check passes such readings unchanged)."""
+    with np.errstate(invalid="ignore"):
+        if not (np.isfinite(raw).all() and np.isfinite(rates).all()):
+            return False
+        if (np.abs(raw - 2.0 * last + before) > bound).any():
+            return False
+        suspect = (
+            (raw == previous) & (np.abs(reference_rates) * CONTROL_PERIOD >= step) & (np.abs(last - before) >= step)
+        )
+        return not suspect.any()
+
+
+def test_encoders_plausible_is_the_numpy_check_with_repeats_jumps_and_nan() -> None:
+    rng = np.random.default_rng(9)
+    bound, step = 2e-3, 4e-5
+    outcomes = []
+    for _ in range(20000):
+        before = rng.uniform(0.1, 0.8, 3)
+        last = before + rng.normal(0.0, 1e-3, 3) * rng.choice([0.0, 1.0], 3)
+        raw = 2.0 * last - before + rng.normal(0.0, 1.2e-3, 3)
+        previous = np.where(rng.random(3) < 0.3, raw, last)
+        rates = rng.normal(0.0, 1.0, 3)
+        reference_rates = rng.normal(0.0, 0.05, 3)
+        if rng.random() < 0.05:
+            (raw if rng.random() < 0.5 else rates)[rng.integers(3)] = rng.choice([np.nan, np.inf, -np.inf])
+        expected = _encoders_reference(raw, rates, last, before, previous, reference_rates, bound, step)
+        actual = encoders_plausible(raw, rates, last, before, previous, reference_rates, bound, step, CONTROL_PERIOD)
+        assert actual == expected
+        outcomes.append(expected)
+    assert 0.2 < np.mean(outcomes) < 0.8  # both answers are exercised

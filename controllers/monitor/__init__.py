@@ -24,9 +24,11 @@ monitor, keeps what a fault corrupted out of its payload estimator and reacts to
 
 The modules: :mod:`~controllers.monitor.tuning` (the thresholds and reactions, each with its reason),
 :mod:`~controllers.monitor.events` (:class:`DetectedFault`, :class:`ReportsFaults`),
-:mod:`~controllers.monitor.detector` (:class:`FaultMonitor`), :mod:`~controllers.monitor.compiled` (its per-sample
-arithmetic, compiled) and :mod:`~controllers.monitor.wrapper` (:class:`MonitoredController`: its reactions and the
-payload estimator's rollback).
+:mod:`~controllers.monitor.detector` (:class:`FaultMonitor`: the sensor checks),
+:mod:`~controllers.monitor.model_check` (the collision and slip checks on the model's residual, one compiled call
+per sample), :mod:`~controllers.monitor.compiled` (the per-sample arithmetic, compiled) and
+:mod:`~controllers.monitor.wrapper` (:class:`MonitoredController`: its reactions and the payload estimator's
+rollback).
 """
 
 from controllers.monitor.detector import FaultMonitor

@@ -269,6 +269,44 @@ def torques_plausible(
 
 
 @numba.njit(cache=True)
+def encoders_plausible(
+    raw: NDArray[np.float64],
+    rates: NDArray[np.float64],
+    last: NDArray[np.float64],
+    before: NDArray[np.float64],
+    previous: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    jump_bound: float,
+    stuck_step: float,
+    period: float,
+) -> bool:
+    """Whether encoder readings (rad) and their rates (rad/s) are finite, step from the ``last`` two clean readings
+    by a second difference within ``jump_bound`` (rad), and repeat the ``previous`` raw reading only where the joint
+    was still (moved less than ``stuck_step`` rad) or its reference moves less than that in a ``period`` (s): the
+    full check would then pass them unchanged."""
+    total = 0.0
+    for joint in range(3):
+        total += raw[joint]
+    for joint in range(3):
+        total += rates[joint]
+    if not math.isfinite(total):
+        return False
+    for joint in range(3):
+        if abs(raw[joint] - 2.0 * last[joint] + before[joint]) > jump_bound:
+            return False
+    if raw[0] != previous[0] and raw[1] != previous[1] and raw[2] != previous[2]:
+        return True
+    for joint in range(3):
+        if (
+            raw[joint] == previous[joint]
+            and abs(reference_rates[joint]) * period >= stuck_step
+            and abs(last[joint] - before[joint]) >= stuck_step
+        ):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
 def torque_step_variance(
     torques: NDArray[np.float64], torque: NDArray[np.float64], squared_response: NDArray[np.float64]
 ) -> NDArray[np.float64]:

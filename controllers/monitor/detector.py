@@ -3,7 +3,6 @@ checks; docs/design.md section 6, "Fault monitor")."""
 
 from __future__ import annotations
 
-import collections
 import math
 from collections.abc import Sequence
 
@@ -12,18 +11,9 @@ from numpy.typing import NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
-from controllers.monitor.compiled import (
-    correction_terms,
-    learn_scatter,
-    loop_output,
-    model_residual,
-    platform_force,
-    slip_moments,
-    torque_step_variance,
-    torques_plausible,
-)
+from controllers.monitor.compiled import correction_terms, encoders_plausible, loop_output, torques_plausible
 from controllers.monitor.events import DetectedFault
+from controllers.monitor.model_check import COLLIDED, COLLIDING, SLIPPED, ModelCheck
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     BREAKAWAY_FACTOR,
@@ -31,26 +21,14 @@ from controllers.monitor.tuning import (
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_SAMPLES,
     DRIVE_FAULT_STEP,
-    FORCE_EVIDENCE,
-    FORCE_REFERENCE,
-    HELD_MASS_STD,
-    INITIAL_RESIDUAL_STD,
-    MONITOR_JERK_STD,
-    REST_RATE,
     RESYNC_QUIET,
-    SCATTER_RATE,
     SENSOR_QUIET,
-    SLIP_EVIDENCE,
-    SLIP_MIN_MASS,
-    SLIP_PRECISION,
-    SLIP_SETTLE,
     SLOWEST_LAG_FACTOR,
     STUCK_COUNTS,
     STUCK_SAMPLES,
     TORQUE_MARGIN,
 )
-from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
-from delta_env import kernels
+from controllers.payload import TORQUE_AGE, ModelCorrections
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_in, require_positive
 
@@ -112,10 +90,9 @@ class FaultMonitor:
         self._stuck_step = max(STUCK_COUNTS * step, 1e-9)
         self._loop_response = loop_response(lags)
         self._slowest_response = loop_response([SLOWEST_LAG_FACTOR * lag for lag in lags])
-        self._delayed = _DelayedState(SMOOTHER_LAG)
-        self.lag = SMOOTHER_LAG
+        self._model_check = ModelCheck(dynamics.parameters.coulomb)
+        self.lag = self._model_check.lag
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
-        self._static_friction = np.array(dynamics.parameters.coulomb)
         self.set_corrections(None)
         self.events: list[DetectedFault] = []
         self.reset()
@@ -130,7 +107,6 @@ class FaultMonitor:
         self._faulty_run = 0
         self.collision = False
         self.slipped = False
-        self.force = np.zeros(3)
         self._k = -1
         self._angles: list[NDArray[np.float64]] = []  # the last two clean readings
         self._error = np.zeros(3)  # last good tracking error per joint (rad)
@@ -149,16 +125,23 @@ class FaultMonitor:
         self._torque_measured = np.zeros(3)
         self._torque_implausible = np.zeros(3, dtype=bool)
         self._encoders_clean = self._torques_clean = False  # the scalar fast paths: nothing flagged on the last sample
-        self._delayed.reset()
+        self._model_check.reset()
         self._quiet_until = -1
-        self._force_evidence = 0.0
-        self.collision_samples = 0
-        self._held_since: int | None = None
-        self.held_mass: float | None = None
-        self._held_information = self._held_moment = 0.0
-        self._evidence = 0.0
-        self._slip_armed = False
-        self._scatter = np.full(3, INITIAL_RESIDUAL_STD**2)
+
+    @property
+    def force(self) -> NDArray[np.float64]:
+        """The last estimate of the external force on the platform (N), (3,)."""
+        return self._model_check.force
+
+    @property
+    def collision_samples(self) -> int:
+        """Checked samples since the collision evidence began to grow (0 while there is none)."""
+        return self._model_check.collision_samples
+
+    @property
+    def held_mass(self) -> float | None:
+        """The mass (kg) the slip check believes held (see the class docstring), or None."""
+        return self._model_check.held_mass
 
     def _detect(self, kind: str, joint: int | None, magnitude: float) -> None:
         self.events.append(DetectedFault(kind, self._k * CONTROL_PERIOD, joint, float(magnitude)))
@@ -168,35 +151,24 @@ class FaultMonitor:
     def _healthy_encoders(
         self, raw: NDArray[np.float64], rates: NDArray[np.float64], reference_rates: NDArray[np.float64]
     ) -> bool:
-        """The 1 kHz fast path, in scalars: nothing flagged before, and these readings finite, within the jump bound
-        and not a suspect repeat. Then the full check would pass them unchanged."""
-        if not self._encoders_clean or len(self._angles) < 2:
-            return False
-        r0, r1, r2 = raw.tolist()
-        v0, v1, v2 = rates.tolist()
-        if not math.isfinite(r0 + r1 + r2 + v0 + v1 + v2):
-            return False
-        last, before = self._angles[0].tolist(), self._angles[1].tolist()
-        (l0, l1, l2), (b0, b1, b2) = last, before
-        bound = self._jump_bound
-        if abs(r0 - 2.0 * l0 + b0) > bound or abs(r1 - 2.0 * l1 + b1) > bound or abs(r2 - 2.0 * l2 + b2) > bound:
-            return False
-        previous = self._raw_previous.tolist()
-        if r0 != previous[0] and r1 != previous[1] and r2 != previous[2]:
-            return True
-        # a repeat is suspect (the full check's) while the joint was moving and its reference moves several counts
-        # per sample; nothing is stuck while the readings are clean
-        step = self._stuck_step
-        for reading, previous_reading, angle, angle_before, reference_rate in zip(
-            (r0, r1, r2), previous, last, before, reference_rates.tolist(), strict=True
-        ):
-            if (
-                reading == previous_reading
-                and abs(reference_rate) * CONTROL_PERIOD >= step
-                and abs(angle - angle_before) >= step
-            ):
-                return False
-        return True
+        """The 1 kHz fast path, compiled: nothing flagged before, and these readings finite, within the jump bound
+        and not a suspect repeat (nothing is stuck while the readings are clean). Then the full check would pass
+        them unchanged."""
+        return (
+            self._encoders_clean
+            and len(self._angles) == 2
+            and encoders_plausible(
+                raw,
+                rates,
+                self._angles[0],
+                self._angles[1],
+                self._raw_previous,
+                reference_rates,
+                self._jump_bound,
+                self._stuck_step,
+                CONTROL_PERIOD,
+            )
+        )
 
     def _clean_encoders(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         raw = np.asarray(observation["joint_angles"], dtype=float)
@@ -341,21 +313,29 @@ class FaultMonitor:
 
     # -- the model's residual -------------------------------------------------------------------
 
-    def _check_model(
-        self, angles: NDArray[np.float64], reference: NDArray[np.float64], torque: NDArray[np.float64], holding: bool
-    ) -> None:
-        delayed = self._delayed.update(angles, reference, torque, holding, self._k <= self._quiet_until)
-        if delayed is None:
-            return
-        state, previous, torque_then, held_then, quiet, jerk_variance = delayed
-        # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
-        status, terms = model_residual(
-            self.dynamics.model_constants, state, previous, TORQUE_AGE, torque_then, self._correction_terms
+    def _check_model(self, angles: NDArray[np.float64], observation: Observation, torque: NDArray[np.float64]) -> None:
+        """The collision and slip checks (:class:`~controllers.monitor.model_check.ModelCheck`) a smoother's lag
+        behind this clean reading (rad) and torque (N m)."""
+        found = self._model_check.check(
+            self.dynamics.model_constants,
+            self._correction_terms,
+            angles,
+            (
+                observation["reference_angles"],
+                observation["reference_velocities"],
+                observation["reference_accelerations"],
+            ),
+            torque,
+            observation["gripper"].item(0) > 0.5,
+            self._k <= self._quiet_until,
+            self._k,
         )
-        if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
-            return
-        self._check_payload(terms, held_then, quiet, jerk_variance)
-        self._check_force(terms, held_then, quiet)
+        self.collision = bool(found & COLLIDING)
+        if found & SLIPPED:
+            self._detect("slip", None, self._model_check.slip_mass)
+            self.slipped = True
+        if found & COLLIDED:
+            self._detect("collision", None, self._model_check.force_magnitude)
 
     def set_corrections(self, corrections: ModelCorrections | None) -> None:
         """Take the model's corrections to this robot (fitted by a payload estimator on its empty moves) into the
@@ -371,86 +351,8 @@ class FaultMonitor:
         # the Coulomb friction the residual charges (the corrections scale the model's friction by 1 + s_i), and
         # the breakaway friction a joint at rest may hold
         scale = 1.0 if corrections is None else 1.0 + np.asarray(corrections.friction_scale, dtype=float)
-        self._charged_coulomb = np.array(dynamics.parameters.coulomb) * scale
-        self._breakaway = BREAKAWAY_FACTOR * np.maximum(self._charged_coulomb, 0.0)
-
-    def _check_force(self, terms: NDArray[np.float64], holding: bool, quiet: bool) -> None:
-        """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
-        residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
-        without its part along phi), less on joints slower than :data:`REST_RATE` what friction up to the breakaway
-        can hold."""
-        if quiet:
-            self._force_evidence = 0.0
-            self.collision = False
-            return
-        held_mass = self.held_mass
-        self.force, magnitude = platform_force(
-            terms,
-            0.0 if held_mass is None else held_mass,
-            holding and held_mass is not None,
-            holding,
-            self._charged_coulomb,
-            self._breakaway,
-            REST_RATE,
-        )
-        self._force_evidence = max(0.0, self._force_evidence + magnitude - FORCE_REFERENCE)
-        self.collision_samples = self.collision_samples + 1 if self._force_evidence > 0.0 else 0
-        if self._force_evidence > FORCE_EVIDENCE and not self.collision:
-            self._detect("collision", None, magnitude)
-            self.collision = True
-        elif self._force_evidence == 0.0 and self.collision:
-            self.collision = False
-            if self._held_since is not None and self._slip_armed:  # what the collision left in the mass held: afresh
-                self._restart_held()
-
-    def _check_payload(
-        self, terms: NDArray[np.float64], holding: bool, quiet: bool, jerk_variance: NDArray[np.float64]
-    ) -> None:
-        """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
-        since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi
-        are ``terms`` of :func:`model_residual`."""
-        if not holding:
-            self._held_since = None
-            self.held_mass = None
-            if not quiet:
-                self._learn_scatter(terms, 0.0)
-            return
-        if self._held_since is None:
-            self._restart_held()
-            self._slip_armed = True
-        if quiet or not self._slip_armed:
-            return
-        if self.held_mass is not None:
-            self._learn_scatter(terms, self.held_mass)
-        band = residual_std(terms[2], self._static_friction, 0.0)
-        information, moment = slip_moments(terms, band, self._scatter + jerk_variance)
-        if (self._k - self._held_since) * CONTROL_PERIOD >= SLIP_SETTLE and self._held_information > 0.0:
-            held = self._held_moment / self._held_information
-            if self._held_information**-0.5 < HELD_MASS_STD:
-                self.held_mass = held
-            # test "gone" against "held" once the mass held is known well enough to tell them apart
-            if held >= SLIP_MIN_MASS and self._held_information**-0.5 < SLIP_PRECISION * held:
-                self._evidence = max(0.0, self._evidence + held * (0.5 * held * information - moment))
-                if self._evidence > SLIP_EVIDENCE:
-                    self._detect("slip", None, held)
-                    self.slipped = True
-                    self._slip_armed = False
-                    self.held_mass = 0.0
-                    return
-        if self._force_evidence == 0.0:  # a collision's samples stay out of the mass held
-            self._held_information += information
-            self._held_moment += moment
-
-    def _restart_held(self) -> None:
-        """Measure the mass held afresh from this sample on (at a pick, or after a collision)."""
-        self._held_since = self._k
-        self._held_information = self._held_moment = self._evidence = 0.0
-        self.held_mass = None
-
-    def _learn_scatter(self, terms: NDArray[np.float64], held_mass: float) -> None:
-        """Follow the model's residual variance per joint while moving (N^2 m^2), at least the nominal's: of r -
-        ``held_mass`` phi (kg; 0 for the residual itself), r and phi ``terms`` of :func:`model_residual`."""
-        learn_scatter(self._scatter, terms, held_mass, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
+        charged_coulomb = np.array(dynamics.parameters.coulomb) * scale
+        self._model_check.set_friction(charged_coulomb, BREAKAWAY_FACTOR * np.maximum(charged_coulomb, 0.0))
 
     # -- the step -------------------------------------------------------------------------------
 
@@ -485,89 +387,7 @@ class FaultMonitor:
             self.quiet_samples = 0
         if self.quiet_samples:
             self._quiet_until = max(self._quiet_until, self._k + self.quiet_samples)
-        holding = observation["gripper"].item(0) > 0.5
-        reference = np.array(
-            (
-                observation["reference_angles"],
-                observation["reference_velocities"],
-                observation["reference_accelerations"],
-            )
-        )
-        self._check_model(angles, reference, torque, holding)
+        self._check_model(angles, observation, torque)
         clean = dict(observation)
         clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = angles, rates, torque
         return clean
-
-
-class _DelayedState:
-    """A joint-state smoother with the readings it lags behind: pairs each smoothed state with its sample's torque,
-    gripper and quiet flag, at the instant the torque was measured, and with the variance its acceleration's error
-    puts into the model's torque.
-
-    It smooths the tracking error, the angles less the reference, and adds the reference's own state back: the
-    reference is known, so the smoother's motion model (white jerk) carries only the error's jerk; a smoother of the
-    angles themselves lags the planned jerk of time-optimal moves (docs/design.md section 6, "Fault monitor").
-
-    Where the error's acceleration still steps (a controller that steps its torque, as the residual policy does every
-    10 ms), the smoother smears the step over its window: a step da between readings m - 1 and m leaves the
-    estimated sample's acceleration off by h_m da, h the smoother's response to a unit step. The joint's torque steps
-    with its acceleration (I da), so the measured torque's steps in the window give the model torque's error variance
-    sum_m h_m^2 (tau_m - tau_{m-1})^2 (N^2 m^2), per joint.
-    """
-
-    def __init__(self, lag: int) -> None:
-        self._smoother = JointStateSmoother(lag=lag, jerk_std=MONITOR_JERK_STD)
-        self.lag = lag
-        self._squared_response = _acceleration_step_response(self._smoother) ** 2
-        self._torques = np.zeros((len(self._squared_response) + 1, 3))  # the window's torques and the one before
-        self.reset()
-
-    def reset(self) -> None:
-        self._started = False
-        self._previous: NDArray[np.float64] | None = None
-        self._pending: collections.deque[tuple[NDArray[np.float64], NDArray[np.float64], bool, bool]] = (
-            collections.deque()
-        )
-
-    def update(
-        self,
-        angles: NDArray[np.float64],
-        reference: NDArray[np.float64],
-        torque: NDArray[np.float64],
-        holding: bool,
-        quiet: bool,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool, bool, NDArray[np.float64]] | None:
-        """Take one reading (rad) with its reference's state (3, 3) (rows angle, rate, acceleration: rad, rad/s,
-        rad/s^2) and its measured torque (N m); return (smoothed state (3, 3), the one before (itself at the first),
-        torque, holding, quiet, the variance (N^2 m^2, (3,)) of the model torque's error from the acceleration's
-        steps) of the reading ``lag`` samples ago, or None while the smoother fills."""
-        error = angles - reference[0]
-        torques = self._torques
-        if not self._started:
-            self._smoother.reset(error)
-            torques[:] = torque
-            self._started = True
-        smoothed_error = self._smoother.update_state(error)
-        jerk_variance = torque_step_variance(torques, torque, self._squared_response)
-        self._pending.append((reference, torque, holding, quiet))
-        if len(self._pending) <= self.lag:
-            return None
-        reference_then, torque_then, held_then, quiet_then = self._pending.popleft()
-        state = reference_then + smoothed_error
-        previous, self._previous = self._previous, state
-        quiet_then = quiet_then or quiet  # a faulty reading found since also lies in this state's smoothing window
-        return state, state if previous is None else previous, torque_then, held_then, quiet_then, jerk_variance
-
-
-def _acceleration_step_response(smoother: JointStateSmoother) -> NDArray[np.float64]:
-    """The error of ``smoother``'s acceleration estimate (per rad/s^2) when the acceleration steps by 1 rad/s^2
-    between readings m - 1 and m of its window, for each m (oldest first; m = 0 steps before the window)."""
-    readings = smoother.weights.shape[1]
-    estimated = smoother.history  # the window's reading whose state the smoother returns
-    times = (np.arange(readings) - estimated) * CONTROL_PERIOD
-    response = np.empty(readings)
-    for m in range(readings):
-        start = (m - estimated - 0.5) * CONTROL_PERIOD
-        angles = np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
-        response[m] = smoother.weights[2] @ angles - (1.0 if estimated >= m else 0.0)
-    return response
