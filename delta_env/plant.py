@@ -124,8 +124,11 @@ class DeltaPlant:
         # Robot self-contacts seen since the last reset, tracked only with the collision geometry on.
         self._contacts = RobotContacts(model, data) if self.config.collisions else None
 
-        # Views into mjData for the hot path (the buffers never move).
+        # Views into mjData for the hot path (the buffers never move), and its addresses as Python ints.
         self._qpos, self._qvel = data.qpos, data.qvel
+        self._motor_qpos_items = tuple(self._motor_qpos.tolist())
+        self._motor_dof_items = tuple(self._motor_dofs.tolist())
+        self._platform_offset_items = tuple(self._platform_offset.tolist())
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
         self.reset()
 
@@ -240,15 +243,32 @@ class DeltaPlant:
 
     def joint_angles(self) -> NDArray[np.float64]:
         """Motor angles theta (rad), shape (3,); current."""
-        return self._qpos[self._motor_qpos]
+        return np.array(self.joint_angle_values())
 
     def joint_velocities(self) -> NDArray[np.float64]:
         """Motor rates theta_dot (rad/s), shape (3,); current."""
-        return self._qvel[self._motor_dofs]
+        return np.array(self.joint_velocity_values())
 
     def platform_position(self) -> NDArray[np.float64]:
         """Platform centre E0 (m), shape (3,), from qpos; current."""
-        return self._qpos[self._platform_qpos : self._platform_qpos + 3] + self._platform_offset
+        return np.array(self.platform_point())
+
+    # Python floats for the scalar math of the 1 kHz hot path: no small arrays to build and unpack.
+
+    def joint_angle_values(self) -> tuple[float, float, float]:
+        """Motor angles theta (rad) as three floats; current."""
+        qpos, (a0, a1, a2) = self._qpos, self._motor_qpos_items
+        return qpos.item(a0), qpos.item(a1), qpos.item(a2)
+
+    def joint_velocity_values(self) -> tuple[float, float, float]:
+        """Motor rates theta_dot (rad/s) as three floats; current."""
+        qvel, (d0, d1, d2) = self._qvel, self._motor_dof_items
+        return qvel.item(d0), qvel.item(d1), qvel.item(d2)
+
+    def platform_point(self) -> tuple[float, float, float]:
+        """Platform centre E0 (m) as three floats, from qpos; current."""
+        qpos, address, (o0, o1, o2) = self._qpos, self._platform_qpos, self._platform_offset_items
+        return qpos.item(address) + o0, qpos.item(address + 1) + o1, qpos.item(address + 2) + o2
 
     def loop_gap(self, refresh: bool = False) -> float:
         """Largest distance (m) between the two points of any loop-closure connect.
