@@ -238,9 +238,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._holding = False
         self._carried_mass = 0.0  # truth: 0 while nothing is held or after a slip
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
-        # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up), and a view
-        # of its warning counts (mjData keeps its buffers for its lifetime).
-        self._warning_counts = self.plant.data.warning.number
+        # Views of the mjData arrays each step reads (mjData keeps its buffers for its lifetime).
+        data = self.plant.data
+        self._ctrl, self._actuator_force, self._warning_counts = data.ctrl, data.actuator_force, data.warning.number
+        # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
         self._instability_warnings = tuple(
             int(w)
             for w in (
@@ -419,8 +420,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
 
-        data = plant.data
-        applied = data.actuator_force.copy()
+        applied = self._actuator_force.copy()
         # the speed after the step, the thermal RMS of the output torque over the last window
         speed_margin, speed_exceeded, thermal_rms, thermal_margin, thermal_exceeded = self._drive.report(
             k, plant.joint_velocity_values(), applied.tolist()
@@ -431,7 +431,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reference_position": reference_position,
             "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
             "loop_gap": loop_gap,
-            "torque_command": data.ctrl.copy(),
+            "torque_command": self._ctrl.copy(),
             "applied_torque": applied,
             "cycle": self._cycle,
             "diverged": diverged,
