@@ -312,7 +312,7 @@ class DeltaPlant:
         and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
         ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path.
         """
-        self._ctrl[:] = torque_command
+        self._ctrl[...] = torque_command
         if self._has_disturbance:
             kernels.apply_motor_disturbance(
                 self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
