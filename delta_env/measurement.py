@@ -120,10 +120,12 @@ class Sensors:
         self, k: int, trajectory: Trajectory, holding: bool, joint_velocities: NDArray[np.float64]
     ) -> dict[str, NDArray[np.float64]]:
         # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
+        f0, f1, f2 = self._actuator_force.tolist()
+        n0, n1, n2 = self.torque_noise[k].tolist()
         return {
             "joint_angles": np.array(self.angles),
             "joint_velocities": joint_velocities,
-            "joint_torques": self._actuator_force + self.torque_noise[k],
+            "joint_torques": np.array((f0 + n0, f1 + n1, f2 + n2)),
             "reference_angles": trajectory.theta[k],
             "reference_velocities": trajectory.theta_dot[k],
             "reference_accelerations": trajectory.theta_ddot[k],
