@@ -54,8 +54,8 @@ class DeltaPlant:
     Every id and address is cached once here (dm_control style); the env and the oracle read and write
     MuJoCo state only through this class. Freshness of the measurements after :meth:`step`:
 
-    - ``joint_angles``, ``joint_velocities``, ``platform_position``, ``payload_position`` read qpos/qvel:
-      always current.
+    - ``joint_angles``, ``joint_velocities``, ``platform_position``, ``payload_position`` and the float forms
+      ``joint_angle_values``, ``joint_velocity_values``, ``platform_point`` read qpos/qvel: always current.
     - ``loop_gap`` reads ``site_xpos``, which ``mj_step`` computes before integrating: after
       :meth:`step` it is one physics step (``timestep``) stale unless ``refresh=True``.
 
@@ -90,7 +90,8 @@ class DeltaPlant:
         self._platform_dof = int(model.jnt_dofadr[first_platform_joint])
         self._platform_free = self.config.variant == "realistic"
         # Ideal: slides measure the displacement from the body's home position.
-        self._platform_offset = np.zeros(3) if self._platform_free else model.body_pos[self._platform_body].copy()
+        home = tuple(model.body_pos[self._platform_body].tolist())
+        self._platform_offset = (0.0, 0.0, 0.0) if self._platform_free else home
 
         rods = ("",) if self.config.variant == "ideal" else ROD_LABELS
         self.loops = LoopClosures(model, data, rods)
@@ -128,7 +129,6 @@ class DeltaPlant:
         self._qpos, self._qvel = data.qpos, data.qvel
         self._motor_qpos_items = tuple(self._motor_qpos.tolist())
         self._motor_dof_items = tuple(self._motor_dofs.tolist())
-        self._platform_offset_items = tuple(self._platform_offset.tolist())
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
         self.reset()
 
@@ -253,10 +253,8 @@ class DeltaPlant:
         """Platform centre E0 (m), shape (3,), from qpos; current."""
         return np.array(self.platform_point())
 
-    # Python floats for the scalar math of the 1 kHz hot path: no small arrays to build and unpack.
-
     def joint_angle_values(self) -> tuple[float, float, float]:
-        """Motor angles theta (rad) as three floats; current."""
+        """Motor angles theta (rad) as three floats (the 1 kHz hot path's scalar math); current."""
         qpos, (a0, a1, a2) = self._qpos, self._motor_qpos_items
         return qpos.item(a0), qpos.item(a1), qpos.item(a2)
 
@@ -267,7 +265,7 @@ class DeltaPlant:
 
     def platform_point(self) -> tuple[float, float, float]:
         """Platform centre E0 (m) as three floats, from qpos; current."""
-        qpos, address, (o0, o1, o2) = self._qpos, self._platform_qpos, self._platform_offset_items
+        qpos, address, (o0, o1, o2) = self._qpos, self._platform_qpos, self._platform_offset
         return qpos.item(address) + o0, qpos.item(address + 1) + o1, qpos.item(address + 2) + o2
 
     def loop_gap(self, refresh: bool = False) -> float:
