@@ -23,8 +23,8 @@ is the exponential between the two instants, tau(t_k + j h) = a^j tau_k + (1 - a
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -234,6 +234,7 @@ class DriveMonitor:
             limits.max_speed,
             limits.max_speed - limits.corner_speed,
         )
+        self._reported_limits = (limits.max_speed, limits.rated_torque)
         self.window = max(1, round(limits.thermal_window / period))
         """Samples (control steps) of the thermal window."""
         # A ring buffer of the squared output torques of the last window and their running sums.
@@ -270,14 +271,16 @@ class DriveMonitor:
         return torque, (m0, m1, m2), saturated
 
     def report(
-        self, step: int, speeds: tuple[float, float, float], applied: tuple[float, float, float]
-    ) -> dict[str, Any]:
-        """The ``info`` entries of the speed and thermal limits after control step ``step`` (>= 1 since the reset),
-        from the joint ``speeds`` (rad/s) and the drive's output torques ``applied`` (N m) after it:
-        ``speed_margin``, ``speed_exceeded``, ``thermal_rms`` (over the last window, or since the reset while
-        shorter), ``thermal_margin`` and ``thermal_exceeded`` (only once a full window has elapsed)."""
-        max_speed, rated = self.limits.max_speed, self.limits.rated_torque
-        v0, v1, v2 = abs(speeds[0]), abs(speeds[1]), abs(speeds[2])
+        self, step: int, speeds: tuple[float, float, float], applied: Sequence[float]
+    ) -> tuple[NDArray[np.float64], bool, NDArray[np.float64], NDArray[np.float64], bool]:
+        """The speed and thermal limits after control step ``step`` (>= 1 since the reset), from the joint ``speeds``
+        (rad/s) and the drive's three output torques ``applied`` (N m) after it: the ``info`` entries
+        ``speed_margin`` (rad/s), ``speed_exceeded``, ``thermal_rms`` (N m, over the last window, or since the reset
+        while shorter), ``thermal_margin`` (N m) and ``thermal_exceeded`` (only once a full window has elapsed), in
+        that order."""
+        max_speed, rated = self._reported_limits
+        w0, w1, w2 = speeds
+        v0, v1, v2 = abs(w0), abs(w1), abs(w2)
         a0, a1, a2 = applied
         window = self.window
         squares, index = self._squares, step % window
@@ -287,11 +290,14 @@ class DriveMonitor:
         self._sums = s0, s1, s2 = s0 + q0 - o0, s1 + q1 - o1, s2 + q2 - o2
         full = step >= window  # one sample per step since the reset
         scale = 1.0 / window if full else 1.0 / step
-        r0, r1, r2 = math.sqrt(max(s0, 0.0) * scale), math.sqrt(max(s1, 0.0) * scale), math.sqrt(max(s2, 0.0) * scale)
-        return {
-            "speed_margin": np.array((max_speed - v0, max_speed - v1, max_speed - v2)),
-            "speed_exceeded": max(v0, v1, v2) > max_speed,
-            "thermal_rms": np.array((r0, r1, r2)),
-            "thermal_margin": np.array((rated - r0, rated - r1, rated - r2)),
-            "thermal_exceeded": full and max(r0, r1, r2) > rated,
-        }
+        # the running sums may drift below 0 by round-off
+        r0 = math.sqrt((0.0 if s0 < 0.0 else s0) * scale)
+        r1 = math.sqrt((0.0 if s1 < 0.0 else s1) * scale)
+        r2 = math.sqrt((0.0 if s2 < 0.0 else s2) * scale)
+        return (
+            np.array((max_speed - v0, max_speed - v1, max_speed - v2)),
+            max(v0, v1, v2) > max_speed,
+            np.array((r0, r1, r2)),
+            np.array((rated - r0, rated - r1, rated - r2)),
+            full and max(r0, r1, r2) > rated,
+        )

@@ -212,7 +212,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
         self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std)
         drive = self.plant_config.drive
-        self._motor_dofs = tuple(self.plant.motor_dofs.tolist())
         self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
         self._reference = EpisodeReference(
@@ -239,6 +238,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._holding = False
         self._carried_mass = 0.0  # truth: 0 while nothing is held or after a slip
         self._last_observation: dict[str, NDArray[np.float64]] | None = None
+        # Views of the mjData arrays each step reads (mjData keeps its buffers for its lifetime).
+        data = self.plant.data
+        self._ctrl, self._actuator_force, self._warning_counts = data.ctrl, data.actuator_force, data.warning.number
         # MuJoCo's own instability flags (it resets mjData and counts a warning when the state blows up).
         self._instability_warnings = tuple(
             int(w)
@@ -370,27 +372,24 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def step(
         self, action: NDArray[np.float64]
     ) -> tuple[dict[str, NDArray[np.float64]], float, bool, bool, dict[str, Any]]:
-        # This is the 1 kHz hot path: scalar math and few NumPy calls, so that the env costs at most
-        # about its own physics (measured by scripts/bench.py).
-        if self._episode_over or self.trajectory is None:
+        # This is the 1 kHz hot path: scalar math on Python floats and few NumPy calls, so that the env costs at
+        # most about its own physics (measured by scripts/bench.py).
+        reference = self._reference
+        if self._episode_over or reference.trajectory is None:
             reason = "the episode has ended" if self._episode_over else "no episode started"
             raise RuntimeError(f"call reset() before step(): {reason}")
         torque = require_torques(action)
         # The drive's envelope at the true joint speeds at the start of the step (it measures its own motor).
         plant = self.plant
-        qvel = plant.data.qvel
-        d0, d1, d2 = self._motor_dofs
-        torque, margins, saturated = self._drive.clip(torque, (qvel.item(d0), qvel.item(d1), qvel.item(d2)))
+        torque, margins, saturated = self._drive.clip(torque, plant.joint_velocity_values())
         faulty = self._faults.faulty
         if faulty:
             carrying = self._cycle if self._holding else None
-            torque = self._faults.before_physics(self._step_index, torque, self.trajectory, carrying)
+            torque = self._faults.before_physics(self._step_index, torque, reference.trajectory, carrying)
         t0, t1, t2 = torque.tolist()  # what the drive holds over the step
 
         plant.step(torque, self.n_substeps)
-        self._step_index += 1
-        k = self._step_index
-        reference = self._reference
+        self._step_index = k = self._step_index + 1
         if reference.retimes_online and reference.retime(k):
             self._sensors.cover(len(reference.trajectory), self.np_random)
         event = reference.events.get(k)
@@ -398,19 +397,16 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             self._gripper_event(*event)
         trajectory = reference.trajectory
 
-        data = plant.data
-        platform = plant.platform_position()
-        reference_position = trajectory.xyz[k]
         loop_gap = plant.loop_gap()
         # The warnings count from the episode's mj_resetData; NaN fails the loop-gap comparison.
-        counts = data.warning.number  # all warning counts as one array view: one binding call, not three
-        bad_qacc, bad_qvel, bad_qpos = self._instability_warnings
+        counts, (bad_qacc, bad_qvel, bad_qpos) = self._warning_counts, self._instability_warnings
         unstable = counts.item(bad_qacc) or counts.item(bad_qvel) or counts.item(bad_qpos)
         diverged = bool(unstable) or not loop_gap <= DIVERGENCE_LOOP_GAP
         truncated = k >= len(trajectory) - 1
         self._episode_over = diverged or truncated
 
-        px, py, pz = platform.tolist()
+        px, py, pz = platform = plant.platform_point()
+        reference_position = trajectory.xyz[k]
         rx, ry, rz = reference_position.tolist()
         squared_error = (px - rx) ** 2 + (py - ry) ** 2 + (pz - rz) ** 2
         if diverged:
@@ -424,21 +420,28 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
 
-        applied = data.actuator_force.copy()
+        applied = self._actuator_force.copy()
+        # the speed after the step, the thermal RMS of the output torque over the last window
+        speed_margin, speed_exceeded, thermal_rms, thermal_margin, thermal_exceeded = self._drive.report(
+            k, plant.joint_velocity_values(), applied.tolist()
+        )
         info = {
             "payload_mass": self._carried_mass,
-            "platform_position": platform,
+            "platform_position": np.array(platform),
             "reference_position": reference_position,
             "tracking_error": math.sqrt(squared_error) if not diverged else math.nan,
             "loop_gap": loop_gap,
-            "torque_command": data.ctrl.copy(),
+            "torque_command": self._ctrl.copy(),
             "applied_torque": applied,
             "cycle": self._cycle,
             "diverged": diverged,
             "torque_saturated": saturated,
             "torque_margin": np.array(margins),
-            # the speed after the step, the thermal RMS of the output torque over the last window
-            **self._drive.report(k, (qvel.item(d0), qvel.item(d1), qvel.item(d2)), tuple(applied.tolist())),
+            "speed_margin": speed_margin,
+            "speed_exceeded": speed_exceeded,
+            "thermal_rms": thermal_rms,
+            "thermal_margin": thermal_margin,
+            "thermal_exceeded": thermal_exceeded,
             "reward_tracking": reward_tracking,
             "reward_torque": reward_torque,
             "speed_override": reference.speed_override,

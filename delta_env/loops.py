@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import mujoco
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -62,7 +63,7 @@ class LoopClosures:
             )
             for k, ((rod_site, platform_site), (rod_body, platform_body)) in enumerate(zip(sites, bodies, strict=True))
         ]
-        self._site_pairs = tuple(sites)
+        self._site_pairs = np.array(sites, dtype=np.int64).reshape(-1, 2)
         self._site_xpos = data.site_xpos
 
     def jacobian(self) -> NDArray[np.float64]:
@@ -92,13 +93,18 @@ class LoopClosures:
 
     def gap(self) -> float:
         """Largest distance (m) between the two points of any connect, from the current ``site_xpos``."""
-        # Python floats: one exit from NumPy, then six distances in scalar math (cheaper than mju_dist3 calls).
-        positions = self._site_xpos.tolist()
-        largest = 0.0  # squared; a NaN distance fails the comparison
-        for rod_end, platform_point in self._site_pairs:
-            (x1, y1, z1), (x2, y2, z2) = positions[rod_end], positions[platform_point]
-            dx, dy, dz = x1 - x2, y1 - y2, z1 - z2
-            squared = dx * dx + dy * dy + dz * dz
-            if squared > largest:
-                largest = squared
-        return math.sqrt(largest)
+        return largest_gap(self._site_xpos, self._site_pairs)
+
+
+@numba.njit(cache=True)
+def largest_gap(points: NDArray[np.float64], pairs: NDArray[np.int64]) -> float:
+    """Largest distance (m) between the two points of any pair: rows ``pairs[k, 0]`` and ``pairs[k, 1]`` of
+    ``points`` (n, 3) (m), ``pairs`` (m, 2); 0 without pairs. A NaN distance is skipped (it fails the comparison)."""
+    largest = 0.0  # squared
+    for k in range(pairs.shape[0]):
+        a, b = pairs[k, 0], pairs[k, 1]
+        dx, dy, dz = points[a, 0] - points[b, 0], points[a, 1] - points[b, 1], points[a, 2] - points[b, 2]
+        squared = dx * dx + dy * dy + dz * dz
+        if squared > largest:
+            largest = squared
+    return math.sqrt(largest)

@@ -14,6 +14,9 @@ from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 
+_GRIPPER_CLOSED, _GRIPPER_OPEN = np.array([1.0]), np.array([0.0])
+"""The ``gripper`` readings, copied into each observation."""
+
 
 def observation_space() -> spaces.Dict:
     """The env's observation space: the keys :class:`Sensors` fills, float64, shape (3,) but ``gripper`` (1,)
@@ -49,7 +52,7 @@ class Sensors:
         self.plant = plant
         self.encoder_step = encoder_step
         self.torque_noise_std = torque_noise_std
-        self._motor_qpos = tuple(plant.motor_qpos_addresses.tolist())  # qpos addresses of the encoders
+        self._actuator_force = plant.data.actuator_force  # a view: mjData keeps its buffers for its lifetime
         self.angles = [0.0, 0.0, 0.0]
         self.torque_noise = np.zeros((1, 3))
         self._spare_noise: np.random.Generator | None = None
@@ -73,7 +76,7 @@ class Sensors:
 
     def first_observation(self, trajectory: Trajectory, holding: bool) -> dict[str, NDArray[np.float64]]:
         """The observation at a reset (step 0), the robot at rest."""
-        self.angles = self._encoder_floats(*self.plant.joint_angles().tolist())
+        self.angles = self._encoder_floats(*self.plant.joint_angle_values())
         return self._observation(0, trajectory, holding, self.plant.joint_velocities())
 
     def observe(
@@ -107,9 +110,7 @@ class Sensors:
     def _measure_joints(self) -> NDArray[np.float64]:
         """Sample the encoders; return the measured joint rates (rad/s)."""
         p0, p1, p2 = self.angles
-        qpos = self.plant.data.qpos
-        a0, a1, a2 = self._motor_qpos
-        self.angles = m0, m1, m2 = self._encoder_floats(qpos.item(a0), qpos.item(a1), qpos.item(a2))
+        self.angles = m0, m1, m2 = self._encoder_floats(*self.plant.joint_angle_values())
         if self.encoder_step is None:
             return self.plant.joint_velocities()
         rate = 1.0 / CONTROL_PERIOD
@@ -119,12 +120,14 @@ class Sensors:
         self, k: int, trajectory: Trajectory, holding: bool, joint_velocities: NDArray[np.float64]
     ) -> dict[str, NDArray[np.float64]]:
         # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
+        f0, f1, f2 = self._actuator_force.tolist()
+        n0, n1, n2 = self.torque_noise[k].tolist()
         return {
             "joint_angles": np.array(self.angles),
             "joint_velocities": joint_velocities,
-            "joint_torques": self.plant.data.actuator_force + self.torque_noise[k],
+            "joint_torques": np.array((f0 + n0, f1 + n1, f2 + n2)),
             "reference_angles": trajectory.theta[k],
             "reference_velocities": trajectory.theta_dot[k],
             "reference_accelerations": trajectory.theta_ddot[k],
-            "gripper": np.array([1.0 if holding else 0.0]),
+            "gripper": (_GRIPPER_CLOSED if holding else _GRIPPER_OPEN).copy(),
         }

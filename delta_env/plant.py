@@ -54,8 +54,8 @@ class DeltaPlant:
     Every id and address is cached once here (dm_control style); the env and the oracle read and write
     MuJoCo state only through this class. Freshness of the measurements after :meth:`step`:
 
-    - ``joint_angles``, ``joint_velocities``, ``platform_position``, ``payload_position`` read qpos/qvel:
-      always current.
+    - ``joint_angles``, ``joint_velocities``, ``platform_position``, ``payload_position`` and the float forms
+      ``joint_angle_values``, ``joint_velocity_values``, ``platform_point`` read qpos/qvel: always current.
     - ``loop_gap`` reads ``site_xpos``, which ``mj_step`` computes before integrating: after
       :meth:`step` it is one physics step (``timestep``) stale unless ``refresh=True``.
 
@@ -90,7 +90,8 @@ class DeltaPlant:
         self._platform_dof = int(model.jnt_dofadr[first_platform_joint])
         self._platform_free = self.config.variant == "realistic"
         # Ideal: slides measure the displacement from the body's home position.
-        self._platform_offset = np.zeros(3) if self._platform_free else model.body_pos[self._platform_body].copy()
+        home = tuple(model.body_pos[self._platform_body].tolist())
+        self._platform_offset = (0.0, 0.0, 0.0) if self._platform_free else home
 
         rods = ("",) if self.config.variant == "ideal" else ROD_LABELS
         self.loops = LoopClosures(model, data, rods)
@@ -124,8 +125,10 @@ class DeltaPlant:
         # Robot self-contacts seen since the last reset, tracked only with the collision geometry on.
         self._contacts = RobotContacts(model, data) if self.config.collisions else None
 
-        # Views into mjData for the hot path (the buffers never move).
+        # Views into mjData for the hot path (the buffers never move), and its addresses as Python ints.
         self._qpos, self._qvel = data.qpos, data.qvel
+        self._motor_qpos_items = tuple(self._motor_qpos.tolist())
+        self._motor_dof_items = tuple(self._motor_dofs.tolist())
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
         self.reset()
 
@@ -240,15 +243,30 @@ class DeltaPlant:
 
     def joint_angles(self) -> NDArray[np.float64]:
         """Motor angles theta (rad), shape (3,); current."""
-        return self._qpos[self._motor_qpos]
+        return np.array(self.joint_angle_values())
 
     def joint_velocities(self) -> NDArray[np.float64]:
         """Motor rates theta_dot (rad/s), shape (3,); current."""
-        return self._qvel[self._motor_dofs]
+        return np.array(self.joint_velocity_values())
 
     def platform_position(self) -> NDArray[np.float64]:
         """Platform centre E0 (m), shape (3,), from qpos; current."""
-        return self._qpos[self._platform_qpos : self._platform_qpos + 3] + self._platform_offset
+        return np.array(self.platform_point())
+
+    def joint_angle_values(self) -> tuple[float, float, float]:
+        """Motor angles theta (rad) as three floats (the 1 kHz hot path's scalar math); current."""
+        qpos, (a0, a1, a2) = self._qpos, self._motor_qpos_items
+        return qpos.item(a0), qpos.item(a1), qpos.item(a2)
+
+    def joint_velocity_values(self) -> tuple[float, float, float]:
+        """Motor rates theta_dot (rad/s) as three floats; current."""
+        qvel, (d0, d1, d2) = self._qvel, self._motor_dof_items
+        return qvel.item(d0), qvel.item(d1), qvel.item(d2)
+
+    def platform_point(self) -> tuple[float, float, float]:
+        """Platform centre E0 (m) as three floats, from qpos; current."""
+        qpos, address, (o0, o1, o2) = self._qpos, self._platform_qpos, self._platform_offset
+        return qpos.item(address) + o0, qpos.item(address + 1) + o1, qpos.item(address + 2) + o2
 
     def loop_gap(self, refresh: bool = False) -> float:
         """Largest distance (m) between the two points of any loop-closure connect.
@@ -292,7 +310,7 @@ class DeltaPlant:
         and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
         ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path.
         """
-        self._ctrl[:] = torque_command
+        self._ctrl[...] = torque_command
         if self._has_disturbance:
             kernels.apply_motor_disturbance(
                 self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied

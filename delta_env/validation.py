@@ -99,18 +99,24 @@ def require_joint_vector(
     return array
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
 def require_torques(action: object) -> NDArray[np.float64]:
     """``action`` as a float array of 3 motor torques (N m) if it is 3 finite real numbers (integer or floating
     kinds; bool, complex, str and object arrays are refused before converting), else ``ValueError``."""
-    try:
-        raw = np.asarray(action)
-    except ValueError:  # a ragged sequence
-        raw = None
-    if raw is None or raw.dtype.kind not in "iuf":
-        raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
-    torque = np.asarray(raw, dtype=float)
-    if torque.shape != (3,):
-        raise ValueError(f"action must be 3 finite real motor torques (N m), got shape {torque.shape}")
+    if type(action) is np.ndarray and action.dtype is _FLOAT64 and action.shape == (3,):
+        torque = action  # the usual action (the env's 1 kHz step): nothing to convert
+    else:
+        try:
+            raw = np.asarray(action)
+        except ValueError:  # a ragged sequence
+            raw = None
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")
+        torque = np.asarray(raw, dtype=float)
+        if torque.shape != (3,):
+            raise ValueError(f"action must be 3 finite real motor torques (N m), got shape {torque.shape}")
     t0, t1, t2 = torque.tolist()
     if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)):
         raise ValueError(f"action must be 3 finite real motor torques (N m), got {action!r}")

@@ -9,7 +9,6 @@ score the run; the controller sees only the observations.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -242,66 +241,56 @@ def run_episode(
     controller.reset()
     plant = env.plant
     estimates_payload = isinstance(controller, EstimatesPayload)
-    reacts, speed, stopped = isinstance(inner, MonitoredController), 1.0, False
-    steps = len(env.trajectory) - 1
-    tracking = np.full(steps, math.nan)
-    torque, velocity, joint_error = np.zeros((steps, 3)), np.zeros((steps, 3)), np.zeros((steps, 3))
-    command = np.zeros((steps, 3))
-    estimates = np.zeros(steps)
+    reacts, speed = isinstance(inner, MonitoredController), 1.0
+    # Gathered step by step as Python values (the 1 kHz loop) and stacked once the episode is over; each step's
+    # truth is taken at its end, against the reference of that instant (the new observation's).
+    tracking, loop_gaps, estimates = [], [], []
+    torque, command, platform, true_angles, true_velocities = [], [], [], [], []  # three floats per step
+    reference_angles = []
+    saturated, speed_exceeded, thermal_exceeded = 0, 0, False
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
-    platform = np.full((steps, 3), math.nan)
-    diverged, saturated, speed_exceeded, thermal_exceeded, n, loop_gap = False, 0, 0, False, 0, 0.0
-    for n in itertools.count():
-        if n == len(tracking):  # an online timing lengthened the reference: the episode runs to its new end
-            grown = len(env.trajectory) - 1 - n
-
-            def extended(array: np.ndarray, fill: float, rows: int = grown) -> np.ndarray:
-                return np.concatenate((array, np.full((rows, *array.shape[1:]), fill)))
-
-            tracking, platform = extended(tracking, math.nan), extended(platform, math.nan)
-            torque, velocity, joint_error = extended(torque, 0.0), extended(velocity, 0.0), extended(joint_error, 0.0)
-            command, estimates = extended(command, 0.0), extended(estimates, 0.0)
+    while True:
         action = controller(observation)
         if estimates_payload:
-            estimates[n] = controller.payload_estimate
+            estimates.append(controller.payload_estimate)
         if reacts and inner.requested_speed != speed:
             speed = inner.requested_speed  # a monitored controller's reaction to a fault: the cell's override
             env.override_speed(speed)
         observation, _, terminated, truncated, info = env.step(action)
-        command[n] = info["torque_command"]
-        # Truth at the end of the step, against the reference of that instant (the new observation's).
-        tracking[n] = info["tracking_error"]
-        torque[n] = info["applied_torque"]
-        velocity[n] = plant.joint_velocities()
-        joint_error[n] = plant.joint_angles() - observation["reference_angles"]
+        tracking.append(info["tracking_error"])
+        loop_gaps.append(info["loop_gap"])
+        torque.extend(info["applied_torque"].tolist())
+        command.extend(info["torque_command"].tolist())
+        platform.extend(info["platform_position"].tolist())
+        true_angles.extend(plant.joint_angle_values())
+        true_velocities.extend(plant.joint_velocity_values())
+        reference_angles.append(observation["reference_angles"])
         mass.append(info["payload_mass"])
-        saturated += bool(info["torque_saturated"])
-        speed_exceeded += bool(info["speed_exceeded"])
-        thermal_exceeded = thermal_exceeded or bool(info["thermal_exceeded"])
-        stopped = bool(info["stopped"])
-        loop_gap = max(loop_gap, info["loop_gap"]) if math.isfinite(info["loop_gap"]) else math.inf
+        saturated += info["torque_saturated"]
+        speed_exceeded += info["speed_exceeded"]
+        thermal_exceeded = thermal_exceeded or info["thermal_exceeded"]
         measured.append(observation["joint_torques"])
         angles.append(observation["joint_angles"])
         if keep_observations:
             observations.append(observation)
-        if info["diverged"]:
-            diverged = True
-            break
-        platform[n] = info["platform_position"]
         if terminated or truncated:
             break
-    length = n + 1
+    diverged = info["diverged"]
+    platform_position = _rows(platform)
+    if diverged:
+        platform_position[-1] = math.nan  # the state the simulation diverged to is no position
+    gaps = np.array(loop_gaps)
     trajectory = env.trajectory
     drive = env.plant_config.drive
     return EpisodeRecord(
-        tracking_error=tracking[:length],
-        torque=torque[:length],
-        command=command[:length],
-        joint_velocity=velocity[:length],
-        joint_error=joint_error[:length],
+        tracking_error=np.array(tracking),
+        torque=_rows(torque),
+        command=_rows(command),
+        joint_velocity=_rows(true_velocities),
+        joint_error=_rows(true_angles) - np.array(reference_angles),
         payload_mass=np.array(mass),
-        payload_estimate=estimates[:length],
+        payload_estimate=np.array(estimates, dtype=float) if estimates_payload else np.zeros(len(tracking)),
         measured_torque=np.array(measured),
         encoder_angles=np.array(angles),
         pick_indices=np.asarray(trajectory.pick_indices),
@@ -309,8 +298,8 @@ def run_episode(
         masses=np.asarray(env.payload_masses, dtype=float),
         diverged=diverged,
         saturated_steps=saturated,
-        max_loop_gap=loop_gap,
-        platform_position=platform[:length],
+        max_loop_gap=float(gaps.max()) if np.isfinite(gaps).all() else math.inf,
+        platform_position=platform_position,
         reference=trajectory,
         peak_torque=drive.peak_torque,
         rated_torque=drive.rated_torque,
@@ -318,8 +307,13 @@ def run_episode(
         speed_exceeded_steps=speed_exceeded,
         thermal_exceeded=thermal_exceeded,
         speed_override=speed,
-        stopped=stopped,
+        stopped=bool(info["stopped"]),
         injected_faults=list(env.injected_faults),
         detected_faults=list(inner.detected_faults) if isinstance(inner, ReportsFaults) else [],
         robot_contacts=plant.robot_contacts,
     )
+
+
+def _rows(values: list[float]) -> NDArray[np.float64]:
+    """Three floats per step, appended in order, as an ``(N, 3)`` array."""
+    return np.array(values).reshape(-1, 3)

@@ -4,6 +4,7 @@ import numpy as np
 
 from controllers.base import PDController
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.loops import largest_gap
 from delta_env.oracle import InverseDynamicsOracle
 from delta_env.trajectories import STRESS_PEAK_ACCELERATION
 
@@ -30,3 +31,25 @@ def test_loops_stay_closed_in_6g_cycle_carrying_4kg() -> None:
     assert np.max(np.abs(feedforward)) > 100.0, "not a demanding cycle: peak torque should exceed 100 N m"
     assert max(gaps) < 1e-4
     assert max(errors) < 5e-3, "the exact feedforward should track within millimetres"
+
+
+def numpy_largest_gap(points: np.ndarray, pairs: np.ndarray) -> float:
+    """The plain NumPy definition of :func:`delta_env.loops.largest_gap`: NaN distances skipped, 0 without pairs."""
+    squared = np.sum((points[pairs[:, 0]] - points[pairs[:, 1]]) ** 2, axis=1)
+    return float(np.sqrt(np.max(squared[~np.isnan(squared)], initial=0.0)))
+
+
+def test_compiled_largest_gap_equals_its_numpy_definition_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        points = rng.normal(0.0, rng.choice([1e-9, 1e-4, 1.0]), (13, 3))
+        pairs = rng.integers(0, 13, (int(rng.integers(0, 7)), 2))
+        if rng.random() < 0.2:
+            points[rng.integers(13), rng.integers(3)] = rng.choice([np.nan, np.inf])
+        assert largest_gap(points, pairs) == numpy_largest_gap(points, pairs)
+    # the plant's loops: the connects of the realistic variant, at a state off the closed configuration
+    env = DeltaPickPlaceEnv()
+    env.reset(seed=1)
+    loops = env.plant.loops
+    env.plant.data.site_xpos[:] += rng.normal(0.0, 1e-4, env.plant.data.site_xpos.shape)
+    assert loops.gap() == numpy_largest_gap(env.plant.data.site_xpos, loops._site_pairs) > 0.0
