@@ -210,12 +210,20 @@ def _plot_as_saved(run_dir: Path, files: Connection, figures: list[str]) -> None
     of all its files have come through ``files``.
 
     Raises:
-        EOFError: if ``files`` closes before every figure is made.
+        RuntimeError: if ``files`` closes before every figure is made.
     """
     saved: set[str] = set()
     while figures:
-        saved.update(files.recv())
+        try:
+            saved.update(files.recv())
+        except EOFError:
+            raise RuntimeError(_not_made(figures)) from None
         _make_ready(run_dir, saved, figures)
+
+
+def _not_made(figures: list[str]) -> str:
+    """The error message of ``figures`` left unmade."""
+    return f"figures not made, their files were not saved: {', '.join(figures)}"
 
 
 class Plotter:
@@ -268,4 +276,4 @@ class Plotter:
                     "its traceback is above)"
                 )
         if error is None and self.here:
-            raise RuntimeError(f"figures not made, their files were not saved: {', '.join(self.here)}")
+            raise RuntimeError(_not_made(self.here))
