@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import sys
 
-from eval.processes import runs_a_pool, start_worker_server
+from eval.processes import pool_context, runs_a_pool, start_worker_server
 
 if __name__ == "__main__" and runs_a_pool(sys.argv[1:]):
     start_worker_server()  # its imports run beside this module's own, below
@@ -59,12 +59,13 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds
 from eval.comparison import (
     TABLE2_KEY,
     TABLE2_PAYLOAD,
+    first_episodes,
     run_all,
     table2_statistics,
     tabulate,
     tabulate_faults,
 )
-from eval.engine import kept_tares
+from eval.engine import Prepared, kept_tares
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
@@ -260,32 +261,60 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
     """Run the comparison of ``args`` (:func:`parse_args`) into ``run``'s folder and print its summary; ``started``
     is the :func:`time.perf_counter` time at the start of the command."""
     out = args.out = run.folder
-    scenario = args.scenario
     keys = args.controllers
     prepared, results = run_all(args)
-    args.parameters, identification, setup = prepared.parameter_file, prepared.identification, prepared.setup
+    args.parameters = prepared.parameter_file
+    # The figures are drawn beside the rest of this function, on the core the episodes' workers have left.
+    with plots.Plotter(out, pool_context() if args.workers > 1 else None) as plotter:
+        traces = first_episodes(results, keys, args.seed)
+        np.savez_compressed(
+            out / "traces.npz",
+            dt=CONTROL_PERIOD,
+            keys=np.array(list(traces)),
+            labels=np.array([controller_label(key) for key in traces]),
+            estimates_payload=np.array([controller_entry(key).estimates_payload for key in traces]),
+            **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
+        )
+        plotter.saved("traces.npz")
+        table2_record = results[-1][1]
+        model_torques = table2_record.model_torques(
+            estimation_model(prepared.setup), prepared.calibration.tares[TABLE2_KEY]
+        )
+        np.savez_compressed(out / "table2_run.npz", **model_torques)
+        table2_rows = table2_statistics(model_torques)
+        write_csv(out / "table2.csv", table2_rows)
+        plotter.saved("table2_run.npz", "table2.csv")
+        episode_rows, carry_rows = tabulate(results, keys, args.seed)
+        write_csv(out / "episodes.csv", episode_rows)
+        plotter.saved("episodes.csv")
+        if carry_rows:
+            write_csv(out / "carries.csv", carry_rows)
+        fault_rows = tabulate_faults(results, keys, args.seed)
+        write_fault_csv(out / "faults.csv", fault_rows)
+        summary = _summarize(args, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows))
+    print(summary)
+
+
+def _summarize(
+    args: argparse.Namespace,
+    run: Run,
+    started: float,
+    prepared: Prepared,
+    rows: tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]],
+) -> str:
+    """Record the run's configuration and results in its manifest, write ``summary.md`` and return the summary.
+
+    Args:
+        args: As :func:`compare`'s.
+        run: The run folder.
+        started: :func:`time.perf_counter` time at the start of the command.
+        prepared: What the controllers knew (:func:`eval.comparison.run_all`).
+        rows: The episode, carry, Table 2 and fault rows.
+    """
+    out, scenario, keys = run.folder, args.scenario, args.controllers
+    identification, setup = prepared.identification, prepared.setup
     tares, tare_spreads = prepared.calibration.tares, prepared.calibration.spreads
-    episode_rows, carry_rows, traces = tabulate(results, keys, args.seed)
-    fault_rows = tabulate_faults(results, keys, args.seed)
-    table2_record = results[-1][1]
-    model_torques = table2_record.model_torques(estimation_model(setup), tares[TABLE2_KEY])
-    table2_rows = table2_statistics(model_torques)
-
-    write_csv(out / "episodes.csv", episode_rows)
-    if carry_rows:
-        write_csv(out / "carries.csv", carry_rows)
-    write_csv(out / "table2.csv", table2_rows)
-    write_fault_csv(out / "faults.csv", fault_rows)
-    np.savez_compressed(
-        out / "traces.npz",
-        dt=CONTROL_PERIOD,
-        keys=np.array(list(traces)),
-        labels=np.array([controller_label(key) for key in traces]),
-        estimates_payload=np.array([controller_entry(key).estimates_payload for key in traces]),
-        **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
-    )
-    np.savez_compressed(out / "table2_run.npz", **model_torques)
-
+    episode_rows, carry_rows, table2_rows, fault_rows = rows
     total_time = time.perf_counter() - started
     env = DeltaPickPlaceEnv(n_cycles=args.cycles, scenario=scenario)
     config = {
@@ -358,8 +387,7 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
         ]
     )
     (out / "summary.md").write_text(summary + "\n")
-    plots.make_plots(out)
-    print(summary)
+    return summary
 
 
 def _pick_rate_section(episode_rows: list[dict[str, Any]]) -> list[str]:

@@ -11,7 +11,8 @@
    pick); the
    measured torques against MId+F+R with mp = 0 and with mp = m_hat.
 4. Tabulates per episode and per carried object (:func:`tabulate`, :func:`table2_statistics`), and the
-   faults injected into the episodes and detected by the controllers (:func:`tabulate_faults`).
+   faults injected into the episodes and detected by the controllers (:func:`tabulate_faults`); picks the first
+   episode of each controller, whose time series are kept (:func:`first_episodes`).
 """
 
 from __future__ import annotations
@@ -97,10 +98,9 @@ def _identity(unit: WorkUnit, first_seed: int) -> dict[str, Any]:
 
 def tabulate(
     results: list[tuple[WorkUnit, EpisodeRecord]], keys: Sequence[str], first_seed: int
-) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, EpisodeRecord]]:
-    """Per-episode rows, per-carry rows (estimating controllers) and the first episode (seed ``first_seed``) of each
-    controller."""
-    episode_rows, carry_rows, first = [], [], {}
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Per-episode rows and per-carry rows (estimating controllers)."""
+    episode_rows, carry_rows = [], []
     for unit, record in _episodes_in_order(results, keys):
         entry = controller_entry(unit.controller)
         identity = _identity(unit, first_seed)
@@ -119,9 +119,14 @@ def tabulate(
                         "peak_estimate_kg": carry.peak_estimate,
                     }
                 )
-        if unit.seed == first_seed:
-            first[unit.controller] = record
-    return episode_rows, carry_rows, first
+    return episode_rows, carry_rows
+
+
+def first_episodes(
+    results: list[tuple[WorkUnit, EpisodeRecord]], keys: Sequence[str], first_seed: int
+) -> dict[str, EpisodeRecord]:
+    """The first episode (seed ``first_seed``) of each controller, by key in the order of ``keys``."""
+    return {unit.controller: record for unit, record in _episodes_in_order(results, keys) if unit.seed == first_seed}
 
 
 def tabulate_faults(

@@ -182,6 +182,29 @@ def path_deviation(
     return 1e3 * float(np.sqrt(np.mean(distance**2))), 1e3 * float(np.max(distance))
 
 
+SEGMENT_BLOCK = 16
+"""Consecutive segments whose bounding box :func:`_nearest_segment_distances` tests before it measures them."""
+
+PRUNING_TOLERANCE = 1e-9
+"""Relative margin (of the coordinates involved) by which :func:`_nearest_segment_distances` must find a block of
+segments farther than the nearest segment so far before it skips the block: far above the rounding of the distances."""
+
+
+@numba.njit(cache=True, inline="always")
+def _segment_distance2(
+    positions: NDArray[np.float64], n: int, starts: NDArray[np.float64], ends: NDArray[np.float64], j: int
+) -> float:
+    """Squared distance (m^2) of position ``n`` to the segment ``starts[j] -> ends[j]``."""
+    dx, dy, dz = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1], ends[j, 2] - starts[j, 2]
+    rx, ry, rz = positions[n, 0] - starts[j, 0], positions[n, 1] - starts[j, 1], positions[n, 2] - starts[j, 2]
+    length2 = dx * dx + dy * dy + dz * dz
+    # Zero-length segments (dwells) project onto their start point.
+    along = (rx * dx + ry * dy + rz * dz) / (length2 if length2 > 0.0 else 1.0)
+    along = min(max(along, 0.0), 1.0)
+    gx, gy, gz = rx - along * dx, ry - along * dy, rz - along * dz
+    return gx * gx + gy * gy + gz * gz
+
+
 @numba.njit(cache=True)
 def _nearest_segment_distances(
     positions: NDArray[np.float64],
@@ -192,21 +215,45 @@ def _nearest_segment_distances(
     last: int,
 ) -> NDArray[np.float64]:
     """Distance (m) of each position, ``(N, 3)``, to the nearest of the segments ``starts[j] -> ends[j]``, ``(M, 3)``,
-    searched over j = ``centers[n] + first .. centers[n] + last`` (clipped to the segments)."""
+    searched over j = ``centers[n] + first .. centers[n] + last`` (clipped to the segments).
+
+    The minimum over that range, found without measuring every segment: the position's own segment (its center,
+    clipped into the range) first; then each block of :data:`SEGMENT_BLOCK` segments whose bounding box is not
+    farther than the nearest so far; in a block, a segment equal to the one before it (a dwell's zero-length
+    segments) is not measured again.
+    """
+    count = len(starts)
+    blocks = (count + SEGMENT_BLOCK - 1) // SEGMENT_BLOCK
+    low_corner, high_corner = np.full((blocks, 3), np.inf), np.full((blocks, 3), -np.inf)
+    repeats = np.zeros(count, dtype=np.bool_)  # segment j equals segment j - 1
+    magnitude = 0.0
+    for j in range(count):
+        block = j // SEGMENT_BLOCK
+        same = j > 0
+        for axis in range(3):
+            a, b = starts[j, axis], ends[j, axis]
+            low_corner[block, axis] = min(low_corner[block, axis], a, b)
+            high_corner[block, axis] = max(high_corner[block, axis], a, b)
+            magnitude = max(magnitude, abs(a), abs(b))
+            same = same and a == starts[j - 1, axis] and b == ends[j - 1, axis]
+        repeats[j] = same
     distance = np.empty(len(positions))
     for n in range(len(positions)):
-        low = min(max(centers[n] + first, 0), len(starts) - 1)
-        high = max(min(centers[n] + last, len(starts) - 1), low)
-        nearest = np.inf
-        for j in range(low, high + 1):
-            dx, dy, dz = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1], ends[j, 2] - starts[j, 2]
-            rx, ry, rz = positions[n, 0] - starts[j, 0], positions[n, 1] - starts[j, 1], positions[n, 2] - starts[j, 2]
-            length2 = dx * dx + dy * dy + dz * dz
-            # Zero-length segments (dwells) project onto their start point.
-            along = (rx * dx + ry * dy + rz * dz) / (length2 if length2 > 0.0 else 1.0)
-            along = min(max(along, 0.0), 1.0)
-            gx, gy, gz = rx - along * dx, ry - along * dy, rz - along * dz
-            nearest = min(nearest, gx * gx + gy * gy + gz * gz)
+        low = min(max(centers[n] + first, 0), count - 1)
+        high = max(min(centers[n] + last, count - 1), low)
+        own = min(max(centers[n], low), high)
+        nearest = _segment_distance2(positions, n, starts, ends, own)
+        scale = magnitude + max(abs(positions[n, 0]), abs(positions[n, 1]), abs(positions[n, 2]))
+        for block in range(low // SEGMENT_BLOCK, high // SEGMENT_BLOCK + 1):
+            gap2 = 0.0
+            for axis in range(3):
+                gap = max(low_corner[block, axis] - positions[n, axis], positions[n, axis] - high_corner[block, axis])
+                gap2 += max(gap, 0.0) ** 2
+            if math.sqrt(gap2) > math.sqrt(nearest) + PRUNING_TOLERANCE * scale:
+                continue
+            for j in range(max(block * SEGMENT_BLOCK, low), min((block + 1) * SEGMENT_BLOCK, high + 1)):
+                if j != own and not (repeats[j] and j > low):
+                    nearest = min(nearest, _segment_distance2(positions, n, starts, ends, j))
         distance[n] = math.sqrt(nearest)
     return distance
 

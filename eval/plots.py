@@ -7,13 +7,20 @@
 - ``error_bars.png``: Table 2 means with standard deviations per joint (Fig. 6 (b)) and the tracking RMS
   of each controller with its spread over episodes.
 
-Every figure's title names the scenario of the run (``scenario.toml`` in the run folder).
+Every figure's title names the scenario of the run (``scenario.toml`` in the run folder). :func:`make_plots` makes
+them all from a finished run folder; a :class:`Plotter` makes each as soon as the files it is made from are saved,
+those of the time series in a process of its own beside the command that writes the files.
 """
 
 from __future__ import annotations
 
 import csv
+from collections.abc import Callable, Collection
+from multiprocessing.connection import Connection
+from multiprocessing.context import BaseContext
+from multiprocessing.process import BaseProcess
 from pathlib import Path
+from types import TracebackType
 
 import matplotlib
 
@@ -147,15 +154,126 @@ def scenario_name(run_dir: Path) -> str:
         return str(tomllib.load(file)["name"])
 
 
+def _torque_profiles(run_dir: Path, path: Path, scenario: str) -> None:
+    with np.load(run_dir / "traces.npz") as traces:
+        torque_profiles(traces, path, scenario)
+
+
+def _table2_torques(run_dir: Path, path: Path, scenario: str) -> None:
+    with np.load(run_dir / "table2_run.npz") as run:
+        table2_torques(run, path, scenario)
+
+
+def _payload_estimate(run_dir: Path, path: Path, scenario: str) -> None:
+    with np.load(run_dir / "traces.npz") as traces, np.load(run_dir / "table2_run.npz") as run:
+        payload_estimate(traces, run, path, scenario)
+
+
+def _error_bars(run_dir: Path, path: Path, scenario: str) -> None:
+    error_bars(_read_csv(run_dir / "table2.csv"), _read_csv(run_dir / "episodes.csv"), path, scenario)
+
+
+FIGURES: dict[str, tuple[tuple[str, ...], Callable[[Path, Path, str], None]]] = {
+    "torque_profiles.png": (("traces.npz",), _torque_profiles),
+    "table2_torques.png": (("table2_run.npz",), _table2_torques),
+    "payload_estimate.png": (("traces.npz", "table2_run.npz"), _payload_estimate),
+    "error_bars.png": (("table2.csv", "episodes.csv"), _error_bars),
+}
+"""Each figure of a run folder, in the order they are made: the files it is made from (besides ``scenario.toml``)
+and the function that makes it from the run folder into its path, titled with the scenario's name."""
+
+SERIES_FIGURES = ("torque_profiles.png", "table2_torques.png", "payload_estimate.png")
+"""The figures of the time series (``.npz`` files), which a command saves before its tables: those a
+:class:`Plotter` with a process context makes in that process."""
+
+
+def _make_ready(run_dir: Path, saved: Collection[str], pending: list[str]) -> None:
+    """Make every figure of ``pending`` (names of :data:`FIGURES`) whose files are all ``saved``, in order, and take
+    it off ``pending``."""
+    ready = [name for name in pending if set(FIGURES[name][0]) <= set(saved)]
+    if ready:
+        scenario = scenario_name(run_dir)
+        for name in ready:
+            FIGURES[name][1](run_dir, run_dir / name, scenario)
+            pending.remove(name)
+
+
 def make_plots(run_dir: Path) -> list[Path]:
     """All figures of the run in ``run_dir``, from its saved files; returns their paths."""
     run_dir = Path(run_dir)
-    scenario = scenario_name(run_dir)
-    paths = [run_dir / name for name in ("torque_profiles.png", "table2_torques.png", "payload_estimate.png")]
-    paths.append(run_dir / "error_bars.png")
-    with np.load(run_dir / "traces.npz") as traces, np.load(run_dir / "table2_run.npz") as run:
-        torque_profiles(traces, paths[0], scenario)
-        table2_torques(run, paths[1], scenario)
-        payload_estimate(traces, run, paths[2], scenario)
-    error_bars(_read_csv(run_dir / "table2.csv"), _read_csv(run_dir / "episodes.csv"), paths[3], scenario)
-    return paths
+    _make_ready(run_dir, {file for files, _ in FIGURES.values() for file in files}, list(FIGURES))
+    return [run_dir / name for name in FIGURES]
+
+
+def _plot_as_saved(run_dir: Path, files: Connection, figures: list[str]) -> None:
+    """The work of a :class:`Plotter`'s process: make each of ``figures`` (names of :data:`FIGURES`) once the names
+    of all its files have come through ``files``.
+
+    Raises:
+        RuntimeError: if ``files`` closes before every figure is made.
+    """
+    saved: set[str] = set()
+    while figures:
+        try:
+            saved.update(files.recv())
+        except EOFError:
+            raise RuntimeError(_not_made(figures)) from None
+        _make_ready(run_dir, saved, figures)
+
+
+def _not_made(figures: list[str]) -> str:
+    """The error message of ``figures`` left unmade."""
+    return f"figures not made, their files were not saved: {', '.join(figures)}"
+
+
+class Plotter:
+    """The figures of a run folder (:data:`FIGURES`), each made as soon as the files it is made from are saved
+    (:meth:`saved`): all in this process, or with a ``context`` (:func:`eval.processes.pool_context`) the
+    :data:`SERIES_FIGURES` in a process of its own, on a core that the caller leaves idle while it computes and writes
+    the tables, and the others here.
+
+    A context manager: on leaving without an error, it waits for that process and raises if a figure was not made;
+    on leaving with an error, it stops that process.
+    """
+
+    def __init__(self, run_dir: Path, context: BaseContext | None = None) -> None:
+        self.run_dir = Path(run_dir)
+        self.context = context
+        self.files: set[str] = set()
+        self.here = [name for name in FIGURES if context is None or name not in SERIES_FIGURES]
+        self.process: BaseProcess | None = None
+        self.connection: Connection | None = None
+
+    def __enter__(self) -> Plotter:
+        if self.context is not None:
+            reader, self.connection = self.context.Pipe(duplex=False)
+            beside = [name for name in FIGURES if name not in self.here]
+            self.process = self.context.Process(
+                target=_plot_as_saved, args=(self.run_dir, reader, beside), name="plots"
+            )
+            self.process.start()
+            reader.close()
+        return self
+
+    def saved(self, *names: str) -> None:
+        """The files ``names`` of the run folder are saved: make the figures that now have all of theirs."""
+        self.files.update(names)
+        if self.connection is not None:
+            self.connection.send(names)
+        _make_ready(self.run_dir, self.files, self.here)
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, traceback: TracebackType | None
+    ) -> None:
+        if self.process is not None and self.connection is not None:
+            if error is not None:
+                self.process.terminate()
+            self.connection.close()
+            self.process.join()
+            if error is None and self.process.exitcode != 0:
+                raise RuntimeError(
+                    f"the process making the figures of {self.run_dir} failed (exit code {self.process.exitcode}; "
+                    "its traceback is above)"
+                )
+        if error is None and self.here:
+            raise RuntimeError(_not_made(self.here))

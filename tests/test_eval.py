@@ -179,6 +179,40 @@ def test_path_deviation_searches_the_window_around_each_sample_clipped_to_the_pa
             metrics.path_deviation(positions, path_, index, window=window)
 
 
+def _nearest_segment_distances_numpy(
+    positions: np.ndarray, starts: np.ndarray, ends: np.ndarray, centers: np.ndarray, window: int
+) -> np.ndarray:
+    """metrics._nearest_segment_distances's definition in NumPy, every segment of each window measured (m)."""
+    distances = []
+    for position, center in zip(positions, centers, strict=True):
+        low = min(max(center - window, 0), len(starts) - 1)
+        high = max(min(center + window, len(starts) - 1), low)
+        d = ends[low : high + 1] - starts[low : high + 1]
+        r = position - starts[low : high + 1]
+        length2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+        along = (r[:, 0] * d[:, 0] + r[:, 1] * d[:, 1] + r[:, 2] * d[:, 2]) / np.where(length2 > 0.0, length2, 1.0)
+        g = r - np.clip(along, 0.0, 1.0)[:, None] * d
+        distances.append(math.sqrt(np.min(g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1] + g[:, 2] * g[:, 2])))
+    return np.array(distances)
+
+
+def test_nearest_segment_search_equals_measuring_every_segment() -> None:
+    # Back-and-forth moves with dwells between them (repeated vertices), so that segments far apart in the window
+    # are near in space; positions near the path, some far off, some indices past the ends; 16 does not divide the
+    # segment count.
+    rng = np.random.default_rng(11)
+    legs = [np.linspace(a, b, 37) for a, b in ((0.0, 0.3), (0.3, 0.3), (0.3, -0.1), (-0.1, -0.1), (-0.1, 0.25))]
+    x = np.concatenate([*legs, np.full(20, 0.25)])
+    path = np.stack([x, 0.1 * np.sin(8.0 * x), np.full_like(x, -0.8)], axis=1)
+    starts, ends = np.ascontiguousarray(path[:-1]), np.ascontiguousarray(path[1:])
+    centers = np.clip(np.arange(len(path)) + rng.integers(-3, 4, size=len(path)), -20, len(path) + 20)
+    positions = path + 1e-3 * rng.normal(size=path.shape)
+    positions[::17] += 0.2 * rng.normal(size=positions[::17].shape)
+    for window in (0, 5, 40, 100, 400):
+        found = metrics._nearest_segment_distances(positions, starts, ends, centers, -window, window)
+        assert np.array_equal(found, _nearest_segment_distances_numpy(positions, starts, ends, centers, window))
+
+
 def test_path_deviation_does_not_score_a_lag_along_the_path() -> None:
     # A half circle of radius 0.1 m in 2001 samples; the platform runs 2 mm outside it, 30 samples late.
     angle = np.linspace(0.0, math.pi, 2001)

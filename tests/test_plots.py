@@ -1,0 +1,114 @@
+"""The figures of an evaluation run: made from the run folder's files, in this process or beside it."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval import plots
+from eval.processes import pool_context
+
+SAVED_FIRST = ("traces.npz",)
+SAVED_LAST = ("table2_run.npz", "table2.csv", "episodes.csv")
+
+
+def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _run_folder(folder: Path) -> Path:
+    """A run folder with the files the figures are made from: two controllers, one estimating, 300 steps."""
+    rng = np.random.default_rng(3)
+    steps, keys, labels = 300, ["pd", "mid_f_rls"], ["PD", "MId+F+RLS"]
+    (folder / "scenario.toml").write_text('name = "nominal"\n')
+    np.savez_compressed(
+        folder / "traces.npz",
+        dt=1e-3,
+        keys=np.array(keys),
+        labels=np.array(labels),
+        estimates_payload=np.array([False, True]),
+        **{f"{key}.tracking_error": 1e-3 * rng.random(steps) for key in keys},
+        **{f"{key}.torque": rng.normal(size=(steps, 3)) for key in keys},
+        **{f"{key}.payload_mass": np.full(steps + 1, 2.0) for key in keys},
+        **{f"{key}.payload_estimate": 2.0 + 0.1 * rng.normal(size=steps) for key in keys},
+    )
+    np.savez_compressed(
+        folder / "table2_run.npz",
+        time=1e-3 * np.arange(steps),
+        measured=rng.normal(size=(steps, 3)),
+        mp_0=rng.normal(size=(steps, 3)),
+        mp_hat=rng.normal(size=(steps, 3)),
+        estimate=np.full(steps, 3.7),
+        mass=np.full(steps, 3.8),
+    )
+    _write_csv(
+        folder / "table2.csv",
+        [
+            {"joint": j, "mp_0_mean": 0.1 * j, "mp_0_std": 0.2, "mp_hat_mean": 0.01, "mp_hat_std": 0.05}
+            for j in (1, 2, 3)
+        ],
+    )
+    _write_csv(
+        folder / "episodes.csv",
+        [
+            {"controller": label, "tracking_rms_mm": rms, "diverged": "False"}
+            for label in labels
+            for rms in (0.5, 0.7, 0.6)
+        ],
+    )
+    return folder
+
+
+def _figures(folder: Path) -> dict[str, bytes]:
+    return {name: (folder / name).read_bytes() for name in plots.FIGURES}
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
+    """The figures :func:`eval.plots.make_plots` makes of :func:`_run_folder`."""
+    folder = _run_folder(tmp_path_factory.mktemp("all_at_once"))
+    assert plots.make_plots(folder) == [folder / name for name in plots.FIGURES]
+    return _figures(folder)
+
+
+@pytest.mark.parametrize("beside", [False, True])
+def test_a_plotter_makes_each_figure_once_its_files_are_saved(
+    tmp_path: Path, made: dict[str, bytes], beside: bool
+) -> None:
+    folder = _run_folder(tmp_path)
+    with plots.Plotter(folder, pool_context() if beside else None) as plotter:
+        plotter.saved(*SAVED_FIRST)
+        if not beside:
+            assert (folder / "torque_profiles.png").exists() and not (folder / "payload_estimate.png").exists()
+        plotter.saved(*SAVED_LAST)
+        assert (folder / "error_bars.png").exists()
+    assert _figures(folder) == made
+
+
+@pytest.mark.parametrize("beside", [False, True])
+def test_a_plotter_raises_when_a_figure_is_not_made(tmp_path: Path, beside: bool) -> None:
+    folder = _run_folder(tmp_path)
+    context = pool_context() if beside else None
+    with pytest.raises(RuntimeError, match="figures"), plots.Plotter(folder, context) as plotter:
+        plotter.saved("traces.npz", "table2.csv", "episodes.csv")
+
+
+def test_a_plotter_raises_when_its_process_fails(tmp_path: Path) -> None:
+    folder = _run_folder(tmp_path)
+    (folder / "traces.npz").write_bytes(b"not a zip file")
+    with pytest.raises(RuntimeError, match="exit code 1"), plots.Plotter(folder, pool_context()) as plotter:
+        plotter.saved(*SAVED_FIRST, *SAVED_LAST[:1])
+
+
+def test_a_plotter_stops_its_process_when_the_caller_fails(tmp_path: Path) -> None:
+    folder = _run_folder(tmp_path)
+    with pytest.raises(KeyError, match="the caller"), plots.Plotter(folder, pool_context()) as plotter:
+        raise KeyError("the caller")
+    assert plotter.process is not None and not plotter.process.is_alive()
+    assert not any((folder / name).exists() for name in plots.FIGURES)
