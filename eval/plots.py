@@ -14,6 +14,7 @@ those of the time series in a process of its own beside the command that writes 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 from collections.abc import Callable, Collection
 from multiprocessing.connection import Connection
@@ -207,18 +208,21 @@ def make_plots(run_dir: Path) -> list[Path]:
 
 def _plot_as_saved(run_dir: Path, files: Connection, figures: list[str]) -> None:
     """The work of a :class:`Plotter`'s process: make each of ``figures`` (names of :data:`FIGURES`) once the names
-    of all its files have come through ``files``.
+    of all its files have come through ``files``, reading them until the caller closes it (so that the caller never
+    writes to a closed pipe).
 
     Raises:
         RuntimeError: if ``files`` closes before every figure is made.
     """
     saved: set[str] = set()
-    while figures:
+    while True:
         try:
             saved.update(files.recv())
         except EOFError:
-            raise RuntimeError(_not_made(figures)) from None
+            break
         _make_ready(run_dir, saved, figures)
+    if figures:
+        raise RuntimeError(_not_made(figures))
 
 
 def _not_made(figures: list[str]) -> str:
@@ -259,7 +263,8 @@ class Plotter:
         """The files ``names`` of the run folder are saved: make the figures that now have all of theirs."""
         self.files.update(names)
         if self.connection is not None:
-            self.connection.send(names)
+            with contextlib.suppress(BrokenPipeError):  # the process failed: leaving the context reports its exit code
+                self.connection.send(names)
         _make_ready(self.run_dir, self.files, self.here)
 
     def __exit__(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import time
 from pathlib import Path
 
 import numpy as np
@@ -104,6 +105,19 @@ def test_a_plotter_raises_when_its_process_fails(tmp_path: Path) -> None:
     (folder / "traces.npz").write_bytes(b"not a zip file")
     with pytest.raises(RuntimeError, match="exit code 1"), plots.Plotter(folder, pool_context()) as plotter:
         plotter.saved(*SAVED_FIRST, *SAVED_LAST[:1])
+
+
+def test_a_plotter_takes_files_after_its_process_made_its_figures(tmp_path: Path, made: dict[str, bytes]) -> None:
+    """The process's figures may all be made before the caller saves its last files (a slow caller)."""
+    folder = _run_folder(tmp_path)
+    with plots.Plotter(folder, pool_context()) as plotter:
+        plotter.saved("traces.npz", "table2_run.npz")
+        deadline = time.monotonic() + 120.0
+        while not all((folder / name).exists() for name in plots.SERIES_FIGURES) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # past the last figure's write
+        plotter.saved("table2.csv", "episodes.csv")
+    assert _figures(folder) == made
 
 
 def test_a_plotter_stops_its_process_when_the_caller_fails(tmp_path: Path) -> None:
