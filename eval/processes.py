@@ -20,11 +20,11 @@ _Output = TypeVar("_Output")
 DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
 """Worker processes of a command line unless ``--workers`` says otherwise: up to 2."""
 
-WORKER_MODULES = ("eval.tasks", "eval.identification")
-"""Modules the forkserver imports once before it forks any worker: every worker of the experiments needs
-them (MuJoCo, the env, the controllers, filterpy, numba), and a fork inherits them instead of importing them
-again. None of them imports torch; a worker that runs a residual policy whose actor is not SAC's plain MLP imports
-it itself (:func:`controllers.residual.load_residual_policy`)."""
+WORKER_MODULES = ("eval.worker_start",)
+"""Modules the forkserver imports once before it forks any worker (:mod:`eval.worker_start`: what every worker of the
+experiments needs, and numba's compiler context loaded): a fork inherits them instead of importing them again. None
+of them imports torch; a worker that runs a residual policy whose actor is not SAC's plain MLP imports it itself
+(:func:`controllers.residual.load_residual_policy`)."""
 
 
 def runs_a_pool(argv: Sequence[str]) -> bool:

@@ -1,0 +1,17 @@
+"""What the worker server runs once, before it forks the workers of every pool (:data:`eval.processes.WORKER_MODULES`).
+
+Importing this module imports what every worker of the experiments needs (:mod:`eval.tasks` and
+:mod:`eval.identification`: MuJoCo, the env, the controllers, filterpy, numba) and loads numba's compiler context
+by running one cached kernel: numba sets that context up once per process, at the first compiled call, and a fork
+inherits it instead of setting it up again in every worker.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from controllers.monitor.compiled import loop_output
+
+for module in ("eval.tasks", "eval.identification"):
+    importlib.import_module(module)
+loop_output(0.0, 0.0, 0.0, 0.0, 0.0)
