@@ -141,11 +141,6 @@ class DeltaPlant:
         """Addresses of the three motor joints in qvel (read-only copy), shape (3,)."""
         return self._motor_dofs.copy()
 
-    @property
-    def motor_qpos_addresses(self) -> NDArray[np.int_]:
-        """Addresses of the three motor joints in qpos (read-only copy), shape (3,)."""
-        return self._motor_qpos.copy()
-
     def reset(self, theta: ArrayLike | None = None) -> None:
         """Reset the data (time 0, no forces), detach and float the payload, and assemble at ``theta``.
 

@@ -244,9 +244,15 @@ def run_episode(
     reacts, speed = isinstance(inner, MonitoredController), 1.0
     # Gathered step by step as Python values (the 1 kHz loop) and stacked once the episode is over; each step's
     # truth is taken at its end, against the reference of that instant (the new observation's).
-    tracking, loop_gaps, estimates = [], [], []
-    torque, command, platform, true_angles, true_velocities = [], [], [], [], []  # three floats per step
-    reference_angles = []
+    tracking: list[float] = []
+    loop_gaps: list[float] = []
+    estimates: list[float] = []
+    torque: list[float] = []  # three floats per step, as are the next four
+    command: list[float] = []
+    platform: list[float] = []
+    true_angles: list[float] = []
+    true_velocities: list[float] = []
+    reference_angles: list[NDArray[np.float64]] = []
     saturated, speed_exceeded, thermal_exceeded = 0, 0, False
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None

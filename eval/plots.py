@@ -246,6 +246,8 @@ class Plotter:
         self.files: set[str] = set()
         self.here = [name for name in FIGURES if context is None or name not in SERIES_FIGURES]
         self.process: BaseProcess | None = None
+        self.exitcode: int | None = None
+        """The exit code of the process, once it has ended."""
         self.connection: Connection | None = None
 
     def __enter__(self) -> Plotter:
@@ -255,8 +257,13 @@ class Plotter:
             self.process = self.context.Process(
                 target=_plot_as_saved, args=(self.run_dir, reader, beside), name="plots"
             )
-            self.process.start()
-            reader.close()
+            try:
+                self.process.start()
+            except BaseException:
+                self.connection.close()
+                raise
+            finally:
+                reader.close()
         return self
 
     def saved(self, *names: str) -> None:
@@ -275,9 +282,11 @@ class Plotter:
                 self.process.terminate()
             self.connection.close()
             self.process.join()
-            if error is None and self.process.exitcode != 0:
+            self.exitcode = self.process.exitcode
+            self.process.close()
+            if error is None and self.exitcode != 0:
                 raise RuntimeError(
-                    f"the process making the figures of {self.run_dir} failed (exit code {self.process.exitcode}; "
+                    f"the process making the figures of {self.run_dir} failed (exit code {self.exitcode}; "
                     "its traceback is above)"
                 )
         if error is None and self.here:

@@ -26,7 +26,7 @@ from controllers.monitor.compiled import (
     torques_plausible,
 )
 from controllers.monitor.detector import loop_response
-from controllers.monitor.model_check import ModelCheck, _slip_band
+from controllers.monitor.model_check import COLLIDED, COLLIDING, ModelCheck, _slip_band
 from controllers.monitor.tuning import MONITOR_JERK_STD
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
 from delta_env import kernels
@@ -295,3 +295,53 @@ def test_encoders_plausible_is_the_numpy_check_with_repeats_jumps_and_nan() -> N
         assert actual == expected
         outcomes.append(expected)
     assert 0.2 < np.mean(outcomes) < 0.8  # both answers are exercised
+
+
+def _rest_inputs(offset_from: int, samples: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(angles, reference (3, 3), torque) of an arm at rest at 0.4 rad holding its model torque, with 150 N m more on
+    joint 0 from sample ``offset_from`` on (a force on the platform)."""
+    dynamics = DeltaDynamics.nominal(PARAMETERS)
+    corrections = correction_terms(None, dynamics.inertia, dynamics.gravity_amplitude, (0, 0, 0), (0, 0, 0))
+    reference = np.stack((np.full(3, 0.4), np.zeros(3), np.zeros(3)))
+    status, terms = model_residual(dynamics.model_constants, reference, reference, TORQUE_AGE, np.zeros(3), corrections)
+    assert status == kernels.VALID
+    holding = -terms[0]  # the model torque at rest
+    inputs = []
+    for sample in range(samples):
+        torque = holding + (np.array([150.0, 0.0, 0.0]) if sample >= offset_from else 0.0)
+        inputs.append((reference[0].copy(), reference, torque))
+    return inputs
+
+
+def test_model_check_detects_a_force_once_clears_it_when_quiet_and_repeats_after_a_reset() -> None:
+    dynamics = DeltaDynamics.nominal(PARAMETERS)
+    corrections = correction_terms(
+        None, dynamics.inertia, dynamics.gravity_amplitude, PARAMETERS.viscous, PARAMETERS.coulomb
+    )
+    check = ModelCheck(PARAMETERS.coulomb)
+    check.set_friction(np.array(PARAMETERS.coulomb), 1.5 * np.array(PARAMETERS.coulomb))
+    inputs = _rest_inputs(offset_from=40, samples=80)
+
+    def run() -> list[int]:
+        found = []
+        for sample, (angles, reference, torque) in enumerate(inputs):
+            quiet = sample == 70  # e.g. a replaced reading: no check on this sample
+            found.append(
+                check.check(
+                    dynamics.model_constants, corrections, angles, tuple(reference), torque, False, quiet, sample
+                )
+            )
+        return found
+
+    first = run()
+    collided = [sample for sample, bits in enumerate(first) if bits & COLLIDED]
+    # found a smoother's lag after the force starts; a quiet sample clears the evidence at its own check and again
+    # when its reading reaches the checked state, and the force, still there, is found on the next sample
+    assert collided == [40 + SMOOTHER_LAG, 71, 70 + SMOOTHER_LAG + 1]
+    assert not any(bits & COLLIDING for bits in first[: collided[0]])
+    assert all(bits & COLLIDING for bits in first[collided[0] : 70])
+    assert not first[70] & COLLIDING and not first[70 + SMOOTHER_LAG] & COLLIDING
+    assert check.force_magnitude > 100.0
+    state = check._state.tobytes()
+    check.reset()
+    assert run() == first and check._state.tobytes() == state

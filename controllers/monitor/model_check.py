@@ -171,7 +171,8 @@ class ModelCheck:
     ) -> int:
         """Take one clean reading (rad) with its reference's angles, rates and accelerations (rad, rad/s, rad/s^2),
         its torque (N m), gripper and quiet flag; check the state :attr:`lag` samples ago; return the bits
-        :data:`SLIPPED`, :data:`COLLIDED`, :data:`COLLIDING`. ``sample`` is the reading's index since the reset."""
+        :data:`SLIPPED`, :data:`COLLIDED`, :data:`COLLIDING`. ``sample`` is the reading's index since the reset.
+        The readings must be finite (the monitor's clean ones are): nothing here checks them."""
         return check_sample(
             self._bytes, model_constants, corrections, angles, *reference, torque, holding, quiet, sample
         )
@@ -214,18 +215,24 @@ def _restart_held(check: np.record, sample: int) -> None:
 
 @numba.njit(cache=True)
 def _slip_band(theta_dot: NDArray[np.float64], static_friction: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The static friction band (N m) of :func:`controllers.payload.residual_std` with no nominal residual."""
+    """:func:`controllers.payload.residual_std` with no nominal residual (N m): the static friction band of joints at
+    ``theta_dot`` (rad/s), with libm's exp (NumPy's vectorized one may differ in the last bit)."""
     band = np.empty(3)
     for joint in range(3):
         scaled = theta_dot[joint] / FRICTION_VELOCITY
         friction = static_friction[joint] * math.exp(-(scaled**2))
-        band[joint] = math.sqrt(0.0**2 + FRICTION_CORRELATION_SAMPLES * friction**2)
+        band[joint] = math.sqrt(FRICTION_CORRELATION_SAMPLES * friction**2)
     return band
 
 
 @numba.njit(cache=True)
 def _check_payload(
-    check: np.record, terms: NDArray[np.float64], holding: bool, quiet: bool, jerk_variance: NDArray[np.float64], k: int
+    check: np.record,
+    terms: NDArray[np.float64],
+    holding: bool,
+    quiet: bool,
+    jerk_variance: NDArray[np.float64],
+    sample: int,
 ) -> int:
     """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
     since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi are
@@ -237,7 +244,7 @@ def _check_payload(
             learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
         return 0
     if check.held_since < 0:
-        _restart_held(check, k)
+        _restart_held(check, sample)
         check.slip_armed = True
     if quiet or not check.slip_armed:
         return 0
@@ -245,7 +252,7 @@ def _check_payload(
         learn_scatter(check.scatter, terms, check.held_mass, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
     band = _slip_band(terms[2], check.static_friction)
     information, moment = slip_moments(terms, band, check.scatter + jerk_variance)
-    if (k - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
+    if (sample - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
         held = check.held_moment / check.held_information
         if check.held_information**-0.5 < HELD_MASS_STD:
             check.held_mass = held
@@ -267,7 +274,7 @@ def _check_payload(
 
 
 @numba.njit(cache=True)
-def _check_force(check: np.record, terms: NDArray[np.float64], holding: bool, quiet: bool, k: int) -> int:
+def _check_force(check: np.record, terms: NDArray[np.float64], holding: bool, quiet: bool, sample: int) -> int:
     """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
     residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
     without its part along phi), less on joints slower than :data:`REST_RATE` what friction up to the breakaway
@@ -297,7 +304,7 @@ def _check_force(check: np.record, terms: NDArray[np.float64], holding: bool, qu
     if check.force_evidence == 0.0 and check.collision:
         check.collision = False
         if check.held_since >= 0 and check.slip_armed:  # what the collision left in the mass held: afresh
-            _restart_held(check, k)
+            _restart_held(check, sample)
     return 0
 
 
@@ -313,7 +320,7 @@ def check_sample(
     torque: NDArray[np.float64],
     holding: bool,
     quiet: bool,
-    k: int,
+    sample: int,
 ) -> int:
     """One sample of :meth:`ModelCheck.check` on the :data:`MODEL_CHECK` record ``check_bytes`` (in place); the
     model's constants of :class:`~controllers.dynamics.DeltaDynamics` and the corrections of
@@ -353,15 +360,14 @@ def check_sample(
     check.previous[:, :] = state
     check.has_previous = True
     held_then = check.pending_holding[head] != 0
-    quiet_then = (
-        check.pending_quiet[head] != 0 or quiet
-    )  # a faulty reading found since lies in the smoothing window too
+    # a faulty reading found since lies in the smoothing window too
+    quiet_then = check.pending_quiet[head] != 0 or quiet
     # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
     status, terms = model_residual(
         model_constants, state, previous, TORQUE_AGE, check.pending_torque[head].copy(), corrections
     )
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if check.collision else 0
-    found = _check_payload(check, terms, held_then, quiet_then, jerk_variance, k)
-    found |= _check_force(check, terms, held_then, quiet_then, k)
+    found = _check_payload(check, terms, held_then, quiet_then, jerk_variance, sample)
+    found |= _check_force(check, terms, held_then, quiet_then, sample)
     return found | (COLLIDING if check.collision else 0)
