@@ -123,8 +123,9 @@ class PayloadEstimator:
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
-        joint_filter: The :class:`JointStateSmoother` of the tracking error (``"smoothed"``) or the
-            :class:`JointStateFilter` of the measured joints (``"filtered"``); None with ``regressor="reference"``.
+        joint_filter: The :class:`JointStateSmoother` of the tracking error (``"smoothed"``: its weights; the
+            compiled step keeps the window, :mod:`controllers.payload.smoothed`) or the :class:`JointStateFilter` of
+            the measured joints (``"filtered"``); None with ``regressor="reference"``.
         delay: Control periods between the newest observation and the sample whose equation is formed: the
             smoother's lag, the filter's acceleration lag, or 0 with ``regressor="reference"``.
         empty_moves: The checked seed sums (:class:`EmptyMoveSums`), or None.
