@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 import math
 
+import numba
 import numpy as np
 import scipy.linalg
 from filterpy.common import Q_continuous_white_noise, kinematic_state_transition
@@ -399,19 +400,20 @@ class PayloadRLS:
         self.initial_variance = float(initial_variance)
         self.noise_variance = float(noise_std) ** 2
         """s^2 (N^2 m^2)."""
-        self._inverse_forgetting = 1.0 / self.forgetting_factor
-        self._mass = float(initial_mass)
-        self._variance = self.initial_variance
+        self.inverse_forgetting = 1.0 / self.forgetting_factor
+        """1 / lambda."""
+        self.state_array = np.array([float(initial_mass), self.initial_variance])
+        """(mass (kg), variance (kg^2)), which compiled callers update in place with :func:`rls_update`."""
 
     @property
     def mass(self) -> float:
         """Estimated payload mass (kg)."""
-        return self._mass
+        return self.state_array.item(0)
 
     @property
     def variance(self) -> float:
         """Variance of the estimate (kg^2), as far as ``noise_std`` describes e."""
-        return self._variance
+        return self.state_array.item(1)
 
     def update(self, phi: ArrayLike, y: ArrayLike) -> float:
         """Fuse one sample and return the new mass estimate (kg).
@@ -429,26 +431,36 @@ class PayloadRLS:
 
         No checks: the caller (the 1 kHz estimator) forms finite moments.
         """
-        prior = self._variance * self._inverse_forgetting
-        denominator = self.noise_variance + prior * information
-        self._mass += prior * (moment - information * self._mass) / denominator
-        self._variance = prior * self.noise_variance / denominator
-        return self._mass
+        return rls_update(self.state_array, information, moment, self.inverse_forgetting, self.noise_variance)
 
     @property
     def state(self) -> tuple[float, float]:
         """(mass (kg), variance (kg^2)): everything the estimator remembers."""
-        return self._mass, self._variance
+        mass, variance = self.state_array.tolist()
+        return mass, variance
 
     @state.setter
     def state(self, value: tuple[float, float]) -> None:
-        self._mass, self._variance = float(value[0]), float(value[1])
+        self.state_array[0], self.state_array[1] = float(value[0]), float(value[1])
 
     def reset_covariance(self) -> None:
         """Restore the prior variance, keeping the estimate: call it at a pick or a release."""
-        self._variance = self.initial_variance
+        self.state_array[1] = self.initial_variance
 
     def reset(self, mass: float) -> None:
         """Restart from a known mass (kg) with the prior variance."""
-        self._mass = float(mass)
+        self.state_array[0] = float(mass)
         self.reset_covariance()
+
+
+@numba.njit(cache=True)
+def rls_update(
+    state: NDArray[np.float64], information: float, moment: float, inverse_forgetting: float, noise_variance: float
+) -> float:
+    """:meth:`PayloadRLS.update_moments` on ``state`` (mass (kg), variance (kg^2)), in place, with 1 / lambda and
+    s^2 (N^2 m^2); returns the mass (kg)."""
+    prior = state[1] * inverse_forgetting
+    denominator = noise_variance + prior * information
+    state[0] += prior * (moment - information * state[0]) / denominator
+    state[1] = prior * noise_variance / denominator
+    return state[0]

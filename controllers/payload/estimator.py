@@ -21,7 +21,8 @@ from controllers.payload.equation import (
     PLATFORM_MASS,
     solve_fit,
 )
-from controllers.payload.regressors import REGRESSORS, Regressor
+from controllers.payload.regressors import REGRESSORS, Regressor, SmoothedRegressor
+from controllers.payload.smoothed import smoothed_update
 from controllers.payload.tuning import (
     DROP_VARIANCE,
     FRICTION_CORRELATION_SAMPLES,
@@ -122,8 +123,9 @@ class PayloadEstimator:
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
-        joint_filter: The :class:`JointStateSmoother` of the tracking error (``"smoothed"``) or the
-            :class:`JointStateFilter` of the measured joints (``"filtered"``); None with ``regressor="reference"``.
+        joint_filter: The :class:`JointStateSmoother` of the tracking error (``"smoothed"``: its weights; the
+            compiled step keeps the window, :mod:`controllers.payload.smoothed`) or the :class:`JointStateFilter` of
+            the measured joints (``"filtered"``); None with ``regressor="reference"``.
         delay: Control periods between the newest observation and the sample whose equation is formed: the
             smoother's lag, the filter's acceleration lag, or 0 with ``regressor="reference"``.
         empty_moves: The checked seed sums (:class:`EmptyMoveSums`), or None.
@@ -196,6 +198,10 @@ class PayloadEstimator:
         self._solution = self._fit["solution"][0]
         self._regressor: Regressor = REGRESSORS[regressor](dynamics, self._equation_bytes, self._fit_bytes)
         self._moments = self._regressor.moments
+        # The "smoothed" regressor's compiled step takes the RLS with it (:func:`smoothed_update`).
+        self._smoothed = self._regressor if isinstance(self._regressor, SmoothedRegressor) else None
+        self._rls_state = self.rls.state_array
+        self._rls_inverse_forgetting, self._rls_noise_variance = self.rls.inverse_forgetting, self.rls.noise_variance
         self.joint_filter: JointStateSmoother | JointStateFilter | None = self._regressor.joint_filter
         self.delay: int = self._regressor.delay
         self.empty_moves = None if empty_moves is None else _checked_sums(empty_moves)
@@ -205,7 +211,8 @@ class PayloadEstimator:
         self._holding = False
         # The fit and RLS state of the last n updates (keep_checkpoints), in a ring.
         self._fit_checkpoints: NDArray | None = None
-        self._rls_checkpoints: NDArray[np.float64] | None = None
+        self._fit_checkpoint_bytes = np.zeros(0, np.uint8)  # their bytes, for the compiled step
+        self._rls_checkpoints = np.zeros((0, 2))
         self._checkpoint = self._checkpointed = 0  # the ring's next slot; how many of its updates a rollback may undo
         self._skip = 0
 
@@ -289,27 +296,51 @@ class PayloadEstimator:
                 self.rls.reset_covariance()
             else:
                 self.rls.reset(self.tare)  # released: the object is known to be gone
-        if self._fit_checkpoints is None:
+        checkpoints, slot, skip = self._fit_checkpoints, -1, self._skip > 0
+        if checkpoints is not None:
+            slot = self._checkpoint
+            self._checkpoint = (slot + 1) % len(checkpoints)
+            self._checkpointed = min(self._checkpointed + 1, len(checkpoints))
+        smoothed = self._smoothed
+        if smoothed is not None:  # checkpoint, equation, skip and RLS in one compiled call
+            status, apparent_mass = smoothed_update(
+                smoothed.state,
+                smoothed.model,
+                self._equation_bytes,
+                self._fit_bytes,
+                self._rls_state,
+                self._rls_inverse_forgetting,
+                self._rls_noise_variance,
+                self._fit_checkpoint_bytes,
+                self._rls_checkpoints,
+                slot,
+                skip,
+                observation["joint_angles"],
+                observation["reference_angles"],
+                observation["reference_velocities"],
+                observation["reference_accelerations"],
+                observation["joint_torques"],
+                holding,
+            )
+            smoothed.raise_invalid(status, observation)
+        else:
+            if checkpoints is not None:
+                checkpoints[slot] = self._fit[0]
+                self._rls_checkpoints[slot] = self.rls.state
             moments = self._moments(observation, holding, reference_torque, reference_regressor)
-            if moments is not None:
+            if skip:
+                self._fit[0] = checkpoints[slot]  # the sample entered neither the fit nor the RLS
+            elif moments is not None:
                 self.rls.update_moments(*moments)
-            return self.apparent_mass
-        slot = self._checkpoint
-        self._checkpoint = (slot + 1) % len(self._fit_checkpoints)
-        self._checkpointed = min(self._checkpointed + 1, len(self._fit_checkpoints))
-        self._fit_checkpoints[slot] = self._fit[0]
-        self._rls_checkpoints[slot] = self.rls.state
-        moments = self._moments(observation, holding, reference_torque, reference_regressor)
-        if self._skip > 0:
+            apparent_mass = self.apparent_mass
+        if skip:
             self._skip -= 1
-            self._fit[0] = self._fit_checkpoints[slot]  # the sample entered neither the fit nor the RLS
-        elif moments is not None:
-            self.rls.update_moments(*moments)
-        return self.apparent_mass
+        return apparent_mass
 
     def keep_checkpoints(self, samples: int) -> None:
         """Keep the fit and RLS state of the last ``samples`` updates so that :meth:`rollback` can undo them."""
         self._fit_checkpoints = np.zeros(samples, FIT)
+        self._fit_checkpoint_bytes = self._fit_checkpoints.view(np.uint8)
         self._rls_checkpoints = np.zeros((samples, 2))
         self._checkpoint = self._checkpointed = 0
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import collections
 import copy
-from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Protocol
 
@@ -20,6 +19,7 @@ from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import JointStateFilter, JointStateSmoother
 from controllers.payload.equation import estimated_state_equation, reference_equation
+from controllers.payload.smoothed import SMOOTHED, smoothed_moments
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 
@@ -97,38 +97,32 @@ class ReferenceRegressor:
         return (information, moment) if used else None
 
 
-class _EstimatedStateRegressor(ABC):
-    """tau0 and phi on a joint-state estimate of sample k - D, with the torque measured with that sample."""
+class SmoothedRegressor:
+    """The fixed-lag smoother's estimate of sample k - L (``regressor="smoothed"``): it smooths the tracking error
+    theta - theta_ref, and the reference's exact derivatives at sample k - L are added back; tau0 and phi there,
+    with the torque measured with that sample. Its state is a :data:`~controllers.payload.smoothed.SMOOTHED`
+    record, one compiled call per sample (:func:`~controllers.payload.smoothed.smoothed_moments`, or the
+    estimator's :func:`~controllers.payload.smoothed.smoothed_update`).
 
-    def __init__(
-        self,
-        dynamics: DeltaDynamics,
-        equation: NDArray[np.uint8],
-        fit: NDArray[np.uint8],
-        joint_filter: JointStateSmoother | JointStateFilter,
-        delay: int,
-    ) -> None:
+    Attributes:
+        joint_filter: The :class:`JointStateSmoother` whose weights the record holds (the record keeps the window).
+        state: The record's bytes.
+    """
+
+    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
         self.dynamics = dynamics
-        self._model, self._equation, self._fit = dynamics.model_constants, equation, fit
-        self.joint_filter = joint_filter
-        self.delay = delay
-        # (what the joint state of the sample is formed from, measured torque, gripper holding) of the last D + 1.
-        self._history: collections.deque[tuple[NDArray, list[float], bool]] = collections.deque(maxlen=delay + 1)
-        self._started = False
-        self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
+        self.model, self._equation, self._fit = dynamics.model_constants, equation, fit
+        self.joint_filter = JointStateSmoother()
+        self.delay = self.joint_filter.lag
+        self.state = np.zeros(1, SMOOTHED).view(np.uint8)
+        self._record = self.state.view(SMOOTHED)
+        self._record["weights"] = self.joint_filter.weights
+        self.reset()
 
     def reset(self) -> None:
-        self._started = False
-        self._previous_state = None
-        self._history.clear()
-
-    @abstractmethod
-    def _observe(self, observation: Observation) -> tuple[NDArray, NDArray]:
-        """Update the joint filter: its newest output and what to keep of this sample in the history."""
-
-    @abstractmethod
-    def _state(self, newest: NDArray, delayed: NDArray) -> NDArray[np.float64]:
-        """The (3, 3) joint state of sample k - D from the filter's newest output and that sample's history entry."""
+        record = self._record
+        record["started"] = record["has_previous"] = False
+        record["next_slot"] = record["pending_head"] = record["pending_count"] = 0
 
     def moments(
         self,
@@ -137,13 +131,71 @@ class _EstimatedStateRegressor(ABC):
         reference_torque: NDArray[np.float64] | None,
         reference_regressor: NDArray[np.float64] | None,
     ) -> tuple[float, float] | None:
-        """The equation at the estimated state of sample k - D (the reference's tau0 and phi are not used)."""
-        newest, kept = self._observe(observation)
-        self._history.append((kept, observation["joint_torques"].tolist(), holding))
+        """The equation at the smoothed state of sample k - L (the reference's tau0 and phi are not used)."""
+        status, used, information, moment = smoothed_moments(
+            self.state,
+            self.model,
+            self._equation,
+            self._fit,
+            observation["joint_angles"],
+            observation["reference_angles"],
+            observation["reference_velocities"],
+            observation["reference_accelerations"],
+            observation["joint_torques"],
+            holding,
+        )
+        self.raise_invalid(status, observation)
+        return (information, moment) if used else None
+
+    def raise_invalid(self, status: int, observation: Observation) -> None:
+        """Raise ValueError for a status of the compiled step other than VALID: a reading whose tracking error is
+        not finite, or a smoothed state the model cannot take."""
+        if status == kernels.NOT_FINITE:
+            error = observation["joint_angles"] - observation["reference_angles"]
+            raise ValueError(f"the tracking error must be 3 finite values (one per joint), got {error!r}")
+        if status != kernels.VALID:
+            state = self._record["previous"][0].copy()
+            raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
+
+
+class FilteredRegressor:
+    """The causal Kalman filter's estimate (``regressor="filtered"``): angle and rate of sample k - D with the
+    acceleration estimated at sample k, D its acceleration lag (:func:`acceleration_lag`) in samples; tau0 and phi
+    there, with the torque measured with sample k - D."""
+
+    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
+        self.dynamics = dynamics
+        self._model, self._equation, self._fit = dynamics.model_constants, equation, fit
+        self.joint_filter = JointStateFilter()
+        self.delay = round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
+        # (the filter's estimate, measured torque, gripper holding) of the last D + 1 samples.
+        self._history: collections.deque[tuple[NDArray, list[float], bool]] = collections.deque(maxlen=self.delay + 1)
+        self._started = False
+        self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
+
+    def reset(self) -> None:
+        self._started = False
+        self._previous_state = None
+        self._history.clear()
+
+    def moments(
+        self,
+        observation: Observation,
+        holding: bool,
+        reference_torque: NDArray[np.float64] | None,
+        reference_regressor: NDArray[np.float64] | None,
+    ) -> tuple[float, float] | None:
+        """The equation at the filtered state of sample k - D (the reference's tau0 and phi are not used)."""
+        angles = observation["joint_angles"]
+        if not self._started:
+            self.joint_filter.reset(angles)
+            self._started = True
+        newest = self.joint_filter.update(angles)
+        self._history.append((newest, observation["joint_torques"].tolist(), holding))
         if len(self._history) <= self.delay:
             return None
         delayed, torque, held = self._history[0]
-        state = self._state(newest, delayed)
+        state = np.array((delayed[0], delayed[1], newest[2]))
         previous_state = self._previous_state if self._previous_state is not None else state
         self._previous_state = state
         if holding != held:
@@ -155,53 +207,6 @@ class _EstimatedStateRegressor(ABC):
         if status != kernels.VALID:
             raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
         return (information, moment) if used else None
-
-
-class SmoothedRegressor(_EstimatedStateRegressor):
-    """The fixed-lag smoother's estimate of sample k - L (``regressor="smoothed"``): it smooths the tracking error
-    theta - theta_ref, and the reference's exact derivatives at sample k - L are added back."""
-
-    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
-        smoother = JointStateSmoother()
-        super().__init__(dynamics, equation, fit, smoother, smoother.lag)
-
-    def _observe(self, observation: Observation) -> tuple[NDArray, NDArray]:
-        angles = observation["joint_angles"]
-        reference = np.array(
-            (
-                observation["reference_angles"],
-                observation["reference_velocities"],
-                observation["reference_accelerations"],
-            )
-        )
-        if not self._started:
-            self.joint_filter.reset(angles - reference[0])
-            self._started = True
-        return self.joint_filter.update_state(angles - reference[0]), reference
-
-    def _state(self, newest: NDArray, delayed: NDArray) -> NDArray[np.float64]:
-        return newest + delayed
-
-
-class FilteredRegressor(_EstimatedStateRegressor):
-    """The causal Kalman filter's estimate (``regressor="filtered"``): angle and rate of sample k - D with the
-    acceleration estimated at sample k, D its acceleration lag (:func:`acceleration_lag`) in samples."""
-
-    def __init__(self, dynamics: DeltaDynamics, equation: NDArray[np.uint8], fit: NDArray[np.uint8]) -> None:
-        joint_filter = JointStateFilter()
-        delay = round(acceleration_lag(joint_filter) / CONTROL_PERIOD)
-        super().__init__(dynamics, equation, fit, joint_filter, delay)
-
-    def _observe(self, observation: Observation) -> tuple[NDArray, NDArray]:
-        angles = observation["joint_angles"]
-        if not self._started:
-            self.joint_filter.reset(angles)
-            self._started = True
-        estimate = self.joint_filter.update(angles)
-        return estimate, estimate
-
-    def _state(self, newest: NDArray, delayed: NDArray) -> NDArray[np.float64]:
-        return np.array((delayed[0], delayed[1], newest[2]))
 
 
 REGRESSORS: dict[str, Callable[[DeltaDynamics, NDArray[np.uint8], NDArray[np.uint8]], Regressor]] = {

@@ -1,0 +1,198 @@
+"""The ``"smoothed"`` regressor's step, compiled for the 1 kHz loop: the fixed-lag smoother of the tracking error,
+the readings it lags behind, the payload equation at the smoothed state and, in :func:`smoothed_update`, the
+estimator's checkpoint and RLS update, in one call.
+
+:data:`SMOOTHED` holds the regressor's state; the kernels take its bytes, as those of
+:mod:`controllers.payload.equation` take the :data:`~controllers.payload.equation.EQUATION` and
+:data:`~controllers.payload.equation.FIT` records'.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_LAG, rls_update
+from controllers.payload.equation import FIT, PLATFORM_MASS, estimated_state_equation
+from delta_env import kernels
+
+WINDOW = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
+"""Readings in the smoother's window (the regressor's smoother has the default history and lag)."""
+
+SMOOTHED = np.dtype(
+    (
+        np.record,
+        [
+            # JointStateSmoother's weights and window of tracking errors (each reading written twice)
+            ("weights", np.float64, (3, WINDOW)),
+            ("readings", np.float64, (2 * WINDOW, 3)),
+            ("next_slot", np.int64),
+            ("started", np.bool_),
+            # the readings the smoothed state lags behind, oldest at pending_head
+            ("pending_reference", np.float64, (SMOOTHER_LAG + 1, 3, 3)),
+            ("pending_torque", np.float64, (SMOOTHER_LAG + 1, 3)),
+            ("pending_holding", np.uint8, (SMOOTHER_LAG + 1,)),  # flags (numba has no boolean subarrays)
+            ("pending_head", np.int64),
+            ("pending_count", np.int64),
+            # the state of the last equation's sample
+            ("previous", np.float64, (3, 3)),
+            ("has_previous", np.bool_),
+        ],
+    )
+)
+"""The state of :func:`smoothed_moments` and :func:`smoothed_update`: rows of the joint states theta (rad),
+theta_dot (rad/s), theta_ddot (rad/s^2), torques (N m)."""
+
+
+@numba.njit(cache=True, inline="always")
+def _smoothed_equation(
+    regressor: NDArray[np.uint8],
+    model: NDArray[np.uint8],
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
+    angles: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    holding: bool,
+) -> tuple[int, bool, float, float]:
+    """Take one reading; the equation of the sample a lag ago: (status, used, sum w phi^2, sum w phi y).
+
+    The status is :data:`~delta_env.kernels.NOT_FINITE` for a reading whose tracking error is not finite (nothing
+    changes), else the model's at the smoothed state (that state is then in ``previous``).
+    """
+    r = regressor.view(SMOOTHED)[0]
+    error = angles - reference_angles
+    if not math.isfinite(error[0] + error[1] + error[2]):
+        return kernels.NOT_FINITE, False, 0.0, 0.0
+    # the smoother (JointStateSmoother.update_state), started at rest at the first reading
+    if not r.started:
+        for row in range(2 * WINDOW):
+            r.readings[row, :] = error
+        r.next_slot = 0
+        r.started = True
+    slot = r.next_slot
+    r.readings[slot, :] = error
+    r.readings[slot + WINDOW, :] = error
+    r.next_slot = slot + 1 if slot + 1 < WINDOW else 0
+    smoothed_error = np.dot(r.weights, np.ascontiguousarray(r.readings[slot + 1 : slot + 1 + WINDOW]))
+    # the readings the smoothed state lags behind
+    tail = (r.pending_head + r.pending_count) % (SMOOTHER_LAG + 1)
+    r.pending_reference[tail, 0, :] = reference_angles
+    r.pending_reference[tail, 1, :] = reference_rates
+    r.pending_reference[tail, 2, :] = reference_accelerations
+    r.pending_torque[tail, :] = torque
+    r.pending_holding[tail] = holding
+    r.pending_count += 1
+    if r.pending_count <= SMOOTHER_LAG:
+        return kernels.VALID, False, 0.0, 0.0
+    head = r.pending_head
+    r.pending_head = (head + 1) % (SMOOTHER_LAG + 1)
+    r.pending_count -= 1
+    state = smoothed_error + r.pending_reference[head]
+    previous = r.previous.copy() if r.has_previous else state
+    r.previous[:, :] = state
+    r.has_previous = True
+    if holding != (r.pending_holding[head] != 0):
+        return kernels.VALID, False, 0.0, 0.0
+    # the torque of sample k - L was measured MEASURED_TORQUE_DELAY before its encoder sample
+    t = r.pending_torque[head]
+    return estimated_state_equation(model, equation, fit, state, previous, holding, t[0], t[1], t[2])
+
+
+@numba.njit(cache=True)
+def smoothed_moments(
+    regressor: NDArray[np.uint8],
+    model: NDArray[np.uint8],
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
+    angles: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    holding: bool,
+) -> tuple[int, bool, float, float]:
+    """One reading of the :data:`SMOOTHED` record ``regressor`` (in place): (status, used, moments) of the
+    equation a lag ago (:func:`_smoothed_equation`); angles (rad), the reference's angles, rates and accelerations
+    (rad, rad/s, rad/s^2) and torque (N m), each (3,)."""
+    return _smoothed_equation(
+        regressor,
+        model,
+        equation,
+        fit,
+        angles,
+        reference_angles,
+        reference_rates,
+        reference_accelerations,
+        torque,
+        holding,
+    )
+
+
+@numba.njit(cache=True)
+def _copy_fit(source: np.record, target: np.record) -> None:
+    """Every field of the :data:`~controllers.payload.equation.FIT` record ``source`` into ``target``."""
+    target.information[:, :] = source.information
+    target.moment[:] = source.moment
+    target.solution[:] = source.solution
+    target.stale = source.stale
+    target.samples = source.samples
+
+
+@numba.njit(cache=True)
+def smoothed_update(
+    regressor: NDArray[np.uint8],
+    model: NDArray[np.uint8],
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
+    rls: NDArray[np.float64],
+    inverse_forgetting: float,
+    noise_variance: float,
+    fit_checkpoints: NDArray[np.uint8],
+    rls_checkpoints: NDArray[np.float64],
+    slot: int,
+    skip: bool,
+    angles: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    holding: bool,
+) -> tuple[int, float]:
+    """:meth:`~controllers.payload.estimator.PayloadEstimator.update`'s step after the gripper's edges: (status of
+    :func:`smoothed_moments`, apparent mass (kg)).
+
+    ``rls`` is the :class:`~controllers.estimation.PayloadRLS` state (mass (kg), variance (kg^2)), updated in place
+    with its 1 / lambda and s^2. With ``slot`` >= 0 the fit and ``rls`` are first saved into that slot of the
+    checkpoint rings (``fit_checkpoints``, the bytes of :data:`~controllers.payload.equation.FIT` records, and
+    ``rls_checkpoints``, (n, 2)); with ``skip`` the sample then enters neither the fit nor the RLS.
+    """
+    f = fit.view(FIT)[0]
+    if slot >= 0:
+        _copy_fit(f, fit_checkpoints.view(FIT)[slot])
+        rls_checkpoints[slot, 0] = rls[0]
+        rls_checkpoints[slot, 1] = rls[1]
+    status, used, information, moment = _smoothed_equation(
+        regressor,
+        model,
+        equation,
+        fit,
+        angles,
+        reference_angles,
+        reference_rates,
+        reference_accelerations,
+        torque,
+        holding,
+    )
+    if status != kernels.VALID:
+        return status, 0.0
+    if skip:
+        _copy_fit(fit_checkpoints.view(FIT)[slot], f)
+    elif used:
+        rls_update(rls, information, moment, inverse_forgetting, noise_variance)
+    return status, rls[0] + f.solution[PLATFORM_MASS]
