@@ -268,6 +268,9 @@ SMOOTHER_HISTORY = 20
 """Default readings (samples) before the estimated one that :class:`JointStateSmoother` uses: longer
 windows give the same payload estimates."""
 
+SMOOTHER_WINDOW = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
+"""Readings in the window of a :class:`JointStateSmoother` with the default history and lag."""
+
 
 class JointStateSmoother:
     """Fixed-lag Kalman smoother of the joint angles, rates and accelerations for the 1 kHz controller.
@@ -358,6 +361,25 @@ class JointStateSmoother:
         self._next = slot + 1 if slot + 1 < window else 0
         self._buffer = 1 - self._buffer
         return np.matmul(self.weights, self._readings[slot + 1 : slot + 1 + window], out=self._estimates[self._buffer])
+
+
+@numba.njit(cache=True)
+def fixed_lag_step(
+    weights: NDArray[np.float64], readings: NDArray[np.float64], slot: int, reading: NDArray[np.float64], restart: bool
+) -> tuple[NDArray[np.float64], int]:
+    """:meth:`JointStateSmoother.update_state` on a window a compiled caller keeps: ``reading`` (3,) into ``readings``
+    ((2 W, 3), each reading written twice so that the last W are one slice) at ``slot``, after filling the window with
+    it if ``restart`` (:meth:`JointStateSmoother.reset`); returns the estimate (3, 3: theta, theta_dot, theta_ddot of
+    the reading a lag ago, in the reading's units) and the next slot. ``weights`` are the smoother's."""
+    window = weights.shape[1]
+    if restart:
+        for row in range(2 * window):
+            readings[row, :] = reading
+        slot = 0
+    readings[slot, :] = reading
+    readings[slot + window, :] = reading
+    estimate = np.dot(weights, np.ascontiguousarray(readings[slot + 1 : slot + 1 + window]))
+    return estimate, (slot + 1 if slot + 1 < window else 0)
 
 
 class PayloadRLS:

@@ -15,7 +15,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_LAG, JointStateSmoother
+from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother, fixed_lag_step
 from controllers.monitor.compiled import (
     learn_scatter,
     model_residual,
@@ -40,9 +40,6 @@ from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY,
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 
-WINDOW = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
-"""Readings in the smoother's window (the monitor's smoother has the default history and lag)."""
-
 SLIPPED, COLLIDED, COLLIDING = 1, 2, 4
 """Bits of :func:`check_sample`'s result: a slip detected on this sample, a collision detected on it, a collision
 under way after it."""
@@ -52,13 +49,13 @@ MODEL_CHECK = np.dtype(
         np.record,
         [
             # the smoother of the tracking error (JointStateSmoother's window, each reading written twice)
-            ("weights", np.float64, (3, WINDOW)),
-            ("readings", np.float64, (2 * WINDOW, 3)),
+            ("weights", np.float64, (3, SMOOTHER_WINDOW)),
+            ("readings", np.float64, (2 * SMOOTHER_WINDOW, 3)),
             ("next_slot", np.int64),
             ("started", np.bool_),
             # the measured torques of the window and the one before, and the smoother's response to a step
-            ("torques", np.float64, (WINDOW + 1, 3)),
-            ("squared_response", np.float64, (WINDOW,)),
+            ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
+            ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
             # the readings the smoothed state lags behind, oldest at pending_head
             ("pending_reference", np.float64, (SMOOTHER_LAG + 1, 3, 3)),
             ("pending_torque", np.float64, (SMOOTHER_LAG + 1, 3)),
@@ -326,20 +323,14 @@ def check_sample(
     model's constants of :class:`~controllers.dynamics.DeltaDynamics` and the corrections of
     :func:`~controllers.monitor.compiled.correction_terms`."""
     check = check_bytes.view(MODEL_CHECK)[0]
-    # the smoother (JointStateSmoother.update_state) of the tracking error
-    error = angles - reference_angles
+    # the smoother of the tracking error, started at rest at the first reading
+    smoothed_error, check.next_slot = fixed_lag_step(
+        check.weights, check.readings, check.next_slot, angles - reference_angles, not check.started
+    )
     if not check.started:
-        for row in range(2 * WINDOW):
-            check.readings[row, :] = error
-        check.next_slot = 0
-        for row in range(WINDOW + 1):
+        for row in range(SMOOTHER_WINDOW + 1):
             check.torques[row, :] = torque
         check.started = True
-    slot = check.next_slot
-    check.readings[slot, :] = error
-    check.readings[slot + WINDOW, :] = error
-    check.next_slot = slot + 1 if slot + 1 < WINDOW else 0
-    smoothed_error = np.dot(check.weights, np.ascontiguousarray(check.readings[slot + 1 : slot + 1 + WINDOW]))
     jerk_variance = torque_step_variance(check.torques, torque, check.squared_response)
     # the readings the smoothed state lags behind
     tail = (check.pending_head + check.pending_count) % (SMOOTHER_LAG + 1)

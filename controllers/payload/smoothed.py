@@ -15,20 +15,17 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_LAG, rls_update
+from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, fixed_lag_step, rls_update
 from controllers.payload.equation import FIT, PLATFORM_MASS, estimated_state_equation
 from delta_env import kernels
-
-WINDOW = SMOOTHER_HISTORY + SMOOTHER_LAG + 1
-"""Readings in the smoother's window (the regressor's smoother has the default history and lag)."""
 
 SMOOTHED = np.dtype(
     (
         np.record,
         [
             # JointStateSmoother's weights and window of tracking errors (each reading written twice)
-            ("weights", np.float64, (3, WINDOW)),
-            ("readings", np.float64, (2 * WINDOW, 3)),
+            ("weights", np.float64, (3, SMOOTHER_WINDOW)),
+            ("readings", np.float64, (2 * SMOOTHER_WINDOW, 3)),
             ("next_slot", np.int64),
             ("started", np.bool_),
             # the readings the smoothed state lags behind, oldest at pending_head
@@ -69,17 +66,9 @@ def _smoothed_equation(
     error = angles - reference_angles
     if not math.isfinite(error[0] + error[1] + error[2]):
         return kernels.NOT_FINITE, False, 0.0, 0.0
-    # the smoother (JointStateSmoother.update_state), started at rest at the first reading
-    if not r.started:
-        for row in range(2 * WINDOW):
-            r.readings[row, :] = error
-        r.next_slot = 0
-        r.started = True
-    slot = r.next_slot
-    r.readings[slot, :] = error
-    r.readings[slot + WINDOW, :] = error
-    r.next_slot = slot + 1 if slot + 1 < WINDOW else 0
-    smoothed_error = np.dot(r.weights, np.ascontiguousarray(r.readings[slot + 1 : slot + 1 + WINDOW]))
+    # the smoother, started at rest at the first reading
+    smoothed_error, r.next_slot = fixed_lag_step(r.weights, r.readings, r.next_slot, error, not r.started)
+    r.started = True
     # the readings the smoothed state lags behind
     tail = (r.pending_head + r.pending_count) % (SMOOTHER_LAG + 1)
     r.pending_reference[tail, 0, :] = reference_angles
