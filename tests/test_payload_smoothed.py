@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.estimation import JointStateSmoother, PayloadRLS, rls_update
+from controllers.estimation import SMOOTHER_WINDOW, JointStateSmoother, PayloadRLS, rls_update
 from controllers.payload import PayloadEstimator
 from controllers.payload.equation import PLATFORM_MASS, estimated_state_equation
-from controllers.payload.smoothed import WINDOW
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 
@@ -167,7 +166,7 @@ def test_smoothed_step_is_the_python_path_bit_for_bit_with_skips_and_rollbacks(f
     assert compared == 500
     if fits:
         assert estimator.empty_move_samples > 200 and estimator.corrections.platform_mass != 0.0
-    assert estimator.joint_filter.weights.shape[1] == WINDOW
+    assert estimator.joint_filter.weights.shape[1] == SMOOTHER_WINDOW
 
 
 def test_smoothed_step_raises_on_a_reading_that_is_not_finite() -> None:
