@@ -240,7 +240,8 @@ DRIVE_SPELLS = (  # two total losses, one found by the implausible run, one by t
 
 
 class _WithoutFastPaths(FaultMonitor):
-    """A monitor that always runs the full checks: neither scalar fast path, nor update's skip of the array scans."""
+    """A monitor that always runs the full checks: neither scalar fast path, nor the whole-sample one, nor update's
+    skip of the array scans."""
 
     _encoders_clean = property(lambda self: False, lambda self, value: None)
     _torques_clean = property(lambda self: False, lambda self, value: None)
@@ -274,17 +275,29 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
     fast, full = fault_monitor(controller_setup), fault_monitor(controller_setup)
     full.__class__ = _WithoutFastPaths
     repeats_passed = skipped_scans = implausible_runs = cusum_steps = 0
-    healthy_encoders = fast._healthy_encoders
+    healthy_encoders, healthy_sample = fast._healthy_encoders, fast._healthy_sample
+    took_fast_path = False  # on this step: the encoders' fast path or the whole sample's
 
-    def counting(raw: np.ndarray, *rates: np.ndarray) -> bool:
-        nonlocal repeats_passed
+    def counting_encoders(raw: np.ndarray, *rates: np.ndarray) -> bool:
+        nonlocal took_fast_path
         passed = healthy_encoders(raw, *rates)
-        repeats_passed += bool(passed and np.any(raw == fast._raw_previous))
+        took_fast_path |= passed
         return passed
 
-    fast._healthy_encoders = counting
+    def counting_samples(observation: dict, command: np.ndarray) -> dict | None:
+        nonlocal took_fast_path
+        clean = healthy_sample(observation, command)
+        took_fast_path |= clean is not None
+        return clean
+
+    fast._healthy_encoders, fast._healthy_sample = counting_encoders, counting_samples
+    previous_raw = None
     for index, (observation, command) in enumerate(steps):
+        took_fast_path = False
         fast_clean, full_clean = fast.update(observation, command), full.update(observation, command)
+        raw = observation["joint_angles"]
+        repeats_passed += bool(took_fast_path and previous_raw is not None and np.any(raw == previous_raw))
+        previous_raw = raw
         skipped_scans += fast._encoders_clean and fast._torques_clean
         implausible_runs += bool(fast._short_run.any())
         cusum_steps += bool(fast._shortfall.max() > 1.0)

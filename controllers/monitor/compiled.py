@@ -240,9 +240,15 @@ def torques_plausible(
     (:func:`loop_output` with ``slowest_hold``, ``slowest_keep``): the full check's span test and drive-fault
     CUSUM would then add nothing. Python's ``min``/``max`` order, NaN included; False for vectors not of 3 (the full
     check says what is wrong)."""
-    for vector in (torque, last, command, before, slowest_hold, slowest_keep):
-        if vector.shape[0] != 3:
-            return False
+    if (
+        torque.shape[0] != 3
+        or last.shape[0] != 3
+        or command.shape[0] != 3
+        or before.shape[0] != 3
+        or slowest_hold.shape[0] != 3
+        or slowest_keep.shape[0] != 3
+    ):
+        return False
     for joint in range(3):
         now, previous = torque[joint], last[joint]
         if not math.isfinite(now):

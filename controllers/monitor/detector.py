@@ -13,7 +13,15 @@ from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
 from controllers.monitor.compiled import correction_terms, encoders_plausible, loop_output, torques_plausible
 from controllers.monitor.events import DetectedFault
-from controllers.monitor.model_check import COLLIDED, COLLIDING, SLIPPED, ModelCheck
+from controllers.monitor.model_check import (
+    COLLIDED,
+    COLLIDING,
+    NOT_HEALTHY,
+    SENSORS,
+    SLIPPED,
+    ModelCheck,
+    healthy_sample,
+)
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     BREAKAWAY_FACTOR,
@@ -91,6 +99,12 @@ class FaultMonitor:
         self._loop_response = loop_response(lags)
         self._slowest_response = loop_response([SLOWEST_LAG_FACTOR * lag for lag in lags])
         self._model_check = ModelCheck(dynamics.parameters.coulomb)
+        # the sensor state of the whole-sample fast path (healthy_sample), which holds it while readings stay clean
+        self._sensor_bytes = np.zeros(1, dtype=SENSORS).view(np.uint8)
+        self._sensors = self._sensor_bytes.view(SENSORS)
+        self._sensors["jump_bound"], self._sensors["stuck_step"] = self._jump_bound, self._stuck_step
+        self._sensors["slowest_hold"], self._sensors["slowest_keep"] = self._slowest_response
+        self._sensors["peak_torque"] = self.peak_torque
         self.lag = self._model_check.lag
         """Readings between a sample and the model's checks at it (the smoother's lag)."""
         self.set_corrections(None)
@@ -127,6 +141,7 @@ class FaultMonitor:
         self._encoders_clean = self._torques_clean = False  # the scalar fast paths: nothing flagged on the last sample
         self._model_check.reset()
         self._quiet_until = -1
+        self._sensors_fast = False  # whether the sensor state is the record's (the whole-sample fast path's)
 
     @property
     def force(self) -> NDArray[np.float64]:
@@ -330,6 +345,10 @@ class FaultMonitor:
             self._k <= self._quiet_until,
             self._k,
         )
+        self._model_found(found)
+
+    def _model_found(self, found: int) -> None:
+        """Take the model checks' result bits (:func:`~controllers.monitor.model_check.check_sample`)."""
         self.collision = bool(found & COLLIDING)
         if found & SLIPPED:
             self._detect("slip", None, self._model_check.slip_mass)
@@ -362,9 +381,14 @@ class FaultMonitor:
         self._k += 1
         self.slipped = False
         self.resynced = False
-        angles, rates = self._clean_encoders(observation)
         if command is not None:
             command = np.array(command, dtype=float)  # kept as the next step's command before
+            if self._sensors_fast:
+                clean = self._healthy_sample(observation, command)
+                if clean is not None:
+                    return clean
+                self._load_sensors()
+        angles, rates = self._clean_encoders(observation)
         torque = self._clean_torques(
             observation, command, command if self._command_before is None else self._command_before
         )
@@ -388,6 +412,65 @@ class FaultMonitor:
         if self.quiet_samples:
             self._quiet_until = max(self._quiet_until, self._k + self.quiet_samples)
         self._check_model(angles, observation, torque)
+        self._sensors_fast = (
+            self._encoders_clean
+            and self._torques_clean
+            and len(self._angles) == 2
+            and self._raw_previous is not None
+            and self._command_before is not None
+        )
+        if self._sensors_fast:
+            self._store_sensors()
         clean = dict(observation)
         clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = angles, rates, torque
         return clean
+
+    def _healthy_sample(
+        self, observation: Observation, command: NDArray[np.float64]
+    ) -> dict[str, NDArray[np.float64]] | None:
+        """The whole sample in one compiled call (:func:`~controllers.monitor.model_check.healthy_sample`) while the
+        last one flagged nothing: its clean observation, or None (nothing changed) for readings the fast paths do not
+        pass."""
+        raw = np.asarray(observation["joint_angles"], dtype=float)
+        rates = np.asarray(observation["joint_velocities"], dtype=float)
+        torque = np.asarray(observation["joint_torques"], dtype=float)
+        found = healthy_sample(
+            self._sensor_bytes,
+            self._model_check.state,
+            self.dynamics.model_constants,
+            self._correction_terms,
+            raw,
+            rates,
+            observation["reference_angles"],
+            observation["reference_velocities"],
+            observation["reference_accelerations"],
+            torque,
+            command,
+            observation["gripper"].item(0) > 0.5,
+            self._k <= self._quiet_until,
+            self._k,
+        )
+        if found == NOT_HEALTHY:
+            return None
+        self.faulty = self.suspect = False
+        self._faulty_run = self.quiet_samples = 0
+        self._model_found(found)
+        clean = dict(observation)
+        clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = raw, rates, torque
+        return clean
+
+    def _store_sensors(self) -> None:
+        """Hand the sensor state to the whole-sample fast path's record."""
+        sensors = self._sensors
+        sensors["last"], sensors["before"] = self._angles
+        sensors["raw_previous"], sensors["error"] = self._raw_previous, self._error
+        sensors["torque_measured"], sensors["command_before"] = self._torque_measured, self._command_before
+
+    def _load_sensors(self) -> None:
+        """Take the sensor state back from the whole-sample fast path's record, for the full checks."""
+        sensors = self._sensors[0]
+        self._angles = [sensors["last"].copy(), sensors["before"].copy()]
+        self._raw_previous, self._error = sensors["raw_previous"].copy(), sensors["error"].copy()
+        self._torque_previous = self._torque_measured = sensors["torque_measured"].copy()
+        self._command_before = sensors["command_before"].copy()
+        self._sensors_fast = False

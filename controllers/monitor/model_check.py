@@ -17,13 +17,17 @@ from numpy.typing import NDArray
 
 from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother, fixed_lag_step
 from controllers.monitor.compiled import (
+    encoders_plausible,
     learn_scatter,
     model_residual,
     platform_force,
     slip_moments,
     torque_step_variance,
+    torques_plausible,
 )
 from controllers.monitor.tuning import (
+    DRIVE_FAULT_DRIFT,
+    DRIVE_FAULT_STEP,
     FORCE_EVIDENCE,
     FORCE_REFERENCE,
     HELD_MASS_STD,
@@ -35,6 +39,7 @@ from controllers.monitor.tuning import (
     SLIP_MIN_MASS,
     SLIP_PRECISION,
     SLIP_SETTLE,
+    TORQUE_MARGIN,
 )
 from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE
 from delta_env import kernels
@@ -128,8 +133,9 @@ class ModelCheck:
     """Readings between a sample and the checks at it (the smoother's lag)."""
 
     def __init__(self, static_friction: Sequence[float]) -> None:
-        self._bytes = np.zeros(1, dtype=MODEL_CHECK).view(np.uint8)
-        self._state = self._bytes.view(MODEL_CHECK)
+        self.state = np.zeros(1, dtype=MODEL_CHECK).view(np.uint8)
+        """The :data:`MODEL_CHECK` record's bytes (:func:`healthy_sample` takes them)."""
+        self._state = self.state.view(MODEL_CHECK)
         smoother = JointStateSmoother(lag=SMOOTHER_LAG, jerk_std=MONITOR_JERK_STD)
         self._state["weights"] = smoother.weights
         self._state["squared_response"] = acceleration_step_response(smoother) ** 2
@@ -171,7 +177,7 @@ class ModelCheck:
         :data:`SLIPPED`, :data:`COLLIDED`, :data:`COLLIDING`. ``sample`` is the reading's index since the reset.
         The readings must be finite (the monitor's clean ones are): nothing here checks them."""
         return check_sample(
-            self._bytes, model_constants, corrections, angles, *reference, torque, holding, quiet, sample
+            self.state, model_constants, corrections, angles, *reference, torque, holding, quiet, sample
         )
 
     @property
@@ -322,7 +328,36 @@ def check_sample(
     """One sample of :meth:`ModelCheck.check` on the :data:`MODEL_CHECK` record ``check_bytes`` (in place); the
     model's constants of :class:`~controllers.dynamics.DeltaDynamics` and the corrections of
     :func:`~controllers.monitor.compiled.correction_terms`."""
-    check = check_bytes.view(MODEL_CHECK)[0]
+    return _check_record(
+        check_bytes.view(MODEL_CHECK)[0],
+        model_constants,
+        corrections,
+        angles,
+        reference_angles,
+        reference_rates,
+        reference_accelerations,
+        torque,
+        holding,
+        quiet,
+        sample,
+    )
+
+
+@numba.njit(cache=True)
+def _check_record(
+    check: np.record,
+    model_constants: NDArray[np.uint8],
+    corrections: NDArray[np.uint8],
+    angles: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    holding: bool,
+    quiet: bool,
+    sample: int,
+) -> int:
+    """:func:`check_sample` on the record itself."""
     # the smoother of the tracking error, started at rest at the first reading
     smoothed_error, check.next_slot = fixed_lag_step(
         check.weights, check.readings, check.next_slot, angles - reference_angles, not check.started
@@ -362,3 +397,99 @@ def check_sample(
     found = _check_payload(check, terms, held_then, quiet_then, jerk_variance, sample)
     found |= _check_force(check, terms, held_then, quiet_then, sample)
     return found | (COLLIDING if check.collision else 0)
+
+
+SENSORS = np.dtype(
+    (
+        np.record,
+        [
+            ("last", np.float64, (3,)),
+            ("before", np.float64, (3,)),
+            ("raw_previous", np.float64, (3,)),
+            ("error", np.float64, (3,)),
+            ("torque_measured", np.float64, (3,)),
+            ("command_before", np.float64, (3,)),
+            ("jump_bound", np.float64),
+            ("stuck_step", np.float64),
+            ("slowest_hold", np.float64, (3,)),
+            ("slowest_keep", np.float64, (3,)),
+            ("peak_torque", np.float64),
+        ],
+    )
+)
+"""The sensor checks' state that :func:`healthy_sample` reads and writes: the last two clean readings, the last raw
+one and the tracking error after it (rad), the last measured torque and the command held before the last one
+(N m); and their constants: the encoder jump bound and stuck step (rad), the slowest healthy current loop's
+:func:`~controllers.monitor.detector.loop_response`, the drive's peak torque (N m)."""
+
+NOT_HEALTHY = -1
+""":func:`healthy_sample`'s result for a sample whose readings its fast paths do not pass: nothing was changed."""
+
+
+@numba.njit(cache=True)
+def healthy_sample(
+    sensor_bytes: NDArray[np.uint8],
+    check_bytes: NDArray[np.uint8],
+    model_constants: NDArray[np.uint8],
+    corrections: NDArray[np.uint8],
+    raw: NDArray[np.float64],
+    rates: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    command: NDArray[np.float64],
+    holding: bool,
+    quiet: bool,
+    sample: int,
+) -> int:
+    """A whole sample of a :class:`~controllers.monitor.FaultMonitor` whose last sample flagged nothing, if its
+    readings pass the encoder and torque fast paths (:func:`~controllers.monitor.compiled.encoders_plausible`,
+    :func:`~controllers.monitor.compiled.torques_plausible`): the :data:`SENSORS` record ``sensor_bytes`` takes them
+    as the clean ones (in place), and the model checks run on them (:func:`check_sample`'s bits). Else
+    :data:`NOT_HEALTHY`, and neither record changes."""
+    sensors = sensor_bytes.view(SENSORS)[0]
+    if not encoders_plausible(
+        raw,
+        rates,
+        sensors.last,
+        sensors.before,
+        sensors.raw_previous,
+        reference_rates,
+        sensors.jump_bound,
+        sensors.stuck_step,
+        CONTROL_PERIOD,
+    ):
+        return NOT_HEALTHY
+    if not torques_plausible(
+        torque,
+        sensors.torque_measured,
+        command,
+        sensors.command_before,
+        sensors.slowest_hold,
+        sensors.slowest_keep,
+        sensors.peak_torque,
+        TORQUE_MARGIN,
+        DRIVE_FAULT_DRIFT,
+        DRIVE_FAULT_STEP,
+    ):
+        return NOT_HEALTHY
+    sensors.before[:] = sensors.last
+    sensors.last[:] = raw
+    sensors.raw_previous[:] = raw
+    sensors.error[:] = raw - reference_angles
+    sensors.torque_measured[:] = torque
+    sensors.command_before[:] = command
+    return _check_record(
+        check_bytes.view(MODEL_CHECK)[0],
+        model_constants,
+        corrections,
+        raw,
+        reference_angles,
+        reference_rates,
+        reference_accelerations,
+        torque,
+        holding,
+        quiet,
+        sample,
+    )
