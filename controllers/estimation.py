@@ -382,6 +382,64 @@ def fixed_lag_step(
     return estimate, (slot + 1 if slot + 1 < window else 0)
 
 
+DELAYED_STATE_FIELDS = [
+    # JointStateSmoother's weights and window of tracking errors (each reading written twice)
+    ("weights", np.float64, (3, SMOOTHER_WINDOW)),
+    ("readings", np.float64, (2 * SMOOTHER_WINDOW, 3)),
+    ("next_slot", np.int64),
+    ("started", np.bool_),
+    # the readings the smoothed state lags behind, oldest at pending_head
+    ("pending_reference", np.float64, (SMOOTHER_LAG + 1, 3, 3)),
+    ("pending_torque", np.float64, (SMOOTHER_LAG + 1, 3)),
+    ("pending_holding", np.uint8, (SMOOTHER_LAG + 1,)),  # flags (numba has no boolean subarrays)
+    ("pending_head", np.int64),
+    ("pending_count", np.int64),
+    # the smoothed state of the last sample due
+    ("previous", np.float64, (3, 3)),
+    ("has_previous", np.bool_),
+]
+"""The fields of a compiled caller's record that :func:`delayed_state_step` keeps: rows of joint states theta (rad),
+theta_dot (rad/s), theta_ddot (rad/s^2), torques (N m)."""
+
+
+@numba.njit(cache=True)
+def delayed_state_step(
+    record: np.record,
+    error: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    holding: bool,
+) -> tuple[int, NDArray[np.float64], NDArray[np.float64]]:
+    """One sample into a record with :data:`DELAYED_STATE_FIELDS`: its tracking error (rad, (3,)) into the smoother
+    (started at rest at the first one) and its reference's state, measured torque and gripper into the pending
+    readings. Returns the slot in the pending arrays of the sample :data:`SMOOTHER_LAG` readings ago, its smoothed
+    joint state (the reference's state plus the smoothed error, (3, 3)) and the one of the sample before it (itself
+    at the first); a slot of -1 while the smoother fills (the states are then meaningless)."""
+    smoothed_error, record.next_slot = fixed_lag_step(
+        record.weights, record.readings, record.next_slot, error, not record.started
+    )
+    record.started = True
+    tail = (record.pending_head + record.pending_count) % (SMOOTHER_LAG + 1)
+    record.pending_reference[tail, 0, :] = reference_angles
+    record.pending_reference[tail, 1, :] = reference_rates
+    record.pending_reference[tail, 2, :] = reference_accelerations
+    record.pending_torque[tail, :] = torque
+    record.pending_holding[tail] = holding
+    record.pending_count += 1
+    if record.pending_count <= SMOOTHER_LAG:
+        return -1, smoothed_error, smoothed_error
+    head = record.pending_head
+    record.pending_head = (head + 1) % (SMOOTHER_LAG + 1)
+    record.pending_count -= 1
+    state = record.pending_reference[head] + smoothed_error
+    previous = record.previous.copy() if record.has_previous else state
+    record.previous[:, :] = state
+    record.has_previous = True
+    return head, state, previous
+
+
 class PayloadRLS:
     """Recursive least squares of the payload mass mp in y = phi mp + e, with forgetting.
 

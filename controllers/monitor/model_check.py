@@ -15,7 +15,13 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother, fixed_lag_step
+from controllers.estimation import (
+    DELAYED_STATE_FIELDS,
+    SMOOTHER_LAG,
+    SMOOTHER_WINDOW,
+    JointStateSmoother,
+    delayed_state_step,
+)
 from controllers.monitor.compiled import (
     encoders_plausible,
     learn_scatter,
@@ -53,23 +59,11 @@ MODEL_CHECK = np.dtype(
     (
         np.record,
         [
-            # the smoother of the tracking error (JointStateSmoother's window, each reading written twice)
-            ("weights", np.float64, (3, SMOOTHER_WINDOW)),
-            ("readings", np.float64, (2 * SMOOTHER_WINDOW, 3)),
-            ("next_slot", np.int64),
-            ("started", np.bool_),
+            *DELAYED_STATE_FIELDS,
             # the measured torques of the window and the one before, and the smoother's response to a step
             ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
             ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
-            # the readings the smoothed state lags behind, oldest at pending_head
-            ("pending_reference", np.float64, (SMOOTHER_LAG + 1, 3, 3)),
-            ("pending_torque", np.float64, (SMOOTHER_LAG + 1, 3)),
-            ("pending_holding", np.uint8, (SMOOTHER_LAG + 1,)),  # flags (numba has no boolean subarrays)
-            ("pending_quiet", np.uint8, (SMOOTHER_LAG + 1,)),
-            ("pending_head", np.int64),
-            ("pending_count", np.int64),
-            ("previous", np.float64, (3, 3)),
-            ("has_previous", np.bool_),
+            ("pending_quiet", np.uint8, (SMOOTHER_LAG + 1,)),  # beside the pending readings
             # the friction the residual charges and what a joint at rest may hold, the slip check's friction band
             ("charged_coulomb", np.float64, (3,)),
             ("breakaway", np.float64, (3,)),
@@ -358,33 +352,18 @@ def _check_record(
     sample: int,
 ) -> int:
     """:func:`check_sample` on the record itself."""
-    # the smoother of the tracking error, started at rest at the first reading
-    smoothed_error, check.next_slot = fixed_lag_step(
-        check.weights, check.readings, check.next_slot, angles - reference_angles, not check.started
+    first = not check.started
+    # the quiet flag rides beside the pending readings, in the slot delayed_state_step fills now
+    check.pending_quiet[(check.pending_head + check.pending_count) % (SMOOTHER_LAG + 1)] = quiet
+    head, state, previous = delayed_state_step(
+        check, angles - reference_angles, reference_angles, reference_rates, reference_accelerations, torque, holding
     )
-    if not check.started:
+    if first:
         for row in range(SMOOTHER_WINDOW + 1):
             check.torques[row, :] = torque
-        check.started = True
     jerk_variance = torque_step_variance(check.torques, torque, check.squared_response)
-    # the readings the smoothed state lags behind
-    tail = (check.pending_head + check.pending_count) % (SMOOTHER_LAG + 1)
-    check.pending_reference[tail, 0, :] = reference_angles
-    check.pending_reference[tail, 1, :] = reference_rates
-    check.pending_reference[tail, 2, :] = reference_accelerations
-    check.pending_torque[tail, :] = torque
-    check.pending_holding[tail] = holding
-    check.pending_quiet[tail] = quiet
-    check.pending_count += 1
-    if check.pending_count <= SMOOTHER_LAG:
+    if head < 0:
         return 0
-    head = check.pending_head
-    check.pending_head = (head + 1) % (SMOOTHER_LAG + 1)
-    check.pending_count -= 1
-    state = check.pending_reference[head] + smoothed_error
-    previous = check.previous.copy() if check.has_previous else state
-    check.previous[:, :] = state
-    check.has_previous = True
     held_then = check.pending_holding[head] != 0
     # a faulty reading found since lies in the smoothing window too
     quiet_then = check.pending_quiet[head] != 0 or quiet

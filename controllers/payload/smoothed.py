@@ -15,31 +15,11 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, fixed_lag_step, rls_update
+from controllers.estimation import DELAYED_STATE_FIELDS, delayed_state_step, rls_update
 from controllers.payload.equation import FIT, PLATFORM_MASS, estimated_state_equation
 from delta_env import kernels
 
-SMOOTHED = np.dtype(
-    (
-        np.record,
-        [
-            # JointStateSmoother's weights and window of tracking errors (each reading written twice)
-            ("weights", np.float64, (3, SMOOTHER_WINDOW)),
-            ("readings", np.float64, (2 * SMOOTHER_WINDOW, 3)),
-            ("next_slot", np.int64),
-            ("started", np.bool_),
-            # the readings the smoothed state lags behind, oldest at pending_head
-            ("pending_reference", np.float64, (SMOOTHER_LAG + 1, 3, 3)),
-            ("pending_torque", np.float64, (SMOOTHER_LAG + 1, 3)),
-            ("pending_holding", np.uint8, (SMOOTHER_LAG + 1,)),  # flags (numba has no boolean subarrays)
-            ("pending_head", np.int64),
-            ("pending_count", np.int64),
-            # the state of the last equation's sample
-            ("previous", np.float64, (3, 3)),
-            ("has_previous", np.bool_),
-        ],
-    )
-)
+SMOOTHED = np.dtype((np.record, DELAYED_STATE_FIELDS))
 """The state of :func:`smoothed_moments` and :func:`smoothed_update`: rows of the joint states theta (rad),
 theta_dot (rad/s), theta_ddot (rad/s^2), torques (N m)."""
 
@@ -66,26 +46,11 @@ def _smoothed_equation(
     error = angles - reference_angles
     if not math.isfinite(error[0] + error[1] + error[2]):
         return kernels.NOT_FINITE, False, 0.0, 0.0
-    # the smoother, started at rest at the first reading
-    smoothed_error, r.next_slot = fixed_lag_step(r.weights, r.readings, r.next_slot, error, not r.started)
-    r.started = True
-    # the readings the smoothed state lags behind
-    tail = (r.pending_head + r.pending_count) % (SMOOTHER_LAG + 1)
-    r.pending_reference[tail, 0, :] = reference_angles
-    r.pending_reference[tail, 1, :] = reference_rates
-    r.pending_reference[tail, 2, :] = reference_accelerations
-    r.pending_torque[tail, :] = torque
-    r.pending_holding[tail] = holding
-    r.pending_count += 1
-    if r.pending_count <= SMOOTHER_LAG:
+    head, state, previous = delayed_state_step(
+        r, error, reference_angles, reference_rates, reference_accelerations, torque, holding
+    )
+    if head < 0:
         return kernels.VALID, False, 0.0, 0.0
-    head = r.pending_head
-    r.pending_head = (head + 1) % (SMOOTHER_LAG + 1)
-    r.pending_count -= 1
-    state = smoothed_error + r.pending_reference[head]
-    previous = r.previous.copy() if r.has_previous else state
-    r.previous[:, :] = state
-    r.has_previous = True
     if holding != (r.pending_holding[head] != 0):
         return kernels.VALID, False, 0.0, 0.0
     # the torque of sample k - L was measured MEASURED_TORQUE_DELAY before its encoder sample
