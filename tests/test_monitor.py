@@ -311,3 +311,27 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
         assert implausible_runs > 10 and cusum_steps > 10
     assert repeats_passed > 100  # repeated readings that are not suspect took the fast path
     assert skipped_scans > len(steps) // 2  # and most steps skipped the array scans
+
+
+def test_a_missing_command_mid_episode_takes_the_full_checks_with_the_fast_paths_state(
+    controller_setup: ControllerSetup,
+) -> None:
+    # The whole-sample fast path holds the sensor state in its record; a sample without a command runs the full
+    # checks, which must take that state back: the fast monitor agrees with one without fast paths throughout.
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    controller = _monitored_rls(controller_setup)
+    observation, _ = env.reset(seed=5)
+    controller.reset()
+    fast, full = fault_monitor(controller_setup), fault_monitor(controller_setup)
+    full.__class__ = _WithoutFastPaths
+    command = None
+    for step in range(800):
+        sent = None if step == 400 else command
+        fast_clean, full_clean = fast.update(observation, sent), full.update(observation, sent)
+        if step == 399:
+            assert fast._sensors_fast  # the record held the state before the sample without a command
+        for key in ("joint_angles", "joint_velocities", "joint_torques"):
+            np.testing.assert_array_equal(fast_clean[key], full_clean[key], err_msg=f"{key} at step {step}")
+        assert (fast.faulty, fast.quiet_samples, fast.events) == (full.faulty, full.quiet_samples, full.events)
+        command = controller(observation)
+        observation, *_ = env.step(command)

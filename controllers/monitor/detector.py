@@ -383,11 +383,11 @@ class FaultMonitor:
         self.resynced = False
         if command is not None:
             command = np.array(command, dtype=float)  # kept as the next step's command before
-            if self._sensors_fast:
-                clean = self._healthy_sample(observation, command)
-                if clean is not None:
-                    return clean
-                self._load_sensors()
+        if self._sensors_fast:
+            clean = None if command is None else self._healthy_sample(observation, command)
+            if clean is not None:
+                return clean
+            self._load_sensors()  # the full checks below take the sensor state back
         angles, rates = self._clean_encoders(observation)
         torque = self._clean_torques(
             observation, command, command if self._command_before is None else self._command_before
