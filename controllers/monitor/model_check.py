@@ -322,36 +322,7 @@ def check_sample(
     """One sample of :meth:`ModelCheck.check` on the :data:`MODEL_CHECK` record ``check_bytes`` (in place); the
     model's constants of :class:`~controllers.dynamics.DeltaDynamics` and the corrections of
     :func:`~controllers.monitor.compiled.correction_terms`."""
-    return _check_record(
-        check_bytes.view(MODEL_CHECK)[0],
-        model_constants,
-        corrections,
-        angles,
-        reference_angles,
-        reference_rates,
-        reference_accelerations,
-        torque,
-        holding,
-        quiet,
-        sample,
-    )
-
-
-@numba.njit(cache=True)
-def _check_record(
-    check: np.record,
-    model_constants: NDArray[np.uint8],
-    corrections: NDArray[np.uint8],
-    angles: NDArray[np.float64],
-    reference_angles: NDArray[np.float64],
-    reference_rates: NDArray[np.float64],
-    reference_accelerations: NDArray[np.float64],
-    torque: NDArray[np.float64],
-    holding: bool,
-    quiet: bool,
-    sample: int,
-) -> int:
-    """:func:`check_sample` on the record itself."""
+    check = check_bytes.view(MODEL_CHECK)[0]
     first = not check.started
     # the quiet flag rides beside the pending readings, in the slot delayed_state_step fills now
     check.pending_quiet[(check.pending_head + check.pending_count) % (SMOOTHER_LAG + 1)] = quiet
@@ -459,8 +430,8 @@ def healthy_sample(
     sensors.error[:] = raw - reference_angles
     sensors.torque_measured[:] = torque
     sensors.command_before[:] = command
-    return _check_record(
-        check_bytes.view(MODEL_CHECK)[0],
+    return check_sample(
+        check_bytes,
         model_constants,
         corrections,
         raw,

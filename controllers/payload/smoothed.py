@@ -25,7 +25,7 @@ theta_dot (rad/s), theta_ddot (rad/s^2), torques (N m)."""
 
 
 @numba.njit(cache=True, inline="always")
-def _smoothed_equation(
+def smoothed_moments(
     regressor: NDArray[np.uint8],
     model: NDArray[np.uint8],
     equation: NDArray[np.uint8],
@@ -37,7 +37,9 @@ def _smoothed_equation(
     torque: NDArray[np.float64],
     holding: bool,
 ) -> tuple[int, bool, float, float]:
-    """Take one reading; the equation of the sample a lag ago: (status, used, sum w phi^2, sum w phi y).
+    """One reading of the :data:`SMOOTHED` record ``regressor`` (in place): angles (rad), the reference's angles,
+    rates and accelerations (rad, rad/s, rad/s^2) and torque (N m), each (3,); returns the equation of the sample a lag
+    ago: (status, used, sum w phi^2, sum w phi y).
 
     The status is :data:`~delta_env.kernels.NOT_FINITE` for a reading whose tracking error is not finite (nothing
     changes), else the model's at the smoothed state (that state is then in ``previous``).
@@ -56,36 +58,6 @@ def _smoothed_equation(
     # the torque of sample k - L was measured MEASURED_TORQUE_DELAY before its encoder sample
     t = r.pending_torque[head]
     return estimated_state_equation(model, equation, fit, state, previous, holding, t[0], t[1], t[2])
-
-
-@numba.njit(cache=True)
-def smoothed_moments(
-    regressor: NDArray[np.uint8],
-    model: NDArray[np.uint8],
-    equation: NDArray[np.uint8],
-    fit: NDArray[np.uint8],
-    angles: NDArray[np.float64],
-    reference_angles: NDArray[np.float64],
-    reference_rates: NDArray[np.float64],
-    reference_accelerations: NDArray[np.float64],
-    torque: NDArray[np.float64],
-    holding: bool,
-) -> tuple[int, bool, float, float]:
-    """One reading of the :data:`SMOOTHED` record ``regressor`` (in place): (status, used, moments) of the
-    equation a lag ago (:func:`_smoothed_equation`); angles (rad), the reference's angles, rates and accelerations
-    (rad, rad/s, rad/s^2) and torque (N m), each (3,)."""
-    return _smoothed_equation(
-        regressor,
-        model,
-        equation,
-        fit,
-        angles,
-        reference_angles,
-        reference_rates,
-        reference_accelerations,
-        torque,
-        holding,
-    )
 
 
 @numba.njit(cache=True)
@@ -131,7 +103,7 @@ def smoothed_update(
         _copy_fit(f, fit_checkpoints.view(FIT)[slot])
         rls_checkpoints[slot, 0] = rls[0]
         rls_checkpoints[slot, 1] = rls[1]
-    status, used, information, moment = _smoothed_equation(
+    status, used, information, moment = smoothed_moments(
         regressor,
         model,
         equation,
