@@ -316,9 +316,7 @@ class JointStateSmoother:
         self.lag, self.history = lag, history
         window = history + lag + 1
         self.weights = _fixed_lag_weights(lag, history, dt, measurement_std, jerk_std)
-        # Every reading is written twice, so the last `window` readings are always one contiguous slice.
-        self._readings = np.zeros((2 * window, 3))
-        self._window = window
+        self._readings = np.zeros((2 * window, 3))  # the window of fixed_lag_step: each reading written twice
         self._next = 0
         self._estimates = np.zeros((2, 3, 3))
         self._buffer = 0
@@ -343,7 +341,7 @@ class JointStateSmoother:
         return theta, theta_dot, theta_ddot
 
     def update_state(self, theta_measured: ArrayLike) -> NDArray[np.float64]:
-        """:meth:`update` without allocation, for the 1 kHz estimator.
+        """:meth:`update` as one array (:func:`fixed_lag_step` on this smoother's window).
 
         Returns:
             ``(3, 3)``, rows theta (rad), theta_dot (rad/s), theta_ddot (rad/s^2) of sample k - ``lag``: one of
@@ -354,13 +352,11 @@ class JointStateSmoother:
         """
         if not self._is_reset:
             raise RuntimeError("JointStateSmoother.reset(theta0) must be called before update()")
-        z = _finite_joint_values("theta_measured", theta_measured)
-        window = self._window
-        slot = self._next
-        self._readings[slot] = self._readings[slot + window] = z
-        self._next = slot + 1 if slot + 1 < window else 0
+        z = np.array(_finite_joint_values("theta_measured", theta_measured))
+        estimate, self._next = fixed_lag_step(self.weights, self._readings, self._next, z, False)
         self._buffer = 1 - self._buffer
-        return np.matmul(self.weights, self._readings[slot + 1 : slot + 1 + window], out=self._estimates[self._buffer])
+        self._estimates[self._buffer] = estimate
+        return self._estimates[self._buffer]
 
 
 @numba.njit(cache=True)
