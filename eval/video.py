@@ -280,16 +280,22 @@ def film_first_episodes(
     *,
     fps: float = DEFAULT_FPS,
     workers: int = 1,
+    progress: Any = None,
 ) -> list[Video]:
     """Film episode ``seed`` of ``scenario`` (``n_cycles`` cycles) with each controller of ``keys`` (what it knows:
-    ``setup``) into ``folder/video_<key>.mp4`` (or ``.gif``), on ``workers`` processes; the videos in the order of
-    ``keys``."""
+    ``setup``) into ``folder/video_<key>.mp4`` (or ``.gif``), on ``workers`` processes, advancing the tqdm bar
+    ``progress`` once per video; the videos in the order of ``keys``."""
     jobs = [
         (Task("episode", key, 0, seed, n_cycles, setup, None, scenario), folder / f"video_{_file_part(key)}.mp4", fps)
         for key in keys
     ]
+    videos = []
     with process_pool(max(1, min(workers, len(jobs)))) as pool:
-        return list(parallel_imap(_film, jobs, pool))
+        for item in parallel_imap(_film, jobs, pool):
+            videos.append(item)
+            if progress is not None:
+                progress.update()
+    return videos
 
 
 def _file_part(key: str) -> str:
