@@ -41,6 +41,8 @@ import tomllib
 import matplotlib.pyplot as plt
 import numpy as np
 
+from eval import metrics
+
 TRACE_FIELDS = (
     "tracking_error",
     "torque",
@@ -196,7 +198,7 @@ def tracking_error(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> N
         for n, (pick, place) in enumerate(_carries(traces, key, len(error_mm))):
             axis.axvspan(pick * dt, place * dt, color="0.88", label="object held" if n == 0 else None)
         axis.plot(time, error_mm, color="tab:blue", linewidth=0.8, label="tracking error")
-        rms = float(np.sqrt(np.nanmean(error_mm**2))) if np.isfinite(error_mm).any() else math.nan
+        rms, _ = metrics.tracking_metrics(traces[f"{key}.tracking_error"])
         axis.axhline(rms, color="tab:red", linestyle="--", linewidth=0.9, label=f"RMS {rms:.2f} mm")
         axis.set_ylabel("|e| (mm)")
         axis.set_title(label, fontsize="medium", loc="left")
@@ -243,7 +245,7 @@ def paths_3d(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
             axis.plot(*reference.T, color="k", linewidth=0.8, label="reference")[0],
             axis.plot(*shown.T, color="tab:orange", linewidth=0.9, label=_platform_label(scale))[0],
         ]
-        rms = float(np.sqrt(np.nanmean(deviations[n] ** 2))) * 1e3 if np.isfinite(deviations[n]).any() else math.nan
+        rms, _ = metrics.tracking_metrics(deviations[n])
         axis.set_title(f"{label}\nRMS {rms:.2f} mm", fontsize="medium")
         axis.set_xlabel("x (mm)", fontsize="small")
         axis.set_ylabel("y (mm)", fontsize="small")
@@ -251,7 +253,7 @@ def paths_3d(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
         axis.tick_params(labelsize="x-small")
     figure.legend(handles=handles, loc="lower center", ncol=2, fontsize="small", frameon=False)
     figure.suptitle(f"Reference and platform paths, first episode (scenario {scenario})")
-    figure.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
+    figure.tight_layout(rect=(0.0, 0.04, 1.0, 0.97))
     figure.savefig(path, dpi=110)
     plt.close(figure)
 
