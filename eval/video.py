@@ -51,8 +51,8 @@ REFERENCE_RGBA = (0.1, 0.75, 0.95, 0.9)
 PLATFORM_RGBA = (0.95, 0.4, 0.05, 1.0)
 """Colour of the platform's path so far (orange)."""
 
-PATH_WIDTH = 0.004
-"""Radius (m) of the capsules of the drawn paths."""
+PATH_WIDTH = 4.0
+"""Width (px) of the drawn paths' lines (lines, not capsules: a fraction of the rendering time of a frame)."""
 
 GIF_NOTE = "ffmpeg is unavailable (install imageio-ffmpeg): wrote a GIF instead of an MP4"
 """What a caller is told when a video is a GIF."""
@@ -138,6 +138,7 @@ class _Filmer:
         env = self.env
         self.renderer.update_scene(env.plant.data, camera=self.camera)
         scene = self.renderer.scene
+        scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0  # the floor's faint mirror image: a third of a frame's time
         trajectory = env.trajectory
         _add_path(scene, trajectory.xyz[:: self.path_stride], REFERENCE_RGBA)
         _add_path(scene, np.array([*self.platform_path, env.plant.platform_point()]), PLATFORM_RGBA)
@@ -191,8 +192,8 @@ def _add_geom(
 
 
 def _add_path(scene: mujoco.MjvScene, points: NDArray[np.float64], rgba: Sequence[float]) -> None:
-    """The polyline through ``points`` (m), ``(n, 3)``, as capsules of radius :data:`PATH_WIDTH`, as far as the
-    scene has room."""
+    """The polyline through ``points`` (m), ``(n, 3)``, as lines :data:`PATH_WIDTH` wide, as far as the scene has
+    room."""
     colour = np.asarray(rgba, dtype=np.float32)
     for start, end in itertools.pairwise(points):
         if scene.ngeom >= scene.maxgeom:
@@ -200,8 +201,8 @@ def _add_path(scene: mujoco.MjvScene, points: NDArray[np.float64], rgba: Sequenc
         if not np.all(np.isfinite(start) & np.isfinite(end)):
             continue
         geom = scene.geoms[scene.ngeom]
-        mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), colour)
-        mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, PATH_WIDTH, start, end)
+        mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), colour)
+        mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_LINE, PATH_WIDTH, start, end)
         scene.ngeom += 1
 
 
