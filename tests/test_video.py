@@ -15,6 +15,8 @@ from controllers.registry import ControllerSetup, build_controller
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scene import build_model
+from eval import video
+from eval.__main__ import parse_args
 from eval.episodes import run_episode
 from eval.video import record_episode
 
@@ -81,3 +83,31 @@ def test_the_conveyors_are_drawn_only() -> None:
     assert all(model.geom_bodyid[n] == 0 for n in conveyor)
     assert not model.geom_contype[conveyor].any() and not model.geom_conaffinity[conveyor].any()
     assert (model.vis.global_.offwidth, model.vis.global_.offheight) == (1280, 720)
+
+
+def test_without_ffmpeg_a_video_is_a_gif(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, controller_setup: ControllerSetup, opengl_context: None
+) -> None:
+    monkeypatch.setattr(video, "_mp4_available", lambda: False)
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    record, written = record_episode(
+        env, build_controller("pd", controller_setup, env), tmp_path / "pd.mp4", 3, fps=10.0, size=(64, 48)
+    )
+    assert written.path == tmp_path / "pd.gif" and not (tmp_path / "pd.mp4").exists()
+    frames = imageio.mimread(written.path)
+    assert len(frames) == written.frames == math.floor(len(record.tracking_error) * 1e-3 * 10.0 + 1e-9) + 1
+    assert frames[0].shape[:2] == (48, 64)
+    with imageio.get_reader(written.path) as reader:
+        assert reader.get_meta_data()["duration"] == pytest.approx(100.0)  # ms a frame: 10 fps
+    assert video.GIF_NOTE in "\n".join(video.video_lines([written]))
+
+
+def test_video_without_an_opengl_context_is_a_usage_error(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture, opengl_context: None
+) -> None:
+    assert video.rendering_error() is None  # this machine renders
+    monkeypatch.setattr(video, "rendering_error", lambda: "MuJoCo cannot render offscreen (test); set MUJOCO_GL=egl")
+    with pytest.raises(SystemExit) as exit_info:
+        parse_args(["--video", "--controllers", "pd"])
+    assert exit_info.value.code == 2
+    assert "--video: MuJoCo cannot render offscreen (test); set MUJOCO_GL=egl" in capsys.readouterr().err
