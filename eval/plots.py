@@ -284,7 +284,8 @@ def fault_timeline(faults: list[dict[str, str]], path: Path, scenario: str) -> N
     lanes = list(dict.fromkeys((row["controller"], row["episode"]) for row in faults))
     kinds = list(dict.fromkeys(kind for row in faults for kind in (row["kind"], row["detected_kind"]) if kind))
     colours = {kind: plt.get_cmap("tab10")(n % 10) for n, kind in enumerate(kinds)}
-    figure, axis = plt.subplots(figsize=(12, 0.45 * len(lanes) + 2.0))
+    many = len(lanes) > 30  # e.g. ten rows of ten episodes: narrower lanes, smaller labels
+    figure, axis = plt.subplots(figsize=(12, (0.28 if many else 0.45) * len(lanes) + 2.0))
     handles: dict[str, Any] = {}
     for lane, (controller, episode) in enumerate(lanes):
         for row in (row for row in faults if (row["controller"], row["episode"]) == (controller, episode)):
@@ -310,7 +311,11 @@ def fault_timeline(faults: list[dict[str, str]], path: Path, scenario: str) -> N
                 handles.setdefault(_DETECTION_NAMES[row["outcome"]], marker)
     for label, handle in handles.items():
         handle.set_label(label)
-    axis.set_yticks(range(len(lanes)), [f"{controller}, episode {episode}" for controller, episode in lanes])
+    axis.set_yticks(
+        range(len(lanes)),
+        [f"{controller}, episode {episode}" for controller, episode in lanes],
+        fontsize="small" if many else "medium",
+    )
     axis.set_ylim(len(lanes) - 0.5, -0.5)
     axis.set_xlabel("time from the reset (s)")
     axis.grid(alpha=0.3, axis="x")
