@@ -61,6 +61,8 @@ def test_api_reference_has_every_public_name(site: Path, package: str) -> None:
     ids = set(re.findall(r'id="([^"]+)"', page))
     missing = sorted(public_anchors(package) - ids)
     assert not missing, f"docs/api/{package}.md documents none of {missing}"
+    roles = re.findall(r":[a-z]+:<code>[^<]*</code>", page)
+    assert not roles, f"Sphinx roles printed as text (scripts/docs_sphinx_roles.py): {roles[:5]}"
 
 
 def test_site_includes_the_readme_sections(site: Path) -> None:
