@@ -234,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     command = command_line("eval.identify", argv)
     if arguments.quick:
         print(
-            f"Quick identification (--quick): {arguments.trajectories} excitation trajectories of "
+            f"Quick identification (--quick): {arguments.trajectories} excitation "
+            f"{'trajectory' if arguments.trajectories == 1 else 'trajectories'} of "
             f"{arguments.duration:g} s and a {arguments.validation_duration:g} s held-out one, not "
             f"{DEFAULT_TRAJECTORIES} of {DEFAULT_DURATION:g} s and {VALIDATION_DURATION:g} s: rough parameters, "
             "written to the run folder only (never as the robot's identification)."

@@ -11,10 +11,11 @@ A bag is an MCAP (``.mcap``) or sqlite3 (``.db3``) storage file, or the rosbag2 
 - Commanded (optional): ``sensor_msgs/msg/JointState`` on a command topic, ``effort`` the commanded torque (N m)
   of the same joint names (the command message of ``topic_based_ros2_control``; a stamped, named message, unlike
   the unnamed, unstamped ``std_msgs/msg/Float64MultiArray`` of ros2_control's forward controllers). Row k of the
-  log takes the last command stamped at or before joint state k, held (as a drive holds it); joint states
-  before the first command or more than :data:`~controllers.identification.logs.MAX_LOG_GAP` after the last one
-  are left out (a recorder subscribes to the topics one after another), and a joint state whose held command is
-  older than that is refused.
+  log holds the last command stamped before joint state k + 1: the command sent in the period that follows
+  sample k, which the drive holds until the next (so a controller may stamp it with sample k's stamp or send it
+  a little later). Joint states before the first command's period or more than
+  :data:`~controllers.identification.logs.MAX_LOG_GAP` after the last command are left out (a recorder
+  subscribes to the topics one after another); a command held longer than that is refused.
 
 Times are the messages' header stamps; when every stamp of a topic read is zero (a driver that leaves them
 unset), the bag's receive times of both topics, one clock. The rows then go through
@@ -118,7 +119,8 @@ def is_bag(path: str | os.PathLike[str]) -> bool:
 
 
 @cache
-def _typestore() -> Any:
+def ros2_typestore() -> Any:
+    """The rosbags type store of :data:`TYPESTORE` (``rosbags.typesys.store.Typestore``), made once."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores[TYPESTORE])
@@ -149,6 +151,8 @@ def read_bag(path: str | os.PathLike[str], topics: BagTopics | None = None, peri
     topics = BagTopics() if topics is None else topics
     if not path.exists():
         raise LogFileError(f"log {path}: no such file or folder")
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise LogFileError(f"log {path}: a folder but not a rosbag2 bag (it has no metadata.yaml)")
     try:
         with Reader(path) as reader:
             present = {topic: (info.msgtype, info.msgcount) for topic, info in reader.topics.items()}
@@ -177,11 +181,11 @@ def read_bag(path: str | os.PathLike[str], topics: BagTopics | None = None, peri
     where = f"topic {topics.joint_states}"
     if commands is not None:
         command_ns = commands.receive_ns if use_receive else commands.header_ns
-        kept, held = _hold_commands(path, topics, state_ns, command_ns)
+        kept, held_commands = _hold_commands(path, topics, state_ns, command_ns, commands.effort)
         if kept.start > 0:
             where += f" from message {kept.start + 1} (the first with a command; data row 1 is that message)"
         state_ns, position, effort = state_ns[kept], states.position[kept], states.effort[kept]
-        columns |= {name: commands.effort[held, j] for j, name in enumerate(COMMAND_COLUMNS)}
+        columns |= {name: held_commands[:, j] for j, name in enumerate(COMMAND_COLUMNS)}
     else:
         position, effort = states.position, states.effort
     # Elapsed time in periods first, then in seconds: a stamp on the grid gives the grid's own float, so a bag
@@ -219,7 +223,7 @@ def _joint_messages(
     """The stamps, positions and efforts of the joints ``joint_names`` (None: the first message's first three) in
     a topic's serialized JointState messages, and the names taken; commands (not ``measured``) need no positions
     (NaN)."""
-    typestore = _typestore()
+    typestore = ros2_typestore()
     header_ns = np.empty(len(raw), dtype=np.int64)
     position = np.full((len(raw), 3), np.nan)
     effort = np.full((len(raw), 3), np.nan)
@@ -259,31 +263,44 @@ def _joint_messages(
 
 
 def _hold_commands(
-    path: Path, topics: BagTopics, state_ns: NDArray[np.int64], command_ns: NDArray[np.int64]
-) -> tuple[slice, NDArray[np.intp]]:
-    """The joint states within the commands' span, and the index of the command each holds (module docstring).
+    path: Path,
+    topics: BagTopics,
+    state_ns: NDArray[np.int64],
+    command_ns: NDArray[np.int64],
+    command_effort: NDArray[np.float64],
+) -> tuple[slice, NDArray[np.float64]]:
+    """The joint states within the commands' span and the command each row holds, the last row's NaN (the module
+    docstring's rule).
 
     Raises:
-        LogFileError: if the command stamps do not increase or a joint state's held command is older than
-            :data:`MAX_LOG_GAP`.
+        LogFileError: if the command stamps do not increase, fewer than 2 joint states lie in the commands' span or
+            a row's command is older than :data:`MAX_LOG_GAP` at the next joint state.
     """
-    if np.any(np.diff(command_ns) <= 0):
-        number = int(np.flatnonzero(np.diff(command_ns) <= 0)[0]) + 2
+    steps = np.diff(command_ns)
+    if np.any(steps <= 0):
+        number = int(np.flatnonzero(steps <= 0)[0]) + 2
         raise LogFileError(f"log {path}: topic {topics.commands}: message {number} is not later than the one before")
     max_age = round(MAX_LOG_GAP * _NANOSECONDS)
-    first = int(np.searchsorted(state_ns, command_ns[0], side="left"))
-    last = int(np.searchsorted(state_ns, command_ns[-1] + max_age, side="right"))
-    kept = slice(first, max(first, last))
-    held = np.searchsorted(command_ns, state_ns[kept], side="right") - 1
-    age = state_ns[kept] - command_ns[held]
+    # row k holds the last command stamped before joint state k + 1: the first row is the one whose successor
+    # comes after the first command; rows end max_age after the last command
+    first = max(0, int(np.searchsorted(state_ns, command_ns[0], side="right")) - 1)
+    stop = int(np.searchsorted(state_ns, command_ns[-1] + max_age, side="right"))
+    if stop - first < 2:
+        raise LogFileError(
+            f"log {path}: the commands on {topics.commands} span fewer than 2 messages of {topics.joint_states}"
+        )
+    following = state_ns[first + 1 : stop]
+    held = np.searchsorted(command_ns, following, side="left") - 1
+    age = following - command_ns[held]
     if np.any(age > max_age):
         row = int(np.flatnonzero(age > max_age)[0])
         raise LogFileError(
-            f"log {path}: topic {topics.joint_states} message {first + row + 1}: the last command on "
-            f"{topics.commands} is {age[row] / 1e6:.4g} ms older; a command may be held at most "
+            f"log {path}: topic {topics.commands}: no command in the {age[row] / 1e6:.4g} ms before "
+            f"{topics.joint_states} message {first + row + 2}; a command may be held at most "
             f"{1e3 * MAX_LOG_GAP:g} ms: split the bag at the gap"
         )
-    return kept, held
+    commands = np.vstack([command_effort[held], np.full((1, 3), np.nan)])
+    return slice(first, stop), commands
 
 
 def write_bag(
@@ -306,7 +323,7 @@ def write_bag(
     path = Path(path)
     if path.suffix not in BAG_STORAGES:
         raise LogFileError(f"bag {path}: the file name must end in {' or '.join(BAG_STORAGES)}")
-    typestore = _typestore()
+    typestore = ros2_typestore()
     joint_state = typestore.types[JOINT_STATE_TYPE]
     header = typestore.types["std_msgs/msg/Header"]
     time = typestore.types["builtin_interfaces/msg/Time"]
