@@ -6,12 +6,17 @@ parameter file into the run folder and (unless ``--no-install``) to the path the
 load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`), the
 scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and the
 figures (made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
-along every run as log files (:mod:`controllers.identification.logs`) and the robot file ``robot.toml``.
+along every run as log files (:mod:`controllers.identification.logs`; ``--log-format mcap`` or ``sqlite3``: ROS 2
+bags, :mod:`controllers.identification.bags`) and the robot file ``robot.toml``. ``--quick`` is a smoke run of a
+few seconds (:data:`QUICK`), said on the console and in the report, recorded in ``config.json`` and written to the
+run folder only: it never replaces the robot's parameter file, which ``python -m eval`` loads.
 
 With ``--log FILE [FILE ...] --robot ROBOT.toml`` nothing is simulated: the robot is identified from its logs
-alone (:func:`eval.identification.identify_logs`, the same fits), the last log held out for the report; the
-parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of the robot
-file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot (``--geometry ROBOT.toml``).
+alone (:func:`eval.identification.identify_logs`, the same fits), the last log held out for the report (a log is a
+CSV or Parquet table or a ROS 2 bag; ``--topic``, ``--joint-names`` and ``--command-topic`` say what to read from
+a bag); the parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of
+the robot file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot
+(``--geometry ROBOT.toml``).
 
 The report (:mod:`eval.identification_report`) of a simulation compares the identified friction and drive lag with
 the plant's true values: the only place that reads the plant's truth, labelled as ground truth for the report; the

@@ -171,19 +171,21 @@ def read_bag(path: str | os.PathLike[str], topics: BagTopics | None = None, peri
     commands = None
     if topics.commands is not None:
         commands, _ = _joint_messages(path, topics.commands, raw[topics.commands], joint_names, measured=False)
-    by_topic = [states] if commands is None else [states, commands]
-    use_receive = any(not messages.header_ns.any() for messages in by_topic)
-    clock = "receive times" if use_receive else "header stamps"
-    if use_receive:
-        logger.warning("log %s: header stamps are zero; timing the messages by the bag's receive times", path)
-    state_ns = states.receive_ns if use_receive else states.header_ns
+    by_topic = (
+        {topics.joint_states: states} if commands is None else {topics.joint_states: states, topics.commands: commands}
+    )
+    unstamped = [topic for topic, messages in by_topic.items() if not messages.header_ns.any()]
+    clock = "receive times" if unstamped else "header stamps"
+    if unstamped:
+        logger.warning("log %s: the header stamps of %s are zero: timing by the bag's receive times", path, unstamped)
+    state_ns = states.receive_ns if unstamped else states.header_ns
     columns: dict[str, Any] = {}
     where = f"topic {topics.joint_states}"
     if commands is not None:
-        command_ns = commands.receive_ns if use_receive else commands.header_ns
+        command_ns = commands.receive_ns if unstamped else commands.header_ns
         kept, held_commands = _hold_commands(path, topics, state_ns, command_ns, commands.effort)
         if kept.start > 0:
-            where += f" from message {kept.start + 1} (the first with a command; data row 1 is that message)"
+            where += f" from message {kept.start + 1} (the commands' span; data row 1 is that message)"
         state_ns, position, effort = state_ns[kept], states.position[kept], states.effort[kept]
         columns |= {name: held_commands[:, j] for j, name in enumerate(COMMAND_COLUMNS)}
     else:
@@ -196,7 +198,8 @@ def read_bag(path: str | os.PathLike[str], topics: BagTopics | None = None, peri
     try:
         log = resample_log(columns, period)
     except ValueError as error:
-        raise LogFileError(f"log {path}: {where}: {error}") from None
+        joints = ", ".join(joint_names)
+        raise LogFileError(f"log {path}: {where} (theta_j, torque_j: position, effort of {joints}): {error}") from None
     return BagLog(log, joint_names, clock)
 
 
