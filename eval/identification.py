@@ -230,8 +230,8 @@ SIMULATED_DATA = (
 """How a simulated identification's data were made (the provenance's ``method.data``)."""
 
 LOGGED_DATA = (
-    "drive logs (controllers.identification.logs) resampled onto the control period; encoder angles and "
-    "measured motor torques; Kalman RTS smoother for rates and accelerations"
+    "drive logs (controllers.identification.logs: CSV, Parquet or ROS 2 bags) resampled onto the control period; "
+    "encoder angles and measured motor torques; Kalman RTS smoother for rates and accelerations"
 )
 """How an identification from logs got its data (the provenance's ``method.data``)."""
 

@@ -7,22 +7,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from controllers.identification import DriveLog, LogFileError, load_result, read_log, resample_log, write_log
+from controllers.identification import LogFileError, load_result, read_log, resample_log, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATE_TYPE, BagTopics, read_bag, ros2_typestore
 from eval import identify as cli
 from eval.identification import identify_logs
 from eval.parameter_files import identification_root, parameter_path
+from tests.test_logs import random_log
 
 COMMANDS = BagTopics(commands=JOINT_COMMANDS_TOPIC)
-
-
-def random_log(rows: int = 60, commands: bool = True, seed: int = 0) -> DriveLog:
-    rng = np.random.default_rng(seed)
-    return DriveLog(
-        rng.normal(0.3, 0.2, (rows, 3)),
-        rng.normal(0.0, 20.0, (rows, 3)),
-        rng.normal(0.0, 20.0, (rows - 1, 3)) if commands else None,
-    )
 
 
 def write_messages(path, topics: dict[str, list[dict]], *, folder: bool = False) -> None:
