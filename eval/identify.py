@@ -50,8 +50,9 @@ LOG_FORMATS = {"csv": ".csv", "parquet": ".parquet", "mcap": ".mcap", "sqlite3":
 """``--log-format``: file ending of each log format (MCAP and sqlite3: ROS 2 bags,
 :mod:`controllers.identification.bags`)."""
 
-QUICK = {"trajectories": 3, "duration": 3.0, "validation_duration": 3.0}
-"""Settings of ``--quick`` (a smoke run in seconds, rough parameters), unless given explicitly."""
+QUICK = {"trajectories": 3, "duration": 3.0, "validation_duration": 3.0, "workers": 1}
+"""Settings of ``--quick`` (a smoke run in seconds, rough parameters), unless given explicitly; one process, as
+starting a second costs more than the four short runs it would share."""
 
 BAG_OPTIONS = ("topic", "joint_names", "command_topic")
 """Options that say what to read from the ROS 2 bags among the ``--log`` files."""

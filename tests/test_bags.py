@@ -316,17 +316,18 @@ def test_bad_bag_and_quick_command_lines_are_parser_errors(capsys, arguments, me
 
 def test_quick_settings_yield_to_explicit_ones() -> None:
     quick = cli.parse_arguments(["--quick"])
-    assert (quick.trajectories, quick.duration, quick.validation_duration, quick.no_install) == (3, 3.0, 3.0, True)
+    settings = (quick.trajectories, quick.duration, quick.validation_duration, quick.workers, quick.no_install)
+    assert settings == (3, 3.0, 3.0, 1, True)
     assert cli.parse_arguments(["--quick", "--duration", "5"]).duration == 5.0
 
 
 def test_a_quick_identification_never_replaces_the_robots_parameter_file(tmp_path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(cli, "QUICK", {"trajectories": 1, "duration": 2.0, "validation_duration": 2.0})
+    monkeypatch.setattr(cli, "QUICK", {"trajectories": 1, "duration": 2.0, "validation_duration": 2.0, "workers": 1})
     runs = tmp_path / "runs"
     cached = parameter_path(cli.parse_arguments(["--runs-dir", str(runs)]).scenario.plant, identification_root(runs))
     cached.parent.mkdir(parents=True)
     cached.write_text("the default identification")
-    cli.main(["--quick", "--runs-dir", str(runs), "--out", str(tmp_path / "run"), "--no-progress", "--workers", "1"])
+    cli.main(["--quick", "--runs-dir", str(runs), "--out", str(tmp_path / "run"), "--no-progress"])
     assert cached.read_text() == "the default identification"
     assert load_result(tmp_path / "run" / "parameters.json").provenance["samples"]["validation"] > 0
     output = capsys.readouterr().out
