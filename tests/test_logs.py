@@ -145,7 +145,7 @@ def test_only_the_last_command_may_be_missing_and_other_columns_are_ignored(tmp_
     path.write_text(_csv(rows, LOG_HEADER + ",command_1,command_2,command_3,note"))
     log = read_log(path)
     np.testing.assert_array_equal(log.commands, np.arange(4.0)[:, None].repeat(3, 1))
-    with pytest.raises(LogFileError, match=r"must end in \.csv or \.parquet"):
+    with pytest.raises(LogFileError, match=r"must end in \.csv, \.parquet, \.mcap or \.db3"):
         read_log(tmp_path / "log.txt")
 
 

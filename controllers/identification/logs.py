@@ -17,6 +17,9 @@ to the last bit (as :func:`write_log` writes it) comes back unchanged. A step be
 :data:`MAX_LOG_GAP` is refused (a straight line across it would be a made-up motion), as are non-increasing times
 and missing or non-finite values: each error names the file, the column and the row. Split a log at a gap into
 two files.
+
+A ROS 2 bag (MCAP or sqlite3, :mod:`controllers.identification.bags`) is a log too: its ``JointState`` messages
+become these columns and go through the same checks and resampling.
 """
 
 from __future__ import annotations
@@ -26,12 +29,16 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.drive import identify_lag
 from delta_env.sensors import CONTROL_PERIOD
+
+if TYPE_CHECKING:
+    from controllers.identification.bags import BagTopics
 
 TIME_COLUMN = "time_s"
 """Sample time (s)."""
@@ -48,8 +55,14 @@ COMMAND_COLUMNS = ("command_1", "command_2", "command_3")
 LOG_COLUMNS = (TIME_COLUMN, *ANGLE_COLUMNS, *TORQUE_COLUMNS, *COMMAND_COLUMNS)
 """Every column of a log, in the order a log is written."""
 
-LOG_SUFFIXES = (".csv", ".parquet")
-"""File name endings of the two log formats."""
+TABLE_SUFFIXES = (".csv", ".parquet")
+"""File name endings of the two table formats."""
+
+BAG_SUFFIXES = (".mcap", ".db3")
+"""File name endings of the storage files of ROS 2 bags, MCAP and sqlite3 (a rosbag2 folder is a bag too)."""
+
+LOG_SUFFIXES = (*TABLE_SUFFIXES, *BAG_SUFFIXES)
+"""File name endings of every log format."""
 
 MAX_LOG_GAP = 0.005
 """Longest step between two samples of a log (s), 5 control periods. Across it linear interpolation of the
@@ -103,16 +116,22 @@ class DriveLog:
 
 
 def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -> Path:
-    """Write ``log`` as a CSV or Parquet file (by the ending of ``path``); sample k at ``start + k dt`` (s).
+    """Write ``log`` as a CSV, Parquet, MCAP or sqlite3 file (by the ending of ``path``: ``.csv``, ``.parquet``,
+    ``.mcap``, ``.db3``); sample k at ``start + k dt`` (s).
 
     The CSV holds every number exactly (shortest round-trip decimal); the last row's commands are empty
-    (Parquet: null). Parent folders are created.
+    (Parquet: null). A bag is written by :func:`controllers.identification.bags.write_bag`. Parent folders are
+    created.
 
     Returns:
         The path written.
     """
     path = Path(path)
     _require_suffix(path)
+    if path.suffix in BAG_SUFFIXES:
+        from controllers.identification.bags import write_bag  # bags build on this module
+
+        return write_bag(log, path, start)
     time = start + np.arange(len(log)) * log.dt
     columns = {TIME_COLUMN: time}
     columns |= {name: log.angles[:, j] for j, name in enumerate(ANGLE_COLUMNS)}
@@ -136,8 +155,9 @@ def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -
     return path
 
 
-def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD) -> DriveLog:
-    """The log at ``path`` (CSV or Parquet, format in the module docstring), resampled onto ``period``.
+def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD, topics: BagTopics | None = None) -> DriveLog:
+    """The log at ``path`` (CSV or Parquet, format in the module docstring, or a ROS 2 bag, read as ``topics``
+    say: :func:`controllers.identification.bags.read_bag`), resampled onto ``period``.
 
     Raises:
         LogFileError: for a missing or unreadable file, a missing column, a value that is not a finite number,
@@ -145,6 +165,10 @@ def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD) -> Dr
             column and the row.
     """
     path = Path(path)
+    if path.is_dir() or path.suffix in BAG_SUFFIXES:
+        from controllers.identification.bags import read_bag  # bags build on this module
+
+        return read_bag(path, topics, period).log
     _require_suffix(path)
     if not path.is_file():
         raise LogFileError(f"log {path}: no such file")
@@ -212,7 +236,10 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
 
 def _require_suffix(path: Path) -> None:
     if path.suffix not in LOG_SUFFIXES:
-        raise LogFileError(f"log {path}: the file name must end in {' or '.join(LOG_SUFFIXES)}")
+        raise LogFileError(
+            f"log {path}: the file name must end in {', '.join(LOG_SUFFIXES[:-1])} or {LOG_SUFFIXES[-1]} "
+            "(or name a rosbag2 folder)"
+        )
 
 
 def _read_csv(path: Path) -> dict[str, NDArray[np.float64]]:
