@@ -18,8 +18,9 @@ scored at the same timings. For each payload it also finds the fastest fixed tim
 controller (PD by default) meets the tracking and place goals (:data:`TRACKING_GOAL_MM`, :data:`PLACE_GOAL_MM`):
 the ratio of the two pick rates is what the model buys.
 
-``--quick`` measures 1 episode x 2 cycles per row at 0.1 and 4 kg and the mixed stream, without the search of
-the fastest fixed timing: seconds instead of minutes, said in the summary and recorded in ``config.json``.
+``--quick`` measures 1 episode x 2 cycles per row at 0.1 and 4 kg and the mixed stream in one process, without
+the search of the fastest fixed timing: seconds instead of minutes, said in the summary and recorded in
+``config.json``.
 Progress goes to standard error (a bar on a terminal, plain lines otherwise).
 
 Writes ``rate.csv`` (one row per planner, controller and payload: ``payload`` in kg or ``mixed``),
@@ -52,6 +53,7 @@ from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval import metrics
 from eval.calibration import calibration_seeds
 from eval.engine import grid, prepare, run_grid
+from eval.processes import DEFAULT_WORKERS
 from eval.progress import progress_bar
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
@@ -90,19 +92,22 @@ class StudySize:
         cycles: Pick-and-place cycles per episode.
         payloads: Payloads (kg) besides the mixed stream.
         fastest: Whether to search the second controller's fastest fixed timing.
+        workers: Processes (the default of ``--workers``).
     """
 
     episodes: int
     cycles: int
     payloads: tuple[float, ...]
     fastest: bool
+    workers: int
 
 
-FULL_STUDY = StudySize(episodes=3, cycles=4, payloads=RATE_PAYLOADS, fastest=True)
+FULL_STUDY = StudySize(episodes=3, cycles=4, payloads=RATE_PAYLOADS, fastest=True, workers=DEFAULT_WORKERS)
 """The data sheet."""
 
-QUICK_STUDY = StudySize(episodes=1, cycles=2, payloads=(0.1, RATED_PAYLOAD), fastest=False)
-"""``--quick``: both ends of the payload range and the mixed stream, one short episode per row, no search."""
+QUICK_STUDY = StudySize(episodes=1, cycles=2, payloads=(0.1, RATED_PAYLOAD), fastest=False, workers=1)
+"""``--quick``: both ends of the payload range and the mixed stream, one short episode per row, no search, in this
+process (each process plans the time-optimal moves afresh, and planning is most of a short run's work)."""
 
 QUICK_NOTE = "Quick run: fewer episodes, cycles and payloads than the data sheet (python -m eval.rate without --quick)."
 """What a ``--quick`` run says first, on the console and in its summary."""
@@ -136,8 +141,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--quick",
         action="store_true",
         help=f"a short run: {QUICK_STUDY.episodes} episode x {QUICK_STUDY.cycles} cycles per row at "
-        f"{_kilograms(QUICK_STUDY.payloads)} kg and the mixed stream, no fastest-fixed search (options given "
-        "explicitly still apply)",
+        f"{_kilograms(QUICK_STUDY.payloads)} kg and the mixed stream, no fastest-fixed search, "
+        f"{QUICK_STUDY.workers} process (options given explicitly still apply)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument(
@@ -183,13 +188,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
-    add_workers_argument(parser)
+    add_workers_argument(parser, f"processes (default {FULL_STUDY.workers}; {QUICK_STUDY.workers} with --quick)")
+    parser.set_defaults(workers=None)
     args = parser.parse_args(argv)
     size = QUICK_STUDY if args.quick else FULL_STUDY
     args.episodes = size.episodes if args.episodes is None else args.episodes
     args.cycles = size.cycles if args.cycles is None else args.cycles
     args.payloads = _kilograms(size.payloads) if args.payloads is None else args.payloads
     args.fastest = size.fastest and not args.no_fastest
+    args.workers = size.workers if args.workers is None else args.workers
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     check_episode_seeds(parser, args)
     args.scenario = scenario_from_arguments(args, parser)

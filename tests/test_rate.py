@@ -203,16 +203,17 @@ def test_quick_and_the_default_study_and_the_whole_envelope(capsys: pytest.Captu
     )
     assert full.scenario.task.torque_share == RATE_TORQUE_SHARE == 1.0 and full.scenario.task.n_cycles == 4
     quick = parse_args(["--quick"])
-    assert (quick.episodes, quick.cycles, tuple(quick.payloads), quick.fastest) == (
+    assert (quick.episodes, quick.cycles, tuple(quick.payloads), quick.fastest, quick.workers) == (
         QUICK_STUDY.episodes,
         QUICK_STUDY.cycles,
         QUICK_STUDY.payloads,
         False,
+        1,
     )
     assert quick.scenario.task.n_cycles == QUICK_STUDY.cycles
     # options given explicitly still apply
-    mixed = parse_args(["--quick", "--episodes", "2", "--payloads", "1", "--torque-share", "0.2"])
-    assert (mixed.episodes, mixed.payloads, mixed.scenario.task.torque_share) == (2, [1.0], 0.2)
+    mixed = parse_args(["--quick", "--episodes", "2", "--payloads", "1", "--torque-share", "0.2", "--workers", "2"])
+    assert (mixed.episodes, mixed.payloads, mixed.scenario.task.torque_share, mixed.workers) == (2, [1.0], 0.2, 2)
     assert not parse_args(["--no-fastest"]).fastest
     with pytest.raises(SystemExit):
         parse_args(["--torque-share", "0"])
@@ -234,14 +235,14 @@ def test_plain_progress_prints_a_line_per_tenth_and_no_carriage_return() -> None
 @pytest.mark.slow
 def test_quick_runs_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "rate"
-    argv = ["--quick", "--parameters", str(parameter_file), "--out", str(out), "--workers", "1"]
+    argv = ["--quick", "--parameters", str(parameter_file), "--out", str(out)]
     assert main([*argv, "--runs-dir", str(tmp_path / "runs")]) == 0
     captured = capsys.readouterr()
     assert captured.out.startswith(QUICK_NOTE) and QUICK_NOTE in (out / "summary.md").read_text()
     assert "IRB 360-8/1130" in captured.out and "\r" not in captured.err
     assert "data sheet rows: 24/24 episodes" in captured.err.splitlines()
     config = json.loads((out / "config.json").read_text())["config"]
-    assert config["study"] == "quick" and config["arguments"]["quick"] is True
+    assert config["study"] == "quick" and config["arguments"]["quick"] is True and config["arguments"]["workers"] == 1
     assert config["arguments"]["torque_share"] == RATE_TORQUE_SHARE
     with (out / "rate.csv").open(newline="") as file:
         rows = list(csv.DictReader(file))
