@@ -624,6 +624,17 @@ def _published_lines(
         table.append([f"{published.payload:g}", published.robot, f"{published.picks_per_min:.0f}", *cells])
     plant: PlantConfig = args.scenario.plant
     drive, geometry = plant.drive, plant.geometry
+    air = cycle_terms(args.scenario.task).get("air_activation")
+    if air is None:
+        ends = [
+            f"our cycle dwells {1e3 * DEFAULT_DWELL:.0f} ms at pick and place, {sheet.maker}'s counts "
+            f"{1e3 * sheet.air_activation:.0f} ms of air activation"
+        ]
+    elif not math.isclose(air, sheet.air_activation):
+        ends = [f"our air activation is {1e3 * air:.0f} ms, {sheet.maker}'s {1e3 * sheet.air_activation:.0f} ms"]
+    else:
+        ends = []
+    clauses = [*DIFFERENCES, *ends]
     return [
         f"Beside {sheet.maker}'s published rates ({sheet.source}, {sheet.cycle}: {1e3 * sheet.lift:g}/"
         f"{1e3 * sheet.travel:g}/{1e3 * sheet.lift:g} mm, {1e3 * sheet.air_activation:.0f} ms air activation at "
@@ -636,8 +647,8 @@ def _published_lines(
         "",
         "What differs:",
         "",
-        *(f"- {clause};" for clause in DIFFERENCES[:-1]),
-        f"- {DIFFERENCES[-1]}.",
+        *(f"- {clause};" for clause in clauses[:-1]),
+        f"- {clauses[-1]}.",
         "",
         f"Our robot: {drive.peak_torque:g} N m peak and {drive.rated_torque:g} N m rated torque at each joint, arms "
         f"{1e3 * geometry.l1:.0f}/{1e3 * geometry.l2:.0f} mm, base and platform radii {1e3 * geometry.ra:.0f}/"

@@ -191,6 +191,12 @@ def test_published_rows_stand_beside_ours_at_their_payloads() -> None:
     assert "| 1 | IRB 360-8/1130 | 160 | not run | - | - |" in text
     assert f"| 8 | IRB 360-8/1130 | 100 | beyond our rated {RATED_PAYLOAD:g} kg | - | - |" in text
     assert all(clause in text for clause in DIFFERENCES)
+    # the cycle's ends: the scenario's air activation against ABB's 35 ms
+    if "air_activation" in cycle_terms(args.scenario.task):
+        air = 1e3 * cycle_terms(args.scenario.task)["air_activation"]
+        assert f"our air activation is {air:.0f} ms" in text or air == pytest.approx(35.0)
+    else:
+        assert "our cycle dwells 100 ms at pick and place, ABB's counts 35 ms of air activation" in text
 
 
 def test_quick_and_the_default_study_and_the_whole_envelope(capsys: pytest.CaptureFixture) -> None:
