@@ -293,14 +293,16 @@ def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     }
 
 
-def holds(row: dict[str, Any]) -> bool:
-    """Whether a row holds its timing: the tracking and place goals, no violation, no divergence, no overheating."""
+def holds(row: Mapping[str, Any]) -> bool:
+    """Whether a row holds its timing: the tracking and place goals, no violation, no divergence, no overheating,
+    and no place that never settled in position (when the row reports it)."""
     return (
         row["tracking_rms_mm"] <= TRACKING_GOAL_MM
         and row["place_error_mm"] <= PLACE_GOAL_MM
         and row["envelope_violations"] == 0
         and row["diverged"] == 0
         and not row["thermal_exceeded"]
+        and row.get("settle_timeouts", 0) == 0
     )
 
 
@@ -490,7 +492,8 @@ def _summary(
         "Every row: tracking RMS and path deviation RMS (mean, mm), place error at release (worst, mm), "
         + ("settle time in position (mean and longest, ms) and places that timed out, " if settled else "")
         + "envelope violations (steps), peak and RMS torque over the drive's peak and rated torque (largest); holds = "
-        f"tracking <= {TRACKING_GOAL_MM} mm, place error <= {PLACE_GOAL_MM} mm, no violation, no overheating.",
+        f"tracking <= {TRACKING_GOAL_MM} mm, place error <= {PLACE_GOAL_MM} mm, no violation, no overheating"
+        + (", no settle time-out." if settled else "."),
         "",
         metrics.markdown_table(
             [

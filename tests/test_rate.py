@@ -34,9 +34,11 @@ from eval.rate import (
     _cycle_line,
     _published_lines,
     cycle_terms,
+    holds,
     main,
     parse_args,
     rate_figure,
+    rate_scenario,
     summarize,
 )
 
@@ -87,6 +89,8 @@ def test_a_row_aggregates_its_episodes_and_their_settle_times() -> None:
     assert row["settle_time_max_ms"] == pytest.approx(55.0)  # the longest
     assert row["settle_timeouts"] == 3 and isinstance(row["settle_timeouts"], int)  # summed
     assert row["episodes"] == 3 and not row["thermal_exceeded"]
+    # a place that never settled in position: the row does not hold its timing, whatever its errors
+    assert not holds(row) and holds(summarize([settled[0]]))
     # episodes of an env without the in-position release (or any episode without them): no settle columns
     without = summarize([episode(150.0, 0.08), settled[1]])
     assert not {"settle_time_mean_ms", "settle_time_max_ms", "settle_timeouts"} & set(without)
@@ -109,6 +113,17 @@ def test_the_cycle_ends_are_the_scenarios() -> None:
     assert cycle_terms(ends) == {"air_activation": 0.035, "in_position_window": 5e-5}  # type: ignore[arg-type]
     line = _cycle_line(ends)  # type: ignore[arg-type]
     assert "within 0.05 mm" in line and "35 ms of air activation" in line
+
+
+def test_a_rows_scenario_keeps_every_other_term_of_the_task() -> None:
+    # the cycle's ends (air activation, in-position window) and the rest pass through from the scenario
+    base = Scenario(task=PickPlaceTask(n_cycles=2, torque_share=0.5, fault_reaction="slow", start="pick"))
+    row = rate_scenario(base, "online", 1.0)
+    changed = {"cycle": "standard", "timing": "online", "payload_mass_range": (1.0, 1.0)}
+    for field in dataclasses.fields(PickPlaceTask):
+        expected = changed.get(field.name, getattr(base.task, field.name))
+        assert getattr(row.task, field.name) == expected, field.name
+    assert row.plant == base.plant and row.condition == base.condition
 
 
 def rate_rows(planners: tuple[str, ...], loads: tuple[str, ...]) -> list[dict[str, Any]]:
