@@ -141,7 +141,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--quick",
         action="store_true",
         help=f"a short run: {QUICK_STUDY.episodes} episode x {QUICK_STUDY.cycles} cycles per row at "
-        f"{_kilograms(QUICK_STUDY.payloads)} kg and the mixed stream, no fastest-fixed search, "
+        f"{_kilograms(QUICK_STUDY.payloads).replace(',', ' and ')} kg and the mixed stream, no fastest-fixed search, "
         f"{QUICK_STUDY.workers} process (options given explicitly still apply)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
