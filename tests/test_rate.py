@@ -33,6 +33,7 @@ from eval.rate import (
     RATE_TORQUE_SHARE,
     _cycle_line,
     _published_lines,
+    _summary,
     cycle_terms,
     holds,
     main,
@@ -214,6 +215,17 @@ def test_published_rows_stand_beside_ours_at_their_payloads() -> None:
         assert "our cycle dwells 100 ms at pick and place, ABB's counts 35 ms of air activation" in text
 
 
+def test_the_summary_shows_the_settle_columns_when_the_rows_have_them(tmp_path: Path) -> None:
+    args = parse_args(["--quick", "--planners", "fixed,online", "--controllers", "mid_f_rls_lag"])
+    settle = {"settle_time_mean_ms": 14.0, "settle_time_max_ms": 52.0, "settle_timeouts": 1}
+    rows = rate_rows(("fixed", "online"), ("0.1", "4", MIXED))
+    text = "\n".join(_summary(args, rows, [], tmp_path, 1.0))
+    assert "settle (ms)" not in text and text.count(QUICK_NOTE) == 1 and "1 episode x 2 cycles" in text
+    settled = "\n".join(_summary(args, [row | settle for row in rows], [], tmp_path, 1.0))
+    assert "| settle (ms) | settle max | time-outs |" in settled and "| 14.0 | 52.0 | 1 |" in settled
+    assert "no settle time-out" in settled and "IRB 360-3/1130" in settled
+
+
 def test_quick_and_the_default_study_and_the_whole_envelope(capsys: pytest.CaptureFixture) -> None:
     full = parse_args([])
     assert (full.episodes, full.cycles, tuple(full.payloads), full.fastest) == (
@@ -251,6 +263,21 @@ def test_plain_progress_prints_a_line_per_tenth_and_no_carriage_return() -> None
     lines = stream.getvalue().splitlines()
     assert len(lines) == 10 and "\r" not in stream.getvalue()
     assert lines[0] == "data sheet rows: 3/25 episodes" and lines[-1] == "data sheet rows: 25/25 episodes"
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_terminal_gets_a_tqdm_bar() -> None:
+    from tqdm import tqdm
+
+    stream = Terminal()
+    with progress_bar(4, "data sheet rows", "episodes", stream) as bar:
+        assert isinstance(bar, tqdm)
+        bar.update(4)
+    assert "\r" in stream.getvalue() and "4/4" in stream.getvalue()
 
 
 @pytest.mark.slow
