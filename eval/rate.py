@@ -579,11 +579,16 @@ def _fastest_lines(
 
 def _study_line(args: argparse.Namespace) -> str:
     """What a run measures: episodes, cycles, seeds and payloads."""
-    episodes = f"{args.episodes} episode{'s' if args.episodes != 1 else ''}"
     return (
-        f"{episodes} x {args.scenario.task.n_cycles} cycles per row from seed {args.seed}, payloads "
+        f"{_counted(args.episodes, 'episode')} x {_counted(args.scenario.task.n_cycles, 'cycle')} per row from seed "
+        f"{args.seed}, payloads "
         f"{_kilograms(args.payloads).replace(',', ', ')} kg and the mixed stream"
     )
+
+
+def _counted(count: int, noun: str) -> str:
+    """``"1 episode"``, ``"3 episodes"``."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _cycle_line(task: PickPlaceTask) -> str:
