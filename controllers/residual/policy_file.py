@@ -12,6 +12,7 @@ torch) are imported only when a model is loaded: a controller reads a SAC actor 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import zipfile
 from dataclasses import asdict, dataclass
@@ -29,6 +30,7 @@ from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
 from controllers.setup import ESTIMATOR_REGRESSORS, ControllerSetup, model_row
+from delta_env.records import content_hash
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -147,11 +149,16 @@ class PolicyBase:
         if "setup" not in values:
             return _legacy_base(values)
         setup = ControllerSetup.from_table(values["setup"], "base.setup")
+        written = setup.to_table()
+        if "servo" not in values["setup"]:
+            # Written before the servo layer: the base's feedback was the paper's PD, and the hash has no servo field.
+            del written["servo"]
+            setup = dataclasses.replace(setup, servo="pd")
         recorded = values.get("setup_hash")
-        if setup.content_hash() != recorded:
+        if content_hash(written) != recorded:
             raise ValueError(
-                f"base.setup hashes to {setup.content_hash()}, not to the recorded setup_hash {recorded!r}: the record "
-                "was edited or damaged"
+                f"base.setup hashes to {content_hash(written)}, not to the recorded setup_hash {recorded!r}: the "
+                "record was edited or damaged"
             )
         return cls(values["key"], setup)
 
@@ -185,6 +192,7 @@ def _legacy_base(values: dict[str, Any]) -> PolicyBase:
         if values.get(name) is not None:
             table[name] = values[name]
     table["tares"] = {key: values["tare"]}
+    table["servo"] = "pd"  # these files predate the servo layer
     return PolicyBase(key, ControllerSetup.from_table(table, "base"))
 
 
