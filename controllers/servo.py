@@ -25,17 +25,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
 from delta_env.validation import require_in, require_joint_vector
 
-DEFAULT_PHASE_MARGIN = math.radians(50.0)
-"""Phase margin (rad) the servo's bandwidth keeps through the loop's delay."""
+DEFAULT_PHASE_MARGIN = math.radians(35.0)
+"""Phase margin (rad) the servo's bandwidth keeps through the loop's delay: the best of 35, 40 and 50 degrees on the
+standard cycle at 3 and 6 g (docs/measurements.md), and at a lag twice the identified one still about 20 degrees."""
 
 DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
 
-DEFAULT_FRICTION_WIDTH = 1.0e-4
-"""Error (rad) at which the friction compensation at rest reaches the full Coulomb torque: two 17-bit encoder steps."""
+DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
+"""Error (rad) at which the friction compensation at rest reaches the full Coulomb torque: one encoder step (17 bit),
+the smallest error the servo can see."""
 
 
 @dataclass(frozen=True)

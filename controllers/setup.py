@@ -18,11 +18,11 @@ from controllers.base import DEFAULT_KD, DEFAULT_KP, JointFeedback, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
-from controllers.servo import JointServo, servo_gains
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
-from delta_env.sensors import ENCODER_BITS
+from delta_env.sensors import ENCODER_BITS, encoder_resolution
 from delta_env.validation import require_joint_vector
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
@@ -145,4 +145,5 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
             "the servo layer's gains need the identified drive lag (ControllerSetup.drive_lag is None); "
             "identify it, or use servo='pd'"
         )
-    return JointServo(servo_gains(dynamics, setup.drive_lag))
+    step = DEFAULT_FRICTION_WIDTH if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits)
+    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step))
