@@ -71,6 +71,7 @@ from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
     check_ranges,
@@ -112,6 +113,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/eval/<UTC time>)")
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
+    add_servo_argument(parser)
     parser.add_argument(
         "--calibration-episodes",
         type=int,
@@ -339,6 +341,7 @@ def _summarize(
         },
         "controllers": {key: controller_label(key) for key in keys},
         "pd_gains": {"kp_nm_per_rad": setup.pd_gains[0], "kd_nm_s_per_rad": setup.pd_gains[1]},
+        "servo": setup.servo,
         "identification": {
             "path": str(args.parameters),
             "mid": dataclasses.asdict(identification.mid),
