@@ -62,9 +62,9 @@ def add_servo_argument(parser: argparse.ArgumentParser) -> None:
         "--servo",
         choices=SERVOS,
         default=SERVOS[0],
-        help="feedback of the model rows (the residual's base: the one its policy file records): 'servo', the servo layer (integral action, friction "
-        "compensation at rest, gains from the identified model and drive lag), or 'pd', the paper's fixed PD "
-        f"(default {SERVOS[0]}; the pd row is always the PD)",
+        help="feedback of the model rows (the residual's base: the one its policy file records): 'servo', the servo "
+        "layer (integral action, friction compensation at rest, gains from the identified model and drive lag), or "
+        f"'pd', the paper's fixed PD (default {SERVOS[0]}; the pd row is always the PD)",
     )
 
 
