@@ -12,7 +12,6 @@ torch) are imported only when a model is loaded: a controller reads a SAC actor 
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import zipfile
 from dataclasses import asdict, dataclass
@@ -149,16 +148,12 @@ class PolicyBase:
         if "setup" not in values:
             return _legacy_base(values)
         setup = ControllerSetup.from_table(values["setup"], "base.setup")
-        written = setup.to_table()
-        if "servo" not in values["setup"]:
-            # Written before the servo layer: the base's feedback was the paper's PD, and the hash has no servo field.
-            del written["servo"]
-            setup = dataclasses.replace(setup, servo="pd")
-        recorded = values.get("setup_hash")
-        if content_hash(written) != recorded:
+        # The record as written (a field added since then takes its default, which the file's hash does not cover).
+        written, recorded = content_hash(values["setup"]), values.get("setup_hash")
+        if written != recorded:
             raise ValueError(
-                f"base.setup hashes to {content_hash(written)}, not to the recorded setup_hash {recorded!r}: the "
-                "record was edited or damaged"
+                f"base.setup hashes to {written}, not to the recorded setup_hash {recorded!r}: the record was "
+                "edited or damaged"
             )
         return cls(values["key"], setup)
 
@@ -192,7 +187,6 @@ def _legacy_base(values: dict[str, Any]) -> PolicyBase:
         if values.get(name) is not None:
             table[name] = values[name]
     table["tares"] = {key: values["tare"]}
-    table["servo"] = "pd"  # these files predate the servo layer
     return PolicyBase(key, ControllerSetup.from_table(table, "base"))
 
 
