@@ -71,6 +71,7 @@ from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
     check_ranges,
@@ -112,6 +113,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/eval/<UTC time>)")
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
+    add_servo_argument(parser)
     parser.add_argument(
         "--calibration-episodes",
         type=int,
@@ -130,6 +132,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args.left_out = ""
     args.residual_base = None
     args.residual_base_moves = False
+    args.residual_base_servo = None
     try:
         args.controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
@@ -148,6 +151,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             parser.error(f"--residual: {error}")
         args.residual_base = None if base is None else base.name
         args.residual_base_moves = base is not None and bool(base.setup.empty_moves)
+        args.residual_base_servo = None if base is None else base.setup.servo
         robot = args.scenario.plant
         if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
             if not chosen:
@@ -236,7 +240,13 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
         f"file's base {moves}).",
         "",
     ]
-    if args.residual_base is not None:
+    if args.residual_base is not None and args.residual_base_servo != args.servo:
+        lines += [
+            f"No gain over its base is computed: the base's feedback is '{args.residual_base_servo}', this run's "
+            f"model rows run '{args.servo}' (--servo {args.residual_base_servo} runs the same base).",
+            "",
+        ]
+    elif args.residual_base is not None:
         lines += residual_gain(episode_rows, label, args.residual_base)
     return lines
 
@@ -339,6 +349,7 @@ def _summarize(
         },
         "controllers": {key: controller_label(key) for key in keys},
         "pd_gains": {"kp_nm_per_rad": setup.pd_gains[0], "kd_nm_s_per_rad": setup.pd_gains[1]},
+        "servo": setup.servo,
         "identification": {
             "path": str(args.parameters),
             "mid": dataclasses.asdict(identification.mid),

@@ -69,6 +69,7 @@ def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, Ep
             workers=args.workers,
             progress=progress,
             residual_policy=args.residual,
+            servo=args.servo,
         )
     slow_first = [*(key for key in SLOW_KEYS if key in keys), *(key for key in keys if key not in SLOW_KEYS)]
     units = grid([scenario], slow_first, range(args.seed, args.seed + args.episodes))

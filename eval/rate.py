@@ -60,6 +60,7 @@ from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
     check_ranges,
@@ -188,6 +189,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
+    add_servo_argument(parser)
     add_workers_argument(parser, f"processes (default {FULL_STUDY.workers}; {QUICK_STUDY.workers} with --quick)")
     parser.set_defaults(workers=None)
     args = parser.parse_args(argv)
@@ -414,6 +416,7 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
             calibration_episodes=CALIBRATION_EPISODES,
             workers=args.workers,
             progress=bar,
+            servo=args.servo,
         )
     args.parameters, setup, calibration = prepared.parameter_file, prepared.setup, prepared.calibration
 

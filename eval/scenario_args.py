@@ -9,6 +9,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from controllers.setup import SERVOS
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import (
     Scenario,
@@ -52,6 +53,18 @@ def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="identified parameter file of the scenario's robot (default: <runs root>/identification/<robot "
         "identity>/parameters.json, identified when missing)",
+    )
+
+
+def add_servo_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--servo`` (the model rows' feedback, :data:`controllers.setup.SERVOS`) to ``parser``."""
+    parser.add_argument(
+        "--servo",
+        choices=SERVOS,
+        default=SERVOS[0],
+        help="feedback of the model rows (the residual's base: the one its policy file records): 'servo', the servo "
+        "layer (integral action, friction compensation at rest, gains from the identified model and drive lag), or "
+        f"'pd', the paper's fixed PD (default {SERVOS[0]}; the pd row is always the PD)",
     )
 
 

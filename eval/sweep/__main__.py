@@ -51,6 +51,7 @@ from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
 from eval.scenario_args import (
     add_geometry_argument,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
     check_ranges,
@@ -90,6 +91,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_runs_dir_argument(parser)
     parser.add_argument("--force", action="store_true", help="run every episode again, even those already done")
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
+    add_servo_argument(parser)
     add_geometry_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
@@ -163,7 +165,12 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
         log.write(command + "\n")
     setups = {
         s.content_hash: prepare(
-            s, args.controllers, runs_dir=args.runs_dir, workers=args.workers, residual_policy=args.residual
+            s,
+            args.controllers,
+            runs_dir=args.runs_dir,
+            workers=args.workers,
+            residual_policy=args.residual,
+            servo=args.servo,
         ).setup
         for s in args.scenarios
     }
