@@ -57,6 +57,7 @@ from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
+from eval.console import progress_bar
 from eval.excitation import (
     DEFAULT_DURATION,
     NOMINAL_REGION,
@@ -64,7 +65,6 @@ from eval.excitation import (
     ExcitationRecord,
     ExcitationRegion,
     ExcitationSpec,
-    progress_bar,
     run_excitation,
 )
 from eval.processes import parallel_map
@@ -199,7 +199,7 @@ def run_identification(
     specs.append(dataclasses.replace(ExcitationSpec.stress(validation_seed, validation_duration), **place))
 
     run = functools.partial(_collect_and_prepare, plant=plant)
-    with progress_bar(len(specs), progress) as bar:
+    with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
         runs = parallel_map(run, specs, workers, bar)
     source = {
         "seed": seed,
@@ -262,7 +262,7 @@ def identify_logs(
         raise ValueError(f"need at least 2 logs (the last one is held out for validation), got {len(paths)}")
     geometry, masses = load_robot(robot)
     logs = [read_log(path) for path in paths]
-    with progress_bar(len(logs), progress, "logs") as bar:
+    with progress_bar(len(logs), "logs", "log", disable=not progress) as bar:
         prepared = parallel_map(prepare_log, logs, workers, bar)
     summaries = [_log_summary(path, log) for path, log in zip(paths, logs, strict=True)]
     source = {

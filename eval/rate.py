@@ -44,9 +44,10 @@ from delta_env.scenario import TIMINGS, Scenario
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from eval import metrics
 from eval.calibration import calibration_seeds
+from eval.console import command_main
 from eval.engine import grid, prepare, run_grid
 from eval.episodes import EpisodeRecord
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
@@ -117,6 +118,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
     add_workers_argument(parser)
@@ -262,6 +264,7 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[s
     return rows
 
 
+@command_main("python -m eval.rate")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
@@ -272,6 +275,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
         rate(args, run, started)
     return 0
