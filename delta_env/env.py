@@ -385,8 +385,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             masses = np.asarray(requested, dtype=float)
         except (TypeError, ValueError):
             raise ValueError(
-                f"options['payload_masses'] must be {drawn.size} numbers, the object masses in kg, each in "
-                f"[0, {MAX_PAYLOAD_MASS}], got {requested!r}"
+                f"options['payload_masses'] must hold numbers, the object masses in kg, one per pick ({drawn.size}), "
+                f"each in [0, {MAX_PAYLOAD_MASS}], got {requested!r}"
             ) from None
         if masses.shape != drawn.shape:
             raise ValueError(
