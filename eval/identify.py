@@ -3,7 +3,8 @@
 The plant is the robot of ``--scenario`` (and ``--geometry``); its condition (wear) and task do not enter:
 an identification belongs to the robot. Runs :func:`eval.identification.run_identification`, writes the
 parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
-load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`), the
+load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`; for
+the default settings only: :func:`eval.parameter_files.install_path`, else ``--parameters`` if given), the
 scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and the
 figures (made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
 along every run as log files (:mod:`controllers.identification.logs`) and the robot file ``robot.toml``.

@@ -301,7 +301,7 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
             if faulted
             else []
         ),
-        f"Folder: {out}",
+        f"Run folder: {out}",
     ]
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")

@@ -400,7 +400,7 @@ def benchmark(args: argparse.Namespace, out: Path) -> None:
             run(recipe, seed, args, out, shared)
     table = summary_table(read_csv_rows(out / "curve.csv"), args.max_torque_change)
     (out / "table.md").write_text(table + "\n")
-    print(table)
+    print(f"{table}\n\nRun folder: {out}")
 
 
 if __name__ == "__main__":
