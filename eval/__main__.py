@@ -65,15 +65,17 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
+from eval.console import command_main, plural
 from eval.engine import Prepared, kept_tares
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
     add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
+    check_parameter_file,
     check_ranges,
     scenario_from_arguments,
 )
@@ -111,6 +113,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/eval/<UTC time>)")
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
     add_servo_argument(parser)
@@ -138,6 +141,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     except ValueError as error:
         parser.error(f"--controllers: {error}")
     args.scenario = scenario_from_arguments(args, parser)
+    check_parameter_file(parser, args)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     check_episode_seeds(parser, args)
     if args.cycles is None:
@@ -251,6 +255,7 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
     return lines
 
 
+@command_main("python -m eval")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
@@ -262,6 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
         compare(args, run, started)
     return 0
@@ -368,8 +374,8 @@ def _summarize(
 
     summary = "\n".join(
         [
-            f"# Controller comparison, scenario {scenario.name}: {args.episodes} episodes x {args.cycles} cycles "
-            f"from seed {args.seed}",
+            f"# Controller comparison, scenario {scenario.name}: {plural(args.episodes, 'episode')} x "
+            f"{plural(args.cycles, 'cycle')} from seed {args.seed}",
             "",
             f"Scenario {scenario.name} ({scenario.description or 'no description'}); robot {scenario.robot_identity}, "
             f"identified in {args.parameters}.",

@@ -58,6 +58,7 @@ from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
+from eval.console import progress_bar
 from eval.excitation import (
     DEFAULT_DURATION,
     NOMINAL_REGION,
@@ -65,7 +66,6 @@ from eval.excitation import (
     ExcitationRecord,
     ExcitationRegion,
     ExcitationSpec,
-    progress_bar,
     run_excitation,
 )
 from eval.processes import parallel_map
@@ -200,7 +200,7 @@ def run_identification(
     specs.append(dataclasses.replace(ExcitationSpec.stress(validation_seed, validation_duration), **place))
 
     run = functools.partial(_collect_and_prepare, plant=plant)
-    with progress_bar(len(specs), progress) as bar:
+    with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
         runs = parallel_map(run, specs, workers, bar)
     source = {
         "seed": seed,
@@ -267,7 +267,7 @@ def identify_logs(
         raise ValueError(f"need at least 2 logs (the last one is held out for validation), got {len(paths)}")
     geometry, masses = load_robot(robot)
     logs, summaries = zip(*(_read_log(path, topics) for path in paths), strict=True)
-    with progress_bar(len(logs), progress, "logs") as bar:
+    with progress_bar(len(logs), "logs", "log", disable=not progress) as bar:
         prepared = parallel_map(prepare_log, logs, workers, bar)
     source = {
         "logs": list(summaries[:-1]),

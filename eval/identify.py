@@ -3,7 +3,8 @@
 The plant is the robot of ``--scenario`` (and ``--geometry``); its condition (wear) and task do not enter:
 an identification belongs to the robot. Runs :func:`eval.identification.run_identification`, writes the
 parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
-load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`), the
+load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`; for
+the default settings only: :func:`eval.parameter_files.install_path`, else ``--parameters`` if given), the
 scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and the
 figures (made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
 along every run as log files (:mod:`controllers.identification.logs`; ``--log-format mcap`` or ``sqlite3``: ROS 2
@@ -36,11 +37,12 @@ from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import save_robot
+from eval.console import command_main
 from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
 from eval.identification_report import ground_truth, plot_figures, render_report, save_validation_data
-from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, utc_stamp
+from eval.parameter_files import DEFAULT_SETTINGS, describe_settings, identification_root, install_path, parameter_path
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, utc_stamp
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 
 DURATION_RANGE = (1.0, 600.0)
@@ -180,13 +182,15 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default <runs root>/identification/<UTC time>_seed<seed>)"
     )
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     parser.add_argument(
         "--parameters",
         type=Path,
         default=None,
         help="parameter file the controllers load (default: <runs root>/identification/<robot identity>/"
-        "parameters.json; with --log: the run folder's only)",
+        "parameters.json, only for the default --trajectories, --duration, --validation-duration and --seed; "
+        "otherwise, and with --log, the run folder's only)",
     )
     parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -206,8 +210,18 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
         if arguments.robot is not None:
             parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
         arguments.scenario = scenario_from_arguments(arguments, parser)
+        own = parameter_path(arguments.scenario.plant, identification_root(arguments.runs_dir))
+        settings = simulation_settings(arguments)
         if arguments.parameters is None:
-            arguments.parameters = parameter_path(arguments.scenario.plant, identification_root(arguments.runs_dir))
+            arguments.parameters = install_path(
+                arguments.scenario.plant, settings, identification_root(arguments.runs_dir)
+            )
+        elif arguments.parameters.resolve() == own.resolve() and settings != DEFAULT_SETTINGS:
+            parser.error(
+                f"--parameters {arguments.parameters} is the robot's own identification, which holds the default "
+                f"settings ({describe_settings(DEFAULT_SETTINGS)}), not {describe_settings(settings)}; name another "
+                "file"
+            )
         return arguments
     given = [name for name in SIMULATION_OPTIONS if getattr(arguments, name) != parser.get_default(name)]
     if arguments.scenario != parser.get_default("scenario"):
@@ -223,6 +237,17 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     return arguments
 
 
+def simulation_settings(arguments: argparse.Namespace) -> dict[str, float]:
+    """The settings of a simulated identification (:data:`eval.parameter_files.DEFAULT_SETTINGS`' keys) given by
+    ``arguments``."""
+    return {
+        "trajectories": arguments.trajectories,
+        "duration_s": arguments.duration,
+        "validation_duration_s": arguments.validation_duration,
+        "seed": arguments.seed,
+    }
+
+
 def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMasses, folder: Path, suffix: str) -> Path:
     """Write the run's logs as a robot's logger would (excitation_01 ... and, last, validation) and the robot file
     ``robot.toml``, what ``--log`` and ``--robot`` read; returns the robot file."""
@@ -234,6 +259,7 @@ def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMass
     return save_robot(geometry, masses, folder / "robot.toml")
 
 
+@command_main("python -m eval.identify")
 def main(argv: list[str] | None = None) -> int:
     arguments = parse_arguments(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -272,6 +298,7 @@ def main(argv: list[str] | None = None) -> int:
         runs_dir=arguments.runs_dir,
         scenarios=scenarios,
         stamp=stamp,
+        reuse=arguments.force,
     ) as run_dir:
         run_dir.record(config={**config, "out": run_dir.folder})
         identify_into(arguments, run_dir, command, run)
@@ -322,6 +349,12 @@ def identify_into(arguments: argparse.Namespace, run_dir: Run, command: str, run
     (folder / "report.md").write_text(report)
     print(report)
     written = "" if install is None else f" and {install}"
+    if install is None and truth is not None and not arguments.no_install:
+        written += (
+            " (not installed as the robot's identification: made with "
+            f"{describe_settings(simulation_settings(arguments))}, not the defaults "
+            f"{describe_settings(DEFAULT_SETTINGS)}; --parameters FILE installs it there)"
+        )
     if arguments.save_logs is not None:
         written += f"; the logs and robot.toml in {arguments.save_logs}/"
     print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){written}.")

@@ -52,11 +52,11 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval import metrics
 from eval.calibration import calibration_seeds
+from eval.console import command_main, progress_bar
 from eval.engine import grid, prepare, run_grid
 from eval.processes import DEFAULT_WORKERS
-from eval.progress import progress_bar
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
@@ -187,6 +187,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
     add_servo_argument(parser)
@@ -381,6 +382,7 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str, progress: Any 
     return rows
 
 
+@command_main("python -m eval.rate")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
@@ -391,6 +393,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
         rate(args, run, started)
     return 0

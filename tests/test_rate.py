@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import io
 import json
 import math
 from pathlib import Path
@@ -22,7 +21,6 @@ from matplotlib.patches import Patch
 from delta_env.config import RATED_PAYLOAD
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.scenario import PickPlaceTask, Scenario
-from eval.progress import PlainProgress, progress_bar
 from eval.published_rates import ABB_IRB_360, DIFFERENCES
 from eval.rate import (
     CYCLE_TERMS,
@@ -251,33 +249,6 @@ def test_quick_and_the_default_study_and_the_whole_envelope(capsys: pytest.Captu
     with pytest.raises(SystemExit):
         parse_args(["--torque-share", "0"])
     assert "--torque-share: torque_share must" in capsys.readouterr().err
-
-
-def test_plain_progress_prints_a_line_per_tenth_and_no_carriage_return() -> None:
-    stream = io.StringIO()  # not a terminal
-    with progress_bar(25, "data sheet rows", "episodes", stream) as bar:
-        assert isinstance(bar, PlainProgress)
-        bar.update(0)  # a calibration found in the cache reports nothing new
-        for _ in range(25):
-            bar.update()
-    lines = stream.getvalue().splitlines()
-    assert len(lines) == 10 and "\r" not in stream.getvalue()
-    assert lines[0] == "data sheet rows: 3/25 episodes" and lines[-1] == "data sheet rows: 25/25 episodes"
-
-
-class Terminal(io.StringIO):
-    def isatty(self) -> bool:
-        return True
-
-
-def test_a_terminal_gets_a_tqdm_bar() -> None:
-    from tqdm import tqdm
-
-    stream = Terminal()
-    with progress_bar(4, "data sheet rows", "episodes", stream) as bar:
-        assert isinstance(bar, tqdm)
-        bar.update(4)
-    assert "\r" in stream.getvalue() and "4/4" in stream.getvalue()
 
 
 @pytest.mark.slow

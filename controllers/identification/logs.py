@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -67,6 +68,10 @@ LOG_SUFFIXES = (*TABLE_SUFFIXES, *BAG_SUFFIXES)
 MAX_LOG_GAP = 0.005
 """Longest step between two samples of a log (s), 5 control periods. Across it linear interpolation of the
 angles errs by about acceleration x gap^2 / 8: 0.4 mrad (8 encoder steps) at 100 rad/s^2 over 5 ms."""
+
+OTHER_SEPARATORS = (";", "\t", "|")
+"""Column separators of other CSV dialects, named in the error when a header holds no log column but one of
+them."""
 
 _GRID_TOLERANCE = 1e-9
 """Slack (s) of the zero-order hold: a command logged this close after a grid instant counts as held there."""
@@ -206,19 +211,21 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
         checked = column[:-1] if name in COMMAND_COLUMNS else column  # the last command may be empty
         bad = np.flatnonzero(~np.isfinite(checked))
         if bad.size:
-            raise ValueError(f"column {name} is not a finite number at data row {bad[0] + 1}: {column[bad[0]]!r}")
+            raise ValueError(f"column {name} is not a finite number at data row {bad[0] + 1}: {float(column[bad[0]])}")
     time = values[TIME_COLUMN]
     steps = np.diff(time)
     if np.any(steps <= 0.0):
         row = int(np.flatnonzero(steps <= 0.0)[0]) + 1  # the data row (from 1) whose successor is not later
         raise ValueError(
-            f"time_s must increase strictly: data row {row + 1} has {time[row]!r} s after {time[row - 1]!r} s"
+            f"time_s must increase strictly: data row {row + 1} has {float(time[row])!r} s after "
+            f"{float(time[row - 1])!r} s"
         )
     if np.any(steps > MAX_LOG_GAP):
         row = int(np.flatnonzero(steps > MAX_LOG_GAP)[0]) + 1
         raise ValueError(
-            f"a gap of {1e3 * steps[row - 1]:.4g} ms from data row {row} ({time[row - 1]!r} s) to {row + 1} "
-            f"({time[row]!r} s); steps may be at most {1e3 * MAX_LOG_GAP:g} ms: split the log at the gap into two files"
+            f"a gap of {1e3 * steps[row - 1]:.4g} ms from data row {row} ({float(time[row - 1])!r} s) to {row + 1} "
+            f"({float(time[row])!r} s); steps may be at most {1e3 * MAX_LOG_GAP:g} ms: split the log at the gap into "
+            "two files"
         )
     # 1e-6 periods of slack: a log on the grid keeps its last sample despite rounding of its times
     grid = time[0] + np.arange(math.floor((time[-1] - time[0]) / period + 1e-6) + 1) * period
@@ -243,7 +250,8 @@ def _require_suffix(path: Path) -> None:
 
 
 def _read_csv(path: Path) -> dict[str, NDArray[np.float64]]:
-    """The numeric columns of a CSV log; an empty cell is NaN."""
+    """The numeric columns of a CSV log; an empty cell is refused (:func:`_refuse_empty`) but in the last row's
+    commands, where it is NaN."""
     with path.open(newline="") as file:
         reader = csv.reader(file)
         header = next(reader, None)
@@ -251,18 +259,39 @@ def _read_csv(path: Path) -> dict[str, NDArray[np.float64]]:
             raise LogFileError(f"log {path}: empty file, needs a header row of column names")
         header = [name.strip() for name in header]
         wanted = {name: index for index, name in enumerate(header) if name in LOG_COLUMNS}
+        separator = next((mark for mark in OTHER_SEPARATORS if not wanted and mark in ",".join(header)), None)
+        if separator is not None:
+            raise LogFileError(
+                f"log {path}: no column of a log in the header {','.join(header)!r}; its columns seem separated by "
+                f"{separator!r}, a log's are separated by commas"
+            )
         table: dict[str, list[float]] = {name: [] for name in wanted}
+        empty: dict[str, list[int]] = {name: [] for name in wanted}
         for number, row in enumerate(reader, start=1):
             where = f"data row {number} (line {number + 1})"
             if len(row) != len(header):
                 raise LogFileError(f"log {path}: {where} has {len(row)} cells, the header has {len(header)}")
             for name, index in wanted.items():
                 cell = row[index].strip()
+                if not cell:
+                    empty[name].append(number)
                 try:
                     table[name].append(float(cell) if cell else math.nan)
                 except ValueError:
                     raise LogFileError(f"log {path}: column {name} at {where} is not a number: {cell!r}") from None
+    _refuse_empty(path, empty, len(next(iter(table.values()), [])), lambda row: f"data row {row} (line {row + 1})")
     return {name: np.array(values) for name, values in table.items()}
+
+
+def _refuse_empty(path: Path, empty: dict[str, list[int]], rows: int, where: Callable[[int], str]) -> None:
+    """A :class:`LogFileError` naming the first empty cell (``empty``: its data rows, from 1, per column) but the
+    last row's commands, which may be empty; ``rows`` is the number of data rows, ``where`` names a row."""
+    for name, numbers in empty.items():
+        allowed = {rows} if name in COMMAND_COLUMNS else set()
+        refused = [number for number in numbers if number not in allowed]
+        if refused:
+            rule = "only the last row's commands may be empty" if name in COMMAND_COLUMNS else "it needs a number"
+            raise LogFileError(f"log {path}: column {name} at {where(refused[0])} is empty; {rule}")
 
 
 def _read_parquet(path: Path) -> dict[str, NDArray[np.float64]]:
@@ -275,10 +304,13 @@ def _read_parquet(path: Path) -> dict[str, NDArray[np.float64]]:
     except (pa.ArrowException, OSError) as error:
         raise LogFileError(f"log {path}: not a readable Parquet file ({error})") from None
     columns = {}
+    empty: dict[str, list[int]] = {}
     for name in table.column_names:
         if name in LOG_COLUMNS:
             column = table.column(name)
             if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
                 raise LogFileError(f"log {path}: column {name} must hold numbers, has type {column.type}")
-            columns[name] = column.to_numpy().astype(float)
+            columns[name] = column.to_numpy(zero_copy_only=False).astype(float)
+            empty[name] = (np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False)) + 1).tolist()
+    _refuse_empty(path, empty, table.num_rows, lambda row: f"data row {row} (null)")
     return columns
