@@ -26,7 +26,13 @@ TOLERANCE = 0.06
 
 def _drawn_colour(handle: Artist) -> NDArray[np.float64]:
     """The RGB (0-1) a legend handle's series is drawn in, blended over white by its alpha."""
-    drawn = handle.get_color() if isinstance(handle, Line2D | LineCollection) else handle.get_facecolor()
+    if isinstance(handle, Line2D) and handle.get_linestyle() in ("None", "none", ""):  # markers only
+        face = to_rgba_array(handle.get_markerfacecolor())
+        drawn = handle.get_markeredgecolor() if face.size == 0 or face[0, 3] == 0.0 else face
+    elif isinstance(handle, Line2D | LineCollection):
+        drawn = handle.get_color()
+    else:
+        drawn = handle.get_facecolor()
     red, green, blue, alpha = to_rgba_array(drawn, handle.get_alpha())[0]
     return alpha * np.array([red, green, blue]) + (1.0 - alpha)
 

@@ -9,8 +9,9 @@ import pytest
 
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scenario import load_geometry
-from eval.design import explorer, performance, profiles
+from eval.design import explorer, performance, profiles, report
 from eval.design.report import performance_row
+from tests.figure_checks import hidden_legend_entries, kept_figures
 
 BROWSER_PROGRAMS = ("chromium", "chromedriver")
 """Debian's chromium and chromium-driver packages (scripts/setup.sh installs them), looked up on PATH."""
@@ -78,6 +79,17 @@ def test_column_labels_carry_their_units():
     labels = [explorer.column_label(column) for column in row]
     assert len(set(labels)) == len(labels)
     assert not [label for label in labels if "_" in label or " (s)" in label]  # words, units written as units
+
+
+def test_pareto_figure_shows_its_legend_and_its_whole_title(study, tmp_path, monkeypatch):
+    front, named = study
+    with kept_figures(monkeypatch) as figures:
+        report.plot_pareto(front, named["nominal"], {"compromise": named["compromise"]}, tmp_path / "pareto.png")
+        (figure,) = figures
+        assert hidden_legend_entries(figure) == []
+        title = figure.axes[0].title
+        box, canvas = title.get_window_extent(), figure.bbox
+        assert title.get_text() and canvas.x0 <= box.x0 and box.x1 <= canvas.x1 and box.y1 <= canvas.y1  # not clipped
 
 
 def test_page_is_self_contained_and_bad_arguments_are_named(study, page):
