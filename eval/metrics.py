@@ -452,11 +452,11 @@ def metric_label(name: str) -> str:
 
 
 def format_number(value: float, digits: int = 3) -> str:
-    """``value`` rounded to ``digits`` significant digits (at least), in positional notation from 1e-3 to 1e9
+    """``value`` rounded to ``digits`` significant digits (at least), in positional notation from 1e-4 to 1e9
     ("197", "5.30", "0.0512"), else in exponent notation; "n/a" when it is not finite."""
     if not math.isfinite(value):
         return "n/a"
-    if value == 0.0 or not 1e-3 <= abs(value) < 1e9:
+    if value == 0.0 or not 1e-4 <= abs(value) < 1e9:
         return f"{value:.{digits - 1}e}" if value else "0"
     return f"{value:.{max(digits - 1 - math.floor(math.log10(abs(value))), 0)}f}"
 
@@ -469,7 +469,7 @@ def format_with_spread(value: float, spread: float, digits: int = 3) -> str:
     scale = max(abs(value), abs(spread))
     if scale == 0.0:
         return "0 ± 0"
-    if not 1e-3 <= scale < 1e9:
+    if not 1e-4 <= scale < 1e9:
         return f"{value:.{digits - 1}e} ± {spread:.{digits - 1}e}"
     decimals = max(digits - 1 - math.floor(math.log10(scale)), 0)
     return f"{value:.{decimals}f} ± {spread:.{decimals}f}"
