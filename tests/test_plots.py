@@ -11,6 +11,7 @@ import pytest
 
 from eval import plots
 from eval.processes import pool_context
+from tests.figure_checks import hidden_legend_entries, kept_figures
 
 SAVED_FIRST = ("traces.npz",)
 SAVED_LAST = ("table2_run.npz", "table2.csv", "episodes.csv")
@@ -23,19 +24,27 @@ def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
         writer.writerows(rows)
 
 
+def _torques(steps: int, offset: float) -> np.ndarray:
+    """Smooth torques (N m) of three joints, ``(steps, 3)``, as a pick-and-place cycle draws them."""
+    time = 1e-3 * np.arange(steps)[:, None]
+    return 30.0 * np.sin(2 * np.pi * 2.0 * time + np.array([0.0, 2.1, 4.2])) + offset
+
+
 def _run_folder(folder: Path) -> Path:
-    """A run folder with the files the figures are made from: two controllers, one estimating, 300 steps."""
+    """A run folder with the files the figures are made from: three controllers, one estimating, the bound, 300 steps;
+    PD's torques are MId+F+RLS's (lines that would coincide in one panel)."""
     rng = np.random.default_rng(3)
-    steps, keys, labels = 300, ["pd", "mid_f_rls"], ["PD", "MId+F+RLS"]
+    steps, keys, labels = 300, ["pd", "mid_f_rls", "oracle"], ["PD", "MId+F+RLS", "Oracle+PD (bound)"]
     (folder / "scenario.toml").write_text('name = "nominal"\n')
+    torques = {"pd": _torques(steps, 2.0), "mid_f_rls": _torques(steps, 2.0), "oracle": _torques(steps, 0.0)}
     np.savez_compressed(
         folder / "traces.npz",
         dt=1e-3,
         keys=np.array(keys),
         labels=np.array(labels),
-        estimates_payload=np.array([False, True]),
+        estimates_payload=np.array([False, True, False]),
         **{f"{key}.tracking_error": 1e-3 * rng.random(steps) for key in keys},
-        **{f"{key}.torque": rng.normal(size=(steps, 3)) for key in keys},
+        **{f"{key}.torque": torques[key] for key in keys},
         **{f"{key}.payload_mass": np.full(steps + 1, 2.0) for key in keys},
         **{f"{key}.payload_estimate": 2.0 + 0.1 * rng.normal(size=steps) for key in keys},
     )
@@ -126,3 +135,22 @@ def test_a_plotter_stops_its_process_when_the_caller_fails(tmp_path: Path) -> No
         raise KeyError("the caller")
     assert plotter.exitcode is not None and plotter.exitcode != 0  # stopped, not ended
     assert not any((folder / name).exists() for name in plots.FIGURES)
+
+
+def test_every_figure_shows_what_its_legend_lists(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    folder = _run_folder(tmp_path)
+    with kept_figures(monkeypatch) as figures:
+        plots.make_plots(folder)
+        assert len(figures) == len(plots.FIGURES)
+        for name, figure in zip(plots.FIGURES, figures, strict=True):
+            assert hidden_legend_entries(figure) == [], name
+        # one panel per controller, so that PD shows although its torques are MId+F+RLS's
+        torque_profiles = figures[list(plots.FIGURES).index("torque_profiles.png")]
+        titles = [axis.get_title() for axis in torque_profiles.axes if axis.get_visible()]
+        assert [title.split(":")[0] for title in titles] == ["PD", "MId+F+RLS", "Oracle+PD (bound)"]
+        assert titles[0] == "PD: 2.00 N m RMS from the bound"  # every joint 2 N m above the bound's torque
+        for axis in torque_profiles.axes:  # no legend over the data: one legend, the figure's, above the panels
+            assert axis.get_legend() is None
+        (legend,) = torque_profiles.legends
+        top = min(axis.get_window_extent().y1 for axis in torque_profiles.axes if axis.get_visible())
+        assert legend.get_window_extent().y0 >= top

@@ -4,7 +4,8 @@
 2. NSGA-II over (ra, rb, l1, l2) (workspace, peak torque and pick rate) on ``--search-seeds`` seeds from
    ``--seed`` and a GA on the paper-style weighted cost on the first, in processes; every archive merged into one front
    (:mod:`eval.design.front`).
-3. Designs chosen from the merged front (compromise, low torque, large workspace, the weighted-cost optimum),
+3. Designs chosen from the merged front (compromise, paper targets, low torque, large workspace, the weighted-cost
+   optimum: each only where its figures bear the name out, each design named once),
    their drives by the full planner, and their tolerance and sensitivity (:mod:`eval.design.robustness`).
 4. Reconfiguration by the pitch-screw linkage (:mod:`eval.design.mechanism`) for three task profiles, of the
    nominal robot and of the compromise design.
@@ -251,9 +252,9 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     pareto = searches.result
     seconds["optimization"] = time.perf_counter() - started
 
-    chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(pareto, nominal).items()}
-    weighted = pareto.archive.performance[optimize.weighted_cost_optimum(pareto, nominal)]
-    designs = {"nominal": nominal, **chosen, "weighted-cost optimum": weighted}
+    roles = optimize.design_roles(pareto, nominal)
+    chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(roles).items()}
+    designs = {"nominal": nominal, **chosen}
     if not args.quick:  # the reported designs' drives by the full planner (the optimizer used the cheap path)
         designs = {n: performance.evaluate(p.geometry, masses=p.masses, exact_drive=True) for n, p in designs.items()}
     front_designs = [pareto.archive.performance[i] for i in pareto.front]
@@ -377,6 +378,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "",
         report.summary_table(designs, designs["nominal"], reachable),
         "",
+        *([report.roles_sentence(roles), ""] if report.roles_sentence(roles) else []),
         report.clearance_sentence(clearance),
         "",
         "Every design chosen from the front of all runs merged (NSGA-II on every seed and the GA): none is "
