@@ -2,8 +2,10 @@
 VENV := .venv
 PY := $(VENV)/bin/python
 export MUJOCO_GL ?= egl
+# Material for MkDocs prints a banner about MkDocs 2 on every build
+export NO_MKDOCS_2_WARNING ?= 1
 
-.PHONY: setup eval test test-slow bench lint
+.PHONY: setup eval test test-slow bench lint docs
 
 $(VENV)/.installed: pyproject.toml scripts/setup.sh
 	bash scripts/setup.sh
@@ -24,3 +26,7 @@ bench: $(VENV)/.installed
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .
+
+# The documentation site, warnings as errors, into site/ (git-ignored)
+docs: $(VENV)/.installed
+	$(VENV)/bin/mkdocs build --strict

@@ -41,6 +41,18 @@ class Controller(Protocol):
 
 
 @runtime_checkable
+class JointFeedback(Protocol):
+    """The feedback part of a controller: the joint servo (:class:`PDController` or
+    :class:`controllers.servo.JointServo`), called once per control step."""
+
+    def reset(self) -> None:
+        """Forget all state (an integral); called at the start of every episode."""
+
+    def feedback(self, observation: Observation) -> NDArray[np.float64]:
+        """The feedback torque (N m), shape (3,), for this control step."""
+
+
+@runtime_checkable
 class EstimatesPayload(Protocol):
     """A controller that estimates the mass it carries: the experiments score and plot its estimate."""
 

@@ -1,6 +1,9 @@
-"""Model-based feedforward plus PD feedback, and the oracle bound (docs/design.md section 6; the paper's Fig. 9).
+"""Model-based feedforward plus a joint servo, and the oracle bound (docs/design.md section 6; the paper's Fig. 9).
 
-tau = model(th_ref, thd_ref, thdd_ref; m_hat) + Kp (th_ref - th) + Kd (thd_ref - thd)
+tau = model(th_ref, thd_ref, thdd_ref; m_hat) + servo feedback
+
+The servo is the paper's PD, Kp (th_ref - th) + Kd (thd_ref - thd) (:class:`~controllers.base.PDController`), or
+the servo layer (:class:`~controllers.servo.JointServo`: integral action and friction compensation at rest).
 
 - :class:`FeedforwardController` with an MKH, MId or MId+F :class:`~controllers.dynamics.DeltaDynamics`
   built from the nominal geometry and masses: m_hat = 0 without an estimator, or the online estimate of a
@@ -20,7 +23,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from controllers.base import DEFAULT_KD, DEFAULT_KP, Observation, PDController
+from controllers.base import JointFeedback, Observation, PDController
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
@@ -33,12 +36,12 @@ from delta_env.validation import require_in
 
 
 class FeedforwardController:
-    """PD plus the feedforward of an analytical model at the reference, with an optional payload estimate.
+    """A joint servo plus the feedforward of an analytical model at the reference, with an optional payload estimate.
 
     Args:
         name: Label in tables and plots (e.g. ``"MId+F+PD"``).
         dynamics: The model; use ``DeltaDynamics.nominal(parameters)`` for nominal geometry and masses.
-        pd: The feedback part; ``PDController()`` (Kp 3000 N m/rad, Kd 60 N m s/rad) when None.
+        servo: The feedback part; ``PDController()`` (Kp 3000 N m/rad, Kd 60 N m s/rad) when None.
         estimator: Online payload estimator; None feeds forward mp = 0.
     """
 
@@ -47,14 +50,14 @@ class FeedforwardController:
         name: str,
         dynamics: DeltaDynamics,
         *,
-        pd: PDController | None = None,
+        servo: JointFeedback | None = None,
         estimator: PayloadEstimator | None = None,
     ) -> None:
         if estimator is not None and estimator.dynamics is not dynamics:
             raise ValueError("the estimator must use the controller's model (the same DeltaDynamics)")
         self.name = name
         self.dynamics = dynamics
-        self.pd = PDController() if pd is None else pd
+        self.servo = PDController() if servo is None else servo
         self.estimator = estimator
 
     @property
@@ -69,7 +72,7 @@ class FeedforwardController:
         return 0.0 if self.estimator is None else self.estimator.apparent_mass
 
     def reset(self) -> None:
-        self.pd.reset()
+        self.servo.reset()
         if self.estimator is not None:
             self.estimator.reset()
 
@@ -79,7 +82,7 @@ class FeedforwardController:
             observation["reference_velocities"],
             observation["reference_accelerations"],
         )
-        feedback = self.pd.feedback(observation)
+        feedback = self.servo.feedback(observation)
         if self.estimator is None:
             return tau0 + feedback
         mass = self.estimator.update(observation, tau0, phi)
@@ -220,7 +223,7 @@ class LagCompensatedController:
         self.reference.reset()
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        feedback = self.base.pd.feedback(observation)
+        feedback = self.base.servo.feedback(observation)
         if self.base.estimator is not None:  # the base's payload estimate from this step's observation
             self.base.estimator.update(observation)
         tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
@@ -249,13 +252,13 @@ def model_controller(
     tare: float = 0.0,
     empty_moves: EmptyMoveSums | None = None,
     friction_velocity: float = FRICTION_VELOCITY,
-    pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD),
+    servo: JointFeedback | None = None,
     name: str | None = None,
     geometry: DeltaGeometry = NOMINAL_GEOMETRY,
     masses: DeltaMasses = NOMINAL_MASSES,
     drive_lag: ArrayLike | None = None,
 ) -> FeedforwardController | LagCompensatedController:
-    """A model feedforward + PD controller, optionally with the online payload estimator and the drive-lag lead.
+    """A model feedforward + servo controller, optionally with the online payload estimator and the drive-lag lead.
 
     Args:
         parameters: Identified parameters of the robot's model; None is plain MKH.
@@ -265,7 +268,7 @@ def model_controller(
         empty_moves: Sums of the robot's earlier empty moves that seed the estimator's fit of its mass and friction
             errors (:class:`~controllers.payload.EmptyMoveSums`); None: none.
         friction_velocity: The estimator's friction band v_w (rad/s).
-        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the feedback.
+        servo: The feedback; None: ``PDController()``, the paper's PD.
         name: Label; by default :func:`controller_name`.
         geometry: Lengths of the robot (m) the model describes.
         masses: Datasheet masses of that robot (kg).
@@ -279,7 +282,7 @@ def model_controller(
             dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity, empty_moves=empty_moves
         )
     label = name if name is not None else controller_name(forearm_rods, regressor is not None, drive_lag is not None)
-    controller = FeedforwardController(label, dynamics, pd=PDController(*pd_gains), estimator=estimator)
+    controller = FeedforwardController(label, dynamics, servo=servo, estimator=estimator)
     if drive_lag is None:
         return controller
     return LagCompensatedController(label, controller, drive_lag)

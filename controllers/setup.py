@@ -14,14 +14,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from controllers.base import DEFAULT_KD, DEFAULT_KP
-from controllers.dynamics import ModelParameters
+from controllers.base import DEFAULT_KD, DEFAULT_KP, JointFeedback, PDController
+from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
-from delta_env.sensors import ENCODER_BITS
+from delta_env.sensors import ENCODER_BITS, encoder_resolution
 from delta_env.validation import require_joint_vector
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
@@ -33,6 +34,11 @@ ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
 
 MODEL_ROWS = ("mkh", "mid", "mid_f", "mid_f_r", *ESTIMATOR_REGRESSORS)
 """The keys of the built-in rows with a model feedforward (:func:`model_row`)."""
+
+SERVOS = ("pd", "servo")
+"""The feedback of the model rows: ``"pd"``, the paper's fixed PD (``pd_gains``, the default), or ``"servo"``, the
+servo layer (:class:`~controllers.servo.JointServo`, gains from the row's identified model and the identified drive
+lag)."""
 
 
 @dataclass(frozen=True)
@@ -48,7 +54,8 @@ class ControllerSetup:
         empty_moves: Sums of the robot's earlier empty moves per RLS controller key (its calibration episodes,
             :class:`~controllers.payload.EmptyMoveSums`), which seed the estimator's fit of the robot's mass and
             friction errors at every episode; only for the robot they were measured on. Missing keys: none.
-        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of every controller's feedback.
+        pd_gains: (Kp (N m/rad), Kd (N m s/rad)) of the PD row and of the model rows' feedback with ``servo="pd"``.
+        servo: The model rows' feedback, one of :data:`SERVOS` (:func:`row_servo`).
         residual_policy: The residual policy file of the ``residual`` row; None is the shipped policy.
         geometry: Lengths (m) of the robot the parameters were identified on; the models are of this robot.
         masses: Datasheet masses (kg) of that robot.
@@ -65,6 +72,7 @@ class ControllerSetup:
     tares: Mapping[str, float] = field(default_factory=dict)
     empty_moves: Mapping[str, EmptyMoveSums] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
+    servo: Literal["pd", "servo"] = "pd"
     residual_policy: Path | None = None
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
     masses: DeltaMasses = NOMINAL_MASSES
@@ -73,6 +81,8 @@ class ControllerSetup:
     fault_reaction: Literal["continue", "slow", "stop"] = "continue"
 
     def __post_init__(self) -> None:
+        if self.servo not in SERVOS:
+            raise ValueError(f"servo must be one of {', '.join(SERVOS)}, got {self.servo!r}")
         if self.drive_lag is not None:
             require_joint_vector("drive_lag", self.drive_lag, 0.0, MAX_TIME_CONSTANT, unit="s")
 
@@ -101,21 +111,40 @@ def model_row(
     :func:`controllers.feedforward.controller_name`)."""
     if key not in MODEL_ROWS:
         raise ValueError(f"{key!r} is not a model row; choose from {', '.join(MODEL_ROWS)}")
-    if key in ("mid_f_r", *ESTIMATOR_REGRESSORS):
-        if key == "mid_f_rls_lag" and setup.drive_lag is None:
-            raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
-        return model_controller(
-            setup.mid_f_rods,
-            forearm_rods=True,
-            regressor=ESTIMATOR_REGRESSORS.get(key),
-            tare=setup.tares.get(key, 0.0),
-            empty_moves=setup.empty_moves.get(key),
-            pd_gains=setup.pd_gains,
-            name=name,
-            geometry=setup.geometry,
-            masses=setup.masses,
-            drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
+    rods = key in ("mid_f_r", *ESTIMATOR_REGRESSORS)
+    parameters = setup.mid_f_rods if rods else {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
+    servo = row_servo(setup, DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=rods))
+    if not rods:
+        return model_controller(parameters, servo=servo, name=name, geometry=setup.geometry, masses=setup.masses)
+    if key == "mid_f_rls_lag" and setup.drive_lag is None:
+        raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
+    return model_controller(
+        parameters,
+        forearm_rods=True,
+        regressor=ESTIMATOR_REGRESSORS.get(key),
+        tare=setup.tares.get(key, 0.0),
+        empty_moves=setup.empty_moves.get(key),
+        servo=servo,
+        name=name,
+        geometry=setup.geometry,
+        masses=setup.masses,
+        drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
+    )
+
+
+def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
+    """The feedback of a model row with model ``dynamics``: the servo layer on that model and the identified drive lag
+    (``setup.servo == "servo"``), or the paper's PD with ``setup.pd_gains``.
+
+    Raises:
+        ValueError: for the servo layer without an identified drive lag.
+    """
+    if setup.servo == "pd":
+        return PDController(*setup.pd_gains)
+    if setup.drive_lag is None:
+        raise ValueError(
+            "the servo layer's gains need the identified drive lag (ControllerSetup.drive_lag is None); "
+            "identify it, or use servo='pd'"
         )
-    parameters = {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
-    geometry, masses = setup.geometry, setup.masses
-    return model_controller(parameters, pd_gains=setup.pd_gains, name=name, geometry=geometry, masses=masses)
+    step = DEFAULT_FRICTION_WIDTH if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits)
+    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step))

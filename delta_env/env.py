@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -57,6 +58,24 @@ class RewardWeights:
 
     tracking: float = 1.0
     torque: float = 1e-5
+
+
+DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY")
+"""Environment variables through which a window system is reached on Linux."""
+
+
+def require_display() -> None:
+    """Refuse ``render_mode="human"`` where no window can open (Linux without a display), which would otherwise end
+    the process in a C assertion of GLFW.
+
+    Raises:
+        RuntimeError: naming the missing variables and the headless alternative.
+    """
+    if sys.platform.startswith("linux") and not any(os.environ.get(name) for name in DISPLAY_VARIABLES):
+        raise RuntimeError(
+            "render_mode='human' opens a window, but this machine has no display (neither DISPLAY nor "
+            "WAYLAND_DISPLAY is set); render headless with render_mode='rgb_array' and MUJOCO_GL=egl (or osmesa)"
+        )
 
 
 class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float64]]):
@@ -187,6 +206,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         require_count("height", height)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        if render_mode == "human":
+            require_display()
 
         faults = require_fault_specs(base.task.faults if faults is None else faults)
 
@@ -360,7 +381,13 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     def _payload_masses(self, requested: Any, drawn: NDArray[np.float64]) -> NDArray[np.float64]:
         if requested is None:
             return drawn
-        masses = np.asarray(requested, dtype=float)
+        try:
+            masses = np.asarray(requested, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"options['payload_masses'] must hold numbers, the object masses in kg, one per pick ({drawn.size}), "
+                f"each in [0, {MAX_PAYLOAD_MASS}], got {requested!r}"
+            ) from None
         if masses.shape != drawn.shape:
             raise ValueError(
                 f"options['payload_masses'] must hold one mass per pick ({drawn.size}), got shape {masses.shape}"

@@ -94,4 +94,7 @@ class DeltaMasses:
 
 
 NOMINAL_GEOMETRY = DeltaGeometry()
+"""The nominal robot's lengths (docs/design.md section 4): the default of every scenario and controller."""
+
 NOMINAL_MASSES = DeltaMasses()
+"""The nominal robot's datasheet masses of the analytical model: what the controllers may know of its masses."""

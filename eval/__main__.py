@@ -69,14 +69,17 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
+from eval.console import command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
+    check_parameter_file,
     check_ranges,
     scenario_from_arguments,
 )
@@ -114,8 +117,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "residual policy was trained on another robot than the scenario's)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/eval/<UTC time>)")
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
+    add_servo_argument(parser)
     parser.add_argument(
         "--calibration-episodes",
         type=int,
@@ -139,11 +144,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args.left_out = ""
     args.residual_base = None
     args.residual_base_moves = False
+    args.residual_base_servo = None
     try:
         args.controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
         parser.error(f"--controllers: {error}")
     args.scenario = scenario_from_arguments(args, parser)
+    check_parameter_file(parser, args)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     check_episode_seeds(parser, args)
     if args.video and (error := video.rendering_error()) is not None:
@@ -159,6 +166,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             parser.error(f"--residual: {error}")
         args.residual_base = None if base is None else base.name
         args.residual_base_moves = base is not None and bool(base.setup.empty_moves)
+        args.residual_base_servo = None if base is None else base.setup.servo
         robot = args.scenario.plant
         if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
             if not chosen:
@@ -247,11 +255,18 @@ def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any
         f"file's base {moves}).",
         "",
     ]
-    if args.residual_base is not None:
+    if args.residual_base is not None and args.residual_base_servo != args.servo:
+        lines += [
+            f"No gain over its base is computed: the base's feedback is '{args.residual_base_servo}', this run's "
+            f"model rows run '{args.servo}' (--servo {args.residual_base_servo} runs the same base).",
+            "",
+        ]
+    elif args.residual_base is not None:
         lines += residual_gain(episode_rows, label, args.residual_base)
     return lines
 
 
+@command_main("python -m eval")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
@@ -263,6 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
         compare(args, run, started)
     return 0
@@ -317,10 +333,8 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
 def _film(args: argparse.Namespace, prepared: Prepared) -> list[video.Video]:
     """The videos of ``--video``: the first episode of each row, filmed into the run folder
     (:func:`eval.video.film_first_episodes`)."""
-    from tqdm.auto import tqdm
-
     keys = args.controllers
-    with tqdm(total=len(keys), desc="videos", unit="video") as progress:
+    with progress_bar(len(keys), "videos", "video") as progress:
         return video.film_first_episodes(
             args.scenario,
             prepared.setup,
@@ -379,6 +393,7 @@ def _summarize(
         },
         "controllers": {key: controller_label(key) for key in keys},
         "pd_gains": {"kp_nm_per_rad": setup.pd_gains[0], "kd_nm_s_per_rad": setup.pd_gains[1]},
+        "servo": setup.servo,
         "identification": {
             "path": str(args.parameters),
             "mid": dataclasses.asdict(identification.mid),
@@ -398,8 +413,8 @@ def _summarize(
 
     summary = "\n".join(
         [
-            f"# Controller comparison, scenario {scenario.name}: {args.episodes} episodes x {args.cycles} cycles "
-            f"from seed {args.seed}",
+            f"# Controller comparison, scenario {scenario.name}: {plural(args.episodes, 'episode')} x "
+            f"{plural(args.cycles, 'cycle')} from seed {args.seed}",
             "",
             f"Scenario {scenario.name} ({scenario.description or 'no description'}); robot {scenario.robot_identity}, "
             f"identified in {args.parameters}.",

@@ -27,6 +27,7 @@ import numpy as np
 from controllers.registry import controller_entry
 from eval import metrics
 from eval.calibration import tared_keys
+from eval.console import progress_bar
 from eval.engine import Prepared, grid, prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows
@@ -54,12 +55,10 @@ def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, Ep
     Returns:
         What the controllers knew, and the (unit, record) of every episode: the comparison's, then the Table 2 run.
     """
-    from tqdm.auto import tqdm
-
     keys = args.controllers
     scenario = dataclasses.replace(args.scenario, task=dataclasses.replace(args.scenario.task, n_cycles=args.cycles))
     tared = sorted(set(tared_keys([*keys, TABLE2_KEY], scenario)))
-    with tqdm(total=len(tared) * args.calibration_episodes, desc="tares", unit="ep") as progress:
+    with progress_bar(len(tared) * args.calibration_episodes, "tares", "ep") as progress:
         prepared = prepare(
             scenario,
             tared,
@@ -69,13 +68,14 @@ def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, Ep
             workers=args.workers,
             progress=progress,
             residual_policy=args.residual,
+            servo=args.servo,
         )
     slow_first = [*(key for key in SLOW_KEYS if key in keys), *(key for key in keys if key not in SLOW_KEYS)]
     units = grid([scenario], slow_first, range(args.seed, args.seed + args.episodes))
     healthy = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
     units.append(WorkUnit(healthy, TABLE2_KEY, args.seed, (TABLE2_PAYLOAD,) * args.cycles))
     setups = {s.content_hash: prepared.setup for s in (scenario, healthy)}
-    with tqdm(total=len(units), desc="episodes", unit="ep") as progress:
+    with progress_bar(len(units), "episodes", "ep") as progress:
         records = run_grid(units, setups, workers=args.workers, progress=progress)
     return prepared, list(zip(units, records, strict=True))
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,6 +25,7 @@ from delta_env.geometry import GRAVITY, NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
+from eval.console import progress_bar
 from eval.episodes import run_episode
 from eval.processes import parallel_map
 
@@ -185,13 +185,6 @@ def robot_model(plant: PlantConfig, *, forearm_rods: bool = False) -> DeltaDynam
     return DeltaDynamics.of_robot(plant.geometry, plant.masses, forearm_rods=forearm_rods)
 
 
-def progress_bar(total: int, show: bool, unit: str = "excitation runs") -> Any:
-    """A tqdm bar of ``total`` items named by ``unit`` (plural), hidden unless ``show``."""
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=unit, disable=not show, unit=unit.split()[-1].rstrip("s"))
-
-
 def collect_excitation_data(
     specs: Sequence[ExcitationSpec],
     *,
@@ -216,5 +209,5 @@ def collect_excitation_data(
         RuntimeError: if the plant diverges.
     """
     specs = list(specs)
-    with progress_bar(len(specs), progress) as bar:
+    with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
         return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)

@@ -51,12 +51,14 @@ from controllers.identification import (
     prepare_motion,
     read_log,
 )
+from controllers.identification.bags import BagTopics, is_bag, read_bag
 from delta_env.config import PlantConfig
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
+from eval.console import progress_bar
 from eval.excitation import (
     DEFAULT_DURATION,
     NOMINAL_REGION,
@@ -64,7 +66,6 @@ from eval.excitation import (
     ExcitationRecord,
     ExcitationRegion,
     ExcitationSpec,
-    progress_bar,
     run_excitation,
 )
 from eval.processes import parallel_map
@@ -199,7 +200,7 @@ def run_identification(
     specs.append(dataclasses.replace(ExcitationSpec.stress(validation_seed, validation_duration), **place))
 
     run = functools.partial(_collect_and_prepare, plant=plant)
-    with progress_bar(len(specs), progress) as bar:
+    with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
         runs = parallel_map(run, specs, workers, bar)
     source = {
         "seed": seed,
@@ -229,8 +230,8 @@ SIMULATED_DATA = (
 """How a simulated identification's data were made (the provenance's ``method.data``)."""
 
 LOGGED_DATA = (
-    "drive logs (controllers.identification.logs) resampled onto the control period; encoder angles and "
-    "measured motor torques; Kalman RTS smoother for rates and accelerations"
+    "drive logs (controllers.identification.logs: CSV, Parquet or ROS 2 bags) resampled onto the control period; "
+    "encoder angles and measured motor torques; Kalman RTS smoother for rates and accelerations"
 )
 """How an identification from logs got its data (the provenance's ``method.data``)."""
 
@@ -241,16 +242,20 @@ def identify_logs(
     *,
     workers: int = 1,
     progress: bool = False,
+    topics: BagTopics | None = None,
 ) -> IdentificationRun:
     """Identify the robot of the robot file ``robot`` from its drive logs alone: the algorithms, fits and
     validation of :func:`run_identification` on the logs' arrays.
 
     Args:
-        paths: Log files (:mod:`controllers.identification.logs`), at least 2; the last one is held out for
-            validation (the Table 1 analogue), the others are identified on.
+        paths: Log files (:mod:`controllers.identification.logs`) or ROS 2 bags
+            (:mod:`controllers.identification.bags`), at least 2; the last one is held out for validation (the
+            Table 1 analogue), the others are identified on.
         robot: Robot file (:func:`delta_env.scenario.load_robot`): lengths and datasheet masses.
         workers: Processes smoothing the logs.
         progress: Show a tqdm progress bar.
+        topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
+            commands.
 
     Raises:
         ValueError: for fewer than 2 logs; LogFileError for a bad log; ValueError naming the robot file for a bad
@@ -261,12 +266,11 @@ def identify_logs(
     if len(paths) < 2:
         raise ValueError(f"need at least 2 logs (the last one is held out for validation), got {len(paths)}")
     geometry, masses = load_robot(robot)
-    logs = [read_log(path) for path in paths]
-    with progress_bar(len(logs), progress, "logs") as bar:
+    logs, summaries = zip(*(_read_log(path, topics) for path in paths), strict=True)
+    with progress_bar(len(logs), "logs", "log", disable=not progress) as bar:
         prepared = parallel_map(prepare_log, logs, workers, bar)
-    summaries = [_log_summary(path, log) for path, log in zip(paths, logs, strict=True)]
     source = {
-        "logs": summaries[:-1],
+        "logs": list(summaries[:-1]),
         "validation_log": summaries[-1],
         "plant": {
             "identity": datasheet_identity(geometry, masses),
@@ -291,15 +295,35 @@ def identify_logs(
     )
 
 
-def _log_summary(path: Path, log: DriveLog) -> dict[str, Any]:
-    """What the provenance records of a log file: where, its hash, its length on the grid and its commands."""
-    return {
+def _read_log(path: Path, topics: BagTopics | None) -> tuple[DriveLog, dict[str, Any]]:
+    """A log file or bag and what the provenance records of it: where, its hash, its length on the grid, its
+    commands and, for a bag, the topics, joint names and clock read."""
+    if is_bag(path):
+        topics = BagTopics() if topics is None else topics
+        bag = read_bag(path, topics)
+        log, extra = bag.log, {"bag": {"topic": topics.joint_states, "joint_names": list(bag.joint_names)}}
+        extra["bag"] |= {"command_topic": topics.commands, "clock": bag.clock}
+    else:
+        log, extra = read_log(path), {}
+    summary = {
         "path": str(path),
-        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "sha256": _sha256(path),
         "samples": len(log),
         "duration_s": (len(log) - 1) * log.dt,
         "commands": log.commands is not None,
     }
+    return log, summary | extra
+
+
+def _sha256(path: Path) -> str:
+    """SHA-256 of a file, or of a folder's files (names and contents, in name order)."""
+    digest = hashlib.sha256()
+    if path.is_dir():
+        for member in sorted(p for p in path.rglob("*") if p.is_file()):
+            digest.update(str(member.relative_to(path)).encode() + b"\0" + member.read_bytes())
+    else:
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def _identify(

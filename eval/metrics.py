@@ -420,6 +420,61 @@ def format_mean_std(values: ArrayLike, digits: int = 2) -> str:
     return f"{mean:.{digits}f} ± {std:.{digits}f}"
 
 
+METRIC_LABELS = {
+    "tracking_rms_mm": "Tracking RMS (mm)",
+    "tracking_max_mm": "Tracking max (mm)",
+    "joint_error_rms_mrad": "Joint error RMS (mrad)",
+    "torque_rms_nm": "Torque RMS (N m)",
+    "torque_peak_nm": "Torque peak (N m)",
+    "energy_j": "Energy (J)",
+    "payload_end_error_percent": "m_hat error, end of carry (%)",
+    "payload_end_abs_error_percent": "|m_hat error|, end of carry (%)",
+    "payload_settling_ms": "m_hat settling to ±5 % (ms)",
+    "picks_per_min": "Picks/min",
+    "cycle_time_mean_s": "Cycle time, mean (s)",
+    "cycle_time_max_s": "Cycle time, max (s)",
+    "place_error_mean_mm": "Place error, mean (mm)",
+    "place_error_max_mm": "Place error, max (mm)",
+    "path_deviation_rms_mm": "Path deviation RMS (mm)",
+    "path_deviation_max_mm": "Path deviation max (mm)",
+    "envelope_violations": "Envelope violations (steps)",
+    "peak_torque_ratio": "Peak torque / drive peak",
+    "rms_torque_ratio": "RMS torque / drive rated",
+    "thermal_margin": "Thermal margin (1 - RMS / rated)",
+}
+"""Words and units of the per-episode metrics (:meth:`eval.episodes.EpisodeRecord.metrics`,
+:data:`PAYLOAD_SCORES`), for the headers of tables."""
+
+
+def metric_label(name: str) -> str:
+    """The words and unit of metric ``name`` (:data:`METRIC_LABELS`); else its name in words."""
+    return METRIC_LABELS.get(name, name.replace("_", " "))
+
+
+def format_number(value: float, digits: int = 3) -> str:
+    """``value`` rounded to ``digits`` significant digits (at least), in positional notation from 1e-4 to 1e9
+    ("197", "5.30", "0.0512"), else in exponent notation; "n/a" when it is not finite."""
+    if not math.isfinite(value):
+        return "n/a"
+    if value == 0.0 or not 1e-4 <= abs(value) < 1e9:
+        return f"{value:.{digits - 1}e}" if value else "0"
+    return f"{value:.{max(digits - 1 - math.floor(math.log10(abs(value))), 0)}f}"
+
+
+def format_with_spread(value: float, spread: float, digits: int = 3) -> str:
+    """``"value ± spread"``, both to the decimals that give the larger of the two ``digits`` significant digits
+    ("197 ± 110", "5.30 ± 0.12"); ``value`` alone when ``spread`` is not finite."""
+    if not math.isfinite(spread) or not math.isfinite(value):
+        return format_number(value, digits)
+    scale = max(abs(value), abs(spread))
+    if scale == 0.0:
+        return "0 ± 0"
+    if not 1e-4 <= scale < 1e9:
+        return f"{value:.{digits - 1}e} ± {spread:.{digits - 1}e}"
+    decimals = max(digits - 1 - math.floor(math.log10(scale)), 0)
+    return f"{value:.{decimals}f} ± {spread:.{decimals}f}"
+
+
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """A GitHub Markdown table."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]

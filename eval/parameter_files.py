@@ -6,6 +6,12 @@ one file per robot identity (:func:`delta_env.scenario.plant_identity`),
 ``--runs-dir``, ``$DELTA_RUNS_DIR`` or ``./runs``), which :func:`load_or_identify` reads, or creates with
 :func:`eval.identification.identify` when it is missing; the file records the identity and
 :func:`check_identity` checks it on reading. A new robot is identified once, when first needed.
+
+That file holds the identification of the default settings (:data:`DEFAULT_SETTINGS`) and nothing else: the
+settings a simulated identification ran with are in its provenance (:func:`identification_settings`);
+:func:`check_settings` refuses a robot's file made with others, and ``python -m eval.identify`` installs a run of
+other settings only where ``--parameters`` says (:func:`install_path`). A parameter file given by the user
+(``--parameters``) is read as it is, whatever its settings, and must exist.
 """
 
 from __future__ import annotations
@@ -20,10 +26,35 @@ from controllers.identification import IdentificationResult, ParameterFileError,
 from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.scenario import datasheet_identity, plant_identity
-from eval.identification import identify
+from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
+from eval.identification import DEFAULT_TRAJECTORIES, identify
 from eval.run_folder import runs_root
 
 logger = logging.getLogger(__name__)
+
+DEFAULT_SETTINGS = {
+    "trajectories": DEFAULT_TRAJECTORIES,
+    "duration_s": DEFAULT_DURATION,
+    "validation_duration_s": VALIDATION_DURATION,
+    "seed": 0,
+}
+"""The settings of the identification kept per robot (:func:`parameter_path`): ``python -m eval.identify``'s
+defaults and those :func:`identify_robot` identifies a missing robot with."""
+
+SETTING_FLAGS = {
+    "trajectories": "--trajectories",
+    "duration_s": "--duration",
+    "validation_duration_s": "--validation-duration",
+    "seed": "--seed",
+}
+"""The ``python -m eval.identify`` option of each setting."""
+
+
+MISSING_PARAMETER_FILE = (
+    "no such parameter file; give an existing one (python -m eval.identify --parameters FILE writes one), or leave "
+    "--parameters out to use the robot's own identification"
+)
+"""Why a ``--parameters`` that does not exist is refused (rather than identified there)."""
 
 
 def identification_root(runs_dir: str | os.PathLike[str] | None = None) -> Path:
@@ -55,6 +86,52 @@ def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> Id
     result = identify(**identify_kwargs)
     save_result(result, path)
     return result
+
+
+def identification_settings(result: IdentificationResult) -> dict[str, float] | None:
+    """The settings (:data:`DEFAULT_SETTINGS`' keys) a simulated identification ran with, read from its provenance;
+    None for an identification from logs or a file that does not record them."""
+    provenance = result.provenance
+    try:
+        trajectories = provenance["trajectories"]
+        return {
+            "trajectories": len(trajectories),
+            "duration_s": float(trajectories[0]["duration"]),
+            "validation_duration_s": float(provenance["validation_trajectory"]["duration"]),
+            "seed": int(provenance["seed"]),
+        }
+    except (KeyError, IndexError, TypeError, ValueError):
+        return None
+
+
+def describe_settings(settings: dict[str, float]) -> str:
+    """``settings`` as the options of ``python -m eval.identify``: ``--trajectories 3 --duration 3 ...``."""
+    return " ".join(f"{SETTING_FLAGS[name]} {value:g}" for name, value in settings.items())
+
+
+def install_path(
+    plant: PlantConfig, settings: dict[str, float], root: str | os.PathLike[str] | None = None
+) -> Path | None:
+    """Where ``python -m eval.identify`` installs an identification of ``plant`` made with ``settings`` when no
+    ``--parameters`` is given: the robot's own file (:func:`parameter_path`) for :data:`DEFAULT_SETTINGS`, else
+    nowhere (None): the robot's file never holds a shorter or otherwise different identification."""
+    return parameter_path(plant, root) if settings == DEFAULT_SETTINGS else None
+
+
+def check_settings(result: IdentificationResult, path: str | os.PathLike[str]) -> None:
+    """Refuse a robot's own file (:func:`parameter_path`) that holds an identification of other settings than
+    :data:`DEFAULT_SETTINGS` (a file that does not record them, from logs or an older version, is taken as it is).
+
+    Raises:
+        ParameterFileError: naming the file, its settings and the defaults.
+    """
+    settings = identification_settings(result)
+    if settings is not None and settings != DEFAULT_SETTINGS:
+        raise ParameterFileError(
+            f"{path}: the robot's cached identification was made with {describe_settings(settings)}, not the "
+            f"defaults {describe_settings(DEFAULT_SETTINGS)}; delete it to identify again with the defaults, or "
+            "move it elsewhere and pass it with --parameters"
+        )
 
 
 def check_identity(result: IdentificationResult, plant: PlantConfig, path: str | os.PathLike[str]) -> None:
@@ -99,11 +176,13 @@ def identify_robot(
         **identify_kwargs: Arguments of :func:`identify` other than ``plant``, used only when identifying.
 
     Raises:
-        ParameterFileError: if the file is corrupt or records another robot.
+        ParameterFileError: if the file is corrupt, records another robot or other settings than the defaults
+            (:func:`check_settings`).
     """
     path = parameter_path(plant, root)
     result = load_or_identify(path, plant=plant, **identify_kwargs)
     check_identity(result, plant, path)
+    check_settings(result, path)
     return result
 
 
@@ -112,15 +191,18 @@ def robot_identification(
     parameters: str | os.PathLike[str] | None = None,
     root: str | os.PathLike[str] | None = None,
 ) -> tuple[Path, IdentificationResult]:
-    """The parameter file and identification of ``plant``'s robot: ``parameters`` (identified there when missing)
-    or, when None, its own file under ``root`` (:func:`identify_robot`); either must record this robot.
+    """The parameter file and identification of ``plant``'s robot: ``parameters`` (a file the user gave, read as
+    it is) or, when None, its own file under ``root`` (:func:`identify_robot`, identified when missing); either must
+    record this robot.
 
     Raises:
-        ParameterFileError: if the file is corrupt or records another robot.
+        ParameterFileError: if ``parameters`` does not exist, or the file is corrupt or records another robot.
     """
     if parameters is None:
         return parameter_path(plant, root), identify_robot(plant, root)
-    result = load_or_identify(parameters, plant=plant)
+    if not Path(parameters).is_file():
+        raise ParameterFileError(f"--parameters {parameters}: {MISSING_PARAMETER_FILE}")
+    result = load_result(parameters)
     check_identity(result, plant, parameters)
     return Path(parameters), result
 

@@ -1,6 +1,7 @@
 """Figures of an evaluation run, made from the files it saved (never from live objects).
 
-- ``torque_profiles.png``: motor torques of every controller over the first episode (the paper's Figs. 3-5);
+- ``torque_profiles.png``: motor torques of every controller over the first episode, a panel each (the paper's
+  Figs. 3-5);
 - ``table2_torques.png``: measured torques against MId+F+R with mp = 0 and mp = m_hat in the 3.8 kg run
   (Fig. 7);
 - ``payload_estimate.png``: payload estimate against the true payload over time (Fig. 8);
@@ -78,22 +79,54 @@ def _read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(file))
 
 
+BOUND_KEY = "oracle"
+"""The key of the bound's row (:mod:`controllers.registry`): the torque the plant needs, drawn behind every panel of
+``torque_profiles.png``."""
+
+JOINT_COLOURS = ("tab:blue", "tab:orange", "tab:green")
+"""The colour of joints 1, 2, 3 in every panel."""
+
+
 def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
-    """Applied motor torque of each controller over the first episode, one panel per joint."""
+    """Applied motor torque over the first episode, one panel per controller (small multiples, shared axes): its
+    three joints in colour over the bound's torques in grey (when the run has the bound's row), titled with the RMS
+    of its torque's difference from the bound's (N m), so that controllers whose lines would coincide read apart."""
     dt = float(traces["dt"])
-    figure, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
-    for key, label in zip(traces["keys"], traces["labels"], strict=True):
+    keys, labels = [str(key) for key in traces["keys"]], [str(label) for label in traces["labels"]]
+    bound = traces[f"{BOUND_KEY}.torque"] if BOUND_KEY in keys else None
+    columns = 2 if len(keys) > 1 else 1
+    rows = -(-len(keys) // columns)
+    figure, axes = plt.subplots(
+        rows, columns, sharex=True, sharey=True, figsize=(6 * columns, 1.2 + 2.1 * rows), squeeze=False
+    )
+    for axis, key, label in zip(axes.flat, keys, labels, strict=False):
         torque = traces[f"{key}.torque"]
         time = np.arange(len(torque)) * dt
-        for joint, axis in enumerate(axes):
-            axis.plot(time, torque[:, joint], linewidth=0.8, label=label)
-    for joint, axis in enumerate(axes):
-        axis.set_ylabel(f"tau {joint + 1} (N m)")
+        title = label
+        if bound is not None and key != BOUND_KEY:
+            steps = min(len(bound), len(torque))
+            lines = axis.plot(time[:steps], bound[:steps], color="0.6", linewidth=1.6)
+            lines[0].set_label(f"{labels[keys.index(BOUND_KEY)]}, joints 1-3")
+            difference = float(np.sqrt(np.mean((torque[:steps] - bound[:steps]) ** 2)))
+            title = f"{label}: {difference:.2f} N m RMS from the bound"
+        for joint, colour in enumerate(JOINT_COLOURS):
+            axis.plot(time, torque[:, joint], color=colour, linewidth=0.8, label=f"joint {joint + 1}")
+        axis.set_title(title, fontsize="medium")
         axis.grid(alpha=0.3)
-    axes[0].legend(fontsize="small", ncol=2)
-    axes[-1].set_xlabel("time (s)")
+    for axis in axes.flat[len(keys) :]:
+        axis.set_visible(False)
+    for axis in axes[:, 0]:
+        axis.set_ylabel("torque (N m)")
+    for axis in axes[-1]:
+        axis.set_xlabel("time (s)")
+        axis.xaxis.set_tick_params(labelbottom=True)
+    handles, names = axes.flat[0].get_legend_handles_labels()
+    if bound is not None and keys[0] == BOUND_KEY and len(keys) > 1:
+        handles, names = axes.flat[1].get_legend_handles_labels()
     figure.suptitle(f"Motor torques, first episode (scenario {scenario})")
-    figure.tight_layout()
+    top = 1 - 0.45 / figure.get_figheight()  # the legend between the title and the panels, over no data
+    figure.legend(handles, names, loc="upper center", ncol=len(names), bbox_to_anchor=(0.5, top))
+    figure.tight_layout(rect=(0, 0, 1, 1 - 0.75 / figure.get_figheight()))
     figure.savefig(path, dpi=120)
     plt.close(figure)
 

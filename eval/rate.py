@@ -2,7 +2,9 @@
 
 Picks per minute on the industry's 25/305/25 mm standard cycle, like a Delta picker's data sheet, at payloads
 0.1, 1, 2 and 4 kg (the rated payload) and on a mixed stream of objects drawn from U[0, 4] kg, for each way of
-timing the moves (``--planners``):
+timing the moves (``--planners``). Planned timings use the drive's whole envelope (after the planner's 10 % margin
+for model error) within its thermal rating (``--torque-share`` takes less); the cycle's ends (air activation, the
+in-position window) are the scenario's. ABB's published rows (:mod:`eval.published_rates`) stand beside ours.
 
 - ``fixed``: today's timing, every move at the scenario's peak acceleration (3 g);
 - ``worst_case``: time-optimal within the drive, every carry for the heaviest object of the stream;
@@ -16,12 +18,17 @@ scored at the same timings. For each payload it also finds the fastest fixed tim
 controller (PD by default) meets the tracking and place goals (:data:`TRACKING_GOAL_MM`, :data:`PLACE_GOAL_MM`):
 the ratio of the two pick rates is what the model buys.
 
+``--quick`` measures 1 episode x 2 cycles per row at 0.1 and 4 kg and the mixed stream in one process, without
+the search of the fastest fixed timing: seconds instead of minutes, said in the summary and recorded in
+``config.json``.
+Progress goes to standard error (a bar on a terminal, plain lines otherwise).
+
 Writes ``rate.csv`` (one row per planner, controller and payload: ``payload`` in kg or ``mixed``),
 ``rate_episodes.csv``, ``pd_fastest.csv``, ``rate.png`` and ``summary.md`` (also printed) into the run folder
 (``--out``, else ``<runs root>/rate/<UTC time>``), with its manifest ``config.json`` (:mod:`eval.run_folder`).
 
-Usage: python -m eval.rate [--scenario S] [--geometry FILE] [--seed 0] [--episodes 3] [--cycles 4] [--out DIR]
-                           [--runs-dir DIR]
+Usage: python -m eval.rate [--quick] [--scenario S] [--geometry FILE] [--seed 0] [--episodes 3] [--cycles 4]
+                           [--out DIR] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -31,25 +38,29 @@ import dataclasses
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from controllers.registry import controller_entry, controller_label, controllers_help, parse_controller_keys
-from delta_env.config import RATED_PAYLOAD
+from delta_env.config import RATED_PAYLOAD, PlantConfig
+from delta_env.cycles import DEFAULT_DWELL
 from delta_env.geometry import GRAVITY
-from delta_env.scenario import TIMINGS, Scenario
-from delta_env.timing import DEFAULT_TORQUE_SHARE
+from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval import metrics
 from eval.calibration import calibration_seeds
+from eval.console import command_main, progress_bar
 from eval.engine import grid, prepare, run_grid
-from eval.episodes import EpisodeRecord
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.processes import DEFAULT_WORKERS
+from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
     add_scenario_arguments,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
     check_ranges,
@@ -60,6 +71,47 @@ from eval.tasks import CELL_ESTIMATOR_KEY
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
 """Payloads (kg) of the data sheet; the last is the robot's rated payload."""
+
+RATE_TORQUE_SHARE = 1.0
+"""Share of the drive's envelope (after the planner's 10 % margin) the data sheet's planned timings use unless
+``--torque-share`` says otherwise: the whole envelope, within the thermal rating, as a maker rates its robot."""
+
+CYCLE_TERMS = ("air_activation", "in_position_window")
+"""The scenario task's terms of the cycle's ends, once the env has them: the air-activation time at pick and place
+(s) and the in-position window within which the gripper switches (m)."""
+
+COMPARED_PLANNERS = ("online", "declared", "worst_case", "fixed")
+"""The planner whose rows stand beside the published ones: the first of these that ran."""
+
+
+@dataclass(frozen=True)
+class StudySize:
+    """How much a run of the data sheet measures (the defaults of ``--episodes``, ``--cycles``, ``--payloads``).
+
+    Attributes:
+        episodes: Episodes per row.
+        cycles: Pick-and-place cycles per episode.
+        payloads: Payloads (kg) besides the mixed stream.
+        fastest: Whether to search the second controller's fastest fixed timing.
+        workers: Processes (the default of ``--workers``).
+    """
+
+    episodes: int
+    cycles: int
+    payloads: tuple[float, ...]
+    fastest: bool
+    workers: int
+
+
+FULL_STUDY = StudySize(episodes=3, cycles=4, payloads=RATE_PAYLOADS, fastest=True, workers=DEFAULT_WORKERS)
+"""The data sheet."""
+
+QUICK_STUDY = StudySize(episodes=1, cycles=2, payloads=(0.1, RATED_PAYLOAD), fastest=False, workers=1)
+"""``--quick``: both ends of the payload range and the mixed stream, one short episode per row, no search, in this
+process (each process plans the time-optimal moves afresh, and planning is most of a short run's work)."""
+
+QUICK_NOTE = "Quick run: fewer episodes, cycles and payloads than the data sheet (python -m eval.rate without --quick)."
+"""What a ``--quick`` run says first, on the console and in its summary."""
 
 MIXED = "mixed"
 """The ``payload`` of the mixed stream's rows: objects drawn from U[0, rated payload]."""
@@ -86,9 +138,26 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="python -m eval.rate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add_scenario_arguments(parser)
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"a short run: {QUICK_STUDY.episodes} episode x {QUICK_STUDY.cycles} cycles per row at "
+        f"{_kilograms(QUICK_STUDY.payloads).replace(',', ' and ')} kg and the mixed stream, no fastest-fixed search, "
+        f"{QUICK_STUDY.workers} process (options given explicitly still apply)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    parser.add_argument("--episodes", type=int, default=3, help="episodes per row (default 3)")
-    parser.add_argument("--cycles", type=int, default=4, help="pick-and-place cycles per episode (default 4)")
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help=f"episodes per row (default {FULL_STUDY.episodes}; {QUICK_STUDY.episodes} with --quick)",
+    )
+    parser.add_argument(
+        "--cycles",
+        type=int,
+        default=None,
+        help=f"pick-and-place cycles per episode (default {FULL_STUDY.cycles}; {QUICK_STUDY.cycles} with --quick)",
+    )
     parser.add_argument(
         "--planners",
         default=",".join(TIMINGS),
@@ -102,36 +171,43 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--payloads",
-        default=",".join(f"{p:g}" for p in RATE_PAYLOADS),
+        default=None,
         help=f"comma-separated payloads (kg) in (0, {RATED_PAYLOAD:g}] besides the mixed stream "
-        f"(default {','.join(f'{p:g}' for p in RATE_PAYLOADS)})",
+        f"(default {_kilograms(FULL_STUDY.payloads)}; {_kilograms(QUICK_STUDY.payloads)} with --quick)",
     )
     parser.add_argument(
         "--torque-share",
         type=float,
-        default=None,
-        help="share of the drive's envelope the planned timings may use, in (0, 1] (default: the scenario's, "
-        f"{DEFAULT_TORQUE_SHARE:g} unless it sets one)",
+        default=RATE_TORQUE_SHARE,
+        help="share of the drive's envelope (after the planner's 10 %% margin) the planned timings may use, in "
+        f"(0, 1]; they always keep the thermal rating (default {RATE_TORQUE_SHARE:g}: the whole envelope, whatever "
+        "the scenario sets)",
     )
     parser.add_argument(
         "--no-fastest", action="store_true", help="skip the search of the second controller's fastest fixed timing"
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/rate/<UTC time>)")
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_parameters_argument(parser)
-    add_workers_argument(parser)
+    add_servo_argument(parser)
+    add_workers_argument(parser, f"processes (default {FULL_STUDY.workers}; {QUICK_STUDY.workers} with --quick)")
+    parser.set_defaults(workers=None)
     args = parser.parse_args(argv)
+    size = QUICK_STUDY if args.quick else FULL_STUDY
+    args.episodes = size.episodes if args.episodes is None else args.episodes
+    args.cycles = size.cycles if args.cycles is None else args.cycles
+    args.payloads = _kilograms(size.payloads) if args.payloads is None else args.payloads
+    args.fastest = size.fastest and not args.no_fastest
+    args.workers = size.workers if args.workers is None else args.workers
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     check_episode_seeds(parser, args)
     args.scenario = scenario_from_arguments(args, parser)
-    cycles = dataclasses.replace(args.scenario.task, n_cycles=args.cycles)  # one home: the scenario every row derives
-    args.scenario = dataclasses.replace(args.scenario, task=cycles)
-    if args.torque_share is not None:
-        try:
-            task = dataclasses.replace(args.scenario.task, torque_share=args.torque_share)
-        except ValueError as error:
-            parser.error(f"--torque-share: {error}")
-        args.scenario = dataclasses.replace(args.scenario, task=task)
+    try:  # one home: the scenario every row derives
+        task = dataclasses.replace(args.scenario.task, n_cycles=args.cycles, torque_share=args.torque_share)
+    except ValueError as error:
+        parser.error(f"--torque-share: {error}")
+    args.scenario = dataclasses.replace(args.scenario, task=task)
     args.planners = _listed(parser, "--planners", args.planners, TIMINGS)
     try:
         args.controllers = parse_controller_keys(args.controllers)
@@ -148,6 +224,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error(f"--payloads must lie in (0, {RATED_PAYLOAD:g}] kg, got {args.payloads!r}")
     args.payloads = payloads
     return args
+
+
+def _kilograms(payloads: Sequence[float]) -> str:
+    """Payloads (kg) as ``--payloads`` takes them: ``"0.1,4"``."""
+    return ",".join(f"{payload:g}" for payload in payloads)
 
 
 def _listed(parser: argparse.ArgumentParser, flag: str, text: str, allowed: Sequence[str]) -> list[str]:
@@ -171,14 +252,34 @@ def payload_label(payload: float | str) -> str:
     return payload if payload == MIXED else f"{float(payload):g}"
 
 
-def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
-    """One row of ``rate.csv`` from a row's episodes: means over them, except the worst place error (mm), the
-    summed violations and divergences, the largest torque ratios and whether the thermal limit was ever exceeded."""
-    rows = [record.metrics() for record in records]
+def cycle_terms(task: PickPlaceTask) -> dict[str, float]:
+    """The terms of :data:`CYCLE_TERMS` that ``task`` has (air activation in s, in-position window in m): what the
+    scenario says about the cycle's ends."""
+    return {name: float(getattr(task, name)) for name in CYCLE_TERMS if hasattr(task, name)}
+
+
+SETTLE_COLUMNS = (
+    ("settle_time_mean_ms", np.mean, float, "settle (ms)"),
+    ("settle_time_max_ms", np.max, float, "settle max"),
+    ("settle_timeouts", np.sum, int, "time-outs"),
+)
+"""Per-episode settle metrics of the in-position release, how a row aggregates each over its episodes, the type of
+its cell and its header in the summary: the mean settle time (ms), the longest (ms) and the places that never
+settled within the time-out (count)."""
+
+
+def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One row of ``rate.csv`` from a row's episodes' metrics (:meth:`EpisodeRecord.metrics`): means over them,
+    except the worst place error (mm), the summed violations and divergences, the largest torque ratios, whether
+    the thermal limit was ever exceeded, and the :data:`SETTLE_COLUMNS` when every episode has them."""
+    rows = list(episodes)
 
     def column(name: str) -> np.ndarray:
         return np.array([row[name] for row in rows], dtype=float)
 
+    settle = {
+        name: kind(reduce(column(name))) for name, reduce, kind, _ in SETTLE_COLUMNS if all(name in row for row in rows)
+    }
     return {
         "picks_per_min": float(np.mean(column("picks_per_min"))),
         "cycle_time_mean_s": float(np.mean(column("cycle_time_mean_s"))),
@@ -190,54 +291,72 @@ def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
         "rms_torque_ratio": float(np.max(column("rms_torque_ratio"))),
         "thermal_exceeded": bool(np.any(column("thermal_exceeded"))),
         "diverged": int(np.sum(column("diverged"))),
+        **settle,
         "episodes": len(rows),
     }
 
 
-def holds(row: dict[str, Any]) -> bool:
-    """Whether a row holds its timing: the tracking and place goals, no violation, no divergence, no overheating."""
+def holds(row: Mapping[str, Any]) -> bool:
+    """Whether a row holds its timing: the tracking and place goals, no violation, no divergence, no overheating,
+    and no place that never settled in position (when the row reports it)."""
     return (
         row["tracking_rms_mm"] <= TRACKING_GOAL_MM
         and row["place_error_mm"] <= PLACE_GOAL_MM
         and row["envelope_violations"] == 0
         and row["diverged"] == 0
         and not row["thermal_exceeded"]
+        and row.get("settle_timeouts", 0) == 0
     )
 
 
-def run_rows(args: argparse.Namespace, setup: Any) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Every planner x payload row of the first controller, then the others on the same references."""
+def row_episodes(args: argparse.Namespace) -> int:
+    """Episodes of every planner x payload row of every controller (:func:`run_rows`)."""
+    return len(args.planners) * (len(args.payloads) + 1) * len(args.controllers) * args.episodes
+
+
+def run_rows(
+    args: argparse.Namespace, setup: Any, progress: Any = None
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Every planner x payload row of the first controller, then the others on the same references; ``progress``
+    (a bar, or None) is advanced once per episode."""
     lead, others = args.controllers[0], args.controllers[1:]
     loads = [*args.payloads, MIXED]
     scenarios = [rate_scenario(args.scenario, timing, load) for timing in args.planners for load in loads]
     setups = {scenario.content_hash: setup for scenario in scenarios}
     units = grid(scenarios, [lead], range(args.seed, args.seed + args.episodes))
-    records = run_grid(units, setups, workers=args.workers)
+    records = run_grid(units, setups, workers=args.workers, progress=progress)
     replays = [
         WorkUnit(unit.scenario, key, unit.seed, tuple(record.masses.tolist()), record.reference)
         for key in others
         for unit, record in zip(units, records, strict=True)
     ]
-    records += run_grid(replays, setups, workers=args.workers)
-    grouped: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
+    records += run_grid(replays, setups, workers=args.workers, progress=progress)
+    grouped: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     episode_rows = []
     for unit, record in zip([*units, *replays], records, strict=True):
         timing, (low, high) = unit.scenario.task.timing, unit.scenario.task.payload_mass_range
         load = payload_label(low) if low == high else MIXED
-        grouped.setdefault((timing, controller_label(unit.controller), load), []).append(record)
+        episode = record.metrics()
+        grouped.setdefault((timing, controller_label(unit.controller), load), []).append(episode)
         episode_rows.append(
             {"planner": timing, "controller": controller_label(unit.controller), "payload": load, "seed": unit.seed}
-            | record.metrics()
+            | episode
         )
     rows = [
-        {"planner": timing, "controller": label, "payload": load} | summarize(records)
-        for (timing, label, load), records in grouped.items()
+        {"planner": timing, "controller": label, "payload": load} | summarize(episodes)
+        for (timing, label, load), episodes in grouped.items()
     ]
     return rows, episode_rows
 
 
-def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[str, Any]]:
-    """For each payload, the fastest fixed timing (peak acceleration) at which ``key`` holds the goals."""
+def fastest_episodes(args: argparse.Namespace) -> int:
+    """Episodes of :func:`fastest_fixed`."""
+    return (len(args.payloads) + 1) * FASTEST_SEARCH[2] * args.episodes
+
+
+def fastest_fixed(args: argparse.Namespace, setup: Any, key: str, progress: Any = None) -> list[dict[str, Any]]:
+    """For each payload, the fastest fixed timing (peak acceleration) at which ``key`` holds the goals; ``progress``
+    (a bar, or None) is advanced once per episode."""
     low, high, steps = FASTEST_SEARCH
     rows = []
     for load in [*args.payloads, MIXED]:
@@ -250,7 +369,8 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[s
             )
             scenario = rate_scenario(base, "fixed", load)
             units = grid([scenario], [key], range(args.seed, args.seed + args.episodes))
-            row = summarize(run_grid(units, {scenario.content_hash: setup}, workers=args.workers))
+            records = run_grid(units, {scenario.content_hash: setup}, workers=args.workers, progress=progress)
+            row = summarize([record.metrics() for record in records])
             if holds(row):
                 lower, best = math.log(acceleration), row | {"peak_acceleration_g": acceleration / GRAVITY}
             else:
@@ -262,6 +382,7 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str) -> list[dict[s
     return rows
 
 
+@command_main("python -m eval.rate")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
@@ -272,6 +393,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
         rate(args, run, started)
     return 0
@@ -286,30 +408,41 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
     tared = [key for key in args.controllers if controller_entry(key).tared]
     if not controller_entry(args.controllers[0]).tared:
         tared.append(CELL_ESTIMATOR_KEY)
-    prepared = prepare(
-        rate_scenario(scenario, "declared", MIXED),
-        tared,
-        parameters=args.parameters,
-        runs_dir=args.runs_dir,
-        calibration_episodes=CALIBRATION_EPISODES,
-        workers=args.workers,
-    )
+    if args.quick:
+        print(f"{QUICK_NOTE} Measuring {_study_line(args)}.", flush=True)
+    with progress_bar(CALIBRATION_EPISODES * len(tared), "tare calibration", "episodes") as bar:
+        prepared = prepare(
+            rate_scenario(scenario, "declared", MIXED),
+            tared,
+            parameters=args.parameters,
+            runs_dir=args.runs_dir,
+            calibration_episodes=CALIBRATION_EPISODES,
+            workers=args.workers,
+            progress=bar,
+            servo=args.servo,
+        )
     args.parameters, setup, calibration = prepared.parameter_file, prepared.setup, prepared.calibration
 
-    rows, episode_rows = run_rows(args, setup)
+    with progress_bar(row_episodes(args), "data sheet rows", "episodes") as bar:
+        rows, episode_rows = run_rows(args, setup, bar)
     fastest = []
-    if len(args.controllers) > 1 and not args.no_fastest:
-        fastest = fastest_fixed(args, setup, args.controllers[1])
+    if len(args.controllers) > 1 and args.fastest:
+        label = controller_label(args.controllers[1])
+        with progress_bar(fastest_episodes(args), f"fastest fixed timing of {label}", "episodes") as bar:
+            fastest = fastest_fixed(args, setup, args.controllers[1], bar)
     write_csv(out / "rate.csv", rows)
     write_csv(out / "rate_episodes.csv", episode_rows)
     if fastest:
         write_csv(out / "pd_fastest.csv", fastest)
-    _plot(out / "rate.png", rows, fastest, controller_label(args.controllers[0]), scenario.name)
+    save_rate_figure(out / "rate.png", rows, fastest, controller_label(args.controllers[0]), scenario.name)
     summary = "\n".join(_summary(args, rows, fastest, out, time.perf_counter() - started))
     (out / "summary.md").write_text(summary + "\n")
     run.record(
         config={
             "arguments": {**vars(args), "scenario": scenario.name},
+            "study": "quick" if args.quick else "full",
+            "cycle_terms": cycle_terms(scenario.task),
+            "published": {"source": ABB_IRB_360.source, "cycle": ABB_IRB_360.cycle},
             "identification": str(args.parameters),
             "tares_kg": calibration.tares,
             "calibration_seeds": calibration_seeds(CALIBRATION_EPISODES),
@@ -331,6 +464,7 @@ def _summary(
         for planner in args.planners
         for label in (controller_label(key) for key in args.controllers)
     ]
+    settled = [(name, kind, header) for name, _, kind, header in SETTLE_COLUMNS if all(name in row for row in rows)]
     full = [
         [
             row["planner"],
@@ -340,6 +474,7 @@ def _summary(
             f"{row['tracking_rms_mm']:.3f}",
             f"{row['path_deviation_rms_mm']:.3f}",
             f"{row['place_error_mm']:.3f}",
+            *(f"{row[name]:.1f}" if kind is float else str(row[name]) for name, kind, _ in settled),
             str(row["envelope_violations"]),
             f"{row['peak_torque_ratio']:.2f}",
             f"{row['rms_torque_ratio']:.2f}",
@@ -348,11 +483,11 @@ def _summary(
         for row in rows
     ]
     lines = [
-        f"# Pick rate, scenario {args.scenario.name}: 25/305/25 mm standard cycle, {args.episodes} episodes x "
-        f"{args.scenario.task.n_cycles} cycles per row from seed {args.seed}",
+        f"# Pick rate, scenario {args.scenario.name}: 25/305/25 mm standard cycle, {_study_line(args)}",
         "",
+        *([QUICK_NOTE, ""] if args.quick else []),
         f"Planned timings use {100 * args.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
-        "planner's 10 % margin) and keep its thermal rating.",
+        f"planner's 10 % margin) and keep its thermal rating. {_cycle_line(args.scenario.task)}",
         "",
         f"Picks per minute ({lead} runs every row; the other controllers follow its references).",
         "",
@@ -360,9 +495,11 @@ def _summary(
             ["planner", "controller", *[f"{load} kg" if load != MIXED else load for load in loads]], sheet
         ),
         "",
-        f"Every row: tracking RMS and path deviation RMS (mean, mm), place error at release (worst, mm), envelope "
-        f"violations (steps), peak and RMS torque over the drive's peak and rated torque (largest); holds = tracking "
-        f"<= {TRACKING_GOAL_MM} mm, place error <= {PLACE_GOAL_MM} mm, no violation, no overheating.",
+        "Every row: tracking RMS and path deviation RMS (mean, mm), place error at release (worst, mm), "
+        + ("settle time in position (mean and longest, ms) and places that timed out, " if settled else "")
+        + "envelope violations (steps), peak and RMS torque over the drive's peak and rated torque (largest); holds = "
+        f"tracking <= {TRACKING_GOAL_MM} mm, place error <= {PLACE_GOAL_MM} mm, no violation, no overheating"
+        + (", no settle time-out." if settled else "."),
         "",
         metrics.markdown_table(
             [
@@ -373,6 +510,7 @@ def _summary(
                 "tracking",
                 "path dev.",
                 "place err.",
+                *(header for _, _, header in settled),
                 "violations",
                 "peak/peak",
                 "RMS/rated",
@@ -382,6 +520,7 @@ def _summary(
         ),
         "",
     ]
+    lines += _published_lines(args, by_key, lead)
     lines += _targets(args, by_key, lead)
     if fastest:
         lines += _fastest_lines(fastest, by_key, lead)
@@ -444,35 +583,186 @@ def _fastest_lines(
     ]
 
 
-def _plot(path: Path, rows: list[dict[str, Any]], fastest: list[dict[str, Any]], lead: str, name: str) -> None:
-    """Picks/min against payload for each planner with the lead controller, like a data sheet's chart: a line over
-    the fixed payloads (dotted where a row misses the goals) and a cross for the mixed stream at its mean mass."""
+def _study_line(args: argparse.Namespace) -> str:
+    """What a run measures: episodes, cycles, seeds and payloads."""
+    return (
+        f"{_counted(args.episodes, 'episode')} x {_counted(args.scenario.task.n_cycles, 'cycle')} per row from seed "
+        f"{args.seed}, payloads "
+        f"{_kilograms(args.payloads).replace(',', ', ')} kg and the mixed stream"
+    )
+
+
+def _counted(count: int, noun: str) -> str:
+    """``"1 episode"``, ``"3 episodes"``."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def _cycle_line(task: PickPlaceTask) -> str:
+    """How the scenario's cycle ends at pick and place (:func:`cycle_terms`)."""
+    terms = cycle_terms(task)
+    if not terms:
+        return f"The gripper switches in the middle of a {1e3 * DEFAULT_DWELL:.0f} ms dwell at pick and place."
+    ends = []
+    if "in_position_window" in terms:
+        ends.append(f"the gripper switches once the platform is within {1e3 * terms['in_position_window']:g} mm")
+    if "air_activation" in terms:
+        ends.append(f"{1e3 * terms['air_activation']:.0f} ms of air activation at pick and place")
+    return "Cycle ends: " + "; ".join(ends) + "."
+
+
+def compared_planner(planners: Sequence[str]) -> str:
+    """The planner whose rows stand beside the published ones (:data:`COMPARED_PLANNERS`)."""
+    return next(planner for planner in COMPARED_PLANNERS if planner in planners)
+
+
+def _published_lines(
+    args: argparse.Namespace,
+    by_key: dict[tuple[str, str, str], dict[str, Any]],
+    lead: str,
+    sheet: PublishedSheet = ABB_IRB_360,
+) -> list[str]:
+    """The published rows of ``sheet`` beside the lead's at the same payloads, and what differs."""
+    planner = compared_planner(args.planners)
+    table = []
+    for published in sheet.rows:
+        ours = by_key.get((planner, lead, payload_label(published.payload)))
+        if ours is not None:
+            cells = [
+                f"{ours['picks_per_min']:.1f}",
+                f"{ours['picks_per_min'] / published.picks_per_min:.2f}",
+                f"{ours['place_error_mm']:.2f}",
+            ]
+        else:
+            missing = f"beyond our rated {RATED_PAYLOAD:g} kg" if published.payload > RATED_PAYLOAD else "not run"
+            cells = [missing, "-", "-"]
+        table.append([f"{published.payload:g}", published.robot, f"{published.picks_per_min:.0f}", *cells])
+    plant: PlantConfig = args.scenario.plant
+    drive, geometry = plant.drive, plant.geometry
+    air = cycle_terms(args.scenario.task).get("air_activation")
+    if air is None:
+        ends = [
+            f"our cycle dwells {1e3 * DEFAULT_DWELL:.0f} ms at pick and place, {sheet.maker}'s counts "
+            f"{1e3 * sheet.air_activation:.0f} ms of air activation"
+        ]
+    elif not math.isclose(air, sheet.air_activation):
+        ends = [f"our air activation is {1e3 * air:.0f} ms, {sheet.maker}'s {1e3 * sheet.air_activation:.0f} ms"]
+    else:
+        ends = []
+    clauses = [*DIFFERENCES, *ends]
+    return [
+        f"Beside {sheet.maker}'s published rates ({sheet.source}, {sheet.cycle}: {1e3 * sheet.lift:g}/"
+        f"{1e3 * sheet.travel:g}/{1e3 * sheet.lift:g} mm, {1e3 * sheet.air_activation:.0f} ms air activation at "
+        f"each end, repeatability {1e3 * sheet.repeatability:g} mm), {lead} with {planner} timing (place error: "
+        "worst at release, mm):",
+        "",
+        metrics.markdown_table(
+            ["payload (kg)", "robot", "picks/min", f"{lead} {planner}", "ours / theirs", "place error"], table
+        ),
+        "",
+        "What differs:",
+        "",
+        *(f"- {clause};" for clause in clauses[:-1]),
+        f"- {clauses[-1]}.",
+        "",
+        f"Our robot: {drive.peak_torque:g} N m peak and {drive.rated_torque:g} N m rated torque at each joint, arms "
+        f"{1e3 * geometry.l1:.0f}/{1e3 * geometry.l2:.0f} mm, base and platform radii {1e3 * geometry.ra:.0f}/"
+        f"{1e3 * geometry.rb:.0f} mm, rated payload {RATED_PAYLOAD:g} kg.",
+        "",
+    ]
+
+
+PLANNER_COLORS = {"fixed": "tab:blue", "worst_case": "tab:orange", "declared": "tab:green", "online": "tab:red"}
+"""The colour of each planner's bars in ``rate.png``."""
+
+FASTEST_COLOR = "tab:gray"
+"""The colour of the second controller's fastest fixed timing in ``rate.png``."""
+
+PUBLISHED_STYLES = (("tab:purple", "-"), ("tab:brown", "--"))
+"""Colour and line style of each published robot's rates in ``rate.png``, in the order of
+:attr:`PublishedSheet.robots`."""
+
+
+def rate_figure(
+    rows: Sequence[Mapping[str, Any]],
+    fastest: Sequence[Mapping[str, Any]],
+    lead: str,
+    name: str,
+    sheet: PublishedSheet = ABB_IRB_360,
+) -> Any:
+    """Picks/min per payload like a data sheet's chart, as a matplotlib figure: a group of bars per payload (and the
+    mixed stream), one bar per planner with the lead controller (hatched where the row misses the goals) and one for
+    the second controller's fastest fixed timing, and across each group a line at a published robot's rate.
+
+    Bars side by side stay visible where planners give the same rate (every planned timing does with objects of
+    one mass). The legend sits outside the axes and lists only what has data.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axis = plt.subplots(figsize=(7.0, 4.5))
-    for planner in dict.fromkeys(row["planner"] for row in rows):
-        own = [row for row in rows if row["planner"] == planner and row["controller"] == lead]
-        points = sorted((float(row["payload"]), row["picks_per_min"]) for row in own if row["payload"] != MIXED)
-        style = "-" if all(holds(row) for row in own) else ":"
-        (line,) = axis.plot(*zip(*points, strict=True), style, marker="o", label=planner) if points else (None,)
-        for row in own:
-            if row["payload"] == MIXED:
-                color = line.get_color() if line is not None else None
-                axis.plot(0.5 * RATED_PAYLOAD, row["picks_per_min"], "x", color=color, markersize=9)
-    found = sorted((float(r["payload"]), r["picks_per_min"]) for r in fastest if r["payload"] != MIXED)
-    found = [point for point in found if math.isfinite(point[1])]
+    own = [row for row in rows if row["controller"] == lead]
+    found = [row for row in fastest if math.isfinite(row["picks_per_min"])]
+    ours = {str(row["payload"]) for row in [*own, *found]}
+    masses = {float(load) for load in ours if load != MIXED} | {published.payload for published in sheet.rows}
+    loads = [payload_label(mass) for mass in sorted(masses)] + [MIXED]
+    position = {load: n for n, load in enumerate(loads)}
+    planners = list(dict.fromkeys(row["planner"] for row in own))
+    series = [
+        (f"{planner} timing", PLANNER_COLORS[planner], [row for row in own if row["planner"] == planner])
+        for planner in planners
+    ]
     if found:
-        axis.plot(*zip(*found, strict=True), "k--", marker="s", label=f"{fastest[0]['controller']}, fastest fixed")
-    axis.set_ylim(bottom=0.0)
-    axis.set_xlabel(f"payload (kg); x: mixed stream U[0, {RATED_PAYLOAD:g}] kg at its mean")
+        series.append((f"{found[0]['controller']}, fastest fixed timing", FASTEST_COLOR, found))
+    width = 0.8 / max(len(series), 1)
+
+    figure, axis = plt.subplots(figsize=(10.0, 4.8), layout="constrained")
+    for n, (label, color, members) in enumerate(series):
+        x = [position[str(row["payload"])] + (n - 0.5 * (len(series) - 1)) * width for row in members]
+        bars = axis.bar(x, [row["picks_per_min"] for row in members], width, color=color, label=label)
+        for bar, row in zip(bars, members, strict=True):
+            if "tracking_rms_mm" in row and not holds(row):
+                bar.set_hatch("//")
+    for robot, (color, style) in zip(sheet.robots, PUBLISHED_STYLES, strict=False):
+        published = [p for p in sheet.rows if p.robot == robot]
+        centres = np.array([position[payload_label(p.payload)] for p in published], dtype=float)
+        axis.hlines(
+            [p.picks_per_min for p in published],
+            centres - 0.45,
+            centres + 0.45,
+            colors=color,
+            linestyles=style,
+            linewidth=3.0,
+            zorder=3,
+            label=f"{sheet.maker} {robot} ({sheet.cycle})",
+        )
+
+    def tick(load: str) -> str:
+        if load == MIXED:
+            return f"U[0, {RATED_PAYLOAD:g}]"
+        if float(load) > RATED_PAYLOAD:
+            return f"{load}\n(beyond our rating)"
+        return load + (" (rated)" if float(load) == RATED_PAYLOAD else "") + ("" if load in ours else "\n(not run)")
+
+    axis.set_xticks(range(len(loads)), [tick(load) for load in loads])
+    axis.set_xlabel("payload (kg); the last group: the mixed stream")
     axis.set_ylabel("picks per minute, 25/305/25 mm cycle")
-    axis.set_title(f"{lead} on {name}; dotted: goals not held")
-    axis.grid(True, alpha=0.3)
-    axis.legend(title="timing, planned on MId+F+R", title_fontsize=8, fontsize=8, loc="lower left")
-    figure.tight_layout()
+    rates = [row["picks_per_min"] for row in [*own, *found]] + [p.picks_per_min for p in sheet.rows]
+    axis.set_ylim(0.0, 1.12 * max(rates))
+    axis.set_title(f"{lead} on {name}; hatched: misses the goals", fontsize="medium")
+    axis.grid(True, axis="y", alpha=0.3)
+    axis.set_axisbelow(True)
+    figure.legend(loc="outside right upper", fontsize=8)
+    return figure
+
+
+def save_rate_figure(
+    path: Path, rows: Sequence[Mapping[str, Any]], fastest: Sequence[Mapping[str, Any]], lead: str, name: str
+) -> None:
+    """:func:`rate_figure` saved to ``path`` (PNG, 120 dpi)."""
+    import matplotlib.pyplot as plt
+
+    figure = rate_figure(rows, fastest, lead, name)
     figure.savefig(path, dpi=120)
     plt.close(figure)
 

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from delta_env.scenario import Scenario
+from eval.console import UsageError
 
 RUN_PACKAGES = (
     "numpy",
@@ -185,17 +186,39 @@ def git_commit() -> str | None:
 
 
 def create_run_folder(
-    tool: str, out: str | os.PathLike[str] | None = None, *, runs_dir: Path | None = None, stamp: str | None = None
+    tool: str,
+    out: str | os.PathLike[str] | None = None,
+    *,
+    runs_dir: Path | None = None,
+    stamp: str | None = None,
+    reuse: bool = False,
 ) -> Path:
-    """The run folder ``out`` (reused if it exists: a resumed run), or a new ``<runs root>/<tool>/<stamp>`` (by
-    default the UTC time stamp; ``-2``, ``-3``, ... appended when a run of the same second has it), created with
-    its parents."""
+    """The run folder ``out``, or a new ``<runs root>/<tool>/<stamp>`` (by default the UTC time stamp; ``-2``,
+    ``-3``, ... appended when a run of the same second has it), created with its parents.
+
+    Args:
+        tool: The tool's folder under the runs root.
+        out: The folder the user chose (``--out``), or None.
+        runs_dir: ``--runs-dir`` (:func:`runs_root`).
+        stamp: Folder name instead of the UTC time stamp.
+        reuse: Write into ``out`` even if it exists and holds files: ``--force``, or a tool that resumes there.
+
+    Raises:
+        UsageError: if ``out`` exists and is not an empty folder (unless ``reuse``), or the folder cannot be created.
+    """
     if out is not None:
         folder = Path(out)
-        folder.mkdir(parents=True, exist_ok=True)
+        if folder.exists() and not folder.is_dir():
+            raise UsageError(f"--out {folder}: a file, not a folder; choose a folder")
+        if not reuse and folder.is_dir() and any(folder.iterdir()):
+            raise UsageError(
+                f"--out {folder}: the folder exists and is not empty; choose a new folder, or pass --force to "
+                "write into it (its files are replaced)"
+            )
+        _make_folder(folder, "--out")
         return folder
     base = runs_root(runs_dir) / tool / (stamp if stamp is not None else utc_stamp())
-    base.parent.mkdir(parents=True, exist_ok=True)
+    _make_folder(base.parent, f"the runs root {runs_root(runs_dir)} (--runs-dir or ${RUNS_DIR_VARIABLE})")
     folder, attempt = base, 1
     while True:
         try:
@@ -204,6 +227,23 @@ def create_run_folder(
         except FileExistsError:
             attempt += 1
             folder = base.with_name(f"{base.name}-{attempt}")
+
+
+def _make_folder(folder: Path, option: str) -> None:
+    """Create ``folder`` and its parents; a :class:`UsageError` naming ``option`` if the system refuses."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(
+            f"{option}: cannot create the folder {folder} ({error.strerror or error}); choose a writable place"
+        ) from None
+
+
+def add_force_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--force`` (write into an existing, non-empty ``--out``: :func:`create_run_folder`) to ``parser``."""
+    parser.add_argument(
+        "--force", action="store_true", help="write into --out even if it exists and holds files (they are replaced)"
+    )
 
 
 def json_ready(value: Any) -> Any:
@@ -299,6 +339,7 @@ def run_folder(
     runs_dir: Path | None = None,
     scenarios: Sequence[Scenario] = (),
     stamp: str | None = None,
+    reuse: bool = False,
 ) -> Iterator[Run]:
     """Run a command line inside its run folder (:func:`create_run_folder`), its manifest written as it starts and
     as it ends.
@@ -319,16 +360,19 @@ def run_folder(
         runs_dir: ``--runs-dir`` (:func:`runs_root`).
         scenarios: The scenarios the run works on.
         stamp: Folder name instead of the UTC time stamp.
+        reuse: Write into an existing, non-empty ``out`` (``--force``, or a tool that resumes there); else that is
+            a :class:`~eval.console.UsageError`.
 
     Yields:
         The open run: its ``folder``, and :meth:`Run.record` to add to the manifest. On leaving, ``status``
         becomes ``finished``, ``failed`` (any exception, or a non-zero ``SystemExit``) or ``interrupted``
         (``KeyboardInterrupt``, or SIGTERM, which raises :class:`Terminated` inside the run while it is under way);
-        ``ended`` is stamped and the exception goes on. What the run wrote before stays (tables appended as they
+        ``ended`` is stamped and the exception goes on, with a note naming the folder and the outcome
+        (:func:`eval.console.command_main` prints it). What the run wrote before stays (tables appended as they
         grow, :func:`append_csv_rows`, are whole up to the last row). The SIGTERM handler in place before is put back
         on leaving.
     """
-    folder = create_run_folder(tool, out, runs_dir=runs_dir, stamp=stamp)
+    folder = create_run_folder(tool, out, runs_dir=runs_dir, stamp=stamp, reuse=reuse)
     single = len(scenarios) == 1
     files = {s.name: "scenario.toml" if single else f"scenarios/{s.name}.toml" for s in scenarios}
     for scenario in scenarios:
@@ -363,10 +407,13 @@ def run_folder(
         yield run
     except BaseException as error:
         termination.hold()
+        status, message = _outcome(error)
         try:
-            run.end(*_outcome(error))
+            run.end(status, message)
         finally:
             termination.restore()
+        if status != "finished":
+            error.add_note(f"run folder {folder}, marked {status}")
         raise
     termination.hold()
     try:

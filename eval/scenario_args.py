@@ -9,6 +9,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from controllers.setup import SERVOS
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import (
     Scenario,
@@ -44,14 +45,56 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, default: str = "nomi
     add_geometry_argument(parser)
 
 
+def existing_parameter_file(text: str) -> Path:
+    """An argparse type: the path ``text`` if it is a readable parameter file, else an error naming it (a parameter
+    file the user gives is read, never identified there: :func:`eval.parameter_files.robot_identification`)."""
+    from controllers.identification import ParameterFileError, load_result
+    from eval.parameter_files import MISSING_PARAMETER_FILE  # here: it imports the identification
+
+    path = Path(text)
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: {MISSING_PARAMETER_FILE}")
+    try:
+        load_result(path)
+    except ParameterFileError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return path
+
+
+def check_parameter_file(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A parser error when ``--parameters`` records another robot than ``args.scenario``'s
+    (:func:`eval.parameter_files.check_identity`)."""
+    from controllers.identification import ParameterFileError, load_result
+    from eval.parameter_files import check_identity
+
+    if args.parameters is None:
+        return
+    try:
+        check_identity(load_result(args.parameters), args.scenario.plant, args.parameters)
+    except ParameterFileError as error:
+        parser.error(f"--parameters: {error}")
+
+
 def add_parameters_argument(parser: argparse.ArgumentParser) -> None:
-    """Add ``--parameters`` (the identified parameter file of the scenario's robot) to ``parser``."""
+    """Add ``--parameters`` (the identified parameter file of the scenario's robot, which must exist) to ``parser``."""
     parser.add_argument(
         "--parameters",
-        type=Path,
+        type=existing_parameter_file,
         default=None,
         help="identified parameter file of the scenario's robot (default: <runs root>/identification/<robot "
         "identity>/parameters.json, identified when missing)",
+    )
+
+
+def add_servo_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--servo`` (the model rows' feedback, :data:`controllers.setup.SERVOS`) to ``parser``."""
+    parser.add_argument(
+        "--servo",
+        choices=SERVOS,
+        default=SERVOS[0],
+        help="feedback of the model rows (the residual's base: the one its policy file records): 'servo', the servo "
+        "layer (integral action, friction compensation at rest, gains from the identified model and drive lag), or "
+        f"'pd', the paper's fixed PD (default {SERVOS[0]}; the pd row is always the PD)",
     )
 
 

@@ -70,6 +70,7 @@ def score_policy(
     seeds: Sequence[int] = TEST_SEEDS,
     payloads: Sequence[float] = TEST_PAYLOADS,
     workers: int = 1,
+    progress: Any = None,
 ) -> dict[str, Any]:
     """Base controller vs base + residual on held-out episodes (the same episodes for both), run by
     :func:`eval.engine.run_grid`.
@@ -85,6 +86,8 @@ def score_policy(
         seeds: Episode seeds.
         payloads: Fixed payload masses (kg) of the extra episodes.
         workers: Processes of the episodes (1: this process).
+        progress: A tqdm bar; its total is set to the episodes (two per seed and payload: base and residual),
+            advanced once per finished one.
     """
     env_kwargs = {"n_cycles": 3} if env_kwargs is None else env_kwargs
     if not {"n_cycles"} <= set(env_kwargs) <= {"n_cycles", "scenario"}:
@@ -99,7 +102,9 @@ def score_policy(
     episodes = [(seed, None) for seed in seeds] + [(seeds[0], (mass,) * n_cycles) for mass in payloads]
     units = [WorkUnit(scenario, key, seed, masses) for seed, masses in episodes for key in ROWS.values()]
     start = time.monotonic()
-    records = run_grid(units, {scenario.content_hash: setup}, workers=workers)
+    if progress is not None:
+        progress.reset(total=len(units))
+    records = run_grid(units, {scenario.content_hash: setup}, workers=workers, progress=progress)
     by_row: dict[str, list[EpisodeRecord]] = {name: records[n :: len(ROWS)] for n, name in enumerate(ROWS)}
     per_episode = []
     for n, (seed, masses) in enumerate(episodes):

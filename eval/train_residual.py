@@ -65,12 +65,19 @@ from stable_baselines3.common.logger import configure, make_output_format
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
-from tqdm import tqdm
 
 from controllers.base import Controller
-from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, algorithm_class, save_residual_policy
+from controllers.residual import (
+    ALGORITHMS,
+    PolicyBase,
+    ResidualConfig,
+    algorithm_class,
+    read_policy_settings,
+    save_residual_policy,
+)
 from controllers.residual.env import action_rate_penalty
 from controllers.residual.features import PREVIOUS_ACTION
+from eval.console import command_main, plural, progress_bar
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
 from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
 from eval.residual_envs import (
@@ -81,7 +88,15 @@ from eval.residual_envs import (
     base_setup,
     make_env,
 )
-from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, run_folder, write_json
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    append_csv_rows,
+    command_line,
+    run_folder,
+    write_json,
+)
 from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
 
@@ -225,7 +240,7 @@ class TqdmProgress(BaseCallback):
     """Plain-tqdm progress bar, for when rich (which SB3's ``progress_bar=True`` needs) is not installed."""
 
     def _on_training_start(self) -> None:
-        self.bar = tqdm(total=self.locals["total_timesteps"] - self.model.num_timesteps, unit="step")
+        self.bar = progress_bar(self.locals["total_timesteps"] - self.model.num_timesteps, "training", "step")
 
     def _on_step(self) -> bool:
         self.bar.update(self.training_env.num_envs)
@@ -297,8 +312,10 @@ def train(
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
-        _train(args, run, base_factory, base, callbacks)
+        summary = _train(args, run, base_factory, base, callbacks)
+    print(f"{summary}\nRun folder: {run.folder}")
     return run.folder
 
 
@@ -308,8 +325,8 @@ def _train(
     base_factory: Callable[[], Controller] | None,
     base: PolicyBase | None,
     callbacks: Sequence[BaseCallback],
-) -> None:
-    """The training of :func:`train` into ``run``'s folder."""
+) -> str:
+    """The training of :func:`train` into ``run``'s folder; returns its summary (:func:`training_summary`)."""
     out = run.folder
     config = residual_config(args)
     env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
@@ -432,22 +449,63 @@ def _train(
     eval_env.close()
     learning_curve_figure(out)
     run.record(training={"wall_time_s": round(wall_time, 1), "num_timesteps": model.num_timesteps})
+    policies = "final_policy.zip" + (" and best_policy.zip" if best.is_file() else "")
+    lines = [
+        f"Trained {args.algo.upper()} on {args.scenario.name} for {model.num_timesteps:,} steps in "
+        f"{wall_time / 60:.1f} min: {policies}."
+    ]
     if args.score and base is None:
-        print("No scores: the policy was trained on a custom base (base_factory), which its file does not record.")
+        lines.append(
+            "No scores: the policy was trained on a custom base (base_factory), which its file does not record."
+        )
     elif args.score:
         policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
-        scores = score_policy(policy, env_kwargs)
+        with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
+            scores = score_policy(policy, env_kwargs, progress=bar)
         write_json(out / "scores.json", scores)
-        print(json.dumps(scores["summary"], indent=2))
+        lines.append(score_summary(scores))
+    return "\n".join(lines)
+
+
+def score_summary(scores: dict[str, Any]) -> str:
+    """The scores of :func:`eval.scoring.score_policy` as a few lines of rounded numbers: each row's pooled
+    tracking and torque RMS, the residual's change over its base and the episodes it improved."""
+    summary = scores["summary"]
+    rows = {"base": scores["base"], "residual": scores["residual"]}
+    width = max(map(len, rows.values()))
+    lines = [
+        f"Scores of {Path(scores['policy']).name} on {plural(len(scores['episodes']), 'held-out episode')} "
+        f"({plural(len(scores['seeds']), 'seed')}, {plural(len(scores['payloads']), 'fixed payload')}), pooled over "
+        "every control step:"
+    ]
+    for name, label in rows.items():
+        row = summary[name]
+        lines.append(
+            f"  {label:<{width}}  tracking RMS {row['tracking_rms_mm']:.2f} mm (max {row['tracking_max_mm']:.1f} mm), "
+            f"torque RMS {row['torque_rms_nm']:.2f} N m"
+        )
+    improved, total = summary["episodes_improved"].split("/")
+    lines.append(
+        f"  residual vs base: tracking {100 * summary['tracking_rms_change']:+.1f} %, torque "
+        f"{100 * summary['torque_rms_change']:+.1f} %; better on {improved} of {plural(int(total), 'episode')}"
+    )
+    return "\n".join(lines)
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    summary, _, details = __doc__.partition("\n\n")
     parser = argparse.ArgumentParser(
         prog="python -m eval.train_residual",
-        description=__doc__,
+        description=summary,
+        epilog=details,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--algo", choices=ALGORITHMS, default="sac")
+    parser.add_argument(
+        "--algo",
+        choices=ALGORITHMS,
+        default="sac",
+        help="SB3 algorithm, its hyperparameters from eval/hyperparams/residual.toml (default: %(default)s)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the model and of the training episodes")
     parser.add_argument("--timesteps", type=int, default=300_000, help="total policy steps (100 Hz by default)")
     parser.add_argument(
@@ -459,6 +517,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         default=None,
         help="run folder (default <runs root>/residual/<UTC time>, with --score-only residual_scores/<UTC time>)",
     )
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     parser.add_argument("--resume", type=Path, default=None, help="checkpoint zip to continue from")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop training after this wall time")
@@ -474,7 +533,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
-    parser.add_argument("--reward-scale", type=float, default=ResidualConfig.reward_scale)
+    parser.add_argument(
+        "--reward-scale",
+        type=float,
+        default=ResidualConfig.reward_scale,
+        help="factor on the plant env's reward, so that rewards per policy step are of order 1 (default %(default)s)",
+    )
     parser.add_argument(
         "--torque-weight",
         type=float,
@@ -495,7 +559,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="override hyperparameters of the TOML file: key:value with a TOML value, dotted keys for table entries",
     )
     parser.add_argument("--tensorboard", type=Path, default=None, help="TensorBoard log folder (needs tensorboard)")
-    parser.add_argument("--torch-threads", type=int, default=1)
+    parser.add_argument(
+        "--torch-threads", type=int, default=1, help="threads of torch's CPU operations, >= 1 (default %(default)s)"
+    )
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     parser.add_argument("--no-score", dest="score", action="store_false", help="skip the final test scores")
     parser.add_argument("--verbose", action="store_true", help="print SB3 logs to stdout")
@@ -519,10 +585,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:
         parser.error(str(error))
+    if args.score_only is not None:
+        try:
+            base = read_policy_settings(args.score_only).base
+        except (FileNotFoundError, ValueError) as error:
+            parser.error(f"--score-only {args.score_only}: {error}")
+        if base is None:
+            parser.error(f"--score-only {args.score_only}: trained on a custom base, which the file does not record")
 
     return args
 
 
+@command_main("python -m eval.train_residual")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     if args.score_only is None:
@@ -535,10 +609,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
-        scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario})
+        with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
+            scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario}, progress=bar)
         write_json(run.folder / "scores.json", scores)
-        print(json.dumps(scores["summary"], indent=2))
+    print(f"{score_summary(scores)}\nRun folder: {run.folder}")
     return 0
 
 

@@ -38,10 +38,11 @@ from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
+from eval.console import command_main, plural, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_scenario_arguments,
     add_workers_argument,
@@ -66,6 +67,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default <runs root>/fault_campaign/<UTC time>)"
     )
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_workers_argument(parser)
     args = parser.parse_args(argv)
@@ -167,6 +169,7 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
     return metrics.markdown_table(header, body)
 
 
+@command_main("python scripts/fault_campaign.py")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     with run_folder(
@@ -176,6 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],
+        reuse=args.force,
     ) as run:
         campaign(args, run)
     return 0
@@ -190,10 +194,11 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
     scenarios = [healthy, *(with_faults(healthy, (FaultSpec(kind),)) for kind in args.kinds)]
     units = [WorkUnit(scenario, key, seed) for key in args.controllers for scenario in scenarios for seed in seeds]
     setups = {scenario.content_hash: setup for scenario in scenarios}
-    records = list(zip(units, run_grid(units, setups, workers=args.workers), strict=True))
+    with progress_bar(len(units), "episodes", "ep") as bar:
+        records = list(zip(units, run_grid(units, setups, workers=args.workers, progress=bar), strict=True))
     rows: list[dict[str, Any]] = []
     fault_csv_rows: list[dict[str, Any]] = []
-    text = f"# Fault campaign: {args.scenario.name}, {args.episodes} episodes per kind\n"
+    text = f"# Fault campaign: {args.scenario.name}, {plural(args.episodes, 'episode')} per kind\n"
     for key in args.controllers:
         label = controller_label(key)
         mine = [(unit, record) for unit, record in records if unit.controller == key]

@@ -41,6 +41,7 @@ from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
+from eval.console import UsageError, command_main, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
@@ -180,8 +181,9 @@ def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
         written = json.loads(config_path.read_text())["config"]
         for name in ("seed", "scenario_hash"):
             if written.get(name) != config[name]:
-                raise SystemExit(
-                    f"{out} holds a soak with {name} {written.get(name)!r}, not {config[name]!r}: use another --out"
+                raise UsageError(
+                    f"--out {out} holds a soak with {name} {written.get(name)!r}, not {config[name]!r}: use another "
+                    "--out"
                 )
     done = read_csv_rows(out / "episodes.csv")
     finished = {(row["key"], row["seed"]) for row in done}
@@ -223,6 +225,7 @@ def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
     return metrics.markdown_table(header, body)
 
 
+@command_main("python scripts/fault_soak.py")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     scenario = soak_scenario()
@@ -239,7 +242,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     rows = resume(args.out, config) if args.out is not None else []
     command = command_line("scripts/fault_soak.py", argv)
-    with run_folder("fault_soak", command, config, out=args.out, runs_dir=args.runs_dir, scenarios=[scenario]) as run:
+    with run_folder(
+        "fault_soak", command, config, out=args.out, runs_dir=args.runs_dir, scenarios=[scenario], reuse=True
+    ) as run:
         soak(args, run, scenario, rows)
     return 0
 
@@ -247,8 +252,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict[str, Any]]) -> None:
     """Run the soak of ``args`` (:func:`parse_args`) on ``scenario`` into ``run``'s folder, after the episodes
     ``rows`` already there; its table printed."""
-    from tqdm.auto import tqdm
-
     out, keys = run.folder, args.controllers
     setup = prepare(scenario, keys, runs_dir=args.runs_dir, workers=args.workers).setup
 
@@ -257,7 +260,7 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
     simulated = {key: sum(float(row["simulated_s"]) for row in rows if row["key"] == key) for key in keys}
     first_batch, grid_limit = 4 * args.workers, GRID_EPISODES_PER_WORKER * args.workers
     index = 0
-    with tqdm(total=len(keys) * target, desc="simulated s", unit="s") as progress:
+    with progress_bar(len(keys) * target, "simulated s", "s") as progress:
 
         def show_progress() -> None:  # set, not added up: sums of float steps overshoot the total in the last bit
             progress.n = sum(min(seconds, target) for seconds in simulated.values())
@@ -298,7 +301,7 @@ def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict
             if faulted
             else []
         ),
-        f"Folder: {out}",
+        f"Run folder: {out}",
     ]
     summary = "\n".join(lines)
     (out / "summary.md").write_text(summary + "\n")

@@ -10,8 +10,10 @@ T of today's quintic timing (tau = t / T) that keeps the same model within the s
 
 from __future__ import annotations
 
+import argparse
 import math
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -65,7 +67,14 @@ def peaks(dynamics: DeltaDynamics, shape: Segment, law: TimeLaw) -> tuple[float,
     return float(np.linalg.norm(xdd, axis=1).max() / GRAVITY), float(np.abs(qd).max())
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> int:
+    summary, _, details = __doc__.partition("\n\n")
+    argparse.ArgumentParser(
+        prog="python scripts/plan_times.py",
+        description=summary,
+        epilog=details,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    ).parse_args(argv)
     dynamics = DeltaDynamics.nominal(FRICTION, forearm_rods=True)
     planner = TimeOptimalPlanner(dynamics, DriveLimits(), drive_lag=1e-3)
     shape = standard_carry()
@@ -89,7 +98,8 @@ def main() -> None:
             f"| {speed:.1f} | {stats.scale:.3f} | {wall * 1e3:.0f} | {parts} | {baseline.duration * 1e3:.0f} "
             f"| {peaks(dynamics, shape, baseline)[0]:.1f} |"
         )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

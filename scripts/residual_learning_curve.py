@@ -42,6 +42,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
+from eval.console import UsageError, command_main
 from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
@@ -227,12 +228,12 @@ def check_settings(out: Path, args: argparse.Namespace, recipes: Sequence[Recipe
     common["max_torque_change"] = args.max_torque_change
     common["full_curve"] = args.full_curve
     if settings.get("common", common) != common:
-        raise SystemExit(f"{out} holds runs made with {settings['common']}, not {common}: use another --out")
+        raise UsageError(f"{out} holds runs made with {settings['common']}, not {common}: use another --out")
     for recipe in recipes:
         current = {"algo": recipe.algo, "hyperparams": list(recipe.hyperparams), "train_args": list(recipe.train_args)}
         recorded = settings["recipes"].setdefault(recipe.label, current)
         if recorded != current:
-            raise SystemExit(f"{out} holds {recipe.label!r} runs of {recorded}, not {current}: use another --out")
+            raise UsageError(f"{out} holds {recipe.label!r} runs of {recorded}, not {current}: use another --out")
     settings["common"] = common
     partial = path.with_suffix(".partial")
     partial.write_text(json.dumps(settings, indent=2) + "\n")
@@ -310,7 +311,7 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
         [
             "--algo", recipe.algo, "--seed", str(seed), "--timesteps", str(args.timesteps), "--n-envs", "1",
             "--eval-freq", str(args.timesteps + 1), "--checkpoint-freq", str(args.timesteps + 1),
-            "--no-progress", "--no-score", "--out", str(folder),
+            "--no-progress", "--no-score", "--out", str(folder), "--force",
             *(["--runs-dir", str(args.runs_dir)] if args.runs_dir is not None else []),
             *(["--hyperparams", *recipe.hyperparams] if recipe.hyperparams else []),
             *recipe.train_args,
@@ -374,10 +375,11 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
+@command_main("python scripts/residual_learning_curve.py")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_arguments(argv)
     command = command_line("scripts/residual_learning_curve.py", argv)
-    with run_folder("learning_curve", command, vars(args), out=args.out, runs_dir=args.runs_dir) as run:
+    with run_folder("learning_curve", command, vars(args), out=args.out, runs_dir=args.runs_dir, reuse=True) as run:
         benchmark(args, run.folder)
     return 0
 
@@ -398,7 +400,7 @@ def benchmark(args: argparse.Namespace, out: Path) -> None:
             run(recipe, seed, args, out, shared)
     table = summary_table(read_csv_rows(out / "curve.csv"), args.max_torque_change)
     (out / "table.md").write_text(table + "\n")
-    print(table)
+    print(f"{table}\n\nRun folder: {out}")
 
 
 if __name__ == "__main__":

@@ -19,5 +19,5 @@ python3 -m venv .venv
 .venv/bin/pip install -q --upgrade pip
 # The CPU build of torch lies on this machine's disk; a plain 'torch' would pull a CUDA build.
 .venv/bin/pip install -q "torch==2.13.0"
-.venv/bin/pip install -q -e ".[rl,dev]"
+.venv/bin/pip install -q -e ".[rl,dev,docs]"
 touch .venv/.installed

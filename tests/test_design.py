@@ -102,7 +102,7 @@ def test_pareto_front_is_reproducible_and_non_dominated(nominal):
         if np.all(g <= 0):
             assert any(np.all(member <= f) for member in objectives)
     assert all(first.archive.performance[i].feasible for i in first.front)
-    chosen = optimize.choose_designs(first, nominal)
+    chosen = optimize.choose_designs(optimize.design_roles(first, nominal))
     assert chosen["compromise"] in first.front
 
 
@@ -203,6 +203,14 @@ def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
         assert name == "nominal" or tuple(row[k] for k in ("ra", "rb", "l1", "l2")) in on_front, name
     with (out / "robustness.csv").open() as file:
         assert {row["design"] for row in csv.DictReader(file)} >= {"nominal", "compromise"}
+    # each design named once, and by what its figures bear out
+    lengths = [tuple(row[k] for k in ("ra", "rb", "l1", "l2")) for row in rows_by_design.values()]
+    assert len(set(lengths)) == len(lengths)
+    nominal_row = {k: float(rows_by_design["nominal"][k]) for k in ("workspace_m3", "peak_torque_nm")}
+    if "low torque" in rows_by_design:
+        assert float(rows_by_design["low torque"]["peak_torque_nm"]) < nominal_row["peak_torque_nm"]
+    if "large workspace" in rows_by_design:
+        assert float(rows_by_design["large workspace"]["workspace_m3"]) > nominal_row["workspace_m3"]
     # strict JSON: a design with no fixed screw setting for every profile must not write a bare NaN
     config = json.loads((out / "config.json").read_text(), parse_constant=lambda name: pytest.fail(f"{name} written"))
     assert config["command"] == "python -m eval.design --quick --seed 3 --workers 1 --out " + str(out)

@@ -9,8 +9,9 @@ import pytest
 
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry
 from delta_env.scenario import load_geometry
-from eval.design import explorer, performance, profiles
+from eval.design import explorer, performance, profiles, report
 from eval.design.report import performance_row
+from tests.figure_checks import hidden_legend_entries, kept_figures
 
 BROWSER_PROGRAMS = ("chromium", "chromedriver")
 """Debian's chromium and chromium-driver packages (scripts/setup.sh installs them), looked up on PATH."""
@@ -68,10 +69,27 @@ def test_profiles_in_the_page_are_the_designs_own(study):
 def test_column_labels_carry_their_units():
     assert explorer.column_label("peak_torque_nm") == "peak torque (N m)"
     assert explorer.column_label("workspace_m3") == "workspace (m³)"
-    assert explorer.column_label("picks_per_min_light") == "picks per min light"
-    assert explorer.column_label("picks_per_min") == "picks (/min)"
+    assert explorer.column_label("picks_per_min_light") == "picks/min, light payload"
+    assert explorer.column_label("picks_per_min") == "picks/min"
     assert explorer.column_label("speed_m_s") == "speed (m/s)"
+    assert explorer.column_label("drive_max_speed_rad_s") == "drive max speed (rad/s)"
     assert explorer.column_label("cylinder_top_m") == "cylinder top (m)"
+    assert explorer.column_label("ra") == "ra (m)"
+    row = performance_row(performance.evaluate(NOMINAL_GEOMETRY))
+    labels = [explorer.column_label(column) for column in row]
+    assert len(set(labels)) == len(labels)
+    assert not [label for label in labels if "_" in label or " (s)" in label]  # words, units written as units
+
+
+def test_pareto_figure_shows_its_legend_and_its_whole_title(study, tmp_path, monkeypatch):
+    front, named = study
+    with kept_figures(monkeypatch) as figures:
+        report.plot_pareto(front, named["nominal"], {"compromise": named["compromise"]}, tmp_path / "pareto.png")
+        (figure,) = figures
+        assert hidden_legend_entries(figure) == []
+        title = figure.axes[0].title
+        box, canvas = title.get_window_extent(), figure.bbox
+        assert title.get_text() and canvas.x0 <= box.x0 and box.x1 <= canvas.x1 and box.y1 <= canvas.y1  # not clipped
 
 
 def test_page_is_self_contained_and_bad_arguments_are_named(study, page):
@@ -187,5 +205,60 @@ def test_clicking_a_design_on_the_front_shows_it_in_the_panel(study, page, brows
         timeout=10.0,
     )
     assert opacity == [[0.15, 1], [1, 1]]  # front designs 0 (ra 0.16 m, dimmed) and 2; nominal and compromise
+    severe = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
+    assert not severe, severe
+
+
+def _overlapping_texts(driver, selector: str) -> list[tuple[str, str]]:
+    """Pairs of the texts matched by ``selector`` whose bounding boxes (as drawn, px) overlap."""
+    boxes = driver.execute_script(
+        """return [...document.querySelectorAll(arguments[0])].filter((e) => e.textContent).map((e) => {
+            const b = e.getBoundingClientRect(); return [e.textContent, b.left, b.right, b.top, b.bottom]; });""",
+        selector,
+    )
+    return [
+        (a[0], b[0])
+        for i, a in enumerate(boxes)
+        for b in boxes[i + 1 :]
+        if a[1] < b[2] and b[1] < a[2] and a[3] < b[4] and b[3] < a[4]
+    ]
+
+
+def test_the_parallel_coordinates_read_at_1400_px(study, page, browser):
+    designs = explorer.explorer_designs(*study, profiles.worst_cycle(study[1]["nominal"]))
+    browser.get(page.as_uri())
+    _wait_for(browser, "return window.explorerReady === true")
+    assert browser.execute_script("return window.innerWidth") == 1400
+    texts = "#parallel .axis-title, #parallel .axis-extent-text, #parallel .tick text"
+    labels = browser.execute_script(
+        "return [...document.querySelectorAll('#parallel .axis-title')].map((e) => e.textContent)"
+    )
+    assert sorted(labels) == sorted(explorer.column_label(c) for c in explorer.PARALLEL_COLUMNS)
+    assert browser.execute_script(f"return document.querySelectorAll('{texts}').length") > 3 * len(labels)
+    assert _overlapping_texts(browser, texts) == []  # no axis title, range or tick over another
+
+    # the front's legend lists no colour-scaled trace: a swatch has one colour, the colour bar is that trace's key
+    legend = browser.execute_script(
+        """return document.getElementById('front')._fullData.filter((t) => t.showlegend)
+        .map((t) => [t.name, Array.isArray(t.marker.color)]);"""
+    )
+    assert [name for name, _ in legend] == ["nominal and chosen designs", "selected"]
+    assert not any(scaled for _, scaled in legend)
+
+    # a checkbox adds an axis, and the axes kept keep their brushes
+    browser.execute_script("Plotly.restyle('parallel', {'dimensions[0].constraintrange': [[0.19, 0.23]]}, [0]);")
+    browser.execute_script(
+        """const box = document.querySelector('#axes input[value="drive_max_speed_rad_s"]');
+        box.checked = true; box.dispatchEvent(new Event('change', {bubbles: true}));"""
+    )
+    dimensions = browser.execute_script(
+        "return document.getElementById('parallel').data[0].dimensions.map((d) => [d.label, d.constraintrange]);"
+    )
+    assert [label for label, _ in dimensions] == [
+        explorer.column_label(c)
+        for c in explorer.parallel_columns(designs)
+        if c in {*explorer.PARALLEL_COLUMNS, "drive_max_speed_rad_s"}
+    ]
+    assert dimensions[0] == ["ra (m)", [0.19, 0.23]] and all(brush is None for _, brush in dimensions[1:])
     severe = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
     assert not severe, severe

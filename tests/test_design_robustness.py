@@ -1,6 +1,7 @@
 """The design study's merged front and convergence (eval.design.front) and its tolerance and sensitivity analysis
 (eval.design.robustness)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 
 from delta_env import kinematics
 from delta_env.geometry import NOMINAL_GEOMETRY
-from eval.design import front, optimize, performance, robustness
+from eval.design import front, optimize, performance, report, robustness
 
 
 @pytest.fixture(scope="module")
@@ -53,15 +54,59 @@ def test_merged_front_is_non_dominated_against_every_run(nominal):
             assert not _dominated(member, feasible)
         for f in feasible:  # every feasible design is matched or dominated by a member
             assert np.any(np.all(members <= f, axis=1))
-    chosen = {**optimize.choose_designs(result, nominal), "weighted": optimize.weighted_cost_optimum(result, nominal)}
-    assert set(chosen.values()) <= set(result.front.tolist())
+    roles = optimize.design_roles(result, nominal)
+    assert set(roles.values()) <= set(result.front.tolist())
     every_cost = [optimize.weighted_cost(p, nominal) for p in result.archive.performance if p.feasible]
-    assert optimize.weighted_cost(result.archive.performance[chosen["weighted"]], nominal) == min(every_cost)
+    assert optimize.weighted_cost(result.archive.performance[roles["weighted-cost optimum"]], nominal) == min(
+        every_cost
+    )
     assert {merged.source(i) for i in range(len(result.archive.x))} == {(r.optimizer, r.seed) for r in merged.runs}
     rows = {(row["optimizer"], row["seed"]) for row in result.convergence}
     assert rows == {(r.optimizer, r.seed) for r in merged.runs} and len(result.convergence) == 3 * 2
     with pytest.raises(ValueError, match="distinct"):
         front.search(nominal, population=6, generations=1, seeds=[1, 1])
+
+
+def _front_of(nominal, relative: list[tuple[float, float, float]]) -> optimize.ParetoResult:
+    """A front of designs with the nominal robot's figures scaled by ``relative`` (workspace, torque, picks/min)."""
+    designs = [
+        dataclasses.replace(
+            nominal,
+            workspace_m3=w * nominal.workspace_m3,
+            peak_torque_nm=t * nominal.peak_torque_nm,
+            picks_per_min=p * nominal.picks_per_min,
+        )
+        for w, t, p in relative
+    ]
+    archive = _archive([list(optimize.objective_vector(d)) for d in designs], [[0.0] * 3] * len(designs), designs)
+    return optimize.ParetoResult(archive=archive, front=np.arange(len(designs)), convergence=[])
+
+
+def test_design_names_are_true_to_their_figures(nominal):
+    # the --quick study's front: less workspace at less torque, more workspace at more torque
+    result = _front_of(nominal, [(0.61, 0.984, 0.98), (1.24, 1.14, 0.98), (1.38, 1.195, 0.99)])
+    roles = optimize.design_roles(result, nominal)
+    assert "large workspace" not in roles and "low torque" not in roles  # -39 % workspace, +14 % torque
+    chosen = optimize.choose_designs(roles)
+    assert len(set(chosen.values())) == len(chosen)  # no design named twice
+    sentence = report.roles_sentence(roles)
+    assert "No low torque design" in sentence and "No large workspace design" in sentence
+    assert optimize.shared_roles(roles) == {"weighted-cost optimum": "compromise"}
+    assert "The compromise design is also the weighted-cost optimum design." in sentence
+
+    # one design with more workspace at less torque fills three roles, named once by the first
+    result = _front_of(nominal, [(1.10, 0.95, 1.0), (0.90, 0.80, 1.0), (1.30, 1.20, 1.0)])
+    roles = optimize.design_roles(result, nominal)
+    assert roles["compromise"] == roles["low torque"] == roles["large workspace"] == 0
+    assert optimize.choose_designs(roles)["compromise"] == 0
+    assert not {"low torque", "large workspace"} & set(optimize.choose_designs(roles))
+    assert "The compromise design is also the large workspace design." in report.roles_sentence(roles)
+    for role, index in roles.items():
+        w, t = -result.archive.f[index][0], result.archive.f[index][1]
+        if role == "low torque":
+            assert t < nominal.peak_torque_nm and w >= nominal.workspace_m3
+        if role == "large workspace":
+            assert w > nominal.workspace_m3 and t <= nominal.peak_torque_nm
 
 
 def test_convergence_summary_reads_the_last_rise(nominal):

@@ -186,6 +186,10 @@ def test_real_actions_of_any_numeric_kind_step_alike(action: object) -> None:
     [
         ({"payload_masses": [1.0, 2.0]}, "one mass per pick"),
         ({"payload_masses": [-1.0]}, "must lie in"),
+        (
+            {"payload_masses": ["a"]},
+            r"must hold numbers, the object masses in kg, one per pick \(1\), each in \[0, 20.0\], got \['a'\]",
+        ),
         ({"payload": 1.0}, "unknown reset options"),
         ({"reference": "25/305/25"}, "Trajectory"),
     ],
@@ -215,6 +219,14 @@ def test_bad_reset_options_raise(env: DeltaPickPlaceEnv, options: dict, message:
 def test_bad_constructor_arguments_raise(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         DeltaPickPlaceEnv(**kwargs)
+
+
+def test_human_rendering_without_a_display_is_a_python_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("sys.platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    with pytest.raises(RuntimeError, match=r"no display \(neither DISPLAY nor WAYLAND_DISPLAY is set\).*rgb_array"):
+        DeltaPickPlaceEnv(render_mode="human")
 
 
 def test_torque_beyond_limit_is_saturated_and_flagged(env: DeltaPickPlaceEnv) -> None:

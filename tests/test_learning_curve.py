@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from eval.console import UsageError
 from eval.run_folder import append_csv_rows, read_csv_rows
 
 pytest.importorskip("stable_baselines3", reason="the benchmark trains with the rl extra (stable-baselines3)")
@@ -85,10 +86,10 @@ def test_a_folder_of_other_settings_or_another_recipe_under_the_same_label_is_re
     curve.check_settings(tmp_path, args, recipes)
     curve.check_settings(tmp_path, args, recipes)  # the same again: resumes
     longer = curve.parse_arguments(["--recipe", "new", "--max-minutes", "15", "--out", str(tmp_path)])
-    with pytest.raises(SystemExit, match="max_minutes"):
+    with pytest.raises(UsageError, match="max_minutes"):
         curve.check_settings(tmp_path, longer, recipes)
     renamed = [curve.Recipe("new", "sac", ("train_freq:1",), ())]
-    with pytest.raises(SystemExit, match="'new' runs of"):
+    with pytest.raises(UsageError, match="'new' runs of"):
         curve.check_settings(tmp_path, args, renamed)
 
 

@@ -109,26 +109,45 @@ GOOD_ROWS = [f"{k * CONTROL_PERIOD!r},0.1,0.2,0.3,1.0,2.0,3.0" for k in range(5)
             "missing column(s) theta_2",
         ),
         (_csv([*GOOD_ROWS[:3], GOOD_ROWS[1], *GOOD_ROWS[4:]]), "time_s must increase strictly: data row 4"),
-        (_csv([*GOOD_ROWS[:2], "0.002,0.1,nan,0.3,1,2,3", *GOOD_ROWS[3:]]), "column theta_2 is not a finite number"),
-        (_csv([*GOOD_ROWS[:2], "0.002,0.1,0.2,0.3,,2,3", *GOOD_ROWS[3:]]), "column torque_1 is not a finite number"),
+        (
+            _csv([*GOOD_ROWS[:2], "0.002,0.1,nan,0.3,1,2,3", *GOOD_ROWS[3:]]),
+            "column theta_2 is not a finite number at data row 3: nan",
+        ),
+        (
+            _csv([*GOOD_ROWS[:2], "0.002,0.1,0.2,0.3,,2,3", *GOOD_ROWS[3:]]),
+            "column torque_1 at data row 3 (line 4) is empty",
+        ),
+        (
+            _csv([row.replace(",", ";") for row in GOOD_ROWS], LOG_HEADER.replace(",", ";")),
+            "seem separated by ';', a log's are separated by commas",
+        ),
         (_csv([*GOOD_ROWS[:2], "0.002,0.1,0.2,0.3,x,2,3", *GOOD_ROWS[3:]]), "column torque_1 at data row 3"),
         (_csv([*GOOD_ROWS[:2], "0.0085,0.1,0.2,0.3,1,2,3"]), "a gap of 7.5 ms from data row 2"),
         (_csv(GOOD_ROWS[:1]), "needs at least 2 rows"),
         ("", "empty file"),
         (_csv([row + ",1" for row in GOOD_ROWS], LOG_HEADER + ",command_1"), "not command_2, command_3"),
         (_csv([row + ",1,2,nan" for row in GOOD_ROWS], LOG_HEADER + ",command_1,command_2,command_3"), "command_3"),
+        (
+            _csv(
+                [row + (",1,,3" if k == 1 else ",1,2,3") for k, row in enumerate(GOOD_ROWS)],
+                LOG_HEADER + ",command_1,command_2,command_3",
+            ),
+            "column command_2 at data row 2 (line 3) is empty; only the last row's commands may be empty",
+        ),
     ],
     ids=[
         "missing-column",
         "time-backwards",
         "nan",
         "empty-cell",
+        "semicolons",
         "not-a-number",
         "gap",
         "one-row",
         "empty",
         "one-command",
         "nan-command",
+        "empty-command",
     ],
 )
 def test_bad_logs_are_refused_naming_file_column_and_row(tmp_path, text, message) -> None:
@@ -137,6 +156,20 @@ def test_bad_logs_are_refused_naming_file_column_and_row(tmp_path, text, message
     with pytest.raises(LogFileError) as error:
         read_log(path)
     assert str(path) in str(error.value) and message in str(error.value)
+    assert "np.float64" not in str(error.value)
+
+
+def test_a_null_in_a_parquet_log_is_reported_as_empty_with_its_row(tmp_path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    values = np.arange(5) * CONTROL_PERIOD
+    columns = {name: pa.array(values) for name in LOG_HEADER.split(",")}
+    columns["theta_3"] = pa.array([0.1, 0.2, None, 0.4, 0.5])
+    path = tmp_path / "bad.parquet"
+    pq.write_table(pa.table(columns), path)
+    with pytest.raises(LogFileError, match=r"column theta_3 at data row 3 \(null\) is empty; it needs a number"):
+        read_log(path)
 
 
 def test_only_the_last_command_may_be_missing_and_other_columns_are_ignored(tmp_path) -> None:
@@ -145,7 +178,7 @@ def test_only_the_last_command_may_be_missing_and_other_columns_are_ignored(tmp_
     path.write_text(_csv(rows, LOG_HEADER + ",command_1,command_2,command_3,note"))
     log = read_log(path)
     np.testing.assert_array_equal(log.commands, np.arange(4.0)[:, None].repeat(3, 1))
-    with pytest.raises(LogFileError, match=r"must end in \.csv or \.parquet"):
+    with pytest.raises(LogFileError, match=r"must end in \.csv, \.parquet, \.mcap or \.db3"):
         read_log(tmp_path / "log.txt")
 
 

@@ -6,16 +6,14 @@ import csv
 import time
 from pathlib import Path
 
-import matplotlib.artist
 import matplotlib.figure
-import matplotlib.lines
 import numpy as np
 import pytest
-from mpl_toolkits.mplot3d.art3d import Line3D
 
 from eval import plots
 from eval.faults import FAULT_COLUMNS, write_fault_csv
 from eval.processes import pool_context
+from tests.figure_checks import hidden_legend_entries, kept_figures
 
 SAVED_FIRST = ("traces.npz",)
 SAVED_LAST = ("table2_run.npz", "table2.csv", "episodes.csv", "faults.csv")
@@ -28,23 +26,31 @@ def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
         writer.writerows(rows)
 
 
+def _torques(steps: int, offset: float) -> np.ndarray:
+    """Smooth torques (N m) of three joints, ``(steps, 3)``, as a pick-and-place cycle draws them."""
+    time = 1e-3 * np.arange(steps)[:, None]
+    return 30.0 * np.sin(2 * np.pi * 2.0 * time + np.array([0.0, 2.1, 4.2])) + offset
+
+
 def _run_folder(folder: Path, faults: bool = True) -> Path:
-    """A run folder with the files the figures are made from: two controllers, one estimating, 300 steps, one
-    carry; with ``faults``, a fault of each outcome in ``faults.csv``, else its header only."""
+    """A run folder with the files the figures are made from: three controllers, one estimating, the bound, 300 steps,
+    one carry; PD's torques are MId+F+RLS's (lines that would coincide in one panel); with ``faults``, a fault of each
+    outcome in ``faults.csv``, else its header only."""
     rng = np.random.default_rng(3)
-    steps, keys, labels = 300, ["pd", "mid_f_rls"], ["PD", "MId+F+RLS"]
+    steps, keys, labels = 300, ["pd", "mid_f_rls", "oracle"], ["PD", "MId+F+RLS", "Oracle+PD (bound)"]
     (folder / "scenario.toml").write_text('name = "nominal"\n')
     angle = np.linspace(0.0, np.pi, steps)
     reference = np.stack((0.3 * np.cos(angle), 0.2 * np.sin(angle), -0.9 + 0.02 * np.sin(2 * angle)), -1)
     deviation = 0.002 * np.stack((np.sin(angle), np.zeros(steps), np.zeros(steps)), -1)  # at most 2 mm
+    torques = {"pd": _torques(steps, 2.0), "mid_f_rls": _torques(steps, 2.0), "oracle": _torques(steps, 0.0)}
     np.savez_compressed(
         folder / "traces.npz",
         dt=1e-3,
         keys=np.array(keys),
         labels=np.array(labels),
-        estimates_payload=np.array([False, True]),
+        estimates_payload=np.array([False, True, False]),
         **{f"{key}.tracking_error": 1e-3 * rng.random(steps) for key in keys},
-        **{f"{key}.torque": rng.normal(size=(steps, 3)) for key in keys},
+        **{f"{key}.torque": torques[key] for key in keys},
         **{f"{key}.payload_mass": np.full(steps + 1, 2.0) for key in keys},
         **{f"{key}.payload_estimate": 2.0 + 0.1 * rng.normal(size=steps) for key in keys},
         **{f"{key}.platform_position": reference + deviation for key in keys},
@@ -166,67 +172,54 @@ def test_a_plotter_stops_its_process_when_the_caller_fails(tmp_path: Path) -> No
     assert not any((folder / name).exists() for name in plots.FIGURES)
 
 
-def _artists(figure: matplotlib.figure.Figure) -> list[matplotlib.artist.Artist]:
-    return [artist for axis in figure.axes for artist in (*axis.lines, *axis.collections, *axis.patches)]
+def test_every_figure_shows_what_its_legend_lists(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    folder = _run_folder(tmp_path)
+    with kept_figures(monkeypatch) as figures:
+        plots.make_plots(folder)
+        assert len(figures) == len(plots.FIGURES)
+        for name, figure in zip(plots.FIGURES, figures, strict=True):
+            assert hidden_legend_entries(figure) == [], name
+        # one panel per controller, so that PD shows although its torques are MId+F+RLS's
+        torque_profiles = figures[list(plots.FIGURES).index("torque_profiles.png")]
+        titles = [axis.get_title() for axis in torque_profiles.axes if axis.get_visible()]
+        assert [title.split(":")[0] for title in titles] == ["PD", "MId+F+RLS", "Oracle+PD (bound)"]
+        assert titles[0] == "PD: 2.00 N m RMS from the bound"  # every joint 2 N m above the bound's torque
+        for axis in torque_profiles.axes:  # no legend over the data: one legend, the figure's, above the panels
+            assert axis.get_legend() is None
+        (legend,) = torque_profiles.legends
+        top = min(axis.get_window_extent().y1 for axis in torque_profiles.axes if axis.get_visible())
+        assert legend.get_window_extent().y0 >= top
 
 
-def _has_data(artist: matplotlib.artist.Artist) -> bool:
-    """Whether ``artist`` draws something: a line with a finite point, a patch or collection with a finite path."""
-    if isinstance(artist, Line3D):
-        return bool(np.isfinite(np.asarray(artist.get_data_3d(), dtype=float)).all(axis=0).any())
-    if isinstance(artist, matplotlib.lines.Line2D):
-        points = np.asarray(artist.get_xydata(), dtype=float)
-        return bool(np.isfinite(points).all(axis=1).any())
-    paths = artist.get_paths() if hasattr(artist, "get_paths") else [artist.get_path()]
-    return any(len(path.vertices) and np.isfinite(path.vertices).all() for path in paths)
-
-
-def _legend_entries(figure: matplotlib.figure.Figure) -> dict[str, bool]:
-    """Each legend entry of ``figure`` (its axes' and its own) and whether an artist of that label draws data."""
+def _legend_texts(figure: matplotlib.figure.Figure) -> set[str]:
     legends = [*figure.legends, *(axis.get_legend() for axis in figure.axes if axis.get_legend() is not None)]
-    artists = _artists(figure)
-    return {
-        text.get_text(): any(artist.get_label() == text.get_text() and _has_data(artist) for artist in artists)
-        for legend in legends
-        for text in legend.get_texts()
-    }
+    return {text.get_text() for legend in legends for text in legend.get_texts()}
 
 
-@pytest.fixture
-def drawn(monkeypatch: pytest.MonkeyPatch) -> list[matplotlib.figure.Figure]:
-    """The figures the plots draw, kept open (their ``plt.close`` is skipped) to be inspected."""
-    figures: list[matplotlib.figure.Figure] = []
-    monkeypatch.setattr(plots.plt, "close", figures.append)
-    return figures
-
-
-def test_the_new_figures_have_data_for_every_legend_entry(
-    tmp_path: Path, drawn: list[matplotlib.figure.Figure]
-) -> None:
+def test_the_new_figures_list_what_they_show_beside_the_data(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     folder = _run_folder(tmp_path)
     names = ("tracking_error.png", "paths_3d.png", "fault_timeline.png")
-    for name in names:
-        plots.FIGURES[name][1](folder, folder / name, "nominal")
-        assert (folder / name).stat().st_size > 10_000, name
-    tracking, paths, timeline = (_legend_entries(figure) for figure in drawn)
-    assert set(tracking) == {"object held", "tracking error", *(f"RMS {rms:.2f} mm" for rms in _rms(folder))}
-    assert set(paths) == {"reference", "platform (deviation from the reference x 10)"}  # 2 mm at most
-    assert set(timeline) == {
-        "injected: torque_glitch",
-        "injected: slip",
-        "missed (hatched)",
-        "detection of the fault",
-        "detection of a consequence",
-        "false alarm",
-    }
-    for entries in (tracking, paths, timeline):
-        assert all(entries.values()), entries
-    # The legends of the panels sit beside them, off the data.
-    for figure in (drawn[0], drawn[2]):
-        renderer = figure.canvas.get_renderer()
-        for axis in figure.axes:
-            legend = axis.get_legend().get_window_extent(renderer)
-            assert legend.x0 >= axis.get_window_extent(renderer).x1
+    with kept_figures(monkeypatch) as figures:
+        for name in names:
+            plots.FIGURES[name][1](folder, folder / name, "nominal")
+        tracking, paths, timeline = figures
+        for name, figure in zip(names, figures, strict=True):
+            assert hidden_legend_entries(figure) == [], name
+        assert _legend_texts(tracking) == {"object held", "tracking error", *(f"RMS {r:.2f} mm" for r in _rms(folder))}
+        assert [axis.get_title(loc="left") for axis in tracking.axes] == ["PD", "MId+F+RLS", "Oracle+PD (bound)"]
+        assert _legend_texts(paths) == {"reference", "platform (deviation from the reference x 10)"}  # 2 mm at most
+        assert _legend_texts(timeline) == {
+            "injected: torque_glitch",
+            "injected: slip",
+            "missed (hatched)",
+            "detection of the fault",
+            "detection of a consequence",
+            "false alarm",
+        }
+        # The legends of the panels sit beside them, off the data.
+        for figure in (tracking, timeline):
+            for axis in figure.axes:
+                assert axis.get_legend().get_window_extent().x0 >= axis.get_window_extent().x1
 
 
 def _rms(folder: Path) -> list[float]:
@@ -246,16 +239,19 @@ def test_the_path_deviation_is_magnified_to_a_few_centimetres(deviation: float, 
     assert plots.deviation_scale(deviation) == scale
 
 
-def test_the_learning_curve_is_drawn_from_its_csv(tmp_path: Path, drawn: list[matplotlib.figure.Figure]) -> None:
-    assert plots.learning_curve_figure(tmp_path) is None and not drawn  # no evaluation yet
+def test_the_learning_curve_is_drawn_from_its_csv(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     rows = [
         {"timesteps": 1000 * n, "mean_reward": -50.0 / n, "std_reward": 5.0 / n, "min_reward": -60.0 / n,
          "max_reward": -40.0 / n, "episodes": 5}
         for n in (1, 2, 3)
     ]  # fmt: skip
-    _write_csv(tmp_path / plots.LEARNING_CURVE_FILE, rows)
-    assert plots.learning_curve_figure(tmp_path) == tmp_path / "learning_curve.png"
-    entries = _legend_entries(drawn[0])
-    assert set(entries) == {"mean ± std", "mean return", "min and max"} and all(entries.values()), entries
-    (line,) = [line for line in drawn[0].axes[0].lines if line.get_label() == "mean return"]
-    np.testing.assert_allclose(line.get_xdata(), [1000, 2000, 3000])
+    with kept_figures(monkeypatch) as figures:
+        assert plots.learning_curve_figure(tmp_path) is None and not figures  # no evaluation yet
+        _write_csv(tmp_path / plots.LEARNING_CURVE_FILE, rows)
+        assert plots.learning_curve_figure(tmp_path) == tmp_path / "learning_curve.png"
+        (figure,) = figures
+        assert hidden_legend_entries(figure) == []
+        assert _legend_texts(figure) == {"mean ± std", "mean return", "min and max"}
+        (line,) = [line for line in figure.axes[0].lines if line.get_label() == "mean return"]
+        np.testing.assert_allclose(line.get_xdata(), [1000, 2000, 3000])
+        np.testing.assert_allclose(line.get_ydata(), [-50.0, -25.0, -50.0 / 3])

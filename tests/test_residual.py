@@ -353,9 +353,12 @@ def tiny_training_args(out: Path, seed: int, *extra: str):
     )  # fmt: skip
 
 
-def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path) -> None:
+def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     runs = [train(tiny_training_args(tmp_path / name, seed), base_factory=make_base) for name, seed in
             (("a", 0), ("b", 0), ("c", 1))]  # fmt: skip
+    printed = capsys.readouterr().out.strip().splitlines()
+    assert printed[-1] == f"Run folder: {runs[-1]}"  # a short summary, the run folder last
+    assert printed[-2].startswith("Trained SAC on randomized for 60 steps in ") and "final_policy.zip" in printed[-2]
     policies = [load_residual_policy(run / "final_policy.zip") for run in runs]
     parameters = [policy.model.policy.state_dict() for policy in policies]
     for name, tensor in parameters[0].items():

@@ -13,7 +13,7 @@ import sys
 import textwrap
 from collections.abc import Callable
 from pathlib import Path
-from types import ModuleType
+from types import ModuleType, SimpleNamespace
 from typing import Any
 
 import pytest
@@ -201,8 +201,9 @@ def test_a_finished_sweep_rerun_on_ray_runs_nothing_and_force_runs_it_again(
     printed = capsys.readouterr().out
     assert "Nothing to run: all 2 episodes of this grid were already in" in printed and "--force" in printed
     assert manifest(out)["status"] == "finished" and manifest(out)["config"]["backend"]["name"] == "ray"
-    with pytest.raises(SystemExit, match="distributed"):  # with --force the grid has to run: on Ray, it needs Ray
+    with pytest.raises(SystemExit) as exit:  # with --force the grid has to run: on Ray, it needs Ray
         sweep_cli.main([*argv, "--backend", "ray", "--force"])
+    assert exit.value.code == 2 and "distributed" in capsys.readouterr().err
     assert manifest(out)["status"] == "failed" and "distributed" in manifest(out)["error"]
     assert sweep_cli.main([*argv, "--force"]) == 0
     assert "Ran 2 episodes (0 failed), 0 already in the table" in capsys.readouterr().out
@@ -210,8 +211,28 @@ def test_a_finished_sweep_rerun_on_ray_runs_nothing_and_force_runs_it_again(
         assert len(list(csv.DictReader(file))) == 2  # the old rows were replaced, not doubled
 
 
+def fake_scores(path: Path) -> dict[str, Any]:
+    """Scores as :func:`eval.scoring.score_policy` returns them, with 17-digit numbers."""
+    row = {"tracking_rms_mm": 0.41234567890123456, "tracking_max_mm": 1.5, "torque_rms_nm": 10.123456789012345}
+    return {
+        "policy": str(path),
+        "base": "mid_f_rls_lag",
+        "residual": "mid_f_rls_lag + residual",
+        "seeds": [2_000_000],
+        "payloads": [3.8],
+        "episodes": [{}, {}],
+        "summary": {
+            "base": row,
+            "residual": {**row, "tracking_rms_mm": 0.10987654321098765},
+            "tracking_rms_change": -0.7335372711,
+            "torque_rms_change": 0.0123456789,
+            "episodes_improved": "2/2",
+        },
+    }
+
+
 def test_score_only_writes_into_a_run_folder_not_beside_the_policy(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     train_residual = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
     policies = tmp_path / "package" / "policies"
@@ -220,20 +241,29 @@ def test_score_only_writes_into_a_run_folder_not_beside_the_policy(
     policy.write_bytes(b"")
     scored = []
 
-    def score(path: Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    def score(path: Path, env_kwargs: dict[str, Any], progress: Any = None) -> dict[str, Any]:
         scored.append((path, env_kwargs["n_cycles"]))
-        return {"summary": {"tracking_rms_mm": {"base": 0.4, "residual": 0.1}}}
+        return fake_scores(path)
 
     monkeypatch.setattr(train_residual, "score_policy", score)
+    monkeypatch.setattr(train_residual, "read_policy_settings", lambda path: SimpleNamespace(base="a base"))
     monkeypatch.setenv(RUNS_DIR_VARIABLE, str(tmp_path / "runs"))
     assert train_residual.main(["--score-only", str(policy), "--cycles", "1"]) == 0
     assert scored == [(policy, 1)]
     assert [path.name for path in policies.iterdir()] == ["residual.zip"]
     (folder,) = (tmp_path / "runs" / "residual_scores").iterdir()
-    assert json.loads((folder / "scores.json").read_text())["summary"]["tracking_rms_mm"]["residual"] == 0.1
+    summary = json.loads((folder / "scores.json").read_text())["summary"]
+    assert summary["residual"]["tracking_rms_mm"] == 0.10987654321098765
     written = manifest(folder)
     assert written["status"] == "finished" and written["command"].endswith(f"--score-only {policy} --cycles 1")
     assert (folder / "scenario.toml").is_file()
+    # A human summary with rounded numbers, the run folder last; no JSON.
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == f"Run folder: {folder}"
+    assert "on 2 held-out episodes (1 seed, 1 fixed payload)" in lines[0]
+    assert "tracking RMS 0.11 mm (max 1.5 mm), torque RMS 10.12 N m" in lines[2]
+    assert "tracking -73.4 %, torque +1.2 %; better on 2 of 2 episodes" in lines[3]
+    assert not any(character in "".join(lines) for character in "{}") and "0.4123" not in "".join(lines)
 
 
 def train_residual_parser(argv: list[str]) -> Any:

@@ -24,6 +24,7 @@ from eval.sweep import report
 from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
 from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit, setup_digest
 from tests.conftest import NOMINAL_SETUP as SETUP
+from tests.figure_checks import hidden_legend_entries, kept_figures
 
 CODE, DIGEST = "code-under-test", "setup-under-test"
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -196,6 +197,55 @@ def test_summary_statistics_use_the_t_interval_and_leave_out_failed_and_diverged
     assert entry["tracking_rms_mm_std"] == pytest.approx(1.2909944)
     assert entry["tracking_rms_mm_ci95"] == pytest.approx(3.1824463 * 1.2909944 / 2.0)  # t(0.975, 3) s / sqrt(n)
     assert math.isnan(entry["energy_j_mean"])
+
+
+def _summary_of(means: dict[str, tuple[float, float]]) -> list[dict]:
+    """The summary of two episodes per controller whose tracking RMS (mm) are ``means[label]`` (two values) and
+    torque RMS 20 and 21 N m."""
+    rows = [
+        {
+            "scenario": "nominal",
+            "controller": label.lower(),
+            "label": label,
+            "status": "ok",
+            "diverged": "False",
+            **dict.fromkeys(report.SUMMARY_METRICS, ""),
+            "tracking_rms_mm": str(value),
+            "torque_rms_nm": str(torque),
+            "energy_j": str(100.0 * value + torque),
+        }
+        for label, values in means.items()
+        for value, torque in zip(values, (20.0, 21.0), strict=True)
+    ]
+    return report.summarize(rows, ["nominal"], [label.lower() for label in means])
+
+
+def test_summary_table_reads_in_words_and_rounded_numbers() -> None:
+    summary = _summary_of({"PD": (5.0, 5.6), "Oracle": (0.03, 0.031)})
+    table = report.markdown(summary)
+    header = table.splitlines()[0]
+    assert "Tracking RMS (mm)" in header and "Torque RMS (N m)" in header and "tracking_rms_mm" not in header
+    pd_row = table.splitlines()[2].split(" | ")
+    # two seeds: mean 5.3, half-width t(0.975, 1) 0.424 / sqrt(2) = 3.81 mm; energy 520 and 581 J: 550.5 ± 387.6
+    assert pd_row[3] == "5.30 ± 3.81"
+    assert pd_row[3 + report.SUMMARY_METRICS.index("energy_j")] == "550 ± 388"  # not "550 ± 3.9e+02"
+    assert "e+" not in table and "e-" not in table
+
+
+def test_summary_plot_shows_every_controller_on_a_log_axis_when_they_span_decades(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    summary = _summary_of({"PD": (5.0, 5.6), "RLS": (0.3, 0.35), "Oracle": (0.03, 0.031)})
+    with kept_figures(monkeypatch) as figures:
+        report.plot(summary, tmp_path / "summary.png")
+        (figure,) = figures
+        tracking, torque = figure.axes
+        assert tracking.get_yscale() == "log" and torque.get_yscale() == "linear"  # 20 and 21 N m: one decade
+        assert hidden_legend_entries(figure) == []
+        # every bar stands out of its axis's bottom by a visible part of the axis's height
+        bottom, top = (np.log10(limit) for limit in tracking.get_ylim())
+        heights = [np.log10(bar.get_height()) for bar in tracking.patches]
+        assert min(heights) - bottom > 0.05 * (top - bottom)
 
 
 def test_cli_writes_the_run_folder_and_resumes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:

@@ -9,7 +9,8 @@ is ``eval.identification``, its excitation runs ``eval.excitation``):
 - :mod:`~controllers.identification.least_squares`: ours, one joint least squares of all parameters, on the
   paper's lumped model or the model with rod forearms (MId+F+R);
 - :mod:`~controllers.identification.parameter_file`: the JSON parameter file with provenance;
-- :mod:`~controllers.identification.logs`: the drive log files (CSV or Parquet) a robot's logger records.
+- :mod:`~controllers.identification.logs`: the drive log files (CSV or Parquet) a robot's logger records;
+- :mod:`~controllers.identification.bags`: ROS 2 bags (MCAP, sqlite3) of a robot's joint states as drive logs.
 """
 
 from controllers.identification.data import (
@@ -32,6 +33,7 @@ from controllers.identification.least_squares import (
     fit_rho_least_squares,
 )
 from controllers.identification.logs import (
+    BAG_SUFFIXES,
     LOG_COLUMNS,
     MAX_LOG_GAP,
     DriveLog,
@@ -59,6 +61,7 @@ from controllers.identification.parameter_file import (
 )
 
 __all__ = [
+    "BAG_SUFFIXES",
     "FILE_FORMAT_VERSION",
     "FRICTION_VELOCITY_THRESHOLD",
     "JOINT_PARAMETER_NAMES",

@@ -17,6 +17,9 @@ to the last bit (as :func:`write_log` writes it) comes back unchanged. A step be
 :data:`MAX_LOG_GAP` is refused (a straight line across it would be a made-up motion), as are non-increasing times
 and missing or non-finite values: each error names the file, the column and the row. Split a log at a gap into
 two files.
+
+A ROS 2 bag (MCAP or sqlite3, :mod:`controllers.identification.bags`) is a log too: its ``JointState`` messages
+become these columns and go through the same checks and resampling.
 """
 
 from __future__ import annotations
@@ -24,14 +27,19 @@ from __future__ import annotations
 import csv
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.drive import identify_lag
 from delta_env.sensors import CONTROL_PERIOD
+
+if TYPE_CHECKING:
+    from controllers.identification.bags import BagTopics
 
 TIME_COLUMN = "time_s"
 """Sample time (s)."""
@@ -48,12 +56,22 @@ COMMAND_COLUMNS = ("command_1", "command_2", "command_3")
 LOG_COLUMNS = (TIME_COLUMN, *ANGLE_COLUMNS, *TORQUE_COLUMNS, *COMMAND_COLUMNS)
 """Every column of a log, in the order a log is written."""
 
-LOG_SUFFIXES = (".csv", ".parquet")
-"""File name endings of the two log formats."""
+TABLE_SUFFIXES = (".csv", ".parquet")
+"""File name endings of the two table formats."""
+
+BAG_SUFFIXES = (".mcap", ".db3")
+"""File name endings of the storage files of ROS 2 bags, MCAP and sqlite3 (a rosbag2 folder is a bag too)."""
+
+LOG_SUFFIXES = (*TABLE_SUFFIXES, *BAG_SUFFIXES)
+"""File name endings of every log format."""
 
 MAX_LOG_GAP = 0.005
 """Longest step between two samples of a log (s), 5 control periods. Across it linear interpolation of the
 angles errs by about acceleration x gap^2 / 8: 0.4 mrad (8 encoder steps) at 100 rad/s^2 over 5 ms."""
+
+OTHER_SEPARATORS = (";", "\t", "|")
+"""Column separators of other CSV dialects, named in the error when a header holds no log column but one of
+them."""
 
 _GRID_TOLERANCE = 1e-9
 """Slack (s) of the zero-order hold: a command logged this close after a grid instant counts as held there."""
@@ -103,16 +121,22 @@ class DriveLog:
 
 
 def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -> Path:
-    """Write ``log`` as a CSV or Parquet file (by the ending of ``path``); sample k at ``start + k dt`` (s).
+    """Write ``log`` as a CSV, Parquet, MCAP or sqlite3 file (by the ending of ``path``: ``.csv``, ``.parquet``,
+    ``.mcap``, ``.db3``); sample k at ``start + k dt`` (s).
 
     The CSV holds every number exactly (shortest round-trip decimal); the last row's commands are empty
-    (Parquet: null). Parent folders are created.
+    (Parquet: null). A bag is written by :func:`controllers.identification.bags.write_bag`. Parent folders are
+    created.
 
     Returns:
         The path written.
     """
     path = Path(path)
     _require_suffix(path)
+    if path.suffix in BAG_SUFFIXES:
+        from controllers.identification.bags import write_bag  # bags build on this module
+
+        return write_bag(log, path, start)
     time = start + np.arange(len(log)) * log.dt
     columns = {TIME_COLUMN: time}
     columns |= {name: log.angles[:, j] for j, name in enumerate(ANGLE_COLUMNS)}
@@ -136,8 +160,9 @@ def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -
     return path
 
 
-def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD) -> DriveLog:
-    """The log at ``path`` (CSV or Parquet, format in the module docstring), resampled onto ``period``.
+def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD, topics: BagTopics | None = None) -> DriveLog:
+    """The log at ``path`` (CSV or Parquet, format in the module docstring, or a ROS 2 bag, read as ``topics``
+    say: :func:`controllers.identification.bags.read_bag`), resampled onto ``period``.
 
     Raises:
         LogFileError: for a missing or unreadable file, a missing column, a value that is not a finite number,
@@ -145,6 +170,10 @@ def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD) -> Dr
             column and the row.
     """
     path = Path(path)
+    if path.is_dir() or path.suffix in BAG_SUFFIXES:
+        from controllers.identification.bags import read_bag  # bags build on this module
+
+        return read_bag(path, topics, period).log
     _require_suffix(path)
     if not path.is_file():
         raise LogFileError(f"log {path}: no such file")
@@ -182,19 +211,21 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
         checked = column[:-1] if name in COMMAND_COLUMNS else column  # the last command may be empty
         bad = np.flatnonzero(~np.isfinite(checked))
         if bad.size:
-            raise ValueError(f"column {name} is not a finite number at data row {bad[0] + 1}: {column[bad[0]]!r}")
+            raise ValueError(f"column {name} is not a finite number at data row {bad[0] + 1}: {float(column[bad[0]])}")
     time = values[TIME_COLUMN]
     steps = np.diff(time)
     if np.any(steps <= 0.0):
         row = int(np.flatnonzero(steps <= 0.0)[0]) + 1  # the data row (from 1) whose successor is not later
         raise ValueError(
-            f"time_s must increase strictly: data row {row + 1} has {time[row]!r} s after {time[row - 1]!r} s"
+            f"time_s must increase strictly: data row {row + 1} has {float(time[row])!r} s after "
+            f"{float(time[row - 1])!r} s"
         )
     if np.any(steps > MAX_LOG_GAP):
         row = int(np.flatnonzero(steps > MAX_LOG_GAP)[0]) + 1
         raise ValueError(
-            f"a gap of {1e3 * steps[row - 1]:.4g} ms from data row {row} ({time[row - 1]!r} s) to {row + 1} "
-            f"({time[row]!r} s); steps may be at most {1e3 * MAX_LOG_GAP:g} ms: split the log at the gap into two files"
+            f"a gap of {1e3 * steps[row - 1]:.4g} ms from data row {row} ({float(time[row - 1])!r} s) to {row + 1} "
+            f"({float(time[row])!r} s); steps may be at most {1e3 * MAX_LOG_GAP:g} ms: split the log at the gap into "
+            "two files"
         )
     # 1e-6 periods of slack: a log on the grid keeps its last sample despite rounding of its times
     grid = time[0] + np.arange(math.floor((time[-1] - time[0]) / period + 1e-6) + 1) * period
@@ -212,11 +243,15 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
 
 def _require_suffix(path: Path) -> None:
     if path.suffix not in LOG_SUFFIXES:
-        raise LogFileError(f"log {path}: the file name must end in {' or '.join(LOG_SUFFIXES)}")
+        raise LogFileError(
+            f"log {path}: the file name must end in {', '.join(LOG_SUFFIXES[:-1])} or {LOG_SUFFIXES[-1]} "
+            "(or name a rosbag2 folder)"
+        )
 
 
 def _read_csv(path: Path) -> dict[str, NDArray[np.float64]]:
-    """The numeric columns of a CSV log; an empty cell is NaN."""
+    """The numeric columns of a CSV log; an empty cell is refused (:func:`_refuse_empty`) but in the last row's
+    commands, where it is NaN."""
     with path.open(newline="") as file:
         reader = csv.reader(file)
         header = next(reader, None)
@@ -224,18 +259,39 @@ def _read_csv(path: Path) -> dict[str, NDArray[np.float64]]:
             raise LogFileError(f"log {path}: empty file, needs a header row of column names")
         header = [name.strip() for name in header]
         wanted = {name: index for index, name in enumerate(header) if name in LOG_COLUMNS}
+        separator = next((mark for mark in OTHER_SEPARATORS if not wanted and mark in ",".join(header)), None)
+        if separator is not None:
+            raise LogFileError(
+                f"log {path}: no column of a log in the header {','.join(header)!r}; its columns seem separated by "
+                f"{separator!r}, a log's are separated by commas"
+            )
         table: dict[str, list[float]] = {name: [] for name in wanted}
+        empty: dict[str, list[int]] = {name: [] for name in wanted}
         for number, row in enumerate(reader, start=1):
             where = f"data row {number} (line {number + 1})"
             if len(row) != len(header):
                 raise LogFileError(f"log {path}: {where} has {len(row)} cells, the header has {len(header)}")
             for name, index in wanted.items():
                 cell = row[index].strip()
+                if not cell:
+                    empty[name].append(number)
                 try:
                     table[name].append(float(cell) if cell else math.nan)
                 except ValueError:
                     raise LogFileError(f"log {path}: column {name} at {where} is not a number: {cell!r}") from None
+    _refuse_empty(path, empty, len(next(iter(table.values()), [])), lambda row: f"data row {row} (line {row + 1})")
     return {name: np.array(values) for name, values in table.items()}
+
+
+def _refuse_empty(path: Path, empty: dict[str, list[int]], rows: int, where: Callable[[int], str]) -> None:
+    """A :class:`LogFileError` naming the first empty cell (``empty``: its data rows, from 1, per column) but the
+    last row's commands, which may be empty; ``rows`` is the number of data rows, ``where`` names a row."""
+    for name, numbers in empty.items():
+        allowed = {rows} if name in COMMAND_COLUMNS else set()
+        refused = [number for number in numbers if number not in allowed]
+        if refused:
+            rule = "only the last row's commands may be empty" if name in COMMAND_COLUMNS else "it needs a number"
+            raise LogFileError(f"log {path}: column {name} at {where(refused[0])} is empty; {rule}")
 
 
 def _read_parquet(path: Path) -> dict[str, NDArray[np.float64]]:
@@ -248,10 +304,13 @@ def _read_parquet(path: Path) -> dict[str, NDArray[np.float64]]:
     except (pa.ArrowException, OSError) as error:
         raise LogFileError(f"log {path}: not a readable Parquet file ({error})") from None
     columns = {}
+    empty: dict[str, list[int]] = {}
     for name in table.column_names:
         if name in LOG_COLUMNS:
             column = table.column(name)
             if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
                 raise LogFileError(f"log {path}: column {name} must hold numbers, has type {column.type}")
-            columns[name] = column.to_numpy().astype(float)
+            columns[name] = column.to_numpy(zero_copy_only=False).astype(float)
+            empty[name] = (np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False)) + 1).tolist()
+    _refuse_empty(path, empty, table.num_rows, lambda row: f"data row {row} (null)")
     return columns

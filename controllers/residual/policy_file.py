@@ -29,6 +29,7 @@ from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
 from controllers.setup import ESTIMATOR_REGRESSORS, ControllerSetup, model_row
+from delta_env.records import content_hash
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -147,11 +148,12 @@ class PolicyBase:
         if "setup" not in values:
             return _legacy_base(values)
         setup = ControllerSetup.from_table(values["setup"], "base.setup")
-        recorded = values.get("setup_hash")
-        if setup.content_hash() != recorded:
+        # The record as written (a field added since then takes its default, which the file's hash does not cover).
+        written, recorded = content_hash(values["setup"]), values.get("setup_hash")
+        if written != recorded:
             raise ValueError(
-                f"base.setup hashes to {setup.content_hash()}, not to the recorded setup_hash {recorded!r}: the record "
-                "was edited or damaged"
+                f"base.setup hashes to {written}, not to the recorded setup_hash {recorded!r}: the record was "
+                "edited or damaged"
             )
         return cls(values["key"], setup)
 

@@ -4,7 +4,8 @@
 2. NSGA-II over (ra, rb, l1, l2) (workspace, peak torque and pick rate) on ``--search-seeds`` seeds from
    ``--seed`` and a GA on the paper-style weighted cost on the first, in processes; every archive merged into one front
    (:mod:`eval.design.front`).
-3. Designs chosen from the merged front (compromise, low torque, large workspace, the weighted-cost optimum),
+3. Designs chosen from the merged front (compromise, paper targets, low torque, large workspace, the weighted-cost
+   optimum: each only where its figures bear the name out, each design named once),
    their drives by the full planner, and their tolerance and sensitivity (:mod:`eval.design.robustness`).
 4. Reconfiguration by the pitch-screw linkage (:mod:`eval.design.mechanism`) for three task profiles, of the
    nominal robot and of the compromise design.
@@ -35,7 +36,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from delta_env import catalogue, collisions, cylinder, scaling, workspace
 from delta_env.config import RATED_PAYLOAD, PlantRealism
@@ -44,6 +44,7 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
+from eval.console import command_main, progress_bar
 from eval.design import (
     codesign,
     drive_rate,
@@ -59,7 +60,15 @@ from eval.design import (
     stiffness,
     verify,
 )
-from eval.run_folder import Run, add_runs_dir_argument, command_line, package_versions, run_folder, write_csv
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_line,
+    package_versions,
+    run_folder,
+    write_csv,
+)
 from eval.scenario_args import add_workers_argument, check_episode_seeds, check_ranges
 
 QUICK = {
@@ -114,6 +123,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="processes of the searches and of each design's identification, tare and episodes (default: up to 2)",
     )
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/design/<UTC time>)")
+    add_force_argument(parser)
     add_runs_dir_argument(parser)
     args = parser.parse_args(argv)
     if args.quick:
@@ -211,11 +221,17 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None]
     }
 
 
+@command_main("python -m eval.design")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
     with run_folder(
-        "design", command_line("eval.design", argv), _resolved_config(args), out=args.out, runs_dir=args.runs_dir
+        "design",
+        command_line("eval.design", argv),
+        _resolved_config(args),
+        out=args.out,
+        runs_dir=args.runs_dir,
+        reuse=args.force,
     ) as run:
         study(args, run, started)
     return 0
@@ -231,14 +247,14 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     if not nominal.feasible:
         raise RuntimeError(f"the nominal robot does not meet the study's own constraints: {nominal.reason}")
     seeds = list(range(args.seed, args.seed + args.search_seeds))
-    with tqdm(total=len(seeds) + 1, desc="NSGA-II on every seed, the GA", unit="run") as bar:
+    with progress_bar(len(seeds) + 1, "NSGA-II on every seed, the GA", "run") as bar:
         searches = front.search(nominal, args.population, args.generations, seeds, workers=args.workers, progress=bar)
     pareto = searches.result
     seconds["optimization"] = time.perf_counter() - started
 
-    chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(pareto, nominal).items()}
-    weighted = pareto.archive.performance[optimize.weighted_cost_optimum(pareto, nominal)]
-    designs = {"nominal": nominal, **chosen, "weighted-cost optimum": weighted}
+    roles = optimize.design_roles(pareto, nominal)
+    chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(roles).items()}
+    designs = {"nominal": nominal, **chosen}
     if not args.quick:  # the reported designs' drives by the full planner (the optimizer used the cheap path)
         designs = {n: performance.evaluate(p.geometry, masses=p.masses, exact_drive=True) for n, p in designs.items()}
     front_designs = [pareto.archive.performance[i] for i in pareto.front]
@@ -267,7 +283,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     verifications: list[verify.Verification] = []
     if not args.no_verify:
         verified = dict(list(_distinct(designs).items())[: 1 + args.verified_designs])
-        for name, design in tqdm(verified.items(), desc="closed-loop verification", unit="design"):
+        for name, design in progress_bar(desc="closed-loop verification", unit="design", iterable=verified.items()):
             verifications.append(
                 verify.verify_design(name, design, seed=args.seed, episodes=args.episodes, workers=args.workers)
             )
@@ -362,6 +378,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "",
         report.summary_table(designs, designs["nominal"], reachable),
         "",
+        *([report.roles_sentence(roles), ""] if report.roles_sentence(roles) else []),
         report.clearance_sentence(clearance),
         "",
         "Every design chosen from the front of all runs merged (NSGA-II on every seed and the GA): none is "

@@ -136,6 +136,38 @@
     Plotly.restyle(front, { "marker.opacity": [opacity(front.data[0]), opacity(front.data[1])] }, [0, 1]);
   }
 
+  function dimension(column) {
+    // the same axis as explorer.py's parallel_dimension
+    return { label: EXPLORER.labels[column], values: designs.map((d) => d.row[column]), tickformat: ".4~g" };
+  }
+
+  function setAxes(columns) {
+    // the axes kept keep their brushes
+    const brushes = new Map(parallel.data[0].dimensions.map((d) => [d.label, d.constraintrange]));
+    const dimensions = columns.map((column) => {
+      const axis = dimension(column);
+      if (brushes.get(axis.label)) axis.constraintrange = brushes.get(axis.label);
+      return axis;
+    });
+    Plotly.restyle(parallel, { dimensions: [dimensions] }, [0]);
+  }
+
+  function fillAxisChoice() {
+    const box = document.getElementById("axes");
+    const shown = new Set(parallel.data[0].dimensions.map((d) => d.label));
+    const boxes = EXPLORER.parallelColumns.map((column) => {
+      const input = document.createElement("input");
+      input.type = "checkbox";
+      input.value = column;
+      input.checked = shown.has(EXPLORER.labels[column]);
+      const label = document.createElement("label");
+      label.append(input, ` ${EXPLORER.labels[column]}`);
+      box.append(label);
+      return input;
+    });
+    box.addEventListener("change", () => setAxes(boxes.filter((b) => b.checked).map((b) => b.value)));
+  }
+
   function start() {
     const select = document.getElementById("design-select");
     designs.forEach((design, k) => select.add(new Option(design.name, String(k))));
@@ -148,6 +180,7 @@
       if (!("line.color" in update[0])) applyBrush();
     });
     Plotly.Plots.resize(front); // drawn while the page was parsed, before the panel took its width
+    fillAxisChoice();
     selectDesign(0);
     window.explorerReady = true;
   }

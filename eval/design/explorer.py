@@ -1,7 +1,8 @@
 """The interactive Pareto explorer: one self-contained HTML page (``explorer.html`` in the design study's run folder).
 
-The page shows the front (workspace against peak torque, coloured by a speed figure) and every figure of every
-design in parallel coordinates (brushing an axis dims the designs outside the brush on the front). Clicking a
+The page shows the front (workspace against peak torque, coloured by a speed figure) and the designs' figures in
+parallel coordinates (:data:`PARALLEL_COLUMNS` at first, checkboxes add or take away any other figure; brushing an
+axis dims the designs outside the brush on the front). Clicking a
 design, or choosing it in the list, fills a panel with its lengths and a side-view sketch of one chain, its
 data-sheet table (every column of its :func:`eval.design.report.performance_row`, so new columns appear without a
 change here), its joint torques and motor angles over the profile cycle (:mod:`eval.design.profiles`, the nominal
@@ -35,15 +36,52 @@ from eval.design.report import GEOMETRY_COLUMNS, design_file_name, design_record
 PROFILE_STRIDE = 2
 """Every how many samples of a profile go into the page: 4 ms, well under the 20-60 ms features of the cycle."""
 
-UNITS = (("_per_min", "/min"), ("_m_s", "m/s"), ("_m3", "m³"), ("_nm", "N m"), ("_kg", "kg"), ("_s", "s"), ("_m", "m"))
+UNITS = (
+    ("_per_min", "/min"),
+    ("_rad_s", "rad/s"),
+    ("_m_s", "m/s"),
+    ("_m3", "m³"),
+    ("_nm", "N m"),
+    ("_kg", "kg"),
+    ("_s", "s"),
+    ("_m", "m"),
+)
 """Column-name suffixes and their units, longest first: ``cylinder_top_m`` -> "cylinder top (m)"."""
+
+LABELS = {
+    "picks_per_min": "picks/min",
+    "picks_per_min_light": "picks/min, light payload",
+    "rms_torque_nm": "RMS torque (N m)",
+    "drive_rms_torque_nm": "drive RMS torque (N m)",
+    "min_conditioning": "min 1/cond(J)",
+    "drive_peak_share": "drive peak torque share",
+    "drive_rms_share": "drive RMS torque share",
+    "drive_speed_share": "drive speed share",
+}
+"""Labels of the columns whose names the rule of :data:`UNITS` does not read well."""
 
 FRONT_X, FRONT_Y = "workspace_m3", "peak_torque_nm"
 """Columns of the front's axes."""
 
+PARALLEL_COLUMNS = (
+    *GEOMETRY_COLUMNS,
+    FRONT_X,
+    FRONT_Y,
+    "rms_torque_nm",
+    "picks_per_min",
+    "speed_m_s",
+    "min_conditioning",
+)
+"""The axes of the parallel coordinates when the page opens: the lengths and the figures the study optimizes or
+reports first, few enough that their labels stand apart at 1400 px (the page's checkboxes add the others)."""
+
 
 def column_label(column: str) -> str:
-    """A column name in words with its unit: "peak_torque_nm" -> "peak torque (N m)"."""
+    """A column name in words with its unit: "peak_torque_nm" -> "peak torque (N m)", "ra" -> "ra (m)"."""
+    if column in LABELS:
+        return LABELS[column]
+    if column in GEOMETRY_COLUMNS:
+        return f"{column} (m)"
     for suffix, unit in UNITS:
         if column.endswith(suffix):
             return f"{column[: -len(suffix)].replace('_', ' ')} ({unit})"
@@ -149,12 +187,13 @@ def _front_figure(designs: Sequence[Mapping[str, Any]], colour: str) -> go.Figur
                 text=[designs[i]["name"] for i in front],
                 mode="markers",
                 name="front",
+                showlegend=False,  # a legend swatch has one colour; the colour bar is this trace's key
                 marker={
                     "size": 10,
                     "color": column(front, colour),
                     "colorscale": "Viridis",
                     "showscale": True,
-                    "colorbar": {"title": {"text": column_label(colour)}},
+                    "colorbar": {"title": {"text": f"front designs:<br>{column_label(colour)}"}},
                 },
                 hovertemplate=hover,
             ),
@@ -196,22 +235,40 @@ def _front_figure(designs: Sequence[Mapping[str, Any]], colour: str) -> go.Figur
     return figure
 
 
-def _parallel_figure(designs: Sequence[Mapping[str, Any]]) -> go.Figure:
-    """Every numeric column finite for all designs as an axis; the selected design's line in red."""
-    columns = [
+def parallel_columns(designs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The columns that can be axes of the parallel coordinates: numeric and finite for every design."""
+    return [
         key
         for key in designs[0]["row"]
         if all(isinstance(d["row"][key], int | float) and not isinstance(d["row"][key], bool) for d in designs)
     ]
+
+
+def parallel_dimension(designs: Sequence[Mapping[str, Any]], column: str) -> dict[str, Any]:
+    """One axis of the parallel coordinates (explorer.js builds the same for the axes added on the page)."""
+    return {
+        "label": column_label(column),
+        "values": [d["row"][column] for d in designs],
+        "tickformat": ".4~g",  # ranges and ticks with 4 significant digits: short, and distinct
+    }
+
+
+def _parallel_figure(designs: Sequence[Mapping[str, Any]]) -> go.Figure:
+    """The :data:`PARALLEL_COLUMNS` among :func:`parallel_columns` as axes, in that order; the selected design's line
+    in red."""
+    columns = [c for c in parallel_columns(designs) if c in PARALLEL_COLUMNS]  # in the order of the rows
     figure = go.Figure(
         go.Parcoords(
-            dimensions=[{"label": column_label(c), "values": [d["row"][c] for d in designs]} for c in columns],
+            dimensions=[parallel_dimension(designs, c) for c in columns],
             line={"color": [1] + [0] * (len(designs) - 1), "colorscale": [[0, "#8fa9c4"], [1, "#d62728"]]},
-            labelangle=-20,
+            labelangle=0,
+            labelfont={"size": 12},
+            rangefont={"size": 10},
+            tickfont={"size": 10},
         )
     )
     figure.update_layout(
-        title="Every design's figures: drag along an axis to brush", margin={"l": 80, "r": 80, "t": 130}
+        title="Every design's figures: drag along an axis to brush", margin={"l": 60, "r": 60, "t": 100, "b": 40}
     )
     return figure
 
@@ -231,6 +288,7 @@ def explorer_html(designs: Sequence[Mapping[str, Any]], colour: str, cycle_text:
         "designs": designs,
         "labels": {key: column_label(key) for key in designs[0]["row"]},
         "geometryColumns": GEOMETRY_COLUMNS,
+        "parallelColumns": parallel_columns(designs),
         "cycle": cycle_text,
     }
     script = resources.files("eval.design").joinpath("explorer.js").read_text()
@@ -244,6 +302,7 @@ body {{ font-family: sans-serif; margin: 1em; }}
 #panel table {{ border-collapse: collapse; font-size: 0.9em; }}
 #panel td, #panel th {{ border-bottom: 1px solid #eee; padding: 2px 8px; text-align: left; }}
 .small-plot {{ height: 220px; }}
+#axes label {{ display: inline-block; margin-right: 1.2em; font-size: 0.9em; }}
 </style></head>
 <body>
 <h1>Delta design explorer</h1>
@@ -264,6 +323,7 @@ Profiles: {cycle_text}.
 </div>
 </div>
 {parallel}
+<fieldset id="axes"><legend>Axes of the parallel coordinates</legend></fieldset>
 <script>const EXPLORER = {_script_json(data)};</script>
 <script>{script}</script>
 </body></html>

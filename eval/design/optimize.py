@@ -384,22 +384,27 @@ def single_objective(
     return SingleObjectiveResult(archive=archive, best=best, convergence=history)
 
 
-def choose_designs(result: ParetoResult, nominal: Performance) -> dict[str, int]:
-    """Named designs of the front (archive indices).
+def design_roles(result: ParetoResult, nominal: Performance) -> dict[str, int]:
+    """Designs of the front for each role whose claim their figures bear out (archive indices; one design may
+    fill several roles):
 
     - ``compromise``: closest to the ideal point in objectives relative to the front's range;
-    - ``paper_targets``: the design that beats all three of :data:`PAPER_TARGETS` (workspace gain, torque
+    - ``paper targets``: the design that beats all three of :data:`PAPER_TARGETS` (workspace gain, torque
       reduction, pick-rate gain P / P0 - 1) by the largest common factor;
-    - ``low_torque``: least peak torque among designs with at least the nominal workspace;
-    - ``large_workspace``: largest workspace among designs with at most the nominal peak torque.
-    Designs missing a qualifying candidate are left out.
+    - ``low torque``: least peak torque among designs with at least the nominal workspace and less peak torque
+      than the nominal robot;
+    - ``large workspace``: largest workspace among designs with at most the nominal peak torque and more
+      workspace than the nominal robot;
+    - ``weighted-cost optimum``: :func:`weighted_cost_optimum`.
+
+    A role no front design bears out is left out (:func:`unfilled_roles` names it).
     """
     front = result.front
     f = np.array([result.archive.f[i] for i in front])
     span = np.ptp(f, axis=0)
     span[span == 0.0] = 1.0
     distance = np.linalg.norm((f - f.min(axis=0)) / span, axis=1)
-    chosen = {"compromise": int(front[np.argmin(distance)])}
+    roles = {"compromise": int(front[np.argmin(distance)])}
     workspace, torque = -f[:, 0], f[:, 1]
     gains = np.column_stack(
         (
@@ -410,14 +415,40 @@ def choose_designs(result: ParetoResult, nominal: Performance) -> dict[str, int]
     )
     margin = np.min(gains / np.array(PAPER_TARGETS), axis=1)
     if margin.max() >= 1.0:
-        chosen["paper_targets"] = int(front[np.argmax(margin)])
-    wide = np.flatnonzero(workspace >= nominal.workspace_m3)
-    if wide.size:
-        chosen["low_torque"] = int(front[wide[np.argmin(torque[wide])]])
-    light = np.flatnonzero(torque <= nominal.peak_torque_nm)
-    if light.size:
-        chosen["large_workspace"] = int(front[light[np.argmax(workspace[light])]])
+        roles["paper targets"] = int(front[np.argmax(margin)])
+    lighter = np.flatnonzero((workspace >= nominal.workspace_m3) & (torque < nominal.peak_torque_nm))
+    if lighter.size:
+        roles["low torque"] = int(front[lighter[np.argmin(torque[lighter])]])
+    wider = np.flatnonzero((torque <= nominal.peak_torque_nm) & (workspace > nominal.workspace_m3))
+    if wider.size:
+        roles["large workspace"] = int(front[wider[np.argmax(workspace[wider])]])
+    roles["weighted-cost optimum"] = weighted_cost_optimum(result, nominal)
+    return roles
+
+
+ROLES = ("compromise", "paper targets", "low torque", "large workspace", "weighted-cost optimum")
+"""The roles of :func:`design_roles`, in the order a design filling several is named by the first."""
+
+
+def choose_designs(roles: dict[str, int]) -> dict[str, int]:
+    """The distinct designs of ``roles`` (:func:`design_roles`), each named once, by its first role."""
+    chosen: dict[str, int] = {}
+    for name, index in roles.items():
+        if index not in chosen.values():
+            chosen[name] = index
     return chosen
+
+
+def unfilled_roles(roles: dict[str, int]) -> list[str]:
+    """The roles of :data:`ROLES` that no front design bears out."""
+    return [name for name in ROLES if name not in roles]
+
+
+def shared_roles(roles: dict[str, int]) -> dict[str, str]:
+    """The roles filled by a design already named by an earlier role: ``{role: the design's name}``."""
+    chosen = choose_designs(roles)
+    names = {index: name for name, index in chosen.items()}
+    return {role: names[index] for role, index in roles.items() if role not in chosen}
 
 
 def weighted_cost_optimum(result: ParetoResult, nominal: Performance) -> int:

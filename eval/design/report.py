@@ -28,7 +28,7 @@ from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import DeltaGeometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval.design.codesign import LIGHT_PAYLOAD
-from eval.design.optimize import PAPER_TARGETS
+from eval.design.optimize import PAPER_TARGETS, shared_roles, unfilled_roles
 from eval.design.performance import Performance, peak_torque_map
 from eval.design.reconfigure import Reconfiguration
 from eval.design.verify import CONTROLLERS, Verification
@@ -191,6 +191,23 @@ def clearance_sentence(clearance: Mapping[str, tuple[float, float]]) -> str:
         "Smallest link clearances, arm-arm / arm-base, over each design's cylinder surface and the conveyors' region "
         f"(the plant's link capsules, delta_env.collisions): {figures}. {verdict}"
     )
+
+
+ROLE_CLAIMS = {
+    "paper targets": "beats the paper's gains over its nominal robot in all three objectives",
+    "low torque": "needs less peak torque than the nominal robot with at least its workspace",
+    "large workspace": "has more workspace than the nominal robot with at most its peak torque",
+}
+"""What a front design must show to fill each role of :func:`eval.design.optimize.design_roles` that can go
+unfilled."""
+
+
+def roles_sentence(roles: Mapping[str, int]) -> str:
+    """Which roles of :func:`eval.design.optimize.design_roles` a design already named fills, and which no front
+    design bears out, in sentences ("" when every role has a design of its own)."""
+    shared = [f"The {name} design is also the {role} design." for role, name in shared_roles(dict(roles)).items()]
+    unfilled = [f"No {role} design: no front design {ROLE_CLAIMS[role]}." for role in unfilled_roles(dict(roles))]
+    return " ".join(shared + unfilled)
 
 
 def verification_rows(verifications: Sequence[Verification]) -> list[dict[str, Any]]:
@@ -359,8 +376,9 @@ def plot_pareto(
     axis.set(
         xlabel="data-sheet cylinder above the belt (m³)",
         ylabel="peak torque, 3.8 kg standard cycles at 3 g (N m)",
-        title="Pareto front (every run merged), design model: rod forearms, scaled masses, drives",
     )
+    # two short lines: one line of this length is wider than the axes and was clipped at both ends
+    axis.set_title("Pareto front, every run merged\n(design model: rod forearms, scaled masses, own drives)")
     axis.grid(alpha=0.3)
     axis.legend(fontsize=8)
     figure.tight_layout()

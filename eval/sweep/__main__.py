@@ -45,12 +45,14 @@ from pathlib import Path
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import preset_names, resolve_scenario
+from eval.console import UsageError, command_main, plural, progress_bar
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
 from eval.scenario_args import (
     add_geometry_argument,
+    add_servo_argument,
     add_workers_argument,
     check_episode_seeds,
     check_ranges,
@@ -90,6 +92,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_runs_dir_argument(parser)
     parser.add_argument("--force", action="store_true", help="run every episode again, even those already done")
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
+    add_servo_argument(parser)
     add_geometry_argument(parser)
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
@@ -136,6 +139,7 @@ def _require_ray(parser: argparse.ArgumentParser) -> None:
         parser.error(str(error))
 
 
+@command_main("python -m eval.sweep")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     command = command_line("eval.sweep", argv)
@@ -148,6 +152,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=args.scenarios,
+        reuse=True,  # a sweep resumes in its folder
     ) as run:
         sweep(args, run, command)
     return 0
@@ -156,14 +161,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
     """Run the sweep of ``args`` (:func:`parse_args`) into ``run``'s folder, the rows already there skipped unless
     ``--force``; write the summary and print it."""
-    from tqdm.auto import tqdm
-
     out = run.folder
     with (out / "commands.log").open("a") as log:
         log.write(command + "\n")
     setups = {
         s.content_hash: prepare(
-            s, args.controllers, runs_dir=args.runs_dir, workers=args.workers, residual_policy=args.residual
+            s,
+            args.controllers,
+            runs_dir=args.runs_dir,
+            workers=args.workers,
+            residual_policy=args.residual,
+            servo=args.servo,
         ).setup
         for s in args.scenarios
     }
@@ -206,8 +214,8 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
         try:
             import_ray()
         except ImportError as error:
-            raise SystemExit(f"python -m eval.sweep: error: {error}") from None
-    with tqdm(total=len(units), desc="sweep", unit="ep") as progress:
+            raise UsageError(str(error)) from None
+    with progress_bar(len(units), "sweep", "ep") as progress:
         counts = run_sweep(
             units,
             setups,
@@ -225,14 +233,15 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
     write_csv(out / "summary.csv", summary)
     text = "\n".join(
         [
-            f"# Sweep: {len(args.scenarios)} scenarios x {len(args.controllers)} controllers x {len(args.seeds)} seeds",
+            f"# Sweep: {plural(len(args.scenarios), 'scenario')} x {plural(len(args.controllers), 'controller')} x "
+            f"{plural(len(args.seeds), 'seed')}",
             "",
             "Mean ± 95 % CI half-width over the episodes that neither failed nor diverged.",
             "",
             report.markdown(summary),
             "",
-            f"Ran {counts['ran']} episodes ({counts['failed']} failed), {counts['skipped']} already in the table. "
-            f"Run folder: {out}",
+            f"Ran {plural(counts['ran'], 'episode')} ({counts['failed']} failed), {counts['skipped']} already in the "
+            "table.",
         ]
     )
     faults = sweep_fault_table(rows, {key: controller_label(key) for key in args.controllers})
@@ -243,10 +252,11 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
     report.plot(summary, out / "plots" / "summary.png")
     if done:
         text += (
-            f"\n\nNothing to run: all {len(units)} episodes of this grid were already in {table.path} (an episode's "
-            "key holds what decides its result, not the backend, workers or host that ran it); --force runs them again."
+            f"\n\nNothing to run: all {plural(len(units), 'episode')} of this grid were already in {table.path} (an "
+            "episode's key holds what decides its result, not the backend, workers or host that ran it); --force runs "
+            "them again."
         )
-    print(text)
+    print(f"{text}\n\nRun folder: {out}")
 
 
 if __name__ == "__main__":

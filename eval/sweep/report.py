@@ -35,7 +35,12 @@ SUMMARY_METRICS = (
 )
 """Metrics summarized per scenario and controller."""
 
-PLOTTED_METRICS = {"tracking_rms_mm": "tracking RMS (mm)", "torque_rms_nm": "torque RMS (N m)"}
+PLOTTED_METRICS = ("tracking_rms_mm", "torque_rms_nm")
+"""Metrics of ``summary.png``, a panel each."""
+
+LOG_SPAN = 10.0
+"""Ratio of the largest to the smallest mean of a panel above which its axis is logarithmic: the tracking RMS runs
+from about 5 mm (PD) to 0.03 mm (the bound), and on a linear axis the small bars are invisible."""
 
 
 def mean_std_ci95(values: Sequence[float]) -> tuple[float, float, float]:
@@ -84,15 +89,12 @@ def summarize(rows: Sequence[dict[str, Any]], scenarios: Sequence[str], controll
 
 
 def _cell(entry: dict[str, Any], name: str) -> str:
-    mean, half_width = entry[f"{name}_mean"], entry[f"{name}_ci95"]
-    if math.isnan(mean):
-        return "n/a"
-    return f"{mean:.3g} ± {half_width:.2g}" if math.isfinite(half_width) else f"{mean:.3g}"
+    return metrics.format_with_spread(entry[f"{name}_mean"], entry[f"{name}_ci95"])
 
 
 def markdown(summary: Sequence[dict[str, Any]]) -> str:
-    """The summary as a Markdown table: mean ± 95 % CI half-width per metric."""
-    header = ["Scenario", "Controller", "Episodes (failed, diverged)", *SUMMARY_METRICS]
+    """The summary as a Markdown table: mean ± 95 % CI half-width per metric, 3 significant digits."""
+    header = ["Scenario", "Controller", "Episodes (failed, diverged)", *map(metrics.metric_label, SUMMARY_METRICS)]
     rows = [
         [
             entry["scenario"],
@@ -106,7 +108,8 @@ def markdown(summary: Sequence[dict[str, Any]]) -> str:
 
 
 def plot(summary: Sequence[dict[str, Any]], path: Path) -> Path:
-    """Grouped bars of tracking and torque RMS per scenario (groups) and controller (bars), 95 % CI whiskers."""
+    """Bars of each of :data:`PLOTTED_METRICS` (a panel each, logarithmic when its means span more than
+    :data:`LOG_SPAN`) per scenario (groups) and controller (bars), with 95 % CI whiskers, the legend beneath."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -115,20 +118,32 @@ def plot(summary: Sequence[dict[str, Any]], path: Path) -> Path:
     scenarios = list(dict.fromkeys(entry["scenario"] for entry in summary))
     labels = list(dict.fromkeys(entry["label"] for entry in summary))
     width = 0.8 / len(labels)
-    figure, axes = plt.subplots(1, len(PLOTTED_METRICS), figsize=(5 + 1.5 * len(scenarios), 4), squeeze=False)
-    for axis, (name, title) in zip(axes[0], PLOTTED_METRICS.items(), strict=True):
+    figure, axes = plt.subplots(
+        1, len(PLOTTED_METRICS), figsize=(2 + (2.5 + 0.35 * len(labels)) * len(scenarios) * 1.2, 5), squeeze=False
+    )
+    for axis, name in zip(axes[0], PLOTTED_METRICS, strict=True):
+        means = np.array([entry[f"{name}_mean"] for entry in summary], dtype=float)
+        shown = means[np.isfinite(means) & (means > 0.0)]
+        logarithmic = shown.size > 0 and shown.max() > LOG_SPAN * shown.min()
         for n, label in enumerate(labels):
             entries = {e["scenario"]: e for e in summary if e["label"] == label}
             x = [i + (n - (len(labels) - 1) / 2) * width for i, s in enumerate(scenarios) if s in entries]
-            means = [entries[s][f"{name}_mean"] for s in scenarios if s in entries]
-            errors = [np.nan_to_num(entries[s][f"{name}_ci95"]) for s in scenarios if s in entries]
-            axis.bar(x, means, width, yerr=errors, capsize=3, label=label)
+            heights = np.array([entries[s][f"{name}_mean"] for s in scenarios if s in entries], dtype=float)
+            errors = np.nan_to_num(np.array([entries[s][f"{name}_ci95"] for s in scenarios if s in entries]))
+            # on a logarithmic axis a whisker below zero has no place: the lower one stops at a tenth of the bar
+            below = np.minimum(errors, 0.9 * heights) if logarithmic else errors
+            axis.bar(x, heights, width, yerr=[below, errors], capsize=3, label=label, color=f"C{n % 10}")
+        if logarithmic:
+            axis.set_yscale("log")
         axis.set_xticks(range(len(scenarios)), scenarios)
-        axis.set_ylabel(title)
-        axis.set_title(f"{title}, mean and 95 % CI")
-        axis.grid(axis="y", alpha=0.3)
-    axes[0][0].legend(fontsize="small")
-    figure.tight_layout()
+        axis.set_ylabel(metrics.metric_label(name) + (", log scale" if logarithmic else ""))
+        axis.set_title(f"{metrics.metric_label(name)}: mean and 95 % CI", fontsize="medium")
+        axis.grid(axis="y", which="both" if logarithmic else "major", alpha=0.3)
+    handles, names = axes[0][0].get_legend_handles_labels()
+    columns = min(len(names), 5)
+    figure.legend(handles, names, loc="lower center", ncol=columns, fontsize="small")
+    rows = -(-len(names) // columns)
+    figure.tight_layout(rect=(0, (0.2 + 0.25 * rows) / figure.get_figheight(), 1, 1))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)

@@ -1,0 +1,188 @@
+"""The servo layer: each joint's position loop with integral action and friction compensation at rest (docs/design.md
+section 6, "Servo").
+
+A servo drive closes its position loop around the feedforward: per joint
+
+    tau_fb = kp e + kd de/dt + ki integral(e) + fc sat(e / e_f) [reference at rest]
+
+with e = theta_ref - theta (encoder). The gains come from the identified model and drive lag
+(:func:`servo_gains`): a triple closed-loop pole at the bandwidth w0 on the joint's identified inertia J,
+kd = 3 J w0, kp = 3 J w0^2, ki = J w0^3, with w0 the largest that keeps the stated phase margin through the loop's
+delay (the drive lag, half a sample of zero-order hold and half a sample of the backward-difference rate). The
+integral term is clamped (anti-windup: |ki integral(e)| <= ``integral_limit``) so that a blocked joint cannot wind it
+up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero, and static friction would
+hold any error with |kp e| < fc; the servo then pushes with the identified Coulomb torque in the direction of the
+error, saturating at ``friction_width`` (a few encoder steps), which closes the stick band.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from controllers.base import Observation
+from controllers.dynamics import DeltaDynamics
+from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
+from delta_env.validation import require_in, require_joint_vector
+
+DEFAULT_PHASE_MARGIN = math.radians(35.0)
+"""Phase margin (rad) the servo's bandwidth keeps through the loop's delay: the best of 35, 40 and 50 degrees on the
+standard cycle at 3 and 6 g (docs/measurements.md), and at a lag twice the identified one still about 20 degrees."""
+
+DEFAULT_INTEGRAL_LIMIT = 40.0
+"""Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
+
+DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
+"""Error (rad) at which the friction compensation at rest reaches the full Coulomb torque: one encoder step (17 bit),
+the smallest error the servo can see."""
+
+
+@dataclass(frozen=True)
+class ServoGains:
+    """Per-joint gains of :class:`JointServo`.
+
+    Attributes:
+        kp: Proportional gain per joint (N m/rad).
+        ki: Integral gain per joint (N m/(rad s)).
+        kd: Derivative gain per joint (N m s/rad).
+        coulomb: Coulomb torque compensated at rest per joint (N m); zero turns the compensation off.
+        friction_width: Error (rad) at which the compensation at rest saturates.
+        integral_limit: Largest |ki integral(e)| (N m).
+    """
+
+    kp: tuple[float, float, float]
+    ki: tuple[float, float, float]
+    kd: tuple[float, float, float]
+    coulomb: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    friction_width: float = DEFAULT_FRICTION_WIDTH
+    integral_limit: float = DEFAULT_INTEGRAL_LIMIT
+
+    def __post_init__(self) -> None:
+        for name, unit in (("kp", "N m/rad"), ("ki", "N m/(rad s)"), ("kd", "N m s/rad"), ("coulomb", "N m")):
+            values = require_joint_vector(name, getattr(self, name), 0.0, unit=unit)
+            object.__setattr__(self, name, tuple(float(v) for v in values))
+        require_in("friction_width", self.friction_width, 0.0, unit="rad", low_open=True)
+        require_in("integral_limit", self.integral_limit, 0.0, unit="N m")
+
+
+def loop_delay(drive_lag: float, period: float = CONTROL_PERIOD) -> float:
+    """The position loop's effective delay (s): the drive's lag, half a period of zero-order hold and half a period
+    of the encoder's backward-difference rate."""
+    return drive_lag + period
+
+
+def phase_margin(bandwidth: float, delay: float) -> float:
+    """Phase margin (rad) of the triple-pole PID loop at closed-loop pole ``bandwidth`` (rad/s) with a pure delay.
+
+    The open loop is L(s) = (kd s^2 + kp s + ki) / (J s^3) e^{-s delay}; with the pole-placement gains J cancels,
+    L(s) = w0 (3 s^2 + 3 w0 s + w0^2) / s^3 e^{-s delay}.
+    """
+    w0 = bandwidth
+    # |L| is decreasing in w; find the crossover by bisection on log w.
+    low, high = 1e-3 * w0, 1e3 * w0
+    for _ in range(100):
+        w = math.sqrt(low * high)
+        numerator = complex(-3.0 * w * w + w0 * w0, 3.0 * w0 * w)
+        magnitude = w0 * abs(numerator) / w**3
+        low, high = (w, high) if magnitude > 1.0 else (low, w)
+    w = math.sqrt(low * high)
+    numerator = complex(-3.0 * w * w + w0 * w0, 3.0 * w0 * w)
+    phase = math.atan2(numerator.imag, numerator.real) - 1.5 * math.pi - w * delay
+    return math.pi + phase
+
+
+def servo_bandwidth(delay: float, margin: float = DEFAULT_PHASE_MARGIN) -> float:
+    """The largest closed-loop pole w0 (rad/s) whose loop keeps phase margin ``margin`` (rad) through ``delay`` (s)."""
+    require_in("delay", delay, 0.0, unit="s", low_open=True)
+    require_in("margin", margin, 0.0, math.pi / 2, unit="rad", low_open=True)
+    low, high = 1e-3 / delay, 10.0 / delay
+    for _ in range(100):
+        middle = math.sqrt(low * high)
+        low, high = (middle, high) if phase_margin(middle, delay) > margin else (low, middle)
+    return low
+
+
+def joint_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:
+    """The diagonal of the model's joint-space inertia (kg m^2), (3,), at rest at ``theta`` (rad) with ``payload`` (kg):
+    tau(thdd = e_i) - tau(thdd = 0), column by column."""
+    theta = np.asarray(theta, dtype=float)
+    zero = np.zeros(3)
+    static = dynamics.inverse_dynamics(theta, zero, zero, payload)
+    return np.array([dynamics.inverse_dynamics(theta, zero, np.eye(3)[i], payload)[i] - static[i] for i in range(3)])
+
+
+def servo_gains(
+    dynamics: DeltaDynamics,
+    drive_lag: ArrayLike,
+    *,
+    theta: ArrayLike = (0.0, 0.0, 0.0),
+    payload: float = 0.0,
+    margin: float = DEFAULT_PHASE_MARGIN,
+    period: float = CONTROL_PERIOD,
+    friction_width: float = DEFAULT_FRICTION_WIDTH,
+    integral_limit: float = DEFAULT_INTEGRAL_LIMIT,
+) -> ServoGains:
+    """Pole-placement gains on the identified model: a triple pole at :func:`servo_bandwidth` of each joint's delay.
+
+    Args:
+        dynamics: The identified model; its inertia at ``theta`` with ``payload`` and its Coulomb friction are used.
+        drive_lag: Identified drive lag per joint (s), (3,) or a scalar.
+        theta: Pose (rad) of the inertia; the default is home (arms horizontal).
+        payload: Payload (kg) of the inertia.
+        margin: Phase margin (rad).
+        period: Control period (s).
+        friction_width: :attr:`ServoGains.friction_width` (rad).
+        integral_limit: :attr:`ServoGains.integral_limit` (N m).
+    """
+    lag = np.broadcast_to(np.asarray(drive_lag, dtype=float), (3,))
+    inertia = joint_inertia(dynamics, theta, payload)
+    w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
+    return ServoGains(
+        kp=tuple(3.0 * inertia * w0**2),
+        ki=tuple(inertia * w0**3),
+        kd=tuple(3.0 * inertia * w0),
+        coulomb=dynamics.parameters.coulomb,
+        friction_width=friction_width,
+        integral_limit=integral_limit,
+    )
+
+
+class JointServo:
+    """Each joint's position servo: PID with a clamped integral, and the Coulomb torque pushed at rest.
+
+    Args:
+        gains: :class:`ServoGains`.
+        period: Control period (s), the integral's step.
+    """
+
+    def __init__(self, gains: ServoGains, period: float = CONTROL_PERIOD) -> None:
+        self.gains = gains
+        self.period = require_in("period", period, 0.0, unit="s", low_open=True)
+        self._kp = np.array(gains.kp)
+        self._ki = np.array(gains.ki)
+        self._kd = np.array(gains.kd)
+        self._coulomb = np.array(gains.coulomb)
+        self.integral = np.zeros(3)  # ki * integral(e), (N m)
+
+    def reset(self) -> None:
+        """Zero the integral."""
+        self.integral = np.zeros(3)
+
+    def feedback(self, observation: Observation) -> NDArray[np.float64]:
+        """The servo torque (N m), (3,)."""
+        error = observation["reference_angles"] - observation["joint_angles"]
+        rate_error = observation["reference_velocities"] - observation["joint_velocities"]
+        limit = self.gains.integral_limit
+        # Anti-windup: the integral torque is clamped, so a blocked joint holds at most `limit` of it.
+        self.integral = np.clip(self.integral + self._ki * error * self.period, -limit, limit)
+        torque = self._kp * error + self._kd * rate_error + self.integral
+        # At rest the model's fc sign(thd_ref) is 0: push the Coulomb torque in the error's direction.
+        at_rest = observation["reference_velocities"] == 0.0
+        torque += np.where(at_rest, self._coulomb * np.clip(error / self.gains.friction_width, -1.0, 1.0), 0.0)
+        return torque
+
+    def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        return self.feedback(observation)

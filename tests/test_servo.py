@@ -1,0 +1,158 @@
+"""The servo layer: pole placement and phase margin against their definitions, the clamped integral, and a step
+against static friction on the plant."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from controllers.base import PDController
+from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.servo import (
+    DEFAULT_PHASE_MARGIN,
+    JointServo,
+    ServoGains,
+    joint_inertia,
+    loop_delay,
+    phase_margin,
+    servo_bandwidth,
+    servo_gains,
+)
+from controllers.setup import ControllerSetup, model_row
+from delta_env.env import DeltaPickPlaceEnv
+from delta_env.geometry import NOMINAL_GEOMETRY
+from delta_env.kinematics import inverse
+from delta_env.trajectories import Trajectory
+from eval.episodes import run_episode
+
+# The nominal robot's MId+F+R parameters as its identification finds them; the plant's Coulomb friction is
+# 4.0 x (1.0, 0.85, 1.15) N m, its drive lag 1 ms (docs/design.md section 4).
+NOMINAL_RODS = ModelParameters(rho1=1.95, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
+LAG = (0.001, 0.001, 0.001)
+
+
+def brute_force_phase_margin(bandwidth: float, delay: float) -> float:
+    """180 degrees plus the phase of L(jw) at the frequency of a fine grid where |L| is nearest 1 (rad)."""
+    w = np.geomspace(bandwidth * 1e-2, bandwidth * 1e2, 400_001)
+    s = 1j * w
+    loop = bandwidth * (3 * s**2 + 3 * bandwidth * s + bandwidth**2) / s**3 * np.exp(-s * delay)
+    crossover = np.argmin(np.abs(np.abs(loop) - 1.0))
+    # At low frequency L ~ (w0 / s)^3, -270 degrees, which np.angle reads as +90: one turn down.
+    phase = np.unwrap(np.angle(loop)) - 2.0 * math.pi
+    return math.pi + float(phase[crossover])
+
+
+@pytest.mark.parametrize("delay", [0.001, 0.002, 0.003])
+def test_phase_margin_matches_a_frequency_sweep(delay: float) -> None:
+    bandwidth = servo_bandwidth(delay)
+    assert phase_margin(bandwidth, delay) == pytest.approx(DEFAULT_PHASE_MARGIN, abs=1e-6)
+    assert brute_force_phase_margin(bandwidth, delay) == pytest.approx(DEFAULT_PHASE_MARGIN, abs=math.radians(0.05))
+    # The bandwidth is the largest that keeps the margin: 5 % more loses it.
+    assert phase_margin(1.05 * bandwidth, delay) < DEFAULT_PHASE_MARGIN - math.radians(1.0)
+
+
+def test_gains_place_a_triple_pole_on_the_identified_inertia() -> None:
+    dynamics = DeltaDynamics.nominal(NOMINAL_RODS, forearm_rods=True)
+    gains = servo_gains(dynamics, LAG)
+    inertia = joint_inertia(dynamics, (0.0, 0.0, 0.0))
+    bandwidth = servo_bandwidth(loop_delay(0.001))
+    for joint in range(3):
+        poles = np.roots([inertia[joint], gains.kd[joint], gains.kp[joint], gains.ki[joint]])
+        assert_allclose(poles, -bandwidth, rtol=1e-3)
+    assert gains.coulomb == NOMINAL_RODS.coulomb
+    # A slower drive gets a slower loop: twice the lag, two thirds of the bandwidth or less.
+    assert max(servo_gains(dynamics, 0.002).kd) < 0.7 * min(gains.kd)
+
+
+def test_joint_inertia_against_the_model_torque() -> None:
+    dynamics = DeltaDynamics.nominal(NOMINAL_RODS, forearm_rods=True)
+    theta = np.array([0.3, -0.1, 0.5])
+    inertia = joint_inertia(dynamics, theta, payload=2.0)
+    zero = np.zeros(3)
+    for joint in range(3):
+        acceleration = np.zeros(3)
+        acceleration[joint] = 10.0
+        torque = dynamics.inverse_dynamics(theta, zero, acceleration, 2.0) - dynamics.inverse_dynamics(
+            theta, zero, zero, 2.0
+        )
+        assert torque[joint] == pytest.approx(10.0 * inertia[joint], rel=1e-9)
+    assert np.all(inertia > joint_inertia(dynamics, theta))  # a payload adds inertia
+
+
+def observation(error: float, rate_error: float = 0.0, reference_rate: float = 0.0) -> dict[str, np.ndarray]:
+    return {
+        "reference_angles": np.full(3, error),
+        "joint_angles": np.zeros(3),
+        "reference_velocities": np.full(3, reference_rate),
+        "joint_velocities": np.full(3, reference_rate - rate_error),
+    }
+
+
+def test_integral_is_clamped_under_a_held_error_and_unwinds_at_once() -> None:
+    gains = ServoGains(kp=(1000.0,) * 3, ki=(1e5,) * 3, kd=(10.0,) * 3, integral_limit=25.0)
+    servo = JointServo(gains)
+    for _ in range(10_000):  # 10 s against a blocked joint, 1 rad off: unclamped, 1e6 N m of integral
+        torque = servo.feedback(observation(1.0, reference_rate=0.5))
+    assert_allclose(servo.integral, 25.0)
+    assert_allclose(torque, 1000.0 + 25.0)
+    # The error reverses: the integral leaves the clamp on the first step, no stored windup to unwind.
+    servo.feedback(observation(-0.1, reference_rate=0.5))
+    assert_allclose(servo.integral, 25.0 - 1e5 * 0.1 * servo.period)
+    servo.reset()
+    assert_allclose(servo.integral, 0.0)
+
+
+def test_friction_push_only_at_rest_saturating_at_its_width() -> None:
+    gains = ServoGains(kp=(0.0,) * 3, ki=(0.0,) * 3, kd=(0.0,) * 3, coulomb=(4.0, 3.0, 5.0), friction_width=1e-4)
+    servo = JointServo(gains)
+    assert_allclose(servo.feedback(observation(5e-5)), [2.0, 1.5, 2.5])
+    assert_allclose(servo.feedback(observation(-1e-3)), [-4.0, -3.0, -5.0])
+    assert_allclose(servo.feedback(observation(1e-3, reference_rate=0.2)), 0.0)  # moving: the model's fc sign(thd)
+
+
+def test_gains_refuse_bad_values() -> None:
+    with pytest.raises(ValueError, match="kp"):
+        ServoGains(kp=(-1.0, 0.0, 0.0), ki=(0.0,) * 3, kd=(0.0,) * 3)
+    with pytest.raises(ValueError, match="friction_width"):
+        ServoGains(kp=(1.0,) * 3, ki=(0.0,) * 3, kd=(0.0,) * 3, friction_width=0.0)
+    with pytest.raises(ValueError, match="delay"):
+        servo_bandwidth(0.0)
+
+
+def step_reference(step: float, samples: int = 400) -> Trajectory:
+    """At rest at a pose below home for one sample, then at rest ``step`` (m) along x from it."""
+    start = np.array([0.0, 0.0, NOMINAL_GEOMETRY.home_height - 0.1])
+    xyz = np.repeat(start[None], samples, axis=0)
+    xyz[1:, 0] += step
+    zero = np.zeros_like(xyz)
+    return Trajectory(
+        dt=0.001,
+        xyz=xyz,
+        xyz_dot=zero,
+        xyz_ddot=zero,
+        theta=inverse(NOMINAL_GEOMETRY, xyz),
+        theta_dot=zero,
+        theta_ddot=zero,
+        gripper=np.zeros(samples, dtype=bool),
+        pick_indices=np.zeros(0, dtype=np.int64),
+        place_indices=np.zeros(0, dtype=np.int64),
+    )
+
+
+def test_a_step_against_static_friction_settles_inside_the_window() -> None:
+    """0.2 mm at rest: Coulomb friction holds the paper's PD short of it (Kp e < fc); the servo settles within
+    0.05 mm in well under 100 ms and stays there."""
+    setup = ControllerSetup(mid=NOMINAL_RODS, mid_f=NOMINAL_RODS, mid_f_rods=NOMINAL_RODS, drive_lag=LAG)
+    env = DeltaPickPlaceEnv()
+    reference = step_reference(2e-4)
+    errors = {}
+    for servo in ("servo", "pd"):
+        controller = model_row("mid_f_r", dataclasses.replace(setup, servo=servo))
+        errors[servo] = run_episode(env, controller, seed=0, reference=reference).tracking_error
+    assert isinstance(model_row("mid_f_r", dataclasses.replace(setup, servo="pd")).servo, PDController)
+    assert errors["pd"][-1] > 0.1e-3  # the stick band of the fixed PD
+    settled = np.nonzero(errors["servo"] > 0.05e-3)[0][-1] + 1
+    assert settled < 60, f"settled after {settled} ms"
+    assert errors["servo"][-100:].max() < 0.03e-3
