@@ -439,7 +439,7 @@ def _summarize(
             *_bound_section(episode_rows),
             *_residual_section(args, episode_rows),
             *([args.left_out, ""] if args.left_out else []),
-            *(["## Videos", "", *video.video_lines(videos), ""] if videos else []),
+            *(["", "## Videos", "", *video.video_lines(videos), ""] if videos else []),
             f"Run folder: {out} ({total_time:.0f} s)",
         ]
     )

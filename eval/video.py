@@ -1,4 +1,4 @@
-"""Videos of episodes: the robot, its reference path, the platform's path, the objects and the conveyors.
+"""Videos of episodes: the robot, its reference path ahead, the platform's path behind, the objects and the conveyors.
 
 :func:`record_episode` runs one seeded episode with :func:`eval.episodes.run_episode` and renders it offscreen
 (``mujoco.Renderer``; headless with ``MUJOCO_GL=egl``) to an MP4 file (imageio with its ffmpeg plugin,
@@ -45,8 +45,8 @@ CAMERA = {"lookat": (0.0, 0.0, -0.62), "distance": 2.15, "azimuth": 120.0, "elev
 PATH_SAMPLE = 0.01
 """Spacing in time (s) of the points of the drawn reference and platform paths."""
 
-REFERENCE_RGBA = (0.1, 0.75, 0.95, 0.9)
-"""Colour of the reference path (cyan)."""
+REFERENCE_RGBA = (0.1, 0.75, 0.95, 1.0)
+"""Colour of the reference path still ahead (cyan)."""
 
 PLATFORM_RGBA = (0.95, 0.4, 0.05, 1.0)
 """Colour of the platform's path so far (orange)."""
@@ -140,7 +140,8 @@ class _Filmer:
         scene = self.renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0  # the floor's faint mirror image: a third of a frame's time
         trajectory = env.trajectory
-        _add_path(scene, trajectory.xyz[:: self.path_stride], REFERENCE_RGBA)
+        # The reference ahead, the platform's path behind: where both are drawn they would fight for the same pixels.
+        _add_path(scene, trajectory.xyz[step :: self.path_stride], REFERENCE_RGBA)
         _add_path(scene, np.array([*self.platform_path, env.plant.platform_point()]), PLATFORM_RGBA)
         below = np.array([0.0, 0.0, SUCTION_CUP_OFFSET + 0.5 * DEFAULT_PAYLOAD_SIZE[2]])
         for place in trajectory.place_indices:
@@ -168,8 +169,8 @@ class _Filmer:
             font=self.font,
         )
         bottom = image.height - margin - self.font.size
-        draw.text((margin, bottom), "reference path", fill=_rgb(REFERENCE_RGBA), font=self.font)
-        offset = margin + draw.textlength("reference path    ", font=self.font)
+        draw.text((margin, bottom), "reference path ahead", fill=_rgb(REFERENCE_RGBA), font=self.font)
+        offset = margin + draw.textlength("reference path ahead    ", font=self.font)
         draw.text((offset, bottom), "platform path", fill=_rgb(PLATFORM_RGBA), font=self.font)
 
 
