@@ -295,7 +295,7 @@ def _train(
     base: PolicyBase | None,
     callbacks: Sequence[BaseCallback],
 ) -> str:
-    """The training of :func:`train` into ``run``'s folder; returns its summary (:func:`training_summary`)."""
+    """The training of :func:`train` into ``run``'s folder; returns its summary: what was trained, and the scores."""
     out = run.folder
     config = residual_config(args)
     env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
