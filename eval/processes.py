@@ -10,6 +10,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.context import BaseContext
 from multiprocessing.pool import Pool
@@ -37,19 +38,20 @@ def ignore_interrupts() -> None:
 
 @contextlib.contextmanager
 def holding_interrupts() -> Iterator[None]:
-    """Hold Ctrl-C (SIGINT) back while workers start, and deliver it on leaving: a worker forked while its parent
-    unwinds would find the parent's pipes and semaphores gone and print a traceback. Only in the main thread (where
-    Python handles signals); elsewhere nothing is held."""
-    import threading
-
+    """Hold Ctrl-C (SIGINT) back while workers start, and deliver it on leaving (to the handler in place before): a
+    worker forked while its parent unwinds would find the parent's pipes and semaphores gone and print a traceback.
+    Only in the main thread, where Python runs its signal handlers; elsewhere nothing is held."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        signal.signal(signal.SIGINT, previous)
+        if held:
+            signal.raise_signal(signal.SIGINT)
 
 
 def start_pool(stack: contextlib.ExitStack, workers: int) -> Pool:

@@ -21,6 +21,7 @@ from delta_env.scenario import preset, with_geometry
 from eval import __main__ as eval_cli
 from eval import identification, identify, parameter_files
 from eval.console import UsageError, command_main, plural, progress_bar
+from eval.processes import holding_interrupts, parallel_map
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated
 from tests.conftest import NOMINAL_SETUP
 from tests.test_robot_identity import DESIGN
@@ -266,6 +267,22 @@ def test_train_residual_help_shows_its_options_first_each_with_help(capsys) -> N
         start = printed.index(f"  {option}", printed.index("options:"))
         entry = printed[start : printed.index("\n  -", start + 1)]
         assert len(entry.split()) > 4, entry  # the option, its value and a sentence of help
+
+
+def interrupts_ignored(_: int) -> bool:
+    """Whether this process ignores Ctrl-C (run in a pool's worker)."""
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
+def test_workers_leave_ctrl_c_to_the_command_line_which_holds_it_while_they_start() -> None:
+    assert parallel_map(interrupts_ignored, [0, 1], workers=2) == [True, True]
+    assert not interrupts_ignored(0)
+    reached = False
+    with pytest.raises(KeyboardInterrupt), holding_interrupts():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # held: not raised here
+        reached = True
+    assert reached
 
 
 @pytest.mark.slow
