@@ -3,7 +3,8 @@
 Importing this module imports what every worker of the experiments needs (:mod:`eval.tasks` and
 :mod:`eval.identification`: MuJoCo, the env, the controllers, filterpy, numba) and loads numba's compiler context
 by running one cached kernel: numba sets that context up once per process, at the first compiled call, and a fork
-inherits it instead of setting it up again in every worker. It leaves SIGINT to the command line first.
+inherits it instead of setting it up again in every worker. It first makes its process ignore SIGINT (Ctrl-C is the
+command line's): import it in the worker server only.
 """
 
 from __future__ import annotations
