@@ -6,7 +6,8 @@
 - ``python -m eval.train_residual``: training the residual policy (stable-baselines3).
 
 Every experiment runs its episodes with :func:`eval.episodes.run_episode` and writes its run folder with
-:mod:`eval.run_folder`. Importing the package imports none of its modules: the names below load on first use.
+:mod:`eval.run_folder`; every command line reports a usage error or an interruption in one line and shows its progress
+with :mod:`eval.console`. Importing the package imports none of its modules: the names below load on first use.
 """
 
 import importlib
@@ -14,11 +15,14 @@ from typing import Any
 
 _HOMES = {
     "EpisodeRecord": "eval.episodes",
+    "UsageError": "eval.console",
     "calibrate_tares": "eval.calibration",
+    "command_main": "eval.console",
     "create_run_folder": "eval.run_folder",
     "identification_root": "eval.parameter_files",
     "identify_logs": "eval.identification",
     "load_or_identify": "eval.parameter_files",
+    "progress_bar": "eval.console",
     "run_episode": "eval.episodes",
     "run_identification": "eval.identification",
     "runs_root": "eval.run_folder",

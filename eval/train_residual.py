@@ -295,7 +295,7 @@ def _train(
     base: PolicyBase | None,
     callbacks: Sequence[BaseCallback],
 ) -> str:
-    """The training of :func:`train` into ``run``'s folder; returns its summary (:func:`training_summary`)."""
+    """The training of :func:`train` into ``run``'s folder; returns its summary: what was trained, and the scores."""
     out = run.folder
     config = residual_config(args)
     env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
@@ -420,7 +420,7 @@ def _train(
     policies = "final_policy.zip" + (" and best_policy.zip" if best.is_file() else "")
     lines = [
         f"Trained {args.algo.upper()} on {args.scenario.name} for {model.num_timesteps:,} steps in "
-        f"{wall_time / 60:.1f} min: {policies}."
+        f"{f'{wall_time:.0f} s' if wall_time < 120 else f'{wall_time / 60:.1f} min'}: {policies}."
     ]
     if args.score and base is None:
         lines.append(
@@ -534,7 +534,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-score", dest="score", action="store_false", help="skip the final test scores")
     parser.add_argument("--verbose", action="store_true", help="print SB3 logs to stdout")
     parser.add_argument(
-        "--score-only", type=Path, default=None, help="no training: score this policy zip on the test seeds"
+        "--score-only",
+        type=Path,
+        default=None,
+        metavar="POLICY",
+        help="no training: score this policy zip on the test seeds",
     )
     args = parser.parse_args(argv)
     counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
