@@ -111,13 +111,13 @@ def model_row(
     :func:`controllers.feedforward.controller_name`)."""
     if key not in MODEL_ROWS:
         raise ValueError(f"{key!r} is not a model row; choose from {', '.join(MODEL_ROWS)}")
+    if key == "mid_f_rls_lag" and setup.drive_lag is None:
+        raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
     rods = key in ("mid_f_r", *ESTIMATOR_REGRESSORS)
     parameters = setup.mid_f_rods if rods else {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
     servo = row_servo(setup, DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=rods))
     if not rods:
         return model_controller(parameters, servo=servo, name=name, geometry=setup.geometry, masses=setup.masses)
-    if key == "mid_f_rls_lag" and setup.drive_lag is None:
-        raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
     return model_controller(
         parameters,
         forearm_rods=True,

@@ -85,7 +85,7 @@ from eval.residual_envs import (
     make_env,
 )
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_json
-from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
+from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
 
 CHECKPOINT_PREFIX = "residual"
@@ -300,7 +300,7 @@ def _train(
     config = residual_config(args)
     env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
     if base is None and base_factory is None:
-        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir)
+        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir, servo=args.servo)
     hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
 
     command = run.manifest["command"]
@@ -496,6 +496,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--base", choices=BASE_KEYS, default=BASE_KEYS[0], help="base controller (eval key; default: %(default)s)"
     )
+    add_servo_argument(parser)
     parser.add_argument(
         "--cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )

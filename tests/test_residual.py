@@ -62,7 +62,9 @@ CONTROL_STEPS = 400
 
 def policy_base(tare: float = 0.0, key: str = "mid_f_rls") -> PolicyBase:
     """A base row with fixed parameters (MId+F+R + RLS by default) and ``tare`` (kg)."""
-    setup = ControllerSetup(mid=PARAMETERS, mid_f=PARAMETERS, mid_f_rods=PARAMETERS, tares={key: tare})
+    setup = ControllerSetup(
+        mid=PARAMETERS, mid_f=PARAMETERS, mid_f_rods=PARAMETERS, drive_lag=(0.001, 0.001, 0.001), tares={key: tare}
+    )
     return PolicyBase(key, setup)
 
 
@@ -463,7 +465,7 @@ def test_a_policy_file_stores_the_setup_record_and_checks_its_hash(tmp_path: Pat
 
 
 def test_base_setup_calibrates_a_small_tare() -> None:
-    base = base_setup({"n_cycles": 1}, PARAMETERS, base="mid_f_rls")
+    base = base_setup({"n_cycles": 1}, PARAMETERS, base="mid_f_rls", servo="pd")
     assert base.key == "mid_f_rls" and base.setup.mid_f_rods == PARAMETERS and base.setup.drive_lag is None
     assert 0.0 < abs(base.setup.tares["mid_f_rls"]) < 0.5, "the tare is the model's small error along phi (kg)"
     assert "mid_f_rls" in base.setup.empty_moves, "the nominal plant is not randomized: its empty moves are kept"
