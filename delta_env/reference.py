@@ -15,7 +15,7 @@ from delta_env.geometry import DeltaGeometry
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.release import ReleaseSettings
 from delta_env.timing import MoveTiming
-from delta_env.trajectories import Trajectory, arrivals
+from delta_env.trajectories import REST_SPEED, Trajectory, arrivals
 
 
 class EpisodeReference:
@@ -37,9 +37,9 @@ class EpisodeReference:
     Attributes:
         trajectory: The reference followed from now on (1 kHz samples); None before the first plan.
         events: The gripper events ahead: sample -> (``"pick"`` or ``"place"``, cycle).
-        gates: With the in-position release, the arrival of each event: the first sample of the run of samples
-            exactly at rest (zero reference velocity: a dwell, and the move's last sample if it ends on one) that
-            holds it (:func:`~delta_env.trajectories.arrivals`) -> the event; empty with the timed release.
+        gates: With the in-position release, the arrival of each event -> the event: the planned dwell, one air
+            activation, before it, or the first sample of its rest run if later (a reference of shorter dwells;
+            :func:`~delta_env.trajectories.arrivals`). Empty with the timed release.
         retimes_online: Whether :meth:`retime` may change the carries: an online timing, until an override.
         speed_override: The last rate asked of :meth:`override_speed` (1.0 without one).
     """
@@ -128,7 +128,9 @@ class EpisodeReference:
         self.gates = {}
         if self.release.in_position and self.events:
             samples = list(self.events)
-            gates = arrivals(trajectory.xyz_dot, samples, speed=0.0).tolist()
+            air = round(self.release.air_activation / trajectory.dt)
+            rests = arrivals(trajectory.xyz_dot, samples).tolist()
+            gates = [max(event - air, rest) for event, rest in zip(samples, rests, strict=True)]
             # (an event on the first sample of its rest run has no wait before it)
             self.gates = {g: e for g, i, e in zip(gates, samples, self.events.values(), strict=True) if g < i}
         self._carry_starts = {}
@@ -223,9 +225,8 @@ class EpisodeReference:
 
 
 def _events_at_rest(trajectory: Trajectory) -> Trajectory:
-    """``trajectory`` with each gripper event on a moving sample moved back to the last sample exactly at rest
-    before it."""
-    moving = np.any(trajectory.xyz_dot != 0.0, axis=1)
+    """``trajectory`` with each gripper event on a moving sample moved back to the last sample at rest before it."""
+    moving = np.linalg.norm(trajectory.xyz_dot, axis=1) > REST_SPEED
 
     def at_rest(indices: NDArray[np.int64]) -> list[int]:
         rest = []
