@@ -317,7 +317,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             options: ``"payload_masses"``: the object masses (kg, each in [0, MAX_PAYLOAD_MASS]), one per pick,
                 replacing the drawn ones without changing any other random draw of the episode.
                 ``"reference"``: a :class:`~delta_env.trajectories.Trajectory` to follow instead of
-                the generated cycles (e.g. an identification excitation without picks).
+                the generated cycles (e.g. an identification excitation without picks), as given: its gripper
+                events come at their samples, never held for the in-position signal.
         """
         super().reset(seed=seed)
         options = options or {}

@@ -39,7 +39,8 @@ class EpisodeReference:
         events: The gripper events ahead: sample -> (``"pick"`` or ``"place"``, cycle).
         gates: With the in-position release, the arrival of each event -> the event: the planned dwell, one air
             activation, before it, or the first sample of its rest run if later (a reference of shorter dwells;
-            :func:`~delta_env.trajectories.arrivals`). Empty with the timed release.
+            :func:`~delta_env.trajectories.arrivals`); after a speed override, the first sample of its rest run.
+            Empty with the timed release and for a reference given to :meth:`plan`.
         retimes_online: Whether :meth:`retime` may change the carries: an online timing, until an override.
         speed_override: The last rate asked of :meth:`override_speed` (1.0 without one).
     """
@@ -69,6 +70,7 @@ class EpisodeReference:
         self._carry_starts: dict[int, tuple[int, int]] = {}  # sample -> (piece, its first sample) of each carry
         self._carry: tuple[int, int] | None = None  # the carry move under way: (piece, its first sample)
         self._override: SpeedOverride | None = None  # the reference's time scaling, once override_speed is called
+        self._given = False  # whether the reference was given to plan rather than planned
 
     def plan(
         self,
@@ -83,7 +85,8 @@ class EpisodeReference:
             rng: The episode's generator (conveyor points).
             masses: The objects' masses (kg), one per cycle, declared to ``timing``.
             timing: Times every move, or None for the fixed ``peak_acceleration``.
-            reference: A path to follow instead of the cycles (``timing`` then unused), or None.
+            reference: A path to follow instead of the cycles (``timing`` then unused), as given: it is never held
+                for the in-position signal. Or None.
         """
         timing = timing if reference is None else None
         if reference is not None:
@@ -112,6 +115,7 @@ class EpisodeReference:
                 declared_masses=masses,
             )
         self._timing = timing
+        self._given = reference is not None  # followed as given: no waits for the in-position signal
         self._timed = planned if isinstance(planned, TimedCycles) else None
         self.retimes_online = self._timed is not None and timing.retimes_online
         self._carry = None
@@ -126,11 +130,14 @@ class EpisodeReference:
         self.events = {int(i): ("pick", c) for c, i in enumerate(trajectory.pick_indices)}
         self.events.update({int(i): ("place", c) for c, i in enumerate(trajectory.place_indices)})
         self.gates = {}
-        if self.release.in_position and self.events:
+        if self.release.in_position and self.events and not self._given:
             samples = list(self.events)
             air = round(self.release.air_activation / trajectory.dt)
             rests = arrivals(trajectory.xyz_dot, samples).tolist()
-            gates = [max(event - air, rest) for event, rest in zip(samples, rests, strict=True)]
+            # an override stretches the dwells: their rest runs hold the arrivals
+            gates = (
+                rests if self._override is not None else [max(i - air, r) for i, r in zip(samples, rests, strict=True)]
+            )
             # (an event on the first sample of its rest run has no wait before it)
             self.gates = {g: e for g, i, e in zip(gates, samples, self.events.values(), strict=True) if g < i}
         self._carry_starts = {}

@@ -148,6 +148,7 @@ class InPositionRelease:
     def reset(self) -> None:
         """Forget the last episode: no samples within the window, no wait under way, no waits ended."""
         self.settles: list[Settle] = []
+        self._done: set[tuple[str, int]] = set()  # the events whose wait has ended
         self._inside = 0  # consecutive samples within the window, up to the last judged
         self._waiting: tuple[str, int, int] | None = None  # (kind, cycle, arrival step) of the wait under way
 
@@ -174,6 +175,8 @@ class InPositionRelease:
             return False, None
         gates = reference.gates
         if self._waiting is None:
+            if gates.get(k) in self._done:
+                return False, None  # an override moved the arrival of an event already waited for
             if k not in gates:
                 # judged only over the samples that can count at the next arrival
                 armed = any(k + ahead in gates for ahead in range(1, self._samples))
@@ -192,6 +195,7 @@ class InPositionRelease:
             self._waiting = None
             settle = Settle(kind, cycle, arrival, waited * CONTROL_PERIOD, not in_position)
             self.settles.append(settle)
+            self._done.add((kind, cycle))
             return in_position, settle
         reference.hold(k)
         return in_position, None

@@ -171,3 +171,33 @@ def test_the_scenario_carries_the_release_and_a_timed_task_hashes_as_before() ->
     assert Scenario().content_hash != Scenario(task=PickPlaceTask(settle_timeout=0.1)).content_hash
     env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(settle_timeout=0.2)), air_activation=0.02)
     assert env.release == ReleaseSettings(settle_timeout=0.2, air_activation=0.02)
+
+
+@pytest.mark.parametrize("rate", [0.5, 0.0])
+def test_a_speed_override_during_a_wait(monkeypatch, rate: float) -> None:
+    """A slow-down during the wait keeps it (the hold goes on in the scaled reference, the event still comes); a stop
+    that never reaches the event (a 0.2 s air activation, longer than the stop's ramp) drops it, and the wait."""
+    env = DeltaPickPlaceEnv(n_cycles=1, air_activation=0.035 if rate else 0.2)
+    monkeypatch.setattr(env.plant, "joint_angle_values", encoders_read(env, offset=1e-3))
+    observation, _ = env.reset(seed=0)
+    controller = PDController()
+    arrival = next(iter(env._reference.gates))
+    gripper = []
+    while True:
+        if env._step_index == arrival + 10:
+            env.override_speed(rate)
+        observation, _, terminated, truncated, info = env.step(controller(observation))
+        gripper.append(observation["gripper"][0])
+        if terminated or truncated:
+            break
+    if rate > 0.0:
+        assert [(settle.kind, settle.timed_out) for settle in env.settles] == [("pick", True), ("place", True)]
+        assert env.settles[0].arrival_step == arrival
+        timeout = round(DEFAULT_SETTLE_TIMEOUT / DT)
+        # the air activation after the time-out is path time: longer as the rate ramps down to a half, at most twice
+        air = env.trajectory.pick_indices[0] - (arrival + timeout)
+        assert DEFAULT_AIR_ACTIVATION / DT + 5 < air < 2 * DEFAULT_AIR_ACTIVATION / DT
+        assert np.sum(np.diff(gripper) > 0) == 1 and np.sum(np.diff(gripper) < 0) == 1
+    else:
+        assert env.settles == [] and info["stopped"]
+        assert not any(gripper) and len(env.trajectory.pick_indices) == 0
