@@ -10,7 +10,9 @@ import pytest
 
 from controllers.base import PDController
 from delta_env.env import DeltaPickPlaceEnv
-from delta_env.release import DEFAULT_AIR_ACTIVATION, DEFAULT_SETTLE_TIMEOUT, ReleaseSettings
+from delta_env.geometry import NOMINAL_GEOMETRY
+from delta_env.kinematics import inverse
+from delta_env.release import DEFAULT_AIR_ACTIVATION, DEFAULT_SETTLE_TIMEOUT, InPositionRelease, ReleaseSettings
 from delta_env.scenario import PickPlaceTask, Scenario
 from delta_env.trajectories import arrivals
 from eval.metrics import settle_metrics
@@ -201,3 +203,22 @@ def test_a_speed_override_during_a_wait(monkeypatch, rate: float) -> None:
     else:
         assert env.settles == [] and info["stopped"]
         assert not any(gripper) and len(env.trajectory.pick_indices) == 0
+
+
+@pytest.mark.parametrize(("offset", "inside"), [(0.045e-3, True), (0.055e-3, False)])
+def test_the_window_is_judged_on_the_declared_forward_kinematics_for_consecutive_samples(
+    offset: float, inside: bool
+) -> None:
+    """Encoder angles of a point ``offset`` (m) from the target, by the declared geometry's exact inverse: inside the
+    0.05 mm window from the third consecutive sample on, or never; one sample outside starts the count again."""
+    target = np.array([0.05, -0.2, -0.9])
+    release = InPositionRelease(ReleaseSettings(), NOMINAL_GEOMETRY)
+    angles = inverse(NOMINAL_GEOMETRY, target + offset * np.array([0.6, 0.0, 0.8])).tolist()
+    judged = [release.judge(angles, target.tolist()) for _ in range(4)]
+    assert judged == ([False, False, True, True] if inside else [False] * 4)
+    far = inverse(NOMINAL_GEOMETRY, target + np.array([1e-3, 0.0, 0.0])).tolist()
+    assert [release.judge(a, target.tolist()) for a in (far, angles, angles, angles)] == [False, False, False, inside]
+    assert not release.judge([math.nan, 0.0, 0.0], target.tolist())
+    # the window and the time are settings: 0.06 mm held for 1 ms takes the first sample
+    wide = InPositionRelease(ReleaseSettings(in_position_window=0.06e-3, in_position_time=0.001), NOMINAL_GEOMETRY)
+    assert wide.judge(angles, target.tolist())
