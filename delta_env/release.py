@@ -16,7 +16,7 @@ rest with the gripper switching in its middle, whatever the error.
 Why consecutive samples and no speed condition: the speed a drive would test comes from the same encoders, whose
 17-bit count is about 17 um at the platform, so their backward difference over 1 ms reads 0 or at least 17 mm/s;
 a speed window would only ask that no count changed. Holding the position window for N samples bounds the mean
-speed over them by 2 * window / ((N - 1) dt) (33 mm/s by default) and rejects a platform that only passes
+speed over them by 2 * window / ((N - 1) dt) (50 mm/s by default) and rejects a platform that only passes
 through the window.
 """
 
@@ -49,7 +49,7 @@ that ABB's IRB 360 data sheet counts at each end of its "Cycle 1"."""
 DEFAULT_SETTLE_TIMEOUT = 0.065
 """Longest wait (s) for the in-position signal after the reference's arrival; the gripper then acts anyway. With
 the air activation, a platform that never settles dwells 0.1 s, the timed release's dwell: a servo that leaves
-a friction band (the plain PD's 0.7 mm) runs the old cycle time, and one that settles runs faster."""
+a friction band (the fixed joint PD's, up to 0.7 mm) runs the old cycle time, and one that settles runs faster."""
 
 MAX_WINDOW = 0.01
 """Largest in-position window (m)."""
