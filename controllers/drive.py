@@ -12,9 +12,10 @@ that exact sampled model for a trial T, and T minimizes the squared difference t
 an equation-error least squares on tau[k+1] = a tau[k] + (1 - a) u[k] would have the noisy torque as its
 regressor and be biased towards a faster drive.
 
-Control: :class:`ReferencePredictor` gives the reference one period ahead, where the controllers that lead
-the lag (:class:`controllers.feedforward.LagCompensatedController` and the oracle) evaluate their
-feedforward before passing it through the exact inverse of the sampled lag.
+Control: :class:`ReferencePredictor` gives the reference ahead, where the controllers that lead the lag
+(:class:`controllers.feedforward.LagCompensatedController`, one period ahead, and the oracle, at the lead that
+gives the held command's physics steps the mean of the wanted torque) evaluate their feedforward before passing
+it through the exact inverse of the sampled lag.
 """
 
 from __future__ import annotations
@@ -36,19 +37,27 @@ MIN_TIME_CONSTANT = 1e-5
 
 
 class ReferencePredictor:
-    """The joint reference one control period ahead, from the reference of this step and the last one.
+    """The joint reference a short horizon ahead (one control period by default), from the reference of this step
+    and the last one.
 
-    A cubic Taylor step: the jerk is the backward difference of the reference accelerations (0 at the first
-    step). The error is of order period^2 times the reference's snap, or period times a jump of its jerk.
+    A cubic Taylor step: the jerk is the backward difference of the reference accelerations over the period (0 at
+    the first step). The error is of order horizon^2 times the reference's snap, or horizon times a jump of its
+    jerk: a jerk step of the reference is seen one period late.
 
     Args:
         period: Control period (s), in (0, 0.1].
+        horizon: How far ahead (s), per joint (shape (3,)) or one for all, each in [0, 2 period]; one period when
+            None. The oracle aims at :meth:`delta_env.drive.SampledLag.hold_lead`.
     """
 
-    def __init__(self, period: float = CONTROL_PERIOD) -> None:
+    def __init__(self, period: float = CONTROL_PERIOD, horizon: ArrayLike | None = None) -> None:
         if not (math.isfinite(period) and 0.0 < period <= 0.1):
             raise ValueError(f"period must lie in (0, 0.1] s, got {period}")
         self.period = float(period)
+        horizon = np.broadcast_to(np.asarray(self.period if horizon is None else horizon, dtype=float), (3,))
+        if not np.all(np.isfinite(horizon) & (horizon >= 0.0) & (horizon <= 2.0 * self.period)):
+            raise ValueError(f"horizon must lie in [0, {2.0 * self.period}] s, got {horizon.tolist()}")
+        self.horizon = horizon.copy()
         self._last_acceleration = np.zeros(3)
         self._has_last = False
 
@@ -57,13 +66,14 @@ class ReferencePredictor:
         self._has_last = False
 
     def next(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Reference angles (rad), rates (rad/s) and accelerations (rad/s^2) at the next control instant, each (3,)."""
+        """Reference angles (rad), rates (rad/s) and accelerations (rad/s^2) one horizon ahead, each (3,)."""
         prediction = _taylor_step(
             observation["reference_angles"],
             observation["reference_velocities"],
             observation["reference_accelerations"],
             self._last_acceleration,
             self._has_last,
+            self.horizon,
             self.period,
         )
         self._has_last = True
@@ -77,14 +87,17 @@ def _taylor_step(
     theta_ddot: NDArray[np.float64],
     last_acceleration: NDArray[np.float64],
     has_last: bool,
-    dt: float,
+    horizon: NDArray[np.float64],
+    period: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """:meth:`ReferencePredictor.next` per joint in scalar math (a dozen NumPy calls on three values cost more);
     ``last_acceleration`` (3,) is the last step's reference acceleration, replaced by this step's."""
     angle, rate, acceleration = np.empty(3), np.empty(3), np.empty(3)
     for joint in range(3):
         p, v, a = theta[joint], theta_dot[joint], theta_ddot[joint]
-        j = a - last_acceleration[joint] if has_last else 0.0
+        dt = horizon[joint]
+        # the acceleration's change over the horizon: the last period's change, scaled (bit for bit itself at 1)
+        j = (a - last_acceleration[joint]) * (dt / period) if has_last else 0.0
         last_acceleration[joint] = a
         angle[joint] = p + dt * (v + dt * (0.5 * a + j / 6.0))
         rate[joint] = v + dt * (a + 0.5 * j)

@@ -115,13 +115,19 @@ class OracleController:
     (:meth:`set_payload_masses`, given by the evaluation after ``env.reset``). The object held is counted
     from the gripper's closing edges.
 
-    Each step it predicts the reference one control period ahead (:class:`~controllers.drive.ReferencePredictor`),
-    takes the oracle's joint torque there and commands what makes the drive's lag deliver exactly that
-    torque at the next control instant (:class:`~delta_env.drive.SampledLag`); Coulomb and Stribeck friction
-    and the ripple are inverted by the oracle at the reference state. Feedback is PD; with an exact
-    feedforward it only has to correct integration error, and a large Kd mostly feeds the encoder's rate
-    quantization (0.05 rad/s at 17 bit and 1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own
-    gains, :func:`oracle_gains` of the plant's true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms).
+    Each step it predicts the reference a short lead ahead (:class:`~controllers.drive.ReferencePredictor`), takes
+    the oracle's joint torque there and commands what makes the drive's lag deliver exactly that torque at the next
+    control instant (:class:`~delta_env.drive.SampledLag`). The lead (:meth:`~delta_env.drive.SampledLag.hold_lead`
+    of the plant's lag and physics step) makes the torque the plant integrates over the held period's physics steps
+    the mean of what the reference wants at them: 0.25 ms on a direct drive at the default 0.5 ms step, 0.94 ms
+    through the default 1 ms lag (docs/design.md section 6). Coulomb and Stribeck friction and the ripple are
+    inverted by the oracle at the reference state. Feedback is PD; with an exact feedforward it only has to correct
+    integration error, and a large Kd mostly feeds the encoder's rate quantization (0.05 rad/s at 17 bit and
+    1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own gains, :func:`oracle_gains` of the plant's
+    true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms). The measured rate is the encoders' backward difference
+    over a period, so the PD takes the same difference of the reference angles as its reference rate: on the
+    reference its output is then zero, where the reference's instantaneous rate would leave Kd period/2 times the
+    acceleration (up to 2.5 N m at 20 g) pushing the arm off it.
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
@@ -136,11 +142,17 @@ class OracleController:
         self.oracle = InverseDynamicsOracle(plant)
         self._gains_follow_lag = pd is None
         self.pd = PDController(*oracle_gains(plant.realism.actuator_lag)) if pd is None else pd
-        self.drive = SampledLag(plant.realism.actuator_lag, period)
-        self.reference = ReferencePredictor(period)
+        self._timestep = plant.timestep
+        self._set_drive(plant.realism.actuator_lag, period)
         self.payload_masses: tuple[float, ...] = ()
         self._picks = 0
         self._holding = False
+        self._last_reference_angles: NDArray[np.float64] | None = None
+
+    def _set_drive(self, lag: float, period: float) -> None:
+        """The sampled lag of the drive and the predictor of the reference at its hold lead."""
+        self.drive = SampledLag(lag, period)
+        self.reference = ReferencePredictor(period, horizon=self.drive.hold_lead(self._timestep))
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:
         """The true masses (kg) of the objects of the next episode, in pick order (the truth)."""
@@ -149,7 +161,7 @@ class OracleController:
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
         """The plant's true (e.g. randomized) masses, friction and lag, from ``env.plant.parameters``."""
         self.oracle.set_physical_parameters(parameters)
-        self.drive = SampledLag(parameters.actuator_lag, self.drive.period)
+        self._set_drive(parameters.actuator_lag, self.drive.period)
         if self._gains_follow_lag:
             self.pd = PDController(*oracle_gains(parameters.actuator_lag))
 
@@ -164,6 +176,7 @@ class OracleController:
         self.reference.reset()
         self._picks = 0
         self._holding = False
+        self._last_reference_angles = None
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         holding = observation["gripper"].item(0) > 0.5
@@ -176,7 +189,16 @@ class OracleController:
                 )
         self._holding = holding
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
-        return self.drive.command(torque_next) + self.pd.feedback(observation)
+        return self.drive.command(torque_next) + self.pd.feedback(self._as_measured(observation))
+
+    def _as_measured(self, observation: Observation) -> Observation:
+        """``observation`` with the reference rate the encoders would measure on the reference: the backward
+        difference of the reference angles over the period (the reference's own rate at the first step)."""
+        angles = observation["reference_angles"]
+        last, self._last_reference_angles = self._last_reference_angles, angles.copy()
+        if last is None:
+            return observation
+        return {**observation, "reference_velocities": (angles - last) / self.drive.period}
 
 
 class LagCompensatedController:
