@@ -245,9 +245,12 @@ def run_episode(
         wrappers.append(privileged)
         privileged = privileged.controller
     inner = next((wrapper for wrapper in wrappers if isinstance(wrapper, MonitoredController)), controller)
-    if isinstance(privileged, Privileged):
+    knows_reference = isinstance(privileged, Privileged)
+    if knows_reference:
         privileged.set_payload_masses(info["payload_masses"])
         privileged.set_physical_parameters(env.plant.parameters)
+        privileged.set_reference(env.trajectory)
+    followed = env.trajectory
     controller.reset()
     plant = env.plant
     estimates_payload = isinstance(controller, EstimatesPayload)
@@ -274,6 +277,9 @@ def run_episode(
             speed = inner.requested_speed  # a monitored controller's reaction to a fault: the cell's override
             env.override_speed(speed)
         observation, _, terminated, truncated, info = env.step(action)
+        if knows_reference and env.trajectory is not followed:  # retimed or overridden: the new reference ahead
+            followed = env.trajectory
+            privileged.set_reference(followed)
         tracking.append(info["tracking_error"])
         loop_gaps.append(info["loop_gap"])
         torque.extend(info["applied_torque"].tolist())
