@@ -22,7 +22,7 @@ from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
-from delta_env.sensors import ENCODER_BITS, encoder_resolution
+from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP, encoder_resolution, rate_window
 from delta_env.validation import require_joint_vector
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
@@ -147,4 +147,5 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
             "identify it, or use servo='pd'"
         )
     step = DEFAULT_FRICTION_WIDTH if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits)
-    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step))
+    window = rate_window(setup.encoder_bits, PHYSICS_TIMESTEP)
+    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step), rate_window=window)
