@@ -16,6 +16,7 @@ from delta_env.validation import require_in
 
 if TYPE_CHECKING:
     from delta_env.config import PhysicalParameters
+    from delta_env.trajectories import Trajectory
 
 Observation = Mapping[str, NDArray[np.float64]]
 """The env's observation dict (see ``delta_env.env.DeltaPickPlaceEnv``)."""
@@ -64,13 +65,18 @@ class EstimatesPayload(Protocol):
 
 @runtime_checkable
 class Privileged(Protocol):
-    """A controller that knows the plant's truth (the oracle bound): the episode runner tells it after each reset."""
+    """A controller that knows the plant's truth (the oracle bound): the episode runner tells it after each reset,
+    and gives it the reference ahead."""
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:
         """The true masses (kg) of the episode's objects, in pick order."""
 
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
         """The plant's true (e.g. randomized) masses, friction and lag."""
+
+    def set_reference(self, trajectory: Trajectory) -> None:
+        """The reference the env follows (``env.trajectory``), ahead of the observation's sample: after each reset
+        and whenever the env replaces it (an online retiming, a speed override)."""
 
 
 class PDController:

@@ -24,14 +24,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import JointFeedback, Observation, PDController
-from controllers.drive import ReferencePredictor
+from controllers.drive import MeasuredReferenceRate, ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
 from delta_env.config import PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.oracle import InverseDynamicsOracle
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, rate_window
+from delta_env.trajectories import Trajectory
 from delta_env.validation import require_in
 
 
@@ -111,17 +112,26 @@ class OracleController:
     """Exact inverse of the plant, mechanism and drive, at the reference with the true payload: a bound.
 
     Knows the truth, unlike every other controller: the plant configuration (passed in), its physical
-    parameters when randomized (:meth:`set_physical_parameters`) and the mass of each object
-    (:meth:`set_payload_masses`, given by the evaluation after ``env.reset``). The object held is counted
-    from the gripper's closing edges.
+    parameters when randomized (:meth:`set_physical_parameters`), the mass of each object
+    (:meth:`set_payload_masses`, given by the evaluation after ``env.reset``) and the reference ahead
+    (:meth:`set_reference`). The object held is counted from the gripper's closing edges.
 
-    Each step it predicts the reference one control period ahead (:class:`~controllers.drive.ReferencePredictor`),
-    takes the oracle's joint torque there and commands what makes the drive's lag deliver exactly that
-    torque at the next control instant (:class:`~delta_env.drive.SampledLag`); Coulomb and Stribeck friction
-    and the ripple are inverted by the oracle at the reference state. Feedback is PD; with an exact
-    feedforward it only has to correct integration error, and a large Kd mostly feeds the encoder's rate
-    quantization (0.05 rad/s at 17 bit and 1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own
-    gains, :func:`oracle_gains` of the plant's true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms).
+    Each step it takes the reference a short lead ahead (:class:`~controllers.drive.ReferencePredictor`: from the
+    reference's samples when it has them, else predicted from this step's, which sees a jerk step one period late),
+    takes the oracle's joint torque there and commands what makes the drive's lag deliver exactly that torque at the
+    next control instant (:class:`~delta_env.drive.SampledLag`). The lead
+    (:meth:`~delta_env.drive.SampledLag.hold_lead` of the plant's lag and physics step) makes the torque the plant
+    integrates over the held period's physics steps the mean of what the reference wants at them: 0.25 ms on a
+    direct drive at the default 0.5 ms step, 0.94 ms through the default 1 ms lag (docs/design.md section 6).
+    Coulomb and Stribeck friction and the ripple are inverted by the oracle at the reference state. Feedback is PD;
+    with an exact feedforward it only has to correct integration error, and a large Kd mostly feeds the encoder's
+    rate quantization (0.05 rad/s at 17 bit and 1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own
+    gains, :func:`oracle_gains` of the plant's true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms). The measured
+    rate is a mean over a window (the encoders' backward difference over a period; MuJoCo's end-of-step velocity
+    without an encoder), so the PD takes the reference's mean rate over the same window
+    (:class:`~controllers.drive.MeasuredReferenceRate`): on the reference its output is then zero, where the
+    reference's instantaneous rate would leave Kd window/2 times the acceleration (2.5 N m at 20 g through the
+    encoders) pushing the arm off it.
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
@@ -136,11 +146,19 @@ class OracleController:
         self.oracle = InverseDynamicsOracle(plant)
         self._gains_follow_lag = pd is None
         self.pd = PDController(*oracle_gains(plant.realism.actuator_lag)) if pd is None else pd
-        self.drive = SampledLag(plant.realism.actuator_lag, period)
-        self.reference = ReferencePredictor(period)
+        self._timestep = plant.timestep
+        self._reference_ahead: Trajectory | None = None
+        self._set_drive(plant.realism.actuator_lag, period)
+        self.reference_rate = MeasuredReferenceRate(rate_window(plant.realism.encoder_bits, plant.timestep), period)
         self.payload_masses: tuple[float, ...] = ()
         self._picks = 0
         self._holding = False
+
+    def _set_drive(self, lag: float, period: float) -> None:
+        """The sampled lag of the drive and the predictor of the reference at its hold lead."""
+        self.drive = SampledLag(lag, period)
+        self.reference = ReferencePredictor(period, horizon=self.drive.hold_lead(self._timestep))
+        self.reference.follow(self._reference_ahead)
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:
         """The true masses (kg) of the objects of the next episode, in pick order (the truth)."""
@@ -149,9 +167,15 @@ class OracleController:
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
         """The plant's true (e.g. randomized) masses, friction and lag, from ``env.plant.parameters``."""
         self.oracle.set_physical_parameters(parameters)
-        self.drive = SampledLag(parameters.actuator_lag, self.drive.period)
+        self._set_drive(parameters.actuator_lag, self.drive.period)
         if self._gains_follow_lag:
             self.pd = PDController(*oracle_gains(parameters.actuator_lag))
+
+    def set_reference(self, trajectory: Trajectory | None) -> None:
+        """The reference ahead (``env.trajectory``, the truth): the feedforward is taken from its samples
+        (:meth:`~controllers.drive.ReferencePredictor.follow`); None predicts from each step's reference alone."""
+        self._reference_ahead = trajectory
+        self.reference.follow(trajectory)
 
     @property
     def payload_estimate(self) -> float:
@@ -162,6 +186,7 @@ class OracleController:
         self.pd.reset()
         self.drive.reset()  # the plant's reset zeroes the drive's state
         self.reference.reset()
+        self.reference_rate.reset()
         self._picks = 0
         self._holding = False
 
@@ -176,7 +201,9 @@ class OracleController:
                 )
         self._holding = holding
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
-        return self.drive.command(torque_next) + self.pd.feedback(observation)
+        # the PD compares the measured rate with the reference's rate measured alike
+        feedback = self.pd.feedback({**observation, "reference_velocities": self.reference_rate(observation)})
+        return self.drive.command(torque_next) + feedback
 
 
 class LagCompensatedController:

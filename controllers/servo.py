@@ -5,14 +5,15 @@ A servo drive closes its position loop around the feedforward: per joint
 
     tau_fb = kp e + kd de/dt + ki integral(e) + fc sat(e / e_f) [reference at rest]
 
-with e = theta_ref - theta (encoder). The gains come from the identified model and drive lag
-(:func:`servo_gains`): a triple closed-loop pole at the bandwidth w0 on the joint's identified inertia J,
-kd = 3 J w0, kp = 3 J w0^2, ki = J w0^3, with w0 the largest that keeps the stated phase margin through the loop's
-delay (the drive lag, half a sample of zero-order hold and half a sample of the backward-difference rate). The
-integral term is clamped (anti-windup: |ki integral(e)| <= ``integral_limit``) so that a blocked joint cannot wind it
-up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero, and static friction would
-hold any error with |kp e| < fc; the servo then pushes with the identified Coulomb torque in the direction of the
-error, saturating at ``friction_width`` (a few encoder steps), which closes the stick band.
+with e = theta_ref - theta (encoder), and de/dt the reference's rate measured as the joint rate is (its mean over the
+encoder's backward difference, :class:`~controllers.drive.MeasuredReferenceRate`) minus the measured rate. The gains
+come from the identified model and drive lag (:func:`servo_gains`): a triple closed-loop pole at the bandwidth w0 on
+the joint's identified inertia J, kd = 3 J w0, kp = 3 J w0^2, ki = J w0^3, with w0 the largest that keeps the stated
+phase margin through the loop's delay (the drive lag, half a sample of zero-order hold and half a sample of the
+backward-difference rate). The integral term is clamped (anti-windup: |ki integral(e)| <= ``integral_limit``) so that
+a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
+and static friction would hold any error with |kp e| < fc; the servo then pushes with the identified Coulomb torque in
+the direction of the error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
+from controllers.drive import MeasuredReferenceRate
 from controllers.dynamics import DeltaDynamics
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
 from delta_env.validation import require_in, require_joint_vector
@@ -156,11 +158,14 @@ class JointServo:
     Args:
         gains: :class:`ServoGains`.
         period: Control period (s), the integral's step.
+        rate_window: The window (s) whose mean rate the observed joint rate is
+            (:func:`delta_env.sensors.rate_window`: one period with an encoder).
     """
 
-    def __init__(self, gains: ServoGains, period: float = CONTROL_PERIOD) -> None:
+    def __init__(self, gains: ServoGains, period: float = CONTROL_PERIOD, rate_window: float = CONTROL_PERIOD) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
+        self.reference_rate = MeasuredReferenceRate(rate_window, period)
         self._kp = np.array(gains.kp)
         self._ki = np.array(gains.ki)
         self._kd = np.array(gains.kd)
@@ -168,13 +173,16 @@ class JointServo:
         self.integral = np.zeros(3)  # ki * integral(e), (N m)
 
     def reset(self) -> None:
-        """Zero the integral."""
+        """Zero the integral and forget the last reference."""
         self.integral = np.zeros(3)
+        self.reference_rate.reset()
 
     def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The servo torque (N m), (3,)."""
         error = observation["reference_angles"] - observation["joint_angles"]
-        rate_error = observation["reference_velocities"] - observation["joint_velocities"]
+        # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
+        # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
+        rate_error = self.reference_rate(observation) - observation["joint_velocities"]
         limit = self.gains.integral_limit
         # Anti-windup: the integral torque is clamped, so a blocked joint holds at most `limit` of it.
         self.integral = np.clip(self.integral + self._ki * error * self.period, -limit, limit)

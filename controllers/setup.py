@@ -22,7 +22,7 @@ from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
-from delta_env.sensors import ENCODER_BITS, encoder_resolution
+from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP, encoder_resolution, rate_window
 from delta_env.validation import require_joint_vector
 
 ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
@@ -111,13 +111,13 @@ def model_row(
     :func:`controllers.feedforward.controller_name`)."""
     if key not in MODEL_ROWS:
         raise ValueError(f"{key!r} is not a model row; choose from {', '.join(MODEL_ROWS)}")
+    if key == "mid_f_rls_lag" and setup.drive_lag is None:
+        raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
     rods = key in ("mid_f_r", *ESTIMATOR_REGRESSORS)
     parameters = setup.mid_f_rods if rods else {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
     servo = row_servo(setup, DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=rods))
     if not rods:
         return model_controller(parameters, servo=servo, name=name, geometry=setup.geometry, masses=setup.masses)
-    if key == "mid_f_rls_lag" and setup.drive_lag is None:
-        raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
     return model_controller(
         parameters,
         forearm_rods=True,
@@ -147,4 +147,5 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
             "identify it, or use servo='pd'"
         )
     step = DEFAULT_FRICTION_WIDTH if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits)
-    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step))
+    window = rate_window(setup.encoder_bits, PHYSICS_TIMESTEP)
+    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step), rate_window=window)

@@ -26,6 +26,7 @@ from delta_env.geometry import (
     DeltaMasses,
 )
 from delta_env.plant import DeltaPlant
+from delta_env.release import ReleaseSettings
 from delta_env.scene import build_mjcf, build_model
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.trajectories import Trajectory, concatenate
@@ -46,6 +47,7 @@ __all__ = [
     "PlantConfig",
     "PlantRealism",
     "RandomizationRanges",
+    "ReleaseSettings",
     "RewardWeights",
     "Trajectory",
     "build_mjcf",

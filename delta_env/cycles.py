@@ -1,7 +1,10 @@
 """Pick-and-place reference cycles: the industry's 25/305/25 mm cycle and random conveyor cycles.
 
-Every cycle dwells at the pick point (the gripper closes mid-dwell), arches to the place point, dwells
-(the gripper opens mid-dwell) and arches back (docs/design.md section 5). An episode is a window of continuous
+Every cycle dwells at the pick point (the gripper closes), arches to the place point, dwells (the gripper opens)
+and arches back (docs/design.md section 5). Where in the dwell the gripper switches is the ``release``: mid-dwell
+(``"timed"``, a ``DEFAULT_DWELL`` rest) or at its end (``"in_position"``: the dwell is the air activation, which
+the env starts only once the platform is in position, holding the reference at the dwell's start until then,
+:mod:`delta_env.release`); then every move starts on a sample. An episode is a window of continuous
 work: by default it starts at rest at a place point, where a previous object was released, and arches empty to
 its first pick point, so that every carry follows an empty move, as in a running cell; ``start="pick"`` starts at
 rest at the first pick point instead.
@@ -40,7 +43,18 @@ STANDARD_TRAVEL = 0.305
 """Horizontal travel of the industry's 25/305/25 mm test cycle (m)."""
 
 DEFAULT_DWELL = 0.1
-"""Rest (s) at each pick and place point; the gripper closes or opens in its middle."""
+"""Rest (s) at each pick and place point of the timed release; the gripper closes or opens in its middle."""
+
+RELEASES = ("in_position", "timed")
+"""Where the gripper switches in a dwell: at its end, once the platform is in position (the env's default,
+:mod:`delta_env.release`), or in its middle at a fixed time (the cycles' default)."""
+
+
+def require_release(release: str) -> str:
+    """``release`` if it is one of :data:`RELEASES`, else ``ValueError``."""
+    if release not in RELEASES:
+        raise ValueError(f"release must be one of {list(RELEASES)}, got {release!r}")
+    return release
 
 
 @dataclass(frozen=True)
@@ -53,6 +67,7 @@ class _Profile:
         lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
         dwell: Rest at each pick and place point (s), >= 2 dt.
         dt: Sample period (s).
+        release: ``"timed"`` (the gripper switches mid-dwell) or ``"in_position"`` (at the dwell's end).
     """
 
     peak_acceleration: float
@@ -60,13 +75,28 @@ class _Profile:
     lift_fraction: float
     dwell: float
     dt: float
+    release: Literal["in_position", "timed"] = "timed"
 
     def __post_init__(self) -> None:
+        require_release(self.release)
         require_sample_period(self.dt)
         require_peak_acceleration(self.peak_acceleration)
         require_in("lift_height", self.lift_height, 0.0, unit="m")
         require_in("lift_fraction", self.lift_fraction, 0.0, 0.5, low_open=True)
         require_in("dwell", self.dwell, 2.0 * self.dt, unit="s (2 dt and up)")
+
+    @property
+    def switch(self) -> float:
+        """Where in a dwell the gripper switches, as a fraction of it: the middle, or the end."""
+        return 0.5 if self.release == "timed" else 1.0
+
+    def rest(self, arrival: float) -> float:
+        """The dwell (s) of a move that arrives at time ``arrival`` (s): ``dwell``, or with the in-position release
+        the dwell to the ``dwell / dt``-th sample after the first sample at rest, so that the next move starts on
+        a sample (the env holds the reference from that first sample on until the platform is in position)."""
+        if self.release == "timed":
+            return self.dwell
+        return (math.ceil(arrival / self.dt - 1e-9) + round(self.dwell / self.dt)) * self.dt - arrival
 
 
 @dataclass(frozen=True)
@@ -119,6 +149,7 @@ def standard_cycle(
     dwell: float = DEFAULT_DWELL,
     lift_fraction: float = 0.3,
     start: Literal["place", "pick"] = "place",
+    release: Literal["in_position", "timed"] = "timed",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
     timing: MoveTiming | None = None,
@@ -126,8 +157,8 @@ def standard_cycle(
 ) -> Trajectory | TimedCycles:
     """The industry's 25/305/25 mm pick cycle: up 25 mm, across 305 mm, down 25 mm, and back.
 
-    One cycle: dwell at the pick point (the gripper closes mid-dwell), arch to the place point,
-    dwell (the gripper opens mid-dwell), arch back to the pick point. The trajectory starts at rest at the
+    One cycle: dwell at the pick point (the gripper closes, mid-dwell or at its end: ``release``), arch to the
+    place point, dwell (the gripper opens), arch back to the pick point. The trajectory starts at rest at the
     place point with the gripper open and arches back to the pick point first (``start="place"``), or starts at
     rest at the pick point (``start="pick"``); it ends at rest at the pick point.
 
@@ -141,6 +172,8 @@ def standard_cycle(
         dwell: Rest at each pick and place point (s), >= 2 dt.
         lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
         start: ``"place"`` or ``"pick"``, where the trajectory starts at rest.
+        release: ``"timed"``: the gripper switches mid-dwell; ``"in_position"``: at the dwell's end (the dwell is
+            then the air activation, a whole number of samples, and every move starts on a sample).
         limits: Region and singularity margins every sample must respect.
         dt: Sample period (s).
         timing: Times every move instead of ``peak_acceleration`` (:mod:`delta_env.timing`); the result is then
@@ -152,7 +185,7 @@ def standard_cycle(
     """
     require_count("n_cycles", n_cycles)
     require_start(start)
-    profile = _Profile(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt)
+    profile = _Profile(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt, release)
     center_xyz = np.asarray(center, dtype=float)
     half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
     pick, place = center_xyz - half_travel, center_xyz + half_travel
@@ -175,6 +208,7 @@ def conveyor_cycles(
     lift_fraction: float = 0.3,
     dwell: float = DEFAULT_DWELL,
     start: Literal["place", "pick"] = "place",
+    release: Literal["in_position", "timed"] = "timed",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
     dt: float = CONTROL_PERIOD,
     timing: MoveTiming | None = None,
@@ -200,8 +234,9 @@ def conveyor_cycles(
         place_zone: Where objects are placed.
         lift_height: Lift above the higher of the two stations of a move (m), >= 0.
         lift_fraction: Share of the move time spent lifting, and again descending, in (0, 0.5].
-        dwell: Rest at each pick and place point (s), >= 2 dt; the gripper switches mid-dwell.
+        dwell: Rest at each pick and place point (s), >= 2 dt.
         start: ``"place"`` or ``"pick"`` (see above).
+        release: Where the gripper switches in a dwell (as in :func:`standard_cycle`).
         limits: Region and singularity margins every sample must respect.
         dt: Sample period (s).
         timing: Times every move instead of ``peak_acceleration``; the result is then a :class:`TimedCycles`
@@ -214,7 +249,7 @@ def conveyor_cycles(
     require_generator(rng)
     require_count("n_cycles", n_cycles)
     require_start(start)
-    profile = _Profile(peak_acceleration, lift_height, lift_fraction, dwell, dt)
+    profile = _Profile(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
     lifted = np.array([0.0, 0.0, lift_height])
     for name, zone in (("pick zone corner", pick_zone), ("place zone corner", place_zone)):
         require_admissible(geometry, zone.corners(), limits, name)
@@ -241,27 +276,31 @@ def _cycles(
     limits: WorkspaceLimits,
     origin: np.ndarray | None = None,
 ) -> Trajectory:
-    """The sampled cycles through ``picks`` and ``places`` (m), gripper events mid-dwell.
+    """The sampled cycles through ``picks`` and ``places`` (m), gripper events mid-dwell or at its end.
 
-    From ``origin`` (m, if given): half a dwell at rest and an empty arch to pick 0. Then, for every k: dwell at
-    pick k, arch to place k, dwell, arch to pick k + 1.
+    From ``origin`` (m, if given): the rest of the dwell in which the previous object was released (half a dwell,
+    none with the in-position release) and an empty arch to pick 0. Then, for every k: dwell at pick k, arch to
+    place k, dwell, arch to pick k + 1.
     """
     _require_stations(geometry, picks, places, origin, profile.lift_height, limits)
-    lift_height, lift_fraction, dwell = profile.lift_height, profile.lift_fraction, profile.dwell
+    lift_height, lift_fraction, switch = profile.lift_height, profile.lift_fraction, profile.switch
     segments: list[Segment] = []
     events: list[tuple[float, float]] = []
     elapsed = 0.0
     if origin is not None:
-        # The second half of the place dwell in which the previous object was released, then the move back.
+        # The rest of the place dwell in which the previous object was released, then the move back.
         approach = Segment(origin, picks[0], 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
-        segments += [Segment.line(origin, origin, 0.5 * dwell), approach]
-        elapsed = 0.5 * dwell + approach.duration
+        rest = (1.0 - switch) * profile.dwell
+        segments += [Segment.line(origin, origin, rest), approach] if rest else [approach]
+        elapsed = rest + approach.duration
     for pick, place, next_pick in zip(picks[:-1], places, picks[1:], strict=True):
         there = Segment(pick, place, 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
         back = Segment(place, next_pick, 1.0, lift_height, lift_fraction).timed(profile.peak_acceleration)
-        segments += [Segment.line(pick, pick, dwell), there, Segment.line(place, place, dwell), back]
-        events.append((elapsed + 0.5 * dwell, elapsed + dwell + there.duration + 0.5 * dwell))
-        elapsed += 2.0 * dwell + there.duration + back.duration
+        pick_dwell = profile.rest(elapsed)
+        place_dwell = profile.rest(elapsed + pick_dwell + there.duration)
+        segments += [Segment.line(pick, pick, pick_dwell), there, Segment.line(place, place, place_dwell), back]
+        events.append((elapsed + switch * pick_dwell, elapsed + pick_dwell + there.duration + switch * place_dwell))
+        elapsed += pick_dwell + there.duration + place_dwell + back.duration
     trajectory = sample_segments(geometry, segments, profile.dt, events)
     require_admissible(geometry, trajectory.xyz, limits, "path point")
     return trajectory
@@ -306,21 +345,23 @@ class TimedPiece:
 class TimedCycles:
     """Pick-and-place cycles whose moves are timed by a :class:`~delta_env.timing.MoveTiming`.
 
-    The same stations, shapes, dwells and gripper events (mid-dwell) as the fixed timing; every piece starts and
-    ends on a sample, so a move's law can be replaced while it runs (:meth:`with_law`) and the reference before
-    the change stays as it was.
+    The same stations, shapes, dwells and gripper events (mid-dwell, or at the dwell's end) as the fixed timing;
+    every piece starts and ends on a sample, so a move's law can be replaced while it runs (:meth:`with_law`) and
+    the reference before the change stays as it was, and a dwell can be held longer (:meth:`held`).
 
     Attributes:
         geometry: Robot geometry.
         dt: Sample period (s).
         pieces: Dwells and moves in order.
         limits: Region and singularity margins every sample must respect.
+        release: ``"timed"`` (the gripper switches on a dwell's middle sample) or ``"in_position"`` (on its last).
     """
 
     geometry: DeltaGeometry
     dt: float
     pieces: tuple[TimedPiece, ...]
     limits: WorkspaceLimits = WORKSPACE_LIMITS
+    release: Literal["in_position", "timed"] = "timed"
 
     @classmethod
     def plan(
@@ -341,10 +382,11 @@ class TimedCycles:
             raise ValueError(f"a timing needs one declared mass per cycle ({n_cycles}), got {got}")
         _require_stations(geometry, picks, places, origin, profile.lift_height, limits)
         dwell_samples = round(profile.dwell / profile.dt)
-        if dwell_samples % 2 or not math.isclose(dwell_samples * profile.dt, profile.dwell, abs_tol=1e-9):
+        halved = profile.release == "timed"  # the gripper switches on the dwell's middle sample
+        if (halved and dwell_samples % 2) or not math.isclose(dwell_samples * profile.dt, profile.dwell, abs_tol=1e-9):
             raise ValueError(
-                f"with a timing the dwell must be an even number of sample periods ({profile.dt} s), "
-                f"got {profile.dwell} s"
+                f"with a timing the dwell must be {'an even' if halved else 'a whole'} number of sample periods "
+                f"({profile.dt} s), got {profile.dwell} s"
             )
 
         def dwell(point: np.ndarray, samples: int) -> TimedPiece:
@@ -357,11 +399,13 @@ class TimedCycles:
 
         pieces: list[TimedPiece] = []
         if origin is not None:
-            pieces += [dwell(origin, dwell_samples // 2), move(origin, picks[0], None)]
+            # the rest of the dwell in which the previous object was released
+            pieces += [dwell(origin, dwell_samples // 2)] if halved else []
+            pieces += [move(origin, picks[0], None)]
         for cycle, (pick, place, next_pick) in enumerate(zip(picks[:-1], places, picks[1:], strict=True)):
             pieces += [dwell(pick, dwell_samples), move(pick, place, cycle)]
             pieces += [dwell(place, dwell_samples), move(place, next_pick, None)]
-        return cls(geometry, profile.dt, tuple(pieces), limits)
+        return cls(geometry, profile.dt, tuple(pieces), limits, profile.release)
 
     def starts(self) -> list[int]:
         """The sample at which each piece starts."""
@@ -379,10 +423,27 @@ class TimedCycles:
                 raise ValueError(f"a retimed law must repeat the {followed} samples already followed ({name} differs)")
         pieces = list(self.pieces)
         pieces[index] = TimedPiece(piece.shape, len(law), law, piece.carry)
-        return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits)
+        return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits, self.release)
+
+    def held(self, sample: int, extra: int) -> tuple[TimedCycles, int]:
+        """The same cycles with the first dwell that ends at or after ``sample`` ``extra`` samples longer, and the
+        sample after which its :meth:`trajectory` has the ``extra`` more samples at the dwell's point: ``sample``
+        itself in that dwell, or the dwell's first when ``sample`` is still in the move's end at rest (a time law may
+        reach its end a few samples early).
+
+        Raises:
+            ValueError: no dwell ends at or after ``sample``.
+        """
+        for index, (start, piece) in enumerate(zip(self.starts(), self.pieces, strict=True)):
+            if piece.law is None and start + piece.samples - 1 >= sample:
+                pieces = list(self.pieces)
+                pieces[index] = TimedPiece(piece.shape, piece.samples + extra)
+                return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits, self.release), max(sample, start)
+        raise ValueError(f"no dwell of the timed cycles ends at or after sample {sample}")
 
     def trajectory(self) -> Trajectory:
-        """The sampled reference: joint references by exact inverse kinematics, gripper events mid-dwell."""
+        """The sampled reference: joint references by exact inverse kinematics, gripper events mid-dwell or on the
+        dwell's last sample."""
         starts = self.starts()
         parts = []
         for piece in self.pieces:
@@ -396,10 +457,16 @@ class TimedCycles:
         )
         require_admissible(self.geometry, xyz, self.limits, "path point")
         theta, theta_dot, theta_ddot = cartesian_to_joint(self.geometry, xyz, xyz_dot, xyz_ddot)
-        # A carry's object is picked in the middle of the dwell before it and released in the middle of the one after.
+        # A carry's object is picked in the dwell before it and released in the one after: in their middle, or on
+        # their last sample (the carry's first, the next move's first).
         carries = [index for index, piece in enumerate(self.pieces) if piece.carry is not None]
-        picks = [starts[i - 1] + (self.pieces[i - 1].samples - 1) // 2 for i in carries]
-        places = [starts[i + 1] + (self.pieces[i + 1].samples - 1) // 2 for i in carries]
+        halved = self.release == "timed"
+
+        def switch(index: int) -> int:
+            return starts[index] + ((self.pieces[index].samples - 1) // 2 if halved else self.pieces[index].samples - 1)
+
+        picks = [switch(i - 1) for i in carries]
+        places = [switch(i + 1) for i in carries]
         gripper = np.zeros(len(xyz), dtype=bool)
         for pick, place in zip(picks, places, strict=True):
             gripper[pick:place] = True

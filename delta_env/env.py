@@ -29,6 +29,7 @@ from delta_env.faults import FaultSpec, InjectedFault, require_fault_specs
 from delta_env.measurement import Sensors, observation_space
 from delta_env.plant import DeltaPlant
 from delta_env.reference import EpisodeReference
+from delta_env.release import InPositionRelease, ReleaseSettings, Settle
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
@@ -88,9 +89,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     Each episode is a sequence of pick-and-place cycles along a C2 reference path (lift 25 mm,
     travel, descend 25 mm, dwell, and back to the next pick point). At each pick point a suction
     gripper (a weld) attaches a new object whose mass is drawn at random; it is released at the
-    place point. The plant is the ``realistic`` MuJoCo model by default: true parallelograms,
-    distributed masses, armature, friction, torque ripple and actuator lag that no analytical model
-    in this project knows. One step is one control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
+    place point. By default (``release="in_position"``) the reference holds at rest at each point until the cell
+    judges the platform in position from its encoders, then the air activation runs (35 ms) and the gripper
+    switches at its end (:mod:`delta_env.release`); ``release="timed"`` switches it mid-way through a 0.1 s dwell.
+    The plant is the ``realistic`` MuJoCo model by default: true parallelograms, distributed masses, armature,
+    friction, torque ripple and actuator lag that no analytical model in this project knows. One step is one
+    control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
 
     ## Action Space
     ``Box(-peak, peak, (3,), float64)``: motor torques (N m), peak 400 N m by default (``plant.drive``), clipped
@@ -127,7 +131,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     ## Info
     Truth for evaluation, never for controllers: ``payload_mass``, ``platform_position``, ``reference_position``,
     ``tracking_error``, ``loop_gap``, ``torque_command``, ``applied_torque``, ``cycle``, ``diverged``,
-    ``torque_saturated``, ``faults``, ``reward_tracking``, ``reward_torque``, ``speed_override``, ``stopped`` and
+    ``torque_saturated``, ``faults``, ``reward_tracking``, ``reward_torque``, ``speed_override``, ``stopped``, the
+    release's ``in_position`` (the cell's signal, from its encoders) and ``settle_timeout``, and
     the drive's limits ``torque_margin``, ``speed_margin``, ``speed_exceeded``, ``thermal_rms``,
     ``thermal_margin``, ``thermal_exceeded`` (units and meanings: docs/design.md section 5).
 
@@ -148,12 +153,18 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``scenario`` | str, path, Scenario, None | None = ``nominal`` | preset name, scenario TOML file or value |
     | ``timing`` | MoveTiming, None | None | times every move instead of ``peak_acceleration`` (``env.timing``) |
     | ``faults`` | sequence of FaultSpec, None | None = the scenario's (none) | faults injected into the episodes |
+    | ``release`` | str, None | ``"in_position"`` | gripper switches once in position, or ``"timed"`` mid-dwell |
+    | ``in_position_window`` | float, None | 5e-5 | in-position window (m), in (0, 0.01] |
+    | ``in_position_time`` | float, None | 0.003 | time the window must hold (s), in [0.001, 10] |
+    | ``air_activation`` | float, None | 0.035 | rest from in position to the gripper's switch (s), whole ms |
+    | ``settle_timeout`` | float, None | 0.065 | longest wait for in position after the arrival (s), in [0, 10] |
 
     The scenario (:mod:`delta_env.scenario`) supplies every argument left at None (the defaults above are the
     ``nominal`` scenario's). :meth:`override_speed` slows or stops the rest of the reference between steps. Each
     episode draws its faults (``env.faults``) from ``np_random`` after everything else; their truth is
     ``env.injected_faults`` (:class:`~delta_env.faults.InjectedFault`) and ``info["faults"]``
-    (:class:`~delta_env.fault_injection.FaultInjector`).
+    (:class:`~delta_env.fault_injection.FaultInjector`). The waits for the in-position signal are ``env.settles``
+    (:class:`~delta_env.release.Settle`).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}  # noqa: RUF012
@@ -175,8 +186,23 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         scenario: str | os.PathLike[str] | Scenario | None = None,
         timing: MoveTiming | None = None,
         faults: Sequence[FaultSpec] | None = None,
+        release: Literal["in_position", "timed"] | None = None,
+        in_position_window: float | None = None,
+        in_position_time: float | None = None,
+        air_activation: float | None = None,
+        settle_timeout: float | None = None,
     ) -> None:
         base = Scenario() if scenario is None else resolve_scenario(scenario)
+        release_arguments = {
+            "release": release,
+            "in_position_window": in_position_window,
+            "in_position_time": in_position_time,
+            "air_activation": air_activation,
+            "settle_timeout": settle_timeout,
+        }
+        self.release = ReleaseSettings(
+            **{name: getattr(base.task, name) if value is None else value for name, value in release_arguments.items()}
+        )
         overrides = {
             "n_cycles": n_cycles,
             "cycle": cycle,
@@ -236,8 +262,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
         self._reference = EpisodeReference(
-            self.plant_config.geometry, self.n_cycles, cycle, start, self.peak_acceleration
+            self.plant_config.geometry, self.n_cycles, cycle, start, self.peak_acceleration, self.release
         )
+        # the cell judges the platform on its own model of the robot, the geometry the reference is planned on
+        self._in_position = InPositionRelease(self.release, self.plant_config.geometry)
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
         self.observation_space = observation_space()
@@ -288,6 +316,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         return self._faults.injected
 
     @property
+    def settles(self) -> list[Settle]:
+        """The waits for the in-position signal of this episode that have ended, in order (cleared at reset)."""
+        return self._in_position.settles
+
+    @property
     def trajectory(self) -> Trajectory | None:
         """The reference followed from now on (1 kHz samples; :class:`~delta_env.reference.EpisodeReference`),
         None before the first reset."""
@@ -305,7 +338,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             options: ``"payload_masses"``: the object masses (kg, each in [0, MAX_PAYLOAD_MASS]), one per pick,
                 replacing the drawn ones without changing any other random draw of the episode.
                 ``"reference"``: a :class:`~delta_env.trajectories.Trajectory` to follow instead of
-                the generated cycles (e.g. an identification excitation without picks).
+                the generated cycles (e.g. an identification excitation without picks), as given: its gripper
+                events come at their samples, never held for the in-position signal.
         """
         super().reset(seed=seed)
         options = options or {}
@@ -335,6 +369,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._carried_mass = 0.0
         self._episode_over = False
         self._drive.reset()
+        self._in_position.reset()
 
         # A fresh mjData state (time, solver warm start, constraint states, applied forces) so that an
         # episode repeats bit for bit whatever ran before it.
@@ -429,8 +464,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         counts, (bad_qacc, bad_qvel, bad_qpos) = self._warning_counts, self._instability_warnings
         unstable = counts.item(bad_qacc) or counts.item(bad_qvel) or counts.item(bad_qpos)
         diverged = bool(unstable) or not loop_gap <= DIVERGENCE_LOOP_GAP
-        truncated = k >= len(trajectory) - 1
-        self._episode_over = diverged or truncated
 
         px, py, pz = platform = plant.platform_point()
         reference_position = trajectory.xyz[k]
@@ -446,6 +479,15 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_tracking = -self._tracking_weight_m2 * squared_error
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
+
+        # The cell's in-position signal, from the encoders only; waiting for it holds the reference at rest.
+        in_position, settle = False, None
+        if not diverged:
+            in_position, settle = self._in_position.step(k, self._sensors.angles, reference)
+            if reference.trajectory is not trajectory:
+                self._sensors.cover(len(reference.trajectory), self.np_random)
+        truncated = k >= len(reference.trajectory) - 1
+        self._episode_over = diverged or truncated
 
         applied = self._actuator_force.copy()
         # the speed after the step, the thermal RMS of the output torque over the last window
@@ -473,6 +515,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "reward_torque": reward_torque,
             "speed_override": reference.speed_override,
             "stopped": truncated and reference.speed_override == 0.0,
+            "in_position": in_position,
+            "settle_timeout": settle is not None and settle.timed_out,
             "faults": self._faults.after_step(k - 1) if faulty else (),
         }
         if self.render_mode == "human" and k % self._render_every == 0:

@@ -14,12 +14,13 @@ attributes ~0 force to them. The oracle therefore (docs/design.md section 4):
    the motor dofs; lambda are the loop forces).
 
 This class returns the torque that must act at the joints. The drive's first-order lag is inverted on top of
-it, exactly at the control instants, by :class:`delta_env.drive.SampledLag` (the bound controller,
-``controllers.feedforward.OracleController``, does both). Coulomb friction enters as fc_i sign(theta_dot_i),
-so at exactly zero rate (sticking, where friction is indeterminate) it is 0. The ripple is a known function of
-the angle and is inverted at the reference angle: off the reference by delta it errs by amplitude * periods *
-delta (0.02 N m for 0.1 mrad). Stribeck and ripple are those of the instantaneous state, whereas the plant
-holds them over a control step.
+it, exactly at the control instants, by :class:`delta_env.drive.SampledLag`, aimed at the torque of the instant
+(:meth:`~delta_env.drive.SampledLag.hold_lead`) that gives the held period's physics steps the wanted mean
+(the bound controller, ``controllers.feedforward.OracleController``, does all three). Coulomb friction enters
+as fc_i sign(theta_dot_i), so at exactly zero rate (sticking, where friction is indeterminate) it is 0. The
+ripple is a known function of the angle and is inverted at the reference angle: off the reference by delta it
+errs by amplitude * periods * delta (0.02 N m for 0.1 mrad). Stribeck and ripple are those of the instantaneous
+state, whereas the plant holds them over a control step.
 
 The payload is a point mass added to the platform's CoM. That is exact for the motor torques wherever the
 payload is carried rigidly by a platform that only translates (a moment on the platform does no virtual

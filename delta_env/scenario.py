@@ -82,6 +82,13 @@ from delta_env.drive import DriveLimits
 from delta_env.faults import FAULT_REACTIONS, FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, read_toml, to_table
+from delta_env.release import (
+    DEFAULT_AIR_ACTIVATION,
+    DEFAULT_IN_POSITION_TIME,
+    DEFAULT_IN_POSITION_WINDOW,
+    DEFAULT_SETTLE_TIMEOUT,
+    ReleaseSettings,
+)
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
 from delta_env.validation import require_count, require_in, require_interval
@@ -128,6 +135,10 @@ def require_timing(timing: str) -> str:
     return timing
 
 
+RELEASE_FIELDS = tuple(item.name for item in dataclasses.fields(ReleaseSettings))
+"""The task's fields that say when the gripper switches (:class:`~delta_env.release.ReleaseSettings`)."""
+
+
 @dataclass(frozen=True)
 class PickPlaceTask:
     """The work of one episode (the task arguments of ``DeltaPickPlaceEnv``).
@@ -152,6 +163,14 @@ class PickPlaceTask:
             (0, 1]: the margin for tracking (:data:`delta_env.timing.DEFAULT_TORQUE_SHARE`).
         faults: Faults injected into the episodes (:class:`~delta_env.faults.FaultSpec`), drawn per episode;
             none by default.
+        release: When the gripper switches at each pick and place point: ``"in_position"`` (the reference holds at
+            rest until the cell judges the platform in position from its encoders, then the air activation runs
+            and the gripper switches at its end) or ``"timed"`` (mid-way through a 0.1 s dwell, the old cell's;
+            the next four fields are then unused). :class:`~delta_env.release.ReleaseSettings` checks them.
+        in_position_window: Distance (m) of the measured platform from the reference within which it is in position.
+        in_position_time: Time (s) the window must hold, in consecutive control samples.
+        air_activation: Rest (s) from the in-position signal to the attach or detach, whole control periods.
+        settle_timeout: Longest wait (s) for the in-position signal after the arrival; the gripper then acts anyway.
         fault_reaction: What the monitored controllers (:mod:`controllers.monitor`) ask of the cell after detecting a
             collision, a slip or a drive fault: ``"continue"``, ``"slow"`` (half the reference's speed) or
             ``"stop"`` (a controlled stop at rest on the path, which ends the episode).
@@ -167,8 +186,14 @@ class PickPlaceTask:
     torque_share: float = DEFAULT_TORQUE_SHARE
     faults: tuple[FaultSpec, ...] = ()
     fault_reaction: Literal["continue", "slow", "stop"] = "continue"
+    release: Literal["in_position", "timed"] = "in_position"
+    in_position_window: float = DEFAULT_IN_POSITION_WINDOW
+    in_position_time: float = DEFAULT_IN_POSITION_TIME
+    air_activation: float = DEFAULT_AIR_ACTIVATION
+    settle_timeout: float = DEFAULT_SETTLE_TIMEOUT
 
     def __post_init__(self) -> None:
+        self.release_settings  # noqa: B018 - checks the release's fields
         if not isinstance(self.faults, tuple) or not all(isinstance(f, FaultSpec) for f in self.faults):
             raise ValueError(f"faults must be a tuple of FaultSpec, got {self.faults!r}")
         require_timing(self.timing)
@@ -185,6 +210,11 @@ class PickPlaceTask:
             raise ValueError(
                 f"domain_randomization must be RandomizationRanges or None, got {type(self.domain_randomization)}"
             )
+
+    @property
+    def release_settings(self) -> ReleaseSettings:
+        """The release's fields as :class:`~delta_env.release.ReleaseSettings` (checked there)."""
+        return ReleaseSettings(**{name: getattr(self, name) for name in RELEASE_FIELDS})
 
 
 @dataclass(frozen=True)
@@ -293,8 +323,9 @@ def _plant_table(plant: PlantConfig) -> dict[str, Any]:
 
 def _task_table(task: PickPlaceTask) -> dict[str, Any]:
     """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
-    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), and without
-    ``faults`` when there are none and ``fault_reaction`` when it is ``"continue"`` (likewise)."""
+    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), without
+    ``faults`` when there are none and ``fault_reaction`` when it is ``"continue"``, and without the release's
+    fields when it is ``"timed"`` (likewise: a timed scenario is the one before the in-position release existed)."""
     table = to_table(task)
     if task.timing == "fixed":
         del table["timing"], table["torque_share"]
@@ -302,6 +333,9 @@ def _task_table(task: PickPlaceTask) -> dict[str, Any]:
         del table["faults"]
     if task.fault_reaction == "continue":
         del table["fault_reaction"]
+    if task.release == "timed":
+        for name in RELEASE_FIELDS:
+            del table[name]
     return table
 
 

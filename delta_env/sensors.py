@@ -53,3 +53,19 @@ one physics step before the encoder sample. The within-period shape of the drive
 the best fit by a fraction of h (to about 0.45 ms with the default 1 ms lag); tested against the
 simulator in ``tests/test_sensors.py``.
 """
+
+
+def rate_window(encoder_bits: int | None, timestep: float) -> float:
+    """The window (s) whose mean rate the observed joint rate is: ``joint_velocities`` of the observation.
+
+    With an encoder it is the backward difference of two readings, the mean over one control period. Without one
+    (exact angles) it is MuJoCo's velocity after the last physics step, and the semi-implicit step moves the
+    angles by exactly timestep times it: the mean over one physics step.
+
+    Args:
+        encoder_bits: The encoder's resolution (bits per revolution), or None for exact angles.
+        timestep: The plant's physics step (s), in (0, CONTROL_PERIOD].
+    """
+    if not (math.isfinite(timestep) and 0.0 < timestep <= CONTROL_PERIOD):
+        raise ValueError(f"timestep must lie in (0, {CONTROL_PERIOD}] s, got {timestep}")
+    return timestep if encoder_bits is None else CONTROL_PERIOD

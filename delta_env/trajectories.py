@@ -34,7 +34,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from delta_env import kinematics
 from delta_env.geometry import GRAVITY, DeltaGeometry
@@ -62,6 +62,34 @@ QUINTIC_PEAK_SPEED = 1.875
 """Largest ds/dtau of the quintic blend, at tau = 1/2."""
 
 _SHAPE_GRID = 4001  # samples of a unit-time move shape; locates its peak |xdd| to ~1e-6 relative
+
+
+REST_SPEED = 1e-9
+"""Reference speed (m/s) at or below which the reference is at rest: the dwells of the sampled references are
+exactly at rest, moves are not on any sample inside them."""
+
+
+def arrivals(
+    reference_velocity: ArrayLike, event_indices: Sequence[int], speed: float = REST_SPEED
+) -> NDArray[np.int64]:
+    """The sample at which the reference arrives at rest for each gripper event: the first sample of the rest run
+    (|xyz_dot| <= ``speed``) that contains the event's index.
+
+    Args:
+        reference_velocity: Reference platform velocity (m/s), ``(M, 3)``.
+        event_indices: Samples where the gripper closes or opens.
+        speed: Rest threshold (m/s).
+
+    Raises:
+        ValueError: if the reference moves at an event's index.
+    """
+    moving = np.flatnonzero(np.linalg.norm(np.asarray(reference_velocity, dtype=float), axis=1) > speed)
+    events = np.asarray(event_indices, dtype=np.int64)
+    if np.isin(events, moving).any():
+        raise ValueError(f"the reference moves at an event index, {events.tolist()}: an event must lie in a dwell")
+    # The last moving sample before each event ends the move into its dwell; none means at rest from sample 0.
+    after_move = np.append(0, moving + 1)
+    return after_move[np.searchsorted(moving, events)].astype(np.int64)
 
 
 def require_peak_acceleration(value: float) -> float:

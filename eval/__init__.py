@@ -7,7 +7,8 @@
 - :func:`record_episode` (:mod:`eval.video`): one episode filmed to MP4 (``python -m eval --video``).
 
 Every experiment runs its episodes with :func:`eval.episodes.run_episode` and writes its run folder with
-:mod:`eval.run_folder`. Importing the package imports none of its modules: the names below load on first use.
+:mod:`eval.run_folder`; every command line reports a usage error or an interruption in one line and shows its progress
+with :mod:`eval.console`. Importing the package imports none of its modules: the names below load on first use.
 """
 
 import importlib
@@ -15,11 +16,14 @@ from typing import Any
 
 _HOMES = {
     "EpisodeRecord": "eval.episodes",
+    "UsageError": "eval.console",
     "calibrate_tares": "eval.calibration",
+    "command_main": "eval.console",
     "create_run_folder": "eval.run_folder",
     "identification_root": "eval.parameter_files",
     "identify_logs": "eval.identification",
     "load_or_identify": "eval.parameter_files",
+    "progress_bar": "eval.console",
     "record_episode": "eval.video",
     "run_episode": "eval.episodes",
     "run_identification": "eval.identification",

@@ -453,10 +453,13 @@ def _pick_rate_section(episode_rows: list[dict[str, Any]]) -> list[str]:
         "## Pick rate",
         "",
         "Mean ± std over the completed episodes. Picks/min and cycle times are the reference's timing: from its "
-        "arrival at rest at the first pick point to its end, at rest at the next pick point. Place error: platform "
-        "to place point as the gripper opens. Path deviation: platform to the nearest segment of the reference "
-        "path. Envelope violations: steps the drive clipped plus steps over the maximum joint speed, summed (episodes "
-        "with any). Torque against the drive's ratings; thermal margin = 1 - max RMS torque / rated torque.",
+        "arrival at rest at the first pick point to its end, at rest at the next pick point, waits for the "
+        "in-position signal included. Place error: platform to place point as the gripper opens. Settle time: from "
+        "the reference's arrival at a pick or place point to the cell's in-position signal, a time-out counting as "
+        "the time waited; time-outs summed (episodes with any); n/a with the timed release. Path deviation: platform "
+        "to the nearest segment of the reference path. Envelope violations: steps the drive clipped plus steps over "
+        "the maximum joint speed, summed (episodes with any). Torque against the drive's ratings; thermal margin = "
+        "1 - max RMS torque / rated torque.",
         "",
         pick_rate_table(episode_rows),
         "",

@@ -76,7 +76,7 @@ def prepare(
     Args:
         scenario: The robot and the work; its faults are left out of the tare's episodes.
         controllers: Controller keys (:func:`controllers.registry.controller_entry`); the tared ones are tared.
-        parameters: A parameter file of this robot (identified there when missing); None: the robot's own, under
+        parameters: An existing parameter file of this robot; None: the robot's own (identified when missing), under
             the runs root (:func:`eval.parameter_files.identification_root` of ``runs_dir``).
         runs_dir: The runs root (:func:`eval.run_folder.runs_root`).
         calibration_episodes: Payload-free episodes per tared controller.

@@ -24,6 +24,7 @@ from controllers.monitor import DetectedFault, MonitoredController, ReportsFault
 from controllers.payload_timing import EstimatingController
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import InjectedFault
+from delta_env.release import Settle
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from eval import metrics
@@ -70,6 +71,8 @@ class EpisodeRecord:
         robot_contacts: Pairs of robot links (or a link and the base) that touched during the episode, each with its
             deepest penetration (m): ``plant.robot_contacts`` at its end, empty unless the plant was built with
             ``PlantConfig.collisions``.
+        settles: The waits for the in-position signal at the pick and place points (``env.settles`` at its end;
+            none with the timed release), in order.
     """
 
     tracking_error: NDArray[np.float64]
@@ -99,6 +102,7 @@ class EpisodeRecord:
     injected_faults: list[InjectedFault] = field(default_factory=list)
     detected_faults: list[DetectedFault] = field(default_factory=list)
     robot_contacts: dict[tuple[str, str], float] = field(default_factory=dict)
+    settles: list[Settle] = field(default_factory=list)
 
     def metrics(self) -> dict[str, Any]:
         """Scalar metrics of the episode (see :mod:`eval.metrics` for the definitions), and its faults'
@@ -115,6 +119,9 @@ class EpisodeRecord:
             self.platform_position, reference.xyz, np.arange(1, steps + 1)
         )
         peak_ratio, rms_ratio = metrics.torque_ratios(self.torque, self.peak_torque, self.rated_torque)
+        settle_mean, settle_max, settle_timeouts = metrics.settle_metrics(
+            [settle.settle_time for settle in self.settles], [settle.timed_out for settle in self.settles]
+        )
         return {
             "tracking_rms_mm": rms,
             "tracking_max_mm": peak,
@@ -134,6 +141,9 @@ class EpisodeRecord:
             "cycle_time_max_s": float(np.max(cycle_times)) if cycle_times.size else math.nan,
             "place_error_mean_mm": float(np.mean(place_errors)) if place_errors.size else math.nan,
             "place_error_max_mm": float(np.max(place_errors)) if place_errors.size else math.nan,
+            "settle_time_mean_ms": settle_mean,
+            "settle_time_max_ms": settle_max,
+            "settle_timeouts": settle_timeouts,
             "path_deviation_rms_mm": deviation_rms,
             "path_deviation_max_mm": deviation_max,
             "envelope_violations": metrics.envelope_violations(self.saturated_steps, self.speed_exceeded_steps),
@@ -238,9 +248,12 @@ def run_episode(
         wrappers.append(privileged)
         privileged = privileged.controller
     inner = next((wrapper for wrapper in wrappers if isinstance(wrapper, MonitoredController)), controller)
-    if isinstance(privileged, Privileged):
+    knows_reference = isinstance(privileged, Privileged)
+    if knows_reference:
         privileged.set_payload_masses(info["payload_masses"])
         privileged.set_physical_parameters(env.plant.parameters)
+        privileged.set_reference(env.trajectory)
+    followed = env.trajectory
     controller.reset()
     plant = env.plant
     estimates_payload = isinstance(controller, EstimatesPayload)
@@ -269,6 +282,9 @@ def run_episode(
             speed = inner.requested_speed  # a monitored controller's reaction to a fault: the cell's override
             env.override_speed(speed)
         observation, _, terminated, truncated, info = env.step(action)
+        if knows_reference and env.trajectory is not followed:  # retimed or overridden: the new reference ahead
+            followed = env.trajectory
+            privileged.set_reference(followed)
         tracking.append(info["tracking_error"])
         loop_gaps.append(info["loop_gap"])
         torque.extend(info["applied_torque"].tolist())
@@ -324,6 +340,7 @@ def run_episode(
         injected_faults=list(env.injected_faults),
         detected_faults=list(inner.detected_faults) if isinstance(inner, ReportsFaults) else [],
         robot_contacts=plant.robot_contacts,
+        settles=list(env.settles),
     )
 
 

@@ -23,6 +23,9 @@ Pick rate, scored like a picker's data sheet (:func:`arrivals`):
 - picks per minute: 60 * (objects of the reference) / work time (1/min);
 - cycle time of object k: arrival at pick k to arrival at pick k + 1, the end of the reference for the last (s);
 - place error: per object, the distance from the platform to the place point when the gripper opens (mm);
+- settle time: per pick and place with the in-position release, from the reference's arrival at rest to the cell's
+  in-position signal (ms), a wait that timed out counting as the time-out (the time it waited); mean and max over
+  the episode's waits, and the count of time-outs (``settle_timeouts``);
 - path deviation: the platform's distance to the reference polyline, nearest segment, RMS and max (mm): a
   time-independent tracking score (lagging along the path but on it scores well);
 - envelope violations: steps on which the drive clipped the command plus steps on which a joint exceeded its
@@ -42,6 +45,8 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from delta_env.trajectories import arrivals
+
 PAYLOAD_BAND = 0.05
 """Relative band (5 %) of the payload settling time."""
 
@@ -59,13 +64,18 @@ max(0.2 kg, 20 % of it)."""
 SETTLING_DEADLINE_MS = 150.0
 """Deadline (ms after each pick) by which estimates of objects >= :data:`MIN_RELATIVE_MASS` should be within +-5 %."""
 
-REST_SPEED = 1e-9
-"""Reference speed (m/s) at or below which the reference is at rest: the dwells of the sampled references are
-exactly at rest, moves are not on any sample inside them."""
-
 PATH_WINDOW = 100
 """Reference segments searched on either side of a sample's own reference sample by :func:`path_deviation`:
 0.1 s at 1 kHz, far more than any controller's lag along the path, and the search stays linear in N."""
+
+
+def settle_metrics(settle_times: Sequence[float], timed_out: Sequence[bool]) -> tuple[float, float, int]:
+    """Mean and max settle time (ms) of an episode's waits for the in-position signal, given in s (NaN, NaN without
+    a wait: the timed release), and how many of them timed out."""
+    times = 1e3 * np.asarray(settle_times, dtype=float)
+    if times.size == 0:
+        return math.nan, math.nan, 0
+    return float(np.mean(times)), float(np.max(times)), int(np.sum(timed_out))
 
 
 def tracking_metrics(tracking_error: ArrayLike) -> tuple[float, float]:
@@ -93,29 +103,6 @@ def mechanical_energy(torque: ArrayLike, joint_velocity: ArrayLike, dt: float) -
     """
     power = np.abs(np.asarray(torque, dtype=float) * np.asarray(joint_velocity, dtype=float))
     return float(np.sum(power) * dt)
-
-
-def arrivals(
-    reference_velocity: ArrayLike, pick_indices: Sequence[int], speed: float = REST_SPEED
-) -> NDArray[np.int64]:
-    """The sample at which the reference arrives at rest at each pick point: the first sample of the rest run
-    (|xyz_dot| <= ``speed``) that contains the pick index.
-
-    Args:
-        reference_velocity: Reference platform velocity (m/s), ``(M, 3)``.
-        pick_indices: Samples where the gripper closes.
-        speed: Rest threshold (m/s).
-
-    Raises:
-        ValueError: if the reference moves at a pick index.
-    """
-    moving = np.flatnonzero(np.linalg.norm(np.asarray(reference_velocity, dtype=float), axis=1) > speed)
-    picks = np.asarray(pick_indices, dtype=np.int64)
-    if np.isin(picks, moving).any():
-        raise ValueError(f"the reference moves at a pick index, {picks.tolist()}: a pick must lie in a dwell")
-    # The last moving sample before each pick ends the move into its dwell; none means at rest from sample 0.
-    after_move = np.append(0, moving + 1)
-    return after_move[np.searchsorted(moving, picks)].astype(np.int64)
 
 
 def cycle_times(reference_velocity: ArrayLike, pick_indices: Sequence[int], dt: float) -> NDArray[np.float64]:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.context import BaseContext
 from multiprocessing.pool import Pool
@@ -25,6 +27,39 @@ WORKER_MODULES = ("eval.worker_start",)
 experiments needs, and numba's compiler context loaded): a fork inherits them instead of importing them again. None
 of them imports torch; a worker that runs a residual policy whose actor is not SAC's plain MLP imports it itself
 (:func:`controllers.residual.load_residual_policy`)."""
+
+
+def ignore_interrupts() -> None:
+    """The initializer of every worker process: Ctrl-C (SIGINT, sent to the whole process group) is the parent's to
+    handle, which stops its workers as it leaves; a worker that raised ``KeyboardInterrupt`` itself would print its
+    own traceback, and a ``multiprocessing.Pool`` would wait for the task it lost."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def holding_interrupts() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) back while workers start, and deliver it on leaving (to the handler in place before): a
+    worker forked while its parent unwinds would find the parent's pipes and semaphores gone and print a traceback.
+    Only in the main thread, where Python runs its signal handlers; elsewhere nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if held:
+            signal.raise_signal(signal.SIGINT)
+
+
+def start_pool(stack: contextlib.ExitStack, workers: int) -> Pool:
+    """A pool of ``workers`` processes (:func:`pool_context`, Ctrl-C left to this process: :func:`ignore_interrupts`)
+    entered on ``stack``, started with Ctrl-C held back (:func:`holding_interrupts`): one that came meanwhile is raised
+    once the pool is on the stack, which terminates it."""
+    with holding_interrupts():
+        return stack.enter_context(pool_context().Pool(workers, ignore_interrupts))
 
 
 def runs_a_pool(argv: Sequence[str]) -> bool:
@@ -80,8 +115,8 @@ def process_pool(workers: int) -> Iterator[Pool | None]:
     if workers == 1:
         yield None
         return
-    with pool_context().Pool(workers) as pool:
-        yield pool
+    with contextlib.ExitStack() as stack:
+        yield start_pool(stack, workers)
 
 
 def parallel_imap(function: Callable[[_Item], _Output], items: Sequence[_Item], pool: Pool | None) -> Iterator[_Output]:
@@ -120,7 +155,7 @@ def parallel_map(
         elif workers == 1 or len(items) <= 1 or pool is not None:
             outputs = map(function, items)
         else:
-            outputs = stack.enter_context(pool_context().Pool(min(workers, len(items)))).imap(function, items)
+            outputs = start_pool(stack, min(workers, len(items))).imap(function, items)
         for output in outputs:
             results.append(output)
             if progress is not None:

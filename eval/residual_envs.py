@@ -21,6 +21,7 @@ from controllers.base import Controller
 from controllers.dynamics import ModelParameters
 from controllers.registry import ControllerSetup
 from controllers.residual import DeltaResidualEnv, PolicyBase, ResidualConfig
+from controllers.setup import SERVOS
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
@@ -81,6 +82,7 @@ def base_setup(
     *,
     base: str = BASE_KEYS[0],
     runs_dir: Path | None = None,
+    servo: str = SERVOS[0],
 ) -> PolicyBase:
     """The base controller's row and what it knows: the identification of the scenario's robot and the base's tare
     (and, unless the scenario randomizes the plant, its empty moves) calibrated on the scenario
@@ -95,6 +97,8 @@ def base_setup(
         drive_lag: Identified drive lag T (s) per joint, with ``parameters``.
         base: Registry key of the base: ``mid_f_rls_lag`` (the feedforward leads the identified drive lag)
             or ``mid_f_rls``.
+        runs_dir: The runs root of the identification.
+        servo: The base's feedback, one of :data:`controllers.setup.SERVOS`.
     """
     if base not in BASE_KEYS:
         raise ValueError(f"base must be one of {BASE_KEYS}, got {base!r}")
@@ -104,7 +108,7 @@ def base_setup(
     if parameters is None:
         from eval.engine import robot_knowledge
 
-        setup = robot_knowledge(scenario, runs_dir=runs_dir)[2]
+        setup = robot_knowledge(scenario, runs_dir=runs_dir, servo=servo)[2]
     else:  # the base uses the MId+F+R set only
         robot = scenario.plant
         setup = ControllerSetup(
@@ -115,6 +119,7 @@ def base_setup(
             geometry=robot.geometry,
             masses=robot.masses,
             fault_reaction=scenario.task.fault_reaction,
+            servo=servo,
         )
     if base == "mid_f_rls_lag" and setup.drive_lag is None:
         raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")

@@ -213,7 +213,7 @@ def create_run_folder(
         if not reuse and folder.is_dir() and any(folder.iterdir()):
             raise UsageError(
                 f"--out {folder}: the folder exists and is not empty; choose a new folder, or pass --force to "
-                "write into it (its files are replaced)"
+                "write into it (files of the same names are replaced)"
             )
         _make_folder(folder, "--out")
         return folder
@@ -242,7 +242,9 @@ def _make_folder(folder: Path, option: str) -> None:
 def add_force_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--force`` (write into an existing, non-empty ``--out``: :func:`create_run_folder`) to ``parser``."""
     parser.add_argument(
-        "--force", action="store_true", help="write into --out even if it exists and holds files (they are replaced)"
+        "--force",
+        action="store_true",
+        help="write into --out even if it exists and holds files (those of the same names are replaced)",
     )
 
 

@@ -1,5 +1,5 @@
-"""``--scenario NAME|FILE``, ``--geometry FILE``, ``--parameters FILE`` and ``--workers N``: the same options on every
-command line, and the range checks of their numeric options (:func:`check_ranges`)."""
+"""``--scenario NAME|FILE``, ``--geometry FILE``, ``--release``, ``--parameters FILE`` and ``--workers N``: the same
+options on every command line, and the range checks of their numeric options (:func:`check_ranges`)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from controllers.setup import SERVOS
+from delta_env.cycles import RELEASES
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import (
     Scenario,
@@ -36,13 +37,20 @@ def add_geometry_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser, default: str = "nominal") -> None:
-    """Add ``--scenario`` (default ``default``) and ``--geometry`` to ``parser``."""
+    """Add ``--scenario`` (default ``default``), ``--geometry`` and ``--release`` to ``parser``."""
     parser.add_argument(
         "--scenario",
         default=default,
         help=f"preset ({', '.join(preset_names())}) or scenario TOML file (default {default})",
     )
     add_geometry_argument(parser)
+    parser.add_argument(
+        "--release",
+        choices=RELEASES,
+        default=None,
+        help="when the gripper switches (default: the scenario's, in_position): once the cell judges the platform "
+        "in position, then after the air activation; or timed, mid-way through a 0.1 s dwell (the paper's cell)",
+    )
 
 
 def existing_parameter_file(text: str) -> Path:
@@ -122,14 +130,16 @@ def on_geometry(scenario: Scenario, path: str | os.PathLike[str]) -> Scenario:
 
 
 def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Scenario:
-    """The scenario of ``--scenario`` on the robot of ``--geometry`` (:func:`on_geometry`); a bad value is a
-    parser error."""
+    """The scenario of ``--scenario`` on the robot of ``--geometry`` (:func:`on_geometry`), released as
+    ``--release`` says; a bad value is a parser error."""
     try:
         scenario = resolve_scenario(args.scenario)
         if args.geometry is not None:
             scenario = on_geometry(scenario, args.geometry)
     except ValueError as error:
         parser.error(f"--scenario/--geometry: {error}")
+    if getattr(args, "release", None) is not None:
+        scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, release=args.release))
     return scenario
 
 

@@ -57,13 +57,17 @@ def controller_table(episode_rows: list[dict[str, Any]], carry_rows: list[dict[s
 
 def pick_rate_table(episode_rows: list[dict[str, Any]]) -> str:
     """One row per controller, scored like a picker's data sheet: mean ± std over its completed episodes of the
-    pick rate, the cycle time, the worst place error, the path deviation and the drive's use, and the envelope
-    violations summed (:mod:`eval.metrics`)."""
+    pick rate, the cycle time, the mean and worst place error, the mean and worst settle time, the path deviation
+    and the drive's use, and the settle time-outs and envelope violations summed (:mod:`eval.metrics`)."""
     header = [
         "Controller",
         "Picks/min",
         "Cycle time, mean (s)",
+        "Place error, mean (mm)",
         "Place error, max (mm)",
+        "Settle time, mean (ms)",
+        "Settle time, max (ms)",
+        "Settle time-outs (episodes)",
         "Path deviation RMS (mm)",
         "Envelope violations (episodes)",
         "Peak torque / peak rating",
@@ -77,12 +81,17 @@ def pick_rate_table(episode_rows: list[dict[str, Any]]) -> str:
             return metrics.format_mean_std([row[name] for row in rows_], digits)
 
         violations = [int(row["envelope_violations"]) for row in kept]
+        timeouts = [int(row["settle_timeouts"]) for row in kept]
         rows.append(
             [
                 label,
                 column("picks_per_min", 1),
                 column("cycle_time_mean_s", 3),
+                column("place_error_mean_mm", 2),
                 column("place_error_max_mm", 2),
+                column("settle_time_mean_ms", 1),
+                column("settle_time_max_ms", 1),
+                f"{sum(timeouts)} ({sum(n > 0 for n in timeouts)}/{len(kept)})",
                 column("path_deviation_rms_mm", 3),
                 f"{sum(violations)} ({sum(n > 0 for n in violations)}/{len(kept)})",
                 column("peak_torque_ratio", 2),

@@ -82,8 +82,15 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
                 controller = MonitoredController(estimating, controller.monitor, controller.reaction)
             else:
                 controller = EstimatingController(controller, estimator)
+    # the thermal budget rests the task's planned dwell after each move: with the in-position release, the air
+    # activation (the waits only add rest)
     env.timing = PayloadTiming(
-        planner, env.task_timing, env.payload_mass_range[1], estimator, torque_share=env.torque_share
+        planner,
+        env.task_timing,
+        env.payload_mass_range[1],
+        estimator,
+        dwell=env.release.dwell,
+        torque_share=env.torque_share,
     )
     return controller
 

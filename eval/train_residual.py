@@ -97,7 +97,7 @@ from eval.run_folder import (
     run_folder,
     write_json,
 )
-from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
+from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
 
 CHECKPOINT_PREFIX = "residual"
@@ -326,12 +326,12 @@ def _train(
     base: PolicyBase | None,
     callbacks: Sequence[BaseCallback],
 ) -> str:
-    """The training of :func:`train` into ``run``'s folder; returns its summary (:func:`training_summary`)."""
+    """The training of :func:`train` into ``run``'s folder; returns its summary: what was trained, and the scores."""
     out = run.folder
     config = residual_config(args)
     env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
     if base is None and base_factory is None:
-        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir)
+        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir, servo=args.servo)
     hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
 
     command = run.manifest["command"]
@@ -452,7 +452,7 @@ def _train(
     policies = "final_policy.zip" + (" and best_policy.zip" if best.is_file() else "")
     lines = [
         f"Trained {args.algo.upper()} on {args.scenario.name} for {model.num_timesteps:,} steps in "
-        f"{wall_time / 60:.1f} min: {policies}."
+        f"{f'{wall_time:.0f} s' if wall_time < 120 else f'{wall_time / 60:.1f} min'}: {policies}."
     ]
     if args.score and base is None:
         lines.append(
@@ -528,6 +528,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--base", choices=BASE_KEYS, default=BASE_KEYS[0], help="base controller (eval key; default: %(default)s)"
     )
+    add_servo_argument(parser)
     parser.add_argument(
         "--cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )
@@ -566,7 +567,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-score", dest="score", action="store_false", help="skip the final test scores")
     parser.add_argument("--verbose", action="store_true", help="print SB3 logs to stdout")
     parser.add_argument(
-        "--score-only", type=Path, default=None, help="no training: score this policy zip on the test seeds"
+        "--score-only",
+        type=Path,
+        default=None,
+        metavar="POLICY",
+        help="no training: score this policy zip on the test seeds",
     )
     args = parser.parse_args(argv)
     counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}

@@ -90,6 +90,7 @@ def main() -> None:
     for controller in controllers.values():
         if isinstance(controller, Privileged):
             controller.set_payload_masses(masses["payload_masses"])  # the oracle bound's truth
+            controller.set_reference(env.trajectory)  # the reference the observations replay
         controller.reset()
         # One-off costs (loading compiled code) are not per-step costs: past the payload estimator's first
         # equation, which waits for the joint smoother's lag.

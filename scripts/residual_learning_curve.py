@@ -320,7 +320,9 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
     env_kwargs = {"n_cycles": train_arguments.cycles, "scenario": train_arguments.scenario}
     key = (train_arguments.scenario.name, train_arguments.base, train_arguments.cycles)
     if key not in shared:
-        base = base_setup(env_kwargs, base=train_arguments.base, runs_dir=train_arguments.runs_dir)
+        base = base_setup(
+            env_kwargs, base=train_arguments.base, runs_dir=train_arguments.runs_dir, servo=train_arguments.servo
+        )
         shared[key] = (base, validation_scores(None, base, ResidualConfig(), env_kwargs))
     base, base_scores = shared[key]
     curve = ValidationCurve(

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from eval import compare
-from eval.run_folder import write_csv
+from eval.run_folder import read_csv_rows, write_csv
 
 
 def _run(folder: Path, tool: str, status: str = "finished") -> Path:
@@ -129,3 +129,22 @@ def test_runs_without_controller_rows_and_bad_arguments_are_refused(two_runs, tm
     assert "unknown speed" in line and "tracking_rms_mm" in line
     line = _refused([*map(str, two_runs), "--metrics", "energy_j"], capsys)  # not in these folders
     assert "energy_j not in every run folder" in line
+
+
+def test_two_real_runs_of_python_m_eval(parameter_file: Path, tmp_path: Path, capsys) -> None:
+    from eval.__main__ import main as eval_main
+
+    argv = ["--controllers", "pd", "--episodes", "1", "--cycles", "1", "--workers", "1"]
+    argv += ["--parameters", str(parameter_file), "--runs-dir", str(tmp_path / "runs")]
+    for seed, name in ((0, "first"), (1, "second")):
+        assert eval_main([*argv, "--seed", str(seed), "--out", str(tmp_path / name)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "comparison.csv"
+    assert compare.main([str(tmp_path / "first"), str(tmp_path / "second"), "--out", str(out)]) == 0
+    with out.open(newline="") as file:
+        rows = {row["metric"]: row for row in csv.DictReader(file) if row["row"] == "PD"}
+    episodes = [read_csv_rows(tmp_path / name / "episodes.csv")[0] for name in ("first", "second")]
+    for metric in ("tracking_rms_mm", "torque_rms_nm", "energy_j", "picks_per_min"):
+        first, second = (float(episode[metric]) for episode in episodes)
+        assert float(rows[metric]["difference_2"]) == pytest.approx(second - first)
+    assert "| PD |" in capsys.readouterr().out

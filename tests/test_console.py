@@ -6,6 +6,11 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +21,7 @@ from delta_env.scenario import preset, with_geometry
 from eval import __main__ as eval_cli
 from eval import identification, identify, parameter_files
 from eval.console import UsageError, command_main, plural, progress_bar
+from eval.processes import holding_interrupts, parallel_map
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated
 from tests.conftest import NOMINAL_SETUP
 from tests.test_robot_identity import DESIGN
@@ -261,3 +267,45 @@ def test_train_residual_help_shows_its_options_first_each_with_help(capsys) -> N
         start = printed.index(f"  {option}", printed.index("options:"))
         entry = printed[start : printed.index("\n  -", start + 1)]
         assert len(entry.split()) > 4, entry  # the option, its value and a sentence of help
+
+
+def interrupts_ignored(_: int) -> bool:
+    """Whether this process ignores Ctrl-C (run in a pool's worker)."""
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
+def test_workers_leave_ctrl_c_to_the_command_line_which_holds_it_while_they_start() -> None:
+    assert parallel_map(interrupts_ignored, [0, 1], workers=2) == [True, True]
+    assert not interrupts_ignored(0)
+    reached = False
+    with pytest.raises(KeyboardInterrupt), holding_interrupts():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # held: not raised here
+        reached = True
+    assert reached
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_a_running_comparison_with_workers_prints_one_line(parameter_file, tmp_path) -> None:
+    """SIGINT to the whole process group (what Ctrl-C in a terminal sends), the workers of the pool included."""
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "eval", "--episodes", "4", "--controllers", "pd,mid_f_rls", "--workers", "2"]
+    command += ["--parameters", str(parameter_file), "--out", str(out), "--runs-dir", str(tmp_path / "runs")]
+    environment = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    process = subprocess.Popen(
+        command, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, start_new_session=True, env=environment
+    )
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out / MANIFEST).exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(3.0)  # the tare episodes under way in the workers
+        os.killpg(process.pid, signal.SIGINT)
+        _, errors = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130, errors
+    assert "Traceback" not in errors and "KeyboardInterrupt" not in errors, errors
+    assert errors.strip().splitlines()[-1] == f"python -m eval: interrupted (run folder {out}, marked interrupted)"
+    assert json.loads((out / MANIFEST).read_text())["status"] == "interrupted"

@@ -255,7 +255,7 @@ def test_a_pick_must_lie_at_rest() -> None:
     velocity[4:7, 0] = 0.1
     np.testing.assert_array_equal(metrics.arrivals(velocity, [2, 8]), [0, 7])
     assert math.isnan(metrics.picks_per_min(velocity, [], 1e-3)) and metrics.cycle_times(velocity, [], 1e-3).size == 0
-    with pytest.raises(ValueError, match="moves at a pick"):
+    with pytest.raises(ValueError, match="moves at an event"):
         metrics.arrivals(velocity, [5])
 
 

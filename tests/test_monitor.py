@@ -25,7 +25,9 @@ def _monitored_rls(setup: ControllerSetup) -> MonitoredController:
 
 
 def _run(faults: list[FaultSpec], controller: MonitoredController, seed: int = 3, **env_kwargs: object):
-    env = DeltaPickPlaceEnv(faults=faults, n_cycles=2, **env_kwargs)
+    # timed release: a clean and a faulty episode then share their timing sample for sample (the waits for the
+    # in-position signal would follow each episode's own errors)
+    env = DeltaPickPlaceEnv(faults=faults, n_cycles=2, release="timed", **env_kwargs)
     return run_episode(env, controller, seed), env
 
 
@@ -260,7 +262,7 @@ def test_the_scalar_fast_paths_pass_exactly_what_the_full_checks_pass(
 ) -> None:
     # Fault spells and the rests at the picks and places (where quantized readings repeat rightly): the monitor with
     # its fast paths and one without must agree on every number.
-    env = DeltaPickPlaceEnv(faults=list(faults), n_cycles=1)
+    env = DeltaPickPlaceEnv(faults=list(faults), n_cycles=1, release="timed")  # the faults' times were set on it
     controller = _monitored_rls(controller_setup)
     observation, _ = env.reset(seed=3)
     controller.reset()

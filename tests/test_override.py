@@ -179,7 +179,8 @@ def controller(controller_setup):
 
 @pytest.fixture(scope="module")
 def nominal_run(env, controller):
-    return run(env, controller, None, None)
+    """Observations, infos and the reference followed (its holds for the in-position signal included)."""
+    return (*run(env, controller, None, None), env.trajectory)
 
 
 def picks_and_places(observations) -> tuple[int, int]:
@@ -188,7 +189,7 @@ def picks_and_places(observations) -> tuple[int, int]:
 
 
 def test_env_reports_no_override_normally(nominal_run) -> None:
-    _, infos = nominal_run
+    _, infos, _ = nominal_run
     assert all(info["speed_override"] == 1.0 and not info["stopped"] for info in infos)
 
 
@@ -208,9 +209,8 @@ def test_env_stop_mid_carry_ends_at_rest(env, controller, nominal_run) -> None:
     assert last["payload_mass"] == env.payload_masses[0] > 0.0
 
 
-def test_env_stop_after_a_release_never_picks_again(env, controller) -> None:
-    env.reset(seed=3)
-    k = int(env.trajectory.place_indices[0]) - 20
+def test_env_stop_after_a_release_never_picks_again(env, controller, nominal_run) -> None:
+    k = int(nominal_run[2].place_indices[0]) - 20  # in the air activation, after the wait for the in-position signal
     observations, infos = run(env, controller, 0.0, k)
     assert infos[-1]["stopped"]
     assert picks_and_places(observations) == (1, 1)

@@ -175,8 +175,9 @@ def test_rate_cli_writes_the_data_sheet(parameter_file: Path, tmp_path: Path, ca
     }
     rate = {(row["planner"], row["controller"], row["payload"]): float(row["picks_per_min"]) for row in rows}
     model, pd = "MId+F+R+RLS+lag+PD", "PD"
-    # PD is scored on the model's references: the same rates
-    assert all(rate[(p, pd, load)] == rate[(p, model, load)] for p, _, load in rate)
+    # PD is scored on the model's references, and the waits for the in-position signal count: PD, whose gravity sag
+    # never settles into the window, times out at every pick and place, the model row at most as often
+    assert all(rate[(p, pd, load)] <= rate[(p, model, load)] for p, _, load in rate)
     # time-optimal beats the fixed 3 g timing; with objects of one mass every carry is timed for it, while on the
     # mixed stream (seed 0: 2.5 and 1.1 kg) the online estimate buys speed over timing for the 4 kg maximum
     assert rate[("worst_case", model, "1")] > 1.15 * rate[("fixed", model, "1")]

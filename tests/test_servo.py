@@ -86,6 +86,7 @@ def observation(error: float, rate_error: float = 0.0, reference_rate: float = 0
         "reference_angles": np.full(3, error),
         "joint_angles": np.zeros(3),
         "reference_velocities": np.full(3, reference_rate),
+        "reference_accelerations": np.zeros(3),
         "joint_velocities": np.full(3, reference_rate - rate_error),
     }
 
@@ -156,3 +157,31 @@ def test_a_step_against_static_friction_settles_inside_the_window() -> None:
     settled = np.nonzero(errors["servo"] > 0.05e-3)[0][-1] + 1
     assert settled < 60, f"settled after {settled} ms"
     assert errors["servo"][-100:].max() < 0.03e-3
+
+
+def test_no_feedback_on_the_reference_itself_when_rates_are_measured_alike() -> None:
+    """A joint exactly on a quintic reference, its rate the encoder's backward difference: the servo pushes nothing.
+    With the instantaneous reference rate it would push kd period thdd / 2 (5.5 N m at kd 76 and 144 rad/s^2)."""
+    gains = ServoGains(kp=(4600.0,) * 3, ki=(9e4,) * 3, kd=(76.0,) * 3, coulomb=(4.0,) * 3)
+    servo = JointServo(gains)
+    t = np.arange(0.0, 0.2, 0.001)
+    s = t / 0.2
+    angle = 10 * s**3 - 15 * s**4 + 6 * s**5  # 1 rad in 0.2 s
+    rate = (30 * s**2 - 60 * s**3 + 30 * s**4) / 0.2
+    acceleration = (60 * s - 180 * s**2 + 120 * s**3) / 0.2**2
+    torques = []
+    for k in range(1, len(t) - 1):
+        torques.append(
+            servo.feedback(
+                {
+                    "reference_angles": np.full(3, angle[k]),
+                    "joint_angles": np.full(3, angle[k]),
+                    "reference_velocities": np.full(3, rate[k]),
+                    "reference_accelerations": np.full(3, acceleration[k]),
+                    "joint_velocities": np.full(3, (angle[k] - angle[k - 1]) / 0.001),
+                }
+            )
+        )
+    assert np.abs(acceleration).max() > 140.0
+    # What is left is the third-order term of the backward difference, against 5.5 N m unlike.
+    assert np.abs(torques[1:]).max() < 0.05

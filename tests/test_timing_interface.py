@@ -103,24 +103,31 @@ def test_a_timing_draws_nothing_from_the_episode_generator() -> None:
     np.testing.assert_array_equal(planned.xyz[planned.pick_indices], fixed.xyz[fixed.pick_indices])
 
 
-def test_the_env_follows_a_timing_and_an_online_retime_keeps_the_past() -> None:
+@pytest.mark.parametrize("release", ["timed", "in_position"])
+def test_the_env_follows_a_timing_and_an_online_retime_keeps_the_past(release: str) -> None:
     masses = [4.0, 4.0]
-    env = DeltaPickPlaceEnv(n_cycles=2, timing=QuinticTiming(retime_at=50))
+    env = DeltaPickPlaceEnv(n_cycles=2, timing=QuinticTiming(retime_at=50), release=release)
     env.reset(seed=1, options={"payload_masses": masses})
     before = env.trajectory
     seen = []
-    for _ in range(len(before) - 1):
+    while True:
         observation, _, terminated, truncated, _ = env.step(np.zeros(3))
         seen.append(observation["reference_angles"])
         if terminated or truncated:
             break
     after = env.trajectory
     assert env.timing.retimed == [50, 50]
-    # each 0.6 s carry was cut to 50 ms + 0.2 s: 2 x 0.35 s shorter
-    assert math.isclose((len(before) - len(after)) * DT, 0.7, abs_tol=1e-9)
+    # each 0.6 s carry was cut to 50 ms + 0.2 s: 2 x 0.35 s shorter; an unpowered robot never gets in position, so
+    # with the in-position release each of the 4 events waited its time-out
+    waits = sum(settle.settle_time for settle in env.settles)
+    assert math.isclose(waits, 0.0 if release == "timed" else 4 * env.release.settle_timeout, abs_tol=1e-9)
+    assert math.isclose((len(before) - len(after)) * DT + waits, 0.7, abs_tol=1e-9)
     np.testing.assert_array_equal(np.array(seen), after.theta[1 : len(seen) + 1])
-    first_carry = before.pick_indices[0] + 50 + 50  # pick mid-dwell, dwell's second half, 50 samples into the move
-    np.testing.assert_array_equal(after.theta[: first_carry + 1], before.theta[: first_carry + 1])
+    # the timed pieces, holds and retimes included, give the reference followed, whose past never changed
+    np.testing.assert_array_equal(env._reference._timed.trajectory().theta, after.theta)
+    if release == "timed":  # and without holds, the past before the retime is the plan's
+        first_carry = before.pick_indices[0] + 50 + 50  # pick mid-dwell, dwell's second half, 50 samples into the move
+        np.testing.assert_array_equal(after.theta[: first_carry + 1], before.theta[: first_carry + 1])
 
 
 def test_a_scenario_with_a_planned_timing_needs_a_timing_object() -> None:

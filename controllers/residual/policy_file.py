@@ -147,9 +147,11 @@ class PolicyBase:
         """
         if "setup" not in values:
             return _legacy_base(values)
-        setup = ControllerSetup.from_table(values["setup"], "base.setup")
-        # The record as written (a field added since then takes its default, which the file's hash does not cover).
-        written, recorded = content_hash(values["setup"]), values.get("setup_hash")
+        table = values["setup"]
+        # The record as written: its hash covers the fields of its day. A base written before the servo layer ran the
+        # paper's PD; other fields added since take their defaults.
+        written, recorded = content_hash(table), values.get("setup_hash")
+        setup = ControllerSetup.from_table({"servo": "pd", **table}, "base.setup")
         if written != recorded:
             raise ValueError(
                 f"base.setup hashes to {written}, not to the recorded setup_hash {recorded!r}: the record was "
@@ -187,6 +189,7 @@ def _legacy_base(values: dict[str, Any]) -> PolicyBase:
         if values.get(name) is not None:
             table[name] = values[name]
     table["tares"] = {key: values["tare"]}
+    table["servo"] = "pd"  # these files predate the servo layer
     return PolicyBase(key, ControllerSetup.from_table(table, "base"))
 
 

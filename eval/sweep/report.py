@@ -118,9 +118,8 @@ def plot(summary: Sequence[dict[str, Any]], path: Path) -> Path:
     scenarios = list(dict.fromkeys(entry["scenario"] for entry in summary))
     labels = list(dict.fromkeys(entry["label"] for entry in summary))
     width = 0.8 / len(labels)
-    figure, axes = plt.subplots(
-        1, len(PLOTTED_METRICS), figsize=(2 + (2.5 + 0.35 * len(labels)) * len(scenarios) * 1.2, 5), squeeze=False
-    )
+    figure_width = min(2 + 1.2 * len(scenarios) * (2.5 + 0.35 * len(labels)), 20.0)  # inches: room for every bar
+    figure, axes = plt.subplots(1, len(PLOTTED_METRICS), figsize=(figure_width, 5), squeeze=False)
     for axis, name in zip(axes[0], PLOTTED_METRICS, strict=True):
         means = np.array([entry[f"{name}_mean"] for entry in summary], dtype=float)
         shown = means[np.isfinite(means) & (means > 0.0)]

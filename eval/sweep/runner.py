@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from controllers.registry import controller_label, controller_packages
-from eval.processes import pool_context
+from eval.processes import holding_interrupts, ignore_interrupts, pool_context
 from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
 
 IDENTITY_FIELDS = (
@@ -193,22 +193,33 @@ def run_local(
     attempts = dict.fromkeys(range(len(units)), 0)
     index = {id(unit): n for n, unit in enumerate(units)}
     while queue:
-        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=pool_context()) as pool:
+        with concurrent.futures.ProcessPoolExecutor(
+            workers, mp_context=pool_context(), initializer=ignore_interrupts
+        ) as pool:
             running: dict[concurrent.futures.Future, WorkUnit] = {}
             broken = False
-            while (queue or running) and not broken:
-                while queue and len(running) < workers:
-                    unit = queue.pop()
-                    attempts[index[id(unit)]] += 1
-                    running[pool.submit(work, unit, setups[unit.scenario.content_hash])] = unit
-                done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
-                for future in done:
-                    unit = running.pop(future)
-                    try:
-                        on_result(unit, future.result())
-                    except BrokenProcessPool:
-                        broken = True
-                        _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, lost)
+            try:
+                while (queue or running) and not broken:
+                    with holding_interrupts():  # a submit may start a worker
+                        while queue and len(running) < workers:
+                            unit = queue.pop()
+                            attempts[index[id(unit)]] += 1
+                            running[pool.submit(work, unit, setups[unit.scenario.content_hash])] = unit
+                    done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+                    for future in done:
+                        unit = running.pop(future)
+                        try:
+                            on_result(unit, future.result())
+                        except BrokenProcessPool:
+                            broken = True
+                            _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, lost)
+            except BaseException:
+                # Ctrl-C, SIGTERM or an error: stop the episodes under way, which the executor would wait for
+                # (it has no public way to stop its workers before Python 3.14's terminate_workers).
+                for process in list(pool._processes.values()):
+                    process.terminate()
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
             if broken:  # the other units in flight died with the pool
                 for future, unit in running.items():
                     if future.done() and not future.exception():
