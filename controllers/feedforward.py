@@ -24,14 +24,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import JointFeedback, Observation, PDController
-from controllers.drive import MeasuredReferenceRate, ReferencePredictor
+from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, ServoGains, joint_inertia, servo_gains
 from delta_env.config import PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.oracle import InverseDynamicsOracle
-from delta_env.sensors import CONTROL_PERIOD, rate_window
+from delta_env.sensors import CONTROL_PERIOD, encoder_resolution, rate_window
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_in
 
@@ -133,32 +134,60 @@ class OracleController:
     reference's instantaneous rate would leave Kd window/2 times the acceleration (2.5 N m at 20 g through the
     encoders) pushing the arm off it.
 
+    With ``servo="servo"`` the feedback is the servo layer (:mod:`controllers.servo`) on the plant's truth: gains
+    placed on its exact inertia and true lag, its true Coulomb friction pushed at rest, so that the bound holds the
+    place as well as the rows that run the servo layer.
+
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
-        pd: The feedback part; None: :func:`oracle_gains` of the plant's lag, updated with
-            :meth:`set_physical_parameters`.
+        servo: The feedback: ``"pd"``, a PD with :func:`oracle_gains` of the plant's lag, or ``"servo"``, the servo
+            layer on the plant's truth; both follow :meth:`set_physical_parameters`.
+        gains: Fixed feedback gains instead (:class:`~controllers.servo.ServoGains`), or None.
         period: Control period (s).
     """
 
     name = "Oracle+PD (bound)"
 
-    def __init__(self, plant: PlantConfig, *, pd: PDController | None = None, period: float = CONTROL_PERIOD) -> None:
+    def __init__(
+        self,
+        plant: PlantConfig,
+        *,
+        servo: Literal["pd", "servo"] = "pd",
+        gains: ServoGains | None = None,
+        period: float = CONTROL_PERIOD,
+    ) -> None:
+        if servo not in ("pd", "servo"):
+            raise ValueError(f"servo must be 'pd' or 'servo', got {servo!r}")
         self.oracle = InverseDynamicsOracle(plant)
-        self._gains_follow_lag = pd is None
-        self.pd = PDController(*oracle_gains(plant.realism.actuator_lag)) if pd is None else pd
+        self._servo_kind = servo
+        self._fixed_gains = gains
         self._timestep = plant.timestep
+        self._encoder_bits = plant.realism.encoder_bits
         self._reference_ahead: Trajectory | None = None
         self._set_drive(plant.realism.actuator_lag, period)
-        self.reference_rate = MeasuredReferenceRate(rate_window(plant.realism.encoder_bits, plant.timestep), period)
         self.payload_masses: tuple[float, ...] = ()
         self._picks = 0
         self._holding = False
 
     def _set_drive(self, lag: float, period: float) -> None:
-        """The sampled lag of the drive and the predictor of the reference at its hold lead."""
+        """The sampled lag of the drive, the predictor of the reference at its hold lead and the feedback."""
         self.drive = SampledLag(lag, period)
         self.reference = ReferencePredictor(period, horizon=self.drive.hold_lead(self._timestep))
         self.reference.follow(self._reference_ahead)
+        window = rate_window(self._encoder_bits, self._timestep)
+        self.servo = JointServo(self._feedback_gains(lag, period), period, rate_window=window)
+
+    def _feedback_gains(self, lag: float, period: float) -> ServoGains:
+        """The feedback's gains on a plant with lag ``lag`` (s): fixed, the PD of :func:`oracle_gains` (no integral
+        and no push at rest), or the servo layer on the plant's truth."""
+        if self._fixed_gains is not None:
+            return self._fixed_gains
+        if self._servo_kind == "pd":
+            kp, kd = oracle_gains(lag)
+            return ServoGains(kp=(kp,) * 3, ki=(0.0,) * 3, kd=(kd,) * 3)
+        step = DEFAULT_FRICTION_WIDTH if self._encoder_bits is None else encoder_resolution(self._encoder_bits)
+        inertia = joint_inertia(self.oracle.torques)
+        return servo_gains(inertia, self.oracle.coulomb, lag, period=period, friction_width=step)
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:
         """The true masses (kg) of the objects of the next episode, in pick order (the truth)."""
@@ -168,8 +197,6 @@ class OracleController:
         """The plant's true (e.g. randomized) masses, friction and lag, from ``env.plant.parameters``."""
         self.oracle.set_physical_parameters(parameters)
         self._set_drive(parameters.actuator_lag, self.drive.period)
-        if self._gains_follow_lag:
-            self.pd = PDController(*oracle_gains(parameters.actuator_lag))
 
     def set_reference(self, trajectory: Trajectory | None) -> None:
         """The reference ahead (``env.trajectory``, the truth): the feedforward is taken from its samples
@@ -183,10 +210,9 @@ class OracleController:
         return self.payload_masses[self._picks - 1] if self._holding else 0.0
 
     def reset(self) -> None:
-        self.pd.reset()
+        self.servo.reset()
         self.drive.reset()  # the plant's reset zeroes the drive's state
         self.reference.reset()
-        self.reference_rate.reset()
         self._picks = 0
         self._holding = False
 
@@ -201,9 +227,7 @@ class OracleController:
                 )
         self._holding = holding
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
-        # the PD compares the measured rate with the reference's rate measured alike
-        feedback = self.pd.feedback({**observation, "reference_velocities": self.reference_rate(observation)})
-        return self.drive.command(torque_next) + feedback
+        return self.drive.command(torque_next) + self.servo.feedback(observation)
 
 
 class LagCompensatedController:

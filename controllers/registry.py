@@ -133,7 +133,7 @@ def _residual(setup: ControllerSetup) -> Controller:
 
 
 def _oracle(setup: ControllerSetup, plant: PlantConfig) -> Controller:
-    return OracleController(plant)  # its own feedback gains (see OracleController)
+    return OracleController(plant, servo=setup.servo)  # its feedback on the plant's truth (see OracleController)
 
 
 CONTROLLER_LABELS = {

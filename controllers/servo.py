@@ -19,6 +19,7 @@ the direction of the error, saturating at ``friction_width`` (one encoder step),
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,9 +27,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.drive import MeasuredReferenceRate
-from controllers.dynamics import DeltaDynamics
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
 from delta_env.validation import require_in, require_joint_vector
+
+HOME = (0.0, 0.0, 0.0)
+"""The pose (rad) of the gains' inertia: home, arms horizontal."""
 
 DEFAULT_PHASE_MARGIN = math.radians(35.0)
 """Phase margin (rad) the servo's bandwidth keeps through the loop's delay: the best of 35, 40 and 50 degrees on the
@@ -107,46 +110,55 @@ def servo_bandwidth(delay: float, margin: float = DEFAULT_PHASE_MARGIN) -> float
     return low
 
 
-def joint_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:
-    """The diagonal of the model's joint-space inertia (kg m^2), (3,), at rest at ``theta`` (rad) with ``payload`` (kg):
-    tau(thdd = e_i) - tau(thdd = 0), column by column."""
+def joint_inertia(
+    inverse_dynamics: Callable[..., NDArray[np.float64]], theta: ArrayLike = HOME, payload: float = 0.0
+) -> NDArray[np.float64]:
+    """The diagonal of a model's joint-space inertia (kg m^2), (3,), at rest at ``theta`` (rad) with ``payload`` (kg):
+    tau(thdd = e_i) - tau(thdd = 0), column by column.
+
+    Args:
+        inverse_dynamics: ``inverse_dynamics(theta, theta_dot, theta_ddot, payload)`` -> joint torques (N m), (3,):
+            :meth:`controllers.dynamics.DeltaDynamics.inverse_dynamics` or the plant's exact
+            :meth:`delta_env.oracle.InverseDynamicsOracle.torques`.
+        theta: The pose (rad); home (arms horizontal) by default.
+        payload: Payload (kg).
+    """
     theta = np.asarray(theta, dtype=float)
     zero = np.zeros(3)
-    static = dynamics.inverse_dynamics(theta, zero, zero, payload)
-    return np.array([dynamics.inverse_dynamics(theta, zero, np.eye(3)[i], payload)[i] - static[i] for i in range(3)])
+    static = inverse_dynamics(theta, zero, zero, payload)
+    return np.array([inverse_dynamics(theta, zero, np.eye(3)[i], payload)[i] - static[i] for i in range(3)])
 
 
 def servo_gains(
-    dynamics: DeltaDynamics,
+    inertia: ArrayLike,
+    coulomb: ArrayLike,
     drive_lag: ArrayLike,
     *,
-    theta: ArrayLike = (0.0, 0.0, 0.0),
-    payload: float = 0.0,
     margin: float = DEFAULT_PHASE_MARGIN,
     period: float = CONTROL_PERIOD,
     friction_width: float = DEFAULT_FRICTION_WIDTH,
     integral_limit: float = DEFAULT_INTEGRAL_LIMIT,
 ) -> ServoGains:
-    """Pole-placement gains on the identified model: a triple pole at :func:`servo_bandwidth` of each joint's delay.
+    """Pole-placement gains: a triple pole at :func:`servo_bandwidth` of each joint's delay on its inertia.
 
     Args:
-        dynamics: The identified model; its inertia at ``theta`` with ``payload`` and its Coulomb friction are used.
-        drive_lag: Identified drive lag per joint (s), (3,) or a scalar.
-        theta: Pose (rad) of the inertia; the default is home (arms horizontal).
-        payload: Payload (kg) of the inertia.
+        inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home
+            (the lightest load: a payload only slows the loop).
+        coulomb: Coulomb friction pushed at rest per joint (N m), (3,).
+        drive_lag: Drive lag per joint (s), (3,) or a scalar.
         margin: Phase margin (rad).
         period: Control period (s).
         friction_width: :attr:`ServoGains.friction_width` (rad).
         integral_limit: :attr:`ServoGains.integral_limit` (N m).
     """
+    inertia = require_joint_vector("inertia", inertia, 0.0, unit="kg m^2", low_open=True)
     lag = np.broadcast_to(np.asarray(drive_lag, dtype=float), (3,))
-    inertia = joint_inertia(dynamics, theta, payload)
     w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
     return ServoGains(
         kp=tuple(3.0 * inertia * w0**2),
         ki=tuple(inertia * w0**3),
         kd=tuple(3.0 * inertia * w0),
-        coulomb=dynamics.parameters.coulomb,
+        coulomb=tuple(float(c) for c in np.broadcast_to(np.asarray(coulomb, dtype=float), (3,))),
         friction_width=friction_width,
         integral_limit=integral_limit,
     )

@@ -18,7 +18,7 @@ from controllers.base import DEFAULT_KD, DEFAULT_KP, JointFeedback, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
-from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, servo_gains
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, joint_inertia, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
@@ -148,4 +148,6 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
         )
     step = DEFAULT_FRICTION_WIDTH if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits)
     window = rate_window(setup.encoder_bits, PHYSICS_TIMESTEP)
-    return JointServo(servo_gains(dynamics, setup.drive_lag, friction_width=step), rate_window=window)
+    inertia = joint_inertia(dynamics.inverse_dynamics)
+    gains = servo_gains(inertia, dynamics.parameters.coulomb, setup.drive_lag, friction_width=step)
+    return JointServo(gains, rate_window=window)

@@ -93,6 +93,11 @@ class InverseDynamicsOracle:
         self._frictionloss = self.plant.model.dof_frictionloss[self._motor_dofs].copy()
         self._disturbance = self.plant.disturbance_coefficients.view(np.uint8)
 
+    @property
+    def coulomb(self) -> NDArray[np.float64]:
+        """The plant's Coulomb friction per motor joint (N m), (3,): its ``frictionloss``, randomized with it."""
+        return self._frictionloss.copy()
+
     def torques(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
     ) -> NDArray[np.float64]:

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from controllers.base import PDController
 from controllers.drive import measured_lag_response
 from controllers.feedforward import OracleController, oracle_gains
+from controllers.servo import ServoGains
 from delta_env import (
     NOMINAL_GEOMETRY,
     NOMINAL_MASSES,
@@ -378,9 +378,11 @@ def test_bound_keeps_its_damping_on_a_long_drive_lag() -> None:
     realism = replace(PlantRealism(), actuator_lag=0.002)
     config = PlantConfig(realism=realism)
     assert oracle_gains(0.001) == (6000.0, 10.0)
-    assert OracleController(config).pd.kd == pytest.approx(16.0)
+    assert OracleController(config).servo.gains.kd == pytest.approx((16.0,) * 3)
     bound = bound_tracking_mm(config, OracleController(config), 0)
-    fixed = bound_tracking_mm(config, OracleController(config, pd=PDController(*oracle_gains(0.001))), 0)
+    kp, kd = oracle_gains(0.001)
+    design = ServoGains(kp=(kp,) * 3, ki=(0.0,) * 3, kd=(kd,) * 3)
+    fixed = bound_tracking_mm(config, OracleController(config, gains=design), 0)
     assert bound < 0.05, bound
     assert fixed > 2.0 * bound, (fixed, bound)
     with pytest.raises(ValueError, match="lag"):
@@ -388,17 +390,24 @@ def test_bound_keeps_its_damping_on_a_long_drive_lag() -> None:
 
 
 def test_bound_gains_follow_the_lag_of_each_randomized_plant_unless_given() -> None:
-    """A randomized episode changes the plant's lag through ``set_physical_parameters``: the oracle's own
-    feedback takes Kd = 4 + Kp T of the new lag, and back; feedback passed in by the caller is kept."""
+    """A randomized episode changes the plant's lag and friction through ``set_physical_parameters``: the oracle's own
+    feedback takes Kd = 4 + Kp T of the new lag, and back, and its servo layer the new lag's bandwidth and the new
+    Coulomb friction; gains passed in by the caller are kept."""
     config = PlantConfig()
     oracle = OracleController(config)
     oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.002))
-    assert (oracle.pd.kp, oracle.pd.kd) == pytest.approx(oracle_gains(0.002))
-    assert oracle.pd.kd == pytest.approx(16.0)
+    assert (oracle.servo.gains.kp[0], oracle.servo.gains.kd[0]) == pytest.approx(oracle_gains(0.002))
+    assert oracle.servo.gains.ki == (0.0, 0.0, 0.0) and oracle.servo.gains.coulomb == (0.0, 0.0, 0.0)
     assert np.all(oracle.drive.time_constant == 0.002)
     oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.0005))
-    assert oracle.pd.kd == pytest.approx(7.0)
-    given = PDController(5000.0, 30.0)
-    fixed = OracleController(config, pd=given)
+    assert oracle.servo.gains.kd == pytest.approx((7.0,) * 3)
+    layer = OracleController(config, servo="servo")
+    nominal_kd = layer.servo.gains.kd
+    assert_allclose(layer.servo.gains.coulomb, config.realism.coulomb_per_joint)
+    layer.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, (2.0, 1.0, 1.0), actuator_lag=0.002))
+    assert layer.servo.gains.coulomb[0] == pytest.approx(2.0 * config.realism.coulomb_per_joint[0])
+    assert max(layer.servo.gains.kd) < 0.7 * min(nominal_kd)  # twice the lag: a slower loop
+    given = ServoGains(kp=(5000.0,) * 3, ki=(0.0,) * 3, kd=(30.0,) * 3)
+    fixed = OracleController(config, gains=given)
     fixed.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.002))
-    assert fixed.pd is given
+    assert fixed.servo.gains is given

@@ -55,21 +55,21 @@ def test_phase_margin_matches_a_frequency_sweep(delay: float) -> None:
 
 def test_gains_place_a_triple_pole_on_the_identified_inertia() -> None:
     dynamics = DeltaDynamics.nominal(NOMINAL_RODS, forearm_rods=True)
-    gains = servo_gains(dynamics, LAG)
-    inertia = joint_inertia(dynamics, (0.0, 0.0, 0.0))
+    inertia = joint_inertia(dynamics.inverse_dynamics)
+    gains = servo_gains(inertia, NOMINAL_RODS.coulomb, LAG)
     bandwidth = servo_bandwidth(loop_delay(0.001))
     for joint in range(3):
         poles = np.roots([inertia[joint], gains.kd[joint], gains.kp[joint], gains.ki[joint]])
         assert_allclose(poles, -bandwidth, rtol=1e-3)
     assert gains.coulomb == NOMINAL_RODS.coulomb
     # A slower drive gets a slower loop: twice the lag, two thirds of the bandwidth or less.
-    assert max(servo_gains(dynamics, 0.002).kd) < 0.7 * min(gains.kd)
+    assert max(servo_gains(inertia, NOMINAL_RODS.coulomb, 0.002).kd) < 0.7 * min(gains.kd)
 
 
 def test_joint_inertia_against_the_model_torque() -> None:
     dynamics = DeltaDynamics.nominal(NOMINAL_RODS, forearm_rods=True)
     theta = np.array([0.3, -0.1, 0.5])
-    inertia = joint_inertia(dynamics, theta, payload=2.0)
+    inertia = joint_inertia(dynamics.inverse_dynamics, theta, payload=2.0)
     zero = np.zeros(3)
     for joint in range(3):
         acceleration = np.zeros(3)
@@ -78,7 +78,7 @@ def test_joint_inertia_against_the_model_torque() -> None:
             theta, zero, zero, 2.0
         )
         assert torque[joint] == pytest.approx(10.0 * inertia[joint], rel=1e-9)
-    assert np.all(inertia > joint_inertia(dynamics, theta))  # a payload adds inertia
+    assert np.all(inertia > joint_inertia(dynamics.inverse_dynamics, theta))  # a payload adds inertia
 
 
 def observation(error: float, rate_error: float = 0.0, reference_rate: float = 0.0) -> dict[str, np.ndarray]:
