@@ -12,7 +12,25 @@ with :mod:`eval.console`. Importing the package imports none of its modules: the
 """
 
 import importlib
+import os
+import signal
+import sys
+from types import FrameType
 from typing import Any
+
+
+def _interrupted_while_starting(signum: int, frame: FrameType | None) -> None:
+    """Ctrl-C while ``python -m eval...`` imports its command: one line and exit code 130, not an import's traceback.
+    Nothing has run yet to clean up, and an exception raised inside a compiled module's import would become its
+    ImportError, so the process ends at once."""
+    print("python -m eval: interrupted while starting", file=sys.stderr, flush=True)
+    os._exit(128 + signum)
+
+
+if sys.argv[:1] == ["-m"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    # Python is locating a ``python -m eval...`` module: until its main runs (eval.console.command_main, which hands
+    # Ctrl-C back to Python's handler), an interruption ends the command in one line.
+    signal.signal(signal.SIGINT, _interrupted_while_starting)
 
 _HOMES = {
     "EpisodeRecord": "eval.episodes",

@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 from typing import IO, Any
 
 from controllers.identification import LogFileError, ParameterFileError
+from eval import _interrupted_while_starting
 
 
 class UsageError(ValueError):
@@ -66,6 +67,8 @@ def command_main(prog: str) -> Callable[[Main], Main]:
         def run(argv: Sequence[str] | None = None) -> int:
             from eval.run_folder import Terminated  # here: run_folder imports this module
 
+            if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:  # the package's, while importing
+                signal.signal(signal.SIGINT, signal.default_int_handler)
             try:
                 return main(argv)
             except USAGE_ERRORS as error:

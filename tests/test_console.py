@@ -309,3 +309,23 @@ def test_ctrl_c_on_a_running_comparison_with_workers_prints_one_line(parameter_f
     assert "Traceback" not in errors and "KeyboardInterrupt" not in errors, errors
     assert errors.strip().splitlines()[-1] == f"python -m eval: interrupted (run folder {out}, marked interrupted)"
     assert json.loads((out / MANIFEST).read_text())["status"] == "interrupted"
+
+
+@pytest.mark.parametrize("delay", [0.3, 1.0])
+def test_ctrl_c_while_a_command_starts_prints_one_line(tmp_path, delay: float) -> None:
+    """SIGINT while ``python -m eval.identify`` still imports its modules (or, later, runs): one line, exit code 130,
+    no traceback and no run folder left running."""
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "eval.identify", "--quick", "--out", str(out), "--runs-dir", str(tmp_path)]
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    try:
+        time.sleep(delay)
+        process.send_signal(signal.SIGINT)
+        _, errors = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, errors
+    assert "Traceback" not in errors and "KeyboardInterrupt" not in errors, errors
+    assert len(errors.strip().splitlines()) == 1 and "interrupted" in errors, errors
+    assert not (out / MANIFEST).exists() or json.loads((out / MANIFEST).read_text())["status"] == "interrupted"
