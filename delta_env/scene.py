@@ -1,4 +1,5 @@
-"""The scene around the robot: floor, light, camera and the pick-and-place payload with its suction weld.
+"""The scene around the robot: floor, light, camera, the two conveyors and the pick-and-place payload with its
+suction weld.
 
 :func:`scene_spec` starts from the robot of :func:`delta_env.robot.robot_spec` and adds the scene to it,
 as a MuJoCo Menagerie ``scene.xml`` includes its robot; :func:`build_model` compiles it and
@@ -11,6 +12,7 @@ import mujoco
 import numpy as np
 
 from delta_env.config import DEFAULT_PAYLOAD_SIZE, SUCTION_CUP_OFFSET, PlantConfig
+from delta_env.cycles import PICK_ZONE, PLACE_ZONE, ConveyorZone
 from delta_env.robot import EQUALITY_SOLIMP, HOME_KEY, equality_solref, robot_spec
 
 FLOOR_HEIGHT = -1.25
@@ -30,6 +32,16 @@ OBSTACLE_SOLREF = (0.01, 1.0)
 
 OBSTACLE_CONTACT_BIT = 2
 """The contact bit the obstacle (contype) and the platform disc (conaffinity) share: only they collide."""
+
+BELT_HEIGHT = PICK_ZONE.z - SUCTION_CUP_OFFSET - DEFAULT_PAYLOAD_SIZE[2]
+"""Height (m) of the conveyors' belts: an object waiting at a pick point of height ``PICK_ZONE.z`` rests on it."""
+
+BELT_MARGIN = (0.2, 0.05)
+"""How far (m) a drawn belt reaches beyond its zone of pick or place points, along x (the belt's run) and along y."""
+
+_BELT_THICKNESS = 0.04
+_RAIL_SIZE = (0.015, 0.05)  # width and height (m) of the side rails that hold a belt, 1 cm above it
+_LEG_SIZE = 0.02  # half-width (m) of a square leg
 
 _CAMERA_POSITION = np.array([2.2, -2.2, 0.4])
 _CAMERA_TARGET = np.array([0.0, 0.0, -0.7])
@@ -59,6 +71,8 @@ def scene_spec(config: PlantConfig, obstacle: bool = False) -> mujoco.MjSpec:
     floor_material = spec.add_material(name="floor", texrepeat=(8.0, 8.0), reflectance=0.1)
     floor_material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
     spec.add_material(name="payload", rgba=PAYLOAD_RGBA)
+    spec.add_material(name="belt", rgba=(0.2, 0.21, 0.23, 1.0), reflectance=0.05)
+    spec.add_material(name="conveyor_frame", rgba=(0.62, 0.64, 0.68, 1.0), reflectance=0.2)
     world = spec.worldbody
     world.add_light(
         name="key", pos=(0.0, -1.0, 2.0), dir=(0.0, 0.4, -1.0), type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
@@ -76,11 +90,60 @@ def scene_spec(config: PlantConfig, obstacle: bool = False) -> mujoco.MjSpec:
         size=(2.0, 2.0, 0.05),
         material="floor",
     )
+    for name, zone in (("pick", PICK_ZONE), ("place", PLACE_ZONE)):
+        _add_conveyor(spec, name, zone)
     if config.payload_body:
         _add_payload(spec, config)
     if obstacle:
         _add_obstacle(spec)
     return spec
+
+
+def _add_conveyor(spec: mujoco.MjSpec, name: str, zone: ConveyorZone) -> None:
+    """The conveyor ``name`` under ``zone``, drawn only: a belt with its top at :data:`BELT_HEIGHT`, reaching
+    :data:`BELT_MARGIN` beyond the zone, side rails and four legs to the floor.
+
+    Its geoms neither collide nor weigh (contype and conaffinity 0, on the static world body): the physics is that
+    of the scene without it, step for step.
+    """
+    (x0, x1), (y0, y1) = zone.x_range, zone.y_range
+    margin_x, margin_y = BELT_MARGIN
+    center_x, center_y = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    half_length, half_width = 0.5 * (x1 - x0) + margin_x, 0.5 * (y1 - y0) + margin_y
+    rail_width, rail_height = _RAIL_SIZE
+    belt_center = BELT_HEIGHT - 0.5 * _BELT_THICKNESS
+    drawn = {"contype": 0, "conaffinity": 0, "type": mujoco.mjtGeom.mjGEOM_BOX}
+    world = spec.worldbody
+    world.add_geom(
+        name=f"{name}_conveyor_belt",
+        pos=(center_x, center_y, belt_center),
+        size=(half_length, half_width, 0.5 * _BELT_THICKNESS),
+        material="belt",
+        **drawn,
+    )
+    rail_center = BELT_HEIGHT + 0.5 * rail_height - _BELT_THICKNESS
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        world.add_geom(
+            name=f"{name}_conveyor_rail_{side}",
+            pos=(center_x, center_y + sign * (half_width + rail_width), rail_center),
+            size=(half_length, rail_width, 0.5 * rail_height),
+            material="conveyor_frame",
+            **drawn,
+        )
+    leg_top = BELT_HEIGHT - _BELT_THICKNESS
+    leg_half_height = 0.5 * (leg_top - FLOOR_HEIGHT)
+    for n, (sign_x, sign_y) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
+        world.add_geom(
+            name=f"{name}_conveyor_leg_{n + 1}",
+            pos=(
+                center_x + sign_x * (half_length - _LEG_SIZE),
+                center_y + sign_y * (half_width + rail_width),
+                leg_top - leg_half_height,
+            ),
+            size=(_LEG_SIZE, _LEG_SIZE, leg_half_height),
+            material="conveyor_frame",
+            **drawn,
+        )
 
 
 def _add_obstacle(spec: mujoco.MjSpec) -> None:

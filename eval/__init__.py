@@ -3,7 +3,8 @@
 - ``python -m eval``: the controller comparison (:mod:`eval.comparison`, tables in :mod:`eval.tables`);
 - ``python -m eval.identify``: the identification experiment and its report (:mod:`eval.identification`), on the
   simulated plant or on a real robot's drive logs;
-- ``python -m eval.train_residual``: training the residual policy (stable-baselines3).
+- ``python -m eval.train_residual``: training the residual policy (stable-baselines3);
+- :func:`record_episode` (:mod:`eval.video`): one episode filmed to MP4 (``python -m eval --video``).
 
 Every experiment runs its episodes with :func:`eval.episodes.run_episode` and writes its run folder with
 :mod:`eval.run_folder`; every command line reports a usage error or an interruption in one line and shows its progress
@@ -23,6 +24,7 @@ _HOMES = {
     "identify_logs": "eval.identification",
     "load_or_identify": "eval.parameter_files",
     "progress_bar": "eval.console",
+    "record_episode": "eval.video",
     "run_episode": "eval.episodes",
     "run_identification": "eval.identification",
     "runs_root": "eval.run_folder",

@@ -18,12 +18,16 @@ robot (``--geometry``, a design of the design study).
    ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
    ``table2.csv``, ``faults.csv`` (every injected fault, detected or missed, and every detection that matched
    none: :mod:`eval.faults`; a header only when there were none), ``traces.npz`` and ``table2_run.npz`` (time
-   series), ``summary.md`` (with a Faults section when any fault was injected or detected) and the plots made
-   from these files; prints the summary. Diverged episodes are counted in the table, never dropped silently: their
+   series: the first episode of each row, with its reference and platform paths), ``summary.md`` (with a Faults
+   section when any fault was injected or detected) and the plots made from these files (:mod:`eval.plots`);
+   prints the summary. Diverged episodes are counted in the table, never dropped silently: their
    metrics cover the steps before the divergence.
 
+With ``--video``, the first episode of each row is also filmed (:mod:`eval.video`): ``video_<key>.mp4`` in the run
+folder (GIF where ffmpeg is unavailable), 960 x 720 px at 30 fps; headless with ``MUJOCO_GL=egl``.
+
 Usage: python -m eval [--scenario nominal|paper|FILE] [--geometry FILE] [--seed 0] [--episodes 10] [--cycles 3]
-                      [--controllers pd,mid_f_rls] [--out DIR] [--runs-dir DIR]
+                      [--controllers pd,mid_f_rls] [--out DIR] [--runs-dir DIR] [--video]
 """
 
 from __future__ import annotations
@@ -54,7 +58,7 @@ from controllers.registry import (
 from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
-from eval import metrics, plots
+from eval import metrics, plots, video
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds
 from eval.comparison import (
     TABLE2_KEY,
@@ -65,7 +69,7 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
-from eval.console import command_main, plural
+from eval.console import command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
@@ -131,6 +135,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
     )
     add_workers_argument(parser)
+    parser.add_argument(
+        "--video",
+        action="store_true",
+        help="also film the first episode of each row into the run folder (video_<key>.mp4; MUJOCO_GL=egl headless)",
+    )
     args = parser.parse_args(argv)
     chosen = args.controllers is not None
     args.left_out = ""
@@ -145,6 +154,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     check_parameter_file(parser, args)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     check_episode_seeds(parser, args)
+    if args.video and (error := video.rendering_error()) is not None:
+        parser.error(f"--video: {error}")
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
     if "residual" in args.controllers:
@@ -291,6 +302,10 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
             labels=np.array([controller_label(key) for key in traces]),
             estimates_payload=np.array([controller_entry(key).estimates_payload for key in traces]),
             **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
+            **{
+                f"{key}.{plots.REFERENCE_FIELD}": record.reference.xyz[1 : len(record.tracking_error) + 1]
+                for key, record in traces.items()
+            },
         )
         plotter.saved("traces.npz")
         table2_record = results[-1][1]
@@ -308,8 +323,29 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
             write_csv(out / "carries.csv", carry_rows)
         fault_rows = tabulate_faults(results, keys, args.seed)
         write_fault_csv(out / "faults.csv", fault_rows)
-        summary = _summarize(args, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows))
+        plotter.saved("faults.csv")
+        videos = _film(args, prepared) if args.video else []
+        summary = _summarize(
+            args, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows), videos=videos
+        )
     print(summary)
+
+
+def _film(args: argparse.Namespace, prepared: Prepared) -> list[video.Video]:
+    """The videos of ``--video``: the first episode of each row, filmed into the run folder
+    (:func:`eval.video.film_first_episodes`)."""
+    keys = args.controllers
+    with progress_bar(len(keys), "videos", "video") as progress:
+        return video.film_first_episodes(
+            args.scenario,
+            prepared.setup,
+            keys,
+            args.seed,
+            args.cycles,
+            args.out,
+            workers=args.workers,
+            progress=progress,
+        )
 
 
 def _summarize(
@@ -318,6 +354,7 @@ def _summarize(
     started: float,
     prepared: Prepared,
     rows: tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]],
+    videos: Sequence[video.Video] = (),
 ) -> str:
     """Record the run's configuration and results in its manifest, write ``summary.md`` and return the summary.
 
@@ -327,6 +364,7 @@ def _summarize(
         started: :func:`time.perf_counter` time at the start of the command.
         prepared: What the controllers knew (:func:`eval.comparison.run_all`).
         rows: The episode, carry, Table 2 and fault rows.
+        videos: The videos of ``--video``.
     """
     out, scenario, keys = run.folder, args.scenario, args.controllers
     identification, setup = prepared.identification, prepared.setup
@@ -370,6 +408,7 @@ def _summarize(
         "tare_kg": tares,
         "tare_spread_kg": tare_spreads,
         "seconds": {"total": total_time},
+        "videos": [item.path.name for item in videos],
     }
     run.record(config=config, results=results_entry)
 
@@ -401,6 +440,7 @@ def _summarize(
             *_bound_section(episode_rows),
             *_residual_section(args, episode_rows),
             *([args.left_out, ""] if args.left_out else []),
+            *(["", "## Videos", "", *video.video_lines(videos), ""] if videos else []),
             f"Run folder: {out} ({total_time:.0f} s)",
         ]
     )

@@ -10,7 +10,7 @@ score the run; the controller sees only the observations.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -221,6 +221,7 @@ def run_episode(
     *,
     reference: Trajectory | None = None,
     keep_observations: bool = False,
+    after_step: Callable[[int], None] | None = None,
 ) -> EpisodeRecord:
     """Run one seeded episode to its end (or divergence) and record it.
 
@@ -231,6 +232,8 @@ def run_episode(
         payload_masses: Override of the drawn object masses (kg), one per cycle.
         reference: A reference to follow instead of the env's pick-and-place cycles (e.g. an excitation).
         keep_observations: Keep every observation (for the tare calibration).
+        after_step: Called with 0 after the reset and with n after step n: a view of the episode that reads ``env``
+            and changes nothing (:func:`eval.video.record_episode` renders its frames).
     """
     options: dict[str, Any] = {}
     if payload_masses is not None:
@@ -269,6 +272,8 @@ def run_episode(
     saturated, speed_exceeded, thermal_exceeded = 0, 0, False
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
+    if after_step is not None:
+        after_step(0)
     while True:
         action = controller(observation)
         if estimates_payload:
@@ -296,6 +301,8 @@ def run_episode(
         angles.append(observation["joint_angles"])
         if keep_observations:
             observations.append(observation)
+        if after_step is not None:
+            after_step(len(tracking))
         if terminated or truncated:
             break
     diverged = info["diverged"]

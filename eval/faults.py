@@ -75,6 +75,7 @@ FAULT_COLUMNS = (
     "detected_kind",
     "detected_joint",
     "magnitude",
+    "ended_at_s",
 )
 """Columns of ``faults.csv``, one row per injected fault and per detection that matched none:
 
@@ -88,7 +89,9 @@ FAULT_COLUMNS = (
 - ``joint``, ``size``, ``detail``: the injected fault's (:class:`~delta_env.faults.InjectedFault`); blank for a
   false alarm or where the fault has none;
 - ``detected_kind``, ``detected_joint``, ``magnitude``: the detection's (:class:`~controllers.monitor.
-  DetectedFault`); blank for a miss or where it has none.
+  DetectedFault`); blank for a miss or where it has none;
+- ``ended_at_s``: the injected fault's end (s from the reset, :func:`fault_end_s`; a slip's is the end of its carry);
+  blank for a false alarm.
 """
 
 FAULT_METRICS = (
@@ -278,6 +281,7 @@ def _injected_cells(fault: InjectedFault) -> dict[str, Any]:
     return {
         "kind": fault.kind,
         "injected_at_s": fault.start_s,
+        "ended_at_s": fault_end_s(fault),
         "joint": fault.joint,
         "size": _blank_nan(fault.size),
         "detail": fault.detail or None,

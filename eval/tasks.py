@@ -95,12 +95,19 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
     return controller
 
 
-def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
-    """Run one task in a fresh env and controller (picklable: the unit of work of the process pool)."""
+def task_episode(task: Task) -> tuple[DeltaPickPlaceEnv, Controller]:
+    """The fresh env and controller of ``task``, the env timed as its scenario asks (:func:`timed`) unless the task
+    follows a reference of its own."""
     env = DeltaPickPlaceEnv(n_cycles=task.n_cycles, scenario=task.scenario)
     controller = build_controller(task.key, task.setup, env)
     if task.reference is None:
         controller = timed(env, controller, task.key, task.setup)
+    return env, controller
+
+
+def run_task(task: Task) -> tuple[Task, EpisodeRecord]:
+    """Run one task in a fresh env and controller (picklable: the unit of work of the process pool)."""
+    env, controller = task_episode(task)
     record = run_episode(
         env, controller, task.seed, task.masses, reference=task.reference, keep_observations=task.kind == "calibration"
     )

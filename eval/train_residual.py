@@ -18,6 +18,8 @@ Every run folder (``--out``, default ``<runs root>/residual/<UTC time>``; :func:
 - ``checkpoints/``: periodic checkpoints (and the replay buffer of off-policy algorithms) for ``--resume``;
 - ``evaluations.npz`` and ``best_model/``: SB3's EvalCallback on held-out seeds (validation), distinct
   from every training seed, and its best model;
+- ``learning_curve.csv`` (a row per evaluation, appended as it is made: policy steps, mean, std, min and max
+  return) and ``learning_curve.png``, drawn from that file at the end of training (:mod:`eval.plots`);
 - ``progress.csv``: training curves (TensorBoard event files go to ``--tensorboard DIR`` when given);
 - ``final_policy.zip`` and ``best_policy.zip``: loadable by :func:`controllers.residual.load_residual_controller`;
 - ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training
@@ -55,6 +57,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
@@ -76,6 +79,7 @@ from controllers.residual.env import action_rate_penalty
 from controllers.residual.features import PREVIOUS_ACTION
 from eval.console import command_main, plural, progress_bar
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
+from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
 from eval.residual_envs import (
     BASE_KEYS,
     CALIBRATION_SEEDS,
@@ -84,7 +88,15 @@ from eval.residual_envs import (
     base_setup,
     make_env,
 )
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_json
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    append_csv_rows,
+    command_line,
+    run_folder,
+    write_json,
+)
 from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
 
@@ -183,12 +195,30 @@ class LatestReplayCheckpoint(CheckpointCallback):
 
 
 class HeldOutEvalCallback(EvalCallback):
-    """EvalCallback that replays the same held-out episodes (``EpisodeSeeds.restart``) at every evaluation."""
+    """EvalCallback that replays the same held-out episodes (``EpisodeSeeds.restart``) at every evaluation and, with
+    a ``curve`` path, appends each evaluation's scores to that CSV file (:data:`eval.plots.LEARNING_CURVE_COLUMNS`)."""
+
+    def __init__(self, *args: Any, curve: Path | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.curve = curve
 
     def _on_step(self) -> bool:
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+        evaluates = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
+        if evaluates:
             self.eval_env.env_method("restart")
-        return super()._on_step()
+        keep_going = super()._on_step()
+        if evaluates and self.curve is not None:
+            returns = np.asarray(self.evaluations_results[-1], dtype=float)
+            row = {
+                "timesteps": self.num_timesteps,
+                "mean_reward": float(returns.mean()),
+                "std_reward": float(returns.std()),
+                "min_reward": float(returns.min()),
+                "max_reward": float(returns.max()),
+                "episodes": returns.size,
+            }
+            append_csv_rows(self.curve, LEARNING_CURVE_COLUMNS, [row])
+        return keep_going
 
 
 class WallTimeLimit(BaseCallback):
@@ -237,6 +267,7 @@ def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[Ba
             best_model_save_path=str(out / "best_model"),
             deterministic=True,
             verbose=int(args.verbose),
+            curve=out / LEARNING_CURVE_FILE,
         ),
     ]
     if args.max_minutes is not None:
@@ -416,6 +447,7 @@ def _train(
         save_residual_policy(best_model, out / "best_policy.zip", config, args.algo, base=base, extra=notes)
     vec_env.close()
     eval_env.close()
+    learning_curve_figure(out)
     run.record(training={"wall_time_s": round(wall_time, 1), "num_timesteps": model.num_timesteps})
     policies = "final_policy.zip" + (" and best_policy.zip" if best.is_file() else "")
     lines = [

@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import imageio.v2 as imageio
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
@@ -396,9 +397,34 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     with np.load(out / "traces.npz") as traces:
         assert list(traces["keys"]) == ["pd", "mid_f_rls"]
         assert traces["mid_f_rls.torque"].shape[1] == 3
-    for name in ("torque_profiles", "table2_torques", "payload_estimate", "error_bars"):
+        # the platform's path against the reference of the same instants: the tracking error, step for step
+        platform, reference = traces["pd.platform_position"], traces["pd.reference_xyz"]
+        assert platform.shape == reference.shape == (int(episodes[0]["steps"]), 3)
+        deviation = np.linalg.norm(platform - reference, axis=1)
+        np.testing.assert_allclose(deviation, traces["pd.tracking_error"], atol=1e-12)
+        assert list(traces["pd.pick_indices"]) and len(traces["pd.place_indices"]) == 1
+    for name in ("torque_profiles", "table2_torques", "payload_estimate", "error_bars", "tracking_error", "paths_3d"):
         image = plt.imread(out / f"{name}.png")
         assert image.ndim == 3 and min(image.shape[:2]) > 200
+    assert not (out / "fault_timeline.png").exists() and not list(out.glob("video_*"))  # no faults, no --video
+
+
+@pytest.mark.slow
+def test_eval_cli_films_the_first_episode_of_each_row(
+    parameter_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture, opengl_context: None
+) -> None:
+    out = tmp_path / "run"
+    argv = ["--episodes", "1", "--cycles", "1", "--controllers", "pd", "--out", str(out), "--video", "--seed", "2"]
+    argv += ["--parameters", str(parameter_file), "--calibration-episodes", "1", "--runs-dir", str(tmp_path / "runs")]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    (row,) = read_csv(out / "episodes.csv")
+    duration = int(row["steps"]) * 1e-3
+    with imageio.get_reader(out / "video_pd.mp4") as reader:
+        frames, meta = reader.count_frames(), reader.get_meta_data()
+    assert frames == math.floor(duration * 30.0 + 1e-9) + 1 and meta["fps"] == 30.0 and meta["size"] == (960, 720)
+    assert f"- video_pd.mp4: {frames} frames at 30 fps, 960 x 720 px, {duration:.2f} s of episode" in printed
+    assert json.loads((out / "config.json").read_text())["results"]["videos"] == ["video_pd.mp4"]
 
 
 def test_help_lists_every_controller_key_beside_its_label(capsys: pytest.CaptureFixture) -> None:

@@ -123,7 +123,8 @@ def test_fault_rows_and_csv(tmp_path: Path) -> None:
     assert (consequence["kind"], consequence["detected_kind"]) == ("encoder_glitch", "collision")
     assert consequence["magnitude"] is None  # NaN is a blank cell
     assert alarm["injected_at_s"] is None and alarm["kind"] == alarm["detected_kind"] == "sensor_nan"
-    assert alarm["detected_joint"] == 2 and alarm["joint"] is None
+    assert alarm["detected_joint"] == 2 and alarm["joint"] is None and alarm["ended_at_s"] is None
+    assert hit["ended_at_s"] == pytest.approx(0.106)  # 5 steps of 1 ms from 0.101 s
     assert {row["seed"] for row in rows} == {7}
 
     path = write_fault_csv(tmp_path / "faults.csv", rows)

@@ -49,7 +49,9 @@ from controllers.setup import ControllerSetup
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import preset
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
+from eval.plots import LEARNING_CURVE_FILE
 from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
+from eval.run_folder import read_csv_rows
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
 from tests.conftest import NOMINAL_SETUP, run_python
@@ -367,6 +369,12 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path, capsys: 
     assert_array_equal(policies[0](observations), policies[1](observations))
     for name in ("config.json", "progress.csv", "evaluations.npz", "best_policy.zip"):
         assert (runs[0] / name).is_file(), name
+    # The learning curve: one row per held-out evaluation, as SB3 saved it, and its figure.
+    curve = read_csv_rows(runs[0] / LEARNING_CURVE_FILE)
+    with np.load(runs[0] / "evaluations.npz") as evaluations:
+        assert [int(row["timesteps"]) for row in curve] == evaluations["timesteps"].tolist() == [60]
+        assert float(curve[0]["mean_reward"]) == pytest.approx(evaluations["results"][0].mean())
+    assert (runs[0] / "learning_curve.png").is_file()
     assert policies[0].metadata["extra"]["seed"] == 0
     # Resume from the last checkpoint (with its replay buffer, the only one kept) and train further.
     checkpoints = sorted(p.name for p in (runs[0] / "checkpoints").iterdir())
