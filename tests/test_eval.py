@@ -373,8 +373,11 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert all(row["seed"] == "4" and row["diverged"] == "False" for row in episodes)
     rms = {row["key"]: float(row["tracking_rms_mm"]) for row in episodes}
     assert rms["mid_f_rls"] < rms["pd"]
-    # the paper's standard cycle, timed alike for both: the same pick rate, under a second per object
-    assert episodes[0]["picks_per_min"] == episodes[1]["picks_per_min"] and float(episodes[0]["picks_per_min"]) > 60.0
+    # the paper's standard cycle, under a second per object, from rest at the pick point: the PD's friction band times
+    # out the in-position wait at the place, the servo layer settles there, and so picks faster
+    pd_row, servo_row = episodes
+    assert int(pd_row["settle_timeouts"]) == 1 and int(servo_row["settle_timeouts"]) == 0
+    assert 60.0 < float(pd_row["picks_per_min"]) < float(servo_row["picks_per_min"])
     (carry,) = read_csv(out / "carries.csv")
     assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) == 3.8  # the paper's payload on every pick
     table2 = read_csv(out / "table2.csv")
