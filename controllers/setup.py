@@ -35,10 +35,10 @@ ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
 MODEL_ROWS = ("mkh", "mid", "mid_f", "mid_f_r", *ESTIMATOR_REGRESSORS)
 """The keys of the built-in rows with a model feedforward (:func:`model_row`)."""
 
-SERVOS = ("pd", "servo")
-"""The feedback of the model rows: ``"pd"``, the paper's fixed PD (``pd_gains``, the default), or ``"servo"``, the
-servo layer (:class:`~controllers.servo.JointServo`, gains from the row's identified model and the identified drive
-lag)."""
+SERVOS = ("servo", "pd")
+"""The feedback of the model rows and of the oracle bound: ``"servo"``, the servo layer
+(:class:`~controllers.servo.JointServo`, gains from the row's identified model and the identified drive lag; the
+default), or ``"pd"``, the paper's fixed PD (``pd_gains``; the oracle: its own PD gains)."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class ControllerSetup:
     tares: Mapping[str, float] = field(default_factory=dict)
     empty_moves: Mapping[str, EmptyMoveSums] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
-    servo: Literal["pd", "servo"] = "pd"
+    servo: Literal["servo", "pd"] = "servo"
     residual_policy: Path | None = None
     geometry: DeltaGeometry = NOMINAL_GEOMETRY
     masses: DeltaMasses = NOMINAL_MASSES

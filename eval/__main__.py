@@ -84,6 +84,7 @@ from eval.scenario_args import (
     scenario_from_arguments,
 )
 from eval.tables import (
+    BOUND_HOLDS,
     bound_violations,
     controller_table,
     payload_target_table,
@@ -219,7 +220,7 @@ def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
     violations = bound_violations(episode_rows, bound)
     if violations:
         return [*note, "## Bound violated", "", *violations, ""]
-    return [*note, f"Bound check: no controller tracks better than {bound}, in the mean or on any episode.", ""]
+    return [*note, BOUND_HOLDS.format(bound=bound), ""]
 
 
 def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[str]:

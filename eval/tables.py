@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from eval import metrics
@@ -182,11 +183,18 @@ def unbounded_episodes(episode_rows: list[dict[str, Any]], bound_label: str) -> 
     ]
 
 
+BOUND_HOLDS = (
+    "Bound check: no controller tracks better than {bound}, in the mean or on any episode, nor places closer on "
+    "average."
+)
+"""The summary's line when :func:`bound_violations` finds none (``{bound}``: the bound's label)."""
+
+
 def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> list[str]:
-    """Where a controller tracks better than the bound (which is then not a bound), as lines: a mean tracking
-    RMS below the bound's, or an episode tracked better than the bound tracked the same episode (same seed).
-    Diverged episodes do not count, nor do the episodes (seeds) on which the bound was not a bound
-    (:func:`unbounded_episodes`), for any controller."""
+    """Where a controller does better than the bound (which is then not a bound), as lines: a mean tracking RMS
+    below the bound's, an episode tracked better than the bound tracked the same episode (same seed), or a mean
+    place error (at release) below the bound's. Diverged episodes do not count, nor do the episodes (seeds) on which
+    the bound was not a bound (:func:`unbounded_episodes`), for any controller."""
     skipped = {row["seed"] for row in unbounded_episodes(episode_rows, bound_label)}
     kept = [row for row in episode_rows if not row["diverged"] and row["seed"] not in skipped]
     groups = metrics.group_by(kept, "controller")
@@ -208,6 +216,18 @@ def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> li
         for row in group
         if row["seed"] in bound_by_seed and row["tracking_rms_mm"] < bound_by_seed[row["seed"]]
     ]
+    places = {
+        label: metrics.mean_std([row["place_error_mean_mm"] for row in group])[0]
+        for label, group in groups.items()
+        if all(math.isfinite(row.get("place_error_mean_mm", math.nan)) for row in group)
+    }
+    if bound_label in places:
+        lines += [
+            f"- {label} places at {mean:.3f} mm on average, closer than {bound_label} at "
+            f"{places[bound_label]:.3f} mm: the bound does not hold"
+            for label, mean in places.items()
+            if label != bound_label and mean < places[bound_label]
+        ]
     return lines
 
 

@@ -94,22 +94,24 @@ def records(tared_setup: ControllerSetup) -> dict[str, EpisodeRecord]:
 
 RECORDED_TRACKING_RMS_MM = {
     "pd": 5.36,
-    "mkh": 3.31,
-    "mid": 3.07,
-    "mid_f": 2.47,
-    "mid_f_r": 2.57,
-    "mid_f_rls": 0.388,
-    "mid_f_rls_ref": 0.349,
-    "mid_f_rls_lag": 0.291,
-    "oracle": 0.0157,
+    "mkh": 0.527,
+    "mid": 0.342,
+    "mid_f": 0.320,
+    "mid_f_r": 0.341,
+    "mid_f_rls": 0.105,
+    "mid_f_rls_ref": 0.0869,
+    "mid_f_rls_lag": 0.0834,
+    "oracle": 0.0072,
     "residual": 0.0512,
 }
 """Tracking RMS (mm) of each controller on the episode of :func:`records` (seed 3, one cycle, 3 kg).
 
-On seeds 4-6 every row lies within 19 % of these, so :data:`TRACKING_RMS_RTOL` holds a change that redraws the
-episode and fails a regression of 1.4 times or more. Update a row, with its README table, when it improves."""
+The model rows and the bound run the servo layer (the default). On seeds 4-6 every row lies within 33 % of these (the
+RLS rows' carries are short, and one stop more or less in position moves them), so :data:`TRACKING_RMS_RTOL` holds a
+change that redraws the episode and fails a regression of 1.4 times or more. Update a row, with its README table,
+when it improves."""
 
-TRACKING_RMS_RTOL = 0.3
+TRACKING_RMS_RTOL = 0.35
 
 
 @pytest.mark.parametrize("key", list(CONTROLLER_LABELS))
@@ -426,18 +428,23 @@ def test_light_object_estimate_does_not_overshoot_at_lift_off(tared_setup: Contr
     assert all(abs(carry.end_estimate - 0.17) <= 0.025 for carry in record.carries())
 
 
-def test_light_object_estimate_does_not_overshoot_at_a_fast_lift_off(tared_setup: ControllerSetup) -> None:
+@pytest.mark.parametrize(("servo", "overshoot_limit"), [("pd", 0.2), ("servo", 0.35)])
+def test_light_object_estimate_does_not_overshoot_at_a_fast_lift_off(
+    tared_setup: ControllerSetup, servo: str, overshoot_limit: float
+) -> None:
     """At 6 g the lift starts with a jerk step of about 1e4 rad/s^3; the fixed-lag smoother's acceleration must
     follow it, or the unexplained inertia reads as mass. On robots drawn as in the ``randomized`` preset, 50 g
-    objects stay within 0.2 kg above their mass over the whole carry (with a model stiff enough for 3 g, 1000
-    rad/s^3, most of them overshot by 0.2-0.3 kg in the first 10 ms of the lift)."""
+    objects stay within 0.2 kg above their mass over the whole carry behind the paper's PD (with a model stiff
+    enough for 3 g, 1000 rad/s^3, most of them overshot by 0.2-0.3 kg in the first 10 ms of the lift). The servo
+    layer makes the arm follow the jerk step more sharply than the smoother does: measured up to 0.30 kg
+    (docs/design.md section 6, "Known cost")."""
     env = DeltaPickPlaceEnv(n_cycles=3, peak_acceleration=6.0 * GRAVITY, domain_randomization=RandomizationRanges())
-    controller = build_controller("mid_f_rls", tared_setup)
+    controller = build_controller("mid_f_rls", dataclasses.replace(tared_setup, servo=servo))
     for seed in (11, 12):
         record = run_episode(env, controller, seed, [0.05, 0.05, 0.05])
         carries = record.carries()
         overshoots = [carry.peak_estimate - carry.mass for carry in carries]
-        assert len(overshoots) == 3 and max(overshoots) <= 0.2, overshoots
+        assert len(overshoots) == 3 and max(overshoots) <= overshoot_limit, overshoots
         assert all(abs(carry.end_error_kg) <= 0.025 for carry in carries), [carry.end_error_kg for carry in carries]
 
 

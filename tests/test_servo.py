@@ -94,13 +94,14 @@ def observation(error: float, rate_error: float = 0.0, reference_rate: float = 0
 def test_integral_is_clamped_under_a_held_error_and_unwinds_at_once() -> None:
     gains = ServoGains(kp=(1000.0,) * 3, ki=(1e5,) * 3, kd=(10.0,) * 3, integral_limit=25.0)
     servo = JointServo(gains)
-    for _ in range(10_000):  # 10 s against a blocked joint, 1 rad off: unclamped, 1e6 N m of integral
-        torque = servo.feedback(observation(1.0, reference_rate=0.5))
+    for _ in range(10_000):  # 10 s against a blocked joint, 1 mrad off: unclamped, 1000 N m of integral
+        torque = servo.feedback(observation(1e-3, reference_rate=0.5))
     assert_allclose(servo.integral, 25.0)
-    assert_allclose(torque, 1000.0 + 25.0)
+    assert_allclose(torque, 1.0 + 25.0)
     # The error reverses: the integral leaves the clamp on the first step, no stored windup to unwind.
-    servo.feedback(observation(-0.1, reference_rate=0.5))
-    assert_allclose(servo.integral, 25.0 - 1e5 * 0.1 * servo.period)
+    servo.feedback(observation(-1e-4, reference_rate=0.5))
+    assert_allclose(servo.integral, 25.0 - 1e5 * 1e-4 * servo.period)
+
     servo.reset()
     assert_allclose(servo.integral, 0.0)
 

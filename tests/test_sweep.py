@@ -302,7 +302,7 @@ def test_the_setup_digest_covers_every_field_a_controller_knows_and_nothing_of_t
         "tares": {"mid_f_rls_lag": 0.01},
         "empty_moves": {"mid_f_rls_lag": sums},
         "pd_gains": (3000.0, 61.0),
-        "servo": "servo",
+        "servo": "pd",
         "geometry": DeltaGeometry(ra=0.21, rb=0.05, l1=0.37, l2=0.95),
         "masses": DeltaMasses(m1=2.1, m2=0.2, m0=0.8),
         "drive": DriveLimits(peak_torque=300.0),

@@ -230,7 +230,9 @@ class FaultMonitor:
             for joint in np.flatnonzero(self._stuck == STUCK_SAMPLES):
                 self._detect("encoder_stuck", int(joint), math.nan)
             self._glitch_active[:3] = jump
-            bad |= jump | stuck
+            # a suspect reading is replaced like a stuck one: the error held through a stuck spell is then the
+            # last one measured, not the spell's first repeats (which an integral would wind up on)
+            bad |= jump | suspect
             self._after_stuck = (self._after_stuck | stuck) & bad
         self._raw_previous = raw
         clean = np.where(bad, reference + self._error, raw)
