@@ -253,9 +253,11 @@ def payload_label(payload: float | str) -> str:
 
 
 def cycle_terms(task: PickPlaceTask) -> dict[str, float]:
-    """The terms of :data:`CYCLE_TERMS` that ``task`` has (air activation in s, in-position window in m): what the
-    scenario says about the cycle's ends."""
-    return {name: float(getattr(task, name)) for name in CYCLE_TERMS if hasattr(task, name)}
+    """The terms of :data:`CYCLE_TERMS` of an in-position release (air activation in s, in-position window in m):
+    what the scenario says about the cycle's ends; none for the timed release (a fixed dwell)."""
+    if task.release != "in_position":
+        return {}
+    return {name: float(getattr(task, name)) for name in CYCLE_TERMS}
 
 
 SETTLE_COLUMNS = (

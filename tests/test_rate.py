@@ -23,7 +23,6 @@ from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.scenario import PickPlaceTask, Scenario
 from eval.published_rates import ABB_IRB_360, DIFFERENCES
 from eval.rate import (
-    CYCLE_TERMS,
     FULL_STUDY,
     MIXED,
     QUICK_NOTE,
@@ -96,22 +95,14 @@ def test_a_row_aggregates_its_episodes_and_their_settle_times() -> None:
     assert summarize([*settled[:2], episode(150.0, 0.1, thermal_exceeded=True)])["thermal_exceeded"]
 
 
-@dataclasses.dataclass(frozen=True)
-class EndsTask:
-    """A task with the cycle ends' terms of the in-position release."""
-
-    air_activation: float = 0.035
-    in_position_window: float = 5e-5
-
-
 def test_the_cycle_ends_are_the_scenarios() -> None:
-    task = PickPlaceTask()
-    present = {field.name: getattr(task, field.name) for field in dataclasses.fields(task)}
-    assert cycle_terms(task) == {name: present[name] for name in CYCLE_TERMS if name in present}
-    ends = EndsTask()
-    assert cycle_terms(ends) == {"air_activation": 0.035, "in_position_window": 5e-5}  # type: ignore[arg-type]
-    line = _cycle_line(ends)  # type: ignore[arg-type]
+    task = PickPlaceTask(in_position_window=5e-5, air_activation=0.035)
+    assert cycle_terms(task) == {"air_activation": 0.035, "in_position_window": 5e-5}
+    line = _cycle_line(task)
     assert "within 0.05 mm" in line and "35 ms of air activation" in line
+    timed = dataclasses.replace(task, release="timed")
+    assert cycle_terms(timed) == {}
+    assert _cycle_line(timed) == "The gripper switches in the middle of a 100 ms dwell at pick and place."
 
 
 def test_a_rows_scenario_keeps_every_other_term_of_the_task() -> None:
