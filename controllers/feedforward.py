@@ -124,19 +124,18 @@ class OracleController:
     (:meth:`~delta_env.drive.SampledLag.hold_lead` of the plant's lag and physics step) makes the torque the plant
     integrates over the held period's physics steps the mean of what the reference wants at them: 0.25 ms on a
     direct drive at the default 0.5 ms step, 0.94 ms through the default 1 ms lag (docs/design.md section 6).
-    Coulomb and Stribeck friction and the ripple are inverted by the oracle at the reference state. Feedback is PD;
-    with an exact feedforward it only has to correct integration error, and a large Kd mostly feeds the encoder's
-    rate quantization (0.05 rad/s at 17 bit and 1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own
-    gains, :func:`oracle_gains` of the plant's true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms). The measured
-    rate is a mean over a window (the encoders' backward difference over a period; MuJoCo's end-of-step velocity
-    without an encoder), so the PD takes the reference's mean rate over the same window
-    (:class:`~controllers.drive.MeasuredReferenceRate`): on the reference its output is then zero, where the
-    reference's instantaneous rate would leave Kd window/2 times the acceleration (2.5 N m at 20 g through the
-    encoders) pushing the arm off it.
+    Coulomb and Stribeck friction and the ripple are inverted by the oracle at the reference state. The feedback is a
+    :class:`~controllers.servo.JointServo` either way, so that it compares the measured rate with the reference's
+    rate measured alike (:class:`~controllers.drive.MeasuredReferenceRate`): on the reference its output is then
+    zero, where the reference's instantaneous rate would leave kd window/2 times the acceleration (2.5 N m at 20 g
+    through the encoders at Kd 10) pushing the arm off it. With ``servo="pd"`` it is a PD: with an exact
+    feedforward it only has to correct integration error, and a large Kd mostly feeds the encoder's rate
+    quantization (0.05 rad/s at 17 bit and 1 kHz, 3 N m at Kd = 60) into the arm, so the bound has its own gains,
+    :func:`oracle_gains` of the plant's true lag (Kp 6000 N m/rad, Kd 10 N m s/rad at 1 ms).
 
-    With ``servo="servo"`` the feedback is the servo layer (:mod:`controllers.servo`) on the plant's truth: gains
-    placed on its exact inertia and true lag, its true Coulomb friction pushed at rest, so that the bound holds the
-    place as well as the rows that run the servo layer.
+    With ``servo="servo"`` (the registry's default, as for the model rows) the feedback is the servo layer
+    (:mod:`controllers.servo`) on the plant's truth: gains placed on its exact inertia and true lag, its true Coulomb
+    friction pushed at rest, so that the bound holds the place as well as the rows that run the servo layer.
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
