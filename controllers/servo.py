@@ -35,7 +35,8 @@ HOME = (0.0, 0.0, 0.0)
 
 DEFAULT_PHASE_MARGIN = math.radians(35.0)
 """Phase margin (rad) the servo's bandwidth keeps through the loop's delay: the best of 35, 40 and 50 degrees on the
-standard cycle at 3 and 6 g (docs/measurements.md), and at a lag twice the identified one still about 20 degrees."""
+standard cycle at 3 and 6 g (docs/measurements.md). A lag twice the identified one leaves 17 degrees, a fourfold
+inertia (4 kg below the conveyors) 16 (docs/design.md section 6)."""
 
 DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
@@ -142,8 +143,7 @@ def servo_gains(
     """Pole-placement gains: a triple pole at :func:`servo_bandwidth` of each joint's delay on its inertia.
 
     Args:
-        inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home
-            (the lightest load: a payload only slows the loop).
+        inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home.
         coulomb: Coulomb friction pushed at rest per joint (N m), (3,).
         drive_lag: Drive lag per joint (s), (3,) or a scalar.
         margin: Phase margin (rad).

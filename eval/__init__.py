@@ -23,7 +23,9 @@ def _interrupted_while_starting(signum: int, frame: FrameType | None) -> None:
     """Ctrl-C while ``python -m eval...`` imports its command: one line and exit code 130, not an import's traceback.
     Nothing has run yet to clean up, and an exception raised inside a compiled module's import would become its
     ImportError, so the process ends at once."""
-    print("python -m eval: interrupted while starting", file=sys.stderr, flush=True)
+    argv = getattr(sys, "orig_argv", [])
+    module = argv[argv.index("-m") + 1] if "-m" in argv[:-1] else "eval"
+    print(f"python -m {module}: interrupted while starting", file=sys.stderr, flush=True)
     os._exit(128 + signum)
 
 

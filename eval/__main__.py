@@ -85,6 +85,7 @@ from eval.scenario_args import (
 )
 from eval.tables import (
     BOUND_HOLDS,
+    FEEDBACK_LINES,
     bound_violations,
     controller_table,
     payload_target_table,
@@ -423,6 +424,8 @@ def _summarize(
             "Mean ± std over episodes (diverged ones counted, their metrics cover the steps before divergence and "
             "are left out of the means). Payload columns: objects >= 0.5 kg. The oracle knows the plant and the "
             "payloads: a bound, not a controller.",
+            "",
+            FEEDBACK_LINES[args.servo],
             "",
             controller_table(episode_rows, carry_rows),
             "",

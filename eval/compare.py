@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from eval import metrics
+from eval.console import UsageError, command_main
 from eval.run_folder import MANIFEST, read_csv_rows, write_csv
 
 DEFAULT_METRICS = ("tracking_rms_mm", "torque_rms_nm")
@@ -244,39 +245,55 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def _usage_error(message: str) -> int:
-    print(f"python -m eval.compare: error: {message}", file=sys.stderr)
-    return 2
+def feedbacks(runs: Sequence[RunRows]) -> list[str | None]:
+    """The feedback each run's model rows ran (its manifest's ``servo``; None where it does not say)."""
+    found = []
+    for run in runs:
+        manifest = json.loads((run.folder / MANIFEST).read_text())
+        found.append(manifest.get("config", {}).get("servo", manifest.get("servo")))
+    return found
 
 
+@command_main("python -m eval.compare")
 def main(argv: Sequence[str] | None = None) -> int:
-    """Compare the run folders of ``argv``; 0 on success, 2 on a usage error (the message on stderr, one line)."""
+    """Compare the run folders of ``argv``; 0 on success (a usage error: one line on stderr and exit code 2)."""
     args = parse_args(argv)
     if len(args.runs) < 2:
-        return _usage_error(f"compare needs two run folders or more, got {len(args.runs)}: {args.runs[0]}")
+        raise UsageError(f"compare needs two run folders or more, got {len(args.runs)}: {args.runs[0]}")
     chosen = [name.strip() for name in args.metrics.split(",") if name.strip()]
     unknown = [name for name in chosen if name not in metrics.METRIC_LABELS]
     if unknown or not chosen:
-        return _usage_error(
+        raise UsageError(
             f"--metrics {args.metrics!r}: unknown {', '.join(unknown) or 'none given'}; "
             f"allowed: {', '.join(metrics.METRIC_LABELS)}"
         )
     try:
         runs = read_runs(args.runs)
     except CompareError as error:
-        return _usage_error(str(error))
+        raise UsageError(str(error)) from None
     shared = shared_metrics(runs)
     missing = [name for name in chosen if name not in shared]
     if missing:
-        return _usage_error(
+        raise UsageError(
             f"--metrics: {', '.join(missing)} not in every run folder; shared: {', '.join(shared) or 'none'}"
         )
+    if args.out is not None:
+        try:  # before anything is printed: a folder that cannot be made is the user's to fix
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise UsageError(f"--out {args.out}: cannot write it ({error.strerror or error})") from None
     print(f"Comparison of {len(runs)} {runs[0].kind!r} runs:")
     print("\n".join(_legend(runs)))
+    servos = feedbacks(runs)
+    if len(set(servos)) > 1:
+        print(
+            "Note: the runs' model rows ran different feedback (--servo: "
+            + ", ".join(f"{index}: {servo or 'not recorded'}" for index, servo in enumerate(servos, start=1))
+            + "); their labels are the same."
+        )
     print()
     print(markdown(runs, chosen))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
         write_csv(args.out, comparison_rows(runs, shared))
         print(f"\nEvery shared metric: {args.out}")
     return 0

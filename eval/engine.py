@@ -23,6 +23,7 @@ from controllers.identification import IdentificationResult
 from controllers.registry import ControllerSetup
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
+from eval.console import UsageError
 from eval.parameter_files import identification_root, parameter_path, robot_identification, robot_setup
 from eval.sweep.runner import OnResult, Setups, Work, run_units
 from eval.sweep.work import WorkUnit, unit_record
@@ -83,8 +84,16 @@ def prepare(
         workers: Processes of the identification's and the calibration's episodes.
         progress: tqdm bar advanced once per calibration episode.
         **setup_fields: Other fields of :class:`~controllers.registry.ControllerSetup` (e.g. ``residual_policy``).
+
+    Raises:
+        UsageError: for the servo layer (``servo="servo"``, the default) on a parameter file without a drive lag.
     """
     parameter_file, identification, setup = robot_knowledge(scenario, parameters, runs_dir, **setup_fields)
+    if setup.servo == "servo" and setup.drive_lag is None:
+        raise UsageError(
+            f"{parameter_file} has no drive lag (its logs had no commands), and the servo layer, the model rows' "
+            "feedback, places its gains on it: identify the robot from logs with commands, or run with --servo pd"
+        )
     setup, calibration = tare_setup(
         scenario,
         setup,

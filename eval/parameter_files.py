@@ -160,7 +160,7 @@ def check_identity(result: IdentificationResult, plant: PlantConfig, path: str |
     if recorded != expected:
         raise ParameterFileError(
             f"{path}: identified on robot {recorded!r}, not on this robot {expected!r} "
-            "(delete the file to identify again, or pass the file of this robot)"
+            "(pass the file of this robot, or, for the cache under the runs root, delete it to identify again)"
         )
 
 

@@ -90,7 +90,8 @@ JOINT_COLOURS = ("tab:blue", "tab:orange", "tab:green")
 def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
     """Applied motor torque over the first episode, one panel per controller (small multiples, shared axes): its
     three joints in colour over the bound's torques in grey (when the run has the bound's row), titled with the RMS
-    of its torque's difference from the bound's (N m), so that controllers whose lines would coincide read apart."""
+    of its torque's difference from the bound's (N m) while their references agree (until the first in-position wait
+    that differs), so that controllers whose lines would coincide read apart."""
     dt = float(traces["dt"])
     keys, labels = [str(key) for key in traces["keys"]], [str(label) for label in traces["labels"]]
     bound = traces[f"{BOUND_KEY}.torque"] if BOUND_KEY in keys else None
@@ -107,8 +108,16 @@ def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> 
             steps = min(len(bound), len(torque))
             lines = axis.plot(time[:steps], bound[:steps], color="0.6", linewidth=1.6)
             lines[0].set_label(f"{labels[keys.index(BOUND_KEY)]}, joints 1-3")
-            difference = float(np.sqrt(np.mean((torque[:steps] - bound[:steps]) ** 2)))
-            title = f"{label}: {difference:.2f} N m RMS from the bound"
+            # compared while the two references agree: an in-position wait of either shifts the rest of its timeline
+            apart = np.flatnonzero(
+                np.any(
+                    traces[f"{key}.{REFERENCE_FIELD}"][:steps] != traces[f"{BOUND_KEY}.{REFERENCE_FIELD}"][:steps],
+                    axis=1,
+                )
+            )
+            shared = int(apart[0]) if len(apart) else steps
+            difference = float(np.sqrt(np.mean((torque[:shared] - bound[:shared]) ** 2)))
+            title = f"{label}: {difference:.2f} N m RMS from the bound over its first {shared * dt:.2f} s"
         for joint, colour in enumerate(JOINT_COLOURS):
             axis.plot(time, torque[:, joint], color=colour, linewidth=0.8, label=f"joint {joint + 1}")
         axis.set_title(title, fontsize="medium")

@@ -52,7 +52,7 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval import metrics
 from eval.calibration import calibration_seeds
-from eval.console import command_main, progress_bar
+from eval.console import command_main, plural, progress_bar
 from eval.engine import grid, prepare, run_grid
 from eval.processes import DEFAULT_WORKERS
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
@@ -67,6 +67,7 @@ from eval.scenario_args import (
     scenario_from_arguments,
 )
 from eval.sweep.work import WorkUnit
+from eval.tables import FEEDBACK_LINES
 from eval.tasks import CELL_ESTIMATOR_KEY
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
@@ -77,8 +78,8 @@ RATE_TORQUE_SHARE = 1.0
 ``--torque-share`` says otherwise: the whole envelope, within the thermal rating, as a maker rates its robot."""
 
 CYCLE_TERMS = ("air_activation", "in_position_window")
-"""The scenario task's terms of the cycle's ends, once the env has them: the air-activation time at pick and place
-(s) and the in-position window within which the gripper switches (m)."""
+"""The scenario task's terms of the cycle's ends with the in-position release: the air-activation time at pick and
+place (s) and the in-position window within which the gripper switches (m)."""
 
 COMPARED_PLANNERS = ("online", "declared", "worst_case", "fixed")
 """The planner whose rows stand beside the published ones: the first of these that ran."""
@@ -491,7 +492,8 @@ def _summary(
         f"Planned timings use {100 * args.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
         f"planner's 10 % margin) and keep its thermal rating. {_cycle_line(args.scenario.task)}",
         "",
-        f"Picks per minute ({lead} runs every row; the other controllers follow its references).",
+        f"{FEEDBACK_LINES[args.servo]} Picks per minute ({lead} runs every row; the other controllers follow its "
+        "references as given: they do not wait in position, and their place error is taken at the lead's release).",
         "",
         metrics.markdown_table(
             ["planner", "controller", *[f"{load} kg" if load != MIXED else load for load in loads]], sheet
@@ -588,15 +590,10 @@ def _fastest_lines(
 def _study_line(args: argparse.Namespace) -> str:
     """What a run measures: episodes, cycles, seeds and payloads."""
     return (
-        f"{_counted(args.episodes, 'episode')} x {_counted(args.scenario.task.n_cycles, 'cycle')} per row from seed "
+        f"{plural(args.episodes, 'episode')} x {plural(args.scenario.task.n_cycles, 'cycle')} per row from seed "
         f"{args.seed}, payloads "
         f"{_kilograms(args.payloads).replace(',', ', ')} kg and the mixed stream"
     )
-
-
-def _counted(count: int, noun: str) -> str:
-    """``"1 episode"``, ``"3 episodes"``."""
-    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _cycle_line(task: PickPlaceTask) -> str:
@@ -604,12 +601,10 @@ def _cycle_line(task: PickPlaceTask) -> str:
     terms = cycle_terms(task)
     if not terms:
         return f"The gripper switches in the middle of a {1e3 * DEFAULT_DWELL:.0f} ms dwell at pick and place."
-    ends = []
-    if "in_position_window" in terms:
-        ends.append(f"the gripper switches once the platform is within {1e3 * terms['in_position_window']:g} mm")
-    if "air_activation" in terms:
-        ends.append(f"{1e3 * terms['air_activation']:.0f} ms of air activation at pick and place")
-    return "Cycle ends: " + "; ".join(ends) + "."
+    return (
+        f"Cycle ends: the gripper switches once the platform is within {1e3 * terms['in_position_window']:g} mm; "
+        f"{1e3 * terms['air_activation']:.0f} ms of air activation at pick and place."
+    )
 
 
 def compared_planner(planners: Sequence[str]) -> str:

@@ -183,6 +183,13 @@ def unbounded_episodes(episode_rows: list[dict[str, Any]], bound_label: str) -> 
     ]
 
 
+FEEDBACK_LINES = {
+    "servo": "Feedback: the model rows and the bound run the servo layer (integral action, friction compensation at "
+    "rest; --servo pd gives the paper's fixed PD); their labels keep '+PD'.",
+    "pd": "Feedback: the model rows run the paper's fixed PD (--servo pd) and the bound its own PD.",
+}
+"""The summaries' line on what feedback the model rows ran, per :data:`controllers.setup.SERVOS` value."""
+
 BOUND_HOLDS = (
     "Bound check: no controller tracks better than {bound}, in the mean or on any episode, nor places closer on "
     "average."

@@ -38,7 +38,8 @@ masses, noise) is ever trained on.
 Training episodes come from the ``randomized`` scenario by default (domain randomization of masses, friction
 and drive lag on the nominal robot; ``--scenario`` chooses another). The base controller is the eval's
 ``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
-MId+F+R + PD with the payload RLS, its feedforward leading the identified drive lag, its parameters those
+MId+F+R with its feedback (the servo layer by default, ``--servo pd`` the paper's PD) and the payload RLS, its
+feedforward leading the identified drive lag, its parameters those
 of the scenario's robot (``--scenario``, ``--geometry``; ``eval.parameter_files.identify_robot``) and
 its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
 Both, and the robot's geometry and masses, are saved in the policy.

@@ -79,7 +79,9 @@ def test_three_runs_and_sweep_folders(tmp_path: Path, capsys) -> None:
 
 
 def _refused(argv: list[str], capsys) -> str:
-    assert compare.main(argv) == 2
+    with pytest.raises(SystemExit) as exit_info:
+        compare.main(argv)
+    assert exit_info.value.code == 2
     captured = capsys.readouterr()
     assert captured.out == ""
     (line,) = captured.err.splitlines()  # one line
@@ -148,3 +150,9 @@ def test_two_real_runs_of_python_m_eval(parameter_file: Path, tmp_path: Path, ca
         first, second = (float(episode[metric]) for episode in episodes)
         assert float(rows[metric]["difference_2"]) == pytest.approx(second - first)
     assert "| PD |" in capsys.readouterr().out
+
+
+def test_an_unwritable_out_file_is_a_usage_error(two_runs, capsys) -> None:
+    baseline, after = two_runs
+    line = _refused([str(baseline), str(after), "--out", "/proc/nope/compare.csv"], capsys)
+    assert line.startswith("python -m eval.compare: error: --out /proc/nope/compare.csv: cannot write it")

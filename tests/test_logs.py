@@ -261,7 +261,7 @@ def test_python_m_eval_accepts_a_file_from_logs_for_that_robot_only(logged_plant
     assert load_result(path).provenance["plant"]["identity"] in str(error.value) and expected in str(error.value)
 
 
-def test_logs_without_commands_identify_everything_but_the_drive_lag(logged_plant, tmp_path) -> None:
+def test_logs_without_commands_identify_everything_but_the_drive_lag(logged_plant, tmp_path, capsys) -> None:
     files = []
     for path in logged_plant["files"]:
         log = read_log(path)
@@ -273,6 +273,15 @@ def test_logs_without_commands_identify_everything_but_the_drive_lag(logged_plan
     setup = robot_setup(with_geometry(preset("nominal"), *load_robot(robot)).plant, result)
     with pytest.raises(ValueError, match="needs the identified drive lag"):
         build_controller("mid_f_rls_lag", setup)
+    # the comparison refuses the file in one line before any episode: the servo layer's gains need the lag
+    from eval.__main__ import main as compare
+
+    argv = ["--geometry", str(robot), "--parameters", str(tmp_path / "run" / "parameters.json"), "--episodes", "1"]
+    argv += ["--controllers", "pd,mid_f", "--runs-dir", str(tmp_path / "runs"), "--out", str(tmp_path / "eval")]
+    with pytest.raises(SystemExit) as exit_info:
+        compare(argv)
+    assert exit_info.value.code == 2
+    assert "--servo pd" in capsys.readouterr().err
     assert result.mid_f_rods == load_result(logged_plant["root"] / "fromlogs" / "parameters.json").mid_f_rods
     assert "Not identified: the logs have no commands" in (tmp_path / "run" / "report.md").read_text()
 

@@ -183,7 +183,7 @@ def test_every_figure_shows_what_its_legend_lists(tmp_path: Path, monkeypatch: p
         torque_profiles = figures[list(plots.FIGURES).index("torque_profiles.png")]
         titles = [axis.get_title() for axis in torque_profiles.axes if axis.get_visible()]
         assert [title.split(":")[0] for title in titles] == ["PD", "MId+F+RLS", "Oracle+PD (bound)"]
-        assert titles[0] == "PD: 2.00 N m RMS from the bound"  # every joint 2 N m above the bound's torque
+        assert titles[0] == "PD: 2.00 N m RMS from the bound over its first 0.30 s"  # every joint 2 N m above
         for axis in torque_profiles.axes:  # no legend over the data: one legend, the figure's, above the panels
             assert axis.get_legend() is None
         (legend,) = torque_profiles.legends

@@ -145,7 +145,7 @@ def step_reference(step: float, samples: int = 400) -> Trajectory:
 
 def test_a_step_against_static_friction_settles_inside_the_window() -> None:
     """0.2 mm at rest: Coulomb friction holds the paper's PD short of it (Kp e < fc); the servo settles within
-    0.05 mm in well under 100 ms and stays there."""
+    0.05 mm and stays there (measured: in 19 ms, then within 0.011 mm; without the push at rest 290 ms)."""
     setup = ControllerSetup(mid=NOMINAL_RODS, mid_f=NOMINAL_RODS, mid_f_rods=NOMINAL_RODS, drive_lag=LAG)
     env = DeltaPickPlaceEnv()
     reference = step_reference(2e-4)
@@ -156,8 +156,8 @@ def test_a_step_against_static_friction_settles_inside_the_window() -> None:
     assert isinstance(model_row("mid_f_r", dataclasses.replace(setup, servo="pd")).servo, PDController)
     assert errors["pd"][-1] > 0.1e-3  # the stick band of the fixed PD
     settled = np.nonzero(errors["servo"] > 0.05e-3)[0][-1] + 1
-    assert settled < 60, f"settled after {settled} ms"
-    assert errors["servo"][-100:].max() < 0.03e-3
+    assert settled < 30, f"settled after {settled} ms"
+    assert errors["servo"][-100:].max() < 0.02e-3
 
 
 def test_no_feedback_on_the_reference_itself_when_rates_are_measured_alike() -> None:

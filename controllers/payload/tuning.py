@@ -26,9 +26,10 @@ after each stop; a wider one discards the samples of the lift that determine the
 
 FRICTION_CORRELATION_SAMPLES = 100
 """Samples over which the friction error of a joint at rest stays the same: a station dwell (100 ms at
-1 kHz). Static friction is not white noise but one unknown constant per stop; inflating its variance
-by the number of correlated samples makes a whole dwell count as about one independent equation
-(the usual effective-sample-size correction of least squares with correlated errors)."""
+1 kHz with the timed release; with the in-position release a stop is 35 ms of air activation after the settle,
+and the value was kept from the timed cell's tuning). Static friction is not white noise but one unknown constant
+per stop; inflating its variance by the number of correlated samples makes a whole dwell count as about one
+independent equation (the usual effective-sample-size correction of least squares with correlated errors)."""
 
 TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
 """How long (in control periods) a measured torque precedes the encoder sample it comes with: the
