@@ -271,6 +271,13 @@ its cell and its header in the summary: the mean settle time (ms), the longest (
 settled within the time-out (count)."""
 
 
+def _settle_cell(value: float, kind: type) -> str:
+    """A settle column's cell: n/a for a row that never waited in position (it follows the lead's reference)."""
+    if kind is float:
+        return "n/a" if math.isnan(value) else f"{value:.1f}"
+    return str(value)
+
+
 def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """One row of ``rate.csv`` from a row's episodes' metrics (:meth:`EpisodeRecord.metrics`): means over them,
     except the worst place error (mm), the summed violations and divergences, the largest torque ratios, whether
@@ -477,7 +484,7 @@ def _summary(
             f"{row['tracking_rms_mm']:.3f}",
             f"{row['path_deviation_rms_mm']:.3f}",
             f"{row['place_error_mm']:.3f}",
-            *(f"{row[name]:.1f}" if kind is float else str(row[name]) for name, kind, _ in settled),
+            *(_settle_cell(row[name], kind) for name, kind, _ in settled),
             str(row["envelope_violations"]),
             f"{row['peak_torque_ratio']:.2f}",
             f"{row['rms_torque_ratio']:.2f}",
