@@ -31,6 +31,7 @@ from delta_env.plant import DeltaPlant
 from delta_env.reference import EpisodeReference
 from delta_env.release import InPositionRelease, ReleaseSettings, Settle
 from delta_env.scenario import Scenario, resolve_scenario
+from delta_env.scene import RENDER_SIZE
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
 from delta_env.trajectories import Trajectory, require_peak_acceleration
@@ -149,7 +150,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     | ``reward_weights`` | RewardWeights, None | None = ``RewardWeights()`` | weights of the reward terms |
     | ``divergence_penalty`` | float | 1000.0 | reward (negated) of the step on which the simulation diverges |
     | ``render_mode`` | str, None | None | ``"rgb_array"``, ``"human"`` or None |
-    | ``width``, ``height`` | int | 480, 480 | render size (pixels) |
+    | ``width``, ``height`` | int | 960, 720 | render size (pixels, within the model's 1280 x 720 offscreen buffer) |
     | ``scenario`` | str, path, Scenario, None | None = ``nominal`` | preset name, scenario TOML file or value |
     | ``timing`` | MoveTiming, None | None | times every move instead of ``peak_acceleration`` (``env.timing``) |
     | ``faults`` | sequence of FaultSpec, None | None = the scenario's (none) | faults injected into the episodes |
@@ -181,8 +182,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         reward_weights: RewardWeights | None = None,
         divergence_penalty: float = 1e3,
         render_mode: str | None = None,
-        width: int = 480,
-        height: int = 480,
+        width: int = RENDER_SIZE[0],
+        height: int = RENDER_SIZE[1],
         scenario: str | os.PathLike[str] | Scenario | None = None,
         timing: MoveTiming | None = None,
         faults: Sequence[FaultSpec] | None = None,

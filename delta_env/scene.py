@@ -47,6 +47,14 @@ _CAMERA_POSITION = np.array([2.2, -2.2, 0.4])
 _CAMERA_TARGET = np.array([0.0, 0.0, -0.7])
 
 
+OFFSCREEN_SIZE = (1280, 720)
+"""Width and height (px) of the model's offscreen framebuffer: the largest frame it renders."""
+
+RENDER_SIZE = (960, 720)
+"""Default width and height (px) of a rendered frame (the env's ``rgb_array``, a video's): 4:3 within
+:data:`OFFSCREEN_SIZE`, multiples of a video codec's 16 px blocks."""
+
+
 def scene_spec(config: PlantConfig, obstacle: bool = False) -> mujoco.MjSpec:
     """The robot of ``config`` in its scene, with the payload body if ``config.payload_body``.
 
@@ -57,8 +65,7 @@ def scene_spec(config: PlantConfig, obstacle: bool = False) -> mujoco.MjSpec:
         ValueError: if ``config`` is not a :class:`~delta_env.config.PlantConfig`.
     """
     spec = robot_spec(config)
-    spec.visual.global_.offwidth = 1280
-    spec.visual.global_.offheight = 720
+    spec.visual.global_.offwidth, spec.visual.global_.offheight = OFFSCREEN_SIZE
     spec.add_texture(
         name="grid",
         type=mujoco.mjtTexture.mjTEXTURE_2D,

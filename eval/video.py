@@ -28,7 +28,7 @@ from controllers.registry import ControllerSetup, controller_label
 from delta_env.config import DEFAULT_PAYLOAD_SIZE, SUCTION_CUP_OFFSET
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
-from delta_env.scene import PAYLOAD_RGBA
+from delta_env.scene import PAYLOAD_RGBA, RENDER_SIZE
 from eval.episodes import EpisodeRecord, run_episode
 from eval.processes import parallel_imap, process_pool
 from eval.tasks import Task, task_episode
@@ -36,8 +36,8 @@ from eval.tasks import Task, task_episode
 DEFAULT_FPS = 30.0
 """Frames per second of a video (Hz)."""
 
-VIDEO_SIZE = (960, 720)
-"""Width and height of a video (px): within the scene's offscreen framebuffer (:func:`delta_env.scene.scene_spec`)."""
+VIDEO_SIZE = RENDER_SIZE
+"""Width and height of a video (px): the env's render size (:data:`delta_env.scene.RENDER_SIZE`)."""
 
 CAMERA = {"lookat": (0.0, 0.0, -0.62), "distance": 2.15, "azimuth": 120.0, "elevation": -24.0}
 """The free camera of a video: the robot from above its base down to the conveyors, from the pick conveyor's side."""

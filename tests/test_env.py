@@ -306,6 +306,17 @@ def test_rgb_array_render_returns_an_image() -> None:
     assert image.std() > 5.0, "the frame is blank"
 
 
+@pytest.mark.usefixtures("opengl_context")
+def test_the_default_frame_is_960_by_720_and_the_largest_fits_the_offscreen_buffer() -> None:
+    env = DeltaPickPlaceEnv(n_cycles=1, render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        assert env.render().shape == (720, 960, 3)
+    finally:
+        env.close()
+    assert (env.plant.model.vis.global_.offwidth, env.plant.model.vis.global_.offheight) == (1280, 720)
+
+
 def test_domain_randomization_draws_a_plant_per_seeded_episode() -> None:
     env = DeltaPickPlaceEnv(n_cycles=1, domain_randomization=RandomizationRanges())
     env.reset(seed=1)
