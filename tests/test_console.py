@@ -16,31 +16,15 @@ from typing import Any
 
 import pytest
 
-from controllers.identification import IdentificationResult, ParameterFileError, save_result
+from controllers.identification import ParameterFileError, save_result
 from delta_env.scenario import preset, with_geometry
 from eval import __main__ as eval_cli
-from eval import identification, identify, parameter_files
+from eval import identify, parameter_files
 from eval.console import UsageError, command_main, plural, progress_bar
 from eval.processes import holding_interrupts, parallel_map
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated
-from tests.conftest import NOMINAL_SETUP
-from tests.test_robot_identity import DESIGN
+from tests.test_robot_identity import DESIGN, fake_result
 from tests.test_run_folder import script
-
-
-def fake_result(plant: Any, **provenance: Any) -> IdentificationResult:
-    """An identification of ``plant`` with the nominal parameters and the provenance entries ``provenance``."""
-    setup = NOMINAL_SETUP
-    return IdentificationResult(
-        mid=setup.mid,
-        mid_f=setup.mid_f,
-        mid_f_rods=setup.mid_f_rods,
-        paper_mid=setup.mid,
-        paper_mid_f=setup.mid_f,
-        drive_lag=setup.drive_lag,
-        standard_errors={},
-        provenance={"plant": identification._plant_summary(plant), **provenance},
-    )
 
 
 def simulated_provenance(trajectories: int, duration: float, validation: float, seed: int = 0) -> dict[str, Any]:

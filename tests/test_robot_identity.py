@@ -2,6 +2,7 @@
 built as models of the robot they were identified on."""
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,7 +18,8 @@ from tests.conftest import NOMINAL_SETUP
 DESIGN = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)
 
 
-def fake_result(plant) -> IdentificationResult:
+def fake_result(plant: Any, **provenance: Any) -> IdentificationResult:
+    """An identification of ``plant`` with the nominal parameters and the provenance entries ``provenance``."""
     setup = NOMINAL_SETUP
     return IdentificationResult(
         mid=setup.mid,
@@ -27,7 +29,7 @@ def fake_result(plant) -> IdentificationResult:
         paper_mid_f=setup.mid_f,
         drive_lag=setup.drive_lag,
         standard_errors={},
-        provenance={"plant": identification._plant_summary(plant)},
+        provenance={"plant": identification._plant_summary(plant), **provenance},
     )
 
 
