@@ -107,6 +107,8 @@ class PayloadTiming:
         dwell: Rest (s) after every move, part of its thermal budget (the task's dwell).
         torque_share: Share of the planner's envelope (after its margin) that moves may use, in (0, 1]: the
             margin for tracking (:data:`DEFAULT_TORQUE_SHARE`).
+        min_payload: The lightest object of the task (kg), in [0, ``max_payload``]: an online carry starts hot
+            (:data:`START_SHARE`) only if its object may be lighter than the heaviest by a :data:`REPLAN_STEP`.
     """
 
     def __init__(
@@ -117,11 +119,13 @@ class PayloadTiming:
         estimator: PayloadEstimator | None = None,
         dwell: float = DEFAULT_DWELL,
         torque_share: float = DEFAULT_TORQUE_SHARE,
+        min_payload: float = 0.0,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {list(MODES)}, got {mode!r}")
         require_instance("planner", planner, TimeOptimalPlanner)
         self.max_payload = require_in("max_payload", max_payload, 0.0, unit="kg")
+        self.min_payload = require_in("min_payload", min_payload, 0.0, self.max_payload, unit="kg")
         if mode == "online" and estimator is None:
             raise ValueError("online timing needs the payload estimator whose estimate retimes the carries")
         self.planner = planner
@@ -185,7 +189,10 @@ class PayloadTiming:
     def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
         """The law of a carry: for its declared mass (kg) in ``"declared"`` mode, else for the heaviest object.
 
-        ``"online"`` also precomputes its continuations (:data:`PRECOMPUTED_TAKEOVERS`), once per carry shape.
+        ``"online"`` starts hot (:meth:`_start`) if lighter objects may come: with objects of one mass the rated
+        worst case is the declared timing, and a hot start would only move heat to the end of the carry, where the
+        platform then settles worse. It also precomputes the start's continuations (:data:`PRECOMPUTED_TAKEOVERS`),
+        once per carry shape.
         """
         rated = self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
         if not self.retimes_online:
@@ -193,9 +200,12 @@ class PayloadTiming:
         key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, self.max_payload)
         key += (self.dwell, self.torque_share, "start")
         plans = _PLANS.setdefault(self.planner, {})
-        if key not in plans:
-            plans[key] = self._start(shape, rated)
-        law = plans[key]
+        if self.min_payload > self.max_payload - REPLAN_STEP:
+            law = rated
+        elif key in plans:
+            law = plans[key]
+        else:
+            law = plans[key] = self._start(shape, rated)
         if law not in _CONTINUATIONS:
             _CONTINUATIONS[law] = self._continuations(shape, law, len(rated))
         return law
