@@ -11,12 +11,14 @@ torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned withi
   objects are not weighed (or its payload not declared): the best a cell can do without knowing the mass;
 - ``"declared"``: each carry for its object's true mass, as a per-object payload schedule would give: the
   reference a payload estimate can at best reach, not a controller;
-- ``"online"``: a carry starts on the plan for the heaviest object; once the payload estimator (the
-  controller's RLS) has settled, the rest of the carry continues on a plan for the estimate plus its
-  uncertainty and a margin, from the state the carry has reached (the past is kept, the continuation is C2):
-  at once if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else after the planner's
-  time (:data:`PLANNING_LATENCY`). It may replan again as the estimate tightens, by at least
-  :data:`REPLAN_STEP`.
+- ``"online"``: a carry starts on a plan for the heaviest object within the envelope but hotter than its rating
+  (:data:`START_SHARE`: the thermal budget is an average, which the rest of the carry settles); once the payload
+  estimator (the controller's RLS) has settled, the rest of the carry continues, within the rating, on a plan for
+  the estimate plus its uncertainty and a margin, from the state the carry has reached (the past is kept, the
+  continuation is C2): at once if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else
+  after the planner's time (:data:`PLANNING_LATENCY`). A carry whose estimate has not settled by
+  :data:`FALLBACK_TAKEOVER` continues on the precomputed rated plan for the heaviest object. It may replan again as
+  the estimate tightens, by at least :data:`REPLAN_STEP`.
 """
 
 from __future__ import annotations
@@ -65,12 +67,24 @@ replan takes on one core (:data:`controllers.timing.REPLAN_GRID_INTERVALS`; docs
 so the carry keeps its law that long and the online rate is what a cell whose planner runs beside the 1 kHz loop
 would get."""
 
-PRECOMPUTED_TAKEOVERS = (0.015, 0.02, 0.025, 0.03, 0.04)
+START_SHARE = 0.6
+"""Share of the task's torque share on which an online carry starts, planned for the heaviest object: within the
+envelope whatever the object, but too hot for the thermal rating on its own, so that the first samples, before the
+estimate settles, are not slowed by a budget that the whole move and its dwell share (every carry law on the whole
+envelope is thermally limited: about 0.4 to 0.6 of it). Its rated continuations reach about the declared timing
+(docs/measurements.md, "Pick rate")."""
+
+FALLBACK_TAKEOVER = 0.03
+"""Time (s) into an online carry by which it leaves its unrated start: on a precomputed continuation for the
+estimate, else on the precomputed rated continuation for the heaviest object."""
+
+PRECOMPUTED_TAKEOVERS = (0.015, 0.018, 0.02, 0.025, 0.03)
 """Times (s) into a carry from which an online timing precomputes, while it plans the carry, continuations for
 :data:`PRECOMPUTED_PAYLOADS`: an estimate that settles before one of them switches at no planning latency."""
 
 PRECOMPUTED_PAYLOADS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5)
-"""Payloads (kg) of the precomputed continuations (below the heaviest object only)."""
+"""Payloads (kg) of the precomputed continuations (below the heaviest object only; the heaviest object's own at
+:data:`FALLBACK_TAKEOVER`)."""
 
 MAX_CACHED_PLANS = 512
 """Laws kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
@@ -93,6 +107,8 @@ class PayloadTiming:
         dwell: Rest (s) after every move, part of its thermal budget (the task's dwell).
         torque_share: Share of the planner's envelope (after its margin) that moves may use, in (0, 1]: the
             margin for tracking (:data:`DEFAULT_TORQUE_SHARE`).
+        min_payload: The lightest object of the task (kg), in [0, ``max_payload``]: an online carry starts hot
+            (:data:`START_SHARE`) only if its object may be lighter than the heaviest by a :data:`REPLAN_STEP`.
     """
 
     def __init__(
@@ -103,11 +119,13 @@ class PayloadTiming:
         estimator: PayloadEstimator | None = None,
         dwell: float = DEFAULT_DWELL,
         torque_share: float = DEFAULT_TORQUE_SHARE,
+        min_payload: float = 0.0,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {list(MODES)}, got {mode!r}")
         require_instance("planner", planner, TimeOptimalPlanner)
         self.max_payload = require_in("max_payload", max_payload, 0.0, unit="kg")
+        self.min_payload = require_in("min_payload", min_payload, 0.0, self.max_payload, unit="kg")
         if mode == "online" and estimator is None:
             raise ValueError("online timing needs the payload estimator whose estimate retimes the carries")
         self.planner = planner
@@ -171,25 +189,66 @@ class PayloadTiming:
     def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
         """The law of a carry: for its declared mass (kg) in ``"declared"`` mode, else for the heaviest object.
 
-        ``"online"`` also precomputes its continuations (:data:`PRECOMPUTED_TAKEOVERS`), once per carry shape.
+        ``"online"`` starts hot (:meth:`_start`) if lighter objects may come: with objects of one mass the rated
+        worst case is the declared timing, and a hot start would only move heat to the end of the carry, where the
+        platform then settles worse. It also precomputes the start's continuations (:data:`PRECOMPUTED_TAKEOVERS`),
+        once per carry shape.
         """
-        law = self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
-        if self.retimes_online and law not in _CONTINUATIONS:
-            _CONTINUATIONS[law] = self._continuations(shape, law)
+        rated = self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
+        if not self.retimes_online:
+            return rated
+        key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, self.max_payload)
+        key += (self.dwell, self.torque_share, "start")
+        plans = _PLANS.setdefault(self.planner, {})
+        if self.min_payload > self.max_payload - REPLAN_STEP:
+            law = rated
+        elif key in plans:
+            law = plans[key]
+        else:
+            law = plans[key] = self._start(shape, rated)
+        if law not in _CONTINUATIONS:
+            _CONTINUATIONS[law] = self._continuations(shape, law, len(rated))
         return law
 
-    def _continuations(self, shape: Segment, law: TimeLaw) -> list[tuple[int, float, TimeLaw]]:
-        """(takeover sample, payload, law) of ``law``'s continuations for lighter objects, earliest first."""
+    def _start(self, shape: Segment, rated: TimeLaw) -> TimeLaw:
+        """The start law of an online carry (:data:`START_SHARE`) if its rated continuation for the heaviest object
+        from :data:`FALLBACK_TAKEOVER` exists, else ``rated`` (the heaviest object's rated law)."""
+        try:
+            start = self.planner.plan(shape, self.max_payload, START_SHARE * self.torque_share)
+        except ValueError:
+            return rated
+        if len(start) >= len(rated):
+            return rated
+        fallback = round(FALLBACK_TAKEOVER / start.dt)
+        if self._continued(shape, start, fallback, self.max_payload, math.inf) is None:
+            return rated
+        if self.thermal_ratio(shape, start, self.max_payload) > 1.0:
+            _UNRATED_STARTS.add(start)
+        return start
+
+    def _continuations(self, shape: Segment, law: TimeLaw, rated_samples: int) -> list[tuple[int, float, TimeLaw]]:
+        """(takeover sample, payload, law) of ``law``'s rated continuations, earliest first: for lighter objects
+        if shorter than ``rated_samples`` (the heaviest object's rated law), and, for a start law over the rating,
+        the heaviest object's own from :data:`FALLBACK_TAKEOVER`."""
         table = []
         for takeover in sorted({round(t / law.dt) for t in PRECOMPUTED_TAKEOVERS}):
             for payload in (p for p in PRECOMPUTED_PAYLOADS if p <= self.max_payload - REPLAN_STEP):
-                continued = self._continued(shape, law, takeover, payload)
+                continued = self._continued(shape, law, takeover, payload, rated_samples)
                 if continued is not None:
                     table.append((takeover, payload, continued))
+        if law in _UNRATED_STARTS:
+            fallback = round(FALLBACK_TAKEOVER / law.dt)
+            table.append(
+                (fallback, self.max_payload, self._continued(shape, law, fallback, self.max_payload, math.inf))
+            )
         return table
 
-    def _continued(self, shape: Segment, law: TimeLaw, takeover: int, payload: float) -> TimeLaw | None:
-        """``law`` continued from sample ``takeover`` for ``payload`` (kg) within the rating, if shorter."""
+    def _continued(
+        self, shape: Segment, law: TimeLaw, takeover: int, payload: float, within: float | None = None
+    ) -> TimeLaw | None:
+        """``law`` continued from sample ``takeover`` for ``payload`` (kg) within the rating, if shorter than
+        ``within`` samples (default: ``law``'s)."""
+        within = len(law) if within is None else within
         if takeover >= len(law) - 1:
             return None
         try:
@@ -198,7 +257,7 @@ class PayloadTiming:
             )
         except ValueError:  # no continuation from there within the share
             return None
-        return continued if continued is not None and len(continued) < len(law) else None
+        return continued if continued is not None and len(continued) < within else None
 
     def empty(self, shape: Segment) -> TimeLaw:
         """The law of an empty move: for the empty gripper."""
@@ -208,39 +267,52 @@ class PayloadTiming:
         """``"online"``: the rest of the carry replanned for the settled estimate, or None to keep ``law``.
 
         The new law takes over :data:`PLANNING_LATENCY` after ``index`` and must be shorter than ``law``; a
-        non-finite estimate or variance (a sensor fault) never retimes.
+        non-finite estimate or variance (a sensor fault) never retimes. A carry still on its unrated start law
+        (:data:`START_SHARE`) takes only precomputed continuations, and at :data:`FALLBACK_TAKEOVER` the heaviest
+        object's, whatever the estimate.
         """
         if not self.retimes_online:
             return None
         if index == 0 or law is not self._law:  # a new carry runs on the heaviest object's plan
             self._law, self._law_mass = law, self.max_payload
+        table = _CONTINUATIONS.get(law, ())
+        fallback = [continued for start, mass_, continued in table if start == index and mass_ == self.max_payload]
         mass, variance = self.estimator.mass, self.estimator.rls.variance
         if not (math.isfinite(mass) and math.isfinite(variance) and 0.0 <= variance <= SETTLED_STD**2):
-            return None
+            return self._switched(fallback[0]) if fallback else None
         payload = min(self.max_payload, max(0.0, mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN))
         if payload > self._law_mass - REPLAN_STEP:
-            return None
+            return self._switched(fallback[0]) if fallback else None
         takeover = index + round(PLANNING_LATENCY / law.dt)
         # A precomputed continuation that takes over before a new plan could, for the lightest payload that covers
-        # the estimate; else a new plan.
+        # the estimate; else a new plan (never from an unrated start: its fallback is due before a plan could be).
         ready = [
             (start, mass_, continued)
-            for start, mass_, continued in _CONTINUATIONS.get(law, ())
+            for start, mass_, continued in table
             if index <= start < takeover and payload <= mass_ < self._law_mass - REPLAN_STEP
         ]
         if ready:
-            _, self._law_mass, retimed = min(ready, key=lambda entry: (entry[0], entry[1]))
-        else:
-            self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
-            retimed = self._continued(shape, law, takeover, payload)
-        if retimed is None:
+            _, mass_, retimed = min(ready, key=lambda entry: (entry[0], entry[1]))
+            return self._switched(retimed, mass_)
+        if fallback:
+            return self._switched(fallback[0])
+        if law in _UNRATED_STARTS:
             return None
-        self._law = retimed
-        return retimed
+        self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
+        retimed = self._continued(shape, law, takeover, payload)
+        return None if retimed is None else self._switched(retimed, payload)
+
+    def _switched(self, law: TimeLaw, payload: float | None = None) -> TimeLaw:
+        """Follow ``law``, planned for ``payload`` (kg; None: the heaviest object), from now on; returns it."""
+        self._law, self._law_mass = law, self.max_payload if payload is None else payload
+        return law
 
 
 _CONTINUATIONS: weakref.WeakKeyDictionary[TimeLaw, list[tuple[int, float, TimeLaw]]] = weakref.WeakKeyDictionary()
 """Precomputed continuations of online carries' laws (:meth:`PayloadTiming._continuations`)."""
+
+_UNRATED_STARTS: weakref.WeakSet[TimeLaw] = weakref.WeakSet()
+"""Start laws of online carries over the thermal rating (:meth:`PayloadTiming._start`)."""
 
 _PLANS: weakref.WeakKeyDictionary[TimeOptimalPlanner, dict[tuple, TimeLaw]] = weakref.WeakKeyDictionary()
 """Laws already planned, per planner (at most :data:`MAX_CACHED_PLANS` each)."""

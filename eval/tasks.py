@@ -91,6 +91,7 @@ def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: Contr
         estimator,
         dwell=env.release.dwell,
         torque_share=env.torque_share,
+        min_payload=env.payload_mass_range[0],
     )
     return controller
 

@@ -15,6 +15,7 @@ from controllers.feedforward import OracleController
 from controllers.payload_timing import (
     ESTIMATE_MARGIN,
     ESTIMATE_SIGMAS,
+    FALLBACK_TAKEOVER,
     PLANNING_LATENCY,
     PRECOMPUTED_PAYLOADS,
     REPLAN_STEP,
@@ -133,6 +134,8 @@ def test_bad_arguments_are_refused(planner: TimeOptimalPlanner) -> None:
         PayloadTiming(planner, "declared", RATED_PAYLOAD, torque_share=1.5)
     with pytest.raises(ValueError, match="max_payload"):
         PayloadTiming(planner, "declared", -1.0)
+    with pytest.raises(ValueError, match="min_payload"):
+        PayloadTiming(planner, "declared", 1.0, min_payload=2.0)
 
 
 def test_online_timing_reads_the_controllers_estimator_or_runs_the_cells_own(controller_setup) -> None:
@@ -225,3 +228,37 @@ def test_every_carry_starts_afresh_on_the_heaviest_objects_plan(planner: TimeOpt
     retimed = timing.retime(CARRY, second, 0)
     assert retimed is not None and retimed.payload == pytest.approx(3.0 + 0.01 + ESTIMATE_MARGIN)
     assert len(retimed) < len(second)
+
+
+@pytest.mark.slow
+def test_on_the_whole_envelope_an_online_carry_starts_hot_and_its_continuations_keep_the_rating(
+    planner: TimeOptimalPlanner,
+) -> None:
+    worst = PayloadTiming(planner, "worst_case", RATED_PAYLOAD, torque_share=1.0).carry(CARRY, 0.5)
+    estimator = FakeEstimator()
+    timing = PayloadTiming(planner, "online", RATED_PAYLOAD, estimator, torque_share=1.0)
+    start = timing.carry(CARRY, 0.5)
+    # faster than the rated worst case, and too hot for the rating on its own with the heaviest object
+    assert len(start) < 0.95 * len(worst) and timing.thermal_ratio(CARRY, start, RATED_PAYLOAD) > 1.0
+    # an estimate that never settles: at FALLBACK_TAKEOVER the rated continuation for the heaviest object
+    fallback = round(FALLBACK_TAKEOVER / start.dt)
+    assert timing.retime(CARRY, start, fallback - 1) is None
+    rated = timing.retime(CARRY, start, fallback)
+    assert rated is not None and rated.payload == RATED_PAYLOAD
+    assert timing.thermal_ratio(CARRY, rated, RATED_PAYLOAD) <= 1.0
+    np.testing.assert_array_equal(rated.tau[: fallback + 1], start.tau[: fallback + 1])
+    # a 0.5 kg object whose estimate settles at 15 ms: rated for its bound, close to the declared carry
+    timing.retime(CARRY, start, 0)  # a new carry
+    estimator.mass, estimator.rls.variance = 0.5, 0.05**2
+    retimed = timing.retime(CARRY, start, 15)
+    assert retimed is not None and retimed.payload >= 0.5 + 0.05 + ESTIMATE_MARGIN
+    assert timing.thermal_ratio(CARRY, retimed, retimed.payload) <= 1.0
+    declared = PayloadTiming(planner, "declared", RATED_PAYLOAD, torque_share=1.0).carry(CARRY, retimed.payload)
+    assert len(retimed) <= 1.05 * len(declared)
+    # faster than the same continuation of the rated start (a task of heaviest objects only starts rated)
+    rated_start = PayloadTiming(
+        planner, "online", RATED_PAYLOAD, estimator, torque_share=1.0, min_payload=RATED_PAYLOAD
+    )
+    assert rated_start.carry(CARRY, 0.5) is worst
+    slower = rated_start.retime(CARRY, worst, 15)
+    assert slower is not None and slower.payload == retimed.payload and len(retimed) < len(slower)
