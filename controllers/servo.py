@@ -178,31 +178,41 @@ class JointServo:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
         self.reference_rate = MeasuredReferenceRate(rate_window, period)
-        self._kp = np.array(gains.kp)
-        self._ki = np.array(gains.ki)
-        self._kd = np.array(gains.kd)
-        self._coulomb = np.array(gains.coulomb)
-        self.integral = np.zeros(3)  # ki * integral(e), (N m)
+        self._integral = [0.0, 0.0, 0.0]  # ki * integral(e) per joint (N m)
+
+    @property
+    def integral(self) -> NDArray[np.float64]:
+        """The integral term ki integral(e) (N m), (3,)."""
+        return np.array(self._integral)
 
     def reset(self) -> None:
         """Zero the integral and forget the last reference."""
-        self.integral = np.zeros(3)
+        self._integral = [0.0, 0.0, 0.0]
         self.reference_rate.reset()
 
     def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The servo torque (N m), (3,)."""
-        error = observation["reference_angles"] - observation["joint_angles"]
+        gains, period = self.gains, self.period
+        limit, width = gains.integral_limit, gains.friction_width
+        reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
+        reference_rates, rates = observation["reference_velocities"].tolist(), observation["joint_velocities"].tolist()
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
-        rate_error = self.reference_rate(observation) - observation["joint_velocities"]
-        limit = self.gains.integral_limit
-        # Anti-windup: the integral torque is clamped, so a blocked joint holds at most `limit` of it.
-        self.integral = np.clip(self.integral + self._ki * error * self.period, -limit, limit)
-        torque = self._kp * error + self._kd * rate_error + self.integral
-        # At rest the model's fc sign(thd_ref) is 0: push the Coulomb torque in the error's direction.
-        at_rest = observation["reference_velocities"] == 0.0
-        torque += np.where(at_rest, self._coulomb * np.clip(error / self.gains.friction_width, -1.0, 1.0), 0.0)
-        return torque
+        measured_reference_rates = self.reference_rate.rates(observation)
+        torque = [0.0, 0.0, 0.0]
+        # Per joint in Python floats: at three values, cheaper than NumPy's operations.
+        for joint in range(3):
+            error = reference[joint] - angles[joint]
+            rate_error = measured_reference_rates[joint] - rates[joint]
+            # Anti-windup: the integral torque is clamped, so a blocked joint holds at most `limit` of it.
+            integral = min(max(self._integral[joint] + gains.ki[joint] * error * period, -limit), limit)
+            self._integral[joint] = integral
+            value = gains.kp[joint] * error + gains.kd[joint] * rate_error + integral
+            if reference_rates[joint] == 0.0:
+                # At rest the model's fc sign(thd_ref) is 0: push the Coulomb torque in the error's direction.
+                value += gains.coulomb[joint] * min(max(error / width, -1.0), 1.0)
+            torque[joint] = value
+        return np.array(torque)
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         return self.feedback(observation)
