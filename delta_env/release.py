@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 from delta_env import kernels
 from delta_env.cycles import DEFAULT_DWELL, require_release
@@ -33,7 +33,20 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_in
 
 if TYPE_CHECKING:
-    from delta_env.reference import EpisodeReference
+    from delta_env.trajectories import Trajectory
+
+
+class HeldReference(Protocol):
+    """What the in-position release needs of the env's reference (:class:`delta_env.reference.EpisodeReference`):
+    its samples, its gripper events and the arrivals that gate them, and holding it at rest."""
+
+    trajectory: Trajectory
+    events: dict[int, tuple[str, int]]
+    gates: dict[int, tuple[str, int]]
+
+    def hold(self, k: int, samples: int = 1) -> None:
+        """Hold the reference at rest at its sample ``k`` for ``samples`` more samples."""
+
 
 DEFAULT_IN_POSITION_WINDOW = 5e-5
 """Distance (m) within which the measured platform must stay of the reference to be in position: 0.05 mm."""
@@ -162,10 +175,10 @@ class InPositionRelease:
         self._inside = self._inside + 1 if inside else 0
         return self._inside >= self._samples
 
-    def step(self, k: int, angles: list[float], reference: EpisodeReference) -> tuple[bool, Settle | None]:
+    def step(self, k: int, angles: list[float], reference: HeldReference) -> tuple[bool, Settle | None]:
         """With the in-position release, judge sample ``k`` of ``reference`` at encoder ``angles`` (rad) from
         ``in_position_time`` before an arrival on, and while waiting for the in-position signal hold the reference
-        one more sample at rest (:meth:`EpisodeReference.hold`). The timed release judges nothing.
+        one more sample at rest (:meth:`HeldReference.hold`). The timed release judges nothing.
 
         Returns:
             The in-position signal (False where nothing is judged), and the wait that ended on this step (the signal

@@ -23,6 +23,11 @@ from controllers.identification import LogFileError, ParameterFileError
 from eval import _interrupted_while_starting
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received inside :func:`eval.run_folder.run_folder` (a job scheduler, ``kill``, a container stopping):
+    raised where the run is, so that it unwinds like a Ctrl-C and its manifest records it."""
+
+
 class UsageError(ValueError):
     """A value given to a command line that it cannot use: the message names the option, the value and what is
     allowed. :func:`command_main` prints it as one line and exits with code 2."""
@@ -65,8 +70,6 @@ def command_main(prog: str) -> Callable[[Main], Main]:
     def decorate(main: Main) -> Main:
         @functools.wraps(main)
         def run(argv: Sequence[str] | None = None) -> int:
-            from eval.run_folder import Terminated  # here: run_folder imports this module
-
             if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:  # the package's, while importing
                 signal.signal(signal.SIGINT, signal.default_int_handler)
             try:

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from delta_env.scenario import Scenario
-from eval.console import UsageError
+from eval.console import Terminated, UsageError
 
 RUN_PACKAGES = (
     "numpy",
@@ -57,12 +57,7 @@ MANIFEST = "config.json"
 
 STATUSES = ("running", "finished", "failed", "interrupted")
 """Outcomes a manifest records: the run is under way, ended normally, raised (the error is recorded) or was
-interrupted (Ctrl-C, or SIGTERM: :class:`Terminated`)."""
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM received inside :func:`run_folder` (a job scheduler, ``kill``, a container stopping): raised where the
-    run is, so that it unwinds like a Ctrl-C and its manifest records it."""
+interrupted (Ctrl-C, or SIGTERM: :class:`~eval.console.Terminated`)."""
 
 
 class _TerminationHandler:

@@ -22,11 +22,12 @@ from delta_env.config import PlantConfig
 from delta_env.scenario import preset
 from eval import __main__ as eval_cli
 from eval import identify, rate
+from eval.console import Terminated
 from eval.design import __main__ as design_cli
 from eval.engine import Prepared
 from eval.faults import EpisodeFaults
 from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated, create_run_folder, run_folder, runs_root
+from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, run_folder, runs_root
 from eval.sweep import __main__ as sweep_cli
 from tests.conftest import NOMINAL_SETUP as SETUP
 

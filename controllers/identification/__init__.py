@@ -32,15 +32,14 @@ from controllers.identification.least_squares import (
     fit_least_squares,
     fit_rho_least_squares,
 )
+from controllers.identification.log_files import read_log, write_log
 from controllers.identification.logs import (
     BAG_SUFFIXES,
     LOG_COLUMNS,
     MAX_LOG_GAP,
     DriveLog,
     LogFileError,
-    read_log,
     resample_log,
-    write_log,
 )
 from controllers.identification.paper import (
     RHO1_GRID,

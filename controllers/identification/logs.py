@@ -26,20 +26,15 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.drive import identify_lag
 from delta_env.sensors import CONTROL_PERIOD
-
-if TYPE_CHECKING:
-    from controllers.identification.bags import BagTopics
 
 TIME_COLUMN = "time_s"
 """Sample time (s)."""
@@ -120,23 +115,16 @@ class DriveLog:
         return identify_lag(self.commands, self.torques[1:], self.dt)
 
 
-def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -> Path:
-    """Write ``log`` as a CSV, Parquet, MCAP or sqlite3 file (by the ending of ``path``: ``.csv``, ``.parquet``,
-    ``.mcap``, ``.db3``); sample k at ``start + k dt`` (s).
+def write_table_log(log: DriveLog, path: Path, start: float = 0.0) -> Path:
+    """Write ``log`` as a CSV or Parquet file (by the ending of ``path``); sample k at ``start + k dt`` (s).
 
     The CSV holds every number exactly (shortest round-trip decimal); the last row's commands are empty
-    (Parquet: null). A bag is written by :func:`controllers.identification.bags.write_bag`. Parent folders are
-    created.
+    (Parquet: null). Parent folders are created. Any log file by its ending:
+    :func:`controllers.identification.write_log`.
 
     Returns:
         The path written.
     """
-    path = Path(path)
-    _require_suffix(path)
-    if path.suffix in BAG_SUFFIXES:
-        from controllers.identification.bags import write_bag  # bags build on this module
-
-        return write_bag(log, path, start)
     time = start + np.arange(len(log)) * log.dt
     columns = {TIME_COLUMN: time}
     columns |= {name: log.angles[:, j] for j, name in enumerate(ANGLE_COLUMNS)}
@@ -160,21 +148,16 @@ def write_log(log: DriveLog, path: str | os.PathLike[str], start: float = 0.0) -
     return path
 
 
-def read_log(path: str | os.PathLike[str], period: float = CONTROL_PERIOD, topics: BagTopics | None = None) -> DriveLog:
-    """The log at ``path`` (CSV or Parquet, format in the module docstring, or a ROS 2 bag, read as ``topics``
-    say: :func:`controllers.identification.bags.read_bag`), resampled onto ``period``.
+def read_table_log(path: Path, period: float = CONTROL_PERIOD) -> DriveLog:
+    """The CSV or Parquet log at ``path`` (format in the module docstring), resampled onto ``period``. Any log file
+    by its ending: :func:`controllers.identification.read_log`.
 
     Raises:
         LogFileError: for a missing or unreadable file, a missing column, a value that is not a finite number,
             non-increasing times or a gap longer than :data:`MAX_LOG_GAP`; the message names the file, the
             column and the row.
     """
-    path = Path(path)
-    if path.is_dir() or path.suffix in BAG_SUFFIXES:
-        from controllers.identification.bags import read_bag  # bags build on this module
-
-        return read_bag(path, topics, period).log
-    _require_suffix(path)
+    require_log_suffix(path)
     if not path.is_file():
         raise LogFileError(f"log {path}: no such file")
     columns = _read_csv(path) if path.suffix == ".csv" else _read_parquet(path)
@@ -241,7 +224,8 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
         raise ValueError(f"spans {time[-1] - time[0]:g} s, too short for one {period:g} s period ({error})") from None
 
 
-def _require_suffix(path: Path) -> None:
+def require_log_suffix(path: Path) -> None:
+    """A :class:`LogFileError` unless ``path`` ends in one of :data:`LOG_SUFFIXES`."""
     if path.suffix not in LOG_SUFFIXES:
         raise LogFileError(
             f"log {path}: the file name must end in {', '.join(LOG_SUFFIXES[:-1])} or {LOG_SUFFIXES[-1]} "
