@@ -20,6 +20,7 @@ from controllers.registry import (
     build_controller,
     controller_entry,
 )
+from controllers.servo import JointServo, ServoGains, servo_gains
 
 __all__ = [
     "CONTROLLER_LABELS",
@@ -32,6 +33,7 @@ __all__ = [
     "DeltaDynamics",
     "EmptyMoveSums",
     "FeedforwardController",
+    "JointServo",
     "JointStateFilter",
     "JointStateSmoother",
     "LagCompensatedController",
@@ -42,10 +44,12 @@ __all__ = [
     "PDController",
     "PayloadEstimator",
     "PayloadRLS",
+    "ServoGains",
     "Tare",
     "build_controller",
     "controller_entry",
     "model_controller",
+    "servo_gains",
     "smooth_joint_motion",
     "tare_from_observations",
 ]
