@@ -69,7 +69,7 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
-from eval.console import command_main, plural, progress_bar
+from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
 from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
@@ -99,7 +99,7 @@ from eval.tables import (
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     width = max(map(len, CONTROLLER_LABELS))
     rows = "\n".join(f"  {key:<{width}}  {label}" for key, label in CONTROLLER_LABELS.items())
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m eval",
         description=__doc__,
         epilog=f"controllers (--controllers key: row label):\n{rows}",

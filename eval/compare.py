@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from eval import metrics
-from eval.console import UsageError, command_main
+from eval.console import CommandParser, UsageError, command_main
 from eval.run_folder import MANIFEST, read_csv_rows, write_csv
 
 DEFAULT_METRICS = ("tracking_rms_mm", "torque_rms_nm")
@@ -231,7 +231,7 @@ def _legend(runs: Sequence[RunRows]) -> list[str]:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m eval.compare", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="run folders, the baseline first")

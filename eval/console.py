@@ -12,15 +12,24 @@ one every :data:`PLAIN_PROGRESS_INTERVAL_S`) in a log file or a pipe. :func:`plu
 
 from __future__ import annotations
 
+import argparse
 import functools
 import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from controllers.identification import LogFileError, ParameterFileError
 from eval import _interrupted_while_starting
+
+
+class CommandParser(argparse.ArgumentParser):
+    """The argument parser of every command line: a usage error is one line, ``<prog>: error: <message>``, with exit
+    code 2 (argparse's own parser prints its whole usage first)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(USAGE_EXIT_CODE, f"{self.prog}: error: {_one_line(message)} (--help lists the options)\n")
 
 
 class Terminated(KeyboardInterrupt):

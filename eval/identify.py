@@ -37,7 +37,7 @@ from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import save_robot
-from eval.console import command_main
+from eval.console import CommandParser, command_main
 from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
 from eval.identification_report import ground_truth, plot_figures, render_report, save_validation_data
@@ -104,7 +104,7 @@ def _joint_names(text: str) -> tuple[str, str, str]:
 
 
 def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
+    parser = CommandParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
     parser.add_argument(

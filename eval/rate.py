@@ -52,7 +52,7 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval import metrics
 from eval.calibration import calibration_seeds
-from eval.console import command_main, plural, progress_bar
+from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import grid, prepare, run_grid
 from eval.processes import DEFAULT_WORKERS
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
@@ -135,7 +135,7 @@ and bisection steps (on a log scale, about 3 % resolution)."""
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m eval.rate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add_scenario_arguments(parser)

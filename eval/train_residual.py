@@ -78,7 +78,7 @@ from controllers.residual import (
 )
 from controllers.residual.env import action_rate_penalty
 from controllers.residual.features import PREVIOUS_ACTION
-from eval.console import command_main, plural, progress_bar
+from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
 from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
 from eval.residual_envs import (
@@ -495,7 +495,7 @@ def score_summary(scores: dict[str, Any]) -> str:
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     summary, _, details = __doc__.partition("\n\n")
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m eval.train_residual",
         description=summary,
         epilog=details,

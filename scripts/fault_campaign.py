@@ -38,7 +38,7 @@ from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.console import command_main, plural, progress_bar
+from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows, fault_summary, write_fault_csv
@@ -57,7 +57,7 @@ GONE_MASS = 0.1
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python scripts/fault_campaign.py", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="python scripts/fault_campaign.py", description=__doc__.split("\n\n")[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--episodes", type=int, default=20, help="episodes per fault kind (default 20)")

@@ -41,7 +41,7 @@ from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
-from eval.console import UsageError, command_main, progress_bar
+from eval.console import CommandParser, UsageError, command_main, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
@@ -90,7 +90,7 @@ def soak_scenario(base: Scenario | None = None) -> Scenario:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="scripts/fault_soak.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--minutes", type=float, default=30.0, help="simulated minutes per controller (default 30)")

@@ -25,6 +25,7 @@ from delta_env.drive import DriveLimits
 from delta_env.geometry import GRAVITY
 from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import WORKING_HEIGHT, Segment
+from eval.console import CommandParser
 
 PAYLOADS = (0.0, 1.0, 2.0, 4.0, 8.0)
 """Payloads of the table (kg)."""
@@ -69,7 +70,7 @@ def peaks(dynamics: DeltaDynamics, shape: Segment, law: TimeLaw) -> tuple[float,
 
 def main(argv: Sequence[str] | None = None) -> int:
     summary, _, details = __doc__.partition("\n\n")
-    argparse.ArgumentParser(
+    CommandParser(
         prog="python scripts/plan_times.py",
         description=summary,
         epilog=details,

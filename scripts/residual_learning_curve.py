@@ -42,7 +42,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
-from eval.console import UsageError, command_main
+from eval.console import CommandParser, UsageError, command_main
 from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
@@ -352,7 +352,7 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
 
 
 def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = CommandParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--recipe", nargs="+", choices=sorted(RECIPES), default=None, help="named recipes")
     parser.add_argument("--algo", choices=ALGORITHMS, default="sac", help="without --recipe")
     parser.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY:VALUE", help="without --recipe")

@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from eval.console import CommandParser
 from eval.engine import prepare
 from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 from eval.sweep.runner import ResultsTable, run_sweep
@@ -67,7 +68,7 @@ def measure(units: list[WorkUnit], backend: str, workers: int, setup, version: s
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = CommandParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--episodes", type=int, default=20, help="episodes per controller (default 20)")

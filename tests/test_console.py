@@ -4,6 +4,7 @@ and end with the run folder, and progress off a terminal is plain lines."""
 
 from __future__ import annotations
 
+import importlib
 import io
 import json
 import os
@@ -313,3 +314,21 @@ def test_ctrl_c_while_a_command_starts_prints_one_line(tmp_path, delay: float) -
     assert "Traceback" not in errors and "KeyboardInterrupt" not in errors, errors
     assert len(errors.strip().splitlines()) == 1 and "interrupted" in errors, errors
     assert not (out / MANIFEST).exists() or json.loads((out / MANIFEST).read_text())["status"] == "interrupted"
+
+
+@pytest.mark.parametrize(
+    ("module", "argv", "message"),
+    [
+        ("eval.__main__", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+        ("eval.rate", ["--planners", "fastest"], "--planners"),
+        ("eval.compare", ["--metrics"], "--metrics"),
+    ],
+)
+def test_a_parser_error_is_one_line_without_the_usage(module: str, argv: list[str], message: str, capsys) -> None:
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("python -m eval") and ": error: " in line and message in line
+    assert line.endswith("(--help lists the options)")

@@ -44,7 +44,7 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
-from eval.console import command_main, progress_bar
+from eval.console import CommandParser, command_main, progress_bar
 from eval.design import (
     codesign,
     drive_rate,
@@ -84,7 +84,7 @@ QUICK = {
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m eval.design", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the optimizers and episodes (default 0)")

@@ -45,7 +45,7 @@ from pathlib import Path
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import preset_names, resolve_scenario
-from eval.console import UsageError, command_main, plural, progress_bar
+from eval.console import CommandParser, UsageError, command_main, plural, progress_bar
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
@@ -68,7 +68,7 @@ from eval.sweep.work import (
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m eval.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
