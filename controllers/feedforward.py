@@ -186,7 +186,7 @@ class OracleController:
             return ServoGains(kp=(kp,) * 3, ki=(0.0,) * 3, kd=(kd,) * 3)
         step = DEFAULT_FRICTION_WIDTH if self._encoder_bits is None else encoder_resolution(self._encoder_bits)
         inertia = joint_inertia(self.oracle.torques)
-        return servo_gains(inertia, self.oracle.coulomb, lag, period=period, friction_width=step)
+        return servo_gains(inertia, self.oracle.breakaway, lag, period=period, friction_width=step)
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:
         """The true masses (kg) of the objects of the next episode, in pick order (the truth)."""

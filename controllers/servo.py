@@ -3,7 +3,7 @@ section 6, "Servo").
 
 A servo drive closes its position loop around the feedforward: per joint
 
-    tau_fb = kp e + kd de/dt + ki integral(e) + fc sat(e / e_f) [reference at rest]
+    tau_fb = kp e + kd de/dt + ki integral(e) + fb sat(e / e_f) [reference at rest]
 
 with e = theta_ref - theta (encoder), and de/dt the reference's rate measured as the joint rate is (its mean over the
 encoder's backward difference, :class:`~controllers.drive.MeasuredReferenceRate`) minus the measured rate. The gains
@@ -12,8 +12,9 @@ the joint's identified inertia J, kd = 3 J w0, kp = 3 J w0^2, ki = J w0^3, with 
 phase margin through the loop's delay (the drive lag, half a sample of zero-order hold and half a sample of the
 backward-difference rate). The integral term is clamped (anti-windup: |ki integral(e)| <= ``integral_limit``) so that
 a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
-and static friction would hold any error with |kp e| < fc; the servo then pushes with the identified Coulomb torque in
-the direction of the error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
+and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess at
+zero speed); the servo then pushes with the identified breakaway torque in the direction of the error, saturating at
+``friction_width`` (one encoder step), which closes the stick band.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
 
 DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
-"""Error (rad) at which the friction compensation at rest reaches the full Coulomb torque: one encoder step (17 bit),
+"""Error (rad) at which the friction compensation at rest reaches the full breakaway torque: one encoder step (17 bit),
 the smallest error the servo can see."""
 
 
@@ -54,7 +55,8 @@ class ServoGains:
         kp: Proportional gain per joint (N m/rad).
         ki: Integral gain per joint (N m/(rad s)).
         kd: Derivative gain per joint (N m s/rad).
-        coulomb: Coulomb torque compensated at rest per joint (N m); zero turns the compensation off.
+        breakaway: Torque pushed at rest per joint (N m): the friction that starts the joint from rest, Coulomb plus
+            the Stribeck excess; zero turns the compensation off.
         friction_width: Error (rad) at which the compensation at rest saturates.
         integral_limit: Largest |ki integral(e)| (N m).
     """
@@ -62,12 +64,12 @@ class ServoGains:
     kp: tuple[float, float, float]
     ki: tuple[float, float, float]
     kd: tuple[float, float, float]
-    coulomb: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    breakaway: tuple[float, float, float] = (0.0, 0.0, 0.0)
     friction_width: float = DEFAULT_FRICTION_WIDTH
     integral_limit: float = DEFAULT_INTEGRAL_LIMIT
 
     def __post_init__(self) -> None:
-        for name, unit in (("kp", "N m/rad"), ("ki", "N m/(rad s)"), ("kd", "N m s/rad"), ("coulomb", "N m")):
+        for name, unit in (("kp", "N m/rad"), ("ki", "N m/(rad s)"), ("kd", "N m s/rad"), ("breakaway", "N m")):
             values = require_joint_vector(name, getattr(self, name), 0.0, unit=unit)
             object.__setattr__(self, name, tuple(float(v) for v in values))
         require_in("friction_width", self.friction_width, 0.0, unit="rad", low_open=True)
@@ -132,7 +134,7 @@ def joint_inertia(
 
 def servo_gains(
     inertia: ArrayLike,
-    coulomb: ArrayLike,
+    breakaway: ArrayLike,
     drive_lag: ArrayLike,
     *,
     margin: float = DEFAULT_PHASE_MARGIN,
@@ -144,7 +146,7 @@ def servo_gains(
 
     Args:
         inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home.
-        coulomb: Coulomb friction pushed at rest per joint (N m), (3,).
+        breakaway: Friction torque pushed at rest per joint (N m), (3,) or a scalar: :attr:`ServoGains.breakaway`.
         drive_lag: Drive lag per joint (s), (3,) or a scalar.
         margin: Phase margin (rad).
         period: Control period (s).
@@ -158,14 +160,14 @@ def servo_gains(
         kp=tuple(3.0 * inertia * w0**2),
         ki=tuple(inertia * w0**3),
         kd=tuple(3.0 * inertia * w0),
-        coulomb=tuple(float(c) for c in np.broadcast_to(np.asarray(coulomb, dtype=float), (3,))),
+        breakaway=tuple(float(c) for c in np.broadcast_to(np.asarray(breakaway, dtype=float), (3,))),
         friction_width=friction_width,
         integral_limit=integral_limit,
     )
 
 
 class JointServo:
-    """Each joint's position servo: PID with a clamped integral, and the Coulomb torque pushed at rest.
+    """Each joint's position servo: PID with a clamped integral, and the breakaway torque pushed at rest.
 
     Args:
         gains: :class:`ServoGains`.
@@ -209,8 +211,8 @@ class JointServo:
             self._integral[joint] = integral
             value = gains.kp[joint] * error + gains.kd[joint] * rate_error + integral
             if reference_rates[joint] == 0.0:
-                # At rest the model's fc sign(thd_ref) is 0: push the Coulomb torque in the error's direction.
-                value += gains.coulomb[joint] * min(max(error / width, -1.0), 1.0)
+                # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
+                value += gains.breakaway[joint] * min(max(error / width, -1.0), 1.0)
             torque[joint] = value
         return np.array(torque)
 

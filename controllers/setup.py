@@ -14,13 +14,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from controllers.base import DEFAULT_KD, DEFAULT_KP, JointFeedback, PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
 from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, joint_inertia, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
-from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
+from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
 from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP, encoder_resolution, rate_window
 from delta_env.validation import require_joint_vector
@@ -50,6 +52,9 @@ class ControllerSetup:
         mid_f: Identified MId+F parameters (rho1, rho2, friction).
         mid_f_rods: Identified MId+F+R parameters (the model with rod forearms).
         drive_lag: Identified drive lag T (s) per joint; None if unknown (then ``mid_f_rls_lag`` cannot be built).
+        stribeck_excess: Identified Stribeck excess of each joint's friction near zero speed (N m): the servo layer of
+            a row that models friction pushes its Coulomb friction plus this at rest (the breakaway); None: unknown
+            (the Coulomb friction alone).
         tares: Apparent payload of the empty gripper (kg) per RLS controller key; missing keys use 0.
         empty_moves: Sums of the robot's earlier empty moves per RLS controller key (its calibration episodes,
             :class:`~controllers.payload.EmptyMoveSums`), which seed the estimator's fit of the robot's mass and
@@ -69,6 +74,7 @@ class ControllerSetup:
     mid_f: ModelParameters
     mid_f_rods: ModelParameters
     drive_lag: tuple[float, float, float] | None = None
+    stribeck_excess: tuple[float, float, float] | None = None
     tares: Mapping[str, float] = field(default_factory=dict)
     empty_moves: Mapping[str, EmptyMoveSums] = field(default_factory=dict)
     pd_gains: tuple[float, float] = (DEFAULT_KP, DEFAULT_KD)
@@ -85,6 +91,8 @@ class ControllerSetup:
             raise ValueError(f"servo must be one of {', '.join(SERVOS)}, got {self.servo!r}")
         if self.drive_lag is not None:
             require_joint_vector("drive_lag", self.drive_lag, 0.0, MAX_TIME_CONSTANT, unit="s")
+        if self.stribeck_excess is not None:
+            require_joint_vector("stribeck_excess", self.stribeck_excess, 0.0, TORQUE_LIMIT, unit="N m")
 
     def to_table(self) -> dict[str, Any]:
         """Every field as a table of TOML values (:func:`delta_env.records.to_table`): the record's written form."""
@@ -134,7 +142,9 @@ def model_row(
 
 def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     """The feedback of a model row with model ``dynamics``: the servo layer on that model and the identified drive lag
-    (``setup.servo == "servo"``), or the paper's PD with ``setup.pd_gains``.
+    (``setup.servo == "servo"``), or the paper's PD with ``setup.pd_gains``. The servo pushes at rest the breakaway
+    torque of the model's friction: its Coulomb friction plus the identified Stribeck excess (none for a model
+    without friction).
 
     Raises:
         ValueError: for the servo layer without an identified drive lag.
@@ -149,5 +159,7 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     step = DEFAULT_FRICTION_WIDTH if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits)
     window = rate_window(setup.encoder_bits, PHYSICS_TIMESTEP)
     inertia = joint_inertia(dynamics.inverse_dynamics)
-    gains = servo_gains(inertia, dynamics.parameters.coulomb, setup.drive_lag, friction_width=step)
+    coulomb = np.array(dynamics.parameters.coulomb)
+    excess = setup.stribeck_excess if setup.stribeck_excess is not None and coulomb.any() else (0.0, 0.0, 0.0)
+    gains = servo_gains(inertia, coulomb + excess, setup.drive_lag, friction_width=step)
     return JointServo(gains, rate_window=window)

@@ -98,6 +98,12 @@ class InverseDynamicsOracle:
         """The plant's Coulomb friction per motor joint (N m), (3,): its ``frictionloss``, randomized with it."""
         return self._frictionloss.copy()
 
+    @property
+    def breakaway(self) -> NDArray[np.float64]:
+        """The torque (N m), (3,), that starts each motor joint from rest: its Coulomb friction plus the plant's
+        Stribeck excess at zero speed, randomized with them."""
+        return self._frictionloss + self.plant.disturbance_coefficients["stribeck_gain"][0]
+
     def torques(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0
     ) -> NDArray[np.float64]:

@@ -42,12 +42,14 @@ from controllers.identification import (
     IdentificationResult,
     LeastSquaresFit,
     MotionData,
+    StribeckFit,
     between_trajectory_spread,
     concatenate,
     error_table,
     fit_joint_least_squares,
     fit_least_squares,
     fit_paper_method,
+    fit_stribeck,
     prepare_motion,
     read_log,
 )
@@ -142,12 +144,15 @@ def _plant_summary(plant: PlantConfig) -> dict[str, Any]:
     }
 
 
-def _standard_errors(fits: Mapping[str, LeastSquaresFit]) -> dict[str, float]:
-    return {
+def _standard_errors(fits: Mapping[str, LeastSquaresFit], stribeck: StribeckFit | None) -> dict[str, float]:
+    errors = {
         f"{label}.{name}": error
         for label, fit in fits.items()
         for name, error in zip(fit.names, fit.standard_errors, strict=True)
     }
+    if stribeck is not None:
+        errors.update({f"stribeck.excess_{j}": e for j, e in enumerate(stribeck.standard_errors, start=1)})
+    return errors
 
 
 def _best_time(function: Callable[[], _Output], repeats: int = 3) -> tuple[_Output, float]:
@@ -370,6 +375,11 @@ def _identify(
     (rho_fit, joint_fit), ours_time = _best_time(lambda: fit_least_squares(data, dynamics=lumped))
     paper, paper_time = _best_time(lambda: fit_paper_method(data, dynamics=lumped))
     rod_fit = fit_joint_least_squares(data, dynamics=rods)
+    try:
+        stribeck = fit_stribeck(data, rod_fit.parameters, rods)
+    except ValueError as error:
+        logger.warning("the Stribeck excess is not identified (null in the parameter file): %s", error)
+        stribeck = None
 
     models = {
         "MKH": lumped,
@@ -390,6 +400,12 @@ def _identify(
             "paper_mid": "per-trajectory grid search of (rho1, rho2) minimising RMS torque error (eq. 7), averaged",
             "paper_mid_f": "paper_mid rho + per-trajectory, per-joint LS of (fv, fc) on the remaining error, averaged",
             "mid_f_rods": "the mid_f least squares on the model with homogeneous rod forearms (forearm_rods=True)",
+            "stribeck": "on the mid_f_rods model's torque error, rows with "
+            f"{REST_VELOCITY} < |theta_dot_i| <= {FRICTION_VELOCITY_THRESHOLD} rad/s: least squares of the excess "
+            "fs_i on exp(-(theta_dot_i / vs)^2) sign(theta_dot_i) per joint, vs shared and searched (bounded, "
+            "on log vs)"
+            if stribeck is not None
+            else "not identified: too few slow moving samples",
             "drive_lag": "output-error fit per joint and trajectory of the first-order lag from the held commands to "
             "the reported torques (controllers.drive.identify_lag); median over the trajectories"
             if lags
@@ -413,6 +429,7 @@ def _identify(
         "residuals": {"mid": rho_fit.summary(), "mid_f": joint_fit.summary(), "mid_f_rods": rod_fit.summary()},
         "mid_f_between_trajectories": between_trajectory_spread(data, lumped),
         "drive_lag_per_trajectory_s": lags_per_trajectory.tolist(),
+        "stribeck_rows_per_joint": None if stribeck is None else list(stribeck.rows),
         "raw_estimates": {
             "mid_f": dict(zip(joint_fit.names, joint_fit.estimate, strict=True)),
             "mid_f_rods": dict(zip(rod_fit.names, rod_fit.estimate, strict=True)),
@@ -442,7 +459,9 @@ def _identify(
         paper_mid=paper.mid,
         paper_mid_f=paper.mid_f,
         drive_lag=None if drive_lag is None else tuple(float(lag) for lag in drive_lag),
-        standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}),
+        stribeck_excess=None if stribeck is None else stribeck.excess,
+        stribeck_velocity=None if stribeck is None else stribeck.velocity,
+        standard_errors=_standard_errors({"mid": rho_fit, "mid_f": joint_fit, "mid_f_rods": rod_fit}, stribeck),
         provenance=provenance,
     )
     return IdentificationRun(

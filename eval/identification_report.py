@@ -8,6 +8,7 @@ figures (the paper's Fig. 3-6a) are made from the saved validation data (:func:`
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -46,12 +47,15 @@ TARGET_STD_RATIO = 0.25
 
 
 def ground_truth(plant: PlantConfig) -> dict[str, list[float]]:
-    """The plant's true friction (N m s/rad, N m) and drive lag (s) per joint: ground truth for this report only."""
+    """The plant's true friction (N m s/rad, N m), Stribeck excess (N m) and its decay speed (rad/s), and drive lag (s)
+    per joint: ground truth for this report only."""
     realism = plant.realism
     return {
         "viscous": realism.viscous_per_joint.tolist(),
         "coulomb": realism.coulomb_per_joint.tolist(),
         "drive_lag": [realism.actuator_lag] * 3,
+        "stribeck_excess": (realism.stribeck_excess * realism.coulomb_per_joint).tolist(),
+        "stribeck_velocity": [realism.stribeck_velocity],
     }
 
 
@@ -260,6 +264,29 @@ def _drive_lag_lines(run: IdentificationRun, truth: dict[str, list[float]] | Non
     return [line + f"; ground truth {', '.join(f'{v:.3f}' for v in true)} ms, error {errors} %."]
 
 
+def _stribeck_lines(run: IdentificationRun, truth: dict[str, list[float]] | None) -> list[str]:
+    """The identified Stribeck excess per joint with its SE, its decay speed, the breakaway and the truth if known."""
+    result = run.result
+    if result.stribeck_excess is None:
+        return ["Not identified: too few slow moving samples. The servo layer pushes the Coulomb friction at rest."]
+    errors = [result.standard_errors.get(f"stribeck.excess_{j}", math.nan) for j in (1, 2, 3)]
+    excess = ", ".join(f"{v:.2f} (SE {e:.2f})" for v, e in zip(result.stribeck_excess, errors, strict=True))
+    lines = [
+        f"Excess fs per joint: {excess} "
+        f"N m, decaying over vs = {result.stribeck_velocity:.3f} rad/s, fitted on "
+        f"{', '.join(str(n) for n in run.result.provenance['stribeck_rows_per_joint'])} slow moving rows; "
+        f"breakaway fc + fs {', '.join(f'{v:.2f}' for v in result.breakaway)} N m (what the servo pushes at rest)."
+    ]
+    if truth is not None:
+        true = np.array(truth["coulomb"]) + np.array(truth["stribeck_excess"])
+        lines.append(
+            f"Ground truth: fs {', '.join(f'{v:.2f}' for v in truth['stribeck_excess'])} N m, vs "
+            f"{truth['stribeck_velocity'][0]:.3f} rad/s; breakaway {', '.join(f'{v:.2f}' for v in true)} N m, error "
+            f"{', '.join(f'{e:+.1f}' for e in 100.0 * (np.array(result.breakaway) - true) / true)} %."
+        )
+    return lines
+
+
 def render_report(
     run: IdentificationRun,
     validation_file: Path,
@@ -314,6 +341,10 @@ def render_report(
         "which fits those samples better and the true friction worse.",
         "",
         *_threshold_lines(run, truth),
+        "",
+        "## Stribeck excess and breakaway",
+        "",
+        *_stribeck_lines(run, truth),
         "",
         "## Drive lag",
         "",

@@ -22,7 +22,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from controllers.identification import IdentificationResult, ParameterFileError, load_result, save_result
+from controllers.identification import IdentificationResult, ParameterFileError, load_result, older_format, save_result
 from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.scenario import datasheet_identity, plant_identity
@@ -76,13 +76,19 @@ def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> Id
         path: Parameter file.
         **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
 
+    A file of an older format (:func:`~controllers.identification.parameter_file.older_format`) is a cache this
+    version cannot read: it is identified again and replaced, with a warning.
+
     Raises:
         ParameterFileError: if the file exists but is corrupt (it is never silently replaced).
     """
     path = Path(path)
-    if path.exists():
+    if path.exists() and not older_format(path):
         return load_result(path)
-    logger.info("no identified parameters at %s: identifying (about a minute)", path)
+    if path.exists():
+        logger.warning("%s was written by an older version of this project: identifying again (about a minute)", path)
+    else:
+        logger.info("no identified parameters at %s: identifying (about a minute)", path)
     result = identify(**identify_kwargs)
     save_result(result, path)
     return result
@@ -220,6 +226,7 @@ def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs
         mid_f=result.mid_f,
         mid_f_rods=result.mid_f_rods,
         drive_lag=result.drive_lag,
+        stribeck_excess=result.stribeck_excess,
         geometry=plant.geometry,
         masses=plant.masses,
         drive=plant.drive,

@@ -392,20 +392,22 @@ def test_bound_keeps_its_damping_on_a_long_drive_lag() -> None:
 def test_bound_gains_follow_the_lag_of_each_randomized_plant_unless_given() -> None:
     """A randomized episode changes the plant's lag and friction through ``set_physical_parameters``: the oracle's own
     feedback takes Kd = 4 + Kp T of the new lag, and back, and its servo layer the new lag's bandwidth and the new
-    Coulomb friction; gains passed in by the caller are kept."""
+    breakaway friction (Coulomb plus the Stribeck excess); gains passed in by the caller are kept."""
     config = PlantConfig()
     oracle = OracleController(config)
     oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.002))
     assert (oracle.servo.gains.kp[0], oracle.servo.gains.kd[0]) == pytest.approx(oracle_gains(0.002))
-    assert oracle.servo.gains.ki == (0.0, 0.0, 0.0) and oracle.servo.gains.coulomb == (0.0, 0.0, 0.0)
+    assert oracle.servo.gains.ki == (0.0, 0.0, 0.0) and oracle.servo.gains.breakaway == (0.0, 0.0, 0.0)
     assert np.all(oracle.drive.time_constant == 0.002)
     oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.0005))
     assert oracle.servo.gains.kd == pytest.approx((7.0,) * 3)
     layer = OracleController(config, servo="servo")
     nominal_kd = layer.servo.gains.kd
-    assert_allclose(layer.servo.gains.coulomb, config.realism.coulomb_per_joint)
+    breakaway = (1.0 + config.realism.stribeck_excess) * np.array(config.realism.coulomb_per_joint)
+    assert_allclose(layer.servo.gains.breakaway, breakaway)
     layer.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, (2.0, 1.0, 1.0), actuator_lag=0.002))
-    assert layer.servo.gains.coulomb[0] == pytest.approx(2.0 * config.realism.coulomb_per_joint[0])
+    assert layer.servo.gains.breakaway[0] == pytest.approx(2.0 * breakaway[0])
+    assert layer.servo.gains.breakaway[1:] == pytest.approx(breakaway[1:])
     assert max(layer.servo.gains.kd) < 0.7 * min(nominal_kd)  # twice the lag: a slower loop
     given = ServoGains(kp=(5000.0,) * 3, ki=(0.0,) * 3, kd=(30.0,) * 3)
     fixed = OracleController(config, gains=given)

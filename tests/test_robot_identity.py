@@ -28,6 +28,8 @@ def fake_result(plant: Any, **provenance: Any) -> IdentificationResult:
         paper_mid=setup.mid,
         paper_mid_f=setup.mid_f,
         drive_lag=setup.drive_lag,
+        stribeck_excess=None,
+        stribeck_velocity=None,
         standard_errors={},
         provenance={"plant": identification._plant_summary(plant), **provenance},
     )

@@ -31,6 +31,8 @@ from eval.episodes import run_episode
 # 4.0 x (1.0, 0.85, 1.15) N m, its drive lag 1 ms (docs/design.md section 4).
 NOMINAL_RODS = ModelParameters(rho1=1.95, rho2=0.95, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 LAG = (0.001, 0.001, 0.001)
+STRIBECK_EXCESS = (2.0, 1.7, 2.3)
+"""The plant's Stribeck excess (N m): half its Coulomb friction."""
 
 
 def brute_force_phase_margin(bandwidth: float, delay: float) -> float:
@@ -61,7 +63,7 @@ def test_gains_place_a_triple_pole_on_the_identified_inertia() -> None:
     for joint in range(3):
         poles = np.roots([inertia[joint], gains.kd[joint], gains.kp[joint], gains.ki[joint]])
         assert_allclose(poles, -bandwidth, rtol=1e-3)
-    assert gains.coulomb == NOMINAL_RODS.coulomb
+    assert gains.breakaway == NOMINAL_RODS.coulomb
     # A slower drive gets a slower loop: twice the lag, two thirds of the bandwidth or less.
     assert max(servo_gains(inertia, NOMINAL_RODS.coulomb, 0.002).kd) < 0.7 * min(gains.kd)
 
@@ -107,7 +109,7 @@ def test_integral_is_clamped_under_a_held_error_and_unwinds_at_once() -> None:
 
 
 def test_friction_push_only_at_rest_saturating_at_its_width() -> None:
-    gains = ServoGains(kp=(0.0,) * 3, ki=(0.0,) * 3, kd=(0.0,) * 3, coulomb=(4.0, 3.0, 5.0), friction_width=1e-4)
+    gains = ServoGains(kp=(0.0,) * 3, ki=(0.0,) * 3, kd=(0.0,) * 3, breakaway=(4.0, 3.0, 5.0), friction_width=1e-4)
     servo = JointServo(gains)
     assert_allclose(servo.feedback(observation(5e-5)), [2.0, 1.5, 2.5])
     assert_allclose(servo.feedback(observation(-1e-3)), [-4.0, -3.0, -5.0])
@@ -143,27 +145,54 @@ def step_reference(step: float, samples: int = 400) -> Trajectory:
     )
 
 
+def settle_time(errors: np.ndarray, window: float = 0.05e-3) -> int:
+    """Samples (ms) until the error stays within ``window`` (m)."""
+    return int(np.nonzero(errors > window)[0][-1] + 1)
+
+
 def test_a_step_against_static_friction_settles_inside_the_window() -> None:
-    """0.2 mm at rest: Coulomb friction holds the paper's PD short of it (Kp e < fc); the servo settles within
-    0.05 mm and stays there (measured: in 19 ms, then within 0.011 mm; without the push at rest 290 ms)."""
+    """0.2 mm at rest: static friction holds the paper's PD short of it (Kp e < fc); the servo settles within
+    0.05 mm and stays there. Pushing the Coulomb friction alone it settles in 19 ms (without a push 290 ms), pushing
+    the breakaway (with the plant's Stribeck excess) in 11 ms; then within 0.011 mm."""
     setup = ControllerSetup(mid=NOMINAL_RODS, mid_f=NOMINAL_RODS, mid_f_rods=NOMINAL_RODS, drive_lag=LAG)
     env = DeltaPickPlaceEnv()
     reference = step_reference(2e-4)
     errors = {}
-    for servo in ("servo", "pd"):
-        controller = model_row("mid_f_r", dataclasses.replace(setup, servo=servo))
-        errors[servo] = run_episode(env, controller, seed=0, reference=reference).tracking_error
+    for servo, excess in (("servo", None), ("servo", STRIBECK_EXCESS), ("pd", None)):
+        controller = model_row("mid_f_r", dataclasses.replace(setup, servo=servo, stribeck_excess=excess))
+        errors[servo, excess] = run_episode(env, controller, seed=0, reference=reference).tracking_error
     assert isinstance(model_row("mid_f_r", dataclasses.replace(setup, servo="pd")).servo, PDController)
-    assert errors["pd"][-1] > 0.1e-3  # the stick band of the fixed PD
-    settled = np.nonzero(errors["servo"] > 0.05e-3)[0][-1] + 1
-    assert settled < 30, f"settled after {settled} ms"
-    assert errors["servo"][-100:].max() < 0.02e-3
+    assert errors["pd", None][-1] > 0.1e-3  # the stick band of the fixed PD
+    coulomb, breakaway = settle_time(errors["servo", None]), settle_time(errors["servo", STRIBECK_EXCESS])
+    assert coulomb < 30, f"settled after {coulomb} ms"
+    assert breakaway < 15 and breakaway < 0.75 * coulomb, f"settled after {breakaway} ms ({coulomb} ms)"
+    assert max(errors["servo", None][-100:].max(), errors["servo", STRIBECK_EXCESS][-100:].max()) < 0.02e-3
+
+
+def test_rows_push_their_friction_models_breakaway_at_rest() -> None:
+    """The identified Stribeck excess adds to the Coulomb friction of a row that models friction; a row without a
+    friction model (MKH, MId) pushes nothing, and without an identified excess the Coulomb friction alone."""
+    setup = ControllerSetup(
+        mid=ModelParameters(rho1=1.7, rho2=0.9),
+        mid_f=NOMINAL_RODS,
+        mid_f_rods=NOMINAL_RODS,
+        drive_lag=LAG,
+        stribeck_excess=STRIBECK_EXCESS,
+    )
+    assert_allclose(model_row("mid_f_rls_lag", setup).base.servo.gains.breakaway, (6.0, 5.1, 6.9))
+    assert_allclose(model_row("mid_f", setup).servo.gains.breakaway, (6.0, 5.1, 6.9))
+    assert model_row("mid", setup).servo.gains.breakaway == (0.0, 0.0, 0.0)
+    assert model_row("mkh", setup).servo.gains.breakaway == (0.0, 0.0, 0.0)
+    unknown = dataclasses.replace(setup, stribeck_excess=None)
+    assert model_row("mid_f_r", unknown).servo.gains.breakaway == NOMINAL_RODS.coulomb
+    with pytest.raises(ValueError, match="stribeck_excess"):
+        dataclasses.replace(setup, stribeck_excess=(1.0, -1.0, 1.0))
 
 
 def test_no_feedback_on_the_reference_itself_when_rates_are_measured_alike() -> None:
     """A joint exactly on a quintic reference, its rate the encoder's backward difference: the servo pushes nothing.
     With the instantaneous reference rate it would push kd period thdd / 2 (5.5 N m at kd 76 and 144 rad/s^2)."""
-    gains = ServoGains(kp=(4600.0,) * 3, ki=(9e4,) * 3, kd=(76.0,) * 3, coulomb=(4.0,) * 3)
+    gains = ServoGains(kp=(4600.0,) * 3, ki=(9e4,) * 3, kd=(76.0,) * 3, breakaway=(4.0,) * 3)
     servo = JointServo(gains)
     t = np.arange(0.0, 0.2, 0.001)
     s = t / 0.2

@@ -8,6 +8,8 @@ is ``eval.identification``, its excitation runs ``eval.excitation``):
   trajectory, then per-joint friction least squares, averaged);
 - :mod:`~controllers.identification.least_squares`: ours, one joint least squares of all parameters, on the
   paper's lumped model or the model with rod forearms (MId+F+R);
+- :mod:`~controllers.identification.stribeck`: the Stribeck excess near zero speed, fitted on the rows the least
+  squares leaves out (the joints' breakaway torque);
 - :mod:`~controllers.identification.parameter_file`: the JSON parameter file with provenance;
 - :mod:`~controllers.identification.logs`: the drive log files (CSV or Parquet) a robot's logger records;
 - :mod:`~controllers.identification.bags`: ROS 2 bags (MCAP, sqlite3) of a robot's joint states as drive logs.
@@ -56,8 +58,10 @@ from controllers.identification.parameter_file import (
     IdentificationResult,
     ParameterFileError,
     load_result,
+    older_format,
     save_result,
 )
+from controllers.identification.stribeck import StribeckFit, fit_stribeck
 
 __all__ = [
     "BAG_SUFFIXES",
@@ -78,6 +82,7 @@ __all__ = [
     "MotionData",
     "PaperFit",
     "ParameterFileError",
+    "StribeckFit",
     "between_trajectory_spread",
     "concatenate",
     "error_table",
@@ -86,9 +91,11 @@ __all__ = [
     "fit_least_squares",
     "fit_paper_method",
     "fit_rho_least_squares",
+    "fit_stribeck",
     "grid_search_rho",
     "load_result",
     "motion_at_torque_samples",
+    "older_format",
     "prepare_motion",
     "read_log",
     "resample_log",

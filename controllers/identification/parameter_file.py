@@ -14,10 +14,12 @@ import numpy as np
 
 from controllers.dynamics import ModelParameters
 from delta_env.drive import MAX_TIME_CONSTANT
+from delta_env.geometry import TORQUE_LIMIT
 from delta_env.validation import require_in
 
-FILE_FORMAT_VERSION = 3
-"""Version of the JSON parameter file; bumped on incompatible changes (3: the drive lag ``drive_lag_s``)."""
+FILE_FORMAT_VERSION = 4
+"""Version of the JSON parameter file; bumped on incompatible changes (3: the drive lag ``drive_lag_s``; 4: the
+Stribeck excess ``stribeck_excess_nm`` and its decay speed ``stribeck_velocity_rad_s``)."""
 
 MODEL_FIELDS = ("mid", "mid_f", "mid_f_rods", "paper_mid", "paper_mid_f")
 """The parameter sets of an :class:`IdentificationResult`, in the order of the JSON file."""
@@ -37,6 +39,10 @@ class IdentificationResult:
         drive_lag: Time constant T (s) of each joint's first-order drive lag
             (:func:`controllers.drive.identify_lag`), each in [0, 0.1]; None when the data had no commands to fit it
             on (logs without them): then no controller leads a lag it does not know.
+        stribeck_excess: Stribeck excess fs_i of each joint's friction near zero speed (N m, >= 0) on the MId+F+R
+            model (:func:`controllers.identification.stribeck.fit_stribeck`): a joint at rest breaks away at
+            fc_i + fs_i of ``mid_f_rods``. None when the data had too few slow moving samples to fit it.
+        stribeck_velocity: Decay speed vs (rad/s) of the Stribeck excess; None with ``stribeck_excess``.
         standard_errors: Standard errors of the least-squares estimates, keyed ``"mid.rho1"``,
             ``"mid_f.viscous_2"``, ... (units of the parameter); optimistic, see
             :attr:`controllers.identification.least_squares.LeastSquaresFit.standard_errors`.
@@ -50,8 +56,21 @@ class IdentificationResult:
     paper_mid: ModelParameters
     paper_mid_f: ModelParameters
     drive_lag: tuple[float, float, float] | None
+    stribeck_excess: tuple[float, float, float] | None
+    stribeck_velocity: float | None
     standard_errors: dict[str, float]
     provenance: dict[str, Any]
+
+    def __post_init__(self) -> None:
+        if (self.stribeck_excess is None) != (self.stribeck_velocity is None):
+            raise ValueError("stribeck_excess and stribeck_velocity are given together or not at all")
+
+    @property
+    def breakaway(self) -> tuple[float, float, float]:
+        """Torque (N m) that starts each joint from rest on MId+F+R: its Coulomb friction plus the Stribeck excess
+        (the Coulomb friction alone without an identified excess)."""
+        excess = (0.0, 0.0, 0.0) if self.stribeck_excess is None else self.stribeck_excess
+        return tuple(c + e for c, e in zip(self.mid_f_rods.coulomb, excess, strict=True))
 
 
 class ParameterFileError(ValueError):
@@ -90,6 +109,8 @@ def save_result(result: IdentificationResult, path: str | os.PathLike[str]) -> P
     document = {"format_version": FILE_FORMAT_VERSION}
     document.update({name: _model_to_json(getattr(result, name)) for name in MODEL_FIELDS})
     document["drive_lag_s"] = None if result.drive_lag is None else list(result.drive_lag)
+    document["stribeck_excess_nm"] = None if result.stribeck_excess is None else list(result.stribeck_excess)
+    document["stribeck_velocity_rad_s"] = result.stribeck_velocity
     document["standard_errors"] = dict(result.standard_errors)
     document["provenance"] = result.provenance
     text = json.dumps(_json_ready(document), indent=2, allow_nan=False)
@@ -136,6 +157,16 @@ def _model_from_json(path: Path, document: Mapping[str, Any], name: str) -> Mode
         raise ParameterFileError(f"{path}: {name}: {error}") from error
 
 
+def older_format(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a parameter file of an older :data:`FILE_FORMAT_VERSION` (an unreadable file is not: its
+    reading reports it)."""
+    try:
+        version = json.loads(Path(path).read_text()).get("format_version")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return isinstance(version, int) and version < FILE_FORMAT_VERSION
+
+
 def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     """Read a file written by :func:`save_result`.
 
@@ -169,11 +200,28 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
         if lags is None
         else tuple(_number(path, f"drive_lag_s[{i}]", v, 0.0, MAX_TIME_CONSTANT) for i, v in enumerate(lags))
     )
+    excess = _entry(path, document, "stribeck_excess_nm", "the file")
+    if excess is not None and (not isinstance(excess, list) or len(excess) != 3):
+        raise ParameterFileError(f"{path}: stribeck_excess_nm must be a list of 3 numbers or null, got {excess!r}")
+    stribeck_excess = (
+        None
+        if excess is None
+        else tuple(_number(path, f"stribeck_excess_nm[{i}]", v, 0.0, TORQUE_LIMIT) for i, v in enumerate(excess))
+    )
+    velocity = _entry(path, document, "stribeck_velocity_rad_s", "the file")
+    stribeck_velocity = None if velocity is None else _number(path, "stribeck_velocity_rad_s", velocity, 0.0)
+    if (stribeck_excess is None) != (stribeck_velocity is None):
+        raise ParameterFileError(f"{path}: stribeck_excess_nm and stribeck_velocity_rad_s must both be null or not")
     errors = _json_object(path, _entry(path, document, "standard_errors", "the file"), "standard_errors")
     standard_errors = {}
     for key, value in errors.items():
         standard_errors[key] = _number(path, f"standard_errors[{key!r}]", value, low=0.0)
     provenance = _json_object(path, _entry(path, document, "provenance", "the file"), "provenance")
     return IdentificationResult(
-        **models, drive_lag=drive_lag, standard_errors=standard_errors, provenance=dict(provenance)
+        **models,
+        drive_lag=drive_lag,
+        stribeck_excess=stribeck_excess,
+        stribeck_velocity=stribeck_velocity,
+        standard_errors=standard_errors,
+        provenance=dict(provenance),
     )
