@@ -15,10 +15,11 @@ torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned withi
   (:data:`START_SHARE`: the thermal budget is an average, which the rest of the carry settles); once the payload
   estimator (the controller's RLS) has settled, the rest of the carry continues, within the rating, on a plan for
   the estimate plus its uncertainty and a margin, from the state the carry has reached (the past is kept, the
-  continuation is C2): at once if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else
-  after the planner's time (:data:`PLANNING_LATENCY`). A carry whose estimate has not settled by
-  :data:`FALLBACK_TAKEOVER` continues on the precomputed rated plan for the heaviest object. It may replan again as
-  the estimate tightens, by at least :data:`REPLAN_STEP`.
+  continuation is C2) and braking no harder than that payload's rated law (:meth:`PayloadTiming._braking`): at once
+  if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else after the planner's time
+  (:data:`PLANNING_LATENCY`). A carry whose estimate has not settled by :data:`FALLBACK_TAKEOVER` continues on the
+  precomputed rated plan for the heaviest object. It may replan again as the estimate tightens, by at least
+  :data:`REPLAN_STEP`.
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ PLANNING_LATENCY = 0.015
 """Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: longer than a
 replan takes on one core (:data:`controllers.timing.REPLAN_GRID_INTERVALS`; docs/measurements.md, "Pick rate"),
 so the carry keeps its law that long and the online rate is what a cell whose planner runs beside the 1 kHz loop
-would get."""
+would get. A continuation held to the thermal rating bisects its share, up to :data:`THERMAL_BISECTIONS` + 1
+replans: on the whole envelope that is a planner several times faster than this one."""
 
 START_SHARE = 0.6
 """Share of the task's torque share on which an online carry starts, planned for the heaviest object: within the

@@ -237,7 +237,8 @@ class TimeOptimalPlanner:
         scale: NDArray[np.float64],
         passes: int,
     ) -> PlannedLaw:
-        """Plan on ``grid`` (from the prefix's end state if continuing), smooth, verify, tighten until it passes."""
+        """Plan on ``grid`` within ``scale`` of the envelope at each grid point (from the prefix's end state if
+        continuing), smooth, verify, tighten until it passes."""
         stats = PlanStats()
         clock = time.perf_counter()
         q, dq, ddq = self._joint_path(shape, grid)
