@@ -158,7 +158,9 @@ class PayloadTiming:
                     f"no share of the envelope keeps a move with {payload} kg within the drive's rated torque "
                     f"{self.planner.drive.rated_torque} N m (less {100 * THERMAL_MARGIN:.0f} %)"
                 )
-            plans[key], _RATED_SHARES[rated[0]] = rated
+            law, share = rated
+            plans[key] = law
+            _RATED_SHARES[law] = share
         return plans[key]
 
     def thermal_ratio(self, shape: Segment, law: TimeLaw, payload: float) -> float:
