@@ -15,10 +15,11 @@ torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned withi
   (:data:`START_SHARE`: the thermal budget is an average, which the rest of the carry settles); once the payload
   estimator (the controller's RLS) has settled, the rest of the carry continues, within the rating, on a plan for
   the estimate plus its uncertainty and a margin, from the state the carry has reached (the past is kept, the
-  continuation is C2): at once if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else
-  after the planner's time (:data:`PLANNING_LATENCY`). A carry whose estimate has not settled by
-  :data:`FALLBACK_TAKEOVER` continues on the precomputed rated plan for the heaviest object. It may replan again as
-  the estimate tightens, by at least :data:`REPLAN_STEP`.
+  continuation is C2) and braking no harder than that payload's rated law (:meth:`PayloadTiming._braking`): at once
+  if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else after the planner's time
+  (:data:`PLANNING_LATENCY`). A carry whose estimate has not settled by :data:`FALLBACK_TAKEOVER` continues on the
+  precomputed rated plan for the heaviest object. It may replan again as the estimate tightens, by at least
+  :data:`REPLAN_STEP`.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from controllers.timing import TimeOptimalPlanner
 from delta_env.cycles import DEFAULT_DWELL
 from delta_env.drive import DriveLimits
 from delta_env.geometry import DeltaGeometry, DeltaMasses
-from delta_env.timing import DEFAULT_TORQUE_SHARE, TimeLaw
+from delta_env.timing import DEFAULT_TORQUE_SHARE, TimeLaw, move_samples
 from delta_env.trajectories import Segment
 from delta_env.validation import require_in, require_instance
 
@@ -65,7 +66,8 @@ PLANNING_LATENCY = 0.015
 """Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: longer than a
 replan takes on one core (:data:`controllers.timing.REPLAN_GRID_INTERVALS`; docs/measurements.md, "Pick rate"),
 so the carry keeps its law that long and the online rate is what a cell whose planner runs beside the 1 kHz loop
-would get."""
+would get. A continuation held to the thermal rating bisects its share, up to :data:`THERMAL_BISECTIONS` + 1
+replans: on the whole envelope that is a planner several times faster than this one."""
 
 START_SHARE = 0.6
 """Share of the task's torque share on which an online carry starts, planned for the heaviest object: within the
@@ -85,6 +87,10 @@ PRECOMPUTED_TAKEOVERS = (0.015, 0.018, 0.02, 0.025, 0.03)
 PRECOMPUTED_PAYLOADS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5)
 """Payloads (kg) of the precomputed continuations (below the heaviest object only; the heaviest object's own at
 :data:`FALLBACK_TAKEOVER`)."""
+
+BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
+"""Payloads (kg) whose rated laws' shares of the envelope give, by linear interpolation (and with the heaviest
+object's), the share within which a continuation brakes (:meth:`PayloadTiming._braking`)."""
 
 MAX_CACHED_PLANS = 512
 """Laws kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
@@ -146,13 +152,15 @@ class PayloadTiming:
         if len(plans) >= MAX_CACHED_PLANS:
             del plans[next(iter(plans))]
         if key not in plans:
-            law = self._within_rating(lambda scale: self.planner.plan(shape, payload, scale), shape, payload)
-            if law is None:
+            rated = self._within_rating(lambda scale: self.planner.plan(shape, payload, scale), shape, payload)
+            if rated is None:
                 raise ValueError(
                     f"no share of the envelope keeps a move with {payload} kg within the drive's rated torque "
                     f"{self.planner.drive.rated_torque} N m (less {100 * THERMAL_MARGIN:.0f} %)"
                 )
+            law, share = rated
             plans[key] = law
+            _RATED_SHARES[law] = share
         return plans[key]
 
     def thermal_ratio(self, shape: Segment, law: TimeLaw, payload: float) -> float:
@@ -165,13 +173,16 @@ class PayloadTiming:
         rms = np.sqrt(squared / (law.duration + self.dwell))
         return float(np.max(rms)) / ((1.0 - THERMAL_MARGIN) * self.planner.drive.rated_torque)
 
-    def _within_rating(self, planned: Callable[[float], TimeLaw], shape: Segment, payload: float) -> TimeLaw | None:
-        """``planned(1)`` if it is within the thermal rating, else ``planned(scale)`` with the largest share of the
-        envelope that is (bisection over :data:`THERMAL_BISECTIONS` steps; the squared torque falls with it), or
-        None if no share is: a continuation from a moving state may be unable to stop within a small share."""
+    def _within_rating(
+        self, planned: Callable[[float], TimeLaw], shape: Segment, payload: float
+    ) -> tuple[TimeLaw, float] | None:
+        """(``planned(share)``, share) with the task's share if that law is within the thermal rating, else with the
+        largest share of the envelope that is (bisection over :data:`THERMAL_BISECTIONS` steps; the squared torque
+        falls with it), or None if no share is: a continuation from a moving state may be unable to stop within a
+        small share."""
         law = planned(self.torque_share)
         if self.thermal_ratio(shape, law, payload) <= 1.0:
-            return law
+            return law, self.torque_share
         low, high, best = 0.0, self.torque_share, None
         for _ in range(THERMAL_BISECTIONS):
             scale = 0.5 * (low + high)
@@ -181,7 +192,7 @@ class PayloadTiming:
                 low = scale
                 continue
             if self.thermal_ratio(shape, candidate, payload) <= 1.0:
-                low, best = scale, candidate
+                low, best = scale, (candidate, scale)
             else:
                 high = scale
         return best
@@ -251,13 +262,37 @@ class PayloadTiming:
         within = len(law) if within is None else within
         if takeover >= len(law) - 1:
             return None
+        braking_from, rated_share = self._braking(shape, payload)
+
+        def planned(scale: float) -> TimeLaw:
+            return self.planner.replan(shape, law, takeover, payload, scale, (braking_from, min(scale, rated_share)))
+
         try:
-            continued = self._within_rating(
-                lambda scale: self.planner.replan(shape, law, takeover, payload, scale), shape, payload
-            )
+            continued = self._within_rating(planned, shape, payload)
         except ValueError:  # no continuation from there within the share
             return None
-        return continued if continued is not None and len(continued) < within else None
+        return continued[0] if continued is not None and len(continued[0]) < within else None
+
+    def _braking(self, shape: Segment, payload: float) -> tuple[float, float]:
+        """(tau, share): where a carry of ``shape`` brakes, from the point at which the heaviest object's rated law
+        runs fastest on, and the share of the envelope the rated laws brake with at ``payload`` (kg): linear between
+        those of :data:`BRAKING_PAYLOADS` (and the heaviest object's), each rated law's thermal share.
+
+        A continuation brakes within that share (:meth:`_continued`): the heat its carry saved while it ran slower
+        than the rated law goes into the rest of the move, not into the braking, whose deceleration sets the
+        platform's settle at the place (docs/design.md section 9)."""
+        key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, self.max_payload)
+        key += (self.dwell, self.torque_share)
+        brakings = _BRAKINGS.setdefault(self.planner, {})
+        if key not in brakings:
+            heaviest = self._plan(shape, self.max_payload)
+            _, velocity, _ = move_samples(shape, heaviest)
+            fastest = float(heaviest.tau[int(np.argmax(np.linalg.norm(velocity, axis=1)))])
+            payloads = sorted({p for p in BRAKING_PAYLOADS if p < self.max_payload} | {self.max_payload})
+            shares = [_RATED_SHARES[self._plan(shape, p)] for p in payloads]
+            brakings[key] = (fastest, tuple(payloads), tuple(shares))
+        fastest, payloads, shares = brakings[key]
+        return fastest, float(np.interp(payload, payloads, shares))
 
     def empty(self, shape: Segment) -> TimeLaw:
         """The law of an empty move: for the empty gripper."""
@@ -310,6 +345,14 @@ class PayloadTiming:
 
 _CONTINUATIONS: weakref.WeakKeyDictionary[TimeLaw, list[tuple[int, float, TimeLaw]]] = weakref.WeakKeyDictionary()
 """Precomputed continuations of online carries' laws (:meth:`PayloadTiming._continuations`)."""
+
+_RATED_SHARES: weakref.WeakKeyDictionary[TimeLaw, float] = weakref.WeakKeyDictionary()
+"""The share of the envelope each rated law was planned within (:meth:`PayloadTiming._within_rating`)."""
+
+_BRAKINGS: weakref.WeakKeyDictionary[TimeOptimalPlanner, dict[tuple, tuple[float, tuple, tuple]]] = (
+    weakref.WeakKeyDictionary()
+)
+"""Per planner and carry shape: where carries brake and the rated laws' shares (:meth:`PayloadTiming._braking`)."""
 
 _UNRATED_STARTS: weakref.WeakSet[TimeLaw] = weakref.WeakSet()
 """Start laws of online carries over the thermal rating (:meth:`PayloadTiming._start`)."""

@@ -156,13 +156,23 @@ class TimeOptimalPlanner:
         """
         require_in("payload", payload, 0.0, unit="kg")
         grid = np.linspace(0.0, 1.0, GRID_INTERVALS + 1)
-        return self._planned(shape, payload, grid, None, 0, _torque_scale(torque_scale), TANGENT_PASSES)
+        scale = np.full(len(grid), _torque_scale(torque_scale))
+        return self._planned(shape, payload, grid, None, 0, scale, TANGENT_PASSES)
 
-    def replan(self, shape: Segment, law: TimeLaw, index: int, payload: float, torque_scale: float = 1.0) -> PlannedLaw:
+    def replan(
+        self,
+        shape: Segment,
+        law: TimeLaw,
+        index: int,
+        payload: float,
+        torque_scale: float = 1.0,
+        braking: tuple[float, float] | None = None,
+    ) -> PlannedLaw:
         """``law`` up to its sample ``index``, then the fastest verified continuation with ``payload`` (kg).
 
         Samples 0 .. ``index`` are ``law``'s own; the continuation starts from the raw profile's state at
-        ``index * dt``, so the law stays C2. ``torque_scale`` as in :meth:`plan`.
+        ``index * dt``, so the law stays C2. ``torque_scale`` as in :meth:`plan`; ``braking`` = (tau, share), if
+        given, plans the shape from tau on within at most that share of the envelope (its braking into the end).
 
         Raises:
             ValueError: if ``law`` is not a :class:`PlannedLaw` of this planner's period, ``index`` is outside
@@ -180,7 +190,10 @@ class TimeOptimalPlanner:
         start = float(prefix.s[-1])
         count = max(math.ceil((1.0 - start) * REPLAN_GRID_INTERVALS), 20)
         grid = np.linspace(start, 1.0, count + 1)
-        scale = _torque_scale(torque_scale)
+        scale = np.full(len(grid), _torque_scale(torque_scale))
+        if braking is not None:
+            braking_from, braking_share = braking
+            scale[grid >= braking_from] = np.minimum(scale[grid >= braking_from], _torque_scale(braking_share))
         return self._planned(shape, payload, grid, (prefix, law), index, scale, REPLAN_TANGENT_PASSES)
 
     def model_torque(
@@ -221,17 +234,18 @@ class TimeOptimalPlanner:
         grid: NDArray[np.float64],
         continuation: tuple[RawProfile, PlannedLaw] | None,
         index: int,
-        torque_scale: float,
+        scale: NDArray[np.float64],
         passes: int,
     ) -> PlannedLaw:
-        """Plan on ``grid`` (from the prefix's end state if continuing), smooth, verify, tighten until it passes."""
+        """Plan on ``grid`` within ``scale`` of the envelope at each grid point (from the prefix's end state if
+        continuing), smooth, verify, tighten until it passes."""
         stats = PlanStats()
         clock = time.perf_counter()
         q, dq, ddq = self._joint_path(shape, grid)
         terms = self._path_terms(q, dq, ddq, payload)
         stats.constraints += time.perf_counter() - clock
         sd_start = float(continuation[0].sd[-1]) if continuation else 0.0
-        scale = np.full(len(grid), torque_scale)
+        scale = scale.copy()
         for _ in range(MAX_TIGHTENINGS):
             raw = self._raw(grid, dq, terms, scale, sd_start, stats, passes)
             if continuation:

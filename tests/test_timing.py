@@ -138,6 +138,21 @@ def test_replan_keeps_the_past_and_speeds_up_a_lighter_carry(
     assert steps[index - 1 : index + 2].max() < 0.25 * np.linalg.norm(acceleration, axis=1).max()
 
 
+def test_replan_brakes_within_its_braking_share(plans: dict[float, PlannedLaw], planner: TimeOptimalPlanner) -> None:
+    heavy, shape = plans[8.0], standard_carry()
+    index = len(heavy) // 4
+    free = planner.replan(shape, heavy, index, 1.0)
+    braked = planner.replan(shape, heavy, index, 1.0, braking=(0.6, 0.5))
+    # from tau 0.6 on (and the smoothing window) about half the envelope (the lag-inverse command overshoots a
+    # little); before it, all of it
+    later = braked.tau >= 0.6 + 0.05
+    assert planner.utilisation(shape, braked, 1.0).max(axis=1)[later].max() <= 0.55
+    assert planner.utilisation(shape, free, 1.0).max(axis=1)[free.tau >= 0.65].max() > 0.9
+    assert free.duration < braked.duration
+    with pytest.raises(ValueError, match="torque_scale"):
+        planner.replan(shape, heavy, index, 1.0, braking=(0.6, 0.0))
+
+
 def test_replan_rejects_a_law_it_did_not_plan(planner: TimeOptimalPlanner, plans: dict[float, PlannedLaw]) -> None:
     law = plans[0.0]
     with pytest.raises(ValueError, match="index must lie"):
