@@ -27,7 +27,15 @@ from controllers.base import JointFeedback, Observation, PDController
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
-from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, ServoGains, joint_inertia, servo_gains
+from controllers.servo import (
+    DEFAULT_FRICTION_WIDTH,
+    SCHEDULE_PERIOD,
+    JointServo,
+    ServoGains,
+    joint_inertia,
+    model_inertia,
+    servo_gains,
+)
 from delta_env.config import PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
@@ -61,6 +69,9 @@ class FeedforwardController:
         self.dynamics = dynamics
         self.servo = PDController() if servo is None else servo
         self.estimator = estimator
+        self._scheduled = isinstance(self.servo, JointServo) and self.servo.scheduled
+        self._schedule_samples = round(SCHEDULE_PERIOD / CONTROL_PERIOD)
+        self._samples = 0
 
     @property
     def payload_estimate(self) -> float:
@@ -75,8 +86,17 @@ class FeedforwardController:
 
     def reset(self) -> None:
         self.servo.reset()
+        self._samples = 0
         if self.estimator is not None:
             self.estimator.reset()
+
+    def schedule_servo(self, observation: Observation) -> None:
+        """Every :data:`~controllers.servo.SCHEDULE_PERIOD`, place a scheduled servo's gains on the model's inertia at
+        the reference's pose, without payload (:meth:`~controllers.servo.JointServo.schedule`)."""
+        if self._scheduled:
+            if self._samples % self._schedule_samples == 0:
+                self.servo.schedule(model_inertia(self.dynamics, observation["reference_angles"], 0.0))
+            self._samples += 1
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         tau0, phi = self.dynamics.torque_and_payload_regressor(
@@ -84,6 +104,7 @@ class FeedforwardController:
             observation["reference_velocities"],
             observation["reference_accelerations"],
         )
+        self.schedule_servo(observation)
         feedback = self.servo.feedback(observation)
         if self.estimator is None:
             return tau0 + feedback
@@ -167,6 +188,8 @@ class OracleController:
         self.payload_masses: tuple[float, ...] = ()
         self._picks = 0
         self._holding = False
+        self._schedule_samples = round(SCHEDULE_PERIOD / period)
+        self._samples = 0
 
     def _set_drive(self, lag: float, period: float) -> None:
         """The sampled lag of the drive, the predictor of the reference at its hold lead and the feedback."""
@@ -214,6 +237,7 @@ class OracleController:
         self.reference.reset()
         self._picks = 0
         self._holding = False
+        self._samples = 0
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         holding = observation["gripper"].item(0) > 0.5
@@ -225,6 +249,10 @@ class OracleController:
                     "set_payload_masses(info['payload_masses']) after env.reset"
                 )
         self._holding = holding
+        if self.servo.scheduled and self._samples % self._schedule_samples == 0:
+            # the servo layer's schedule on the truth: the exact inertia at the reference, without payload
+            self.servo.schedule(joint_inertia(self.oracle.torques, observation["reference_angles"]))
+        self._samples += 1
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
         return self.drive.command(torque_next) + self.servo.feedback(observation)
 
@@ -273,6 +301,7 @@ class LagCompensatedController:
         self.reference.reset()
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
+        self.base.schedule_servo(observation)
         feedback = self.base.servo.feedback(observation)
         if self.base.estimator is not None:  # the base's payload estimate from this step's observation
             self.base.estimator.update(observation)

@@ -15,6 +15,12 @@ a blocked joint cannot wind it up. While the reference is at rest the model's Co
 and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess at
 zero speed); the servo then pushes with the identified breakaway torque in the direction of the error, saturating at
 ``friction_width`` (one encoder step), which closes the stick band.
+
+The gains are placed on one inertia, the arm's empty at home; the joint's inertia grows with the pose (1.4 times at
+the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
+servo (:meth:`JointServo.schedule`) scales kp, kd and ki with the inertia it is given, which keeps the triple pole and
+the margin (J cancels in the open loop): the model rows give it their model's inertia at the reference's pose, without
+payload, every :data:`SCHEDULE_PERIOD` (why without: docs/design.md section 6).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.drive import MeasuredReferenceRate
+from controllers.dynamics import DeltaDynamics
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
 from delta_env.validation import require_in, require_joint_vector
 
@@ -41,6 +48,10 @@ inertia (4 kg below the conveyors) 16 (docs/design.md section 6)."""
 
 DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
+
+SCHEDULE_PERIOD = 0.01
+"""Time (s) between two updates of a scheduled servo's inertia: the pose and the payload estimate change little in
+it, and an update costs four evaluations of the model (:func:`model_inertia`)."""
 
 DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
 """Error (rad) at which the friction compensation at rest reaches the full breakaway torque: one encoder step (17 bit),
@@ -59,6 +70,8 @@ class ServoGains:
             the Stribeck excess; zero turns the compensation off.
         friction_width: Error (rad) at which the compensation at rest saturates.
         integral_limit: Largest |ki integral(e)| (N m).
+        inertia: Joint inertia (kg m^2) per joint the gains are placed on (:func:`servo_gains`); None for gains that
+            are not (then :meth:`JointServo.schedule` refuses them).
     """
 
     kp: tuple[float, float, float]
@@ -67,6 +80,7 @@ class ServoGains:
     breakaway: tuple[float, float, float] = (0.0, 0.0, 0.0)
     friction_width: float = DEFAULT_FRICTION_WIDTH
     integral_limit: float = DEFAULT_INTEGRAL_LIMIT
+    inertia: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         for name, unit in (("kp", "N m/rad"), ("ki", "N m/(rad s)"), ("kd", "N m s/rad"), ("breakaway", "N m")):
@@ -74,6 +88,9 @@ class ServoGains:
             object.__setattr__(self, name, tuple(float(v) for v in values))
         require_in("friction_width", self.friction_width, 0.0, unit="rad", low_open=True)
         require_in("integral_limit", self.integral_limit, 0.0, unit="N m")
+        if self.inertia is not None:
+            values = require_joint_vector("inertia", self.inertia, 0.0, unit="kg m^2", low_open=True)
+            object.__setattr__(self, "inertia", tuple(float(v) for v in values))
 
 
 def loop_delay(drive_lag: float, period: float = CONTROL_PERIOD) -> float:
@@ -132,6 +149,19 @@ def joint_inertia(
     return np.array([inverse_dynamics(theta, zero, np.eye(3)[i], payload)[i] - static[i] for i in range(3)])
 
 
+def model_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> NDArray[np.float64]:
+    """:func:`joint_inertia` of the model ``dynamics`` at ``theta`` (rad) with ``payload`` (kg), from its single-sample
+    path (:meth:`~controllers.dynamics.DeltaDynamics.torque_and_payload_regressor`), cheap enough for the 1 kHz loop."""
+
+    def inverse_dynamics(
+        angles: ArrayLike, rates: ArrayLike, accelerations: ArrayLike, mass: float
+    ) -> NDArray[np.float64]:
+        tau0, phi = dynamics.torque_and_payload_regressor(angles, rates, accelerations)
+        return tau0 + mass * phi
+
+    return joint_inertia(inverse_dynamics, theta, payload)
+
+
 def servo_gains(
     inertia: ArrayLike,
     breakaway: ArrayLike,
@@ -163,6 +193,7 @@ def servo_gains(
         breakaway=tuple(float(c) for c in np.broadcast_to(np.asarray(breakaway, dtype=float), (3,))),
         friction_width=friction_width,
         integral_limit=integral_limit,
+        inertia=tuple(float(v) for v in inertia),
     )
 
 
@@ -181,6 +212,41 @@ class JointServo:
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
         self.reference_rate = MeasuredReferenceRate(rate_window, period)
         self._integral = [0.0, 0.0, 0.0]  # ki * integral(e) per joint (N m)
+        self._error = [0.0, 0.0, 0.0]  # the last sample's e and de/dt per joint (rad, rad/s), for a bumpless schedule
+        self._rate_error = [0.0, 0.0, 0.0]
+        self._unscheduled()
+
+    @property
+    def scheduled(self) -> bool:
+        """Whether the gains are placed on an inertia, which :meth:`schedule` can follow."""
+        return self.gains.inertia is not None
+
+    @property
+    def current_gains(self) -> tuple[list[float], list[float], list[float]]:
+        """(kp, ki, kd) per joint in use: the gains' own, or scaled by the last :meth:`schedule`."""
+        return list(self._kp), list(self._ki), list(self._kd)
+
+    def schedule(self, inertia: ArrayLike) -> None:
+        """Place the gains on each joint's ``inertia`` (kg m^2) now: kp, kd and ki scaled by it over the inertia they
+        were placed on, which keeps the closed loop's triple pole and phase margin. Bumpless: the integral term,
+        stored as torque, takes up the change of kp e + kd de/dt at the last sample's errors, so the command does not
+        step (a step would shake the arm, and the payload estimate with it).
+
+        Raises:
+            ValueError: for gains not placed on an inertia (:attr:`ServoGains.inertia` None).
+        """
+        if self.gains.inertia is None:
+            raise ValueError("these servo gains are not placed on an inertia (ServoGains.inertia is None)")
+        gains, limit = self.gains, self.gains.integral_limit
+        for joint in range(3):
+            scale = float(inertia[joint]) / gains.inertia[joint]
+            kp, kd = gains.kp[joint] * scale, gains.kd[joint] * scale
+            change = (kp - self._kp[joint]) * self._error[joint] + (kd - self._kd[joint]) * self._rate_error[joint]
+            self._integral[joint] = min(max(self._integral[joint] - change, -limit), limit)
+            self._kp[joint], self._kd[joint], self._ki[joint] = kp, kd, gains.ki[joint] * scale
+
+    def _unscheduled(self) -> None:
+        self._kp, self._ki, self._kd = list(self.gains.kp), list(self.gains.ki), list(self.gains.kd)
 
     @property
     def integral(self) -> NDArray[np.float64]:
@@ -188,13 +254,16 @@ class JointServo:
         return np.array(self._integral)
 
     def reset(self) -> None:
-        """Zero the integral and forget the last reference."""
+        """Zero the integral, forget the last reference and return to the gains' own inertia."""
         self._integral = [0.0, 0.0, 0.0]
+        self._error = [0.0, 0.0, 0.0]
+        self._rate_error = [0.0, 0.0, 0.0]
         self.reference_rate.reset()
+        self._unscheduled()
 
     def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The servo torque (N m), (3,)."""
-        gains, period = self.gains, self.period
+        gains, period, kp, ki, kd = self.gains, self.period, self._kp, self._ki, self._kd
         limit, width = gains.integral_limit, gains.friction_width
         reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
         reference_rates, rates = observation["reference_velocities"].tolist(), observation["joint_velocities"].tolist()
@@ -206,10 +275,11 @@ class JointServo:
         for joint in range(3):
             error = reference[joint] - angles[joint]
             rate_error = measured_reference_rates[joint] - rates[joint]
+            self._error[joint], self._rate_error[joint] = error, rate_error
             # Anti-windup: the integral torque is clamped, so a blocked joint holds at most `limit` of it.
-            integral = min(max(self._integral[joint] + gains.ki[joint] * error * period, -limit), limit)
+            integral = min(max(self._integral[joint] + ki[joint] * error * period, -limit), limit)
             self._integral[joint] = integral
-            value = gains.kp[joint] * error + gains.kd[joint] * rate_error + integral
+            value = kp[joint] * error + kd[joint] * rate_error + integral
             if reference_rates[joint] == 0.0:
                 # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
                 value += gains.breakaway[joint] * min(max(error / width, -1.0), 1.0)

@@ -10,17 +10,20 @@ from numpy.testing import assert_allclose
 
 from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics, ModelParameters
+from controllers.feedforward import OracleController
 from controllers.servo import (
     DEFAULT_PHASE_MARGIN,
     JointServo,
     ServoGains,
     joint_inertia,
     loop_delay,
+    model_inertia,
     phase_margin,
     servo_bandwidth,
     servo_gains,
 )
 from controllers.setup import ControllerSetup, model_row
+from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.kinematics import inverse
@@ -215,3 +218,54 @@ def test_no_feedback_on_the_reference_itself_when_rates_are_measured_alike() -> 
     assert np.abs(acceleration).max() > 140.0
     # What is left is the third-order term of the backward difference, against 5.5 N m unlike.
     assert np.abs(torques[1:]).max() < 0.05
+
+
+def test_a_scheduled_servo_keeps_the_triple_pole_on_the_inertia_it_is_given() -> None:
+    """With 4 kg at the conveyors' pose the joint inertia is about four times the design's: scheduled, the loop keeps
+    its triple pole at the bandwidth there; unscheduled its poles would be those of J s^3 + kd s^2 + kp s + ki with
+    the design's gains, about half as fast."""
+    dynamics = DeltaDynamics.nominal(NOMINAL_RODS, forearm_rods=True)
+    design = joint_inertia(dynamics.inverse_dynamics)
+    servo = JointServo(servo_gains(design, NOMINAL_RODS.coulomb, LAG))
+    pose = np.array([0.6, 0.5, 0.7])
+    heavy = model_inertia(dynamics, pose, 4.0)
+    assert_allclose(heavy, joint_inertia(dynamics.inverse_dynamics, pose, 4.0), rtol=1e-12)
+    assert np.all(heavy > 3.5 * design)
+    bandwidth = servo_bandwidth(loop_delay(0.001))
+    fixed = [np.roots([heavy[j], servo.gains.kd[j], servo.gains.kp[j], servo.gains.ki[j]]) for j in range(3)]
+    assert max(np.abs(poles).min() for poles in fixed) < 0.6 * bandwidth
+    servo.schedule(heavy)
+    kp, ki, kd = servo.current_gains
+    for joint in range(3):
+        assert_allclose(np.roots([heavy[joint], kd[joint], kp[joint], ki[joint]]), -bandwidth, rtol=1e-3)
+    servo.reset()  # back on the design's inertia
+    assert servo.current_gains == (list(servo.gains.kp), list(servo.gains.ki), list(servo.gains.kd))
+    with pytest.raises(ValueError, match="not placed on an inertia"):
+        JointServo(ServoGains(kp=(1.0,) * 3, ki=(0.0,) * 3, kd=(0.0,) * 3)).schedule(heavy)
+
+
+def test_rows_and_the_bound_schedule_their_servo_on_the_arm_at_the_reference() -> None:
+    """A model row's servo is placed on its model's inertia at the reference's pose, the bound's on the plant's exact
+    inertia there, without the payload either way (with 4 kg held, over 3.5 times as much)."""
+    pose = np.array([0.6, 0.5, 0.7])
+    sample = {
+        "reference_angles": pose,
+        "reference_velocities": np.zeros(3),
+        "reference_accelerations": np.zeros(3),
+        "joint_angles": pose,
+        "joint_velocities": np.zeros(3),
+        "joint_torques": np.zeros(3),
+        "gripper": np.array([1.0]),
+    }
+    setup = ControllerSetup(mid=NOMINAL_RODS, mid_f=NOMINAL_RODS, mid_f_rods=NOMINAL_RODS, drive_lag=LAG)
+    row = model_row("mid_f_r", setup)
+    row(sample)
+    scheduled = model_inertia(row.dynamics, pose, 0.0)
+    assert_allclose(row.servo.current_gains[0], np.array(row.servo.gains.kp) * scheduled / row.servo.gains.inertia)
+    bound = OracleController(PlantConfig(), servo="servo")
+    bound.set_payload_masses([4.0])
+    bound(sample)
+    truth = joint_inertia(bound.oracle.torques, pose)
+    assert_allclose(bound.servo.current_gains[0], np.array(bound.servo.gains.kp) * truth / bound.servo.gains.inertia)
+    assert np.all(truth > 1.3 * np.array(bound.servo.gains.inertia))
+    assert np.all(joint_inertia(bound.oracle.torques, pose, 4.0) > 3.5 * np.array(bound.servo.gains.inertia))
