@@ -43,8 +43,8 @@ HOME = (0.0, 0.0, 0.0)
 
 DEFAULT_PHASE_MARGIN = math.radians(35.0)
 """Phase margin (rad) the servo's bandwidth keeps through the loop's delay: the best of 35, 40 and 50 degrees on the
-standard cycle at 3 and 6 g (docs/measurements.md). A lag twice the identified one leaves 17 degrees, a fourfold
-inertia (4 kg below the conveyors) 16 (docs/design.md section 6)."""
+standard cycle at 3 and 6 g (docs/measurements.md). A lag twice the identified one leaves 17 degrees; a payload,
+which the schedule leaves out, about 27 with 4 kg at the conveyors (docs/design.md section 6)."""
 
 DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
