@@ -292,8 +292,9 @@ def test_lag_compensated_row_tracks_better_than_its_base_and_needs_the_lag(
     controller_setup: ControllerSetup, records: dict[str, EpisodeRecord]
 ) -> None:
     rms = {name: record.metrics()["tracking_rms_mm"] for name, record in records.items()}
-    # Leading the 1 ms drive lag: measured 0.40 -> 0.29 mm on this 3 kg episode.
-    assert rms["mid_f_rls_lag"] < 0.8 * rms["mid_f_rls"]
+    # Leading the 1 ms drive lag: measured 0.078 -> 0.063 mm (-19 %) on this 3 kg episode behind the servo layer
+    # (0.40 -> 0.29 mm behind the paper's PD); half the gain fails.
+    assert rms["mid_f_rls_lag"] < 0.9 * rms["mid_f_rls"]
     with pytest.raises(ValueError, match="drive lag"):
         build_controller("mid_f_rls_lag", dataclasses.replace(controller_setup, drive_lag=None))
 

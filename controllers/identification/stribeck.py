@@ -24,10 +24,11 @@ from scipy.optimize import minimize_scalar
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.identification.data import REST_VELOCITY, MotionData, concatenate, torque_errors
 from controllers.identification.least_squares import FRICTION_VELOCITY_THRESHOLD
+from delta_env.geometry import TORQUE_LIMIT
 
-SLOWEST_DECAY = 0.005
-"""Smallest decay speed vs (rad/s) searched: a tenth of the encoder's one count per control period (0.048 rad/s),
-below which the smoothed rates cannot resolve a decay."""
+SLOWEST_DECAY = REST_VELOCITY
+"""Smallest decay speed vs (rad/s) searched: rates below :data:`REST_VELOCITY` are set to 0 (at rest), so a faster
+decay leaves no moving row to fit its excess (exp(-(v / vs)^2) vanishes on every one)."""
 
 MIN_ROWS = 50
 """Fewest slow moving rows per joint the fit needs (the excitation's reversals give hundreds per trajectory)."""
@@ -102,7 +103,18 @@ def fit_stribeck(
         squared_error, bounds=(math.log(SLOWEST_DECAY), math.log(velocity_threshold)), method="bounded"
     )
     velocity = math.exp(search.x)
+    if not SLOWEST_DECAY * 1.01 < velocity < velocity_threshold / 1.01:
+        raise ValueError(
+            f"the data do not determine the Stribeck decay speed: the best lies at the search's bound, {velocity:.4f} "
+            f"rad/s (too few slow moving rows near zero speed: {list(rows)} per joint)"
+        )
     fits = [_excess(rates, error, velocity) for rates, error in columns]
+    for joint, (excess, error, _) in enumerate(fits, start=1):
+        if not (math.isfinite(excess) and math.isfinite(error) and abs(excess) <= TORQUE_LIMIT):
+            raise ValueError(
+                f"the Stribeck excess of joint {joint} is not determined by the data (fitted {excess!r} N m at vs = "
+                f"{velocity:.4f} rad/s): too few slow moving rows near zero speed"
+            )
     return StribeckFit(
         excess=tuple(max(excess, 0.0) for excess, _, _ in fits),
         velocity=velocity,
