@@ -299,6 +299,7 @@ def test_the_setup_digest_covers_every_field_a_controller_knows_and_nothing_of_t
         "mid_f": ModelParameters(rho1=1.9, rho2=0.9),
         "mid_f_rods": ModelParameters(rho1=1.9, rho2=0.9),
         "drive_lag": (0.001, 0.001, 0.0011),
+        "stribeck_excess": (2.0, 1.7, 2.3),
         "tares": {"mid_f_rls_lag": 0.01},
         "empty_moves": {"mid_f_rls_lag": sums},
         "pd_gains": (3000.0, 61.0),
