@@ -323,6 +323,27 @@ def test_vector_envs() -> None:
         vec_env.close()
 
 
+def test_training_envs_are_timed_online_on_the_bases_own_estimate() -> None:
+    # the residual's training work: the data sheet's cycle timed online, in-position release, randomized plants
+    scenario = preset("pick-rate-randomized")
+    assert (scenario.task.timing, scenario.task.cycle, scenario.task.release) == ("online", "standard", "in_position")
+    env_kwargs = {"n_cycles": 1, "scenario": scenario}
+    env = make_env(config=ResidualConfig(), env_kwargs=env_kwargs, base=policy_base(key="mid_f_rls_lag"))().env.env
+    plant_env = env.plant_env
+    assert plant_env.timing.mode == "online" and plant_env.timing.estimator is env.base.estimator  # no wrapper
+    env.reset(seed=SEED)
+    planned = len(plant_env.trajectory)
+    steps, truncated = 0, False
+    while not truncated:
+        _, _, terminated, truncated, info = env.step(np.zeros(3, dtype=np.float32))
+        assert not terminated
+        steps += info["control_steps"]
+    assert steps == len(plant_env.trajectory) - 1 != planned - 1  # retimed or held in position, and then ended
+    assert [settle.kind for settle in plant_env.settles] == ["pick", "place"]
+    with pytest.raises(ValueError, match="pass base, not base_factory"):
+        make_env(config=ResidualConfig(), env_kwargs=env_kwargs, base=None, base_factory=make_base)()
+
+
 def test_training_and_held_out_seeds_are_disjoint() -> None:
     env = EpisodeSeeds(DeltaResidualEnv(base=make_base(), n_cycles=1), seed=0, rank=1)
     training = set()

@@ -17,7 +17,17 @@ from delta_env.scenario import Condition, PickPlaceTask, Scenario, preset, prese
 from delta_env.sensors import control_substeps
 from eval.tasks import timed
 
-PRESETS = ("faults", "heavy", "nominal", "paper", "pick-rate", "pick-rate-randomized", "randomized", "stress-6g", "worn")
+PRESETS = (
+    "faults",
+    "heavy",
+    "nominal",
+    "paper",
+    "pick-rate",
+    "pick-rate-randomized",
+    "randomized",
+    "stress-6g",
+    "worn",
+)
 
 
 def unusual_scenario() -> Scenario:
@@ -110,7 +120,9 @@ def test_bad_fields_are_errors_naming_the_field(text: str, message: str) -> None
 
 def test_unknown_preset_lists_the_presets() -> None:
     assert preset_names() == sorted(PRESETS)
-    with pytest.raises(ValueError, match="faults, heavy, nominal, paper, pick-rate, pick-rate-randomized, randomized, stress-6g, worn"):
+    with pytest.raises(
+        ValueError, match="faults, heavy, nominal, paper, pick-rate, pick-rate-randomized, randomized, stress-6g, worn"
+    ):
         resolve_scenario("nominl")
     with pytest.raises(ValueError, match="no such file"):
         resolve_scenario("missing/dir/cell.toml")
