@@ -286,6 +286,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         reward_scale=args.reward_scale,
         torque_weight=args.torque_weight,
         action_rate_weight=args.action_rate_weight,
+        off_at_rest=args.off_at_rest,
     )
 
 
@@ -552,6 +553,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=float,
         default=ResidualConfig.action_rate_weight,
         help="reward weight ((N m)^-2) of the squared change of the residual torque per policy step (default 0)",
+    )
+    parser.add_argument(
+        "--off-at-rest",
+        action="store_true",
+        help="no residual while the reference is at rest (the waits in position, the dwells): the servo holds it",
     )
     parser.add_argument(
         "--hyperparams",

@@ -149,6 +149,35 @@ def test_controller_runs_the_same_loop_as_the_env(action_period: int) -> None:
     assert_allclose(info["commanded_torques"] - info["base_torques"], expected, rtol=0.0, atol=1e-9)
 
 
+class RestRecorder:
+    """Runs ``controller`` and records, per control step, whether the observation's reference was at rest."""
+
+    def __init__(self, controller: ResidualController) -> None:
+        self.controller, self.at_rest = controller, []
+
+    def reset(self) -> None:
+        self.controller.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        self.at_rest.append(not observation["reference_velocities"].any())
+        return self.controller(observation)
+
+
+def test_off_at_rest_leaves_the_stops_to_the_base_in_the_env_and_the_controller_alike() -> None:
+    steps = 800  # the start at rest, the empty move to the first pick, the stop there and part of the carry
+    config = ResidualConfig(residual_limit=20.0, off_at_rest=True)
+    env_torques, env_base_torques, _ = residual_env_rollout(linear_policy, config, steps)
+    recorder = RestRecorder(ResidualController(make_base(), linear_policy, config))
+    torques, _ = controller_rollout(recorder, steps)
+    assert_array_equal(torques, env_torques)
+    residual = np.abs(env_torques - env_base_torques).max(axis=1)
+    at_rest = np.array(recorder.at_rest)
+    assert 20 < at_rest.sum() < steps - 300, at_rest.sum()
+    assert np.all(residual[at_rest] == 0.0) and np.all(residual[~at_rest] > 0.0)
+    with pytest.raises(ValueError, match="off_at_rest must be true or false"):
+        ResidualConfig(off_at_rest=1)
+
+
 def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
     weight, scale = 2e-4, 0.5
     plain, charged = (
