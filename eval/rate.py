@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from controllers.registry import controller_entry, controller_label, controllers_help, parse_controller_keys
+from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
 from delta_env.config import RATED_PAYLOAD, PlantConfig
 from delta_env.cycles import DEFAULT_DWELL
 from delta_env.geometry import GRAVITY
@@ -173,6 +174,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "first's references; " + controllers_help(",".join(DEFAULT_CONTROLLERS)),
     )
     parser.add_argument(
+        "--residual",
+        type=Path,
+        default=DEFAULT_POLICY_PATH,
+        help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
+    )
+    parser.add_argument(
         "--payloads",
         default=None,
         help=f"comma-separated payloads (kg) in (0, {RATED_PAYLOAD:g}] besides the mixed stream "
@@ -216,6 +223,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
+    if "residual" in args.controllers:
+        try:
+            read_policy_settings(args.residual)
+        except (FileNotFoundError, ValueError) as error:
+            parser.error(f"--residual: {error}")
     privileged = [key for key in args.controllers if controller_entry(key).privileged]
     if privileged:
         parser.error(f"--controllers: {', '.join(privileged)}: a bound that knows the plant, without a pick rate")
@@ -441,6 +453,7 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
             workers=args.workers,
             progress=bar,
             servo=args.servo,
+            residual_policy=args.residual,
         )
     args.parameters, setup, calibration = prepared.parameter_file, prepared.setup, prepared.calibration
 
