@@ -12,9 +12,11 @@ in-position window) are the scenario's. ABB's published rows (:mod:`eval.publish
 - ``online``: time-optimal, a carry starts for the heaviest object and is retimed once the payload estimate
   has settled (:mod:`controllers.payload_timing`).
 
-The first controller of ``--controllers`` (by default the model-based MId+F+R+RLS+lag+PD) runs every row; the
-others run the same references (its episodes' reference, replayed with the same objects), so that they are
-scored at the same timings. For each payload it also finds the fastest fixed timing at which the second
+The first controller of ``--controllers`` (by default the model-based MId+F+R+RLS+lag+PD) runs every row, and
+so does every other controller that estimates the payload itself (the RLS rows, the residual: :func:`paced`), at
+its own pace: timed on its own estimate, released in position. The others (PD, the rows without an estimate) run
+the first's references (its episodes' reference, replayed with the same objects), so that they are scored at the
+same timings. For each payload it also finds the fastest fixed timing at which the second
 controller (PD by default) meets the tracking and place goals (:data:`TRACKING_GOAL_MM`, :data:`PLACE_GOAL_MM`):
 the ratio of the two pick rates is what the model buys.
 
@@ -46,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from controllers.registry import controller_entry, controller_label, controllers_help, parse_controller_keys
+from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
 from delta_env.config import RATED_PAYLOAD, PlantConfig
 from delta_env.cycles import DEFAULT_DWELL
 from delta_env.geometry import GRAVITY
@@ -167,8 +170,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--controllers",
         default=",".join(DEFAULT_CONTROLLERS),
-        help="the first runs every row, the others replay its references; "
-        + controllers_help(",".join(DEFAULT_CONTROLLERS)),
+        help="the first runs every row, as do those that estimate the payload (e.g. residual); the others replay the "
+        "first's references; " + controllers_help(",".join(DEFAULT_CONTROLLERS)),
+    )
+    parser.add_argument(
+        "--residual",
+        type=Path,
+        default=DEFAULT_POLICY_PATH,
+        help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
     )
     parser.add_argument(
         "--payloads",
@@ -214,6 +223,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
+    if "residual" in args.controllers:
+        try:
+            read_policy_settings(args.residual)
+        except (FileNotFoundError, ValueError) as error:
+            parser.error(f"--residual: {error}")
     privileged = [key for key in args.controllers if controller_entry(key).privileged]
     if privileged:
         parser.error(f"--controllers: {', '.join(privileged)}: a bound that knows the plant, without a pick rate")
@@ -272,7 +286,7 @@ settled within the time-out (count)."""
 
 
 def _settle_cell(value: float, kind: type) -> str:
-    """A settle column's cell: n/a for a row that never waited in position (it follows the lead's reference)."""
+    """A settle column's cell: n/a for a row that never waited in position (it follows the first's reference)."""
     if kind is float:
         return "n/a" if math.isnan(value) else f"{value:.1f}"
     return str(value)
@@ -324,21 +338,30 @@ def row_episodes(args: argparse.Namespace) -> int:
     return len(args.planners) * (len(args.payloads) + 1) * len(args.controllers) * args.episodes
 
 
+def paced(keys: Sequence[str]) -> tuple[list[str], list[str]]:
+    """The controllers of ``keys`` that run every row at their own pace (the first, and every other that estimates the
+    payload itself: an online timing retimes its carries on its own estimate, as a cell would run it), and those that
+    replay the first's references."""
+    own = [keys[0], *(key for key in keys[1:] if controller_entry(key).estimates_payload)]
+    return own, [key for key in keys if key not in own]
+
+
 def run_rows(
     args: argparse.Namespace, setup: Any, progress: Any = None
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Every planner x payload row of the first controller, then the others on the same references; ``progress``
-    (a bar, or None) is advanced once per episode."""
-    lead, others = args.controllers[0], args.controllers[1:]
+    """Every planner x payload row of the controllers that run at their own pace (:func:`paced`), then the others on
+    the first's references; ``progress`` (a bar, or None) is advanced once per episode."""
+    own, others = paced(args.controllers)
     loads = [*args.payloads, MIXED]
     scenarios = [rate_scenario(args.scenario, timing, load) for timing in args.planners for load in loads]
     setups = {scenario.content_hash: setup for scenario in scenarios}
-    units = grid(scenarios, [lead], range(args.seed, args.seed + args.episodes))
+    units = grid(scenarios, own, range(args.seed, args.seed + args.episodes))
     records = run_grid(units, setups, workers=args.workers, progress=progress)
     replays = [
         WorkUnit(unit.scenario, key, unit.seed, tuple(record.masses.tolist()), record.reference)
         for key in others
         for unit, record in zip(units, records, strict=True)
+        if unit.controller == args.controllers[0]
     ]
     records += run_grid(replays, setups, workers=args.workers, progress=progress)
     grouped: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
@@ -430,6 +453,7 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
             workers=args.workers,
             progress=bar,
             servo=args.servo,
+            residual_policy=args.residual,
         )
     args.parameters, setup, calibration = prepared.parameter_file, prepared.setup, prepared.calibration
 
@@ -460,6 +484,18 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
         }
     )
     print(summary)
+
+
+def _pace_line(keys: Sequence[str]) -> str:
+    """Who runs every row at its own pace and who follows the first's references (:func:`paced`), for the summary."""
+    own, others = (list(map(controller_label, group)) for group in paced(keys))
+    line = f"{' and '.join(own)} {'runs' if len(own) == 1 else 'each run'} every row at its own pace"
+    if others:
+        line += (
+            f"; the other controllers follow {own[0]}'s references as given: they do not wait in position, and their "
+            "place error is taken at its release"
+        )
+    return line
 
 
 def _summary(
@@ -499,8 +535,7 @@ def _summary(
         f"Planned timings use {100 * args.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
         f"planner's 10 % margin) and keep its thermal rating. {_cycle_line(args.scenario.task)}",
         "",
-        f"{FEEDBACK_LINES[args.servo]} Picks per minute ({lead} runs every row; the other controllers follow its "
-        "references as given: they do not wait in position, and their place error is taken at the lead's release).",
+        f"{FEEDBACK_LINES[args.servo]} Picks per minute ({_pace_line(args.controllers)}).",
         "",
         metrics.markdown_table(
             ["planner", "controller", *[f"{load} kg" if load != MIXED else load for load in loads]], sheet

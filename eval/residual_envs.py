@@ -25,6 +25,7 @@ from controllers.setup import SERVOS
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
+from eval.tasks import timed
 
 TRAINING_SEEDS = range(10_000_000, 20_000_000)
 """Env seeds of the training episodes (drawn at random per worker)."""
@@ -139,6 +140,9 @@ def make_env(
 ) -> Callable[[], gym.Env]:
     """A picklable env factory for SB3 vector envs (one torch thread per worker: the machine is shared).
 
+    The plant env is timed as its scenario asks (:func:`eval.tasks.timed`): a planned timing plans on ``base``'s
+    model, and an online one retimes the carries on the base's own payload estimate, as in the evaluation.
+
     Args:
         config: Residual settings.
         env_kwargs: Keyword arguments of :class:`DeltaPickPlaceEnv`.
@@ -146,13 +150,22 @@ def make_env(
         seed: Seed of the training episode seeds.
         rank: Worker index.
         seeds: Fixed held-out seeds instead of drawn training seeds.
-        base_factory: Builds the base controller instead of ``base`` (tests).
+        base_factory: Builds the base controller instead of ``base`` (tests; fixed timing only).
     """
 
     def factory() -> gym.Env:
         torch.set_num_threads(1)
-        controller = base_factory() if base_factory is not None else base.controller()
-        env = DeltaResidualEnv(base=controller, config=config, env=DeltaPickPlaceEnv(**env_kwargs))
+        plant_env = DeltaPickPlaceEnv(**env_kwargs)
+        if base_factory is not None:
+            controller = base_factory()
+            if plant_env.task_timing != "fixed":
+                raise ValueError(
+                    f"the {plant_env.task_timing!r} timing plans on the base's setup: pass base, not base_factory"
+                )
+        else:
+            # the base row estimates the payload itself, so the online timing reads its estimator and no wrapper
+            controller = timed(plant_env, base.controller(), base.key, base.setup)
+        env = DeltaResidualEnv(base=controller, config=config, env=plant_env)
         return Monitor(EpisodeSeeds(env, seed=seed, rank=rank, seeds=seeds))
 
     return factory

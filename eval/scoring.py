@@ -31,11 +31,23 @@ TEST_PAYLOADS = (0.0, 1.0, 2.5, 3.8, 4.0)
 """Fixed payload masses (kg) of the extra test episodes (3.8 kg is the paper's test)."""
 
 
+EPISODE_SCORES = ("tracking_rms_mm", "torque_rms_nm", "place_error_max_mm", "settle_time_mean_ms", "diverged")
+"""Each episode's scores (:meth:`EpisodeRecord.metrics`) in a policy's scores: tracking and torque RMS, the worst
+place error at release (mm) and the mean wait for the in-position signal (ms; NaN with the timed release)."""
+
+
 def pooled_scores(records: Sequence[EpisodeRecord]) -> dict[str, float]:
-    """Tracking RMS and max (mm) and torque RMS (N m) over every control step of ``records``."""
+    """Tracking RMS and max (mm) and torque RMS (N m) over every control step of ``records``, and the worst place
+    error at release (mm) of any of them."""
     tracking_rms, tracking_max = metrics.tracking_metrics(np.concatenate([r.tracking_error for r in records]))
     torque_rms, _ = metrics.torque_metrics(np.concatenate([r.torque for r in records]))
-    return {"tracking_rms_mm": tracking_rms, "tracking_max_mm": tracking_max, "torque_rms_nm": torque_rms}
+    place_errors = np.concatenate([r.place_errors() for r in records])
+    return {
+        "tracking_rms_mm": tracking_rms,
+        "tracking_max_mm": tracking_max,
+        "torque_rms_nm": torque_rms,
+        "place_error_max_mm": float(np.max(place_errors)) if place_errors.size else float("nan"),
+    }
 
 
 def _policy_base(setup: ControllerSetup) -> Controller:
@@ -111,7 +123,7 @@ def score_policy(
         entry: dict[str, Any] = {"seed": seed, "payload_masses": None if masses is None else list(masses)}
         for name, group in by_row.items():
             scores = group[n].metrics()
-            entry[name] = {key: scores[key] for key in ("tracking_rms_mm", "torque_rms_nm", "diverged")}
+            entry[name] = {key: scores[key] for key in EPISODE_SCORES}
         per_episode.append(entry)
     summary: dict[str, Any] = {name: pooled_scores(group) for name, group in by_row.items()}
     for quantity in ("tracking_rms", "torque_rms"):

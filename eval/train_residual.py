@@ -286,6 +286,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         reward_scale=args.reward_scale,
         torque_weight=args.torque_weight,
         action_rate_weight=args.action_rate_weight,
+        off_at_rest=args.off_at_rest,
     )
 
 
@@ -470,7 +471,7 @@ def _train(
 
 def score_summary(scores: dict[str, Any]) -> str:
     """The scores of :func:`eval.scoring.score_policy` as a few lines of rounded numbers: each row's pooled
-    tracking and torque RMS, the residual's change over its base and the episodes it improved."""
+    tracking and torque RMS and worst place error, the residual's change over its base and the episodes it improved."""
     summary = scores["summary"]
     rows = {"base": scores["base"], "residual": scores["residual"]}
     width = max(map(len, rows.values()))
@@ -482,8 +483,8 @@ def score_summary(scores: dict[str, Any]) -> str:
     for name, label in rows.items():
         row = summary[name]
         lines.append(
-            f"  {label:<{width}}  tracking RMS {row['tracking_rms_mm']:.2f} mm (max {row['tracking_max_mm']:.1f} mm), "
-            f"torque RMS {row['torque_rms_nm']:.2f} N m"
+            f"  {label:<{width}}  tracking RMS {row['tracking_rms_mm']:.3f} mm (max {row['tracking_max_mm']:.2f} mm), "
+            f"torque RMS {row['torque_rms_nm']:.2f} N m, place error at most {row['place_error_max_mm']:.3f} mm"
         )
     improved, total = summary["episodes_improved"].split("/")
     lines.append(
@@ -552,6 +553,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=float,
         default=ResidualConfig.action_rate_weight,
         help="reward weight ((N m)^-2) of the squared change of the residual torque per policy step (default 0)",
+    )
+    parser.add_argument(
+        "--off-at-rest",
+        action="store_true",
+        help="no residual while the reference is at rest (the waits in position, the dwells): the servo holds it",
     )
     parser.add_argument(
         "--hyperparams",

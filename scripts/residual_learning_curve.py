@@ -48,6 +48,7 @@ from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import check_ranges
 from eval.scoring import pooled_scores
+from eval.tasks import timed
 from eval.train_residual import parse_args, residual_config, train
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
@@ -102,13 +103,15 @@ def first_crossing(rows: Sequence[dict[str, Any]], threshold: float, max_torque_
 def validation_scores(
     policy: Any, base: PolicyBase, config: ResidualConfig, env_kwargs: dict[str, Any]
 ) -> dict[str, float]:
-    """Pooled tracking and torque RMS of the validation episodes (``policy`` None: the base alone)."""
+    """Pooled tracking and torque RMS of the validation episodes (``policy`` None: the base alone), each env timed as
+    its scenario asks (:func:`eval.tasks.timed`: an online timing retimes on the base's estimate)."""
     records = []
     for seed in VALIDATION_SEEDS:
         controller = base.controller()
         if policy is not None:
             controller = ResidualController(controller, policy, config)
         env = DeltaPickPlaceEnv(**env_kwargs)
+        controller = timed(env, controller, base.key, base.setup)
         records.append(run_episode(env, controller, seed))
         env.close()
     return pooled_scores(records)

@@ -29,11 +29,13 @@ from eval.rate import (
     QUICK_STUDY,
     RATE_TORQUE_SHARE,
     _cycle_line,
+    _pace_line,
     _published_lines,
     _summary,
     cycle_terms,
     holds,
     main,
+    paced,
     parse_args,
     rate_figure,
     rate_scenario,
@@ -213,6 +215,19 @@ def test_the_summary_shows_the_settle_columns_when_the_rows_have_them(tmp_path: 
     settled = "\n".join(_summary(args, [row | settle for row in rows], [], tmp_path, 1.0))
     assert "| settle (ms) | settle max | time-outs |" in settled and "| 14.0 | 52.0 | 1 |" in settled
     assert "no settle time-out" in settled and "IRB 360-3/1130" in settled
+
+
+def test_controllers_that_estimate_the_payload_run_at_their_own_pace() -> None:
+    # the residual and the RLS rows retime their carries on their own estimate and wait in position; PD replays
+    assert paced(["mid_f_rls_lag", "pd", "residual", "mid_f_rls"]) == (
+        ["mid_f_rls_lag", "residual", "mid_f_rls"],
+        ["pd"],
+    )
+    assert paced(["pd", "mid_f_rls_lag"]) == (["pd", "mid_f_rls_lag"], [])  # the first always runs its own
+    line = _pace_line(["mid_f_rls_lag", "residual", "pd"])
+    assert line.startswith("MId+F+R+RLS+lag+PD and Residual + its base each run every row at its own pace; ")
+    assert "the other controllers follow MId+F+R+RLS+lag+PD's references as given" in line
+    assert _pace_line(["mid_f_rls_lag"]) == "MId+F+R+RLS+lag+PD runs every row at its own pace"
 
 
 def test_quick_and_the_default_study_and_the_whole_envelope(capsys: pytest.CaptureFixture) -> None:

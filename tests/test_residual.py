@@ -149,6 +149,35 @@ def test_controller_runs_the_same_loop_as_the_env(action_period: int) -> None:
     assert_allclose(info["commanded_torques"] - info["base_torques"], expected, rtol=0.0, atol=1e-9)
 
 
+class RestRecorder:
+    """Runs ``controller`` and records, per control step, whether the observation's reference was at rest."""
+
+    def __init__(self, controller: ResidualController) -> None:
+        self.controller, self.at_rest = controller, []
+
+    def reset(self) -> None:
+        self.controller.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        self.at_rest.append(not observation["reference_velocities"].any())
+        return self.controller(observation)
+
+
+def test_off_at_rest_leaves_the_stops_to_the_base_in_the_env_and_the_controller_alike() -> None:
+    steps = 800  # the start at rest, the empty move to the first pick, the stop there and part of the carry
+    config = ResidualConfig(residual_limit=20.0, off_at_rest=True)
+    env_torques, env_base_torques, _ = residual_env_rollout(linear_policy, config, steps)
+    recorder = RestRecorder(ResidualController(make_base(), linear_policy, config))
+    torques, _ = controller_rollout(recorder, steps)
+    assert_array_equal(torques, env_torques)
+    residual = np.abs(env_torques - env_base_torques).max(axis=1)
+    at_rest = np.array(recorder.at_rest)
+    assert 20 < at_rest.sum() < steps - 300, at_rest.sum()
+    assert np.all(residual[at_rest] == 0.0) and np.all(residual[~at_rest] > 0.0)
+    with pytest.raises(ValueError, match="off_at_rest must be true or false"):
+        ResidualConfig(off_at_rest=1)
+
+
 def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
     weight, scale = 2e-4, 0.5
     plain, charged = (
@@ -321,6 +350,27 @@ def test_vector_envs() -> None:
         seeds = [info["episode_seed"] for info in vec_env.reset_infos]
         assert seeds[0] != seeds[1], "workers must draw different training episodes"
         vec_env.close()
+
+
+def test_training_envs_are_timed_online_on_the_bases_own_estimate() -> None:
+    # the residual's training work: the data sheet's cycle timed online, in-position release, randomized plants
+    scenario = preset("pick-rate-randomized")
+    assert (scenario.task.timing, scenario.task.cycle, scenario.task.release) == ("online", "standard", "in_position")
+    env_kwargs = {"n_cycles": 1, "scenario": scenario}
+    env = make_env(config=ResidualConfig(), env_kwargs=env_kwargs, base=policy_base(key="mid_f_rls_lag"))().env.env
+    plant_env = env.plant_env
+    assert plant_env.timing.mode == "online" and plant_env.timing.estimator is env.base.estimator  # no wrapper
+    env.reset(seed=SEED)
+    planned = len(plant_env.trajectory)
+    steps, truncated = 0, False
+    while not truncated:
+        _, _, terminated, truncated, info = env.step(np.zeros(3, dtype=np.float32))
+        assert not terminated
+        steps += info["control_steps"]
+    assert steps == len(plant_env.trajectory) - 1 != planned - 1  # retimed or held in position, and then ended
+    assert [settle.kind for settle in plant_env.settles] == ["pick", "place"]
+    with pytest.raises(ValueError, match="pass base, not base_factory"):
+        make_env(config=ResidualConfig(), env_kwargs=env_kwargs, base=None, base_factory=make_base)()
 
 
 def test_training_and_held_out_seeds_are_disjoint() -> None:

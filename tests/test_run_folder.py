@@ -215,6 +215,7 @@ def test_a_finished_sweep_rerun_on_ray_runs_nothing_and_force_runs_it_again(
 def fake_scores(path: Path) -> dict[str, Any]:
     """Scores as :func:`eval.scoring.score_policy` returns them, with 17-digit numbers."""
     row = {"tracking_rms_mm": 0.41234567890123456, "tracking_max_mm": 1.5, "torque_rms_nm": 10.123456789012345}
+    row["place_error_max_mm"] = 0.0812345678901234
     return {
         "policy": str(path),
         "base": "mid_f_rls_lag",
@@ -262,7 +263,7 @@ def test_score_only_writes_into_a_run_folder_not_beside_the_policy(
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1] == f"Run folder: {folder}"
     assert "on 2 held-out episodes (1 seed, 1 fixed payload)" in lines[0]
-    assert "tracking RMS 0.11 mm (max 1.5 mm), torque RMS 10.12 N m" in lines[2]
+    assert "tracking RMS 0.110 mm (max 1.50 mm), torque RMS 10.12 N m, place error at most 0.081 mm" in lines[2]
     assert "tracking -73.4 %, torque +1.2 %; better on 2 of 2 episodes" in lines[3]
     assert not any(character in "".join(lines) for character in "{}") and "0.4123" not in "".join(lines)
 

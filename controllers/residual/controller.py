@@ -33,7 +33,7 @@ class ResidualController:
 
     Runs exactly the loop of :class:`DeltaResidualEnv`: the base torque every control step, a new
     policy action every ``config.action_period`` steps (the first at the episode's first step),
-    held in between.
+    held in between (and, with ``config.off_at_rest``, left out while the reference is at rest).
 
     Args:
         base: The base controller.
@@ -92,4 +92,6 @@ class ResidualController:
             self._action = np.clip(action, -1.0, 1.0)
             self._residual = self.config.residual_limit * self._action  # held until the next policy step
         self._step += 1
+        if self.config.off_at_rest and not observation["reference_velocities"].any():
+            return base_torque
         return base_torque + self._residual
