@@ -16,8 +16,8 @@ from controllers.payload_timing import (
     ESTIMATE_MARGIN,
     ESTIMATE_SIGMAS,
     FALLBACK_TAKEOVER,
-    PLANNING_LATENCY,
     PRECOMPUTED_PAYLOADS,
+    PRECOMPUTED_TAKEOVERS,
     REPLAN_STEP,
     SETTLED_STD,
     EstimatingController,
@@ -104,26 +104,47 @@ def test_online_retimes_a_carry_once_the_estimate_has_settled(planner: TimeOptim
     assert len(law) == len(PayloadTiming(planner, "worst_case", RATED_PAYLOAD, torque_share=0.5).carry(CARRY, 0.5))
     estimator.mass, estimator.rls.variance = 0.5, (2.0 * SETTLED_STD) ** 2
     assert timing.retime(CARRY, law, 20) is None  # not settled yet
-    std = 0.05
-    estimator.rls.variance = std**2
+    # settled at sample 20 but for a bound above a grid payload the estimate itself is under: the table has a
+    # shorter law for the estimate from 22 ms on, so the carry waits for it
+    estimator.mass, estimator.rls.variance = 0.45, 0.05**2
+    assert timing.retime(CARRY, law, 20) is None
+    # a tight estimate: the continuation precomputed from 20 ms on for the lightest grid payload above the
+    # estimate's bound takes over at once (no later one is shorter for the estimate itself)
+    std = 0.001
+    estimator.mass, estimator.rls.variance = 0.5, std**2
     planned = 0.5 + ESTIMATE_SIGMAS * std + ESTIMATE_MARGIN
-    # settled at sample 20: the continuation precomputed from 20 ms on for the lightest grid payload above the
-    # estimate's bound (1 kg) takes over at once
     first = timing.retime(CARRY, law, 20)
     assert first is not None and first.payload == min(p for p in PRECOMPUTED_PAYLOADS if p >= planned)
     assert len(first) < len(law)
     for name in ("tau", "tau_dot", "tau_ddot"):
         np.testing.assert_array_equal(getattr(first, name)[:21], getattr(law, name)[:21])
-    # then a plan for the bound itself, from PLANNING_LATENCY later on
-    refined = timing.retime(CARRY, first, 21)
-    takeover = 21 + round(PLANNING_LATENCY / law.dt)
-    assert refined is not None and refined.payload == pytest.approx(planned) and len(refined) < len(first)
-    np.testing.assert_array_equal(refined.tau[: takeover + 1], first.tau[: takeover + 1])
-    # the same estimate again: no new plan; a lighter one by more than a step: a new plan
-    assert timing.retime(CARRY, refined, 22) is None
-    estimator.mass = 0.5 - 2.0 * REPLAN_STEP
-    again = timing.retime(CARRY, refined, 23)
-    assert again is not None and len(again) <= len(refined)
+    # between the table's takeovers, and once switched, nothing is planned, whatever the estimate
+    assert timing.retime(CARRY, law, 21) is None
+    estimator.mass = 0.5 - 4.0 * REPLAN_STEP
+    assert all(timing.retime(CARRY, first, index) is None for index in range(21, 40))
+
+
+def test_online_carries_take_only_laws_of_their_precomputed_table(planner: TimeOptimalPlanner) -> None:
+    estimator = FakeEstimator()
+    timing = PayloadTiming(planner, "online", RATED_PAYLOAD, estimator, torque_share=0.5)
+    law = timing.carry(CARRY, 1.0)
+    table = {id(continued): (start, mass) for start, mass, continued in timing.precomputed(law)}
+    assert {start for start, _ in table.values()} == {round(t / law.dt) for t in PRECOMPUTED_TAKEOVERS}
+    for mass, std in ((0.07, 0.3), (0.07, 0.02), (1.3, 0.05), (3.9, 0.01), (2.0, 0.8), (math.nan, 0.1)):
+        estimator.mass, estimator.rls.variance = mass, std**2
+        followed, switches = law, []  # as the env runs a carry: the law it follows is the last one returned
+        for index in range(len(law) - 1):
+            retimed = timing.retime(CARRY, followed, index)
+            if retimed is not None:
+                followed = retimed
+                switches.append((index, retimed))
+        # each a continuation the table held from that very sample
+        assert all(table[id(retimed)][0] == index for index, retimed in switches)
+        assert len(switches) <= 1  # a continuation has no table of its own: it runs to the end
+        if std <= SETTLED_STD and mass + ESTIMATE_SIGMAS * std + ESTIMATE_MARGIN <= max(PRECOMPUTED_PAYLOADS):
+            # a settled light object leaves the start by the latest takeover, for a payload its estimate is under
+            assert switches and table[id(switches[0][1])][1] >= mass + ESTIMATE_MARGIN
+            assert switches[0][0] <= round(FALLBACK_TAKEOVER / law.dt)
 
 
 def test_bad_arguments_are_refused(planner: TimeOptimalPlanner) -> None:
