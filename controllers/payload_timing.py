@@ -304,10 +304,11 @@ class PayloadTiming:
 
         Nothing is planned while the carry runs: only a carry on its start law switches, once, to one of the
         continuations precomputed with that law (:meth:`_continuations`), at one of their takeover samples, for the
-        lightest payload that covers the estimate's bound; it waits for a later takeover if the table has a shorter
-        law there for the estimate itself (its bound once the deviation has shrunk). A carry still on its unrated
-        start at :data:`FALLBACK_TAKEOVER` takes the heaviest object's rated continuation, whatever the estimate (a
-        non-finite one included).
+        lightest payload that covers the estimate's bound. It waits for the next takeover if that one's law for the
+        same payload is no longer (for free: the estimate overshoots over the lift's first 20 ms), or for a later one
+        whose law for the estimate itself (its bound once the deviation has shrunk) is shorter. A carry still on its
+        unrated start at :data:`FALLBACK_TAKEOVER` takes the heaviest object's rated continuation, whatever the
+        estimate (a non-finite one included).
         """
         if not self.retimes_online:
             return None
@@ -324,14 +325,15 @@ class PayloadTiming:
         covering = [entry for entry in lighter if entry[0] >= bound]
         if not covering:
             return fallback
-        _, now = min(covering, key=lambda entry: entry[0])
+        payload, now = min(covering, key=lambda entry: entry[0])
+        later = [(start, mass_, len(continued)) for start, mass_, continued in table if start > index]
+        following = min((start for start, _, _ in later), default=None)
+        # waiting is free if the next takeover's law for the same payload is no longer (the estimate overshoots
+        # over the lift's first 20 ms and then falls); worth it if a later law for the estimate itself is shorter
+        free = any(start == following and mass_ == payload and samples <= len(now) for start, mass_, samples in later)
         expected = mass + ESTIMATE_MARGIN
-        later = [
-            len(continued)
-            for start, mass_, continued in table
-            if start > index and expected <= mass_ <= self.max_payload - REPLAN_STEP
-        ]
-        return None if later and min(later) < len(now) else now
+        shorter = any(expected <= mass_ < payload and samples < len(now) for _, mass_, samples in later)
+        return None if free or shorter else now
 
 
 _CONTINUATIONS: weakref.WeakKeyDictionary[TimeLaw, list[tuple[int, float, TimeLaw]]] = weakref.WeakKeyDictionary()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import itertools
 import math
 from pathlib import Path
 
@@ -104,24 +105,22 @@ def test_online_retimes_a_carry_once_the_estimate_has_settled(planner: TimeOptim
     assert len(law) == len(PayloadTiming(planner, "worst_case", RATED_PAYLOAD, torque_share=0.5).carry(CARRY, 0.5))
     estimator.mass, estimator.rls.variance = 0.5, (2.0 * SETTLED_STD) ** 2
     assert timing.retime(CARRY, law, 20) is None  # not settled yet
-    # settled at sample 20 but for a bound above a grid payload the estimate itself is under: the table has a
-    # shorter law for the estimate from 22 ms on, so the carry waits for it
-    estimator.mass, estimator.rls.variance = 0.45, 0.05**2
-    assert timing.retime(CARRY, law, 20) is None
-    # a tight estimate: the continuation precomputed from 20 ms on for the lightest grid payload above the
-    # estimate's bound takes over at once (no later one is shorter for the estimate itself)
+    # settled: the continuation for the lightest grid payload above the estimate's bound takes over at the first
+    # takeover whose successor's law for that payload is longer (waiting for that one would cost a sample)
     std = 0.001
     estimator.mass, estimator.rls.variance = 0.5, std**2
-    planned = 0.5 + ESTIMATE_SIGMAS * std + ESTIMATE_MARGIN
-    first = timing.retime(CARRY, law, 20)
-    assert first is not None and first.payload == min(p for p in PRECOMPUTED_PAYLOADS if p >= planned)
-    assert len(first) < len(law)
+    planned = min(p for p in PRECOMPUTED_PAYLOADS if p >= 0.5 + ESTIMATE_SIGMAS * std + ESTIMATE_MARGIN)
+    lengths = {start: len(continued) for start, mass, continued in timing.precomputed(law) if mass == planned}
+    takeovers = sorted(lengths)
+    switch = next(start for start, after in itertools.pairwise(takeovers) if lengths[after] > lengths[start])
+    assert all(timing.retime(CARRY, law, start) is None for start in takeovers[: takeovers.index(switch)])
+    first = timing.retime(CARRY, law, switch)
+    assert first is not None and first.payload == planned and len(first) == lengths[switch] < len(law)
     for name in ("tau", "tau_dot", "tau_ddot"):
-        np.testing.assert_array_equal(getattr(first, name)[:21], getattr(law, name)[:21])
-    # between the table's takeovers, and once switched, nothing is planned, whatever the estimate
-    assert timing.retime(CARRY, law, 21) is None
+        np.testing.assert_array_equal(getattr(first, name)[: switch + 1], getattr(law, name)[: switch + 1])
+    # once switched, nothing is planned, whatever the estimate
     estimator.mass = 0.5 - 4.0 * REPLAN_STEP
-    assert all(timing.retime(CARRY, first, index) is None for index in range(21, 40))
+    assert all(timing.retime(CARRY, first, index) is None for index in range(switch + 1, 40))
 
 
 def test_online_carries_take_only_laws_of_their_precomputed_table(planner: TimeOptimalPlanner) -> None:
