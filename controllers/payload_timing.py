@@ -74,16 +74,15 @@ FALLBACK_TAKEOVER = 0.03
 """Time (s) into an online carry by which it leaves its unrated start: on a precomputed continuation for the
 estimate, else on the precomputed rated continuation for the heaviest object."""
 
-PRECOMPUTED_TAKEOVERS = (0.015, 0.016, 0.017, 0.018, 0.019, 0.02, 0.022, 0.025, 0.03)
+PRECOMPUTED_TAKEOVERS = (0.016, 0.018, 0.02, 0.022, 0.025, 0.03)
 """Times (s) into a carry from which an online timing precomputes, while it plans the carry, continuations for
 :data:`PRECOMPUTED_PAYLOADS`: the only samples at which a carry switches (the estimate settles 14-17 ms into the
-lift; the last is :data:`FALLBACK_TAKEOVER`)."""
+lift and overshoots until about 22 ms; the last is :data:`FALLBACK_TAKEOVER`)."""
 
-PRECOMPUTED_PAYLOADS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75)
-PRECOMPUTED_PAYLOADS = (*PRECOMPUTED_PAYLOADS, 3.0, 3.25, 3.5, 3.75)
-"""Payloads (kg) of the precomputed continuations (below the heaviest object by :data:`REPLAN_STEP` only; the
-heaviest object's own at :data:`FALLBACK_TAKEOVER`): 0.1 kg apart where a carry's length is most sensitive to its
-payload, 0.25 kg above 1 kg."""
+PRECOMPUTED_PAYLOADS = tuple(round(0.1 * step, 1) for step in range(1, 40))
+"""Payloads (kg) of the precomputed continuations, 0.1 kg apart (below the heaviest object by :data:`REPLAN_STEP`
+only; the heaviest object's own at :data:`FALLBACK_TAKEOVER`): a carry's bound rounds up to the next one, about a
+millisecond per 0.1 kg."""
 
 BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 """Payloads (kg) whose rated laws' shares of the envelope give, by linear interpolation (and with the heaviest
