@@ -18,8 +18,9 @@ torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned withi
   there (the past is kept, the continuation is C2), within the rating and braking no harder than that payload's
   rated law (:meth:`PayloadTiming._braking`). Once the payload estimator (the controller's RLS) has settled, the
   carry switches, once and at no planning latency, to the table's continuation for the lightest payload that
-  covers the estimate plus its uncertainty and a margin, or waits for a later takeover whose law for the estimate
-  itself is shorter. Nothing is planned while a carry runs. A carry still on its start at
+  covers the estimate plus its uncertainty and a margin, unless waiting for a later takeover is free or buys a
+  shorter law (:meth:`PayloadTiming.retime`). Nothing is planned while a carry runs: a rated continuation bisects
+  its share, about 100 ms of a core, most of a carry. A carry still on its start at
   :data:`FALLBACK_TAKEOVER` continues on the precomputed rated plan for the heaviest object.
 """
 
