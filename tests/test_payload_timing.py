@@ -317,7 +317,7 @@ def test_an_online_continuation_brakes_no_harder_than_the_rated_law_of_its_paylo
         assert timing.thermal_ratio(CARRY, law, law.payload) <= 1.0
         # close to the declared carry: the start's few ms more (the loose bound, which never tightens here, waits
         # for it to the last takeover)
-        assert len(law) <= (1.1 if law is loose else 1.05) * len(rated)
+        assert len(law) <= (1.12 if law is loose else 1.08) * len(rated)
         # the cool start's heat saved goes into the travel, not into the braking, whose deceleration the
         # platform's settle at the place follows: the rated law's, where a continuation at one share brakes
         # 4 to 14 % harder (docs/measurements.md)
