@@ -12,14 +12,16 @@ torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned withi
 - ``"declared"``: each carry for its object's true mass, as a per-object payload schedule would give: the
   reference a payload estimate can at best reach, not a controller;
 - ``"online"``: a carry starts on a plan for the heaviest object within the envelope but hotter than its rating
-  (:data:`START_SHARE`: the thermal budget is an average, which the rest of the carry settles); once the payload
-  estimator (the controller's RLS) has settled, the rest of the carry continues, within the rating, on a plan for
-  the estimate plus its uncertainty and a margin, from the state the carry has reached (the past is kept, the
-  continuation is C2) and braking no harder than that payload's rated law (:meth:`PayloadTiming._braking`): at once
-  if one was precomputed with the carry's plan (:data:`PRECOMPUTED_TAKEOVERS`), else after the planner's time
-  (:data:`PLANNING_LATENCY`). A carry whose estimate has not settled by :data:`FALLBACK_TAKEOVER` continues on the
-  precomputed rated plan for the heaviest object. It may replan again as the estimate tightens, by at least
-  :data:`REPLAN_STEP`.
+  (:data:`START_SHARE`: the thermal budget is an average, which the rest of the carry settles). Before the carry
+  runs, with its plan, the cell precomputes that plan's rated continuations (once per carry shape): from each of
+  :data:`PRECOMPUTED_TAKEOVERS` on, for each of :data:`PRECOMPUTED_PAYLOADS`, from the state the carry reaches
+  there (the past is kept, the continuation is C2), within the rating and braking no harder than that payload's
+  rated law (:meth:`PayloadTiming._braking`). Once the payload estimator (the controller's RLS) has settled, the
+  carry switches, once and at no planning latency, to the table's continuation for the lightest payload that
+  covers the estimate plus its uncertainty and a margin, unless waiting for a later takeover is free or buys a
+  shorter law (:meth:`PayloadTiming.retime`). Nothing is planned while a carry runs: a rated continuation bisects
+  its share, about 100 ms of a core, most of a carry. A carry still on its start at
+  :data:`FALLBACK_TAKEOVER` continues on the precomputed rated plan for the heaviest object.
 """
 
 from __future__ import annotations
@@ -60,14 +62,7 @@ ESTIMATE_MARGIN = 0.05
 variance does not describe (the tare's spread and the lift-off transient are tens of grams)."""
 
 REPLAN_STEP = 0.05
-"""A carry is replanned only for a mass at least this much (kg) lighter than its current plan."""
-
-PLANNING_LATENCY = 0.015
-"""Time (s) from the estimate that asks for a new plan to the sample the new plan takes over from: longer than a
-replan takes on one core (:data:`controllers.timing.REPLAN_GRID_INTERVALS`; docs/measurements.md, "Pick rate"),
-so the carry keeps its law that long and the online rate is what a cell whose planner runs beside the 1 kHz loop
-would get. A continuation held to the thermal rating bisects its share, up to :data:`THERMAL_BISECTIONS` + 1
-replans: on the whole envelope that is a planner several times faster than this one."""
+"""A carry is continued only for a mass at least this much (kg) lighter than the heaviest object."""
 
 START_SHARE = 0.6
 """Share of the task's torque share on which an online carry starts, planned for the heaviest object: within the
@@ -80,13 +75,15 @@ FALLBACK_TAKEOVER = 0.03
 """Time (s) into an online carry by which it leaves its unrated start: on a precomputed continuation for the
 estimate, else on the precomputed rated continuation for the heaviest object."""
 
-PRECOMPUTED_TAKEOVERS = (0.015, 0.018, 0.02, 0.025, 0.03)
+PRECOMPUTED_TAKEOVERS = (0.016, 0.018, 0.02, 0.022, 0.025, 0.03)
 """Times (s) into a carry from which an online timing precomputes, while it plans the carry, continuations for
-:data:`PRECOMPUTED_PAYLOADS`: an estimate that settles before one of them switches at no planning latency."""
+:data:`PRECOMPUTED_PAYLOADS`: the only samples at which a carry switches (the estimate settles 14-17 ms into the
+lift and overshoots until about 22 ms; the last is :data:`FALLBACK_TAKEOVER`)."""
 
-PRECOMPUTED_PAYLOADS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5)
-"""Payloads (kg) of the precomputed continuations (below the heaviest object only; the heaviest object's own at
-:data:`FALLBACK_TAKEOVER`)."""
+PRECOMPUTED_PAYLOADS = tuple(round(0.1 * step, 1) for step in range(1, 40))
+"""Payloads (kg) of the precomputed continuations, 0.1 kg apart (below the heaviest object by :data:`REPLAN_STEP`
+only; the heaviest object's own at :data:`FALLBACK_TAKEOVER`): a carry's bound rounds up to the next one, about a
+millisecond per 0.1 kg."""
 
 BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 """Payloads (kg) whose rated laws' shares of the envelope give, by linear interpolation (and with the heaviest
@@ -140,8 +137,6 @@ class PayloadTiming:
         self.dwell = require_in("dwell", dwell, 0.0, unit="s")
         self.torque_share = require_in("torque_share", torque_share, 0.0, 1.0, low_open=True)
         self.retimes_online = mode == "online"
-        self._law: TimeLaw | None = None  # the carry law last returned by retime, and the mass it is planned for
-        self._law_mass = math.inf
 
     def _plan(self, shape: Segment, payload: float) -> TimeLaw:
         """The planner's law for ``shape`` and ``payload`` (kg), planned once per planner, shape, mass, dwell and
@@ -298,49 +293,47 @@ class PayloadTiming:
         """The law of an empty move: for the empty gripper."""
         return self._plan(shape, 0.0)
 
-    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
-        """``"online"``: the rest of the carry replanned for the settled estimate, or None to keep ``law``.
+    def precomputed(self, law: TimeLaw) -> list[tuple[int, float, TimeLaw]]:
+        """(takeover sample, payload, law) of the continuations precomputed with the carry law ``law`` (earliest
+        first; none for a continuation, or for a timing that does not retime): all that :meth:`retime` may return."""
+        return _CONTINUATIONS.get(law, []) if self.retimes_online else []
 
-        The new law takes over :data:`PLANNING_LATENCY` after ``index`` and must be shorter than ``law``; a
-        non-finite estimate or variance (a sensor fault) never retimes. A carry still on its unrated start law
-        (:data:`START_SHARE`) takes only precomputed continuations, and at :data:`FALLBACK_TAKEOVER` the heaviest
-        object's, whatever the estimate.
+    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+        """``"online"``: the carry's precomputed continuation from sample ``index`` for the settled estimate, or None
+        to keep ``law``.
+
+        Nothing is planned while the carry runs: only a carry on its start law switches, once, to one of the
+        continuations precomputed with that law (:meth:`_continuations`), at one of their takeover samples, for the
+        lightest payload that covers the estimate's bound. It waits for the next takeover if that one's law for the
+        same payload is no longer (for free: the estimate overshoots over the lift's first 20 ms), or for a later one
+        whose law for the estimate itself (its bound once the deviation has shrunk) is shorter. A carry still on its
+        unrated start at :data:`FALLBACK_TAKEOVER` takes the heaviest object's rated continuation, whatever the
+        estimate (a non-finite one included).
         """
         if not self.retimes_online:
             return None
-        if index == 0 or law is not self._law:  # a new carry runs on the heaviest object's plan
-            self._law, self._law_mass = law, self.max_payload
-        table = _CONTINUATIONS.get(law, ())
-        fallback = [continued for start, mass_, continued in table if start == index and mass_ == self.max_payload]
+        table = self.precomputed(law)
+        here = [(mass_, continued) for start, mass_, continued in table if start == index]
+        if not here:
+            return None
+        fallback = next((continued for mass_, continued in here if mass_ == self.max_payload), None)
         mass, variance = self.estimator.mass, self.estimator.rls.variance
         if not (math.isfinite(mass) and math.isfinite(variance) and 0.0 <= variance <= SETTLED_STD**2):
-            return self._switched(fallback[0]) if fallback else None
-        payload = min(self.max_payload, max(0.0, mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN))
-        if payload > self._law_mass - REPLAN_STEP:
-            return self._switched(fallback[0]) if fallback else None
-        takeover = index + round(PLANNING_LATENCY / law.dt)
-        # A precomputed continuation that takes over before a new plan could, for the lightest payload that covers
-        # the estimate; else a new plan (never from an unrated start: its fallback is due before a plan could be).
-        ready = [
-            (start, mass_, continued)
-            for start, mass_, continued in table
-            if index <= start < takeover and payload <= mass_ < self._law_mass - REPLAN_STEP
-        ]
-        if ready:
-            _, mass_, retimed = min(ready, key=lambda entry: (entry[0], entry[1]))
-            return self._switched(retimed, mass_)
-        if fallback:
-            return self._switched(fallback[0])
-        if law in _UNRATED_STARTS:
-            return None
-        self._law_mass = payload  # tried: the estimate has to fall by another step before the next try
-        retimed = self._continued(shape, law, takeover, payload)
-        return None if retimed is None else self._switched(retimed, payload)
-
-    def _switched(self, law: TimeLaw, payload: float | None = None) -> TimeLaw:
-        """Follow ``law``, planned for ``payload`` (kg; None: the heaviest object), from now on; returns it."""
-        self._law, self._law_mass = law, self.max_payload if payload is None else payload
-        return law
+            return fallback
+        lighter = [(mass_, continued) for mass_, continued in here if mass_ <= self.max_payload - REPLAN_STEP]
+        bound = mass + ESTIMATE_SIGMAS * math.sqrt(variance) + ESTIMATE_MARGIN
+        covering = [entry for entry in lighter if entry[0] >= bound]
+        if not covering:
+            return fallback
+        payload, now = min(covering, key=lambda entry: entry[0])
+        later = [(start, mass_, len(continued)) for start, mass_, continued in table if start > index]
+        following = min((start for start, _, _ in later), default=None)
+        # waiting is free if the next takeover's law for the same payload is no longer (the estimate overshoots
+        # over the lift's first 20 ms and then falls); worth it if a later law for the estimate itself is shorter
+        free = any(start == following and mass_ == payload and samples <= len(now) for start, mass_, samples in later)
+        expected = mass + ESTIMATE_MARGIN
+        shorter = any(expected <= mass_ < payload and samples < len(now) for _, mass_, samples in later)
+        return None if free or shorter else now
 
 
 _CONTINUATIONS: weakref.WeakKeyDictionary[TimeLaw, list[tuple[int, float, TimeLaw]]] = weakref.WeakKeyDictionary()

@@ -62,9 +62,10 @@ REPLAN_GRID_INTERVALS = 200
 """Grid intervals of a whole move's shape when a running carry is replanned (its remainder gets its share)."""
 
 REPLAN_TANGENT_PASSES = 1
-"""Conservative passes of a replan: one, on the coarser :data:`REPLAN_GRID_INTERVALS` grid, so that a replan fits
-within :data:`controllers.payload_timing.PLANNING_LATENCY`; its law is within a sample of the finer one and passes
-the same check (the timings: docs/measurements.md, "Pick rate")."""
+"""Conservative passes of a replan: one, on the coarser :data:`REPLAN_GRID_INTERVALS` grid, so that the table of
+continuations an online timing precomputes per carry shape (:data:`controllers.payload_timing.PRECOMPUTED_TAKEOVERS`)
+stays cheap; its law is within a sample of the finer one and passes the same check (the timings:
+docs/measurements.md, "Pick rate")."""
 
 TIGHTENING = 0.97
 """Factor on every constraint bound after a failed verification."""
