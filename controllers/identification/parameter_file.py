@@ -157,6 +157,16 @@ def _model_from_json(path: Path, document: Mapping[str, Any], name: str) -> Mode
         raise ParameterFileError(f"{path}: {name}: {error}") from error
 
 
+def _joint_values(path: Path, document: Mapping[str, Any], key: str, high: float) -> tuple[float, float, float] | None:
+    """The file's per-joint values under ``key``, each in [0, high], or None (null)."""
+    values = _entry(path, document, key, "the file")
+    if values is None:
+        return None
+    if not isinstance(values, list) or len(values) != 3:
+        raise ParameterFileError(f"{path}: {key} must be a list of 3 numbers or null, got {values!r}")
+    return tuple(_number(path, f"{key}[{i}]", v, 0.0, high) for i, v in enumerate(values))
+
+
 def older_format(path: str | os.PathLike[str]) -> bool:
     """Whether ``path`` is a parameter file of an older :data:`FILE_FORMAT_VERSION` (an unreadable file is not: its
     reading reports it)."""
@@ -192,22 +202,8 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
             "`python -m eval.identify` to identify again"
         )
     models = {name: _model_from_json(path, document, name) for name in MODEL_FIELDS}
-    lags = _entry(path, document, "drive_lag_s", "the file")
-    if lags is not None and (not isinstance(lags, list) or len(lags) != 3):
-        raise ParameterFileError(f"{path}: drive_lag_s must be a list of 3 numbers or null, got {lags!r}")
-    drive_lag = (
-        None
-        if lags is None
-        else tuple(_number(path, f"drive_lag_s[{i}]", v, 0.0, MAX_TIME_CONSTANT) for i, v in enumerate(lags))
-    )
-    excess = _entry(path, document, "stribeck_excess_nm", "the file")
-    if excess is not None and (not isinstance(excess, list) or len(excess) != 3):
-        raise ParameterFileError(f"{path}: stribeck_excess_nm must be a list of 3 numbers or null, got {excess!r}")
-    stribeck_excess = (
-        None
-        if excess is None
-        else tuple(_number(path, f"stribeck_excess_nm[{i}]", v, 0.0, TORQUE_LIMIT) for i, v in enumerate(excess))
-    )
+    drive_lag = _joint_values(path, document, "drive_lag_s", MAX_TIME_CONSTANT)
+    stribeck_excess = _joint_values(path, document, "stribeck_excess_nm", TORQUE_LIMIT)
     velocity = _entry(path, document, "stribeck_velocity_rad_s", "the file")
     stribeck_velocity = None if velocity is None else _number(path, "stribeck_velocity_rad_s", velocity, 0.0)
     if (stribeck_excess is None) != (stribeck_velocity is None):
