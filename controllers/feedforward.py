@@ -249,7 +249,7 @@ class OracleController:
                     "set_payload_masses(info['payload_masses']) after env.reset"
                 )
         self._holding = holding
-        if self.servo.scheduled and self._samples % self._schedule_samples == 0:
+        if self._fixed_gains is None and self.servo.scheduled and self._samples % self._schedule_samples == 0:
             # the servo layer's schedule on the truth: the exact inertia at the reference, without payload
             self.servo.schedule(joint_inertia(self.oracle.torques, observation["reference_angles"]))
         self._samples += 1

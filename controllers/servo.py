@@ -12,9 +12,9 @@ the joint's identified inertia J, kd = 3 J w0, kp = 3 J w0^2, ki = J w0^3, with 
 phase margin through the loop's delay (the drive lag, half a sample of zero-order hold and half a sample of the
 backward-difference rate). The integral term is clamped (anti-windup: |ki integral(e)| <= ``integral_limit``) so that
 a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
-and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess at
-zero speed); the servo then pushes with the identified breakaway torque in the direction of the error, saturating at
-``friction_width`` (one encoder step), which closes the stick band.
+and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess
+met on the way out of rest); the servo then pushes with the identified breakaway torque in the direction of the
+error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
 
 The gains are placed on one inertia, the arm's empty at home; the joint's inertia grows with the pose (1.4 times at
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
@@ -50,8 +50,8 @@ DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
 
 SCHEDULE_PERIOD = 0.01
-"""Time (s) between two updates of a scheduled servo's inertia: the pose and the payload estimate change little in
-it, and an update costs four evaluations of the model (:func:`model_inertia`)."""
+"""Time (s) between two updates of a scheduled servo's inertia: the pose changes little in it, and an update costs
+four evaluations of the model (:func:`model_inertia`), too much for every 1 ms sample."""
 
 DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
 """Error (rad) at which the friction compensation at rest reaches the full breakaway torque: one encoder step (17 bit),
@@ -151,7 +151,8 @@ def joint_inertia(
 
 def model_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> NDArray[np.float64]:
     """:func:`joint_inertia` of the model ``dynamics`` at ``theta`` (rad) with ``payload`` (kg), from its single-sample
-    path (:meth:`~controllers.dynamics.DeltaDynamics.torque_and_payload_regressor`), cheap enough for the 1 kHz loop."""
+    path (:meth:`~controllers.dynamics.DeltaDynamics.torque_and_payload_regressor`): tens of microseconds, cheap
+    enough every :data:`SCHEDULE_PERIOD`."""
 
     def inverse_dynamics(
         angles: ArrayLike, rates: ArrayLike, accelerations: ArrayLike, mass: float

@@ -40,6 +40,26 @@ INVALID_STATE = {
 STRIBECK_SIGN_SLOPE = 4.0
 """Slope factor of the smooth sign tanh(4 v / v_s) of the Stribeck term: stays explicit-stable at 1 kHz."""
 
+
+def _stribeck_peak() -> float:
+    """max over x >= 0 of exp(-x^2) tanh(STRIBECK_SIGN_SLOPE x), by golden-section search on [0, 2]."""
+
+    def share(x: float) -> float:
+        return math.exp(-x * x) * math.tanh(STRIBECK_SIGN_SLOPE * x)
+
+    low, high = 0.0, 2.0
+    ratio = (math.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(100):
+        a, b = high - ratio * (high - low), low + ratio * (high - low)
+        low, high = (low, b) if share(a) > share(b) else (a, high)
+    return share(0.5 * (low + high))
+
+
+STRIBECK_PEAK = _stribeck_peak()
+"""Largest share of its excess the plant's Stribeck term resists (0.787, at 0.38 v_s): 0 at rest, where the
+Coulomb friction alone holds the joint, and at most this much more on the way out of rest, so a joint leaves rest
+once the torque passes fc + STRIBECK_PEAK * excess * fc."""
+
 DISTURBANCE = np.dtype(
     (
         np.record,

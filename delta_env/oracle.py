@@ -100,9 +100,10 @@ class InverseDynamicsOracle:
 
     @property
     def breakaway(self) -> NDArray[np.float64]:
-        """The torque (N m), (3,), that starts each motor joint from rest: its Coulomb friction plus the plant's
-        Stribeck excess at zero speed, randomized with them."""
-        return self._frictionloss + self.plant.disturbance_coefficients["stribeck_gain"][0]
+        """The torque (N m), (3,), that takes each motor joint out of rest: its Coulomb friction plus the largest
+        share of the plant's Stribeck excess on the way (:data:`delta_env.kernels.STRIBECK_PEAK`), randomized with
+        them."""
+        return self._frictionloss + kernels.STRIBECK_PEAK * self.plant.disturbance_coefficients["stribeck_gain"][0]
 
     def torques(
         self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike, payload: ArrayLike = 0.0

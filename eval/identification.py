@@ -377,9 +377,10 @@ def _identify(
     rod_fit = fit_joint_least_squares(data, dynamics=rods)
     try:
         stribeck = fit_stribeck(data, rod_fit.parameters, rods)
+        stribeck_error = ""
     except ValueError as error:
         logger.warning("the Stribeck excess is not identified (null in the parameter file): %s", error)
-        stribeck = None
+        stribeck, stribeck_error = None, str(error)
 
     models = {
         "MKH": lumped,
@@ -405,7 +406,7 @@ def _identify(
             "fs_i on exp(-(theta_dot_i / vs)^2) sign(theta_dot_i) per joint, vs shared and searched (bounded, "
             "on log vs)"
             if stribeck is not None
-            else "not identified: too few slow moving samples",
+            else f"not identified: {stribeck_error}",
             "drive_lag": "output-error fit per joint and trajectory of the first-order lag from the held commands to "
             "the reported torques (controllers.drive.identify_lag); median over the trajectories"
             if lags

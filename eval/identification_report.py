@@ -22,6 +22,7 @@ from controllers.identification import (
 )
 from delta_env.config import PlantConfig
 from delta_env.geometry import GRAVITY
+from delta_env.kernels import STRIBECK_PEAK
 from eval.identification import IdentificationRun
 
 FIGURES = {
@@ -268,7 +269,10 @@ def _stribeck_lines(run: IdentificationRun, truth: dict[str, list[float]] | None
     """The identified Stribeck excess per joint with its SE, its decay speed, the breakaway and the truth if known."""
     result = run.result
     if result.stribeck_excess is None:
-        return ["Not identified: too few slow moving samples. The servo layer pushes the Coulomb friction at rest."]
+        return [
+            f"{run.result.provenance['method']['stribeck'].capitalize()}. The servo layer pushes the Coulomb friction "
+            "at rest."
+        ]
     errors = [result.standard_errors.get(f"stribeck.excess_{j}", math.nan) for j in (1, 2, 3)]
     excess = ", ".join(f"{v:.2f} (SE {e:.2f})" for v, e in zip(result.stribeck_excess, errors, strict=True))
     lines = [
@@ -278,10 +282,12 @@ def _stribeck_lines(run: IdentificationRun, truth: dict[str, list[float]] | None
         f"breakaway fc + fs {', '.join(f'{v:.2f}' for v in result.breakaway)} N m (what the servo pushes at rest)."
     ]
     if truth is not None:
-        true = np.array(truth["coulomb"]) + np.array(truth["stribeck_excess"])
+        # what the plant's excess resists at most on the way out of rest (its smooth sign is 0 at rest)
+        true = np.array(truth["coulomb"]) + STRIBECK_PEAK * np.array(truth["stribeck_excess"])
         lines.append(
             f"Ground truth: fs {', '.join(f'{v:.2f}' for v in truth['stribeck_excess'])} N m, vs "
-            f"{truth['stribeck_velocity'][0]:.3f} rad/s; breakaway {', '.join(f'{v:.2f}' for v in true)} N m, error "
+            f"{truth['stribeck_velocity'][0]:.3f} rad/s; breakaway (fc + {STRIBECK_PEAK:.2f} fs) "
+            f"{', '.join(f'{v:.2f}' for v in true)} N m, error "
             f"{', '.join(f'{e:+.1f}' for e in 100.0 * (np.array(result.breakaway) - true) / true)} %."
         )
     return lines

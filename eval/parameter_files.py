@@ -17,6 +17,7 @@ other settings only where ``--parameters`` says (:func:`install_path`). A parame
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import os
 from pathlib import Path
@@ -77,7 +78,8 @@ def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> Id
         **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
 
     A file of an older format (:func:`~controllers.identification.parameter_file.older_format`) is a cache this
-    version cannot read: it is identified again and replaced, with a warning.
+    version cannot read: it is identified again and replaced, with a warning; one identified from logs is refused
+    (a simulation would not replace it).
 
     Raises:
         ParameterFileError: if the file exists but is corrupt (it is never silently replaced).
@@ -86,6 +88,11 @@ def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> Id
     if path.exists() and not older_format(path):
         return load_result(path)
     if path.exists():
+        if json.loads(path.read_text()).get("provenance", {}).get("plant", {}).get("source") == "logs":
+            raise ParameterFileError(
+                f"{path}: an identification from logs in an older file format; identify the logs again "
+                "(python -m eval.identify --log FILE ... --robot ROBOT) to write this version's format"
+            )
         logger.warning("%s was written by an older version of this project: identifying again (about a minute)", path)
     else:
         logger.info("no identified parameters at %s: identifying (about a minute)", path)

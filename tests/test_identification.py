@@ -508,3 +508,13 @@ def test_excitation_runs_on_the_plants_own_geometry_inside_the_given_region() ->
     # the default is the nominal robot's trajectory, as before
     default = ExcitationSpec(seed=8, duration=1.5)
     assert_allclose(default.reference().theta, default.reference(NOMINAL_GEOMETRY).theta, rtol=0, atol=0)
+
+
+def test_load_or_identify_refuses_an_older_identification_from_logs(tmp_path, monkeypatch) -> None:
+    path = save_result(dataclasses.replace(RESULT, provenance={"plant": {"source": "logs"}}), tmp_path / "p.json")
+    document = json.loads(path.read_text())
+    document["format_version"] = 3
+    path.write_text(json.dumps(document))
+    monkeypatch.setattr(parameter_files, "identify", pytest.fail)
+    with pytest.raises(ParameterFileError, match="identification from logs in an older file format"):
+        load_or_identify(path)

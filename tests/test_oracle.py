@@ -25,6 +25,7 @@ from delta_env.config import PhysicalParameters
 from delta_env.drive import SampledLag
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY
+from delta_env.kernels import STRIBECK_PEAK
 from delta_env.oracle import InverseDynamicsOracle
 from delta_env.sensors import CONTROL_PERIOD, rate_window
 
@@ -403,7 +404,7 @@ def test_bound_gains_follow_the_lag_of_each_randomized_plant_unless_given() -> N
     assert oracle.servo.gains.kd == pytest.approx((7.0,) * 3)
     layer = OracleController(config, servo="servo")
     nominal_kd = layer.servo.gains.kd
-    breakaway = (1.0 + config.realism.stribeck_excess) * np.array(config.realism.coulomb_per_joint)
+    breakaway = (1.0 + STRIBECK_PEAK * config.realism.stribeck_excess) * np.array(config.realism.coulomb_per_joint)
     assert_allclose(layer.servo.gains.breakaway, breakaway)
     layer.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, (2.0, 1.0, 1.0), actuator_lag=0.002))
     assert layer.servo.gains.breakaway[0] == pytest.approx(2.0 * breakaway[0])
@@ -413,3 +414,10 @@ def test_bound_gains_follow_the_lag_of_each_randomized_plant_unless_given() -> N
     fixed = OracleController(config, gains=given)
     fixed.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.002))
     assert fixed.servo.gains is given
+
+
+def test_the_stribeck_peak_is_the_largest_share_of_the_plants_excess() -> None:
+    """The bound pushes fc + STRIBECK_PEAK fs at rest: the most the plant's excess, through its smooth sign, resists."""
+    x = np.linspace(0.0, 2.0, 200_001)
+    assert pytest.approx(np.max(np.exp(-(x**2)) * np.tanh(4.0 * x)), abs=1e-9) == STRIBECK_PEAK
+    assert 0.78 < STRIBECK_PEAK < 0.79

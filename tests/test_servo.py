@@ -269,3 +269,26 @@ def test_rows_and_the_bound_schedule_their_servo_on_the_arm_at_the_reference() -
     assert_allclose(bound.servo.current_gains[0], np.array(bound.servo.gains.kp) * truth / bound.servo.gains.inertia)
     assert np.all(truth > 1.3 * np.array(bound.servo.gains.inertia))
     assert np.all(joint_inertia(bound.oracle.torques, pose, 4.0) > 3.5 * np.array(bound.servo.gains.inertia))
+
+
+def test_a_schedule_does_not_step_the_command_and_a_reset_returns_to_the_design() -> None:
+    """Bumpless: at the last sample's errors the scheduled gains and the integral give the command of before."""
+    dynamics = DeltaDynamics.nominal(NOMINAL_RODS, forearm_rods=True)
+    servo = JointServo(servo_gains(joint_inertia(dynamics.inverse_dynamics), NOMINAL_RODS.coulomb, LAG))
+    sample = {
+        "reference_angles": np.array([0.30, 0.20, 0.25]),
+        "joint_angles": np.array([0.3002, 0.1997, 0.2501]),
+        "reference_velocities": np.array([0.5, -0.4, 0.2]),
+        "reference_accelerations": np.array([3.0, -2.0, 1.0]),
+        "joint_velocities": np.array([0.47, -0.43, 0.21]),
+    }
+    before = servo.feedback(sample)
+    error, rate_error = servo._error, servo._rate_error
+    servo.schedule(1.5 * np.array(servo.gains.inertia))
+    kp, _, kd = servo.current_gains
+    after = [kp[j] * error[j] + kd[j] * rate_error[j] + servo.integral[j] for j in range(3)]
+    assert_allclose(after, before, atol=1e-12)
+    assert kp[0] == pytest.approx(1.5 * servo.gains.kp[0])
+    servo.reset()
+    assert_allclose(servo.integral, 0.0)
+    assert servo.current_gains[0] == list(servo.gains.kp)

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from controllers.dynamics import ModelParameters
+from controllers.identification.data import REST_VELOCITY
 from delta_env.drive import MAX_TIME_CONSTANT
 from delta_env.geometry import TORQUE_LIMIT
 from delta_env.validation import require_in
@@ -205,7 +206,9 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     drive_lag = _joint_values(path, document, "drive_lag_s", MAX_TIME_CONSTANT)
     stribeck_excess = _joint_values(path, document, "stribeck_excess_nm", TORQUE_LIMIT)
     velocity = _entry(path, document, "stribeck_velocity_rad_s", "the file")
-    stribeck_velocity = None if velocity is None else _number(path, "stribeck_velocity_rad_s", velocity, 0.0)
+    stribeck_velocity = (
+        None if velocity is None else _number(path, "stribeck_velocity_rad_s", velocity, REST_VELOCITY, math.inf)
+    )
     if (stribeck_excess is None) != (stribeck_velocity is None):
         raise ParameterFileError(f"{path}: stribeck_excess_nm and stribeck_velocity_rad_s must both be null or not")
     errors = _json_object(path, _entry(path, document, "standard_errors", "the file"), "standard_errors")

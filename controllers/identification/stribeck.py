@@ -78,7 +78,9 @@ def fit_stribeck(
         velocity_threshold: Fastest |theta_dot_i| (rad/s) of a slow row, > :data:`REST_VELOCITY`.
 
     Raises:
-        ValueError: if a joint has fewer than :data:`MIN_ROWS` slow moving rows.
+        ValueError: if a joint has fewer than :data:`MIN_ROWS` slow moving rows, if the best decay speed lies at the
+            search's bound (the data do not determine it; also a robot without excess), or if an excess is not
+            finite or beyond the drive's torque limit.
     """
     if not velocity_threshold > REST_VELOCITY:
         raise ValueError(
