@@ -251,7 +251,7 @@ class OracleController:
         self._holding = holding
         if self._fixed_gains is None and self.servo.scheduled and self._samples % self._schedule_samples == 0:
             # the servo layer's schedule on the truth: the exact inertia at the reference, without payload
-            self.servo.schedule(joint_inertia(self.oracle.torques, observation["reference_angles"]))
+            self.servo.schedule(joint_inertia(self.oracle.torque, observation["reference_angles"]))
         self._samples += 1
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
         return self.drive.command(torque_next) + self.servo.feedback(observation)
