@@ -90,7 +90,7 @@ BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 object's), the share within which a continuation brakes (:meth:`PayloadTiming._braking`)."""
 
 MAX_CACHED_PLANS = 512
-"""Laws kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
+"""Laws (and braking shares) kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
 
 THERMAL_MARGIN = 0.05
 """Share of the rated torque held back by the thermal check of every move (model error)."""
@@ -279,6 +279,8 @@ class PayloadTiming:
         key = (shape.start.tobytes(), shape.end.tobytes(), shape.lift_height, shape.lift_fraction, self.max_payload)
         key += (self.dwell, self.torque_share)
         brakings = _BRAKINGS.setdefault(self.planner, {})
+        if len(brakings) >= MAX_CACHED_PLANS:
+            del brakings[next(iter(brakings))]
         if key not in brakings:
             heaviest = self._plan(shape, self.max_payload)
             _, velocity, _ = move_samples(shape, heaviest)

@@ -59,7 +59,8 @@ TANGENT_PASSES = 2
 """Conservative TOPP passes after the optimistic one, each linearizing sqrt(x) at the previous solution."""
 
 REPLAN_GRID_INTERVALS = 200
-"""Grid intervals of a whole move's shape when a running carry is replanned (its remainder gets its share)."""
+"""Grid intervals of a whole move's shape when a carry's continuation is planned from a point of its law (its
+remainder gets its share)."""
 
 REPLAN_TANGENT_PASSES = 1
 """Conservative passes of a replan: one, on the coarser :data:`REPLAN_GRID_INTERVALS` grid, so that the table of
