@@ -90,7 +90,8 @@ BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 object's), the share within which a continuation brakes (:meth:`PayloadTiming._braking`)."""
 
 MAX_CACHED_PLANS = 512
-"""Laws (and braking shares) kept per planner (the oldest go first): declared timings of random objects rarely repeat."""
+"""Laws and braking shares kept per planner (the oldest go first): declared timings of random objects rarely
+repeat."""
 
 THERMAL_MARGIN = 0.05
 """Share of the rated torque held back by the thermal check of every move (model error)."""
