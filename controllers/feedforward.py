@@ -29,7 +29,6 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
 from controllers.servo import (
     DEFAULT_FRICTION_WIDTH,
-    SCHEDULE_PERIOD,
     JointServo,
     ServoGains,
     joint_inertia,
@@ -70,8 +69,6 @@ class FeedforwardController:
         self.servo = PDController() if servo is None else servo
         self.estimator = estimator
         self._scheduled = isinstance(self.servo, JointServo) and self.servo.scheduled
-        self._schedule_samples = round(SCHEDULE_PERIOD / CONTROL_PERIOD)
-        self._samples = 0
 
     @property
     def payload_estimate(self) -> float:
@@ -86,7 +83,6 @@ class FeedforwardController:
 
     def reset(self) -> None:
         self.servo.reset()
-        self._samples = 0
         if self.estimator is not None:
             self.estimator.reset()
 
@@ -94,9 +90,7 @@ class FeedforwardController:
         """Every :data:`~controllers.servo.SCHEDULE_PERIOD`, place a scheduled servo's gains on the model's inertia at
         the reference's pose, without payload (:meth:`~controllers.servo.JointServo.schedule`)."""
         if self._scheduled:
-            if self._samples % self._schedule_samples == 0:
-                self.servo.schedule(model_inertia(self.dynamics, observation["reference_angles"], 0.0))
-            self._samples += 1
+            self.servo.follow_inertia(lambda: model_inertia(self.dynamics, observation["reference_angles"], 0.0))
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         tau0, phi = self.dynamics.torque_and_payload_regressor(
@@ -188,8 +182,6 @@ class OracleController:
         self.payload_masses: tuple[float, ...] = ()
         self._picks = 0
         self._holding = False
-        self._schedule_samples = round(SCHEDULE_PERIOD / period)
-        self._samples = 0
 
     def _set_drive(self, lag: float, period: float) -> None:
         """The sampled lag of the drive, the predictor of the reference at its hold lead and the feedback."""
@@ -237,7 +229,6 @@ class OracleController:
         self.reference.reset()
         self._picks = 0
         self._holding = False
-        self._samples = 0
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         holding = observation["gripper"].item(0) > 0.5
@@ -249,10 +240,9 @@ class OracleController:
                     "set_payload_masses(info['payload_masses']) after env.reset"
                 )
         self._holding = holding
-        if self._fixed_gains is None and self.servo.scheduled and self._samples % self._schedule_samples == 0:
+        if self._fixed_gains is None and self.servo.scheduled:
             # the servo layer's schedule on the truth: the exact inertia at the reference, without payload
-            self.servo.schedule(joint_inertia(self.oracle.torque, observation["reference_angles"]))
-        self._samples += 1
+            self.servo.follow_inertia(lambda: joint_inertia(self.oracle.torque, observation["reference_angles"]))
         torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
         return self.drive.command(torque_next) + self.servo.feedback(observation)
 

@@ -215,6 +215,8 @@ class JointServo:
         self._integral = [0.0, 0.0, 0.0]  # ki * integral(e) per joint (N m)
         self._error = [0.0, 0.0, 0.0]  # the last sample's e and de/dt per joint (rad, rad/s), for a bumpless schedule
         self._rate_error = [0.0, 0.0, 0.0]
+        self._schedule_samples = max(1, round(SCHEDULE_PERIOD / self.period))
+        self._samples = 0  # samples since the reset, for follow_inertia
         self._unscheduled()
 
     @property
@@ -246,6 +248,13 @@ class JointServo:
             self._integral[joint] = min(max(self._integral[joint] - change, -limit), limit)
             self._kp[joint], self._kd[joint], self._ki[joint] = kp, kd, gains.ki[joint] * scale
 
+    def follow_inertia(self, inertia: Callable[[], ArrayLike]) -> None:
+        """Call once per sample before :meth:`feedback`: every :data:`SCHEDULE_PERIOD` from the reset on,
+        :meth:`schedule` the gains on ``inertia()`` (kg m^2, per joint), which is evaluated only then."""
+        if self._samples % self._schedule_samples == 0:
+            self.schedule(inertia())
+        self._samples += 1
+
     def _unscheduled(self) -> None:
         self._kp, self._ki, self._kd = list(self.gains.kp), list(self.gains.ki), list(self.gains.kd)
 
@@ -259,6 +268,7 @@ class JointServo:
         self._integral = [0.0, 0.0, 0.0]
         self._error = [0.0, 0.0, 0.0]
         self._rate_error = [0.0, 0.0, 0.0]
+        self._samples = 0
         self.reference_rate.reset()
         self._unscheduled()
 
