@@ -55,7 +55,7 @@ from controllers.registry import (
     estimation_model,
     parse_controller_keys,
 )
-from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
+from controllers.residual import read_policy_settings
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots, video
@@ -75,6 +75,7 @@ from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
+    add_residual_argument,
     add_scenario_arguments,
     add_servo_argument,
     add_workers_argument,
@@ -129,12 +130,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=DEFAULT_CALIBRATION_EPISODES,
         help=f"payload-free episodes of the tare (default {DEFAULT_CALIBRATION_EPISODES})",
     )
-    parser.add_argument(
-        "--residual",
-        type=Path,
-        default=DEFAULT_POLICY_PATH,
-        help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
-    )
+    add_residual_argument(parser)
     add_workers_argument(parser)
     parser.add_argument(
         "--video",

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from controllers.registry import controller_entry, controller_label, controllers_help, parse_controller_keys
-from controllers.residual import DEFAULT_POLICY_PATH, read_policy_settings
+from controllers.residual import read_policy_settings
 from delta_env.config import RATED_PAYLOAD, PlantConfig
 from delta_env.cycles import DEFAULT_DWELL
 from delta_env.geometry import GRAVITY
@@ -62,6 +62,7 @@ from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
+    add_residual_argument,
     add_scenario_arguments,
     add_servo_argument,
     add_workers_argument,
@@ -173,12 +174,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="the first runs every row, as do those that estimate the payload (e.g. residual); the others replay the "
         "first's references; " + controllers_help(",".join(DEFAULT_CONTROLLERS)),
     )
-    parser.add_argument(
-        "--residual",
-        type=Path,
-        default=DEFAULT_POLICY_PATH,
-        help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
-    )
+    add_residual_argument(parser)
     parser.add_argument(
         "--payloads",
         default=None,

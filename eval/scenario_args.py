@@ -9,6 +9,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from controllers.residual import DEFAULT_POLICY_PATH
 from controllers.setup import SERVOS
 from delta_env.cycles import RELEASES
 from delta_env.scaling import scaled_masses
@@ -103,6 +104,16 @@ def add_servo_argument(parser: argparse.ArgumentParser) -> None:
         help="feedback of the model rows (the residual's base: the one its policy file records): 'servo', the servo "
         "layer (integral action, friction compensation at rest, gains from the identified model and drive lag), or "
         f"'pd', the paper's fixed PD (default {SERVOS[0]}; the pd row is always the PD)",
+    )
+
+
+def add_residual_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--residual`` (the policy file of the ``residual`` row; the shipped one by default) to ``parser``."""
+    parser.add_argument(
+        "--residual",
+        type=Path,
+        default=DEFAULT_POLICY_PATH,
+        help=f"residual policy of the 'residual' row (default: the shipped {DEFAULT_POLICY_PATH.name})",
     )
 
 
