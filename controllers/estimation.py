@@ -440,25 +440,28 @@ class PayloadRLS:
     """Recursive least squares of the payload mass mp in y = phi mp + e, with forgetting.
 
     y = tau_measured - tau_model(mp = 0) (N m) and phi = J^T (xdd + g e_z) (N m/kg, from
-    ``DeltaDynamics.payload_regressor``), three rows per sample, e white with covariance noise_std^2 I.
-    This is the Kalman filter of the constant mp (F = 1, Q = 0, H = phi, R = noise_std^2 I) with fading
-    memory, i.e. RLS with forgetting factor lambda (docs/design.md section 6): the prior P / lambda discounts
-    old data. With one unknown the update is closed-form (the matrix inversion lemma): with
-    p = P / lambda,
-
-        P+ = p s^2 / (s^2 + p phi.phi),    mp+ = mp + P+ (phi.y - (phi.phi) mp) / s^2,    s = noise_std,
-
-    which equals filterpy's ``KalmanFilter`` with those matrices and ``alpha = 1/sqrt(lambda)`` to
-    round-off, at a fiftieth of its cost per sample. A sample enters only through phi.phi and phi.y
-    (:meth:`update_moments`).
+    ``DeltaDynamics.payload_regressor``), three rows per sample, e white with covariance R I.
+    This is the Kalman filter of the constant mp (F = 1, Q = 0, H = phi) with fading memory, i.e. RLS with
+    forgetting factor lambda (docs/design.md section 6), named as filterpy names its filters: the state x = mp,
+    its variance P, the measurement noise R. With one unknown the update is closed-form (the matrix inversion
+    lemma; :meth:`update_moments`), which equals filterpy's ``KalmanFilter`` with those matrices and
+    ``alpha = 1/sqrt(lambda)`` to round-off, at a fiftieth of its cost per sample. A sample enters only through
+    phi.phi and phi.y.
 
     Args:
         forgetting_factor: lambda in (0, 1]; the memory is about 1 / (1 - lambda) samples
             (1000 samples = 1 s at 1 kHz for the default).
         noise_std: Standard deviation of e (N m): torque noise plus model error. It scales
-            :attr:`variance`, not the estimate.
+            :attr:`P`, not the estimate.
         initial_variance: Prior variance of the mass (kg^2); also restored by :meth:`reset_covariance`.
         initial_mass: Prior mass (kg).
+
+    Attributes:
+        x: The mass estimate (kg).
+        P: Its variance (kg^2), as far as R describes e.
+        R: The noise variance s^2 (N^2 m^2) of each row of y.
+        forgetting_factor: lambda.
+        initial_variance: P0 (kg^2).
     """
 
     def __init__(
@@ -474,22 +477,20 @@ class PayloadRLS:
         require_in("initial_mass", initial_mass, unit="kg")
         self.forgetting_factor = float(forgetting_factor)
         self.initial_variance = float(initial_variance)
-        self.noise_variance = float(noise_std) ** 2
-        """s^2 (N^2 m^2)."""
-        self.inverse_forgetting = 1.0 / self.forgetting_factor
-        """1 / lambda."""
-        self.state_array = np.array([float(initial_mass), self.initial_variance])
-        """(mass (kg), variance (kg^2)), which compiled callers update in place with :func:`rls_update`."""
+        self.R = float(noise_std) ** 2
+        self.x = float(initial_mass)
+        self.P = self.initial_variance
+        self._alpha_sq = 1.0 / self.forgetting_factor  # filterpy's fading memory alpha^2 = 1 / lambda
 
     @property
     def mass(self) -> float:
-        """Estimated payload mass (kg)."""
-        return self.state_array.item(0)
+        """Estimated payload mass (kg): :attr:`x`."""
+        return self.x
 
     @property
     def variance(self) -> float:
-        """Variance of the estimate (kg^2), as far as ``noise_std`` describes e."""
-        return self.state_array.item(1)
+        """Variance of the estimate (kg^2): :attr:`P`."""
+        return self.P
 
     def update(self, phi: ArrayLike, y: ArrayLike) -> float:
         """Fuse one sample and return the new mass estimate (kg).
@@ -507,36 +508,20 @@ class PayloadRLS:
 
         No checks: the caller (the 1 kHz estimator) forms finite moments.
         """
-        return rls_update(self.state_array, information, moment, self.inverse_forgetting, self.noise_variance)
-
-    @property
-    def state(self) -> tuple[float, float]:
-        """(mass (kg), variance (kg^2)): everything the estimator remembers."""
-        mass, variance = self.state_array.tolist()
-        return mass, variance
-
-    @state.setter
-    def state(self, value: tuple[float, float]) -> None:
-        self.state_array[0], self.state_array[1] = float(value[0]), float(value[1])
+        # predict with fading memory: P- = alpha^2 P
+        prior = self.P * self._alpha_sq
+        # update (matrix inversion lemma): P+ = (1 / P- + phi.phi / R)^-1 = P- R / (R + P- phi.phi) and
+        # x+ = x + P+ (phi.y - phi.phi x) / R
+        denominator = self.R + prior * information
+        self.x += prior * (moment - information * self.x) / denominator
+        self.P = prior * self.R / denominator
+        return self.x
 
     def reset_covariance(self) -> None:
         """Restore the prior variance, keeping the estimate: call it at a pick or a release."""
-        self.state_array[1] = self.initial_variance
+        self.P = self.initial_variance
 
-    def reset(self, mass: float) -> None:
-        """Restart from a known mass (kg) with the prior variance."""
-        self.state_array[0] = float(mass)
-        self.reset_covariance()
-
-
-@numba.njit(cache=True)
-def rls_update(
-    state: NDArray[np.float64], information: float, moment: float, inverse_forgetting: float, noise_variance: float
-) -> float:
-    """:meth:`PayloadRLS.update_moments` on ``state`` (mass (kg), variance (kg^2)), in place, with 1 / lambda and
-    s^2 (N^2 m^2); returns the mass (kg)."""
-    prior = state[1] * inverse_forgetting
-    denominator = noise_variance + prior * information
-    state[0] += prior * (moment - information * state[0]) / denominator
-    state[1] = prior * noise_variance / denominator
-    return state[0]
+    def reset(self, mass: float, variance: float | None = None) -> None:
+        """Restart from a known mass (kg) with ``variance`` (kg^2), the prior variance if None."""
+        self.x = float(mass)
+        self.P = self.initial_variance if variance is None else float(variance)

@@ -78,6 +78,36 @@ def test_payload_rls_is_textbook_rls_with_forgetting(forgetting_factor) -> None:
     assert_allclose(estimates, textbook_rls(phi, y, forgetting_factor, p0=4.0 / 2.0**2), rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.parametrize("forgetting_factor", [1.0, 0.999])
+def test_payload_rls_is_the_batch_least_squares_of_its_rows(forgetting_factor) -> None:
+    # After n samples, RLS with forgetting is the weighted least squares of every row so far with the prior (mass
+    # 0.3 kg, variance 4 kg^2), sample k weighted by lambda^(n - k) and the prior by lambda^n; with lambda = 1 the
+    # plain batch least squares of the same rows.
+    rng = np.random.default_rng(8)
+    phi = rng.normal(0.0, 10.0, (500, 3))
+    y = 2.5 * phi + rng.normal(0.0, 2.0, phi.shape)
+    rls = PayloadRLS(forgetting_factor=forgetting_factor, noise_std=2.0, initial_variance=4.0, initial_mass=0.3)
+    for n in range(1, len(phi) + 1):
+        rls.update(phi[n - 1], y[n - 1])
+        weights = forgetting_factor ** np.arange(n - 1, -1, -1.0)
+        information = forgetting_factor**n / 4.0 + np.sum(weights[:, None] * phi[:n] ** 2) / 2.0**2
+        moment = forgetting_factor**n * 0.3 / 4.0 + np.sum(weights[:, None] * phi[:n] * y[:n]) / 2.0**2
+        assert rls.x == pytest.approx(moment / information, rel=1e-10)
+        assert rls.variance == pytest.approx(1.0 / information, rel=1e-10)
+
+
+def test_payload_rls_update_is_the_closed_form_of_one_sample() -> None:
+    # one sample of phi.phi = 3 and phi.y = 4 from x = 0.5, P = 2, R = 1: P+ = 1 / (1/2 + 3) and
+    # x+ = x + P+ (4 - 3 x)
+    rls = PayloadRLS(forgetting_factor=1.0, noise_std=1.0, initial_variance=2.0, initial_mass=0.5)
+    assert rls.update_moments(3.0, 4.0) == pytest.approx(0.5 + 2.0 / 7.0 * 2.5, rel=1e-15)
+    assert rls.variance == pytest.approx(2.0 / 7.0, rel=1e-15)
+    rls.reset(1.0, 0.01)
+    assert (rls.mass, rls.variance) == (1.0, 0.01)
+    rls.reset_covariance()
+    assert (rls.x, rls.P) == (1.0, 2.0)
+
+
 @pytest.mark.parametrize("mass", [0.5, 3.8])
 @pytest.mark.parametrize("forgetting_factor", [1.0, 0.999])
 def test_payload_rls_converges_to_the_mass(random_joint_states, mass, forgetting_factor) -> None:

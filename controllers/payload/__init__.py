@@ -70,11 +70,15 @@ fading-memory Kalman filter). What biases the estimate on this plant, and what i
 
 The modules: :mod:`~controllers.payload.tuning` (the settings and the weighting), :mod:`~controllers.payload.equation`
 (the compiled payload equation and empty-move fit), :mod:`~controllers.payload.regressors` (the joint states the
-equation is formed at), :mod:`~controllers.payload.estimator` (:class:`PayloadEstimator`) and
-:mod:`~controllers.payload.tare`.
+equation is formed at, one class each), :mod:`~controllers.payload.fit` (:class:`CorrectionFit`, the fit of the
+model's corrections), :mod:`~controllers.payload.checkpoints` (:class:`CheckpointRing`),
+:mod:`~controllers.payload.estimator` (:class:`PayloadEstimator`, which composes them with the
+:class:`~controllers.estimation.PayloadRLS`) and :mod:`~controllers.payload.tare`.
 """
 
-from controllers.payload.estimator import EmptyMoveSums, ModelCorrections, PayloadEstimator
+from controllers.payload.checkpoints import CheckpointRing
+from controllers.payload.estimator import PayloadEstimator
+from controllers.payload.fit import CorrectionFit, EmptyMoveSums, ModelCorrections
 from controllers.payload.regressors import acceleration_lag
 from controllers.payload.tare import Tare, tare_from_observations
 from controllers.payload.tuning import (
@@ -100,6 +104,8 @@ __all__ = [
     "RESIDUAL_STD",
     "REST_RATE",
     "TORQUE_AGE",
+    "CheckpointRing",
+    "CorrectionFit",
     "EmptyMoveSums",
     "ModelCorrections",
     "PayloadEstimator",

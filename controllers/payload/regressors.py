@@ -9,24 +9,31 @@ from __future__ import annotations
 
 import collections
 import copy
+import math
 from collections.abc import Callable
 from typing import Protocol
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import JointStateFilter, JointStateSmoother
+from controllers.estimation import (
+    DELAYED_STATE_FIELDS,
+    JointStateFilter,
+    JointStateSmoother,
+    delayed_state_step,
+)
 from controllers.payload.equation import estimated_state_equation, reference_equation
-from controllers.payload.smoothed import SMOOTHED, smoothed_moments
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 
 
 class Regressor(Protocol):
     """What the estimator needs of a regressor, built from the model and the bytes of the estimator's
-    :data:`~controllers.payload.equation.EQUATION` and :data:`~controllers.payload.equation.FIT` records.
+    :data:`~controllers.payload.equation.EQUATION` and :data:`~controllers.payload.equation.FIT` records (the
+    latter its :class:`~controllers.payload.fit.CorrectionFit`'s, to which the empty moves' samples go).
 
     Attributes:
         joint_filter: The joint-state estimator it runs, or None.
@@ -92,7 +99,7 @@ class ReferenceRegressor:
         self._has_previous = True
         # The torque was measured MEASURED_TORQUE_DELAY before the encoders and the reference of this step.
         used, information, moment = reference_equation(
-            self._equation, self._fit, holding, current, previous, *observation["joint_torques"].tolist()
+            self._equation, self._fit, holding, current, previous, observation["joint_torques"]
         )
         return (information, moment) if used else None
 
@@ -100,9 +107,8 @@ class ReferenceRegressor:
 class SmoothedRegressor:
     """The fixed-lag smoother's estimate of sample k - L (``regressor="smoothed"``): it smooths the tracking error
     theta - theta_ref, and the reference's exact derivatives at sample k - L are added back; tau0 and phi there,
-    with the torque measured with that sample. Its state is a :data:`~controllers.payload.smoothed.SMOOTHED`
-    record, one compiled call per sample (:func:`~controllers.payload.smoothed.smoothed_moments`, or the
-    estimator's :func:`~controllers.payload.smoothed.smoothed_update`).
+    with the torque measured with that sample. Its state is a :data:`SMOOTHED` record, one compiled call per sample
+    (:func:`smoothed_moments`).
 
     Attributes:
         joint_filter: The :class:`JointStateSmoother` whose weights the record holds (the record keeps the window).
@@ -144,18 +150,18 @@ class SmoothedRegressor:
             observation["joint_torques"],
             holding,
         )
-        self.raise_invalid(status, observation)
+        if status != kernels.VALID:
+            self._raise_invalid(status, observation)
         return (information, moment) if used else None
 
-    def raise_invalid(self, status: int, observation: Observation) -> None:
+    def _raise_invalid(self, status: int, observation: Observation) -> None:
         """Raise ValueError for a status of the compiled step other than VALID: a reading whose tracking error is
         not finite, or a smoothed state the model cannot take."""
         if status == kernels.NOT_FINITE:
             error = observation["joint_angles"] - observation["reference_angles"]
             raise ValueError(f"the tracking error must be 3 finite values (one per joint), got {error!r}")
-        if status != kernels.VALID:
-            state = self._record["previous"][0].copy()
-            raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
+        state = self._record["previous"][0].copy()
+        raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
 
 
 class FilteredRegressor:
@@ -169,7 +175,7 @@ class FilteredRegressor:
         self.joint_filter = JointStateFilter()
         self.delay = round(acceleration_lag(self.joint_filter) / CONTROL_PERIOD)
         # (the filter's estimate, measured torque, gripper holding) of the last D + 1 samples.
-        self._history: collections.deque[tuple[NDArray, list[float], bool]] = collections.deque(maxlen=self.delay + 1)
+        self._history: collections.deque[tuple[NDArray, NDArray, bool]] = collections.deque(maxlen=self.delay + 1)
         self._started = False
         self._previous_state: NDArray[np.float64] | None = None  # (3, 3): theta, theta_dot, theta_ddot
 
@@ -191,7 +197,7 @@ class FilteredRegressor:
             self.joint_filter.reset(angles)
             self._started = True
         newest = self.joint_filter.update(angles)
-        self._history.append((newest, observation["joint_torques"].tolist(), holding))
+        self._history.append((newest, observation["joint_torques"].copy(), holding))
         if len(self._history) <= self.delay:
             return None
         delayed, torque, held = self._history[0]
@@ -202,11 +208,51 @@ class FilteredRegressor:
             return None
         # The torque of sample k - D was measured MEASURED_TORQUE_DELAY before its encoder sample.
         status, used, information, moment = estimated_state_equation(
-            self._model, self._equation, self._fit, state, previous_state, holding, *torque
+            self._model, self._equation, self._fit, state, previous_state, holding, torque
         )
         if status != kernels.VALID:
             raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
         return (information, moment) if used else None
+
+
+SMOOTHED = np.dtype((np.record, DELAYED_STATE_FIELDS))
+"""The state of :func:`smoothed_moments`: the smoother's window of tracking errors and the readings the smoothed
+state lags behind (rows of the joint states theta (rad), theta_dot (rad/s), theta_ddot (rad/s^2), torques (N m))."""
+
+
+@numba.njit(cache=True)
+def smoothed_moments(
+    regressor: NDArray[np.uint8],
+    model: NDArray[np.uint8],
+    equation: NDArray[np.uint8],
+    fit: NDArray[np.uint8],
+    angles: NDArray[np.float64],
+    reference_angles: NDArray[np.float64],
+    reference_rates: NDArray[np.float64],
+    reference_accelerations: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    holding: bool,
+) -> tuple[int, bool, float, float]:
+    """One reading into the :data:`SMOOTHED` record ``regressor`` (in place): the observation's angles (rad), the
+    reference's angles, rates and accelerations (rad, rad/s, rad/s^2) and torque (N m), each (3,), as the env gives
+    them; returns the equation of the sample a lag ago: (status, used, sum w phi^2, sum w phi y).
+
+    The status is :data:`~delta_env.kernels.NOT_FINITE` for a reading whose tracking error is not finite (nothing
+    changes), else the model's at the smoothed state (that state is then in ``previous``).
+    """
+    r = regressor.view(SMOOTHED)[0]
+    error = angles - reference_angles
+    if not math.isfinite(error[0] + error[1] + error[2]):
+        return kernels.NOT_FINITE, False, 0.0, 0.0
+    head, state, previous = delayed_state_step(
+        r, error, reference_angles, reference_rates, reference_accelerations, torque, holding
+    )
+    if head < 0:
+        return kernels.VALID, False, 0.0, 0.0
+    if holding != (r.pending_holding[head] != 0):
+        return kernels.VALID, False, 0.0, 0.0
+    # the torque of sample k - L was measured MEASURED_TORQUE_DELAY before its encoder sample
+    return estimated_state_equation(model, equation, fit, state, previous, holding, r.pending_torque[head])
 
 
 REGRESSORS: dict[str, Callable[[DeltaDynamics, NDArray[np.uint8], NDArray[np.uint8]], Regressor]] = {

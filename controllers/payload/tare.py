@@ -10,7 +10,8 @@ import numpy as np
 
 from controllers.base import Observation
 from controllers.payload.equation import PARAMETERS
-from controllers.payload.estimator import EmptyMoveSums, PayloadEstimator
+from controllers.payload.estimator import PayloadEstimator
+from controllers.payload.fit import EmptyMoveSums
 
 
 class Tare(NamedTuple):
@@ -54,7 +55,7 @@ def tare_from_observations(estimator: PayloadEstimator, episodes: Iterable[Itera
     # carry runs from a closing of the gripper to the next (moments are also None while every joint rests, which
     # does not end a carry).
     carries: list[tuple[float, float, bool]] = []
-    if estimator.empty_moves is not None:
+    if estimator.fit.seed is not None:
         raise ValueError("taring needs an estimator without seeded empty moves: it sums the episodes' own")
     empty_information, empty_moment = np.zeros((PARAMETERS, PARAMETERS)), np.zeros(PARAMETERS)
     for episode in episodes:
