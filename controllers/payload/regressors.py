@@ -19,12 +19,7 @@ from numpy.typing import NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import (
-    DELAYED_STATE_FIELDS,
-    JointStateFilter,
-    JointStateSmoother,
-    delayed_state_step,
-)
+from controllers.estimation import DELAYED_STATE_FIELDS, JointStateFilter, JointStateSmoother, delayed_state_step
 from controllers.payload.equation import estimated_state_equation, reference_equation
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
