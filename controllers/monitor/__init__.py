@@ -22,13 +22,14 @@ the joint's last tracking error, a faulty torque by the current loop's predictio
 reaches the feedback, the model or an estimator. :class:`MonitoredController` runs any controller behind a
 monitor, keeps what a fault corrupted out of its payload estimator and reacts to a detected fault.
 
-The modules: :mod:`~controllers.monitor.tuning` (the thresholds and reactions, each with its reason),
-:mod:`~controllers.monitor.events` (:class:`DetectedFault`, :class:`ReportsFaults`),
-:mod:`~controllers.monitor.detector` (:class:`FaultMonitor`: the sensor checks),
-:mod:`~controllers.monitor.model_check` (the collision and slip checks on the model's residual, one compiled call
-per sample), :mod:`~controllers.monitor.compiled` (the per-sample arithmetic, compiled) and
-:mod:`~controllers.monitor.wrapper` (:class:`MonitoredController`: its reactions and the payload estimator's
-rollback).
+A sample is one compiled call on one state record. The modules: :mod:`~controllers.monitor.tuning` (the thresholds
+and reactions, each with its reason), :mod:`~controllers.monitor.events` (:class:`DetectedFault`,
+:class:`ReportsFaults`), :mod:`~controllers.monitor.detector` (:class:`FaultMonitor`: the record, read as its
+attributes, and the events), :mod:`~controllers.monitor.step` (the record and the step),
+:mod:`~controllers.monitor.sensor_check` (the encoder and torque checks), :mod:`~controllers.monitor.model_check`
+(the collision and slip checks on the model's residual), :mod:`~controllers.monitor.compiled` (their arithmetic on
+three-vectors) and :mod:`~controllers.monitor.wrapper` (:class:`MonitoredController`: its reactions and the payload
+estimator's rollback).
 """
 
 from controllers.monitor.detector import FaultMonitor

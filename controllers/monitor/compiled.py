@@ -1,12 +1,10 @@
-"""The fault monitor's per-sample arithmetic, compiled for the 1 kHz loop (docs/design.md section 6, "Fault monitor").
+"""The fault monitor's arithmetic on three-vectors, compiled for the 1 kHz loop (docs/design.md section 6, "Fault
+monitor"): the model's residual, the platform force, the slip check's sums, the current loop's output.
 
-The model check works on three-element vectors, where NumPy's cost is its call overhead, not the arithmetic: these
-kernels do in one call what took a dozen NumPy calls, with the same numbers (to the last bit with OpenBLAS and fused
-multiply-adds, as on the machine this was measured on; to about 1e-12 elsewhere). Elementwise operations
-keep NumPy's order; a three-element ``np.sum`` adds left to right; the dot products that NumPy hands to OpenBLAS
-(``@``, ``np.linalg.norm``) are summed as its kernels sum them, one fused multiply-add per term after the first
-(``_dot3``, which alone may contract). ``tests/test_monitor_compiled.py`` checks every kernel against the NumPy
-expressions it replaces.
+The dot products are summed as OpenBLAS's kernels sum three terms, one fused multiply-add per term after the first
+(``_dot3``, which alone may contract): the monitor's thresholds and campaigns were set with NumPy's ``@`` on
+OpenBLAS, and these kernels keep its numbers. ``tests/test_monitor_compiled.py`` checks each kernel against its
+definition: the model's equations, a brute-force sum, a finely integrated current loop.
 """
 
 from __future__ import annotations
@@ -20,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.compiled_model import single_sample_model
+from controllers.monitor.tuning import REST_RATE
 
 if TYPE_CHECKING:
     from controllers.payload import ModelCorrections
@@ -41,7 +40,7 @@ CORRECTION_TERMS = np.dtype(
 )
 """What :func:`model_residual` takes off the residual: the fields of
 :class:`~controllers.payload.ModelCorrections` (kg, dimensionless, (3,)) and the model's unscaled I (kg m^2), G
-amplitude (N m), fv_i (N m s/rad) and fc_i (N m); nothing unless ``enabled``. Passed as the record's bytes."""
+amplitude (N m), fv_i (N m s/rad) and fc_i (N m); nothing unless ``enabled``."""
 
 
 def correction_terms(
@@ -50,15 +49,14 @@ def correction_terms(
     gravity_amplitude: float,
     viscous: Sequence[float],
     coulomb: Sequence[float],
-) -> NDArray[np.uint8]:
-    """The bytes of a :data:`CORRECTION_TERMS` record: ``corrections`` (a ModelCorrections, or None for none) with
-    the model's I (kg m^2), G amplitude (N m), fv (N m s/rad) and fc (N m)."""
+) -> np.record:
+    """A :data:`CORRECTION_TERMS` record: ``corrections`` (a ModelCorrections, or None for none) with the model's
+    I (kg m^2), G amplitude (N m), fv (N m s/rad) and fc (N m)."""
     if corrections is None:
         fields = (False, 0.0, 0.0, (0.0, 0.0, 0.0))
     else:
         fields = (True, corrections.platform_mass, corrections.arm_mass_scale, corrections.friction_scale)
-    record = np.array([(*fields, inertia, gravity_amplitude, viscous, coulomb)], dtype=CORRECTION_TERMS)
-    return record.view(np.uint8)
+    return np.array([(*fields, inertia, gravity_amplitude, viscous, coulomb)], dtype=CORRECTION_TERMS)[0]
 
 
 @numba.njit(cache=True, fastmath=False)  # explicit: a callee inherits its caller's fastmath otherwise
@@ -87,15 +85,16 @@ def model_residual(
     previous: NDArray[np.float64],
     torque_age: float,
     torque: NDArray[np.float64],
-    corrections: NDArray[np.uint8],
+    corrections: np.record,
 ) -> tuple[int, NDArray[np.float64]]:
     """The model's residual at the smoothed state interpolated back to the torque's instant.
 
     ``state`` and ``previous`` are the smoother's (3, 3) states (rows theta, theta_dot, theta_ddot) of this sample
     and the one before; the state used is ``state - torque_age (state - previous)`` (``torque_age`` periods). Returns
     the status of :func:`~controllers.compiled_model.single_sample_model` and a (6, 3): the residual r = torque - tau0
-    - corrections (N m), phi (N m/kg), theta_dot at the torque's instant (rad/s), then the force map J^-T (N per N m,
-    rows 3-5, as :meth:`~controllers.dynamics.DeltaDynamics.torque_regressor_and_force_map`).
+    - ``corrections`` (a :data:`CORRECTION_TERMS` record; N m), phi (N m/kg), theta_dot at the torque's instant
+    (rad/s), then the force map J^-T (N per N m, rows 3-5, as
+    :meth:`~controllers.dynamics.DeltaDynamics.torque_regressor_and_force_map`).
     """
     out = np.zeros((6, 3))
     at = state - torque_age * (state - previous)
@@ -104,19 +103,18 @@ def model_residual(
     )
     if status != 0:
         return status, out
-    correction = corrections.view(CORRECTION_TERMS)[0]
     for joint in range(3):
         theta, theta_dot, theta_ddot = at[0, joint], at[1, joint], at[2, joint]
         phi = terms[1, joint]
         residual = torque[joint] - terms[0, joint]
-        if correction.enabled:
-            arm = correction.inertia * theta_ddot + correction.gravity_amplitude * math.cos(theta)
+        if corrections.enabled:
+            arm = corrections.inertia * theta_ddot + corrections.gravity_amplitude * math.cos(theta)
             sign = (theta_dot > 0.0) - (theta_dot < 0.0)
-            friction = correction.viscous[joint] * theta_dot + correction.coulomb[joint] * sign
+            friction = corrections.viscous[joint] * theta_dot + corrections.coulomb[joint] * sign
             residual = residual - (
-                correction.platform_mass * phi
-                + correction.arm_mass_scale * arm
-                + correction.friction_scale[joint] * friction
+                corrections.platform_mass * phi
+                + corrections.arm_mass_scale * arm
+                + corrections.friction_scale[joint] * friction
             )
         out[0, joint], out[1, joint], out[2, joint] = residual, phi, theta_dot
         for axis in range(3):  # F = -sum_i a_i tau_i / k_i: column i of the map is -a_i / k_i
@@ -132,15 +130,14 @@ def platform_force(
     project_out_phi: bool,
     coulomb: NDArray[np.float64],
     breakaway: NDArray[np.float64],
-    rest_rate: float,
 ) -> tuple[NDArray[np.float64], float]:
     """The platform force F = J^-T e (N), (3,), and its norm, of :func:`model_residual`'s ``terms``.
 
     e is the residual r less ``held_mass`` (kg) phi if ``subtract_held``, or without its part along phi if
-    ``project_out_phi``; then, on each joint slower than ``rest_rate`` (rad/s), less what its unknown friction
-    can explain: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the friction may be anything
-    within +-``breakaway`` (N m), so e_i loses its part within [-b_i - fc_i s_i, b_i - fc_i s_i] (the NumPy
-    ``e - clip(e, low, high)``).
+    ``project_out_phi``; then, on each joint slower than :data:`~controllers.monitor.tuning.REST_RATE`, less what
+    its unknown friction can explain: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the
+    friction may be anything within +-``breakaway`` (N m), so e_i loses its part within [-b_i - fc_i s_i,
+    b_i - fc_i s_i] (the NumPy ``e - clip(e, low, high)``).
     """
     r0, r1, r2 = terms[0, 0], terms[0, 1], terms[0, 2]
     p0, p1, p2 = terms[1, 0], terms[1, 1], terms[1, 2]
@@ -154,7 +151,7 @@ def platform_force(
     external = np.array((r0, r1, r2))
     for joint in range(3):
         rate = terms[2, joint]
-        if abs(rate) < rest_rate:
+        if abs(rate) < REST_RATE:
             charged = coulomb[joint] * ((rate > 0.0) - (rate < 0.0))
             low, high = -breakaway[joint] - charged, breakaway[joint] - charged
             value = external[joint]
@@ -206,110 +203,8 @@ def slip_moments(
 def loop_output(previous: float, before: float, held: float, hold: float, keep: float) -> float:
     """The current loop's output (N m) at the next reading: from the ``previous`` reading towards the command held
     ``before`` until the command changed, then towards the one ``held`` since, with the ``hold`` and ``keep`` of
-    :func:`controllers.monitor.detector.loop_response`; exact for a first-order loop. Scalars or arrays of one
-    shape."""
+    :func:`controllers.monitor.detector.loop_response`; exact for a first-order loop."""
     return held + (before - held) * hold + (previous - before) * keep
-
-
-@numba.njit(cache=True)
-def _clip(value: float, bound: float) -> float:
-    """min(max(value, -bound), bound): a NaN stays NaN."""
-    if -bound > value:
-        value = -bound
-    if bound < value:
-        value = bound
-    return value
-
-
-@numba.njit(cache=True)
-def torques_plausible(
-    torque: NDArray[np.float64],
-    last: NDArray[np.float64],
-    command: NDArray[np.float64],
-    before: NDArray[np.float64],
-    slowest_hold: NDArray[np.float64],
-    slowest_keep: NDArray[np.float64],
-    peak: float,
-    margin: float,
-    drift: float,
-    largest_shortfall: float,
-) -> bool:
-    """Whether measured torques (N m) are finite, within ``margin`` of the span of the ``last`` measured, the
-    command held ``before`` and the ``command`` held since (both clipped at ``peak``), and fall at most ``drift``
-    short (each shortfall capped at ``largest_shortfall``) of the slowest healthy loop's output
-    (:func:`loop_output` with ``slowest_hold``, ``slowest_keep``): the full check's span test and drive-fault
-    CUSUM would then add nothing. Python's ``min``/``max`` order, NaN included; False for vectors not of 3 (the full
-    check says what is wrong)."""
-    if (
-        torque.shape[0] != 3
-        or last.shape[0] != 3
-        or command.shape[0] != 3
-        or before.shape[0] != 3
-        or slowest_hold.shape[0] != 3
-        or slowest_keep.shape[0] != 3
-    ):
-        return False
-    for joint in range(3):
-        now, previous = torque[joint], last[joint]
-        if not math.isfinite(now):
-            return False
-        held = _clip(command[joint], peak)
-        earlier = _clip(before[joint], peak)
-        low, high = previous, previous  # min(previous, held, earlier) and max(previous, held, earlier)
-        for value in (held, earlier):
-            if value < low:
-                low = value
-            if value > high:
-                high = value
-        if now < low - margin or now > high + margin:
-            return False
-        step = held - previous
-        direction = (step > 0.0) - (step < 0.0) if abs(step) > margin else (held > 0.0) - (held < 0.0)
-        slowest = loop_output(previous, earlier, held, slowest_hold[joint], slowest_keep[joint])
-        shortfall = (slowest - now) * direction
-        if largest_shortfall < shortfall:
-            shortfall = largest_shortfall
-        if shortfall > drift:
-            return False
-    return True
-
-
-@numba.njit(cache=True)
-def encoders_plausible(
-    raw: NDArray[np.float64],
-    rates: NDArray[np.float64],
-    last: NDArray[np.float64],
-    before: NDArray[np.float64],
-    previous: NDArray[np.float64],
-    reference_rates: NDArray[np.float64],
-    jump_bound: float,
-    stuck_step: float,
-    period: float,
-) -> bool:
-    """Whether encoder readings (rad) and their rates (rad/s) are finite, step from the ``last`` two clean readings
-    by a second difference within ``jump_bound`` (rad), and repeat the ``previous`` raw reading only where the joint
-    was still (moved less than ``stuck_step`` rad) or its reference moves less than that in a ``period`` (s): the
-    full check would then pass them unchanged."""
-    total = 0.0
-    for joint in range(3):
-        total += raw[joint]
-    for joint in range(3):
-        total += rates[joint]
-    if not math.isfinite(total):
-        return False
-    for joint in range(3):
-        if abs(raw[joint] - 2.0 * last[joint] + before[joint]) > jump_bound:
-            return False
-    if raw[0] != previous[0] and raw[1] != previous[1] and raw[2] != previous[2]:
-        return True
-    for joint in range(3):
-        if (
-            raw[joint] == previous[joint]
-            and abs(reference_rates[joint]) * period >= stuck_step
-            and abs(last[joint] - before[joint]) >= stuck_step
-        ):
-            return False
-    return True
 
 
 @numba.njit(cache=True)

@@ -1,0 +1,289 @@
+"""The fault monitor's sensor checks, compiled: the encoder and torque plausibility checks of each sample on the
+monitor's state record (docs/design.md section 6, "Fault monitor"; the checks are listed in the package docstring).
+
+:data:`SENSOR_FIELDS` are the fields of the record (:data:`~controllers.monitor.step.MONITOR`) that these checks
+keep; :func:`clean_encoders` and :func:`clean_torques` read a sample's readings, write its clean ones into the
+record's ``clean`` rows and record what they detect with :func:`record_event`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.monitor.compiled import loop_output
+from controllers.monitor.tuning import (
+    DRIVE_FAULT_DRIFT,
+    DRIVE_FAULT_EVIDENCE,
+    DRIVE_FAULT_SAMPLES,
+    DRIVE_FAULT_STEP,
+    STUCK_SAMPLES,
+    TORQUE_MARGIN,
+)
+from delta_env.faults import FAULT_KINDS
+from delta_env.sensors import CONTROL_PERIOD
+
+SENSOR_NAN, ENCODER_GLITCH, ENCODER_STUCK, TORQUE_GLITCH, DRIVE_FAULT = (
+    FAULT_KINDS.index(kind)
+    for kind in ("sensor_nan", "encoder_glitch", "encoder_stuck", "torque_glitch", "drive_fault")
+)
+"""Codes of the kinds these checks detect: their indices in :data:`~delta_env.faults.FAULT_KINDS`."""
+
+EVENT_CAPACITY = 20
+"""Detections one sample can make: three kinds per encoder and per torque reading, a slip and a collision."""
+
+ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED = 1, 2, 4
+"""Bits of the checks' results: the clean row differs from the sample's reading (a new array is due)."""
+
+SENSOR_FIELDS = [
+    # the encoders: the last two clean readings (how many there are), the last raw one (if any) and the last good
+    # tracking error (rad); per joint, repeated readings in a suspect run, a stuck spell whose readings are still
+    # being replaced, and whether the last reading was replaced
+    ("clean_count", np.int64),
+    ("last", np.float64, (3,)),
+    ("before", np.float64, (3,)),
+    ("raw_known", np.bool_),
+    ("raw_previous", np.float64, (3,)),
+    ("error", np.float64, (3,)),
+    ("stuck", np.int64, (3,)),
+    ("after_stuck", np.uint8, (3,)),  # flags (numba has no boolean subarrays)
+    ("encoder_bad", np.uint8, (3,)),
+    ("glitch_active", np.uint8, (3,)),
+    ("nan_active", np.uint8, (6,)),  # the encoders', then the torques'
+    # the torques (N m): the last clean reading (if any), the last measured one, the command held before the last
+    # one (if any); per joint, implausible readings in a row, the last reading's implausibility, the drive-fault
+    # CUSUM, implausible readings short of the prediction in a row, and a drive fault under way
+    ("torque_known", np.bool_),
+    ("torque_previous", np.float64, (3,)),
+    ("torque_measured", np.float64, (3,)),
+    ("command_known", np.bool_),
+    ("command_before", np.float64, (3,)),
+    ("torque_bad", np.int64, (3,)),
+    ("torque_implausible", np.uint8, (3,)),
+    ("shortfall", np.float64, (3,)),
+    ("short_run", np.int64, (3,)),
+    ("drive_active", np.uint8, (3,)),
+    # constants: the encoder jump bound and stuck step (rad), the current loop's and the slowest healthy one's
+    # (hold, keep) of detector.loop_response, the drive's peak torque (N m)
+    ("jump_bound", np.float64),
+    ("stuck_step", np.float64),
+    ("loop_response", np.float64, (2, 3)),
+    ("slowest_response", np.float64, (2, 3)),
+    ("peak_torque", np.float64),
+    # what this sample detected: kind (index in FAULT_KINDS), joint (-1 for none), magnitude
+    ("event_count", np.int64),
+    ("event_kind", np.int64, (EVENT_CAPACITY,)),
+    ("event_joint", np.int64, (EVENT_CAPACITY,)),
+    ("event_magnitude", np.float64, (EVENT_CAPACITY,)),
+]
+"""The fields of the monitor's record that the sensor checks keep, beside ``reference`` (the sample's reference
+angles, rates and accelerations, (3, 3)) and ``clean`` (its clean angles, rates and torques, (3, 3))."""
+
+
+@numba.njit(cache=True)
+def record_event(state: np.record, kind: int, joint: int, magnitude: float) -> None:
+    """Add a detection of this sample to ``state``'s events: ``kind`` an index in
+    :data:`~delta_env.faults.FAULT_KINDS`, ``joint`` 0..2 or -1 for none, ``magnitude`` in its kind's unit
+    (:class:`~controllers.monitor.DetectedFault`)."""
+    count = state.event_count
+    state.event_kind[count] = kind
+    state.event_joint[count] = joint
+    state.event_magnitude[count] = magnitude
+    state.event_count = count + 1
+
+
+@numba.njit(cache=True)
+def _minimum(a: float, b: float) -> float:
+    """np.minimum of two scalars: a NaN wins."""
+    if math.isnan(a) or math.isnan(b):
+        return math.nan
+    return a if a <= b else b
+
+
+@numba.njit(cache=True)
+def _maximum(a: float, b: float) -> float:
+    """np.maximum of two scalars: a NaN wins."""
+    if math.isnan(a) or math.isnan(b):
+        return math.nan
+    return a if a >= b else b
+
+
+@numba.njit(cache=True)
+def _sign(value: float) -> float:
+    """np.sign of a scalar: -1, 0 or 1, NaN for NaN."""
+    if value > 0.0:
+        return 1.0
+    if value < 0.0:
+        return -1.0
+    return value if math.isnan(value) else 0.0
+
+
+@numba.njit(cache=True)
+def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np.float64]) -> int:
+    """Check encoder readings (rad) and their rates (rad/s) against the last two clean readings and write the clean
+    ones into ``state.clean`` rows 0 and 1: a NaN or inf, an implausible jump (a second difference beyond
+    ``jump_bound``), a suspect repeat and a stuck run are detected and replaced by the reference plus the joint's
+    last good tracking error, their rates by the reference's; a rate next to a replaced reading, or missing, is the
+    clean backward difference. Returns :data:`ANGLES_REPLACED` and :data:`RATES_REPLACED` bits."""
+    reference, reference_rates = state.reference[0], state.reference[1]
+    bad = np.empty(3, dtype=np.bool_)
+    rate_missing = np.empty(3, dtype=np.bool_)
+    for joint in range(3):
+        bad[joint] = not math.isfinite(raw[joint])
+        # a NaN rate beside a finite reading follows a NaN reading (the rate is a backward difference): it is
+        # recomputed below, and reported only when the reading before was finite
+        rate_missing[joint] = not bad[joint] and not math.isfinite(rates[joint])
+        unexplained = rate_missing[joint] and (not state.raw_known or math.isfinite(state.raw_previous[joint]))
+        missing = bad[joint] or unexplained
+        if missing and state.nan_active[joint] == 0:
+            record_event(state, SENSOR_NAN, joint, math.nan)
+        state.nan_active[joint] = missing
+    if state.clean_count == 2:
+        last, before, previous = state.last, state.before, state.raw_previous
+        second_difference = raw - 2.0 * last + before
+        jump = np.empty(3, dtype=np.bool_)
+        suspect = np.empty(3, dtype=np.bool_)
+        for joint in range(3):
+            # after a stuck spell, a reading that continues the one flagged before it at a plausible rate is the
+            # joint's true position, not a glitch: accepted, so that the clean readings follow the joint again (a
+            # glitch of several samples stays flagged: its readings continue each other but follow no stuck spell)
+            repeated = raw[joint] == previous[joint]
+            continues = (
+                state.glitch_active[joint] != 0
+                and state.after_stuck[joint] != 0
+                and not repeated
+                and abs(raw[joint] - previous[joint] - (last[joint] - before[joint])) <= state.jump_bound
+            )
+            jump[joint] = (
+                math.isfinite(raw[joint]) and abs(second_difference[joint]) > state.jump_bound and not continues
+            )
+            state.resynced |= continues
+            # a repeated reading is suspect while the joint was moving and its reference still moves several counts
+            # per sample (at rest, or coming to rest, a reading repeats rightly); once stuck, a joint stays stuck
+            # while its reading repeats, whatever the reference does
+            commanded = abs(reference_rates[joint]) * CONTROL_PERIOD >= state.stuck_step
+            moving = abs(last[joint] - before[joint]) >= state.stuck_step
+            suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
+            state.stuck[joint] = state.stuck[joint] + 1 if suspect[joint] else 0
+        for joint in range(3):
+            if jump[joint] and state.glitch_active[joint] == 0 and state.stuck[joint] < STUCK_SAMPLES:
+                record_event(state, ENCODER_GLITCH, joint, second_difference[joint])
+        for joint in range(3):
+            if state.stuck[joint] == STUCK_SAMPLES:
+                record_event(state, ENCODER_STUCK, joint, math.nan)
+        for joint in range(3):
+            state.glitch_active[joint] = jump[joint]
+            # a suspect reading is replaced like a stuck one: the error held through a stuck spell is then the
+            # last one measured, not the spell's first repeats (which an integral would wind up on)
+            bad[joint] |= jump[joint] or suspect[joint]
+            after_stuck = state.after_stuck[joint] != 0 or state.stuck[joint] >= STUCK_SAMPLES
+            state.after_stuck[joint] = after_stuck and bad[joint]
+    state.raw_previous[:] = raw
+    state.raw_known = True
+    replaced = 0
+    for joint in range(3):
+        # a rate from a replaced reading, or against one, or missing: the reference's, else the clean backward
+        # difference
+        if bad[joint]:
+            angle, rate = reference[joint] + state.error[joint], reference_rates[joint]
+            replaced |= ANGLES_REPLACED | RATES_REPLACED
+        else:
+            angle, rate = raw[joint], rates[joint]
+            state.error[joint] = raw[joint] - reference[joint]
+            if state.encoder_bad[joint] != 0 or rate_missing[joint]:
+                rate = (angle - state.last[joint]) / CONTROL_PERIOD if state.clean_count else reference_rates[joint]
+                replaced |= RATES_REPLACED
+        state.clean[0, joint], state.clean[1, joint] = angle, rate
+        state.encoder_bad[joint] = bad[joint]
+    state.before[:] = state.last
+    state.last[:] = state.clean[0]
+    state.clean_count = min(state.clean_count + 1, 2)
+    return replaced
+
+
+@numba.njit(cache=True)
+def clean_torques(
+    state: np.record, torque: NDArray[np.float64], command: NDArray[np.float64], has_command: bool
+) -> int:
+    """Check torque readings (N m) against the current loop driven, for the reading's age past the last reading, by
+    the command held before the last one, then by the last ``command`` (:func:`loop_output`; none at the first
+    sample, ``has_command`` False), and write the clean ones into ``state.clean`` row 2: a NaN, a reading outside
+    the span of the last reading and the two commands by :data:`TORQUE_MARGIN` (replaced by the loop's prediction)
+    and a drive that does not deliver its command are detected. Returns the :data:`TORQUES_REPLACED` bit."""
+    finite = np.empty(3, dtype=np.bool_)
+    for joint in range(3):
+        finite[joint] = math.isfinite(torque[joint])
+        if not finite[joint] and state.nan_active[3 + joint] == 0:
+            record_event(state, SENSOR_NAN, joint, math.nan)
+        state.nan_active[3 + joint] = not finite[joint]
+    replaced = 0
+    if not state.torque_known or not has_command:
+        for joint in range(3):
+            if finite[joint]:
+                value = torque[joint]
+            else:
+                value = state.torque_previous[joint] if state.torque_known else 0.0
+                replaced = TORQUES_REPLACED
+            state.clean[2, joint] = state.torque_previous[joint] = state.torque_measured[joint] = value
+        state.torque_known = True
+        state.command_before[:] = command
+        state.command_known = has_command
+        return replaced
+    peak = state.peak_torque
+    hold, keep = state.loop_response[0], state.loop_response[1]
+    slowest_hold, slowest_keep = state.slowest_response[0], state.slowest_response[1]
+    if not state.command_known:  # the first command: nothing held before it
+        state.command_before[:] = command
+    held, before = np.empty(3), np.empty(3)
+    predicted, implausible = np.empty(3), np.empty(3, dtype=np.bool_)
+    for joint in range(3):
+        held[joint] = _maximum(_minimum(command[joint], peak), -peak)  # np.clip: a NaN stays
+        before[joint] = _maximum(_minimum(state.command_before[joint], peak), -peak)
+        previous = state.torque_previous[joint]
+        predicted[joint] = loop_output(previous, before[joint], held[joint], hold[joint], keep[joint])
+        low = _minimum(_minimum(previous, held[joint]), before[joint]) - TORQUE_MARGIN
+        high = _maximum(_maximum(previous, held[joint]), before[joint]) + TORQUE_MARGIN
+        implausible[joint] = finite[joint] and (torque[joint] < low or torque[joint] > high)
+        state.torque_bad[joint] = state.torque_bad[joint] + 1 if implausible[joint] else 0
+    for joint in range(3):
+        if state.torque_bad[joint] == 1:
+            record_event(state, TORQUE_GLITCH, joint, torque[joint] - predicted[joint])
+    # A drive that does not deliver its command: implausible torques in a row, all short of the prediction (a large
+    # loss), or a CUSUM of how far each reading falls short of what the slowest plausible current loop would reach
+    # from the last reading (a loss too small for the span check); a span-implausible reading or its successor adds
+    # nothing to the CUSUM.
+    for joint in range(3):
+        measured = state.torque_measured[joint]
+        step = held[joint] - measured
+        direction = _sign(step) if abs(step) > TORQUE_MARGIN else _sign(held[joint])
+        slowest = loop_output(measured, before[joint], held[joint], slowest_hold[joint], slowest_keep[joint])
+        if finite[joint] and not implausible[joint] and state.torque_implausible[joint] == 0:
+            shortfall = _minimum((slowest - torque[joint]) * direction, DRIVE_FAULT_STEP)
+            state.shortfall[joint] = _maximum(0.0, state.shortfall[joint] + shortfall - DRIVE_FAULT_DRIFT)
+        else:
+            state.shortfall[joint] = 0.0
+        short = implausible[joint] and abs(torque[joint]) < abs(predicted[joint])
+        state.short_run[joint] = state.short_run[joint] + 1 if short else 0
+    for joint in range(3):
+        large = state.short_run[joint] >= DRIVE_FAULT_SAMPLES
+        if (large or state.shortfall[joint] > DRIVE_FAULT_EVIDENCE) and state.drive_active[joint] == 0:
+            record_event(state, DRIVE_FAULT, joint, abs(predicted[joint]) - abs(torque[joint]))
+            state.drive_active[joint] = True
+    for joint in range(3):
+        evident = state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0
+        state.drive_active[joint] = state.drive_active[joint] != 0 and evident
+        state.torque_implausible[joint] = implausible[joint]
+        if finite[joint]:
+            state.torque_measured[joint] = torque[joint]
+        if finite[joint] and not implausible[joint]:
+            value = torque[joint]
+        else:
+            value = predicted[joint]
+            replaced = TORQUES_REPLACED
+        state.clean[2, joint] = state.torque_previous[joint] = value
+    state.command_before[:] = command
+    state.command_known = True
+    return replaced
