@@ -27,9 +27,15 @@ from controllers.monitor.detector import loop_response
 from controllers.monitor.model_check import _slip_band
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
+    DRIVE_FAULT_DRIFT,
+    DRIVE_FAULT_EVIDENCE,
+    DRIVE_FAULT_STEP,
+    FORCE_EVIDENCE,
+    FORCE_REFERENCE,
     MONITOR_JERK_STD,
     REST_RATE,
     SENSOR_QUIET,
+    SLOWEST_LAG_FACTOR,
     STUCK_SAMPLES,
     TORQUE_MARGIN,
 )
@@ -225,6 +231,8 @@ def test_slip_band_is_the_payload_residual_std_without_its_nominal_part() -> Non
 DYNAMICS = DeltaDynamics.nominal(PARAMETERS)
 ERROR = np.array([1e-4, -2e-4, 5e-5])
 """The tracking error (rad) of the streams' arm: its angles less the reference's."""
+RATE_NOISE = np.array([0.01, -0.02, 0.015])
+"""What the streams' rate readings (rad/s) add to the reference's rates: noise of the encoders' difference."""
 MOVING = ((0.5, 0.6, 0.4), (40.0, 50.0, 30.0))
 """A reference from 0.4 rad at these rates (rad/s), at these accelerations (rad/s^2): joint torques of 10-30 N m."""
 STEADY = ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
@@ -238,9 +246,15 @@ def _monitor(encoder_step: float | None = None) -> FaultMonitor:
     return FaultMonitor(DYNAMICS, PEAK_TORQUE, drive_lag=(1e-3,) * 3, encoder_step=encoder_step)
 
 
-def _stream(samples: int, motion: tuple[tuple[float, ...], tuple[float, ...]]) -> list[dict[str, np.ndarray]]:
+def _stream(
+    samples: int,
+    motion: tuple[tuple[float, ...], tuple[float, ...]],
+    force: np.ndarray | None = None,
+    force_from: int = 0,
+) -> list[dict[str, np.ndarray]]:
     """Observations of an arm that follows the reference (``motion``: initial rates, accelerations) with the
-    tracking error :data:`ERROR`, its drives delivering the model's torque; the gripper open."""
+    tracking error :data:`ERROR`, its drives delivering the model's torque, plus J^T ``force`` against a force on
+    the platform (N) from sample ``force_from`` on; the gripper open."""
     rates, accelerations = (np.array(values) for values in motion)
 
     def reference(k: float) -> np.ndarray:
@@ -252,11 +266,13 @@ def _stream(samples: int, motion: tuple[tuple[float, ...], tuple[float, ...]]) -
         state = reference(k)
         # the torque is measured TORQUE_AGE periods before its encoder sample
         at = reference(k - TORQUE_AGE) + np.stack((ERROR, np.zeros(3), np.zeros(3)))
-        torque, _, _ = DYNAMICS.torque_regressor_and_force_map(*at)
+        torque, _, force_map = DYNAMICS.torque_regressor_and_force_map(*at)
+        if force is not None and k >= force_from:
+            torque = torque + np.linalg.solve(force_map, force)
         observations.append(
             {
                 "joint_angles": state[0] + ERROR,
-                "joint_velocities": state[1].copy(),
+                "joint_velocities": state[1] + RATE_NOISE,
                 "joint_torques": np.array(torque.tolist()),  # a plain float64 array, as the env's
                 "reference_angles": state[0],
                 "reference_velocities": state[1],
@@ -394,18 +410,62 @@ def test_a_torque_outside_the_current_loops_span_by_the_margin_is_a_glitch_repla
         assert cleans[50]["joint_torques"] is observations[50]["joint_torques"]
 
 
-def test_a_drive_that_delivers_nothing_is_a_glitch_then_a_drive_fault_on_the_third_reading() -> None:
+def test_a_drive_that_delivers_a_tenth_of_its_command_is_a_glitch_then_a_drive_fault_on_the_third_reading() -> None:
     observations = _stream(100, MOVING)
     commands = [None] + [observation["joint_torques"].copy() for observation in observations[1:]]
     for observation in observations[50:60]:
-        observation["joint_torques"] = observation["joint_torques"] * np.array([1.0, 0.0, 1.0])
+        observation["joint_torques"] = observation["joint_torques"] * np.array([1.0, 0.1, 1.0])
     monitor = _monitor()
     cleans = [monitor.update(observation, command) for observation, command in zip(observations, commands, strict=True)]
     assert abs(commands[50][1]) > 2.0 * TORQUE_MARGIN
     assert _found(monitor)[:2] == [("torque_glitch", 1, 50), ("drive_fault", 1, 52)]
-    # the lost torque, replaced by the current loop's prediction (about the command)
-    assert monitor.events[1].magnitude == pytest.approx(abs(commands[52][1]), rel=0.05)
+    # the torque lost, replaced by the current loop's prediction (about the command)
+    assert monitor.events[1].magnitude == pytest.approx(0.9 * abs(commands[52][1]), rel=0.05)
     assert cleans[52]["joint_torques"][1] == pytest.approx(commands[52][1], rel=0.05)
+
+
+def test_a_drive_that_does_not_follow_a_small_step_is_found_by_the_shortfall_cusum() -> None:
+    # The command of joint 2 steps up by 12 N m at sample 50 and its readings stay where they were: within the span
+    # of the last reading and the commands, so no glitch, but short of what the slowest healthy loop (2.5 times the
+    # lag) would reach. The CUSUM of the shortfall, at most DRIVE_FAULT_STEP per sample less DRIVE_FAULT_DRIFT,
+    # finds the fault once it passes DRIVE_FAULT_EVIDENCE (docs/design.md).
+    observations = _stream(100, AT_REST)
+    steady = observations[0]["joint_torques"]
+    stepped = steady + np.array([0.0, 0.0, 12.0])
+    commands = [None] + [steady if k < 50 else stepped for k in range(1, 100)]
+    monitor = _monitor()
+    for observation, command in zip(observations, commands, strict=True):
+        monitor.update(observation, command)
+    hold, keep = (value[0] for value in loop_response([SLOWEST_LAG_FACTOR * 1e-3]))
+    evidence, sample = 0.0, 50
+    while evidence <= DRIVE_FAULT_EVIDENCE:
+        before = steady[2] if sample == 50 else stepped[2]
+        slowest = loop_output(steady[2], before, stepped[2], hold, keep)
+        evidence = max(0.0, evidence + min(slowest - steady[2], DRIVE_FAULT_STEP) - DRIVE_FAULT_DRIFT)
+        sample += 1
+    assert sample - 1 > 55  # many samples: the CUSUM, not the span check
+    assert _found(monitor) == [("drive_fault", 2, sample - 1)]
+
+
+@pytest.mark.parametrize("magnitude", [50.0, 80.0, 100.0])
+def test_a_known_force_on_the_moving_platform_is_estimated_and_found_when_its_cusum_passes_the_evidence(
+    magnitude: float,
+) -> None:
+    # From sample 40 on, the drives also push against a force F on the platform: the joint torques J^T F (the force
+    # map's inverse). The check sees F a smoother's lag later; its CUSUM gathers |F| - FORCE_REFERENCE per sample and
+    # calls a collision once past FORCE_EVIDENCE (docs/design.md); below the reference it never does.
+    direction = np.array([0.6, -0.48, 0.64])
+    force = magnitude * direction / np.linalg.norm(direction)
+    observations = _stream(100, MOVING, force, force_from=40)
+    monitor = _monitor()
+    estimates = []
+    for k, observation in enumerate(observations):
+        monitor.update(observation, None if k == 0 else observation["joint_torques"].copy())
+        estimates.append(monitor.force)
+    np.testing.assert_allclose(estimates[60], force, rtol=1e-4)  # the smoothed state to about 1e-5
+    samples = math.floor(FORCE_EVIDENCE / (magnitude - FORCE_REFERENCE)) + 1 if magnitude > FORCE_REFERENCE else None
+    expected = [] if samples is None else [("collision", None, 40 + SMOOTHER_LAG + samples - 1)]
+    assert _found(monitor, collisions=True) == expected
 
 
 def test_a_force_at_rest_is_detected_a_smoothers_lag_later_and_again_after_replaced_readings() -> None:
