@@ -17,7 +17,7 @@ from controllers.monitor.compiled import correction_terms
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.model_check import acceleration_step_response
 from controllers.monitor.sensor_check import ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED
-from controllers.monitor.step import BAD_SHAPE, MONITOR, monitor_step
+from controllers.monitor.step import BAD_SHAPE, DETECTED, MONITOR, monitor_step
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     BREAKAWAY_FACTOR,
@@ -186,7 +186,7 @@ class FaultMonitor:
         angles = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         torques = np.asarray(observation["joint_torques"], dtype=float)
-        replaced = monitor_step(
+        result = monitor_step(
             self._state_bytes,
             self.dynamics.model_constants,
             angles,
@@ -199,21 +199,21 @@ class FaultMonitor:
             command is not None,
             observation["gripper"].item(0) > 0.5,
         )
-        if replaced == BAD_SHAPE:
+        if result == BAD_SHAPE:
             shapes = {key: np.shape(observation[key]) for key in observation if key != "gripper"}
             raise ValueError(
                 f"the readings, references and command must be 3-vectors, got {shapes} and command {command!r}"
             )
-        if self._read("event_count"):
-            self._take_events()
         clean = dict(observation)
-        if replaced:
+        if result:
+            if result & DETECTED:
+                self._take_events()
             rows = self._field["clean"][0]
-            if replaced & ANGLES_REPLACED:
+            if result & ANGLES_REPLACED:
                 angles = rows[0].copy()
-            if replaced & RATES_REPLACED:
+            if result & RATES_REPLACED:
                 rates = rows[1].copy()
-            if replaced & TORQUES_REPLACED:
+            if result & TORQUES_REPLACED:
                 torques = rows[2].copy()
         clean["joint_angles"], clean["joint_velocities"], clean["joint_torques"] = angles, rates, torques
         return clean

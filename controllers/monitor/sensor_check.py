@@ -32,9 +32,6 @@ SENSOR_NAN, ENCODER_GLITCH, ENCODER_STUCK, TORQUE_GLITCH, DRIVE_FAULT = (
 )
 """Codes of the kinds these checks detect: their indices in :data:`~delta_env.faults.FAULT_KINDS`."""
 
-EVENT_CAPACITY = 20
-"""Detections one sample can make: three kinds per encoder and per torque reading, a slip and a collision."""
-
 ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED = 1, 2, 4
 """Bits of the checks' results: the clean row differs from the sample's reading (a new array is due)."""
 
@@ -73,14 +70,9 @@ SENSOR_FIELDS = [
     ("loop_response", np.float64, (2, 3)),
     ("slowest_response", np.float64, (2, 3)),
     ("peak_torque", np.float64),
-    # what this sample detected: kind (index in FAULT_KINDS), joint (-1 for none), magnitude
-    ("event_count", np.int64),
-    ("event_kind", np.int64, (EVENT_CAPACITY,)),
-    ("event_joint", np.int64, (EVENT_CAPACITY,)),
-    ("event_magnitude", np.float64, (EVENT_CAPACITY,)),
 ]
-"""The fields of the monitor's record that the sensor checks keep, beside ``reference`` (the sample's reference
-angles, rates and accelerations, (3, 3)) and ``clean`` (its clean angles, rates and torques, (3, 3))."""
+"""The fields of the monitor's record that the sensor checks keep, beside the sample's (``reference``, ``clean``,
+``resynced`` and the events that :func:`record_event` adds)."""
 
 
 @numba.njit(cache=True)

@@ -13,6 +13,9 @@ from controllers.monitor.sensor_check import SENSOR_FIELDS, clean_encoders, clea
 from controllers.monitor.tuning import RESYNC_QUIET, SENSOR_QUIET
 from delta_env.faults import FAULT_KINDS
 
+EVENT_CAPACITY = 20
+"""Detections one sample can make: three kinds per encoder and per torque reading, a slip and a collision."""
+
 MONITOR = np.dtype(
     (
         np.record,
@@ -28,6 +31,11 @@ MONITOR = np.dtype(
             ("resynced", np.bool_),
             ("slipped", np.bool_),
             ("quiet_samples", np.int64),
+            # what it detected: kind (index in FAULT_KINDS), joint (-1 for none), magnitude
+            ("event_count", np.int64),
+            ("event_kind", np.int64, (EVENT_CAPACITY,)),
+            ("event_joint", np.int64, (EVENT_CAPACITY,)),
+            ("event_magnitude", np.float64, (EVENT_CAPACITY,)),
             # faulty samples in a row, and the last sample whose reading the model's equations leave out
             ("faulty_run", np.int64),
             ("quiet_until", np.int64),
@@ -42,6 +50,9 @@ MONITOR = np.dtype(
 
 SLIP, COLLISION = FAULT_KINDS.index("slip"), FAULT_KINDS.index("collision")
 """Codes of the kinds the model checks detect: their indices in :data:`~delta_env.faults.FAULT_KINDS`."""
+
+DETECTED = 8
+"""Bit of :func:`monitor_step`'s result: the sample made detections (the record's events)."""
 
 BAD_SHAPE = -1
 """:func:`monitor_step`'s result for readings that are not three-vectors: nothing was changed."""
@@ -67,7 +78,7 @@ def monitor_step(
     clean readings (with the model's constants of :class:`~controllers.dynamics.DeltaDynamics`); the clean readings
     are the record's ``clean`` rows, this sample's detections its events. Returns the bits of the rows that differ
     from the readings (:data:`~controllers.monitor.sensor_check.ANGLES_REPLACED`, ``RATES_REPLACED``,
-    ``TORQUES_REPLACED``), or :data:`BAD_SHAPE`."""
+    ``TORQUES_REPLACED``) and :data:`DETECTED`, or :data:`BAD_SHAPE`."""
     if (
         angles.shape[0] != 3
         or rates.shape[0] != 3
@@ -111,4 +122,4 @@ def monitor_step(
         state.slipped = True
     if found & COLLIDED:
         record_event(state, COLLISION, -1, state.force_magnitude)
-    return replaced
+    return replaced | (DETECTED if state.event_count else 0)
