@@ -130,14 +130,16 @@ def platform_force(
     project_out_phi: bool,
     coulomb: NDArray[np.float64],
     breakaway: NDArray[np.float64],
+    model_band: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], float]:
     """The platform force F = J^-T e (N), (3,), and its norm, of :func:`model_residual`'s ``terms``.
 
     e is the residual r less ``held_mass`` (kg) phi if ``subtract_held``, or without its part along phi if
-    ``project_out_phi``; then, on each joint slower than :data:`~controllers.monitor.tuning.REST_RATE`, less what
-    its unknown friction can explain: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the
-    friction may be anything within +-``breakaway`` (N m), so e_i loses its part within [-b_i - fc_i s_i,
-    b_i - fc_i s_i] (the NumPy ``e - clip(e, low, high)``).
+    ``project_out_phi``; then less what the model's own error can explain: on every joint its part within
+    +-``model_band`` (N m, (3,)), and on each joint slower than :data:`~controllers.monitor.tuning.REST_RATE` its
+    unknown friction too: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the friction may be
+    anything within +-``breakaway`` (N m), so e_i loses its part within [-w_i - b_i - fc_i s_i, w_i + b_i - fc_i s_i]
+    (the NumPy ``e - clip(e, low, high)``, w the band).
     """
     r0, r1, r2 = terms[0, 0], terms[0, 1], terms[0, 2]
     p0, p1, p2 = terms[1, 0], terms[1, 1], terms[1, 2]
@@ -151,12 +153,13 @@ def platform_force(
     external = np.array((r0, r1, r2))
     for joint in range(3):
         rate = terms[2, joint]
+        low, high = -model_band[joint], model_band[joint]
         if abs(rate) < REST_RATE:
             charged = coulomb[joint] * ((rate > 0.0) - (rate < 0.0))
-            low, high = -breakaway[joint] - charged, breakaway[joint] - charged
-            value = external[joint]
-            explained = low if value < low else (high if value > high else value)  # np.clip
-            external[joint] = value - explained
+            low, high = low - breakaway[joint] - charged, high + breakaway[joint] - charged
+        value = external[joint]
+        explained = low if value < low else (high if value > high else value)  # np.clip
+        external[joint] = value - explained
     force = np.empty(3)
     for axis in range(3):
         force[axis] = _dot3(
@@ -208,18 +211,25 @@ def loop_output(previous: float, before: float, held: float, hold: float, keep: 
 
 
 @numba.njit(cache=True)
-def torque_step_variance(
-    torques: NDArray[np.float64], torque: NDArray[np.float64], squared_response: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Shift ``torque`` (N m, (3,)) into ``torques`` (the window's measured torques and the one before, (n + 1, 3),
-    oldest first; in place) and return, per joint, sum_m ``squared_response``_m (tau_{m+1} - tau_m)^2 (N^2 m^2,
-    (3,)): the NumPy ``squared_response @ np.diff(torques, axis=0) ** 2`` summed from the oldest step."""
+def _shift_in(torques: NDArray[np.float64], torque: NDArray[np.float64]) -> None:
+    """Shift ``torque`` ((3,)) into the window ``torques`` ((n + 1, 3), oldest first), in place."""
     rows = torques.shape[0]
     for row in range(rows - 1):
         for joint in range(3):
             torques[row, joint] = torques[row + 1, joint]
     for joint in range(3):
         torques[rows - 1, joint] = torque[joint]
+
+
+@numba.njit(cache=True)
+def torque_step_variance(
+    torques: NDArray[np.float64], torque: NDArray[np.float64], squared_response: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Shift ``torque`` (N m, (3,)) into ``torques`` (the window's measured torques and the one before, (n + 1, 3),
+    oldest first; in place) and return, per joint, sum_m ``squared_response``_m (tau_{m+1} - tau_m)^2 (N^2 m^2,
+    (3,)): the NumPy ``squared_response @ np.diff(torques, axis=0) ** 2`` summed from the oldest step."""
+    _shift_in(torques, torque)
+    rows = torques.shape[0]
     variance = np.zeros(3)
     for row in range(rows - 1):
         weight = squared_response[row]
@@ -227,3 +237,44 @@ def torque_step_variance(
             step = torques[row + 1, joint] - torques[row, joint]
             variance[joint] += weight * (step * step)
     return variance
+
+
+@numba.njit(cache=True)
+def torque_step_bound(
+    torques: NDArray[np.float64], torque: NDArray[np.float64], absolute_response: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Shift ``torque`` (N m, (3,)) into ``torques`` (a window of the reference's model torques and the one before,
+    (n + 1, 3), oldest first; in place) and return, per joint, sum_m ``absolute_response``_m |tau_{m+1} - tau_m| (N m,
+    (3,)): the NumPy ``absolute_response @ np.abs(np.diff(torques, axis=0))``, the largest error the smoother's
+    acceleration can put into the model torque where the reference's acceleration steps (docs/design.md section 6,
+    "Fault monitor")."""
+    _shift_in(torques, torque)
+    bound = np.zeros(3)
+    for row in range(torques.shape[0] - 1):
+        weight = absolute_response[row]
+        for joint in range(3):
+            bound[joint] += weight * abs(torques[row + 1, joint] - torques[row, joint])
+    return bound
+
+
+@numba.njit(cache=True)
+def reference_torque(
+    constants: NDArray[np.uint8], reference: NDArray[np.float64], payload: float, torque: NDArray[np.float64]
+) -> None:
+    """The model's torque (N m) along ``reference`` ((3, 3): rows theta, theta_dot, theta_ddot) with ``payload`` (kg)
+    into ``torque`` ((3,)); left as it is where the model cannot take the reference's state."""
+    status, terms = single_sample_model(
+        constants,
+        reference[0, 0],
+        reference[0, 1],
+        reference[0, 2],
+        reference[1, 0],
+        reference[1, 1],
+        reference[1, 2],
+        reference[2, 0],
+        reference[2, 1],
+        reference[2, 2],
+    )
+    if status == 0:
+        for joint in range(3):
+            torque[joint] = terms[0, joint] + payload * terms[1, joint]

@@ -98,7 +98,9 @@ class FaultMonitor:
         initial["peak_torque"] = self.peak_torque
         smoother = JointStateSmoother(lag=SMOOTHER_LAG, jerk_std=MONITOR_JERK_STD)
         initial["weights"] = smoother.weights
-        initial["squared_response"] = acceleration_step_response(smoother) ** 2
+        response = acceleration_step_response(smoother)
+        initial["squared_response"] = response**2
+        initial["absolute_response"] = np.abs(response)
         initial["static_friction"] = dynamics.parameters.coulomb
         initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
         initial["scatter"] = INITIAL_RESIDUAL_STD**2

@@ -39,7 +39,9 @@ from controllers.monitor.compiled import (
     learn_scatter,
     model_residual,
     platform_force,
+    reference_torque,
     slip_moments,
+    torque_step_bound,
     torque_step_variance,
 )
 from controllers.monitor.tuning import (
@@ -65,6 +67,10 @@ MODEL_CHECK_FIELDS = [
     # the measured torques of the window and the one before, and the smoother's response to a step
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
+    # the model's torques along the reference over the window and the one before, the response's magnitudes
+    ("reference_torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
+    ("planned_torque", np.float64, (3,)),
+    ("absolute_response", np.float64, (SMOOTHER_WINDOW,)),
     ("pending_quiet", np.uint8, (SMOOTHER_LAG + 1,)),  # beside the pending readings
     # what the residual takes off (the estimator's corrections of the model), the friction it charges and what a
     # joint at rest may hold, the slip check's friction band
@@ -178,11 +184,14 @@ def _check_payload(
 
 
 @numba.njit(cache=True)
-def _check_force(check: np.record, terms: NDArray[np.float64], holding: bool, quiet: bool) -> int:
+def _check_force(
+    check: np.record, terms: NDArray[np.float64], holding: bool, quiet: bool, model_band: NDArray[np.float64]
+) -> int:
     """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
     residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
-    without its part along phi), less on joints at rest what friction up to the breakaway can hold
-    (:func:`platform_force`). Returns :data:`COLLIDED` or 0."""
+    without its part along phi), less on each joint what the smoother's acceleration error can explain where the
+    reference steps (``model_band``, N m: :func:`torque_step_bound`) and on joints at rest what friction up to the
+    breakaway can hold (:func:`platform_force`). Returns :data:`COLLIDED` or 0."""
     if quiet:
         check.force_evidence = 0.0
         check.collision = False
@@ -195,6 +204,7 @@ def _check_force(check: np.record, terms: NDArray[np.float64], holding: bool, qu
         holding,
         check.charged_coulomb,
         check.breakaway,
+        model_band,
     )
     check.force[:] = force
     check.force_magnitude = magnitude
@@ -226,10 +236,15 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     head, smoothed, previous = delayed_state_step(
         state, angles - reference[0], reference[0], reference[1], reference[2], torque, holding
     )
+    reference_torque(
+        model_constants, reference, state.held_mass if holding and state.held_known else 0.0, state.planned_torque
+    )
     if first:
         for row in range(SMOOTHER_WINDOW + 1):
             state.torques[row, :] = torque
+            state.reference_torques[row, :] = state.planned_torque
     jerk_variance = torque_step_variance(state.torques, torque, state.squared_response)
+    model_band = torque_step_bound(state.reference_torques, state.planned_torque, state.absolute_response)
     if head < 0:
         return 0
     held_then = state.pending_holding[head] != 0
@@ -242,5 +257,5 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if state.collision else 0
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance)
-    found |= _check_force(state, terms, held_then, quiet_then)
+    found |= _check_force(state, terms, held_then, quiet_then, model_band)
     return found | (COLLIDING if state.collision else 0)
