@@ -67,21 +67,31 @@ def test_fault_free_episodes_raise_no_alarm(controller_setup: ControllerSetup) -
 
 
 @pytest.mark.parametrize(
-    ("key", "timing", "seed", "cycles"),
-    [("mid_f_rls_lag", "online", 5, 2), ("mid_f_rls_lag", "worst_case", 4, 2), ("residual", "online", 9, 3)],
+    ("key", "timing", "seed", "cycles", "share"),
+    [
+        ("mid_f_rls_lag", "online", 5, 2, None),
+        ("mid_f_rls_lag", "worst_case", 4, 2, None),
+        ("residual", "online", 9, 3, None),
+        ("mid_f_rls_lag", "declared", 1, 2, 1.0),
+    ],
 )
 def test_time_optimal_moves_raise_no_false_alarm(
-    controller_setup: ControllerSetup, key: str, timing: str, seed: int, cycles: int
+    controller_setup: ControllerSetup, key: str, timing: str, seed: int, cycles: int, share: float | None
 ) -> None:
     # Moves timed to the drive's envelope, no fault: every detection would be false. The lag-compensated row is the
     # hardest base (its joints follow the planned jerk most closely); before the monitor smoothed the tracking error
     # and allowed for the friction of joints at rest, these episodes raised false collisions at every stop and false
     # slips that zeroed the mass held. The residual policy steps its torque every 10 ms: before the slip check
-    # weighed the torque's steps, it made a false slip of a 1 kg object here.
+    # weighed the torque's steps, it made a false slip of a 1 kg object here. On the data sheet's cycle and whole
+    # envelope (``share`` 1), before the collision check allowed for the reference's acceleration steps, this
+    # episode raised false collisions.
     from delta_env.scenario import PickPlaceTask, Scenario
     from eval.tasks import timed
 
-    env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(timing=timing, n_cycles=cycles)))
+    task = PickPlaceTask(timing=timing, n_cycles=cycles)
+    if share is not None:
+        task = PickPlaceTask(timing=timing, n_cycles=cycles, cycle="standard", torque_share=share)
+    env = DeltaPickPlaceEnv(scenario=Scenario(task=task))
     controller = timed(env, build_controller(key, controller_setup), key, controller_setup)
     record = run_episode(env, controller, seed)
     assert record.masses.max() > 1.0 and not record.diverged
