@@ -287,6 +287,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         torque_weight=args.torque_weight,
         action_rate_weight=args.action_rate_weight,
         off_at_rest=args.off_at_rest,
+        fade_speed=args.fade_speed,
     )
 
 
@@ -560,6 +561,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="no residual while the reference is at rest (the waits in position, the dwells): the servo holds it",
     )
     parser.add_argument(
+        "--fade-speed",
+        type=float,
+        default=ResidualConfig.fade_speed,
+        help="rad/s: the residual scaled by min(1, fastest reference joint rate / this), so that it ramps down "
+        "as a move comes to rest (default 0: no fade)",
+    )
+    parser.add_argument(
         "--hyperparams",
         nargs="+",
         default=[],
@@ -591,7 +599,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     try:
         residual_config(args)
     except ValueError as error:
-        flags = "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight"
+        flags = "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed"
         parser.error(f"{flags}: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)

@@ -178,6 +178,48 @@ def test_off_at_rest_leaves_the_stops_to_the_base_in_the_env_and_the_controller_
         ResidualConfig(off_at_rest=1)
 
 
+class TorqueRecorder:
+    """Runs ``controller`` and records its torques (N m) and the observations' fastest reference joint rate (rad/s)."""
+
+    def __init__(self, controller: ResidualController) -> None:
+        self.controller, self.torques, self.speeds = controller, [], []
+
+    def reset(self) -> None:
+        self.controller.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        self.speeds.append(float(np.max(np.abs(observation["reference_velocities"]))))
+        self.torques.append(self.controller(observation))
+        return self.torques[-1]
+
+
+def test_fade_speed_ramps_the_residual_down_with_the_reference_in_the_env_and_the_controller_alike() -> None:
+    steps, fade_speed = 800, 0.5
+    config = ResidualConfig(residual_limit=20.0, fade_speed=fade_speed)
+    env_torques, env_base_torques, _ = residual_env_rollout(linear_policy, config, steps)
+    controller = ResidualController(make_base(), linear_policy, config)
+    held = []
+    recorder = TorqueRecorder(controller)
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    observation, _ = env.reset(seed=SEED)
+    recorder.reset()
+    for _ in range(steps):
+        observation = env.step(recorder(observation))[0]
+        held.append(controller.residual_torque)
+    assert_array_equal(np.array(recorder.torques), env_torques)
+    residual = env_torques - env_base_torques
+    speeds = np.array(recorder.speeds)
+    gain = np.minimum(1.0, speeds / fade_speed)
+    assert_allclose(residual, gain[:, None] * np.array(held), atol=1e-9)
+    fading = (speeds > 0.0) & (speeds < fade_speed)
+    assert 10 < fading.sum() < 200 and np.any(speeds == 0.0), (fading.sum(), speeds.min())
+    assert np.all(residual[speeds == 0.0] == 0.0)
+    # the arrival: the residual shrinks over the last steps of the move instead of stopping at once
+    assert np.abs(residual[fading]).max() < np.abs(np.array(held)[fading]).max()
+    with pytest.raises(ValueError, match="fade_speed"):
+        ResidualConfig(fade_speed=-1.0)
+
+
 def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
     weight, scale = 2e-4, 0.5
     plain, charged = (

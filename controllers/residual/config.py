@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
 
 from delta_env.config import PlantRealism
 from delta_env.geometry import TORQUE_LIMIT
@@ -48,6 +52,11 @@ class ResidualConfig:
             on time-optimal cycles it held the platform outside the 0.05 mm in-position window until the wait timed
             out and released 0.25-0.35 mm off (docs/measurements.md). False (the default) is every policy trained
             before it.
+        fade_speed: Reference speed (rad/s) under which the residual fades out: on every control step it is scaled
+            by ``min(1, max_j |thd_ref_j| / fade_speed)`` (:func:`residual_gain`), so that it ramps down with the
+            reference as a move comes to rest and is zero at rest, with no torque step at the arrival for the servo
+            to absorb (the hard gate of ``off_at_rest`` left one: long settles, docs/measurements.md). 0 (the
+            default, every policy trained before it) does not fade.
     """
 
     residual_limit: float = 15.0
@@ -58,6 +67,7 @@ class ResidualConfig:
     torque_weight: float = 0.0
     action_rate_weight: float = 0.0
     off_at_rest: bool = False
+    fade_speed: float = 0.0
 
     def __post_init__(self) -> None:
         require_in("residual_limit", self.residual_limit, 0.0, TORQUE_LIMIT, unit="N m", low_open=True)
@@ -67,6 +77,7 @@ class ResidualConfig:
         require_positive("stribeck_velocity", self.stribeck_velocity, unit="rad/s")
         require_in("torque_weight", self.torque_weight, 0.0, 1.0, unit="(N m)^-2")
         require_in("action_rate_weight", self.action_rate_weight, 0.0, 1.0, unit="(N m)^-2")
+        require_in("fade_speed", self.fade_speed, 0.0, math.inf, unit="rad/s")
         object.__setattr__(self, "action_period", int(self.action_period))
         object.__setattr__(self, "ripple_periods", int(self.ripple_periods))
         if not isinstance(self.off_at_rest, bool):
@@ -80,3 +91,13 @@ class ResidualConfig:
         if unknown:
             raise ValueError(f"unknown ResidualConfig fields {sorted(unknown)}; known: {sorted(names)}")
         return cls(**values)
+
+
+def residual_gain(config: ResidualConfig, reference_velocities: NDArray[np.floating]) -> float:
+    """The factor (0 to 1) on the residual torque of a control step whose reference joint rates (rad/s, (3,)) are
+    ``reference_velocities``: 0 at rest with ``config.off_at_rest``, the fade of ``config.fade_speed``, else 1."""
+    if config.fade_speed > 0.0:
+        return min(1.0, float(np.max(np.abs(reference_velocities))) / config.fade_speed)
+    if config.off_at_rest and not reference_velocities.any():
+        return 0.0
+    return 1.0

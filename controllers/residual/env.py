@@ -10,7 +10,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from controllers.base import Controller
-from controllers.residual.config import ResidualConfig
+from controllers.residual.config import ResidualConfig, residual_gain
 from controllers.residual.controller import payload_estimate_reader
 from controllers.residual.features import FEATURE_CLIP, ResidualFeatures
 from controllers.residual.policy_file import shipped_base_setup
@@ -32,8 +32,9 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
 
     Every policy step runs ``action_period`` control steps (1 ms each) of the plant. At each one the
     base controller computes its torque from the latest observation and the env applies
-    ``base + residual_limit * a`` (with ``config.off_at_rest``, ``base`` alone on the steps whose observation's
-    reference is at rest). A zero action reproduces the base controller exactly.
+    ``base + gain * residual_limit * a``, the gain of :func:`residual_gain` at the observation's reference rates (1
+    unless ``config.off_at_rest`` or ``config.fade_speed`` asks otherwise). A zero action reproduces the base
+    controller exactly.
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: the residual torque in units of ``residual_limit`` (N m), held for
@@ -97,7 +98,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         )
         self._features = ResidualFeatures(self.config)
         self._base_torque = np.zeros(3)
-        self._reference_moves = False
+        self._reference_velocities = np.zeros(3)
         self._previous_action = np.zeros(3)
         self._needs_reset = True
 
@@ -113,7 +114,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         observation, info = self.env.reset(seed=seed, options=options)
         self.base.reset()
         self._base_torque = self.base(observation)
-        self._reference_moves = bool(observation["reference_velocities"].any())
+        self._reference_velocities = observation["reference_velocities"]
         self._features.reset(observation, self._base_torque, self._base_estimate())
         self._previous_action = np.zeros(3)
         self._needs_reset = False
@@ -134,8 +135,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         info: dict[str, Any] = {}
         steps = 0
         while steps < n and not (terminated or truncated):
-            at_rest = self.config.off_at_rest and not self._reference_moves
-            torque = self._base_torque if at_rest else self._base_torque + residual
+            torque = self._base_torque + residual_gain(self.config, self._reference_velocities) * residual
             base_torques[steps] = self._base_torque
             commanded[steps] = torque
             observation, reward, terminated, truncated, info = self.env.step(torque)
@@ -145,7 +145,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             reward_torque += info["reward_torque"]
             steps += 1
             self._base_torque = self.base(observation)
-            self._reference_moves = bool(observation["reference_velocities"].any())
+            self._reference_velocities = observation["reference_velocities"]
             self._features.update(observation, self._base_torque, self._base_estimate())
         self._needs_reset = terminated or truncated
         scale = self.config.reward_scale
