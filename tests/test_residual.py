@@ -50,7 +50,15 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import preset
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.plots import LEARNING_CURVE_FILE
-from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
+from eval.residual_envs import (
+    CALIBRATION_SEEDS,
+    TRAINING_SEEDS,
+    VALIDATION_SEEDS,
+    EpisodeSeeds,
+    ScenarioMixture,
+    base_setup,
+    make_env,
+)
 from eval.run_folder import read_csv_rows
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
@@ -414,6 +422,40 @@ def test_training_envs_are_timed_online_on_the_bases_own_estimate() -> None:
     assert [settle.kind for settle in plant_env.settles] == ["pick", "place"]
     with pytest.raises(ValueError, match="pass base, not base_factory"):
         make_env(config=ResidualConfig(), env_kwargs=env_kwargs, base=None, base_factory=make_base)()
+
+
+def test_a_scenario_mixture_runs_each_episode_on_the_scenario_its_seed_picks(tmp_path: Path) -> None:
+    randomized = {"n_cycles": 1, "scenario": preset("randomized")}
+    seeds = (4, 7, 10)  # nominal, randomized, nominal
+    mixed = make_env(
+        config=ResidualConfig(), env_kwargs={"n_cycles": 1}, base=None, base_factory=make_base, seeds=seeds,
+        mixture=[randomized],
+    )()  # fmt: skip
+    action = np.full(3, 0.3, dtype=np.float32)
+    for seed, index in zip(seeds, (0, 1, 0), strict=True):
+        _, info = mixed.reset()
+        assert (info["episode_seed"], info["scenario_index"]) == (seed, index)
+        alone = DeltaResidualEnv(base=make_base(), **({"n_cycles": 1} if index == 0 else randomized))
+        alone.reset(seed=seed)
+        for _ in range(30):
+            assert_array_equal(mixed.step(action)[4]["tracking_errors"], alone.step(action)[4]["tracking_errors"])
+    # the two scenarios' plants differ: the same seed and actions track differently
+    errors = []
+    for kwargs in ({"n_cycles": 1}, randomized):
+        env = DeltaResidualEnv(base=make_base(), **kwargs)
+        env.reset(seed=seeds[0])
+        errors.append(np.concatenate([env.step(action)[4]["tracking_errors"] for _ in range(30)]))
+    assert np.abs(errors[0] - errors[1]).max() > 1e-6
+    with pytest.raises(ValueError, match="reset it with a seed"):
+        ScenarioMixture([DeltaResidualEnv(base=make_base(), n_cycles=1)]).reset()
+    args = parse_args(["--mix", "pick-rate-randomized", "nominal", "--cycles", "2"])
+    assert [s.name for s in args.mixture] == ["pick-rate-randomized", "nominal"] and args.mixture_cycles == [2, 2]
+    with pytest.raises(SystemExit):
+        parse_args(["--mix", "nominal", "--score-only", str(DEFAULT_POLICY_PATH)])
+    run = train(tiny_training_args(tmp_path / "mixed", 0, "--mix", "nominal"), base_factory=make_base)
+    record = json.loads((run / "config.json").read_text())["config"]
+    assert record["mixture"] == [{"n_cycles": 1, "scenario": "nominal"}]
+    assert (run / "scenarios" / "nominal.toml").is_file() and (run / "final_policy.zip").is_file()
 
 
 def test_training_and_held_out_seeds_are_disjoint() -> None:
