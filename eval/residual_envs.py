@@ -197,7 +197,7 @@ def make_env(
     """
 
     def residual_env(kwargs: dict[str, Any]) -> DeltaResidualEnv:
-        plant_env = DeltaPickPlaceEnv(**kwargs)
+        plant_env = DeltaPickPlaceEnv(**kwargs, reward_weights=config.reward_weights())
         if base_factory is not None:
             controller = base_factory()
             if plant_env.task_timing != "fixed":

@@ -126,7 +126,7 @@ def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:
     return None
 
 
-REWARD_FIELDS = ("reward_scale", "torque_weight", "action_rate_weight")
+REWARD_FIELDS = ("reward_scale", "torque_weight", "action_rate_weight", "plant_torque_weight")
 """The :class:`ResidualConfig` fields a replay buffer's rewards were computed with."""
 
 
@@ -293,6 +293,7 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         action_rate_weight=args.action_rate_weight,
         off_at_rest=args.off_at_rest,
         fade_speed=args.fade_speed,
+        plant_torque_weight=args.plant_torque_weight,
     )
 
 
@@ -582,6 +583,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="no residual while the reference is at rest (the waits in position, the dwells): the servo holds it",
     )
     parser.add_argument(
+        "--plant-torque-weight",
+        type=float,
+        default=ResidualConfig.plant_torque_weight,
+        help="reward weight ((N m)^-2) of the squared applied torque per control step, in place of the plant env's "
+        "(default %(default)s, the plant env's; 0: the reward's torque terms are --torque-weight's and "
+        "--action-rate-weight's)",
+    )
+    parser.add_argument(
         "--fade-speed",
         type=float,
         default=ResidualConfig.fade_speed,
@@ -627,7 +636,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     try:
         residual_config(args)
     except ValueError as error:
-        flags = "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed"
+        flags = (
+            "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed, "
+        )
+        flags += "--plant-torque-weight"
         parser.error(f"{flags}: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)

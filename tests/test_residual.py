@@ -248,6 +248,29 @@ def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
         assert charged_info["reward_tracking"] == info["reward_tracking"]
 
 
+def test_plant_torque_weight_replaces_the_plant_envs_torque_term() -> None:
+    envs = [
+        DeltaResidualEnv(base=make_base(), config=ResidualConfig(plant_torque_weight=w), n_cycles=1)
+        for w in (1e-5, 0.0)
+    ]
+    assert [env.plant_env.reward_weights.torque for env in envs] == [1e-5, 0.0]
+    for env in envs:
+        env.reset(seed=SEED)
+    action = np.full(3, 0.2, dtype=np.float32)
+    for _ in range(20):
+        (_, reward, _, _, info), (_, tracking_only, _, _, tracking_info) = (env.step(action) for env in envs)
+        torques = info["commanded_torques"]
+        assert info["reward_torque"] == pytest.approx(-1e-5 * np.sum(torques**2), rel=1e-6)
+        assert info["reward_torque"] < -1e-3 and reward == pytest.approx(
+            info["reward_tracking"] + info["reward_torque"]
+        )
+        assert tracking_info["reward_torque"] == 0.0 and tracking_only == tracking_info["reward_tracking"]
+        assert tracking_info["reward_tracking"] == info["reward_tracking"]  # the same episode, the same torques
+    with pytest.raises(ValueError, match="plant_torque_weight"):
+        DeltaResidualEnv(base=make_base(), config=ResidualConfig(plant_torque_weight=0.0), env=DeltaPickPlaceEnv())
+    assert ResidualConfig.from_dict({"residual_limit": 15.0}).plant_torque_weight == 1e-5  # files before it
+
+
 def test_action_rate_weight_charges_the_squared_change_of_the_residual_torque() -> None:
     weight, scale = 3e-3, 0.5
     config = ResidualConfig(residual_limit=15.0, reward_scale=scale, action_rate_weight=weight)

@@ -48,11 +48,12 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
 
     ## Rewards
     ``reward_scale`` times the sum of the plant env's rewards over the control steps of this policy
-    step: -(tracking error in mm^2 + 1e-5 (N m)^-2 torque^2) per control step by default, with
-    ``config.torque_weight`` added to the torque weight; plus, once per policy step, ``-config.action_rate_weight``
-    times the squared change of the residual torque since the previous policy step ((N m)^2 summed over the joints;
-    from zero at the first step; :func:`action_rate_penalty`), times ``reward_scale`` too. ``info`` holds the
-    summed terms ``reward_tracking``, ``reward_torque`` and ``reward_action_rate``.
+    step: -(tracking error in mm^2 + ``config.plant_torque_weight`` (1e-5 (N m)^-2 by default) torque^2) per
+    control step, with ``config.torque_weight`` times the squared commanded torque added; plus, once per policy
+    step, ``-config.action_rate_weight`` times the squared change of the residual torque since the previous policy
+    step ((N m)^2 summed over the joints; from zero at the first step; :func:`action_rate_penalty`), times
+    ``reward_scale`` too. ``info`` holds the summed terms ``reward_tracking``, ``reward_torque`` and
+    ``reward_action_rate``.
 
     ## Starting State
     The plant env's: at rest at a place point (``start="place"``, the default) or at the first pick point
@@ -73,7 +74,8 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             with the identified parameters, lag and tare recorded in ``controllers/policies/residual_sac.zip``), so that
             ``gym.make("DeltaPickPlaceResidual-v0")`` neither identifies nor writes files.
         config: Residual settings; None uses :class:`ResidualConfig` defaults.
-        env: The plant env to wrap; None builds ``DeltaPickPlaceEnv(**env_kwargs)``.
+        env: The plant env to wrap, its torque weight ``config.plant_torque_weight``; None builds
+            ``DeltaPickPlaceEnv(**env_kwargs)`` with ``config.reward_weights()`` unless they give ``reward_weights``.
         **env_kwargs: Keyword arguments of :class:`~delta_env.env.DeltaPickPlaceEnv` (only without ``env``).
     """
 
@@ -86,12 +88,21 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
     ) -> None:
         if env is not None and env_kwargs:
             raise ValueError(f"pass either env or DeltaPickPlaceEnv keyword arguments, not both: {sorted(env_kwargs)}")
-        super().__init__(env if env is not None else DeltaPickPlaceEnv(**env_kwargs))
+        config = config if config is not None else ResidualConfig()
+        if env is None:
+            env_kwargs.setdefault("reward_weights", config.reward_weights())
+            env = DeltaPickPlaceEnv(**env_kwargs)
+        if env.reward_weights.torque != config.plant_torque_weight:
+            raise ValueError(
+                f"the plant env's torque weight {env.reward_weights.torque} is not config.plant_torque_weight "
+                f"{config.plant_torque_weight}: build it with reward_weights=config.reward_weights()"
+            )
+        super().__init__(env)
         self.base = base if base is not None else shipped_base_setup().controller()
         if not isinstance(self.base, Controller):
             raise ValueError(f"base must implement the Controller protocol, got {type(self.base).__name__}")
         self._base_estimate = payload_estimate_reader(self.base)
-        self.config = config if config is not None else ResidualConfig()
+        self.config = config
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self.observation_space = spaces.Box(
             -FEATURE_CLIP, FEATURE_CLIP, shape=(ResidualFeatures.size,), dtype=np.float32
