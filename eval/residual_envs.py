@@ -72,6 +72,46 @@ class EpisodeSeeds(gym.Wrapper):
         return observation, info
 
 
+class ScenarioMixture(gym.Env):
+    """Several residual envs, one per scenario; each episode runs on the one its seed picks (seed mod their number).
+
+    The pick is a function of the episode seed alone, so that a seed list (validation) always runs the same
+    episodes, and seeds drawn at random (training) spread evenly over the scenarios. Every env must have the spaces
+    of the first.
+
+    Args:
+        envs: The residual envs (:class:`DeltaResidualEnv`), at least one.
+    """
+
+    def __init__(self, envs: Sequence[DeltaResidualEnv]) -> None:
+        if not envs:
+            raise ValueError("a scenario mixture needs at least one env")
+        self.envs = tuple(envs)
+        self.observation_space = self.envs[0].observation_space
+        self.action_space = self.envs[0].action_space
+        for env in self.envs[1:]:
+            if env.observation_space != self.observation_space or env.action_space != self.action_space:
+                raise ValueError("the envs of a scenario mixture must have the same observation and action spaces")
+        self.current = self.envs[0]
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        """Reset the env the seed picks (required: it picks the scenario); ``info["scenario_index"]`` says which."""
+        if seed is None:
+            raise ValueError("a scenario mixture picks each episode's scenario by its seed: reset it with a seed")
+        index = int(seed) % len(self.envs)
+        self.current = self.envs[index]
+        observation, info = self.current.reset(seed=seed, options=options)
+        info["scenario_index"] = index
+        return observation, info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        return self.current.step(action)
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
 BASE_KEYS = ("mid_f_rls_lag", "mid_f_rls")
 """Registry keys of the base controllers a residual can be trained on; the first, the strongest, is the default."""
 
@@ -137,6 +177,7 @@ def make_env(
     rank: int = 0,
     seeds: Sequence[int] | None = None,
     base_factory: Callable[[], Controller] | None = None,
+    mixture: Sequence[dict[str, Any]] = (),
 ) -> Callable[[], gym.Env]:
     """A picklable env factory for SB3 vector envs (one torch thread per worker: the machine is shared).
 
@@ -151,11 +192,12 @@ def make_env(
         rank: Worker index.
         seeds: Fixed held-out seeds instead of drawn training seeds.
         base_factory: Builds the base controller instead of ``base`` (tests; fixed timing only).
+        mixture: Keyword arguments of more plant envs (other scenarios of the same robot): each episode runs on the
+            one of ``env_kwargs`` and these that its seed picks (:class:`ScenarioMixture`), all with the same base.
     """
 
-    def factory() -> gym.Env:
-        torch.set_num_threads(1)
-        plant_env = DeltaPickPlaceEnv(**env_kwargs)
+    def residual_env(kwargs: dict[str, Any]) -> DeltaResidualEnv:
+        plant_env = DeltaPickPlaceEnv(**kwargs, reward_weights=config.reward_weights())
         if base_factory is not None:
             controller = base_factory()
             if plant_env.task_timing != "fixed":
@@ -165,7 +207,12 @@ def make_env(
         else:
             # the base row estimates the payload itself, so the online timing reads its estimator and no wrapper
             controller = timed(plant_env, base.controller(), base.key, base.setup)
-        env = DeltaResidualEnv(base=controller, config=config, env=plant_env)
+        return DeltaResidualEnv(base=controller, config=config, env=plant_env)
+
+    def factory() -> gym.Env:
+        torch.set_num_threads(1)
+        envs = [residual_env(kwargs) for kwargs in (env_kwargs, *mixture)]
+        env = envs[0] if len(envs) == 1 else ScenarioMixture(envs)
         return Monitor(EpisodeSeeds(env, seed=seed, rank=rank, seeds=seeds))
 
     return factory

@@ -126,7 +126,7 @@ def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:
     return None
 
 
-REWARD_FIELDS = ("reward_scale", "torque_weight", "action_rate_weight")
+REWARD_FIELDS = ("reward_scale", "torque_weight", "action_rate_weight", "plant_torque_weight")
 """The :class:`ResidualConfig` fields a replay buffer's rewards were computed with."""
 
 
@@ -278,6 +278,11 @@ def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[Ba
     return callbacks
 
 
+def recorded_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """The command line's arguments for the run's record, the scenarios by name."""
+    return {**vars(args), "scenario": args.scenario.name, "mixture": [scenario.name for scenario in args.mixture]}
+
+
 def residual_config(args: argparse.Namespace) -> ResidualConfig:
     """The residual settings of the command line."""
     return ResidualConfig(
@@ -287,6 +292,8 @@ def residual_config(args: argparse.Namespace) -> ResidualConfig:
         torque_weight=args.torque_weight,
         action_rate_weight=args.action_rate_weight,
         off_at_rest=args.off_at_rest,
+        fade_speed=args.fade_speed,
+        plant_torque_weight=args.plant_torque_weight,
     )
 
 
@@ -310,10 +317,10 @@ def train(
     with run_folder(
         "residual",
         command_line("eval.train_residual"),
-        {"arguments": {**vars(args), "scenario": args.scenario.name}},
+        {"arguments": recorded_arguments(args)},
         out=args.out,
         runs_dir=args.runs_dir,
-        scenarios=[args.scenario],
+        scenarios=[args.scenario, *args.mixture],
         reuse=args.force,
     ) as run:
         summary = _train(args, run, base_factory, base, callbacks)
@@ -332,16 +339,21 @@ def _train(
     out = run.folder
     config = residual_config(args)
     env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
+    mixture = [
+        {"n_cycles": cycles, "scenario": scenario}
+        for cycles, scenario in zip(args.mixture_cycles, args.mixture, strict=True)
+    ]
     if base is None and base_factory is None:
         base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir, servo=args.servo)
     hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
 
     command = run.manifest["command"]
     resolved = {
-        "arguments": {**vars(args), "scenario": args.scenario.name},
+        "arguments": recorded_arguments(args),
         "hyperparameter_file": HYPERPARAMETER_FILE.name,
         "residual_config": asdict(config),
         "env_kwargs": {**env_kwargs, "scenario": args.scenario.name},
+        "mixture": [{**kwargs, "scenario": kwargs["scenario"].name} for kwargs in mixture],
         "scenario": {"name": args.scenario.name, "file": "scenario.toml", "robot": args.scenario.robot_identity},
         "hyperparameters": hyperparameters,
         "base_controller": "custom (base_factory)" if base is None else base.to_table(),
@@ -364,6 +376,7 @@ def _train(
             seed=args.seed,
             rank=rank,
             base_factory=base_factory,
+            mixture=mixture,
         )
         for rank in range(args.n_envs)
     ]
@@ -376,6 +389,7 @@ def _train(
                 base=base,
                 seeds=VALIDATION_SEEDS,
                 base_factory=base_factory,
+                mixture=mixture,
             )
         ]
     )
@@ -534,6 +548,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--cycles", type=int, default=None, help="pick-and-place cycles per episode (default: the scenario's)"
     )
+    parser.add_argument(
+        "--mix",
+        nargs="+",
+        default=[],
+        metavar="SCENARIO",
+        help="more scenarios of the same robot (presets or TOML files, on --geometry, released as --release) whose "
+        "episodes training and validation mix with --scenario's, each episode's seed picking one (seed mod their "
+        "number); the base is --scenario's, and so are the final scores",
+    )
     parser.add_argument("--residual-limit", type=float, default=ResidualConfig.residual_limit, help="N m at a = 1")
     parser.add_argument("--action-period", type=int, default=ResidualConfig.action_period, help="control steps")
     parser.add_argument(
@@ -560,6 +583,21 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="no residual while the reference is at rest (the waits in position, the dwells): the servo holds it",
     )
     parser.add_argument(
+        "--plant-torque-weight",
+        type=float,
+        default=ResidualConfig.plant_torque_weight,
+        help="reward weight ((N m)^-2) of the squared applied torque per control step, in place of the plant env's "
+        "(default %(default)s, the plant env's; 0: the reward's torque terms are --torque-weight's and "
+        "--action-rate-weight's)",
+    )
+    parser.add_argument(
+        "--fade-speed",
+        type=float,
+        default=ResidualConfig.fade_speed,
+        help="rad/s: the residual scaled by min(1, fastest reference joint rate / this), so that it ramps down "
+        "as a move comes to rest (default 0: no fade)",
+    )
+    parser.add_argument(
         "--hyperparams",
         nargs="+",
         default=[],
@@ -584,6 +622,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
     check_ranges(parser, args, {**counts, "torch_threads": 1}, ("max_minutes",))
     args.scenario = scenario_from_arguments(args, parser)
+    args.mixture = [
+        scenario_from_arguments(argparse.Namespace(**{**vars(args), "scenario": name}), parser) for name in args.mix
+    ]
+    for scenario in args.mixture:
+        if scenario.robot_identity != args.scenario.robot_identity:
+            parser.error(f"--mix {scenario.name}: not the robot of --scenario {args.scenario.name}, whose base it uses")
+    args.mixture_cycles = [args.cycles or scenario.task.n_cycles for scenario in args.mixture]
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
     if args.tensorboard is not None and not HAS_TENSORBOARD:
@@ -591,12 +636,17 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     try:
         residual_config(args)
     except ValueError as error:
-        flags = "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight"
+        flags = (
+            "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed, "
+        )
+        flags += "--plant-torque-weight"
         parser.error(f"{flags}: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
     except (ValueError, ImportError) as error:
         parser.error(str(error))
+    if args.score_only is not None and args.mix:
+        parser.error("--mix is for training: --score-only scores the episodes of --scenario")
     if args.score_only is not None:
         try:
             base = read_policy_settings(args.score_only).base
@@ -617,7 +667,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with run_folder(
         "residual_scores",
         command_line("eval.train_residual", argv),
-        {"arguments": {**vars(args), "scenario": args.scenario.name}},
+        {"arguments": recorded_arguments(args)},
         out=args.out,
         runs_dir=args.runs_dir,
         scenarios=[args.scenario],

@@ -8,10 +8,10 @@
 Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--seed + --runs - 1``, with
 :func:`eval.train_residual.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
 policy steps pauses to run the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
-scenario unless other training arguments follow ``--``) with the base controller alone and with the residual,
-scored as :func:`eval.scoring.score_policy` scores the test (tracking RMS and torque RMS pooled over every
-control step). A threshold counts as reached at the first evaluation whose tracking RMS is that much lower
-than the base's with torque RMS at most ``--max-torque-change`` above the base's.
+scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``) with the base
+controller alone and with the residual, scored as :func:`eval.scoring.score_policy` scores the test (tracking RMS
+and torque RMS pooled over every control step). A threshold counts as reached at the first evaluation whose tracking
+RMS is that much lower than the base's with torque RMS at most ``--max-torque-change`` above the base's.
 
 The training wall time excludes the evaluations (and the base controller's identification and tare
 calibration, done once per invocation); ``--max-minutes`` caps each run's training wall time. A run stops

@@ -50,7 +50,15 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import preset
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.plots import LEARNING_CURVE_FILE
-from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, EpisodeSeeds, base_setup, make_env
+from eval.residual_envs import (
+    CALIBRATION_SEEDS,
+    TRAINING_SEEDS,
+    VALIDATION_SEEDS,
+    EpisodeSeeds,
+    ScenarioMixture,
+    base_setup,
+    make_env,
+)
 from eval.run_folder import read_csv_rows
 from eval.scoring import TEST_SEEDS
 from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
@@ -178,6 +186,48 @@ def test_off_at_rest_leaves_the_stops_to_the_base_in_the_env_and_the_controller_
         ResidualConfig(off_at_rest=1)
 
 
+class TorqueRecorder:
+    """Runs ``controller`` and records its torques (N m) and the observations' fastest reference joint rate (rad/s)."""
+
+    def __init__(self, controller: ResidualController) -> None:
+        self.controller, self.torques, self.speeds = controller, [], []
+
+    def reset(self) -> None:
+        self.controller.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        self.speeds.append(float(np.max(np.abs(observation["reference_velocities"]))))
+        self.torques.append(self.controller(observation))
+        return self.torques[-1]
+
+
+def test_fade_speed_ramps_the_residual_down_with_the_reference_in_the_env_and_the_controller_alike() -> None:
+    steps, fade_speed = 800, 0.5
+    config = ResidualConfig(residual_limit=20.0, fade_speed=fade_speed)
+    env_torques, env_base_torques, _ = residual_env_rollout(linear_policy, config, steps)
+    controller = ResidualController(make_base(), linear_policy, config)
+    held = []
+    recorder = TorqueRecorder(controller)
+    env = DeltaPickPlaceEnv(n_cycles=1)
+    observation, _ = env.reset(seed=SEED)
+    recorder.reset()
+    for _ in range(steps):
+        observation = env.step(recorder(observation))[0]
+        held.append(controller.residual_torque)
+    assert_array_equal(np.array(recorder.torques), env_torques)
+    residual = env_torques - env_base_torques
+    speeds = np.array(recorder.speeds)
+    gain = np.minimum(1.0, speeds / fade_speed)
+    assert_allclose(residual, gain[:, None] * np.array(held), atol=1e-9)
+    fading = (speeds > 0.0) & (speeds < fade_speed)
+    assert 10 < fading.sum() < 200 and np.any(speeds == 0.0), (fading.sum(), speeds.min())
+    assert np.all(residual[speeds == 0.0] == 0.0)
+    # the arrival: the residual shrinks over the last steps of the move instead of stopping at once
+    assert np.abs(residual[fading]).max() < np.abs(np.array(held)[fading]).max()
+    with pytest.raises(ValueError, match="fade_speed"):
+        ResidualConfig(fade_speed=-1.0)
+
+
 def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
     weight, scale = 2e-4, 0.5
     plain, charged = (
@@ -196,6 +246,29 @@ def test_torque_weight_adds_to_the_plant_envs_torque_term() -> None:
         assert charged_info["reward_torque"] == pytest.approx(info["reward_torque"] + extra, rel=1e-12)
         assert charged_reward == pytest.approx(reward + extra, rel=1e-12)
         assert charged_info["reward_tracking"] == info["reward_tracking"]
+
+
+def test_plant_torque_weight_replaces_the_plant_envs_torque_term() -> None:
+    envs = [
+        DeltaResidualEnv(base=make_base(), config=ResidualConfig(plant_torque_weight=w), n_cycles=1)
+        for w in (1e-5, 0.0)
+    ]
+    assert [env.plant_env.reward_weights.torque for env in envs] == [1e-5, 0.0]
+    for env in envs:
+        env.reset(seed=SEED)
+    action = np.full(3, 0.2, dtype=np.float32)
+    for _ in range(20):
+        (_, reward, _, _, info), (_, tracking_only, _, _, tracking_info) = (env.step(action) for env in envs)
+        torques = info["commanded_torques"]
+        assert info["reward_torque"] == pytest.approx(-1e-5 * np.sum(torques**2), rel=1e-6)
+        assert info["reward_torque"] < -1e-3 and reward == pytest.approx(
+            info["reward_tracking"] + info["reward_torque"]
+        )
+        assert tracking_info["reward_torque"] == 0.0 and tracking_only == tracking_info["reward_tracking"]
+        assert tracking_info["reward_tracking"] == info["reward_tracking"]  # the same episode, the same torques
+    with pytest.raises(ValueError, match="plant_torque_weight"):
+        DeltaResidualEnv(base=make_base(), config=ResidualConfig(plant_torque_weight=0.0), env=DeltaPickPlaceEnv())
+    assert ResidualConfig.from_dict({"residual_limit": 15.0}).plant_torque_weight == 1e-5  # files before it
 
 
 def test_action_rate_weight_charges_the_squared_change_of_the_residual_torque() -> None:
@@ -372,6 +445,40 @@ def test_training_envs_are_timed_online_on_the_bases_own_estimate() -> None:
     assert [settle.kind for settle in plant_env.settles] == ["pick", "place"]
     with pytest.raises(ValueError, match="pass base, not base_factory"):
         make_env(config=ResidualConfig(), env_kwargs=env_kwargs, base=None, base_factory=make_base)()
+
+
+def test_a_scenario_mixture_runs_each_episode_on_the_scenario_its_seed_picks(tmp_path: Path) -> None:
+    randomized = {"n_cycles": 1, "scenario": preset("randomized")}
+    seeds = (4, 7, 10)  # nominal, randomized, nominal
+    mixed = make_env(
+        config=ResidualConfig(), env_kwargs={"n_cycles": 1}, base=None, base_factory=make_base, seeds=seeds,
+        mixture=[randomized],
+    )()  # fmt: skip
+    action = np.full(3, 0.3, dtype=np.float32)
+    for seed, index in zip(seeds, (0, 1, 0), strict=True):
+        _, info = mixed.reset()
+        assert (info["episode_seed"], info["scenario_index"]) == (seed, index)
+        alone = DeltaResidualEnv(base=make_base(), **({"n_cycles": 1} if index == 0 else randomized))
+        alone.reset(seed=seed)
+        for _ in range(30):
+            assert_array_equal(mixed.step(action)[4]["tracking_errors"], alone.step(action)[4]["tracking_errors"])
+    # the two scenarios' plants differ: the same seed and actions track differently
+    errors = []
+    for kwargs in ({"n_cycles": 1}, randomized):
+        env = DeltaResidualEnv(base=make_base(), **kwargs)
+        env.reset(seed=seeds[0])
+        errors.append(np.concatenate([env.step(action)[4]["tracking_errors"] for _ in range(30)]))
+    assert np.abs(errors[0] - errors[1]).max() > 1e-6
+    with pytest.raises(ValueError, match="reset it with a seed"):
+        ScenarioMixture([DeltaResidualEnv(base=make_base(), n_cycles=1)]).reset()
+    args = parse_args(["--mix", "pick-rate-randomized", "nominal", "--cycles", "2"])
+    assert [s.name for s in args.mixture] == ["pick-rate-randomized", "nominal"] and args.mixture_cycles == [2, 2]
+    with pytest.raises(SystemExit):
+        parse_args(["--mix", "nominal", "--score-only", str(DEFAULT_POLICY_PATH)])
+    run = train(tiny_training_args(tmp_path / "mixed", 0, "--mix", "nominal"), base_factory=make_base)
+    record = json.loads((run / "config.json").read_text())["config"]
+    assert record["mixture"] == [{"n_cycles": 1, "scenario": "nominal"}]
+    assert (run / "scenarios" / "nominal.toml").is_file() and (run / "final_policy.zip").is_file()
 
 
 def test_training_and_held_out_seeds_are_disjoint() -> None:

@@ -1,7 +1,7 @@
 """Residual policy on top of a model-based controller (docs/design.md section 6).
 
 A base controller (by default the shipped policy's: MId+F+R feedforward leading the identified drive lag + the
-paper's PD, with the payload RLS) runs at 1 kHz; a learned
+servo layer, with the payload RLS) runs at 1 kHz; a learned
 policy adds ``residual_limit * a`` with ``a`` in [-1, 1]^3, chosen every ``action_period`` control
 steps and held in between (100 Hz by default).
 

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Controller, EstimatesPayload, Observation
-from controllers.residual.config import ResidualConfig
+from controllers.residual.config import ResidualConfig, residual_gain
 from controllers.residual.features import ResidualFeatures
 
 if TYPE_CHECKING:
@@ -33,7 +33,7 @@ class ResidualController:
 
     Runs exactly the loop of :class:`DeltaResidualEnv`: the base torque every control step, a new
     policy action every ``config.action_period`` steps (the first at the episode's first step),
-    held in between (and, with ``config.off_at_rest``, left out while the reference is at rest).
+    held in between, scaled by :func:`residual_gain` (``config.off_at_rest``, ``config.fade_speed``).
 
     Args:
         base: The base controller.
@@ -92,6 +92,4 @@ class ResidualController:
             self._action = np.clip(action, -1.0, 1.0)
             self._residual = self.config.residual_limit * self._action  # held until the next policy step
         self._step += 1
-        if self.config.off_at_rest and not observation["reference_velocities"].any():
-            return base_torque
-        return base_torque + self._residual
+        return base_torque + residual_gain(self.config, observation["reference_velocities"]) * self._residual

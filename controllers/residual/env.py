@@ -10,7 +10,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from controllers.base import Controller
-from controllers.residual.config import ResidualConfig
+from controllers.residual.config import ResidualConfig, residual_gain
 from controllers.residual.controller import payload_estimate_reader
 from controllers.residual.features import FEATURE_CLIP, ResidualFeatures
 from controllers.residual.policy_file import shipped_base_setup
@@ -32,8 +32,9 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
 
     Every policy step runs ``action_period`` control steps (1 ms each) of the plant. At each one the
     base controller computes its torque from the latest observation and the env applies
-    ``base + residual_limit * a`` (with ``config.off_at_rest``, ``base`` alone on the steps whose observation's
-    reference is at rest). A zero action reproduces the base controller exactly.
+    ``base + gain * residual_limit * a``, the gain of :func:`residual_gain` at the observation's reference rates (1
+    unless ``config.off_at_rest`` or ``config.fade_speed`` asks otherwise). A zero action reproduces the base
+    controller exactly.
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: the residual torque in units of ``residual_limit`` (N m), held for
@@ -47,11 +48,12 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
 
     ## Rewards
     ``reward_scale`` times the sum of the plant env's rewards over the control steps of this policy
-    step: -(tracking error in mm^2 + 1e-5 (N m)^-2 torque^2) per control step by default, with
-    ``config.torque_weight`` added to the torque weight; plus, once per policy step, ``-config.action_rate_weight``
-    times the squared change of the residual torque since the previous policy step ((N m)^2 summed over the joints;
-    from zero at the first step; :func:`action_rate_penalty`), times ``reward_scale`` too. ``info`` holds the
-    summed terms ``reward_tracking``, ``reward_torque`` and ``reward_action_rate``.
+    step: -(tracking error in mm^2 + ``config.plant_torque_weight`` (1e-5 (N m)^-2 by default) torque^2) per
+    control step, with ``config.torque_weight`` times the squared commanded torque added; plus, once per policy
+    step, ``-config.action_rate_weight`` times the squared change of the residual torque since the previous policy
+    step ((N m)^2 summed over the joints; from zero at the first step; :func:`action_rate_penalty`), times
+    ``reward_scale`` too. ``info`` holds the summed terms ``reward_tracking``, ``reward_torque`` and
+    ``reward_action_rate``.
 
     ## Starting State
     The plant env's: at rest at a place point (``start="place"``, the default) or at the first pick point
@@ -72,7 +74,8 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             with the identified parameters, lag and tare recorded in ``controllers/policies/residual_sac.zip``), so that
             ``gym.make("DeltaPickPlaceResidual-v0")`` neither identifies nor writes files.
         config: Residual settings; None uses :class:`ResidualConfig` defaults.
-        env: The plant env to wrap; None builds ``DeltaPickPlaceEnv(**env_kwargs)``.
+        env: The plant env to wrap, its torque weight ``config.plant_torque_weight``; None builds
+            ``DeltaPickPlaceEnv(**env_kwargs)`` with ``config.reward_weights()`` unless they give ``reward_weights``.
         **env_kwargs: Keyword arguments of :class:`~delta_env.env.DeltaPickPlaceEnv` (only without ``env``).
     """
 
@@ -85,19 +88,28 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
     ) -> None:
         if env is not None and env_kwargs:
             raise ValueError(f"pass either env or DeltaPickPlaceEnv keyword arguments, not both: {sorted(env_kwargs)}")
-        super().__init__(env if env is not None else DeltaPickPlaceEnv(**env_kwargs))
+        config = config if config is not None else ResidualConfig()
+        if env is None:
+            env_kwargs.setdefault("reward_weights", config.reward_weights())
+            env = DeltaPickPlaceEnv(**env_kwargs)
+        if env.reward_weights.torque != config.plant_torque_weight:
+            raise ValueError(
+                f"the plant env's torque weight {env.reward_weights.torque} is not config.plant_torque_weight "
+                f"{config.plant_torque_weight}: build it with reward_weights=config.reward_weights()"
+            )
+        super().__init__(env)
         self.base = base if base is not None else shipped_base_setup().controller()
         if not isinstance(self.base, Controller):
             raise ValueError(f"base must implement the Controller protocol, got {type(self.base).__name__}")
         self._base_estimate = payload_estimate_reader(self.base)
-        self.config = config if config is not None else ResidualConfig()
+        self.config = config
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self.observation_space = spaces.Box(
             -FEATURE_CLIP, FEATURE_CLIP, shape=(ResidualFeatures.size,), dtype=np.float32
         )
         self._features = ResidualFeatures(self.config)
         self._base_torque = np.zeros(3)
-        self._reference_moves = False
+        self._reference_velocities = np.zeros(3)
         self._previous_action = np.zeros(3)
         self._needs_reset = True
 
@@ -113,7 +125,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         observation, info = self.env.reset(seed=seed, options=options)
         self.base.reset()
         self._base_torque = self.base(observation)
-        self._reference_moves = bool(observation["reference_velocities"].any())
+        self._reference_velocities = observation["reference_velocities"]
         self._features.reset(observation, self._base_torque, self._base_estimate())
         self._previous_action = np.zeros(3)
         self._needs_reset = False
@@ -134,8 +146,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
         info: dict[str, Any] = {}
         steps = 0
         while steps < n and not (terminated or truncated):
-            at_rest = self.config.off_at_rest and not self._reference_moves
-            torque = self._base_torque if at_rest else self._base_torque + residual
+            torque = self._base_torque + residual_gain(self.config, self._reference_velocities) * residual
             base_torques[steps] = self._base_torque
             commanded[steps] = torque
             observation, reward, terminated, truncated, info = self.env.step(torque)
@@ -145,7 +156,7 @@ class DeltaResidualEnv(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], dic
             reward_torque += info["reward_torque"]
             steps += 1
             self._base_torque = self.base(observation)
-            self._reference_moves = bool(observation["reference_velocities"].any())
+            self._reference_velocities = observation["reference_velocities"]
             self._features.update(observation, self._base_torque, self._base_estimate())
         self._needs_reset = terminated or truncated
         scale = self.config.reward_scale
