@@ -638,8 +638,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     except ValueError as error:
         flags = (
             "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed, "
+            "--plant-torque-weight"
         )
-        flags += "--plant-torque-weight"
         parser.error(f"{flags}: {error}")
     try:
         override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)

@@ -20,11 +20,13 @@ from controllers.monitor.compiled import (
     loop_output,
     model_residual,
     platform_force,
+    reference_step_bound,
+    reference_torque,
     slip_moments,
     torque_step_variance,
 )
 from controllers.monitor.detector import loop_response
-from controllers.monitor.model_check import _slip_band
+from controllers.monitor.model_check import _slip_band, acceleration_step_response, lagged_step_weights
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     DRIVE_FAULT_DRIFT,
@@ -33,6 +35,7 @@ from controllers.monitor.tuning import (
     FORCE_EVIDENCE,
     FORCE_REFERENCE,
     MONITOR_JERK_STD,
+    PLANT_STEP_LAG,
     REST_RATE,
     SENSOR_QUIET,
     SLOWEST_LAG_FACTOR,
@@ -182,6 +185,64 @@ def test_platform_force_leaves_out_what_the_model_band_can_explain(rate: float) 
         terms[0] = (7.0, residual_1, -1.0)
         force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, band)
         np.testing.assert_allclose(force, terms[3:] @ np.array([3.0, external_1, 0.0]), rtol=1e-9, atol=1e-9)
+
+
+def test_reference_step_bound_is_the_brute_force_sum() -> None:
+    rng = np.random.default_rng(5)
+    weights = rng.uniform(0.0, 0.9, 26)
+    torques, regressors = rng.normal(0.0, 30.0, (27, 3)), rng.normal(0.0, 2.0, (27, 3))
+    torque_window, regressor_window = list(torques.copy()), list(regressors.copy())
+    for payload in (0.0, 2.5, 4.0) * 10:
+        torque, regressor = rng.normal(0.0, 30.0, 3), rng.normal(0.0, 2.0, 3)
+        torque_window, regressor_window = [*torque_window[1:], torque], [*regressor_window[1:], regressor]
+        bound = reference_step_bound(torques, regressors, torque, regressor, payload, weights)
+        _same(torques, np.array(torque_window))
+        _same(regressors, np.array(regressor_window))
+        steps = np.diff(np.array(torque_window) + payload * np.array(regressor_window), axis=0)
+        np.testing.assert_allclose(bound, weights @ np.abs(steps), rtol=1e-12)
+
+
+def test_reference_torque_is_the_models_at_zero_rates() -> None:
+    # The band's torque is the inertial and gravity part: the model's at the reference's pose and acceleration with
+    # the rates zero, so that friction's sign and the rates' terms add no step of their own.
+    rng = np.random.default_rng(6)
+    torque, regressor = np.zeros(3), np.zeros(3)
+    for _ in range(20):
+        reference = np.stack((rng.uniform(0.1, 0.8, 3), rng.normal(0.0, 3.0, 3), rng.normal(0.0, 300.0, 3)))
+        assert reference_torque(DYNAMICS.model_constants, reference, torque, regressor)
+        expected_torque, expected_regressor = DYNAMICS.torque_and_payload_regressor(
+            reference[0], np.zeros(3), reference[2]
+        )
+        np.testing.assert_allclose(torque, expected_torque, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(regressor, expected_regressor, rtol=1e-9, atol=1e-9)
+    before = torque.copy()
+    assert not reference_torque(DYNAMICS.model_constants, np.full((3, 3), np.nan), torque, regressor)
+    _same(torque, before)
+
+
+@pytest.mark.parametrize("lag", [1, 2])
+def test_the_band_weights_bound_the_smoothers_error_for_a_step_the_plant_follows_late(lag: int) -> None:
+    # The reference's acceleration steps by da between readings m - 1 and m and the plant follows ``lag`` samples
+    # later: the tracking error's acceleration is -da over [m, m + lag). The smoother's estimate at its estimated
+    # reading, less the true error acceleration there, is what the band must cover: at most the weight times da,
+    # reached for the worst lag.
+    smoother = JointStateSmoother(lag=SMOOTHER_LAG, jerk_std=MONITOR_JERK_STD)
+    weights = lagged_step_weights(acceleration_step_response(smoother), PLANT_STEP_LAG)
+    readings, estimated = smoother.weights.shape[1], smoother.history
+    times = (np.arange(readings) - estimated) * CONTROL_PERIOD
+
+    def ramp(start_index: int) -> np.ndarray:  # the angle of a unit acceleration step between readings
+        start = (start_index - estimated - 0.5) * CONTROL_PERIOD
+        return np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
+
+    worst = np.zeros(readings)
+    for m in range(readings):
+        error = -ramp(m) + ramp(m + lag)
+        true = -1.0 if m <= estimated < m + lag else 0.0
+        miss = abs(smoother.weights[2] @ error - true)
+        assert miss <= weights[m] + 1e-9
+        worst[m] = miss
+    assert np.max(worst) > 0.5  # the step the smoother spreads most is off by more than half of itself
 
 
 def test_torque_step_variance_is_the_brute_force_sum() -> None:

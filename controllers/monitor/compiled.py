@@ -1,5 +1,6 @@
 """The fault monitor's arithmetic on three-vectors, compiled for the 1 kHz loop (docs/design.md section 6, "Fault
-monitor"): the model's residual, the platform force, the slip check's sums, the current loop's output.
+monitor"): the model's residual, the platform force, the slip check's sums and the torque steps' variance, the
+collision check's band along the reference, the current loop's output.
 
 The dot products are summed as OpenBLAS's kernels sum three terms, one fused multiply-add per term after the first
 (``_dot3``, which alone may contract): the monitor's thresholds and campaigns were set with NumPy's ``@`` on
@@ -240,41 +241,58 @@ def torque_step_variance(
 
 
 @numba.njit(cache=True)
-def torque_step_bound(
-    torques: NDArray[np.float64], torque: NDArray[np.float64], absolute_response: NDArray[np.float64]
+def reference_step_bound(
+    torques: NDArray[np.float64],
+    regressors: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    regressor: NDArray[np.float64],
+    payload: float,
+    step_weights: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """Shift ``torque`` (N m, (3,)) into ``torques`` (a window of the reference's model torques and the one before,
-    (n + 1, 3), oldest first; in place) and return, per joint, sum_m ``absolute_response``_m |tau_{m+1} - tau_m| (N m,
-    (3,)): the NumPy ``absolute_response @ np.abs(np.diff(torques, axis=0))``, the largest error the smoother's
-    acceleration can put into the model torque where the reference's acceleration steps (docs/design.md section 6,
-    "Fault monitor")."""
+    """Shift the reference's model torque ``torque`` and payload regressor ``regressor`` ((3,) each, N m and N m/kg)
+    into their windows ``torques`` and ``regressors`` ((n + 1, 3), oldest first; in place) and return, per joint,
+    sum_m ``step_weights``_m |d tau_m + ``payload`` d phi_m| (N m, (3,)): the most the smoother's acceleration error
+    can put into the model torque where the reference's acceleration steps (docs/design.md section 6, "Fault
+    monitor")."""
     _shift_in(torques, torque)
+    _shift_in(regressors, regressor)
     bound = np.zeros(3)
     for row in range(torques.shape[0] - 1):
-        weight = absolute_response[row]
+        weight = step_weights[row]
         for joint in range(3):
-            bound[joint] += weight * abs(torques[row + 1, joint] - torques[row, joint])
+            step = torques[row + 1, joint] - torques[row, joint]
+            step += payload * (regressors[row + 1, joint] - regressors[row, joint])
+            bound[joint] += weight * abs(step)
     return bound
 
 
 @numba.njit(cache=True)
 def reference_torque(
-    constants: NDArray[np.uint8], reference: NDArray[np.float64], payload: float, torque: NDArray[np.float64]
-) -> None:
-    """The model's torque (N m) along ``reference`` ((3, 3): rows theta, theta_dot, theta_ddot) with ``payload`` (kg)
-    into ``torque`` ((3,)); left as it is where the model cannot take the reference's state."""
+    constants: NDArray[np.uint8],
+    reference: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    regressor: NDArray[np.float64],
+) -> bool:
+    """The model's torque without payload and its payload regressor (N m, N m/kg) at the reference's angles and
+    accelerations (``reference``, (3, 3): rows theta, theta_dot, theta_ddot) with the rates taken as zero, into
+    ``torque`` and ``regressor`` ((3,) each): the inertial and gravity torque, whose steps are the acceleration's,
+    without friction's sign or the rates' terms. Returns False, leaving both as they are, where the model cannot take
+    the reference's pose."""
     status, terms = single_sample_model(
         constants,
         reference[0, 0],
         reference[0, 1],
         reference[0, 2],
-        reference[1, 0],
-        reference[1, 1],
-        reference[1, 2],
+        0.0,
+        0.0,
+        0.0,
         reference[2, 0],
         reference[2, 1],
         reference[2, 2],
     )
-    if status == 0:
-        for joint in range(3):
-            torque[joint] = terms[0, joint] + payload * terms[1, joint]
+    if status != 0:
+        return False
+    for joint in range(3):
+        torque[joint] = terms[0, joint]
+        regressor[joint] = terms[1, joint]
+    return True

@@ -15,7 +15,7 @@ from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
 from controllers.monitor.compiled import correction_terms
 from controllers.monitor.events import DetectedFault
-from controllers.monitor.model_check import acceleration_step_response
+from controllers.monitor.model_check import acceleration_step_response, lagged_step_weights
 from controllers.monitor.sensor_check import ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED
 from controllers.monitor.step import BAD_SHAPE, DETECTED, MONITOR, monitor_step
 from controllers.monitor.tuning import (
@@ -23,6 +23,7 @@ from controllers.monitor.tuning import (
     BREAKAWAY_FACTOR,
     INITIAL_RESIDUAL_STD,
     MONITOR_JERK_STD,
+    PLANT_STEP_LAG,
     SLOWEST_LAG_FACTOR,
     STUCK_COUNTS,
 )
@@ -100,7 +101,7 @@ class FaultMonitor:
         initial["weights"] = smoother.weights
         response = acceleration_step_response(smoother)
         initial["squared_response"] = response**2
-        initial["absolute_response"] = np.abs(response)
+        initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
         initial["static_friction"] = dynamics.parameters.coulomb
         initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
         initial["scatter"] = INITIAL_RESIDUAL_STD**2

@@ -13,7 +13,9 @@ Where the error's acceleration still steps (a controller that steps its torque, 
 sample's acceleration off by h_m da, h the smoother's response to a unit step (:func:`acceleration_step_response`).
 The joint's torque steps with its acceleration (I da), so the measured torque's steps in the window give the model
 torque's error variance sum_m h_m^2 (tau_m - tau_{m-1})^2 (N^2 m^2), per joint, which the slip check adds to its
-residual variance.
+residual variance. The collision check instead leaves out, per joint, the most that error can be where the
+reference's own acceleration steps and the plant follows a sample or two later (:func:`lagged_step_weights`, the
+steps of the model's torque along the reference): a band a push cannot widen.
 
 :data:`MODEL_CHECK_FIELDS` are the fields of the monitor's record (:data:`~controllers.monitor.step.MONITOR`) that
 :func:`check_sample` keeps: the smoother's window, the readings it lags behind, the CUSUMs and the mass held.
@@ -39,9 +41,9 @@ from controllers.monitor.compiled import (
     learn_scatter,
     model_residual,
     platform_force,
+    reference_step_bound,
     reference_torque,
     slip_moments,
-    torque_step_bound,
     torque_step_variance,
 )
 from controllers.monitor.tuning import (
@@ -67,10 +69,14 @@ MODEL_CHECK_FIELDS = [
     # the measured torques of the window and the one before, and the smoother's response to a step
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
-    # the model's torques along the reference over the window and the one before, the response's magnitudes
+    # the model's torque and payload regressor along the reference over the window and the one before, the last
+    # ones, whether any was valid yet, and the weights of their steps in the collision check's band
     ("reference_torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
+    ("reference_regressors", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("planned_torque", np.float64, (3,)),
-    ("absolute_response", np.float64, (SMOOTHER_WINDOW,)),
+    ("planned_regressor", np.float64, (3,)),
+    ("reference_started", np.bool_),
+    ("step_weights", np.float64, (SMOOTHER_WINDOW,)),
     ("pending_quiet", np.uint8, (SMOOTHER_LAG + 1,)),  # beside the pending readings
     # what the residual takes off (the estimator's corrections of the model), the friction it charges and what a
     # joint at rest may hold, the slip check's friction band
@@ -112,6 +118,16 @@ def acceleration_step_response(smoother: JointStateSmoother) -> NDArray[np.float
         angles = np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
         response[m] = smoother.weights[2] @ angles - (1.0 if estimated >= m else 0.0)
     return response
+
+
+def lagged_step_weights(response: NDArray[np.float64], lags: int) -> NDArray[np.float64]:
+    """Weights (per rad/s^2) of the smoother's acceleration error for a step of the reference's acceleration between
+    readings m - 1 and m that the plant follows 1 to ``lags`` samples later: the tracking error's acceleration steps
+    by -da at m and back by +da at m + k, so the estimate is off by da (h_{m+k} - h_m), at most
+    max_k |h_{m+k} - h_m| da (``response`` h of :func:`acceleration_step_response`; no error for a step after the
+    window)."""
+    padded = np.concatenate((response, np.zeros(lags)))
+    return np.max([np.abs(padded[k : k + len(response)] - response) for k in range(1, lags + 1)], axis=0)
 
 
 @numba.njit(cache=True)
@@ -190,7 +206,7 @@ def _check_force(
     """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
     residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
     without its part along phi), less on each joint what the smoother's acceleration error can explain where the
-    reference steps (``model_band``, N m: :func:`torque_step_bound`) and on joints at rest what friction up to the
+    reference steps (``model_band``, N m: :func:`reference_step_bound`) and on joints at rest what friction up to the
     breakaway can hold (:func:`platform_force`). Returns :data:`COLLIDED` or 0."""
     if quiet:
         check.force_evidence = 0.0
@@ -236,18 +252,29 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     head, smoothed, previous = delayed_state_step(
         state, angles - reference[0], reference[0], reference[1], reference[2], torque, holding
     )
-    reference_torque(
-        model_constants, reference, state.held_mass if holding and state.held_known else 0.0, state.planned_torque
-    )
+    valid = reference_torque(model_constants, reference, state.planned_torque, state.planned_regressor)
     if first:
         for row in range(SMOOTHER_WINDOW + 1):
             state.torques[row, :] = torque
+    if valid and not state.reference_started:  # the windows start at the first pose the model can take
+        state.reference_started = True
+        for row in range(SMOOTHER_WINDOW + 1):
             state.reference_torques[row, :] = state.planned_torque
+            state.reference_regressors[row, :] = state.planned_regressor
     jerk_variance = torque_step_variance(state.torques, torque, state.squared_response)
-    model_band = torque_step_bound(state.reference_torques, state.planned_torque, state.absolute_response)
     if head < 0:
         return 0
     held_then = state.pending_holding[head] != 0
+    # the band with the mass the check takes off the checked sample's residual (none while it is not known)
+    held = state.held_mass if held_then and state.held_known else 0.0
+    model_band = reference_step_bound(
+        state.reference_torques,
+        state.reference_regressors,
+        state.planned_torque,
+        state.planned_regressor,
+        held,
+        state.step_weights,
+    )
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
     # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state

@@ -51,6 +51,11 @@ FORCE_EVIDENCE = 60.0
 """Accumulated force beyond :data:`FORCE_REFERENCE` (N, summed over samples) that makes a collision: one sample of
 120 N, or two of 90 N."""
 
+PLANT_STEP_LAG = 2
+"""Samples within which the plant's acceleration follows a step of the reference's: the current loop's time constant
+(0.5-2 ms on the ``randomized`` plants, about one sample after the lag row's lead). The collision check's band
+allows for the smoother's error with any of these lags (docs/design.md section 6, "Fault monitor")."""
+
 BREAKAWAY_FACTOR = 1.5
 """Breakaway (static) friction of a joint as a multiple of its Coulomb friction fc: the torque its friction can
 hold at rest. An assumption, not an identified value: the identification leaves rows at rest out
