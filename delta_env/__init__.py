@@ -7,6 +7,7 @@ its sensors, reference trajectories and the environment.
 
 import gymnasium as gym
 
+from delta_env import compile_cache  # noqa: F401 - first: sets numba's cache folder before anything compiles
 from delta_env.config import (
     MAX_PAYLOAD_MASS,
     PhysicalParameters,
