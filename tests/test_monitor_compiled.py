@@ -22,6 +22,7 @@ from controllers.monitor.compiled import (
     platform_force,
     reference_step_bound,
     reference_torque,
+    shift_reference,
     slip_moments,
     torque_step_variance,
 )
@@ -195,7 +196,8 @@ def test_reference_step_bound_is_the_brute_force_sum() -> None:
     for payload in (0.0, 2.5, 4.0) * 10:
         torque, regressor = rng.normal(0.0, 30.0, 3), rng.normal(0.0, 2.0, 3)
         torque_window, regressor_window = [*torque_window[1:], torque], [*regressor_window[1:], regressor]
-        bound = reference_step_bound(torques, regressors, torque, regressor, payload, weights)
+        shift_reference(torques, regressors, torque, regressor)
+        bound = reference_step_bound(torques, regressors, payload, weights)
         _same(torques, np.array(torque_window))
         _same(regressors, np.array(regressor_window))
         steps = np.diff(np.array(torque_window) + payload * np.array(regressor_window), axis=0)

@@ -15,7 +15,7 @@ from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
 from controllers.monitor.compiled import correction_terms
 from controllers.monitor.events import DetectedFault
-from controllers.monitor.model_check import acceleration_step_response, lagged_step_weights
+from controllers.monitor.model_check import acceleration_step_response, lagged_step_weights, samples_to_show
 from controllers.monitor.sensor_check import ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED
 from controllers.monitor.step import BAD_SHAPE, DETECTED, MONITOR, monitor_step
 from controllers.monitor.tuning import (
@@ -24,6 +24,7 @@ from controllers.monitor.tuning import (
     INITIAL_RESIDUAL_STD,
     MONITOR_JERK_STD,
     PLANT_STEP_LAG,
+    PUSH_SHOWN_SHARE,
     SLOWEST_LAG_FACTOR,
     STUCK_COUNTS,
 )
@@ -102,8 +103,9 @@ class FaultMonitor:
         response = acceleration_step_response(smoother)
         initial["squared_response"] = response**2
         initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
+        initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)
         initial["static_friction"] = dynamics.parameters.coulomb
-        initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
+        initial["sample"] = initial["quiet_until"] = initial["held_since"] = initial["slip_pending_since"] = -1
         initial["scatter"] = INITIAL_RESIDUAL_STD**2
         self._initial = initial
         self.events: list[DetectedFault] = []
@@ -160,6 +162,13 @@ class FaultMonitor:
     def collision_samples(self) -> int:
         """Checked samples since the collision evidence began to grow (0 while there is none)."""
         return self._read("collision_samples")
+
+    @property
+    def onset_samples(self) -> int:
+        """Samples a step of the residual takes, from its first reading, to show in the checked state
+        (:data:`~controllers.monitor.tuning.PUSH_SHOWN_SHARE` of it): how long a force's onset may lie under the
+        collision check's reference unseen."""
+        return self._read("onset_samples")
 
     @property
     def held_mass(self) -> float | None:

@@ -83,6 +83,13 @@ of a light object, biased by the static friction of the lift-off, would make "go
 SLIP_EVIDENCE = 12.0
 """Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
 
+PUSH_SHOWN_SHARE = 0.875
+"""Share of a step in the residual that the checked sample must show before a slip is believed: the slip check's
+CUSUM must stay over its threshold until a step that entered the smoother's window when it crossed shows at least
+this much (8 samples with the monitor's smoother), so that a push, whose onset the smoother spreads over its window
+and which early on can look like the loss of the object, has shown its whole force, which "gone" does not explain
+(docs/design.md section 6, "Fault monitor"). A slip is then found 8 ms later than the CUSUM alone finds it."""
+
 INITIAL_RESIDUAL_STD = 4.0
 """Standard deviation (N m) of the model's residual the slip check assumes at a reset, before it has measured its
 robot's: the identified model's error on a robot whose masses and friction differ from its identification by up to
@@ -115,8 +122,10 @@ SLOW_RATE = 0.5
 """Speed override (of the reference's speed) a ``"slow"`` reaction (:data:`~delta_env.faults.FAULT_REACTIONS`)
 asks for."""
 
-ROLLBACK_SAMPLES = 10
-"""How far back (samples beyond the monitor's lag) a detected collision can undo the payload estimator's updates."""
+ROLLBACK_SAMPLES = 20
+"""How far back (samples beyond the monitor's lag) a detected collision can undo the payload estimator's updates: its
+onset, which the check sees only in part for 8 samples (:data:`PUSH_SHOWN_SHARE`), and the samples its evidence took
+to grow (1-5 on the campaigns' pushes), with room."""
 
 REACTING_KINDS = ("collision", "slip", "drive_fault")
 """The detected faults a reaction answers; sensor faults are replaced and the work goes on."""

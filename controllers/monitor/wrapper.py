@@ -20,7 +20,9 @@ from delta_env.faults import FAULT_REACTIONS
 class MonitoredController:
     """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator leaves
     out the equations that lean on drifting replacements or a collision and forgets the object on a slip, and a
-    detected fault may ask the cell to slow down or stop.
+    detected fault may ask the cell to slow down or stop. A collision is a transient: once it is over (the model
+    agrees with the measurements again) and no lasting fault (a slip, a drive fault) was found since the reaction,
+    the controller asks for full speed again, also after a stop that has not yet ended the episode.
 
     Args:
         controller: The controller to protect.
@@ -29,7 +31,7 @@ class MonitoredController:
 
     Attributes:
         requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
-            1 until a reaction asks for less.
+            1 until a reaction asks for less, and again once a collision it answered is over.
     """
 
     def __init__(
@@ -45,6 +47,8 @@ class MonitoredController:
         self.reaction = reaction
         self.name = controller.name
         self.requested_speed = 1.0
+        self._lasting = False
+        """Whether a reaction answered a lasting fault (a slip, a drive fault), which full speed never follows."""
         self._command: NDArray[np.float64] | None = None
         self._holding = False
         self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
@@ -68,6 +72,7 @@ class MonitoredController:
         self.controller.reset()
         self.monitor.reset()
         self.requested_speed = 1.0
+        self._lasting = False
         self._command = None
         self._holding = False
         self.monitor.set_corrections(None)
@@ -84,8 +89,10 @@ class MonitoredController:
         new = monitor.events[seen:]
         if estimator is not None:
             if any(event.kind == "collision" for event in new):
-                # the collision's first samples entered before it was detected: undo them
-                undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
+                # the collision's first samples entered before it was detected, from the first reading of its onset
+                # on: undo them
+                onset = monitor.collision_samples + monitor.onset_samples
+                undo = min(self._checkpoints, monitor.lag - estimator.delay + onset + 1)
                 if undo > 0:
                     estimator.rollback(undo)
             if monitor.quiet_samples:
@@ -94,7 +101,12 @@ class MonitoredController:
                 estimator.skip(SENSOR_QUIET)
             if monitor.slipped:
                 estimator.drop_object()
-        if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
-            self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
+        if self.reaction != "continue":
+            reacting = [event.kind for event in new if event.kind in REACTING_KINDS]
+            if reacting:
+                self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
+                self._lasting = self._lasting or any(kind != "collision" for kind in reacting)
+            elif self.requested_speed < 1.0 and not self._lasting and not monitor.collision:
+                self.requested_speed = 1.0  # the push is over
         self._command = np.asarray(self.controller(clean), dtype=float)
         return self._command
