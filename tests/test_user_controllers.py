@@ -27,6 +27,7 @@ from controllers.registry import (
 )
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
+from delta_env.faults import FaultSpec
 from delta_env.scenario import PickPlaceTask, Scenario
 from eval import metrics
 from eval.__main__ import main as eval_main
@@ -83,6 +84,25 @@ def estimating(setup):
 
 ESTIMATING = ControllerEntry("ignored", "User RLS", estimating, estimates_payload=True, has_estimator=True)
 UNDECLARED = ControllerEntry("ignored", "Undeclared RLS", estimating, estimates_payload=True)
+
+
+class Private:
+    # the RLS row with its estimator out of sight: it reports an estimate and declares no estimator
+    def __init__(self, inner):
+        self.inner, self.name = inner, "Private RLS"
+
+    @property
+    def payload_estimate(self):
+        return self.inner.payload_estimate
+
+    def reset(self):
+        self.inner.reset()
+
+    def __call__(self, observation):
+        return self.inner(observation)
+
+
+PRIVATE = ControllerEntry("ignored", "Private RLS", lambda setup: Private(estimating(setup)), estimates_payload=True)
 """
 
 
@@ -141,16 +161,22 @@ def test_builtin_rows_behave_as_they_declare(tmp_path: Path) -> None:
 
 
 def test_a_user_row_with_an_estimator_is_scored_and_guarded_like_the_builtin_one(user_module: str) -> None:
-    scenario = Scenario(task=PickPlaceTask(n_cycles=1))
-    setup = dataclasses.replace(NOMINAL_SETUP, tares={"mid_f_rls": 0.05})
-    ours = run_unit(WorkUnit(scenario, f"{user_module}:ESTIMATING", 3, (2.0,)), setup)
-    builtin = run_unit(WorkUnit(scenario, "mid_f_rls", 3, (2.0,)), setup)
-    assert ours["status"] == "ok", ours["error"]
-    # the same controller behind the same monitor: its carry scored (a 2 kg object, within 5 %), to the same numbers
-    assert abs(ours["payload_end_error_percent"]) < 5.0
-    np.testing.assert_array_equal(
-        [ours[name] for name in metrics.PAYLOAD_SCORES], [builtin[name] for name in metrics.PAYLOAD_SCORES]
+    # a 2 kg carry hit by a 400 N, 30 ms collision: the monitor undoes and skips its samples in a declared estimator
+    collision = FaultSpec(
+        "collision", carry_fraction=(0.5, 0.5), size=(400.0, 400.0), duration=(0.03, 0.03), target="platform"
     )
+    scenario = Scenario(task=PickPlaceTask(n_cycles=1, faults=(collision,)))
+    setup = dataclasses.replace(NOMINAL_SETUP, tares={"mid_f_rls": 0.05})
+    scores = {}
+    for key in ("mid_f_rls", f"{user_module}:ESTIMATING", f"{user_module}:PRIVATE"):
+        row = run_unit(WorkUnit(scenario, key, 3, (2.0,)), setup)
+        assert row["status"] == "ok" and row["faults_detected"] == 1, (key, row["error"])
+        scores[key] = [row[name] for name in metrics.PAYLOAD_SCORES]
+    # the same controller behind the same monitor: its carry scored (within 5 %: -2.9 %), to the same numbers
+    assert abs(scores["mid_f_rls"][0]) < 5.0
+    np.testing.assert_array_equal(scores[f"{user_module}:ESTIMATING"], scores["mid_f_rls"])
+    # an estimator the entry does not declare is scored but not guarded: the collision's samples stay in (+69 %)
+    assert scores[f"{user_module}:PRIVATE"][0] > 20.0
     # an online timing reads the user's estimator, behind its monitor, and runs no cell estimator beside it
     env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(timing="online", n_cycles=1)))
     controller = timed_controller(env, f"{user_module}:ESTIMATING", setup)
