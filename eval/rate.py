@@ -440,7 +440,7 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
     scenario = args.scenario
     # Every tared row is tared; the lead's estimator retimes the online carries (the cell's own if the lead has none).
     tared = [key for key in args.controllers if controller_entry(key).tared]
-    if not controller_entry(args.controllers[0]).tared:
+    if not controller_entry(args.controllers[0]).has_estimator:
         tared.append(CELL_ESTIMATOR_KEY)
     if args.quick:
         print(f"{QUICK_NOTE} Measuring {_study_line(args)}.", flush=True)
