@@ -151,7 +151,8 @@ class ControllerEntry:
             raise TypeError(
                 f"controller {self.key!r}: declared privileged={self.privileged}, but its controller "
                 + ("does not take" if self.privileged else "takes")
-                + " the plant's truth (set_payload_masses, set_physical_parameters): declare what it is"
+                + " the plant's truth (set_payload_masses, set_physical_parameters): declare what it is on its "
+                "ControllerEntry"
             )
         if self.estimates_payload and not isinstance(controller, EstimatesPayload):
             raise TypeError(
@@ -163,7 +164,8 @@ class ControllerEntry:
             raise TypeError(
                 f"controller {self.key!r}: declared has_estimator={self.has_estimator}, but its controller "
                 + ("has no" if self.has_estimator else "runs a")
-                + " PayloadEstimator as its 'estimator' (controllers.base.PayloadEstimating): declare what it is"
+                + " PayloadEstimator as its 'estimator' (controllers.base.PayloadEstimating): declare what it is on "
+                "its ControllerEntry"
             )
 
 
