@@ -155,9 +155,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error(f"--video: {error}")
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
-    if "residual" in args.controllers:
+    policy_rows = [key for key in args.controllers if controller_entry(key).reads_policy_file]
+    if policy_rows:
         # Fail now, not after the other controllers have run. Only the settings are read here: the actor is read
-        # by the workers that run the residual episodes, which the comparison runs first.
+        # by the workers that run the policy's episodes, which the comparison runs first.
         try:
             base = read_policy_settings(args.residual).base
         except (FileNotFoundError, ValueError) as error:
@@ -167,17 +168,19 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.residual_base_servo = None if base is None else base.setup.servo
         robot = args.scenario.plant
         if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
+            rows = " and ".join(policy_rows)
             if not chosen:
-                args.controllers.remove("residual")
+                args.controllers = [key for key in args.controllers if key not in policy_rows]
                 args.left_out = (
-                    f"The residual row is left out: its policy ({args.residual.name}) was trained on another robot."
+                    f"The {rows} row{'s are' if len(policy_rows) > 1 else ' is'} left out: its policy "
+                    f"({args.residual.name}) was trained on another robot."
                 )
                 return args
             parser.error(
                 f"--residual: {args.residual} was trained on a robot with {base.setup.geometry} and "
                 f"{base.setup.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
-                "'residual' out of --controllers or train a policy on this robot (python -m eval.train_residual "
-                "--scenario/--geometry)"
+                f"{' and '.join(repr(key) for key in policy_rows)} out of --controllers or train a policy on this "
+                "robot (python -m eval.train_residual --scenario/--geometry)"
             )
     return args
 
@@ -187,10 +190,17 @@ SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
 
 
 def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
-    """The check of the table's invariant: no controller tracks better than the oracle bound, on the episodes
-    where the oracle is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
-    fault was injected (the oracle knows the fault-free plant and the payloads)."""
-    bound = controller_label("oracle")
+    """The check of the table's invariant for each bound among the rows (a privileged entry, the oracle)
+    (:func:`_bound_check`)."""
+    keys = dict.fromkeys(row["key"] for row in episode_rows)
+    return [line for key in keys if controller_entry(key).privileged for line in _bound_check(episode_rows, key)]
+
+
+def _bound_check(episode_rows: list[dict[str, Any]], key: str) -> list[str]:
+    """The check of the table's invariant: no controller tracks better than the bound ``key``, on the episodes
+    where it is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
+    fault was injected (the bound knows the fault-free plant and the payloads)."""
+    bound = controller_label(key)
     oracle_rows = [row for row in episode_rows if row["controller"] == bound]
     if not oracle_rows:
         return []
@@ -240,11 +250,18 @@ def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[
 
 
 def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any]]) -> list[str]:
-    """Which policy the residual row runs, on which base, and what it adds over that base's row."""
-    if "residual" not in args.controllers:
-        return []
+    """Which policy each row that reads the policy file runs (the residual), on which base, and what it adds over that
+    base's row."""
+    lines = []
+    for key in args.controllers:
+        if controller_entry(key).reads_policy_file:
+            lines += _policy_lines(args, episode_rows, controller_label(key))
+    return lines
+
+
+def _policy_lines(args: argparse.Namespace, episode_rows: list[dict[str, Any]], label: str) -> list[str]:
+    """The lines of :func:`_residual_section` on the row labelled ``label``."""
     base = args.residual_base or "a custom base"
-    label = controller_label("residual")
     moves = "has its own, from its training" if args.residual_base_moves else "does not carry"
     lines = [
         f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
@@ -298,6 +315,7 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
             keys=np.array(list(traces)),
             labels=np.array([controller_label(key) for key in traces]),
             estimates_payload=np.array([controller_entry(key).estimates_payload for key in traces]),
+            privileged=np.array([controller_entry(key).privileged for key in traces]),
             **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
             **{
                 f"{key}.{plots.REFERENCE_FIELD}": record.reference.xyz[1 : len(record.tracking_error) + 1]

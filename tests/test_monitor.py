@@ -86,13 +86,13 @@ def test_time_optimal_moves_raise_no_false_alarm(
     # envelope (``share`` 1), before the collision check allowed for the reference's acceleration steps, this
     # episode raised false collisions.
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed
+    from eval.tasks import timed_controller
 
     task = PickPlaceTask(timing=timing, n_cycles=cycles)
     if share is not None:
         task = PickPlaceTask(timing=timing, n_cycles=cycles, cycle="standard", torque_share=share)
     env = DeltaPickPlaceEnv(scenario=Scenario(task=task))
-    controller = timed(env, build_controller(key, controller_setup), key, controller_setup)
+    controller = timed_controller(env, key, controller_setup)
     record = run_episode(env, controller, seed)
     assert record.masses.max() > 1.0 and not record.diverged
     assert record.detected_faults == []
@@ -272,11 +272,11 @@ def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells
     controller_setup: ControllerSetup,
 ) -> None:
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed
+    from eval.tasks import timed_controller
 
     nan = FaultSpec("sensor_nan", carry_fraction=(0.5, 0.5), joint=0)
     env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(timing="online", n_cycles=1, faults=(nan,))))
-    controller = timed(env, build_controller("pd", controller_setup), "pd", controller_setup)
+    controller = timed_controller(env, "pd", controller_setup)
     record = run_episode(env, controller, 2)
     assert [event.kind for event in record.detected_faults] == ["sensor_nan"]
     assert np.isfinite(record.payload_estimate).all() and not record.diverged

@@ -49,6 +49,7 @@ def _run_folder(folder: Path, faults: bool = True) -> Path:
         keys=np.array(keys),
         labels=np.array(labels),
         estimates_payload=np.array([False, True, False]),
+        privileged=np.array([False, False, True]),
         **{f"{key}.tracking_error": 1e-3 * rng.random(steps) for key in keys},
         **{f"{key}.torque": torques[key] for key in keys},
         **{f"{key}.payload_mass": np.full(steps + 1, 2.0) for key in keys},

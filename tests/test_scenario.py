@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import delta_env  # noqa: F401 - registers DeltaPickPlace-v0
-from controllers.base import PDController
-from controllers.registry import build_controller, monitored
+from controllers.base import PDController, payload_estimator_of
+from controllers.payload_timing import EstimatingController
+from controllers.registry import build_controller, cell_estimator, monitored
 from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
@@ -193,10 +194,14 @@ def test_every_preset_builds_and_runs_a_short_episode(name: str, controller_setu
     # PD, but on the whole envelope (the data sheet's share) the model row that the planner's margin is left for
     key = "pd" if scenario.task.torque_share < 1.0 else "mid_f_rls_lag"
     controller = PDController(3000.0, 60.0) if key == "pd" else build_controller(key, controller_setup)
+    estimator = payload_estimator_of(controller)
+    if scenario.task.timing == "online" and estimator is None:  # the cell's estimator beside PD, as the eval runs it
+        estimator = cell_estimator(controller_setup)
+        controller = EstimatingController(controller, estimator)
     if scenario.task.faults:  # a NaN reading must reach no controller: a monitor cleans the observations
         controller = monitored(controller, controller_setup)
-    if scenario.task.timing != "fixed":  # a planned timing plans on the identified model: the evaluation gives it
-        controller = timed(env, controller, key, controller_setup)
+    # a planned timing plans on the identified model: the evaluation gives it
+    timed(env, controller_setup, estimator)
     observation, info = env.reset(seed=3)
     low, high = scenario.task.payload_mass_range
     assert np.all((info["payload_masses"] >= low) & (info["payload_masses"] <= high))

@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, Observation
+from controllers.base import Controller, Observation, payload_estimate_reader, payload_estimator_of
 from controllers.monitor.detector import FaultMonitor
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.tuning import REACTING_KINDS, ROLLBACK_SAMPLES, SENSOR_QUIET, SLOW_RATE
@@ -30,6 +30,7 @@ class MonitoredController:
         reaction: One of :data:`FAULT_REACTIONS`.
 
     Attributes:
+        estimator: The inner controller's payload estimator (:class:`~controllers.base.PayloadEstimating`), or None.
         requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
             1 until a reaction asks for less, and again once a collision it answered is over.
     """
@@ -46,9 +47,11 @@ class MonitoredController:
         self.monitor = monitor
         self.reaction = reaction
         self.name = controller.name
+        self.estimator: PayloadEstimator | None = payload_estimator_of(controller)
         self.requested_speed = 1.0
         self._lasting = False
         """Whether a reaction answered a lasting fault (a slip, a drive fault), which full speed never follows."""
+        self._estimate = payload_estimate_reader(controller)
         self._command: NDArray[np.float64] | None = None
         self._holding = False
         self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
@@ -61,12 +64,8 @@ class MonitoredController:
 
     @property
     def payload_estimate(self) -> float:
-        return getattr(self.controller, "payload_estimate", 0.0)
-
-    @property
-    def estimator(self) -> PayloadEstimator | None:
-        """The inner controller's payload estimator, or None."""
-        return getattr(self.controller, "estimator", None)
+        """The inner controller's payload estimate (kg) at the last call; 0 if it does not estimate the payload."""
+        return self._estimate()
 
     def reset(self) -> None:
         self.controller.reset()
