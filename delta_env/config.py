@@ -272,6 +272,17 @@ class PlantConfig:
         if not isinstance(self.payload_body, bool):
             raise ValueError(f"payload_body must be a bool, got {self.payload_body!r}")
         require_instance("drive", self.drive, DriveLimits)
+        compliance = self.realism.compliance
+        if compliance is not None:
+            # MuJoCo integrates a tendon's spring explicitly: stable while omega h < 2 for every mode. The locked-arm
+            # mode sqrt(k / J_m) is the stiffest one's lower bound; a free arm raises it by sqrt(1 + J_m / J_a).
+            locked = math.sqrt(float(np.max(compliance.stiffness_per_joint)) / compliance.rotor_inertia)
+            if locked * self.timestep > 1.0:
+                raise ValueError(
+                    f"the gearhead's locked-arm mode sqrt(k / J_m) = {locked:.0f} rad/s is too fast for the timestep "
+                    f"{self.timestep} s: it must stay below 1 / timestep = {1.0 / self.timestep:.0f} rad/s (a smaller "
+                    "timestep, a softer gearhead or a heavier rotor)"
+                )
         if not isinstance(self.collisions, bool):
             raise ValueError(f"collisions must be a bool, got {self.collisions!r}")
         if self.collisions and self.variant != "realistic":

@@ -275,7 +275,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         timestep = self.plant.model.opt.timestep
         self.n_substeps = control_substeps(timestep)
         realism = self.plant_config.realism
-        self._sensors = Sensors(self.plant, *encoder_steps(realism), realism.torque_noise_std)
+        encoder_step, load_encoder_step = encoder_steps(realism)
+        self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std, load_encoder_step)
         drive = self.plant_config.drive
         self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
