@@ -124,13 +124,14 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     | key | shape | unit | meaning |
     |---|---|---|---|
-    | ``joint_angles`` | (3,) | rad | encoder angles (quantized, 17 bit by default) |
+    | ``joint_angles`` | (3,) | rad | encoder angles (quantized, 17 bit by default; compliant drives: motor shaft) |
     | ``joint_velocities`` | (3,) | rad/s | encoder backward difference over one control period |
     | ``joint_torques`` | (3,) | N m | measured motor torque (actuator output plus white noise) |
     | ``reference_angles`` | (3,) | rad | reference theta of this step |
     | ``reference_velocities`` | (3,) | rad/s | reference theta_dot of this step |
     | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
     | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
+    | ``load_angles`` | (3,) | rad | load-side encoder on the arms: compliant drives with ``load_encoder_bits`` only |
 
     ## Rewards
     ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
