@@ -9,6 +9,7 @@ import gymnasium as gym
 
 from delta_env.config import (
     MAX_PAYLOAD_MASS,
+    GearheadCompliance,
     PhysicalParameters,
     PlantConfig,
     PlantRealism,
@@ -43,6 +44,7 @@ __all__ = [
     "DeltaMasses",
     "DeltaPickPlaceEnv",
     "DeltaPlant",
+    "GearheadCompliance",
     "PhysicalParameters",
     "PlantConfig",
     "PlantRealism",

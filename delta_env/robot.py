@@ -38,6 +38,10 @@ HOME_KEY = "home"
 POINT_INERTIA = 1e-12
 """Inertia (kg m^2) of the "point" bodies of the ideal variant; adds ~1e-10 N m at 100 rad/s^2."""
 
+ROTOR_BODY_MASS = 1e-12
+"""Mass (kg) of a compliant drive's rotor body: a point on its fixed axis, which neither gravity nor motion loads
+(MuJoCo needs a moving body's mass > 0); the rotor's inertia is its joint's armature."""
+
 UPPER_ARM_SPLIT = {"hub": 0.30, "tube": 0.50, "bar": 0.20}
 """Fractions of m1 in the hub, tube and elbow bar of the realistic upper arm."""
 
@@ -381,7 +385,7 @@ def _add_chain(
         # reflected inertia is the joint's armature, the body itself a point on the axis (no gravity moment).
         rotor = spec.worldbody.add_body(name=f"rotor_{label}", pos=g.ra * u, quat=_quat_z(alpha))
         rotor.add_joint(classes["motor"], name=f"rotor_{label}", armature=realism.compliance.rotor_inertia, **friction)
-        _set_inertial(rotor, (0.0, 0.0, 0.0), POINT_INERTIA, (POINT_INERTIA,) * 3)
+        _set_inertial(rotor, (0.0, 0.0, 0.0), ROTOR_BODY_MASS, (POINT_INERTIA,) * 3)
         home_qpos.append(0.0)
 
 
