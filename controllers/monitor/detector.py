@@ -105,7 +105,7 @@ class FaultMonitor:
         initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
         initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)
         initial["static_friction"] = dynamics.parameters.coulomb
-        initial["sample"] = initial["quiet_until"] = initial["held_since"] = initial["slip_pending_since"] = -1
+        initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
         initial["scatter"] = INITIAL_RESIDUAL_STD**2
         self._initial = initial
         self.events: list[DetectedFault] = []

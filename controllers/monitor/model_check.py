@@ -101,7 +101,6 @@ MODEL_CHECK_FIELDS = [
     ("evidence", np.float64),
     ("slip_armed", np.bool_),
     ("slip_mass", np.float64),
-    ("slip_pending_since", np.int64),
     ("onset_samples", np.int64),
 ]
 """The fields of the monitor's record that :func:`check_sample` keeps, beside ``sample`` (the sample's index since
@@ -148,7 +147,6 @@ def _restart_held(check: np.record) -> None:
     check.held_information = 0.0
     check.held_moment = 0.0
     check.evidence = 0.0
-    check.slip_pending_since = -1
     check.held_known = False
 
 
@@ -176,9 +174,10 @@ def _check_payload(
     """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
     since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi are
     ``terms`` of :func:`model_residual`. A sample whose residual, with nothing held, leaves a platform force
-    ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no evidence of a loss (a push): it clears the CUSUM. A
-    slip is the CUSUM above :data:`SLIP_EVIDENCE` for the record's ``onset_samples`` samples in a row, the time a
-    push's onset takes to show in full. Returns :data:`SLIPPED` or 0."""
+    ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no evidence of a loss (a push): it clears the CUSUM. No
+    sample adds more than :data:`SLIP_EVIDENCE` over the record's ``onset_samples``, so that no run shorter than a
+    push's onset (which, half shown, can look like the loss of a heavy object) makes a slip.
+    Returns :data:`SLIPPED` or 0."""
     if not holding:
         check.held_since = -1
         check.held_known = False
@@ -201,13 +200,10 @@ def _check_payload(
             check.held_known = True
         # test "gone" against "held" once the mass held is known well enough to tell them apart
         if held >= SLIP_MIN_MASS and check.held_information**-0.5 < SLIP_PRECISION * held:
-            evidence = check.evidence + held * (0.5 * held * information - moment)
+            ratio = held * (0.5 * held * information - moment)
+            evidence = check.evidence + min(ratio, SLIP_EVIDENCE / check.onset_samples)
             check.evidence = evidence if evidence > 0.0 and gone_force <= FORCE_REFERENCE else 0.0
-            if check.evidence <= SLIP_EVIDENCE:
-                check.slip_pending_since = -1
-            elif check.slip_pending_since < 0:
-                check.slip_pending_since = check.sample
-            if 0 <= check.slip_pending_since <= check.sample - check.onset_samples:
+            if check.evidence > SLIP_EVIDENCE:
                 check.slip_mass = held
                 check.slip_armed = False
                 check.held_mass = 0.0

@@ -84,11 +84,12 @@ SLIP_EVIDENCE = 12.0
 """Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
 
 PUSH_SHOWN_SHARE = 0.875
-"""Share of a step in the residual that the checked sample must show before a slip is believed: the slip check's
-CUSUM must stay over its threshold until a step that entered the smoother's window when it crossed shows at least
-this much (8 samples with the monitor's smoother), so that a push, whose onset the smoother spreads over its window
-and which early on can look like the loss of the object, has shown its whole force, which "gone" does not explain
-(docs/design.md section 6, "Fault monitor"). A slip is then found 8 ms later than the CUSUM alone finds it."""
+"""Share of a step in the residual that the checked sample shows once a push's onset is over: 8 samples after the
+step enters the smoother's window. The smoother spreads a push's onset over its window, and early on a push against
+the object's weight looks like its loss, which for a heavy object is worth 24 per sample; so no sample adds more
+than :data:`SLIP_EVIDENCE` over those 8 to the slip check's CUSUM, and a slip takes at least as long as the onset
+to show, by when the push's force, which "gone" does not explain, has cleared the CUSUM (docs/design.md section 6,
+"Fault monitor"). Heavy objects' slips are found a few ms later; light ones', whose samples add less, as before."""
 
 INITIAL_RESIDUAL_STD = 4.0
 """Standard deviation (N m) of the model's residual the slip check assumes at a reset, before it has measured its
