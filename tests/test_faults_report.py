@@ -12,7 +12,7 @@ import pytest
 from controllers.base import PDController
 from controllers.monitor import DetectedFault, ReportsFaults
 from delta_env.env import DeltaPickPlaceEnv
-from delta_env.faults import InjectedFault
+from delta_env.faults import FaultSpec, InjectedFault, is_latent
 from eval.episodes import run_episode
 from eval.faults import (
     CONFUSION_COLUMNS,
@@ -345,3 +345,24 @@ def test_the_confusion_matrix_in_memory_read_back_and_as_a_table(tmp_path: Path)
         "| A | collision | 0 | 0 | 0 | 0 | 0 | 2 | 2 |  |",
         "| A | none | 0 | 0 | 2 | 0 | 0 |  |  |  |",
     ]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_drive_fault_is_latent_exactly_when_every_command_stayed_within_what_the_drive_kept(seed: int) -> None:
+    """Against the fault-free twin's commands: a drive fault is latent iff the twin never asked its joint for more than
+    the fault kept over its steps (the episodes agree until it first does); never sized on the command (the default)."""
+    twin = run_episode(DeltaPickPlaceEnv(n_cycles=1), PDController(), seed=seed)
+    for relative_to, size in (("peak", None), ("peak", (0.0, 0.05)), ("command", None)):
+        spec = FaultSpec("drive_fault", relative_to=relative_to, size=size)
+        record = run_episode(DeltaPickPlaceEnv(n_cycles=1, faults=[spec]), PDController(), seed=seed)
+        (fault,) = record.injected_faults
+        asked = np.abs(twin.command[fault.start_step : fault.start_step + fault.steps, fault.joint])
+        kept = fault.size * record.peak_torque
+        over = np.flatnonzero(asked > kept)
+        assert is_latent(fault) == (over.size == 0)
+        if over.size:  # the episodes agree up to the first step the fault clips, which withholds the twin's excess
+            assert fault.withheld >= asked[over[0]] - kept - 1e-9
+        if relative_to == "command":
+            assert fault.withheld >= 0.5 * asked[0] > 0.0  # the default keeps at most half of the onset's command
+        scored = match_faults(record.injected_faults, [])
+        assert (scored.missed, len(scored.latent)) == ((0, 1) if is_latent(fault) else (1, 0))
