@@ -16,8 +16,9 @@ robot (``--geometry``, a design of the design study).
    ``config.json`` (the manifest: resolved configuration, command, status, start and end times),
    ``scenario.toml`` (the scenario, every field resolved),
    ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
-   ``table2.csv``, ``faults.csv`` (every injected fault, detected or missed, and every detection that matched
-   none: :mod:`eval.faults`; a header only when there were none), ``traces.npz`` and ``table2_run.npz`` (time
+   ``table2.csv``, ``faults.csv`` (every injected fault, detected, missed or latent, and every detection that
+   matched none: :mod:`eval.faults`; a header only when there were none), ``confusion.csv`` (only then: per
+   controller, injected kind by detected kind), ``traces.npz`` and ``table2_run.npz`` (time
    series: the first episode of each row, with its reference and platform paths), ``summary.md`` (with a Faults
    section when any fault was injected or detected) and the plots made from these files (:mod:`eval.plots`);
    prints the summary. Diverged episodes are counted in the table, never dropped silently: their
@@ -71,7 +72,15 @@ from eval.comparison import (
 )
 from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
-from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
+from eval.faults import (
+    DETECTION_GRACE_S,
+    NO_FAULT,
+    confusion_counts,
+    confusion_table,
+    fault_table,
+    write_confusion_csv,
+    write_fault_csv,
+)
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
@@ -242,9 +251,17 @@ def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[
         f"fault of its kind from the fault's start to {1e3 * DETECTION_GRACE_S:.0f} ms after its end; latency: "
         "detection time minus the fault's start. Consequences: other detections within a fault or its grace, "
         "counted under the kind of the fault they followed. False alarms: detections with no fault under way, "
-        "counted under the detected kind.",
+        "counted under the detected kind. Latent: drive faults whose every command stayed within what the drive "
+        "kept (they changed nothing; not scored).",
         "",
         fault_table(fault_rows, labels),
+        "",
+        "Confusion matrix (confusion.csv): per controller, injected kind by detected kind. A cell counts the injected "
+        "faults the controller reported at least once as that kind within the fault's window (its match or a "
+        f"consequence), so a fault reported as two kinds counts twice; column {NO_FAULT}: faults with no detection; "
+        f"row {NO_FAULT}: false alarms.",
+        "",
+        confusion_table(confusion_counts(fault_rows, labels)),
         "",
     ]
 
@@ -339,6 +356,10 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
         fault_rows = tabulate_faults(results, keys, args.seed)
         write_fault_csv(out / "faults.csv", fault_rows)
         plotter.saved("faults.csv")
+        if fault_rows:
+            write_confusion_csv(
+                out / "confusion.csv", confusion_counts(fault_rows, [controller_label(k) for k in keys])
+            )
         videos = _film(args, prepared) if args.video else []
         summary = _summarize(
             args, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows), videos=videos

@@ -316,9 +316,9 @@ MIN_FAULT_WIDTH_S = 0.01
 
 
 def fault_timeline(faults: list[dict[str, str]], path: Path, scenario: str) -> None:
-    """Every injected fault (a bar from its start to its end, coloured by kind; hatched when missed) and every
-    detection (a marker by outcome, coloured by the detected kind) of every episode, one lane per controller and
-    episode; no figure when ``faults`` is empty (a run without faults)."""
+    """Every injected fault (a bar from its start to its end, coloured by kind; hatched when missed, a dotted outline
+    when latent) and every detection (a marker by outcome, coloured by the detected kind) of every episode, one lane
+    per controller and episode; no figure when ``faults`` is empty (a run without faults)."""
     if not faults:
         return
     lanes = list(dict.fromkeys((row["controller"], row["episode"]) for row in faults))
@@ -329,9 +329,13 @@ def fault_timeline(faults: list[dict[str, str]], path: Path, scenario: str) -> N
     handles: dict[str, Any] = {}
     for lane, (controller, episode) in enumerate(lanes):
         for row in (row for row in faults if (row["controller"], row["episode"]) == (controller, episode)):
-            if row["outcome"] in ("detected", "missed"):
+            if row["outcome"] in ("detected", "missed", "latent"):
                 start, end = float(row["injected_at_s"]), float(row["ended_at_s"])
                 span, height = [(start, max(end - start, MIN_FAULT_WIDTH_S))], (lane - 0.3, 0.6)
+                if row["outcome"] == "latent":  # it changed nothing: an outline only
+                    bars = axis.broken_barh(span, height, facecolors="none", edgecolor=colours[row["kind"]], ls=":")
+                    handles.setdefault("latent (changed nothing; dotted)", bars)
+                    continue
                 bars = axis.broken_barh(span, height, facecolors=colours[row["kind"]], alpha=0.8)
                 handles.setdefault(f"injected: {row['kind']}", bars)
                 if row["outcome"] == "missed":
