@@ -339,8 +339,13 @@ def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
 
 
 def monitored(controller: Controller, setup: ControllerSetup) -> MonitoredController:
-    """``controller`` behind the :func:`fault_monitor` of ``setup``, reacting as ``setup.fault_reaction`` says."""
-    return MonitoredController(controller, fault_monitor(setup), setup.fault_reaction)
+    """``controller`` behind the :func:`fault_monitor` of ``setup``, reacting as ``setup.fault_reaction`` says; the
+    monitor takes the model's corrections to this robot from the controller's own payload estimator if it forms its
+    equations at the measured state, else from the :func:`cell_estimator` run beside it (the corrections fitted on
+    the reference absorb the robot's lag behind it, and without any the identified model is off on another robot)."""
+    own = payload_estimator_of(controller)
+    corrections_fit = None if own is not None and own.measures_state else cell_estimator(setup)
+    return MonitoredController(controller, fault_monitor(setup), setup.fault_reaction, corrections_fit)
 
 
 def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:

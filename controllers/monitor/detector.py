@@ -192,12 +192,16 @@ class FaultMonitor:
         self._field["charged_coulomb"][0] = charged_coulomb
         self._field["breakaway"][0] = BREAKAWAY_FACTOR * np.maximum(charged_coulomb, 0.0)
 
-    def update(self, observation: Observation, command: NDArray[np.float64] | None) -> dict[str, NDArray[np.float64]]:
-        """Check one observation given the command (N m) sent after the previous one (None at the first); return
+    def update(
+        self, observation: Observation, command: NDArray[np.float64] | None, feedforward_mass: float = 0.0
+    ) -> dict[str, NDArray[np.float64]]:
+        """Check one observation given the command (N m) sent after the previous one (None at the first) and the
+        payload mass (kg) its feedforward held (the controller's estimate; 0 for a controller without one); return
         the clean observation (a new dict; unchanged entries shared)."""
         angles = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         torques = np.asarray(observation["joint_torques"], dtype=float)
+        self._field["feedforward_mass"][0] = feedforward_mass
         result = monitor_step(
             self._state_bytes,
             self.dynamics.model_constants,

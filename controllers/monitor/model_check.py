@@ -43,7 +43,6 @@ from controllers.monitor.compiled import (
     platform_force,
     reference_step_bound,
     reference_torque,
-    shift_reference,
     slip_moments,
     torque_step_variance,
 )
@@ -70,10 +69,11 @@ MODEL_CHECK_FIELDS = [
     # the measured torques of the window and the one before, and the smoother's response to a step
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
-    # the model's torque and payload regressor along the reference over the window and the one before, the last
-    # ones, whether any was valid yet, and the weights of their steps in the collision check's band
+    # the feedforward's mass (kg, the controller's payload estimate, set before each sample), the model's torque
+    # with it along the reference over the window and the one before, the last torque and payload regressor, whether
+    # any was valid yet, and the weights of the torque's steps in the collision check's band
+    ("feedforward_mass", np.float64),
     ("reference_torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
-    ("reference_regressors", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("planned_torque", np.float64, (3,)),
     ("planned_regressor", np.float64, (3,)),
     ("reference_started", np.bool_),
@@ -258,14 +258,14 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
         state, angles - reference[0], reference[0], reference[1], reference[2], torque, holding
     )
     valid = reference_torque(model_constants, reference, state.planned_torque, state.planned_regressor)
+    planned = state.planned_torque + state.feedforward_mass * state.planned_regressor
     if first:
         for row in range(SMOOTHER_WINDOW + 1):
             state.torques[row, :] = torque
     if valid and not state.reference_started:  # the windows start at the first pose the model can take
         state.reference_started = True
         for row in range(SMOOTHER_WINDOW + 1):
-            state.reference_torques[row, :] = state.planned_torque
-            state.reference_regressors[row, :] = state.planned_regressor
+            state.reference_torques[row, :] = planned
     jerk_variance = torque_step_variance(state.torques, torque, state.squared_response)
     if head < 0:
         return 0
@@ -275,7 +275,7 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     held_known = held_then and state.held_known
     held = state.held_mass if held_known else 0.0
     other = 0.0 if state.slip_armed else state.slip_mass
-    shift_reference(state.reference_torques, state.reference_regressors, state.planned_torque, state.planned_regressor)
+    model_band = reference_step_bound(state.reference_torques, planned, state.step_weights)
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
     # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
@@ -286,24 +286,11 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
         return COLLIDING if state.collision else 0
     # the platform force the residual leaves with the mass held (or, before it is known, without the part along phi),
     # and with the other mass; each less what the model's own error explains (platform_force)
-    windows, weights = (state.reference_torques, state.reference_regressors), state.step_weights
     force, magnitude = platform_force(
-        terms,
-        held,
-        held_known,
-        held_then,
-        state.charged_coulomb,
-        state.breakaway,
-        reference_step_bound(*windows, held, weights),
+        terms, held, held_known, held_then, state.charged_coulomb, state.breakaway, model_band
     )
     other_force, other_magnitude = platform_force(
-        terms,
-        other,
-        True,
-        False,
-        state.charged_coulomb,
-        state.breakaway,
-        reference_step_bound(*windows, other, weights),
+        terms, other, True, False, state.charged_coulomb, state.breakaway, model_band
     )
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
     if held_then and other_magnitude < magnitude:  # the other mass explains the residual better: no force beyond it

@@ -28,6 +28,9 @@ class MonitoredController:
         controller: The controller to protect.
         monitor: Its monitor.
         reaction: One of :data:`FAULT_REACTIONS`.
+        corrections_fit: A payload estimator run beside the controller only to fit the model's corrections to this
+            robot on the empty moves, which the monitor's residual takes at each pick; None for the controller's own
+            estimator (when it forms its equations at the measured state) or none.
 
     Attributes:
         estimator: The inner controller's payload estimator (:class:`~controllers.base.PayloadEstimating`), or None.
@@ -40,6 +43,7 @@ class MonitoredController:
         controller: Controller,
         monitor: FaultMonitor,
         reaction: Literal["continue", "slow", "stop"] = "continue",
+        corrections_fit: PayloadEstimator | None = None,
     ) -> None:
         if reaction not in FAULT_REACTIONS:
             raise ValueError(f"reaction must be one of {list(FAULT_REACTIONS)}, got {reaction!r}")
@@ -55,8 +59,13 @@ class MonitoredController:
         self._command: NDArray[np.float64] | None = None
         self._holding = False
         self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
-        if self.estimator is not None:
-            self.estimator.keep_checkpoints(self._checkpoints)
+        self._corrections_fit = corrections_fit
+        own = self.estimator if self.estimator is not None and self.estimator.measures_state else None
+        self._corrections_source = own if corrections_fit is None else corrections_fit
+        self._guarded = [e for e in (self.estimator, corrections_fit) if e is not None]
+        """The estimators whose equations the monitor's findings gate: the controller's, the corrections' fit."""
+        for estimator in self._guarded:
+            estimator.keep_checkpoints(self._checkpoints)
 
     @property
     def detected_faults(self) -> Sequence[DetectedFault]:
@@ -70,6 +79,8 @@ class MonitoredController:
     def reset(self) -> None:
         self.controller.reset()
         self.monitor.reset()
+        if self._corrections_fit is not None:
+            self._corrections_fit.reset()
         self.requested_speed = 1.0
         self._lasting = False
         self._command = None
@@ -79,14 +90,14 @@ class MonitoredController:
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         monitor = self.monitor
         seen = len(monitor.events)
-        estimator = self.estimator
+        source = self._corrections_source
         holding = observation["gripper"].item(0) > 0.5
-        if holding and not self._holding and estimator is not None and estimator.fits_corrections:
-            monitor.set_corrections(estimator.corrections)  # what the empty moves so far say of this robot
+        if holding and not self._holding and source is not None and source.fits_corrections:
+            monitor.set_corrections(source.corrections)  # what the empty moves so far say of this robot
         self._holding = holding
-        clean = monitor.update(observation, self._command)
+        clean = monitor.update(observation, self._command, self._estimate())
         new = monitor.events[seen:]
-        if estimator is not None:
+        for estimator in self._guarded:
             if any(event.kind == "collision" for event in new):
                 # the collision's first samples entered before it was detected, from the first reading of its onset
                 # on: undo them
@@ -107,5 +118,7 @@ class MonitoredController:
                 self._lasting = self._lasting or any(kind != "collision" for kind in reacting)
             elif self.requested_speed < 1.0 and not self._lasting and not monitor.collision:
                 self.requested_speed = 1.0  # the push is over
+        if self._corrections_fit is not None:
+            self._corrections_fit.update(clean)
         self._command = np.asarray(self.controller(clean), dtype=float)
         return self._command
