@@ -73,6 +73,8 @@ def test_fault_free_episodes_raise_no_alarm(controller_setup: ControllerSetup) -
         ("mid_f_rls_lag", "worst_case", 4, 2, None),
         ("residual", "online", 9, 3, None),
         ("mid_f_rls_lag", "declared", 1, 2, 1.0),
+        ("mid_f_rls_ref", "declared", 0, 2, 1.0),
+        ("mid_f_rls", "online", 2, 2, 1.0),
     ],
 )
 def test_time_optimal_moves_raise_no_false_alarm(
