@@ -62,6 +62,7 @@ SENSOR_FIELDS = [
     ("torque_implausible", np.uint8, (3,)),
     ("shortfall", np.float64, (3,)),
     ("short_run", np.int64, (3,)),
+    ("held_glitch", np.float64, (3,)),  # the deviation of a reading short of the prediction, its report held back
     ("drive_active", np.uint8, (3,)),
     # constants: the encoder jump bound and stuck step (rad), the current loop's and the slowest healthy one's
     # (hold, keep) of detector.loop_response, the drive's peak torque (N m)
@@ -161,7 +162,9 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
             suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
             state.stuck[joint] = state.stuck[joint] + 1 if suspect[joint] else 0
         for joint in range(3):
-            if jump[joint] and state.glitch_active[joint] == 0 and state.stuck[joint] < STUCK_SAMPLES:
+            # the reading's step back onto the joint at a stuck spell's end is its end, not a glitch
+            fresh = state.glitch_active[joint] == 0 and state.after_stuck[joint] == 0
+            if jump[joint] and fresh and state.stuck[joint] < STUCK_SAMPLES:
                 record_event(state, ENCODER_GLITCH, joint, second_difference[joint])
         for joint in range(3):
             if state.stuck[joint] == STUCK_SAMPLES:
@@ -240,9 +243,19 @@ def clean_torques(
         high = _maximum(_maximum(previous, held[joint]), before[joint]) + TORQUE_MARGIN
         implausible[joint] = finite[joint] and (torque[joint] < low or torque[joint] > high)
         state.torque_bad[joint] = state.torque_bad[joint] + 1 if implausible[joint] else 0
+    # A glitch is reported at its reading, unless the reading falls short of the prediction on the command's side:
+    # a drive's loss reads so too, so its report waits for the next reading (a glitch if that one is plausible
+    # again, else the run goes on to the drive-fault check)
     for joint in range(3):
         if state.torque_bad[joint] == 1:
-            record_event(state, TORQUE_GLITCH, joint, torque[joint] - predicted[joint])
+            deviation = torque[joint] - predicted[joint]
+            if _sign(torque[joint]) == _sign(predicted[joint]) and abs(torque[joint]) < abs(predicted[joint]):
+                state.held_glitch[joint] = deviation
+            else:
+                record_event(state, TORQUE_GLITCH, joint, deviation)
+        elif state.torque_bad[joint] == 0 and not math.isnan(state.held_glitch[joint]):
+            record_event(state, TORQUE_GLITCH, joint, state.held_glitch[joint])
+            state.held_glitch[joint] = math.nan
     # A drive that does not deliver its command: implausible torques in a row, all short of the prediction (a large
     # loss), or a CUSUM of how far each reading falls short of what the slowest plausible current loop would reach
     # from the last reading (a loss too small for the span check); a span-implausible reading or its successor adds
@@ -263,6 +276,7 @@ def clean_torques(
         large = state.short_run[joint] >= DRIVE_FAULT_SAMPLES
         if (large or state.shortfall[joint] > DRIVE_FAULT_EVIDENCE) and state.drive_active[joint] == 0:
             record_event(state, DRIVE_FAULT, joint, abs(predicted[joint]) - abs(torque[joint]))
+            state.held_glitch[joint] = math.nan  # its first reading was the drive's, not a glitch
             state.drive_active[joint] = True
     for joint in range(3):
         evident = state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0

@@ -97,11 +97,12 @@ def monitor_step(
     state.reference[1, :] = reference_rates
     state.reference[2, :] = reference_accelerations
     replaced = clean_encoders(state, angles, rates) | clean_torques(state, torques, command, has_command)
-    faulty = suspect = False
+    faulty = suspect = short = False
     for joint in range(3):
         faulty |= state.encoder_bad[joint] != 0 or state.torque_bad[joint] > 0
         faulty |= state.nan_active[joint] != 0 or state.nan_active[3 + joint] != 0
         suspect |= state.stuck[joint] > 0
+        short |= state.short_run[joint] > 0
     state.faulty, state.suspect = faulty, suspect
     state.faulty_run = state.faulty_run + 1 if faulty else 0
     # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago, or
@@ -112,6 +113,8 @@ def monitor_step(
         state.quiet_samples = RESYNC_QUIET
     elif suspect or state.faulty_run > 1:
         state.quiet_samples = SENSOR_QUIET
+    elif short:  # maybe a drive's loss: the command's prediction is not what the joint got
+        state.quiet_samples = 1
     else:
         state.quiet_samples = 0
     if state.quiet_samples:
