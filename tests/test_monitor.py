@@ -315,3 +315,29 @@ def test_every_fault_of_an_episode_with_several_is_detected_as_itself_at_its_sta
             and 0.0 <= event.time_s - injected.start_s <= 0.015
             for event in record.detected_faults
         ), injected
+
+
+def test_after_a_slip_found_wrongly_the_estimate_recovers_the_object_still_held(
+    controller_setup: ControllerSetup,
+) -> None:
+    # the estimator told mid-carry that a held 3 kg object is gone: it restarts at the tare and, the object still
+    # there, learns it again from the rest of the carry (measured: back within 5 % after 81 ms; at the place 2.7 %
+    # short of the run without the drop)
+    controller = _monitored_rls(controller_setup)
+    env = DeltaPickPlaceEnv(n_cycles=2, payload_mass_range=(3.0, 3.0), release="timed")
+    dropped = []
+
+    def drop_mid_carry(step: int) -> None:
+        pick, place = env.trajectory.pick_indices[0], env.trajectory.place_indices[0]
+        if step == (pick + place) // 2:
+            controller.estimator.drop_object()
+            dropped.append(step)
+
+    clean = run_episode(env, controller, 3)
+    record = run_episode(env, controller, 3, after_step=drop_mid_carry)
+    (step,) = dropped
+    estimate, place = record.payload_estimate, record.place_indices[0] - 1
+    assert estimate[step + 1] < 0.1
+    back = next(k for k in range(step, len(estimate)) if abs(estimate[k] - 3.0) < 0.15)
+    assert back - step < 0.12 / env.dt
+    assert estimate[place] == pytest.approx(clean.payload_estimate[place], rel=0.05)
