@@ -108,8 +108,10 @@ def monitor_step(
     # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago, or
     # the current loop's prediction): the model's equations keep it. Replacements in a row drift from the joint (a
     # stuck encoder: the joint runs on its feedforward), so they and the smoother's lag after them are left out, as
-    # is a repeated reading not yet called stuck, and the smoother's window after a step back.
-    if state.resynced:
+    # is a repeated reading not yet called stuck, and the smoother's window after a step back: of the clean readings
+    # onto an encoder, or of a drive's torque onto its command when a drive fault ends (its joint's acceleration
+    # steps with it, which the smoother spreads over its window).
+    if state.resynced or state.drive_ended:  # a step back (onto the encoder, or of the torque onto the command)
         state.quiet_samples = RESYNC_QUIET
     elif suspect or state.faulty_run > 1:
         state.quiet_samples = SENSOR_QUIET
