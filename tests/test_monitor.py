@@ -241,6 +241,19 @@ def test_a_drive_that_loses_a_small_torque_is_detected(controller_setup: Control
     drive = [event for event in record.detected_faults if event.kind == "drive_fault"]
     assert drive and drive[0].joint == 1
     assert 0.0 <= drive[0].time_s - injected.start_s <= 0.015
+    # a drive fault only: not a glitch at its first short reading, nor a collision when its torque steps back
+    assert {event.kind for event in record.detected_faults} == {"drive_fault"}
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_drive_that_delivers_nothing_for_60_ms_is_a_drive_fault_not_a_collision(
+    controller_setup: ControllerSetup, seed: int
+) -> None:
+    # joint 2 delivers nothing for 60 ms mid-carry: when it delivers again its torque steps back onto the command,
+    # and before the smoother's window was kept out of the checks there, this raised a 116 N collision 8 ms later
+    fault = FaultSpec("drive_fault", carry_fraction=(0.5, 0.5), size=(0.0, 0.0), duration=(0.06, 0.06), joint=2)
+    record, _ = _run([fault], _monitored_rls(controller_setup), seed=seed)
+    assert {event.kind for event in record.detected_faults} == {"drive_fault"}
 
 
 def test_a_light_slip_on_a_robot_unlike_its_identification_is_caught_without_false_alarms(
