@@ -55,6 +55,8 @@ class MonitoredController:
         self.requested_speed = 1.0
         self._lasting = False
         """Whether a reaction answered a lasting fault (a slip, a drive fault), which full speed never follows."""
+        self._held_after_collision = False
+        """Whether a collision struck the carry under way."""
         self._estimate = payload_estimate_reader(controller)
         self._command: NDArray[np.float64] | None = None
         self._holding = False
@@ -83,6 +85,7 @@ class MonitoredController:
             self._corrections_fit.reset()
         self.requested_speed = 1.0
         self._lasting = False
+        self._held_after_collision = False
         self._command = None
         self._holding = False
         self.monitor.set_corrections(None)
@@ -97,8 +100,14 @@ class MonitoredController:
         self._holding = holding
         clean = monitor.update(observation, self._command, self._estimate())
         new = monitor.events[seen:]
+        collided = any(event.kind == "collision" for event in new)
+        # an estimator that forms its equations at the reference reads the arm's recovery from a push as payload:
+        # after a collision it keeps its estimate to the end of the carry
+        self._held_after_collision = holding and (self._held_after_collision or collided)
         for estimator in self._guarded:
-            if any(event.kind == "collision" for event in new):
+            if self._held_after_collision and not estimator.measures_state:
+                estimator.skip(1)
+            if collided:
                 # the collision's first samples entered before it was detected, from the first reading of its onset
                 # on: undo them
                 onset = monitor.collision_samples + monitor.onset_samples
