@@ -344,7 +344,7 @@ def monitored(controller: Controller, setup: ControllerSetup) -> MonitoredContro
     equations at the measured state, else from the :func:`cell_estimator` run beside it (the corrections fitted on
     the reference absorb the robot's lag behind it, and without any the identified model is off on another robot)."""
     own = payload_estimator_of(controller)
-    corrections_fit = None if own is not None and own.measures_state else cell_estimator(setup)
+    corrections_fit = None if isinstance(own, PayloadEstimator) and own.measures_state else cell_estimator(setup)
     return MonitoredController(controller, fault_monitor(setup), setup.fault_reaction, corrections_fit)
 
 

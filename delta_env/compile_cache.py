@@ -10,8 +10,10 @@ and writes nothing into the installed package. ``NUMBA_CACHE_DIR``, if set, wins
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import tempfile
 from pathlib import Path
 
 import numba
@@ -26,14 +28,32 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 
 def compile_cache_folder(root: Path = PROJECT_ROOT) -> Path:
     """``$XDG_CACHE_HOME/delta-pickplace/numba/<hash>`` (``~/.cache`` without XDG_CACHE_HOME), the hash of every
-    ``.py`` file of :data:`PACKAGES` under ``root`` (its path there and its bytes)."""
+    ``.py`` file of :data:`PACKAGES` under ``root`` (its path there and its bytes); where that cannot be created (no
+    home, a read-only one), the same under the system's temporary folder."""
     digest = hashlib.sha256()
     for package in PACKAGES:
         for path in sorted((root / package).rglob("*.py")):
             digest.update(path.relative_to(root).as_posix().encode())
             digest.update(path.read_bytes())
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "delta-pickplace" / "numba" / digest.hexdigest()[:16]
+    name = Path("delta-pickplace") / "numba" / digest.hexdigest()[:16]
+    for base in _cache_homes():
+        folder = base / name
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(folder, os.W_OK):
+            return folder
+    raise OSError(f"no writable folder for numba's cache under {[str(base) for base in _cache_homes()]}")
+
+
+def _cache_homes() -> list[Path]:
+    """The user's cache folder (if it has one), then the temporary folder (per user)."""
+    homes = []
+    with contextlib.suppress(KeyError, RuntimeError):  # no home
+        homes.append(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"))
+    homes.append(Path(tempfile.gettempdir()) / f"user-{os.getuid() if hasattr(os, 'getuid') else 'unknown'}")
+    return homes
 
 
 def use_compile_cache() -> None:

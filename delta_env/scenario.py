@@ -173,7 +173,8 @@ class PickPlaceTask:
         settle_timeout: Longest wait (s) for the in-position signal after the arrival; the gripper then acts anyway.
         fault_reaction: What the monitored controllers (:mod:`controllers.monitor`) ask of the cell after detecting a
             collision, a slip or a drive fault: ``"continue"``, ``"slow"`` (half the reference's speed) or
-            ``"stop"`` (a controlled stop at rest on the path, which ends the episode).
+            ``"stop"`` (a controlled stop at rest on the path, which ends the episode unless the cell resumes first:
+            full speed returns once a collision is over; a slip or a drive fault lasts).
     """
 
     cycle: Literal["conveyor", "standard"] = "conveyor"

@@ -33,3 +33,15 @@ def test_the_package_compiles_into_the_users_cache_not_into_itself() -> None:
     package = Path(delta_env.__file__).resolve().parent.parent
     folder = Path(numba.config.CACHE_DIR).resolve()
     assert numba.config.CACHE_DIR and package not in folder.parents
+
+
+def test_an_unwritable_cache_home_falls_back_to_the_temporary_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache home should be")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path / "tmp"))
+    _tree(tmp_path / "a", "x = 1\n")
+    folder = compile_cache_folder(tmp_path / "a")
+    assert folder.is_dir() and (tmp_path / "tmp") in folder.parents

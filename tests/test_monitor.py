@@ -187,11 +187,11 @@ def test_a_reaction_to_a_push_returns_to_full_speed_and_to_a_slip_does_not(
     pushed, _ = _run([push], _monitored_rls(setup), payload_mass_range=(2.0, 2.0))
     slipped, _ = _run([slip], _monitored_rls(setup), payload_mass_range=(2.0, 2.0))
     assert [event.kind for event in pushed.detected_faults] == ["collision"]
-    # the push is over within its 30 ms: back to full speed, every object placed, the reaction paid in time
-    # (measured: 20 ms longer, stopping or slowing)
+    # the push is over within its 30 ms and the model agrees again for the smoother's window: back to full speed,
+    # every object placed, the reaction paid in time (measured: 65 ms longer stopping, 33 ms slowing)
     assert not pushed.stopped and pushed.speed_override == 1.0
     assert len(pushed.place_indices) == len(clean.place_indices) == 2
-    assert 0.005 < (len(pushed.tracking_error) - len(clean.tracking_error)) * CONTROL_PERIOD < 0.04
+    assert 0.005 < (len(pushed.tracking_error) - len(clean.tracking_error)) * CONTROL_PERIOD < 0.12
     # a slip lasts: the cell stays slowed, or stopped (the episode ends at rest before the second place)
     assert [event.kind for event in slipped.detected_faults] == ["slip"]
     if reaction == "stop":

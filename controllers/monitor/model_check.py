@@ -91,6 +91,7 @@ MODEL_CHECK_FIELDS = [
     ("force_evidence", np.float64),
     ("collision", np.bool_),
     ("collision_samples", np.int64),
+    ("calm_samples", np.int64),
     # the slip check
     ("scatter", np.float64, (3,)),
     ("held_since", np.int64),
@@ -142,7 +143,7 @@ def lagged_step_weights(response: NDArray[np.float64], lags: int) -> NDArray[np.
 
 @numba.njit(cache=True)
 def _restart_held(check: np.record) -> None:
-    """Measure the mass held afresh from this sample on (at a pick, or after a collision)."""
+    """Measure the mass held afresh from this sample on (at a pick)."""
     check.held_since = check.sample
     check.held_information = 0.0
     check.held_moment = 0.0
@@ -208,6 +209,7 @@ def _check_payload(
                 check.slip_armed = False
                 check.held_mass = 0.0
                 check.held_known = True
+                check.force_evidence = 0.0  # the force the loss left was the slip's
                 return SLIPPED
     if check.force_evidence == 0.0:  # a collision's samples stay out of the mass held
         check.held_information += information
@@ -216,11 +218,13 @@ def _check_payload(
 
 
 @numba.njit(cache=True)
-def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float, quiet: bool) -> int:
-    """The collision check: a CUSUM over :data:`FORCE_REFERENCE` of the platform ``force`` (N) that no payload the
-    cup may hold explains (its norm ``magnitude``; :func:`check_sample`); once it has found a collision, capped at
-    :data:`FORCE_EVIDENCE`, so that the collision is over as soon as the force has stayed under the reference for a
-    detection's worth. Returns :data:`COLLIDED` or 0."""
+def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float, explained: bool, quiet: bool) -> int:
+    """The collision check: a CUSUM over :data:`FORCE_REFERENCE` of the platform ``force`` (N, its norm
+    ``magnitude``) the residual leaves with the mass held (:func:`check_sample`). It finds a collision once over
+    :data:`FORCE_EVIDENCE` on a sample that the other mass the cup may hold does not explain (``explained``: with
+    it, the force is under the reference): such a sample may be the object's loss, which the slip check decides
+    (a slip clears this CUSUM). Once found, the CUSUM is capped at :data:`FORCE_EVIDENCE`, and the collision is
+    over when it has stayed at zero for the smoother's window. Returns :data:`COLLIDED` or 0."""
     if quiet:
         check.force_evidence = 0.0
         check.collision = False
@@ -228,17 +232,19 @@ def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float,
     check.force[:] = force
     check.force_magnitude = magnitude
     evidence = check.force_evidence + magnitude - FORCE_REFERENCE
-    if check.collision and evidence > FORCE_EVIDENCE:  # a detection's worth: the collision ends soon after the force
+    if check.collision and evidence > FORCE_EVIDENCE:  # a detection's worth: the collision can end after the force
         evidence = FORCE_EVIDENCE
     check.force_evidence = evidence if evidence > 0.0 else 0.0
     check.collision_samples = check.collision_samples + 1 if check.force_evidence > 0.0 else 0
-    if check.force_evidence > FORCE_EVIDENCE and not check.collision:
+    if check.collision:
+        check.calm_samples = check.calm_samples + 1 if check.force_evidence == 0.0 else 0
+        if check.calm_samples >= SMOOTHER_WINDOW:
+            check.collision = False
+        return 0
+    if check.force_evidence > FORCE_EVIDENCE and not explained:
         check.collision = True
+        check.calm_samples = 0
         return COLLIDED
-    if check.force_evidence == 0.0 and check.collision:
-        check.collision = False
-        if check.held_since >= 0 and check.slip_armed:  # what the collision left in the mass held: afresh
-            _restart_held(check)
     return 0
 
 
@@ -289,11 +295,8 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     force, magnitude = platform_force(
         terms, held, held_known, held_then, state.charged_coulomb, state.breakaway, model_band
     )
-    other_force, other_magnitude = platform_force(
-        terms, other, True, False, state.charged_coulomb, state.breakaway, model_band
-    )
+    _, other_magnitude = platform_force(terms, other, True, False, state.charged_coulomb, state.breakaway, model_band)
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
-    if held_then and other_magnitude < magnitude:  # the other mass explains the residual better: no force beyond it
-        force, magnitude = other_force, other_magnitude
-    found |= _check_force(state, force, magnitude, quiet_then)
+    explained = held_then and other_magnitude <= FORCE_REFERENCE
+    found |= _check_force(state, force, magnitude, explained, quiet_then)
     return found | (COLLIDING if state.collision else 0)

@@ -64,6 +64,7 @@ SENSOR_FIELDS = [
     ("short_run", np.int64, (3,)),
     ("held_glitch", np.float64, (3,)),  # the deviation of a reading short of the prediction, its report held back
     ("drive_active", np.uint8, (3,)),
+    ("delivering", np.int64, (3,)),  # readings in a row that meet the loop's prediction, during a drive fault
     ("drive_ended", np.bool_),  # a drive fault ended on this sample: the torque steps back to the command
     # constants: the encoder jump bound and stuck step (rad), the current loop's and the slowest healthy one's
     # (hold, keep) of detector.loop_response, the drive's peak torque (N m)
@@ -287,12 +288,15 @@ def clean_torques(
             record_event(state, DRIVE_FAULT, joint, abs(predicted[joint]) - abs(torque[joint]))
             state.held_glitch[joint] = math.nan  # its first reading was the drive's, not a glitch
             state.drive_active[joint] = True
-    # A drive fault ends when its drive delivers the loop's prediction again (its torque steps back onto the
-    # command), or when its evidence is gone
+    # A drive fault ends when its drive has delivered the loop's prediction again for DRIVE_FAULT_SAMPLES readings
+    # (its torque stepped back onto the command; a lone one may be a command that dipped under the drive's limit),
+    # or when its evidence is gone
     state.drive_ended = False
     for joint in range(3):
         delivers = finite[joint] and abs(torque[joint] - predicted[joint]) <= TORQUE_MARGIN
-        evident = (state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0) and not delivers
+        state.delivering[joint] = state.delivering[joint] + 1 if delivers and state.drive_active[joint] else 0
+        recovered = state.delivering[joint] >= DRIVE_FAULT_SAMPLES
+        evident = (state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0) and not recovered
         if state.drive_active[joint] != 0 and not evident:
             state.drive_ended = True
             state.shortfall[joint] = 0.0

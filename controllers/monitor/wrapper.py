@@ -51,7 +51,8 @@ class MonitoredController:
         self.monitor = monitor
         self.reaction = reaction
         self.name = controller.name
-        self.estimator: PayloadEstimator | None = payload_estimator_of(controller)
+        estimator = payload_estimator_of(controller)  # a user's own kind of estimator is not the monitor's to gate
+        self.estimator: PayloadEstimator | None = estimator if isinstance(estimator, PayloadEstimator) else None
         self.requested_speed = 1.0
         self._lasting = False
         """Whether a reaction answered a lasting fault (a slip, a drive fault), which full speed never follows."""
