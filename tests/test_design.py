@@ -36,13 +36,17 @@ def test_nominal_design_is_feasible_with_plausible_figures(nominal):
     assert 0.9 < nominal.cylinder_diameter_m < 1.0  # an industrial-size data-sheet cylinder
     assert nominal.cylinder_top_m >= cylinder.REQUIRED_TOP and nominal.cylinder.bottom >= performance.TASK_BAND[0]
     assert nominal.workspace_m3 == pytest.approx(nominal.cylinder.volume)
-    assert 40.0 < nominal.peak_torque_nm < 100.0  # 3.8 kg at 3 g; DESIGN's 170 N m is at 6 g
+    # 3.8 kg at 3 g, measured 76.2 N m (DESIGN's 170 N m is at 6 g); 8 kg measured 1.55 times that
+    assert nominal.peak_torque_nm == pytest.approx(76.2, rel=0.1)
     assert len(nominal.cycles) == len(performance.TASK_CYCLES)
     heavier = performance.evaluate(NOMINAL_GEOMETRY, payload=8.0)
-    assert heavier.peak_torque_nm > nominal.peak_torque_nm
+    assert heavier.peak_torque_nm > 1.4 * nominal.peak_torque_nm
     # its own catalogue drive: picks/min on the standard cycle, the light payload faster than the rated one
     assert nominal.drive.option is not None and nominal.drive.rated.check.holds
-    assert 100.0 < nominal.picks_per_min < nominal.picks_per_min_light < 250.0
+    # measured 155.0 and 165.3 picks/min
+    assert nominal.picks_per_min == pytest.approx(155.0, rel=0.1)
+    assert nominal.picks_per_min_light == pytest.approx(165.3, rel=0.1)
+    assert nominal.picks_per_min < nominal.picks_per_min_light
     assert optimize.objective_vector(nominal)[2] == -nominal.picks_per_min
     # on the default belt the pick rate is the co-design's at the data-sheet placement
     alone = codesign.choose_drive(NOMINAL_GEOMETRY)
@@ -176,6 +180,7 @@ def test_a_design_is_identified_on_its_own_plant(short_arm):
     assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)
 
 
+@pytest.mark.slow
 def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     # The identification's accuracy and the verification's figures are checked above (short_arm); here a small
     # identification (two 2 s runs) and a tare of two episodes feed the verification, whose plumbing into the run

@@ -184,8 +184,9 @@ def test_loops_stay_closed_carrying_4kg_through_a_fast_motion() -> None:
         gap[k] = plant.loop_gap(refresh=True)
         error[k] = np.max(np.abs(plant.joint_angles() - theta[k + 1]))
     assert [w.number for w in plant.data.warning] == [0] * mujoco.mjtWarning.mjNWARNING
-    assert gap.max() < 1e-4, f"loop gap {gap.max()} m"
-    assert error.max() < 0.01, "feedforward + PD should track within 10 mrad despite the 1 ms lag"
+    # measured 6.8 um and 2.3 mrad
+    assert gap.max() < 1.2e-5, f"loop gap {gap.max()} m"
+    assert error.max() < 4e-3, "feedforward + PD should track within 4 mrad despite the 1 ms lag"
 
 
 def test_batches_equal_single_samples_and_leave_no_trace(oracle_states: Callable) -> None:
