@@ -26,6 +26,7 @@ from eval.episodes import EpisodeRecord, run_episode
 from eval.faults import FAULT_COLUMNS
 from eval.parameter_files import load_or_identify
 from eval.tables import BOUND_HOLDS, bound_violations, controller_table, residual_gain
+from tests.conftest import pd_episode
 
 DT = 1e-3
 
@@ -575,12 +576,8 @@ def test_run_episode_records_the_largest_loop_gap() -> None:
     env = DeltaPickPlaceEnv(n_cycles=1)
     record = run_episode(env, PDController(), seed=4, payload_masses=[1.0])
     # the same seeded episode stepped by hand: the record holds the largest gap the env reported
-    observation, _ = env.reset(seed=4, options={"payload_masses": [1.0]})
-    controller, gaps = PDController(), []
-    controller.reset()
-    for _ in range(len(record.tracking_error)):
-        observation, _, _, _, info = env.step(controller(observation))
-        gaps.append(info["loop_gap"])
+    steps = pd_episode(env, 4, {"payload_masses": [1.0]}, max_steps=len(record.tracking_error))
+    gaps = [step.info["loop_gap"] for step in steps]
     env.close()
     assert record.max_loop_gap == max(gaps)
     assert 0.0 < record.max_loop_gap < 1e-5  # measured 6.4 um: the realistic plant's loops stay closed
