@@ -481,8 +481,10 @@ def bound_row(
     label: str, seed: int, rms: float, diverged: bool = False, clipped: int = 0, fast: int = 0, faults: int = 0
 ) -> dict:
     """An episode row of the bound check: tracking RMS (mm), steps the drive clipped and steps beyond its speed,
-    faults injected."""
+    faults injected. A label that is no built-in row's ("A", "B") stands for a plain controller's row."""
+    keys = {row_label: key for key, row_label in CONTROLLER_LABELS.items()}
     return {
+        "key": keys.get(label, "mid"),
         "controller": label,
         "seed": seed,
         "tracking_rms_mm": rms,
