@@ -136,6 +136,7 @@ def test_the_calibration_seeds_are_the_same_for_every_experiment() -> None:
     assert calibration_seeds(3) == [100_000, 100_001, 100_002]
 
 
+@pytest.mark.slow
 def test_run_grid_gives_the_same_rows_and_records_in_this_process_and_on_a_pool() -> None:
     scenario = tiny()
     units = grid([scenario], ["pd", "mid_f_rls"], [0, 1])

@@ -353,6 +353,7 @@ def read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(file))
 
 
+@pytest.mark.slow
 def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "run"
     argv = ["--episodes", "1", "--cycles", "1", "--controllers", "pd,mid_f_rls", "--out", str(out)]
