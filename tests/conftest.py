@@ -11,14 +11,16 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
 import pytest
 
+from controllers.base import PDController
 from controllers.dynamics import ModelParameters
 from controllers.registry import ControllerSetup
-from delta_env import NOMINAL_GEOMETRY, kinematics
+from delta_env import NOMINAL_GEOMETRY, DeltaPickPlaceEnv, kinematics
 from eval.parameter_files import load_or_identify
 
 # ---------------------------------------------------------------------------------------------
@@ -87,6 +89,31 @@ def random_joint_states() -> Callable[..., tuple[np.ndarray, ...]]:
 def joint_min_jerk_move() -> Callable[..., tuple[np.ndarray, ...]]:
     """``joint_min_jerk_move(theta_start, theta_end, duration, dt)``: a rest-to-rest minimum-jerk move."""
     return _joint_min_jerk_move
+
+
+class Step(NamedTuple):
+    """One env step: the action sent, and the observation, info and reward it returned."""
+
+    action: np.ndarray
+    observation: dict[str, np.ndarray]
+    info: dict
+    reward: float
+
+
+def pd_episode(
+    env: DeltaPickPlaceEnv, seed: int, options: dict | None = None, max_steps: int | None = None
+) -> list[Step]:
+    """Every step of a PD episode of ``env`` from ``reset(seed=seed, options=options)``, to the episode's end or
+    ``max_steps``."""
+    observation, _ = env.reset(seed=seed, options=options)
+    controller, steps = PDController(), []
+    while max_steps is None or len(steps) < max_steps:
+        action = controller(observation)
+        observation, reward, terminated, truncated, info = env.step(action)
+        steps.append(Step(action, observation, info, reward))
+        if terminated or truncated:
+            break
+    return steps
 
 
 def run_python(code: str) -> str:

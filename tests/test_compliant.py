@@ -212,7 +212,7 @@ def test_rigid_plant_is_unchanged_bit_for_bit() -> None:
 
 def test_a_default_controller_tracks_the_compliant_plant_once_its_mode_is_damped(controller_setup) -> None:
     """The lag-compensated model row (not tuned for compliance) on the preset with the gearhead's damping 5x (damping
-    ratio 0.18 against a locked arm): no divergence, the loops closed, tracking within 0.5 mm RMS (measured 0.15 mm;
+    ratio 0.18 against a locked arm): no divergence, the loops closed, tracking within 0.5 mm RMS (measured 0.32 mm;
     0.04 mm on the rigid plant). At the preset's own damping (0.035) its 1 kHz motor-side loop, through the 1 ms
     current loop, drives the gearhead's mode unstable, as a linear two-mass analysis of its gains predicts
     (docs/design.md section 4): that is the controller's to fix (issue 36, item 3), not the plant's."""
@@ -224,5 +224,5 @@ def test_a_default_controller_tracks_the_compliant_plant_once_its_mode_is_damped
     # glitches and collisions, and the replaced readings made this episode flail (0.78 m RMS)
     record = run_episode(env, controller_entry("mid_f_rls_lag").build(controller_setup).controller, seed=0)
     assert not record.diverged
-    assert record.max_loop_gap < 1e-4
+    assert record.max_loop_gap < 6e-6  # measured 3.8 um
     assert np.sqrt(np.mean(record.tracking_error**2)) < 0.5e-3

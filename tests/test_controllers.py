@@ -108,8 +108,9 @@ RECORDED_TRACKING_RMS_MM = {
 
 The model rows and the bound run the servo layer (the default). On seeds 4-6 every row lies within 33 % of these (the
 RLS rows' carries are short, and one stop more or less in position moves them), so :data:`TRACKING_RMS_RTOL` holds a
-change that redraws the episode and fails a regression of 1.4 times or more. Update a row, with its README table,
-when it improves."""
+change that redraws the episode and fails a regression of 1.4 times or more. The bands around PD, the model rows
+and the bound do not overlap, so they hold the ranking too (feedforward beats PD, nothing beats the bound). Update a
+row, with its README table, when it improves."""
 
 TRACKING_RMS_RTOL = 0.35
 
@@ -119,27 +120,16 @@ def test_each_controller_tracks_a_seeded_episode(key: str, records: dict[str, Ep
     record = records[key]
     assert not record.diverged and record.saturated_steps == 0
     rms = record.metrics()["tracking_rms_mm"]
-    pd_rms = records["pd"].metrics()["tracking_rms_mm"]
     assert rms == pytest.approx(RECORDED_TRACKING_RMS_MM[key], rel=TRACKING_RMS_RTOL)
-    if key != "pd":
-        assert rms < 0.8 * pd_rms, "feedforward must beat PD alone"
-
-
-@pytest.mark.parametrize("key", RLS_KEYS)
-def test_payload_rls_tracks_within_targets(key: str, records: dict[str, EpisodeRecord]) -> None:
-    rms = {name: record.metrics()["tracking_rms_mm"] for name, record in records.items()}
-    assert rms[key] <= 0.2 * rms["pd"]
-    # The bound inverts the drive too (0.016 mm): no controller beats it, and the RLS rows stay within 30x.
-    assert rms["oracle"] < rms[key] <= 30.0 * rms["oracle"]
 
 
 @pytest.mark.parametrize(
     ("variant", "masses", "deadline_ms"),
     [
-        # Measured: 80 and 107 ms, end errors -0.64 and +0.14 %.
-        ("realistic", (3.8, 1.0), 150.0),
-        # MKH is exact on the ideal plant: no tare, no friction. Measured: 71 and 74 ms, +0.05 and -0.3 %.
-        ("ideal", (2.0, 0.5), 150.0),
+        # Measured: 33 and 54 ms, end errors -0.17 and +0.89 %.
+        ("realistic", (3.8, 1.0), 90.0),
+        # MKH is exact on the ideal plant: no tare, no friction. Measured: 19 and 28 ms, +0.045 and +0.066 %.
+        ("ideal", (2.0, 0.5), 45.0),
     ],
 )
 def test_rls_converges_to_the_true_payload_on_the_plant(
@@ -148,11 +138,11 @@ def test_rls_converges_to_the_true_payload_on_the_plant(
     if variant == "ideal":
         env = DeltaPickPlaceEnv(plant=PlantConfig.ideal(), n_cycles=len(masses))
         dynamics = DeltaDynamics.nominal()
-        estimator, tolerance = PayloadEstimator(dynamics), 0.01
+        estimator, tolerance = PayloadEstimator(dynamics), 0.001
     else:
         env = DeltaPickPlaceEnv(n_cycles=len(masses))
         dynamics = estimation_model(tared_setup)
-        estimator, tolerance = PayloadEstimator(dynamics, tare=tared_setup.tares["mid_f_rls"]), 0.05
+        estimator, tolerance = PayloadEstimator(dynamics, tare=tared_setup.tares["mid_f_rls"]), 0.015
     controller = FeedforwardController("MId+F+RLS", dynamics, estimator=estimator)
     record = run_episode(env, controller, seed=8, payload_masses=masses)
     carries = record.carries()

@@ -36,13 +36,17 @@ def test_nominal_design_is_feasible_with_plausible_figures(nominal):
     assert 0.9 < nominal.cylinder_diameter_m < 1.0  # an industrial-size data-sheet cylinder
     assert nominal.cylinder_top_m >= cylinder.REQUIRED_TOP and nominal.cylinder.bottom >= performance.TASK_BAND[0]
     assert nominal.workspace_m3 == pytest.approx(nominal.cylinder.volume)
-    assert 40.0 < nominal.peak_torque_nm < 100.0  # 3.8 kg at 3 g; DESIGN's 170 N m is at 6 g
+    # 3.8 kg at 3 g, measured 76.2 N m (DESIGN's 170 N m is at 6 g); 8 kg measured 1.55 times that
+    assert nominal.peak_torque_nm == pytest.approx(76.2, rel=0.1)
     assert len(nominal.cycles) == len(performance.TASK_CYCLES)
     heavier = performance.evaluate(NOMINAL_GEOMETRY, payload=8.0)
-    assert heavier.peak_torque_nm > nominal.peak_torque_nm
+    assert heavier.peak_torque_nm > 1.4 * nominal.peak_torque_nm
     # its own catalogue drive: picks/min on the standard cycle, the light payload faster than the rated one
     assert nominal.drive.option is not None and nominal.drive.rated.check.holds
-    assert 100.0 < nominal.picks_per_min < nominal.picks_per_min_light < 250.0
+    # measured 155.0 and 165.3 picks/min
+    assert nominal.picks_per_min == pytest.approx(155.0, rel=0.1)
+    assert nominal.picks_per_min_light == pytest.approx(165.3, rel=0.1)
+    assert nominal.picks_per_min < nominal.picks_per_min_light
     assert optimize.objective_vector(nominal)[2] == -nominal.picks_per_min
     # on the default belt the pick rate is the co-design's at the data-sheet placement
     alone = codesign.choose_drive(NOMINAL_GEOMETRY)
@@ -143,24 +147,28 @@ def test_model_controller_uses_the_robot_it_is_given():
 @pytest.fixture(scope="module")
 def short_arm() -> verify.Verification:
     """The closed-loop verification of a design unlike the nominal robot (shorter arms and forearms), one
-    episode per controller: one identification of its plant for every test of it."""
+    episode per controller: one identification of its plant for every test of it (39 s: its tests are slow)."""
     design = performance.evaluate(DeltaGeometry(0.244, 0.050, 0.318, 1.054))
     assert design.feasible, design.reason
     return verify.verify_design("short arm", design, episodes=1, seed=1)
 
 
+@pytest.mark.slow
 def test_verification_runs_every_controller_with_closed_loops(short_arm):
     result = short_arm
     assert result.feasible, result.reason
     assert {e.controller for e in result.episodes} == set(verify.CONTROLLERS)
-    assert all(e.max_loop_gap_m < verify.LOOP_GAP_LIMIT for e in result.episodes)
-    assert result.mean("MId+F+R+RLS+PD", "tracking_rms_mm") < 0.2 * result.mean("PD", "tracking_rms_mm")
-    # the identified model and the design model with its drives both predict the torque the plant needs
+    # measured: loops closed to 2.7 um (verify's limit, LOOP_GAP_LIMIT, is 0.1 mm), the RLS row at 0.026 x PD
+    assert all(e.max_loop_gap_m < 5e-6 for e in result.episodes)
+    assert result.mean("MId+F+R+RLS+PD", "tracking_rms_mm") < 0.045 * result.mean("PD", "tracking_rms_mm")
+    # the identified model and the design model with its drives both predict the torque the plant needs (measured
+    # within 0.4 and 1.2 %)
     oracle_rms = result.mean("Oracle+PD (bound)", "torque_rms_nm")
-    assert result.predicted_mean("identified", 1) == pytest.approx(oracle_rms, rel=0.05)
-    assert result.predicted_mean("predicted", 1) == pytest.approx(oracle_rms, rel=0.05)
+    assert result.predicted_mean("identified", 1) == pytest.approx(oracle_rms, rel=0.02)
+    assert result.predicted_mean("predicted", 1) == pytest.approx(oracle_rms, rel=0.02)
 
 
+@pytest.mark.slow
 def test_a_design_is_identified_on_its_own_plant(short_arm):
     result = short_arm
     assert result.feasible, result.reason
@@ -176,6 +184,7 @@ def test_a_design_is_identified_on_its_own_plant(short_arm):
     assert result.parameters.rho1 == pytest.approx(1.0 + drive.armature / links.inertia, rel=0.15)
 
 
+@pytest.mark.slow
 def test_quick_cli_writes_the_run_folder(tmp_path, monkeypatch):
     # The identification's accuracy and the verification's figures are checked above (short_arm); here a small
     # identification (two 2 s runs) and a tare of two episodes feed the verification, whose plumbing into the run

@@ -84,7 +84,8 @@ def test_a_tare_is_measured_once_and_kept_for_every_later_experiment(tmp_path: P
     tared, first = tare_setup(scenario, SETUP, ["pd", "mid_f_rls"], episodes=1, kept=tmp_path)
     (kept,) = tmp_path.iterdir()
     assert kept.name.startswith("mid_f_rls-")
-    assert 0.0 < abs(first.tares["mid_f_rls"]) < 0.05, "the empty gripper's apparent payload is a few grams"
+    # the empty gripper's apparent payload: measured 1.1 g
+    assert 0.0 < abs(first.tares["mid_f_rls"]) < 0.002, "the empty gripper's apparent payload is a gram or two"
 
     def measure(*args, **kwargs):
         raise AssertionError("a kept tare was measured again")
@@ -135,6 +136,7 @@ def test_the_calibration_seeds_are_the_same_for_every_experiment() -> None:
     assert calibration_seeds(3) == [100_000, 100_001, 100_002]
 
 
+@pytest.mark.slow
 def test_run_grid_gives_the_same_rows_and_records_in_this_process_and_on_a_pool() -> None:
     scenario = tiny()
     units = grid([scenario], ["pd", "mid_f_rls"], [0, 1])

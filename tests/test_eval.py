@@ -26,6 +26,7 @@ from eval.episodes import EpisodeRecord, run_episode
 from eval.faults import FAULT_COLUMNS
 from eval.parameter_files import load_or_identify
 from eval.tables import BOUND_HOLDS, bound_violations, controller_table, residual_gain
+from tests.conftest import pd_episode
 
 DT = 1e-3
 
@@ -352,6 +353,7 @@ def read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(file))
 
 
+@pytest.mark.slow
 def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "run"
     argv = ["--episodes", "1", "--cycles", "1", "--controllers", "pd,mid_f_rls", "--out", str(out)]
@@ -372,17 +374,21 @@ def test_eval_cli_end_to_end(parameter_file: Path, tmp_path: Path, capsys: pytes
     assert [row["key"] for row in episodes] == ["pd", "mid_f_rls"]
     assert all(row["seed"] == "4" and row["diverged"] == "False" for row in episodes)
     rms = {row["key"]: float(row["tracking_rms_mm"]) for row in episodes}
-    assert rms["mid_f_rls"] < rms["pd"]
+    assert rms["mid_f_rls"] <= 0.025 * rms["pd"]  # measured 0.091 against 6.39 mm: 0.014
     # the paper's standard cycle, under a second per object, from rest at the pick point: the PD's friction band times
     # out the in-position wait at the place, the servo layer settles there, and so picks faster
     pd_row, servo_row = episodes
     assert int(pd_row["settle_timeouts"]) == 1 and int(servo_row["settle_timeouts"]) == 0
-    assert 60.0 < float(pd_row["picks_per_min"]) < float(servo_row["picks_per_min"])
+    # measured 85.3 and 89.4 picks/min: the servo layer 4.8 % faster
+    assert float(pd_row["picks_per_min"]) == pytest.approx(85.3, rel=0.1)
+    assert float(servo_row["picks_per_min"]) >= 1.03 * float(pd_row["picks_per_min"])
     (carry,) = read_csv(out / "carries.csv")
     assert carry["key"] == "mid_f_rls" and float(carry["mass_kg"]) == 3.8  # the paper's payload on every pick
     table2 = read_csv(out / "table2.csv")
     assert [row["joint"] for row in table2] == ["1", "2", "3"]
-    assert all(float(row["mp_hat_std"]) < float(row["mp_0_std"]) for row in table2)
+    # the payload estimate cuts the model's torque spread: measured ratios 0.45, 0.16, 0.15
+    for row, ratio in zip(table2, (0.67, 0.25, 0.22), strict=True):
+        assert float(row["mp_hat_std"]) <= ratio * float(row["mp_0_std"])
     # no fault injected and none detected: faults.csv has its header only, the summary no Faults section
     assert (out / "faults.csv").read_text().strip() == ",".join(FAULT_COLUMNS)
     assert "## Faults" not in printed
@@ -476,8 +482,10 @@ def bound_row(
     label: str, seed: int, rms: float, diverged: bool = False, clipped: int = 0, fast: int = 0, faults: int = 0
 ) -> dict:
     """An episode row of the bound check: tracking RMS (mm), steps the drive clipped and steps beyond its speed,
-    faults injected."""
+    faults injected. A label that is no built-in row's ("A", "B") stands for a plain controller's row."""
+    keys = {row_label: key for key, row_label in CONTROLLER_LABELS.items()}
     return {
+        "key": keys.get(label, "mid"),
         "controller": label,
         "seed": seed,
         "tracking_rms_mm": rms,
@@ -571,15 +579,11 @@ def test_run_episode_records_the_largest_loop_gap() -> None:
     env = DeltaPickPlaceEnv(n_cycles=1)
     record = run_episode(env, PDController(), seed=4, payload_masses=[1.0])
     # the same seeded episode stepped by hand: the record holds the largest gap the env reported
-    observation, _ = env.reset(seed=4, options={"payload_masses": [1.0]})
-    controller, gaps = PDController(), []
-    controller.reset()
-    for _ in range(len(record.tracking_error)):
-        observation, _, _, _, info = env.step(controller(observation))
-        gaps.append(info["loop_gap"])
+    steps = pd_episode(env, 4, {"payload_masses": [1.0]}, max_steps=len(record.tracking_error))
+    gaps = [step.info["loop_gap"] for step in steps]
     env.close()
     assert record.max_loop_gap == max(gaps)
-    assert 0.0 < record.max_loop_gap < 1e-4  # the realistic plant's loops stay closed to well under 0.1 mm
+    assert 0.0 < record.max_loop_gap < 1e-5  # measured 6.4 um: the realistic plant's loops stay closed
 
 
 def test_residual_gain_compares_the_residual_with_its_base_on_the_episodes_both_completed() -> None:

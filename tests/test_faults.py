@@ -8,10 +8,10 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from numpy.testing import assert_array_equal
 
-from controllers.base import PDController
 from delta_env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec, is_latent
 from delta_env.scenario import PickPlaceTask, Scenario, preset
+from tests.conftest import pd_episode
 
 PRESET_HASHES = {
     "heavy": "2ea4b0c343aff2c3",
@@ -122,22 +122,10 @@ def test_the_env_takes_the_scenarios_faults_unless_given_its_own() -> None:
 # -- episodes -------------------------------------------------------------------------------------
 
 
-def pd_rollout(env: DeltaPickPlaceEnv, seed: int = SEED, options: dict | None = None) -> list:
-    """(action, observation, info) of every step of a PD episode."""
-    observation, _ = env.reset(seed=seed, options=options)
-    controller, records = PDController(), []
-    while True:
-        action = controller(observation)
-        observation, _, terminated, truncated, info = env.step(action)
-        records.append((action, observation, info))
-        if terminated or truncated:
-            return records
-
-
 @pytest.fixture(scope="module")
 def clean() -> list:
     """The fault-free PD episode of SEED (one cycle)."""
-    return pd_rollout(DeltaPickPlaceEnv(n_cycles=1, release=TIMED))
+    return pd_episode(DeltaPickPlaceEnv(n_cycles=1, release=TIMED), SEED)
 
 
 def replay(faults: list[FaultSpec], clean: list) -> tuple[DeltaPickPlaceEnv, list]:
@@ -145,8 +133,8 @@ def replay(faults: list[FaultSpec], clean: list) -> tuple[DeltaPickPlaceEnv, lis
     env = DeltaPickPlaceEnv(n_cycles=1, faults=faults, release=TIMED)
     env.reset(seed=SEED)
     records = []
-    for action, _, _ in clean:
-        observation, _, terminated, _, info = env.step(action)
+    for step in clean:
+        observation, _, terminated, _, info = env.step(step.action)
         records.append((observation, info))
         assert not terminated
     return env, records
@@ -160,18 +148,18 @@ def fault_steps(env: DeltaPickPlaceEnv) -> range:
 def test_episodes_without_faults_are_bit_identical(clean: list) -> None:
     """Faults are drawn after everything else: one that never happens changes no observation."""
     for faults in ((), [FaultSpec("encoder_glitch", probability=0.0)]):
-        other = pd_rollout(DeltaPickPlaceEnv(n_cycles=1, faults=faults, release=TIMED))
+        other = pd_episode(DeltaPickPlaceEnv(n_cycles=1, faults=faults, release=TIMED), SEED)
         assert len(other) == len(clean)
-        for (_, a, info_a), (_, b, info_b) in zip(clean, other, strict=True):
-            for key in a:
-                assert_array_equal(a[key], b[key])
-            assert info_a["payload_mass"] == info_b["payload_mass"] and info_b["faults"] == ()
+        for a, b in zip(clean, other, strict=True):
+            for key in a.observation:
+                assert_array_equal(a.observation[key], b.observation[key])
+            assert a.info["payload_mass"] == b.info["payload_mass"] and b.info["faults"] == ()
 
 
 def sensor_difference(spec: FaultSpec, clean: list, key: str) -> tuple[DeltaPickPlaceEnv, np.ndarray, list]:
     """Replay with one sensor fault: the env, observation[key] minus the clean one per step, and info["faults"]."""
     env, faulty = replay([spec], clean)
-    difference = np.array([obs[key] - c[1][key] for (obs, _), c in zip(faulty, clean, strict=True)])
+    difference = np.array([obs[key] - c.observation[key] for (obs, _), c in zip(faulty, clean, strict=True)])
     return env, difference, [info["faults"] for _, info in faulty]
 
 
@@ -198,7 +186,7 @@ def test_a_stuck_encoder_repeats_its_last_reading(clean: list) -> None:
     env, faulty = replay([spec], clean)
     steps = fault_steps(env)
     readings = np.array([obs["joint_angles"][0] for obs, _ in faulty])
-    true = np.array([c[1]["joint_angles"][0] for c in clean])
+    true = np.array([c.observation["joint_angles"][0] for c in clean])
     assert len(steps) == 10
     assert np.all(readings[steps] == true[steps[0] - 1])
     assert np.all(true[steps] != true[steps[0] - 1])  # the joint moves meanwhile
@@ -232,20 +220,20 @@ def test_a_torque_glitch_offsets_the_measured_torque(clean: list) -> None:
 def test_a_slip_drops_the_object_while_the_gripper_still_reads_held() -> None:
     masses = {"payload_masses": [3.5, 3.5]}
     env = DeltaPickPlaceEnv(n_cycles=2, faults=[FaultSpec("slip", carry_fraction=(0.5, 0.5))])
-    slipped = pd_rollout(env, options=masses)
-    held = pd_rollout(DeltaPickPlaceEnv(n_cycles=2), options=masses)
+    slipped = pd_episode(env, SEED, options=masses)
+    held = pd_episode(DeltaPickPlaceEnv(n_cycles=2), SEED, options=masses)
     (fault,) = env.injected_faults
     assert fault.size == 3.5 and len(slipped) == len(held)  # the episode runs on through the place and next pick
     trajectory = env.trajectory
     carry = max(c for c, pick in enumerate(trajectory.pick_indices) if pick <= fault.start_step)
     place = int(trajectory.place_indices[carry])
     window = range(fault.start_step, place - 1)
-    assert all(slipped[k][2]["payload_mass"] == 0.0 and slipped[k][1]["gripper"][0] == 1.0 for k in window)
-    assert all(held[k][2]["payload_mass"] == 3.5 for k in window)
-    assert slipped[place][1]["gripper"][0] == 0.0
+    assert all(slipped[k].info["payload_mass"] == 0.0 and slipped[k].observation["gripper"][0] == 1.0 for k in window)
+    assert all(held[k].info["payload_mass"] == 3.5 for k in window)
+    assert slipped[place].observation["gripper"][0] == 0.0
     # Holding a 3.5 kg object up costs the arms torque the slip saves (the same PD, averaged after the slip).
     late = range(fault.start_step + 50, place - 1)
-    need = [np.mean([abs(run[k][2]["applied_torque"]).sum() for k in late]) for run in (slipped, held)]
+    need = [np.mean([abs(run[k].info["applied_torque"]).sum() for k in late]) for run in (slipped, held)]
     assert need[0] < 0.6 * need[1]
 
 
@@ -258,7 +246,7 @@ def test_a_collision_pushes_for_its_duration_then_lets_go(clean: list, target: s
     steps = fault_steps(env)
     assert (fault.size, fault.detail, fault.joint) == (800.0, target, joint)
     deviation = [
-        np.linalg.norm(info["platform_position"] - c[2]["platform_position"])
+        np.linalg.norm(info["platform_position"] - c.info["platform_position"])
         for (_, info), c in zip(faulty, clean, strict=True)
     ]
     assert max(deviation[: steps[0]]) == 0.0
@@ -283,7 +271,7 @@ def test_a_drive_fault_limits_the_command_the_drive_holds(clean: list) -> None:
     steps = fault_steps(env)
     commands = np.array([info["torque_command"] for _, info in faulty])
     assert np.all(commands[steps, 2] == 0.0)
-    assert np.any(np.abs([clean[k][0][2] for k in steps]) > 1.0)  # the PD asked for torque there
+    assert np.any(np.abs([clean[k].action[2] for k in steps]) > 1.0)  # the PD asked for torque there
     assert commands[steps[-1] + 1, 2] != 0.0
 
 
@@ -292,7 +280,7 @@ def test_a_drive_fault_keeps_its_share_of_the_onset_command_and_records_what_it_
     env, faulty = replay([spec], clean)
     (fault,) = env.injected_faults
     steps = fault_steps(env)
-    asked = np.array([clean[k][2]["torque_command"][0] for k in steps])  # what the drive held without the fault
+    asked = np.array([clean[k].info["torque_command"][0] for k in steps])  # what the drive held without the fault
     limit = 0.4 * abs(asked[0])
     assert limit > 1.0 and fault.detail == "command"
     assert fault.size * env.plant_config.drive.peak_torque == pytest.approx(limit, rel=1e-12)
@@ -307,21 +295,21 @@ def test_a_drive_fault_that_keeps_more_than_the_motion_asks_is_latent(clean: lis
     env, faulty = replay([spec], clean)
     (fault,) = env.injected_faults
     assert (fault.size, fault.detail, fault.withheld) == (0.9, "peak", 0.0) and is_latent(fault)
-    for (_, info), (_, _, clean_info) in zip(faulty, clean, strict=True):
-        assert_array_equal(info["torque_command"], clean_info["torque_command"])
+    for (_, info), step in zip(faulty, clean, strict=True):
+        assert_array_equal(info["torque_command"], step.info["torque_command"])
 
 
 def test_the_obstacle_is_hit_about_the_drawn_time() -> None:
     spec = FaultSpec("collision", target="obstacle", carry_fraction=(0.5, 0.5), duration=(0.03, 0.03))
     env = DeltaPickPlaceEnv(n_cycles=1, faults=[spec])
-    records = pd_rollout(env)
+    records = pd_episode(env, SEED)
     (fault,) = env.injected_faults
     pick, place = int(env.trajectory.pick_indices[0]), int(env.trajectory.place_indices[0])
     place -= round(env.settles[1].settle_time / env.dt)  # the carry as planned at the pick: before the place's wait
     drawn = pick + round(0.5 * (place - pick)) - 1
     assert abs(fault.start_step - drawn) <= 5
     assert fault.size > 50.0 and fault.detail == "obstacle"
-    assert not any(info["diverged"] for _, _, info in records)
+    assert not any(step.info["diverged"] for step in records)
     assert env.plant.data.mocap_pos[0, 2] > 5.0  # parked again
 
 
@@ -331,7 +319,7 @@ def test_draws_follow_the_seed() -> None:
     )
     runs = {}
     for seed in (1, 1, 2):
-        pd_rollout(env, seed=seed)
+        pd_episode(env, seed)
         runs.setdefault(seed, []).append(list(env.injected_faults))
     assert runs[1][0] == runs[1][1] and len(runs[1][0]) == 2
     assert runs[2][0] != runs[1][0]
@@ -339,8 +327,8 @@ def test_draws_follow_the_seed() -> None:
 
 def test_faults_past_the_end_do_not_happen() -> None:
     env = DeltaPickPlaceEnv(n_cycles=1, faults=[FaultSpec("encoder_glitch", start=(100.0, 100.0))])
-    records = pd_rollout(env)
-    assert env.injected_faults == [] and all(info["faults"] == () for _, _, info in records)
+    records = pd_episode(env, SEED)
+    assert env.injected_faults == [] and all(step.info["faults"] == () for step in records)
 
 
 def test_gymnasium_env_checker_with_faults() -> None:

@@ -504,7 +504,7 @@ def test_excitation_runs_on_the_plants_own_geometry_inside_the_given_region() ->
     assert np.max(np.hypot(platform[:, 0], platform[:, 1])) < region.radius + 3e-3
     assert region.z_min - 3e-3 < platform[:, 2].min() and platform[:, 2].max() < region.z_max + 3e-3
     assert_allclose(record.angles, spec.reference(geometry).theta, atol=1e-2)  # PD + MKH at up to 6 g
-    assert 0.0 < record.max_loop_gap < 1e-4
+    assert 0.0 < record.max_loop_gap < 2e-5  # measured 11 um
     # the default is the nominal robot's trajectory, as before
     default = ExcitationSpec(seed=8, duration=1.5)
     assert_allclose(default.reference().theta, default.reference(NOMINAL_GEOMETRY).theta, rtol=0, atol=0)

@@ -10,7 +10,8 @@ from delta_env.trajectories import STRESS_PEAK_ACCELERATION
 
 
 def test_loops_stay_closed_in_6g_cycle_carrying_4kg() -> None:
-    """PD + oracle feedforward along a 6 g pick-and-place cycle carrying 4 kg: gap < 0.1 mm."""
+    """PD + oracle feedforward along a 6 g pick-and-place cycle carrying 4 kg: the loops closed to 7 um (measured
+    4.5 um), the platform within 2.5 mm (measured 1.4 mm)."""
     payload = 4.0
     # the timed release: its reference never waits for the in-position signal, so the feedforward is planned once
     env = DeltaPickPlaceEnv(n_cycles=1, cycle="standard", peak_acceleration=STRESS_PEAK_ACCELERATION, release="timed")
@@ -30,8 +31,8 @@ def test_loops_stay_closed_in_6g_cycle_carrying_4kg() -> None:
         carried.append(info["payload_mass"])
     assert max(carried) == payload, "the 4 kg object was never carried"
     assert np.max(np.abs(feedforward)) > 100.0, "not a demanding cycle: peak torque should exceed 100 N m"
-    assert max(gaps) < 1e-4
-    assert max(errors) < 5e-3, "the exact feedforward should track within millimetres"
+    assert max(gaps) < 7e-6
+    assert max(errors) < 2.5e-3, "the exact feedforward should track within millimetres"
 
 
 def numpy_largest_gap(points: np.ndarray, pairs: np.ndarray) -> float:

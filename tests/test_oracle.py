@@ -184,8 +184,9 @@ def test_loops_stay_closed_carrying_4kg_through_a_fast_motion() -> None:
         gap[k] = plant.loop_gap(refresh=True)
         error[k] = np.max(np.abs(plant.joint_angles() - theta[k + 1]))
     assert [w.number for w in plant.data.warning] == [0] * mujoco.mjtWarning.mjNWARNING
-    assert gap.max() < 1e-4, f"loop gap {gap.max()} m"
-    assert error.max() < 0.01, "feedforward + PD should track within 10 mrad despite the 1 ms lag"
+    # measured 6.8 um and 2.3 mrad
+    assert gap.max() < 1.2e-5, f"loop gap {gap.max()} m"
+    assert error.max() < 4e-3, "feedforward + PD should track within 4 mrad despite the 1 ms lag"
 
 
 def test_batches_equal_single_samples_and_leave_no_trace(oracle_states: Callable) -> None:
@@ -358,7 +359,7 @@ def test_bound_tracks_a_lagging_plant_to_the_integration_limit() -> None:
     """Lag on, sensor noise, ripple and Stribeck off: what is left is the integration error of the ZOH.
 
     Measured 0.018 and 0.016 mm (seeds 0, 1; 0.021 and 0.018 mm with every effect of the default plant on);
-    the same controller with the lag ignored (a direct-torque drive model) 0.090 mm.
+    the same controller with the lag ignored (a direct-torque drive model) 0.090 mm: 5 times as much.
     """
     realism = replace(
         PlantRealism(), stribeck_excess=0.0, ripple_amplitude=0.0, torque_noise_std=0.0, encoder_bits=None
@@ -369,13 +370,13 @@ def test_bound_tracks_a_lagging_plant_to_the_integration_limit() -> None:
     unaware.drive = SampledLag(0.0)
     ignoring_lag = bound_tracking_mm(config, unaware, 0)
     assert max(bound) < 0.03, bound
-    assert ignoring_lag > 2.0 * bound[0], (ignoring_lag, bound)
+    assert ignoring_lag > 3.0 * bound[0], (ignoring_lag, bound)
 
 
 def test_bound_keeps_its_damping_on_a_long_drive_lag() -> None:
     """A 2 ms lag takes Kp T = 12 N m s/rad of damping from the feedback: with Kd fixed at the 1 ms design
     value (10) the bound rings (measured 0.17 mm here, 0.10 to 0.40 mm on randomized plants); Kd = 4 + Kp T keeps it
-    at the integration limit (0.024 mm here)."""
+    at the integration limit (0.024 mm here, 7 times less)."""
     realism = replace(PlantRealism(), actuator_lag=0.002)
     config = PlantConfig(realism=realism)
     assert oracle_gains(0.001) == (6000.0, 10.0)
@@ -384,8 +385,8 @@ def test_bound_keeps_its_damping_on_a_long_drive_lag() -> None:
     kp, kd = oracle_gains(0.001)
     design = ServoGains(kp=(kp,) * 3, ki=(0.0,) * 3, kd=(kd,) * 3)
     fixed = bound_tracking_mm(config, OracleController(config, gains=design), 0)
-    assert bound < 0.05, bound
-    assert fixed > 2.0 * bound, (fixed, bound)
+    assert bound < 0.04, bound
+    assert fixed > 4.0 * bound, (fixed, bound)
     with pytest.raises(ValueError, match="lag"):
         oracle_gains(-1e-3)
 

@@ -200,9 +200,9 @@ def test_env_stop_mid_carry_ends_at_rest(env, controller, nominal_run) -> None:
     assert infos[-1]["stopped"] and not any(info["stopped"] for info in infos[:-1])
     assert all(info["speed_override"] == 0.0 for info in infos[k:])
     errors = [info["tracking_error"] for info in infos]
-    assert max(errors) < 1e-3  # m: the stop is tracked as well as the cycle (0.6 mm here)
+    assert max(errors) < 0.25e-3  # m: the stop is tracked as well as the cycle (0.13 mm here)
     last = infos[-1]
-    np.testing.assert_allclose(last["platform_position"], env.trajectory.xyz[-1], atol=1e-3)
+    np.testing.assert_allclose(last["platform_position"], env.trajectory.xyz[-1], atol=15e-6)  # measured 8.8 um
     np.testing.assert_allclose(last["reference_position"], env.trajectory.xyz[-1])
     assert np.max(np.abs(observations[-1]["joint_velocities"])) < 0.05  # rad/s: at rest
     assert picks_and_places(observations) == (1, 0)  # the object is still held

@@ -220,8 +220,8 @@ def test_every_preset_builds_and_runs_a_short_episode(name: str, controller_setu
             break
     assert truncated and not terminated
     assert len(errors) == len(env.trajectory) - 1
-    # PD alone: millimetres, not metres; the model row: tenths of a millimetre
-    fewest, most = (0.5e-3, 20e-3) if key == "pd" else (0.02e-3, 2e-3)
+    # PD alone: millimetres, not metres (measured 3.6 to 6.7 mm on the presets); the model row: tenths of a millimetre
+    fewest, most = (2.5e-3, 10e-3) if key == "pd" else (0.02e-3, 2e-3)
     assert fewest < math.sqrt(np.mean(np.square(errors))) < most
     if name in ("randomized", "pick-rate-randomized"):
         assert env.plant.parameters != env.plant.nominal_parameters
