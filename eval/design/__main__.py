@@ -44,7 +44,7 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
-from eval.console import CommandParser, command_main, progress_bar
+from eval.console import CommandParser, command_main, progress_bar, resolved_arguments
 from eval.design import (
     codesign,
     drive_rate,
@@ -128,9 +128,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.quick:
         # Only the settings left at their defaults: an explicit --population etc. wins over --quick.
-        for key, value in QUICK.items():
-            if getattr(args, key) == parser.get_default(key):
-                setattr(args, key, value)
+        quick = {key: value for key, value in QUICK.items() if getattr(args, key) == parser.get_default(key)}
+        args = resolved_arguments(args, **quick)
     minimums = {
         "seed": 0,
         "search_seeds": 1,
