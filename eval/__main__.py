@@ -81,7 +81,13 @@ from eval.faults import (
     write_confusion_csv,
     write_fault_csv,
 )
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_run_folder,
+    write_csv,
+)
 from eval.scenario_args import (
     add_parameters_argument,
     add_residual_argument,
@@ -315,14 +321,8 @@ def _policy_lines(config: ComparisonConfig, episode_rows: list[dict[str, Any]], 
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     config = parse_args(argv)
-    with run_folder(
-        "eval",
-        command_line("eval", argv),
-        {"arguments": config.manifest()},
-        out=config.out,
-        runs_dir=config.runs_dir,
-        scenarios=[config.scenario],
-        reuse=config.force,
+    with command_run_folder(
+        "eval", "eval", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
     ) as run:
         compare(config, run, started)
     return 0

@@ -42,7 +42,14 @@ from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
 from eval.identification_report import ground_truth, plot_figures, render_report, save_validation_data
 from eval.parameter_files import DEFAULT_SETTINGS, describe_settings, identification_root, install_path, parameter_path
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, utc_stamp
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_line,
+    command_run_folder,
+    utc_stamp,
+)
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 
 DURATION_RANGE = (1.0, 600.0)
@@ -288,15 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         run, scenario = None, arguments.scenario
         config = {**vars(arguments), "scenario": scenario.name, "robot_identity": scenario.robot_identity}
         scenarios, stamp = [scenario], f"{utc_stamp()}_seed{arguments.seed}"
-    with run_folder(
-        "identification",
-        command,
-        config,
-        out=arguments.out,
-        runs_dir=arguments.runs_dir,
-        scenarios=scenarios,
-        stamp=stamp,
-        reuse=arguments.force,
+    with command_run_folder(
+        "identification", "eval.identify", argv, arguments, config, scenarios=scenarios, stamp=stamp
     ) as run_dir:
         run_dir.record(config={**config, "out": run_dir.folder})
         identify_into(arguments, run_dir, command, run)

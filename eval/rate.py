@@ -65,7 +65,13 @@ from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import grid, prepare, run_grid
 from eval.processes import DEFAULT_WORKERS
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_run_folder,
+    write_csv,
+)
 from eval.scenario_args import (
     add_parameters_argument,
     add_residual_argument,
@@ -484,14 +490,8 @@ def fastest_fixed(config: RateConfig, setup: Any, key: str, progress: Any = None
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     config = parse_args(argv)
-    with run_folder(
-        "rate",
-        command_line("eval.rate", argv),
-        {"arguments": config.manifest()},
-        out=config.out,
-        runs_dir=config.runs_dir,
-        scenarios=[config.scenario],
-        reuse=config.force,
+    with command_run_folder(
+        "rate", "eval.rate", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
     ) as run:
         rate(config, run, started)
     return 0

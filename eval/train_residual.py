@@ -94,8 +94,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     append_csv_rows,
-    command_line,
-    run_folder,
+    command_run_folder,
     write_json,
 )
 from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
@@ -314,14 +313,13 @@ def train(
         callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
     """
     torch.set_num_threads(args.torch_threads)
-    with run_folder(
+    with command_run_folder(
         "residual",
-        command_line("eval.train_residual"),
+        "eval.train_residual",
+        None,
+        args,
         {"arguments": recorded_arguments(args)},
-        out=args.out,
-        runs_dir=args.runs_dir,
         scenarios=[args.scenario, *args.mixture],
-        reuse=args.force,
     ) as run:
         summary = _train(args, run, base_factory, base, callbacks)
     print(f"{summary}\nRun folder: {run.folder}")
@@ -666,14 +664,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.score_only is None:
         train(args)
         return 0
-    with run_folder(
+    with command_run_folder(
         "residual_scores",
-        command_line("eval.train_residual", argv),
+        "eval.train_residual",
+        argv,
+        args,
         {"arguments": recorded_arguments(args)},
-        out=args.out,
-        runs_dir=args.runs_dir,
         scenarios=[args.scenario],
-        reuse=args.force,
     ) as run:
         with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
             scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario}, progress=bar)

@@ -64,9 +64,8 @@ from eval.run_folder import (
     Run,
     add_force_argument,
     add_runs_dir_argument,
-    command_line,
+    command_run_folder,
     package_versions,
-    run_folder,
     write_csv,
 )
 from eval.scenario_args import add_workers_argument, check_episode_seeds, check_ranges
@@ -224,14 +223,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None]
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
-    with run_folder(
-        "design",
-        command_line("eval.design", argv),
-        _resolved_config(args),
-        out=args.out,
-        runs_dir=args.runs_dir,
-        reuse=args.force,
-    ) as run:
+    with command_run_folder("design", "eval.design", argv, args, _resolved_config(args)) as run:
         study(args, run, started)
     return 0
 

@@ -49,7 +49,14 @@ from eval.console import CommandParser, UsageError, command_main, plural, progre
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
+from eval.run_folder import (
+    Run,
+    add_runs_dir_argument,
+    command_line,
+    command_run_folder,
+    runs_root,
+    write_csv,
+)
 from eval.scenario_args import (
     add_geometry_argument,
     add_servo_argument,
@@ -188,12 +195,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = command_line("eval.sweep", argv)
     grid = {"scenarios": [s.name for s in config.scenarios], "controllers": config.controllers, "seeds": config.seeds}
     backend = {"name": config.backend, "address": config.address, "workers": config.workers}
-    with run_folder(
+    with command_run_folder(
         "sweep",
-        command,
+        "eval.sweep",
+        argv,
+        config,
         {"grid": grid, "backend": backend},
-        out=config.out,
-        runs_dir=config.runs_dir,
         scenarios=config.scenarios,
         reuse=True,  # a sweep resumes in its folder
     ) as run:
