@@ -188,7 +188,7 @@ class RateConfig:
     planners: tuple[str, ...]
     controllers: tuple[str, ...]
     residual: Path
-    payloads: tuple[float, ...]
+    payloads: list[float]
     torque_share: float
     no_fastest: bool
     out: Path | None
@@ -308,7 +308,7 @@ def parse_args(argv: Sequence[str] | None) -> RateConfig:
             "scenario": dataclasses.replace(scenario, task=task),
             "planners": tuple(planners),
             "controllers": tuple(controllers),
-            "payloads": tuple(payloads),
+            "payloads": payloads,
             "fastest": size.fastest and not args.no_fastest,
         }
     )
