@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sys
@@ -23,7 +24,6 @@ from delta_env.config import (
     PlantRealism,
     RandomizationRanges,
 )
-from delta_env.cycles import require_start
 from delta_env.drive import DriveMonitor
 from delta_env.fault_injection import FaultInjector
 from delta_env.faults import FaultSpec, InjectedFault, require_fault_specs
@@ -35,8 +35,8 @@ from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.scene import RENDER_SIZE
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
-from delta_env.trajectories import Trajectory, require_peak_acceleration
-from delta_env.validation import require_count, require_in, require_instance, require_interval, require_torques
+from delta_env.trajectories import Trajectory
+from delta_env.validation import require_count, require_in, require_instance, require_torques
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
@@ -232,19 +232,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "domain_randomization": domain_randomization,
         }
         plant = base.effective_plant if plant is None else plant
-        n_cycles, cycle, start, peak_acceleration, payload_mass_range, domain_randomization = (
-            getattr(base.task, name) if value is None else value for name, value in overrides.items()
-        )
-        require_count("n_cycles", n_cycles)
-        if cycle not in ("conveyor", "standard"):
-            raise ValueError(f"cycle must be 'conveyor' or 'standard', got {cycle!r}")
-        require_start(start)
-        require_peak_acceleration(peak_acceleration)
-        low, high = require_interval("payload_mass_range", payload_mass_range, 0.0, MAX_PAYLOAD_MASS, unit="kg")
+        # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges.
+        task = dataclasses.replace(base.task, **{name: value for name, value in overrides.items() if value is not None})
+        n_cycles, cycle, start, peak_acceleration = task.n_cycles, task.cycle, task.start, task.peak_acceleration
+        (low, high), domain_randomization = task.payload_mass_range, task.domain_randomization
         if plant is not None:
             require_instance("plant", plant, PlantConfig)
-        if domain_randomization is not None:
-            require_instance("domain_randomization", domain_randomization, RandomizationRanges)
         if reward_weights is not None:
             require_instance("reward_weights", reward_weights, RewardWeights)
         require_in("divergence_penalty", divergence_penalty, 0.0)

@@ -57,13 +57,13 @@ from controllers.registry import (
     parse_controller_keys,
 )
 from controllers.residual import read_policy_settings
-from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics, plots, video
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds
 from eval.comparison import (
     TABLE2_KEY,
     TABLE2_PAYLOAD,
+    ComparisonConfig,
     first_episodes,
     run_all,
     table2_statistics,
@@ -81,7 +81,13 @@ from eval.faults import (
     write_confusion_csv,
     write_fault_csv,
 )
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_run_folder,
+    write_csv,
+)
 from eval.scenario_args import (
     add_parameters_argument,
     add_residual_argument,
@@ -106,7 +112,9 @@ from eval.tables import (
 )
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
     width = max(map(len, CONTROLLER_LABELS))
     rows = "\n".join(f"  {key:<{width}}  {label}" for key, label in CONTROLLER_LABELS.items())
     parser = CommandParser(
@@ -147,51 +155,62 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="also film the first episode of each row into the run folder (video_<key>.mp4; MUJOCO_GL=egl headless)",
     )
     args = parser.parse_args(argv)
-    chosen = args.controllers is not None
-    args.left_out = ""
-    args.residual_base = None
-    args.residual_base_moves = False
-    args.residual_base_servo = None
     try:
-        args.controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
+        controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    args.scenario = scenario_from_arguments(args, parser)
-    check_parameter_file(parser, args)
+    scenario = scenario_from_arguments(args, parser)
+    check_parameter_file(parser, args.parameters, scenario)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "calibration_episodes": 1, "workers": 1})
     check_episode_seeds(parser, args)
     if args.video and (error := video.rendering_error()) is not None:
         parser.error(f"--video: {error}")
-    if args.cycles is None:
-        args.cycles = args.scenario.task.n_cycles
-    policy_rows = [key for key in args.controllers if controller_entry(key).reads_policy_file]
-    if policy_rows:
-        # Fail now, not after the other controllers have run. Only the settings are read here: the actor is read
-        # by the workers that run the policy's episodes, which the comparison runs first.
-        try:
-            base = read_policy_settings(args.residual).base
-        except (FileNotFoundError, ValueError) as error:
-            parser.error(f"--residual: {error}")
-        args.residual_base = None if base is None else base.name
-        args.residual_base_moves = base is not None and bool(base.setup.empty_moves)
-        args.residual_base_servo = None if base is None else base.setup.servo
-        robot = args.scenario.plant
-        if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
-            rows = " and ".join(policy_rows)
-            if not chosen:
-                args.controllers = [key for key in args.controllers if key not in policy_rows]
-                args.left_out = (
-                    f"The {rows} row{'s are' if len(policy_rows) > 1 else ' is'} left out: its policy "
-                    f"({args.residual.name}) was trained on another robot."
-                )
-                return args
-            parser.error(
-                f"--residual: {args.residual} was trained on a robot with {base.setup.geometry} and "
-                f"{base.setup.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
-                f"{' and '.join(repr(key) for key in policy_rows)} out of --controllers or train a policy on this "
-                "robot (python -m eval.train_residual --scenario/--geometry)"
-            )
-    return args
+    config = ComparisonConfig(
+        **{
+            **vars(args),
+            "scenario": scenario,
+            "cycles": scenario.task.n_cycles if args.cycles is None else args.cycles,
+            "controllers": tuple(controllers),
+        }
+    )
+    return _with_policy_base(parser, config, chosen=args.controllers is not None)
+
+
+def _with_policy_base(parser: argparse.ArgumentParser, config: ComparisonConfig, *, chosen: bool) -> ComparisonConfig:
+    """``config`` with its policy file's base recorded (when a row reads the policy file), or, when the policy was
+    trained on another robot, without those rows if they were not ``chosen`` (else a parser error)."""
+    policy_rows = [key for key in config.controllers if controller_entry(key).reads_policy_file]
+    if not policy_rows:
+        return config
+    # Fail now, not after the other controllers have run. Only the settings are read here: the actor is read
+    # by the workers that run the policy's episodes, which the comparison runs first.
+    try:
+        base = read_policy_settings(config.residual).base
+    except (FileNotFoundError, ValueError) as error:
+        parser.error(f"--residual: {error}")
+    config = dataclasses.replace(
+        config,
+        residual_base=None if base is None else base.name,
+        residual_base_moves=base is not None and bool(base.setup.empty_moves),
+        residual_base_servo=None if base is None else base.setup.servo,
+    )
+    robot = config.scenario.plant
+    if base is None or (base.setup.geometry, base.setup.masses) == (robot.geometry, robot.masses):
+        return config
+    rows = " and ".join(policy_rows)
+    if not chosen:
+        return dataclasses.replace(
+            config,
+            controllers=tuple(key for key in config.controllers if key not in policy_rows),
+            left_out=f"The {rows} row{'s are' if len(policy_rows) > 1 else ' is'} left out: its policy "
+            f"({config.residual.name}) was trained on another robot.",
+        )
+    parser.error(
+        f"--residual: {config.residual} was trained on a robot with {base.setup.geometry} and "
+        f"{base.setup.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
+        f"{' and '.join(repr(key) for key in policy_rows)} out of --controllers or train a policy on this "
+        "robot (python -m eval.train_residual --scenario/--geometry)"
+    )
 
 
 SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
@@ -266,66 +285,59 @@ def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[
     ]
 
 
-def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any]]) -> list[str]:
+def _residual_section(config: ComparisonConfig, episode_rows: list[dict[str, Any]]) -> list[str]:
     """Which policy each row that reads the policy file runs (the residual), on which base, and what it adds over that
     base's row."""
     lines = []
-    for key in args.controllers:
+    for key in config.controllers:
         if controller_entry(key).reads_policy_file:
-            lines += _policy_lines(args, episode_rows, controller_label(key))
+            lines += _policy_lines(config, episode_rows, controller_label(key))
     return lines
 
 
-def _policy_lines(args: argparse.Namespace, episode_rows: list[dict[str, Any]], label: str) -> list[str]:
+def _policy_lines(config: ComparisonConfig, episode_rows: list[dict[str, Any]], label: str) -> list[str]:
     """The lines of :func:`_residual_section` on the row labelled ``label``."""
-    base = args.residual_base or "a custom base"
-    moves = "has its own, from its training" if args.residual_base_moves else "does not carry"
+    base = config.residual_base or "a custom base"
+    moves = "has its own, from its training" if config.residual_base_moves else "does not carry"
     lines = [
-        f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
+        f"{label}: the policy {config.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
         "file; the gain below is against this run's row of that controller (same identification; this run's "
         f"tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
         f"file's base {moves}).",
         "",
     ]
-    if args.residual_base is not None and args.residual_base_servo != args.servo:
+    if config.residual_base is not None and config.residual_base_servo != config.servo:
         lines += [
-            f"No gain over its base is computed: the base's feedback is '{args.residual_base_servo}', this run's "
-            f"model rows run '{args.servo}' (--servo {args.residual_base_servo} runs the same base).",
+            f"No gain over its base is computed: the base's feedback is '{config.residual_base_servo}', this run's "
+            f"model rows run '{config.servo}' (--servo {config.residual_base_servo} runs the same base).",
             "",
         ]
-    elif args.residual_base is not None:
-        lines += residual_gain(episode_rows, label, args.residual_base)
+    elif config.residual_base is not None:
+        lines += residual_gain(episode_rows, label, config.residual_base)
     return lines
 
 
 @command_main("python -m eval")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
-    args = parse_args(argv)
-    arguments = {**vars(args), "scenario": args.scenario.name}
-    with run_folder(
-        "eval",
-        command_line("eval", argv),
-        {"arguments": arguments},
-        out=args.out,
-        runs_dir=args.runs_dir,
-        scenarios=[args.scenario],
-        reuse=args.force,
+    config = parse_args(argv)
+    with command_run_folder(
+        "eval", "eval", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
     ) as run:
-        compare(args, run, started)
+        compare(config, run, started)
     return 0
 
 
-def compare(args: argparse.Namespace, run: Run, started: float) -> None:
-    """Run the comparison of ``args`` (:func:`parse_args`) into ``run``'s folder and print its summary; ``started``
+def compare(config: ComparisonConfig, run: Run, started: float) -> None:
+    """Run the comparison of ``config`` (:func:`parse_args`) into ``run``'s folder and print its summary; ``started``
     is the :func:`time.perf_counter` time at the start of the command."""
-    out = args.out = run.folder
-    keys = args.controllers
-    prepared, results = run_all(args)
-    args.parameters = prepared.parameter_file
+    out, keys = run.folder, config.controllers
+    config = dataclasses.replace(config, out=out)
+    prepared, results = run_all(config)
+    config = dataclasses.replace(config, parameters=prepared.parameter_file)
     # The figures are drawn beside the rest of this function, on the core the episodes' workers have left.
-    with plots.Plotter(out, pool_context() if args.workers > 1 else None) as plotter:
-        traces = first_episodes(results, keys, args.seed)
+    with plots.Plotter(out, pool_context() if config.workers > 1 else None) as plotter:
+        traces = first_episodes(results, keys, config.seed)
         np.savez_compressed(
             out / "traces.npz",
             dt=CONTROL_PERIOD,
@@ -348,44 +360,44 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
         table2_rows = table2_statistics(model_torques)
         write_csv(out / "table2.csv", table2_rows)
         plotter.saved("table2_run.npz", "table2.csv")
-        episode_rows, carry_rows = tabulate(results, keys, args.seed)
+        episode_rows, carry_rows = tabulate(results, keys, config.seed)
         write_csv(out / "episodes.csv", episode_rows)
         plotter.saved("episodes.csv")
         if carry_rows:
             write_csv(out / "carries.csv", carry_rows)
-        fault_rows = tabulate_faults(results, keys, args.seed)
+        fault_rows = tabulate_faults(results, keys, config.seed)
         write_fault_csv(out / "faults.csv", fault_rows)
         plotter.saved("faults.csv")
         if fault_rows:
             write_confusion_csv(
                 out / "confusion.csv", confusion_counts(fault_rows, [controller_label(k) for k in keys])
             )
-        videos = _film(args, prepared) if args.video else []
+        videos = _film(config, prepared) if config.video else []
         summary = _summarize(
-            args, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows), videos=videos
+            config, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows), videos=videos
         )
     print(summary)
 
 
-def _film(args: argparse.Namespace, prepared: Prepared) -> list[video.Video]:
+def _film(config: ComparisonConfig, prepared: Prepared) -> list[video.Video]:
     """The videos of ``--video``: the first episode of each row, filmed into the run folder
     (:func:`eval.video.film_first_episodes`)."""
-    keys = args.controllers
+    keys = config.controllers
     with progress_bar(len(keys), "videos", "video") as progress:
         return video.film_first_episodes(
-            args.scenario,
+            config.scenario,
             prepared.setup,
             keys,
-            args.seed,
-            args.cycles,
-            args.out,
-            workers=args.workers,
+            config.seed,
+            config.cycles,
+            config.out,
+            workers=config.workers,
             progress=progress,
         )
 
 
 def _summarize(
-    args: argparse.Namespace,
+    config: ComparisonConfig,
     run: Run,
     started: float,
     prepared: Prepared,
@@ -395,50 +407,50 @@ def _summarize(
     """Record the run's configuration and results in its manifest, write ``summary.md`` and return the summary.
 
     Args:
-        args: As :func:`compare`'s.
+        config: The comparison's configuration, resolved: its run folder and parameter file known.
         run: The run folder.
         started: :func:`time.perf_counter` time at the start of the command.
         prepared: What the controllers knew (:func:`eval.comparison.run_all`).
         rows: The episode, carry, Table 2 and fault rows.
         videos: The videos of ``--video``.
     """
-    out, scenario, keys = run.folder, args.scenario, args.controllers
+    out, scenario, keys = run.folder, config.scenario, config.controllers
     identification, setup = prepared.identification, prepared.setup
     tares, tare_spreads = prepared.calibration.tares, prepared.calibration.spreads
     episode_rows, carry_rows, table2_rows, fault_rows = rows
     total_time = time.perf_counter() - started
-    env = DeltaPickPlaceEnv(n_cycles=args.cycles, scenario=scenario)
-    config = {
-        "arguments": {**vars(args), "scenario": scenario.name},
+    task = scenario.task
+    manifest = {
+        "arguments": config.manifest(),
         "scenario": {
             "name": scenario.name,
             "file": "scenario.toml",
             "content_hash": scenario.content_hash,
             "robot_identity": scenario.robot_identity,
         },
-        "episode_seeds": [args.seed + i for i in range(args.episodes)],
-        "calibration_seeds": calibration_seeds(args.calibration_episodes),
-        "tares": str(kept_tares(scenario, args.runs_dir)),
+        "episode_seeds": [config.seed + i for i in range(config.episodes)],
+        "calibration_seeds": calibration_seeds(config.calibration_episodes),
+        "tares": str(kept_tares(scenario, config.runs_dir)),
         "env": {
             "id": "DeltaPickPlace-v0",
-            "n_cycles": args.cycles,
-            "cycle": env.cycle,
-            "start": env.start,
-            "peak_acceleration_m_s2": env.peak_acceleration,
-            "payload_mass_range_kg": list(env.payload_mass_range),
-            "plant": repr(env.plant_config),
+            "n_cycles": config.cycles,
+            "cycle": task.cycle,
+            "start": task.start,
+            "peak_acceleration_m_s2": float(task.peak_acceleration),
+            "payload_mass_range_kg": [float(mass) for mass in task.payload_mass_range],
+            "plant": repr(scenario.effective_plant),
         },
         "controllers": {key: controller_label(key) for key in keys},
         "pd_gains": {"kp_nm_per_rad": setup.pd_gains[0], "kd_nm_s_per_rad": setup.pd_gains[1]},
         "servo": setup.servo,
         "identification": {
-            "path": str(args.parameters),
+            "path": str(config.parameters),
             "mid": dataclasses.asdict(identification.mid),
             "mid_f": dataclasses.asdict(identification.mid_f),
             "mid_f_rods": dataclasses.asdict(identification.mid_f_rods),
             "provenance": identification.provenance,
         },
-        "table2": {"controller": controller_label(TABLE2_KEY), "seed": args.seed, "payload_kg": TABLE2_PAYLOAD},
+        "table2": {"controller": controller_label(TABLE2_KEY), "seed": config.seed, "payload_kg": TABLE2_PAYLOAD},
     }
     results_entry = {
         "tare_kg": tares,
@@ -446,21 +458,21 @@ def _summarize(
         "seconds": {"total": total_time},
         "videos": [item.path.name for item in videos],
     }
-    run.record(config=config, results=results_entry)
+    run.record(config=manifest, results=results_entry)
 
     summary = "\n".join(
         [
-            f"# Controller comparison, scenario {scenario.name}: {plural(args.episodes, 'episode')} x "
-            f"{plural(args.cycles, 'cycle')} from seed {args.seed}",
+            f"# Controller comparison, scenario {scenario.name}: {plural(config.episodes, 'episode')} x "
+            f"{plural(config.cycles, 'cycle')} from seed {config.seed}",
             "",
             f"Scenario {scenario.name} ({scenario.description or 'no description'}); robot {scenario.robot_identity}, "
-            f"identified in {args.parameters}.",
+            f"identified in {config.parameters}.",
             "",
             "Mean ± std over episodes (diverged ones counted, their metrics cover the steps before divergence and "
             "are left out of the means). Payload columns: objects >= 0.5 kg. The oracle knows the plant and the "
             "payloads: a bound, not a controller.",
             "",
-            FEEDBACK_LINES[args.servo],
+            FEEDBACK_LINES[config.servo],
             "",
             controller_table(episode_rows, carry_rows),
             "",
@@ -476,8 +488,8 @@ def _summarize(
             "",
             *_fault_section(fault_rows, [controller_label(key) for key in keys]),
             *_bound_section(episode_rows),
-            *_residual_section(args, episode_rows),
-            *([args.left_out, ""] if args.left_out else []),
+            *_residual_section(config, episode_rows),
+            *([config.left_out, ""] if config.left_out else []),
             *(["", "## Videos", "", *video.video_lines(videos), ""] if videos else []),
             f"Run folder: {out} ({total_time:.0f} s)",
         ]

@@ -17,14 +17,15 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from controllers.registry import controller_entry
+from delta_env.scenario import Scenario
 from eval import metrics
 from eval.calibration import tared_keys
 from eval.console import progress_bar
@@ -40,6 +41,62 @@ TABLE2_PAYLOAD = 3.8
 """Mass of every object in the Table 2 run (kg), the paper's test payload."""
 
 
+@dataclasses.dataclass(frozen=True)
+class ComparisonConfig:
+    """The resolved configuration of a comparison (``python -m eval``), recorded as it is in the run's manifest
+    (:meth:`manifest`).
+
+    Attributes:
+        scenario: The scenario, on ``geometry``'s robot and released as ``release`` says.
+        geometry: The geometry file of ``--geometry``, or None.
+        release: ``--release``, or None (the scenario's).
+        seed: Seed of the first episode.
+        episodes: Episodes per controller.
+        cycles: Pick-and-place cycles per episode.
+        controllers: The rows' controller keys, in order.
+        out: The run folder: ``--out`` until the folder is made, then the folder.
+        force: Write into an existing, non-empty ``out``.
+        runs_dir: ``--runs-dir``, or None.
+        parameters: The identified parameter file: ``--parameters`` (None: the robot's own) until it is known.
+        servo: Feedback of the model rows (:data:`controllers.setup.SERVOS`).
+        calibration_episodes: Payload-free episodes of each tare.
+        residual: The policy file of the rows that read one.
+        workers: Processes.
+        video: Film the first episode of each row.
+        left_out: The sentence saying which rows were left out, or "".
+        residual_base: Name of the policy's base controller, or None (none read, or a custom base).
+        residual_base_moves: Whether the policy file's base carries its own empty moves.
+        residual_base_servo: The policy's base's feedback, or None.
+    """
+
+    scenario: Scenario
+    geometry: str | None
+    release: str | None
+    seed: int
+    episodes: int
+    cycles: int
+    controllers: tuple[str, ...]
+    out: Path | None
+    force: bool
+    runs_dir: Path | None
+    parameters: Path | None
+    servo: str
+    calibration_episodes: int
+    residual: Path
+    workers: int
+    video: bool
+    left_out: str = ""
+    residual_base: str | None = None
+    residual_base_moves: bool = False
+    residual_base_servo: str | None = None
+
+    def manifest(self) -> dict[str, Any]:
+        """The configuration as the manifest records it: every field, the scenario by its name (its file is
+        ``scenario.toml`` beside)."""
+        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        return {**fields, "scenario": self.scenario.name}
+
+
 def queue_order(key: str) -> tuple[bool, bool]:
     """The sort key that queues the rows whose episodes cost the most first, so that the short episodes even out the
     end of the run across the workers: a policy network's (:attr:`~controllers.registry.ControllerEntry.
@@ -48,39 +105,40 @@ def queue_order(key: str) -> tuple[bool, bool]:
     return not entry.reads_policy_file, not entry.privileged
 
 
-def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, EpisodeRecord]]]:
+def run_all(config: ComparisonConfig) -> tuple[Prepared, list[tuple[WorkUnit, EpisodeRecord]]]:
     """Prepare the robot's knowledge (identification and tares, :func:`eval.engine.prepare`), then run every episode
     and the Table 2 run (:func:`eval.engine.run_grid`).
 
     Args:
-        args: The parsed command line of ``python -m eval`` (seed, episodes, controllers, parameters, runs_dir,
-            calibration_episodes, residual, workers, cycles, scenario: the resolved Scenario).
+        config: The comparison's configuration.
 
     Returns:
         What the controllers knew, and the (unit, record) of every episode: the comparison's, then the Table 2 run.
     """
-    keys = args.controllers
-    scenario = dataclasses.replace(args.scenario, task=dataclasses.replace(args.scenario.task, n_cycles=args.cycles))
+    keys = config.controllers
+    scenario = dataclasses.replace(
+        config.scenario, task=dataclasses.replace(config.scenario.task, n_cycles=config.cycles)
+    )
     tared = sorted(set(tared_keys([*keys, TABLE2_KEY], scenario)))
-    with progress_bar(len(tared) * args.calibration_episodes, "tares", "ep") as progress:
+    with progress_bar(len(tared) * config.calibration_episodes, "tares", "ep") as progress:
         prepared = prepare(
             scenario,
             tared,
-            parameters=args.parameters,
-            runs_dir=args.runs_dir,
-            calibration_episodes=args.calibration_episodes,
-            workers=args.workers,
+            parameters=config.parameters,
+            runs_dir=config.runs_dir,
+            calibration_episodes=config.calibration_episodes,
+            workers=config.workers,
             progress=progress,
-            residual_policy=args.residual,
-            servo=args.servo,
+            residual_policy=config.residual,
+            servo=config.servo,
         )
     slow_first = sorted(keys, key=queue_order)
-    units = grid([scenario], slow_first, range(args.seed, args.seed + args.episodes))
+    units = grid([scenario], slow_first, range(config.seed, config.seed + config.episodes))
     healthy = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
-    units.append(WorkUnit(healthy, TABLE2_KEY, args.seed, (TABLE2_PAYLOAD,) * args.cycles))
+    units.append(WorkUnit(healthy, TABLE2_KEY, config.seed, (TABLE2_PAYLOAD,) * config.cycles))
     setups = {s.content_hash: prepared.setup for s in (scenario, healthy)}
     with progress_bar(len(units), "episodes", "ep") as progress:
-        records = run_grid(units, setups, workers=args.workers, progress=progress)
+        records = run_grid(units, setups, workers=config.workers, progress=progress)
     return prepared, list(zip(units, records, strict=True))
 
 

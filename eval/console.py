@@ -32,6 +32,12 @@ class CommandParser(argparse.ArgumentParser):
         self.exit(USAGE_EXIT_CODE, f"{self.prog}: error: {_one_line(message)} (--help lists the options)\n")
 
 
+def resolved_arguments(arguments: argparse.Namespace, **values: Any) -> argparse.Namespace:
+    """A new namespace: ``arguments`` with ``values`` resolved in (new names last), the parser's own left as it
+    parsed the command line."""
+    return argparse.Namespace(**{**vars(arguments), **values})
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM received inside :func:`eval.run_folder.run_folder` (a job scheduler, ``kill``, a container stopping):
     raised where the run is, so that it unwinds like a Ctrl-C and its manifest records it."""

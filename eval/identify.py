@@ -37,12 +37,19 @@ from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import save_robot
-from eval.console import CommandParser, command_main
+from eval.console import CommandParser, command_main, resolved_arguments
 from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
 from eval.identification_report import ground_truth, plot_figures, render_report, save_validation_data
 from eval.parameter_files import DEFAULT_SETTINGS, describe_settings, identification_root, install_path, parameter_path
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, utc_stamp
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_line,
+    command_run_folder,
+    utc_stamp,
+)
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
 
 DURATION_RANGE = (1.0, 600.0)
@@ -202,27 +209,26 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     if arguments.quick and arguments.log is None:
         if arguments.parameters is not None:
             parser.error("--quick writes its rough parameters to the run folder only; drop --parameters")
-        for name, value in QUICK.items():  # an explicit setting wins over --quick
-            if getattr(arguments, name) == parser.get_default(name):
-                setattr(arguments, name, value)
-        arguments.no_install = True
+        # an explicit setting wins over --quick
+        quick = {name: value for name, value in QUICK.items() if getattr(arguments, name) == parser.get_default(name)}
+        arguments = resolved_arguments(arguments, **quick, no_install=True)
     if arguments.log is None:
         if arguments.robot is not None:
             parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
-        arguments.scenario = scenario_from_arguments(arguments, parser)
-        own = parameter_path(arguments.scenario.plant, identification_root(arguments.runs_dir))
+        scenario = scenario_from_arguments(arguments, parser)
+        own = parameter_path(scenario.plant, identification_root(arguments.runs_dir))
         settings = simulation_settings(arguments)
         if arguments.parameters is None:
-            arguments.parameters = install_path(
-                arguments.scenario.plant, settings, identification_root(arguments.runs_dir)
-            )
+            parameters = install_path(scenario.plant, settings, identification_root(arguments.runs_dir))
         elif arguments.parameters.resolve() == own.resolve() and settings != DEFAULT_SETTINGS:
             parser.error(
                 f"--parameters {arguments.parameters} is the robot's own identification, which holds the default "
                 f"settings ({describe_settings(DEFAULT_SETTINGS)}), not {describe_settings(settings)}; name another "
                 "file"
             )
-        return arguments
+        else:
+            parameters = arguments.parameters
+        return resolved_arguments(arguments, scenario=scenario, parameters=parameters)
     given = [name for name in SIMULATION_OPTIONS if getattr(arguments, name) != parser.get_default(name)]
     if arguments.scenario != parser.get_default("scenario"):
         given.insert(0, "scenario")
@@ -233,8 +239,7 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--log needs --robot ROBOT.toml, the robot file of the logs ([geometry] in m, [masses] in kg)")
     if len(arguments.log) < 2:
         parser.error(f"--log needs at least 2 files (the last one is held out), got {len(arguments.log)}")
-    arguments.scenario = None
-    return arguments
+    return resolved_arguments(arguments, scenario=None)
 
 
 def simulation_settings(arguments: argparse.Namespace) -> dict[str, float]:
@@ -290,15 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         run, scenario = None, arguments.scenario
         config = {**vars(arguments), "scenario": scenario.name, "robot_identity": scenario.robot_identity}
         scenarios, stamp = [scenario], f"{utc_stamp()}_seed{arguments.seed}"
-    with run_folder(
-        "identification",
-        command,
-        config,
-        out=arguments.out,
-        runs_dir=arguments.runs_dir,
-        scenarios=scenarios,
-        stamp=stamp,
-        reuse=arguments.force,
+    with command_run_folder(
+        "identification", "eval.identify", argv, arguments, config, scenarios=scenarios, stamp=stamp
     ) as run_dir:
         run_dir.record(config={**config, "out": run_dir.folder})
         identify_into(arguments, run_dir, command, run)

@@ -65,7 +65,13 @@ from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import grid, prepare, run_grid
 from eval.processes import DEFAULT_WORKERS
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_run_folder,
+    write_csv,
+)
 from eval.scenario_args import (
     add_parameters_argument,
     add_residual_argument,
@@ -143,7 +149,66 @@ FASTEST_SEARCH = (0.1 * GRAVITY, 6.0 * GRAVITY, 7)
 and bisection steps (on a log scale, about 3 % resolution)."""
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+@dataclass(frozen=True)
+class RateConfig:
+    """The resolved configuration of a data sheet run (``python -m eval.rate``), recorded as it is in the run's
+    manifest (:meth:`manifest`); the options as ``--help`` gives them, the study size's defaults filled in.
+
+    Attributes:
+        scenario: The scenario every row derives (:func:`rate_scenario`): its task's ``n_cycles`` is ``cycles`` and
+            its ``torque_share`` is ``torque_share``.
+        geometry: The geometry file of ``--geometry``, or None.
+        release: ``--release``, or None (the scenario's).
+        quick: A ``--quick`` run.
+        seed: Seed of the first episode.
+        episodes: Episodes per row.
+        cycles: Pick-and-place cycles per episode.
+        planners: The timings (:data:`delta_env.scenario.TIMINGS`), in order.
+        controllers: The controller keys; the first runs every row.
+        residual: The policy file of the rows that read one.
+        payloads: Payloads (kg) besides the mixed stream.
+        torque_share: Share of the drive's envelope the planned timings may use.
+        no_fastest: ``--no-fastest``.
+        out: The run folder of ``--out``, or None.
+        force: Write into an existing, non-empty ``out``.
+        runs_dir: ``--runs-dir``, or None.
+        parameters: The identified parameter file: ``--parameters`` (None: the robot's own) until it is known.
+        servo: Feedback of the model rows (:data:`controllers.setup.SERVOS`).
+        workers: Processes.
+        fastest: Whether to search the second controller's fastest fixed timing.
+    """
+
+    scenario: Scenario
+    geometry: str | None
+    release: str | None
+    quick: bool
+    seed: int
+    episodes: int
+    cycles: int
+    planners: tuple[str, ...]
+    controllers: tuple[str, ...]
+    residual: Path
+    payloads: list[float]
+    torque_share: float
+    no_fastest: bool
+    out: Path | None
+    force: bool
+    runs_dir: Path | None
+    parameters: Path | None
+    servo: str
+    workers: int
+    fastest: bool
+
+    def manifest(self) -> dict[str, Any]:
+        """The configuration as the manifest records it: every field, the scenario by its name (its file is
+        ``scenario.toml`` beside)."""
+        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        return {**fields, "scenario": self.scenario.name}
+
+
+def parse_args(argv: Sequence[str] | None) -> RateConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
     parser = CommandParser(
         prog="python -m eval.rate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -206,40 +271,47 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.set_defaults(workers=None)
     args = parser.parse_args(argv)
     size = QUICK_STUDY if args.quick else FULL_STUDY
-    args.episodes = size.episodes if args.episodes is None else args.episodes
-    args.cycles = size.cycles if args.cycles is None else args.cycles
-    args.payloads = _kilograms(size.payloads) if args.payloads is None else args.payloads
-    args.fastest = size.fastest and not args.no_fastest
-    args.workers = size.workers if args.workers is None else args.workers
-    check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
-    check_episode_seeds(parser, args)
-    args.scenario = scenario_from_arguments(args, parser)
+    episodes = size.episodes if args.episodes is None else args.episodes
+    cycles = size.cycles if args.cycles is None else args.cycles
+    payload_text = _kilograms(size.payloads) if args.payloads is None else args.payloads
+    workers = size.workers if args.workers is None else args.workers
+    sized = argparse.Namespace(**{**vars(args), "episodes": episodes, "cycles": cycles, "workers": workers})
+    check_ranges(parser, sized, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
+    check_episode_seeds(parser, sized)
+    scenario = scenario_from_arguments(args, parser)
     try:  # one home: the scenario every row derives
-        task = dataclasses.replace(args.scenario.task, n_cycles=args.cycles, torque_share=args.torque_share)
+        task = dataclasses.replace(scenario.task, n_cycles=cycles, torque_share=args.torque_share)
     except ValueError as error:
         parser.error(f"--torque-share: {error}")
-    args.scenario = dataclasses.replace(args.scenario, task=task)
-    args.planners = _listed(parser, "--planners", args.planners, TIMINGS)
+    planners = _listed(parser, "--planners", args.planners, TIMINGS)
     try:
-        args.controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    if any(controller_entry(key).reads_policy_file for key in args.controllers):
+    if any(controller_entry(key).reads_policy_file for key in controllers):
         try:
             read_policy_settings(args.residual)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--residual: {error}")
-    privileged = [key for key in args.controllers if controller_entry(key).privileged]
+    privileged = [key for key in controllers if controller_entry(key).privileged]
     if privileged:
         parser.error(f"--controllers: {', '.join(privileged)}: a bound that knows the plant, without a pick rate")
     try:
-        payloads = [float(value) for value in args.payloads.split(",") if value.strip()]
+        payloads = [float(value) for value in payload_text.split(",") if value.strip()]
     except ValueError:
-        parser.error(f"--payloads must be numbers (kg), got {args.payloads!r}")
+        parser.error(f"--payloads must be numbers (kg), got {payload_text!r}")
     if not payloads or not all(0.0 < p <= RATED_PAYLOAD for p in payloads):
-        parser.error(f"--payloads must lie in (0, {RATED_PAYLOAD:g}] kg, got {args.payloads!r}")
-    args.payloads = payloads
-    return args
+        parser.error(f"--payloads must lie in (0, {RATED_PAYLOAD:g}] kg, got {payload_text!r}")
+    return RateConfig(
+        **{
+            **vars(sized),
+            "scenario": dataclasses.replace(scenario, task=task),
+            "planners": tuple(planners),
+            "controllers": tuple(controllers),
+            "payloads": payloads,
+            "fastest": size.fastest and not args.no_fastest,
+        }
+    )
 
 
 def _kilograms(payloads: Sequence[float]) -> str:
@@ -334,9 +406,9 @@ def holds(row: Mapping[str, Any]) -> bool:
     )
 
 
-def row_episodes(args: argparse.Namespace) -> int:
+def row_episodes(config: RateConfig) -> int:
     """Episodes of every planner x payload row of every controller (:func:`run_rows`)."""
-    return len(args.planners) * (len(args.payloads) + 1) * len(args.controllers) * args.episodes
+    return len(config.planners) * (len(config.payloads) + 1) * len(config.controllers) * config.episodes
 
 
 def paced(keys: Sequence[str]) -> tuple[list[str], list[str]]:
@@ -347,24 +419,22 @@ def paced(keys: Sequence[str]) -> tuple[list[str], list[str]]:
     return own, [key for key in keys if key not in own]
 
 
-def run_rows(
-    args: argparse.Namespace, setup: Any, progress: Any = None
-) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+def run_rows(config: RateConfig, setup: Any, progress: Any = None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Every planner x payload row of the controllers that run at their own pace (:func:`paced`), then the others on
     the first's references; ``progress`` (a bar, or None) is advanced once per episode."""
-    own, others = paced(args.controllers)
-    loads = [*args.payloads, MIXED]
-    scenarios = [rate_scenario(args.scenario, timing, load) for timing in args.planners for load in loads]
+    own, others = paced(config.controllers)
+    loads = [*config.payloads, MIXED]
+    scenarios = [rate_scenario(config.scenario, timing, load) for timing in config.planners for load in loads]
     setups = {scenario.content_hash: setup for scenario in scenarios}
-    units = grid(scenarios, own, range(args.seed, args.seed + args.episodes))
-    records = run_grid(units, setups, workers=args.workers, progress=progress)
+    units = grid(scenarios, own, range(config.seed, config.seed + config.episodes))
+    records = run_grid(units, setups, workers=config.workers, progress=progress)
     replays = [
         WorkUnit(unit.scenario, key, unit.seed, tuple(record.masses.tolist()), record.reference)
         for key in others
         for unit, record in zip(units, records, strict=True)
-        if unit.controller == args.controllers[0]
+        if unit.controller == config.controllers[0]
     ]
-    records += run_grid(replays, setups, workers=args.workers, progress=progress)
+    records += run_grid(replays, setups, workers=config.workers, progress=progress)
     grouped: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     episode_rows = []
     for unit, record in zip([*units, *replays], records, strict=True):
@@ -383,27 +453,27 @@ def run_rows(
     return rows, episode_rows
 
 
-def fastest_episodes(args: argparse.Namespace) -> int:
+def fastest_episodes(config: RateConfig) -> int:
     """Episodes of :func:`fastest_fixed`."""
-    return (len(args.payloads) + 1) * FASTEST_SEARCH[2] * args.episodes
+    return (len(config.payloads) + 1) * FASTEST_SEARCH[2] * config.episodes
 
 
-def fastest_fixed(args: argparse.Namespace, setup: Any, key: str, progress: Any = None) -> list[dict[str, Any]]:
+def fastest_fixed(config: RateConfig, setup: Any, key: str, progress: Any = None) -> list[dict[str, Any]]:
     """For each payload, the fastest fixed timing (peak acceleration) at which ``key`` holds the goals; ``progress``
     (a bar, or None) is advanced once per episode."""
     low, high, steps = FASTEST_SEARCH
     rows = []
-    for load in [*args.payloads, MIXED]:
+    for load in [*config.payloads, MIXED]:
         best = None
         lower, upper = math.log(low), math.log(high)
         for _ in range(steps):
             acceleration = math.exp(0.5 * (lower + upper))
             base = dataclasses.replace(
-                args.scenario, task=dataclasses.replace(args.scenario.task, peak_acceleration=acceleration)
+                config.scenario, task=dataclasses.replace(config.scenario.task, peak_acceleration=acceleration)
             )
             scenario = rate_scenario(base, "fixed", load)
-            units = grid([scenario], [key], range(args.seed, args.seed + args.episodes))
-            records = run_grid(units, {scenario.content_hash: setup}, workers=args.workers, progress=progress)
+            units = grid([scenario], [key], range(config.seed, config.seed + config.episodes))
+            records = run_grid(units, {scenario.content_hash: setup}, workers=config.workers, progress=progress)
             row = summarize([record.metrics() for record in records])
             if holds(row):
                 lower, best = math.log(acceleration), row | {"peak_acceleration_g": acceleration / GRAVITY}
@@ -419,66 +489,61 @@ def fastest_fixed(args: argparse.Namespace, setup: Any, key: str, progress: Any 
 @command_main("python -m eval.rate")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
-    args = parse_args(argv)
-    with run_folder(
-        "rate",
-        command_line("eval.rate", argv),
-        {"arguments": {**vars(args), "scenario": args.scenario.name}},
-        out=args.out,
-        runs_dir=args.runs_dir,
-        scenarios=[args.scenario],
-        reuse=args.force,
+    config = parse_args(argv)
+    with command_run_folder(
+        "rate", "eval.rate", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
     ) as run:
-        rate(args, run, started)
+        rate(config, run, started)
     return 0
 
 
-def rate(args: argparse.Namespace, run: Run, started: float) -> None:
-    """The data sheet of ``args`` (:func:`parse_args`) into ``run``'s folder, its summary printed; ``started`` is the
-    :func:`time.perf_counter` time at the start of the command."""
+def rate(config: RateConfig, run: Run, started: float) -> None:
+    """The data sheet of ``config`` (:func:`parse_args`) into ``run``'s folder, its summary printed; ``started`` is
+    the :func:`time.perf_counter` time at the start of the command."""
     out = run.folder
-    scenario = args.scenario
+    scenario = config.scenario
     # Every tared row is tared; the lead's estimator retimes the online carries (the cell's own if the lead has none).
-    tared = [key for key in args.controllers if controller_entry(key).tared]
-    if not controller_entry(args.controllers[0]).has_estimator:
+    tared = [key for key in config.controllers if controller_entry(key).tared]
+    if not controller_entry(config.controllers[0]).has_estimator:
         tared.append(CELL_ESTIMATOR_KEY)
-    if args.quick:
-        print(f"{QUICK_NOTE} Measuring {_study_line(args)}.", flush=True)
+    if config.quick:
+        print(f"{QUICK_NOTE} Measuring {_study_line(config)}.", flush=True)
     with progress_bar(CALIBRATION_EPISODES * len(tared), "tare calibration", "episodes") as bar:
         prepared = prepare(
             rate_scenario(scenario, "declared", MIXED),
             tared,
-            parameters=args.parameters,
-            runs_dir=args.runs_dir,
+            parameters=config.parameters,
+            runs_dir=config.runs_dir,
             calibration_episodes=CALIBRATION_EPISODES,
-            workers=args.workers,
+            workers=config.workers,
             progress=bar,
-            servo=args.servo,
-            residual_policy=args.residual,
+            servo=config.servo,
+            residual_policy=config.residual,
         )
-    args.parameters, setup, calibration = prepared.parameter_file, prepared.setup, prepared.calibration
+    config = dataclasses.replace(config, parameters=prepared.parameter_file)
+    setup, calibration = prepared.setup, prepared.calibration
 
-    with progress_bar(row_episodes(args), "data sheet rows", "episodes") as bar:
-        rows, episode_rows = run_rows(args, setup, bar)
+    with progress_bar(row_episodes(config), "data sheet rows", "episodes") as bar:
+        rows, episode_rows = run_rows(config, setup, bar)
     fastest = []
-    if len(args.controllers) > 1 and args.fastest:
-        label = controller_label(args.controllers[1])
-        with progress_bar(fastest_episodes(args), f"fastest fixed timing of {label}", "episodes") as bar:
-            fastest = fastest_fixed(args, setup, args.controllers[1], bar)
+    if len(config.controllers) > 1 and config.fastest:
+        label = controller_label(config.controllers[1])
+        with progress_bar(fastest_episodes(config), f"fastest fixed timing of {label}", "episodes") as bar:
+            fastest = fastest_fixed(config, setup, config.controllers[1], bar)
     write_csv(out / "rate.csv", rows)
     write_csv(out / "rate_episodes.csv", episode_rows)
     if fastest:
         write_csv(out / "pd_fastest.csv", fastest)
-    save_rate_figure(out / "rate.png", rows, fastest, controller_label(args.controllers[0]), scenario.name)
-    summary = "\n".join(_summary(args, rows, fastest, out, time.perf_counter() - started))
+    save_rate_figure(out / "rate.png", rows, fastest, controller_label(config.controllers[0]), scenario.name)
+    summary = "\n".join(_summary(config, rows, fastest, out, time.perf_counter() - started))
     (out / "summary.md").write_text(summary + "\n")
     run.record(
         config={
-            "arguments": {**vars(args), "scenario": scenario.name},
-            "study": "quick" if args.quick else "full",
+            "arguments": config.manifest(),
+            "study": "quick" if config.quick else "full",
             "cycle_terms": cycle_terms(scenario.task),
             "published": {"source": ABB_IRB_360.source, "cycle": ABB_IRB_360.cycle},
-            "identification": str(args.parameters),
+            "identification": str(config.parameters),
             "tares_kg": calibration.tares,
             "calibration_seeds": calibration_seeds(CALIBRATION_EPISODES),
             "goals_mm": {"tracking_rms": TRACKING_GOAL_MM, "place_error": PLACE_GOAL_MM},
@@ -500,16 +565,16 @@ def _pace_line(keys: Sequence[str]) -> str:
 
 
 def _summary(
-    args: argparse.Namespace, rows: list[dict[str, Any]], fastest: list[dict[str, Any]], out: Path, seconds: float
+    config: RateConfig, rows: list[dict[str, Any]], fastest: list[dict[str, Any]], out: Path, seconds: float
 ) -> list[str]:
     """The summary's lines: the data sheet, the rows in full, the targets, and what the model buys."""
-    loads = [payload_label(p) for p in args.payloads] + [MIXED]
+    loads = [payload_label(p) for p in config.payloads] + [MIXED]
     by_key = {(row["planner"], row["controller"], str(row["payload"])): row for row in rows}
-    lead = controller_label(args.controllers[0])
+    lead = controller_label(config.controllers[0])
     sheet = [
         [planner, label] + [f"{by_key[(planner, label, load)]['picks_per_min']:.1f}" for load in loads]
-        for planner in args.planners
-        for label in (controller_label(key) for key in args.controllers)
+        for planner in config.planners
+        for label in (controller_label(key) for key in config.controllers)
     ]
     settled = [(name, kind, header) for name, _, kind, header in SETTLE_COLUMNS if all(name in row for row in rows)]
     full = [
@@ -530,13 +595,13 @@ def _summary(
         for row in rows
     ]
     lines = [
-        f"# Pick rate, scenario {args.scenario.name}: 25/305/25 mm standard cycle, {_study_line(args)}",
+        f"# Pick rate, scenario {config.scenario.name}: 25/305/25 mm standard cycle, {_study_line(config)}",
         "",
-        *([QUICK_NOTE, ""] if args.quick else []),
-        f"Planned timings use {100 * args.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
-        f"planner's 10 % margin) and keep its thermal rating. {_cycle_line(args.scenario.task)}",
+        *([QUICK_NOTE, ""] if config.quick else []),
+        f"Planned timings use {100 * config.scenario.task.torque_share:.0f} % of the drive's envelope (after the "
+        f"planner's 10 % margin) and keep its thermal rating. {_cycle_line(config.scenario.task)}",
         "",
-        f"{FEEDBACK_LINES[args.servo]} Picks per minute ({_pace_line(args.controllers)}).",
+        f"{FEEDBACK_LINES[config.servo]} Picks per minute ({_pace_line(config.controllers)}).",
         "",
         metrics.markdown_table(
             ["planner", "controller", *[f"{load} kg" if load != MIXED else load for load in loads]], sheet
@@ -567,15 +632,15 @@ def _summary(
         ),
         "",
     ]
-    lines += _published_lines(args, by_key, lead)
-    lines += _targets(args, by_key, lead)
+    lines += _published_lines(config, by_key, lead)
+    lines += _targets(config, by_key, lead)
     if fastest:
         lines += _fastest_lines(fastest, by_key, lead)
     lines.append(f"Run folder: {out} ({seconds:.0f} s)")
     return lines
 
 
-def _targets(args: argparse.Namespace, by_key: dict[tuple[str, str, str], dict[str, Any]], lead: str) -> list[str]:
+def _targets(config: RateConfig, by_key: dict[tuple[str, str, str], dict[str, Any]], lead: str) -> list[str]:
     """The mixed stream's online capture of the declared gain, and online against the fixed timing at the
     rated payload."""
     lines = []
@@ -594,7 +659,8 @@ def _targets(args: argparse.Namespace, by_key: dict[tuple[str, str, str], dict[s
     if fixed and online_rated:
         lines += [
             f"At the rated payload ({rated} kg), {lead}: online {online_rated['picks_per_min']:.1f} picks/min against "
-            f"{fixed['picks_per_min']:.1f} at the fixed {args.scenario.task.peak_acceleration / GRAVITY:.0f} g timing "
+            f"{fixed['picks_per_min']:.1f} at the fixed {config.scenario.task.peak_acceleration / GRAVITY:.0f} g "
+            "timing "
             f"({100 * (online_rated['picks_per_min'] / fixed['picks_per_min'] - 1):+.0f} %).",
             "",
         ]
@@ -630,12 +696,12 @@ def _fastest_lines(
     ]
 
 
-def _study_line(args: argparse.Namespace) -> str:
+def _study_line(config: RateConfig) -> str:
     """What a run measures: episodes, cycles, seeds and payloads."""
     return (
-        f"{plural(args.episodes, 'episode')} x {plural(args.scenario.task.n_cycles, 'cycle')} per row from seed "
-        f"{args.seed}, payloads "
-        f"{_kilograms(args.payloads).replace(',', ', ')} kg and the mixed stream"
+        f"{plural(config.episodes, 'episode')} x {plural(config.scenario.task.n_cycles, 'cycle')} per row from seed "
+        f"{config.seed}, payloads "
+        f"{_kilograms(config.payloads).replace(',', ', ')} kg and the mixed stream"
     )
 
 
@@ -656,13 +722,13 @@ def compared_planner(planners: Sequence[str]) -> str:
 
 
 def _published_lines(
-    args: argparse.Namespace,
+    config: RateConfig,
     by_key: dict[tuple[str, str, str], dict[str, Any]],
     lead: str,
     sheet: PublishedSheet = ABB_IRB_360,
 ) -> list[str]:
     """The published rows of ``sheet`` beside the lead's at the same payloads, and what differs."""
-    planner = compared_planner(args.planners)
+    planner = compared_planner(config.planners)
     table = []
     for published in sheet.rows:
         ours = by_key.get((planner, lead, payload_label(published.payload)))
@@ -676,9 +742,9 @@ def _published_lines(
             missing = f"beyond our rated {RATED_PAYLOAD:g} kg" if published.payload > RATED_PAYLOAD else "not run"
             cells = [missing, "-", "-"]
         table.append([f"{published.payload:g}", published.robot, f"{published.picks_per_min:.0f}", *cells])
-    plant: PlantConfig = args.scenario.plant
+    plant: PlantConfig = config.scenario.plant
     drive, geometry = plant.drive, plant.geometry
-    air = cycle_terms(args.scenario.task).get("air_activation")
+    air = cycle_terms(config.scenario.task).get("air_activation")
     if air is None:
         ends = [
             f"our cycle dwells {1e3 * DEFAULT_DWELL:.0f} ms at pick and place, {sheet.maker}'s counts "

@@ -25,7 +25,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -417,3 +417,54 @@ def run_folder(
         run.end("finished")
     finally:
         termination.restore(deliver=True)
+
+
+class RunOptions(Protocol):
+    """The run-folder options of a command line (``--out``, ``--runs-dir``, ``--force``): its parsed arguments or
+    its resolved configuration."""
+
+    @property
+    def out(self) -> Path | None: ...
+
+    @property
+    def runs_dir(self) -> Path | None: ...
+
+    @property
+    def force(self) -> bool: ...
+
+
+def command_run_folder(
+    tool: str,
+    program: str,
+    argv: Sequence[str] | None,
+    options: RunOptions,
+    config: Mapping[str, Any],
+    *,
+    scenarios: Sequence[Scenario] = (),
+    stamp: str | None = None,
+    reuse: bool = False,
+) -> contextlib.AbstractContextManager[Run]:
+    """The :func:`run_folder` of the command line ``python -m program argv`` (:func:`command_line`), placed by its
+    ``options``: ``--out``, ``--runs-dir``, and ``--force`` (or ``reuse``, a tool that resumes in its folder) to
+    write into a non-empty one.
+
+    Args:
+        tool: The tool's folder under the runs root.
+        program: The module run (``eval.rate``).
+        argv: The command line's arguments (None: ``sys.argv[1:]``).
+        options: Its parsed arguments or resolved configuration.
+        config: The resolved configuration known at the start, as the manifest records it.
+        scenarios: The scenarios the run works on.
+        stamp: Folder name instead of the UTC time stamp.
+        reuse: Write into an existing, non-empty ``--out`` even without ``--force``.
+    """
+    return run_folder(
+        tool,
+        command_line(program, argv),
+        config,
+        out=options.out,
+        runs_dir=options.runs_dir,
+        scenarios=scenarios,
+        stamp=stamp,
+        reuse=reuse or options.force,
+    )

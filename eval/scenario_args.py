@@ -70,16 +70,16 @@ def existing_parameter_file(text: str) -> Path:
     return path
 
 
-def check_parameter_file(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """A parser error when ``--parameters`` records another robot than ``args.scenario``'s
+def check_parameter_file(parser: argparse.ArgumentParser, parameters: Path | None, scenario: Scenario) -> None:
+    """A parser error when ``--parameters`` records another robot than ``scenario``'s
     (:func:`eval.parameter_files.check_identity`)."""
     from controllers.identification import ParameterFileError, load_result
     from eval.parameter_files import check_identity
 
-    if args.parameters is None:
+    if parameters is None:
         return
     try:
-        check_identity(load_result(args.parameters), args.scenario.plant, args.parameters)
+        check_identity(load_result(parameters), scenario.plant, parameters)
     except ParameterFileError as error:
         parser.error(f"--parameters: {error}")
 

@@ -78,7 +78,7 @@ from controllers.residual import (
 )
 from controllers.residual.env import action_rate_penalty
 from controllers.residual.features import PREVIOUS_ACTION
-from eval.console import CommandParser, command_main, plural, progress_bar
+from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
 from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
 from eval.residual_envs import (
@@ -94,8 +94,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     append_csv_rows,
-    command_line,
-    run_folder,
+    command_run_folder,
     write_json,
 )
 from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
@@ -314,14 +313,13 @@ def train(
         callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
     """
     torch.set_num_threads(args.torch_threads)
-    with run_folder(
+    with command_run_folder(
         "residual",
-        command_line("eval.train_residual"),
+        "eval.train_residual",
+        None,
+        args,
         {"arguments": recorded_arguments(args)},
-        out=args.out,
-        runs_dir=args.runs_dir,
         scenarios=[args.scenario, *args.mixture],
-        reuse=args.force,
     ) as run:
         summary = _train(args, run, base_factory, base, callbacks)
     print(f"{summary}\nRun folder: {run.folder}")
@@ -621,16 +619,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
     check_ranges(parser, args, {**counts, "torch_threads": 1}, ("max_minutes",))
-    args.scenario = scenario_from_arguments(args, parser)
-    args.mixture = [
-        scenario_from_arguments(argparse.Namespace(**{**vars(args), "scenario": name}), parser) for name in args.mix
-    ]
-    for scenario in args.mixture:
-        if scenario.robot_identity != args.scenario.robot_identity:
-            parser.error(f"--mix {scenario.name}: not the robot of --scenario {args.scenario.name}, whose base it uses")
-    args.mixture_cycles = [args.cycles or scenario.task.n_cycles for scenario in args.mixture]
-    if args.cycles is None:
-        args.cycles = args.scenario.task.n_cycles
+    scenario = scenario_from_arguments(args, parser)
+    mixture = [scenario_from_arguments(resolved_arguments(args, scenario=name), parser) for name in args.mix]
+    for mixed in mixture:
+        if mixed.robot_identity != scenario.robot_identity:
+            parser.error(f"--mix {mixed.name}: not the robot of --scenario {scenario.name}, whose base it uses")
+    args = resolved_arguments(
+        args,
+        scenario=scenario,
+        cycles=scenario.task.n_cycles if args.cycles is None else args.cycles,
+        mixture=mixture,
+        mixture_cycles=[args.cycles or mixed.task.n_cycles for mixed in mixture],
+    )
     if args.tensorboard is not None and not HAS_TENSORBOARD:
         parser.error("--tensorboard needs the tensorboard package (pip install tensorboard)")
     try:
@@ -664,14 +664,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.score_only is None:
         train(args)
         return 0
-    with run_folder(
+    with command_run_folder(
         "residual_scores",
-        command_line("eval.train_residual", argv),
+        "eval.train_residual",
+        argv,
+        args,
         {"arguments": recorded_arguments(args)},
-        out=args.out,
-        runs_dir=args.runs_dir,
         scenarios=[args.scenario],
-        reuse=args.force,
     ) as run:
         with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
             scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario}, progress=bar)

@@ -44,7 +44,7 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
-from eval.console import CommandParser, command_main, progress_bar
+from eval.console import CommandParser, command_main, progress_bar, resolved_arguments
 from eval.design import (
     codesign,
     drive_rate,
@@ -64,9 +64,8 @@ from eval.run_folder import (
     Run,
     add_force_argument,
     add_runs_dir_argument,
-    command_line,
+    command_run_folder,
     package_versions,
-    run_folder,
     write_csv,
 )
 from eval.scenario_args import add_workers_argument, check_episode_seeds, check_ranges
@@ -128,9 +127,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.quick:
         # Only the settings left at their defaults: an explicit --population etc. wins over --quick.
-        for key, value in QUICK.items():
-            if getattr(args, key) == parser.get_default(key):
-                setattr(args, key, value)
+        quick = {key: value for key, value in QUICK.items() if getattr(args, key) == parser.get_default(key)}
+        args = resolved_arguments(args, **quick)
     minimums = {
         "seed": 0,
         "search_seeds": 1,
@@ -225,14 +223,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None]
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     args = parse_args(argv)
-    with run_folder(
-        "design",
-        command_line("eval.design", argv),
-        _resolved_config(args),
-        out=args.out,
-        runs_dir=args.runs_dir,
-        reuse=args.force,
-    ) as run:
+    with command_run_folder("design", "eval.design", argv, args, _resolved_config(args)) as run:
         study(args, run, started)
     return 0
 

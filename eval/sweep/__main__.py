@@ -44,12 +44,19 @@ from pathlib import Path
 
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from controllers.residual import DEFAULT_POLICY_PATH
-from delta_env.scenario import preset_names, resolve_scenario
+from delta_env.scenario import Scenario, preset_names, resolve_scenario
 from eval.console import CommandParser, UsageError, command_main, plural, progress_bar
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import Run, add_runs_dir_argument, command_line, run_folder, runs_root, write_csv
+from eval.run_folder import (
+    Run,
+    add_runs_dir_argument,
+    command_line,
+    command_run_folder,
+    runs_root,
+    write_csv,
+)
 from eval.scenario_args import (
     add_geometry_argument,
     add_servo_argument,
@@ -67,7 +74,51 @@ from eval.sweep.work import (
 )
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+@dataclasses.dataclass(frozen=True)
+class SweepConfig:
+    """The resolved configuration of a sweep (``python -m eval.sweep``).
+
+    Attributes:
+        scenarios: The grid's scenarios, on ``geometry``'s robot and with ``cycles`` cycles when given.
+        controllers: The grid's controller keys.
+        seed: Seed of the first episode.
+        episodes: Episodes per scenario and controller.
+        cycles: ``--cycles``, or None (each scenario's).
+        backend: ``local`` or ``ray``.
+        address: The Ray cluster to join, or None.
+        workers: Local processes, or the CPUs of a Ray started here.
+        out: The run folder (by default named by the grid's hash).
+        runs_dir: ``--runs-dir``, or None.
+        force: Run every episode again.
+        residual: The policy file of the ``residual`` row.
+        servo: Feedback of the model rows (:data:`controllers.setup.SERVOS`).
+        geometry: The geometry file of ``--geometry``, or None.
+    """
+
+    scenarios: tuple[Scenario, ...]
+    controllers: tuple[str, ...]
+    seed: int
+    episodes: int
+    cycles: int | None
+    backend: str
+    address: str | None
+    workers: int
+    out: Path
+    runs_dir: Path | None
+    force: bool
+    residual: Path
+    servo: str
+    geometry: str | None
+
+    @property
+    def seeds(self) -> list[int]:
+        """The episodes' seeds: ``seed`` to ``seed + episodes - 1``."""
+        return list(range(self.seed, self.seed + self.episodes))
+
+
+def parse_args(argv: Sequence[str] | None) -> SweepConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
     parser = CommandParser(
         prog="python -m eval.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -97,7 +148,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     check_episode_seeds(parser, args)
-    args.seeds = list(range(args.seed, args.seed + args.episodes))
     try:
         scenarios = [resolve_scenario(spec.strip()) for spec in args.scenarios.split(",") if spec.strip()]
         if args.geometry is not None:
@@ -111,24 +161,24 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     names = [scenario.name for scenario in scenarios]
     if not scenarios or len(set(names)) != len(names):
         parser.error(f"--scenarios must name distinct scenarios, got {names}")
-    args.scenarios = scenarios
     try:
-        args.controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
     if args.address is not None and args.backend != "ray":
         parser.error("--address needs --backend ray")
+    config = SweepConfig(**{**vars(args), "scenarios": tuple(scenarios), "controllers": tuple(controllers)})
     if args.out is None:
         grid = {
             "scenarios": [s.content_hash for s in scenarios],
-            "controllers": args.controllers,
-            "seeds": args.seeds,
+            "controllers": controllers,
+            "seeds": config.seeds,
         }
         digest = hashlib.sha256(json.dumps(grid, sort_keys=True).encode()).hexdigest()[:10]
-        args.out = runs_root(args.runs_dir) / "sweep" / f"sweep-{digest}"
-    if args.backend == "ray" and not (args.out / "results.csv").exists():  # a new sweep: all of it needs Ray
+        config = dataclasses.replace(config, out=runs_root(args.runs_dir) / "sweep" / f"sweep-{digest}")
+    if config.backend == "ray" and not (config.out / "results.csv").exists():  # a new sweep: all of it needs Ray
         _require_ray(parser)
-    return args
+    return config
 
 
 def _require_ray(parser: argparse.ArgumentParser) -> None:
@@ -141,25 +191,25 @@ def _require_ray(parser: argparse.ArgumentParser) -> None:
 
 @command_main("python -m eval.sweep")
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
+    config = parse_args(argv)
     command = command_line("eval.sweep", argv)
-    grid = {"scenarios": [s.name for s in args.scenarios], "controllers": args.controllers, "seeds": args.seeds}
-    backend = {"name": args.backend, "address": args.address, "workers": args.workers}
-    with run_folder(
+    grid = {"scenarios": [s.name for s in config.scenarios], "controllers": config.controllers, "seeds": config.seeds}
+    backend = {"name": config.backend, "address": config.address, "workers": config.workers}
+    with command_run_folder(
         "sweep",
-        command,
+        "eval.sweep",
+        argv,
+        config,
         {"grid": grid, "backend": backend},
-        out=args.out,
-        runs_dir=args.runs_dir,
-        scenarios=args.scenarios,
+        scenarios=config.scenarios,
         reuse=True,  # a sweep resumes in its folder
     ) as run:
-        sweep(args, run, command)
+        sweep(config, run, command)
     return 0
 
 
-def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
-    """Run the sweep of ``args`` (:func:`parse_args`) into ``run``'s folder, the rows already there skipped unless
+def sweep(config: SweepConfig, run: Run, command: str) -> None:
+    """Run the sweep of ``config`` (:func:`parse_args`) into ``run``'s folder, the rows already there skipped unless
     ``--force``; write the summary and print it."""
     out = run.folder
     with (out / "commands.log").open("a") as log:
@@ -167,50 +217,50 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
     setups = {
         s.content_hash: prepare(
             s,
-            args.controllers,
-            runs_dir=args.runs_dir,
-            workers=args.workers,
-            residual_policy=args.residual,
-            servo=args.servo,
+            config.controllers,
+            runs_dir=config.runs_dir,
+            workers=config.workers,
+            residual_policy=config.residual,
+            servo=config.servo,
         ).setup
-        for s in args.scenarios
+        for s in config.scenarios
     }
     version = code_version()
     digests = {
-        (content, key): setup_digest(setup, key) for content, setup in setups.items() for key in args.controllers
+        (content, key): setup_digest(setup, key) for content, setup in setups.items() for key in config.controllers
     }
-    units = [WorkUnit(s, key, seed) for s in args.scenarios for key in args.controllers for seed in args.seeds]
-    config = {
+    units = [WorkUnit(s, key, seed) for s in config.scenarios for key in config.controllers for seed in config.seeds]
+    manifest = {
         "grid": {
             "scenarios": {
                 s.name: {
                     "content_hash": s.content_hash,
                     "robot_identity": s.robot_identity,
-                    "setup_digests": {key: digests[s.content_hash, key] for key in args.controllers},
+                    "setup_digests": {key: digests[s.content_hash, key] for key in config.controllers},
                     "tares_kg": dict(setups[s.content_hash].tares),
                 }
-                for s in args.scenarios
+                for s in config.scenarios
             },
-            "controllers": {key: controller_label(key) for key in args.controllers},
-            "seeds": args.seeds,
+            "controllers": {key: controller_label(key) for key in config.controllers},
+            "seeds": config.seeds,
             "episodes": len(units),
         },
-        "backend": {"name": args.backend, "address": args.address, "workers": args.workers},
+        "backend": {"name": config.backend, "address": config.address, "workers": config.workers},
         "code_version": version,
         "identifications": {
-            s.name: str(parameter_path(s.plant, identification_root(args.runs_dir))) for s in args.scenarios
+            s.name: str(parameter_path(s.plant, identification_root(config.runs_dir))) for s in config.scenarios
         },
-        "residual_policy": str(args.residual),
+        "residual_policy": str(config.residual),
         "pd_gains": list(next(iter(setups.values())).pd_gains),
     }
-    run.record(config=config)
+    run.record(config=manifest)
 
     table = ResultsTable(out / "results.csv")
     keys = {unit_key(unit, version, digests[unit.scenario.content_hash, unit.controller]) for unit in units}
-    if args.force:
+    if config.force:
         table.drop(keys)
     done = keys <= {row["key"] for row in table.load()}
-    if args.backend == "ray" and not done:
+    if config.backend == "ray" and not done:
         try:
             import_ray()
         except ImportError as error:
@@ -222,19 +272,19 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
             table,
             version,
             digests,
-            backend=args.backend,
-            workers=args.workers,
-            address=args.address,
+            backend=config.backend,
+            workers=config.workers,
+            address=config.address,
             progress=progress,
         )
 
     rows = [row for row in table.load() if row["key"] in keys]
-    summary = report.summarize(rows, [s.name for s in args.scenarios], args.controllers)
+    summary = report.summarize(rows, [s.name for s in config.scenarios], config.controllers)
     write_csv(out / "summary.csv", summary)
     text = "\n".join(
         [
-            f"# Sweep: {plural(len(args.scenarios), 'scenario')} x {plural(len(args.controllers), 'controller')} x "
-            f"{plural(len(args.seeds), 'seed')}",
+            f"# Sweep: {plural(len(config.scenarios), 'scenario')} x {plural(len(config.controllers), 'controller')} x "
+            f"{plural(len(config.seeds), 'seed')}",
             "",
             "Mean ± 95 % CI half-width over the episodes that neither failed nor diverged.",
             "",
@@ -244,7 +294,7 @@ def sweep(args: argparse.Namespace, run: Run, command: str) -> None:
             "table.",
         ]
     )
-    faults = sweep_fault_table(rows, {key: controller_label(key) for key in args.controllers})
+    faults = sweep_fault_table(rows, {key: controller_label(key) for key in config.controllers})
     if faults:
         text += "\n\n## Faults\n\nPer controller and fault kind, over the sweep's episodes (a detection of the "
         text += "fault's kind from its start to 50 ms after its end; docs/design.md section 8).\n\n" + faults
