@@ -325,13 +325,32 @@ def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
     return done
 
 
+def _per_ten_thousand_value(value: float) -> str:
+    return f"{value:.0f}" if value >= 100 else f"{value:.3g}"
+
+
 def per_ten_thousand(alarms: int, carries: int) -> str:
     """False alarms per 10,000 carries; for none, "0 in N carries" with the rule of three's 95 % upper bound (3 / N)."""
     if carries == 0:
         return "n/a (no carry)"
     if alarms == 0:
-        return f"0 in {carries} carries (< {3e4 / carries:.3g} at 95 %)"
-    return f"{1e4 * alarms / carries:.3g}"
+        return f"0 in {carries} carries (< {_per_ten_thousand_value(3e4 / carries)} at 95 %)"
+    return _per_ten_thousand_value(1e4 * alarms / carries)
+
+
+def cell_soaks(
+    rows: Sequence[dict[str, Any]], alarms: Sequence[dict[str, Any]], conditions: Sequence[str], keys: Sequence[str]
+) -> dict[Cell, tuple[list[dict[str, Any]], list[dict[str, Any]]]]:
+    """Per condition and controller that ran: its fault-free episodes of ``rows`` and their false alarms of
+    ``alarms`` (the false-alarm rows of ``faults.csv``). Episodes that carried an injected fault are left out."""
+    clean = {(row["condition"], row["key"], int(row["seed"])) for row in rows if int(row["faults_injected"]) == 0}
+    soaks = {}
+    for cell in [(condition, key) for condition in conditions for key in keys]:
+        group = [row for row in rows if _cell(row) == cell and int(row["faults_injected"]) == 0]
+        if group:
+            found = [alarm for alarm in alarms if _cell(alarm) == cell and (*cell, int(alarm["seed"])) in clean]
+            soaks[cell] = (group, found)
+    return soaks
 
 
 def summary_table(
@@ -341,44 +360,53 @@ def summary_table(
     keys: Sequence[str],
 ) -> str:
     """Per condition and controller: episodes (diverged), carries and those whose estimate overshot the lift-off bound
-    (:data:`eval.metrics.OVERSHOOT_BOUND`), simulated minutes, false alarms by kind (from ``alarms``, the false-alarm
-    rows of ``faults.csv``) and per 10,000 carries, and the first alarm's seed and time. Episodes that carried an
-    injected fault are left out."""
+    (:data:`eval.metrics.OVERSHOOT_BOUND`), simulated minutes, false alarms by kind and per 10,000 carries, and the
+    first alarm's seed and time (:func:`cell_soaks`)."""
     bound_kg, bound_fraction = metrics.OVERSHOOT_BOUND
     over = f"Carries over max({bound_kg} kg, {100 * bound_fraction:.0f} %)"
     header = ["Condition", "Controller", "Episodes (diverged)", "Carries", over, "Simulated min"]
     header += ["False alarms by kind", "Per 10,000 carries", "First (seed, s)"]
-    clean = {(row["condition"], row["key"], int(row["seed"])) for row in rows if int(row["faults_injected"]) == 0}
     body = []
-    for condition in conditions:
-        for key in keys:
-            group = [row for row in rows if _cell(row) == (condition, key) and int(row["faults_injected"]) == 0]
-            if not group:
-                continue
-            found = [
-                alarm
-                for alarm in alarms
-                if (alarm["condition"], alarm["key"], int(alarm["seed"])) in clean and _cell(alarm) == (condition, key)
+    for (condition, key), (group, found) in cell_soaks(rows, alarms, conditions, keys).items():
+        kinds: dict[str, int] = {}
+        for alarm in found:
+            kinds[str(alarm["kind"])] = kinds.get(str(alarm["kind"]), 0) + 1
+        carries = sum(int(row["carries"]) for row in group)
+        first = min(found, key=lambda alarm: (int(alarm["seed"]), float(alarm["detected_at_s"])), default=None)
+        body.append(
+            [
+                condition,
+                controller_label(key),
+                f"{len(group)} ({sum(str(row['diverged']) == 'True' for row in group)})",
+                str(carries),
+                str(sum(int(row["carries_over"]) for row in group)),
+                f"{sum(float(row['simulated_s']) for row in group) / 60:.1f}",
+                ", ".join(f"{kind} {count}" for kind, count in sorted(kinds.items())) or "none",
+                per_ten_thousand(len(found), carries),
+                "" if first is None else f"{first['seed']}, {float(first['detected_at_s']):.3f}",
             ]
-            kinds: dict[str, int] = {}
-            for alarm in found:
-                kinds[str(alarm["kind"])] = kinds.get(str(alarm["kind"]), 0) + 1
-            carries = sum(int(row["carries"]) for row in group)
-            first = min(found, key=lambda alarm: (int(alarm["seed"]), float(alarm["detected_at_s"])), default=None)
-            body.append(
-                [
-                    condition,
-                    controller_label(key),
-                    f"{len(group)} ({sum(str(row['diverged']) == 'True' for row in group)})",
-                    str(carries),
-                    str(sum(int(row["carries_over"]) for row in group)),
-                    f"{sum(float(row['simulated_s']) for row in group) / 60:.1f}",
-                    ", ".join(f"{kind} {count}" for kind, count in sorted(kinds.items())) or "none",
-                    per_ten_thousand(len(found), carries),
-                    "" if first is None else f"{first['seed']}, {float(first['detected_at_s']):.3f}",
-                ]
-            )
+        )
     return metrics.markdown_table(header, body)
+
+
+def matrix_table(
+    rows: Sequence[dict[str, Any]],
+    alarms: Sequence[dict[str, Any]],
+    conditions: Sequence[str],
+    keys: Sequence[str],
+) -> str:
+    """The soak at a glance: a row per controller, a column per condition, each cell its false alarms / carries
+    (:func:`cell_soaks`; blank where it did not run)."""
+    soaks = cell_soaks(rows, alarms, conditions, keys)
+    ran = [condition for condition in conditions if any((condition, key) in soaks for key in keys)]
+    body = []
+    for key in keys:
+        cells = []
+        for condition in ran:
+            group, found = soaks.get((condition, key), ([], []))
+            cells.append(f"{len(found)} / {sum(int(row['carries']) for row in group)}" if group else "")
+        body.append([controller_label(key), *cells])
+    return metrics.markdown_table(["False alarms / carries", *ran], body)
 
 
 @command_main("python scripts/fault_soak.py")
@@ -506,6 +534,8 @@ def soak(args: argparse.Namespace, run: Run, base: Scenario, rows: list[dict[str
         "Every detection in a fault-free episode is a false alarm. Conditions:",
         "",
         *(f"- `{name}`: {CONDITIONS[name].description}" for name in shown_conditions if name in CONDITIONS),
+        "",
+        matrix_table(rows, alarms, shown_conditions, keys),
         "",
         summary_table(rows, alarms, shown_conditions, keys),
         "",
