@@ -1,26 +1,46 @@
 """Fault-free soak: how often each controller's fault monitor raises a false alarm on hard, healthy work.
 
-Runs fault-free episodes ``seed, seed + 1, ...`` of fast, hard conditions until each controller has run
-``--minutes`` simulated minutes: the ``randomized`` preset's plants (masses +-10 %, friction +-30 %, current-loop
-lag 0.5-2 ms, drawn per episode) on conveyor cycles at 6 g peak acceleration with objects drawn from U[0, 6] kg
-(1.5 x the rated payload). No fault is injected, so every detection is a false alarm (:mod:`eval.faults` counts
-them; an episode that carried an injected fault all the same is counted apart and reported). The controllers
-are built as ``python -m eval`` builds them: the nominal robot's identification (``<runs root>/identification``,
-identified once when missing, about a minute) and the tares of the payload estimators measured on payload-free
-episodes of the same conditions on the comparison's calibration seeds (:mod:`eval.calibration`).
+Runs fault-free episodes ``seed, seed + 1, ...`` of each controller on each condition (``--conditions``,
+:data:`CONDITIONS`, default all) until each pair has completed ``--carries`` carries (objects picked and placed,
+:meth:`eval.episodes.EpisodeRecord.carries`; default 10000) and, if given, ``--minutes`` simulated minutes:
+
+- ``3g``, ``6g``, ``10g``, ``15g``: conveyor cycles at that fixed peak acceleration, objects U[0, 4] kg (the rated
+  payload);
+- ``declared-mixed``, ``declared-0.1kg``, ``declared-4kg``, ``online-mixed``, ``online-0.1kg``, ``online-4kg``: the
+  pick-rate data sheet's time-optimal timings on the whole envelope, built as ``python -m eval.rate`` builds them
+  (:func:`eval.rate.rate_scenario`: the standard cycle, ``torque_share`` :data:`eval.rate.RATE_TORQUE_SHARE`, its
+  cycles per episode), with objects U[0, 4] kg, 0.1 kg or 4 kg. Every controller runs at its own pace (an online
+  carry of a row without an estimator is retimed on the cell's, as a cell would run it), where the data sheet has
+  those rows replay its first controller's references;
+- ``10kg-3g``, ``10kg-6g``: conveyor cycles at 3 or 6 g with 10 kg objects (2.5 x the rated payload).
+
+The plants are the ``--scenario`` preset's (``randomized``: masses +-10 %, friction +-30 %, current-loop lag
+0.5-2 ms, drawn per episode; or ``nominal``). No fault is injected, so every detection is a false alarm
+(:mod:`eval.faults` counts them; an episode that carried an injected fault all the same is counted apart and
+reported). The controllers are built as ``python -m eval`` builds them: the nominal robot's identification
+(``<runs root>/identification``, identified once when missing, about a minute) and the tares of the payload
+estimators measured on payload-free episodes of the same conditions on the comparison's calibration seeds
+(:mod:`eval.calibration`; the timed conditions tare as the data sheet does, on its declared mixed stream).
+
+The table gives, per condition and controller, the carries counted, the false alarms per kind and per 10,000
+carries; with none, "0 in N carries" and the rule of three's 95 % upper bound (3 / N), and with some, the first
+one's episode seed and time.
 
 Writes into the folder ``--out`` (default ``<runs root>/fault_soak/<UTC time>``; :mod:`eval.run_folder`):
 
 - ``episodes.csv``: one row per episode (:data:`EPISODE_COLUMNS`), appended as each finishes;
-- ``faults.csv``: every detection, as rows of :data:`eval.faults.FAULT_COLUMNS` (false alarms here);
+- ``faults.csv``: every detection, as rows of :data:`eval.faults.FAULT_COLUMNS` with the episode's condition
+  (false alarms here);
 - ``config.json``: the manifest (the command, the conditions, status, times); ``summary.md``: the table, also
   printed.
 
 An interrupted run loses nothing already written: rerun the same command with the same ``--out`` and it resumes,
-running only the episodes it lacks (a larger ``--minutes`` extends a finished soak).
+running only the episodes it lacks (a larger ``--carries`` or ``--minutes``, or more conditions or controllers,
+extend a finished soak).
 
-Usage: python scripts/fault_soak.py [--minutes 30] [--controllers mid_f_rls] [--seed 0] [--out DIR] [--workers 2]
-                                    [--runs-dir DIR]
+Usage: python scripts/fault_soak.py [--carries 10000] [--minutes M] [--conditions 3g,online-4kg,...]
+                                    [--scenario randomized|nominal] [--controllers mid_f_rls] [--seed 0]
+                                    [--out DIR] [--workers 2] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -32,30 +52,100 @@ import math
 import statistics
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controllers.registry import controller_label, controllers_help, parse_controller_keys
+from controllers.registry import CELL_ESTIMATOR_KEY, controller_label, controllers_help, parse_controller_keys
+from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
+from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.console import CommandParser, UsageError, command_main, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
+from eval.rate import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
 from eval.sweep.work import WorkUnit
 
-SOAK_PEAK_ACCELERATION = 6.0 * GRAVITY
-"""Peak Cartesian acceleration of the soak's cycles (m/s^2): twice the default's."""
 
-SOAK_PAYLOAD_RANGE = (0.0, 6.0)
-"""Object masses of the soak (kg), drawn per pick: up to 1.5 x the rated payload."""
+@dataclass(frozen=True)
+class SoakCondition:
+    """One condition of the soak.
+
+    Attributes:
+        timing: How the moves are timed (:data:`delta_env.scenario.TIMINGS`): ``fixed`` on the scenario's conveyor
+            cycle, else the data sheet's time-optimal timing (:func:`eval.rate.rate_scenario`).
+        payload: Every object's mass (kg), or :data:`eval.rate.MIXED` (U[0, rated payload]).
+        peak_acceleration: Peak Cartesian acceleration of a fixed timing (m/s^2); unused by the others.
+        description: What the condition is, in words.
+    """
+
+    timing: str
+    payload: float | str
+    peak_acceleration: float
+    description: str
+
+    def scenario(self, base: Scenario, name: str) -> Scenario:
+        """``base``'s plants under this condition, named ``<base>/<name>``."""
+        if self.timing == "fixed":
+            masses = (0.0, RATED_PAYLOAD) if self.payload == MIXED else (float(self.payload), float(self.payload))
+            task = dataclasses.replace(base.task, peak_acceleration=self.peak_acceleration, payload_mass_range=masses)
+        else:  # the data sheet's row: its cycles per episode, on the whole envelope
+            timed = dataclasses.replace(base.task, n_cycles=FULL_STUDY.cycles, torque_share=RATE_TORQUE_SHARE)
+            task = rate_scenario(dataclasses.replace(base, task=timed), self.timing, self.payload).task
+        return dataclasses.replace(
+            base, name=f"{base.name}/{name}", description=f"{base.name} plants, {self.description}", task=task
+        )
+
+    def tare_scenario(self, base: Scenario, name: str) -> Scenario:
+        """The scenario whose payload-free episodes tare the estimators: the condition's own for a fixed timing, the
+        data sheet's declared mixed stream for a time-optimal one (as ``python -m eval.rate`` tares)."""
+        scenario = self.scenario(base, name)
+        if self.timing == "fixed":
+            return scenario
+        return rate_scenario(scenario, "declared", MIXED)
+
+
+def _fixed(g: float, payload: float | str) -> SoakCondition:
+    objects = f"U[0, {RATED_PAYLOAD:g}] kg" if payload == MIXED else f"{payload_label(payload)} kg"
+    return SoakCondition("fixed", payload, g * GRAVITY, f"conveyor cycles at {g:g} g, objects {objects}")
+
+
+def _timed(timing: str, payload: float | str) -> SoakCondition:
+    objects = f"U[0, {RATED_PAYLOAD:g}] kg" if payload == MIXED else f"{payload_label(payload)} kg"
+    return SoakCondition(
+        timing, payload, 0.0, f"standard cycle, {timing} time-optimal timing on the whole envelope, objects {objects}"
+    )
+
+
+HEAVY_PAYLOAD = 10.0
+"""Object mass (kg) of the heavy conditions: 2.5 x the rated payload."""
+
+CONDITIONS: dict[str, SoakCondition] = {
+    **{f"{g:g}g": _fixed(g, MIXED) for g in (3.0, 6.0, 10.0, 15.0)},
+    **{
+        f"{timing}-{'mixed' if payload == MIXED else payload_label(payload) + 'kg'}": _timed(timing, payload)
+        for timing in ("declared", "online")
+        for payload in (MIXED, 0.1, RATED_PAYLOAD)
+    },
+    **{f"{HEAVY_PAYLOAD:g}kg-{g:g}g": _fixed(g, HEAVY_PAYLOAD) for g in (3.0, 6.0)},
+}
+"""The soak's conditions by name (the module docstring lists them)."""
+
+DEFAULT_CARRIES = 10_000
+"""Carries per controller and condition of the issue's false-alarm target."""
+
+SCENARIOS = ("randomized", "nominal")
+"""Presets whose plants the soak may run (``--scenario``)."""
 
 EPISODE_COLUMNS = (
+    "condition",
     "controller",
     "key",
     "episode",
@@ -70,35 +160,36 @@ EPISODE_COLUMNS = (
     "tracking_rms_mm",
     "torque_peak_nm",
 )
-"""Columns of ``episodes.csv``: the episode, its simulated time (s) and completed carries, whether it diverged,
-faults injected (0 in a fault-free soak), detections, false alarms, and two figures of how hard it ran."""
+"""Columns of ``episodes.csv``: the condition (a key of :data:`CONDITIONS`), the episode, its simulated time (s) and
+completed carries, whether it diverged, faults injected (0 in a fault-free soak), detections, false alarms, and two
+figures of how hard it ran."""
 
-
-def soak_scenario(base: Scenario | None = None) -> Scenario:
-    """The soak's conditions: the ``randomized`` preset (or ``base``) at :data:`SOAK_PEAK_ACCELERATION` with
-    objects from :data:`SOAK_PAYLOAD_RANGE`."""
-    base = preset("randomized") if base is None else base
-    task = dataclasses.replace(
-        base.task, peak_acceleration=SOAK_PEAK_ACCELERATION, payload_mass_range=SOAK_PAYLOAD_RANGE
-    )
-    return dataclasses.replace(
-        base,
-        name="fault-soak",
-        description="randomized plants, conveyor cycles at 6 g, objects U[0, 6] kg, no fault injected",
-        task=task,
-    )
+SOAK_FAULT_COLUMNS = ("condition", *FAULT_COLUMNS)
+"""Columns of ``faults.csv``: the episode's condition and :data:`eval.faults.FAULT_COLUMNS`."""
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = CommandParser(
         prog="scripts/fault_soak.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--minutes", type=float, default=30.0, help="simulated minutes per controller (default 30)")
     parser.add_argument(
-        "--controllers",
-        default="mid_f_rls",
-        help=controllers_help("mid_f_rls"),
+        "--carries",
+        type=int,
+        default=None,
+        help=f"carries per controller and condition (default {DEFAULT_CARRIES} unless --minutes is given)",
     )
+    parser.add_argument(
+        "--minutes", type=float, default=None, help="simulated minutes per controller and condition (default none)"
+    )
+    parser.add_argument(
+        "--conditions",
+        default=",".join(CONDITIONS),
+        help=f"comma-separated conditions from {', '.join(CONDITIONS)} (default: all)",
+    )
+    parser.add_argument(
+        "--scenario", default=SCENARIOS[0], choices=SCENARIOS, help=f"the plants (default {SCENARIOS[0]})"
+    )
+    parser.add_argument("--controllers", default="mid_f_rls", help=controllers_help("mid_f_rls"))
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument(
         "--out", type=Path, default=None, help="output folder (default <runs root>/fault_soak/<UTC time>)"
@@ -106,7 +197,19 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_runs_dir_argument(parser)
     add_workers_argument(parser)
     args = parser.parse_args(argv)
-    check_ranges(parser, args, {"seed": 0, "workers": 1}, ("minutes",))
+    if args.carries is None and args.minutes is None:
+        args.carries = DEFAULT_CARRIES
+    check_ranges(
+        parser,
+        args,
+        {"seed": 0, "workers": 1, **({"carries": 1} if args.carries is not None else {})},
+        ("minutes",) if args.minutes is not None else (),
+    )
+    conditions = [name.strip() for name in args.conditions.split(",") if name.strip()]
+    unknown = [name for name in conditions if name not in CONDITIONS]
+    if unknown or not conditions:
+        parser.error(f"--conditions: unknown or no values {unknown}; choose from {', '.join(CONDITIONS)}")
+    args.conditions = list(dict.fromkeys(conditions))
     try:
         args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
@@ -114,11 +217,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-def episode_row(unit: WorkUnit, record: EpisodeRecord, first_seed: int) -> dict[str, Any]:
-    """The row of ``episodes.csv`` of one finished episode of a soak from seed ``first_seed``."""
+def condition_scenarios(base: Scenario, names: Sequence[str]) -> dict[str, Scenario]:
+    """The scenario of each condition of ``names`` on ``base``'s plants."""
+    return {name: CONDITIONS[name].scenario(base, name) for name in names}
+
+
+def episode_row(condition: str, unit: WorkUnit, record: EpisodeRecord, first_seed: int) -> dict[str, Any]:
+    """The row of ``episodes.csv`` of one finished episode of ``condition`` of a soak from seed ``first_seed``."""
     scores = record.metrics()
     carries = record.carries()
     return {
+        "condition": condition,
         "controller": controller_label(unit.controller),
         "key": unit.controller,
         "episode": unit.seed - first_seed,
@@ -139,103 +248,178 @@ GRID_EPISODES_PER_WORKER = 16
 """Episodes per worker in one grid of the soak: one process pool runs them, and their records (about 350 bytes per
 simulated millisecond) stay in memory until the grid ends."""
 
+Cell = tuple[str, str]
+"""A condition (a key of :data:`CONDITIONS`) and a controller key."""
 
-def episodes_to_go(rows: Sequence[dict[str, Any]], key: str, remaining_s: float, first_batch: int) -> int:
-    """Episodes of ``key`` to run for ``remaining_s`` more simulated seconds (s): by the mean simulated time of its
-    episodes in ``rows`` (at least one control period), or ``first_batch`` before it has any."""
-    lengths = [float(row["simulated_s"]) for row in rows if row["key"] == key]
-    if not lengths:
+
+def _cell(row: dict[str, Any]) -> Cell:
+    return (str(row["condition"]), str(row["key"]))
+
+
+def episodes_to_go(
+    rows: Sequence[dict[str, Any]], cell: Cell, remaining: float, first_batch: int, column: str = "simulated_s"
+) -> int:
+    """Episodes of ``cell`` to run for ``remaining`` more of ``column`` (``simulated_s``: seconds, or ``carries``):
+    by its mean per episode of ``cell`` in ``rows`` (at least a control period, or one carry), or ``first_batch``
+    before it has any."""
+    values = [float(row[column]) for row in rows if _cell(row) == cell]
+    if not values:
         return first_batch
-    return max(1, math.ceil(remaining_s / max(statistics.fmean(lengths), CONTROL_PERIOD)))
+    least = CONTROL_PERIOD if column == "simulated_s" else 1.0
+    return max(1, math.ceil(remaining / max(statistics.fmean(values), least)))
 
 
 def next_units(
-    scenario: Scenario, wanted: dict[str, int], first_seed: int, finished: set[tuple[str, int]], start: int, limit: int
+    scenarios: dict[str, Scenario],
+    wanted: dict[Cell, int],
+    first_seed: int,
+    finished: set[tuple[str, str, int]],
+    start: int,
+    limit: int,
 ) -> tuple[list[WorkUnit], int]:
-    """The next episodes: ``wanted[key]`` of each controller, on the seeds from ``first_seed + start`` on, skipping
-    those ``finished`` already (so a resumed soak fills its gaps first), seed by seed until there are ``limit`` or
-    more (a seed is never split); and the seed index after the last seed used."""
+    """The next episodes: ``wanted[cell]`` of each condition and controller (on ``scenarios[condition]``), on the seeds
+    from ``first_seed + start`` on, skipping those ``finished`` already (condition, key, seed: a resumed soak fills its
+    gaps first), seed by seed until there are ``limit`` or more (a seed is never split, so every cell advances in
+    turn); and the seed index after the last seed used."""
     require_count("limit", limit)
     units: list[WorkUnit] = []
-    to_go = {key: count for key, count in wanted.items() if count > 0}
+    to_go = {cell: count for cell, count in wanted.items() if count > 0}
     index = start
     while to_go and len(units) < limit:
         seed = first_seed + index
-        for key in [key for key in to_go if (key, seed) not in finished]:
-            units.append(WorkUnit(scenario, key, seed))
-            to_go[key] -= 1
-            if to_go[key] == 0:
-                del to_go[key]
+        for condition, key in [cell for cell in to_go if (*cell, seed) not in finished]:
+            units.append(WorkUnit(scenarios[condition], key, seed))
+            to_go[(condition, key)] -= 1
+            if to_go[(condition, key)] == 0:
+                del to_go[(condition, key)]
         index += 1
     return units, index
 
 
 def resume(out: Path, config: dict[str, Any]) -> list[dict[str, str]]:
-    """The episodes already in the folder ``out`` (none if new); ``faults.csv`` trimmed to them. Refuses a folder of a
-    soak under other conditions (another seed, scenario or code of the conditions), before its manifest is
-    rewritten."""
+    """The episodes already in the folder ``out`` (none if new); ``faults.csv`` trimmed to them; and ``config``'s
+    condition hashes merged with those written (so that a resumed soak of fewer conditions keeps checking the others).
+    Refuses a folder of a soak under other conditions (another seed, or another scenario of a condition), before its
+    manifest is rewritten."""
     if not out.is_dir():
         return []
     config_path = out / "config.json"
     if config_path.exists():
         written = json.loads(config_path.read_text())["config"]
-        for name in ("seed", "scenario_hash"):
-            if written.get(name) != config[name]:
+        if written.get("seed") != config["seed"]:
+            raise UsageError(f"--out {out} holds a soak with seed {written.get('seed')!r}, not {config['seed']!r}")
+        hashes = written.get("condition_hashes", {})
+        for name, content_hash in config["condition_hashes"].items():
+            if hashes.get(name, content_hash) != content_hash:
                 raise UsageError(
-                    f"--out {out} holds a soak with {name} {written.get(name)!r}, not {config[name]!r}: use another "
-                    "--out"
+                    f"--out {out} holds a soak whose condition {name} ran another scenario ({hashes[name]}, not "
+                    f"{content_hash}; another --scenario or code of the conditions): use another --out"
                 )
+        config["condition_hashes"] = {**hashes, **config["condition_hashes"]}
     done = read_csv_rows(out / "episodes.csv")
-    finished = {(row["key"], row["seed"]) for row in done}
+    finished = {(row["condition"], row["key"], row["seed"]) for row in done}
     faults_path = out / "faults.csv"
-    kept = [row for row in read_csv_rows(faults_path) if (row["key"], row["seed"]) in finished]
+    kept = [row for row in read_csv_rows(faults_path) if (row["condition"], row["key"], row["seed"]) in finished]
     faults_path.unlink(missing_ok=True)
-    append_csv_rows(faults_path, FAULT_COLUMNS, kept)  # fault rows of an episode whose row was never written go
+    append_csv_rows(faults_path, SOAK_FAULT_COLUMNS, kept)  # fault rows of an episode whose row was never written go
     return done
 
 
-def summary_table(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> str:
-    """Per controller: simulated minutes, episodes (diverged), carries and those whose estimate overshot the lift-off
-    bound (:data:`eval.metrics.OVERSHOOT_BOUND`), false alarms and their rate per hour."""
+def _per_ten_thousand_value(value: float) -> str:
+    return f"{value:.0f}" if value >= 100 else f"{value:.3g}"
+
+
+def per_ten_thousand(alarms: int, carries: int) -> str:
+    """False alarms per 10,000 carries; for none, "0 in N carries" with the rule of three's 95 % upper bound (3 / N)."""
+    if carries == 0:
+        return "n/a (no carry)"
+    if alarms == 0:
+        return f"0 in {carries} carries (< {_per_ten_thousand_value(3e4 / carries)} at 95 %)"
+    return _per_ten_thousand_value(1e4 * alarms / carries)
+
+
+def cell_soaks(
+    rows: Sequence[dict[str, Any]], alarms: Sequence[dict[str, Any]], conditions: Sequence[str], keys: Sequence[str]
+) -> dict[Cell, tuple[list[dict[str, Any]], list[dict[str, Any]]]]:
+    """Per condition and controller that ran: its fault-free episodes of ``rows`` and their false alarms of
+    ``alarms`` (the false-alarm rows of ``faults.csv``). Episodes that carried an injected fault are left out."""
+    clean = {(row["condition"], row["key"], int(row["seed"])) for row in rows if int(row["faults_injected"]) == 0}
+    soaks = {}
+    for cell in [(condition, key) for condition in conditions for key in keys]:
+        group = [row for row in rows if _cell(row) == cell and int(row["faults_injected"]) == 0]
+        if group:
+            found = [alarm for alarm in alarms if _cell(alarm) == cell and (*cell, int(alarm["seed"])) in clean]
+            soaks[cell] = (group, found)
+    return soaks
+
+
+def summary_table(
+    rows: Sequence[dict[str, Any]],
+    alarms: Sequence[dict[str, Any]],
+    conditions: Sequence[str],
+    keys: Sequence[str],
+) -> str:
+    """Per condition and controller: episodes (diverged), carries and those whose estimate overshot the lift-off bound
+    (:data:`eval.metrics.OVERSHOOT_BOUND`), simulated minutes, false alarms by kind and per 10,000 carries, and the
+    first alarm's seed and time (:func:`cell_soaks`)."""
     bound_kg, bound_fraction = metrics.OVERSHOOT_BOUND
     over = f"Carries over max({bound_kg} kg, {100 * bound_fraction:.0f} %)"
-    header = ["Controller", "Simulated minutes", "Episodes (diverged)", "Carries", over, "False alarms"]
-    header.append("False alarms / h")
-    by_key = metrics.group_by(rows, "key")
+    header = ["Condition", "Controller", "Episodes (diverged)", "Carries", over, "Simulated min"]
+    header += ["False alarms by kind", "Per 10,000 carries", "First (seed, s)"]
     body = []
-    for key in keys:
-        group = [row for row in by_key.get(key, []) if int(row["faults_injected"]) == 0]
-        seconds = sum(float(row["simulated_s"]) for row in group)
-        alarms = sum(int(row["false_alarms"]) for row in group)
-        diverged = sum(str(row["diverged"]) == "True" for row in group)
-        rate = f"{3600.0 * alarms / seconds:.2f}" if seconds > 0 else "n/a"
+    for (condition, key), (group, found) in cell_soaks(rows, alarms, conditions, keys).items():
+        kinds: dict[str, int] = {}
+        for alarm in found:
+            kinds[str(alarm["kind"])] = kinds.get(str(alarm["kind"]), 0) + 1
         carries = sum(int(row["carries"]) for row in group)
-        overshoots = sum(int(row["carries_over"]) for row in group)
+        first = min(found, key=lambda alarm: (int(alarm["seed"]), float(alarm["detected_at_s"])), default=None)
         body.append(
             [
+                condition,
                 controller_label(key),
-                f"{seconds / 60:.1f}",
-                f"{len(group)} ({diverged})",
+                f"{len(group)} ({sum(str(row['diverged']) == 'True' for row in group)})",
                 str(carries),
-                str(overshoots),
-                str(alarms),
-                rate,
+                str(sum(int(row["carries_over"]) for row in group)),
+                f"{sum(float(row['simulated_s']) for row in group) / 60:.1f}",
+                ", ".join(f"{kind} {count}" for kind, count in sorted(kinds.items())) or "none",
+                per_ten_thousand(len(found), carries),
+                "" if first is None else f"{first['seed']}, {float(first['detected_at_s']):.3f}",
             ]
         )
     return metrics.markdown_table(header, body)
 
 
+def matrix_table(
+    rows: Sequence[dict[str, Any]],
+    alarms: Sequence[dict[str, Any]],
+    conditions: Sequence[str],
+    keys: Sequence[str],
+) -> str:
+    """The soak at a glance: a row per controller, a column per condition, each cell its false alarms / carries
+    (:func:`cell_soaks`; blank where it did not run)."""
+    soaks = cell_soaks(rows, alarms, conditions, keys)
+    ran = [condition for condition in conditions if any((condition, key) in soaks for key in keys)]
+    body = []
+    for key in keys:
+        cells = []
+        for condition in ran:
+            group, found = soaks.get((condition, key), ([], []))
+            cells.append(f"{len(found)} / {sum(int(row['carries']) for row in group)}" if group else "")
+        body.append([controller_label(key), *cells])
+    return metrics.markdown_table(["False alarms / carries", *ran], body)
+
+
 @command_main("python scripts/fault_soak.py")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    scenario = soak_scenario()
+    base = preset(args.scenario)
+    scenarios = condition_scenarios(base, args.conditions)
     config = {
         "seed": args.seed,
-        "scenario_hash": scenario.content_hash,
-        "scenario": scenario.name,
-        "description": scenario.description,
-        "peak_acceleration_m_s2": SOAK_PEAK_ACCELERATION,
-        "payload_mass_range_kg": list(SOAK_PAYLOAD_RANGE),
+        "scenario": base.name,
+        "conditions": {name: scenarios[name].description for name in args.conditions},
+        "condition_hashes": {name: scenario.content_hash for name, scenario in scenarios.items()},
+        "carries": args.carries,
         "minutes": args.minutes,
         "controllers": args.controllers,
         "workers": args.workers,
@@ -243,58 +427,117 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = resume(args.out, config) if args.out is not None else []
     command = command_line("scripts/fault_soak.py", argv)
     with run_folder(
-        "fault_soak", command, config, out=args.out, runs_dir=args.runs_dir, scenarios=[scenario], reuse=True
+        "fault_soak",
+        command,
+        config,
+        out=args.out,
+        runs_dir=args.runs_dir,
+        scenarios=list(scenarios.values()),
+        reuse=True,
     ) as run:
-        soak(args, run, scenario, rows)
+        soak(args, run, base, rows)
     return 0
 
 
-def soak(args: argparse.Namespace, run: Run, scenario: Scenario, rows: list[dict[str, Any]]) -> None:
-    """Run the soak of ``args`` (:func:`parse_args`) on ``scenario`` into ``run``'s folder, after the episodes
+def soak_setups(args: argparse.Namespace, base: Scenario) -> dict[str, Any]:
+    """What the controllers know on each condition's scenario, by its content hash: tared once per tare scenario
+    (:meth:`SoakCondition.tare_scenario`), the timed ones with the cell's estimator as the data sheet tares it."""
+    setups: dict[str, Any] = {}
+    prepared: dict[str, Any] = {}
+    for name in args.conditions:
+        condition = CONDITIONS[name]
+        tare = condition.tare_scenario(base, name)
+        if tare.content_hash not in prepared:
+            timed = condition.timing != "fixed"
+            prepared[tare.content_hash] = prepare(
+                tare,
+                [*args.controllers, CELL_ESTIMATOR_KEY] if timed else args.controllers,
+                runs_dir=args.runs_dir,
+                calibration_episodes=CALIBRATION_EPISODES if timed else DEFAULT_CALIBRATION_EPISODES,
+                workers=args.workers,
+            ).setup
+        setups[condition.scenario(base, name).content_hash] = prepared[tare.content_hash]
+    return setups
+
+
+def soak(args: argparse.Namespace, run: Run, base: Scenario, rows: list[dict[str, Any]]) -> None:
+    """Run the soak of ``args`` (:func:`parse_args`) on ``base``'s plants into ``run``'s folder, after the episodes
     ``rows`` already there; its table printed."""
     out, keys = run.folder, args.controllers
-    setup = prepare(scenario, keys, runs_dir=args.runs_dir, workers=args.workers).setup
-
-    target = 60.0 * args.minutes
-    finished = {(row["key"], int(row["seed"])) for row in rows}
-    simulated = {key: sum(float(row["simulated_s"]) for row in rows if row["key"] == key) for key in keys}
+    scenarios = condition_scenarios(base, args.conditions)
+    condition_of = {scenario.content_hash: name for name, scenario in scenarios.items()}
+    setups = soak_setups(args, base)
+    cells = [(condition, key) for condition in args.conditions for key in keys]
+    targets = {
+        column: target
+        for column, target in (
+            ("carries", args.carries),
+            ("simulated_s", None if args.minutes is None else 60.0 * args.minutes),
+        )
+        if target is not None
+    }
+    finished = {(row["condition"], row["key"], int(row["seed"])) for row in rows}
+    done = {
+        column: {cell: sum(float(row[column]) for row in rows if _cell(row) == cell) for cell in cells}
+        for column in targets
+    }
     first_batch, grid_limit = 4 * args.workers, GRID_EPISODES_PER_WORKER * args.workers
     index = 0
-    with progress_bar(len(keys) * target, "simulated s", "s") as progress:
+    # the progress of the first stop rule (carries, else simulated seconds)
+    shown, unit_name = next(iter(targets)), "carries" if "carries" in targets else "simulated s"
+
+    def missing(cell: Cell) -> bool:
+        return any(done[column][cell] < target for column, target in targets.items())
+
+    with progress_bar(len(cells) * targets[shown], unit_name, unit_name) as progress:
 
         def show_progress() -> None:  # set, not added up: sums of float steps overshoot the total in the last bit
-            progress.n = sum(min(seconds, target) for seconds in simulated.values())
+            progress.n = sum(min(value, targets[shown]) for value in done[shown].values())
             progress.refresh()
 
         show_progress()
 
         def record_episode(unit: WorkUnit, record: EpisodeRecord) -> None:  # as each episode finishes
-            row = episode_row(unit, record, args.seed)
+            condition = condition_of[unit.scenario.content_hash]
+            row = episode_row(condition, unit, record, args.seed)
             identity = {name: row[name] for name in ("controller", "key", "episode", "seed")}
-            append_csv_rows(out / "faults.csv", FAULT_COLUMNS, fault_rows(identity, record.faults()))
+            faults = [{"condition": condition, **fault} for fault in fault_rows(identity, record.faults())]
+            append_csv_rows(out / "faults.csv", SOAK_FAULT_COLUMNS, faults)
             append_csv_rows(out / "episodes.csv", EPISODE_COLUMNS, [row])
             rows.append(row)
-            simulated[unit.controller] += row["simulated_s"]
+            for column in targets:
+                done[column][(condition, unit.controller)] += float(row[column])
             show_progress()
 
-        # A first batch shows how long each controller's episodes run; then grids of as many episodes as that says are
-        # missing, each of at most GRID_EPISODES_PER_WORKER per worker on one process pool, planned again after each.
-        while any(simulated[key] < target for key in keys):
+        # A first batch shows how long each cell's episodes run; then grids of as many episodes as that says are
+        # missing, seed by seed over every cell, each of at most GRID_EPISODES_PER_WORKER per worker (or one seed) on
+        # one process pool, planned again after each.
+        while any(missing(cell) for cell in cells):
             wanted = {
-                key: episodes_to_go(rows, key, target - simulated[key], first_batch)
-                for key in keys
-                if simulated[key] < target
+                cell: max(
+                    episodes_to_go(rows, cell, target - done[column][cell], first_batch, column)
+                    for column, target in targets.items()
+                    if done[column][cell] < target
+                )
+                for cell in cells
+                if missing(cell)
             }
-            units, index = next_units(scenario, wanted, args.seed, finished, index, grid_limit)
-            run_grid(units, {scenario.content_hash: setup}, workers=args.workers, on_result=record_episode)
+            units, index = next_units(scenarios, wanted, args.seed, finished, index, grid_limit)
+            run_grid(units, setups, workers=args.workers, on_result=record_episode)
 
     faulted = sum(int(row["faults_injected"]) > 0 for row in rows)
+    alarms = [row for row in read_csv_rows(out / "faults.csv") if row["outcome"] == "false_alarm"]
+    shown_conditions = list(dict.fromkeys([*args.conditions, *(str(row["condition"]) for row in rows)]))
     lines = [
-        f"# Fault-free soak: {scenario.description}, from seed {args.seed}",
+        f"# Fault-free soak: {base.name} plants, from seed {args.seed}",
         "",
-        "Every detection in a fault-free episode is a false alarm.",
+        "Every detection in a fault-free episode is a false alarm. Conditions:",
         "",
-        summary_table(rows, keys),
+        *(f"- `{name}`: {CONDITIONS[name].description}" for name in shown_conditions if name in CONDITIONS),
+        "",
+        matrix_table(rows, alarms, shown_conditions, keys),
+        "",
+        summary_table(rows, alarms, shown_conditions, keys),
         "",
         *(
             [f"{faulted} episode(s) carried an injected fault: left out of the table (see episodes.csv).", ""]

@@ -16,8 +16,10 @@ from pathlib import Path
 from types import ModuleType, SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 
+from controllers.monitor.events import DetectedFault
 from delta_env.config import PlantConfig
 from delta_env.scenario import preset
 from eval import __main__ as eval_cli
@@ -302,6 +304,8 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
         ("train_residual", ["--cycles", "0"], "--cycles must be an integer >= 1, got 0"),
         ("train_residual", ["--residual-limit", "-1"], "residual_limit must be a finite number in (0, 400] N m"),
         ("fault_soak", ["--minutes", "-5"], "--minutes must be a finite number in (0, inf), got -5.0"),
+        ("fault_soak", ["--carries", "0"], "--carries must be an integer >= 1, got 0"),
+        ("fault_soak", ["--conditions", "6g,7g"], "--conditions: unknown or no values ['7g']"),
         ("fault_campaign", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
     ],
 )
@@ -328,28 +332,33 @@ def test_one_spelling_of_cycles_and_seeds(capsys: pytest.CaptureFixture) -> None
 def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs_gaps() -> None:
     soak = script("fault_soak")
     rows = [
-        {"key": "pd", "simulated_s": "9.0"},
-        {"key": "pd", "simulated_s": "11.0"},
-        {"key": "mid", "simulated_s": "0"},
+        {"condition": "6g", "key": "pd", "simulated_s": "9.0", "carries": "3"},
+        {"condition": "6g", "key": "pd", "simulated_s": "11.0", "carries": "5"},
+        {"condition": "6g", "key": "mid", "simulated_s": "0", "carries": "0"},
+        {"condition": "3g", "key": "pd", "simulated_s": "1.0", "carries": "1"},
     ]
-    assert soak.episodes_to_go(rows, "pd", 95.0, first_batch=8) == 10  # mean 10 s: 9.5 episodes
-    assert soak.episodes_to_go(rows, "oracle", 95.0, first_batch=8) == 8  # nothing run yet: the first batch
-    assert soak.episodes_to_go(rows, "mid", 0.5, first_batch=8) == 500  # episodes of no time count a control period
-    scenario = preset("nominal")
-    finished = {("pd", 100), ("mid", 100), ("pd", 101), ("pd", 103), ("mid", 103)}
-    units, after = soak.next_units(scenario, {"pd": 2, "mid": 3}, 100, finished, 0, limit=50)
-    assert [(u.controller, u.seed) for u in units] == [
-        ("mid", 101),
-        ("pd", 102),
-        ("mid", 102),
-        ("pd", 104),
-        ("mid", 104),
+    assert soak.episodes_to_go(rows, ("6g", "pd"), 95.0, first_batch=8) == 10  # mean 10 s: 9.5 episodes
+    assert soak.episodes_to_go(rows, ("6g", "pd"), 95.0, 8, "carries") == 24  # mean 4 carries: 23.75 episodes
+    assert soak.episodes_to_go(rows, ("6g", "oracle"), 95.0, first_batch=8) == 8  # nothing run yet: the first batch
+    assert soak.episodes_to_go(rows, ("6g", "mid"), 0.5, first_batch=8) == 500  # no time counts a control period
+    assert soak.episodes_to_go(rows, ("6g", "mid"), 7.0, 8, "carries") == 7  # no carry counts one
+    scenarios = {"6g": preset("nominal"), "3g": preset("randomized")}
+    finished = {("6g", "pd", 100), ("6g", "mid", 100), ("6g", "pd", 101), ("6g", "pd", 103), ("6g", "mid", 103)}
+    wanted = {("6g", "pd"): 2, ("6g", "mid"): 3, ("3g", "pd"): 1}
+    units, after = soak.next_units(scenarios, wanted, 100, finished, 0, limit=50)
+    assert [(u.scenario.name, u.controller, u.seed) for u in units] == [
+        ("randomized", "pd", 100),
+        ("nominal", "mid", 101),
+        ("nominal", "pd", 102),
+        ("nominal", "mid", 102),
+        ("nominal", "pd", 104),
+        ("nominal", "mid", 104),
     ]
-    assert after == 5 and all(u.scenario is scenario for u in units)
+    assert after == 5
     # a limit ends the grid after the seed that reaches it, never inside a seed
-    units, after = soak.next_units(scenario, {"pd": 9, "mid": 9}, 0, set(), 3, limit=3)
+    units, after = soak.next_units(scenarios, {("6g", "pd"): 9, ("6g", "mid"): 9}, 0, set(), 3, limit=3)
     assert [(u.controller, u.seed) for u in units] == [("pd", 3), ("mid", 3), ("pd", 4), ("mid", 4)] and after == 5
-    assert soak.next_units(scenario, {}, 0, set(), 7, limit=3) == ([], 7)
+    assert soak.next_units(scenarios, {}, 0, set(), 7, limit=3) == ([], 7)
 
 
 def test_the_soak_runs_each_controller_to_its_target_in_bounded_grids(
@@ -376,20 +385,63 @@ def test_the_soak_runs_each_controller_to_its_target_in_bounded_grids(
             return EpisodeFaults((), (), ())
 
     def run_grid(units, setups, *, workers, on_result):
+        assert all(setups[unit.scenario.content_hash] is SETUP for unit in units)
         grids.append([(unit.controller, unit.seed) for unit in units])
         for unit in units:
             on_result(unit, Record(unit.controller))
 
     monkeypatch.setattr(soak, "prepare", lambda *args, **kwargs: Prepared(SETUP, None, None, None))
     monkeypatch.setattr(soak, "run_grid", run_grid)
-    args = soak.parse_args(["--minutes", "2", "--controllers", "pd,mid_f_rls", "--workers", "2"])
+    args = soak.parse_args(["--minutes", "2", "--controllers", "pd,mid_f_rls", "--conditions", "6g", "--workers", "2"])
     folder = tmp_path / "soak"
     folder.mkdir()
     rows: list[dict] = []
     soak.soak(args, type("Run", (), {"folder": folder})(), preset("nominal"), rows)
+    assert args.carries is None  # --minutes alone is the stop rule
     ran = [pair for grid in grids for pair in grid]
     assert len(ran) == len(set(ran))  # no episode twice
     # a first batch of 4 per worker (80 s of MId, 4 s of PD), then exactly the 4 and 232 episodes missing
     assert sum(key == "pd" for key, _ in ran) == 240 and sum(key == "mid_f_rls" for key, _ in ran) == 12
     assert all(len(grid) <= 2 * soak.GRID_EPISODES_PER_WORKER + 1 for grid in grids) and len(grids) == 9
     assert len(rows) == 252 and (folder / "summary.md").exists()
+
+
+def test_the_soak_counts_the_carries_placed_and_reports_a_false_alarm_by_kind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Real episodes (PD, nominal robot, 6 g); a collision that never happened is slipped into the second episode's
+    # detections, as a monitor's false alarm would be: it must reach faults.csv and the table, per 10,000 carries.
+    soak = script("fault_soak")
+    records: list = []
+    real_run_grid = soak.run_grid
+
+    def run_grid(units, setups, *, workers, on_result):
+        def seen(unit, record):
+            if len(records) == 1:
+                record.detected_faults.append(DetectedFault("collision", 0.25, magnitude=200.0))
+            records.append(record)
+            on_result(unit, record)
+
+        return real_run_grid(units, setups, workers=workers, on_result=seen)
+
+    monkeypatch.setattr(soak, "prepare", lambda *args, **kwargs: Prepared(SETUP, None, None, None))
+    monkeypatch.setattr(soak, "run_grid", run_grid)
+    out = tmp_path / "soak"
+    argv = ["--scenario", "nominal", "--conditions", "6g", "--controllers", "pd", "--carries", "5", "--workers", "1"]
+    assert soak.main([*argv, "--out", str(out), "--runs-dir", str(tmp_path / "runs")]) == 0
+    episodes = list(csv.DictReader((out / "episodes.csv").open()))
+    places = sum(int(np.sum(record.place_indices <= len(record.tracking_error))) for record in records)
+    carries = sum(int(row["carries"]) for row in episodes)
+    assert len(episodes) == len(records) >= 2 and carries == places >= 5
+    alarms = [row for row in csv.DictReader((out / "faults.csv").open()) if row["outcome"] == "false_alarm"]
+    assert [(row["condition"], row["kind"], row["seed"], float(row["detected_at_s"])) for row in alarms] == [
+        ("6g", "collision", episodes[1]["seed"], 0.25)
+    ]
+    table_row = next(line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| 6g | PD"))
+    cells = [cell.strip() for cell in table_row.strip("|").split("|")]
+    assert cells[3] == str(carries) and cells[6] == "collision 1"
+    assert float(cells[7]) == pytest.approx(1e4 / carries, rel=0.01) and cells[8] == f"{episodes[1]['seed']}, 0.250"
+    assert f"| PD | 1 / {carries} |" in (out / "summary.md").read_text()  # the matrix of alarms / carries
+    # none: the count and the rule of three's bound
+    assert soak.per_ten_thousand(0, 300) == "0 in 300 carries (< 100 at 95 %)"
+    assert soak.per_ten_thousand(0, 60000) == "0 in 60000 carries (< 0.5 at 95 %)"
