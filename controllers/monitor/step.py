@@ -97,12 +97,13 @@ def monitor_step(
     state.reference[1, :] = reference_rates
     state.reference[2, :] = reference_accelerations
     replaced = clean_encoders(state, angles, rates) | clean_torques(state, torques, command, has_command)
-    faulty = suspect = short = False
+    faulty = suspect = short = stepped_back = False
     for joint in range(3):
         faulty |= state.encoder_bad[joint] != 0 or state.torque_bad[joint] > 0
         faulty |= state.nan_active[joint] != 0 or state.nan_active[3 + joint] != 0
         suspect |= state.stuck[joint] > 0
         short |= state.short_run[joint] > 0
+        stepped_back |= state.delivering[joint] == 1
     state.faulty, state.suspect = faulty, suspect
     state.faulty_run = state.faulty_run + 1 if faulty else 0
     # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago, or
@@ -111,7 +112,8 @@ def monitor_step(
     # is a repeated reading not yet called stuck, and the smoother's window after a step back: of the clean readings
     # onto an encoder, or of a drive's torque onto its command when a drive fault ends (its joint's acceleration
     # steps with it, which the smoother spreads over its window).
-    if state.resynced or state.drive_ended:  # a step back (onto the encoder, or of the torque onto the command)
+    # a step back: onto the encoder, or of a faulty drive's torque onto its command (from its first delivering reading)
+    if state.resynced or stepped_back or state.drive_ended:
         state.quiet_samples = RESYNC_QUIET
     elif suspect or state.faulty_run > 1:
         state.quiet_samples = SENSOR_QUIET
