@@ -167,7 +167,7 @@ def test_a_slip_is_detected_and_the_estimate_forgets_the_object(controller_setup
     record, env = _run([slip], _monitored_rls(controller_setup), payload_mass_range=(3.0, 3.0))
     (injected,) = env.injected_faults
     (detected,) = record.detected_faults  # a slip, and no collision for the object's missing weight and inertia
-    # 3 kg: the CUSUM crosses in 5-10 ms, then waits 8 samples for a push's onset to show (PUSH_SHOWN_SHARE)
+    # 3 kg: no sample adds more than 12/8 to the CUSUM (PUSH_SHOWN_SHARE), so at least 8 samples; measured 12-19 ms
     assert detected.kind == "slip" and 0.0 <= detected.time_s - injected.start_s <= 0.030
     # forgotten at once, and it stays forgotten: no pre-slip sample pulls the estimate back up
     found, after = round(detected.time_s / env.dt), round(injected.start_s / env.dt) + 50

@@ -26,7 +26,7 @@ from controllers.monitor.compiled import (
     torque_step_variance,
 )
 from controllers.monitor.detector import loop_response
-from controllers.monitor.model_check import _slip_band, acceleration_step_response, lagged_step_weights
+from controllers.monitor.model_check import _slip_band, acceleration_step_response, lagged_step_weights, samples_to_show
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     DRIVE_FAULT_DRIFT,
@@ -36,6 +36,7 @@ from controllers.monitor.tuning import (
     FORCE_REFERENCE,
     MONITOR_JERK_STD,
     PLANT_STEP_LAG,
+    PUSH_SHOWN_SHARE,
     REST_RATE,
     SENSOR_QUIET,
     SLOWEST_LAG_FACTOR,
@@ -630,3 +631,15 @@ def test_readings_that_are_not_three_vectors_are_refused() -> None:
     observation["joint_torques"] = np.zeros(2)
     with pytest.raises(ValueError, match="must be 3-vectors"):
         _monitor().update(observation, None)
+
+
+def test_samples_to_show_counts_the_samples_until_every_older_position_shows_the_share() -> None:
+    # a step entering at the newest position m = 5 moves one position older per sample; |h_m| <= 1 - share for good
+    # from position 2 on (position 3, 0.4, is the oldest beyond it), so 5 - 2 = 3 samples
+    response = np.array([0.0, 0.05, -0.1, 0.4, 0.2, 0.01])
+    assert samples_to_show(response, 0.75) == 3
+    assert samples_to_show(response, 0.95) == 4  # |h_2| = 0.1 > 0.05: to position 1
+    assert samples_to_show(np.zeros(4), 0.9) == 0
+    # the monitor's own smoother: 8 samples until 7/8 of a step shows (the slip check's cap, PUSH_SHOWN_SHARE)
+    smoother = JointStateSmoother(lag=SMOOTHER_LAG, jerk_std=MONITOR_JERK_STD)
+    assert samples_to_show(acceleration_step_response(smoother), PUSH_SHOWN_SHARE) == 8
