@@ -289,7 +289,8 @@ def test_on_the_whole_envelope_an_online_carry_starts_hot_and_its_continuations_
     assert retimed.payload >= 0.5 + 0.05 + ESTIMATE_MARGIN
     assert timing.thermal_ratio(CARRY, retimed, retimed.payload) <= 1.0
     declared = PayloadTiming(planner, "declared", RATED_PAYLOAD, torque_share=1.0).carry(CARRY, retimed.payload)
-    assert len(retimed) <= 1.05 * len(declared)
+    # (a deviation that stays at 0.05 kg waits, in vain, for a shorter law to the fifth takeover: 1 to 2 ms)
+    assert len(retimed) <= 1.06 * len(declared)
     # faster than the same continuation of the rated start (a task of heaviest objects only starts rated)
     rated_start = PayloadTiming(
         planner, "online", RATED_PAYLOAD, estimator, torque_share=1.0, min_payload=RATED_PAYLOAD
