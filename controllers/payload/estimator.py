@@ -111,11 +111,10 @@ class PayloadEstimator:
         self.dynamics = dynamics
         self.regressor = regressor
         self.tare = float(tare)
-        self.static_friction = np.asarray(friction, dtype=float)
-        self.nominal_std = float(nominal_std)
-        self.friction_velocity = float(friction_velocity)
-        self.correlation_samples = float(correlation_samples)
-        self.rest_rate = float(rest_rate)
+        # the equations' weighting, which predicted_variance repeats along a plan
+        self._weighting = (np.asarray(friction, dtype=float), float(nominal_std), float(friction_velocity))
+        self._weighting += (float(correlation_samples),)
+        self._rest_rate = float(rest_rate)
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
@@ -254,13 +253,16 @@ class PayloadEstimator:
         Returns:
             P after each of the n steps (kg^2), ``(n,)``.
         """
-        rates = np.asarray(theta_dot, dtype=float)
-        phi = self.dynamics.payload_regressor(theta, rates, theta_ddot)
-        sigma = residual_std(
-            rates, self.static_friction, self.nominal_std, self.friction_velocity, self.correlation_samples
-        )
-        information = np.sum((phi / sigma) ** 2, axis=-1)
-        information[np.all(np.abs(rates) < self.rest_rate, axis=-1)] = 0.0
+        states = [np.asarray(values, dtype=float) for values in (theta, theta_dot, theta_ddot)]
+        if any(values.ndim != 2 or values.shape[1] != 3 or values.shape != states[0].shape for values in states):
+            shapes = [values.shape for values in states]
+            raise ValueError(f"theta, theta_dot and theta_ddot must each be (n, 3) of one n, got shapes {shapes}")
+        if not all(np.isfinite(values).all() for values in states):
+            raise ValueError("theta, theta_dot and theta_ddot must be finite")
+        rates = states[1]
+        phi = self.dynamics.payload_regressor(*states)
+        information = np.sum((phi / residual_std(rates, *self._weighting)) ** 2, axis=-1)
+        information[np.all(np.abs(rates) < self._rest_rate, axis=-1)] = 0.0
         fused = np.concatenate((np.zeros(min(self.delay, len(information))), information))[: len(information)]
         variance = np.empty(len(fused))
         previous = self.rls.initial_variance
