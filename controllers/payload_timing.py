@@ -83,10 +83,11 @@ object waits for a later takeover (:meth:`PayloadTiming.retime`). The last is th
 unrated start there continues on the precomputed rated plan for the heaviest object. On the nominal robot (settle
 time 17 ms) they are 17 to 30 ms (docs/design.md section 9)."""
 
-PRECOMPUTED_PAYLOADS = tuple(round(0.1 * step, 1) for step in range(1, 40))
-"""Payloads (kg) of the precomputed continuations, 0.1 kg apart (below the heaviest object by :data:`REPLAN_STEP`
-only; the heaviest object's own at the last takeover, :data:`TAKEOVER_SCALES`): a carry's bound rounds up to the
-next one, about a millisecond per 0.1 kg."""
+PRECOMPUTED_PAYLOADS = tuple(round(REPLAN_STEP * step, 2) for step in range(1, 80))
+"""Payloads (kg) of the precomputed continuations, :data:`REPLAN_STEP` apart, 0.05 to 3.95 kg (below the heaviest
+object by :data:`REPLAN_STEP` only; the heaviest object's own at the last takeover, :data:`TAKEOVER_SCALES`): a
+carry's bound rounds up to the next one, about half a millisecond per step. A 0.1 kg grid costs half the table's
+CPU and about 0.25 ms per carry (docs/measurements.md)."""
 
 BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 """Payloads (kg) whose rated laws' shares of the envelope give, by linear interpolation (and with the heaviest
