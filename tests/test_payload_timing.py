@@ -196,7 +196,7 @@ def test_rate_scenarios_run_the_standard_cycle_with_the_payloads_of_their_row() 
     assert rate_scenario(Scenario(), "online", MIXED).task.payload_mass_range == (0.0, RATED_PAYLOAD)
 
 
-@pytest.mark.slow  # the online carry's table of continuations: about 30 s of a core
+@pytest.mark.slow  # the online carry's table of continuations: about 50 s of a core
 def test_rate_cli_writes_the_data_sheet(parameter_file: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "rate"
     argv = ["--episodes", "1", "--cycles", "2", "--payloads", "1", "--planners", "fixed,worst_case,declared,online"]
