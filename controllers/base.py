@@ -6,7 +6,7 @@ state) and nominal parameters; it never reads the plant's truth (the oracle row 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from delta_env.validation import require_in
 
 if TYPE_CHECKING:
+    from controllers.payload import PayloadEstimator
     from delta_env.config import PhysicalParameters
     from delta_env.trajectories import Trajectory
 
@@ -61,6 +62,33 @@ class EstimatesPayload(Protocol):
     def payload_estimate(self) -> float:
         """The payload estimate (kg) used at the last call."""
         ...
+
+
+def payload_estimate_reader(controller: Controller) -> Callable[[], float]:
+    """A function of no arguments giving the controller's payload estimate (kg) at the last call, or 0 if it does not
+    estimate the payload (:class:`EstimatesPayload`). The protocol is checked here, once: a runtime protocol check
+    costs microseconds, too much for every step at 1 kHz."""
+    if isinstance(controller, EstimatesPayload):
+        return lambda: float(controller.payload_estimate)
+    return lambda: 0.0
+
+
+@runtime_checkable
+class PayloadEstimating(Protocol):
+    """A controller that runs a payload estimator the cell reaches: the fault monitor keeps faulty samples out of it,
+    an online timing reads it, the tare calibration rebuilds it untared. A registry entry declares it
+    (``ControllerEntry.has_estimator``), and building the entry checks the declaration against the controller."""
+
+    @property
+    def estimator(self) -> PayloadEstimator | None:
+        """Its payload estimator; None when this instance runs none (a model row without the RLS, a wrapper around a
+        controller without one)."""
+        ...
+
+
+def payload_estimator_of(controller: Controller) -> PayloadEstimator | None:
+    """The payload estimator ``controller`` runs (:class:`PayloadEstimating`), or None."""
+    return controller.estimator if isinstance(controller, PayloadEstimating) else None
 
 
 @runtime_checkable

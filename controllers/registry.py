@@ -23,13 +23,14 @@ from importlib import metadata
 from pathlib import Path
 from types import ModuleType
 
-from controllers.base import Controller, PDController, Privileged
+from controllers.base import Controller, EstimatesPayload, PDController, Privileged, payload_estimator_of
 from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import OracleController
 from controllers.monitor import FaultMonitor, MonitoredController
 from controllers.payload import PayloadEstimator
+from controllers.payload_timing import EstimatingController
 from controllers.residual import DEFAULT_POLICY_PATH, ResidualPolicy, residual_controller
-from controllers.setup import ESTIMATOR_REGRESSORS, ControllerSetup, model_row
+from controllers.setup import ESTIMATOR_REGRESSORS, MODEL_ROWS, ControllerSetup, ModelRow, model_row
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import encoder_resolution
@@ -49,44 +50,98 @@ entry (``plant``: the env's :class:`~delta_env.plant.PlantConfig`)."""
 class ControllerEntry:
     """A row of the experiments: a key, a label, a factory and the capabilities the experiments rely on.
 
+    The experiments read what a controller offers from these declarations, never from its type or its key;
+    :meth:`build` checks each declaration against the controller the factory returns.
+
     Attributes:
         key: What command lines and tasks name it by: a built-in key, an entry point's name, or ``module:attr``.
         label: Its name in tables and plots.
         factory: :data:`ControllerFactory`.
-        estimates_payload: Its controller reports ``payload_estimate`` (kg) every step: the experiments score its
-            carries and plot its estimate.
-        tared: It estimates the payload with a :class:`~controllers.payload.PayloadEstimator` (its controller's
-            ``estimator``) that reads ``setup.tares[key]`` and ``setup.empty_moves[key]``: the experiments measure
-            both on payload-free episodes before they run it (implies ``estimates_payload``).
+        estimates_payload: Its controller reports ``payload_estimate`` (kg) every step
+            (:class:`~controllers.base.EstimatesPayload`): the experiments score its carries and plot its estimate.
+        has_estimator: Its controller runs a :class:`~controllers.payload.PayloadEstimator`, its ``estimator``
+            (:class:`~controllers.base.PayloadEstimating`): the fault monitor keeps faulty samples out of it and an
+            online timing reads it (a row without one gets the cell's, :func:`cell_estimator`, beside it). Implies
+            ``estimates_payload``.
+        tared: Its estimator reads ``setup.tares[key]`` and ``setup.empty_moves[key]``: the experiments measure both
+            on payload-free episodes before they run it (implies ``has_estimator``).
+        needs_drive_lag: Its factory needs the identified drive lag (``setup.drive_lag``): a setup without one is
+            refused before the factory runs.
+        reads_policy_file: Its factory reads the residual policy file of the setup (:func:`residual_policy_path`):
+            the command lines check the file before any episode runs, and its bytes enter the row's result keys.
         privileged: The factory receives the plant, and the episode runner gives the controller the plant's true
             parameters and payloads (:class:`~controllers.base.Privileged`): a bound, not a controller.
         monitored: The registry puts the controller behind the robot's fault monitor
-            (:class:`~controllers.monitor.MonitoredController`), which reports the faults it detects; False for a
-            controller that handles its own readings.
+            (:class:`~controllers.monitor.MonitoredController`), which reports the faults it detects
+            (:class:`~controllers.monitor.ReportsFaults`); False for a controller that handles its own readings.
     """
 
     key: str
     label: str
     factory: ControllerFactory
     estimates_payload: bool = False
+    has_estimator: bool = False
     tared: bool = False
+    needs_drive_lag: bool = False
+    reads_policy_file: bool = False
     privileged: bool = False
     monitored: bool = True
 
     def __post_init__(self) -> None:
         if not self.key or "," in self.key:
             raise ValueError(f"a controller key must be non-empty and without commas, got {self.key!r}")
-        if self.tared and not self.estimates_payload:
-            raise ValueError(f"controller {self.key!r}: a tared controller estimates the payload (estimates_payload)")
+        if self.tared and not self.has_estimator:
+            raise ValueError(f"controller {self.key!r}: a tared controller has a payload estimator (has_estimator)")
+        if self.has_estimator and not self.estimates_payload:
+            raise ValueError(
+                f"controller {self.key!r}: a controller with a payload estimator reports its estimate "
+                "(estimates_payload)"
+            )
 
-    def build(self, setup: ControllerSetup, plant: PlantConfig | None = None) -> Controller:
-        """The controller of this entry for the robot of ``setup`` (``plant``: for a privileged entry only)."""
+    def build(
+        self,
+        setup: ControllerSetup,
+        plant: PlantConfig | None = None,
+        *,
+        cell_estimator: PayloadEstimator | None = None,
+    ) -> Controller:
+        """The controller of this entry for the robot of ``setup``, behind its fault monitor if it is ``monitored``.
+
+        Args:
+            setup: What the controller may know.
+            plant: For a privileged entry only.
+            cell_estimator: The cell's payload estimator (:func:`cell_estimator`), run beside a controller without
+                an estimator of its own (:class:`~controllers.payload_timing.EstimatingController`), behind the same
+                fault monitor: what an online timing reads.
+
+        Raises:
+            ValueError: for a setup or plant the declarations refuse.
+            TypeError: when the controller is not what its entry declares.
+        """
+        if self.needs_drive_lag and setup.drive_lag is None:
+            raise ValueError(
+                f"controller {self.key!r} needs the identified drive lag; ControllerSetup.drive_lag is None"
+            )
+        if self.reads_policy_file and not residual_policy_path(setup).is_file():
+            raise ValueError(
+                f"controller {self.key!r} reads the residual policy file {residual_policy_path(setup)}, which does "
+                "not exist"
+            )
         if self.privileged:
             if plant is None:
                 raise ValueError(f"controller {self.key!r} is privileged: it needs the plant it inverts")
             controller = self.factory(setup, plant)
         else:
             controller = self.factory(setup)
+        self._check(controller)
+        if cell_estimator is not None:
+            if self.has_estimator:
+                raise ValueError(f"controller {self.key!r} runs its own payload estimator: the cell's goes beside none")
+            controller = EstimatingController(controller, cell_estimator)
+        return monitored(controller, setup) if self.monitored else controller
+
+    def _check(self, controller: object) -> None:
+        """TypeError naming the declaration ``controller`` (the factory's) does not match."""
         if not isinstance(controller, Controller):
             raise TypeError(
                 f"controller {self.key!r}: its factory returned {type(controller).__name__}, not a Controller "
@@ -96,20 +151,26 @@ class ControllerEntry:
             raise TypeError(
                 f"controller {self.key!r}: declared privileged={self.privileged}, but its controller "
                 + ("does not take" if self.privileged else "takes")
-                + " the plant's truth (set_payload_masses, set_physical_parameters): declare what it is"
+                + " the plant's truth (set_payload_masses, set_physical_parameters): declare what it is on its "
+                "ControllerEntry"
             )
-        if self.tared and not isinstance(getattr(controller, "estimator", None), PayloadEstimator):
-            raise TypeError(f"controller {self.key!r} is declared tared but has no PayloadEstimator 'estimator'")
-        return monitored(controller, setup) if self.monitored else controller
+        if self.estimates_payload and not isinstance(controller, EstimatesPayload):
+            raise TypeError(
+                f"controller {self.key!r}: declared estimates_payload, but its controller has no payload_estimate "
+                "(kg) property (controllers.base.EstimatesPayload)"
+            )
+        runs_estimator = isinstance(payload_estimator_of(controller), PayloadEstimator)
+        if self.has_estimator != runs_estimator:
+            raise TypeError(
+                f"controller {self.key!r}: declared has_estimator={self.has_estimator}, but its controller "
+                + ("has no" if self.has_estimator else "runs a")
+                + " PayloadEstimator as its 'estimator' (controllers.base.PayloadEstimating): declare what it is on "
+                "its ControllerEntry"
+            )
 
 
 ENTRY_POINT_GROUP = "delta_pick_place.controllers"
 """Installed packages register controllers under this entry-point group: name = key, value = ``module:attr``."""
-
-
-def _model_row(key: str, label: str) -> ControllerFactory:
-    """The factory of a model-based row (:func:`controllers.setup.model_row`) labelled ``label``."""
-    return lambda setup: model_row(key, setup, label)
 
 
 @functools.cache
@@ -136,6 +197,22 @@ def _oracle(setup: ControllerSetup, plant: PlantConfig) -> Controller:
     return OracleController(plant, servo=setup.servo)  # its feedback on the plant's truth (see OracleController)
 
 
+def _model_entry(key: str, row: ModelRow) -> ControllerEntry:
+    """The entry of the built-in model row ``key``, its capabilities those of ``row``: an RLS row estimates the
+    payload with a tared estimator; the lag row needs the drive lag."""
+    label = CONTROLLER_LABELS[key]
+    estimates = row.regressor is not None
+    return ControllerEntry(
+        key,
+        label,
+        lambda setup: model_row(key, setup, label),
+        estimates_payload=estimates,
+        has_estimator=estimates,
+        tared=estimates,
+        needs_drive_lag=row.leads_lag,
+    )
+
+
 CONTROLLER_LABELS = {
     "pd": "PD",
     "mkh": "MKH+PD",
@@ -159,22 +236,24 @@ policy file records its base's key and setup: :class:`~controllers.residual.Poli
 
 BUILTIN_CONTROLLERS: dict[str, ControllerEntry] = {
     "pd": ControllerEntry("pd", CONTROLLER_LABELS["pd"], lambda setup: PDController(*setup.pd_gains)),
-    **{
-        key: ControllerEntry(key, CONTROLLER_LABELS[key], _model_row(key, CONTROLLER_LABELS[key]))
-        for key in ("mkh", "mid", "mid_f", "mid_f_r")
-    },
-    **{
-        key: ControllerEntry(
-            key, CONTROLLER_LABELS[key], _model_row(key, CONTROLLER_LABELS[key]), estimates_payload=True, tared=True
-        )
-        for key in ESTIMATOR_REGRESSORS
-    },
+    **{key: _model_entry(key, row) for key, row in MODEL_ROWS.items()},
     # the oracle is told the true payloads: nothing of it to score as an estimate
     "oracle": ControllerEntry("oracle", CONTROLLER_LABELS["oracle"], _oracle, privileged=True),
-    # the residual's base is tared: its tare comes with the policy file
-    "residual": ControllerEntry("residual", CONTROLLER_LABELS["residual"], _residual, estimates_payload=True),
+    # the residual runs its base's estimator, tared with the tare its policy file carries
+    "residual": ControllerEntry(
+        "residual",
+        CONTROLLER_LABELS["residual"],
+        _residual,
+        estimates_payload=True,
+        has_estimator=True,
+        reads_policy_file=True,
+    ),
 }
 """Every built-in row, registered as a user's controller is (:func:`controller_entry`)."""
+
+CELL_ESTIMATOR_KEY = "mid_f_rls"
+"""The row whose payload estimator the cell runs beside a controller without one when it needs an estimate (an
+online timing): :func:`cell_estimator`."""
 
 
 def controller_entry(key: str) -> ControllerEntry:
@@ -228,16 +307,25 @@ def controller_label(key: str) -> str:
     return controller_entry(key).label
 
 
-def build_controller(key: str, setup: ControllerSetup, env: DeltaPickPlaceEnv | None = None) -> Controller:
+def build_controller(
+    key: str,
+    setup: ControllerSetup,
+    env: DeltaPickPlaceEnv | None = None,
+    *,
+    cell_estimator: PayloadEstimator | None = None,
+) -> Controller:
     """The controller of ``key`` (:func:`controller_entry`) for the robot of ``setup``, behind its fault monitor.
 
     Args:
         key: Controller key.
         setup: What the controller may know.
         env: For a privileged controller only (the oracle), which inverts the env's plant; never given to the others.
+        cell_estimator: The cell's payload estimator to run beside a controller without one
+            (:meth:`ControllerEntry.build`).
     """
     entry = controller_entry(key)
-    return entry.build(setup, env.plant_config if entry.privileged and env is not None else None)
+    plant = env.plant_config if entry.privileged and env is not None else None
+    return entry.build(setup, plant, cell_estimator=cell_estimator)
 
 
 def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
@@ -251,8 +339,13 @@ def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
 
 
 def monitored(controller: Controller, setup: ControllerSetup) -> MonitoredController:
-    """``controller`` behind the :func:`fault_monitor` of ``setup``, reacting as ``setup.fault_reaction`` says."""
-    return MonitoredController(controller, fault_monitor(setup), setup.fault_reaction)
+    """``controller`` behind the :func:`fault_monitor` of ``setup``, reacting as ``setup.fault_reaction`` says; the
+    monitor takes the model's corrections to this robot from the controller's own payload estimator if it forms its
+    equations at the measured state, else from the :func:`cell_estimator` run beside it (the corrections fitted on
+    the reference absorb the robot's lag behind it, and without any the identified model is off on another robot)."""
+    own = payload_estimator_of(controller)
+    corrections_fit = None if own is not None and own.measures_state else cell_estimator(setup)
+    return MonitoredController(controller, fault_monitor(setup), setup.fault_reaction, corrections_fit)
 
 
 def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
@@ -260,7 +353,13 @@ def payload_estimator(key: str, setup: ControllerSetup) -> PayloadEstimator:
     seeded empty moves."""
     if not controller_entry(key).tared:
         raise ValueError(f"{key!r} has no tared payload estimator; built-in ones: {', '.join(ESTIMATOR_REGRESSORS)}")
-    return build_controller(key, dataclasses.replace(setup, tares={}, empty_moves={})).estimator
+    return payload_estimator_of(build_controller(key, dataclasses.replace(setup, tares={}, empty_moves={})))
+
+
+def cell_estimator(setup: ControllerSetup) -> PayloadEstimator:
+    """The cell's payload estimator: that of the row :data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``, to
+    run beside a controller without one (:meth:`ControllerEntry.build`'s ``cell_estimator``)."""
+    return payload_estimator_of(build_controller(CELL_ESTIMATOR_KEY, setup))
 
 
 def estimation_model(setup: ControllerSetup) -> DeltaDynamics:

@@ -27,15 +27,47 @@ from delta_env.records import content_hash, from_table, to_table
 from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP, encoder_resolution, rate_window
 from delta_env.validation import require_joint_vector
 
-ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
-    "mid_f_rls": "smoothed",
-    "mid_f_rls_ref": "reference",
-    "mid_f_rls_lag": "smoothed",
-}
-"""The payload estimator variant of each built-in RLS controller key."""
 
-MODEL_ROWS = ("mkh", "mid", "mid_f", "mid_f_r", *ESTIMATOR_REGRESSORS)
-"""The keys of the built-in rows with a model feedforward (:func:`model_row`)."""
+@dataclass(frozen=True)
+class ModelRow:
+    """What a built-in model row (:func:`model_row`) is made of.
+
+    Attributes:
+        parameters: The identified set its model takes from :class:`ControllerSetup` (``"mid"``, ``"mid_f"`` or
+            ``"mid_f_rods"``); None: plain MKH, the datasheet model.
+        forearm_rods: Its model has rod forearms (``+R``, :class:`~controllers.dynamics.DeltaDynamics`).
+        regressor: The joint states of its payload estimator (:class:`~controllers.payload.PayloadEstimator`, tared
+            with the setup's tare and empty moves of its key); None: it runs none and feeds forward mp = 0.
+        leads_lag: Its feedforward leads the identified drive lag (:class:`~controllers.feedforward.
+            LagCompensatedController`): it needs ``ControllerSetup.drive_lag``.
+    """
+
+    parameters: Literal["mid", "mid_f", "mid_f_rods"] | None
+    forearm_rods: bool = False
+    regressor: Literal["smoothed", "reference"] | None = None
+    leads_lag: bool = False
+
+    def model_parameters(self, setup: ControllerSetup) -> ModelParameters | None:
+        """The identified set of ``setup`` this row's model takes (None: MKH's datasheet model)."""
+        sets = {"mid": setup.mid, "mid_f": setup.mid_f, "mid_f_rods": setup.mid_f_rods}
+        return None if self.parameters is None else sets[self.parameters]
+
+
+MODEL_ROWS: dict[str, ModelRow] = {
+    "mkh": ModelRow(None),
+    "mid": ModelRow("mid"),
+    "mid_f": ModelRow("mid_f"),
+    "mid_f_r": ModelRow("mid_f_rods", forearm_rods=True),
+    "mid_f_rls": ModelRow("mid_f_rods", forearm_rods=True, regressor="smoothed"),
+    "mid_f_rls_ref": ModelRow("mid_f_rods", forearm_rods=True, regressor="reference"),
+    "mid_f_rls_lag": ModelRow("mid_f_rods", forearm_rods=True, regressor="smoothed", leads_lag=True),
+}
+"""The built-in rows with a model feedforward (:func:`model_row`), by key, in the comparison's order."""
+
+ESTIMATOR_REGRESSORS: dict[str, Literal["smoothed", "reference"]] = {
+    key: row.regressor for key, row in MODEL_ROWS.items() if row.regressor is not None
+}
+"""The payload estimator variant of each built-in RLS controller key (the model rows with a regressor)."""
 
 SERVOS = ("servo", "pd")
 """The feedback of the model rows and of the oracle bound: ``"servo"``, the servo layer
@@ -119,24 +151,22 @@ def model_row(
     :func:`controllers.feedforward.controller_name`)."""
     if key not in MODEL_ROWS:
         raise ValueError(f"{key!r} is not a model row; choose from {', '.join(MODEL_ROWS)}")
-    if key == "mid_f_rls_lag" and setup.drive_lag is None:
+    row = MODEL_ROWS[key]
+    if row.leads_lag and setup.drive_lag is None:
         raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
-    rods = key in ("mid_f_r", *ESTIMATOR_REGRESSORS)
-    parameters = setup.mid_f_rods if rods else {"mkh": None, "mid": setup.mid, "mid_f": setup.mid_f}[key]
-    servo = row_servo(setup, DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=rods))
-    if not rods:
-        return model_controller(parameters, servo=servo, name=name, geometry=setup.geometry, masses=setup.masses)
+    parameters = row.model_parameters(setup)
+    dynamics = DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=row.forearm_rods)
     return model_controller(
         parameters,
-        forearm_rods=True,
-        regressor=ESTIMATOR_REGRESSORS.get(key),
+        forearm_rods=row.forearm_rods,
+        regressor=row.regressor,
         tare=setup.tares.get(key, 0.0),
         empty_moves=setup.empty_moves.get(key),
-        servo=servo,
+        servo=row_servo(setup, dynamics),
         name=name,
         geometry=setup.geometry,
         masses=setup.masses,
-        drive_lag=setup.drive_lag if key == "mid_f_rls_lag" else None,
+        drive_lag=setup.drive_lag if row.leads_lag else None,
     )
 
 

@@ -7,8 +7,10 @@ its sensors, reference trajectories and the environment.
 
 import gymnasium as gym
 
+from delta_env import compile_cache  # noqa: F401 - first: sets numba's cache folder before anything compiles
 from delta_env.config import (
     MAX_PAYLOAD_MASS,
+    GearheadCompliance,
     PhysicalParameters,
     PlantConfig,
     PlantRealism,
@@ -43,6 +45,7 @@ __all__ = [
     "DeltaMasses",
     "DeltaPickPlaceEnv",
     "DeltaPlant",
+    "GearheadCompliance",
     "PhysicalParameters",
     "PlantConfig",
     "PlantRealism",

@@ -20,6 +20,7 @@ from delta_env.config import (
     MAX_PAYLOAD_MASS,
     SUCTION_CUP_OFFSET,
     PlantConfig,
+    PlantRealism,
     RandomizationRanges,
 )
 from delta_env.cycles import require_start
@@ -39,6 +40,23 @@ from delta_env.validation import require_count, require_in, require_instance, re
 
 DIVERGENCE_LOOP_GAP = 1e-3
 """Loop gap (m) beyond which the simulation counts as diverged."""
+
+
+def encoder_steps(realism: PlantRealism) -> tuple[float | None, float | None]:
+    """The resolutions (rad, at the joint) of the drives' encoders and of the load encoder, None where there is none.
+
+    The drives' encoders are on the motor side: on a compliant drive (``realism.compliance``) the motor shaft's
+    encoder, whose step at the joint is its own over the gear ratio. None for exact drive encoders. The load
+    encoder, only a compliant drive's with ``load_encoder_bits``, reads the arm.
+    """
+    compliance = realism.compliance
+    bits = realism.encoder_bits
+    step = None if bits is None else encoder_resolution(bits)
+    if compliance is None:
+        return step, None
+    motor_step = None if step is None else step / compliance.gear_ratio
+    load_bits = compliance.load_encoder_bits
+    return motor_step, None if load_bits is None else encoder_resolution(load_bits)
 
 
 DEFAULT_CAMERA = {
@@ -106,13 +124,14 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
 
     | key | shape | unit | meaning |
     |---|---|---|---|
-    | ``joint_angles`` | (3,) | rad | encoder angles (quantized, 17 bit by default) |
+    | ``joint_angles`` | (3,) | rad | encoder angles (quantized, 17 bit by default; compliant drives: motor shaft) |
     | ``joint_velocities`` | (3,) | rad/s | encoder backward difference over one control period |
     | ``joint_torques`` | (3,) | N m | measured motor torque (actuator output plus white noise) |
     | ``reference_angles`` | (3,) | rad | reference theta of this step |
     | ``reference_velocities`` | (3,) | rad/s | reference theta_dot of this step |
     | ``reference_accelerations`` | (3,) | rad/s^2 | reference theta_ddot of this step |
     | ``gripper`` | (1,) | - | 1 while the suction gripper holds an object |
+    | ``load_angles`` | (3,) | rad | load-side encoder on the arms: compliant drives with ``load_encoder_bits`` only |
 
     ## Rewards
     ``reward = -(w_tracking * |e|^2 + w_torque * |tau|^2)`` with e the Cartesian tracking error
@@ -257,8 +276,8 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         timestep = self.plant.model.opt.timestep
         self.n_substeps = control_substeps(timestep)
         realism = self.plant_config.realism
-        encoder_step = None if realism.encoder_bits is None else encoder_resolution(realism.encoder_bits)
-        self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std)
+        encoder_step, load_encoder_step = encoder_steps(realism)
+        self._sensors = Sensors(self.plant, encoder_step, realism.torque_noise_std, load_encoder_step)
         drive = self.plant_config.drive
         self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
@@ -269,7 +288,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._in_position = InPositionRelease(self.release, self.plant_config.geometry)
 
         self.action_space = spaces.Box(-drive.peak_torque, drive.peak_torque, shape=(3,), dtype=np.float64)
-        self.observation_space = observation_space()
+        self.observation_space = observation_space(load_encoder=self._sensors.load_encoder_step is not None)
 
         self.render_mode = render_mode
         self._renderer = None
@@ -444,7 +463,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         torque = require_torques(action)
         # The drive's envelope at the true joint speeds at the start of the step (it measures its own motor).
         plant = self.plant
-        torque, margins, saturated = self._drive.clip(torque, plant.joint_velocity_values())
+        torque, margins, saturated = self._drive.clip(torque, plant.rotor_velocity_values())
         faulty = self._faults.faulty
         if faulty:
             carrying = self._cycle if self._holding else None
@@ -493,7 +512,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         applied = self._actuator_force.copy()
         # the speed after the step, the thermal RMS of the output torque over the last window
         speed_margin, speed_exceeded, thermal_rms, thermal_margin, thermal_exceeded = self._drive.report(
-            k, plant.joint_velocity_values(), applied.tolist()
+            k, plant.rotor_velocity_values(), applied.tolist()
         )
         info = {
             "payload_mass": self._carried_mass,

@@ -26,12 +26,13 @@ such sample at or after the drawn time."""
 @dataclass
 class _RunningFault:
     """A fault of the episode that has started: it acts on steps ``first`` to ``last`` (obstacle: from its
-    placement; it counts as active while in contact)."""
+    placement; it counts as active while in contact); a drive fault holds its joint's torque within ``limit`` (N m)."""
 
     draw: FaultDraw
     first: int
     last: int
     record: int = -1  # its index in FaultInjector.injected, once recorded
+    limit: float = math.inf
 
 
 class FaultInjector:
@@ -122,22 +123,45 @@ class FaultInjector:
             carrying: The carry (by pick order) whose object the gripper holds, or None.
         """
         for draw, step in self._starts.pop(n, ()):
-            self._start(draw, step, n, trajectory, carrying)
+            self._start(draw, step, n, trajectory, carrying, torque)
         self._running = running = [fault for fault in self._running if fault.last >= n]
         for fault in running:
             draw = fault.draw
             if draw.kind == "drive_fault":
-                limit = draw.size * self.peak_torque
                 torque = torque.copy()
-                torque[draw.joint] = min(max(torque[draw.joint], -limit), limit)
+                self._limit_drive(fault, torque)
             elif draw.kind == "collision" and draw.detail != "obstacle":
                 self.plant.apply_external_force(draw.size * np.array(draw.direction), draw.joint)
         return torque
 
-    def _start(self, draw: FaultDraw, step: int, n: int, trajectory: Trajectory, carrying: int | None) -> None:
-        """Begin ``draw`` (drawn for ``step``) at step ``n``, or drop it if it can no longer happen."""
+    def _limit_drive(self, fault: _RunningFault, torque: NDArray[np.float64]) -> None:
+        """Hold the drive fault's joint within its limit in ``torque`` (modified) and record what it withheld."""
+        joint, limit = fault.draw.joint, fault.limit
+        asked = float(torque[joint])
+        torque[joint] = min(max(asked, -limit), limit)
+        withheld = abs(asked) - limit
+        record = self.injected[fault.record]
+        if withheld > record.withheld:
+            self.injected[fault.record] = replace(record, withheld=withheld)
+
+    def _start(
+        self,
+        draw: FaultDraw,
+        step: int,
+        n: int,
+        trajectory: Trajectory,
+        carrying: int | None,
+        torque: NDArray[np.float64],
+    ) -> None:
+        """Begin ``draw`` (drawn for ``step``) at step ``n``, whose command (N m) is ``torque``, or drop it if it can
+        no longer happen."""
         dt = self.dt
         size = draw.size
+        withheld = math.nan
+        limit = math.inf
+        if draw.kind == "drive_fault":  # the limit (N m): a fraction of the onset's command or of the peak torque
+            limit = draw.size * (abs(float(torque[draw.joint])) if draw.detail == "command" else self.peak_torque)
+            size, withheld = limit / self.peak_torque, 0.0
         if draw.kind == "slip":
             places = trajectory.place_indices
             if draw.carry >= len(places):  # a stop dropped its place
@@ -158,9 +182,10 @@ class FaultInjector:
             return
         else:
             last = n + max(1, round(draw.duration / dt)) - 1
-        fault = _RunningFault(draw, n, last, len(self.injected))
+        fault = _RunningFault(draw, n, last, len(self.injected), limit)
         self._running.append(fault)
-        self.injected.append(InjectedFault(draw.kind, n, last - n + 1, (n + 1) * dt, draw.joint, size, draw.detail))
+        record = InjectedFault(draw.kind, n, last - n + 1, (n + 1) * dt, draw.joint, size, draw.detail, withheld)
+        self.injected.append(record)
 
     def after_step(self, n: int) -> tuple[str, ...]:
         """Record the obstacle's contact, end the faults whose last step was step ``n`` (the step just taken); the

@@ -36,9 +36,13 @@ class InjectedFault:
         joint: Joint 0..2 it acts on, or None (slip, a collision on the platform or with the obstacle).
         size: Its size, in the unit of its kind: rad (encoder_glitch), N m (torque_glitch), N (collision, the
             force's magnitude; for the obstacle the largest contact force), the fraction of the peak torque the
-            drive keeps (drive_fault), the object's mass in kg (slip); NaN where a kind has none.
+            drive keeps (drive_fault, whatever its spec's ``relative_to``), the object's mass in kg (slip); NaN where
+            a kind has none.
         detail: What else identifies it, e.g. ``"encoder"``/``"torque"`` (sensor_nan), ``"platform"``/``"arm"``/
-            ``"obstacle"`` (collision).
+            ``"obstacle"`` (collision), ``"command"``/``"peak"`` (drive_fault: what its drawn fraction was of).
+        withheld: For a drive_fault, the most torque (N m) it withheld from the command (within the envelope) on any
+            step it acted: 0 if every command stayed within what the drive kept, so that the fault changed nothing
+            and nothing could observe it (:func:`is_latent`); NaN for the other kinds.
     """
 
     kind: str
@@ -48,6 +52,13 @@ class InjectedFault:
     joint: int | None = None
     size: float = float("nan")
     detail: str = ""
+    withheld: float = float("nan")
+
+
+def is_latent(fault: InjectedFault) -> bool:
+    """Whether an injected fault changed nothing the robot did: a drive fault that never withheld any torque (every
+    command it met stayed within what the drive kept). Nothing can detect it, so a scorer does not count it."""
+    return fault.kind == "drive_fault" and fault.withheld == 0.0
 
 
 JOINT_KINDS = ("encoder_glitch", "encoder_stuck", "sensor_nan", "torque_glitch", "drive_fault")
@@ -68,7 +79,7 @@ DEFAULT_CARRY_FRACTION = (0.2, 0.8)
 """Where in a carry a fault starts when its spec gives no ``start``: a fraction of the carry (pick to place)."""
 
 _SIGNED_KINDS = ("encoder_glitch", "torque_glitch")
-_SIZE_UNITS = {"encoder_glitch": "rad", "torque_glitch": "N m", "collision": "N", "drive_fault": "of the peak torque"}
+_SIZE_UNITS = {"encoder_glitch": "rad", "torque_glitch": "N m", "collision": "N"}
 
 
 @dataclass(frozen=True)
@@ -86,10 +97,17 @@ class FaultSpec:
     | ``sensor_nan`` | none | (0.001, 0.001) | ``joint``, ``sensor`` (``"encoder"``) |
     | ``torque_glitch`` | offset of the measured torque, N m, sign drawn (20, 200) | (0.001, 0.001) | ``joint`` |
     | ``collision`` | force, N (150, 1000); none for the obstacle | (0.02, 0.05) | ``target``, ``joint`` (arm) |
-    | ``drive_fault`` | fraction of the peak torque the drive keeps, in [0, 1) (0, 0.5) | (0.02, 0.1) | ``joint`` |
+    | ``drive_fault`` | fraction the drive keeps, in [0, 1) (0, 0.5) | (0.02, 0.1) | ``joint``, ``relative_to`` |
 
     A fault lasts ``max(1, round(duration / dt))`` control steps (dt = 1 ms). For the obstacle, ``duration`` is how
     long it stays in the path after the platform reaches it.
+
+    A ``drive_fault`` limits its joint's torque to ``size`` times the magnitude of the joint's command at the
+    fault's onset (``relative_to="command"``, the default) or times the drive's peak torque (``"peak"``). The first
+    sizes the fault on what the motion needs there, so the command exceeds what is left from the first step on and
+    the fault is observable at any speed and load; a fraction of the peak torque is often more than a carry at
+    3 g needs, and then the fault changes nothing (:func:`is_latent`). Either way the record's ``size`` is the
+    fraction of the peak torque kept.
 
     Attributes:
         kind: One of :data:`FAULT_KINDS`.
@@ -105,6 +123,8 @@ class FaultSpec:
         target: What a ``collision`` hits: ``"platform"`` (a force on the platform, its direction uniform on the
             sphere), ``"arm"`` (the same on the upper arm of ``joint``, at its elbow) or ``"obstacle"`` (a body in
             the path that the platform runs into; default ``"platform"``).
+        relative_to: What a ``drive_fault``'s size is a fraction of: ``"command"`` (the joint's command at its
+            onset; default) or ``"peak"`` (the drive's peak torque).
     """
 
     kind: str
@@ -116,6 +136,7 @@ class FaultSpec:
     duration: tuple[float, float] | None = None
     sensor: Literal["encoder", "torque"] | None = None
     target: Literal["platform", "arm", "obstacle"] | None = None
+    relative_to: Literal["command", "peak"] | None = None
 
     def __post_init__(self) -> None:
         kind = self.kind
@@ -133,6 +154,7 @@ class FaultSpec:
             self._set("carry_fraction", require_interval("carry_fraction", fraction, 0.0, 1.0))
         self._check_choice("sensor", ("encoder", "torque"), kind == "sensor_nan")
         self._check_choice("target", ("platform", "arm", "obstacle"), kind == "collision")
+        self._check_choice("relative_to", ("command", "peak"), kind == "drive_fault")
         if self.joint is not None:
             if kind not in JOINT_KINDS and self.target != "arm":
                 raise ValueError(f"joint is for {list(JOINT_KINDS)} and an arm collision, not {kind!r}")
@@ -197,7 +219,7 @@ class FaultSpec:
             size=magnitude,
             duration=seconds,
             direction=unit,
-            detail=self.sensor or self.target or "",
+            detail=self.sensor or self.target or self.relative_to or "",
         )
 
 
@@ -232,7 +254,7 @@ class FaultDraw:
         size: Signed size in its kind's unit (:class:`InjectedFault`), NaN where it has none.
         duration: Duration (s), NaN for a slip.
         direction: Unit vector of a collision's force, or None.
-        detail: ``sensor`` of a sensor_nan, ``target`` of a collision, else ``""``.
+        detail: ``sensor`` of a sensor_nan, ``target`` of a collision, ``relative_to`` of a drive_fault, else ``""``.
     """
 
     kind: str

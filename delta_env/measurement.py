@@ -18,39 +18,51 @@ _GRIPPER_CLOSED, _GRIPPER_OPEN = np.array([1.0]), np.array([0.0])
 """The ``gripper`` readings, copied into each observation."""
 
 
-def observation_space() -> spaces.Dict:
+def observation_space(load_encoder: bool = False) -> spaces.Dict:
     """The env's observation space: the keys :class:`Sensors` fills, float64, shape (3,) but ``gripper`` (1,)
-    (units and meanings: :class:`~delta_env.env.DeltaPickPlaceEnv`)."""
+    (units and meanings: :class:`~delta_env.env.DeltaPickPlaceEnv`); ``load_angles`` too with a ``load_encoder``."""
     unbounded = {"low": -np.inf, "high": np.inf, "shape": (3,), "dtype": np.float64}
-    return spaces.Dict(
-        {
-            "joint_angles": spaces.Box(**unbounded),
-            "joint_velocities": spaces.Box(**unbounded),
-            "joint_torques": spaces.Box(**unbounded),
-            "reference_angles": spaces.Box(**unbounded),
-            "reference_velocities": spaces.Box(**unbounded),
-            "reference_accelerations": spaces.Box(**unbounded),
-            "gripper": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float64),
-        }
-    )
+    keys = {
+        "joint_angles": spaces.Box(**unbounded),
+        "joint_velocities": spaces.Box(**unbounded),
+        "joint_torques": spaces.Box(**unbounded),
+        "reference_angles": spaces.Box(**unbounded),
+        "reference_velocities": spaces.Box(**unbounded),
+        "reference_accelerations": spaces.Box(**unbounded),
+        "gripper": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float64),
+    }
+    if load_encoder:
+        keys["load_angles"] = spaces.Box(**unbounded)
+    return spaces.Dict(keys)
 
 
 class Sensors:
     """The drive's sensors on a plant: what :class:`~delta_env.env.DeltaPickPlaceEnv` observes.
 
+    The encoders read the drives' motor side (:meth:`~delta_env.plant.DeltaPlant.rotor_angle_values`: the arms' own
+    angles on rigid drives, the rotors' on compliant ones); an optional load encoder reads the arms' angles.
+
     Args:
         plant: The plant measured.
-        encoder_step: Encoder resolution (rad); None for ideal encoders, whose rates are the true joint rates.
+        encoder_step: Encoder resolution at the joint (rad); None for ideal encoders, whose rates are the true rates.
         torque_noise_std: Standard deviation (N m) of the white noise on the measured torques.
+        load_encoder_step: Resolution (rad) of the load encoder, or None (default): none.
 
     Attributes:
         angles: The last encoder readings (rad), three floats.
         torque_noise: The measured torques' noise of every sample of the reference (N m), (samples, 3).
     """
 
-    def __init__(self, plant: DeltaPlant, encoder_step: float | None, torque_noise_std: float) -> None:
+    def __init__(
+        self,
+        plant: DeltaPlant,
+        encoder_step: float | None,
+        torque_noise_std: float,
+        load_encoder_step: float | None = None,
+    ) -> None:
         self.plant = plant
         self.encoder_step = encoder_step
+        self.load_encoder_step = load_encoder_step
         self.torque_noise_std = torque_noise_std
         self._actuator_force = plant.data.actuator_force  # a view: mjData keeps its buffers for its lifetime
         self.angles = [0.0, 0.0, 0.0]
@@ -76,8 +88,8 @@ class Sensors:
 
     def first_observation(self, trajectory: Trajectory, holding: bool) -> dict[str, NDArray[np.float64]]:
         """The observation at a reset (step 0), the robot at rest."""
-        self.angles = self._encoder_floats(*self.plant.joint_angle_values())
-        return self._observation(0, trajectory, holding, self.plant.joint_velocities())
+        self.angles = self._encoder_floats(*self.plant.rotor_angle_values())
+        return self._observation(0, trajectory, holding, np.array(self.plant.rotor_velocity_values()))
 
     def observe(
         self, k: int, trajectory: Trajectory, holding: bool, faults: FaultInjector | None
@@ -110,9 +122,9 @@ class Sensors:
     def _measure_joints(self) -> NDArray[np.float64]:
         """Sample the encoders; return the measured joint rates (rad/s)."""
         p0, p1, p2 = self.angles
-        self.angles = m0, m1, m2 = self._encoder_floats(*self.plant.joint_angle_values())
+        self.angles = m0, m1, m2 = self._encoder_floats(*self.plant.rotor_angle_values())
         if self.encoder_step is None:
-            return self.plant.joint_velocities()
+            return np.array(self.plant.rotor_velocity_values())
         rate = 1.0 / CONTROL_PERIOD
         return np.array([(m0 - p0) * rate, (m1 - p1) * rate, (m2 - p2) * rate])
 
@@ -122,7 +134,7 @@ class Sensors:
         # Reference rows are read-only views; the noise of the whole episode is drawn at reset.
         f0, f1, f2 = self._actuator_force.tolist()
         n0, n1, n2 = self.torque_noise[k].tolist()
-        return {
+        observation = {
             "joint_angles": np.array(self.angles),
             "joint_velocities": joint_velocities,
             "joint_torques": np.array((f0 + n0, f1 + n1, f2 + n2)),
@@ -131,3 +143,11 @@ class Sensors:
             "reference_accelerations": trajectory.theta_ddot[k],
             "gripper": (_GRIPPER_CLOSED if holding else _GRIPPER_OPEN).copy(),
         }
+        if self.load_encoder_step is not None:
+            observation["load_angles"] = self._load_angles()
+        return observation
+
+    def _load_angles(self) -> NDArray[np.float64]:
+        """The load encoder's reading of the arms' angles (rad), shape (3,), rounded to whole counts."""
+        step = self.load_encoder_step
+        return np.round(self.plant.joint_angles() / step) * step

@@ -22,6 +22,11 @@ ripple is a known function of the angle and is inverted at the reference angle: 
 errs by amplitude * periods * delta (0.02 N m for 0.1 mrad). Stribeck and ripple are those of the instantaneous
 state, whereas the plant holds them over a control step.
 
+On a plant with compliant drives (``PlantRealism.compliance``) the oracle inverts the same plant with rigid drives:
+the rotor's inertia added to the arm's, the gearhead infinitely stiff. That is the torque at the joints of the
+motion without the gearhead's deflection, not the exact torque of the compliant plant (which would need the
+deflection's own dynamics, docs/design.md section 4); it is no bound there.
+
 The payload is a point mass added to the platform's CoM. That is exact for the motor torques wherever the
 payload is carried rigidly by a platform that only translates (a moment on the platform does no virtual
 work), so on the ideal variant the analytical MKH model with the same payload matches the oracle to
@@ -43,11 +48,22 @@ from delta_env.plant import DeltaPlant
 from delta_env.robot import forearm_home_tilt
 
 
+def rigid_drives(config: PlantConfig) -> PlantConfig:
+    """``config`` with rigid drives: a compliant drive's rotor inertia added to the arm joint's ``armature`` and its
+    gearhead dropped (``config`` itself if its drives are rigid)."""
+    compliance = config.realism.compliance
+    if compliance is None:
+        return config
+    armature = config.realism.armature + compliance.rotor_inertia
+    return replace(config, realism=replace(config.realism, armature=armature, compliance=None))
+
+
 class InverseDynamicsOracle:
     """Motor torques that produce a given joint motion on the MuJoCo plant of ``config``.
 
     The oracle owns a plant built from ``config`` without a payload body and with the constraint solver
-    disabled; :meth:`set_physical_parameters` keeps it in step with a randomized plant.
+    disabled (with rigid drives: :func:`rigid_drives`); :meth:`set_physical_parameters` keeps it in step with a
+    randomized plant.
 
     Args:
         config: The plant configuration (variant, geometry, masses, realism) to invert.
@@ -57,7 +73,7 @@ class InverseDynamicsOracle:
         config = PlantConfig() if config is None else config
         if not isinstance(config, PlantConfig):
             raise ValueError(f"config must be a PlantConfig, got {type(config).__name__}")
-        self.plant = DeltaPlant(replace(config, payload_body=False))
+        self.plant = DeltaPlant(replace(rigid_drives(config), payload_body=False))
         self.config = self.plant.config
         model = self.plant.model
         model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
@@ -83,8 +99,11 @@ class InverseDynamicsOracle:
         self._platform_row, self._elbows_row = self._platform[0], self._elbows[0]
 
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
-        """Use the same (e.g. randomized) masses and friction as a plant; see DeltaPlant.set_physical_parameters."""
-        self.plant.set_physical_parameters(parameters)
+        """Use the same (e.g. randomized) masses and friction as a plant; see DeltaPlant.set_physical_parameters.
+        A compliant plant's gearhead scales do not apply to the rigid drives."""
+        self.plant.set_physical_parameters(
+            replace(parameters, stiffness_scale=(1.0, 1.0, 1.0), damping_scale=(1.0, 1.0, 1.0))
+        )
         self._platform_mass = float(self.plant.model.body_mass[self._platform_body])
         self._set_friction()
 

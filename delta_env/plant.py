@@ -81,6 +81,17 @@ class DeltaPlant:
         motor_joints = [ident(joint, f"motor_{label}") for label in CHAIN_LABELS]
         self._motor_qpos = model.jnt_qposadr[motor_joints].copy()
         self._motor_dofs = model.jnt_dofadr[motor_joints].copy()
+        # The joints the drives turn: the rotors of compliant drives, else the arms' own (motor) joints.
+        self._compliant = self.config.realism.compliance is not None
+        rotor_joints = [ident(joint, f"rotor_{label}") for label in CHAIN_LABELS] if self._compliant else motor_joints
+        self._rotor_qpos = model.jnt_qposadr[rotor_joints].copy()
+        self._rotor_dofs = model.jnt_dofadr[rotor_joints].copy()
+        self._drive_dofs = np.union1d(self._motor_dofs, self._rotor_dofs)
+        self._gearheads = (
+            np.array([ident(mujoco.mjtObj.mjOBJ_TENDON, f"gearhead_{label}") for label in CHAIN_LABELS])
+            if self._compliant
+            else np.zeros(0, dtype=int)
+        )
         self._platform_body = ident(body, "platform")
         self._arm_bodies = [ident(body, f"upper_arm_{label}") for label in CHAIN_LABELS]
         self.obstacle = Obstacle(model, data) if obstacle else None
@@ -111,7 +122,7 @@ class DeltaPlant:
         self._payload = SuctionPayload(model, data) if self.config.payload_body else None
         payload_body = -1 if self._payload is None else self._payload.body
         robot_dofs = np.array([dof for dof in range(model.nv) if model.dof_bodyid[dof] != payload_body])
-        self._passive_dofs = np.setdiff1d(robot_dofs, self._motor_dofs)
+        self._passive_dofs = np.setdiff1d(robot_dofs, self._drive_dofs)
         if self.loops.n_rows != len(self._passive_dofs):
             raise RuntimeError(f"model has {self.loops.n_rows} loop rows for {len(self._passive_dofs)} passive dofs")
 
@@ -129,6 +140,8 @@ class DeltaPlant:
         self._qpos, self._qvel = data.qpos, data.qvel
         self._motor_qpos_items = tuple(self._motor_qpos.tolist())
         self._motor_dof_items = tuple(self._motor_dofs.tolist())
+        self._rotor_qpos_items = tuple(self._rotor_qpos.tolist())
+        self._rotor_dof_items = tuple(self._rotor_dofs.tolist())
         self._ctrl, self._qfrc_applied = data.ctrl, data.qfrc_applied
         self.reset()
 
@@ -138,8 +151,19 @@ class DeltaPlant:
 
     @property
     def motor_dofs(self) -> NDArray[np.int_]:
-        """Addresses of the three motor joints in qvel (read-only copy), shape (3,)."""
+        """Addresses of the three motor joints (the arms' joints at the motor axes) in qvel (a copy), shape (3,)."""
         return self._motor_dofs.copy()
+
+    @property
+    def rotor_dofs(self) -> NDArray[np.int_]:
+        """Addresses in qvel of the joints the drives turn (a copy), shape (3,): the rotors of compliant drives, else
+        the motor joints themselves."""
+        return self._rotor_dofs.copy()
+
+    @property
+    def compliant(self) -> bool:
+        """True if the drives are compliant (``config.realism.compliance``): rotor and arm are two joints."""
+        return self._compliant
 
     def reset(self, theta: ArrayLike | None = None) -> None:
         """Reset the data (time 0, no forces), detach and float the payload, and assemble at ``theta``.
@@ -158,7 +182,8 @@ class DeltaPlant:
         """Put the robot at motor angles ``theta`` with every loop closed, moving at ``theta_dot``.
 
         Positions are analytic (:meth:`assembly_coordinates`), so the loops close to round-off; velocities
-        solve J_c qvel = 0 with the motor rates fixed. A carried payload follows the platform rigidly; a
+        solve J_c qvel = 0 with the motor rates fixed. The rotors of compliant drives take the arms' angles and rates
+        (the gearheads undeflected). A carried payload follows the platform rigidly; a
         free one is left where it is. Actuator states are zeroed and ``mj_forward`` brings every derived
         quantity up to date.
 
@@ -199,6 +224,9 @@ class DeltaPlant:
         model, data = self.model, self.data
         jac = self.configure(theta, platform, elbows)
         data.qvel[self._motor_dofs] = theta_dot
+        if self._compliant:
+            data.qpos[self._rotor_qpos] = theta
+            data.qvel[self._rotor_dofs] = theta_dot
         data.qvel[self._passive_dofs] = np.linalg.solve(
             jac[:, self._passive_dofs], -jac[:, self._motor_dofs] @ theta_dot
         )
@@ -237,7 +265,8 @@ class DeltaPlant:
         return self.loops.jacobian()
 
     def joint_angles(self) -> NDArray[np.float64]:
-        """Motor angles theta (rad), shape (3,); current."""
+        """Motor angles theta (rad), shape (3,): the arms' angles at the motor axes (the load side of a compliant
+        drive); current."""
         return np.array(self.joint_angle_values())
 
     def joint_velocities(self) -> NDArray[np.float64]:
@@ -256,6 +285,17 @@ class DeltaPlant:
     def joint_velocity_values(self) -> tuple[float, float, float]:
         """Motor rates theta_dot (rad/s) as three floats; current."""
         qvel, (d0, d1, d2) = self._qvel, self._motor_dof_items
+        return qvel.item(d0), qvel.item(d1), qvel.item(d2)
+
+    def rotor_angle_values(self) -> tuple[float, float, float]:
+        """The drives' motor-side angles (rad) as three floats: a compliant drive's rotor angle at the joint's scale
+        (its shaft's angle over the gear ratio), else the arm's angle; current."""
+        qpos, (a0, a1, a2) = self._qpos, self._rotor_qpos_items
+        return qpos.item(a0), qpos.item(a1), qpos.item(a2)
+
+    def rotor_velocity_values(self) -> tuple[float, float, float]:
+        """The drives' motor-side rates (rad/s, at the joint's scale) as three floats; current."""
+        qvel, (d0, d1, d2) = self._qvel, self._rotor_dof_items
         return qvel.item(d0), qvel.item(d1), qvel.item(d2)
 
     def platform_point(self) -> tuple[float, float, float]:
@@ -279,8 +319,8 @@ class DeltaPlant:
     # --------------------------------------------------------------------------------------------
 
     def motor_disturbance(self, theta: ArrayLike, theta_dot: ArrayLike) -> NDArray[np.float64]:
-        """Stribeck excess and torque ripple (N m) on the motor joints at angles ``theta`` (rad) and rates
-        ``theta_dot`` (rad/s), each ``(..., 3)``: :func:`delta_env.kernels.motor_disturbance`."""
+        """Stribeck excess and torque ripple (N m) on the driven joints (:attr:`rotor_dofs`) at angles ``theta``
+        (rad) and rates ``theta_dot`` (rad/s), each ``(..., 3)``: :func:`delta_env.kernels.motor_disturbance`."""
         theta, theta_dot = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(theta_dot, dtype=float))
         torque = np.empty(theta.shape)
         kernels.motor_disturbances(
@@ -303,12 +343,12 @@ class DeltaPlant:
         MuJoCo clips the command to the drive's peak torque and passes it through the current-loop lag, if any.
         Stribeck excess and ripple (:meth:`motor_disturbance`) are computed once from the state at the call
         and held over the substeps (zero-order hold, like a drive's 1 kHz torque update); this method owns
-        ``qfrc_applied`` on the motor dofs. No input validation: this is the 1 kHz hot path.
+        ``qfrc_applied`` on the driven dofs (:attr:`rotor_dofs`). No input validation: this is the 1 kHz hot path.
         """
         self._ctrl[...] = torque_command
         if self._has_disturbance:
             kernels.apply_motor_disturbance(
-                self._disturbance_bytes, self._qpos, self._qvel, self._motor_qpos, self._motor_dofs, self._qfrc_applied
+                self._disturbance_bytes, self._qpos, self._qvel, self._rotor_qpos, self._rotor_dofs, self._qfrc_applied
             )
         mujoco.mj_step(self.model, self.data, n_substeps)
         if self._contacts is not None and self.data.ncon:
@@ -439,17 +479,22 @@ class DeltaPlant:
         return self._parameters
 
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
-        """Edit masses, friction and lag of the model in place (the state is kept).
+        """Edit masses, friction, lag and a compliant drive's gearheads of the model in place (the state is kept).
 
         The new inertial properties come from compiling the model of the modified config, so they are
         exactly what :func:`~delta_env.scene.build_model` would give; derived constants are refreshed with
         ``mj_setConst``. It compiles a model: call it between episodes.
 
         Raises:
-            ValueError: for a lag on a plant built without one (or the reverse).
+            ValueError: for a lag on a plant built without one (or the reverse), or gearhead scales on a rigid one.
         """
         if not isinstance(parameters, PhysicalParameters):
             raise ValueError(f"parameters must be PhysicalParameters, got {type(parameters).__name__}")
+        if parameters.scales_gearhead and not self._compliant:
+            raise ValueError(
+                "this plant's drives are rigid: stiffness_scale and damping_scale must be (1, 1, 1), got "
+                f"{parameters.stiffness_scale} and {parameters.damping_scale}"
+            )
         if (parameters.actuator_lag > 0.0) != self._has_lag:
             raise ValueError(
                 f"actuator_lag must be {'> 0' if self._has_lag else '0'} for this plant "
@@ -457,18 +502,30 @@ class DeltaPlant:
             )
         nominal = self.config.realism
         scale = np.asarray(parameters.friction_scale)
+        compliance = nominal.compliance
+        if compliance is not None:
+            compliance = replace(
+                compliance,
+                stiffness_scale=tuple(
+                    float(v) for v in np.multiply(compliance.stiffness_scale, parameters.stiffness_scale)
+                ),
+                damping_scale=tuple(float(v) for v in np.multiply(compliance.damping_scale, parameters.damping_scale)),
+            )
         realism = replace(
             nominal,
             viscous_scale=tuple(float(v) for v in np.asarray(nominal.viscous_scale) * scale),
             coulomb_scale=tuple(float(v) for v in np.asarray(nominal.coulomb_scale) * scale),
             actuator_lag=parameters.actuator_lag,
+            compliance=compliance,
         )
         edited = build_model(replace(self.config, masses=parameters.masses, realism=realism))
         model, bodies = self.model, self._robot_bodies
         for name in ("body_mass", "body_inertia", "body_ipos", "body_iquat"):
             getattr(model, name)[bodies] = getattr(edited, name)[bodies]
         for name in ("dof_damping", "dof_frictionloss", "dof_armature"):
-            getattr(model, name)[self._motor_dofs] = getattr(edited, name)[self._motor_dofs]
+            getattr(model, name)[self._drive_dofs] = getattr(edited, name)[self._drive_dofs]
+        for name in ("tendon_stiffness", "tendon_damping"):
+            getattr(model, name)[self._gearheads] = getattr(edited, name)[self._gearheads]
         model.actuator_dynprm[:] = edited.actuator_dynprm
         self._set_const()
         self._set_disturbance_coefficients(realism)
@@ -479,6 +536,11 @@ class DeltaPlant:
         ranges = RandomizationRanges() if ranges is None else ranges
         if ranges.actuator_lag is not None and not self._has_lag:
             raise ValueError("this plant has no actuator lag to randomize: use actuator_lag=None")
+        if ranges.draws_gearhead and not self._compliant:
+            raise ValueError(
+                "this plant's drives are rigid, with no gearhead to randomize: use stiffness_fraction=0 and "
+                f"damping_fraction=0, got {ranges.stiffness_fraction} and {ranges.damping_fraction}"
+            )
         parameters = ranges.draw(rng, self.config.masses, self.config.realism.actuator_lag)
         self.set_physical_parameters(parameters)
         return parameters

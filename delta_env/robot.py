@@ -38,6 +38,10 @@ HOME_KEY = "home"
 POINT_INERTIA = 1e-12
 """Inertia (kg m^2) of the "point" bodies of the ideal variant; adds ~1e-10 N m at 100 rad/s^2."""
 
+ROTOR_BODY_MASS = 1e-12
+"""Mass (kg) of a compliant drive's rotor body: a point on its fixed axis, which neither gravity nor motion loads
+(MuJoCo needs a moving body's mass > 0); the rotor's inertia is its joint's armature."""
+
 UPPER_ARM_SPLIT = {"hub": 0.30, "tube": 0.50, "bar": 0.20}
 """Fractions of m1 in the hub, tube and elbow bar of the realistic upper arm."""
 
@@ -158,6 +162,8 @@ def robot_spec(config: PlantConfig) -> mujoco.MjSpec:
     for index in range(3):
         _add_chain(spec, config, index, classes, home_qpos)
     _add_loop_closures(spec, config)
+    if config.realism.compliance is not None:
+        _add_gearheads(spec, config)
     _add_motors(spec, config)
     if config.collisions:
         _enable_collisions(spec)
@@ -345,12 +351,13 @@ def _add_chain(
     u, _ = _chain_frame(index)
     # Local frame of the upper arm: x = u_i (outward), y = t_i (motor axis), z up.
     arm = spec.worldbody.add_body(name=f"upper_arm_{label}", pos=g.ra * u, quat=_quat_z(alpha))
-    arm.add_joint(
-        classes["motor"],
-        name=f"motor_{label}",
-        damping=[float(realism.viscous_per_joint[index])],
-        frictionloss=float(realism.coulomb_per_joint[index]),
-    )
+    # The drive's friction acts where its torque does: on the arm's joint, or on the rotor of a compliant drive.
+    friction = {
+        "damping": [float(realism.viscous_per_joint[index])],
+        "frictionloss": float(realism.coulomb_per_joint[index]),
+    }
+    compliant = realism.compliance is not None
+    arm.add_joint(classes["motor"], name=f"motor_{label}", **({} if compliant else friction))
     home_qpos.append(0.0)
     housing = (0.0, -0.08, 0.0, 0.0, 0.08, 0.0)
     arm.add_geom(classes["visual"], name=f"motor_{label}_housing", material="base", **_cylinder(housing, 0.07))
@@ -373,6 +380,13 @@ def _add_chain(
         else:
             forearm.add_geom(name=f"forearm_{name}_rod", material="rod", mass=m.m2, **_cylinder(rod_line, rod_radius))
         forearm.add_site(name=f"forearm_{name}_end", pos=(0.0, 0.0, -g.l2))
+    if compliant:
+        # The motor's rotor, coaxial with the arm, its angle at the joint's scale (the shaft's over the ratio): its
+        # reflected inertia is the joint's armature, the body itself a point on the axis (no gravity moment).
+        rotor = spec.worldbody.add_body(name=f"rotor_{label}", pos=g.ra * u, quat=_quat_z(alpha))
+        rotor.add_joint(classes["motor"], name=f"rotor_{label}", armature=realism.compliance.rotor_inertia, **friction)
+        _set_inertial(rotor, (0.0, 0.0, 0.0), ROTOR_BODY_MASS, (POINT_INERTIA,) * 3)
+        home_qpos.append(0.0)
 
 
 def _add_loop_closures(spec: mujoco.MjSpec, config: PlantConfig) -> None:
@@ -390,20 +404,48 @@ def _add_loop_closures(spec: mujoco.MjSpec, config: PlantConfig) -> None:
             )
 
 
+def gearhead_springlength(backlash: float) -> tuple[float, float]:
+    """MuJoCo ``springlength`` (rad) of a gearhead tendon with ``backlash`` (rad) of lost motion: the dead band
+    [-backlash / 2, backlash / 2] of the deflection rotor - arm, in which the spring passes no torque."""
+    return (-0.5 * backlash, 0.5 * backlash)
+
+
+def _add_gearheads(spec: mujoco.MjSpec, config: PlantConfig) -> None:
+    """The gearhead of each compliant drive: a fixed tendon of length rotor - arm angle (rad) whose stiffness and
+    damping are the gearhead's torsional ones (docs/design.md section 4, "Compliant drives").
+
+    A tendon's spring is MuJoCo's passive force -k (L - springlength) - c L_dot, exact and linear in N m/rad, with a
+    dead band between two spring lengths (the backlash). A joint equality with a soft ``solref`` would instead give
+    a stiffness scaled by the constraint's impedance and effective mass, not the data sheet's N m/rad.
+    """
+    compliance = config.realism.compliance
+    stiffness, damping = compliance.stiffness_per_joint, compliance.damping_per_joint
+    for index, label in enumerate(CHAIN_LABELS):
+        tendon = spec.add_tendon(
+            name=f"gearhead_{label}",
+            stiffness=[float(stiffness[index]), 0.0, 0.0],
+            damping=[float(damping[index]), 0.0, 0.0],
+            springlength=gearhead_springlength(compliance.backlash),
+        )
+        tendon.wrap_joint(f"rotor_{label}", 1.0)
+        tendon.wrap_joint(f"motor_{label}", -1.0)
+
+
 def _add_motors(spec: mujoco.MjSpec, config: PlantConfig) -> None:
-    """Torque motors on the three motor joints, clipped at the drive's peak torque (the env enforces the rest of
-    its envelope).
+    """Torque motors on the three motor joints (the rotors' of compliant drives), clipped at the drive's peak torque
+    (the env enforces the rest of its envelope).
 
     With a lag, the current loop is a first-order filter integrated exactly (``filterexact``), accurate
     for lags down to one timestep; the joint torque is the filtered command.
     """
     lag = config.realism.actuator_lag
     dynamics = mujoco.mjtDyn.mjDYN_FILTEREXACT if lag > 0.0 else mujoco.mjtDyn.mjDYN_NONE
+    driven = "motor" if config.realism.compliance is None else "rotor"
     for label in CHAIN_LABELS:
         motor = spec.add_actuator(
             name=f"motor_{label}",
             trntype=mujoco.mjtTrn.mjTRN_JOINT,
-            target=f"motor_{label}",
+            target=f"{driven}_{label}",
             dyntype=dynamics,
             gaintype=mujoco.mjtGain.mjGAIN_FIXED,
             biastype=mujoco.mjtBias.mjBIAS_NONE,

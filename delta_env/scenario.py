@@ -311,13 +311,16 @@ def plant_identity(plant: PlantConfig) -> str:
 
 
 def _plant_table(plant: PlantConfig) -> dict[str, Any]:
-    """The table of ``plant`` that its hashes cover: without ``drive`` when it is the default drive and without
-    ``collisions`` when they are off (both came later; earlier robots keep their hashes)."""
+    """The table of ``plant`` that its hashes cover: without ``drive`` when it is the default drive, without
+    ``collisions`` when they are off and without ``realism.compliance`` when the drives are rigid (all came later;
+    earlier robots keep their hashes)."""
     table = to_table(plant)
     if plant.drive == DriveLimits():
         del table["drive"]
     if not plant.collisions:
         del table["collisions"]
+    if plant.realism.compliance is None:
+        del table["realism"]["compliance"]
     return table
 
 
@@ -325,8 +328,12 @@ def _task_table(task: PickPlaceTask) -> dict[str, Any]:
     """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
     fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), without
     ``faults`` when there are none and ``fault_reaction`` when it is ``"continue"``, and without the release's
-    fields when it is ``"timed"`` (likewise: a timed scenario is the one before the in-position release existed)."""
+    fields when it is ``"timed"`` (likewise: a timed scenario is the one before the in-position release existed), and
+    without the domain randomization's gearhead fractions while they are 0 (they came later too)."""
     table = to_table(task)
+    ranges = task.domain_randomization
+    if ranges is not None and not ranges.draws_gearhead:
+        del table["domain_randomization"]["stiffness_fraction"], table["domain_randomization"]["damping_fraction"]
     if task.timing == "fixed":
         del table["timing"], table["torque_share"]
     if not task.faults:

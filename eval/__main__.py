@@ -16,8 +16,9 @@ robot (``--geometry``, a design of the design study).
    ``config.json`` (the manifest: resolved configuration, command, status, start and end times),
    ``scenario.toml`` (the scenario, every field resolved),
    ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
-   ``table2.csv``, ``faults.csv`` (every injected fault, detected or missed, and every detection that matched
-   none: :mod:`eval.faults`; a header only when there were none), ``traces.npz`` and ``table2_run.npz`` (time
+   ``table2.csv``, ``faults.csv`` (every injected fault, detected, missed or latent, and every detection that
+   matched none: :mod:`eval.faults`; a header only when there were none), ``confusion.csv`` (only then: per
+   controller, injected kind by detected kind), ``traces.npz`` and ``table2_run.npz`` (time
    series: the first episode of each row, with its reference and platform paths), ``summary.md`` (with a Faults
    section when any fault was injected or detected) and the plots made from these files (:mod:`eval.plots`);
    prints the summary. Diverged episodes are counted in the table, never dropped silently: their
@@ -71,7 +72,15 @@ from eval.comparison import (
 )
 from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
-from eval.faults import DETECTION_GRACE_S, fault_table, write_fault_csv
+from eval.faults import (
+    DETECTION_GRACE_S,
+    NO_FAULT,
+    confusion_counts,
+    confusion_table,
+    fault_table,
+    write_confusion_csv,
+    write_fault_csv,
+)
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_parameters_argument,
@@ -155,9 +164,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error(f"--video: {error}")
     if args.cycles is None:
         args.cycles = args.scenario.task.n_cycles
-    if "residual" in args.controllers:
+    policy_rows = [key for key in args.controllers if controller_entry(key).reads_policy_file]
+    if policy_rows:
         # Fail now, not after the other controllers have run. Only the settings are read here: the actor is read
-        # by the workers that run the residual episodes, which the comparison runs first.
+        # by the workers that run the policy's episodes, which the comparison runs first.
         try:
             base = read_policy_settings(args.residual).base
         except (FileNotFoundError, ValueError) as error:
@@ -167,17 +177,19 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.residual_base_servo = None if base is None else base.setup.servo
         robot = args.scenario.plant
         if base is not None and (base.setup.geometry, base.setup.masses) != (robot.geometry, robot.masses):
+            rows = " and ".join(policy_rows)
             if not chosen:
-                args.controllers.remove("residual")
+                args.controllers = [key for key in args.controllers if key not in policy_rows]
                 args.left_out = (
-                    f"The residual row is left out: its policy ({args.residual.name}) was trained on another robot."
+                    f"The {rows} row{'s are' if len(policy_rows) > 1 else ' is'} left out: its policy "
+                    f"({args.residual.name}) was trained on another robot."
                 )
                 return args
             parser.error(
                 f"--residual: {args.residual} was trained on a robot with {base.setup.geometry} and "
                 f"{base.setup.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
-                "'residual' out of --controllers or train a policy on this robot (python -m eval.train_residual "
-                "--scenario/--geometry)"
+                f"{' and '.join(repr(key) for key in policy_rows)} out of --controllers or train a policy on this "
+                "robot (python -m eval.train_residual --scenario/--geometry)"
             )
     return args
 
@@ -187,10 +199,17 @@ SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
 
 
 def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
-    """The check of the table's invariant: no controller tracks better than the oracle bound, on the episodes
-    where the oracle is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
-    fault was injected (the oracle knows the fault-free plant and the payloads)."""
-    bound = controller_label("oracle")
+    """The check of the table's invariant for each bound among the rows (a privileged entry, the oracle)
+    (:func:`_bound_check`)."""
+    keys = dict.fromkeys(row["key"] for row in episode_rows)
+    return [line for key in keys if controller_entry(key).privileged for line in _bound_check(episode_rows, key)]
+
+
+def _bound_check(episode_rows: list[dict[str, Any]], key: str) -> list[str]:
+    """The check of the table's invariant: no controller tracks better than the bound ``key``, on the episodes
+    where it is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
+    fault was injected (the bound knows the fault-free plant and the payloads)."""
+    bound = controller_label(key)
     oracle_rows = [row for row in episode_rows if row["controller"] == bound]
     if not oracle_rows:
         return []
@@ -232,19 +251,34 @@ def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[
         f"fault of its kind from the fault's start to {1e3 * DETECTION_GRACE_S:.0f} ms after its end; latency: "
         "detection time minus the fault's start. Consequences: other detections within a fault or its grace, "
         "counted under the kind of the fault they followed. False alarms: detections with no fault under way, "
-        "counted under the detected kind.",
+        "counted under the detected kind. Latent: drive faults whose every command stayed within what the drive "
+        "kept (they changed nothing; not scored).",
         "",
         fault_table(fault_rows, labels),
+        "",
+        "Confusion matrix (confusion.csv): per controller, injected kind by detected kind. A cell counts the injected "
+        "faults the controller reported at least once as that kind within the fault's window (its match or a "
+        f"consequence), so a fault reported as two kinds counts twice; column {NO_FAULT}: faults with no detection; "
+        f"row {NO_FAULT}: false alarms.",
+        "",
+        confusion_table(confusion_counts(fault_rows, labels)),
         "",
     ]
 
 
 def _residual_section(args: argparse.Namespace, episode_rows: list[dict[str, Any]]) -> list[str]:
-    """Which policy the residual row runs, on which base, and what it adds over that base's row."""
-    if "residual" not in args.controllers:
-        return []
+    """Which policy each row that reads the policy file runs (the residual), on which base, and what it adds over that
+    base's row."""
+    lines = []
+    for key in args.controllers:
+        if controller_entry(key).reads_policy_file:
+            lines += _policy_lines(args, episode_rows, controller_label(key))
+    return lines
+
+
+def _policy_lines(args: argparse.Namespace, episode_rows: list[dict[str, Any]], label: str) -> list[str]:
+    """The lines of :func:`_residual_section` on the row labelled ``label``."""
     base = args.residual_base or "a custom base"
-    label = controller_label("residual")
     moves = "has its own, from its training" if args.residual_base_moves else "does not carry"
     lines = [
         f"{label}: the policy {args.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
@@ -298,6 +332,7 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
             keys=np.array(list(traces)),
             labels=np.array([controller_label(key) for key in traces]),
             estimates_payload=np.array([controller_entry(key).estimates_payload for key in traces]),
+            privileged=np.array([controller_entry(key).privileged for key in traces]),
             **{f"{key}.{name}": getattr(record, name) for key, record in traces.items() for name in plots.TRACE_FIELDS},
             **{
                 f"{key}.{plots.REFERENCE_FIELD}": record.reference.xyz[1 : len(record.tracking_error) + 1]
@@ -321,6 +356,10 @@ def compare(args: argparse.Namespace, run: Run, started: float) -> None:
         fault_rows = tabulate_faults(results, keys, args.seed)
         write_fault_csv(out / "faults.csv", fault_rows)
         plotter.saved("faults.csv")
+        if fault_rows:
+            write_confusion_csv(
+                out / "confusion.csv", confusion_counts(fault_rows, [controller_label(k) for k in keys])
+            )
         videos = _film(args, prepared) if args.video else []
         summary = _summarize(
             args, run, started, prepared, (episode_rows, carry_rows, table2_rows, fault_rows), videos=videos

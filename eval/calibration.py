@@ -22,12 +22,18 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from controllers.payload import EmptyMoveSums, tare_from_observations
-from controllers.registry import ControllerSetup, controller_entry, controller_source, payload_estimator
+from controllers.registry import (
+    CELL_ESTIMATOR_KEY,
+    ControllerSetup,
+    controller_entry,
+    controller_source,
+    payload_estimator,
+)
 from delta_env.records import content_hash, from_table, to_table
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord
-from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_tasks
+from eval.tasks import Task, run_tasks
 
 CALIBRATION_SEED_OFFSET = 100_000
 """The tare's payload-free episodes use seeds ``100000 + j``: paths and noise unlike those of the experiments' episodes
@@ -47,8 +53,8 @@ def calibration_seeds(episodes: int) -> list[int]:
 
 def tared_keys(controllers: Iterable[str], scenario: Scenario | None) -> list[str]:
     """The controllers among ``controllers`` whose estimators an experiment tares (:attr:`ControllerEntry.tared`),
-    and the cell's estimator (:data:`eval.tasks.CELL_ESTIMATOR_KEY`) when ``scenario``'s online timing reads it
-    beside controllers without one of their own."""
+    and the cell's estimator (:data:`controllers.registry.CELL_ESTIMATOR_KEY`) when ``scenario``'s online timing
+    reads it beside controllers without one of their own."""
     keys = [key for key in dict.fromkeys(controllers) if controller_entry(key).tared]
     if scenario is not None and scenario.task.timing == "online" and CELL_ESTIMATOR_KEY not in keys:
         keys.append(CELL_ESTIMATOR_KEY)

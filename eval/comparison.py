@@ -39,9 +39,13 @@ TABLE2_KEY = "mid_f_rls"
 TABLE2_PAYLOAD = 3.8
 """Mass of every object in the Table 2 run (kg), the paper's test payload."""
 
-SLOW_KEYS = ("residual", "oracle")
-"""Rows whose episodes cost the most (the residual's policy network, the oracle's closed-chain inverse): queued
-first, so that the short episodes even out the end of the run across the workers."""
+
+def queue_order(key: str) -> tuple[bool, bool]:
+    """The sort key that queues the rows whose episodes cost the most first, so that the short episodes even out the
+    end of the run across the workers: a policy network's (:attr:`~controllers.registry.ControllerEntry.
+    reads_policy_file`), then a bound's closed-chain inverse of the plant (``privileged``), then the others."""
+    entry = controller_entry(key)
+    return not entry.reads_policy_file, not entry.privileged
 
 
 def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, EpisodeRecord]]]:
@@ -70,7 +74,7 @@ def run_all(args: argparse.Namespace) -> tuple[Prepared, list[tuple[WorkUnit, Ep
             residual_policy=args.residual,
             servo=args.servo,
         )
-    slow_first = [*(key for key in SLOW_KEYS if key in keys), *(key for key in keys if key not in SLOW_KEYS)]
+    slow_first = sorted(keys, key=queue_order)
     units = grid([scenario], slow_first, range(args.seed, args.seed + args.episodes))
     healthy = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
     units.append(WorkUnit(healthy, TABLE2_KEY, args.seed, (TABLE2_PAYLOAD,) * args.cycles))

@@ -18,9 +18,24 @@ at most). Every other detection is either
 An injected fault with no matching detection is *missed*. The latency of a detected fault is the detection's
 time minus the fault's start (s; the tables give ms); a detection on the first affected observation has latency 0.
 
+A *latent* fault (:func:`delta_env.faults.is_latent`: a drive fault whose every command stayed within what the drive
+kept) changed nothing the robot did, so nothing could see it: it is neither detected nor missed, takes no detection
+and opens no window, and a detection during it is a false alarm. The truth of that is the env's record of what the
+drive withheld (:attr:`~delta_env.faults.InjectedFault.withheld`).
+
+The confusion matrix (:func:`confusion_counts`, :func:`confusion_table`, ``confusion.csv``) gives, per controller,
+injected kind by detected kind. Cell (i, d) counts the injected faults of kind i that the controller reported,
+within the fault's window, at least once as kind d: its matching detection (the diagonal) and its consequences
+(off it: a slip raised after a collision is a slip detected for an injected collision). A fault reported as its
+kind and as another counts in both cells, so a row can add up to more than its faults; column
+:data:`NO_FAULT` counts the faults with no detection at all in their window (missed and unreported), row
+:data:`NO_FAULT` the false alarms by detected kind.
+
 Tables: :func:`fault_rows` (the rows of ``faults.csv``, :data:`FAULT_COLUMNS`), :func:`fault_summary` (per
-controller and kind), :func:`fault_table` (that summary as Markdown) and :func:`fault_metrics` (the flat
-per-episode columns :data:`FAULT_METRICS` of ``episodes.csv`` and of a sweep's ``results.csv``).
+controller and kind), :func:`fault_table` (that summary as Markdown), the confusion matrix from those rows
+(:func:`confusion_counts`, :func:`confusion_rows` for ``confusion.csv``, :func:`confusion_table`) and
+:func:`fault_metrics` (the flat per-episode columns :data:`FAULT_METRICS` of ``episodes.csv`` and of a sweep's
+``results.csv``).
 """
 
 from __future__ import annotations
@@ -35,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from controllers.monitor import DetectedFault
-from delta_env.faults import FAULT_KINDS, InjectedFault
+from delta_env.faults import FAULT_KINDS, InjectedFault, is_latent
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
 
@@ -55,9 +70,14 @@ running normally again, is a false alarm, not a late detection."""
 TIME_TOLERANCE_S = 1e-6
 """Slack (s) on the window's ends for times computed as ``steps * dt`` in different ways; far below a step."""
 
-OUTCOMES = ("detected", "missed", "consequence", "false_alarm")
-"""The ``outcome`` of a row of ``faults.csv``: an injected fault detected or missed, or a detection that matched
-no injected fault: a consequence of one (during it or its grace) or a false alarm."""
+OUTCOMES = ("detected", "missed", "latent", "consequence", "false_alarm")
+"""The ``outcome`` of a row of ``faults.csv``: an injected fault detected, missed or latent (it changed nothing, not
+scored), or a detection that matched no injected fault: a consequence of one (during it or its grace) or a false
+alarm."""
+
+NO_FAULT = "none"
+"""The confusion matrix's row of the detections when no fault was under way (false alarms) and its column of the
+faults with no detection."""
 
 FAULT_COLUMNS = (
     "controller",
@@ -76,6 +96,7 @@ FAULT_COLUMNS = (
     "detected_joint",
     "magnitude",
     "ended_at_s",
+    "withheld_nm",
 )
 """Columns of ``faults.csv``, one row per injected fault and per detection that matched none:
 
@@ -91,21 +112,23 @@ FAULT_COLUMNS = (
 - ``detected_kind``, ``detected_joint``, ``magnitude``: the detection's (:class:`~controllers.monitor.
   DetectedFault`); blank for a miss or where it has none;
 - ``ended_at_s``: the injected fault's end (s from the reset, :func:`fault_end_s`; a slip's is the end of its carry);
-  blank for a false alarm.
+  blank for a false alarm;
+- ``withheld_nm``: for a drive fault, the most torque (N m) it withheld from the command (0: latent); else blank.
 """
 
 FAULT_METRICS = (
     "faults_injected",
     "faults_detected",
     "faults_missed",
+    "faults_latent",
     "detections",
     "false_alarms",
     "fault_consequences",
     "detection_latency_median_ms",
     "detection_latency_max_ms",
 )
-"""Flat fault columns of an episode (:func:`fault_metrics`): injected faults, those detected and missed
-(detected + missed = injected), every detection the controller reported (detections = detected + false alarms +
+"""Flat fault columns of an episode (:func:`fault_metrics`): injected faults, those detected, missed and latent
+(detected + missed + latent = injected), every detection the controller reported (detections = detected + false alarms +
 consequences), and the median and worst latency of the detected ones (ms; NaN if none was)."""
 
 
@@ -141,14 +164,16 @@ class EpisodeFaults:
     """The matching of one episode (:func:`match_faults`).
 
     Attributes:
-        matches: One per injected fault, in the order given.
-        consequences: The unmatched detections within some injected fault's window, in time order.
+        matches: One per scored (not latent) injected fault, in the order given.
+        consequences: The unmatched detections within some scored fault's window, in time order.
         false_alarms: The other detections, in time order.
+        latent: The latent injected faults (not scored), in the order given.
     """
 
     matches: tuple[FaultMatch, ...]
     consequences: tuple[Consequence, ...]
     false_alarms: tuple[DetectedFault, ...]
+    latent: tuple[InjectedFault, ...] = ()
 
     @property
     def detected(self) -> int:
@@ -176,6 +201,8 @@ def match_faults(
         dt: Control period (s): a fault lasts ``steps * dt``.
         grace_s: How long after its end a detection still counts as a fault's (s).
     """
+    latent = tuple(fault for fault in injected if is_latent(fault))
+    injected = [fault for fault in injected if not is_latent(fault)]
     detections = sorted(range(len(detected)), key=lambda n: detected[n].time_s)
     windows = [
         (fault.start_s - TIME_TOLERANCE_S, fault_end_s(fault, dt) + grace_s + TIME_TOLERANCE_S) for fault in injected
@@ -206,16 +233,18 @@ def match_faults(
             consequences.append(Consequence(detected[n], injected[after]))
         else:
             false_alarms.append(detected[n])
-    return EpisodeFaults(tuple(found[i] for i in range(len(injected))), tuple(consequences), tuple(false_alarms))
+    matches = tuple(found[i] for i in range(len(injected)))
+    return EpisodeFaults(matches, tuple(consequences), tuple(false_alarms), latent)
 
 
 def fault_metrics(episode: EpisodeFaults) -> dict[str, Any]:
     """The flat fault columns of one episode, :data:`FAULT_METRICS`."""
     latencies = [1e3 * match.latency_s for match in episode.matches if match.detection is not None]
     return {
-        "faults_injected": len(episode.matches),
+        "faults_injected": len(episode.matches) + len(episode.latent),
         "faults_detected": episode.detected,
         "faults_missed": episode.missed,
+        "faults_latent": len(episode.latent),
         "detections": episode.detected + len(episode.consequences) + len(episode.false_alarms),
         "false_alarms": len(episode.false_alarms),
         "fault_consequences": len(episode.consequences),
@@ -227,8 +256,8 @@ def fault_metrics(episode: EpisodeFaults) -> dict[str, Any]:
 FAULT_KIND_METRICS = tuple(
     f"{kind}_{what}" for kind in FAULT_KINDS for what in ("injected", "detected", "latency_max_ms")
 )
-"""Per fault kind, the columns of a sweep's row: faults of the kind injected, those detected, and the worst latency
-of the detected ones (ms; NaN if none)."""
+"""Per fault kind, the columns of a sweep's row: faults of the kind injected and scored (latent ones left out), those
+detected, and the worst latency of the detected ones (ms; NaN if none)."""
 
 
 def fault_kind_metrics(episode: EpisodeFaults) -> dict[str, Any]:
@@ -285,6 +314,7 @@ def _injected_cells(fault: InjectedFault) -> dict[str, Any]:
         "joint": fault.joint,
         "size": _blank_nan(fault.size),
         "detail": fault.detail or None,
+        "withheld_nm": _blank_nan(fault.withheld),
     }
 
 
@@ -298,8 +328,9 @@ def _detected_cells(detection: DetectedFault) -> dict[str, Any]:
 
 
 def fault_rows(identity: Mapping[str, Any], episode: EpisodeFaults) -> list[dict[str, Any]]:
-    """The rows of ``faults.csv`` of one episode (:data:`FAULT_COLUMNS`; None is a blank cell): one per injected
-    fault (in the order given), then one per consequence and per false alarm (in time order).
+    """The rows of ``faults.csv`` of one episode (:data:`FAULT_COLUMNS`; None is a blank cell): one per scored
+    injected fault (in the order given), one per latent one, then one per consequence and per false alarm (in time
+    order).
 
     Args:
         identity: The episode's ``controller``, ``key``, ``episode`` and ``seed`` (missing ones blank).
@@ -313,6 +344,7 @@ def fault_rows(identity: Mapping[str, Any], episode: EpisodeFaults) -> list[dict
         if match.detection is not None:
             row.update(outcome="detected", latency_ms=1e3 * match.latency_s, **_detected_cells(match.detection))
         rows.append(row)
+    rows += [{**base, **blank, "outcome": "latent", **_injected_cells(fault)} for fault in episode.latent]
     events = [(c.detection, c.after) for c in episode.consequences] + [(d, None) for d in episode.false_alarms]
     for detection, after in sorted(events, key=lambda event: event[0].time_s):
         row = {**base, **blank, **_detected_cells(detection)}
@@ -348,9 +380,10 @@ class FaultSummary:
     Attributes:
         controller: The controller's label.
         kind: The fault kind, or None for the controller's totals.
-        injected: Injected faults of the kind.
+        injected: Injected faults of the kind: detected + missed + latent.
         detected: Those detected (matched).
         missed: Those missed.
+        latent: Those latent (they changed nothing; not scored).
         latency_median_ms: Median latency of the detected ones (ms), NaN if none.
         latency_max_ms: Worst latency of the detected ones (ms), NaN if none.
         false_alarms: False alarms detected as this kind (all kinds for the totals).
@@ -362,6 +395,7 @@ class FaultSummary:
     injected: int
     detected: int
     missed: int
+    latent: int
     latency_median_ms: float
     latency_max_ms: float
     false_alarms: int
@@ -374,9 +408,10 @@ def _summarize(controller: str, kind: str | None, rows: Sequence[Mapping[str, An
     return FaultSummary(
         controller=controller,
         kind=kind,
-        injected=outcomes.count("detected") + outcomes.count("missed"),
+        injected=outcomes.count("detected") + outcomes.count("missed") + outcomes.count("latent"),
         detected=outcomes.count("detected"),
         missed=outcomes.count("missed"),
+        latent=outcomes.count("latent"),
         latency_median_ms=float(np.median(latencies)) if latencies else math.nan,
         latency_max_ms=max(latencies) if latencies else math.nan,
         false_alarms=outcomes.count("false_alarm"),
@@ -418,6 +453,7 @@ def fault_table(rows: Sequence[Mapping[str, Any]], controllers: Sequence[str] = 
         "Injected",
         "Detected",
         "Missed",
+        "Latent",
         "Latency median (ms)",
         "Latency max (ms)",
         "False alarms",
@@ -430,6 +466,7 @@ def fault_table(rows: Sequence[Mapping[str, Any]], controllers: Sequence[str] = 
             str(entry.injected),
             str(entry.detected),
             str(entry.missed),
+            str(entry.latent),
             _latency(entry.latency_median_ms),
             _latency(entry.latency_max_ms),
             str(entry.false_alarms),
@@ -437,4 +474,139 @@ def fault_table(rows: Sequence[Mapping[str, Any]], controllers: Sequence[str] = 
         ]
         for entry in fault_summary(rows, controllers)
     ]
+    return metrics.markdown_table(header, body)
+
+
+CONFUSION_COLUMNS = ("controller", "injected_kind", "detected_kind", "count")
+"""Columns of ``confusion.csv``: per controller, every cell of its confusion matrix (:func:`confusion_counts`), zeros
+included; ``injected_kind`` or ``detected_kind`` :data:`NO_FAULT` for the row of false alarms and the column of
+faults with no detection."""
+
+_FAULT_IDENTITY = ("controller", "key", "episode", "seed", "kind", "injected_at_s", "joint", "detail")
+"""The cells that name one injected fault in the rows of ``faults.csv``, shared by its own row and its consequences'."""
+
+
+@dataclass(frozen=True)
+class Confusion:
+    """One controller's confusion matrix (:func:`confusion_counts`).
+
+    Attributes:
+        controller: The controller's label.
+        counts: (injected kind, detected kind) -> count, :data:`NO_FAULT` for no fault or no detection; only the
+            cells that are not zero.
+        scored: Scored (not latent) injected faults per kind.
+        latent: Latent injected faults per kind (not in the matrix).
+    """
+
+    controller: str
+    counts: Mapping[tuple[str, str], int]
+    scored: Mapping[str, int]
+    latent: Mapping[str, int]
+
+
+def _confusion(controller: str, rows: Sequence[Mapping[str, Any]]) -> Confusion:
+    reported: dict[tuple[Any, ...], set[str]] = {}  # scored fault -> the kinds detected in its window
+    counts: dict[tuple[str, str], int] = {}
+    scored: dict[str, int] = {}
+    latent: dict[str, int] = {}
+    for row in rows:
+        outcome, kind = row["outcome"], str(row["kind"])
+        fault = tuple(row.get(column) for column in _FAULT_IDENTITY)
+        if outcome == "latent":
+            latent[kind] = latent.get(kind, 0) + 1
+        elif outcome in ("detected", "missed"):
+            scored[kind] = scored.get(kind, 0) + 1
+            reported.setdefault(fault, set())
+        if outcome in ("detected", "consequence"):
+            reported.setdefault(fault, set()).add(str(row["detected_kind"]))
+        elif outcome == "false_alarm":
+            cell = (NO_FAULT, str(row["detected_kind"]))
+            counts[cell] = counts.get(cell, 0) + 1
+    for fault, kinds in reported.items():
+        injected_kind = str(fault[_FAULT_IDENTITY.index("kind")])
+        for detected_kind in kinds or {NO_FAULT}:
+            cell = (injected_kind, detected_kind)
+            counts[cell] = counts.get(cell, 0) + 1
+    return Confusion(controller, counts, scored, latent)
+
+
+def confusion_counts(rows: Sequence[Mapping[str, Any]], controllers: Sequence[str] = ()) -> list[Confusion]:
+    """Per controller, its confusion matrix from the rows of ``faults.csv`` (the rules are in the module docstring).
+
+    Args:
+        rows: Rows of ``faults.csv`` (:func:`fault_rows`, or as read back: blanks ``""``).
+        controllers: Labels in the order wanted; each gets its matrix even without rows. Controllers only in
+            ``rows`` follow in first-seen order.
+    """
+    groups = metrics.group_by(rows, "controller")
+    order = list(dict.fromkeys([*controllers, *groups]))
+    return [_confusion(str(controller), groups.get(controller, [])) for controller in order]
+
+
+def _confusion_kinds(matrices: Sequence[Confusion]) -> list[str]:
+    """The fault kinds that occur in any of the matrices, injected or detected, in :data:`FAULT_KINDS` order (other
+    kinds after)."""
+    seen = {kind for matrix in matrices for cell in matrix.counts for kind in cell} | {
+        kind for matrix in matrices for kind in (*matrix.scored, *matrix.latent)
+    }
+    seen.discard(NO_FAULT)
+    return [kind for kind in FAULT_KINDS if kind in seen] + sorted(seen - set(FAULT_KINDS))
+
+
+def confusion_rows(matrices: Sequence[Confusion]) -> list[dict[str, Any]]:
+    """The rows of ``confusion.csv`` (:data:`CONFUSION_COLUMNS`): every cell of every matrix over the kinds that occur
+    in any, rows then columns in :data:`FAULT_KINDS` order and :data:`NO_FAULT` last (its own cell left out)."""
+    labels = (*_confusion_kinds(matrices), NO_FAULT)
+    cells = [
+        (injected, detected)
+        for injected in labels
+        for detected in labels
+        if (injected, detected) != (NO_FAULT, NO_FAULT)
+    ]
+    return [
+        {
+            "controller": matrix.controller,
+            "injected_kind": injected,
+            "detected_kind": detected,
+            "count": matrix.counts.get((injected, detected), 0),
+        }
+        for matrix in matrices
+        for injected, detected in cells
+    ]
+
+
+def write_confusion_csv(path: str | Path, matrices: Sequence[Confusion]) -> Path:
+    """Write ``confusion.csv``: the header :data:`CONFUSION_COLUMNS` (also with no cells), then
+    :func:`confusion_rows`."""
+    path = Path(path)
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=CONFUSION_COLUMNS)
+        writer.writeheader()
+        writer.writerows(confusion_rows(matrices))
+    return path
+
+
+def confusion_table(matrices: Sequence[Confusion]) -> str:
+    """The confusion matrices as one Markdown table: per controller a line per injected kind that occurs and one of
+    false alarms (:data:`NO_FAULT`); a column per detected kind and :data:`NO_FAULT`, then the scored and the latent
+    faults of the line's kind. Empty cells are zeros."""
+    kinds = _confusion_kinds(matrices)
+    header = ["Controller", "Injected \\ detected", *kinds, NO_FAULT, "Scored", "Latent"]
+    body = []
+    for matrix in matrices:
+        for injected in (*kinds, NO_FAULT):
+            if injected != NO_FAULT and not (matrix.scored.get(injected) or matrix.latent.get(injected)):
+                continue
+            cells = [matrix.counts.get((injected, detected), 0) for detected in (*kinds, NO_FAULT)]
+            if injected == NO_FAULT:
+                cells[-1] = None  # no fault and no detection: not counted
+            body.append(
+                [
+                    matrix.controller,
+                    injected,
+                    *("" if cell is None else str(cell) for cell in cells),
+                    str(matrix.scored.get(injected, "")),
+                    str(matrix.latent.get(injected, "")),
+                ]
+            )
     return metrics.markdown_table(header, body)

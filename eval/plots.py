@@ -79,22 +79,20 @@ def _read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(file))
 
 
-BOUND_KEY = "oracle"
-"""The key of the bound's row (:mod:`controllers.registry`): the torque the plant needs, drawn behind every panel of
-``torque_profiles.png``."""
-
 JOINT_COLOURS = ("tab:blue", "tab:orange", "tab:green")
 """The colour of joints 1, 2, 3 in every panel."""
 
 
 def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> None:
     """Applied motor torque over the first episode, one panel per controller (small multiples, shared axes): its
-    three joints in colour over the bound's torques in grey (when the run has the bound's row), titled with the RMS
+    three joints in colour over the bound's torques in grey (when the run has a bound's row: the first privileged one,
+    ``traces["privileged"]``, :attr:`controllers.registry.ControllerEntry.privileged`), titled with the RMS
     of its torque's difference from the bound's (N m) while their references agree (until the first in-position wait
     that differs), so that controllers whose lines would coincide read apart."""
     dt = float(traces["dt"])
     keys, labels = [str(key) for key in traces["keys"]], [str(label) for label in traces["labels"]]
-    bound = traces[f"{BOUND_KEY}.torque"] if BOUND_KEY in keys else None
+    bound_key = next((key for key, privileged in zip(keys, traces["privileged"], strict=True) if privileged), None)
+    bound = None if bound_key is None else traces[f"{bound_key}.torque"]
     columns = 2 if len(keys) > 1 else 1
     rows = -(-len(keys) // columns)
     figure, axes = plt.subplots(
@@ -104,14 +102,14 @@ def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> 
         torque = traces[f"{key}.torque"]
         time = np.arange(len(torque)) * dt
         title = label
-        if bound is not None and key != BOUND_KEY:
+        if bound is not None and key != bound_key:
             steps = min(len(bound), len(torque))
             lines = axis.plot(time[:steps], bound[:steps], color="0.6", linewidth=1.6)
-            lines[0].set_label(f"{labels[keys.index(BOUND_KEY)]}, joints 1-3")
+            lines[0].set_label(f"{labels[keys.index(bound_key)]}, joints 1-3")
             # compared while the two references agree: an in-position wait of either shifts the rest of its timeline
             apart = np.flatnonzero(
                 np.any(
-                    traces[f"{key}.{REFERENCE_FIELD}"][:steps] != traces[f"{BOUND_KEY}.{REFERENCE_FIELD}"][:steps],
+                    traces[f"{key}.{REFERENCE_FIELD}"][:steps] != traces[f"{bound_key}.{REFERENCE_FIELD}"][:steps],
                     axis=1,
                 )
             )
@@ -130,7 +128,7 @@ def torque_profiles(traces: np.lib.npyio.NpzFile, path: Path, scenario: str) -> 
         axis.set_xlabel("time (s)")
         axis.xaxis.set_tick_params(labelbottom=True)
     handles, names = axes.flat[0].get_legend_handles_labels()
-    if bound is not None and keys[0] == BOUND_KEY and len(keys) > 1:
+    if bound is not None and keys[0] == bound_key and len(keys) > 1:
         handles, names = axes.flat[1].get_legend_handles_labels()
     figure.suptitle(f"Motor torques, first episode (scenario {scenario})")
     top = 1 - 0.45 / figure.get_figheight()  # the legend between the title and the panels, over no data
@@ -318,9 +316,9 @@ MIN_FAULT_WIDTH_S = 0.01
 
 
 def fault_timeline(faults: list[dict[str, str]], path: Path, scenario: str) -> None:
-    """Every injected fault (a bar from its start to its end, coloured by kind; hatched when missed) and every
-    detection (a marker by outcome, coloured by the detected kind) of every episode, one lane per controller and
-    episode; no figure when ``faults`` is empty (a run without faults)."""
+    """Every injected fault (a bar from its start to its end, coloured by kind; hatched when missed, a dotted outline
+    when latent) and every detection (a marker by outcome, coloured by the detected kind) of every episode, one lane
+    per controller and episode; no figure when ``faults`` is empty (a run without faults)."""
     if not faults:
         return
     lanes = list(dict.fromkeys((row["controller"], row["episode"]) for row in faults))
@@ -331,9 +329,13 @@ def fault_timeline(faults: list[dict[str, str]], path: Path, scenario: str) -> N
     handles: dict[str, Any] = {}
     for lane, (controller, episode) in enumerate(lanes):
         for row in (row for row in faults if (row["controller"], row["episode"]) == (controller, episode)):
-            if row["outcome"] in ("detected", "missed"):
+            if row["outcome"] in ("detected", "missed", "latent"):
                 start, end = float(row["injected_at_s"]), float(row["ended_at_s"])
                 span, height = [(start, max(end - start, MIN_FAULT_WIDTH_S))], (lane - 0.3, 0.6)
+                if row["outcome"] == "latent":  # it changed nothing: an outline only
+                    bars = axis.broken_barh(span, height, facecolors="none", edgecolor=colours[row["kind"]], ls=":")
+                    handles.setdefault("latent (changed nothing; dotted)", bars)
+                    continue
                 bars = axis.broken_barh(span, height, facecolors=colours[row["kind"]], alpha=0.8)
                 handles.setdefault(f"injected: {row['kind']}", bars)
                 if row["outcome"] == "missed":

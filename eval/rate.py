@@ -47,7 +47,13 @@ from typing import Any
 
 import numpy as np
 
-from controllers.registry import controller_entry, controller_label, controllers_help, parse_controller_keys
+from controllers.registry import (
+    CELL_ESTIMATOR_KEY,
+    controller_entry,
+    controller_label,
+    controllers_help,
+    parse_controller_keys,
+)
 from controllers.residual import read_policy_settings
 from delta_env.config import RATED_PAYLOAD, PlantConfig
 from delta_env.cycles import DEFAULT_DWELL
@@ -72,7 +78,6 @@ from eval.scenario_args import (
 )
 from eval.sweep.work import WorkUnit
 from eval.tables import FEEDBACK_LINES
-from eval.tasks import CELL_ESTIMATOR_KEY
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
 """Payloads (kg) of the data sheet; the last is the robot's rated payload."""
@@ -219,7 +224,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    if "residual" in args.controllers:
+    if any(controller_entry(key).reads_policy_file for key in args.controllers):
         try:
             read_policy_settings(args.residual)
         except (FileNotFoundError, ValueError) as error:
@@ -435,7 +440,7 @@ def rate(args: argparse.Namespace, run: Run, started: float) -> None:
     scenario = args.scenario
     # Every tared row is tared; the lead's estimator retimes the online carries (the cell's own if the lead has none).
     tared = [key for key in args.controllers if controller_entry(key).tared]
-    if not controller_entry(args.controllers[0]).tared:
+    if not controller_entry(args.controllers[0]).has_estimator:
         tared.append(CELL_ESTIMATOR_KEY)
     if args.quick:
         print(f"{QUICK_NOTE} Measuring {_study_line(args)}.", flush=True)

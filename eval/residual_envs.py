@@ -17,9 +17,9 @@ import numpy as np
 import torch
 from stable_baselines3.common.monitor import Monitor
 
-from controllers.base import Controller
+from controllers.base import Controller, payload_estimator_of
 from controllers.dynamics import ModelParameters
-from controllers.registry import ControllerSetup
+from controllers.registry import ControllerSetup, controller_entry
 from controllers.residual import DeltaResidualEnv, PolicyBase, ResidualConfig
 from controllers.setup import SERVOS
 from delta_env.env import DeltaPickPlaceEnv
@@ -162,8 +162,8 @@ def base_setup(
             fault_reaction=scenario.task.fault_reaction,
             servo=servo,
         )
-    if base == "mid_f_rls_lag" and setup.drive_lag is None:
-        raise ValueError("the mid_f_rls_lag base needs the identified drive lag: pass drive_lag with parameters")
+    if controller_entry(base).needs_drive_lag and setup.drive_lag is None:
+        raise ValueError(f"the {base} base needs the identified drive lag: pass drive_lag with parameters")
     calibration = calibrate_tares([base], setup, CALIBRATION_SEEDS, env_kwargs["n_cycles"], scenario=scenario)
     return PolicyBase(base, calibrated_setup(setup, calibration, scenario))
 
@@ -206,7 +206,8 @@ def make_env(
                 )
         else:
             # the base row estimates the payload itself, so the online timing reads its estimator and no wrapper
-            controller = timed(plant_env, base.controller(), base.key, base.setup)
+            controller = base.controller()
+            timed(plant_env, base.setup, payload_estimator_of(controller))
         return DeltaResidualEnv(base=controller, config=config, env=plant_env)
 
     def factory() -> gym.Env:

@@ -63,11 +63,25 @@ def _policy_residual(setup: ControllerSetup) -> Controller:
     return residual_controller(loaded_policy(setup))
 
 
-POLICY_BASE = ControllerEntry("policy_base", "the policy's base", _policy_base, estimates_payload=True, monitored=False)
+POLICY_BASE = ControllerEntry(
+    "policy_base",
+    "the policy's base",
+    _policy_base,
+    estimates_payload=True,
+    has_estimator=True,
+    reads_policy_file=True,
+    monitored=False,
+)
 """The scores' base row: the base the policy file records, as the policy saw it in training (no fault monitor)."""
 
 POLICY_RESIDUAL = ControllerEntry(
-    "policy_residual", "the policy on its base", _policy_residual, estimates_payload=True, monitored=False
+    "policy_residual",
+    "the policy on its base",
+    _policy_residual,
+    estimates_payload=True,
+    has_estimator=True,
+    reads_policy_file=True,
+    monitored=False,
 )
 """The scores' residual row: the policy on the base its file records (no fault monitor)."""
 

@@ -11,11 +11,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from controllers.base import Controller
-from controllers.monitor import MonitoredController
+from controllers.base import Controller, payload_estimator_of
 from controllers.payload import PayloadEstimator
-from controllers.payload_timing import EstimatingController, PayloadTiming, shared_planner
-from controllers.registry import ControllerSetup, build_controller, controller_entry
+from controllers.payload_timing import PayloadTiming, shared_planner
+from controllers.registry import ControllerSetup, build_controller, cell_estimator, controller_entry
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
@@ -50,60 +49,63 @@ class Task:
     reference: Trajectory | None = None
 
 
-CELL_ESTIMATOR_KEY = "mid_f_rls"
-"""The payload estimator an online timing reads when the controller has none of its own (the cell's estimate)."""
-
-
-def timed(env: DeltaPickPlaceEnv, controller: Controller, key: str, setup: ControllerSetup) -> Controller:
+def timed(env: DeltaPickPlaceEnv, setup: ControllerSetup, estimator: PayloadEstimator | None = None) -> None:
     """Give ``env`` the timing its scenario asks for (:attr:`PickPlaceTask.timing`), planned on ``setup``'s model.
 
-    An ``"online"`` timing reads the controller's payload estimator (a :class:`~controllers.payload.PayloadEstimator`
-    as its ``estimator``: the RLS rows' and the residual's base's) or, for a controller without one, the cell's
-    (:data:`CELL_ESTIMATOR_KEY`, tared and seeded from ``setup``), run beside it: the controller is then returned
-    wrapped in an :class:`EstimatingController` (behind the controller's fault monitor, if it has one, so that the
-    cell's estimator sees clean readings too). A ``"fixed"`` scenario leaves both as they are.
+    An ``"online"`` timing reads ``estimator``: the controller's own payload estimator, or the cell's run beside a
+    controller without one (:func:`timed_controller` chooses). A ``"fixed"`` scenario leaves ``env`` as it is.
+
+    Raises:
+        ValueError: for a timing that plans without the identified drive lag, or an online timing without
+            ``estimator``.
     """
     if env.task_timing == "fixed":
-        return controller
+        return
     if setup.drive_lag is None:
         raise ValueError(f"the {env.task_timing!r} timing plans with the identified drive lag; the setup has none")
+    online = env.task_timing == "online"
+    if online and estimator is None:
+        raise ValueError("the 'online' timing reads a payload estimator: the controller's own or the cell's beside it")
     planner = shared_planner(
         setup.geometry, setup.masses, setup.mid_f_rods, env.plant_config.drive, tuple(setup.drive_lag)
     )
-    estimator = None
-    if env.task_timing == "online":
-        own = getattr(controller, "estimator", None)
-        if controller_entry(key).estimates_payload and isinstance(own, PayloadEstimator):
-            estimator = own
-        else:
-            estimator = build_controller(CELL_ESTIMATOR_KEY, setup).estimator
-            if isinstance(controller, MonitoredController):  # beside the row, behind the row's fault monitor
-                estimating = EstimatingController(controller.controller, estimator)
-                controller = MonitoredController(estimating, controller.monitor, controller.reaction)
-            else:
-                controller = EstimatingController(controller, estimator)
     # the thermal budget rests the task's planned dwell after each move: with the in-position release, the air
     # activation (the waits only add rest)
     env.timing = PayloadTiming(
         planner,
         env.task_timing,
         env.payload_mass_range[1],
-        estimator,
+        estimator if online else None,
         dwell=env.release.dwell,
         torque_share=env.torque_share,
         min_payload=env.payload_mass_range[0],
     )
+
+
+def timed_controller(env: DeltaPickPlaceEnv, key: str, setup: ControllerSetup) -> Controller:
+    """The controller of ``key`` for ``env`` (:func:`controllers.registry.build_controller`), ``env`` timed as its
+    scenario asks (:func:`timed`).
+
+    An online timing reads the controller's payload estimator when its entry declares one
+    (:attr:`~controllers.registry.ControllerEntry.has_estimator`: the RLS rows', the residual's base's); else the
+    cell's (:func:`controllers.registry.cell_estimator`, tared and seeded from ``setup``), which the registry runs
+    beside the controller, behind its fault monitor, so that it sees clean readings too.
+    """
+    beside = None
+    if env.task_timing == "online" and not controller_entry(key).has_estimator:
+        beside = cell_estimator(setup)
+    controller = build_controller(key, setup, env, cell_estimator=beside)
+    timed(env, setup, beside if beside is not None else payload_estimator_of(controller))
     return controller
 
 
 def task_episode(task: Task) -> tuple[DeltaPickPlaceEnv, Controller]:
-    """The fresh env and controller of ``task``, the env timed as its scenario asks (:func:`timed`) unless the task
-    follows a reference of its own."""
+    """The fresh env and controller of ``task``, the env timed as its scenario asks (:func:`timed_controller`) unless
+    the task follows a reference of its own."""
     env = DeltaPickPlaceEnv(n_cycles=task.n_cycles, scenario=task.scenario)
-    controller = build_controller(task.key, task.setup, env)
-    if task.reference is None:
-        controller = timed(env, controller, task.key, task.setup)
-    return env, controller
+    if task.reference is not None:
+        return env, build_controller(task.key, task.setup, env)
+    return env, timed_controller(env, task.key, task.setup)
 
 
 def run_task(task: Task) -> tuple[Task, EpisodeRecord]:

@@ -5,16 +5,18 @@ with one fault of that kind at a random point of a random carry (the ``FaultSpec
 episodes without it (the fault-free twins: the same seed, path, objects and noise). Reports per kind, for each of
 ``--controllers`` (rows of the registry, ``mid_f_rls`` by default):
 
-- detected / injected, median and worst latency (ms), consequences and false alarms (:mod:`eval.faults`);
+- detected / scored (latent drive faults, which changed nothing, are counted apart), median and worst latency
+  (ms), consequences and false alarms (:mod:`eval.faults`), and the confusion matrix, injected kind by detected kind;
 - for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
   the payload estimate against the twin from the fault to the end of its carry, and the change left at the place,
   as shares of the object's mass;
 - for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone).
 
-Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
+Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`; the twins' detections too, false alarms),
+``confusion.csv`` (:data:`eval.faults.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
 ``summary.md`` into ``--out`` (default ``<runs root>/fault_campaign/<UTC time>``, with the manifest ``config.json`` of
-:mod:`eval.run_folder`), and prints the tables. The controllers
-are tared on fault-free payload-free episodes, as ``python -m eval`` tares them.
+:mod:`eval.run_folder`), and prints the tables. The controllers are tared on fault-free payload-free episodes, as
+``python -m eval`` tares them.
 
 Usage: python scripts/fault_campaign.py [--scenario nominal] [--geometry FILE] [--episodes 20] [--kinds all] [--seed 0]
                                         [--controllers mid_f_rls] [--out DIR] [--workers 2] [--runs-dir DIR]
@@ -41,7 +43,14 @@ from eval import metrics
 from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
-from eval.faults import fault_rows, fault_summary, write_fault_csv
+from eval.faults import (
+    confusion_counts,
+    confusion_table,
+    fault_rows,
+    fault_summary,
+    write_confusion_csv,
+    write_fault_csv,
+)
 from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
 from eval.scenario_args import (
     add_scenario_arguments,
@@ -92,20 +101,22 @@ def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...]) -> Scenario:
 
 def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
     """What the fault did: to the payload estimate (sensor faults), the largest change against the twin from the
-    fault to the end of its carry and the change left at its end, as shares of the object's mass; for a slip, the time
+    fault to the end of its carry (the earlier of the two places) and the change left at its end, as shares of the
+    object's mass; for a slip, the time
     until the estimate of the slipped object fell below :data:`GONE_MASS` (NaN if it did not before the place); for a
-    drive fault, the most torque (N m) it withheld (what the twin commanded over the limit; 0: the fault changed
-    nothing)."""
+    drive fault, the most torque (N m) it withheld from the command (the env's truth,
+    :attr:`~delta_env.faults.InjectedFault.withheld`; 0: the fault changed nothing, latent)."""
     (fault,) = faulty.injected_faults
     start = fault.start_step + 1  # the first observation it affects
     carry = int(np.searchsorted(faulty.pick_indices, start, side="right")) - 1
     places = faulty.place_indices
     end = int(places[carry]) if 0 <= carry < len(places) else len(faulty.payload_estimate)
     end = min(end, len(faulty.payload_estimate), len(twin.payload_estimate))
+    if 0 <= carry < len(twin.place_indices):  # after the fault the twin's waits may place a step or more apart
+        end = min(end, int(twin.place_indices[carry]))  # compare while both carry: at a release the estimate goes to 0
     effect = {"estimate_change": math.nan, "end_change": math.nan, "forgotten_ms": math.nan, "withheld_nm": math.nan}
-    if fault.kind == "drive_fault":  # what the drive withheld: the twin's command (what was asked) over the limit
-        asked = np.abs(twin.command[fault.start_step : fault.start_step + fault.steps, fault.joint])
-        effect["withheld_nm"] = float(np.max(asked - fault.size * faulty.peak_torque, initial=0.0))
+    if fault.kind == "drive_fault":
+        effect["withheld_nm"] = fault.withheld
     if start >= end:
         return effect
     if fault.kind == "slip":
@@ -134,7 +145,8 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
     summaries = {kind: next((s for s in fault_summary(by_kind[kind]) if s.kind == kind), None) for kind in kinds}
     header = [
         "Fault",
-        "Detected",
+        "Detected / scored",
+        "Latent",
         "Latency median / max (ms)",
         "Consequences",
         "False alarms",
@@ -154,7 +166,8 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
         body.append(
             [
                 kind,
-                f"{summary.detected}/{summary.injected}" if summary else "0/0",
+                f"{summary.detected}/{summary.detected + summary.missed}" if summary else "0/0",
+                str(summary.latent) if summary else "0",
                 f"{summary.latency_median_ms:.0f} / {summary.latency_max_ms:.0f}"
                 if summary and summary.detected
                 else "n/a",
@@ -205,20 +218,29 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
         twins = {unit.seed: record for unit, record in mine if not unit.scenario.task.faults}
         key_rows: list[dict[str, Any]] = []
         by_kind: dict[str, list[dict[str, Any]]] = {kind: [] for kind in args.kinds}
+        twin_rows: list[dict[str, Any]] = []  # their detections: false alarms
         for unit, record in mine:
+            identity = {"controller": label, "key": key, "episode": unit.seed - args.seed, "seed": unit.seed}
             if not unit.scenario.task.faults:
+                twin_rows += fault_rows(identity, record.faults())
                 continue
             kind = unit.scenario.task.faults[0].kind
-            identity = {"controller": label, "key": key, "episode": unit.seed - args.seed, "seed": unit.seed}
             by_kind[kind] += fault_rows(identity, record.faults())
             if record.injected_faults:  # else the drawn carry fault fell after the episode's end
                 key_rows.append({"kind": kind, "seed": unit.seed, **fault_effect(record, twins[unit.seed])})
-        twin_alarms = sum(len(record.detected_faults) for record in twins.values())
-        fault_csv_rows += [row for kind in args.kinds for row in by_kind[kind]]
+        twin_alarms = len(twin_rows)
+        fault_csv_rows += [row for kind in args.kinds for row in by_kind[kind]] + twin_rows
         rows += [{"controller": label, "key": key, **row} for row in key_rows]
         text += f"\n## {label}\n\n{summary_table(key_rows, by_kind, args.kinds)}\n\n"
         text += f"The {len(twins)} fault-free twins raised {twin_alarms} false alarm(s).\n"
+    matrices = confusion_counts(fault_csv_rows, [controller_label(key) for key in args.controllers])
+    text += (
+        "\n## Confusion matrix\n\nInjected kind by detected kind: a cell counts the faults reported at least once as "
+        "that kind within the fault's window (a fault reported as two kinds counts twice); column none: no "
+        "detection; row none: false alarms, the twins' included.\n\n" + confusion_table(matrices) + "\n"
+    )
     write_fault_csv(out / "faults.csv", fault_csv_rows)
+    write_confusion_csv(out / "confusion.csv", matrices)
     write_csv(out / "campaign.csv", rows)
     (out / "summary.md").write_text(text)
     print(text)

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from controllers.base import payload_estimator_of
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
 from eval.console import CommandParser, UsageError, command_main
@@ -108,10 +109,11 @@ def validation_scores(
     records = []
     for seed in VALIDATION_SEEDS:
         controller = base.controller()
+        estimator = payload_estimator_of(controller)
         if policy is not None:
             controller = ResidualController(controller, policy, config)
         env = DeltaPickPlaceEnv(**env_kwargs)
-        controller = timed(env, controller, base.key, base.setup)
+        timed(env, base.setup, estimator)
         records.append(run_episode(env, controller, seed))
         env.close()
     return pooled_scores(records)

@@ -20,14 +20,14 @@ MAX_README_LINES = 400
 """Issue 35: the README is a guide of at most about 400 lines; the reference lives in docs/."""
 
 
-def readme_code_block(section: str, language: str) -> str:
-    """The first ``language`` code block under the README's ``## section`` heading."""
+def readme_code(section: str, language: str) -> str:
+    """The ``language`` code blocks under the README's ``## section`` heading, in order, as one program."""
     text = README.read_text()
-    match = re.search(rf"^## {re.escape(section)}\n(.*?)(?=^## )", text, flags=re.S | re.M)
+    match = re.search(rf"^## {re.escape(section)}\n(.*?)(?=^## |\Z)", text, flags=re.S | re.M)
     assert match, f"README has no section {section!r}"
-    block = re.search(rf"^```{language}\n(.*?)^```", match.group(1), flags=re.S | re.M)
-    assert block, f"README section {section!r} has no {language} block"
-    return block.group(1)
+    blocks = re.findall(rf"^```{language}\n(.*?)^```", match.group(1), flags=re.S | re.M)
+    assert blocks, f"README section {section!r} has no {language} block"
+    return "".join(blocks)
 
 
 def public_anchors(package: str) -> set[str]:
@@ -79,6 +79,7 @@ def test_site_includes_the_readme_sections(site: Path) -> None:
         "guide/identification/index.html": "time_s",
         "guide/run-folders/index.html": "DELTA_RUNS_DIR",
         "guide/evaluation/index.html": "Oracle+PD (bound)",
+        "guide/pick-rate/index.html": "IRB 360-8/1130",
     }
     for page, text in pages.items():
         page_text = html.unescape(re.sub(r"<[^>]+>", "", (site / page).read_text()))
@@ -105,7 +106,7 @@ def test_readme_quick_start_runs() -> None:
     """The Quick start, executed as printed: PD tracks the 3.8 kg and 0.5 kg carries at 5.7 mm RMS."""
     output = io.StringIO()
     with contextlib.redirect_stdout(output):
-        exec(readme_code_block("Quick start", "python"), {"__name__": "readme_quick_start"})
+        exec(readme_code("Quick start", "python"), {"__name__": "readme_quick_start"})
     printed = re.fullmatch(r"RMS tracking error (\d+\.\d\d) mm\n", output.getvalue())
     assert printed, f"the Quick start printed {output.getvalue()!r}"
     assert 4.0 < float(printed.group(1)) < 8.0

@@ -10,7 +10,7 @@ from numpy.testing import assert_array_equal
 
 from controllers.base import PDController
 from delta_env import DeltaPickPlaceEnv
-from delta_env.faults import FaultSpec
+from delta_env.faults import FaultSpec, is_latent
 from delta_env.scenario import PickPlaceTask, Scenario, preset
 
 PRESET_HASHES = {
@@ -56,6 +56,8 @@ TIMED = "timed"  # the release of the episodes AT is set in (the timed release's
         ({"kind": "encoder_glitch", "sensor": "torque"}, "sensor is not used by kind 'encoder_glitch'"),
         ({"kind": "collision", "target": "wall"}, "target must be one of"),
         ({"kind": "drive_fault", "target": "arm"}, "target is not used"),
+        ({"kind": "drive_fault", "relative_to": "mean"}, "relative_to must be one of"),
+        ({"kind": "collision", "relative_to": "peak"}, "relative_to is not used by kind 'collision'"),
     ],
 )
 def test_bad_fault_specs_are_refused_naming_the_field(kwargs: dict, message: str) -> None:
@@ -75,6 +77,7 @@ def test_a_spec_takes_its_kinds_defaults() -> None:
     assert FaultSpec("sensor_nan").sensor == "encoder"
     assert FaultSpec("collision", target="obstacle").size is None
     assert FaultSpec("torque_glitch", start=(1.0, 2.0)).carry_fraction is None
+    assert FaultSpec("drive_fault").relative_to == "command" and FaultSpec("slip").relative_to is None
 
 
 # -- scenario files -------------------------------------------------------------------------------
@@ -282,6 +285,30 @@ def test_a_drive_fault_limits_the_command_the_drive_holds(clean: list) -> None:
     assert np.all(commands[steps, 2] == 0.0)
     assert np.any(np.abs([clean[k][0][2] for k in steps]) > 1.0)  # the PD asked for torque there
     assert commands[steps[-1] + 1, 2] != 0.0
+
+
+def test_a_drive_fault_keeps_its_share_of_the_onset_command_and_records_what_it_withheld(clean: list) -> None:
+    spec = FaultSpec("drive_fault", start=(AT, AT), joint=0, size=(0.4, 0.4), duration=(0.02, 0.02))
+    env, faulty = replay([spec], clean)
+    (fault,) = env.injected_faults
+    steps = fault_steps(env)
+    asked = np.array([clean[k][2]["torque_command"][0] for k in steps])  # what the drive held without the fault
+    limit = 0.4 * abs(asked[0])
+    assert limit > 1.0 and fault.detail == "command"
+    assert fault.size * env.plant_config.drive.peak_torque == pytest.approx(limit, rel=1e-12)
+    held = np.array([info["torque_command"][0] for _, info in faulty])[steps]
+    np.testing.assert_allclose(held, np.clip(asked, -limit, limit), rtol=0.0, atol=1e-12)
+    assert fault.withheld == pytest.approx(np.max(np.abs(asked)) - limit, rel=1e-12)
+    assert fault.withheld >= 0.6 * abs(asked[0]) and not is_latent(fault)  # withheld from the first step on
+
+
+def test_a_drive_fault_that_keeps_more_than_the_motion_asks_is_latent(clean: list) -> None:
+    spec = FaultSpec("drive_fault", start=(AT, AT), joint=2, size=(0.9, 0.9), duration=(0.02, 0.02), relative_to="peak")
+    env, faulty = replay([spec], clean)
+    (fault,) = env.injected_faults
+    assert (fault.size, fault.detail, fault.withheld) == (0.9, "peak", 0.0) and is_latent(fault)
+    for (_, info), (_, _, clean_info) in zip(faulty, clean, strict=True):
+        assert_array_equal(info["torque_command"], clean_info["torque_command"])
 
 
 def test_the_obstacle_is_hit_about_the_drawn_time() -> None:

@@ -3,6 +3,7 @@
 
 import csv
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +12,17 @@ import pytest
 from controllers.base import PDController
 from controllers.monitor import DetectedFault, ReportsFaults
 from delta_env.env import DeltaPickPlaceEnv
-from delta_env.faults import InjectedFault
+from delta_env.faults import FaultSpec, InjectedFault, is_latent
 from eval.episodes import run_episode
 from eval.faults import (
+    CONFUSION_COLUMNS,
     DETECTION_GRACE_S,
     FAULT_COLUMNS,
     FAULT_METRICS,
+    NO_FAULT,
+    confusion_counts,
+    confusion_rows,
+    confusion_table,
     fault_kind_metrics,
     fault_metrics,
     fault_rows,
@@ -24,6 +30,7 @@ from eval.faults import (
     fault_table,
     match_faults,
     sweep_fault_table,
+    write_confusion_csv,
     write_fault_csv,
 )
 
@@ -99,6 +106,7 @@ def test_fault_metrics_count_and_time_the_episode() -> None:
         "faults_injected": 3,
         "faults_detected": 2,
         "faults_missed": 1,
+        "faults_latent": 0,
         "detections": 4,
         "false_alarms": 1,
         "fault_consequences": 1,
@@ -171,8 +179,8 @@ def test_fault_summary_per_controller_and_kind() -> None:
 
     table = fault_table(a, ["A"]).splitlines()
     assert table[0].startswith("| Controller | Fault kind | Injected | Detected | Missed |")
-    assert table[-1] == "| A | all | 3 | 2 | 1 | 26.5 | 41.0 | 1 | 1 |"
-    assert "| A | collision | 1 | 0 | 1 | n/a | n/a | 0 | 0 |" in table
+    assert table[-1] == "| A | all | 3 | 2 | 1 | 0 | 26.5 | 41.0 | 1 | 1 |"
+    assert "| A | collision | 1 | 0 | 1 | 0 | n/a | n/a | 0 | 0 |" in table
 
 
 class ReportingPD(PDController):
@@ -230,8 +238,12 @@ def test_the_comparison_summary_has_a_faults_section_only_with_faults() -> None:
     section = _fault_section(rows, ["PD", "A"])
     assert section[0] == "## Faults" and "50 ms after its end" in section[2]
     table = section[4].splitlines()
-    assert table[2] == "| PD | all | 0 | 0 | 0 | n/a | n/a | 0 | 0 |"  # a controller without faults is listed
-    assert table[-1] == "| A | all | 3 | 2 | 1 | 26.5 | 41.0 | 1 | 1 |"
+    assert table[2] == "| PD | all | 0 | 0 | 0 | 0 | n/a | n/a | 0 | 0 |"  # a controller without faults is listed
+    assert table[-1] == "| A | all | 3 | 2 | 1 | 0 | 26.5 | 41.0 | 1 | 1 |"
+    matrix = section[8].splitlines()
+    assert section[6].startswith("Confusion matrix") and matrix[0].startswith("| Controller | Injected \\ detected |")
+    assert "| A | encoder_glitch | 1 | 0 | 0 | 1 | 0 | 1 |  |" in matrix
+    assert "| A | none | 0 | 1 | 0 | 0 |  |  |  |" in matrix and "| PD | none | 0 | 0 | 0 | 0 |  |  |  |" in matrix
 
 
 def test_a_sweeps_fault_table_counts_per_controller_and_kind() -> None:
@@ -247,3 +259,110 @@ def test_a_sweeps_fault_table_counts_per_controller_and_kind() -> None:
     assert "| RLS | encoder_glitch | 2 | 0 | 2 | n/a |" in table
     assert "| RLS | false alarms |  | 2 |  |  |" in table
     assert sweep_fault_table([failed], {"mid_f_rls": "RLS"}) == ""
+
+
+# -- the confusion matrix ---------------------------------------------------------------------------
+
+
+def test_a_slip_raised_after_a_collision_is_a_slip_detected_for_the_collision() -> None:
+    push = injected("collision", 200, 30, size=300.0)  # acts 0.201-0.231 s; its window ends at 0.281 s
+    reports = [
+        DetectedFault("collision", 0.205),
+        DetectedFault("slip", 0.214),  # the push taken for a slip
+        DetectedFault("slip", 0.250),  # and reported again: one fault, counted once per kind
+        DetectedFault("slip", 0.600),  # nothing under way: a false alarm
+    ]
+    rows = fault_rows({"controller": "A"}, match_faults([push], reports))
+    (matrix,) = confusion_counts(rows)
+    assert dict(matrix.counts) == {("collision", "collision"): 1, ("collision", "slip"): 1, (NO_FAULT, "slip"): 1}
+    assert (dict(matrix.scored), dict(matrix.latent)) == ({"collision": 1}, {})
+    # Taken for a slip only, the push is off the diagonal and not in the column of faults without detection.
+    (only_slip,) = confusion_counts(fault_rows({"controller": "A"}, match_faults([push], reports[1:2])))
+    assert dict(only_slip.counts) == {("collision", "slip"): 1}
+    (unseen,) = confusion_counts(fault_rows({"controller": "A"}, match_faults([push], [])))
+    assert dict(unseen.counts) == {("collision", NO_FAULT): 1}
+
+
+def test_a_latent_drive_fault_is_neither_detected_nor_missed() -> None:
+    kept = InjectedFault("drive_fault", 300, 50, 0.301, joint=1, size=0.3, detail="peak", withheld=0.0)
+    lost = InjectedFault("drive_fault", 600, 50, 0.601, joint=2, size=0.01, detail="command", withheld=12.0)
+    during = DetectedFault("drive_fault", 0.320, joint=1)  # while the latent one "acts": nothing happened
+    episode = match_faults([kept, lost], [during])
+    assert [match.injected for match in episode.matches] == [lost] and episode.latent == (kept,)
+    assert (episode.detected, episode.missed, episode.false_alarms) == (0, 1, (during,))
+    counts = fault_metrics(episode)
+    assert (counts["faults_injected"], counts["faults_missed"], counts["faults_latent"]) == (2, 1, 1)
+    rows = fault_rows({"controller": "A"}, episode)
+    assert [row["outcome"] for row in rows] == ["missed", "latent", "false_alarm"]
+    assert (rows[0]["withheld_nm"], rows[1]["withheld_nm"], rows[2]["withheld_nm"]) == (12.0, 0.0, None)
+    (matrix,) = confusion_counts(rows)
+    assert dict(matrix.counts) == {("drive_fault", NO_FAULT): 1, (NO_FAULT, "drive_fault"): 1}
+    assert (dict(matrix.scored), dict(matrix.latent)) == ({"drive_fault": 1}, {"drive_fault": 1})
+    drive = next(entry for entry in fault_summary(rows) if entry.kind == "drive_fault")
+    assert (drive.injected, drive.detected, drive.missed, drive.latent, drive.false_alarms) == (2, 0, 1, 1, 1)
+    # Only a drive fault can be latent, and only one that withheld nothing (NaN: not recorded).
+    assert match_faults([replace(kept, withheld=0.5)], []).missed == 1
+    assert match_faults([replace(kept, withheld=math.nan)], []).missed == 1
+    assert match_faults([replace(kept, kind="collision")], []).missed == 1
+
+
+def test_the_confusion_matrix_in_memory_read_back_and_as_a_table(tmp_path: Path) -> None:
+    rows = [
+        *fault_rows({"controller": "A", "episode": 0}, match_faults(INJECTED, DETECTED)),
+        *fault_rows({"controller": "A", "episode": 1}, match_faults(INJECTED, DETECTED)),
+        *fault_rows({"controller": "B", "episode": 0}, match_faults([], [DetectedFault("slip", 0.5)])),
+    ]
+    matrices = confusion_counts(rows, ["B", "C"])
+    assert [matrix.controller for matrix in matrices] == ["B", "C", "A"]
+    b, c, a = matrices
+    assert dict(a.counts) == {
+        ("torque_glitch", "torque_glitch"): 2,
+        ("encoder_glitch", "encoder_glitch"): 2,
+        ("encoder_glitch", "collision"): 2,  # the collision report after the encoder glitch
+        ("collision", NO_FAULT): 2,  # missed
+        (NO_FAULT, "sensor_nan"): 2,  # the false alarms
+    }
+    assert dict(b.counts) == {(NO_FAULT, "slip"): 1} and not c.counts and not c.scored
+    write_fault_csv(tmp_path / "faults.csv", rows)
+    with (tmp_path / "faults.csv").open() as file:
+        assert confusion_counts(list(csv.DictReader(file)), ["B", "C"]) == matrices
+    cells = confusion_rows(matrices)
+    kinds = 5  # slip, encoder_glitch, sensor_nan, torque_glitch, collision occur; then none
+    assert len(cells) == 3 * ((kinds + 1) ** 2 - 1) and all(tuple(cell) == CONFUSION_COLUMNS for cell in cells)
+    assert {"controller": "A", "injected_kind": "encoder_glitch", "detected_kind": "collision", "count": 2} in cells
+    with write_confusion_csv(tmp_path / "confusion.csv", matrices).open() as file:
+        assert sum(int(row["count"]) for row in csv.DictReader(file)) == 2 * 5 + 1
+    table = confusion_table(matrices).splitlines()
+    assert table[0] == (
+        "| Controller | Injected \\ detected | slip | encoder_glitch | sensor_nan | torque_glitch | collision | none "
+        "| Scored | Latent |"
+    )
+    assert table[2:] == [
+        "| B | none | 1 | 0 | 0 | 0 | 0 |  |  |  |",
+        "| C | none | 0 | 0 | 0 | 0 | 0 |  |  |  |",
+        "| A | encoder_glitch | 0 | 2 | 0 | 0 | 2 | 0 | 2 |  |",
+        "| A | torque_glitch | 0 | 0 | 0 | 2 | 0 | 0 | 2 |  |",
+        "| A | collision | 0 | 0 | 0 | 0 | 0 | 2 | 2 |  |",
+        "| A | none | 0 | 0 | 2 | 0 | 0 |  |  |  |",
+    ]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_drive_fault_is_latent_exactly_when_every_command_stayed_within_what_the_drive_kept(seed: int) -> None:
+    """Against the fault-free twin's commands: a drive fault is latent iff the twin never asked its joint for more than
+    the fault kept over its steps (the episodes agree until it first does); never sized on the command (the default)."""
+    twin = run_episode(DeltaPickPlaceEnv(n_cycles=1), PDController(), seed=seed)
+    for relative_to, size in (("peak", None), ("peak", (0.0, 0.05)), ("command", None)):
+        spec = FaultSpec("drive_fault", relative_to=relative_to, size=size)
+        record = run_episode(DeltaPickPlaceEnv(n_cycles=1, faults=[spec]), PDController(), seed=seed)
+        (fault,) = record.injected_faults
+        asked = np.abs(twin.command[fault.start_step : fault.start_step + fault.steps, fault.joint])
+        kept = fault.size * record.peak_torque
+        over = np.flatnonzero(asked > kept)
+        assert is_latent(fault) == (over.size == 0)
+        if over.size:  # the episodes agree up to the first step the fault clips, which withholds the twin's excess
+            assert fault.withheld >= asked[over[0]] - kept - 1e-9
+        if relative_to == "command":
+            assert fault.withheld >= 0.5 * asked[0] > 0.0  # the default keeps at most half of the onset's command
+        scored = match_faults(record.injected_faults, [])
+        assert (scored.missed, len(scored.latent)) == ((0, 1) if is_latent(fault) else (1, 0))

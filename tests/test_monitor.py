@@ -73,6 +73,8 @@ def test_fault_free_episodes_raise_no_alarm(controller_setup: ControllerSetup) -
         ("mid_f_rls_lag", "worst_case", 4, 2, None),
         ("residual", "online", 9, 3, None),
         ("mid_f_rls_lag", "declared", 1, 2, 1.0),
+        ("mid_f_rls_ref", "declared", 0, 2, 1.0),
+        ("mid_f_rls", "online", 2, 2, 1.0),
     ],
 )
 def test_time_optimal_moves_raise_no_false_alarm(
@@ -86,13 +88,13 @@ def test_time_optimal_moves_raise_no_false_alarm(
     # envelope (``share`` 1), before the collision check allowed for the reference's acceleration steps, this
     # episode raised false collisions.
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed
+    from eval.tasks import timed_controller
 
     task = PickPlaceTask(timing=timing, n_cycles=cycles)
     if share is not None:
         task = PickPlaceTask(timing=timing, n_cycles=cycles, cycle="standard", torque_share=share)
     env = DeltaPickPlaceEnv(scenario=Scenario(task=task))
-    controller = timed(env, build_controller(key, controller_setup), key, controller_setup)
+    controller = timed_controller(env, key, controller_setup)
     record = run_episode(env, controller, seed)
     assert record.masses.max() > 1.0 and not record.diverged
     assert record.detected_faults == []
@@ -129,6 +131,8 @@ def test_a_stuck_encoder_is_detected_within_five_samples(controller_setup: Contr
     (injected,) = env.injected_faults
     first = next(event for event in record.detected_faults if event.kind == "encoder_stuck")
     assert 0.0 <= first.time_s - injected.start_s <= 0.005
+    # and only that: the reading's step back at the spell's end is no glitch
+    assert [event.kind for event in record.detected_faults] == ["encoder_stuck"]
     # the joint runs on its feedforward while stuck, then the clean readings follow the encoder again (no lock-out):
     # measured 4.0 mm at most (0.53 mm without the fault)
     assert record.metrics()["tracking_max_mm"] < 6.0
@@ -162,22 +166,56 @@ def test_a_slip_is_detected_and_the_estimate_forgets_the_object(controller_setup
     slip = FaultSpec("slip", carry_fraction=(0.5, 0.5))
     record, env = _run([slip], _monitored_rls(controller_setup), payload_mass_range=(3.0, 3.0))
     (injected,) = env.injected_faults
-    detected = next(event for event in record.detected_faults if event.kind == "slip")
-    assert 0.0 <= detected.time_s - injected.start_s <= 0.015  # 3 kg: found in 5-10 ms
+    (detected,) = record.detected_faults  # a slip, and no collision for the object's missing weight and inertia
+    # 3 kg: the CUSUM crosses in 5-10 ms, then waits 8 samples for a push's onset to show (PUSH_SHOWN_SHARE)
+    assert detected.kind == "slip" and 0.0 <= detected.time_s - injected.start_s <= 0.030
     # forgotten at once, and it stays forgotten: no pre-slip sample pulls the estimate back up
     found, after = round(detected.time_s / env.dt), round(injected.start_s / env.dt) + 50
     assert np.max(np.abs(record.payload_estimate[found + 1 : after])) < 0.1
 
 
-def test_a_stop_reaction_ends_the_episode_at_rest(controller_setup: ControllerSetup) -> None:
+@pytest.mark.parametrize("reaction", ["stop", "slow"])
+def test_a_reaction_to_a_push_returns_to_full_speed_and_to_a_slip_does_not(
+    controller_setup: ControllerSetup, reaction: str
+) -> None:
     import dataclasses
 
-    setup = dataclasses.replace(controller_setup, fault_reaction="stop")
-    collision = FaultSpec("collision", carry_fraction=(0.5, 0.5), size=(400.0, 400.0), duration=(0.03, 0.03))
-    record, _ = _run([collision], _monitored_rls(setup))
-    assert any(event.kind == "collision" for event in record.detected_faults)
-    assert record.stopped and record.speed_override == 0.0  # the episode flag of the reaction
-    assert len(record.place_indices) < 2  # the second object is never placed
+    setup = dataclasses.replace(controller_setup, fault_reaction=reaction)
+    push = FaultSpec("collision", carry_fraction=(0.5, 0.5), size=(400.0, 400.0), duration=(0.03, 0.03))
+    slip = FaultSpec("slip", carry_fraction=(0.5, 0.5))
+    clean, _ = _run([], _monitored_rls(setup), payload_mass_range=(2.0, 2.0))
+    pushed, _ = _run([push], _monitored_rls(setup), payload_mass_range=(2.0, 2.0))
+    slipped, _ = _run([slip], _monitored_rls(setup), payload_mass_range=(2.0, 2.0))
+    assert [event.kind for event in pushed.detected_faults] == ["collision"]
+    # the push is over within its 30 ms: back to full speed, every object placed, the reaction paid in time
+    # (measured: 20 ms longer, stopping or slowing)
+    assert not pushed.stopped and pushed.speed_override == 1.0
+    assert len(pushed.place_indices) == len(clean.place_indices) == 2
+    assert 0.005 < (len(pushed.tracking_error) - len(clean.tracking_error)) * CONTROL_PERIOD < 0.04
+    # a slip lasts: the cell stays slowed, or stopped (the episode ends at rest before the second place)
+    assert [event.kind for event in slipped.detected_faults] == ["slip"]
+    if reaction == "stop":
+        assert slipped.stopped and slipped.speed_override == 0.0 and len(slipped.place_indices) < 2
+    else:
+        assert not slipped.stopped and slipped.speed_override == 0.5
+
+
+@pytest.mark.parametrize("seed", [0, 2, 4])
+def test_a_push_on_a_held_object_is_a_collision_and_leaves_the_estimate(
+    controller_setup: ControllerSetup, seed: int
+) -> None:
+    # 300 N for 50 ms on the platform holding 4 kg, in a direction drawn per seed: before the slip check asked
+    # whether "gone" explains the residual, these three pushes each raised a slip as well, and the estimate went to
+    # 0 kg for the rest of the carry
+    push = FaultSpec("collision", carry_fraction=(0.2, 0.8), size=(300.0, 300.0), duration=(0.05, 0.05))
+    clean, _ = _run([], _monitored_rls(controller_setup), seed=seed, payload_mass_range=(4.0, 4.0))
+    pushed, env = _run([push], _monitored_rls(controller_setup), seed=seed, payload_mass_range=(4.0, 4.0))
+    (injected,) = env.injected_faults
+    (detected,) = pushed.detected_faults
+    assert detected.kind == "collision" and 0.0 <= detected.time_s - injected.start_s <= 0.010
+    place = next(index for index in pushed.place_indices if index * env.dt > injected.start_s)
+    # measured within 0.3 % of the twin's estimate at the place
+    assert pushed.payload_estimate[place - 1] == pytest.approx(clean.payload_estimate[place - 1], rel=0.05)
 
 
 def test_monitored_controller_refuses_an_unknown_reaction() -> None:
@@ -203,6 +241,19 @@ def test_a_drive_that_loses_a_small_torque_is_detected(controller_setup: Control
     drive = [event for event in record.detected_faults if event.kind == "drive_fault"]
     assert drive and drive[0].joint == 1
     assert 0.0 <= drive[0].time_s - injected.start_s <= 0.015
+    # a drive fault only: not a glitch at its first short reading, nor a collision when its torque steps back
+    assert {event.kind for event in record.detected_faults} == {"drive_fault"}
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_drive_that_delivers_nothing_for_60_ms_is_a_drive_fault_not_a_collision(
+    controller_setup: ControllerSetup, seed: int
+) -> None:
+    # joint 2 delivers nothing for 60 ms mid-carry: when it delivers again its torque steps back onto the command,
+    # and before the smoother's window was kept out of the checks there, this raised a 116 N collision 8 ms later
+    fault = FaultSpec("drive_fault", carry_fraction=(0.5, 0.5), size=(0.0, 0.0), duration=(0.06, 0.06), joint=2)
+    record, _ = _run([fault], _monitored_rls(controller_setup), seed=seed)
+    assert {event.kind for event in record.detected_faults} == {"drive_fault"}
 
 
 def test_a_light_slip_on_a_robot_unlike_its_identification_is_caught_without_false_alarms(
@@ -224,10 +275,11 @@ def test_a_stop_that_drops_a_carry_with_a_slip_still_to_come_does_not_crash(cont
 
     setup = dataclasses.replace(controller_setup, fault_reaction="stop")
     faults = [
-        FaultSpec("collision", carry_fraction=(0.3, 0.3), size=(500.0, 500.0), duration=(0.03, 0.03)),
+        FaultSpec("collision", carry_fraction=(0.3, 0.3), size=(500.0, 500.0), duration=(0.4, 0.4)),
         FaultSpec("slip", carry_fraction=(0.4, 0.4)),
     ]
-    # one carry: the stop drops its place, and then its slip comes due
+    # one carry: the stop drops its place, and then its slip comes due; the push outlasts the stop's hold, so the
+    # cell never resumes
     env = DeltaPickPlaceEnv(faults=faults, n_cycles=1, payload_mass_range=(2.0, 2.0))
     record = run_episode(env, _monitored_rls(setup), 3)
     assert record.stopped and not record.diverged and len(record.place_indices) == 0
@@ -237,11 +289,11 @@ def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells
     controller_setup: ControllerSetup,
 ) -> None:
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed
+    from eval.tasks import timed_controller
 
     nan = FaultSpec("sensor_nan", carry_fraction=(0.5, 0.5), joint=0)
     env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(timing="online", n_cycles=1, faults=(nan,))))
-    controller = timed(env, build_controller("pd", controller_setup), "pd", controller_setup)
+    controller = timed_controller(env, "pd", controller_setup)
     record = run_episode(env, controller, 2)
     assert [event.kind for event in record.detected_faults] == ["sensor_nan"]
     assert np.isfinite(record.payload_estimate).all() and not record.diverged
@@ -276,3 +328,29 @@ def test_every_fault_of_an_episode_with_several_is_detected_as_itself_at_its_sta
             and 0.0 <= event.time_s - injected.start_s <= 0.015
             for event in record.detected_faults
         ), injected
+
+
+def test_after_a_slip_found_wrongly_the_estimate_recovers_the_object_still_held(
+    controller_setup: ControllerSetup,
+) -> None:
+    # the estimator told mid-carry that a held 3 kg object is gone: it restarts at the tare and, the object still
+    # there, learns it again from the rest of the carry (measured: back within 5 % after 81 ms; at the place 2.7 %
+    # short of the run without the drop)
+    controller = _monitored_rls(controller_setup)
+    env = DeltaPickPlaceEnv(n_cycles=2, payload_mass_range=(3.0, 3.0), release="timed")
+    dropped = []
+
+    def drop_mid_carry(step: int) -> None:
+        pick, place = env.trajectory.pick_indices[0], env.trajectory.place_indices[0]
+        if step == (pick + place) // 2:
+            controller.estimator.drop_object()
+            dropped.append(step)
+
+    clean = run_episode(env, controller, 3)
+    record = run_episode(env, controller, 3, after_step=drop_mid_carry)
+    (step,) = dropped
+    estimate, place = record.payload_estimate, record.place_indices[0] - 1
+    assert estimate[step + 1] < 0.1
+    back = next(k for k in range(step, len(estimate)) if abs(estimate[k] - 3.0) < 0.15)
+    assert back - step < 0.12 / env.dt
+    assert estimate[place] == pytest.approx(clean.payload_estimate[place], rel=0.05)

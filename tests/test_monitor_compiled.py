@@ -190,16 +190,14 @@ def test_platform_force_leaves_out_what_the_model_band_can_explain(rate: float) 
 def test_reference_step_bound_is_the_brute_force_sum() -> None:
     rng = np.random.default_rng(5)
     weights = rng.uniform(0.0, 0.9, 26)
-    torques, regressors = rng.normal(0.0, 30.0, (27, 3)), rng.normal(0.0, 2.0, (27, 3))
-    torque_window, regressor_window = list(torques.copy()), list(regressors.copy())
-    for payload in (0.0, 2.5, 4.0) * 10:
-        torque, regressor = rng.normal(0.0, 30.0, 3), rng.normal(0.0, 2.0, 3)
-        torque_window, regressor_window = [*torque_window[1:], torque], [*regressor_window[1:], regressor]
-        bound = reference_step_bound(torques, regressors, torque, regressor, payload, weights)
-        _same(torques, np.array(torque_window))
-        _same(regressors, np.array(regressor_window))
-        steps = np.diff(np.array(torque_window) + payload * np.array(regressor_window), axis=0)
-        np.testing.assert_allclose(bound, weights @ np.abs(steps), rtol=1e-12)
+    torques = rng.normal(0.0, 30.0, (27, 3))
+    window = list(torques.copy())
+    for _ in range(30):
+        torque = rng.normal(0.0, 30.0, 3)
+        window = [*window[1:], torque]
+        bound = reference_step_bound(torques, torque, weights)
+        _same(torques, np.array(window))
+        np.testing.assert_allclose(bound, weights @ np.abs(np.diff(np.array(window), axis=0)), rtol=1e-12)
 
 
 def test_reference_torque_is_the_models_at_zero_rates() -> None:
@@ -491,7 +489,7 @@ def test_a_torque_outside_the_current_loops_span_by_the_margin_is_a_glitch_repla
         assert cleans[50]["joint_torques"] is observations[50]["joint_torques"]
 
 
-def test_a_drive_that_delivers_a_tenth_of_its_command_is_a_glitch_then_a_drive_fault_on_the_third_reading() -> None:
+def test_a_drive_that_delivers_a_tenth_of_its_command_is_a_drive_fault_on_the_third_reading_not_a_glitch() -> None:
     observations = _stream(100, MOVING)
     commands = [None] + [observation["joint_torques"].copy() for observation in observations[1:]]
     for observation in observations[50:60]:
@@ -499,10 +497,29 @@ def test_a_drive_that_delivers_a_tenth_of_its_command_is_a_glitch_then_a_drive_f
     monitor = _monitor()
     cleans = [monitor.update(observation, command) for observation, command in zip(observations, commands, strict=True)]
     assert abs(commands[50][1]) > 2.0 * TORQUE_MARGIN
-    assert _found(monitor)[:2] == [("torque_glitch", 1, 50), ("drive_fault", 1, 52)]
+    # its first reading, short of the command on its side, is held back as a glitch until the next one: not a glitch
+    assert _found(monitor)[:1] == [("drive_fault", 1, 52)]
+    assert "torque_glitch" not in [kind for kind, *_ in _found(monitor)]
     # the torque lost, replaced by the current loop's prediction (about the command)
-    assert monitor.events[1].magnitude == pytest.approx(0.9 * abs(commands[52][1]), rel=0.05)
+    assert monitor.events[0].magnitude == pytest.approx(0.9 * abs(commands[52][1]), rel=0.05)
     assert cleans[52]["joint_torques"][1] == pytest.approx(commands[52][1], rel=0.05)
+
+
+@pytest.mark.parametrize(("scale", "reported"), [(0.1, 51), (-1.0, 50), (2.0, 50)])
+def test_a_lone_torque_glitch_is_reported_at_its_reading_or_the_next_when_it_reads_like_a_drives_loss(
+    scale: float, reported: int
+) -> None:
+    # short of the command on its side (a tenth), a glitch reads like a drive's first lost sample: reported at the
+    # next, plausible, reading; beyond the command or of the other sign, at its own
+    observations = _stream(100, MOVING)
+    commands = [None] + [observation["joint_torques"].copy() for observation in observations[1:]]
+    glitch = observations[50]["joint_torques"][1] * (scale - 1.0)
+    observations[50]["joint_torques"] = observations[50]["joint_torques"] + np.array([0.0, glitch, 0.0])
+    monitor = _monitor()
+    for observation, command in zip(observations, commands, strict=True):
+        monitor.update(observation, command)
+    assert _found(monitor) == [("torque_glitch", 1, reported)]
+    assert monitor.events[0].magnitude == pytest.approx(glitch, abs=0.1 * abs(glitch))
 
 
 def test_a_drive_that_does_not_follow_a_small_step_is_found_by_the_shortfall_cusum() -> None:

@@ -35,7 +35,7 @@ from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import WORKING_HEIGHT, Segment
 from eval.episodes import run_episode
 from eval.rate import MIXED, main, rate_scenario
-from eval.tasks import timed
+from eval.tasks import timed, timed_controller
 
 CARRY = Segment(
     np.array([0.0, -0.5 * STANDARD_TRAVEL, WORKING_HEIGHT]),
@@ -176,17 +176,22 @@ def test_bad_arguments_are_refused(planner: TimeOptimalPlanner) -> None:
 def test_online_timing_reads_the_controllers_estimator_or_runs_the_cells_own(controller_setup) -> None:
     scenario = Scenario(task=PickPlaceTask(cycle="standard", timing="online", n_cycles=1))
     env = DeltaPickPlaceEnv(scenario=scenario)
-    model = build_controller("mid_f_rls_lag", controller_setup)
-    assert timed(env, model, "mid_f_rls_lag", controller_setup) is model
+    model = timed_controller(env, "mid_f_rls_lag", controller_setup)
+    assert not isinstance(model.controller, EstimatingController)
     assert env.timing.estimator is model.estimator and env.timing.max_payload == 4.0
-    wrapped = timed(env, build_controller("pd", controller_setup), "pd", controller_setup)
-    # the cell's estimator runs beside the PD, behind the row's fault monitor, which gates it too
+    wrapped = timed_controller(env, "pd", dataclasses.replace(controller_setup, tares={"mid_f_rls": 0.07}))
+    # the cell's estimator (tared as the cell's row) runs beside the PD, behind the row's fault monitor, which gates
+    # it too
     assert isinstance(wrapped.controller, EstimatingController) and env.timing.estimator is wrapped.estimator
+    assert wrapped.estimator.tare == 0.07
     fixed_env = DeltaPickPlaceEnv()
-    assert timed(fixed_env, model, "mid_f_rls_lag", controller_setup) is model and fixed_env.timing is None
+    timed(fixed_env, controller_setup, model.estimator)
+    assert fixed_env.timing is None
     no_lag = dataclasses.replace(controller_setup, drive_lag=None)
     with pytest.raises(ValueError, match="identified drive lag"):
-        timed(env, model, "mid_f_rls_lag", no_lag)
+        timed(env, no_lag, model.estimator)
+    with pytest.raises(ValueError, match="'online' timing reads a payload estimator"):
+        timed(env, controller_setup)
 
 
 def test_rate_scenarios_run_the_standard_cycle_with_the_payloads_of_their_row() -> None:

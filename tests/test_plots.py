@@ -49,6 +49,7 @@ def _run_folder(folder: Path, faults: bool = True) -> Path:
         keys=np.array(keys),
         labels=np.array(labels),
         estimates_payload=np.array([False, True, False]),
+        privileged=np.array([False, False, True]),
         **{f"{key}.tracking_error": 1e-3 * rng.random(steps) for key in keys},
         **{f"{key}.torque": torques[key] for key in keys},
         **{f"{key}.payload_mass": np.full(steps + 1, 2.0) for key in keys},
@@ -85,6 +86,7 @@ def _run_folder(folder: Path, faults: bool = True) -> Path:
     fault_rows = [
         {"outcome": "detected", "kind": "torque_glitch", "injected_at_s": 0.1, "ended_at_s": 0.105},
         {"outcome": "missed", "kind": "slip", "injected_at_s": 0.15, "ended_at_s": 0.2},
+        {"outcome": "latent", "kind": "drive_fault", "injected_at_s": 0.3, "ended_at_s": 0.35},
         {"outcome": "consequence", "kind": "torque_glitch", "injected_at_s": 0.1, "ended_at_s": 0.105},
         {"outcome": "false_alarm", "kind": "collision"},
     ]
@@ -212,6 +214,7 @@ def test_the_new_figures_list_what_they_show_beside_the_data(tmp_path: Path, mon
             "injected: torque_glitch",
             "injected: slip",
             "missed (hatched)",
+            "latent (changed nothing; dotted)",
             "detection of the fault",
             "detection of a consequence",
             "false alarm",

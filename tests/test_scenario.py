@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import delta_env  # noqa: F401 - registers DeltaPickPlace-v0
-from controllers.base import PDController
-from controllers.registry import build_controller, monitored
+from controllers.base import PDController, payload_estimator_of
+from controllers.payload_timing import EstimatingController
+from controllers.registry import build_controller, cell_estimator, monitored
 from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
@@ -18,6 +19,7 @@ from delta_env.sensors import control_substeps
 from eval.tasks import timed
 
 PRESETS = (
+    "compliant",
     "faults",
     "heavy",
     "nominal",
@@ -121,7 +123,8 @@ def test_bad_fields_are_errors_naming_the_field(text: str, message: str) -> None
 def test_unknown_preset_lists_the_presets() -> None:
     assert preset_names() == sorted(PRESETS)
     with pytest.raises(
-        ValueError, match="faults, heavy, nominal, paper, pick-rate, pick-rate-randomized, randomized, stress-6g, worn"
+        ValueError,
+        match="compliant, faults, heavy, nominal, paper, pick-rate, pick-rate-randomized, randomized, stress-6g, worn",
     ):
         resolve_scenario("nominl")
     with pytest.raises(ValueError, match="no such file"):
@@ -146,8 +149,9 @@ def test_nominal_preset_is_the_default_env() -> None:
 
 
 def test_robot_identity_is_the_plant_only() -> None:
-    identities = {preset(name).robot_identity for name in PRESETS}
+    identities = {preset(name).robot_identity for name in PRESETS if name != "compliant"}
     assert identities == {Scenario().robot_identity}  # worn, heavy, randomized: the nominal robot
+    assert preset("compliant").robot_identity != Scenario().robot_identity  # other drive hardware: another robot
     assert len({preset(name).content_hash for name in PRESETS}) == len(PRESETS)
     other_geometry = Scenario(plant=PlantConfig(geometry=DeltaGeometry(l1=0.4)))
     other_sensor = Scenario(plant=PlantConfig(realism=dataclasses.replace(PlantRealism(), encoder_bits=20)))
@@ -192,11 +196,18 @@ def test_every_preset_builds_and_runs_a_short_episode(name: str, controller_setu
     assert env.domain_randomization == scenario.task.domain_randomization
     # PD, but on the whole envelope (the data sheet's share) the model row that the planner's margin is left for
     key = "pd" if scenario.task.torque_share < 1.0 else "mid_f_rls_lag"
-    controller = PDController(3000.0, 60.0) if key == "pd" else build_controller(key, controller_setup)
+    # compliant drives: a rate gain of 60 N m s/rad on the motor encoder, through the 1 ms current loop, rings the
+    # gearhead's mode up (docs/design.md section 4); 30 does not
+    rate_gain = 60.0 if scenario.plant.realism.compliance is None else 30.0
+    controller = PDController(3000.0, rate_gain) if key == "pd" else build_controller(key, controller_setup)
+    estimator = payload_estimator_of(controller)
+    if scenario.task.timing == "online" and estimator is None:  # the cell's estimator beside PD, as the eval runs it
+        estimator = cell_estimator(controller_setup)
+        controller = EstimatingController(controller, estimator)
     if scenario.task.faults:  # a NaN reading must reach no controller: a monitor cleans the observations
         controller = monitored(controller, controller_setup)
-    if scenario.task.timing != "fixed":  # a planned timing plans on the identified model: the evaluation gives it
-        controller = timed(env, controller, key, controller_setup)
+    # a planned timing plans on the identified model: the evaluation gives it
+    timed(env, controller_setup, estimator)
     observation, info = env.reset(seed=3)
     low, high = scenario.task.payload_mass_range
     assert np.all((info["payload_masses"] >= low) & (info["payload_masses"] <= high))

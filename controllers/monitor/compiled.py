@@ -242,27 +242,18 @@ def torque_step_variance(
 
 @numba.njit(cache=True)
 def reference_step_bound(
-    torques: NDArray[np.float64],
-    regressors: NDArray[np.float64],
-    torque: NDArray[np.float64],
-    regressor: NDArray[np.float64],
-    payload: float,
-    step_weights: NDArray[np.float64],
+    torques: NDArray[np.float64], torque: NDArray[np.float64], step_weights: NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """Shift the reference's model torque ``torque`` and payload regressor ``regressor`` ((3,) each, N m and N m/kg)
-    into their windows ``torques`` and ``regressors`` ((n + 1, 3), oldest first; in place) and return, per joint,
-    sum_m ``step_weights``_m |d tau_m + ``payload`` d phi_m| (N m, (3,)): the most the smoother's acceleration error
-    can put into the model torque where the reference's acceleration steps (docs/design.md section 6, "Fault
-    monitor")."""
+    """Shift the feedforward's model torque along the reference ``torque`` ((3,), N m) into its window ``torques``
+    ((n + 1, 3), oldest first; in place) and return, per joint, sum_m ``step_weights``_m |d tau_m| (N m, (3,)): the
+    most the smoother's acceleration error can put into the model torque where the command's feedforward steps
+    (docs/design.md section 6, "Fault monitor")."""
     _shift_in(torques, torque)
-    _shift_in(regressors, regressor)
     bound = np.zeros(3)
     for row in range(torques.shape[0] - 1):
         weight = step_weights[row]
         for joint in range(3):
-            step = torques[row + 1, joint] - torques[row, joint]
-            step += payload * (regressors[row + 1, joint] - regressors[row, joint])
-            bound[joint] += weight * abs(step)
+            bound[joint] += weight * abs(torques[row + 1, joint] - torques[row, joint])
     return bound
 
 

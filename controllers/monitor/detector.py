@@ -15,7 +15,7 @@ from controllers.dynamics import DeltaDynamics
 from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
 from controllers.monitor.compiled import correction_terms
 from controllers.monitor.events import DetectedFault
-from controllers.monitor.model_check import acceleration_step_response, lagged_step_weights
+from controllers.monitor.model_check import acceleration_step_response, lagged_step_weights, samples_to_show
 from controllers.monitor.sensor_check import ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED
 from controllers.monitor.step import BAD_SHAPE, DETECTED, MONITOR, monitor_step
 from controllers.monitor.tuning import (
@@ -24,6 +24,7 @@ from controllers.monitor.tuning import (
     INITIAL_RESIDUAL_STD,
     MONITOR_JERK_STD,
     PLANT_STEP_LAG,
+    PUSH_SHOWN_SHARE,
     SLOWEST_LAG_FACTOR,
     STUCK_COUNTS,
 )
@@ -102,8 +103,10 @@ class FaultMonitor:
         response = acceleration_step_response(smoother)
         initial["squared_response"] = response**2
         initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
+        initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)
         initial["static_friction"] = dynamics.parameters.coulomb
         initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
+        initial["held_glitch"] = math.nan
         initial["scatter"] = INITIAL_RESIDUAL_STD**2
         self._initial = initial
         self.events: list[DetectedFault] = []
@@ -162,6 +165,13 @@ class FaultMonitor:
         return self._read("collision_samples")
 
     @property
+    def onset_samples(self) -> int:
+        """Samples a step of the residual takes, from its first reading, to show in the checked state
+        (:data:`~controllers.monitor.tuning.PUSH_SHOWN_SHARE` of it): how long a force's onset may lie under the
+        collision check's reference unseen."""
+        return self._read("onset_samples")
+
+    @property
     def held_mass(self) -> float | None:
         """The mass (kg) the payload-consistency check believes held, once
         :data:`~controllers.monitor.tuning.SLIP_SETTLE` after the pick has passed and it is known to
@@ -183,12 +193,16 @@ class FaultMonitor:
         self._field["charged_coulomb"][0] = charged_coulomb
         self._field["breakaway"][0] = BREAKAWAY_FACTOR * np.maximum(charged_coulomb, 0.0)
 
-    def update(self, observation: Observation, command: NDArray[np.float64] | None) -> dict[str, NDArray[np.float64]]:
-        """Check one observation given the command (N m) sent after the previous one (None at the first); return
+    def update(
+        self, observation: Observation, command: NDArray[np.float64] | None, feedforward_mass: float = 0.0
+    ) -> dict[str, NDArray[np.float64]]:
+        """Check one observation given the command (N m) sent after the previous one (None at the first) and the
+        payload mass (kg) its feedforward held (the controller's estimate; 0 for a controller without one); return
         the clean observation (a new dict; unchanged entries shared)."""
         angles = np.asarray(observation["joint_angles"], dtype=float)
         rates = np.asarray(observation["joint_velocities"], dtype=float)
         torques = np.asarray(observation["joint_torques"], dtype=float)
+        self._field["feedforward_mass"][0] = feedforward_mass
         result = monitor_step(
             self._state_bytes,
             self.dynamics.model_constants,

@@ -69,10 +69,11 @@ MODEL_CHECK_FIELDS = [
     # the measured torques of the window and the one before, and the smoother's response to a step
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
-    # the model's torque and payload regressor along the reference over the window and the one before, the last
-    # ones, whether any was valid yet, and the weights of their steps in the collision check's band
+    # the feedforward's mass (kg, the controller's payload estimate, set before each sample), the model's torque
+    # with it along the reference over the window and the one before, the last torque and payload regressor, whether
+    # any was valid yet, and the weights of the torque's steps in the collision check's band
+    ("feedforward_mass", np.float64),
     ("reference_torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
-    ("reference_regressors", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("planned_torque", np.float64, (3,)),
     ("planned_regressor", np.float64, (3,)),
     ("reference_started", np.bool_),
@@ -100,6 +101,7 @@ MODEL_CHECK_FIELDS = [
     ("evidence", np.float64),
     ("slip_armed", np.bool_),
     ("slip_mass", np.float64),
+    ("onset_samples", np.int64),
 ]
 """The fields of the monitor's record that :func:`check_sample` keeps, beside ``sample`` (the sample's index since
 the reset), ``reference`` (its reference angles, rates and accelerations, (3, 3)) and ``clean`` (its clean angles,
@@ -118,6 +120,14 @@ def acceleration_step_response(smoother: JointStateSmoother) -> NDArray[np.float
         angles = np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
         response[m] = smoother.weights[2] @ angles - (1.0 if estimated >= m else 0.0)
     return response
+
+
+def samples_to_show(response: NDArray[np.float64], share: float) -> int:
+    """Samples after a step of the acceleration enters the smoother's window (between its two newest readings) until
+    the estimate of the checked sample shows at least ``share`` of it for good: until every older position m of the
+    step has |h_m| <= 1 - ``share`` (``response`` h of :func:`acceleration_step_response`)."""
+    unseen = np.flatnonzero(np.abs(response) > 1.0 - share)
+    return int(len(response) - unseen.min()) if len(unseen) else 0
 
 
 def lagged_step_weights(response: NDArray[np.float64], lags: int) -> NDArray[np.float64]:
@@ -159,10 +169,15 @@ def _check_payload(
     holding: bool,
     quiet: bool,
     jerk_variance: NDArray[np.float64],
+    gone_force: float,
 ) -> int:
     """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
     since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi are
-    ``terms`` of :func:`model_residual`. Returns :data:`SLIPPED` or 0."""
+    ``terms`` of :func:`model_residual`. A sample whose residual, with nothing held, leaves a platform force
+    ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no evidence of a loss (a push): it clears the CUSUM. No
+    sample adds more than :data:`SLIP_EVIDENCE` over the record's ``onset_samples``, so that no run shorter than a
+    push's onset (which, half shown, can look like the loss of a heavy object) makes a slip.
+    Returns :data:`SLIPPED` or 0."""
     if not holding:
         check.held_since = -1
         check.held_known = False
@@ -185,8 +200,9 @@ def _check_payload(
             check.held_known = True
         # test "gone" against "held" once the mass held is known well enough to tell them apart
         if held >= SLIP_MIN_MASS and check.held_information**-0.5 < SLIP_PRECISION * held:
-            evidence = check.evidence + held * (0.5 * held * information - moment)
-            check.evidence = evidence if evidence > 0.0 else 0.0
+            ratio = held * (0.5 * held * information - moment)
+            evidence = check.evidence + min(ratio, SLIP_EVIDENCE / check.onset_samples)
+            check.evidence = evidence if evidence > 0.0 and gone_force <= FORCE_REFERENCE else 0.0
             if check.evidence > SLIP_EVIDENCE:
                 check.slip_mass = held
                 check.slip_armed = False
@@ -200,31 +216,20 @@ def _check_payload(
 
 
 @numba.njit(cache=True)
-def _check_force(
-    check: np.record, terms: NDArray[np.float64], holding: bool, quiet: bool, model_band: NDArray[np.float64]
-) -> int:
-    """The collision check: a CUSUM of the platform force F = J^-T r over :data:`FORCE_REFERENCE`, r the model's
-    residual (``terms`` of :func:`model_residual`) less the mass held times phi (or, before the mass is known,
-    without its part along phi), less on each joint what the smoother's acceleration error can explain where the
-    reference steps (``model_band``, N m: :func:`reference_step_bound`) and on joints at rest what friction up to the
-    breakaway can hold (:func:`platform_force`). Returns :data:`COLLIDED` or 0."""
+def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float, quiet: bool) -> int:
+    """The collision check: a CUSUM over :data:`FORCE_REFERENCE` of the platform ``force`` (N) that no payload the
+    cup may hold explains (its norm ``magnitude``; :func:`check_sample`); once it has found a collision, capped at
+    :data:`FORCE_EVIDENCE`, so that the collision is over as soon as the force has stayed under the reference for a
+    detection's worth. Returns :data:`COLLIDED` or 0."""
     if quiet:
         check.force_evidence = 0.0
         check.collision = False
         return 0
-    held_known = check.held_known
-    force, magnitude = platform_force(
-        terms,
-        check.held_mass if held_known else 0.0,
-        holding and held_known,
-        holding,
-        check.charged_coulomb,
-        check.breakaway,
-        model_band,
-    )
     check.force[:] = force
     check.force_magnitude = magnitude
     evidence = check.force_evidence + magnitude - FORCE_REFERENCE
+    if check.collision and evidence > FORCE_EVIDENCE:  # a detection's worth: the collision ends soon after the force
+        evidence = FORCE_EVIDENCE
     check.force_evidence = evidence if evidence > 0.0 else 0.0
     check.collision_samples = check.collision_samples + 1 if check.force_evidence > 0.0 else 0
     if check.force_evidence > FORCE_EVIDENCE and not check.collision:
@@ -253,28 +258,24 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
         state, angles - reference[0], reference[0], reference[1], reference[2], torque, holding
     )
     valid = reference_torque(model_constants, reference, state.planned_torque, state.planned_regressor)
+    planned = state.planned_torque + state.feedforward_mass * state.planned_regressor
     if first:
         for row in range(SMOOTHER_WINDOW + 1):
             state.torques[row, :] = torque
     if valid and not state.reference_started:  # the windows start at the first pose the model can take
         state.reference_started = True
         for row in range(SMOOTHER_WINDOW + 1):
-            state.reference_torques[row, :] = state.planned_torque
-            state.reference_regressors[row, :] = state.planned_regressor
+            state.reference_torques[row, :] = planned
     jerk_variance = torque_step_variance(state.torques, torque, state.squared_response)
     if head < 0:
         return 0
     held_then = state.pending_holding[head] != 0
-    # the band with the mass the check takes off the checked sample's residual (none while it is not known)
-    held = state.held_mass if held_then and state.held_known else 0.0
-    model_band = reference_step_bound(
-        state.reference_torques,
-        state.reference_regressors,
-        state.planned_torque,
-        state.planned_regressor,
-        held,
-        state.step_weights,
-    )
+    # the mass the checks take off the checked sample's residual (none while it is not known), and the other mass
+    # the cup may hold: none (the object gone) until a slip, then the one it lost (a slip that was not)
+    held_known = held_then and state.held_known
+    held = state.held_mass if held_known else 0.0
+    other = 0.0 if state.slip_armed else state.slip_mass
+    model_band = reference_step_bound(state.reference_torques, planned, state.step_weights)
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
     # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
@@ -283,6 +284,16 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     )
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if state.collision else 0
-    found = _check_payload(state, terms, held_then, quiet_then, jerk_variance)
-    found |= _check_force(state, terms, held_then, quiet_then, model_band)
+    # the platform force the residual leaves with the mass held (or, before it is known, without the part along phi),
+    # and with the other mass; each less what the model's own error explains (platform_force)
+    force, magnitude = platform_force(
+        terms, held, held_known, held_then, state.charged_coulomb, state.breakaway, model_band
+    )
+    other_force, other_magnitude = platform_force(
+        terms, other, True, False, state.charged_coulomb, state.breakaway, model_band
+    )
+    found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
+    if held_then and other_magnitude < magnitude:  # the other mass explains the residual better: no force beyond it
+        force, magnitude = other_force, other_magnitude
+    found |= _check_force(state, force, magnitude, quiet_then)
     return found | (COLLIDING if state.collision else 0)

@@ -62,7 +62,9 @@ SENSOR_FIELDS = [
     ("torque_implausible", np.uint8, (3,)),
     ("shortfall", np.float64, (3,)),
     ("short_run", np.int64, (3,)),
+    ("held_glitch", np.float64, (3,)),  # the deviation of a reading short of the prediction, its report held back
     ("drive_active", np.uint8, (3,)),
+    ("drive_ended", np.bool_),  # a drive fault ended on this sample: the torque steps back to the command
     # constants: the encoder jump bound and stuck step (rad), the current loop's and the slowest healthy one's
     # (hold, keep) of detector.loop_response, the drive's peak torque (N m)
     ("jump_bound", np.float64),
@@ -123,6 +125,8 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
     reference, reference_rates = state.reference[0], state.reference[1]
     bad = np.empty(3, dtype=np.bool_)
     rate_missing = np.empty(3, dtype=np.bool_)
+    continued = np.zeros(3, dtype=np.bool_)
+    continued_from = np.zeros(3)
     for joint in range(3):
         bad[joint] = not math.isfinite(raw[joint])
         # a NaN rate beside a finite reading follows a NaN reading (the rate is a backward difference): it is
@@ -153,6 +157,8 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
                 math.isfinite(raw[joint]) and abs(second_difference[joint]) > state.jump_bound and not continues
             )
             state.resynced |= continues
+            continued[joint] = continues
+            continued_from[joint] = previous[joint]
             # a repeated reading is suspect while the joint was moving and its reference still moves several counts
             # per sample (at rest, or coming to rest, a reading repeats rightly); once stuck, a joint stays stuck
             # while its reading repeats, whatever the reference does
@@ -161,7 +167,10 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
             suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
             state.stuck[joint] = state.stuck[joint] + 1 if suspect[joint] else 0
         for joint in range(3):
-            if jump[joint] and state.glitch_active[joint] == 0 and state.stuck[joint] < STUCK_SAMPLES:
+            # a reading that repeats the last while the joint moves is a stuck encoder's (its jump is the joint's
+            # motion), and its step back onto the joint at the spell's end is the spell's end: neither is a glitch
+            fresh = state.glitch_active[joint] == 0 and state.after_stuck[joint] == 0
+            if jump[joint] and fresh and not suspect[joint]:
                 record_event(state, ENCODER_GLITCH, joint, second_difference[joint])
         for joint in range(3):
             if state.stuck[joint] == STUCK_SAMPLES:
@@ -192,6 +201,9 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
         state.encoder_bad[joint] = bad[joint]
     state.before[:] = state.last
     state.last[:] = state.clean[0]
+    for joint in range(3):
+        if continued[joint]:  # the reading it continued was the joint's too: the next second difference takes it
+            state.before[joint] = continued_from[joint]
     state.clean_count = min(state.clean_count + 1, 2)
     return replaced
 
@@ -240,9 +252,19 @@ def clean_torques(
         high = _maximum(_maximum(previous, held[joint]), before[joint]) + TORQUE_MARGIN
         implausible[joint] = finite[joint] and (torque[joint] < low or torque[joint] > high)
         state.torque_bad[joint] = state.torque_bad[joint] + 1 if implausible[joint] else 0
+    # A glitch is reported at its reading, unless the reading falls short of the prediction on the command's side:
+    # a drive's loss reads so too, so its report waits for the next reading (a glitch if that one is plausible
+    # again, else the run goes on to the drive-fault check)
     for joint in range(3):
         if state.torque_bad[joint] == 1:
-            record_event(state, TORQUE_GLITCH, joint, torque[joint] - predicted[joint])
+            deviation = torque[joint] - predicted[joint]
+            if _sign(torque[joint]) == _sign(predicted[joint]) and abs(torque[joint]) < abs(predicted[joint]):
+                state.held_glitch[joint] = deviation
+            else:
+                record_event(state, TORQUE_GLITCH, joint, deviation)
+        elif state.torque_bad[joint] == 0 and not math.isnan(state.held_glitch[joint]):
+            record_event(state, TORQUE_GLITCH, joint, state.held_glitch[joint])
+            state.held_glitch[joint] = math.nan
     # A drive that does not deliver its command: implausible torques in a row, all short of the prediction (a large
     # loss), or a CUSUM of how far each reading falls short of what the slowest plausible current loop would reach
     # from the last reading (a loss too small for the span check); a span-implausible reading or its successor adds
@@ -263,9 +285,17 @@ def clean_torques(
         large = state.short_run[joint] >= DRIVE_FAULT_SAMPLES
         if (large or state.shortfall[joint] > DRIVE_FAULT_EVIDENCE) and state.drive_active[joint] == 0:
             record_event(state, DRIVE_FAULT, joint, abs(predicted[joint]) - abs(torque[joint]))
+            state.held_glitch[joint] = math.nan  # its first reading was the drive's, not a glitch
             state.drive_active[joint] = True
+    # A drive fault ends when its drive delivers the loop's prediction again (its torque steps back onto the
+    # command), or when its evidence is gone
+    state.drive_ended = False
     for joint in range(3):
-        evident = state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0
+        delivers = finite[joint] and abs(torque[joint] - predicted[joint]) <= TORQUE_MARGIN
+        evident = (state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0) and not delivers
+        if state.drive_active[joint] != 0 and not evident:
+            state.drive_ended = True
+            state.shortfall[joint] = 0.0
         state.drive_active[joint] = state.drive_active[joint] != 0 and evident
         state.torque_implausible[joint] = implausible[joint]
         if finite[joint]:

@@ -97,21 +97,26 @@ def monitor_step(
     state.reference[1, :] = reference_rates
     state.reference[2, :] = reference_accelerations
     replaced = clean_encoders(state, angles, rates) | clean_torques(state, torques, command, has_command)
-    faulty = suspect = False
+    faulty = suspect = short = False
     for joint in range(3):
         faulty |= state.encoder_bad[joint] != 0 or state.torque_bad[joint] > 0
         faulty |= state.nan_active[joint] != 0 or state.nan_active[3 + joint] != 0
         suspect |= state.stuck[joint] > 0
+        short |= state.short_run[joint] > 0
     state.faulty, state.suspect = faulty, suspect
     state.faulty_run = state.faulty_run + 1 if faulty else 0
     # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago, or
     # the current loop's prediction): the model's equations keep it. Replacements in a row drift from the joint (a
     # stuck encoder: the joint runs on its feedforward), so they and the smoother's lag after them are left out, as
-    # is a repeated reading not yet called stuck, and the smoother's window after a step back.
-    if state.resynced:
+    # is a repeated reading not yet called stuck, and the smoother's window after a step back: of the clean readings
+    # onto an encoder, or of a drive's torque onto its command when a drive fault ends (its joint's acceleration
+    # steps with it, which the smoother spreads over its window).
+    if state.resynced or state.drive_ended:  # a step back (onto the encoder, or of the torque onto the command)
         state.quiet_samples = RESYNC_QUIET
     elif suspect or state.faulty_run > 1:
         state.quiet_samples = SENSOR_QUIET
+    elif short:  # maybe a drive's loss: the command's prediction is not what the joint got
+        state.quiet_samples = 1
     else:
         state.quiet_samples = 0
     if state.quiet_samples:

@@ -83,6 +83,14 @@ of a light object, biased by the static friction of the lift-off, would make "go
 SLIP_EVIDENCE = 12.0
 """Log-likelihood ratio (the CUSUM's threshold) at which "the object is gone" wins over "it is still held"."""
 
+PUSH_SHOWN_SHARE = 0.875
+"""Share of a step in the residual that the checked sample shows once a push's onset is over: 8 samples after the
+step enters the smoother's window. The smoother spreads a push's onset over its window, and early on a push against
+the object's weight looks like its loss, which for a heavy object is worth 24 per sample; so no sample adds more
+than :data:`SLIP_EVIDENCE` over those 8 to the slip check's CUSUM, and a slip takes at least as long as the onset
+to show, by when the push's force, which "gone" does not explain, has cleared the CUSUM (docs/design.md section 6,
+"Fault monitor"). Heavy objects' slips are found a few ms later; light ones', whose samples add less, as before."""
+
 INITIAL_RESIDUAL_STD = 4.0
 """Standard deviation (N m) of the model's residual the slip check assumes at a reset, before it has measured its
 robot's: the identified model's error on a robot whose masses and friction differ from its identification by up to
@@ -115,8 +123,10 @@ SLOW_RATE = 0.5
 """Speed override (of the reference's speed) a ``"slow"`` reaction (:data:`~delta_env.faults.FAULT_REACTIONS`)
 asks for."""
 
-ROLLBACK_SAMPLES = 10
-"""How far back (samples beyond the monitor's lag) a detected collision can undo the payload estimator's updates."""
+ROLLBACK_SAMPLES = 20
+"""How far back (samples beyond the monitor's lag) a detected collision can undo the payload estimator's updates: its
+onset, which the check sees only in part for 8 samples (:data:`PUSH_SHOWN_SHARE`), and the samples its evidence took
+to grow (1-5 on the campaigns' pushes), with room."""
 
 REACTING_KINDS = ("collision", "slip", "drive_fault")
 """The detected faults a reaction answers; sensor faults are replaced and the work goes on."""

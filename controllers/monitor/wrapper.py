@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, Observation
+from controllers.base import Controller, Observation, payload_estimate_reader, payload_estimator_of
 from controllers.monitor.detector import FaultMonitor
 from controllers.monitor.events import DetectedFault
 from controllers.monitor.tuning import REACTING_KINDS, ROLLBACK_SAMPLES, SENSOR_QUIET, SLOW_RATE
@@ -20,16 +20,22 @@ from delta_env.faults import FAULT_REACTIONS
 class MonitoredController:
     """Any controller behind a :class:`FaultMonitor`: it sees clean observations only, its payload estimator leaves
     out the equations that lean on drifting replacements or a collision and forgets the object on a slip, and a
-    detected fault may ask the cell to slow down or stop.
+    detected fault may ask the cell to slow down or stop. A collision is a transient: once it is over (the model
+    agrees with the measurements again) and no lasting fault (a slip, a drive fault) was found since the reaction,
+    the controller asks for full speed again, also after a stop that has not yet ended the episode.
 
     Args:
         controller: The controller to protect.
         monitor: Its monitor.
         reaction: One of :data:`FAULT_REACTIONS`.
+        corrections_fit: A payload estimator run beside the controller only to fit the model's corrections to this
+            robot on the empty moves, which the monitor's residual takes at each pick; None for the controller's own
+            estimator (when it forms its equations at the measured state) or none.
 
     Attributes:
+        estimator: The inner controller's payload estimator (:class:`~controllers.base.PayloadEstimating`), or None.
         requested_speed: The speed override (a fraction of the reference's speed) the controller asks the cell for:
-            1 until a reaction asks for less.
+            1 until a reaction asks for less, and again once a collision it answered is over.
     """
 
     def __init__(
@@ -37,6 +43,7 @@ class MonitoredController:
         controller: Controller,
         monitor: FaultMonitor,
         reaction: Literal["continue", "slow", "stop"] = "continue",
+        corrections_fit: PayloadEstimator | None = None,
     ) -> None:
         if reaction not in FAULT_REACTIONS:
             raise ValueError(f"reaction must be one of {list(FAULT_REACTIONS)}, got {reaction!r}")
@@ -44,12 +51,23 @@ class MonitoredController:
         self.monitor = monitor
         self.reaction = reaction
         self.name = controller.name
+        self.estimator: PayloadEstimator | None = payload_estimator_of(controller)
         self.requested_speed = 1.0
+        self._lasting = False
+        """Whether a reaction answered a lasting fault (a slip, a drive fault), which full speed never follows."""
+        self._held_after_collision = False
+        """Whether a collision struck the carry under way."""
+        self._estimate = payload_estimate_reader(controller)
         self._command: NDArray[np.float64] | None = None
         self._holding = False
         self._checkpoints = monitor.lag + ROLLBACK_SAMPLES
-        if self.estimator is not None:
-            self.estimator.keep_checkpoints(self._checkpoints)
+        self._corrections_fit = corrections_fit
+        own = self.estimator if self.estimator is not None and self.estimator.measures_state else None
+        self._corrections_source = own if corrections_fit is None else corrections_fit
+        self._guarded = [e for e in (self.estimator, corrections_fit) if e is not None]
+        """The estimators whose equations the monitor's findings gate: the controller's, the corrections' fit."""
+        for estimator in self._guarded:
+            estimator.keep_checkpoints(self._checkpoints)
 
     @property
     def detected_faults(self) -> Sequence[DetectedFault]:
@@ -57,17 +75,17 @@ class MonitoredController:
 
     @property
     def payload_estimate(self) -> float:
-        return getattr(self.controller, "payload_estimate", 0.0)
-
-    @property
-    def estimator(self) -> PayloadEstimator | None:
-        """The inner controller's payload estimator, or None."""
-        return getattr(self.controller, "estimator", None)
+        """The inner controller's payload estimate (kg) at the last call; 0 if it does not estimate the payload."""
+        return self._estimate()
 
     def reset(self) -> None:
         self.controller.reset()
         self.monitor.reset()
+        if self._corrections_fit is not None:
+            self._corrections_fit.reset()
         self.requested_speed = 1.0
+        self._lasting = False
+        self._held_after_collision = False
         self._command = None
         self._holding = False
         self.monitor.set_corrections(None)
@@ -75,17 +93,25 @@ class MonitoredController:
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         monitor = self.monitor
         seen = len(monitor.events)
-        estimator = self.estimator
+        source = self._corrections_source
         holding = observation["gripper"].item(0) > 0.5
-        if holding and not self._holding and estimator is not None and estimator.fits_corrections:
-            monitor.set_corrections(estimator.corrections)  # what the empty moves so far say of this robot
+        if holding and not self._holding and source is not None and source.fits_corrections:
+            monitor.set_corrections(source.corrections)  # what the empty moves so far say of this robot
         self._holding = holding
-        clean = monitor.update(observation, self._command)
+        clean = monitor.update(observation, self._command, self._estimate())
         new = monitor.events[seen:]
-        if estimator is not None:
-            if any(event.kind == "collision" for event in new):
-                # the collision's first samples entered before it was detected: undo them
-                undo = min(self._checkpoints, monitor.lag - estimator.delay + monitor.collision_samples + 1)
+        collided = any(event.kind == "collision" for event in new)
+        # an estimator that forms its equations at the reference reads the arm's recovery from a push as payload:
+        # after a collision it keeps its estimate to the end of the carry
+        self._held_after_collision = holding and (self._held_after_collision or collided)
+        for estimator in self._guarded:
+            if self._held_after_collision and not estimator.measures_state:
+                estimator.skip(1)
+            if collided:
+                # the collision's first samples entered before it was detected, from the first reading of its onset
+                # on: undo them
+                onset = monitor.collision_samples + monitor.onset_samples
+                undo = min(self._checkpoints, monitor.lag - estimator.delay + onset + 1)
                 if undo > 0:
                     estimator.rollback(undo)
             if monitor.quiet_samples:
@@ -94,7 +120,14 @@ class MonitoredController:
                 estimator.skip(SENSOR_QUIET)
             if monitor.slipped:
                 estimator.drop_object()
-        if self.reaction != "continue" and any(event.kind in REACTING_KINDS for event in new):
-            self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
+        if self.reaction != "continue":
+            reacting = [event.kind for event in new if event.kind in REACTING_KINDS]
+            if reacting:
+                self.requested_speed = min(self.requested_speed, SLOW_RATE if self.reaction == "slow" else 0.0)
+                self._lasting = self._lasting or any(kind != "collision" for kind in reacting)
+            elif self.requested_speed < 1.0 and not self._lasting and not monitor.collision:
+                self.requested_speed = 1.0  # the push is over
+        if self._corrections_fit is not None:
+            self._corrections_fit.update(clean)
         self._command = np.asarray(self.controller(clean), dtype=float)
         return self._command

@@ -152,6 +152,13 @@ class PayloadEstimator:
         return self.fit.fits
 
     @property
+    def measures_state(self) -> bool:
+        """Whether its equations (and the corrections fitted on the empty moves) are formed at the robot's measured
+        state (``"smoothed"``, ``"filtered"``), not at the reference, whose fit absorbs the robot's departure from it:
+        the corrections the fault monitor's residual may take."""
+        return self.regressor != "reference"
+
+    @property
     def empty_move_sums(self) -> EmptyMoveSums:
         """The fit's sums so far (:class:`EmptyMoveSums`): the seeded ones plus this episode's empty moves."""
         return self.fit.sums

@@ -18,7 +18,7 @@ so that a policy sees exactly the same numbers in training and in evaluation.
 """
 
 from controllers.residual.config import ResidualConfig
-from controllers.residual.controller import PolicyFunction, ResidualController, payload_estimate_reader
+from controllers.residual.controller import PolicyFunction, ResidualController
 from controllers.residual.env import DeltaResidualEnv
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
 from controllers.residual.policy_file import (
@@ -52,7 +52,6 @@ __all__ = [
     "algorithm_class",
     "load_residual_controller",
     "load_residual_policy",
-    "payload_estimate_reader",
     "read_policy_metadata",
     "read_policy_settings",
     "residual_controller",

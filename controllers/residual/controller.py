@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, EstimatesPayload, Observation
+from controllers.base import Controller, Observation, payload_estimate_reader, payload_estimator_of
 from controllers.residual.config import ResidualConfig, residual_gain
 from controllers.residual.features import ResidualFeatures
 
@@ -17,15 +17,6 @@ if TYPE_CHECKING:
 
 PolicyFunction = Callable[[NDArray[np.float32]], NDArray[np.float32]]
 """Maps one policy observation (float32, (ResidualFeatures.size,)) to an action in [-1, 1]^3."""
-
-
-def payload_estimate_reader(controller: Controller) -> Callable[[], float]:
-    """A function of no arguments giving the controller's payload estimate (kg) at the last call, or 0 if it does not
-    estimate the payload (:class:`~controllers.base.EstimatesPayload`). The protocol is checked here, once: a runtime
-    protocol check costs microseconds, too much for every step at 1 kHz."""
-    if isinstance(controller, EstimatesPayload):
-        return lambda: float(controller.payload_estimate)
-    return lambda: 0.0
 
 
 class ResidualController:
@@ -53,6 +44,7 @@ class ResidualController:
         self.name = name if name is not None else f"{base.name} + residual"
         self._features = ResidualFeatures(config)
         self._base_estimate = payload_estimate_reader(base)
+        self._base_estimator = payload_estimator_of(base)
         self._step = 0
         self._action = np.zeros(3)
         self._residual = np.zeros(3)
@@ -72,7 +64,7 @@ class ResidualController:
     @property
     def estimator(self) -> PayloadEstimator | None:
         """The base controller's payload estimator, or None: a fault monitor keeps faulty samples out of it."""
-        return getattr(self.base, "estimator", None)
+        return self._base_estimator
 
     @property
     def residual_torque(self) -> NDArray[np.float64]:

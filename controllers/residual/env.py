@@ -9,9 +9,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from controllers.base import Controller
+from controllers.base import Controller, payload_estimate_reader
 from controllers.residual.config import ResidualConfig, residual_gain
-from controllers.residual.controller import payload_estimate_reader
 from controllers.residual.features import FEATURE_CLIP, ResidualFeatures
 from controllers.residual.policy_file import shipped_base_setup
 from delta_env.env import DeltaPickPlaceEnv

@@ -28,7 +28,7 @@ from controllers.residual.actor import MlpActor, model_actor, read_actor
 from controllers.residual.config import ResidualConfig
 from controllers.residual.controller import ResidualController
 from controllers.residual.features import FEATURE_VERSION, ResidualFeatures
-from controllers.setup import ESTIMATOR_REGRESSORS, ControllerSetup, model_row
+from controllers.setup import ESTIMATOR_REGRESSORS, MODEL_ROWS, ControllerSetup, model_row
 from delta_env.records import content_hash
 
 if TYPE_CHECKING:
@@ -128,7 +128,7 @@ class PolicyBase:
     @property
     def name(self) -> str:
         """The base controller's label, e.g. ``"MId+F+R+RLS+lag+PD"``."""
-        return controller_name(True, estimates_payload=True, leads_lag=self.key == "mid_f_rls_lag")
+        return controller_name(True, estimates_payload=True, leads_lag=MODEL_ROWS[self.key].leads_lag)
 
     def to_table(self) -> dict[str, Any]:
         """What a policy file stores: the key, the setup's table (:meth:`ControllerSetup.to_table`) and its content
@@ -182,7 +182,9 @@ def _legacy_base(values: dict[str, Any]) -> PolicyBase:
             f"version {FRICTION_VELOCITY} rad/s: retrain the policy on a current base"
         )
     lag = values.get("drive_lag")
-    key = "mid_f_rls_ref" if regressor == "reference" else "mid_f_rls" if lag is None else "mid_f_rls_lag"
+    # a lag meant the lag row, which leads it; the reference regressor had no lag row
+    leads_lag = lag is not None and regressor == "smoothed"
+    key = next(key for key, row in MODEL_ROWS.items() if (row.regressor, row.leads_lag) == (regressor, leads_lag))
     table = {"mid": values["parameters"], "mid_f": values["parameters"], "mid_f_rods": values["parameters"]}
     # The lumped parameter sets are unknown to these files; the base row does not use them.
     for name in ("drive_lag", "geometry", "masses"):

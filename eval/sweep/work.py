@@ -19,14 +19,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controllers.registry import ControllerSetup, controller_entry, controller_source, residual_policy_path
+from controllers.registry import (
+    CELL_ESTIMATOR_KEY,
+    ControllerSetup,
+    controller_entry,
+    controller_source,
+    residual_policy_path,
+)
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval import metrics
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
 from eval.run_folder import package_versions
-from eval.tasks import CELL_ESTIMATOR_KEY, Task, run_task
+from eval.tasks import Task, run_task
 
 EPISODE_METRICS = (
     "tracking_rms_mm",
@@ -127,8 +133,9 @@ def setup_digest(setup: ControllerSetup, controller: str) -> str:
     """Content hash (16 hex digits) of what ``controller`` knows: every field of ``setup``
     (:meth:`~controllers.registry.ControllerSetup.content_hash`) with the tares and empty-move sums of this controller
     and of the cell's estimator (which an online timing runs beside it) only; the residual policy by its file's bytes,
-    for the residual row only; and a user controller's source (:func:`controllers.registry.controller_source`), whose
-    code the project's version does not cover. Adding a controller to a grid, or editing another's code, leaves the
+    for a row that reads it only (:attr:`~controllers.registry.ControllerEntry.reads_policy_file`); and a user
+    controller's source (:func:`controllers.registry.controller_source`), whose code the project's version does not
+    cover. Adding a controller to a grid, or editing another's code, leaves the
     keys of this controller's rows as they were."""
     own = {controller, CELL_ESTIMATOR_KEY}
     known = dataclasses.replace(
@@ -138,7 +145,7 @@ def setup_digest(setup: ControllerSetup, controller: str) -> str:
         empty_moves={key: sums for key, sums in setup.empty_moves.items() if key in own},
     )
     digest = hashlib.sha256(known.content_hash().encode())
-    if controller == "residual":
+    if controller_entry(controller).reads_policy_file:
         digest.update(residual_policy_path(setup).read_bytes())
     digest.update(controller_source(controller))
     return digest.hexdigest()[:16]
