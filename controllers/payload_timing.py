@@ -14,14 +14,15 @@ torque less :data:`THERMAL_MARGIN`; a move that would exceed it is planned withi
 - ``"online"``: a carry starts on a plan for the heaviest object within the envelope but hotter than its rating
   (:data:`START_SHARE`: the thermal budget is an average, which the rest of the carry settles). Before the carry
   runs, with its plan, the cell precomputes that plan's rated continuations (once per carry shape): from each of
-  :data:`PRECOMPUTED_TAKEOVERS` on, for each of :data:`PRECOMPUTED_PAYLOADS`, from the state the carry reaches
+  its takeovers on (:data:`TAKEOVER_SCALES` of the time at which the estimator's deviation, predicted along the
+  plan, falls within :data:`REPLAN_STEP`), for each of :data:`PRECOMPUTED_PAYLOADS`, from the state the carry reaches
   there (the past is kept, the continuation is C2), within the rating and braking no harder than that payload's
   rated law (:meth:`PayloadTiming._braking`). Once the payload estimator (the controller's RLS) has settled, the
   carry switches, once and at no planning latency, to the table's continuation for the lightest payload that
   covers the estimate plus its uncertainty and a margin, unless waiting for a later takeover is free or buys a
   shorter law (:meth:`PayloadTiming.retime`). Nothing is planned while a carry runs: a rated continuation bisects
-  its share, about 100 ms of a core, most of a carry. A carry still on its start at
-  :data:`FALLBACK_TAKEOVER` continues on the precomputed rated plan for the heaviest object.
+  its share, about 100 ms of a core, most of a carry. A carry still on its start at the last takeover continues
+  on the precomputed rated plan for the heaviest object.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from controllers.base import Controller, Observation
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import PayloadEstimator
 from controllers.timing import TimeOptimalPlanner
+from delta_env import kinematics
 from delta_env.cycles import DEFAULT_DWELL
 from delta_env.drive import DriveLimits
 from delta_env.geometry import DeltaGeometry, DeltaMasses
@@ -71,19 +73,21 @@ estimate settles, are not slowed by a budget that the whole move and its dwell s
 envelope is thermally limited: about 0.4 to 0.6 of it). Its rated continuations reach about the declared timing
 (docs/measurements.md, "Pick rate")."""
 
-FALLBACK_TAKEOVER = 0.03
-"""Time (s) into an online carry by which it leaves its unrated start: on a precomputed continuation for the
-estimate, else on the precomputed rated continuation for the heaviest object."""
+TAKEOVER_SCALES = (1.0, 1.125, 1.25, 1.375, 1.5, 1.75)
+"""Times into an online carry from which it precomputes, with its plan, continuations for
+:data:`PRECOMPUTED_PAYLOADS` (the only samples at which a carry switches), as multiples of the carry's settle
+time (:meth:`PayloadTiming.settle_time`): the first sample at which the estimator's predicted standard deviation
+along the carry's start law is within :data:`REPLAN_STEP`. The estimate overshoots over the lift's first
+milliseconds (on the nominal robot by 6 to 16 %, until about 22 ms), a bias its deviation does not describe, so a heavy
+object waits for a later takeover (:meth:`PayloadTiming.retime`). The last is the fallback: a carry still on its
+unrated start there continues on the precomputed rated plan for the heaviest object. On the nominal robot (settle
+time 17 ms) they are 17 to 30 ms (docs/design.md section 9)."""
 
-PRECOMPUTED_TAKEOVERS = (0.016, 0.018, 0.02, 0.022, 0.025, 0.03)
-"""Times (s) into a carry from which an online timing precomputes, while it plans the carry, continuations for
-:data:`PRECOMPUTED_PAYLOADS`: the only samples at which a carry switches (the estimate settles 14-17 ms into the
-lift and overshoots until about 22 ms; the last is :data:`FALLBACK_TAKEOVER`)."""
-
-PRECOMPUTED_PAYLOADS = tuple(round(0.1 * step, 1) for step in range(1, 40))
-"""Payloads (kg) of the precomputed continuations, 0.1 kg apart (below the heaviest object by :data:`REPLAN_STEP`
-only; the heaviest object's own at :data:`FALLBACK_TAKEOVER`): a carry's bound rounds up to the next one, about a
-millisecond per 0.1 kg."""
+PRECOMPUTED_PAYLOADS = tuple(round(REPLAN_STEP * step, 2) for step in range(1, 80))
+"""Payloads (kg) of the precomputed continuations, :data:`REPLAN_STEP` apart, 0.05 to 3.95 kg (below the heaviest
+object by :data:`REPLAN_STEP` only; the heaviest object's own at the last takeover, :data:`TAKEOVER_SCALES`): a
+carry's bound rounds up to the next one, about half a millisecond per step. A 0.1 kg grid costs half the table's
+CPU and about 0.25 ms per carry (docs/measurements.md)."""
 
 BRAKING_PAYLOADS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 """Payloads (kg) whose rated laws' shares of the envelope give, by linear interpolation (and with the heaviest
@@ -198,8 +202,8 @@ class PayloadTiming:
 
         ``"online"`` starts hot (:meth:`_start`) if lighter objects may come: with objects of one mass the rated
         worst case is the declared timing, and a hot start would only move heat to the end of the carry, where the
-        platform then settles worse. It also precomputes the start's continuations (:data:`PRECOMPUTED_TAKEOVERS`),
-        once per carry shape.
+        platform then settles worse. It also precomputes the start's continuations (:meth:`takeovers`), once per carry
+        shape.
         """
         rated = self._plan(shape, declared_mass if self.mode == "declared" else self.max_payload)
         if not self.retimes_online:
@@ -219,15 +223,15 @@ class PayloadTiming:
 
     def _start(self, shape: Segment, rated: TimeLaw) -> TimeLaw:
         """The start law of an online carry (:data:`START_SHARE`) if its rated continuation for the heaviest object
-        from :data:`FALLBACK_TAKEOVER` exists, else ``rated`` (the heaviest object's rated law)."""
+        from its last takeover exists, else ``rated`` (the heaviest object's rated law)."""
         try:
             start = self.planner.plan(shape, self.max_payload, START_SHARE * self.torque_share)
         except ValueError:
             return rated
         if len(start) >= len(rated):
             return rated
-        fallback = round(FALLBACK_TAKEOVER / start.dt)
-        if self._continued(shape, start, fallback, self.max_payload, math.inf) is None:
+        takeovers = self.takeovers(shape, start)
+        if not takeovers or self._continued(shape, start, takeovers[-1], self.max_payload, math.inf) is None:
             return rated
         if self.thermal_ratio(shape, start, self.max_payload) > 1.0:
             _UNRATED_STARTS.add(start)
@@ -236,19 +240,44 @@ class PayloadTiming:
     def _continuations(self, shape: Segment, law: TimeLaw, rated_samples: int) -> list[tuple[int, float, TimeLaw]]:
         """(takeover sample, payload, law) of ``law``'s rated continuations, earliest first: for lighter objects
         if shorter than ``rated_samples`` (the heaviest object's rated law), and, for a start law over the rating,
-        the heaviest object's own from :data:`FALLBACK_TAKEOVER`."""
+        the heaviest object's own from the last takeover (:meth:`takeovers`)."""
         table = []
-        for takeover in sorted({round(t / law.dt) for t in PRECOMPUTED_TAKEOVERS}):
+        takeovers = self.takeovers(shape, law)
+        for takeover in takeovers:
             for payload in (p for p in PRECOMPUTED_PAYLOADS if p <= self.max_payload - REPLAN_STEP):
                 continued = self._continued(shape, law, takeover, payload, rated_samples)
                 if continued is not None:
                     table.append((takeover, payload, continued))
         if law in _UNRATED_STARTS:
-            fallback = round(FALLBACK_TAKEOVER / law.dt)
+            fallback = takeovers[-1]
             table.append(
                 (fallback, self.max_payload, self._continued(shape, law, fallback, self.max_payload, math.inf))
             )
         return table
+
+    def settle_time(self, shape: Segment, law: TimeLaw) -> int:
+        """The sample of a carry of ``shape`` timed by ``law`` at which the payload estimate is predicted to be within
+        :data:`REPLAN_STEP` (one standard deviation), or ``len(law)`` if it never is.
+
+        The estimator's variance depends only on the regressor along the carry and its own noise model, not on the
+        readings (:meth:`~controllers.payload.PayloadEstimator.predicted_variance`): known once the carry is
+        planned, for this robot and this carry shape."""
+        x, velocity, acceleration = move_samples(shape, law)
+        theta, theta_dot, theta_ddot = kinematics.cartesian_to_joint(
+            self.planner.dynamics.geometry, x, velocity, acceleration
+        )
+        settled = self.estimator.predicted_variance(theta, theta_dot, theta_ddot) <= REPLAN_STEP**2
+        return int(np.argmax(settled)) if settled.any() else len(law)
+
+    def takeovers(self, shape: Segment, law: TimeLaw) -> tuple[int, ...]:
+        """The samples of an online carry's start ``law`` from which its continuations are precomputed: the
+        :data:`TAKEOVER_SCALES` of its :meth:`settle_time`, those before the law's last sample; the last is the
+        fallback. Derived once per law."""
+        if law not in _TAKEOVERS:
+            settle = self.settle_time(shape, law)
+            samples = sorted({round(scale * settle) for scale in TAKEOVER_SCALES})
+            _TAKEOVERS[law] = tuple(sample for sample in samples if sample < len(law) - 1)
+        return _TAKEOVERS[law]
 
     def _continued(
         self, shape: Segment, law: TimeLaw, takeover: int, payload: float, within: float | None = None
@@ -308,10 +337,10 @@ class PayloadTiming:
         Nothing is planned while the carry runs: only a carry on its start law switches, once, to one of the
         continuations precomputed with that law (:meth:`_continuations`), at one of their takeover samples, for the
         lightest payload that covers the estimate's bound. It waits for the next takeover if that one's law for the
-        same payload is no longer (for free: the estimate overshoots over the lift's first 20 ms), or for a later one
+        same payload is no longer (for free: the estimate overshoots after the settle time), or for a later one
         whose law for the estimate itself (its bound once the deviation has shrunk) is shorter. A carry still on its
-        unrated start at :data:`FALLBACK_TAKEOVER` takes the heaviest object's rated continuation, whatever the
-        estimate (a non-finite one included).
+        unrated start at its last takeover (:meth:`takeovers`) takes the heaviest object's rated continuation,
+        whatever the estimate (a non-finite one included).
         """
         if not self.retimes_online:
             return None
@@ -332,7 +361,7 @@ class PayloadTiming:
         later = [(start, mass_, len(continued)) for start, mass_, continued in table if start > index]
         following = min((start for start, _, _ in later), default=None)
         # waiting is free if the next takeover's law for the same payload is no longer (the estimate overshoots
-        # over the lift's first 20 ms and then falls); worth it if a later law for the estimate itself is shorter
+        # over the lift's first milliseconds, then falls); worth it if a later law for the estimate itself is shorter
         free = any(start == following and mass_ == payload and samples <= len(now) for start, mass_, samples in later)
         expected = mass + ESTIMATE_MARGIN
         shorter = any(expected <= mass_ < payload and samples < len(now) for _, mass_, samples in later)
@@ -341,6 +370,9 @@ class PayloadTiming:
 
 _CONTINUATIONS: weakref.WeakKeyDictionary[TimeLaw, list[tuple[int, float, TimeLaw]]] = weakref.WeakKeyDictionary()
 """Precomputed continuations of online carries' laws (:meth:`PayloadTiming._continuations`)."""
+
+_TAKEOVERS: weakref.WeakKeyDictionary[TimeLaw, tuple[int, ...]] = weakref.WeakKeyDictionary()
+"""The takeover samples of online carries' start laws (:meth:`PayloadTiming.takeovers`)."""
 
 _RATED_SHARES: weakref.WeakKeyDictionary[TimeLaw, float] = weakref.WeakKeyDictionary()
 """The share of the envelope each rated law was planned within (:meth:`PayloadTiming._within_rating`)."""

@@ -64,7 +64,7 @@ remainder gets its share)."""
 
 REPLAN_TANGENT_PASSES = 1
 """Conservative passes of a replan: one, on the coarser :data:`REPLAN_GRID_INTERVALS` grid, so that the table of
-continuations an online timing precomputes per carry shape (:data:`controllers.payload_timing.PRECOMPUTED_TAKEOVERS`)
+continuations an online timing precomputes per carry shape (:meth:`controllers.payload_timing.PayloadTiming.takeovers`)
 stays cheap; its law is within a sample of the finer one and passes the same check (the timings:
 docs/measurements.md, "Pick rate")."""
 

@@ -188,3 +188,15 @@ def test_smoothed_step_raises_on_a_reading_that_is_not_finite() -> None:
         estimator.update(observation)
     with pytest.raises(ValueError, match="tracking error must be 3 finite values"):
         estimator.measurement(observation)
+
+
+def test_predicted_variance_refuses_a_plan_of_the_wrong_shape_or_not_finite() -> None:
+    estimator = PayloadEstimator(DYNAMICS)
+    angles = np.full((5, 3), 0.3)
+    with pytest.raises(ValueError, match=r"must each be \(n, 3\) of one n"):
+        estimator.predicted_variance(angles, np.zeros((4, 3)), np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="must be finite"):
+        estimator.predicted_variance(angles, np.full((5, 3), np.nan), np.zeros((5, 3)))
+    # at rest nothing is learnt: the prior, faded by the forgetting
+    variance = estimator.predicted_variance(angles, np.zeros((5, 3)), np.zeros((5, 3)))
+    assert_allclose(variance, estimator.rls.initial_variance / 0.999 ** np.arange(1, 6))

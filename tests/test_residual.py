@@ -425,7 +425,7 @@ def test_vector_envs() -> None:
         vec_env.close()
 
 
-@pytest.mark.slow  # the online carry's table of continuations: about 30 s of a core
+@pytest.mark.slow  # the online carry's table of continuations: about 50 s of a core
 def test_training_envs_are_timed_online_on_the_bases_own_estimate() -> None:
     # the residual's training work: the data sheet's cycle timed online, in-position release, randomized plants
     scenario = preset("pick-rate-randomized")

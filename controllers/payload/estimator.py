@@ -10,7 +10,7 @@ import math
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
@@ -28,6 +28,7 @@ from controllers.payload.tuning import (
     PICK_PRIOR_VARIANCE,
     RESIDUAL_STD,
     REST_RATE,
+    residual_std,
 )
 from delta_env.validation import require_in, require_positive
 
@@ -110,6 +111,10 @@ class PayloadEstimator:
         self.dynamics = dynamics
         self.regressor = regressor
         self.tare = float(tare)
+        # the equations' weighting, which predicted_variance repeats along a plan
+        self._weighting = (np.asarray(friction, dtype=float), float(nominal_std), float(friction_velocity))
+        self._weighting += (float(correlation_samples),)
+        self._rest_rate = float(rest_rate)
         self.rls = PayloadRLS(
             forgetting_factor=forgetting_factor, noise_std=1.0, initial_variance=prior_variance, initial_mass=tare
         )
@@ -234,6 +239,45 @@ class PayloadEstimator:
         :meth:`keep_checkpoints`."""
         self.rls.reset(self.tare, DROP_VARIANCE)
         self.skip(4 * self.delay + 1)
+
+    def predicted_variance(self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike) -> NDArray[np.float64]:
+        """The variance (kg^2) of the mass that :attr:`rls` will hold after each control step of a carry along a
+        planned joint trajectory, known before the carry runs.
+
+        RLS's variance does not depend on the readings, only on each sample's information
+        I_j = sum_i w_i phi_i^2 (the weights of :func:`~controllers.payload.tuning.residual_std` at the sample's
+        rates, 0 with every joint at rest: :meth:`measurement`). The covariance is reset at the pick, the first
+        step of the carry, and step k fuses the equation of sample k - :attr:`delay` (those before the carry are at
+        rest), so P_k = (lambda / P_{k-1} + I_{k-delay})^-1 from P_{-1} = the prior variance. This assumes the
+        robot is where the plan is: its lag behind the reference over the lift's first milliseconds is not in it.
+
+        Args:
+            theta: Planned joint angles (rad) of the carry's samples at the control period, ``(n, 3)``, sample 0 the
+                departure (the step the gripper holds first).
+            theta_dot: Their rates (rad/s), ``(n, 3)``.
+            theta_ddot: Their accelerations (rad/s^2), ``(n, 3)``.
+
+        Returns:
+            P after each of the n steps (kg^2), ``(n,)``.
+        """
+        states = [np.asarray(values, dtype=float) for values in (theta, theta_dot, theta_ddot)]
+        if any(values.ndim != 2 or values.shape[1] != 3 or values.shape != states[0].shape for values in states):
+            shapes = [values.shape for values in states]
+            raise ValueError(f"theta, theta_dot and theta_ddot must each be (n, 3) of one n, got shapes {shapes}")
+        if not all(np.isfinite(values).all() for values in states):
+            raise ValueError("theta, theta_dot and theta_ddot must be finite")
+        rates = states[1]
+        phi = self.dynamics.payload_regressor(*states)
+        information = np.sum((phi / residual_std(rates, *self._weighting)) ** 2, axis=-1)
+        information[np.all(np.abs(rates) < self._rest_rate, axis=-1)] = 0.0
+        fused = np.concatenate((np.zeros(min(self.delay, len(information))), information))[: len(information)]
+        variance = np.empty(len(fused))
+        previous = self.rls.initial_variance
+        for step, sample_information in enumerate(fused):
+            # with R = 1 (whitened equations): 1 / P+ = lambda / P + I (PayloadRLS.update_moments)
+            previous = 1.0 / (self.rls.forgetting_factor / previous + sample_information)
+            variance[step] = previous
+        return variance
 
     def measurement(
         self,
