@@ -46,7 +46,7 @@ def episode(env: DeltaPickPlaceEnv, seed: int = 0) -> tuple[list[dict], int]:
 
 def test_a_platform_held_on_target_is_in_position_at_once_and_the_air_activation_lasts_35_ms(monkeypatch) -> None:
     env = DeltaPickPlaceEnv(n_cycles=2)
-    monkeypatch.setattr(env.plant, "joint_angle_values", encoders_read(env))
+    monkeypatch.setattr(env.plant, "rotor_angle_values", encoders_read(env))
     infos, planned = episode(env)
     reference = env.trajectory
     assert [settle.settle_time for settle in env.settles] == [0.0] * 4
@@ -63,14 +63,14 @@ def test_a_platform_held_on_target_is_in_position_at_once_and_the_air_activation
 
     # the air activation is the cycle's dwell: 25 ms less of it at each of the 4 events, 0.1 s shorter
     shorter = DeltaPickPlaceEnv(n_cycles=2, air_activation=0.01)
-    monkeypatch.setattr(shorter.plant, "joint_angle_values", encoders_read(shorter))
+    monkeypatch.setattr(shorter.plant, "rotor_angle_values", encoders_read(shorter))
     episode(shorter)
     assert len(env.trajectory) - len(shorter.trajectory) == pytest.approx(4 * 25, abs=4)
 
 
 def test_a_platform_held_off_target_times_out_and_is_flagged(monkeypatch) -> None:
     env = DeltaPickPlaceEnv(n_cycles=1)
-    monkeypatch.setattr(env.plant, "joint_angle_values", encoders_read(env, offset=1e-3))  # about 0.3 mm off
+    monkeypatch.setattr(env.plant, "rotor_angle_values", encoders_read(env, offset=1e-3))  # about 0.3 mm off
     infos, planned = episode(env)
     timeout = round(DEFAULT_SETTLE_TIMEOUT / DT)
     assert [(settle.kind, settle.timed_out) for settle in env.settles] == [("pick", True), ("place", True)]
@@ -94,7 +94,7 @@ def test_the_judgement_follows_the_encoders_never_the_truth(monkeypatch) -> None
     """The encoders read the reference while the robot, under PD alone, sags millimetres below it: in position at
     once. Then the truth alone is moved (the platform position the simulator reports, 5 mm off): nothing changes."""
     env = DeltaPickPlaceEnv(n_cycles=1)
-    monkeypatch.setattr(env.plant, "joint_angle_values", encoders_read(env))
+    monkeypatch.setattr(env.plant, "rotor_angle_values", encoders_read(env))
     infos, _ = episode(env)
     assert [settle.settle_time for settle in env.settles] == [0.0, 0.0]
     arrival = env.settles[0].arrival_step
@@ -180,7 +180,7 @@ def test_a_speed_override_during_a_wait(monkeypatch, rate: float) -> None:
     """A slow-down during the wait keeps it (the hold goes on in the scaled reference, the event still comes); a stop
     that never reaches the event (a 0.2 s air activation, longer than the stop's ramp) drops it, and the wait."""
     env = DeltaPickPlaceEnv(n_cycles=1, air_activation=0.035 if rate else 0.2)
-    monkeypatch.setattr(env.plant, "joint_angle_values", encoders_read(env, offset=1e-3))
+    monkeypatch.setattr(env.plant, "rotor_angle_values", encoders_read(env, offset=1e-3))
     observation, _ = env.reset(seed=0)
     controller = PDController()
     arrival = next(iter(env._reference.gates))
