@@ -3,7 +3,6 @@ fault (docs/design.md section 6, "Fault monitor")."""
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Sequence
 from typing import Literal
 
@@ -130,8 +129,6 @@ class MonitoredController:
             elif self.requested_speed < 1.0 and not self._lasting and not monitor.collision:
                 self.requested_speed = 1.0  # the push is over
         if self._corrections_fit is not None:
-            # a state the model cannot take (a plant gone astray) gives the fit no equation, and the episode its end
-            with contextlib.suppress(ValueError):
-                self._corrections_fit.update(clean)
+            self._corrections_fit.update(clean)
         self._command = np.asarray(self.controller(clean), dtype=float)
         return self._command

@@ -145,18 +145,11 @@ class SmoothedRegressor:
             observation["joint_torques"],
             holding,
         )
-        if status != kernels.VALID:
-            self._raise_invalid(status, observation)
-        return (information, moment) if used else None
-
-    def _raise_invalid(self, status: int, observation: Observation) -> None:
-        """Raise ValueError for a status of the compiled step other than VALID: a reading whose tracking error is
-        not finite, or a smoothed state the model cannot take."""
         if status == kernels.NOT_FINITE:
             error = observation["joint_angles"] - observation["reference_angles"]
             raise ValueError(f"the tracking error must be 3 finite values (one per joint), got {error!r}")
-        state = self._record["previous"][0].copy()
-        raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
+        # a smoothed state the model cannot take (a plant gone astray, which the env ends as diverged): no equation
+        return (information, moment) if used and status == kernels.VALID else None
 
 
 class FilteredRegressor:
@@ -205,9 +198,8 @@ class FilteredRegressor:
         status, used, information, moment = estimated_state_equation(
             self._model, self._equation, self._fit, state, previous_state, holding, torque
         )
-        if status != kernels.VALID:
-            raise ValueError(f"{kernels.INVALID_STATE[status]}: joint state estimate {state!r}")
-        return (information, moment) if used else None
+        # a state the model cannot take (a plant gone astray, which the env ends as diverged): no equation
+        return (information, moment) if used and status == kernels.VALID else None
 
 
 SMOOTHED = np.dtype((np.record, DELAYED_STATE_FIELDS))
