@@ -295,7 +295,11 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     force, magnitude = platform_force(
         terms, held, held_known, held_then, state.charged_coulomb, state.breakaway, model_band
     )
-    _, other_magnitude = platform_force(terms, other, True, False, state.charged_coulomb, state.breakaway, model_band)
+    other_magnitude = math.inf  # the other mass only while the gripper holds
+    if held_then:
+        _, other_magnitude = platform_force(
+            terms, other, True, False, state.charged_coulomb, state.breakaway, model_band
+        )
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
     explained = held_then and other_magnitude <= FORCE_REFERENCE
     found |= _check_force(state, force, magnitude, explained, quiet_then)
