@@ -1,6 +1,10 @@
 """What runs the compliance excitation on a compliant plant, and the plant's first mode measured by a frequency
 response (docs/design.md section 7, "Compliant drives").
 
+The frequency response (:func:`measure_first_mode`) is a test bench's: the rotors driven about a pose, the
+motor-side angles read, the modes found where the response peaks; it judges the model's two-mass modes
+(:func:`controllers.compliance.first_mode`) against the plant's.
+
 The excitation holds the robot at rest poses (a soft joint PD on the motor encoders plus MKH's gravity torque, stiff
 enough to hold, soft enough that the gearhead mode leaves it stable) and adds a random-phase multisine torque per
 drive (:func:`delta_env.excitation.multisine_torques`); the logger records the motor-side encoders, the load-side
@@ -9,15 +13,18 @@ encoders and the measured torques (:class:`~controllers.identification.DriveLog`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from controllers.identification import DriveLog
 from delta_env import kinematics
-from delta_env.config import PlantConfig
+from delta_env.config import PlantConfig, PlantRealism
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import MULTISINE_BAND, MULTISINE_PERIOD, multisine_torques
+from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from eval.excitation import robot_model
@@ -121,3 +128,132 @@ def run_compliance_excitation(spec: ComplianceExcitationSpec, plant: PlantConfig
         motor_angles=motor_angles,
         load_angles=np.array(load),
     )
+
+
+RESPONSE_BAND = (100.0, 450.0)
+"""Band (Hz) of the frequency response's multisine: around every gearhead mode (205 to 260 Hz for the SP+ 140,
+times sqrt of a stiffness scale), above the hold's loop."""
+
+RESPONSE_PERIOD = 1.0
+"""Period (s) of the frequency response's multisine: its lines 1 Hz apart, a fifth of the modes' half-power
+bandwidth (2 zeta f, 16 Hz at zeta = 0.035)."""
+
+RESPONSE_SETTLE = 0.5
+"""Time (s) before the recorded period: thirteen time constants of the hold's slowest pole (about 37 ms), so the
+start's transient leaks no more than 1e-5 of itself into the lines."""
+
+RESPONSE_RMS = 5.0
+"""RMS multisine torque per drive (N m)."""
+
+RESPONSE_HOLD_KP = 300.0
+"""Stiffness (N m/rad) of the weak PD that keeps the pose during the response (critically damped near 4 Hz); it
+shifts the modes by about kp / (2 k) J_a / (J_m + J_a), 0.05 % of the SP+ 140's, and is part of the measured
+torque, not of the response."""
+
+RESPONSE_HOLD_KD = 20.0
+"""Damping (N m s/rad) of that PD."""
+
+
+@dataclass(frozen=True)
+class MeasuredMode:
+    """A mode read off the plant's motor-side frequency response.
+
+    Attributes:
+        frequency_hz: Where the largest singular value of the response matrix peaks, the lowest peak (Hz).
+        damping_ratio: Half its half-power bandwidth over the peak's frequency (dimensionless); where two modes lie
+            within that bandwidth (the lateral pair at home), their joint width.
+        frequencies_hz: The response's lines (Hz), ``(L,)``.
+        gain: The largest singular value of the response matrix d phi / d tau (rad/(N m)) on each line, ``(L,)``.
+    """
+
+    frequency_hz: float
+    damping_ratio: float
+    frequencies_hz: NDArray[np.float64]
+    gain: NDArray[np.float64]
+
+
+def _response_plant(plant: PlantConfig) -> PlantConfig:
+    """``plant`` with its gearheads and arm armature and nothing else of its drives (no friction, lag, noise): the
+    linear system whose modes the two-mass model describes."""
+    compliance = plant.realism.compliance
+    if compliance is None:
+        raise ValueError("the frequency response needs a plant with compliant drives (PlantRealism.compliance)")
+    realism = replace(PlantRealism.off(), compliance=compliance, armature=plant.realism.armature)
+    return replace(plant, realism=realism, payload_body=True)
+
+
+def measure_first_mode(
+    plant: PlantConfig, pose: tuple[float, float, float], payload: float = 0.0, seed: int = 0
+) -> MeasuredMode:
+    """The plant's first mode about ``pose`` (platform position, m) carrying ``payload`` (kg), from its
+    frequency response.
+
+    Without gravity (whose stiffness is negligible against the gearheads') and without the drives' friction, three
+    runs drive the rotors with independent random-phase multisines in :data:`RESPONSE_BAND` at every physics step,
+    a weak PD on the motor angles keeping the pose; after :data:`RESPONSE_SETTLE`, one period of the applied torques
+    U and the motor-side angles Y of the three runs gives the 3 x 3 response H = Y U^-1 on each line. The first mode
+    is the lowest peak of H's largest singular value that reaches a third of its highest (parabola through the
+    peak's three lines in log gain).
+
+    Raises:
+        ValueError: if the plant has no compliant drives or the response has no peak in the band.
+    """
+    config = _response_plant(plant)
+    simulated = DeltaPlant(config)
+    simulated.model.opt.gravity[:] = 0.0
+    dt = config.timestep
+    theta = kinematics.inverse(config.geometry, np.asarray(pose, dtype=float))
+    rng = np.random.default_rng(seed)
+    samples = round(RESPONSE_PERIOD / dt)
+    settle = round(RESPONSE_SETTLE / dt)
+    inputs, outputs = [], []
+    for _ in range(3):
+        excitation = multisine_torques(rng, RESPONSE_RMS, RESPONSE_PERIOD, RESPONSE_BAND, dt)
+        simulated.reset(theta)
+        if payload > 0.0:
+            simulated.place_payload(simulated.suction_cup_position(), payload)
+            simulated.attach_payload()
+        applied, angles = np.empty((samples, 3)), np.empty((samples, 3))
+        for n in range(settle + samples):
+            angle = np.array(simulated.rotor_angle_values())
+            torque = (
+                RESPONSE_HOLD_KP * (theta - angle)
+                - RESPONSE_HOLD_KD * np.array(simulated.rotor_velocity_values())
+                + excitation[n % samples]
+            )
+            if n >= settle:
+                applied[n - settle], angles[n - settle] = torque, angle
+            simulated.step(torque, 1)
+        inputs.append(np.fft.rfft(applied, axis=0))
+        outputs.append(np.fft.rfft(angles, axis=0))
+    frequencies = np.fft.rfftfreq(samples, dt)
+    lines = np.flatnonzero((frequencies >= RESPONSE_BAND[0]) & (frequencies <= RESPONSE_BAND[1]))
+    u = np.stack(inputs, axis=-1)[lines]  # (L, joint, run)
+    y = np.stack(outputs, axis=-1)[lines]
+    response = y @ np.linalg.inv(u)
+    gain = np.linalg.svd(response, compute_uv=False)[:, 0]
+    return _first_peak(frequencies[lines], gain)
+
+
+def _first_peak(frequencies: NDArray[np.float64], gain: NDArray[np.float64]) -> MeasuredMode:
+    """The lowest peak of ``gain`` reaching a third of its highest, with its half-power damping ratio."""
+    interior = np.flatnonzero((gain[1:-1] > gain[:-2]) & (gain[1:-1] >= gain[2:])) + 1
+    peaks = interior[gain[interior] >= gain.max() / 3.0]
+    if peaks.size == 0:
+        raise ValueError(f"the response has no peak between {frequencies[0]:g} and {frequencies[-1]:g} Hz")
+    peak = int(peaks[0])
+    left, middle, right = np.log(gain[peak - 1 : peak + 2])
+    offset = 0.5 * (left - right) / (left - 2.0 * middle + right)
+    spacing = frequencies[1] - frequencies[0]
+    frequency = float(frequencies[peak] + offset * spacing)
+    half_power = math.exp(middle - 0.25 * (left - right) * offset) / math.sqrt(2.0)
+    below = peak - np.argmax(gain[peak::-1] < half_power)
+    above = peak + np.argmax(gain[peak:] < half_power)
+
+    def crossing(first: int, second: int) -> float:
+        """Where the gain crosses half power between two adjacent lines (Hz), linearly."""
+        fraction = (half_power - gain[first]) / (gain[second] - gain[first])
+        return float(frequencies[first] + fraction * (frequencies[second] - frequencies[first]))
+
+    bandwidth = crossing(above - 1, above) - crossing(below, below + 1)
+    return MeasuredMode(frequency, bandwidth / (2.0 * frequency), frequencies, gain)
