@@ -19,9 +19,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.identification import DriveLog
+from controllers.compliance import DriveCompliance, first_mode_map
+from controllers.dynamics import DeltaDynamics
+from controllers.identification import ComplianceFit, DriveLog, fit_compliance
+from controllers.identification.compliance import FIT_BAND_TOP, SETTLE_PERIODS
 from delta_env import kinematics
-from delta_env.config import PlantConfig, PlantRealism
+from delta_env.config import RATED_PAYLOAD, PlantConfig, PlantRealism
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import MULTISINE_BAND, MULTISINE_PERIOD, multisine_torques
 from delta_env.plant import DeltaPlant
@@ -257,3 +260,141 @@ def _first_peak(frequencies: NDArray[np.float64], gain: NDArray[np.float64]) -> 
 
     bandwidth = crossing(above - 1, above) - crossing(below, below + 1)
     return MeasuredMode(frequency, bandwidth / (2.0 * frequency), frequencies, gain)
+
+
+MAP_HEIGHTS = (-0.8, -0.9, -1.0)
+"""Platform heights (m) of the first-mode map's grid: the workspace's upper part, the conveyors, below them."""
+
+MAP_RADII = (0.0, 0.3, 0.6)
+"""Distances (m) from the base axis of the map's grid, up to the workspace's 0.7 m rim."""
+
+MAP_AZIMUTHS = 12
+"""Azimuths of the map's grid per ring (every 30 degrees: the three-fold symmetry and its mirror lines twice)."""
+
+MAP_PAYLOADS = (0.0, 1.0, 2.0, RATED_PAYLOAD)
+"""Payloads (kg) of the map: empty to rated."""
+
+
+@dataclass(frozen=True, eq=False)
+class ModeMap:
+    """The model's first mode over a grid of poses and payloads.
+
+    Attributes:
+        points: Platform positions (m), ``(N, 3)``.
+        payloads: Payloads (kg), ``(P,)``.
+        frequency_hz: Natural frequency of the first mode (Hz), ``(N, P)``.
+        damping_ratio: Its damping ratio, ``(N, P)``.
+        source: Where the drives' compliance comes from (identified, data sheet, scaled gearhead).
+    """
+
+    points: NDArray[np.float64]
+    payloads: NDArray[np.float64]
+    frequency_hz: NDArray[np.float64]
+    damping_ratio: NDArray[np.float64]
+    source: str
+
+    def summary(self) -> dict[str, object]:
+        """JSON-ready extremes per payload: the lowest and highest first mode (Hz) with its point and damping."""
+        rows = {}
+        for p, payload in enumerate(self.payloads):
+            low, high = int(np.argmin(self.frequency_hz[:, p])), int(np.argmax(self.frequency_hz[:, p]))
+            rows[f"{payload:g} kg"] = {
+                "lowest_hz": float(self.frequency_hz[low, p]),
+                "lowest_at_m": self.points[low].tolist(),
+                "highest_hz": float(self.frequency_hz[high, p]),
+                "highest_at_m": self.points[high].tolist(),
+                "damping_ratio_range": [float(self.damping_ratio[:, p].min()), float(self.damping_ratio[:, p].max())],
+            }
+        return {"source": self.source, "points": len(self.points), "payloads_kg": rows}
+
+
+def workspace_grid(
+    heights: tuple[float, ...] = MAP_HEIGHTS, radii: tuple[float, ...] = MAP_RADII, azimuths: int = MAP_AZIMUTHS
+) -> NDArray[np.float64]:
+    """Platform positions (m) on rings about the base axis, ``(n, 3)``: one point on the axis per height."""
+    points = []
+    for height in heights:
+        for radius in radii:
+            angles = [0.0] if radius == 0.0 else np.linspace(0.0, 2.0 * math.pi, azimuths, endpoint=False)
+            points += [(radius * math.cos(a), radius * math.sin(a), height) for a in angles]
+    return np.array(points)
+
+
+def mode_map(
+    dynamics: DeltaDynamics,
+    compliance: DriveCompliance,
+    points: NDArray[np.float64],
+    payloads: tuple[float, ...] = MAP_PAYLOADS,
+    source: str = "",
+) -> ModeMap:
+    """The first mode of the two-mass model at ``points`` (m, reachable) and ``payloads`` (kg)."""
+    theta = kinematics.inverse(dynamics.geometry, points)
+    frequency, damping = first_mode_map(dynamics, compliance, theta, payloads)
+    return ModeMap(np.asarray(points, dtype=float), np.asarray(payloads, dtype=float), frequency, damping, source)
+
+
+def mode_map_lines(modes: ModeMap) -> list[str]:
+    """Markdown: per height and radius the first mode's range over the azimuths (Hz) per payload, and its damping."""
+    header = " | ".join(f"{payload:g} kg (Hz)" for payload in modes.payloads)
+    lines = [
+        f"| z (m) | r (m) | {header} | damping ratio |",
+        "|---|---|" + "---|" * len(modes.payloads) + "---|",
+    ]
+    radius = np.round(np.hypot(modes.points[:, 0], modes.points[:, 1]), 6)
+    height = np.round(modes.points[:, 2], 6)
+    for z in sorted(set(height.tolist()), reverse=True):
+        for r in sorted(set(radius[height == z].tolist())):
+            ring = (height == z) & (radius == r)
+            cells = []
+            for p in range(len(modes.payloads)):
+                values = modes.frequency_hz[ring, p]
+                low, high = f"{values.min():.1f}", f"{values.max():.1f}"
+                cells.append(low if low == high else f"{low} to {high}")
+            damping = modes.damping_ratio[ring]
+            lines.append(f"| {z:.2f} | {r:.2f} | {' | '.join(cells)} | {damping.min():.3f} to {damping.max():.3f} |")
+    return lines
+
+
+COMPLIANCE_METHOD = (
+    "per compliance excitation pose: a joint PD (kp {kp:g} N m/rad, kd {kd:g} N m s/rad) on the motor encoders plus "
+    "MKH's gravity torque holds the pose, a random-phase multisine ({low:g} to {high:g} Hz, {rms:g} N m RMS per "
+    "drive, period {period:g} s) drives the rotors; after {settle} period(s), per joint least squares of the motor "
+    "side's tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta - dead band) + c (phi_dot - "
+    "theta_dot) + b on the periods' mean, rates from the DFT (lines up to {top:g} Hz), torques {delay:g} s older "
+    "than their angles, the backlash searched; standard errors from the spread of the fits to single periods"
+)
+"""How the compliance was identified (the provenance's ``compliance.method``)."""
+
+
+def identify_compliance(plant: PlantConfig, seed: int) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict]:
+    """Run the compliance excitation at :data:`COMPLIANCE_POSES` on ``plant`` and fit its drives.
+
+    Returns:
+        The fit, the logs and the provenance (method, poses, seeds, the fit's summary).
+
+    Raises:
+        ValueError: without compliant drives with a load-side encoder.
+    """
+    seeds = [int(s) for s in np.random.SeedSequence([seed, 36]).generate_state(len(COMPLIANCE_POSES))]
+    specs = [ComplianceExcitationSpec(seed=s, pose=pose) for s, pose in zip(seeds, COMPLIANCE_POSES, strict=True)]
+    logs = tuple(run_compliance_excitation(spec, plant) for spec in specs)
+    fit = fit_compliance(logs, torque_delay=plant.timestep)
+    spec = specs[0]
+    method = COMPLIANCE_METHOD.format(
+        kp=HOLD_KP,
+        kd=HOLD_KD,
+        low=spec.band[0],
+        high=spec.band[1],
+        rms=spec.rms,
+        period=spec.period,
+        settle=SETTLE_PERIODS,
+        top=FIT_BAND_TOP,
+        delay=plant.timestep,
+    )
+    provenance = {
+        "method": method,
+        "poses_m": [list(pose) for pose in COMPLIANCE_POSES],
+        "seeds": seeds,
+        "fit": fit.summary(),
+    }
+    return fit, logs, provenance

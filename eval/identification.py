@@ -33,11 +33,13 @@ from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
+    COMPLIANCE_PARAMETER_NAMES,
     FRICTION_VELOCITY_THRESHOLD,
     REST_VELOCITY,
     RHO1_GRID,
     RHO2_GRID,
     TRIM_SAMPLES,
+    ComplianceFit,
     DriveLog,
     IdentificationResult,
     LeastSquaresFit,
@@ -60,6 +62,7 @@ from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
+from eval.compliance import identify_compliance
 from eval.console import progress_bar
 from eval.excitation import (
     DEFAULT_DURATION,
@@ -110,6 +113,8 @@ class IdentificationRun:
         logs: The logs identified on, then the held-out one: what the drive recorded.
         max_loop_gap: Largest loop gap of the plant over every excitation run (m), the simulation's health; None
             for logs.
+        compliance_logs: The compliance excitation's logs (:mod:`eval.compliance`) the drives' compliance was
+            identified on; empty without it.
     """
 
     result: IdentificationResult
@@ -118,6 +123,7 @@ class IdentificationRun:
     models: dict[str, DeltaDynamics]
     logs: tuple[DriveLog, ...]
     max_loop_gap: float | None
+    compliance_logs: tuple[DriveLog, ...] = ()
 
 
 def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
@@ -214,7 +220,7 @@ def run_identification(
         "plant": _plant_summary(plant),
     }
     controller = {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"}
-    return _identify(
+    run = _identify(
         [(motion, lag) for _, motion, lag in runs],
         [record.log for record, _, _ in runs],
         plant.geometry,
@@ -226,6 +232,31 @@ def run_identification(
         started=start,
         max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
     )
+    compliance = plant.realism.compliance
+    if compliance is None:
+        return run
+    if compliance.load_encoder_bits is None:
+        logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
+        return run
+    return _with_compliance(run, *identify_compliance(plant, seed))
+
+
+def _with_compliance(
+    run: IdentificationRun, fit: ComplianceFit, logs: tuple[DriveLog, ...], provenance: dict[str, Any]
+) -> IdentificationRun:
+    """``run`` with the drives' compliance identified: in the result, its standard errors and provenance."""
+    errors = {
+        f"compliance.{name}_{joint + 1}": float(fit.standard_errors[joint, index])
+        for index, name in enumerate(COMPLIANCE_PARAMETER_NAMES)
+        for joint in range(3)
+    }
+    result = dataclasses.replace(
+        run.result,
+        compliance=fit.compliance,
+        standard_errors={**run.result.standard_errors, **errors},
+        provenance={**run.result.provenance, "compliance": provenance},
+    )
+    return dataclasses.replace(run, result=result, compliance_logs=logs)
 
 
 SIMULATED_DATA = (
