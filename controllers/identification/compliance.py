@@ -175,13 +175,18 @@ def _period_signals(
 
 
 def _solve_joint(rows: NDArray[np.float64], torque: NDArray[np.float64], joint: int) -> NDArray[np.float64]:
-    """Least squares of one joint's torques ``(M,)`` on its rows ``(M, 6)``."""
+    """Least squares of one joint's torques ``(M,)`` on its rows ``(M, 6)``. A friction column that is zero (the
+    rotor never slid: its Coulomb friction unseen) is left out, its estimate 0; the others must be excited."""
     scale = np.linalg.norm(rows, axis=0)
-    if np.any(scale == 0.0):
-        missing = [name for name, s in zip(_REGRESSOR_NAMES, scale, strict=True) if s == 0]
+    seen = scale > 0.0
+    required = np.array([name not in ("viscous", "coulomb") for name in _REGRESSOR_NAMES])
+    if np.any(required & ~seen):
+        missing = [name for name, ok in zip(_REGRESSOR_NAMES, seen | ~required, strict=True) if not ok]
         raise ValueError(f"joint {joint + 1}: the logs do not excite {missing}")
-    solution, *_ = np.linalg.lstsq(rows / scale, torque, rcond=None)
-    return solution / scale
+    solution = np.zeros(len(scale))
+    solution[seen], *_ = np.linalg.lstsq(rows[:, seen] / scale[seen], torque, rcond=None)
+    solution[seen] /= scale[seen]
+    return solution
 
 
 def _fit_periods(signals: Sequence[_PeriodSignals]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
