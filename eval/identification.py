@@ -237,8 +237,13 @@ def run_identification(
         return run
     if compliance.load_encoder_bits is None:
         logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
-        return run
+        provenance = {**run.result.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
+        return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
     return _with_compliance(run, *identify_compliance(plant, seed))
+
+
+NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
+"""The provenance's ``compliance.method`` of a compliant plant whose drives could not be identified."""
 
 
 def _with_compliance(

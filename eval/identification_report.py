@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from controllers.compliance import DriveCompliance
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import (
     COMPLIANCE_PARAMETER_NAMES,
@@ -82,8 +83,15 @@ COMPLIANCE_UNITS = ("kg m^2", "N m s/rad", "N m", "N m/rad", "N m s/rad", "arcmi
 def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> list[str]:
     """The drives' identified parameters per joint with their SE and truth, and the first-mode map."""
     result = run.result
+    if "compliance" not in result.provenance:
+        return ["Rigid drives: no compliance."]
     if result.compliance is None:
-        return ["Rigid drives, or compliant ones without a load-side encoder: no compliance identified."]
+        return [
+            f"{result.provenance['compliance']['method'].capitalize()} (the stiffness needs the arm's angle, "
+            "docs/design.md section 7).",
+            "",
+            *_mode_map_lines(run, DriveCompliance.nominal(), "the data sheet's drives"),
+        ]
     fit = result.provenance["compliance"]["fit"]
     true = None if truth is None else truth.get("compliance")
     lines = [
@@ -103,17 +111,21 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
             relative = [f"{100 * (v - t) / t:+.1f}" if t else "-" for v, t in zip(values, reference, strict=True)]
             row += f" {', '.join(f'{t:.4g}' for t in reference)} | {', '.join(relative)} |"
         lines.append(row)
+    return [*lines, "", *_mode_map_lines(run, result.compliance, "the identified drives")]
+
+
+def _mode_map_lines(run: IdentificationRun, compliance: DriveCompliance, source: str) -> list[str]:
+    """The first-mode map of the two-mass model with ``compliance`` on the robot's datasheet arm."""
     model = run.models["MKH"]
     dynamics = DeltaDynamics.of_robot(model.geometry, model.masses, forearm_rods=True)
-    modes = mode_map(dynamics, result.compliance, workspace_grid(), source="identified")
+    modes = mode_map(dynamics, compliance, workspace_grid(), source=source)
     lowest = modes.summary()["payloads_kg"]
-    lines += [
-        "",
+    return [
         "### First-mode map",
         "",
-        "The two-mass model (the datasheet arm with rod forearms, the identified drives; docs/design.md section 4) "
-        "over the workspace: the first mode's natural frequency per height and distance from the axis, its range "
-        "over the azimuths, empty to rated; the damping ratio over the ring and payloads.",
+        f"The two-mass model (the datasheet arm with rod forearms, {source}; docs/design.md section 4) over the "
+        "workspace: the first mode's natural frequency per height and distance from the axis, its range over the "
+        "azimuths, empty to rated; the damping ratio over the ring and payloads.",
         "",
         *mode_map_lines(modes),
         "",
@@ -124,7 +136,6 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
         )
         + ".",
     ]
-    return lines
 
 
 def save_validation_data(run: IdentificationRun, path: Path) -> None:

@@ -34,7 +34,7 @@ from eval.compliance import (
     measure_first_mode,
     run_compliance_excitation,
 )
-from eval.identification import run_identification
+from eval.identification import NO_LOAD_ENCODER, run_identification
 from eval.identification_report import ground_truth, render_report, save_validation_data
 
 COMPLIANT = preset("compliant").plant
@@ -168,3 +168,17 @@ def test_a_compliant_plants_identification_reports_its_drives_and_mode_map(tmp_p
     section = report[report.index("## Compliant drives") : report.index("## Run time")]
     assert "| stiffness | N m/rad |" in section and "### First-mode map" in section
     assert section.count("\n| -") == len(MAP_HEIGHTS) * len(MAP_RADII)
+
+
+def test_without_a_load_encoder_the_report_maps_the_data_sheets_drives(tmp_path) -> None:
+    """The `compliant` preset has motor encoders only: its drives are not identified (the provenance says why) and the
+    report maps the first mode of the data sheet's drives (about 8 s)."""
+    run = run_identification(1, duration=1.5, validation_duration=1.5, plant=COMPLIANT, workers=1, progress=False)
+    assert run.result.compliance is None and run.compliance_logs == ()
+    assert run.result.provenance["compliance"]["method"] == NO_LOAD_ENCODER
+    save_validation_data(run, tmp_path / "validation.npz")
+    report = render_report(run, tmp_path / "validation.npz", "test", [], ground_truth(COMPLIANT))
+    section = report[report.index("## Compliant drives") : report.index("## Run time")]
+    assert "Not identified" in section and "the data sheet's drives" in section
+    assert section.count("\n| -") == len(MAP_HEIGHTS) * len(MAP_RADII)
+    assert "| -0.90 | 0.00 | 228.5 | 220.1 | 216.2 | 212.6 |" in section  # docs/measurements.md's map
