@@ -48,6 +48,7 @@ from controllers.identification import (
     between_trajectory_spread,
     concatenate,
     error_table,
+    fit_compliance,
     fit_joint_least_squares,
     fit_least_squares,
     fit_paper_method,
@@ -284,6 +285,8 @@ def identify_logs(
     workers: int = 1,
     progress: bool = False,
     topics: BagTopics | None = None,
+    compliance_paths: Sequence[str | os.PathLike[str]] = (),
+    torque_delay: float = MEASURED_TORQUE_DELAY,
 ) -> IdentificationRun:
     """Identify the robot of the robot file ``robot`` from its drive logs alone: the algorithms, fits and
     validation of :func:`run_identification` on the logs' arrays.
@@ -297,6 +300,10 @@ def identify_logs(
         progress: Show a tqdm progress bar.
         topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
             commands.
+        compliance_paths: Logs of the compliance excitation (:mod:`eval.compliance`: the multisine at rest poses,
+            with ``load_angle`` columns, resampled onto the control period) to identify compliant drives on; none
+            for rigid drives.
+        torque_delay: Age of the compliance logs' torques against their angles (s): the drive's timing.
 
     Raises:
         ValueError: for fewer than 2 logs; LogFileError for a bad log; ValueError naming the robot file for a bad
@@ -322,7 +329,7 @@ def identify_logs(
             "control_period_s": CONTROL_PERIOD,
         },
     }
-    return _identify(
+    run = _identify(
         prepared,
         logs,
         geometry,
@@ -334,6 +341,17 @@ def identify_logs(
         started=start,
         max_loop_gap=None,
     )
+    if not compliance_paths:
+        return run
+    compliance_logs = tuple(read_log(path) for path in compliance_paths)
+    fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
+    provenance = {
+        "method": "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance) "
+        f"on the logs' whole periods; torques {torque_delay:g} s older than their angles",
+        "logs": [{"path": str(path), "sha256": _sha256(Path(path))} for path in compliance_paths],
+        "fit": fit.summary(),
+    }
+    return _with_compliance(run, fit, compliance_logs, provenance)
 
 
 def _read_log(path: Path, topics: BagTopics | None) -> tuple[DriveLog, dict[str, Any]]:

@@ -25,7 +25,7 @@ from controllers.identification.compliance import fit_compliance
 from delta_env import kinematics
 from delta_env.config import RATED_PAYLOAD, PlantConfig
 from delta_env.excitation import multisine_torques
-from delta_env.scenario import preset
+from delta_env.scenario import preset, save_robot
 from eval.compliance import (
     COMPLIANCE_POSES,
     MAP_HEIGHTS,
@@ -34,7 +34,7 @@ from eval.compliance import (
     measure_first_mode,
     run_compliance_excitation,
 )
-from eval.identification import NO_LOAD_ENCODER, run_identification
+from eval.identification import NO_LOAD_ENCODER, identify_logs, run_identification
 from eval.identification_report import ground_truth, render_report, save_validation_data
 
 COMPLIANT = preset("compliant").plant
@@ -182,3 +182,18 @@ def test_without_a_load_encoder_the_report_maps_the_data_sheets_drives(tmp_path)
     assert "Not identified" in section and "the data sheet's drives" in section
     assert section.count("\n| -") == len(MAP_HEIGHTS) * len(MAP_RADII)
     assert "| -0.90 | 0.00 | 228.5 | 220.1 | 216.2 | 212.6 |" in section  # docs/measurements.md's map
+
+
+def test_compliant_drives_are_identified_from_log_files(known_plant_logs, tmp_path) -> None:
+    """The compliance excitation's logs written as files and read back identify the same drives as the arrays."""
+    plant, logs = known_plant_logs
+    paths = [write_log(log, tmp_path / f"compliance_{n:02d}.csv") for n, log in enumerate(logs)]
+    rigid = [tmp_path / "excitation_01.csv", tmp_path / "validation.csv"]
+    run = run_identification(1, duration=1.5, validation_duration=1.5, plant=COMPLIANT, workers=1, progress=False)
+    for log, path in zip(run.logs, rigid, strict=True):
+        write_log(log, path)
+    robot = save_robot(plant.geometry, plant.masses, tmp_path / "robot.toml")
+    from_files = identify_logs(rigid, robot, compliance_paths=paths, torque_delay=plant.timestep)
+    expected = fit_compliance(logs, torque_delay=plant.timestep).compliance
+    np.testing.assert_allclose(from_files.result.compliance.stiffness, expected.stiffness, rtol=1e-12)
+    assert len(from_files.result.provenance["compliance"]["logs"]) == len(paths)
