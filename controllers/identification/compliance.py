@@ -108,18 +108,24 @@ def _periods(log: DriveLog, samples: int, settle: int) -> tuple[NDArray[np.float
 
 @dataclass(frozen=True, eq=False)
 class _PeriodSignals:
-    """One period's signals per joint at the instants the torques were measured, on the fitted DFT lines.
+    """The signals of a log's periods per joint at the instants the torques were measured, averaged over the periods,
+    on the fitted DFT lines.
+
+    The equation is linear in its columns, so it holds for their mean over the periods; a nonlinear column (the
+    friction's sign, the dead band) is the mean of the function of each period's signal, not the function of the
+    mean signal (a rattling backlash does not repeat from period to period).
 
     Attributes:
         columns: [phi_ddot, phi_dot, sign phi_dot, delta, delta_dot, 1], ``(P, 3, 6)``; ``delta`` is the
             deflection without backlash.
-        deflection: The deflection phi - theta (rad) on every line, ``(P, 3)``: the dead band acts on it.
+        deflections: Each period's deflection phi - theta (rad) on every line, ``(n, P, 3)``: the dead band acts on
+            them.
         fitted: Which DFT lines are fitted, ``(P // 2 + 1,)``.
         torque: The measured torques on the fitted lines (N m), ``(P, 3)``.
     """
 
     columns: NDArray[np.float64]
-    deflection: NDArray[np.float64]
+    deflections: NDArray[np.float64]
     fitted: NDArray[np.bool_]
     torque: NDArray[np.float64]
 
@@ -130,9 +136,9 @@ class _PeriodSignals:
     def rows(self, backlash: NDArray[np.float64]) -> NDArray[np.float64]:
         """The rows with the spring's deflection beyond the dead band of width ``backlash`` (rad, per joint)."""
         half = 0.5 * backlash
-        beyond = self.deflection - np.clip(self.deflection, -half, half)
+        beyond = self.deflections - np.clip(self.deflections, -half, half)
         rows = self.columns.copy()
-        rows[..., 3] = self.band(beyond)
+        rows[..., 3] = self.band(beyond.mean(axis=0))
         return rows
 
 
@@ -144,34 +150,37 @@ def _period_signals(
     delay: float,
     highest: float,
 ) -> _PeriodSignals:
-    """The signals of one period of motor-side and load-side angles (rad) and torques (N m), ``(P, 3)`` each: the
-    angles taken ``delay`` (s) earlier (a phase e^{-i omega d}), their rates and accelerations by i omega, the lines
-    above ``highest`` (Hz) and the Nyquist line (no phase to shift) left out."""
-    samples = len(motor)
+    """The signals of ``n`` periods of motor-side and load-side angles (rad) and torques (N m), ``(n, P, 3)`` each:
+    the angles taken ``delay`` (s) earlier (a phase e^{-i omega d}), their rates and accelerations by i omega, the
+    lines above ``highest`` (Hz) and the Nyquist line (no phase to shift) left out."""
+    samples = motor.shape[1]
     omega = 2.0 * np.pi * np.fft.rfftfreq(samples, dt)[:, None]
     shift = np.exp(-1j * omega * delay)
     if samples % 2 == 0:
         shift[-1] = 0.0
     fitted = omega[:, 0] <= 2.0 * np.pi * highest
-    motor_lines = np.fft.rfft(motor, axis=0) * shift
-    deflection_lines = np.fft.rfft(motor - load, axis=0) * shift
+    motor_lines = np.fft.rfft(motor, axis=1) * shift
+    deflection_lines = np.fft.rfft(motor - load, axis=1) * shift
 
     def signal(lines: NDArray[np.complex128], keep: NDArray[np.bool_] = fitted) -> NDArray[np.float64]:
-        return np.fft.irfft(lines * keep[:, None], n=samples, axis=0)
+        return np.fft.irfft(lines * keep[:, None], n=samples, axis=-2)
 
     everything = np.ones_like(fitted)
-    motor_rate = signal(1j * omega * motor_lines, everything)
-    sliding = np.where(np.abs(motor_rate) > REST_VELOCITY, np.sign(motor_rate), 0.0)
+    motor_rates = signal(1j * omega * motor_lines, everything)
+    sliding = np.where(np.abs(motor_rates) > REST_VELOCITY, np.sign(motor_rates), 0.0).mean(axis=0)
+    motor_mean, deflection_mean = motor_lines.mean(axis=0), deflection_lines.mean(axis=0)
     columns = (
-        signal(-(omega**2) * motor_lines),
-        signal(1j * omega * motor_lines),
+        signal(-(omega**2) * motor_mean),
+        signal(1j * omega * motor_mean),
         signal(np.fft.rfft(sliding, axis=0)),
-        signal(deflection_lines),
-        signal(1j * omega * deflection_lines),
-        np.ones_like(motor),
+        signal(deflection_mean),
+        signal(1j * omega * deflection_mean),
+        np.ones((samples, 3)),
     )
-    deflection = signal(deflection_lines, everything)
-    return _PeriodSignals(np.stack(columns, axis=-1), deflection, fitted, signal(np.fft.rfft(torque, axis=0)))
+    deflections = signal(deflection_lines, everything)
+    return _PeriodSignals(
+        np.stack(columns, axis=-1), deflections, fitted, signal(np.fft.rfft(torque.mean(axis=0), axis=0))
+    )
 
 
 def _solve_joint(rows: NDArray[np.float64], torque: NDArray[np.float64], joint: int) -> NDArray[np.float64]:
@@ -197,7 +206,7 @@ def _fit_periods(signals: Sequence[_PeriodSignals]) -> tuple[NDArray[np.float64]
     :data:`MAX_BACKLASH`), then a bounded scalar search about the best grid point.
     """
     torque = np.concatenate([s.torque for s in signals])
-    largest = np.max(np.abs(np.concatenate([s.deflection for s in signals])), axis=0)
+    largest = np.max(np.abs(np.concatenate([s.deflections.reshape(-1, 3) for s in signals])), axis=0)
     estimate, residual = np.empty((3, 7)), np.empty_like(torque)
 
     def rows_at(backlash: float, joint: int) -> NDArray[np.float64]:
@@ -260,8 +269,8 @@ def fit_compliance(
     def signals(select: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> list[_PeriodSignals]:
         return [_period_signals(*map(select, block), dt, torque_delay, highest_line) for block in blocks]
 
-    estimate, residual = _fit_periods(signals(lambda values: values.mean(axis=0)))
-    per_period = np.array([_fit_periods(signals(lambda values, n=n: values[n]))[0] for n in range(periods)])
+    estimate, residual = _fit_periods(signals(lambda values: values))
+    per_period = np.array([_fit_periods(signals(lambda values, n=n: values[n : n + 1]))[0] for n in range(periods)])
     standard_errors = per_period.std(axis=0, ddof=1) / np.sqrt(periods)
     rotor_inertia, stiffness, damping = estimate[:, 0], estimate[:, 3], estimate[:, 4]
     if np.any(rotor_inertia <= 0.0) or np.any(stiffness <= 0.0):
