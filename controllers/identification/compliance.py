@@ -130,15 +130,19 @@ class _PeriodSignals:
     torque: NDArray[np.float64]
 
     def band(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``values`` (P, 3) with only the fitted lines kept."""
-        return np.fft.irfft(np.fft.rfft(values, axis=0) * self.fitted[:, None], n=len(values), axis=0)
+        """``values`` (P, ...) with only the fitted lines kept."""
+        lines = np.fft.rfft(values, axis=0)
+        lines[~self.fitted] = 0.0
+        return np.fft.irfft(lines, n=len(values), axis=0)
 
-    def rows(self, backlash: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The rows with the spring's deflection beyond the dead band of width ``backlash`` (rad, per joint)."""
+    def rows(self, backlash: float, joint: int) -> NDArray[np.float64]:
+        """One joint's rows ``(P, 6)`` with the spring's deflection beyond the dead band of width ``backlash``
+        (rad)."""
+        deflections = self.deflections[..., joint]
         half = 0.5 * backlash
-        beyond = self.deflections - np.clip(self.deflections, -half, half)
-        rows = self.columns.copy()
-        rows[..., 3] = self.band(beyond.mean(axis=0))
+        beyond = deflections - np.clip(deflections, -half, half)
+        rows = self.columns[:, joint].copy()
+        rows[:, 3] = self.band(beyond.mean(axis=0))
         return rows
 
 
@@ -192,9 +196,10 @@ def _solve_joint(rows: NDArray[np.float64], torque: NDArray[np.float64], joint: 
     if np.any(required & ~seen):
         missing = [name for name, ok in zip(_REGRESSOR_NAMES, seen | ~required, strict=True) if not ok]
         raise ValueError(f"joint {joint + 1}: the logs do not excite {missing}")
+    scaled = rows[:, seen] / scale[seen]
     solution = np.zeros(len(scale))
-    solution[seen], *_ = np.linalg.lstsq(rows[:, seen] / scale[seen], torque, rcond=None)
-    solution[seen] /= scale[seen]
+    # the normal equations of the Jacobi-scaled columns (6 x 6): thousands of solves in the backlash search
+    solution[seen] = np.linalg.solve(scaled.T @ scaled, scaled.T @ torque) / scale[seen]
     return solution
 
 
@@ -210,8 +215,7 @@ def _fit_periods(signals: Sequence[_PeriodSignals]) -> tuple[NDArray[np.float64]
     estimate, residual = np.empty((3, 7)), np.empty_like(torque)
 
     def rows_at(backlash: float, joint: int) -> NDArray[np.float64]:
-        widths = np.full(3, backlash)
-        return np.concatenate([s.rows(widths)[:, joint] for s in signals])
+        return np.concatenate([s.rows(backlash, joint) for s in signals])
 
     def squares(backlash: float, joint: int) -> float:
         rows = rows_at(backlash, joint)
