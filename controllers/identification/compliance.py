@@ -3,15 +3,18 @@ joint, from logs of a periodic excitation with the load-side angle (docs/design.
 
 Per joint the motor side's equation (section 4, "The two-mass model") is linear in its parameters,
 
-    tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta) + c (phi_dot - theta_dot) + b,
+    tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k dead(phi - theta) + c (phi_dot - theta_dot) + b,
 
-with every signal measured: the torque tau, the motor-side angle phi (the motor encoder) and the load-side angle
-theta (an encoder on the arm); b absorbs the constant torques (gravity, the gearhead's wind-up under it). It needs
+dead(d) = d - clip(d, -w/2, w/2) the deflection beyond the backlash w (searched: the fit is linear given w), with
+every signal measured: the torque tau, the motor-side angle phi (the motor encoder) and the load-side angle theta
+(an encoder on the arm); b absorbs the constant torques (gravity, the gearhead's wind-up under it). It needs
 nothing of the arm, so a rigid model that is wrong about the arm (on a compliant plant the rigid fit's rho1 is
 4.3) does not bias it. The excitation is periodic (:func:`delta_env.excitation.multisine_torques` on the drives,
 held at rest poses): a record of whole periods at steady state is its own periodic extension, so the rates and
 accelerations follow exactly from its DFT (i omega, -omega^2 per line) up to the modes at 200 to 300 Hz, where
-finite differences at 1 kHz would be 16 % off, and so does the torque's age (a phase e^{i omega d}).
+finite differences at 1 kHz would be 16 % off, and so does the torque's age (a phase e^{i omega d}). The fit is on the
+mean over the periods; a nonlinear column (the dead band, the friction's sign) is the mean of each period's, since a
+rattling backlash does not repeat from period to period.
 """
 
 from __future__ import annotations
