@@ -355,10 +355,12 @@ def mode_map_lines(modes: ModeMap) -> list[str]:
 COMPLIANCE_METHOD = (
     "per compliance excitation pose: a joint PD (kp {kp:g} N m/rad, kd {kd:g} N m s/rad) on the motor encoders plus "
     "MKH's gravity torque holds the pose, a random-phase multisine ({low:g} to {high:g} Hz, {rms:g} N m RMS per "
-    "drive, period {period:g} s) drives the rotors; after {settle} period(s), per joint least squares of the motor "
+    "drive, period {period:g} s) drives the rotors, the drive's trace recorded at the physics step; after {settle} "
+    "period(s), per joint least squares of the motor "
     "side's tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta - dead band) + c (phi_dot - "
-    "theta_dot) + b on the periods' mean, rates from the DFT (lines up to {top:g} Hz), torques {delay:g} s older "
-    "than their angles, the backlash searched; standard errors from the spread of the fits to single periods"
+    "theta_dot) + b on the periods' mean (the dead band and the friction's sign: the mean of each period's), rates "
+    "from the DFT (lines up to {top:g} Hz), torques {delay:g} s older than their angles, the backlash searched; "
+    "standard errors from the spread of the fits to single periods"
 )
 """How the compliance was identified (the provenance's ``compliance.method``)."""
 
