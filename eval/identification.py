@@ -70,7 +70,7 @@ from eval.excitation import (
     ExcitationSpec,
     run_excitation,
 )
-from eval.processes import parallel_map
+from eval.processes import run_jobs
 from eval.run_folder import json_ready, package_versions
 
 logger = logging.getLogger(__name__)
@@ -206,7 +206,7 @@ def run_identification(
 
     run = functools.partial(_collect_and_prepare, plant=plant)
     with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
-        runs = parallel_map(run, specs, workers, bar)
+        runs = run_jobs(run, specs, workers=workers, progress=bar)
     source = {
         "seed": seed,
         "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
@@ -273,7 +273,7 @@ def identify_logs(
     geometry, masses = load_robot(robot)
     logs, summaries = zip(*(_read_log(path, topics) for path in paths), strict=True)
     with progress_bar(len(logs), "logs", "log", disable=not progress) as bar:
-        prepared = parallel_map(prepare_log, logs, workers, bar)
+        prepared = run_jobs(prepare_log, logs, workers=workers, progress=bar)
     source = {
         "logs": list(summaries[:-1]),
         "validation_log": summaries[-1],
