@@ -186,6 +186,8 @@ def run_jobs(
             raise RuntimeError(f"item {index} of {len(items)} was not run: {error}")
         finished(index, on_lost(index, error))
 
+    if not items:  # nothing to run: no pool, and Ray is not needed
+        return outputs
     if backend == "ray":
         _run_ray(function, items, workers, address, max_attempts, ray_folders, finished, lost)
     elif workers == 1 or len(items) <= 1:
