@@ -10,8 +10,9 @@ Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--s
 policy steps pauses to save the policy (``validation_policy.zip`` in the run's folder) and score it with
 :func:`eval.scoring.score_policy` on the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
 scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``): the base controller
-alone and with the residual, as the file records them, run by the experiment engine (:func:`eval.work.run_grid`, on
-up to 2 processes), tracking RMS and torque RMS pooled over every control step. A threshold counts as reached at the
+alone and with the residual, as the file records them, run by the experiment engine (:func:`eval.work.run_grid`, in
+this process: a pool's fresh workers would plan an online timing's tables again at every evaluation), tracking RMS
+and torque RMS pooled over every control step. A threshold counts as reached at the
 first evaluation whose tracking RMS is that much lower than the base's with torque RMS at most
 ``--max-torque-change`` above the base's.
 
@@ -43,7 +44,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, save_residual_policy
 from eval.console import CommandParser, UsageError, command_main
-from eval.processes import DEFAULT_WORKERS
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import check_ranges
@@ -102,7 +102,7 @@ def first_crossing(rows: Sequence[dict[str, Any]], threshold: float, max_torque_
 def validation_scores(policy_path: Path, env_kwargs: dict[str, Any]) -> dict[str, dict[str, float]]:
     """Pooled tracking and torque RMS of the validation episodes of the policy file ``policy_path``: ``"base"`` (its
     base alone) and ``"residual"`` (the policy on it), by :func:`eval.scoring.score_policy`."""
-    scores = score_policy(policy_path, env_kwargs, seeds=VALIDATION_SEEDS, payloads=(), workers=DEFAULT_WORKERS)
+    scores = score_policy(policy_path, env_kwargs, seeds=VALIDATION_SEEDS, payloads=())
     return {row: scores["summary"][row] for row in ("base", "residual")}
 
 
