@@ -281,14 +281,16 @@ def _run_ray(
         if handler is not None and threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, handler)
     try:
-        remote = ray.remote(num_cpus=1, max_retries=max_attempts - 1)(function)
+        # a Ray task is a plain function: the mapped one (a partial, say) goes to the cluster once, as an argument
+        remote = ray.remote(num_cpus=1, max_retries=max_attempts - 1)(_apply)
+        function_ref = ray.put(function)
         window = 4 * max(1, int(ray.cluster_resources().get("CPU", workers)))
         queue = list(reversed(range(len(items))))
         running: dict[Any, int] = {}
         while queue or running:
             while queue and len(running) < window:
                 index = queue.pop()
-                running[remote.remote(items[index])] = index
+                running[remote.remote(function_ref, items[index])] = index
             done, _ = ray.wait(list(running), num_returns=1)
             for ref in done:
                 index = running.pop(ref)
@@ -303,6 +305,11 @@ def _run_ray(
     finally:
         if started_here:
             ray.shutdown()
+
+
+def _apply(function: Callable[[Any], Any], item: Any) -> Any:
+    """``function(item)``: the Ray task of :func:`run_jobs`."""
+    return function(item)
 
 
 def import_ray() -> Any:
