@@ -41,7 +41,7 @@ from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
 from eval.console import CommandParser, command_main, plural, progress_bar
-from eval.engine import prepare, run_grid
+from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import (
     confusion_counts,
@@ -59,7 +59,7 @@ from eval.scenario_args import (
     check_ranges,
     scenario_from_arguments,
 )
-from eval.sweep.work import WorkUnit
+from eval.work import WorkUnit, run_grid
 
 GONE_MASS = 0.1
 """Estimate (kg) below which a slipped object counts as forgotten."""
