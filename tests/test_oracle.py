@@ -1,5 +1,6 @@
 """The closed-chain inverse-dynamics oracle against MuJoCo's forward dynamics and the MKH model."""
 
+import itertools
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
@@ -29,6 +30,7 @@ from delta_env.kernels import STRIBECK_PEAK
 from delta_env.oracle import CompliantDriveOracle, InverseDynamicsOracle, rigid_drives
 from delta_env.scenario import preset
 from delta_env.sensors import CONTROL_PERIOD, rate_window
+from delta_env.trajectories import Trajectory
 from eval.episodes import run_episode
 
 IDEAL = PlantConfig.ideal()
@@ -540,3 +542,47 @@ def test_compliant_bound_follows_the_randomized_gearheads() -> None:
     assert kd[0] < kd[1] < kd[2], kd
     oracle.set_physical_parameters(PhysicalParameters(NOMINAL_MASSES, actuator_lag=0.001))
     assert_allclose(oracle.compliant_drives.damping, compliance.damping)
+
+
+def rest_to_rest_moves(order: int, seed: int = 0, move: float = 0.25, dwell: float = 0.1) -> Trajectory:
+    """Joint-space moves between five random poses and back, each ``move`` (s) long between dwells of ``dwell`` (s),
+    timed by the smoothstep whose first ``order`` derivatives vanish at both ends: the quintic for 2 (a C2 reference,
+    jerk steps at the ends), the degree-9 polynomial for 4 (C4: jerk and snap continuous); peaks of 4.6 g (C2) and
+    7.3 g (C4) at the platform."""
+    blend = {2: [0, 0, 0, 10, -15, 6], 4: [0, 0, 0, 0, 0, 126, -420, 540, -315, 70]}[order]
+    s = np.polynomial.Polynomial(blend)
+    rng = np.random.default_rng(seed)
+    centre = [0.0, 0.0, -0.9]
+    points = [centre, *(rng.uniform([-0.25, -0.25, -1.0], [0.25, 0.25, -0.8]) for _ in range(4)), centre]
+    poses = [kinematics.inverse(NOMINAL_GEOMETRY, point) for point in points]
+    tau = np.arange(round(move / CONTROL_PERIOD)) * CONTROL_PERIOD / move
+    rest = np.zeros((round(dwell / CONTROL_PERIOD), 3))
+    angles, rates, accelerations = [rest + poses[0]], [rest], [rest]
+    for start, end in itertools.pairwise(poses):
+        step = end - start
+        angles += [start + np.outer(s(tau), step), rest + end]
+        rates += [np.outer(s.deriv(1)(tau), step) / move, rest]
+        accelerations += [np.outer(s.deriv(2)(tau), step) / move**2, rest]
+    theta, theta_dot, theta_ddot = (np.concatenate(parts) for parts in (angles, rates, accelerations))
+    xyz, xyz_dot, xyz_ddot = kinematics.joint_to_cartesian(NOMINAL_GEOMETRY, theta, theta_dot, theta_ddot)
+    gripper = np.zeros(len(theta), dtype=bool)
+    return Trajectory(CONTROL_PERIOD, xyz, xyz_dot, xyz_ddot, theta, theta_dot, theta_ddot, gripper, [], [])
+
+
+@pytest.mark.parametrize(("order", "tolerance"), [(4, 0.0065), (2, 0.007)])
+def test_compliant_bound_follows_smooth_moves_at_the_integration_level(order: int, tolerance: float) -> None:
+    """On rest-to-rest moves of 5 to 7 g, the preset's compliant drives with the drive's lag and encoders but no
+    friction, ripple or torque noise: the bound tracks at 0.0031 mm RMS on C4 moves and 0.0034 mm on C2 ones (their
+    jerk steps cost a rotor-torque impulse it spreads over a period), where the rigid plant with the same drive, whose
+    encoders read the arm's angle 21 times coarser, tracks at 0.024 and 0.019 mm."""
+    quiet = {"viscous": 0.0, "coulomb": 0.0, "stribeck_excess": 0.0, "ripple_amplitude": 0.0, "torque_noise_std": 0.0}
+    compliant = replace(COMPLIANT, realism=replace(COMPLIANT.realism, **quiet))
+    rigid = replace(PlantConfig(), realism=replace(PlantRealism(), **quiet), timestep=COMPLIANT.timestep)
+    reference = rest_to_rest_moves(order)
+    rms = []
+    for config in (compliant, rigid):
+        record = run_episode(
+            DeltaPickPlaceEnv(plant=config, n_cycles=1), OracleController(config), 0, reference=reference
+        )
+        rms.append(1e3 * np.sqrt(np.mean(record.tracking_error**2)))
+    assert rms[0] < min(tolerance, 0.3 * rms[1]), rms
