@@ -55,7 +55,8 @@ IMPLICIT_INTEGRATORS = (mujoco.mjtIntegrator.mjINT_IMPLICIT, mujoco.mjtIntegrato
 DERIVATIVE_STEP = 1e-4
 """Time step (s) of the central differences that give the arm torque's first two time derivatives along the
 reference (:meth:`CompliantDriveOracle.motion`): their truncation error, step^2 / 12 times the torque's fourth
-derivative, and their round-off, 1e-12 N m / step^2, both stay below 1e-3 N m/s^2 on the task's moves."""
+derivative, and their round-off, about 1e-12 N m / step^2, stay below 0.01 N m/s^2 on the task's moves away from their
+jerk steps, 1e-7 rad/s^2 of the gearhead's deflection."""
 
 
 def rigid_drives(config: PlantConfig) -> PlantConfig:
