@@ -8,6 +8,7 @@ Gymnasium; SB3 and torch are imported only when a policy is loaded or trained.
 import gymnasium as gym
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PDController
+from controllers.compliance import DriveCompliance, DriveMode, TwoMassLinearization, drive_modes, first_mode
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
 from controllers.feedforward import FeedforwardController, LagCompensatedController, OracleController, model_controller
@@ -31,6 +32,8 @@ __all__ = [
     "ControllerEntry",
     "ControllerSetup",
     "DeltaDynamics",
+    "DriveCompliance",
+    "DriveMode",
     "EmptyMoveSums",
     "FeedforwardController",
     "JointServo",
@@ -46,8 +49,11 @@ __all__ = [
     "PayloadRLS",
     "ServoGains",
     "Tare",
+    "TwoMassLinearization",
     "build_controller",
     "controller_entry",
+    "drive_modes",
+    "first_mode",
     "model_controller",
     "servo_gains",
     "smooth_joint_motion",
