@@ -58,9 +58,10 @@ DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
 the smallest error the servo can see."""
 
 DEFAULT_NOTCH_QUALITY = 0.7
-"""Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): the
-narrowest that the linear analysis of a compliant joint keeps stable with the stiffness 10 % off, 5 N m s/rad of
-gearhead damping and a payload that lowers the mode below the one the notch sits on (docs/design.md section 6)."""
+"""Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
+0.7 and 1, the one that a linear analysis of a compliant joint under the scheduled servo keeps stable with the
+stiffness 10 % off or the damping halved, and with an arm side up to five times the one the notch is placed on
+(a payload; docs/design.md section 6)."""
 
 
 @dataclass(frozen=True)
