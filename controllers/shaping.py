@@ -16,6 +16,11 @@ the shaper's residual vibration (:meth:`Shaper.residual`). With K = exp(-zeta pi
 - ZVD: A = (1, 2K, K^2) / (1 + K)^2 at t = (0, 1, 2) pi / omega_d: V and dV/domega = 0 at the design mode, undamped
   V = cos^2(pi r / 2), robust to the frequency error at the price of a second half period.
 
+A jerk-limited timing (:class:`JerkLimitedTiming`) smooths a move's time law instead: a moving average of window w over
+tau and its rates turns every step of tau_ddot into a ramp of length w (jerk at most the step over w) and, being a
+convolution with a rectangle, leaves no vibration in a mode of period w (nor its harmonics): a shaper in time-law
+form that costs w per move and keeps the path.
+
 The mode follows the pose and the payload: :class:`ShapedController` shapes the reference its controller sees, each
 sample from the past samples of the env's reference (a causal shaper: it delays, never looks ahead), with the
 shaper designed on the first mode of the two-mass model (:func:`controllers.compliance.first_mode`) at the present
@@ -38,6 +43,8 @@ from controllers.dynamics import DeltaDynamics
 from controllers.payload import PayloadEstimator
 from controllers.servo import SCHEDULE_PERIOD
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.timing import MoveTiming, TimeLaw
+from delta_env.trajectories import Segment
 from delta_env.validation import require_in
 
 MAX_SHAPER_DURATION = 0.1
@@ -241,3 +248,47 @@ class ShapedController:
         shaped = dict(observation)
         shaped.update(reference_angles=angles, reference_velocities=rates, reference_accelerations=accelerations)
         return self.controller(shaped)
+
+
+def jerk_limited(law: TimeLaw, samples: int) -> TimeLaw:
+    """``law`` averaged over a moving window of ``samples`` samples (>= 1): tau, tau_dot and tau_ddot each the mean
+    of the last ``samples`` samples (the move at rest before its start and after its end), longer by ``samples`` - 1
+    samples. A tau_ddot step becomes a ramp over the window: the jerk is bounded."""
+    if not (isinstance(samples, int) and samples >= 1):
+        raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
+    window = np.full(samples, 1.0 / samples)
+    tail = np.ones(samples - 1)
+    tau = np.minimum(np.convolve(np.concatenate([law.tau, tail]), window)[: len(law) + samples - 1], 1.0)
+    tau[-1] = 1.0
+    rates = [np.convolve(values, window) for values in (law.tau_dot, law.tau_ddot)]
+    return TimeLaw(law.dt, tau, *rates)
+
+
+class JerkLimitedTiming:
+    """A :class:`~delta_env.timing.MoveTiming` whose laws are another timing's averaged over ``window`` (s)
+    (:func:`jerk_limited`): with the window one period of the drives' mode, the moving average leaves none of it.
+
+    Args:
+        timing: The timing whose laws are smoothed (one that does not retime online).
+        window: The averaging window (s), whole control periods of the laws' samples (at least one).
+    """
+
+    retimes_online = False
+
+    def __init__(self, timing: MoveTiming, window: float) -> None:
+        if timing.retimes_online:
+            raise ValueError("a jerk-limited timing smooths whole laws: its timing must not retime online")
+        self.timing = timing
+        self.window = require_in("window", window, 0.0, MAX_SHAPER_DURATION, unit="s", low_open=True)
+
+    def _smoothed(self, law: TimeLaw) -> TimeLaw:
+        return jerk_limited(law, max(1, round(self.window / law.dt)))
+
+    def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
+        return self._smoothed(self.timing.carry(shape, declared_mass))
+
+    def empty(self, shape: Segment) -> TimeLaw:
+        return self._smoothed(self.timing.empty(shape))
+
+    def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+        return None

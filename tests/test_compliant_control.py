@@ -17,12 +17,22 @@ from controllers.dynamics import DeltaDynamics
 from controllers.registry import controller_entry
 from controllers.servo import JointServo, ResonanceNotch, ServoGains, servo_gains
 from controllers.setup import row_servo
-from controllers.shaping import ReferenceHistory, ShapedController, Shaper, zv_shaper, zvd_shaper
+from controllers.shaping import (
+    JerkLimitedTiming,
+    ReferenceHistory,
+    ShapedController,
+    Shaper,
+    jerk_limited,
+    zv_shaper,
+    zvd_shaper,
+)
 from delta_env.config import PlantConfig, PlantRealism
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.plant import DeltaPlant
 from delta_env.scenario import preset
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.timing import TimeLaw
+from delta_env.trajectories import Segment
 from eval.episodes import run_episode
 
 COMPLIANT = preset("compliant")
@@ -247,3 +257,38 @@ def test_the_shaped_controller_follows_the_mode_and_the_payload(controller_setup
     assert shaped.shaper.delays[-1] == pytest.approx(round(0.5 / shaped.mode.frequency_hz / 1e-3) * 1e-3)
     with pytest.raises(ValueError, match="kind"):
         ShapedController(inner, nominal, IDENTIFIED, "zvdd")
+
+
+def test_a_jerk_limited_law_ramps_the_acceleration_steps() -> None:
+    """A bang-bang law (tau_ddot +-a) averaged over 4 samples: its steps become ramps of 4 samples, the move 3 samples
+    longer, tau still from 0 to 1 and its rates those of the averaged motion."""
+    dt, n, a = 1e-3, 40, 1.0 / (20e-3) ** 2  # tau = 1 after 2 x 20 ms at +-a
+    t = np.arange(n + 1) * dt
+    tau_ddot = np.where(t < 0.02, a, -a)
+    tau_dot = np.where(t < 0.02, a * t, a * (0.04 - t))
+    tau = np.where(t < 0.02, 0.5 * a * t**2, 1.0 - 0.5 * a * (0.04 - t) ** 2)
+    smoothed = jerk_limited(TimeLaw(dt, tau, tau_dot, tau_ddot), 4)
+    assert len(smoothed) == n + 4 and smoothed.tau[0] == 0.0 and smoothed.tau[-1] == 1.0
+    np.testing.assert_allclose(smoothed.tau[10], np.mean(tau[7:11]))
+    assert np.max(np.abs(np.diff(smoothed.tau_ddot))) == pytest.approx(2 * a / 4)  # the reversal, over 4 samples
+    with pytest.raises(ValueError, match="samples"):
+        jerk_limited(smoothed, 0)
+
+
+def test_a_jerk_limited_timing_smooths_every_law_of_its_timing() -> None:
+    class Fixed:
+        retimes_online = False
+
+        def empty(self, shape: Segment) -> TimeLaw:
+            return TimeLaw(1e-3, np.linspace(0.0, 1.0, 11), np.full(11, 100.0), np.zeros(11))
+
+        def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
+            return self.empty(shape)
+
+    timing = JerkLimitedTiming(Fixed(), 0.005)
+    shape = Segment.line(np.zeros(3), np.ones(3), 1.0)
+    assert len(timing.carry(shape, 1.0)) == len(timing.empty(shape)) == 15
+    assert timing.retime(shape, timing.empty(shape), 3) is None
+    Fixed.retimes_online = True
+    with pytest.raises(ValueError, match="online"):
+        JerkLimitedTiming(Fixed(), 0.005)
