@@ -41,7 +41,9 @@ from controllers.base import Controller, Observation, payload_estimate_reader, p
 from controllers.compliance import DriveCompliance, DriveMode, first_mode
 from controllers.dynamics import DeltaDynamics
 from controllers.payload import PayloadEstimator
+from controllers.registry import ControllerEntry, controller_entry
 from controllers.servo import SCHEDULE_PERIOD
+from controllers.setup import ControllerSetup
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.timing import MoveTiming, TimeLaw
 from delta_env.trajectories import Segment
@@ -180,6 +182,38 @@ class ReferenceHistory:
             rates += amplitude * r
             accelerations += amplitude * c
         return angles, rates, accelerations
+
+
+def shaped_entry(base_key: str, kind: str) -> ControllerEntry:
+    """The registry entry of the row ``base_key`` following its reference shaped by ``kind`` (:class:`ShapedController`,
+    the shaper's mode from the nominal model's arm side and ``ControllerSetup.compliance``). Its estimator is its
+    base's, with the tare and empty moves of ``base_key``: run it beside its base row, which the experiments tare.
+    A setup without a compliance is refused (nothing to shape against)."""
+    base = controller_entry(base_key)
+    if kind not in SHAPERS:
+        raise ValueError(f"kind must be one of {', '.join(SHAPERS)}, got {kind!r}")
+
+    def factory(setup: ControllerSetup) -> ShapedController:
+        if setup.compliance is None:
+            raise ValueError(f"a shaped {base_key!r} needs the drives' compliance; ControllerSetup.compliance is None")
+        arm_side = DeltaDynamics.of_robot(setup.geometry, setup.masses, None, forearm_rods=True)
+        return ShapedController(base.factory(setup), arm_side, setup.compliance, kind)
+
+    return ControllerEntry(
+        f"{base_key}+{kind}",
+        f"{base.label}+{kind.upper()}",
+        factory,
+        estimates_payload=base.estimates_payload,
+        has_estimator=base.has_estimator,
+        needs_drive_lag=base.needs_drive_lag,
+    )
+
+
+LAG_ZV = shaped_entry("mid_f_rls_lag", "zv")
+"""MId+F+R+RLS+lag+PD on the ZV-shaped reference: ``--controllers controllers.shaping:LAG_ZV``."""
+
+LAG_ZVD = shaped_entry("mid_f_rls_lag", "zvd")
+"""MId+F+R+RLS+lag+PD on the ZVD-shaped reference: ``--controllers controllers.shaping:LAG_ZVD``."""
 
 
 class ShapedController:

@@ -292,3 +292,12 @@ def test_a_jerk_limited_timing_smooths_every_law_of_its_timing() -> None:
     Fixed.retimes_online = True
     with pytest.raises(ValueError, match="online"):
         JerkLimitedTiming(Fixed(), 0.005)
+
+
+def test_the_shaped_rows_join_the_registry_by_import_path(controller_setup) -> None:
+    entry = controller_entry("controllers.shaping:LAG_ZVD")
+    assert entry.label == "MId+F+R+RLS+lag+PD+ZVD" and entry.has_estimator and not entry.tared
+    controller = entry.build(replace(controller_setup, compliance=IDENTIFIED)).controller
+    assert isinstance(controller, ShapedController) and controller.kind == "zvd"
+    with pytest.raises(ValueError, match="compliance"):
+        entry.build(controller_setup)
