@@ -306,11 +306,12 @@ class JointServo:
         """(kp, ki, kd) per joint in use: the gains' own, or scaled by the last :meth:`schedule`."""
         return list(self._kp), list(self._ki), list(self._kd)
 
-    def schedule(self, inertia: ArrayLike) -> None:
+    def schedule(self, inertia: ArrayLike, loaded_inertia: ArrayLike | None = None) -> None:
         """Place the gains on each joint's ``inertia`` (kg m^2) now: kp, kd and ki scaled by it over the inertia they
         were placed on, which keeps the closed loop's triple pole and phase margin. Bumpless: the integral term,
         stored as torque, takes up the change of kp e + kd de/dt at the last sample's errors, so the command does not
-        step (a step would shake the arm, and the payload estimate with it).
+        step (a step would shake the arm, and the payload estimate with it). The notch, if any, is centred on the
+        mode of ``loaded_inertia`` (the joints' inertia with the payload, kg m^2), or of ``inertia`` if None.
 
         Raises:
             ValueError: for gains not placed on an inertia (:attr:`ServoGains.inertia` None).
@@ -324,13 +325,16 @@ class JointServo:
             change = (kp - self._kp[joint]) * self._error[joint] + (kd - self._kd[joint]) * self._rate_error[joint]
             self._integral[joint] = min(max(self._integral[joint] - change, -limit), limit)
             self._kp[joint], self._kd[joint], self._ki[joint] = kp, kd, gains.ki[joint] * scale
-        self._tune_notch(inertia)
+        self._tune_notch(inertia if loaded_inertia is None else loaded_inertia)
 
-    def follow_inertia(self, inertia: Callable[[], ArrayLike]) -> None:
+    def follow_inertia(
+        self, inertia: Callable[[], ArrayLike], loaded_inertia: Callable[[], ArrayLike] | None = None
+    ) -> None:
         """Call once per sample before :meth:`feedback`: every :data:`SCHEDULE_PERIOD` from the reset on,
-        :meth:`schedule` the gains on ``inertia()`` (kg m^2, per joint), which is evaluated only then."""
+        :meth:`schedule` the gains on ``inertia()`` (kg m^2, per joint) and the notch on ``loaded_inertia()`` (with
+        the payload; None: ``inertia()``), which are evaluated only then."""
         if self._samples % self._schedule_samples == 0:
-            self.schedule(inertia())
+            self.schedule(inertia(), None if loaded_inertia is None else loaded_inertia())
         self._samples += 1
 
     def _unscheduled(self) -> None:
