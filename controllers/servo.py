@@ -60,8 +60,8 @@ the smallest error the servo can see."""
 DEFAULT_NOTCH_QUALITY = 0.7
 """Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
 0.7 and 1, the one that a linear analysis of a compliant joint under the scheduled servo keeps stable with the
-stiffness 10 % off or the damping halved, and with an arm side up to five times the one the notch is placed on
-(a payload; docs/design.md section 6)."""
+stiffness 10 % off or the damping halved, and with an arm side up to five times the one the notch is placed on (a
+payload it does not know; docs/design.md section 6)."""
 
 
 @dataclass(frozen=True)
@@ -105,9 +105,9 @@ class ResonanceNotch:
     joint"): what a servo drive does about a resonance its loop would otherwise drive.
 
     Each joint is taken as a two-mass drive, the rotor J_m coupled through the gearhead's stiffness k to the arm side
-    J - J_m, with J the joint's inertia the servo's gains are placed on (rotor included, as the rigid model's is):
-    the mode its motor-side loop sees rings at f = sqrt(k (1/J_m + 1/(J - J_m))) / (2 pi), which the notch follows
-    as the servo's schedule moves J.
+    J - J_m, with J the joint's inertia (rotor included, as the rigid model's is): the mode its motor-side loop sees
+    rings at f = sqrt(k (1/J_m + 1/(J - J_m))) / (2 pi), which the notch follows as the servo's schedule moves J
+    (with the payload, :meth:`JointServo.schedule`).
 
     Attributes:
         rotor_inertia: Reflected rotor inertia J_m per joint (kg m^2).
