@@ -8,7 +8,14 @@ Gymnasium; SB3 and torch are imported only when a policy is loaded or trained.
 import gymnasium as gym
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PDController
-from controllers.compliance import DriveCompliance, DriveMode, TwoMassLinearization, drive_modes, first_mode
+from controllers.compliance import (
+    DriveCompliance,
+    DriveMode,
+    TwoMassLinearization,
+    drive_modes,
+    first_mode,
+    first_mode_map,
+)
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
 from controllers.feedforward import FeedforwardController, LagCompensatedController, OracleController, model_controller
@@ -58,6 +65,7 @@ __all__ = [
     "controller_entry",
     "drive_modes",
     "first_mode",
+    "first_mode_map",
     "model_controller",
     "servo_gains",
     "smooth_joint_motion",

@@ -198,3 +198,24 @@ def first_mode(
 ) -> DriveMode:
     """The drives' lowest mode about ``theta`` (rad) with ``payload`` (kg)."""
     return two_mass_linearization(dynamics, compliance, theta, payload).first_mode()
+
+
+def first_mode_map(
+    dynamics: DeltaDynamics, compliance: DriveCompliance, theta: ArrayLike, payloads: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The first mode over poses and payloads: its natural frequency (Hz) and damping ratio, each ``(N, P)``.
+
+    Args:
+        dynamics: The analytical model of the arm side.
+        compliance: The drives.
+        theta: Arm angles of the poses (rad), ``(N, 3)``.
+        payloads: Payload masses (kg), ``(P,)``.
+    """
+    theta = np.atleast_2d(np.asarray(theta, dtype=float))
+    payloads = np.atleast_1d(np.asarray(payloads, dtype=float))
+    frequency, damping = np.empty((len(theta), len(payloads))), np.empty((len(theta), len(payloads)))
+    for n, pose in enumerate(theta):
+        for p, payload in enumerate(payloads):
+            mode = first_mode(dynamics, compliance, pose, float(payload))
+            frequency[n, p], damping[n, p] = mode.frequency_hz, mode.damping_ratio
+    return frequency, damping
