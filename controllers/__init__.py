@@ -8,6 +8,14 @@ Gymnasium; SB3 and torch are imported only when a policy is loaded or trained.
 import gymnasium as gym
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, Controller, Observation, PDController
+from controllers.compliance import (
+    DriveCompliance,
+    DriveMode,
+    TwoMassLinearization,
+    drive_modes,
+    first_mode,
+    first_mode_map,
+)
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
 from controllers.feedforward import FeedforwardController, LagCompensatedController, OracleController, model_controller
@@ -20,7 +28,8 @@ from controllers.registry import (
     build_controller,
     controller_entry,
 )
-from controllers.servo import JointServo, ServoGains, servo_gains
+from controllers.servo import JointServo, ResonanceNotch, ServoGains, servo_gains
+from controllers.shaping import ShapedController, Shaper, zv_shaper, zvd_shaper
 
 __all__ = [
     "CONTROLLER_LABELS",
@@ -31,6 +40,8 @@ __all__ = [
     "ControllerEntry",
     "ControllerSetup",
     "DeltaDynamics",
+    "DriveCompliance",
+    "DriveMode",
     "EmptyMoveSums",
     "FeedforwardController",
     "JointServo",
@@ -44,14 +55,23 @@ __all__ = [
     "PDController",
     "PayloadEstimator",
     "PayloadRLS",
+    "ResonanceNotch",
     "ServoGains",
+    "ShapedController",
+    "Shaper",
     "Tare",
+    "TwoMassLinearization",
     "build_controller",
     "controller_entry",
+    "drive_modes",
+    "first_mode",
+    "first_mode_map",
     "model_controller",
     "servo_gains",
     "smooth_joint_motion",
     "tare_from_observations",
+    "zv_shaper",
+    "zvd_shaper",
 ]
 
 # The env wraps DeltaPickPlace-v0 with a base controller; its module is imported when the env is made.

@@ -90,9 +90,16 @@ class FeedforwardController:
 
     def schedule_servo(self, observation: Observation) -> None:
         """Every :data:`~controllers.servo.SCHEDULE_PERIOD`, place a scheduled servo's gains on the model's inertia at
-        the reference's pose, without payload (:meth:`~controllers.servo.JointServo.schedule`)."""
+        the reference's pose, without payload (:meth:`~controllers.servo.JointServo.schedule`), and its notch at the
+        drive mode, if any, on that inertia with the payload fed forward (the mode falls with the load)."""
         if self._scheduled:
-            self.servo.follow_inertia(lambda: model_inertia(self.dynamics, observation["reference_angles"], 0.0))
+            angles = observation["reference_angles"]
+            self.servo.follow_inertia(
+                lambda: model_inertia(self.dynamics, angles, 0.0),
+                None
+                if self.servo.notch is None
+                else lambda: model_inertia(self.dynamics, angles, max(0.0, self.feedforward_mass)),
+            )
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         tau0, phi = self.dynamics.torque_and_payload_regressor(

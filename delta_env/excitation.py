@@ -1,7 +1,8 @@
 """Excitation trajectories for identification: random rest-to-rest moves over the whole workspace.
 
 Fast moves at high acceleration to random and edge points excite the inertia terms, slow moves at a
-few mm/s excite friction near zero speed (docs/design.md section 7).
+few mm/s excite friction near zero speed (docs/design.md section 7). A compliant drive's gearhead mode is seen
+by a multisine torque at rest poses (:func:`multisine_torques`).
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from delta_env.geometry import DeltaGeometry
 from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits, edge_point, require_admissible, segment_admissible
@@ -159,3 +161,54 @@ def _slow_target(
         if segment_admissible(geometry, point, target, limits):
             return target
     raise ValueError(f"found no admissible slow move from {point.tolist()} m in {MAX_DRAWS} draws")
+
+
+MULTISINE_PERIOD = 0.2
+"""Period (s) of the compliance excitation's multisine (:func:`multisine_torques`): 5 Hz between its lines."""
+
+MULTISINE_BAND = (5.0, 300.0)
+"""Band (Hz) of the compliance excitation's multisine: from the lowest line up to the gearhead modes of a compliant
+drive (205 Hz locked, 257 Hz free at home for the SP+ 140). Not higher: the drive holds each command over the 1 ms
+control period, whose images at 1 kHz - f alias back onto a line f of the 1 kHz samples; at 300 Hz they move the
+rotor by 4 % of what the line does, at 450 Hz by 30 % (docs/measurements.md, "Compliant drives")."""
+
+
+def multisine_torques(
+    rng: np.random.Generator,
+    rms: float,
+    period: float = MULTISINE_PERIOD,
+    band: tuple[float, float] = MULTISINE_BAND,
+    dt: float = CONTROL_PERIOD,
+) -> NDArray[np.float64]:
+    """One period of a random-phase multisine per joint, to excite a compliant drive's modes (docs/design.md
+    section 7, "Compliant drives").
+
+    Every DFT line of the period inside ``band`` gets the same amplitude and a phase drawn uniformly, independently
+    per joint (the joints' signals are uncorrelated); repeated, the signal is periodic, so a record of whole periods
+    at steady state has no leakage and its derivatives follow exactly from its DFT.
+
+    Args:
+        rng: Source of the phases.
+        rms: RMS torque per joint (N m), > 0.
+        period: Period (s), a whole number of samples, > 2 ``dt``.
+        band: (lowest, highest) line (Hz), 0 < lowest <= highest < 1 / (2 dt).
+        dt: Sample period (s).
+
+    Returns:
+        Torques (N m), ``(round(period / dt), 3)``, zero mean.
+    """
+    require_generator(rng)
+    require_sample_period(dt)
+    require_positive("rms", rms, "N m")
+    samples = round(require_positive("period", period, "s") / dt)
+    if samples < 3 or abs(samples * dt - period) > 1e-9 * period:
+        raise ValueError(f"period must be a whole number (>= 3) of {dt:g} s samples, got {period!r} s")
+    low, high = require_interval("band", band, 0.0, 0.5 / dt, unit="Hz")
+    frequencies = np.fft.rfftfreq(samples, dt)
+    lines = np.flatnonzero((frequencies >= low) & (frequencies <= high) & (frequencies < 0.5 / dt))
+    if lines.size == 0:
+        raise ValueError(f"band {band} Hz holds no line of a {period:g} s period (lines every {1 / period:g} Hz)")
+    spectrum = np.zeros((len(frequencies), 3), dtype=complex)
+    spectrum[lines] = np.exp(2j * np.pi * rng.random((lines.size, 3)))
+    signal = np.fft.irfft(spectrum, n=samples, axis=0)
+    return signal * (rms / np.sqrt(np.mean(signal**2, axis=0)))

@@ -33,11 +33,13 @@ from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
+    COMPLIANCE_PARAMETER_NAMES,
     FRICTION_VELOCITY_THRESHOLD,
     REST_VELOCITY,
     RHO1_GRID,
     RHO2_GRID,
     TRIM_SAMPLES,
+    ComplianceFit,
     DriveLog,
     IdentificationResult,
     LeastSquaresFit,
@@ -46,6 +48,7 @@ from controllers.identification import (
     between_trajectory_spread,
     concatenate,
     error_table,
+    fit_compliance,
     fit_joint_least_squares,
     fit_least_squares,
     fit_paper_method,
@@ -60,6 +63,7 @@ from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
+from eval.compliance import identify_compliance
 from eval.console import progress_bar
 from eval.excitation import (
     DEFAULT_DURATION,
@@ -110,6 +114,8 @@ class IdentificationRun:
         logs: The logs identified on, then the held-out one: what the drive recorded.
         max_loop_gap: Largest loop gap of the plant over every excitation run (m), the simulation's health; None
             for logs.
+        compliance_logs: The compliance excitation's logs (:mod:`eval.compliance`) the drives' compliance was
+            identified on; empty without it.
     """
 
     result: IdentificationResult
@@ -118,6 +124,7 @@ class IdentificationRun:
     models: dict[str, DeltaDynamics]
     logs: tuple[DriveLog, ...]
     max_loop_gap: float | None
+    compliance_logs: tuple[DriveLog, ...] = ()
 
 
 def _trajectory_seeds(seed: int, n_trajectories: int) -> tuple[list[int], int]:
@@ -214,7 +221,7 @@ def run_identification(
         "plant": _plant_summary(plant),
     }
     controller = {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"}
-    return _identify(
+    run = _identify(
         [(motion, lag) for _, motion, lag in runs],
         [record.log for record, _, _ in runs],
         plant.geometry,
@@ -226,6 +233,36 @@ def run_identification(
         started=start,
         max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
     )
+    compliance = plant.realism.compliance
+    if compliance is None:
+        return run
+    if compliance.load_encoder_bits is None:
+        logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
+        provenance = {**run.result.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
+        return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
+    return _with_compliance(run, *identify_compliance(plant, seed))
+
+
+NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
+"""The provenance's ``compliance.method`` of a compliant plant whose drives could not be identified."""
+
+
+def _with_compliance(
+    run: IdentificationRun, fit: ComplianceFit, logs: tuple[DriveLog, ...], provenance: dict[str, Any]
+) -> IdentificationRun:
+    """``run`` with the drives' compliance identified: in the result, its standard errors and provenance."""
+    errors = {
+        f"compliance.{name}_{joint + 1}": float(fit.standard_errors[joint, index])
+        for index, name in enumerate(COMPLIANCE_PARAMETER_NAMES)
+        for joint in range(3)
+    }
+    result = dataclasses.replace(
+        run.result,
+        compliance=fit.compliance,
+        standard_errors={**run.result.standard_errors, **errors},
+        provenance={**run.result.provenance, "compliance": provenance},
+    )
+    return dataclasses.replace(run, result=result, compliance_logs=logs)
 
 
 SIMULATED_DATA = (
@@ -248,6 +285,8 @@ def identify_logs(
     workers: int = 1,
     progress: bool = False,
     topics: BagTopics | None = None,
+    compliance_paths: Sequence[str | os.PathLike[str]] = (),
+    torque_delay: float = MEASURED_TORQUE_DELAY,
 ) -> IdentificationRun:
     """Identify the robot of the robot file ``robot`` from its drive logs alone: the algorithms, fits and
     validation of :func:`run_identification` on the logs' arrays.
@@ -261,6 +300,10 @@ def identify_logs(
         progress: Show a tqdm progress bar.
         topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
             commands.
+        compliance_paths: Logs of the compliance excitation (:mod:`eval.compliance`: the multisine at rest poses,
+            with ``load_angle`` columns, resampled onto the control period) to identify compliant drives on; none
+            for rigid drives.
+        torque_delay: Age of the compliance logs' torques against their angles (s): the drive's timing.
 
     Raises:
         ValueError: for fewer than 2 logs; LogFileError for a bad log; ValueError naming the robot file for a bad
@@ -286,7 +329,7 @@ def identify_logs(
             "control_period_s": CONTROL_PERIOD,
         },
     }
-    return _identify(
+    run = _identify(
         prepared,
         logs,
         geometry,
@@ -298,6 +341,17 @@ def identify_logs(
         started=start,
         max_loop_gap=None,
     )
+    if not compliance_paths:
+        return run
+    compliance_logs = tuple(read_log(path) for path in compliance_paths)
+    fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
+    provenance = {
+        "method": "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance) "
+        f"on the logs' whole periods; torques {torque_delay:g} s older than their angles",
+        "logs": [{"path": str(path), "sha256": _sha256(Path(path))} for path in compliance_paths],
+        "fit": fit.summary(),
+    }
+    return _with_compliance(run, fit, compliance_logs, provenance)
 
 
 def _read_log(path: Path, topics: BagTopics | None) -> tuple[DriveLog, dict[str, Any]]:

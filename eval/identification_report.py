@@ -14,15 +14,19 @@ from typing import Any
 
 import numpy as np
 
+from controllers.compliance import DriveCompliance
+from controllers.dynamics import DeltaDynamics
 from controllers.identification import (
+    COMPLIANCE_PARAMETER_NAMES,
     FRICTION_VELOCITY_THRESHOLD,
     JOINT_PARAMETER_NAMES,
     error_table,
     fit_joint_least_squares,
 )
-from delta_env.config import PlantConfig
+from delta_env.config import ARCMIN, PlantConfig
 from delta_env.geometry import GRAVITY
 from delta_env.kernels import STRIBECK_PEAK
+from eval.compliance import mode_map, mode_map_lines, workspace_grid
 from eval.identification import IdentificationRun
 
 FIGURES = {
@@ -47,17 +51,91 @@ TARGET_STD_RATIO = 0.25
 """Goal: std of the MId+F error <= this x std of the MKH error on every joint (the paper's Table 1)."""
 
 
-def ground_truth(plant: PlantConfig) -> dict[str, list[float]]:
+def ground_truth(plant: PlantConfig) -> dict[str, Any]:
     """The plant's true friction (N m s/rad, N m), Stribeck excess (N m) and its decay speed (rad/s), and drive lag (s)
-    per joint: ground truth for this report only."""
+    per joint, and a compliant plant's gearheads (:data:`COMPLIANCE_PARAMETER_NAMES`, SI): ground truth for this
+    report only."""
     realism = plant.realism
-    return {
+    truth = {
         "viscous": realism.viscous_per_joint.tolist(),
         "coulomb": realism.coulomb_per_joint.tolist(),
         "drive_lag": [realism.actuator_lag] * 3,
         "stribeck_excess": (realism.stribeck_excess * realism.coulomb_per_joint).tolist(),
         "stribeck_velocity": [realism.stribeck_velocity],
     }
+    gearhead = realism.compliance
+    if gearhead is not None:
+        truth["compliance"] = [
+            [gearhead.rotor_inertia] * 3,
+            realism.viscous_per_joint.tolist(),
+            realism.coulomb_per_joint.tolist(),
+            gearhead.stiffness_per_joint.tolist(),
+            gearhead.damping_per_joint.tolist(),
+            [gearhead.backlash] * 3,
+        ]
+    return truth
+
+
+COMPLIANCE_UNITS = ("kg m^2", "N m s/rad", "N m", "N m/rad", "N m s/rad", "arcmin")
+"""Units of :data:`COMPLIANCE_PARAMETER_NAMES` in the report (the backlash in arcmin)."""
+
+
+def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> list[str]:
+    """The drives' identified parameters per joint with their SE and truth, and the first-mode map."""
+    result = run.result
+    if "compliance" not in result.provenance:
+        return ["Rigid drives: no compliance."]
+    if result.compliance is None:
+        return [
+            f"{result.provenance['compliance']['method'].capitalize()} (the stiffness needs the arm's angle, "
+            "docs/design.md section 7).",
+            "",
+            *_mode_map_lines(run, DriveCompliance.nominal(), "the data sheet's drives"),
+        ]
+    fit = result.provenance["compliance"]["fit"]
+    true = None if truth is None else truth.get("compliance")
+    lines = [
+        f"{result.provenance['compliance']['method']}.",
+        "",
+        "| parameter | unit | joint 1 | joint 2 | joint 3 |" + (" ground truth | error (%) |" if true else ""),
+        "|---|---|---|---|---|" + ("---|---|" if true else ""),
+    ]
+    for index, (name, unit) in enumerate(zip(COMPLIANCE_PARAMETER_NAMES, COMPLIANCE_UNITS, strict=True)):
+        scale = 1.0 / ARCMIN if name == "backlash" else 1.0
+        values = scale * np.array(fit["estimate"][name])
+        errors = scale * np.array(fit["standard_errors"][name])
+        cells = " | ".join(f"{v:.4g} +- {e:.2g}" for v, e in zip(values, errors, strict=True))
+        row = f"| {name} | {unit} | {cells} |"
+        if true:
+            reference = scale * np.array(true[index])
+            relative = [f"{100 * (v - t) / t:+.1f}" if t else "-" for v, t in zip(values, reference, strict=True)]
+            row += f" {', '.join(f'{t:.4g}' for t in reference)} | {', '.join(relative)} |"
+        lines.append(row)
+    return [*lines, "", *_mode_map_lines(run, result.compliance, "the identified drives")]
+
+
+def _mode_map_lines(run: IdentificationRun, compliance: DriveCompliance, source: str) -> list[str]:
+    """The first-mode map of the two-mass model with ``compliance`` on the robot's datasheet arm."""
+    model = run.models["MKH"]
+    dynamics = DeltaDynamics.of_robot(model.geometry, model.masses, forearm_rods=True)
+    modes = mode_map(dynamics, compliance, workspace_grid(), source=source)
+    lowest = modes.summary()["payloads_kg"]
+    return [
+        "### First-mode map",
+        "",
+        f"The two-mass model (the datasheet arm with rod forearms, {source}; docs/design.md section 4) over the "
+        "workspace: the first mode's natural frequency per height and distance from the axis, its range over the "
+        "azimuths, empty to rated; the damping ratio over the ring and payloads.",
+        "",
+        *mode_map_lines(modes),
+        "",
+        "Lowest first mode: "
+        + "; ".join(
+            f"{payload}: {row['lowest_hz']:.1f} Hz at ({', '.join(f'{v:.2f}' for v in row['lowest_at_m'])}) m"
+            for payload, row in lowest.items()
+        )
+        + ".",
+    ]
 
 
 def save_validation_data(run: IdentificationRun, path: Path) -> None:
@@ -355,6 +433,10 @@ def render_report(
         "## Drive lag",
         "",
         *_drive_lag_lines(run, truth),
+        "",
+        "## Compliant drives",
+        "",
+        *_compliance_lines(run, truth),
         "",
         "## Run time (s)",
         "",

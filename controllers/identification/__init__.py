@@ -10,11 +10,14 @@ is ``eval.identification``, its excitation runs ``eval.excitation``):
   paper's lumped model or the model with rod forearms (MId+F+R);
 - :mod:`~controllers.identification.stribeck`: the Stribeck excess near zero speed, fitted on the rows the least
   squares leaves out (the joints' breakaway torque);
+- :mod:`~controllers.identification.compliance`: compliant drives' rotor inertia, gearhead stiffness, damping and
+  backlash from a periodic excitation at rest poses with the load-side angle;
 - :mod:`~controllers.identification.parameter_file`: the JSON parameter file with provenance;
 - :mod:`~controllers.identification.logs`: the drive log files (CSV or Parquet) a robot's logger records;
 - :mod:`~controllers.identification.bags`: ROS 2 bags (MCAP, sqlite3) of a robot's joint states as drive logs.
 """
 
+from controllers.identification.compliance import COMPLIANCE_PARAMETER_NAMES, ComplianceFit, fit_compliance
 from controllers.identification.data import (
     REST_VELOCITY,
     TRIM_SAMPLES,
@@ -65,6 +68,7 @@ from controllers.identification.stribeck import StribeckFit, fit_stribeck
 
 __all__ = [
     "BAG_SUFFIXES",
+    "COMPLIANCE_PARAMETER_NAMES",
     "FILE_FORMAT_VERSION",
     "FRICTION_VELOCITY_THRESHOLD",
     "JOINT_PARAMETER_NAMES",
@@ -75,6 +79,7 @@ __all__ = [
     "RHO1_GRID",
     "RHO2_GRID",
     "TRIM_SAMPLES",
+    "ComplianceFit",
     "DriveLog",
     "IdentificationResult",
     "LeastSquaresFit",
@@ -86,6 +91,7 @@ __all__ = [
     "between_trajectory_spread",
     "concatenate",
     "error_table",
+    "fit_compliance",
     "fit_friction_per_joint",
     "fit_joint_least_squares",
     "fit_least_squares",

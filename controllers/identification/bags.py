@@ -326,6 +326,11 @@ def write_bag(
     path = Path(path)
     if path.suffix not in BAG_STORAGES:
         raise LogFileError(f"bag {path}: the file name must end in {' or '.join(BAG_STORAGES)}")
+    if log.motor_angles is not None or log.load_angles is not None:
+        raise LogFileError(
+            f"bag {path}: a bag's JointState holds one angle per joint, this log has motor- or load-side angles "
+            "besides: write it as CSV or Parquet"
+        )
     typestore = ros2_typestore()
     joint_state = typestore.types[JOINT_STATE_TYPE]
     header = typestore.types["std_msgs/msg/Header"]

@@ -8,7 +8,12 @@ A log is a table, CSV (a header row, then one row per sample) or Parquet, with t
 - ``torque_1``, ``torque_2``, ``torque_3``: measured motor torques at the joint (N m), each read with the
   angles of its row;
 - ``command_1``, ``command_2``, ``command_3`` (optional, all three or none): the torque commanded with the
-  row's sample (N m), held until the next one; the last row's may be empty (no command follows the log).
+  row's sample (N m), held until the next one; the last row's may be empty (no command follows the log);
+- ``motor_angle_1``, ``motor_angle_2``, ``motor_angle_3`` (optional, all three or none): a compliant drive's
+  motor-side angle (rad), the motor shaft's over the gear ratio, where ``theta_j`` is read elsewhere or to say
+  which side it is; without them a compliant drive's motor side is ``theta_j`` (its encoder sits on the motor);
+- ``load_angle_1``, ``load_angle_2``, ``load_angle_3`` (optional, all three or none): a compliant drive's
+  load-side angle (rad), an encoder on the arm behind the gearhead (docs/design.md section 4, "Compliant drives").
 
 Other columns are ignored. Timestamps may be irregular: the samples are resampled onto the grid
 ``time_s[0] + k * period`` (:data:`~delta_env.sensors.CONTROL_PERIOD` by default) up to the last sample, angles
@@ -27,7 +32,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +53,23 @@ TORQUE_COLUMNS = ("torque_1", "torque_2", "torque_3")
 COMMAND_COLUMNS = ("command_1", "command_2", "command_3")
 """Commanded motor torques (N m), optional."""
 
-LOG_COLUMNS = (TIME_COLUMN, *ANGLE_COLUMNS, *TORQUE_COLUMNS, *COMMAND_COLUMNS)
+MOTOR_ANGLE_COLUMNS = ("motor_angle_1", "motor_angle_2", "motor_angle_3")
+"""A compliant drive's motor-side angles at the joint's scale (rad), optional."""
+
+LOAD_ANGLE_COLUMNS = ("load_angle_1", "load_angle_2", "load_angle_3")
+"""A compliant drive's load-side (arm) angles (rad), optional."""
+
+OPTIONAL_ANGLE_COLUMNS = {"motor_angles": MOTOR_ANGLE_COLUMNS, "load_angles": LOAD_ANGLE_COLUMNS}
+"""The optional angle columns by the :class:`DriveLog` field that holds them."""
+
+LOG_COLUMNS = (
+    TIME_COLUMN,
+    *ANGLE_COLUMNS,
+    *TORQUE_COLUMNS,
+    *COMMAND_COLUMNS,
+    *MOTOR_ANGLE_COLUMNS,
+    *LOAD_ANGLE_COLUMNS,
+)
 """Every column of a log, in the order a log is written."""
 
 TABLE_SUFFIXES = (".csv", ".parquet")
@@ -86,12 +107,17 @@ class DriveLog:
         commands: Commanded torques (N m), ``(N - 1, 3)``: command k, sent with sample k, is held until sample
             k + 1; None when the log has none.
         dt: Sample period (s).
+        motor_angles: A compliant drive's motor-side angles (rad), ``(N, 3)``, or None: not logged apart (then
+            ``angles`` are the motor side's).
+        load_angles: A compliant drive's load-side (arm) angles (rad), ``(N, 3)``, or None: not logged.
     """
 
     angles: NDArray[np.float64]
     torques: NDArray[np.float64]
     commands: NDArray[np.float64] | None
     dt: float = CONTROL_PERIOD
+    motor_angles: NDArray[np.float64] | None = field(default=None, kw_only=True)
+    load_angles: NDArray[np.float64] | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
         shape = np.shape(self.angles)
@@ -103,6 +129,15 @@ class DriveLog:
             raise ValueError(f"commands must have shape ({shape[0] - 1}, 3), got {np.shape(self.commands)}")
         if not (math.isfinite(self.dt) and self.dt > 0.0):
             raise ValueError(f"dt must be a finite number > 0 s, got {self.dt!r}")
+        for name in OPTIONAL_ANGLE_COLUMNS:
+            values = getattr(self, name)
+            if values is not None and np.shape(values) != shape:
+                raise ValueError(f"{name} must have the shape of angles {shape}, got {np.shape(values)}")
+
+    @property
+    def motor_side_angles(self) -> NDArray[np.float64]:
+        """The motor-side angles (rad), ``(N, 3)``: ``motor_angles`` if logged, else ``angles``."""
+        return self.angles if self.motor_angles is None else self.motor_angles
 
     def __len__(self) -> int:
         return len(self.angles)
@@ -132,6 +167,10 @@ def write_table_log(log: DriveLog, path: Path, start: float = 0.0) -> Path:
     if log.commands is not None:
         held = np.vstack([log.commands, np.full((1, 3), np.nan)])
         columns |= {name: held[:, j] for j, name in enumerate(COMMAND_COLUMNS)}
+    for field_name, names in OPTIONAL_ANGLE_COLUMNS.items():
+        values = getattr(log, field_name)
+        if values is not None:
+            columns |= {name: values[:, j] for j, name in enumerate(names)}
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".csv":
         with path.open("w", newline="") as file:
@@ -183,10 +222,14 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
             f"missing column(s) {', '.join(missing)}; a log needs {', '.join(required)} "
             f"(and optionally {', '.join(COMMAND_COLUMNS)})"
         )
-    if commands_present and len(commands_present) < len(COMMAND_COLUMNS):
-        absent = [name for name in COMMAND_COLUMNS if name not in columns]
-        raise ValueError(f"has {', '.join(commands_present)} but not {', '.join(absent)}: give all three or none")
-    values = {name: np.asarray(columns[name], dtype=float) for name in (*required, *commands_present)}
+    optional_present = []
+    for group in (COMMAND_COLUMNS, *OPTIONAL_ANGLE_COLUMNS.values()):
+        present = [name for name in group if name in columns]
+        if present and len(present) < len(group):
+            absent = [name for name in group if name not in columns]
+            raise ValueError(f"has {', '.join(present)} but not {', '.join(absent)}: give all three or none")
+        optional_present += present
+    values = {name: np.asarray(columns[name], dtype=float) for name in (*required, *optional_present)}
     rows = len(values[TIME_COLUMN])
     if rows < 2:
         raise ValueError(f"needs at least 2 rows, has {rows}")
@@ -218,8 +261,13 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
     if commands_present:
         held = np.searchsorted(time, grid[:-1] + _GRID_TOLERANCE, side="right") - 1
         commands = np.column_stack([values[name][held] for name in COMMAND_COLUMNS])
+    optional_angles = {
+        field_name: np.column_stack([np.interp(grid, time, values[name]) for name in names])
+        for field_name, names in OPTIONAL_ANGLE_COLUMNS.items()
+        if names[0] in values
+    }
     try:
-        return DriveLog(angles, torques, commands, period)
+        return DriveLog(angles, torques, commands, period, **optional_angles)
     except ValueError as error:
         raise ValueError(f"spans {time[-1] - time[0]:g} s, too short for one {period:g} s period ({error})") from None
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from controllers.compliance import DriveCompliance
 from controllers.dynamics import ModelParameters
 from controllers.identification.data import REST_VELOCITY
 from delta_env.drive import MAX_TIME_CONSTANT
@@ -24,6 +25,16 @@ Stribeck excess ``stribeck_excess_nm`` and its decay speed ``stribeck_velocity_r
 
 MODEL_FIELDS = ("mid", "mid_f", "mid_f_rods", "paper_mid", "paper_mid_f")
 """The parameter sets of an :class:`IdentificationResult`, in the order of the JSON file."""
+
+COMPLIANCE_KEY = "compliance"
+"""The file's optional section of compliant drives (absent for rigid ones: files without it read as before)."""
+
+COMPLIANCE_FIELDS = {
+    "rotor_inertia": "rotor_inertia_kg_m2",
+    "stiffness": "stiffness_nm_per_rad",
+    "damping": "damping_nm_s_per_rad",
+}
+"""The section's keys (per joint, SI) by the :class:`~controllers.compliance.DriveCompliance` field they hold."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +60,9 @@ class IdentificationResult:
             :attr:`controllers.identification.least_squares.LeastSquaresFit.standard_errors`.
         provenance: JSON-ready record of how the parameters were obtained: method, trajectories, plant
             summary, sample counts, residual statistics, held-out validation, run times, versions, date.
+        compliance: The drives' compliance (:class:`controllers.compliance.DriveCompliance`) identified from the
+            compliance excitation's logs (:mod:`controllers.identification.compliance`); None for rigid drives or
+            logs without the load-side angle. The file's optional ``compliance`` section.
     """
 
     mid: ModelParameters
@@ -61,6 +75,7 @@ class IdentificationResult:
     stribeck_velocity: float | None
     standard_errors: dict[str, float]
     provenance: dict[str, Any]
+    compliance: DriveCompliance | None = None
 
     def __post_init__(self) -> None:
         if (self.stribeck_excess is None) != (self.stribeck_velocity is None):
@@ -114,6 +129,10 @@ def save_result(result: IdentificationResult, path: str | os.PathLike[str]) -> P
     document["stribeck_velocity_rad_s"] = result.stribeck_velocity
     document["standard_errors"] = dict(result.standard_errors)
     document["provenance"] = result.provenance
+    if result.compliance is not None:
+        document[COMPLIANCE_KEY] = {
+            key: list(getattr(result.compliance, name)) for name, key in COMPLIANCE_FIELDS.items()
+        }
     text = json.dumps(_json_ready(document), indent=2, allow_nan=False)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -216,6 +235,19 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     for key, value in errors.items():
         standard_errors[key] = _number(path, f"standard_errors[{key!r}]", value, low=0.0)
     provenance = _json_object(path, _entry(path, document, "provenance", "the file"), "provenance")
+    compliance = None
+    if COMPLIANCE_KEY in document:
+        section = _json_object(path, document[COMPLIANCE_KEY], COMPLIANCE_KEY)
+        values = {}
+        for name, key in COMPLIANCE_FIELDS.items():
+            joints = _entry(path, section, key, COMPLIANCE_KEY)
+            if not isinstance(joints, list) or len(joints) != 3:
+                raise ParameterFileError(f"{path}: {COMPLIANCE_KEY}.{key} must be a list of 3 numbers, got {joints!r}")
+            values[name] = tuple(_number(path, f"{COMPLIANCE_KEY}.{key}[{i}]", v) for i, v in enumerate(joints))
+        try:
+            compliance = DriveCompliance(**values)
+        except ValueError as error:
+            raise ParameterFileError(f"{path}: {COMPLIANCE_KEY}: {error}") from error
     return IdentificationResult(
         **models,
         drive_lag=drive_lag,
@@ -223,4 +255,5 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
         stribeck_velocity=stribeck_velocity,
         standard_errors=standard_errors,
         provenance=dict(provenance),
+        compliance=compliance,
     )

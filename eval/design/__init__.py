@@ -10,6 +10,7 @@
 - :mod:`eval.design.front`: NSGA-II on several seeds and the GA, every archive merged into one front;
 - :mod:`eval.design.robustness`: the chosen designs' length tolerances and mass sensitivity;
 - :mod:`eval.design.stiffness`: the platform's first natural frequency;
+- :mod:`eval.design.drive_modes`: the first mode of each design's compliant drives over the task region;
 - :mod:`eval.design.mechanism`: the paper's pitch-screw linkage, screw travel -> base radius and motor height;
 - :mod:`eval.design.reconfigure`: the best screw setting per task profile, against the best fixed one;
 - :mod:`eval.design.verify`: closed-loop verification on each design's own MuJoCo plant (the only module

@@ -47,6 +47,7 @@ from eval import calibration, excitation, identification
 from eval.console import CommandParser, command_main, progress_bar, resolved_arguments
 from eval.design import (
     codesign,
+    drive_modes,
     drive_rate,
     explorer,
     front,
@@ -261,6 +262,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         name: float(np.min(stiffness.first_natural_frequency(p.geometry, region, RATED_PAYLOAD, p.masses)))
         for name, p in designs.items()
     }
+    mode_maps = {name: drive_modes.design_mode_map(p) for name, p in designs.items()}
     clearance = {  # over the cylinder's surface and the conveyors' region: the plant's links never touch there
         name: collisions.smallest_clearances(p.geometry, np.vstack((p.cylinder.surface_points(), region)))
         for name, p in designs.items()
@@ -290,6 +292,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
                 "reachable_volume_m3": reachable[n][0],
                 "reachable_volume_error_m3": reachable[n][1],
                 "first_natural_frequency_hz": frequency[n],
+                **drive_modes.drive_mode_columns(mode_maps[n]),
                 "arm_clearance_m": clearance[n][0],
                 "base_clearance_m": clearance[n][1],
             }
@@ -385,6 +388,15 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         f"mass alone +{100 * robustness.MASS_TOLERANCE:.0f} %. Mean ± std [5 %, 95 %]:",
         "",
         robustness.table(sensitivity),
+        "",
+        "## First mode of the compliant drives over the task region",
+        "",
+        "Each design's drive behind the data-sheet gearhead (SP+ 140) scaled to its peak torque, at the damping "
+        "ratio of the data sheet's drive (an assumption: eval.design.drive_modes); the two-mass model "
+        "(docs/design.md section 4) on the design's links over the task disc at the band's two heights, empty and "
+        f"at {RATED_PAYLOAD:g} kg. Stiffer is higher: what the servo and a shaped move must live with.",
+        "",
+        *drive_modes.drive_mode_table(designs, mode_maps),
         "",
     ]
     for name, study in reconfigured.items():
