@@ -28,7 +28,8 @@ from controllers.registry import (
     build_controller,
     controller_entry,
 )
-from controllers.servo import JointServo, ServoGains, servo_gains
+from controllers.servo import JointServo, ResonanceNotch, ServoGains, servo_gains
+from controllers.shaping import ShapedController, Shaper, zv_shaper, zvd_shaper
 
 __all__ = [
     "CONTROLLER_LABELS",
@@ -54,7 +55,10 @@ __all__ = [
     "PDController",
     "PayloadEstimator",
     "PayloadRLS",
+    "ResonanceNotch",
     "ServoGains",
+    "ShapedController",
+    "Shaper",
     "Tare",
     "TwoMassLinearization",
     "build_controller",
@@ -66,6 +70,8 @@ __all__ = [
     "servo_gains",
     "smooth_joint_motion",
     "tare_from_observations",
+    "zv_shaper",
+    "zvd_shaper",
 ]
 
 # The env wraps DeltaPickPlace-v0 with a base controller; its module is imported when the env is made.

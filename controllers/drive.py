@@ -84,6 +84,14 @@ class ReferencePredictor:
 
     def next(self, observation: Observation) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Reference angles (rad), rates (rad/s) and accelerations (rad/s^2) one horizon ahead, each (3,)."""
+        return self.jet(observation)[:3]
+
+    def jet(self, observation: Observation) -> tuple[NDArray[np.float64], ...]:
+        """The reference one horizon ahead with its jerk (rad/s^3) and snap (rad/s^4): five (3,) arrays, the first
+        three those of :meth:`next` (call one of the two per step). Following the reference's samples they are the
+        Hermite interpolant's (its jerk and snap within period^3 and period^2 times the reference's sixth
+        derivative, a jerk step of the reference spread over the period around it); predicted, the jerk is the last
+        period's and the snap 0."""
         angles = observation["reference_angles"]
         prediction = _taylor_step(
             angles,
@@ -112,10 +120,10 @@ def _hermite_step(
     k: int,
     horizon: NDArray[np.float64],
     period: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Angles, rates and accelerations, each (3,), at k period + horizon by the quintic Hermite interpolant of the
-    samples around it; samples k + 2 must exist."""
-    angle, rate, acceleration = np.empty(3), np.empty(3), np.empty(3)
+) -> tuple[NDArray[np.float64], ...]:
+    """Angles, rates, accelerations, jerks and snaps, each (3,), at k period + horizon by the quintic Hermite
+    interpolant of the samples around it; samples k + 2 must exist."""
+    angle, rate, acceleration, jerk, snap = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for joint in range(3):
         s = horizon[joint] / period
         i = k
@@ -132,7 +140,9 @@ def _hermite_step(
         angle[joint] = p0 + s * (v0 + s * (0.5 * a0 + s * (c3 + s * (c4 + s * c5))))
         rate[joint] = (v0 + s * (a0 + s * (3.0 * c3 + s * (4.0 * c4 + s * 5.0 * c5)))) / period
         acceleration[joint] = (a0 + s * (6.0 * c3 + s * (12.0 * c4 + s * 20.0 * c5))) / period**2
-    return angle, rate, acceleration
+        jerk[joint] = (6.0 * c3 + s * (24.0 * c4 + s * 60.0 * c5)) / period**3
+        snap[joint] = (24.0 * c4 + s * 120.0 * c5) / period**4
+    return angle, rate, acceleration, jerk, snap
 
 
 @numba.njit(cache=True)
@@ -144,20 +154,21 @@ def _taylor_step(
     has_last: bool,
     horizon: NDArray[np.float64],
     period: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """:meth:`ReferencePredictor.next` per joint in scalar math (a dozen NumPy calls on three values cost more);
+) -> tuple[NDArray[np.float64], ...]:
+    """:meth:`ReferencePredictor.jet` per joint in scalar math (a dozen NumPy calls on three values cost more);
     ``last_acceleration`` (3,) is the last step's reference acceleration, replaced by this step's."""
-    angle, rate, acceleration = np.empty(3), np.empty(3), np.empty(3)
+    angle, rate, acceleration, jerk = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for joint in range(3):
         p, v, a = theta[joint], theta_dot[joint], theta_ddot[joint]
         dt = horizon[joint]
         # the acceleration's change over the horizon: the last period's change, scaled (bit for bit itself at 1)
         j = (a - last_acceleration[joint]) * (dt / period) if has_last else 0.0
+        jerk[joint] = (a - last_acceleration[joint]) / period if has_last else 0.0
         last_acceleration[joint] = a
         angle[joint] = p + dt * (v + dt * (0.5 * a + j / 6.0))
         rate[joint] = v + dt * (a + 0.5 * j)
         acceleration[joint] = a + j
-    return angle, rate, acceleration
+    return angle, rate, acceleration, jerk, np.zeros(3)
 
 
 class MeasuredReferenceRate:

@@ -17,11 +17,13 @@ Controllers see only the observation and nominal or identified parameters; none 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import expm
 
 from controllers.base import JointFeedback, Observation, PDController
 from controllers.drive import ReferencePredictor
@@ -35,10 +37,10 @@ from controllers.servo import (
     model_inertia,
     servo_gains,
 )
-from delta_env.config import PhysicalParameters, PlantConfig
+from delta_env.config import RATED_PAYLOAD, PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
-from delta_env.oracle import InverseDynamicsOracle
+from delta_env.oracle import CompliantDriveOracle, InverseDynamicsOracle, RotorMotion
 from delta_env.sensors import CONTROL_PERIOD, encoder_resolution, rate_window
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_in
@@ -88,9 +90,16 @@ class FeedforwardController:
 
     def schedule_servo(self, observation: Observation) -> None:
         """Every :data:`~controllers.servo.SCHEDULE_PERIOD`, place a scheduled servo's gains on the model's inertia at
-        the reference's pose, without payload (:meth:`~controllers.servo.JointServo.schedule`)."""
+        the reference's pose, without payload (:meth:`~controllers.servo.JointServo.schedule`), and its notch at the
+        drive mode, if any, on that inertia with the payload fed forward (the mode falls with the load)."""
         if self._scheduled:
-            self.servo.follow_inertia(lambda: model_inertia(self.dynamics, observation["reference_angles"], 0.0))
+            angles = observation["reference_angles"]
+            self.servo.follow_inertia(
+                lambda: model_inertia(self.dynamics, angles, 0.0),
+                None
+                if self.servo.notch is None
+                else lambda: model_inertia(self.dynamics, angles, max(0.0, self.feedforward_mass)),
+            )
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         tau0, phi = self.dynamics.torque_and_payload_regressor(
@@ -124,6 +133,104 @@ def oracle_gains(lag: float) -> tuple[float, float]:
     return ORACLE_KP, ORACLE_DAMPING + ORACLE_KP * lag
 
 
+COMPLIANT_KD_GRID = np.arange(0.0, 200.5, 0.5)
+"""The derivative gains (N m s/rad) :func:`compliant_oracle_gains` chooses from."""
+
+
+def compliant_oracle_gains(
+    drives: CompliantDriveOracle, lag: float, *, period: float = CONTROL_PERIOD, rate_window: float = CONTROL_PERIOD
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The oracle's PD gains (Kp (N m/rad), Kd (N m s/rad), each per joint) on the compliant drives of ``drives``,
+    from the linear loop of each joint's two masses.
+
+    Each joint is its rotor (inertia and viscous friction) behind its gearhead's spring and damper to the arm, whose
+    inertia is taken at home empty and with the rated payload (:func:`~controllers.servo.joint_inertia` of the arm
+    side), driven through the first-order lag ``lag`` (s) by a command held over ``period`` (s), with the PD on the
+    rotor's angle and its rate measured over ``rate_window`` (s; the backward difference of the samples when it is
+    the period). Kp is :data:`ORACLE_KP`, halved until a Kd of :data:`COMPLIANT_KD_GRID` keeps every pole of the
+    sampled loop inside the unit circle at both inertias; Kd is the one whose largest pole is least there, the
+    gearhead's mode damped best. Through the lag and the sampling a larger Kd damps the mode less again: on the preset
+    (10 N m s/rad of gearhead damping, 1 ms lag) the loop holds Kp 6000 for Kd from 7.5 to 34 and is best at 27.5,
+    with half that damping from 7.5 to 17 (best 14.5), and without it for no Kd (Kp falls to 1500, Kd 3; docs/design.md
+    section 4).
+    """
+    arm_inertias = [joint_inertia(drives.arm.torques, payload=payload) for payload in (0.0, RATED_PAYLOAD)]
+    gains = []
+    for joint in range(3):
+        loops = [
+            _sampled_compliant_joint(
+                drives.stiffness[joint],
+                drives.damping[joint],
+                drives.rotor_inertia[joint],
+                drives.viscous[joint],
+                float(inertia[joint]),
+                lag,
+                period,
+            )
+            for inertia in arm_inertias
+        ]
+        kp = ORACLE_KP
+        for _ in range(8):
+            radii = [
+                max(_largest_pole(*loop, kp, kd, period, rate_window) for loop in loops) for kd in COMPLIANT_KD_GRID
+            ]
+            best = int(np.argmin(radii))
+            if radii[best] < 1.0:
+                break
+            kp *= 0.5
+        gains.append((kp, float(COMPLIANT_KD_GRID[best])))
+    kp, kd = zip(*gains, strict=True)
+    return kp, kd
+
+
+def _sampled_compliant_joint(
+    stiffness: float,
+    damping: float,
+    rotor_inertia: float,
+    viscous: float,
+    arm_inertia: float,
+    lag: float,
+    period: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(A, B) of one compliant joint sampled with a zero-order hold over ``period`` (s): the state (phi, phi_dot, theta,
+    theta_dot) and the drive's output with a lag, the input the held command (all SI)."""
+    k, c = stiffness, damping
+    lagging = lag > 0.0
+    n = 5 if lagging else 4
+    a = np.zeros((n + 1, n + 1))  # [A B; 0 0], whose exponential holds the sampled A and B
+    a[0, 1] = a[2, 3] = 1.0
+    a[1, :4] = np.array([-k, -(c + viscous), k, c]) / rotor_inertia
+    a[3, :4] = np.array([k, c, -k, -c]) / arm_inertia
+    a[1, 4] = 1.0 / rotor_inertia  # the drive's output, or without a lag the command itself
+    if lagging:
+        a[4, 4], a[4, 5] = -1.0 / lag, 1.0 / lag
+    sampled = expm(a * period)
+    return sampled[:n, :n], sampled[:n, n]
+
+
+def _largest_pole(
+    a: NDArray[np.float64],
+    b: NDArray[np.float64],
+    kp: float,
+    kd: float,
+    period: float,
+    rate_window: float,
+) -> float:
+    """The largest |pole| of the sampled joint (a, b) under u = -kp phi - kd (rate): with the backward difference over
+    the period (the last sample phi_prev a state) when ``rate_window`` is the period, else the rotor's own rate."""
+    n = len(b)
+    closed = np.zeros((n + 1, n + 1))
+    closed[:n, :n] = a
+    closed[n, 0] = 1.0  # phi_prev
+    feedback = np.zeros(n + 1)
+    if math.isclose(rate_window, period):
+        feedback[0], feedback[n] = -kp - kd / period, kd / period
+    else:
+        feedback[0], feedback[1] = -kp, -kd
+    closed[:n] += np.outer(b, feedback)
+    return float(np.max(np.abs(np.linalg.eigvals(closed))))
+
+
 class OracleController:
     """Exact inverse of the plant, mechanism and drive, at the reference with the true payload: a bound.
 
@@ -152,10 +259,18 @@ class OracleController:
     (:mod:`controllers.servo`) on the plant's truth: gains placed on its exact inertia and true lag, its true Coulomb
     friction pushed at rest, so that the bound holds the place as well as the rows that run the servo layer.
 
+    On compliant drives (``PlantRealism.compliance``) the feedforward is :class:`~delta_env.oracle.CompliantDriveOracle`
+    at the lead: the rotor's torque that moves the arm along the reference through the gearhead, with the reference's
+    jerk and snap from its samples (:meth:`~controllers.drive.ReferencePredictor.jet`). The motor encoders read the
+    rotors, so the feedback compares them with the rotors' reference, the arms' plus the gearheads' deflection, and
+    it is the PD of :func:`compliant_oracle_gains` whichever ``servo`` is asked: the
+    servo layer's gains, placed on the rigid inertia, drive the gearhead's mode unstable (docs/design.md section 4;
+    7.6 mm RMS on the preset's episode 0).
+
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
         servo: The feedback: ``"pd"``, a PD with :func:`oracle_gains` of the plant's lag, or ``"servo"``, the servo
-            layer on the plant's truth; both follow :meth:`set_physical_parameters`.
+            layer on the plant's truth (on rigid drives); both follow :meth:`set_physical_parameters`.
         gains: Fixed feedback gains instead (:class:`~controllers.servo.ServoGains`), or None.
         period: Control period (s).
     """
@@ -173,6 +288,8 @@ class OracleController:
         if servo not in ("pd", "servo"):
             raise ValueError(f"servo must be 'pd' or 'servo', got {servo!r}")
         self.oracle = InverseDynamicsOracle(plant)
+        self.compliant_drives = None if plant.realism.compliance is None else CompliantDriveOracle(plant)
+        """The exact inverse of compliant drives (the rotors' motion and torque); None on rigid drives."""
         self._servo_kind = servo
         self._fixed_gains = gains
         self._timestep = plant.timestep
@@ -196,6 +313,10 @@ class OracleController:
         and no push at rest), or the servo layer on the plant's truth."""
         if self._fixed_gains is not None:
             return self._fixed_gains
+        if self.compliant_drives is not None:
+            window = rate_window(self._encoder_bits, self._timestep)
+            kp, kd = compliant_oracle_gains(self.compliant_drives, lag, period=period, rate_window=window)
+            return ServoGains(kp=kp, ki=(0.0,) * 3, kd=kd)
         if self._servo_kind == "pd":
             kp, kd = oracle_gains(lag)
             return ServoGains(kp=(kp,) * 3, ki=(0.0,) * 3, kd=(kd,) * 3)
@@ -210,6 +331,8 @@ class OracleController:
     def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
         """The plant's true (e.g. randomized) masses, friction and lag, from ``env.plant.parameters``."""
         self.oracle.set_physical_parameters(parameters)
+        if self.compliant_drives is not None:
+            self.compliant_drives.set_physical_parameters(parameters)
         self._set_drive(parameters.actuator_lag, self.drive.period)
 
     def set_reference(self, trajectory: Trajectory | None) -> None:
@@ -243,8 +366,25 @@ class OracleController:
         if self._fixed_gains is None and self.servo.scheduled:
             # the servo layer's schedule on the truth: the exact inertia at the reference, without payload
             self.servo.follow_inertia(lambda: joint_inertia(self.oracle.torque, observation["reference_angles"]))
-        torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
-        return self.drive.command(torque_next) + self.servo.feedback(observation)
+        if self.compliant_drives is None:
+            torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
+            return self.drive.command(torque_next) + self.servo.feedback(observation)
+        rotors = self.compliant_drives.motion(*self.reference.jet(observation), self.payload_estimate)
+        return self.drive.command(rotors.torque) + self.servo.feedback(self._rotor_reference(observation, rotors))
+
+    def _rotor_reference(self, observation: Observation, rotors: RotorMotion) -> Observation:
+        """``observation`` with the rotors' reference at this instant, which the motor encoders measure: the arms'
+        plus the gearheads' deflection, taken back from ``rotors`` (at the hold lead) by a Taylor step (off by
+        lead^3 / 6 times the deflection's jerk: 3e-10 rad on the task's moves, 4e-7 rad next to a jerk step)."""
+        lead = self.reference.horizon
+        rate, acceleration = rotors.deflection_rate, rotors.deflection_acceleration
+        deflection = rotors.deflection - lead * (rate - 0.5 * lead * acceleration)
+        return {
+            **observation,
+            "reference_angles": observation["reference_angles"] + deflection,
+            "reference_velocities": observation["reference_velocities"] + rate - lead * acceleration,
+            "reference_accelerations": observation["reference_accelerations"] + acceleration,
+        }
 
 
 class LagCompensatedController:

@@ -57,6 +57,12 @@ DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
 """Error (rad) at which the friction compensation at rest reaches the full breakaway torque: one encoder step (17 bit),
 the smallest error the servo can see."""
 
+DEFAULT_NOTCH_QUALITY = 0.7
+"""Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
+0.7 and 1, the one that a linear analysis of a compliant joint under the scheduled servo keeps stable with the
+stiffness 10 % off or the damping halved, and with an arm side up to five times the one the notch is placed on (a
+payload it does not know; docs/design.md section 6)."""
+
 
 @dataclass(frozen=True)
 class ServoGains:
@@ -91,6 +97,64 @@ class ServoGains:
         if self.inertia is not None:
             values = require_joint_vector("inertia", self.inertia, 0.0, unit="kg m^2", low_open=True)
             object.__setattr__(self, "inertia", tuple(float(v) for v in values))
+
+
+@dataclass(frozen=True)
+class ResonanceNotch:
+    """A notch on the servo's torque at each joint's drive mode (docs/design.md section 6, "The servo on a compliant
+    joint"): what a servo drive does about a resonance its loop would otherwise drive.
+
+    Each joint is taken as a two-mass drive, the rotor J_m coupled through the gearhead's stiffness k to the arm side
+    J - J_m, with J the joint's inertia (rotor included, as the rigid model's is): the mode its motor-side loop sees
+    rings at f = sqrt(k (1/J_m + 1/(J - J_m))) / (2 pi), which the notch follows as the servo's schedule moves J
+    (with the payload, :meth:`JointServo.schedule`).
+
+    Attributes:
+        rotor_inertia: Reflected rotor inertia J_m per joint (kg m^2).
+        stiffness: Gearhead stiffness k per joint (N m/rad).
+        quality: The notch's quality factor Q (-3 dB width f0 / Q).
+    """
+
+    rotor_inertia: tuple[float, float, float]
+    stiffness: tuple[float, float, float]
+    quality: float = DEFAULT_NOTCH_QUALITY
+
+    def __post_init__(self) -> None:
+        inertia = require_joint_vector("rotor_inertia", self.rotor_inertia, 0.0, unit="kg m^2", low_open=True)
+        stiffness = require_joint_vector("stiffness", self.stiffness, 0.0, unit="N m/rad", low_open=True)
+        object.__setattr__(self, "rotor_inertia", tuple(float(v) for v in inertia))
+        object.__setattr__(self, "stiffness", tuple(float(v) for v in stiffness))
+        require_in("quality", self.quality, 0.0, 100.0, low_open=True)
+
+    def frequency(self, inertia: ArrayLike, period: float = CONTROL_PERIOD) -> NDArray[np.float64]:
+        """The notch's centre per joint (Hz), (3,), for the joints' inertia ``inertia`` (kg m^2, rotor included):
+        the two-mass mode, at most :meth:`highest_frequency`."""
+        rotor, stiffness = np.asarray(self.rotor_inertia), np.asarray(self.stiffness)
+        arm = np.asarray(inertia, dtype=float) - rotor
+        with np.errstate(divide="ignore"):
+            omega = np.sqrt(stiffness * (1.0 / rotor + np.where(arm > 0.0, 1.0 / np.maximum(arm, 1e-300), np.inf)))
+        return np.minimum(omega / (2.0 * math.pi), self.highest_frequency(period))
+
+    def highest_frequency(self, period: float = CONTROL_PERIOD) -> float:
+        """The highest centre (Hz) the notch takes when sampled every ``period`` (s): its width f0 / Q must stay
+        within the Nyquist rate, kept at 0.9 of it and below 0.45 / ``period``."""
+        return min(0.45, 0.45 * self.quality) / period
+
+    def coefficients(
+        self, frequency: float, period: float = CONTROL_PERIOD
+    ) -> tuple[float, float, float, float, float]:
+        """(b0, b1, b2, a1, a2) of the digital notch at ``frequency`` (Hz) sampled every ``period`` (s), its -3 dB
+        width ``frequency`` / Q: the bilinear transform of an analog notch prewarped so that both hold in the
+        digital domain, as :func:`scipy.signal.iirnotch` designs it; unit gain at 0 and at the Nyquist rate.
+
+        Raises:
+            ValueError: for a centre above :meth:`highest_frequency`.
+        """
+        require_in("frequency", frequency, 0.0, self.highest_frequency(period), unit="Hz", low_open=True)
+        angle = 2.0 * math.pi * frequency * period
+        gain = 1.0 / (1.0 + math.tan(0.5 * angle / self.quality))
+        cosine = math.cos(angle)
+        return gain, -2.0 * gain * cosine, gain, -2.0 * gain * cosine, 2.0 * gain - 1.0
 
 
 def loop_delay(drive_lag: float, period: float = CONTROL_PERIOD) -> float:
@@ -206,11 +270,24 @@ class JointServo:
         period: Control period (s), the integral's step.
         rate_window: The window (s) whose mean rate the observed joint rate is
             (:func:`delta_env.sensors.rate_window`: one period with an encoder).
+        notch: A notch on the torque at each joint's drive mode (:class:`ResonanceNotch`), for a compliant drive;
+            None: none (a rigid drive). It needs gains placed on an inertia.
     """
 
-    def __init__(self, gains: ServoGains, period: float = CONTROL_PERIOD, rate_window: float = CONTROL_PERIOD) -> None:
+    def __init__(
+        self,
+        gains: ServoGains,
+        period: float = CONTROL_PERIOD,
+        rate_window: float = CONTROL_PERIOD,
+        notch: ResonanceNotch | None = None,
+    ) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
+        if notch is not None and gains.inertia is None:
+            raise ValueError("a notch at the drive mode needs servo gains placed on an inertia (ServoGains.inertia)")
+        self.notch = notch
+        self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]  # the biquad's two delays per joint (N m)
+        self._notch_coefficients: list[tuple[float, float, float, float, float]] = []
         self.reference_rate = MeasuredReferenceRate(rate_window, period)
         self._integral = [0.0, 0.0, 0.0]  # ki * integral(e) per joint (N m)
         self._error = [0.0, 0.0, 0.0]  # the last sample's e and de/dt per joint (rad, rad/s), for a bumpless schedule
@@ -229,11 +306,12 @@ class JointServo:
         """(kp, ki, kd) per joint in use: the gains' own, or scaled by the last :meth:`schedule`."""
         return list(self._kp), list(self._ki), list(self._kd)
 
-    def schedule(self, inertia: ArrayLike) -> None:
+    def schedule(self, inertia: ArrayLike, loaded_inertia: ArrayLike | None = None) -> None:
         """Place the gains on each joint's ``inertia`` (kg m^2) now: kp, kd and ki scaled by it over the inertia they
         were placed on, which keeps the closed loop's triple pole and phase margin. Bumpless: the integral term,
         stored as torque, takes up the change of kp e + kd de/dt at the last sample's errors, so the command does not
-        step (a step would shake the arm, and the payload estimate with it).
+        step (a step would shake the arm, and the payload estimate with it). The notch, if any, is centred on the
+        mode of ``loaded_inertia`` (the joints' inertia with the payload, kg m^2), or of ``inertia`` if None.
 
         Raises:
             ValueError: for gains not placed on an inertia (:attr:`ServoGains.inertia` None).
@@ -247,16 +325,33 @@ class JointServo:
             change = (kp - self._kp[joint]) * self._error[joint] + (kd - self._kd[joint]) * self._rate_error[joint]
             self._integral[joint] = min(max(self._integral[joint] - change, -limit), limit)
             self._kp[joint], self._kd[joint], self._ki[joint] = kp, kd, gains.ki[joint] * scale
+        self._tune_notch(inertia if loaded_inertia is None else loaded_inertia)
 
-    def follow_inertia(self, inertia: Callable[[], ArrayLike]) -> None:
+    def follow_inertia(
+        self, inertia: Callable[[], ArrayLike], loaded_inertia: Callable[[], ArrayLike] | None = None
+    ) -> None:
         """Call once per sample before :meth:`feedback`: every :data:`SCHEDULE_PERIOD` from the reset on,
-        :meth:`schedule` the gains on ``inertia()`` (kg m^2, per joint), which is evaluated only then."""
+        :meth:`schedule` the gains on ``inertia()`` (kg m^2, per joint) and the notch on ``loaded_inertia()`` (with
+        the payload; None: ``inertia()``), which are evaluated only then."""
         if self._samples % self._schedule_samples == 0:
-            self.schedule(inertia())
+            self.schedule(inertia(), None if loaded_inertia is None else loaded_inertia())
         self._samples += 1
 
     def _unscheduled(self) -> None:
         self._kp, self._ki, self._kd = list(self.gains.kp), list(self.gains.ki), list(self.gains.kd)
+        if self.gains.inertia is not None:
+            self._tune_notch(self.gains.inertia)
+
+    def _tune_notch(self, inertia: ArrayLike) -> None:
+        """Centre the notch (if any) on the drive modes of the joints' ``inertia`` (kg m^2); its delays carry over."""
+        if self.notch is not None:
+            self._notch_frequency = self.notch.frequency(inertia, self.period)
+            self._notch_coefficients = [self.notch.coefficients(float(f), self.period) for f in self._notch_frequency]
+
+    @property
+    def notch_frequency(self) -> NDArray[np.float64] | None:
+        """The notch's centre per joint (Hz) in use, (3,); None without a notch."""
+        return None if self.notch is None else self._notch_frequency.copy()
 
     @property
     def integral(self) -> NDArray[np.float64]:
@@ -269,6 +364,7 @@ class JointServo:
         self._error = [0.0, 0.0, 0.0]
         self._rate_error = [0.0, 0.0, 0.0]
         self._samples = 0
+        self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
         self.reference_rate.reset()
         self._unscheduled()
 
@@ -295,6 +391,15 @@ class JointServo:
                 # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
                 value += gains.breakaway[joint] * min(max(error / width, -1.0), 1.0)
             torque[joint] = value
+        if self.notch is not None:
+            for joint in range(3):
+                # the biquad in transposed direct form II: y = b0 x + z1, z1' = b1 x - a1 y + z2, z2' = b2 x - a2 y
+                b0, b1, b2, a1, a2 = self._notch_coefficients[joint]
+                state, value = self._notch_state[joint], torque[joint]
+                filtered = b0 * value + state[0]
+                state[0] = b1 * value - a1 * filtered + state[1]
+                state[1] = b2 * value - a2 * filtered
+                torque[joint] = filtered
         return np.array(torque)
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:

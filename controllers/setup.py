@@ -17,10 +17,11 @@ from typing import Any, Literal
 import numpy as np
 
 from controllers.base import DEFAULT_KD, DEFAULT_KP, JointFeedback, PDController
+from controllers.compliance import DriveCompliance
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
-from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, joint_inertia, servo_gains
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, ResonanceNotch, joint_inertia, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
@@ -100,6 +101,9 @@ class ControllerSetup:
         encoder_bits: Its encoders' resolution (bits per revolution; None: exact), likewise.
         fault_reaction: What the monitored rows do after detecting a collision, a slip or a drive fault
             (:data:`delta_env.faults.FAULT_REACTIONS`).
+        compliance: The drives' compliance (rotor inertia, gearhead stiffness and damping per joint,
+            :class:`~controllers.compliance.DriveCompliance`) as identified or from the data sheet; None: rigid drives.
+            With it the servo layer notches its torque at each joint's drive mode (:func:`row_servo`).
     """
 
     mid: ModelParameters
@@ -117,6 +121,7 @@ class ControllerSetup:
     drive: DriveLimits = field(default_factory=DriveLimits)
     encoder_bits: int | None = ENCODER_BITS
     fault_reaction: Literal["continue", "slow", "stop"] = "continue"
+    compliance: DriveCompliance | None = None
 
     def __post_init__(self) -> None:
         if self.servo not in SERVOS:
@@ -174,7 +179,8 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     """The feedback of a model row with model ``dynamics``: the servo layer on that model and the identified drive lag
     (``setup.servo == "servo"``), or the paper's PD with ``setup.pd_gains``. The servo pushes at rest the breakaway
     torque of the model's friction: its Coulomb friction plus the identified Stribeck excess (none for a model
-    without friction).
+    without friction). With compliant drives (``setup.compliance``) it notches its torque at each joint's drive mode
+    (:class:`~controllers.servo.ResonanceNotch`).
 
     Raises:
         ValueError: for the servo layer without an identified drive lag.
@@ -192,4 +198,6 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     coulomb = np.array(dynamics.parameters.coulomb)
     excess = setup.stribeck_excess if setup.stribeck_excess is not None and coulomb.any() else (0.0, 0.0, 0.0)
     gains = servo_gains(inertia, coulomb + excess, setup.drive_lag, friction_width=step)
-    return JointServo(gains, rate_window=window)
+    compliance = setup.compliance
+    notch = None if compliance is None else ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
+    return JointServo(gains, rate_window=window, notch=notch)

@@ -22,10 +22,12 @@ ripple is a known function of the angle and is inverted at the reference angle: 
 errs by amplitude * periods * delta (0.02 N m for 0.1 mrad). Stribeck and ripple are those of the instantaneous
 state, whereas the plant holds them over a control step.
 
-On a plant with compliant drives (``PlantRealism.compliance``) the oracle inverts the same plant with rigid drives:
-the rotor's inertia added to the arm's, the gearhead infinitely stiff. That is the torque at the joints of the
-motion without the gearhead's deflection, not the exact torque of the compliant plant (which would need the
-deflection's own dynamics, docs/design.md section 4); it is no bound there.
+On a plant with compliant drives (``PlantRealism.compliance``) this class inverts the same plant with rigid drives
+(:func:`rigid_drives`: the rotor's inertia added to the arm's, the gearhead infinitely stiff), the torque of the
+motion without the gearhead's deflection. The exact inverse of the compliant plant is
+:class:`CompliantDriveOracle` (docs/design.md section 4, "The exact inverse of a compliant drive"): the torque the
+gearhead must pass to the arm from this class on the arm alone (:func:`arm_behind_gearheads`), the gearhead's
+deflection that passes it, the rotor's motion, and the rotor's torque.
 
 The payload is a point mass added to the platform's CoM. That is exact for the motor torques wherever the
 payload is carried rigidly by a platform that only translates (a moment on the platform does no virtual
@@ -35,7 +37,7 @@ round-off, and on the realistic one a payload hanging under the suction cup need
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import mujoco
 import numba
@@ -45,7 +47,16 @@ from numpy.typing import ArrayLike, NDArray
 from delta_env import kernels
 from delta_env.config import MAX_PAYLOAD_MASS, PhysicalParameters, PlantConfig
 from delta_env.plant import DeltaPlant
-from delta_env.robot import forearm_home_tilt
+from delta_env.robot import CHAIN_LABELS, forearm_home_tilt
+
+IMPLICIT_INTEGRATORS = (mujoco.mjtIntegrator.mjINT_IMPLICIT, mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
+"""MuJoCo's integrators that take the velocity derivative of the passive forces into the step."""
+
+DERIVATIVE_STEP = 1e-4
+"""Time step (s) of the central differences that give the arm torque's first two time derivatives along the
+reference (:meth:`CompliantDriveOracle.motion`): their truncation error, step^2 / 12 times the torque's fourth
+derivative, and their round-off, about 1e-12 N m / step^2, stay below 0.01 N m/s^2 on the task's moves away from their
+jerk steps, 1e-7 rad/s^2 of the gearhead's deflection."""
 
 
 def rigid_drives(config: PlantConfig) -> PlantConfig:
@@ -56,6 +67,21 @@ def rigid_drives(config: PlantConfig) -> PlantConfig:
         return config
     armature = config.realism.armature + compliance.rotor_inertia
     return replace(config, realism=replace(config.realism, armature=armature, compliance=None))
+
+
+def arm_behind_gearheads(config: PlantConfig) -> PlantConfig:
+    """The arm side of a plant with compliant drives as a plant of its own: rigid drives without the rotor and without
+    the friction, Stribeck excess and ripple that act on it; the arm joints keep their ``armature``. Its joint torques
+    are what the gearheads must pass.
+
+    Raises:
+        ValueError: if ``config``'s drives are rigid.
+    """
+    realism = config.realism
+    if realism.compliance is None:
+        raise ValueError("config must have compliant drives (realism.compliance), got rigid ones")
+    arm = replace(realism, compliance=None, viscous=0.0, coulomb=0.0, stribeck_excess=0.0, ripple_amplitude=0.0)
+    return replace(config, realism=arm)
 
 
 class InverseDynamicsOracle:
@@ -280,3 +306,141 @@ def _motor_torques(
         for column in range(jac.shape[1]):
             system[column, 3 + row] = jac[row, column]
     return np.linalg.solve(system, rhs)[:3]
+
+
+@dataclass(frozen=True)
+class RotorMotion:
+    """The motion of the rotors of compliant drives that moves the arms along a reference, and the drive torque it
+    takes (:meth:`CompliantDriveOracle.motion`); every field per joint, shape (3,), at the joint's scale.
+
+    Attributes:
+        deflection: Gearhead deflection L = phi - theta (rad), the backlash's half band included.
+        deflection_rate: Its rate (rad/s).
+        deflection_acceleration: Its acceleration (rad/s^2).
+        gearhead_torque: Torque the gearhead passes to the arm (N m): the arm's joint torque tau_a.
+        torque: Drive torque on the rotor (N m).
+    """
+
+    deflection: NDArray[np.float64]
+    deflection_rate: NDArray[np.float64]
+    deflection_acceleration: NDArray[np.float64]
+    gearhead_torque: NDArray[np.float64]
+    torque: NDArray[np.float64]
+
+
+class CompliantDriveOracle:
+    """Drive torques that move the arms of a plant with compliant drives along a reference: its exact inverse.
+
+    The arm's joint torque tau_a(t) is :class:`InverseDynamicsOracle`'s on the arm alone
+    (:func:`arm_behind_gearheads`); the gearhead passes k delta + c L_dot, L = phi - theta its deflection and delta
+    the part beyond the backlash's half band b / 2, so along the reference (docs/design.md section 4)
+
+        delta = (tau_a - eps tau_a' + eps^2 tau_a'') / k,    L = delta + sign(delta) b / 2,    eps = c / k,
+        L_dot = (tau_a' - eps tau_a'') / k,    L_ddot = tau_a'' / k:
+
+    the solution of c L_dot + k delta = tau_a without its transient (which decays as exp(-t / eps), eps = 55 us on
+    the preset), truncated where the next terms are eps^3 tau_a^(3) / k in L and eps tau_a^(3) / k in L_ddot. The
+    rotor then needs
+
+        tau_m = J_m phi_ddot + b_v phi_dot + f_c sign(phi_dot) - (Stribeck and ripple at phi, phi_dot) + tau_a.
+
+    tau_a' and tau_a'' are central differences (:data:`DERIVATIVE_STEP`) of tau_a along the reference's Taylor curve
+    to its snap: the reference must be C4 for them to exist. A jerk step makes L_dot step, which takes an impulse of
+    the rotor's torque (J_m times the step of tau_a' over k; with damping a pulse of that area over about eps); an
+    acceleration step makes L step, which no finite torque does. Where tau_a changes sign the rotor crosses the
+    backlash's band at once here (the exact inverse crosses it at L_dot = tau_a / c). The rotors' friction and
+    inertia and the gearheads come from the compliant plant's model, randomized with it
+    (:meth:`set_physical_parameters`).
+
+    Args:
+        config: A plant configuration with compliant drives.
+
+    Raises:
+        ValueError: if ``config``'s drives are rigid.
+    """
+
+    def __init__(self, config: PlantConfig) -> None:
+        if not isinstance(config, PlantConfig):
+            raise ValueError(f"config must be a PlantConfig, got {type(config).__name__}")
+        self.arm = InverseDynamicsOracle(arm_behind_gearheads(config))
+        """The inverse dynamics of the arm side."""
+        self.plant = DeltaPlant(replace(config, payload_body=False))
+        """The compliant plant inverted: its model holds the rotors' and gearheads' parameters."""
+        model = self.plant.model
+        self._gearheads = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, f"gearhead_{n}") for n in CHAIN_LABELS]
+        self._read_drives()
+
+    def set_physical_parameters(self, parameters: PhysicalParameters) -> None:
+        """Use the same (e.g. randomized) masses, friction and gearheads as a plant; see
+        DeltaPlant.set_physical_parameters."""
+        self.plant.set_physical_parameters(parameters)
+        self.arm.set_physical_parameters(parameters)
+        self._read_drives()
+
+    def _read_drives(self) -> None:
+        """The rotors' inertia and viscous and Coulomb friction, and the gearheads' stiffness, damping and half band,
+        from the plant's model (its Stribeck and ripple: :meth:`DeltaPlant.motor_disturbance`)."""
+        model, rotors = self.plant.model, self.plant.rotor_dofs
+        self.rotor_inertia = model.dof_armature[rotors].copy()
+        self.viscous = model.dof_damping[rotors].copy()
+        self.coulomb = model.dof_frictionloss[rotors].copy()
+        self.stiffness = model.tendon_stiffness[self._gearheads].copy()
+        self.damping = model.tendon_damping[self._gearheads].copy()
+        self._half_band = 0.5 * self.plant.config.realism.compliance.backlash
+        # MuJoCo's implicit integrators take a fixed tendon's damping into the step's matrix M + h D only where M has
+        # entries: the rotor and the arm are separate trees, so D keeps c on each joint and drops the coupling -c.
+        # Each joint then moves as if its inertia were h c larger (2.5e-3 kg m^2 on the preset: 2.3 % of J_m).
+        implicit = model.opt.integrator in (
+            mujoco.mjtIntegrator.mjINT_IMPLICIT,
+            mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+        )
+        self.step_inertia = model.opt.timestep * self.damping if implicit else np.zeros(3)
+
+    def motion(
+        self,
+        theta: NDArray,
+        theta_dot: NDArray,
+        theta_ddot: NDArray,
+        jerk: NDArray,
+        snap: NDArray,
+        payload: float,
+    ) -> RotorMotion:
+        """The rotors' motion and drive torques that move the arms along a reference, at one instant. No input checks
+        (the 1 kHz path of the bound controller).
+
+        Args:
+            theta: The arms' reference angles (rad), (3,), finite as every input.
+            theta_dot: Their rates (rad/s), (3,).
+            theta_ddot: Their accelerations (rad/s^2), (3,).
+            jerk: Their jerks (rad/s^3), (3,).
+            snap: Their snaps (rad/s^4), (3,).
+            payload: Carried payload mass (kg) in [0, MAX_PAYLOAD_MASS].
+
+        Raises:
+            ValueError: for unreachable angles.
+        """
+        step = DERIVATIVE_STEP
+        torques = []
+        for s in (-step, 0.0, step):  # the reference's Taylor curve at t + s
+            angle = theta + s * (theta_dot + s * (0.5 * theta_ddot + s * (jerk / 6.0 + s * snap / 24.0)))
+            rate = theta_dot + s * (theta_ddot + s * (0.5 * jerk + s * snap / 6.0))
+            acceleration = theta_ddot + s * (jerk + 0.5 * s * snap)
+            torques.append(self.arm.torque(angle, rate, acceleration, payload) + self.step_inertia * acceleration)
+        before, tau, after = torques
+        tau_dot = (after - before) / (2.0 * step)
+        tau_ddot = (after - 2.0 * tau + before) / step**2
+        k = self.stiffness
+        eps = self.damping / k
+        beyond = (tau - eps * tau_dot + eps**2 * tau_ddot) / k
+        deflection = beyond + np.sign(beyond) * self._half_band
+        deflection_rate = (tau_dot - eps * tau_ddot) / k
+        deflection_acceleration = tau_ddot / k
+        rotor_angle, rotor_rate = theta + deflection, theta_dot + deflection_rate
+        torque = (
+            (self.rotor_inertia + self.step_inertia) * (theta_ddot + deflection_acceleration)
+            + self.viscous * rotor_rate
+            + self.coulomb * np.sign(rotor_rate)
+            - self.plant.motor_disturbance(rotor_angle, rotor_rate)
+            + tau
+        )
+        return RotorMotion(deflection, deflection_rate, deflection_acceleration, tau, torque)

@@ -6,9 +6,11 @@
 - ``python -m eval.train_residual``: training the residual policy (stable-baselines3);
 - :func:`record_episode` (:mod:`eval.video`): one episode filmed to MP4 (``python -m eval --video``).
 
-Every experiment runs its episodes with :func:`eval.episodes.run_episode` and writes its run folder with
-:mod:`eval.run_folder`; every command line reports a usage error or an interruption in one line and shows its progress
-with :mod:`eval.console`. Importing the package imports none of its modules: the names below load on first use.
+Every experiment runs its episodes with :func:`eval.episodes.run_episode` on the one executor
+(:func:`eval.processes.run_jobs`: a local process pool or Ray; the controllers' episodes as work units,
+:mod:`eval.work`) and writes its run folder with :mod:`eval.run_folder`; every command line reports a usage error or
+an interruption in one line and shows its progress with :mod:`eval.console`. Importing the package imports none of
+its modules: the names below load on first use.
 """
 
 import importlib

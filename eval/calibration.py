@@ -33,7 +33,7 @@ from delta_env.records import content_hash, from_table, to_table
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
 from eval.episodes import EpisodeRecord
-from eval.tasks import Task, run_tasks
+from eval.work import WorkUnit, code_version, run_grid
 
 CALIBRATION_SEED_OFFSET = 100_000
 """The tare's payload-free episodes use seeds ``100000 + j``: paths and noise unlike those of the experiments' episodes
@@ -96,41 +96,41 @@ def _healthy(scenario: Scenario) -> Scenario:
     return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
 
 
-def calibration_tasks(
+def calibration_units(
     keys: Iterable[str],
-    setup: ControllerSetup,
     seeds: Sequence[int],
     n_cycles: int,
     scenario: Scenario | None = None,
     references: Sequence[Trajectory] | None = None,
-) -> list[Task]:
-    """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed, on
-    ``scenario`` (None: ``nominal``) without its faults, following ``references[j]`` on seed ``j`` when given (else the
-    scenario's pick-and-place)."""
+) -> list[WorkUnit]:
+    """The payload-free episodes of every RLS controller in ``keys`` (observations kept), one per seed, of
+    ``n_cycles`` cycles on ``scenario`` (None: ``nominal``) without its faults, following ``references[j]`` on seed
+    ``j`` when given (else the scenario's pick-and-place)."""
     if references is not None and len(references) != len(seeds):
         raise ValueError(f"references must be one per seed: {len(references)} references for {len(seeds)} seeds")
     paths = [None] * len(seeds) if references is None else list(references)
-    scenario = None if scenario is None else _healthy(scenario)
-    tasks = []
+    healthy = _healthy(Scenario() if scenario is None else scenario)
+    healthy = dataclasses.replace(healthy, task=dataclasses.replace(healthy.task, n_cycles=n_cycles))
+    empty = (0.0,) * n_cycles
+    units = []
     for key in keys:
         if not controller_entry(key).tared:
             raise ValueError(f"{key!r} has no tared payload estimator (ControllerEntry.tared)")
-        empty = (0.0,) * n_cycles
-        tasks += [
-            Task("calibration", key, j, seed, n_cycles, setup, empty, scenario, path)
-            for j, (seed, path) in enumerate(zip(seeds, paths, strict=True))
+        units += [
+            WorkUnit(healthy, key, seed, empty, path, keep_observations=True)
+            for seed, path in zip(seeds, paths, strict=True)
         ]
-    return tasks
+    return units
 
 
 def tares_from_results(
-    results: Iterable[tuple[Task, EpisodeRecord]], setup: ControllerSetup, max_loop_gap: float | None = None
+    results: Iterable[tuple[WorkUnit, EpisodeRecord]], setup: ControllerSetup, max_loop_gap: float | None = None
 ) -> Calibration:
     """Tare (kg), its carry-to-carry spread (kg) and the empty moves' sums per RLS controller, from its calibration
     episodes.
 
     Args:
-        results: Finished tasks and their records; those of kind ``"calibration"`` are used.
+        results: The calibration's units (:func:`calibration_units`) and their records.
         setup: What the controllers know (their estimators are rebuilt from it, untared).
         max_loop_gap: Largest loop gap (m) a calibration episode may open; None accepts what the env accepts.
 
@@ -139,16 +139,15 @@ def tares_from_results(
             observations would give a meaningless tare).
     """
     observed: dict[str, list] = {}
-    for task, record in results:
-        if task.kind == "calibration":
-            if record.diverged:
-                raise RuntimeError(f"the calibration episode of {task.key!r} on seed {task.seed} diverged")
-            if max_loop_gap is not None and not record.max_loop_gap <= max_loop_gap:
-                raise RuntimeError(
-                    f"the calibration episode of {task.key!r} on seed {task.seed} opened a loop by "
-                    f"{1e3 * record.max_loop_gap:.3f} mm (limit {1e3 * max_loop_gap:.3f} mm)"
-                )
-            observed.setdefault(task.key, []).append(record.observations)
+    for unit, record in results:
+        if record.diverged:
+            raise RuntimeError(f"the calibration episode of {unit.controller!r} on seed {unit.seed} diverged")
+        if max_loop_gap is not None and not record.max_loop_gap <= max_loop_gap:
+            raise RuntimeError(
+                f"the calibration episode of {unit.controller!r} on seed {unit.seed} opened a loop by "
+                f"{1e3 * record.max_loop_gap:.3f} mm (limit {1e3 * max_loop_gap:.3f} mm)"
+            )
+        observed.setdefault(unit.controller, []).append(record.observations)
     calibration = Calibration({}, {}, {})
     for key, episodes in observed.items():
         tare = tare_from_observations(payload_estimator(key, setup), episodes)
@@ -170,10 +169,12 @@ def calibrate_tares(
     max_loop_gap: float | None = None,
 ) -> Calibration:
     """Run the calibration episodes of ``keys`` on ``scenario`` (None: ``nominal``), along ``references``
-    (one per seed) if given, and return what they tell each (see :func:`tares_from_results` for
-    ``max_loop_gap``)."""
-    tasks = calibration_tasks(keys, setup, seeds, n_cycles, scenario, references)
-    return tares_from_results(run_tasks(tasks, workers, progress), setup, max_loop_gap)
+    (one per seed) if given, on ``workers`` processes (:func:`eval.work.run_grid`), and return what they tell each
+    (see :func:`tares_from_results` for ``max_loop_gap``)."""
+    units = calibration_units(keys, seeds, n_cycles, scenario, references)
+    setups = {unit.scenario.content_hash: setup for unit in units}
+    records = run_grid(units, setups, workers=workers, progress=progress)
+    return tares_from_results(zip(units, records, strict=True), setup, max_loop_gap)
 
 
 @dataclass(frozen=True)
@@ -201,9 +202,7 @@ def tare_content(
     """What decides the tare of ``key``, as content hashes: the scenario's healthy work, what the controllers know
     (:meth:`~controllers.setup.ControllerSetup.content_hash`, without tares, empty moves or residual policy), the
     key and a user controller's source, the seeds, the loop-gap limit and the code
-    (:func:`eval.sweep.work.code_version`)."""
-    from eval.sweep.work import code_version
-
+    (:func:`eval.work.code_version`)."""
     untared = dataclasses.replace(setup, tares={}, empty_moves={}, residual_policy=None)
     run = {"seeds": list(seeds), "max_loop_gap": max_loop_gap}
     return {

@@ -3,7 +3,7 @@
 1. Prepares what the controllers know (:func:`eval.engine.prepare`): the robot's identification and the tare of
    each payload estimator (:mod:`eval.calibration`: its controller's payload-free pick-and-place episodes on seeds
    of their own, measured once per robot and setup and kept beside the identification).
-2. Runs every controller on episodes ``seed, seed + 1, ...`` of the scenario (:func:`eval.engine.run_grid`; by
+2. Runs every controller on episodes ``seed, seed + 1, ...`` of the scenario (:func:`eval.work.run_grid`; by
    default ``nominal``: realistic plant, 3 g conveyor cycles, objects drawn from U[0, 4] kg): the same paths and
    objects for all.
 3. Runs the Table 2 analogue, without the scenario's faults: MId+F+R+RLS on the path of the first episode with
@@ -29,10 +29,10 @@ from delta_env.scenario import Scenario
 from eval import metrics
 from eval.calibration import tared_keys
 from eval.console import progress_bar
-from eval.engine import Prepared, grid, prepare, run_grid
+from eval.engine import Prepared, grid, prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import fault_rows
-from eval.sweep.work import WorkUnit
+from eval.work import WorkUnit, run_grid
 
 TABLE2_KEY = "mid_f_rls"
 """The controller of the Table 2 run: MId+F+R with the default payload estimator."""
@@ -107,7 +107,7 @@ def queue_order(key: str) -> tuple[bool, bool]:
 
 def run_all(config: ComparisonConfig) -> tuple[Prepared, list[tuple[WorkUnit, EpisodeRecord]]]:
     """Prepare the robot's knowledge (identification and tares, :func:`eval.engine.prepare`), then run every episode
-    and the Table 2 run (:func:`eval.engine.run_grid`).
+    and the Table 2 run (:func:`eval.work.run_grid`).
 
     Args:
         config: The comparison's configuration.

@@ -5,17 +5,18 @@ file, or the robot's own, identified once and cached per robot identity:
 :func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.setup.ControllerSetup` built from
 it with the scenario's fault reaction. :func:`prepare` adds the tares and empty-move sums of the tared controllers,
 measured once on the scenario's payload-free episodes on the calibration seeds and kept beside the identification
-(:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`run_grid` runs the episodes: one work unit
-(:class:`eval.sweep.work.WorkUnit`: a scenario, a controller, a seed) on either backend of the sweep (a local
-process pool or Ray, :func:`eval.sweep.runner.run_units`), returning each unit's row (:func:`eval.sweep.work.run_unit`)
-or record (:func:`eval.sweep.work.unit_record`). The comparison (:mod:`eval.comparison`), the sweep, the residual
-scores (:mod:`eval.scoring`), the design verification (:mod:`eval.design.verify`), the pick-rate study
-(:mod:`eval.rate`) and the fault campaign and soak (``scripts/``) are its callers.
+(:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`grid` lays out the episodes, work units
+(:class:`eval.work.WorkUnit`: a scenario, a controller, a seed), which :func:`eval.work.run_grid` runs on the one
+executor (:func:`eval.processes.run_jobs`: a local process pool or Ray), returning each unit's record
+(:func:`eval.work.unit_record`) or row (:func:`eval.sweep.work.run_unit`). The comparison (:mod:`eval.comparison`), the
+sweep (:mod:`eval.sweep`, on top of it), the residual scores (:mod:`eval.scoring`), the design verification
+(:mod:`eval.design.verify`), the pick-rate study (:mod:`eval.rate`) and the fault campaign and soak (``scripts/``)
+are its callers.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -25,8 +26,7 @@ from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
 from eval.console import UsageError
 from eval.parameter_files import identification_root, parameter_path, robot_identification, robot_setup
-from eval.sweep.runner import OnResult, Setups, Work, run_units
-from eval.sweep.work import WorkUnit, unit_record
+from eval.work import WorkUnit
 
 
 class Prepared(NamedTuple):
@@ -110,48 +110,3 @@ def grid(scenarios: Iterable[Scenario], controllers: Iterable[str], seeds: Itera
     """The work units of scenarios x controllers x seeds, in that nesting order."""
     controllers, seeds = list(controllers), list(seeds)
     return [WorkUnit(scenario, key, seed) for scenario in scenarios for key in controllers for seed in seeds]
-
-
-def run_grid(
-    units: Sequence[WorkUnit],
-    setups: Setups,
-    *,
-    work: Work = unit_record,
-    backend: str = "local",
-    workers: int = 1,
-    address: str | None = None,
-    progress: Any = None,
-    on_result: OnResult | None = None,
-) -> list[Any]:
-    """``work(unit, setups[unit.scenario.content_hash])`` of every unit (:func:`grid` builds a product), on the
-    sweep's ``backend`` (:func:`eval.sweep.runner.run_units`), in the order of ``units``.
-
-    Args:
-        units: The episodes.
-        setups: What the controllers know, by scenario content hash (:func:`prepare`'s setup of each scenario).
-        work: :func:`eval.sweep.work.unit_record` (the episode's record; an episode's error is raised) or
-            :func:`eval.sweep.work.run_unit` (its row of metrics; an error is recorded in the row).
-        backend: ``"local"`` (a process pool of ``workers``, this process if 1) or ``"ray"``.
-        workers: Local processes, or the CPUs of a Ray started here.
-        address: Ray cluster to join (``ray`` only).
-        progress: tqdm bar advanced once per finished unit.
-        on_result: Called with each unit and its result as it finishes, in the order they finish (a long run writes
-            them as they come, so an interruption loses only the units still running).
-    """
-    results: list[Any] = [None] * len(units)
-    position = {id(unit): n for n, unit in enumerate(units)}
-    if len(position) != len(units):
-        raise ValueError("run_grid needs distinct unit objects (the same object twice)")
-
-    def finished(unit: WorkUnit, result: Any) -> None:
-        results[position[id(unit)]] = result
-        if on_result is not None:
-            on_result(unit, result)
-        if progress is not None:
-            progress.update()
-
-    def on_lost(unit: WorkUnit, error: str) -> None:
-        raise RuntimeError(f"the episode of {unit.controller!r} on seed {unit.seed} ({unit.scenario.name}): {error}")
-
-    run_units(units, setups, finished, backend=backend, workers=workers, address=address, work=work, on_lost=on_lost)
-    return results

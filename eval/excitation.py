@@ -27,7 +27,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from eval.console import progress_bar
 from eval.episodes import run_episode
-from eval.processes import parallel_map
+from eval.processes import run_jobs
 
 DEFAULT_DURATION = 8.0
 """Length of each excitation trajectory (s)."""
@@ -210,4 +210,4 @@ def collect_excitation_data(
     """
     specs = list(specs)
     with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
-        return parallel_map(functools.partial(run_excitation, plant=plant), specs, workers, bar)
+        return run_jobs(functools.partial(run_excitation, plant=plant), specs, workers=workers, progress=bar)

@@ -74,7 +74,7 @@ from eval.excitation import (
     ExcitationSpec,
     run_excitation,
 )
-from eval.processes import parallel_map
+from eval.processes import DEFAULT_WORKERS, run_jobs
 from eval.run_folder import json_ready, package_versions
 
 logger = logging.getLogger(__name__)
@@ -196,14 +196,14 @@ def run_identification(
         duration: Length of each excitation trajectory (s).
         validation_duration: Length of the held-out stress trajectory (s).
         progress: Show a tqdm progress bar.
-        workers: Processes simulating trajectories; None uses up to 2 cores.
+        workers: Processes simulating trajectories; None: :data:`eval.processes.DEFAULT_WORKERS` (up to 2).
         plant: The robot; None is the default realistic plant.
         region: Where every trajectory, the held-out one included, starts and moves; None is the nominal
             robot's workspace (:data:`NOMINAL_REGION`).
     """
     start = time.perf_counter()
     require_count("n_trajectories", n_trajectories)
-    workers = min(2, os.cpu_count() or 1) if workers is None else workers
+    workers = DEFAULT_WORKERS if workers is None else workers
     plant = PlantConfig() if plant is None else plant
     region = NOMINAL_REGION if region is None else region
     seeds, validation_seed = _trajectory_seeds(seed, n_trajectories)
@@ -213,7 +213,7 @@ def run_identification(
 
     run = functools.partial(_collect_and_prepare, plant=plant)
     with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
-        runs = parallel_map(run, specs, workers, bar)
+        runs = run_jobs(run, specs, workers=workers, progress=bar)
     source = {
         "seed": seed,
         "trajectories": [json_ready(dataclasses.asdict(spec)) for spec in specs[:-1]],
@@ -318,7 +318,7 @@ def identify_logs(
     geometry, masses = load_robot(robot)
     logs, summaries = zip(*(_read_log(path, topics) for path in paths), strict=True)
     with progress_bar(len(logs), "logs", "log", disable=not progress) as bar:
-        prepared = parallel_map(prepare_log, logs, workers, bar)
+        prepared = run_jobs(prepare_log, logs, workers=workers, progress=bar)
     source = {
         "logs": list(summaries[:-1]),
         "validation_log": summaries[-1],
@@ -547,7 +547,7 @@ def identify(
         seed: Seed of the whole identification (trajectories and sensor noise).
         duration: Length of each excitation trajectory (s).
         progress: Show a tqdm progress bar.
-        workers: Processes simulating trajectories; None uses up to 2 cores.
+        workers: Processes simulating trajectories; None: :data:`eval.processes.DEFAULT_WORKERS` (up to 2).
         **kwargs: ``validation_duration`` (s), ``plant`` (a PlantConfig) and ``region`` (an ExcitationRegion),
             see :func:`run_identification`.
     """

@@ -221,7 +221,8 @@ def robot_identification(
 
 
 def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs: Any) -> ControllerSetup:
-    """What the controllers know of the robot ``plant`` builds: its lengths, datasheet masses and ``result``.
+    """What the controllers know of the robot ``plant`` builds: its lengths, datasheet masses and ``result`` (with the
+    drives' compliance when the identification fitted it: the model rows' servo then notches its drive mode).
 
     Args:
         plant: The robot the parameters were identified on.
@@ -238,5 +239,6 @@ def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs
         masses=plant.masses,
         drive=plant.drive,
         encoder_bits=plant.realism.encoder_bits,
+        compliance=result.compliance,
         **setup_kwargs,
     )

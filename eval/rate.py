@@ -62,7 +62,7 @@ from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval import metrics
 from eval.calibration import calibration_seeds
 from eval.console import CommandParser, command_main, plural, progress_bar
-from eval.engine import grid, prepare, run_grid
+from eval.engine import grid, prepare
 from eval.processes import DEFAULT_WORKERS
 from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
 from eval.run_folder import (
@@ -82,8 +82,8 @@ from eval.scenario_args import (
     check_ranges,
     scenario_from_arguments,
 )
-from eval.sweep.work import WorkUnit
 from eval.tables import FEEDBACK_LINES
+from eval.work import WorkUnit, run_grid
 
 RATE_PAYLOADS = (0.1, 1.0, 2.0, RATED_PAYLOAD)
 """Payloads (kg) of the data sheet; the last is the robot's rated payload."""

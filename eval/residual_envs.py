@@ -25,7 +25,8 @@ from controllers.setup import SERVOS
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibrate_tares, calibrated_setup
-from eval.tasks import timed
+from eval.engine import robot_knowledge
+from eval.work import timed
 
 TRAINING_SEEDS = range(10_000_000, 20_000_000)
 """Env seeds of the training episodes (drawn at random per worker)."""
@@ -147,8 +148,6 @@ def base_setup(
         raise ValueError(f"the tare calibration takes n_cycles and scenario only, got {sorted(env_kwargs)}")
     scenario = env_kwargs.get("scenario") or Scenario()
     if parameters is None:
-        from eval.engine import robot_knowledge
-
         setup = robot_knowledge(scenario, runs_dir=runs_dir, servo=servo)[2]
     else:  # the base uses the MId+F+R set only
         robot = scenario.plant
@@ -181,7 +180,7 @@ def make_env(
 ) -> Callable[[], gym.Env]:
     """A picklable env factory for SB3 vector envs (one torch thread per worker: the machine is shared).
 
-    The plant env is timed as its scenario asks (:func:`eval.tasks.timed`): a planned timing plans on ``base``'s
+    The plant env is timed as its scenario asks (:func:`eval.work.timed`): a planned timing plans on ``base``'s
     model, and an online one retimes the carries on the base's own payload estimate, as in the evaluation.
 
     Args:

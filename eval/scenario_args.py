@@ -9,6 +9,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from controllers.identification import ParameterFileError, load_result
 from controllers.residual import DEFAULT_POLICY_PATH
 from controllers.setup import SERVOS
 from delta_env.cycles import RELEASES
@@ -22,6 +23,8 @@ from delta_env.scenario import (
     with_geometry,
 )
 from delta_env.validation import require_count, require_positive
+from eval.calibration import CALIBRATION_SEED_OFFSET
+from eval.parameter_files import MISSING_PARAMETER_FILE, check_identity
 from eval.processes import DEFAULT_WORKERS
 
 GEOMETRY_HELP = (
@@ -57,9 +60,6 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, default: str = "nomi
 def existing_parameter_file(text: str) -> Path:
     """An argparse type: the path ``text`` if it is a readable parameter file, else an error naming it (a parameter
     file the user gives is read, never identified there: :func:`eval.parameter_files.robot_identification`)."""
-    from controllers.identification import ParameterFileError, load_result
-    from eval.parameter_files import MISSING_PARAMETER_FILE  # here: it imports the identification
-
     path = Path(text)
     if not path.is_file():
         raise argparse.ArgumentTypeError(f"{text}: {MISSING_PARAMETER_FILE}")
@@ -73,9 +73,6 @@ def existing_parameter_file(text: str) -> Path:
 def check_parameter_file(parser: argparse.ArgumentParser, parameters: Path | None, scenario: Scenario) -> None:
     """A parser error when ``--parameters`` records another robot than ``scenario``'s
     (:func:`eval.parameter_files.check_identity`)."""
-    from controllers.identification import ParameterFileError, load_result
-    from eval.parameter_files import check_identity
-
     if parameters is None:
         return
     try:
@@ -158,8 +155,6 @@ def check_episode_seeds(parser: argparse.ArgumentParser, args: argparse.Namespac
     """A parser error when the episodes ``--seed`` .. ``--seed + --episodes - 1`` reach the tare calibration's
     seeds (:data:`eval.calibration.CALIBRATION_SEED_OFFSET` and up): a tare measured on the episodes it is
     scored on would flatter the estimator."""
-    from eval.calibration import CALIBRATION_SEED_OFFSET  # here: the calibration imports the controllers
-
     last = args.seed + getattr(args, "episodes", 1) - 1
     if last >= CALIBRATION_SEED_OFFSET:
         parser.error(

@@ -1,6 +1,6 @@
 """Scores of a residual policy against its base controller on held-out episodes.
 
-The episodes are work units of :func:`eval.engine.run_grid` (two rows registered here, :data:`POLICY_BASE` and
+The episodes are work units of :func:`eval.work.run_grid` (two rows registered here, :data:`POLICY_BASE` and
 :data:`POLICY_RESIDUAL`, as a user's controller is) and scored by :mod:`eval.metrics`, as ``python -m eval`` scores
 its rows: tracking error of the platform (mm) and the motor torque that acted (N m).
 """
@@ -20,9 +20,8 @@ from controllers.registry import ControllerEntry, ControllerSetup, loaded_policy
 from controllers.residual import read_policy_settings, residual_controller
 from delta_env.scenario import Scenario
 from eval import metrics
-from eval.engine import run_grid
 from eval.episodes import EpisodeRecord
-from eval.sweep.work import WorkUnit
+from eval.work import WorkUnit, run_grid
 
 TEST_SEEDS = tuple(range(2_000_000, 2_000_010))
 """Held-out episodes of the final scores: never seen in training nor in model selection."""
@@ -99,7 +98,7 @@ def score_policy(
     progress: Any = None,
 ) -> dict[str, Any]:
     """Base controller vs base + residual on held-out episodes (the same episodes for both), run by
-    :func:`eval.engine.run_grid`.
+    :func:`eval.work.run_grid`.
 
     Episodes: one per seed with its drawn payloads, and one per fixed payload mass (every object of
     the episode that mass) on the first seed. The summary pools every control step of every episode;

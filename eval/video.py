@@ -10,6 +10,7 @@ comparison (``python -m eval --video``).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import warnings
 from collections.abc import Sequence
@@ -30,8 +31,8 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from delta_env.scene import PAYLOAD_RGBA, RENDER_SIZE
 from eval.episodes import EpisodeRecord, run_episode
-from eval.processes import parallel_imap, process_pool
-from eval.tasks import Task, task_episode
+from eval.processes import run_jobs
+from eval.work import WorkUnit, unit_episode
 
 DEFAULT_FPS = 30.0
 """Frames per second of a video (Hz)."""
@@ -262,12 +263,13 @@ def record_episode(
     return record, Video(written, filmer.frames, float(fps), size, duration)
 
 
-def _film(job: tuple[Task, Path, float]) -> Video:
-    """Film one task's episode into its path (picklable: the unit of work of a process pool)."""
-    task, path, fps = job
-    env, controller = task_episode(task)
+def _film(job: tuple[WorkUnit, ControllerSetup, Path, float]) -> Video:
+    """Film one unit's episode, its controller knowing the setup, into its path (picklable: what
+    :func:`eval.processes.run_jobs` maps)."""
+    unit, setup, path, fps = job
+    env, controller = unit_episode(unit, setup)
     try:
-        return record_episode(env, controller, path, task.seed, fps=fps, title=controller_label(task.key))[1]
+        return record_episode(env, controller, path, unit.seed, fps=fps, title=controller_label(unit.controller))[1]
     finally:
         env.close()
 
@@ -287,17 +289,9 @@ def film_first_episodes(
     """Film episode ``seed`` of ``scenario`` (``n_cycles`` cycles) with each controller of ``keys`` (what it knows:
     ``setup``) into ``folder/video_<key>.mp4`` (or ``.gif``), on ``workers`` processes, advancing the tqdm bar
     ``progress`` once per video; the videos in the order of ``keys``."""
-    jobs = [
-        (Task("episode", key, 0, seed, n_cycles, setup, None, scenario), folder / f"video_{_file_part(key)}.mp4", fps)
-        for key in keys
-    ]
-    videos = []
-    with process_pool(max(1, min(workers, len(jobs)))) as pool:
-        for item in parallel_imap(_film, jobs, pool):
-            videos.append(item)
-            if progress is not None:
-                progress.update()
-    return videos
+    scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, n_cycles=n_cycles))
+    jobs = [(WorkUnit(scenario, key, seed), setup, folder / f"video_{_file_part(key)}.mp4", fps) for key in keys]
+    return run_jobs(_film, jobs, workers=workers, progress=progress)
 
 
 def _file_part(key: str) -> str:

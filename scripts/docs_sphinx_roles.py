@@ -1,6 +1,6 @@
 """A Griffe extension of the documentation site (mkdocs.yml): the docstrings' Sphinx roles as cross-references.
 
-The docstrings name other objects as Sphinx does, ``:class:`PayloadRLS```, ``:func:`~eval.engine.run_grid```. Markdown
+The docstrings name other objects as Sphinx does, ``:class:`PayloadRLS```, ``:func:`~eval.work.run_grid```. Markdown
 would print the role. This extension rewrites each into an optional cross-reference of mkdocs-autorefs: a link where
 the site documents the object, its name in code type where it does not. A relative name is looked up as Python would
 from the object whose docstring holds it (its own members, then its parents' up to its module); ``~`` shows the last

@@ -10,7 +10,10 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 - for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
   the payload estimate against the twin from the fault to the end of its carry, and the change left at the place,
   as shares of the object's mass;
-- for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone).
+- for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone);
+- for each of ``--reactions`` (default: the scenario's ``fault_reaction``), what the cell's reaction to the fault
+  cost: the pick rate of the faulty episode against its twin's (picks/min lost, :func:`reaction_cost`) and the
+  episodes a stop ended. The detection tables are those of the first reaction listed.
 
 Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`; the twins' detections too, false alarms),
 ``confusion.csv`` (:data:`eval.faults.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
@@ -19,7 +22,8 @@ Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`; the twins' detections 
 ``python -m eval`` tares them.
 
 Usage: python scripts/fault_campaign.py [--scenario nominal] [--geometry FILE] [--episodes 20] [--kinds all] [--seed 0]
-                                        [--controllers mid_f_rls] [--out DIR] [--workers 2] [--runs-dir DIR]
+                                        [--controllers mid_f_rls] [--reactions continue,slow,stop] [--out DIR]
+                                        [--workers 2] [--runs-dir DIR]
 """
 
 from __future__ import annotations
@@ -36,12 +40,12 @@ import numpy as np
 
 from controllers.monitor.tuning import TORQUE_MARGIN
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
-from delta_env.faults import FAULT_KINDS, SENSOR_KINDS, FaultSpec
+from delta_env.faults import FAULT_KINDS, FAULT_REACTIONS, SENSOR_KINDS, FaultSpec
 from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
 from eval.console import CommandParser, command_main, plural, progress_bar
-from eval.engine import prepare, run_grid
+from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import (
     confusion_counts,
@@ -59,7 +63,7 @@ from eval.scenario_args import (
     check_ranges,
     scenario_from_arguments,
 )
-from eval.sweep.work import WorkUnit
+from eval.work import WorkUnit, run_grid
 
 GONE_MASS = 0.1
 """Estimate (kg) below which a slipped object counts as forgotten."""
@@ -73,6 +77,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     kinds = ", ".join(FAULT_KINDS)
     parser.add_argument("--kinds", default="all", help=f"comma-separated fault kinds or 'all' ({kinds})")
     parser.add_argument("--controllers", default="mid_f_rls", help=controllers_help("mid_f_rls"))
+    parser.add_argument(
+        "--reactions",
+        default=None,
+        help=f"comma-separated reactions of the cell to a detected fault ({', '.join(FAULT_REACTIONS)}), each run on "
+        "every faulty episode (default: the scenario's fault_reaction)",
+    )
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default <runs root>/fault_campaign/<UTC time>)"
     )
@@ -91,12 +101,28 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     except ValueError as error:
         parser.error(f"--controllers: {error}")
     args.scenario = scenario_from_arguments(args, parser)
+    args.reactions = args.reactions.split(",") if args.reactions else [args.scenario.task.fault_reaction]
+    unknown = sorted(set(args.reactions) - set(FAULT_REACTIONS))
+    if unknown or len(set(args.reactions)) < len(args.reactions):
+        parser.error(
+            f"--reactions: unknown or repeated {unknown or args.reactions}; choose from {list(FAULT_REACTIONS)}"
+        )
     return args
 
 
-def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...]) -> Scenario:
-    """``scenario`` with these faults instead of its own."""
-    return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=faults))
+def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...], reaction: str | None = None) -> Scenario:
+    """``scenario`` with these faults instead of its own, and ``reaction`` as its fault reaction (None: its own)."""
+    reaction = scenario.task.fault_reaction if reaction is None else reaction
+    task = dataclasses.replace(scenario.task, faults=faults, fault_reaction=reaction)
+    return dataclasses.replace(scenario, task=task)
+
+
+def reaction_cost(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float | bool]:
+    """What the cell's reaction to a fault cost: ``picks_lost_per_min``, the twin's pick rate minus the faulty
+    episode's (1/min; :func:`eval.metrics.picks_per_min`, over the work each did), and ``stopped``, whether a stop
+    ended the faulty episode (its rate then covers only the work before the stop)."""
+    rates = [record.metrics()["picks_per_min"] for record in (twin, faulty)]
+    return {"picks_lost_per_min": rates[0] - rates[1], "stopped": faulty.stopped}
 
 
 def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
@@ -182,6 +208,22 @@ def summary_table(rows: list[dict[str, Any]], by_kind: dict[str, list[dict[str, 
     return metrics.markdown_table(header, body)
 
 
+def reaction_table(rows: list[dict[str, Any]], kinds: Sequence[str], reactions: Sequence[str]) -> str:
+    """Per fault kind and reaction: the picks/min lost against the twins, mean and worst over the episodes a stop
+    did not end, and how many a stop ended."""
+    body = []
+    for kind in kinds:
+        cells = [kind]
+        for reaction in reactions:
+            mine = [row for row in rows if row["kind"] == kind and row["reaction"] == reaction]
+            lost = [row["picks_lost_per_min"] for row in mine if not row["stopped"]]
+            stopped = sum(bool(row["stopped"]) for row in mine)
+            cell = f"{np.mean(lost):.1f} / {np.max(lost):.1f}" if lost else "n/a"
+            cells.append(cell + (f" ({stopped} stopped)" if stopped else ""))
+        body.append(cells)
+    return metrics.markdown_table(["Fault", *(f"{r}: picks/min lost, mean / max" for r in reactions)], body)
+
+
 @command_main("python scripts/fault_campaign.py")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
@@ -204,9 +246,10 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
     healthy = with_faults(args.scenario, ())
     setup = prepare(healthy, args.controllers, runs_dir=args.runs_dir, workers=args.workers).setup
     seeds = [args.seed + i for i in range(args.episodes)]
-    scenarios = [healthy, *(with_faults(healthy, (FaultSpec(kind),)) for kind in args.kinds)]
+    faulty = [with_faults(healthy, (FaultSpec(kind),), reaction) for reaction in args.reactions for kind in args.kinds]
+    scenarios = [healthy, *faulty]
     units = [WorkUnit(scenario, key, seed) for key in args.controllers for scenario in scenarios for seed in seeds]
-    setups = {scenario.content_hash: setup for scenario in scenarios}
+    setups = {s.content_hash: dataclasses.replace(setup, fault_reaction=s.task.fault_reaction) for s in scenarios}
     with progress_bar(len(units), "episodes", "ep") as bar:
         records = list(zip(units, run_grid(units, setups, workers=args.workers, progress=bar), strict=True))
     rows: list[dict[str, Any]] = []
@@ -224,15 +267,27 @@ def campaign(args: argparse.Namespace, run: Run) -> None:
             if not unit.scenario.task.faults:
                 twin_rows += fault_rows(identity, record.faults())
                 continue
-            kind = unit.scenario.task.faults[0].kind
-            by_kind[kind] += fault_rows(identity, record.faults())
+            kind, reaction = unit.scenario.task.faults[0].kind, unit.scenario.task.fault_reaction
+            if reaction == args.reactions[0]:
+                by_kind[kind] += fault_rows(identity, record.faults())
             if record.injected_faults:  # else the drawn carry fault fell after the episode's end
-                key_rows.append({"kind": kind, "seed": unit.seed, **fault_effect(record, twins[unit.seed])})
+                twin = twins[unit.seed]
+                cost = reaction_cost(record, twin)
+                key_rows.append(
+                    {"kind": kind, "reaction": reaction, "seed": unit.seed, **fault_effect(record, twin), **cost}
+                )
         twin_alarms = len(twin_rows)
         fault_csv_rows += [row for kind in args.kinds for row in by_kind[kind]] + twin_rows
         rows += [{"controller": label, "key": key, **row} for row in key_rows]
-        text += f"\n## {label}\n\n{summary_table(key_rows, by_kind, args.kinds)}\n\n"
+        first = [row for row in key_rows if row["reaction"] == args.reactions[0]]
+        text += f"\n## {label}\n\n{summary_table(first, by_kind, args.kinds)}\n\n"
         text += f"The {len(twins)} fault-free twins raised {twin_alarms} false alarm(s).\n"
+        text += (
+            "\nWhat each reaction cost against the twins (their mean: "
+            f"{np.mean([twin.metrics()['picks_per_min'] for twin in twins.values()]):.1f} picks/min):\n\n"
+            + reaction_table(key_rows, args.kinds, args.reactions)
+            + "\n"
+        )
     matrices = confusion_counts(fault_csv_rows, [controller_label(key) for key in args.controllers])
     text += (
         "\n## Confusion matrix\n\nInjected kind by detected kind: a cell counts the faults reported at least once as "

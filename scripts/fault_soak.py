@@ -65,13 +65,13 @@ from delta_env.validation import require_count
 from eval import metrics
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.console import CommandParser, UsageError, command_main, progress_bar
-from eval.engine import prepare, run_grid
+from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
 from eval.rate import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
-from eval.sweep.work import WorkUnit
+from eval.work import WorkUnit, run_grid
 
 
 @dataclass(frozen=True)

@@ -7,11 +7,14 @@
 
 Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--seed + --runs - 1``, with
 :func:`eval.train_residual.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
-policy steps pauses to run the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
-scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``) with the base
-controller alone and with the residual, scored as :func:`eval.scoring.score_policy` scores the test (tracking RMS
-and torque RMS pooled over every control step). A threshold counts as reached at the first evaluation whose tracking
-RMS is that much lower than the base's with torque RMS at most ``--max-torque-change`` above the base's.
+policy steps pauses to save the policy (``validation_policy.zip`` in the run's folder) and score it with
+:func:`eval.scoring.score_policy` on the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
+scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``): the base controller
+alone and with the residual, as the file records them, run by the experiment engine (:func:`eval.work.run_grid`, in
+this process: a pool's fresh workers would plan an online timing's tables again at every evaluation), tracking RMS
+and torque RMS pooled over every control step. A threshold counts as reached at the
+first evaluation whose tracking RMS is that much lower than the base's with torque RMS at most
+``--max-torque-change`` above the base's.
 
 The training wall time excludes the evaluations (and the base controller's identification and tare
 calibration, done once per invocation); ``--max-minutes`` caps each run's training wall time. A run stops
@@ -37,19 +40,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from controllers.base import payload_estimator_of
-from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, ResidualController
-from delta_env.env import DeltaPickPlaceEnv
+from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, save_residual_policy
 from eval.console import CommandParser, UsageError, command_main
-from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import check_ranges
-from eval.scoring import pooled_scores
-from eval.tasks import timed
+from eval.scoring import score_policy
 from eval.train_residual import parse_args, residual_config, train
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
@@ -101,28 +99,17 @@ def first_crossing(rows: Sequence[dict[str, Any]], threshold: float, max_torque_
     return None
 
 
-def validation_scores(
-    policy: Any, base: PolicyBase, config: ResidualConfig, env_kwargs: dict[str, Any]
-) -> dict[str, float]:
-    """Pooled tracking and torque RMS of the validation episodes (``policy`` None: the base alone), each env timed as
-    its scenario asks (:func:`eval.tasks.timed`: an online timing retimes on the base's estimate)."""
-    records = []
-    for seed in VALIDATION_SEEDS:
-        controller = base.controller()
-        estimator = payload_estimator_of(controller)
-        if policy is not None:
-            controller = ResidualController(controller, policy, config)
-        env = DeltaPickPlaceEnv(**env_kwargs)
-        timed(env, base.setup, estimator)
-        records.append(run_episode(env, controller, seed))
-        env.close()
-    return pooled_scores(records)
+def validation_scores(policy_path: Path, env_kwargs: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Pooled tracking and torque RMS of the validation episodes of the policy file ``policy_path``: ``"base"`` (its
+    base alone) and ``"residual"`` (the policy on it), by :func:`eval.scoring.score_policy`."""
+    scores = score_policy(policy_path, env_kwargs, seeds=VALIDATION_SEEDS, payloads=())
+    return {row: scores["summary"][row] for row in ("base", "residual")}
 
 
 class ValidationCurve(BaseCallback):
-    """Every ``eval_every`` policy steps, scores the policy on the validation episodes and appends a curve row;
-    stops training once ``max_minutes`` of training wall time (evaluations excluded) are spent or, with
-    ``stop_when_reached``, once every threshold is reached."""
+    """Every ``eval_every`` policy steps, saves the policy to ``policy_path``, scores it on the validation episodes
+    and appends a curve row; stops training once ``max_minutes`` of training wall time (evaluations excluded) are
+    spent or, with ``stop_when_reached``, once every threshold is reached."""
 
     def __init__(
         self,
@@ -132,7 +119,7 @@ class ValidationCurve(BaseCallback):
         base: PolicyBase,
         config: ResidualConfig,
         env_kwargs: dict[str, Any],
-        base_scores: dict[str, float],
+        policy_path: Path,
         curve_path: Path,
         eval_every: int,
         max_minutes: float,
@@ -141,7 +128,7 @@ class ValidationCurve(BaseCallback):
     ) -> None:
         super().__init__()
         self.recipe, self.seed, self.base, self.config, self.env_kwargs = recipe, seed, base, config, env_kwargs
-        self.base_scores, self.curve_path, self.eval_every = base_scores, curve_path, eval_every
+        self.policy_path, self.curve_path, self.eval_every = policy_path, curve_path, eval_every
         self.max_seconds, self.max_torque_change = 60.0 * max_minutes, max_torque_change
         self.stop_when_reached = stop_when_reached
         self.rows: list[dict[str, Any]] = []
@@ -157,18 +144,15 @@ class ValidationCurve(BaseCallback):
     def _on_training_start(self) -> None:
         self.start = time.monotonic()
 
-    def _policy(self, observation: np.ndarray) -> np.ndarray:
-        action, _ = self.model.predict(observation, deterministic=True)
-        return action
-
     def evaluate(self) -> dict[str, Any]:
         """Score the current policy and append its row to the curve file."""
         train_wall = self.train_seconds()
         began = time.monotonic()
-        scores = validation_scores(self._policy, self.base, self.config, self.env_kwargs)
+        save_residual_policy(self.model, self.policy_path, self.config, self.recipe.algo, base=self.base)
+        rows = validation_scores(self.policy_path, self.env_kwargs)
         eval_wall = time.monotonic() - began
         self.eval_seconds += eval_wall
-        base = self.base_scores
+        base, scores = rows["base"], rows["residual"]
         row = {
             "label": self.recipe.label,
             "algo": self.recipe.algo,
@@ -325,18 +309,17 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
     env_kwargs = {"n_cycles": train_arguments.cycles, "scenario": train_arguments.scenario}
     key = (train_arguments.scenario.name, train_arguments.base, train_arguments.cycles)
     if key not in shared:
-        base = base_setup(
+        shared[key] = base_setup(
             env_kwargs, base=train_arguments.base, runs_dir=train_arguments.runs_dir, servo=train_arguments.servo
         )
-        shared[key] = (base, validation_scores(None, base, ResidualConfig(), env_kwargs))
-    base, base_scores = shared[key]
+    base = shared[key]
     curve = ValidationCurve(
         recipe=recipe,
         seed=seed,
         base=base,
         config=residual_config(train_arguments),
         env_kwargs=env_kwargs,
-        base_scores=base_scores,
+        policy_path=folder / "validation_policy.zip",
         curve_path=out / "curve.csv",
         eval_every=args.eval_freq,
         max_minutes=args.max_minutes,

@@ -27,7 +27,8 @@ from eval.console import CommandParser
 from eval.engine import prepare
 from eval.scenario_args import add_scenario_arguments, check_ranges, scenario_from_arguments
 from eval.sweep.runner import ResultsTable, run_sweep
-from eval.sweep.work import WorkUnit, code_version, setup_digest
+from eval.sweep.work import setup_digest
+from eval.work import WorkUnit, code_version
 
 CONFIGURATIONS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2))
 

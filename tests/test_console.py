@@ -22,7 +22,7 @@ from delta_env.scenario import preset, with_geometry
 from eval import __main__ as eval_cli
 from eval import identify, parameter_files
 from eval.console import UsageError, command_main, plural, progress_bar
-from eval.processes import holding_interrupts, parallel_map
+from eval.processes import holding_interrupts, run_jobs
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated
 from tests.test_robot_identity import DESIGN, fake_result
 from tests.test_run_folder import script
@@ -260,7 +260,7 @@ def interrupts_ignored(_: int) -> bool:
 
 
 def test_workers_leave_ctrl_c_to_the_command_line_which_holds_it_while_they_start() -> None:
-    assert parallel_map(interrupts_ignored, [0, 1], workers=2) == [True, True]
+    assert run_jobs(interrupts_ignored, [0, 1], workers=2) == [True, True]
     assert not interrupts_ignored(0)
     reached = False
     with pytest.raises(KeyboardInterrupt), holding_interrupts():

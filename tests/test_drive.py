@@ -15,6 +15,7 @@ from delta_env.cycles import conveyor_cycles
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.trajectories import Trajectory
 
 
 def test_lag_is_identified_from_noisy_synthetic_data() -> None:
@@ -162,3 +163,48 @@ def test_identified_lag_and_its_compensation_on_the_simulator() -> None:
     assert_allclose(identified, env.plant_config.realism.actuator_lag, rtol=0.08)
     compensated_rms, *_ = run(env, LagCompensatedController("lag", base(), identified), seed=3)
     assert compensated_rms < 0.85 * plain_rms, (compensated_rms, plain_rms)
+
+
+def test_reference_jet_is_exact_on_a_quintic() -> None:
+    """Following a reference's samples, the jet (angle to snap) at any horizon is that of the quintic Hermite
+    interpolant, so on a reference that is one quintic in time it is the reference's own, jerk and snap included;
+    predicted from the observation alone the jerk is the last period's change of the acceleration and the snap 0."""
+    coefficients = np.array(
+        [
+            [0.1, -0.2, 0.3],
+            [0.5, 0.2, -0.4],
+            [3.0, -2.0, 1.0],
+            [-20.0, 15.0, 8.0],
+            [90.0, -40.0, 60.0],
+            [-300.0, 250.0, 120.0],
+        ]
+    )
+    times = np.arange(8) * CONTROL_PERIOD
+
+    def derivative(t: np.ndarray, order: int) -> np.ndarray:
+        powers = np.polynomial.polynomial.polyder(coefficients, order) if order else coefficients
+        return np.polynomial.polynomial.polyval(t, powers).T
+
+    zero = np.zeros((len(times), 3))
+    trajectory = Trajectory(
+        CONTROL_PERIOD, zero, zero, zero, *(derivative(times, n) for n in range(3)), np.zeros(len(times), bool), [], []
+    )
+    keys = ("reference_angles", "reference_velocities", "reference_accelerations")
+    for horizon in (0.25e-3, 0.94e-3, 1.5e-3):
+        followed, predicted = ReferencePredictor(horizon=horizon), ReferencePredictor(horizon=horizon)
+        followed.follow(trajectory)
+        for k in range(len(times) - 3):
+            observation = {key: derivative(times[k : k + 1], n)[0] for n, key in enumerate(keys)}
+            jet = followed.jet(observation)
+            for n, value in enumerate(jet):
+                truth = derivative(np.array([times[k] + horizon]), n)[0]
+                # round-off grows as period^-n: the snap carries 1e-16 rad of the angles over (1 ms)^4
+                assert_allclose(value, truth, rtol=1e-4, atol=1e-4 * np.max(np.abs(truth)))
+            guess = predicted.jet(observation)
+            expected_jerk = (
+                (observation["reference_accelerations"] - derivative(times[k - 1 : k], 2)[0]) / CONTROL_PERIOD
+                if k
+                else np.zeros(3)
+            )
+            assert_allclose(guess[3], expected_jerk, rtol=1e-12, atol=1e-12)
+            assert np.all(guess[4] == 0.0)

@@ -14,8 +14,9 @@ from delta_env.records import content_hash
 from delta_env.scenario import preset
 from eval import calibration
 from eval.calibration import calibration_seeds, tare_setup
-from eval.engine import grid, kept_tares, prepare, run_grid
-from eval.sweep.work import METRIC_FIELDS, run_unit, unit_record
+from eval.engine import grid, kept_tares, prepare
+from eval.sweep.work import METRIC_FIELDS, run_unit
+from eval.work import run_grid, unit_record
 from tests.conftest import NOMINAL_SETUP as SETUP
 
 SUMS = EmptyMoveSums(np.diag([1.5, 2.0, 3.0, 4.0, 5.0]) + 0.25, np.array([0.1, -0.2, 1e-9, 3.0, -4.5]))

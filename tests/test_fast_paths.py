@@ -3,6 +3,7 @@ policy load and one process pool for many episodes."""
 
 import dataclasses
 import math
+import os
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from controllers.payload import FRICTION_SCALE_STD, MASS_CORRECTION_STD, REST_RA
 from controllers.residual import ResidualFeatures, load_residual_controller, load_residual_policy, residual_controller
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-from eval.processes import DEFAULT_WORKERS, parallel_imap, parallel_map, process_pool, runs_a_pool
+from eval.processes import DEFAULT_WORKERS, run_jobs, runs_a_pool
 from tests.conftest import run_python
 
 
@@ -125,32 +126,58 @@ def test_one_loaded_policy_serves_many_residual_controllers_like_fresh_loads() -
         observation, *_ = env.step(torque)
 
 
-def test_process_pool_serves_dependent_batches_in_order() -> None:
-    with process_pool(2) as pool:
-        assert pool is not None
-        first = parallel_map(math.sqrt, [4.0, 9.0, 16.0], 2, pool=pool)
-        second = parallel_map(math.sqrt, [x * x for x in first], 2, pool=pool)
-    assert first == second == [2.0, 3.0, 4.0]
-    with process_pool(1) as pool:
-        assert pool is None
+class Finished:
+    """A stand-in for a tqdm bar (counts its updates) that also records each finished item and its output."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.outputs: list[tuple[int, float]] = []
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def record(self, index: int, output: float) -> None:
+        self.outputs.append((index, output))
 
 
-def test_work_given_to_the_pool_later_queues_behind_the_first_batch() -> None:
-    # python -m eval gives the pool its second batch as soon as the first results (the tares) are in.
-    with process_pool(2) as pool:
-        running = parallel_imap(math.sqrt, [4.0, 9.0, 16.0, 25.0], pool)
-        first = next(running)
-        queued = parallel_imap(math.sqrt, [first * first, 36.0], pool)
-        assert [first, *running, *queued] == [2.0, 3.0, 4.0, 5.0, 2.0, 6.0]
-    in_process = parallel_imap(math.sqrt, [4.0, 9.0], None)
-    assert next(in_process) == 2.0 and list(in_process) == [3.0]
+def test_the_executor_returns_the_outputs_in_the_order_of_the_items_here_and_on_a_pool() -> None:
+    items = [4.0, 9.0, 16.0, 25.0, 36.0]
+    for workers in (1, 2):
+        finished = Finished()
+        outputs = run_jobs(math.sqrt, items, workers=workers, progress=finished, on_result=finished.record)
+        assert outputs == [2.0, 3.0, 4.0, 5.0, 6.0] and finished.n == len(items)
+        assert sorted(finished.outputs) == list(enumerate(outputs))  # each handed over once, with its index
+    assert run_jobs(math.sqrt, items, workers=2, keep=False) is None
+    assert run_jobs(math.sqrt, [], workers=2) == []
+
+
+def test_the_executor_refuses_an_unknown_backend_and_an_address_without_ray() -> None:
+    with pytest.raises(ValueError, match="backend must be one of \\('local', 'ray'\\), got 'dask'"):
+        run_jobs(math.sqrt, [4.0], backend="dask")
+    with pytest.raises(ValueError, match="address is for the ray backend only"):
+        run_jobs(math.sqrt, [4.0], address="auto")
+    with pytest.raises(ValueError, match="workers"):
+        run_jobs(math.sqrt, [4.0], workers=0)
+
+
+def exit_worker(_: float) -> float:
+    """Kill the process that runs it (a worker dying mid-item)."""
+    os._exit(1)
+
+
+def test_an_item_whose_worker_died_too_often_is_given_up() -> None:
+    outputs = run_jobs(exit_worker, [1.0, 2.0], workers=2, max_attempts=1, on_lost=lambda i, error: (i, error))
+    died = "its worker died on each of its 1 attempts"
+    assert outputs == [(0, died), (1, died)]
+    with pytest.raises(RuntimeError, match=rf"item [01] of 2 was not run: {died}"):
+        run_jobs(exit_worker, [1.0, 2.0], workers=2, max_attempts=1)
 
 
 def test_the_worker_server_starts_before_the_project_is_imported() -> None:
     # python -m eval starts it first, so that its imports overlap the command's own: eval.processes must stay light.
     code = (
         "import math, sys; from eval.processes import pool_context, start_worker_server; "
-        "loaded = [m for m in sys.modules if m.split('.')[0] in ('delta_env', 'controllers') or m == 'eval.tasks']; "
+        "loaded = [m for m in sys.modules if m.split('.')[0] in ('delta_env', 'controllers') or m == 'eval.work']; "
         "assert not loaded, loaded; start_worker_server(); "
         "pool = pool_context().Pool(1); print(pool.apply(math.sqrt, (16.0,))); pool.close(); pool.join()"
     )

@@ -77,6 +77,34 @@ def test_controllers_hold_algorithms_not_experiments() -> None:
     assert offenders == []
 
 
+ENGINE_MODULES = ("eval/engine.py", "eval/work.py", "eval/processes.py", "eval/calibration.py")
+"""The experiment engine: what it knows before the episodes, the work unit and its runner, the executor, the tare."""
+
+
+def test_eval_imports_its_own_modules_at_the_top() -> None:
+    # a deferred import inside eval hides a dependency that runs back up (the engine calling into a command)
+    offenders = [
+        f"{path.relative_to(ROOT)} imports {name} in a function"
+        for path in modules_of("eval")
+        for name, deferred in imported_modules(path)
+        if deferred and name.split(".")[0] == "eval"
+    ]
+    assert offenders == []
+
+
+def test_the_engine_imports_no_command_built_on_it() -> None:
+    # the sweep, the comparison and the other experiments sit on top of the engine, never below it
+    offenders = [
+        f"{module} imports {name}"
+        for module in ENGINE_MODULES
+        for name, _ in imported_modules(ROOT / module)
+        if name.startswith(
+            ("eval.sweep", "eval.comparison", "eval.rate", "eval.design", "eval.scoring", "eval.__main__")
+        )
+    ]
+    assert offenders == []
+
+
 def test_the_scan_sees_imports_everywhere(tmp_path: Path) -> None:
     module = tmp_path / "sample.py"
     module.write_text(

@@ -88,7 +88,7 @@ def test_time_optimal_moves_raise_no_false_alarm(
     # envelope (``share`` 1), before the collision check allowed for the reference's acceleration steps, this
     # episode raised false collisions.
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed_controller
+    from eval.work import timed_controller
 
     task = PickPlaceTask(timing=timing, n_cycles=cycles)
     if share is not None:
@@ -289,7 +289,7 @@ def test_a_nan_reading_under_online_timing_reaches_neither_the_row_nor_the_cells
     controller_setup: ControllerSetup,
 ) -> None:
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed_controller
+    from eval.work import timed_controller
 
     nan = FaultSpec("sensor_nan", carry_fraction=(0.5, 0.5), joint=0)
     env = DeltaPickPlaceEnv(scenario=Scenario(task=PickPlaceTask(timing="online", n_cycles=1, faults=(nan,))))

@@ -35,7 +35,7 @@ from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import WORKING_HEIGHT, Segment
 from eval.episodes import run_episode
 from eval.rate import MIXED, main, rate_scenario
-from eval.tasks import timed, timed_controller
+from eval.work import timed, timed_controller
 
 CARRY = Segment(
     np.array([0.0, -0.5 * STANDARD_TRAVEL, WORKING_HEIGHT]),

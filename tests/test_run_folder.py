@@ -29,7 +29,7 @@ from eval.design import __main__ as design_cli
 from eval.engine import Prepared
 from eval.faults import EpisodeFaults
 from eval.parameter_files import identification_root, parameter_path
-from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, run_folder, runs_root
+from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, read_csv_rows, run_folder, runs_root
 from eval.sweep import __main__ as sweep_cli
 from tests.conftest import NOMINAL_SETUP as SETUP
 
@@ -307,6 +307,8 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
         ("fault_soak", ["--carries", "0"], "--carries must be an integer >= 1, got 0"),
         ("fault_soak", ["--conditions", "6g,7g"], "--conditions: unknown or no values ['7g']"),
         ("fault_campaign", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+        ("fault_campaign", ["--reactions", "slow,pause"], "--reactions: unknown or repeated ['pause']"),
+        ("fault_campaign", ["--reactions", "stop,stop"], "--reactions: unknown or repeated ['stop', 'stop']"),
     ],
 )
 def test_argument_errors_are_parser_errors_naming_the_value_and_range(
@@ -327,6 +329,20 @@ def test_one_spelling_of_cycles_and_seeds(capsys: pytest.CaptureFixture) -> None
         with pytest.raises(SystemExit) as exit:
             PARSERS[tool](old_spelling)
         assert exit.value.code == 2 and f"unrecognized arguments: {old_spelling[0]}" in capsys.readouterr().err
+
+
+def test_the_campaign_prices_each_reaction_against_the_twins(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A slip on the lag row, run under each reaction against its fault-free twin: continuing costs the cell
+    (almost) nothing, slowing down costs picks for the rest of the episode, and a stop ends it."""
+    campaign = script("fault_campaign")
+    monkeypatch.setattr(campaign, "prepare", lambda *args, **kwargs: Prepared(SETUP, None, None, None))
+    argv = ["--kinds", "slip", "--controllers", "mid_f_rls_lag", "--reactions", "continue,slow,stop", "--episodes", "1"]
+    assert campaign.main([*argv, "--workers", "1", "--out", str(tmp_path / "run")]) == 0
+    rows = {row["reaction"]: row for row in read_csv_rows(tmp_path / "run" / "campaign.csv")}
+    assert abs(float(rows["continue"]["picks_lost_per_min"])) < 1.0 and rows["continue"]["stopped"] == "False"
+    assert float(rows["slow"]["picks_lost_per_min"]) > 5.0 and rows["slow"]["stopped"] == "False"
+    assert rows["stop"]["stopped"] == "True"
+    assert "| slip | " in (tmp_path / "run" / "summary.md").read_text().split("What each reaction cost")[1]
 
 
 def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs_gaps() -> None:

@@ -16,7 +16,7 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
 from delta_env.scenario import Condition, PickPlaceTask, Scenario, preset, preset_names, resolve_scenario
 from delta_env.sensors import control_substeps
-from eval.tasks import timed
+from eval.work import timed
 
 PRESETS = (
     "compliant",

@@ -19,10 +19,12 @@ from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
 from delta_env.scaling import scaled_masses
 from delta_env.scenario import Scenario, preset, save_geometry
 from eval.engine import Prepared
+from eval.processes import import_ray
 from eval.sweep import __main__ as sweep_cli
 from eval.sweep import report
-from eval.sweep.runner import RESULT_FIELDS, ResultsTable, import_ray, run_sweep, unit_key
-from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit, setup_digest
+from eval.sweep.runner import RESULT_FIELDS, ResultsTable, run_sweep, unit_key
+from eval.sweep.work import METRIC_FIELDS, ControllerSetup, run_unit, setup_digest
+from eval.work import WorkUnit
 from tests.conftest import NOMINAL_SETUP as SETUP
 from tests.figure_checks import hidden_legend_entries, kept_figures
 

@@ -32,8 +32,8 @@ from delta_env.scenario import PickPlaceTask, Scenario
 from eval import metrics
 from eval.__main__ import main as eval_main
 from eval.episodes import run_episode
-from eval.sweep.work import WorkUnit, run_unit
-from eval.tasks import timed_controller
+from eval.sweep.work import run_unit
+from eval.work import WorkUnit, timed_controller
 from tests.conftest import NOMINAL_SETUP
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -1,6 +1,6 @@
 """The study's front: NSGA-II and the weighted-cost GA on several seeds, every archive merged.
 
-Each optimizer runs once per seed, the runs in processes (:func:`eval.processes.parallel_map`); the archives of
+Each optimizer runs once per seed, the runs in processes (:func:`eval.processes.run_jobs`); the archives of
 all of them are merged before the non-dominated filter (:meth:`eval.design.optimize.Archive.merged`), so the
 front, and every design chosen from it, is non-dominated against every design any run evaluated. Convergence
 is each run's per-generation record: NSGA-II's population hypervolume (:func:`eval.design.optimize.hypervolume`)
@@ -31,7 +31,7 @@ from eval.design.optimize import (
     single_objective,
 )
 from eval.design.performance import Performance
-from eval.processes import parallel_map
+from eval.processes import run_jobs
 
 NSGA2_NAME = "NSGA-II"
 """Name of the three-objective search in the convergence record."""
@@ -129,7 +129,7 @@ def search(
         raise ValueError(f"seeds must be at least one, all distinct, got {list(seeds)!r}")
     jobs = [SearchJob(NSGA2_NAME, nominal, SearchSettings(population, generations, seed), bounds) for seed in seeds]
     jobs.append(SearchJob(GA_NAME, nominal, SearchSettings(population, generations, seeds[0]), bounds))
-    runs = tuple(parallel_map(run_job, jobs, workers, progress))
+    runs = tuple(run_jobs(run_job, jobs, workers=workers, progress=progress))
     archive = Archive.merged([run.archive for run in runs])
     records = [{"optimizer": run.optimizer, "seed": run.seed, **row} for run in runs for row in run.convergence]
     return MergedSearch(runs, ParetoResult(archive=archive, front=archive.pareto_indices(), convergence=records))

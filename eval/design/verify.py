@@ -4,7 +4,7 @@ For a geometry: build the realistic plant with the scaled masses, identify it by
 identification (:func:`eval.identification.run_identification`, the same excitation runs in closed loop but
 inside the design's dexterous cylinder, the same fits on that geometry's models, the drive lag), tare the
 payload estimator by :func:`eval.calibration.calibrate_tares` on payload-free standard cycles, then run PD,
-MId+F+R+RLS+PD and the oracle by the experiment engine (:func:`eval.engine.run_grid`) on seeded standard
+MId+F+R+RLS+PD and the oracle by the experiment engine (:func:`eval.work.run_grid`) on seeded standard
 cycles carrying 3.8 kg. The plant is built with its collision geometry on (``PlantConfig.collisions``: links and
 base collide, :func:`delta_env.robot.collision_geom_names`), and every episode checks the contacts it saw. A
 design is infeasible, and reported as such, when its plant cannot be assembled, a run diverges, a loop opens by
@@ -34,12 +34,11 @@ from delta_env.workspace import pose_measures
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds, tare_setup
 from eval.design.model import design_model, payload_profile
 from eval.design.performance import PAYLOAD, TASK_BAND, TASK_CYCLES, Performance, task_cycle
-from eval.engine import run_grid
 from eval.episodes import EpisodeRecord
 from eval.excitation import ExcitationRegion
 from eval.identification import run_identification
 from eval.parameter_files import robot_setup
-from eval.sweep.work import WorkUnit
+from eval.work import WorkUnit, run_grid
 
 LOOP_GAP_LIMIT = 1e-4
 """Largest loop gap (m) a feasible design's plant may show in any run: 0.1 mm."""

@@ -49,6 +49,7 @@ from eval.console import CommandParser, UsageError, command_main, plural, progre
 from eval.engine import prepare
 from eval.faults import sweep_fault_table
 from eval.parameter_files import identification_root, parameter_path
+from eval.processes import import_ray
 from eval.run_folder import (
     Run,
     add_runs_dir_argument,
@@ -66,12 +67,9 @@ from eval.scenario_args import (
     on_geometry,
 )
 from eval.sweep import report
-from eval.sweep.runner import ResultsTable, import_ray, run_sweep, unit_key
-from eval.sweep.work import (
-    WorkUnit,
-    code_version,
-    setup_digest,
-)
+from eval.sweep.runner import ResultsTable, run_sweep, unit_key
+from eval.sweep.work import setup_digest
+from eval.work import WorkUnit, code_version
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,7 @@ than Parquet: a Parquet file cannot be appended row by row (each append is a new
 needs pyarrow; at a sweep's size (10^4 to 10^5 rows, a few MB) CSV is small, greppable and opens
 anywhere.
 
-Setups: what the controllers know is per scenario (:data:`Setups`, by scenario content hash): the
+Setups: what the controllers know is per scenario (:data:`eval.work.Setups`, by scenario content hash): the
 identification of the scenario's robot and the tares measured on the scenario.
 
 Resume: each unit has a content key, a hash of (scenario content hash, controller, seed, code version,
@@ -14,37 +14,25 @@ what the controllers know), and nothing of how it runs (backend, workers, host);
 in the table, failed ones included (a failure is a result; changing the code changes the key and so recomputes it),
 whichever backend ran it.
 
-Backends (:func:`run_units`, which :func:`eval.engine.run_grid` calls too), one work function
-(:func:`eval.sweep.work.run_unit` for the sweep's rows):
-
-- ``local``: a process pool of ``workers`` processes on this machine (forkserver or spawn, never fork:
-  torch may be loaded), or this process itself when ``workers`` is 1. At most ``workers`` units are in
-  flight, so when a worker dies (the pool breaks) the units it may have held are known and resubmitted
-  on a new pool, up to ``max_attempts`` times each, then recorded as failed.
-- ``ray``: Ray tasks; Ray resubmits a task whose worker died (``max_retries``). Without an address Ray
-  starts in this process with ``workers`` CPUs; with one (``auto`` or ``ray://host:port``) it joins the
-  cluster and ships this checkout's packages to it (``runtime_env`` ``py_modules``).
+Backends: those of the one executor (:func:`eval.processes.run_jobs`, by :func:`eval.work.run_grid`): a local process
+pool or Ray. A unit whose worker died too often is recorded as failed (:func:`failed_row`).
 """
 
 from __future__ import annotations
 
-import concurrent.futures
 import csv
 import hashlib
 import json
 import math
 import os
-import signal
-import threading
 import time
-from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from controllers.registry import controller_label, controller_packages
-from eval.processes import holding_interrupts, ignore_interrupts, pool_context
-from eval.sweep.work import METRIC_FIELDS, ControllerSetup, WorkUnit, run_unit
+from controllers.registry import controller_label
+from eval.sweep.work import METRIC_FIELDS, run_unit
+from eval.work import Setups, Work, WorkUnit, run_grid
 
 IDENTITY_FIELDS = (
     "key",
@@ -59,17 +47,6 @@ IDENTITY_FIELDS = (
 )
 RESULT_FIELDS = (*IDENTITY_FIELDS, "status", "error", *METRIC_FIELDS, "seconds", "cpu_seconds", "host", "pid")
 """Columns of ``results.csv``."""
-
-DEFAULT_MAX_ATTEMPTS = 3
-"""Runs of a unit whose worker died before it is recorded as failed."""
-
-Work = Callable[[WorkUnit, ControllerSetup], Any]
-"""A work function: :func:`eval.sweep.work.run_unit` (a row) or :func:`eval.sweep.work.unit_record` (a record)."""
-OnResult = Callable[[WorkUnit, Any], None]
-OnLost = Callable[[WorkUnit, str], None]
-"""Told a unit whose worker died too often, and why; by default its row is :func:`failed_row`."""
-Setups = Mapping[str, ControllerSetup]
-"""What the controllers know on each scenario, by the scenario's content hash."""
 
 
 def unit_key(unit: WorkUnit, code_version: str, setup_digest: str) -> str:
@@ -174,174 +151,6 @@ def failed_row(error: str) -> dict[str, Any]:
     return {"status": "failed", "error": error, **dict.fromkeys((*METRIC_FIELDS, "seconds", "cpu_seconds"), math.nan)}
 
 
-def run_local(
-    units: Sequence[WorkUnit],
-    setups: Setups,
-    workers: int,
-    on_result: OnResult,
-    work: Work = run_unit,
-    max_attempts: int = DEFAULT_MAX_ATTEMPTS,
-    on_lost: OnLost | None = None,
-) -> None:
-    """Run ``units`` on a local process pool (in this process if ``workers`` is 1), in any order."""
-    lost = on_lost or _lost_row(on_result)
-    if workers == 1:
-        for unit in units:
-            on_result(unit, work(unit, setups[unit.scenario.content_hash]))
-        return
-    queue = list(reversed(units))
-    attempts = dict.fromkeys(range(len(units)), 0)
-    index = {id(unit): n for n, unit in enumerate(units)}
-    while queue:
-        with concurrent.futures.ProcessPoolExecutor(
-            workers, mp_context=pool_context(), initializer=ignore_interrupts
-        ) as pool:
-            running: dict[concurrent.futures.Future, WorkUnit] = {}
-            broken = False
-            try:
-                while (queue or running) and not broken:
-                    with holding_interrupts():  # a submit may start a worker
-                        while queue and len(running) < workers:
-                            unit = queue.pop()
-                            attempts[index[id(unit)]] += 1
-                            running[pool.submit(work, unit, setups[unit.scenario.content_hash])] = unit
-                    done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
-                    for future in done:
-                        unit = running.pop(future)
-                        try:
-                            on_result(unit, future.result())
-                        except BrokenProcessPool:
-                            broken = True
-                            _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, lost)
-            except BaseException:
-                # Ctrl-C, SIGTERM or an error: stop the episodes under way, which the executor would wait for
-                # (it has no public way to stop its workers before Python 3.14's terminate_workers).
-                for process in list(pool._processes.values()):
-                    process.terminate()
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
-            if broken:  # the other units in flight died with the pool
-                for future, unit in running.items():
-                    if future.done() and not future.exception():
-                        on_result(unit, future.result())
-                    else:
-                        _retry_or_fail(unit, attempts[index[id(unit)]], max_attempts, queue, lost)
-
-
-def _lost_row(on_result: OnResult) -> OnLost:
-    """Record a lost unit as a :func:`failed_row`."""
-    return lambda unit, error: on_result(unit, failed_row(error))
-
-
-def _retry_or_fail(unit: WorkUnit, attempts: int, max_attempts: int, queue: list, on_lost: OnLost) -> None:
-    if attempts < max_attempts:
-        queue.append(unit)
-    else:
-        on_lost(unit, f"worker died {attempts} times running this unit")
-
-
-def run_ray(
-    units: Sequence[WorkUnit],
-    setups: Setups,
-    workers: int,
-    on_result: OnResult,
-    work: Work = run_unit,
-    address: str | None = None,
-    max_attempts: int = DEFAULT_MAX_ATTEMPTS,
-    on_lost: OnLost | None = None,
-) -> None:
-    """Run ``units`` as Ray tasks, in any order: on a Ray started here with ``workers`` CPUs, or on the
-    cluster at ``address`` (``"auto"``, ``"ray://host:port"``)."""
-    ray = import_ray()
-    lost = on_lost or _lost_row(on_result)
-    started_here = not ray.is_initialized()
-    if started_here:
-        # ray.init installs its own SIGTERM handler (sys.exit); the run folder's records the run as interrupted
-        handler = signal.getsignal(signal.SIGTERM)
-        if address is None:
-            # "local": a new instance even when the machine runs (or ran) another cluster.
-            ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        else:
-            import controllers
-            import delta_env
-            import eval as eval_package
-
-            folders = [str(Path(package.__file__).parent) for package in (controllers, delta_env, eval_package)]
-            folders += controller_packages({unit.controller for unit in units})
-            ray.init(address=address, runtime_env={"py_modules": folders}, log_to_driver=False)
-        if handler is not None and threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, handler)
-    try:
-        remote = ray.remote(num_cpus=1, max_retries=max_attempts - 1)(work)
-        setup_refs = {content: ray.put(setup) for content, setup in setups.items()}
-        window = 4 * max(1, int(ray.cluster_resources().get("CPU", workers)))
-        queue = list(reversed(units))
-        running: dict[Any, WorkUnit] = {}
-        while queue or running:
-            while queue and len(running) < window:
-                unit = queue.pop()
-                running[remote.remote(unit, setup_refs[unit.scenario.content_hash])] = unit
-            done, _ = ray.wait(list(running), num_returns=1)
-            for ref in done:
-                unit = running.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except ray.exceptions.RayTaskError:  # the work function raised: the caller's error
-                    raise
-                except ray.exceptions.RayError as error:  # the worker died max_attempts times, or Ray failed
-                    lost(unit, f"{type(error).__name__}: {error}")
-                else:
-                    on_result(unit, result)
-    finally:
-        if started_here:
-            ray.shutdown()
-
-
-def import_ray() -> Any:
-    """The ``ray`` module, or an ImportError naming the extra that installs it."""
-    try:
-        import ray
-    except ImportError:
-        raise ImportError(
-            "--backend ray needs Ray: install the 'distributed' extra (pip install '.[distributed]')"
-        ) from None
-    return ray
-
-
-def _check_run(units: Sequence[WorkUnit], setups: Setups, backend: str, address: str | None) -> None:
-    """ValueError for an unknown backend, an address without Ray, or a unit whose scenario has no setup."""
-    if backend not in ("local", "ray"):
-        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
-    if address is not None and backend != "ray":
-        raise ValueError("address is for the ray backend only")
-    missing = sorted({unit.scenario.name for unit in units if unit.scenario.content_hash not in setups})
-    if missing:
-        raise ValueError(f"no controller setup for the scenarios {missing}")
-
-
-def run_units(
-    units: Sequence[WorkUnit],
-    setups: Setups,
-    on_result: OnResult,
-    *,
-    backend: str = "local",
-    workers: int = 1,
-    address: str | None = None,
-    work: Work = run_unit,
-    on_lost: OnLost | None = None,
-) -> None:
-    """Run ``work`` on every unit with its scenario's setup on ``backend`` (``"local"`` or ``"ray"``; ``address``:
-    the Ray cluster to join), in any order, calling ``on_result(unit, result)`` as each finishes and ``on_lost(unit,
-    error)`` for a unit whose worker died too often (None: its result is a :func:`failed_row`)."""
-    _check_run(units, setups, backend, address)
-    if not units:
-        return
-    if backend == "local":
-        run_local(units, setups, workers, on_result, work, on_lost=on_lost)
-    else:
-        run_ray(units, setups, workers, on_result, work, address, on_lost=on_lost)
-
-
 def run_sweep(
     units: Iterable[WorkUnit],
     setups: Setups,
@@ -361,10 +170,10 @@ def run_sweep(
         units: The grid.
         setups: What the controllers know, by scenario content hash.
         table: The results table (read for resume, appended to).
-        code_version: :func:`eval.sweep.work.code_version`.
+        code_version: :func:`eval.work.code_version`.
         setup_digests: :func:`eval.sweep.work.setup_digest` of each controller's setup, by (scenario content hash,
             controller key).
-        backend: ``"local"`` or ``"ray"``.
+        backend: ``"local"`` or ``"ray"`` (:func:`eval.processes.run_jobs`).
         workers: Local processes, or CPUs of an in-process Ray.
         address: Ray cluster address (``ray`` backend only).
         work: The work function (the default in production; tests count its calls).
@@ -374,7 +183,6 @@ def run_sweep(
         ``{"total", "skipped", "ran", "failed"}`` unit counts.
     """
     units = list(units)
-    _check_run(units, setups, backend, address)
     keys = [unit_key(unit, code_version, setup_digests[unit.scenario.content_hash, unit.controller]) for unit in units]
     if len(set(keys)) != len(keys):
         raise ValueError("the grid holds the same unit twice (same scenario content, controller, seed, masses, path)")
@@ -394,6 +202,15 @@ def run_sweep(
         if progress is not None:
             progress.update()
 
-    if pending:
-        run_units(pending, setups, on_result, backend=backend, workers=workers, address=address, work=work)
+    run_grid(
+        pending,
+        setups,
+        work=work,
+        backend=backend,
+        workers=workers,
+        address=address,
+        on_result=on_result,
+        on_lost=lambda unit, error: failed_row(error),
+        keep=False,
+    )
     return counts

@@ -1,22 +1,16 @@
-"""The experiments' unit of work: one episode of one controller on one scenario (:class:`WorkUnit`).
-
-:func:`unit_record` runs it and returns its :class:`~eval.episodes.EpisodeRecord` (the comparison and the residual
-scores read whole records); :func:`run_unit` reduces it to one row of metrics (the sweep's table) and never raises
-for a failing episode: the row says ``status = "failed"`` with the error, so the failure is recorded, never dropped.
-Both backends of :func:`eval.engine.run_grid` run either.
+"""The sweep's row of a work unit (:class:`eval.work.WorkUnit`): :func:`run_unit` reduces the unit's episode to one
+row of metrics and never raises for a failing episode: the row says ``status = "failed"`` with the error, so the
+failure is recorded, never dropped. :func:`setup_digest` keys what a row's controller knows.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import math
 import os
 import socket
 import time
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from controllers.registry import (
@@ -26,13 +20,9 @@ from controllers.registry import (
     controller_source,
     residual_policy_path,
 )
-from delta_env.scenario import Scenario
-from delta_env.trajectories import Trajectory
 from eval import metrics
-from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
-from eval.run_folder import package_versions
-from eval.tasks import Task, run_task
+from eval.work import WorkUnit, unit_record
 
 EPISODE_METRICS = (
     "tracking_rms_mm",
@@ -65,44 +55,6 @@ METRIC_FIELDS = (*EPISODE_METRICS, *metrics.PAYLOAD_SCORES, *FAULT_METRICS, *FAU
 """The metrics of a row: the episode's, the payload's and the faults' (:data:`eval.faults.FAULT_METRICS`: faults
 injected, detected and missed, detections, false alarms, consequences, median and worst detection latency; and
 :data:`eval.faults.FAULT_KIND_METRICS` per fault kind)."""
-
-_CODE_PACKAGES = ("delta_env", "controllers", "eval")
-_CODE_DEPENDENCIES = ("mujoco", "numpy", "scipy", "filterpy", "gymnasium")
-
-
-@dataclass(frozen=True)
-class WorkUnit:
-    """One episode of the grid.
-
-    Attributes:
-        scenario: The robot and the work.
-        controller: Controller key (:func:`controllers.registry.controller_entry`).
-        seed: Episode seed: the same seed gives every controller the same path and objects.
-        masses: Object masses (kg) instead of the drawn ones (one per cycle), or None.
-        reference: A path (1 kHz) to follow instead of the scenario's pick-and-place cycles, or None; it is not timed.
-    """
-
-    scenario: Scenario
-    controller: str
-    seed: int
-    masses: tuple[float, ...] | None = None
-    reference: Trajectory | None = None
-
-
-def unit_record(unit: WorkUnit, setup: ControllerSetup) -> EpisodeRecord:
-    """Run one episode of ``unit`` with what its controller knows (``setup``) and return its record."""
-    task = Task(
-        "episode",
-        unit.controller,
-        0,
-        unit.seed,
-        unit.scenario.task.n_cycles,
-        setup,
-        unit.masses,
-        unit.scenario,
-        unit.reference,
-    )
-    return run_task(task)[1]
 
 
 def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
@@ -148,17 +100,4 @@ def setup_digest(setup: ControllerSetup, controller: str) -> str:
     if controller_entry(controller).reads_policy_file:
         digest.update(residual_policy_path(setup).read_bytes())
     digest.update(controller_source(controller))
-    return digest.hexdigest()[:16]
-
-
-def code_version() -> str:
-    """Content hash (16 hex digits) of the project's Python sources and the versions of Python and of the
-    libraries that decide an episode's numbers: any change of either gives new work-unit keys."""
-    root = Path(__file__).resolve().parents[2]
-    digest = hashlib.sha256()
-    for package in _CODE_PACKAGES:
-        for path in sorted((root / package).rglob("*.py")):
-            digest.update(path.relative_to(root).as_posix().encode())
-            digest.update(path.read_bytes())
-    digest.update(json.dumps(package_versions(_CODE_DEPENDENCIES), sort_keys=True).encode())
     return digest.hexdigest()[:16]
