@@ -48,7 +48,7 @@ EXCITATION_RMS = 20.0
 """RMS multisine torque per drive (N m): the gearheads deflect by about 1e-4 rad, 20 steps of a 20-bit load encoder."""
 
 EXCITATION_PERIODS = 8
-"""Periods recorded per pose after the settling one."""
+"""Periods recorded per pose after the settling ones (:data:`~controllers.identification.compliance.SETTLE_PERIODS`)."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class ComplianceExcitationSpec:
 
     seed: int
     pose: tuple[float, float, float] = COMPLIANCE_POSES[0]
-    periods: int = EXCITATION_PERIODS + 1
+    periods: int = SETTLE_PERIODS + EXCITATION_PERIODS
     rms: float = EXCITATION_RMS
     period: float = MULTISINE_PERIOD
     band: tuple[float, float] = MULTISINE_BAND
