@@ -169,7 +169,7 @@ MULTISINE_PERIOD = 0.2
 MULTISINE_BAND = (5.0, 300.0)
 """Band (Hz) of the compliance excitation's multisine: from the lowest line up to the gearhead modes of a compliant
 drive (205 Hz locked, 257 Hz free at home for the SP+ 140). Not higher: the drive holds each command over the 1 ms
-control period, whose images at 1 kHz - f alias back onto a line f of the 1 kHz samples; at 300 Hz they move the
+control period, whose images at 1 kHz - f alias back onto a line f of samples at 1 kHz; at 300 Hz they move the
 rotor by 4 % of what the line does, at 450 Hz by 30 % (docs/measurements.md, "Compliant drives")."""
 
 

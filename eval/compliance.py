@@ -7,8 +7,9 @@ motor-side angles read, the modes found where the response peaks; it judges the 
 
 The excitation holds the robot at rest poses (a soft joint PD on the motor encoders plus MKH's gravity torque, stiff
 enough to hold, soft enough that the gearhead mode leaves it stable) and adds a random-phase multisine torque per
-drive (:func:`delta_env.excitation.multisine_torques`); the logger records the motor-side encoders, the load-side
-encoders and the measured torques (:class:`~controllers.identification.DriveLog` with ``load_angles``).
+drive (:func:`delta_env.excitation.multisine_torques`); the drive's trace records the motor-side encoders, the
+load-side encoders and the measured torques at the physics step (:class:`~controllers.identification.DriveLog`
+with ``load_angles``).
 """
 
 from __future__ import annotations
@@ -25,11 +26,11 @@ from controllers.identification import ComplianceFit, DriveLog, fit_compliance
 from controllers.identification.compliance import FIT_BAND_TOP, SETTLE_PERIODS
 from delta_env import kinematics
 from delta_env.config import RATED_PAYLOAD, PlantConfig, PlantRealism
-from delta_env.env import DeltaPickPlaceEnv
+from delta_env.env import DIVERGENCE_LOOP_GAP, encoder_steps
 from delta_env.excitation import MULTISINE_BAND, MULTISINE_PERIOD, multisine_torques
 from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
-from delta_env.trajectories import WORKING_HEIGHT, Trajectory
+from delta_env.trajectories import WORKING_HEIGHT
 from eval.excitation import robot_model
 
 COMPLIANCE_POSES = ((0.0, 0.0, WORKING_HEIGHT), (0.3, -0.15, -1.0), (-0.2, 0.35, -0.8))
@@ -47,7 +48,7 @@ EXCITATION_RMS = 20.0
 """RMS multisine torque per drive (N m): the gearheads deflect by about 1e-4 rad, 20 steps of a 20-bit load encoder."""
 
 EXCITATION_PERIODS = 8
-"""Periods recorded per pose after the settling one."""
+"""Periods recorded per pose after the settling ones (:data:`~controllers.identification.compliance.SETTLE_PERIODS`)."""
 
 
 @dataclass(frozen=True)
@@ -65,15 +66,25 @@ class ComplianceExcitationSpec:
 
     seed: int
     pose: tuple[float, float, float] = COMPLIANCE_POSES[0]
-    periods: int = EXCITATION_PERIODS + 1
+    periods: int = SETTLE_PERIODS + EXCITATION_PERIODS
     rms: float = EXCITATION_RMS
     period: float = MULTISINE_PERIOD
     band: tuple[float, float] = MULTISINE_BAND
 
 
 def run_compliance_excitation(spec: ComplianceExcitationSpec, plant: PlantConfig) -> DriveLog:
-    """Hold ``spec.pose`` on the compliant ``plant`` and drive a multisine through its drives; the log of what the
-    logger recorded: motor-side angles (the encoders), load-side angles, measured torques, commands.
+    """Hold ``spec.pose`` on the compliant ``plant`` and drive a multisine through its drives; the drive's trace.
+
+    The hold runs at the control period on the motor encoders (quantized, their rate by backward difference, as the
+    env's observations give them); the trace records at every physics step, as a servo drive's trace records at its
+    current loop's rate: the motor-side and load-side angles quantized by their encoders, the torque the drive
+    delivered over the step with the plant's torque noise (one physics step older than the angles it comes with, as
+    the env's measured torque), the command held. At the 1 kHz control period a backlash's impacts on a stiff
+    gearhead alias into the fitted band (docs/measurements.md, "Compliant drives").
+
+    Returns:
+        The trace, a :class:`~controllers.identification.DriveLog` at the plant's physics step with
+        ``motor_angles`` and ``load_angles``.
 
     Raises:
         ValueError: if the plant has no compliant drives or no load-side encoder.
@@ -85,52 +96,38 @@ def run_compliance_excitation(spec: ComplianceExcitationSpec, plant: PlantConfig
             "the compliance excitation needs compliant drives with a load-side encoder "
             "(PlantRealism.compliance.load_encoder_bits)"
         )
+    motor_step, load_step = encoder_steps(plant.realism)
     theta = kinematics.inverse(plant.geometry, np.asarray(spec.pose, dtype=float))
     samples_per_period = round(spec.period / CONTROL_PERIOD)
-    length = spec.periods * samples_per_period
-    reference = Trajectory(
-        dt=CONTROL_PERIOD,
-        xyz=np.tile(spec.pose, (length + 1, 1)),
-        xyz_dot=np.zeros((length + 1, 3)),
-        xyz_ddot=np.zeros((length + 1, 3)),
-        theta=np.tile(theta, (length + 1, 1)),
-        theta_dot=np.zeros((length + 1, 3)),
-        theta_ddot=np.zeros((length + 1, 3)),
-        gripper=np.zeros(length + 1, dtype=bool),
-        pick_indices=np.zeros(0, dtype=np.int64),
-        place_indices=np.zeros(0, dtype=np.int64),
-    )
+    substeps = round(CONTROL_PERIOD / plant.timestep)
     rng = np.random.default_rng(spec.seed)
     excitation = multisine_torques(rng, spec.rms, spec.period, spec.band)
     gravity = robot_model(plant).inverse_dynamics(theta, np.zeros(3), np.zeros(3))
-    env = DeltaPickPlaceEnv(plant=plant)
-    observation, _ = env.reset(seed=spec.seed, options={"reference": reference})
-    motor, load, torque, command = [], [], [], []
-    for step in range(length):
-        motor.append(observation["joint_angles"])
-        load.append(observation["load_angles"])
-        torque.append(observation["joint_torques"])
-        action = (
-            gravity
-            + HOLD_KP * (theta - observation["joint_angles"])
-            - HOLD_KD * observation["joint_velocities"]
-            + excitation[step % samples_per_period]
-        )
-        command.append(action)
-        observation, _, diverged, _, _ = env.step(action)
-        if diverged:
-            env.close()
+    simulated = DeltaPlant(plant)
+    simulated.reset(theta)
+
+    def read(values: tuple[float, float, float], step: float | None) -> NDArray[np.float64]:
+        angles = np.array(values)
+        return angles if step is None else np.round(angles / step) * step
+
+    rows = spec.periods * samples_per_period * substeps
+    motor, load, torque, command = (np.empty((rows, 3)) for _ in range(4))
+    previous = read(simulated.rotor_angle_values(), motor_step)
+    row = 0
+    for step in range(spec.periods * samples_per_period):
+        angle = read(simulated.rotor_angle_values(), motor_step)
+        rate, previous = (angle - previous) / CONTROL_PERIOD, angle
+        action = gravity + HOLD_KP * (theta - angle) - HOLD_KD * rate + excitation[step % samples_per_period]
+        for _ in range(substeps):
+            simulated.step(action, 1)
+            motor[row] = read(simulated.rotor_angle_values(), motor_step)
+            load[row] = read(simulated.joint_angle_values(), load_step)
+            torque[row] = simulated.data.actuator_force + rng.normal(0.0, plant.realism.torque_noise_std, 3)
+            command[row] = action
+            row += 1
+        if not simulated.loop_gap() <= DIVERGENCE_LOOP_GAP:
             raise RuntimeError(f"the plant diverged at step {step + 1} of compliance excitation seed {spec.seed}")
-    env.close()
-    motor_angles = np.array(motor)
-    return DriveLog(
-        motor_angles,
-        np.array(torque),
-        np.array(command[:-1]),
-        CONTROL_PERIOD,
-        motor_angles=motor_angles,
-        load_angles=np.array(load),
-    )
+    return DriveLog(motor, torque, command[:-1], plant.timestep, motor_angles=motor, load_angles=load)
 
 
 RESPONSE_BAND = (100.0, 450.0)
@@ -358,10 +355,12 @@ def mode_map_lines(modes: ModeMap) -> list[str]:
 COMPLIANCE_METHOD = (
     "per compliance excitation pose: a joint PD (kp {kp:g} N m/rad, kd {kd:g} N m s/rad) on the motor encoders plus "
     "MKH's gravity torque holds the pose, a random-phase multisine ({low:g} to {high:g} Hz, {rms:g} N m RMS per "
-    "drive, period {period:g} s) drives the rotors; after {settle} period(s), per joint least squares of the motor "
+    "drive, period {period:g} s) drives the rotors, the drive's trace recorded at the physics step; after {settle} "
+    "period(s), per joint least squares of the motor "
     "side's tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta - dead band) + c (phi_dot - "
-    "theta_dot) + b on the periods' mean, rates from the DFT (lines up to {top:g} Hz), torques {delay:g} s older "
-    "than their angles, the backlash searched; standard errors from the spread of the fits to single periods"
+    "theta_dot) + b on the periods' mean (the dead band and the friction's sign: the mean of each period's), rates "
+    "from the DFT (lines up to {top:g} Hz), torques {delay:g} s older than their angles, the backlash searched; "
+    "standard errors from the spread of the fits to single periods"
 )
 """How the compliance was identified (the provenance's ``compliance.method``)."""
 

@@ -286,6 +286,7 @@ def identify_logs(
     progress: bool = False,
     topics: BagTopics | None = None,
     compliance_paths: Sequence[str | os.PathLike[str]] = (),
+    compliance_period: float = CONTROL_PERIOD,
     torque_delay: float = MEASURED_TORQUE_DELAY,
 ) -> IdentificationRun:
     """Identify the robot of the robot file ``robot`` from its drive logs alone: the algorithms, fits and
@@ -301,8 +302,9 @@ def identify_logs(
         topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
             commands.
         compliance_paths: Logs of the compliance excitation (:mod:`eval.compliance`: the multisine at rest poses,
-            with ``load_angle`` columns, resampled onto the control period) to identify compliant drives on; none
-            for rigid drives.
+            with ``load_angle`` columns) to identify compliant drives on; none for rigid drives.
+        compliance_period: The sample period (s) those logs are resampled onto: a drive trace's own (the
+            simulated trace's is the physics step).
         torque_delay: Age of the compliance logs' torques against their angles (s): the drive's timing.
 
     Raises:
@@ -343,7 +345,7 @@ def identify_logs(
     )
     if not compliance_paths:
         return run
-    compliance_logs = tuple(read_log(path) for path in compliance_paths)
+    compliance_logs = tuple(read_log(path, compliance_period) for path in compliance_paths)
     fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
     provenance = {
         "method": "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance) "

@@ -97,6 +97,10 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
     lines = [
         f"{result.provenance['compliance']['method']}.",
         "",
+        "The motor's friction here leaves out its Stribeck excess and is biased by tens of per cent (the rigid fits "
+        "above are the friction the controllers use); the damping's torque is a few per cent of the spring's at the "
+        "mode, so it comes out within about 20 %; the stiffness and the backlash are what this fit is for.",
+        "",
         "| parameter | unit | joint 1 | joint 2 | joint 3 |" + (" ground truth | error (%) |" if true else ""),
         "|---|---|---|---|---|" + ("---|---|" if true else ""),
     ]

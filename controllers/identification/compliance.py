@@ -3,15 +3,18 @@ joint, from logs of a periodic excitation with the load-side angle (docs/design.
 
 Per joint the motor side's equation (section 4, "The two-mass model") is linear in its parameters,
 
-    tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta) + c (phi_dot - theta_dot) + b,
+    tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k dead(phi - theta) + c (phi_dot - theta_dot) + b,
 
-with every signal measured: the torque tau, the motor-side angle phi (the motor encoder) and the load-side angle
-theta (an encoder on the arm); b absorbs the constant torques (gravity, the gearhead's wind-up under it). It needs
+dead(d) = d - clip(d, -w/2, w/2) the deflection beyond the backlash w (searched: the fit is linear given w), with
+every signal measured: the torque tau, the motor-side angle phi (the motor encoder) and the load-side angle theta
+(an encoder on the arm); b absorbs the constant torques (gravity, the gearhead's wind-up under it). It needs
 nothing of the arm, so a rigid model that is wrong about the arm (on a compliant plant the rigid fit's rho1 is
 4.3) does not bias it. The excitation is periodic (:func:`delta_env.excitation.multisine_torques` on the drives,
 held at rest poses): a record of whole periods at steady state is its own periodic extension, so the rates and
 accelerations follow exactly from its DFT (i omega, -omega^2 per line) up to the modes at 200 to 300 Hz, where
-finite differences at 1 kHz would be 16 % off, and so does the torque's age (a phase e^{i omega d}).
+finite differences at 1 kHz would be 16 % off, and so does the torque's age (a phase e^{i omega d}). The fit is on the
+mean over the periods; a nonlinear column (the dead band, the friction's sign) is the mean of each period's, since a
+rattling backlash does not repeat from period to period.
 """
 
 from __future__ import annotations
@@ -130,15 +133,19 @@ class _PeriodSignals:
     torque: NDArray[np.float64]
 
     def band(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``values`` (P, 3) with only the fitted lines kept."""
-        return np.fft.irfft(np.fft.rfft(values, axis=0) * self.fitted[:, None], n=len(values), axis=0)
+        """``values`` (P, ...) with only the fitted lines kept."""
+        lines = np.fft.rfft(values, axis=0)
+        lines[~self.fitted] = 0.0
+        return np.fft.irfft(lines, n=len(values), axis=0)
 
-    def rows(self, backlash: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The rows with the spring's deflection beyond the dead band of width ``backlash`` (rad, per joint)."""
+    def rows(self, backlash: float, joint: int) -> NDArray[np.float64]:
+        """One joint's rows ``(P, 6)`` with the spring's deflection beyond the dead band of width ``backlash``
+        (rad)."""
+        deflections = self.deflections[..., joint]
         half = 0.5 * backlash
-        beyond = self.deflections - np.clip(self.deflections, -half, half)
-        rows = self.columns.copy()
-        rows[..., 3] = self.band(beyond.mean(axis=0))
+        beyond = deflections - np.clip(deflections, -half, half)
+        rows = self.columns[:, joint].copy()
+        rows[:, 3] = self.band(beyond.mean(axis=0))
         return rows
 
 
@@ -192,9 +199,10 @@ def _solve_joint(rows: NDArray[np.float64], torque: NDArray[np.float64], joint: 
     if np.any(required & ~seen):
         missing = [name for name, ok in zip(_REGRESSOR_NAMES, seen | ~required, strict=True) if not ok]
         raise ValueError(f"joint {joint + 1}: the logs do not excite {missing}")
+    scaled = rows[:, seen] / scale[seen]
     solution = np.zeros(len(scale))
-    solution[seen], *_ = np.linalg.lstsq(rows[:, seen] / scale[seen], torque, rcond=None)
-    solution[seen] /= scale[seen]
+    # the normal equations of the Jacobi-scaled columns (6 x 6): thousands of solves in the backlash search
+    solution[seen] = np.linalg.solve(scaled.T @ scaled, scaled.T @ torque) / scale[seen]
     return solution
 
 
@@ -210,8 +218,7 @@ def _fit_periods(signals: Sequence[_PeriodSignals]) -> tuple[NDArray[np.float64]
     estimate, residual = np.empty((3, 7)), np.empty_like(torque)
 
     def rows_at(backlash: float, joint: int) -> NDArray[np.float64]:
-        widths = np.full(3, backlash)
-        return np.concatenate([s.rows(widths)[:, joint] for s in signals])
+        return np.concatenate([s.rows(backlash, joint) for s in signals])
 
     def squares(backlash: float, joint: int) -> float:
         rows = rows_at(backlash, joint)
