@@ -157,6 +157,16 @@ class ResonanceNotch:
         return gain, -2.0 * gain * cosine, gain, -2.0 * gain * cosine, 2.0 * gain - 1.0
 
 
+def notch_sample(coefficients: tuple[float, float, float, float, float], state: list[float], value: float) -> float:
+    """One sample (N m) through a notch of :meth:`ResonanceNotch.coefficients`, its two delays ``state`` updated in
+    place: the biquad in transposed direct form II, y = b0 x + z1, z1' = b1 x - a1 y + z2, z2' = b2 x - a2 y."""
+    b0, b1, b2, a1, a2 = coefficients
+    filtered = b0 * value + state[0]
+    state[0] = b1 * value - a1 * filtered + state[1]
+    state[1] = b2 * value - a2 * filtered
+    return filtered
+
+
 def loop_delay(drive_lag: float, period: float = CONTROL_PERIOD) -> float:
     """The position loop's effective delay (s): the drive's lag, half a period of zero-order hold and half a period
     of the encoder's backward-difference rate."""
@@ -393,13 +403,7 @@ class JointServo:
             torque[joint] = value
         if self.notch is not None:
             for joint in range(3):
-                # the biquad in transposed direct form II: y = b0 x + z1, z1' = b1 x - a1 y + z2, z2' = b2 x - a2 y
-                b0, b1, b2, a1, a2 = self._notch_coefficients[joint]
-                state, value = self._notch_state[joint], torque[joint]
-                filtered = b0 * value + state[0]
-                state[0] = b1 * value - a1 * filtered + state[1]
-                state[1] = b2 * value - a2 * filtered
-                torque[joint] = filtered
+                torque[joint] = notch_sample(self._notch_coefficients[joint], self._notch_state[joint], torque[joint])
         return np.array(torque)
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:

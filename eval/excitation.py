@@ -16,8 +16,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Observation, PDController
+from controllers.compliance import joint_space_inertia
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import DriveLog
+from controllers.servo import ResonanceNotch, notch_sample
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import excitation_trajectory
@@ -128,33 +130,64 @@ class ExcitationRecord:
 
 
 class ReferenceFeedforward:
-    """PD plus a feedforward torque computed beforehand along the reference, one row per control step.
+    """PD plus a feedforward torque computed beforehand along the reference, one row per control step; on compliant
+    drives the PD's torque goes through a notch at each joint's drive mode, as commissioning sets a servo drive's
+    resonance filter once the mode is known (docs/design.md section 7).
 
     Args:
         feedforward: Torques (N m), ``(N, 3)``: row k is added at the k-th call after :meth:`reset`.
         pd: The feedback; ``PDController()`` when None.
+        notch: The notch's coefficients per control step and joint (:meth:`ResonanceNotch.coefficients`),
+            ``(N, 3, 5)``; None: no notch.
     """
 
     name = "MKH (precomputed)+PD"
 
-    def __init__(self, feedforward: NDArray[np.float64], pd: PDController | None = None) -> None:
+    def __init__(
+        self,
+        feedforward: NDArray[np.float64],
+        pd: PDController | None = None,
+        notch: NDArray[np.float64] | None = None,
+    ) -> None:
         self.feedforward = feedforward
         self.pd = PDController() if pd is None else pd
+        self.notch = notch
         self._step = 0
+        self._notch_state = [[0.0, 0.0] for _ in range(3)]
 
     def reset(self) -> None:
         self._step = 0
+        self._notch_state = [[0.0, 0.0] for _ in range(3)]
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        torque = self.feedforward[self._step] + self.pd(observation)
+        feedback = self.pd(observation)
+        if self.notch is not None:
+            coefficients = self.notch[min(self._step, len(self.notch) - 1)]
+            for joint in range(3):
+                feedback[joint] = notch_sample(tuple(coefficients[joint]), self._notch_state[joint], feedback[joint])
+        torque = self.feedforward[self._step] + feedback
         self._step += 1
         return torque
 
 
-def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> ExcitationRecord:
+def notch_along(notch: ResonanceNotch, model: DeltaDynamics, reference: Trajectory) -> NDArray[np.float64]:
+    """The coefficients of ``notch`` centred on each joint's drive mode along ``reference``, ``(N, 3, 5)``: the
+    joint's inertia, rotor included, is the diagonal of the model's joint-space inertia at the reference's angles
+    (:func:`controllers.compliance.joint_space_inertia`; the datasheet model, whose ``rho1`` is 1, holds no rotor)
+    plus the rotor's."""
+    inertia = np.array([np.diag(joint_space_inertia(model, theta)) for theta in reference.theta])
+    inertia += np.asarray(notch.rotor_inertia)
+    frequencies = np.array([notch.frequency(row) for row in inertia])
+    return np.array([[notch.coefficients(float(f)) for f in row] for row in frequencies])
+
+
+def run_excitation(
+    spec: ExcitationSpec, plant: PlantConfig | None = None, notch: ResonanceNotch | None = None
+) -> ExcitationRecord:
     """Run ``spec`` with PD + MKH feedforward on the plant; record encoder angles and measured torques.
 
-    The reference and the MKH model are those of the plant's geometry and built masses (its datasheet).
+    The reference and the MKH model are those of the plant's geometry and built masses (its datasheet). ``notch``:
+    a notch on the PD's torque at the drive modes of compliant drives (their identified compliance), None: none.
 
     Raises:
         RuntimeError: if the plant diverges.
@@ -164,8 +197,9 @@ def run_excitation(spec: ExcitationSpec, plant: PlantConfig | None = None) -> Ex
     # MKH feedforward along the reference, in one batch (the batched model is much faster than single samples).
     mkh = robot_model(plant)
     feedforward = mkh.inverse_dynamics(reference.theta, reference.theta_dot, reference.theta_ddot)
+    coefficients = None if notch is None else notch_along(notch, mkh, reference)
     env = DeltaPickPlaceEnv(plant=plant)
-    record = run_episode(env, ReferenceFeedforward(feedforward), spec.seed, reference=reference)
+    record = run_episode(env, ReferenceFeedforward(feedforward, notch=coefficients), spec.seed, reference=reference)
     env.close()
     if record.diverged:
         steps = len(record.tracking_error)

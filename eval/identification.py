@@ -57,6 +57,7 @@ from controllers.identification import (
     read_log,
 )
 from controllers.identification.bags import BagTopics, is_bag, read_bag
+from controllers.servo import ResonanceNotch
 from delta_env.config import PlantConfig
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import datasheet_identity, load_robot, plant_identity
@@ -95,10 +96,11 @@ def prepare_log(log: DriveLog) -> tuple[MotionData, NDArray[np.float64] | None]:
 
 
 def _collect_and_prepare(
-    spec: ExcitationSpec, plant: PlantConfig | None
+    spec: ExcitationSpec, plant: PlantConfig | None, notch: ResonanceNotch | None = None
 ) -> tuple[ExcitationRecord, MotionData, NDArray[np.float64] | None]:
-    """One excitation run, its smoothed samples and the drive lag (s, per joint) fitted to it."""
-    record = run_excitation(spec, plant)
+    """One excitation run (``notch``: on the PD at compliant drives' modes), its smoothed samples and the drive lag
+    (s, per joint) fitted to it."""
+    record = run_excitation(spec, plant, notch)
     return record, *prepare_log(record.log)
 
 
@@ -211,7 +213,13 @@ def run_identification(
     specs = [ExcitationSpec(seed=s, duration=duration, **place) for s in seeds]
     specs.append(dataclasses.replace(ExcitationSpec.stress(validation_seed, validation_duration), **place))
 
-    run = functools.partial(_collect_and_prepare, plant=plant)
+    # Compliant drives are identified first, at rest poses: the excitation's PD then notches their modes, as a servo
+    # drive's resonance filter is set before it moves the robot far and fast (docs/design.md section 7).
+    drives = _drive_compliance(plant, seed)
+    notch = (
+        None if drives is None else ResonanceNotch(drives[0].compliance.rotor_inertia, drives[0].compliance.stiffness)
+    )
+    run = functools.partial(_collect_and_prepare, plant=plant, notch=notch)
     with progress_bar(len(specs), "excitation runs", "run", disable=not progress) as bar:
         runs = run_jobs(run, specs, workers=workers, progress=bar)
     source = {
@@ -221,6 +229,8 @@ def run_identification(
         "plant": _plant_summary(plant),
     }
     controller = {"kp": PDController().kp, "kd": PDController().kd, "feedforward": "MKH of the robot"}
+    if notch is not None:
+        controller["notch"] = {"quality": notch.quality, "centre": "each joint's identified drive mode"}
     run = _identify(
         [(motion, lag) for _, motion, lag in runs],
         [record.log for record, _, _ in runs],
@@ -233,14 +243,22 @@ def run_identification(
         started=start,
         max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
     )
-    compliance = plant.realism.compliance
-    if compliance is None:
+    if drives is not None:
+        return _with_compliance(run, *drives)
+    if plant.realism.compliance is None:
         return run
-    if compliance.load_encoder_bits is None:
-        logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
-        provenance = {**run.result.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
-        return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
-    return _with_compliance(run, *identify_compliance(plant, seed))
+    logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
+    provenance = {**run.result.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
+    return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
+
+
+def _drive_compliance(plant: PlantConfig, seed: int) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict] | None:
+    """The compliance fit of :func:`eval.compliance.identify_compliance` for a plant whose compliant drives carry a
+    load-side encoder, else None (rigid drives, or no encoder to identify them with)."""
+    compliance = plant.realism.compliance
+    if compliance is None or compliance.load_encoder_bits is None:
+        return None
+    return identify_compliance(plant, seed)
 
 
 NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"

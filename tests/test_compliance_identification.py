@@ -22,6 +22,7 @@ from controllers.identification import (
     write_log,
 )
 from controllers.identification.compliance import fit_compliance
+from controllers.servo import ResonanceNotch
 from delta_env import kinematics
 from delta_env.config import ARCMIN, RATED_PAYLOAD, PlantConfig
 from delta_env.excitation import multisine_torques
@@ -34,6 +35,7 @@ from eval.compliance import (
     measure_first_mode,
     run_compliance_excitation,
 )
+from eval.excitation import ExcitationSpec, run_excitation
 from eval.identification import NO_LOAD_ENCODER, identify_logs, run_identification
 from eval.identification_report import ground_truth, render_report, save_validation_data
 
@@ -198,13 +200,15 @@ def test_a_compliant_plants_identification_reports_its_drives_and_mode_map(tmp_p
 
 
 def test_without_a_load_encoder_the_report_maps_the_data_sheets_drives(tmp_path) -> None:
-    """The `compliant` preset has motor encoders only: its drives are not identified (the provenance says why) and the
+    """Compliant drives read by motor encoders only: their drives are not identified (the provenance says why) and the
     report maps the first mode of the data sheet's drives (about 8 s)."""
-    run = run_identification(1, duration=1.5, validation_duration=1.5, plant=COMPLIANT, workers=1, progress=False)
+    motor_only = replace(COMPLIANT.realism.compliance, load_encoder_bits=None)
+    plant = replace(COMPLIANT, realism=replace(COMPLIANT.realism, compliance=motor_only))
+    run = run_identification(1, duration=1.5, validation_duration=1.5, plant=plant, workers=1, progress=False)
     assert run.result.compliance is None and run.compliance_logs == ()
     assert run.result.provenance["compliance"]["method"] == NO_LOAD_ENCODER
     save_validation_data(run, tmp_path / "validation.npz")
-    report = render_report(run, tmp_path / "validation.npz", "test", [], ground_truth(COMPLIANT))
+    report = render_report(run, tmp_path / "validation.npz", "test", [], ground_truth(plant))
     section = report[report.index("## Compliant drives") : report.index("## Run time")]
     assert "Not identified" in section and "the data sheet's drives" in section
     assert section.count("\n| -") == len(MAP_HEIGHTS) * len(MAP_RADII)
@@ -226,3 +230,20 @@ def test_compliant_drives_are_identified_from_log_files(known_plant_logs, tmp_pa
     expected = fit_compliance(logs, torque_delay=plant.timestep).compliance
     np.testing.assert_allclose(from_files.result.compliance.stiffness, expected.stiffness, rtol=1e-12)
     assert len(from_files.result.provenance["compliance"]["logs"]) == len(paths)
+
+
+def test_the_excitation_notches_the_drive_mode_it_would_otherwise_ring_at() -> None:
+    """The rigid excitation's PD on compliant drives: without a notch the loop rings at the drive mode (the
+    angles' second difference 100x the rigid plant's); with the notch at the identified mode (here the data sheet's
+    compliance, the known truth) it moves as smoothly as on rigid drives, so the rigid model's fit sees the motion."""
+    spec = ExcitationSpec(seed=1, duration=1.5)
+    rigid = run_excitation(spec, preset("nominal").plant)
+    compliance = DriveCompliance.of_gearhead(COMPLIANT.realism.compliance)
+    notched = run_excitation(spec, COMPLIANT, ResonanceNotch(compliance.rotor_inertia, compliance.stiffness))
+    ringing = run_excitation(spec, COMPLIANT)
+
+    def roughness(record) -> np.ndarray:
+        return np.sqrt(np.mean(np.diff(record.angles, 2, axis=0) ** 2, axis=0))
+
+    assert np.all(roughness(notched) < 1.5 * roughness(rigid))
+    assert np.all(roughness(ringing) > 20.0 * roughness(rigid))
