@@ -54,7 +54,8 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
+from dataclasses import fields as fields_of
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +79,7 @@ from controllers.residual import (
 )
 from controllers.residual.env import action_rate_penalty
 from controllers.residual.features import PREVIOUS_ACTION
+from delta_env.scenario import Scenario
 from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
 from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
 from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
@@ -250,84 +252,156 @@ class TqdmProgress(BaseCallback):
         self.bar.close()
 
 
-def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[BaseCallback]:
-    n_envs = args.n_envs
+def _callbacks(config: TrainingConfig, out: Path, eval_env: VecEnv) -> list[BaseCallback]:
+    n_envs = config.n_envs
     callbacks: list[BaseCallback] = [
         LatestReplayCheckpoint(
-            save_freq=max(args.checkpoint_freq // n_envs, 1),
+            save_freq=max(config.checkpoint_freq // n_envs, 1),
             save_path=str(out / "checkpoints"),
             name_prefix=CHECKPOINT_PREFIX,
-            save_replay_buffer=issubclass(algorithm_class(args.algo), OffPolicyAlgorithm),
+            save_replay_buffer=issubclass(algorithm_class(config.algo), OffPolicyAlgorithm),
         ),
         HeldOutEvalCallback(
             eval_env,
             n_eval_episodes=len(VALIDATION_SEEDS),
-            eval_freq=max(args.eval_freq // n_envs, 1),
+            eval_freq=max(config.eval_freq // n_envs, 1),
             log_path=str(out),
             best_model_save_path=str(out / "best_model"),
             deterministic=True,
-            verbose=int(args.verbose),
+            verbose=int(config.verbose),
             curve=out / LEARNING_CURVE_FILE,
         ),
     ]
-    if args.max_minutes is not None:
-        callbacks.append(WallTimeLimit(args.max_minutes))
-    if args.progress and not HAS_RICH:
+    if config.max_minutes is not None:
+        callbacks.append(WallTimeLimit(config.max_minutes))
+    if config.progress and not HAS_RICH:
         callbacks.append(TqdmProgress())
     return callbacks
 
 
-def recorded_arguments(args: argparse.Namespace) -> dict[str, Any]:
-    """The command line's arguments for the run's record, the scenarios by name."""
-    return {**vars(args), "scenario": args.scenario.name, "mixture": [scenario.name for scenario in args.mixture]}
+RESIDUAL_OPTIONS = (
+    "residual_limit",
+    "action_period",
+    "reward_scale",
+    "torque_weight",
+    "action_rate_weight",
+    "off_at_rest",
+    "fade_speed",
+    "plant_torque_weight",
+)
+"""The command line's options that set the :class:`ResidualConfig` of a training (its field names)."""
 
 
-def residual_config(args: argparse.Namespace) -> ResidualConfig:
-    """The residual settings of the command line."""
-    return ResidualConfig(
-        residual_limit=args.residual_limit,
-        action_period=args.action_period,
-        reward_scale=args.reward_scale,
-        torque_weight=args.torque_weight,
-        action_rate_weight=args.action_rate_weight,
-        off_at_rest=args.off_at_rest,
-        fade_speed=args.fade_speed,
-        plant_torque_weight=args.plant_torque_weight,
-    )
+@dataclass(frozen=True)
+class TrainingConfig:
+    """The resolved configuration of ``python -m eval.train_residual`` (a training, or with ``score_only`` the
+    scores of a policy file), recorded as it is in the run's manifest (:meth:`manifest`); the options are described
+    by ``--help``.
+
+    Attributes:
+        algo: The SB3 algorithm (:data:`~controllers.residual.ALGORITHMS`).
+        seed: Seed of the model and of the training episodes.
+        timesteps: Total policy steps.
+        n_envs: Parallel training envs.
+        out: ``--out``, or None.
+        force: Write into an existing, non-empty ``out``.
+        runs_dir: ``--runs-dir``, or None.
+        resume: The checkpoint to continue from, or None.
+        max_minutes: Wall-time budget of the training (min), or None.
+        checkpoint_freq: Policy steps between checkpoints.
+        eval_freq: Policy steps between held-out evaluations.
+        scenario: The training episodes' scenario (on ``geometry``'s robot, released as ``release`` says).
+        geometry: The geometry file of ``--geometry``, or None.
+        release: ``--release``, or None.
+        base: The base controller's key (:data:`~eval.residual_envs.BASE_KEYS`).
+        servo: The base's feedback (:data:`controllers.setup.SERVOS`).
+        cycles: Pick-and-place cycles per episode of ``scenario``.
+        mix: ``--mix``: the mixed scenarios as given.
+        residual: The residual's settings (:data:`RESIDUAL_OPTIONS`).
+        hyperparams: ``--hyperparams`` overrides, ``key:value``.
+        tensorboard: TensorBoard log folder, or None.
+        torch_threads: Threads of torch's CPU operations.
+        progress: Show progress bars.
+        score: Score the policy on the test seeds after training.
+        verbose: Print SB3's logs.
+        score_only: The policy file to score instead of training, or None.
+        mixture: The scenarios of ``mix``.
+        mixture_cycles: Cycles per episode of each of ``mixture``.
+    """
+
+    algo: str
+    seed: int
+    timesteps: int
+    n_envs: int
+    out: Path | None
+    force: bool
+    runs_dir: Path | None
+    resume: Path | None
+    max_minutes: float | None
+    checkpoint_freq: int
+    eval_freq: int
+    scenario: Scenario
+    geometry: str | None
+    release: str | None
+    base: str
+    servo: str
+    cycles: int
+    mix: tuple[str, ...]
+    residual: ResidualConfig
+    hyperparams: tuple[str, ...]
+    tensorboard: Path | None
+    torch_threads: int
+    progress: bool
+    score: bool
+    verbose: bool
+    score_only: Path | None
+    mixture: tuple[Scenario, ...]
+    mixture_cycles: tuple[int, ...]
+
+    def manifest(self) -> dict[str, Any]:
+        """The configuration as the manifest records it: every field, the scenarios by name (their files are
+        beside), the residual's settings as a table."""
+        fields = {field.name: getattr(self, field.name) for field in fields_of(self)}
+        return {
+            **fields,
+            "scenario": self.scenario.name,
+            "mixture": [scenario.name for scenario in self.mixture],
+            "residual": asdict(self.residual),
+        }
 
 
 def train(
-    args: argparse.Namespace,
+    config: TrainingConfig,
     base_factory: Callable[[], Controller] | None = None,
     *,
     base: PolicyBase | None = None,
     callbacks: Sequence[BaseCallback] = (),
 ) -> Path:
-    """Train per ``args`` (see :func:`parse_args`); returns the run folder.
+    """Train per ``config`` (see :func:`parse_args`); returns the run folder.
 
     Args:
-        args: Parsed command-line arguments.
-        base_factory: Builds the base controller instead of the one of ``args.base`` (tests).
-        base: The setup of ``args.base`` already identified and calibrated (:func:`base_setup`), so that
+        config: The resolved configuration.
+        base_factory: Builds the base controller instead of the one of ``config.base`` (tests).
+        base: The setup of ``config.base`` already identified and calibrated (:func:`base_setup`), so that
             several runs share one; None makes it.
         callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
     """
-    torch.set_num_threads(args.torch_threads)
+    torch.set_num_threads(config.torch_threads)
     with command_run_folder(
         "residual",
         "eval.train_residual",
         None,
-        args,
-        {"arguments": recorded_arguments(args)},
-        scenarios=[args.scenario, *args.mixture],
+        config,
+        {"arguments": config.manifest()},
+        scenarios=[config.scenario, *config.mixture],
     ) as run:
-        summary = _train(args, run, base_factory, base, callbacks)
+        summary = _train(config, run, base_factory, base, callbacks)
     print(f"{summary}\nRun folder: {run.folder}")
     return run.folder
 
 
 def _train(
-    args: argparse.Namespace,
+    config: TrainingConfig,
     run: Run,
     base_factory: Callable[[], Controller] | None,
     base: PolicyBase | None,
@@ -335,24 +409,24 @@ def _train(
 ) -> str:
     """The training of :func:`train` into ``run``'s folder; returns its summary: what was trained, and the scores."""
     out = run.folder
-    config = residual_config(args)
-    env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
+    residual = config.residual
+    env_kwargs = {"n_cycles": config.cycles, "scenario": config.scenario}
     mixture = [
         {"n_cycles": cycles, "scenario": scenario}
-        for cycles, scenario in zip(args.mixture_cycles, args.mixture, strict=True)
+        for cycles, scenario in zip(config.mixture_cycles, config.mixture, strict=True)
     ]
     if base is None and base_factory is None:
-        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir, servo=args.servo)
-    hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
+        base = base_setup(env_kwargs, base=config.base, runs_dir=config.runs_dir, servo=config.servo)
+    hyperparameters = override_hyperparameters(load_hyperparameters(config.algo), config.hyperparams, config.algo)
 
     command = run.manifest["command"]
     resolved = {
-        "arguments": recorded_arguments(args),
+        "arguments": config.manifest(),
         "hyperparameter_file": HYPERPARAMETER_FILE.name,
-        "residual_config": asdict(config),
-        "env_kwargs": {**env_kwargs, "scenario": args.scenario.name},
+        "residual_config": asdict(residual),
+        "env_kwargs": {**env_kwargs, "scenario": config.scenario.name},
         "mixture": [{**kwargs, "scenario": kwargs["scenario"].name} for kwargs in mixture],
-        "scenario": {"name": args.scenario.name, "file": "scenario.toml", "robot": args.scenario.robot_identity},
+        "scenario": {"name": config.scenario.name, "file": "scenario.toml", "robot": config.scenario.robot_identity},
         "hyperparameters": hyperparameters,
         "base_controller": "custom (base_factory)" if base is None else base.to_table(),
         "seeds": {
@@ -365,24 +439,24 @@ def _train(
     }
     run.record(config=resolved)
 
-    set_random_seed(args.seed)
+    set_random_seed(config.seed)
     factories = [
         make_env(
-            config=config,
+            config=residual,
             env_kwargs=env_kwargs,
             base=base,
-            seed=args.seed,
+            seed=config.seed,
             rank=rank,
             base_factory=base_factory,
             mixture=mixture,
         )
-        for rank in range(args.n_envs)
+        for rank in range(config.n_envs)
     ]
-    vec_env = SubprocVecEnv(factories) if args.n_envs > 1 else DummyVecEnv(factories)
+    vec_env = SubprocVecEnv(factories) if config.n_envs > 1 else DummyVecEnv(factories)
     eval_env = DummyVecEnv(
         [
             make_env(
-                config=config,
+                config=residual,
                 env_kwargs=env_kwargs,
                 base=base,
                 seeds=VALIDATION_SEEDS,
@@ -391,26 +465,26 @@ def _train(
             )
         ]
     )
-    algorithm = algorithm_class(args.algo)
-    formats = ["stdout", "csv"] if args.verbose else ["csv"]
-    if args.resume is not None:
-        mismatch = resume_mismatch(args.resume, args.scenario.name, args.base)
+    algorithm = algorithm_class(config.algo)
+    formats = ["stdout", "csv"] if config.verbose else ["csv"]
+    if config.resume is not None:
+        mismatch = resume_mismatch(config.resume, config.scenario.name, config.base)
         if mismatch is not None:
             warnings.warn(f"{mismatch}; training goes on with the new one", stacklevel=1)
         # The --hyperparams given apply to the resumed model, except its networks, which the checkpoint fixes.
-        overrides = override_hyperparameters({}, args.hyperparams, args.algo)
+        overrides = override_hyperparameters({}, config.hyperparams, config.algo)
         policy_kwargs = overrides.pop("policy_kwargs", {})
-        model = algorithm.load(args.resume, env=vec_env, device="cpu", **overrides)
+        model = algorithm.load(config.resume, env=vec_env, device="cpu", **overrides)
         changed = {key: value for key, value in policy_kwargs.items() if model.policy_kwargs.get(key) != value}
         if changed:
             raise ValueError(
-                f"--hyperparams policy_kwargs {changed}: the checkpoint {args.resume} has {model.policy_kwargs}"
+                f"--hyperparams policy_kwargs {changed}: the checkpoint {config.resume} has {model.policy_kwargs}"
             )
         off_policy = isinstance(model, OffPolicyAlgorithm)
-        replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
-        reward = reward_change(args.resume, config)
-        trained = trained_config(args.resume)
-        relabel = reward is not None and trained is not None and relabelable(trained, config)
+        replay = config.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
+        reward = reward_change(config.resume, residual)
+        trained = trained_config(config.resume)
+        relabel = reward is not None and trained is not None and relabelable(trained, residual)
         if off_policy and reward is not None and not (relabel and replay.is_file()):
             # its transitions carry the old reward: the critic would learn from two rewards at once
             warnings.warn(f"{reward}: resuming with an empty replay buffer", stacklevel=1)
@@ -418,13 +492,13 @@ def _train(
         elif off_policy and replay.is_file():
             model.load_replay_buffer(replay)
             if relabel:
-                relabel_action_rate(model.replay_buffer, trained, config)
+                relabel_action_rate(model.replay_buffer, trained, residual)
         elif off_policy:
             # Only the newest replay buffer is kept: an older checkpoint restarts with an empty one.
             warnings.warn(f"no replay buffer at {replay}: resuming with an empty one", stacklevel=1)
             replay = None
         resolved["resumed_from"] = {
-            "checkpoint": str(args.resume),
+            "checkpoint": str(config.resume),
             "setting_changed": mismatch,
             "num_timesteps": model.num_timesteps,
             "replay_buffer": replay if off_policy else None,
@@ -433,48 +507,48 @@ def _train(
         }
         run.record(config=resolved)
     else:
-        model = algorithm("MlpPolicy", vec_env, seed=args.seed, device="cpu", verbose=0, **hyperparameters)
+        model = algorithm("MlpPolicy", vec_env, seed=config.seed, device="cpu", verbose=0, **hyperparameters)
     logger = configure(str(out), formats)
-    if args.tensorboard is not None:
+    if config.tensorboard is not None:
         # One event folder per run under DIR, for `tensorboard --logdir DIR`.
-        logger.output_formats.append(make_output_format("tensorboard", str(args.tensorboard / out.name)))
+        logger.output_formats.append(make_output_format("tensorboard", str(config.tensorboard / out.name)))
     model.set_logger(logger)
 
-    all_callbacks = [*_callbacks(args, out, eval_env), *callbacks]
+    all_callbacks = [*_callbacks(config, out, eval_env), *callbacks]
     # SubprocVecEnv for training, DummyVecEnv for the held-out episodes: intended, not worth a warning.
     warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
-    remaining = max(args.timesteps - model.num_timesteps, 0)
+    remaining = max(config.timesteps - model.num_timesteps, 0)
     start = time.monotonic()
     model.learn(
         total_timesteps=remaining,
         callback=all_callbacks,
-        reset_num_timesteps=args.resume is None,
-        progress_bar=args.progress and HAS_RICH,
+        reset_num_timesteps=config.resume is None,
+        progress_bar=config.progress and HAS_RICH,
     )
     wall_time = time.monotonic() - start
-    notes = {"command": command, "seed": args.seed, "timesteps": model.num_timesteps}
+    notes = {"command": command, "seed": config.seed, "timesteps": model.num_timesteps}
     notes["wall_time_s"] = round(wall_time, 1)
-    save_residual_policy(model, out / "final_policy.zip", config, args.algo, base=base, extra=notes)
+    save_residual_policy(model, out / "final_policy.zip", residual, config.algo, base=base, extra=notes)
     best = out / "best_model" / "best_model.zip"
     if best.is_file():
         best_model = algorithm.load(best, device="cpu")
-        save_residual_policy(best_model, out / "best_policy.zip", config, args.algo, base=base, extra=notes)
+        save_residual_policy(best_model, out / "best_policy.zip", residual, config.algo, base=base, extra=notes)
     vec_env.close()
     eval_env.close()
     learning_curve_figure(out)
     run.record(training={"wall_time_s": round(wall_time, 1), "num_timesteps": model.num_timesteps})
     policies = "final_policy.zip" + (" and best_policy.zip" if best.is_file() else "")
     lines = [
-        f"Trained {args.algo.upper()} on {args.scenario.name} for {model.num_timesteps:,} steps in "
+        f"Trained {config.algo.upper()} on {config.scenario.name} for {model.num_timesteps:,} steps in "
         f"{f'{wall_time:.0f} s' if wall_time < 120 else f'{wall_time / 60:.1f} min'}: {policies}."
     ]
-    if args.score and base is None:
+    if config.score and base is None:
         lines.append(
             "No scores: the policy was trained on a custom base (base_factory), which its file does not record."
         )
-    elif args.score:
+    elif config.score:
         policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
-        with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
+        with progress_bar(desc="test episodes", unit="episode", disable=not config.progress) as bar:
             scores = score_policy(policy, env_kwargs, progress=bar)
         write_json(out / "scores.json", scores)
         lines.append(score_summary(scores))
@@ -506,7 +580,8 @@ def score_summary(scores: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     summary, _, details = __doc__.partition("\n\n")
     parser = CommandParser(
         prog="python -m eval.train_residual",
@@ -616,64 +691,83 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar="POLICY",
         help="no training: score this policy zip on the test seeds",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> TrainingConfig:
+    """The configuration of the parsed command line ``arguments`` (left as they are): the scenarios, their cycles
+    and the residual's settings resolved; a bad value is a parser error."""
     counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
-    check_ranges(parser, args, {**counts, "torch_threads": 1}, ("max_minutes",))
-    scenario = scenario_from_arguments(args, parser)
-    mixture = [scenario_from_arguments(resolved_arguments(args, scenario=name), parser) for name in args.mix]
+    check_ranges(parser, arguments, {**counts, "torch_threads": 1}, ("max_minutes",))
+    scenario = scenario_from_arguments(arguments, parser)
+    mixture = tuple(
+        scenario_from_arguments(resolved_arguments(arguments, scenario=name), parser) for name in arguments.mix
+    )
     for mixed in mixture:
         if mixed.robot_identity != scenario.robot_identity:
             parser.error(f"--mix {mixed.name}: not the robot of --scenario {scenario.name}, whose base it uses")
-    args = resolved_arguments(
-        args,
-        scenario=scenario,
-        cycles=scenario.task.n_cycles if args.cycles is None else args.cycles,
-        mixture=mixture,
-        mixture_cycles=[args.cycles or mixed.task.n_cycles for mixed in mixture],
-    )
-    if args.tensorboard is not None and not HAS_TENSORBOARD:
+    if arguments.tensorboard is not None and not HAS_TENSORBOARD:
         parser.error("--tensorboard needs the tensorboard package (pip install tensorboard)")
     try:
-        residual_config(args)
+        residual = ResidualConfig(**{name: getattr(arguments, name) for name in RESIDUAL_OPTIONS})
     except ValueError as error:
-        flags = (
-            "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed, "
-            "--plant-torque-weight"
-        )
+        flags = ", ".join("--" + name.replace("_", "-") for name in RESIDUAL_OPTIONS if name != "off_at_rest")
         parser.error(f"{flags}: {error}")
     try:
-        override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
+        override_hyperparameters(load_hyperparameters(arguments.algo), arguments.hyperparams, arguments.algo)
     except (ValueError, ImportError) as error:
         parser.error(str(error))
-    if args.score_only is not None and args.mix:
+    if arguments.score_only is not None and arguments.mix:
         parser.error("--mix is for training: --score-only scores the episodes of --scenario")
-    if args.score_only is not None:
+    if arguments.score_only is not None:
         try:
-            base = read_policy_settings(args.score_only).base
+            base = read_policy_settings(arguments.score_only).base
         except (FileNotFoundError, ValueError) as error:
-            parser.error(f"--score-only {args.score_only}: {error}")
+            parser.error(f"--score-only {arguments.score_only}: {error}")
         if base is None:
-            parser.error(f"--score-only {args.score_only}: trained on a custom base, which the file does not record")
+            parser.error(
+                f"--score-only {arguments.score_only}: trained on a custom base, which the file does not record"
+            )
+    given = {name: value for name, value in vars(arguments).items() if name not in RESIDUAL_OPTIONS}
+    return TrainingConfig(
+        **{
+            **given,
+            "scenario": scenario,
+            "cycles": scenario.task.n_cycles if arguments.cycles is None else arguments.cycles,
+            "mix": tuple(arguments.mix),
+            "residual": residual,
+            "hyperparams": tuple(arguments.hyperparams),
+            "mixture": mixture,
+            "mixture_cycles": tuple(arguments.cycles or mixed.task.n_cycles for mixed in mixture),
+        }
+    )
 
-    return args
+
+def parse_args(argv: Sequence[str] | None = None) -> TrainingConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 @command_main("python -m eval.train_residual")
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    if args.score_only is None:
-        train(args)
+    config = parse_args(argv)
+    if config.score_only is None:
+        train(config)
         return 0
     with command_run_folder(
         "residual_scores",
         "eval.train_residual",
         argv,
-        args,
-        {"arguments": recorded_arguments(args)},
-        scenarios=[args.scenario],
+        config,
+        {"arguments": config.manifest()},
+        scenarios=[config.scenario],
     ) as run:
-        with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
-            scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario}, progress=bar)
+        with progress_bar(desc="test episodes", unit="episode", disable=not config.progress) as bar:
+            scores = score_policy(
+                config.score_only, {"n_cycles": config.cycles, "scenario": config.scenario}, progress=bar
+            )
         write_json(run.folder / "scores.json", scores)
     print(f"{score_summary(scores)}\nRun folder: {run.folder}")
     return 0

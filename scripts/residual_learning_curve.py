@@ -50,7 +50,7 @@ from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line
 from eval.scenario_args import check_ranges
 from eval.scoring import pooled_scores
 from eval.tasks import timed
-from eval.train_residual import parse_args, residual_config, train
+from eval.train_residual import parse_args, train
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     "old": ("sac", ("train_freq:2", "gradient_steps:1", "learning_rate:3e-4"), ("--residual-limit", "40")),
@@ -334,7 +334,7 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
         recipe=recipe,
         seed=seed,
         base=base,
-        config=residual_config(train_arguments),
+        config=train_arguments.residual,
         env_kwargs=env_kwargs,
         base_scores=base_scores,
         curve_path=out / "curve.csv",
