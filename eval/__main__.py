@@ -112,9 +112,8 @@ from eval.tables import (
 )
 
 
-def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
-    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
-    error."""
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     width = max(map(len, CONTROLLER_LABELS))
     rows = "\n".join(f"  {key:<{width}}  {label}" for key, label in CONTROLLER_LABELS.items())
     parser = CommandParser(
@@ -154,7 +153,11 @@ def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
         action="store_true",
         help="also film the first episode of each row into the run folder (video_<key>.mp4; MUJOCO_GL=egl headless)",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ComparisonConfig:
+    """The configuration of the parsed command line ``args`` (left as they are); a bad value is a parser error."""
     try:
         controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
@@ -174,6 +177,13 @@ def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
         }
     )
     return _with_policy_base(parser, config, chosen=args.controllers is not None)
+
+
+def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 def _with_policy_base(parser: argparse.ArgumentParser, config: ComparisonConfig, *, chosen: bool) -> ComparisonConfig:

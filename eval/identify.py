@@ -31,7 +31,7 @@ import dataclasses
 import logging
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -278,7 +278,9 @@ def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> I
         parser.error(f"{names} say what to read from ROS 2 bags; no --log file is a bag (.mcap, .db3 or a folder)")
     if arguments.log is not None:
         _check_log_arguments(arguments, parser)
-        return IdentifyConfig(**{**vars(arguments), "log": tuple(arguments.log), "robot_identity": None})
+        return IdentifyConfig(
+            **{**vars(arguments), "scenario": None, "log": tuple(arguments.log), "robot_identity": None}
+        )
     if arguments.quick:
         if arguments.parameters is not None:
             parser.error("--quick writes its rough parameters to the run folder only; drop --parameters")
@@ -320,7 +322,7 @@ def _check_log_arguments(arguments: argparse.Namespace, parser: argparse.Argumen
         parser.error(f"--log needs at least 2 files (the last one is held out), got {len(arguments.log)}")
 
 
-def parse_arguments(argv: list[str] | None = None) -> IdentifyConfig:
+def parse_args(argv: Sequence[str] | None = None) -> IdentifyConfig:
     """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
     error."""
     parser = argument_parser()
@@ -350,8 +352,8 @@ def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMass
 
 
 @command_main("python -m eval.identify")
-def main(argv: list[str] | None = None) -> int:
-    config = parse_arguments(argv)
+def main(argv: Sequence[str] | None = None) -> int:
+    config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     if config.quick:
         print(
@@ -393,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def identify_into(config: IdentifyConfig, run_dir: Run, run: IdentificationRun | None) -> None:
-    """Identify the robot of ``config`` (:func:`parse_arguments`), or take ``run``, its identification from logs,
+    """Identify the robot of ``config`` (:func:`parse_args`), or take ``run``, its identification from logs,
     and write the parameters, the validation data, the figures and the report into the run folder, the method into
     its manifest; print the report."""
     folder = run_dir.folder

@@ -206,9 +206,8 @@ class RateConfig:
         return {**fields, "scenario": self.scenario.name}
 
 
-def parse_args(argv: Sequence[str] | None) -> RateConfig:
-    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
-    error."""
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     parser = CommandParser(
         prog="python -m eval.rate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -269,7 +268,11 @@ def parse_args(argv: Sequence[str] | None) -> RateConfig:
     add_servo_argument(parser)
     add_workers_argument(parser, f"processes (default {FULL_STUDY.workers}; {QUICK_STUDY.workers} with --quick)")
     parser.set_defaults(workers=None)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RateConfig:
+    """The configuration of the parsed command line ``args`` (left as they are); a bad value is a parser error."""
     size = QUICK_STUDY if args.quick else FULL_STUDY
     episodes = size.episodes if args.episodes is None else args.episodes
     cycles = size.cycles if args.cycles is None else args.cycles
@@ -312,6 +315,13 @@ def parse_args(argv: Sequence[str] | None) -> RateConfig:
             "fastest": size.fastest and not args.no_fastest,
         }
     )
+
+
+def parse_args(argv: Sequence[str] | None) -> RateConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 def _kilograms(payloads: Sequence[float]) -> str:

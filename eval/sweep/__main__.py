@@ -41,6 +41,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from controllers.residual import DEFAULT_POLICY_PATH
@@ -52,7 +53,6 @@ from eval.parameter_files import identification_root, parameter_path
 from eval.run_folder import (
     Run,
     add_runs_dir_argument,
-    command_line,
     command_run_folder,
     runs_root,
     write_csv,
@@ -110,15 +110,20 @@ class SweepConfig:
     servo: str
     geometry: str | None
 
+    def manifest(self) -> dict[str, Any]:
+        """The configuration as the manifest records it: every field, the scenarios by name (their files are
+        ``scenarios/<name>.toml`` beside)."""
+        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        return {**fields, "scenarios": [scenario.name for scenario in self.scenarios]}
+
     @property
     def seeds(self) -> list[int]:
         """The episodes' seeds: ``seed`` to ``seed + episodes - 1``."""
         return list(range(self.seed, self.seed + self.episodes))
 
 
-def parse_args(argv: Sequence[str] | None) -> SweepConfig:
-    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
-    error."""
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     parser = CommandParser(
         prog="python -m eval.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -145,7 +150,11 @@ def parse_args(argv: Sequence[str] | None) -> SweepConfig:
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
     add_servo_argument(parser)
     add_geometry_argument(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> SweepConfig:
+    """The configuration of the parsed command line ``args`` (left as they are); a bad value is a parser error."""
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     check_episode_seeds(parser, args)
     try:
@@ -181,6 +190,13 @@ def parse_args(argv: Sequence[str] | None) -> SweepConfig:
     return config
 
 
+def parse_args(argv: Sequence[str] | None) -> SweepConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
+
+
 def _require_ray(parser: argparse.ArgumentParser) -> None:
     """A parser error naming the extra to install when Ray is missing."""
     try:
@@ -192,7 +208,6 @@ def _require_ray(parser: argparse.ArgumentParser) -> None:
 @command_main("python -m eval.sweep")
 def main(argv: Sequence[str] | None = None) -> int:
     config = parse_args(argv)
-    command = command_line("eval.sweep", argv)
     grid = {"scenarios": [s.name for s in config.scenarios], "controllers": config.controllers, "seeds": config.seeds}
     backend = {"name": config.backend, "address": config.address, "workers": config.workers}
     with command_run_folder(
@@ -200,20 +215,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "eval.sweep",
         argv,
         config,
-        {"grid": grid, "backend": backend},
+        {"arguments": config.manifest(), "grid": grid, "backend": backend},
         scenarios=config.scenarios,
         reuse=True,  # a sweep resumes in its folder
     ) as run:
-        sweep(config, run, command)
+        sweep(config, run)
     return 0
 
 
-def sweep(config: SweepConfig, run: Run, command: str) -> None:
+def sweep(config: SweepConfig, run: Run) -> None:
     """Run the sweep of ``config`` (:func:`parse_args`) into ``run``'s folder, the rows already there skipped unless
     ``--force``; write the summary and print it."""
     out = run.folder
     with (out / "commands.log").open("a") as log:
-        log.write(command + "\n")
+        log.write(run.manifest["command"] + "\n")
     setups = {
         s.content_hash: prepare(
             s,
@@ -231,6 +246,7 @@ def sweep(config: SweepConfig, run: Run, command: str) -> None:
     }
     units = [WorkUnit(s, key, seed) for s in config.scenarios for key in config.controllers for seed in config.seeds]
     manifest = {
+        "arguments": config.manifest(),
         "grid": {
             "scenarios": {
                 s.name: {
