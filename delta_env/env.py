@@ -30,7 +30,7 @@ from delta_env.faults import FaultSpec, InjectedFault, require_fault_specs
 from delta_env.measurement import Sensors, observation_space
 from delta_env.plant import DeltaPlant
 from delta_env.reference import EpisodeReference
-from delta_env.release import InPositionRelease, ReleaseSettings, Settle
+from delta_env.release import InPositionRelease, Settle
 from delta_env.scenario import Scenario, resolve_scenario
 from delta_env.scene import RENDER_SIZE
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
@@ -213,16 +213,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         settle_timeout: float | None = None,
     ) -> None:
         base = Scenario() if scenario is None else resolve_scenario(scenario)
-        release_arguments = {
-            "release": release,
-            "in_position_window": in_position_window,
-            "in_position_time": in_position_time,
-            "air_activation": air_activation,
-            "settle_timeout": settle_timeout,
-        }
-        self.release = ReleaseSettings(
-            **{name: getattr(base.task, name) if value is None else value for name, value in release_arguments.items()}
-        )
         overrides = {
             "n_cycles": n_cycles,
             "cycle": cycle,
@@ -230,10 +220,18 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "peak_acceleration": peak_acceleration,
             "payload_mass_range": payload_mass_range,
             "domain_randomization": domain_randomization,
+            "release": release,
+            "in_position_window": in_position_window,
+            "in_position_time": in_position_time,
+            "air_activation": air_activation,
+            "settle_timeout": settle_timeout,
         }
         plant = base.effective_plant if plant is None else plant
-        # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges.
-        task = dataclasses.replace(base.task, **{name: value for name, value in overrides.items() if value is not None})
+        # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges. The
+        # scenario's own task was checked as the scenario was made; it is not checked again.
+        given = {name: value for name, value in overrides.items() if value is not None}
+        task = dataclasses.replace(base.task, **given) if given else base.task
+        self.release = task.release_settings
         n_cycles, cycle, start, peak_acceleration = task.n_cycles, task.cycle, task.start, task.peak_acceleration
         (low, high), domain_randomization = task.payload_mass_range, task.domain_randomization
         if plant is not None:

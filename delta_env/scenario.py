@@ -68,6 +68,7 @@ with a robot file takes both) is that robot. :func:`load_robot` and :func:`save_
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass, field, replace
 from importlib import resources
@@ -194,7 +195,7 @@ class PickPlaceTask:
     settle_timeout: float = DEFAULT_SETTLE_TIMEOUT
 
     def __post_init__(self) -> None:
-        self.release_settings  # noqa: B018 - checks the release's fields
+        self.release_settings  # noqa: B018 - checks the release's fields (once: the settings are kept)
         if not isinstance(self.faults, tuple) or not all(isinstance(f, FaultSpec) for f in self.faults):
             raise ValueError(f"faults must be a tuple of FaultSpec, got {self.faults!r}")
         require_timing(self.timing)
@@ -212,9 +213,9 @@ class PickPlaceTask:
                 f"domain_randomization must be RandomizationRanges or None, got {type(self.domain_randomization)}"
             )
 
-    @property
+    @functools.cached_property
     def release_settings(self) -> ReleaseSettings:
-        """The release's fields as :class:`~delta_env.release.ReleaseSettings` (checked there)."""
+        """The release's fields as :class:`~delta_env.release.ReleaseSettings` (checked there, as the task is made)."""
         return ReleaseSettings(**{name: getattr(self, name) for name in RELEASE_FIELDS})
 
 
