@@ -6,7 +6,7 @@
     python scripts/residual_learning_curve.py --recipe new --runs 1 -- --reward-scale 0.1
 
 Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--seed + --runs - 1``, with
-:func:`eval.train_residual.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
+:func:`eval.residual_training.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
 policy steps pauses to run the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
 scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``) with the base
 controller alone and with the residual, scored as :func:`eval.scoring.score_policy` scores the test (tracking RMS
@@ -46,11 +46,12 @@ from delta_env.env import DeltaPickPlaceEnv
 from eval.console import CommandParser, UsageError, command_main
 from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
+from eval.residual_training import train
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import check_ranges
 from eval.scoring import pooled_scores
 from eval.tasks import timed
-from eval.train_residual import parse_args, train
+from eval.train_residual import parse_args
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     "old": ("sac", ("train_freq:2", "gradient_steps:1", "learning_rate:3e-4"), ("--residual-limit", "40")),

@@ -52,13 +52,19 @@ def test_each_command_line_resolves_a_frozen_configuration_and_leaves_the_namesp
 
 
 RECORDED = [
-    # module, the function the main hands its configuration to, argv; the manifest's entry holding the configuration
+    # module, the function the main hands its configuration to ([module:]name), argv; the manifest's entry holding
+    # the configuration
     ("eval.__main__", "compare", ["--controllers", "pd", "--episodes", "2"], "arguments"),
     ("eval.rate", "rate", ["--quick"], "arguments"),
     ("eval.sweep.__main__", "sweep", ["--episodes", "2"], "arguments"),
     ("eval.identify", "identify_into", ["--quick"], None),
     ("eval.design.__main__", "study", ["--quick", "--no-verify"], "arguments"),
-    ("eval.train_residual", "_train", ["--cycles", "1", "--hyperparams", "gamma:0.9"], "arguments"),
+    (
+        "eval.train_residual",
+        "eval.residual_training:_train",
+        ["--cycles", "1", "--hyperparams", "gamma:0.9"],
+        "arguments",
+    ),
 ]
 
 
@@ -74,12 +80,10 @@ def test_each_command_line_records_its_configuration_as_built_and_hands_it_down(
         handed.append((config, run.folder))
         return ""
 
-    monkeypatch.setattr(cli, work, record)
+    home, _, name = work.rpartition(":")
+    monkeypatch.setattr(importlib.import_module(home) if home else cli, name, record)
     out = tmp_path / "run"
-    if module == "eval.train_residual":
-        cli.train(cli.parse_args([*argv, "--out", str(out)]))
-    else:
-        assert cli.main([*argv, "--out", str(out)]) == 0
+    assert cli.main([*argv, "--out", str(out)]) == 0
     ((config, folder),) = handed
     assert folder == out
     manifest = json.loads((out / MANIFEST).read_text())

@@ -59,9 +59,11 @@ from eval.residual_envs import (
     base_setup,
     make_env,
 )
+from eval.residual_resume import relabel_action_rate, resume_mismatch, reward_change, trained_config
+from eval.residual_training import train
 from eval.run_folder import read_csv_rows
 from eval.scoring import TEST_SEEDS
-from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
+from eval.train_residual import parse_args
 from tests.conftest import NOMINAL_SETUP, run_python
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
