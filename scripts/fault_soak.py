@@ -8,7 +8,8 @@ Runs fault-free episodes ``seed, seed + 1, ...`` of each controller on each cond
   payload);
 - ``declared-mixed``, ``declared-0.1kg``, ``declared-4kg``, ``online-mixed``, ``online-0.1kg``, ``online-4kg``: the
   pick-rate data sheet's time-optimal timings on the whole envelope, built as ``python -m eval.rate`` builds them
-  (:func:`eval.rate.rate_scenario`: the standard cycle, ``torque_share`` :data:`eval.rate.RATE_TORQUE_SHARE`, its
+  (:func:`eval.rate_study.rate_scenario`: the standard cycle, ``torque_share``
+  :data:`eval.rate_study.RATE_TORQUE_SHARE`, its
   cycles per episode), with objects U[0, 4] kg, 0.1 kg or 4 kg. Every controller runs at its own pace (an online
   carry of a row without an estimator is retimed on the cell's, as a cell would run it), where the data sheet has
   those rows replay its first controller's references;
@@ -68,7 +69,7 @@ from eval.console import CommandParser, UsageError, command_main, progress_bar
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
-from eval.rate import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
+from eval.rate_study import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
 from eval.sweep.work import WorkUnit
@@ -80,8 +81,8 @@ class SoakCondition:
 
     Attributes:
         timing: How the moves are timed (:data:`delta_env.scenario.TIMINGS`): ``fixed`` on the scenario's conveyor
-            cycle, else the data sheet's time-optimal timing (:func:`eval.rate.rate_scenario`).
-        payload: Every object's mass (kg), or :data:`eval.rate.MIXED` (U[0, rated payload]).
+            cycle, else the data sheet's time-optimal timing (:func:`eval.rate_study.rate_scenario`).
+        payload: Every object's mass (kg), or :data:`eval.rate_study.MIXED` (U[0, rated payload]).
         peak_acceleration: Peak Cartesian acceleration of a fixed timing (m/s^2); unused by the others.
         description: What the condition is, in words.
     """
