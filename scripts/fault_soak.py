@@ -65,7 +65,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
-from eval.console import CommandParser, UsageError, command_main, progress_bar
+from eval.console import CommandParser, UsageError, command_main, progress_bar, resolved_arguments
 from eval.engine import prepare, run_grid
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
@@ -198,24 +198,24 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_runs_dir_argument(parser)
     add_workers_argument(parser)
     args = parser.parse_args(argv)
-    if args.carries is None and args.minutes is None:
-        args.carries = DEFAULT_CARRIES
+    carries = DEFAULT_CARRIES if args.carries is None and args.minutes is None else args.carries
     check_ranges(
         parser,
-        args,
-        {"seed": 0, "workers": 1, **({"carries": 1} if args.carries is not None else {})},
+        resolved_arguments(args, carries=carries),
+        {"seed": 0, "workers": 1, **({"carries": 1} if carries is not None else {})},
         ("minutes",) if args.minutes is not None else (),
     )
     conditions = [name.strip() for name in args.conditions.split(",") if name.strip()]
     unknown = [name for name in conditions if name not in CONDITIONS]
     if unknown or not conditions:
         parser.error(f"--conditions: unknown or no values {unknown}; choose from {', '.join(CONDITIONS)}")
-    args.conditions = list(dict.fromkeys(conditions))
     try:
-        args.controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    return args
+    return resolved_arguments(
+        args, carries=carries, conditions=list(dict.fromkeys(conditions)), controllers=controllers
+    )
 
 
 def condition_scenarios(base: Scenario, names: Sequence[str]) -> dict[str, Scenario]:

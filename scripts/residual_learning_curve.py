@@ -43,7 +43,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from controllers.base import payload_estimator_of
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, ResidualController
 from delta_env.env import DeltaPickPlaceEnv
-from eval.console import CommandParser, UsageError, command_main
+from eval.console import CommandParser, UsageError, command_main, resolved_arguments
 from eval.episodes import run_episode
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
 from eval.residual_training import train
@@ -379,8 +379,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     if args.recipe and (args.hyperparams or args.label):
         parser.error("--hyperparams and --label go with --algo, not with --recipe")
     check_ranges(parser, args, {"seed": 0, "runs": 1, "timesteps": 1, "eval_freq": 1}, ("max_minutes",))
-    args.seeds = list(range(args.seed, args.seed + args.runs))
-    return args
+    return resolved_arguments(args, seeds=list(range(args.seed, args.seed + args.runs)))
 
 
 @command_main("python scripts/residual_learning_curve.py")
