@@ -31,7 +31,7 @@ from delta_env.measurement import Sensors, observation_space
 from delta_env.plant import DeltaPlant
 from delta_env.reference import EpisodeReference
 from delta_env.release import InPositionRelease, Settle
-from delta_env.scenario import Scenario, resolve_scenario
+from delta_env.scenario import PickPlaceTask, Scenario, resolve_scenario
 from delta_env.scene import RENDER_SIZE
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
@@ -82,6 +82,13 @@ class RewardWeights:
 
 DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY")
 """Environment variables through which a window system is reached on Linux."""
+
+
+def _repeats(task: PickPlaceTask, name: str, value: object) -> bool:
+    """Whether ``value`` is ``task``'s own value of the field ``name`` (same type, equal): an override that changes
+    nothing."""
+    current = getattr(task, name)
+    return type(value) is type(current) and value == current
 
 
 def require_display() -> None:
@@ -228,8 +235,12 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         }
         plant = base.effective_plant if plant is None else plant
         # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges. The
-        # scenario's own task was checked as the scenario was made; it is not checked again.
-        given = {name: value for name, value in overrides.items() if value is not None}
+        # scenario's own task was checked as the scenario was made: with no override that changes it, it is used as is.
+        given = {
+            name: value
+            for name, value in overrides.items()
+            if value is not None and not _repeats(base.task, name, value)
+        }
         task = dataclasses.replace(base.task, **given) if given else base.task
         self.release = task.release_settings
         n_cycles, cycle, start, peak_acceleration = task.n_cycles, task.cycle, task.start, task.peak_acceleration
