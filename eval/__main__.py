@@ -89,6 +89,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     write_csv,
 )
 from eval.scenario_args import (
@@ -221,7 +222,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     config = parse_args(argv)
     with command_run_folder(
-        "eval", "eval", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
+        "eval", "eval", argv, config, {"arguments": configuration_record(config)}, scenarios=[config.scenario]
     ) as run:
         compare(config, run, started)
     return 0
@@ -320,7 +321,7 @@ def _summarize(
     total_time = time.perf_counter() - started
     task = scenario.task
     manifest = {
-        "arguments": config.manifest(),
+        "arguments": configuration_record(config),
         "scenario": {
             "name": scenario.name,
             "file": "scenario.toml",

@@ -33,7 +33,6 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
@@ -49,6 +48,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     utc_stamp,
 )
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
@@ -114,7 +114,7 @@ def _joint_names(text: str) -> tuple[str, str, str]:
 @dataclasses.dataclass(frozen=True)
 class IdentifyConfig:
     """The resolved configuration of an identification (``python -m eval.identify``), recorded as it is in the run's
-    manifest (:meth:`manifest`); the options are described by ``--help``.
+    manifest (:func:`eval.run_folder.configuration_record`); the options are described by ``--help``.
 
     Attributes:
         scenario: The scenario whose robot is simulated (on ``geometry``'s robot), or None with ``log``.
@@ -166,12 +166,6 @@ class IdentifyConfig:
     no_install: bool
     no_progress: bool
     robot_identity: str | None
-
-    def manifest(self) -> dict[str, Any]:
-        """The configuration as the manifest records it: every field, the scenario by its name (its file is
-        ``scenario.toml`` beside)."""
-        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
-        return {**fields, "scenario": None if self.scenario is None else self.scenario.name}
 
 
 def argument_parser() -> CommandParser:
@@ -384,12 +378,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "eval.identify",
         argv,
         config,
-        config.manifest(),
+        configuration_record(config),
         scenarios=scenarios,
         stamp=f"{utc_stamp()}_{suffix}",
     ) as run_dir:
         config = dataclasses.replace(config, out=run_dir.folder)
-        run_dir.record(config=config.manifest())
+        run_dir.record(config=configuration_record(config))
         identify_into(config, run_dir, run)
     return 0
 

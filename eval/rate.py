@@ -82,6 +82,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     write_csv,
 )
 from eval.scenario_args import (
@@ -228,7 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     config = parse_args(argv)
     with command_run_folder(
-        "rate", "eval.rate", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
+        "rate", "eval.rate", argv, config, {"arguments": configuration_record(config)}, scenarios=[config.scenario]
     ) as run:
         rate(config, run, started)
     return 0
@@ -276,7 +277,7 @@ def rate(config: RateConfig, run: Run, started: float) -> None:
     (out / "summary.md").write_text(summary + "\n")
     run.record(
         config={
-            "arguments": config.manifest(),
+            "arguments": configuration_record(config),
             "study": "quick" if config.quick else "full",
             "cycle_terms": cycle_terms(scenario.task),
             "published": {"source": ABB_IRB_360.source, "cycle": ABB_IRB_360.cycle},

@@ -92,7 +92,8 @@ and bisection steps (on a log scale, about 3 % resolution)."""
 @dataclass(frozen=True)
 class RateConfig:
     """The resolved configuration of a data sheet run (``python -m eval.rate``), recorded as it is in the run's
-    manifest (:meth:`manifest`); the options as ``--help`` gives them, the study size's defaults filled in.
+    manifest (:func:`eval.run_folder.configuration_record`); the options as ``--help`` gives them, the study size's
+    defaults filled in.
 
     Attributes:
         scenario: The scenario every row derives (:func:`rate_scenario`): its task's ``n_cycles`` is ``cycles`` and
@@ -138,12 +139,6 @@ class RateConfig:
     servo: str
     workers: int
     fastest: bool
-
-    def manifest(self) -> dict[str, Any]:
-        """The configuration as the manifest records it: every field, the scenario by its name (its file is
-        ``scenario.toml`` beside)."""
-        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
-        return {**fields, "scenario": self.scenario.name}
 
 
 def kilograms(payloads: Sequence[float]) -> str:

@@ -11,7 +11,6 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from dataclasses import fields as fields_of
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +30,7 @@ from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, over
 from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
 from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, base_setup, make_env
 from eval.residual_resume import relabel_action_rate, relabelable, resume_mismatch, reward_change, trained_config
-from eval.run_folder import Run, append_csv_rows, command_run_folder, write_json
+from eval.run_folder import Run, append_csv_rows, command_run_folder, configuration_record, write_json
 from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy, score_summary
 
 CHECKPOINT_PREFIX = "residual"
@@ -153,8 +152,8 @@ RESIDUAL_OPTIONS = (
 @dataclass(frozen=True)
 class TrainingConfig:
     """The resolved configuration of ``python -m eval.train_residual`` (a training, or with ``score_only`` the
-    scores of a policy file), recorded as it is in the run's manifest (:meth:`manifest`); the options are described
-    by ``--help``.
+    scores of a policy file), recorded as it is in the run's manifest (:func:`eval.run_folder.configuration_record`);
+    the options are described by ``--help``.
 
     Attributes:
         algo: The SB3 algorithm (:data:`~controllers.residual.ALGORITHMS`).
@@ -216,17 +215,6 @@ class TrainingConfig:
     mixture: tuple[Scenario, ...]
     mixture_cycles: tuple[int, ...]
 
-    def manifest(self) -> dict[str, Any]:
-        """The configuration as the manifest records it: every field, the scenarios by name (their files are
-        beside), the residual's settings as a table."""
-        fields = {field.name: getattr(self, field.name) for field in fields_of(self)}
-        return {
-            **fields,
-            "scenario": self.scenario.name,
-            "mixture": [scenario.name for scenario in self.mixture],
-            "residual": asdict(self.residual),
-        }
-
 
 def train(
     config: TrainingConfig,
@@ -250,7 +238,7 @@ def train(
         "eval.train_residual",
         None,
         config,
-        {"arguments": config.manifest()},
+        {"arguments": configuration_record(config)},
         scenarios=[config.scenario, *config.mixture],
     ) as run:
         summary = _train(config, run, base_factory, base, callbacks)
@@ -279,7 +267,7 @@ def _train(
 
     command = run.manifest["command"]
     resolved = {
-        "arguments": config.manifest(),
+        "arguments": configuration_record(config),
         "hyperparameter_file": HYPERPARAMETER_FILE.name,
         "residual_config": asdict(residual),
         "env_kwargs": {**env_kwargs, "scenario": config.scenario.name},

@@ -57,7 +57,13 @@ from eval.console import CommandParser, command_main, progress_bar, resolved_arg
 from eval.hyperparameters import load_hyperparameters, override_hyperparameters
 from eval.residual_envs import BASE_KEYS
 from eval.residual_training import RESIDUAL_OPTIONS, TrainingConfig, train
-from eval.run_folder import add_force_argument, add_runs_dir_argument, command_run_folder, write_json
+from eval.run_folder import (
+    add_force_argument,
+    add_runs_dir_argument,
+    command_run_folder,
+    configuration_record,
+    write_json,
+)
 from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
 from eval.scoring import score_policy, score_summary
 
@@ -246,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "eval.train_residual",
         argv,
         config,
-        {"arguments": config.manifest()},
+        {"arguments": configuration_record(config)},
         scenarios=[config.scenario],
     ) as run:
         with progress_bar(desc="test episodes", unit="episode", disable=not config.progress) as bar:

@@ -12,7 +12,8 @@ from typing import Any
 
 import pytest
 
-from eval.run_folder import MANIFEST, json_ready
+from delta_env.scenario import preset
+from eval.run_folder import MANIFEST, configuration_record, json_ready
 
 RESOLVED = [
     # module, argv, a field that resolving changes from its parsed value
@@ -89,5 +90,30 @@ def test_each_command_line_records_its_configuration_as_built_and_hands_it_down(
     manifest = json.loads((out / MANIFEST).read_text())
     assert manifest["status"] == "finished"
     recorded = manifest["config"] if entry is None else manifest["config"][entry]
-    built = config.manifest() if hasattr(config, "manifest") else dataclasses.asdict(config)
-    assert recorded == json.loads(json.dumps(json_ready(built)))
+    assert recorded == json.loads(json.dumps(json_ready(configuration_record(config))))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Settings:
+    limit: float
+
+
+@dataclasses.dataclass(frozen=True)
+class _Config:
+    scenario: Any
+    mixture: tuple[Any, ...]
+    settings: _Settings
+    empty: tuple[Any, ...]
+    out: Path | None
+
+
+def test_the_record_names_the_scenarios_and_tables_a_settings_record() -> None:
+    nominal, worn = preset("nominal"), preset("worn")
+    config = _Config(nominal, (nominal, worn), _Settings(2.5), (), Path("run"))
+    assert configuration_record(config) == {
+        "scenario": "nominal",
+        "mixture": ["nominal", "worn"],
+        "settings": {"limit": 2.5},
+        "empty": (),
+        "out": Path("run"),
+    }

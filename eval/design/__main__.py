@@ -65,6 +65,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     package_versions,
     write_csv,
 )
@@ -210,7 +211,7 @@ def _resolved_config(config: DesignConfig, fixed_ra: dict[str, float | None] | N
     """The run's arguments and every setting of the study, for ``config.json``."""
     drive = PlantRealism()
     return {
-        "arguments": dataclasses.asdict(config),
+        "arguments": configuration_record(config),
         "bounds": dataclasses.asdict(optimize.DEFAULT_BOUNDS),
         "criteria": dataclasses.asdict(workspace.DEXTEROUS),
         "task": {

@@ -41,7 +41,6 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from controllers.registry import controller_label, controllers_help, parse_controller_keys
 from controllers.residual import DEFAULT_POLICY_PATH
@@ -54,6 +53,7 @@ from eval.run_folder import (
     Run,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     runs_root,
     write_csv,
 )
@@ -109,12 +109,6 @@ class SweepConfig:
     residual: Path
     servo: str
     geometry: str | None
-
-    def manifest(self) -> dict[str, Any]:
-        """The configuration as the manifest records it: every field, the scenarios by name (their files are
-        ``scenarios/<name>.toml`` beside)."""
-        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
-        return {**fields, "scenarios": [scenario.name for scenario in self.scenarios]}
 
     @property
     def seeds(self) -> list[int]:
@@ -215,7 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "eval.sweep",
         argv,
         config,
-        {"arguments": config.manifest(), "grid": grid, "backend": backend},
+        {"arguments": configuration_record(config), "grid": grid, "backend": backend},
         scenarios=config.scenarios,
         reuse=True,  # a sweep resumes in its folder
     ) as run:
@@ -246,7 +240,7 @@ def sweep(config: SweepConfig, run: Run) -> None:
     }
     units = [WorkUnit(s, key, seed) for s in config.scenarios for key in config.controllers for seed in config.seeds]
     manifest = {
-        "arguments": config.manifest(),
+        "arguments": configuration_record(config),
         "grid": {
             "scenarios": {
                 s.name: {
