@@ -45,6 +45,9 @@ STANDARD_TRAVEL = 0.305
 DEFAULT_DWELL = 0.1
 """Rest (s) at each pick and place point of the timed release; the gripper closes or opens in its middle."""
 
+DEFAULT_LIFT_FRACTION = 0.3
+"""Share of a move's time spent lifting, and again descending, unless a cycle says otherwise."""
+
 RELEASES = ("in_position", "timed")
 """Where the gripper switches in a dwell: at its end, once the platform is in position (the env's default,
 :mod:`delta_env.release`), or in its middle at a fixed time (the cycles' default)."""
@@ -58,8 +61,12 @@ def require_release(release: str) -> str:
 
 
 @dataclass(frozen=True)
-class _Profile:
-    """The timing and shape every move of a cycle shares (validated on construction).
+class MoveProfile:
+    """The timing and shape every move of a cycle shares.
+
+    Not checked on construction: :meth:`checked` checks the values a caller gives (:func:`standard_cycle`,
+    :func:`conveyor_cycles`), and a scenario's task builds its own from fields checked as the task is made
+    (:attr:`delta_env.scenario.PickPlaceTask.move_profile`), so that a value is checked once on its way down.
 
     Attributes:
         peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), in (0, MAX_PEAK_ACCELERATION].
@@ -77,13 +84,28 @@ class _Profile:
     dt: float
     release: Literal["in_position", "timed"] = "timed"
 
-    def __post_init__(self) -> None:
-        require_release(self.release)
-        require_sample_period(self.dt)
-        require_peak_acceleration(self.peak_acceleration)
-        require_in("lift_height", self.lift_height, 0.0, unit="m")
-        require_in("lift_fraction", self.lift_fraction, 0.0, 0.5, low_open=True)
-        require_in("dwell", self.dwell, 2.0 * self.dt, unit="s (2 dt and up)")
+    @classmethod
+    def checked(
+        cls,
+        peak_acceleration: float,
+        lift_height: float,
+        lift_fraction: float,
+        dwell: float,
+        dt: float,
+        release: Literal["in_position", "timed"],
+    ) -> MoveProfile:
+        """The profile of these values (as the attributes), each checked.
+
+        Raises:
+            ValueError: naming the first value out of its range.
+        """
+        require_release(release)
+        require_sample_period(dt)
+        require_peak_acceleration(peak_acceleration)
+        require_in("lift_height", lift_height, 0.0, unit="m")
+        require_in("lift_fraction", lift_fraction, 0.0, 0.5, low_open=True)
+        require_in("dwell", dwell, 2.0 * dt, unit="s (2 dt and up)")
+        return cls(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
 
     @property
     def switch(self) -> float:
@@ -147,7 +169,7 @@ def standard_cycle(
     center: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT),
     heading: float = math.pi / 2,
     dwell: float = DEFAULT_DWELL,
-    lift_fraction: float = 0.3,
+    lift_fraction: float = DEFAULT_LIFT_FRACTION,
     start: Literal["place", "pick"] = "place",
     release: Literal["in_position", "timed"] = "timed",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
@@ -185,7 +207,38 @@ def standard_cycle(
     """
     require_count("n_cycles", n_cycles)
     require_start(start)
-    profile = _Profile(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt, release)
+    profile = MoveProfile.checked(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt, release)
+    return plan_standard_cycle(
+        geometry,
+        profile,
+        n_cycles,
+        start,
+        center=center,
+        heading=heading,
+        limits=limits,
+        timing=timing,
+        declared_masses=declared_masses,
+    )
+
+
+def plan_standard_cycle(
+    geometry: DeltaGeometry,
+    profile: MoveProfile,
+    n_cycles: int,
+    start: Literal["place", "pick"],
+    *,
+    center: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT),
+    heading: float = math.pi / 2,
+    limits: WorkspaceLimits = WORKSPACE_LIMITS,
+    timing: MoveTiming | None = None,
+    declared_masses: Sequence[float] | None = None,
+) -> Trajectory | TimedCycles:
+    """:func:`standard_cycle` of a profile, a cycle count and a start already checked (a scenario's task:
+    :attr:`delta_env.scenario.PickPlaceTask.move_profile`); the other arguments as there.
+
+    Raises:
+        ValueError: for a point outside ``limits`` (named in the message).
+    """
     center_xyz = np.asarray(center, dtype=float)
     half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
     pick, place = center_xyz - half_travel, center_xyz + half_travel
@@ -205,7 +258,7 @@ def conveyor_cycles(
     pick_zone: ConveyorZone = PICK_ZONE,
     place_zone: ConveyorZone = PLACE_ZONE,
     lift_height: float = STANDARD_LIFT,
-    lift_fraction: float = 0.3,
+    lift_fraction: float = DEFAULT_LIFT_FRACTION,
     dwell: float = DEFAULT_DWELL,
     start: Literal["place", "pick"] = "place",
     release: Literal["in_position", "timed"] = "timed",
@@ -249,8 +302,41 @@ def conveyor_cycles(
     require_generator(rng)
     require_count("n_cycles", n_cycles)
     require_start(start)
-    profile = _Profile(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
-    lifted = np.array([0.0, 0.0, lift_height])
+    profile = MoveProfile.checked(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
+    return plan_conveyor_cycles(
+        geometry,
+        rng,
+        n_cycles,
+        profile,
+        start,
+        pick_zone=pick_zone,
+        place_zone=place_zone,
+        limits=limits,
+        timing=timing,
+        declared_masses=declared_masses,
+    )
+
+
+def plan_conveyor_cycles(
+    geometry: DeltaGeometry,
+    rng: np.random.Generator,
+    n_cycles: int,
+    profile: MoveProfile,
+    start: Literal["place", "pick"],
+    *,
+    pick_zone: ConveyorZone = PICK_ZONE,
+    place_zone: ConveyorZone = PLACE_ZONE,
+    limits: WorkspaceLimits = WORKSPACE_LIMITS,
+    timing: MoveTiming | None = None,
+    declared_masses: Sequence[float] | None = None,
+) -> Trajectory | TimedCycles:
+    """:func:`conveyor_cycles` of a generator, a cycle count, a profile and a start already checked (a scenario's
+    task: :attr:`delta_env.scenario.PickPlaceTask.move_profile`); the other arguments as there.
+
+    Raises:
+        ValueError: for a zone the robot does not reach within ``limits`` or a point outside them.
+    """
+    lifted = np.array([0.0, 0.0, profile.lift_height])
     for name, zone in (("pick zone corner", pick_zone), ("place zone corner", place_zone)):
         require_admissible(geometry, zone.corners(), limits, name)
         require_admissible(geometry, zone.corners() + lifted, limits, f"lifted {name}")
@@ -272,7 +358,7 @@ def _cycles(
     geometry: DeltaGeometry,
     picks: np.ndarray,
     places: np.ndarray,
-    profile: _Profile,
+    profile: MoveProfile,
     limits: WorkspaceLimits,
     origin: np.ndarray | None = None,
 ) -> Trajectory:
@@ -369,7 +455,7 @@ class TimedCycles:
         geometry: DeltaGeometry,
         picks: np.ndarray,
         places: np.ndarray,
-        profile: _Profile,
+        profile: MoveProfile,
         limits: WorkspaceLimits,
         origin: np.ndarray | None,
         timing: MoveTiming,

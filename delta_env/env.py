@@ -284,7 +284,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
         self._reference = EpisodeReference(
-            self.plant_config.geometry, self.n_cycles, cycle, start, self.peak_acceleration, self.release
+            self.plant_config.geometry, self.n_cycles, cycle, start, task.move_profile, self.release
         )
         # the cell judges the platform on its own model of the robot, the geometry the reference is planned on
         self._in_position = InPositionRelease(self.release, self.plant_config.geometry)

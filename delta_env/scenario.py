@@ -78,7 +78,7 @@ from typing import Any, Literal
 import tomli_w
 
 from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, RandomizationRanges
-from delta_env.cycles import require_start
+from delta_env.cycles import DEFAULT_LIFT_FRACTION, STANDARD_LIFT, MoveProfile, require_start
 from delta_env.drive import DriveLimits
 from delta_env.faults import FAULT_REACTIONS, FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
@@ -90,6 +90,7 @@ from delta_env.release import (
     DEFAULT_SETTLE_TIMEOUT,
     ReleaseSettings,
 )
+from delta_env.sensors import CONTROL_PERIOD
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
 from delta_env.validation import require_count, require_in, require_interval
@@ -212,6 +213,20 @@ class PickPlaceTask:
             raise ValueError(
                 f"domain_randomization must be RandomizationRanges or None, got {type(self.domain_randomization)}"
             )
+
+    @functools.cached_property
+    def move_profile(self) -> MoveProfile:
+        """The timing and shape every move of the task's cycles shares, on the control period, from the task's fields
+        (checked as the task is made: not again)."""
+        release = self.release_settings
+        return MoveProfile(
+            float(self.peak_acceleration),
+            STANDARD_LIFT,
+            DEFAULT_LIFT_FRACTION,
+            release.dwell,
+            CONTROL_PERIOD,
+            release.release,
+        )
 
     @functools.cached_property
     def release_settings(self) -> ReleaseSettings:
