@@ -85,8 +85,7 @@ DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY")
 
 
 def _repeats(task: PickPlaceTask, name: str, value: object) -> bool:
-    """Whether ``value`` is ``task``'s own value of the field ``name`` (same type, equal): an override that changes
-    nothing."""
+    """Whether ``value`` repeats ``task``'s field ``name`` (same type, equal): an override that changes nothing."""
     current = getattr(task, name)
     return type(value) is type(current) and value == current
 
@@ -236,12 +235,10 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         plant = base.effective_plant if plant is None else plant
         # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges. The
         # scenario's own task was checked as the scenario was made: with no override that changes it, it is used as is.
-        given = {
-            name: value
-            for name, value in overrides.items()
-            if value is not None and not _repeats(base.task, name, value)
+        changes = {
+            key: value for key, value in overrides.items() if value is not None and not _repeats(base.task, key, value)
         }
-        task = dataclasses.replace(base.task, **given) if given else base.task
+        task = dataclasses.replace(base.task, **changes) if changes else base.task
         self.release = task.release_settings
         n_cycles, cycle, start, peak_acceleration = task.n_cycles, task.cycle, task.start, task.peak_acceleration
         (low, high), domain_randomization = task.payload_mass_range, task.domain_randomization

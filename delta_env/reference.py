@@ -10,10 +10,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from delta_env.cycles import MoveProfile, TimedCycles, plan_conveyor_cycles, plan_standard_cycle
+from delta_env.cycles import MoveProfile, plan_conveyor_cycles, plan_standard_cycle
 from delta_env.geometry import DeltaGeometry
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.release import ReleaseSettings
+from delta_env.timed_cycles import TimedCycles
 from delta_env.timing import MoveTiming
 from delta_env.trajectories import REST_SPEED, Trajectory, arrivals
 

@@ -216,17 +216,9 @@ class PickPlaceTask:
 
     @functools.cached_property
     def move_profile(self) -> MoveProfile:
-        """The timing and shape every move of the task's cycles shares, on the control period, from the task's fields
-        (checked as the task is made: not again)."""
-        release = self.release_settings
-        return MoveProfile(
-            float(self.peak_acceleration),
-            STANDARD_LIFT,
-            DEFAULT_LIFT_FRACTION,
-            release.dwell,
-            CONTROL_PERIOD,
-            release.release,
-        )
+        """The moves' shared timing and shape on the control period, from the task's fields (checked as it is made)."""
+        acceleration, dwell = float(self.peak_acceleration), self.release_settings.dwell
+        return MoveProfile(acceleration, STANDARD_LIFT, DEFAULT_LIFT_FRACTION, dwell, CONTROL_PERIOD, self.release)
 
     @functools.cached_property
     def release_settings(self) -> ReleaseSettings:
