@@ -21,10 +21,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from delta_env.geometry import DeltaGeometry
-from delta_env.kinematics import cartesian_to_joint
 from delta_env.limits import WORKSPACE_LIMITS, WorkspaceLimits, require_admissible
 from delta_env.sensors import CONTROL_PERIOD
-from delta_env.timing import MoveTiming, TimeLaw, move_samples
+from delta_env.timed_cycles import TimedCycles, require_stations
+from delta_env.timing import MoveTiming
 from delta_env.trajectories import (
     STANDARD_PEAK_ACCELERATION,
     WORKING_HEIGHT,
@@ -45,6 +45,9 @@ STANDARD_TRAVEL = 0.305
 DEFAULT_DWELL = 0.1
 """Rest (s) at each pick and place point of the timed release; the gripper closes or opens in its middle."""
 
+DEFAULT_LIFT_FRACTION = 0.3
+"""Share of a move's time spent lifting, and again descending, unless a cycle says otherwise."""
+
 RELEASES = ("in_position", "timed")
 """Where the gripper switches in a dwell: at its end, once the platform is in position (the env's default,
 :mod:`delta_env.release`), or in its middle at a fixed time (the cycles' default)."""
@@ -58,8 +61,12 @@ def require_release(release: str) -> str:
 
 
 @dataclass(frozen=True)
-class _Profile:
-    """The timing and shape every move of a cycle shares (validated on construction).
+class MoveProfile:
+    """The timing and shape every move of a cycle shares.
+
+    Not checked on construction: :meth:`checked` checks the values a caller gives (:func:`standard_cycle`,
+    :func:`conveyor_cycles`), and a scenario's task builds its own from fields checked as the task is made
+    (:attr:`delta_env.scenario.PickPlaceTask.move_profile`), so that a value is checked once on its way down.
 
     Attributes:
         peak_acceleration: Peak Cartesian acceleration |xdd| of every move (m/s^2), in (0, MAX_PEAK_ACCELERATION].
@@ -77,13 +84,28 @@ class _Profile:
     dt: float
     release: Literal["in_position", "timed"] = "timed"
 
-    def __post_init__(self) -> None:
-        require_release(self.release)
-        require_sample_period(self.dt)
-        require_peak_acceleration(self.peak_acceleration)
-        require_in("lift_height", self.lift_height, 0.0, unit="m")
-        require_in("lift_fraction", self.lift_fraction, 0.0, 0.5, low_open=True)
-        require_in("dwell", self.dwell, 2.0 * self.dt, unit="s (2 dt and up)")
+    @classmethod
+    def checked(
+        cls,
+        peak_acceleration: float,
+        lift_height: float,
+        lift_fraction: float,
+        dwell: float,
+        dt: float,
+        release: Literal["in_position", "timed"],
+    ) -> MoveProfile:
+        """The profile of these values (as the attributes), each checked.
+
+        Raises:
+            ValueError: naming the first value out of its range.
+        """
+        require_release(release)
+        require_sample_period(dt)
+        require_peak_acceleration(peak_acceleration)
+        require_in("lift_height", lift_height, 0.0, unit="m")
+        require_in("lift_fraction", lift_fraction, 0.0, 0.5, low_open=True)
+        require_in("dwell", dwell, 2.0 * dt, unit="s (2 dt and up)")
+        return cls(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
 
     @property
     def switch(self) -> float:
@@ -147,7 +169,7 @@ def standard_cycle(
     center: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT),
     heading: float = math.pi / 2,
     dwell: float = DEFAULT_DWELL,
-    lift_fraction: float = 0.3,
+    lift_fraction: float = DEFAULT_LIFT_FRACTION,
     start: Literal["place", "pick"] = "place",
     release: Literal["in_position", "timed"] = "timed",
     limits: WorkspaceLimits = WORKSPACE_LIMITS,
@@ -185,7 +207,38 @@ def standard_cycle(
     """
     require_count("n_cycles", n_cycles)
     require_start(start)
-    profile = _Profile(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt, release)
+    profile = MoveProfile.checked(peak_acceleration, STANDARD_LIFT, lift_fraction, dwell, dt, release)
+    return plan_standard_cycle(
+        geometry,
+        profile,
+        n_cycles,
+        start,
+        center=center,
+        heading=heading,
+        limits=limits,
+        timing=timing,
+        declared_masses=declared_masses,
+    )
+
+
+def plan_standard_cycle(
+    geometry: DeltaGeometry,
+    profile: MoveProfile,
+    n_cycles: int,
+    start: Literal["place", "pick"],
+    *,
+    center: tuple[float, float, float] = (0.0, 0.0, WORKING_HEIGHT),
+    heading: float = math.pi / 2,
+    limits: WorkspaceLimits = WORKSPACE_LIMITS,
+    timing: MoveTiming | None = None,
+    declared_masses: Sequence[float] | None = None,
+) -> Trajectory | TimedCycles:
+    """:func:`standard_cycle` of a profile, a cycle count and a start already checked (a scenario's task:
+    :attr:`delta_env.scenario.PickPlaceTask.move_profile`); the other arguments as there.
+
+    Raises:
+        ValueError: for a point outside ``limits`` (named in the message).
+    """
     center_xyz = np.asarray(center, dtype=float)
     half_travel = 0.5 * STANDARD_TRAVEL * np.array([math.cos(heading), math.sin(heading), 0.0])
     pick, place = center_xyz - half_travel, center_xyz + half_travel
@@ -205,7 +258,7 @@ def conveyor_cycles(
     pick_zone: ConveyorZone = PICK_ZONE,
     place_zone: ConveyorZone = PLACE_ZONE,
     lift_height: float = STANDARD_LIFT,
-    lift_fraction: float = 0.3,
+    lift_fraction: float = DEFAULT_LIFT_FRACTION,
     dwell: float = DEFAULT_DWELL,
     start: Literal["place", "pick"] = "place",
     release: Literal["in_position", "timed"] = "timed",
@@ -249,8 +302,41 @@ def conveyor_cycles(
     require_generator(rng)
     require_count("n_cycles", n_cycles)
     require_start(start)
-    profile = _Profile(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
-    lifted = np.array([0.0, 0.0, lift_height])
+    profile = MoveProfile.checked(peak_acceleration, lift_height, lift_fraction, dwell, dt, release)
+    return plan_conveyor_cycles(
+        geometry,
+        rng,
+        n_cycles,
+        profile,
+        start,
+        pick_zone=pick_zone,
+        place_zone=place_zone,
+        limits=limits,
+        timing=timing,
+        declared_masses=declared_masses,
+    )
+
+
+def plan_conveyor_cycles(
+    geometry: DeltaGeometry,
+    rng: np.random.Generator,
+    n_cycles: int,
+    profile: MoveProfile,
+    start: Literal["place", "pick"],
+    *,
+    pick_zone: ConveyorZone = PICK_ZONE,
+    place_zone: ConveyorZone = PLACE_ZONE,
+    limits: WorkspaceLimits = WORKSPACE_LIMITS,
+    timing: MoveTiming | None = None,
+    declared_masses: Sequence[float] | None = None,
+) -> Trajectory | TimedCycles:
+    """:func:`conveyor_cycles` of a generator, a cycle count, a profile and a start already checked (a scenario's
+    task: :attr:`delta_env.scenario.PickPlaceTask.move_profile`); the other arguments as there.
+
+    Raises:
+        ValueError: for a zone the robot does not reach within ``limits`` or a point outside them.
+    """
+    lifted = np.array([0.0, 0.0, profile.lift_height])
     for name, zone in (("pick zone corner", pick_zone), ("place zone corner", place_zone)):
         require_admissible(geometry, zone.corners(), limits, name)
         require_admissible(geometry, zone.corners() + lifted, limits, f"lifted {name}")
@@ -272,7 +358,7 @@ def _cycles(
     geometry: DeltaGeometry,
     picks: np.ndarray,
     places: np.ndarray,
-    profile: _Profile,
+    profile: MoveProfile,
     limits: WorkspaceLimits,
     origin: np.ndarray | None = None,
 ) -> Trajectory:
@@ -282,7 +368,7 @@ def _cycles(
     none with the in-position release) and an empty arch to pick 0. Then, for every k: dwell at pick k, arch to
     place k, dwell, arch to pick k + 1.
     """
-    _require_stations(geometry, picks, places, origin, profile.lift_height, limits)
+    require_stations(geometry, picks, places, origin, profile.lift_height, limits)
     lift_height, lift_fraction, switch = profile.lift_height, profile.lift_fraction, profile.switch
     segments: list[Segment] = []
     events: list[tuple[float, float]] = []
@@ -304,170 +390,3 @@ def _cycles(
     trajectory = sample_segments(geometry, segments, profile.dt, events)
     require_admissible(geometry, trajectory.xyz, limits, "path point")
     return trajectory
-
-
-def _require_stations(
-    geometry: DeltaGeometry,
-    picks: np.ndarray,
-    places: np.ndarray,
-    origin: np.ndarray | None,
-    lift_height: float,
-    limits: WorkspaceLimits,
-) -> None:
-    """Raise ValueError unless every station (m) and the point ``lift_height`` (m) above it is admissible."""
-    lifted = np.array([0.0, 0.0, lift_height])
-    stations = [("pick point", picks), ("place point", places)]
-    if origin is not None:
-        stations.append(("starting point", origin[None, :]))
-    for name, points in stations:
-        require_admissible(geometry, points, limits, name)
-        require_admissible(geometry, points + lifted, limits, f"lifted {name}")
-
-
-@dataclass(frozen=True)
-class TimedPiece:
-    """One piece of timed cycles: a dwell (``law`` None, ``samples`` at rest) or a move timed by ``law``.
-
-    Attributes:
-        shape: The move's shape (its ``duration`` unused), or for a dwell a line from the point to itself.
-        samples: Samples of the piece including both ends (a dwell of d seconds has d / dt + 1).
-        law: The move's time law, or None for a dwell.
-        carry: The cycle whose object the move carries, or None (empty move or dwell).
-    """
-
-    shape: Segment
-    samples: int
-    law: TimeLaw | None = None
-    carry: int | None = None
-
-
-@dataclass(frozen=True)
-class TimedCycles:
-    """Pick-and-place cycles whose moves are timed by a :class:`~delta_env.timing.MoveTiming`.
-
-    The same stations, shapes, dwells and gripper events (mid-dwell, or at the dwell's end) as the fixed timing;
-    every piece starts and ends on a sample, so a move's law can be replaced while it runs (:meth:`with_law`) and
-    the reference before the change stays as it was, and a dwell can be held longer (:meth:`held`).
-
-    Attributes:
-        geometry: Robot geometry.
-        dt: Sample period (s).
-        pieces: Dwells and moves in order.
-        limits: Region and singularity margins every sample must respect.
-        release: ``"timed"`` (the gripper switches on a dwell's middle sample) or ``"in_position"`` (on its last).
-    """
-
-    geometry: DeltaGeometry
-    dt: float
-    pieces: tuple[TimedPiece, ...]
-    limits: WorkspaceLimits = WORKSPACE_LIMITS
-    release: Literal["in_position", "timed"] = "timed"
-
-    @classmethod
-    def plan(
-        cls,
-        geometry: DeltaGeometry,
-        picks: np.ndarray,
-        places: np.ndarray,
-        profile: _Profile,
-        limits: WorkspaceLimits,
-        origin: np.ndarray | None,
-        timing: MoveTiming,
-        declared_masses: Sequence[float] | None,
-    ) -> TimedCycles:
-        """The pieces of :func:`_cycles`' path with every move timed by ``timing`` (arguments as there)."""
-        n_cycles = len(places)
-        if declared_masses is None or len(declared_masses) != n_cycles:
-            got = None if declared_masses is None else len(declared_masses)
-            raise ValueError(f"a timing needs one declared mass per cycle ({n_cycles}), got {got}")
-        _require_stations(geometry, picks, places, origin, profile.lift_height, limits)
-        dwell_samples = round(profile.dwell / profile.dt)
-        halved = profile.release == "timed"  # the gripper switches on the dwell's middle sample
-        if (halved and dwell_samples % 2) or not math.isclose(dwell_samples * profile.dt, profile.dwell, abs_tol=1e-9):
-            raise ValueError(
-                f"with a timing the dwell must be {'an even' if halved else 'a whole'} number of sample periods "
-                f"({profile.dt} s), got {profile.dwell} s"
-            )
-
-        def dwell(point: np.ndarray, samples: int) -> TimedPiece:
-            return TimedPiece(Segment.line(point, point, samples * profile.dt), samples + 1)
-
-        def move(start: np.ndarray, end: np.ndarray, carry: int | None) -> TimedPiece:
-            shape = Segment(start, end, 1.0, profile.lift_height, profile.lift_fraction)
-            law = timing.empty(shape) if carry is None else timing.carry(shape, float(declared_masses[carry]))
-            return TimedPiece(shape, len(law), law, carry)
-
-        pieces: list[TimedPiece] = []
-        if origin is not None:
-            # the rest of the dwell in which the previous object was released
-            pieces += [dwell(origin, dwell_samples // 2)] if halved else []
-            pieces += [move(origin, picks[0], None)]
-        for cycle, (pick, place, next_pick) in enumerate(zip(picks[:-1], places, picks[1:], strict=True)):
-            pieces += [dwell(pick, dwell_samples), move(pick, place, cycle)]
-            pieces += [dwell(place, dwell_samples), move(place, next_pick, None)]
-        return cls(geometry, profile.dt, tuple(pieces), limits, profile.release)
-
-    def starts(self) -> list[int]:
-        """The sample at which each piece starts."""
-        return np.concatenate(([0], np.cumsum([piece.samples - 1 for piece in self.pieces])))[:-1].tolist()
-
-    def with_law(self, index: int, law: TimeLaw, followed: int = 0) -> TimedCycles:
-        """The same cycles with piece ``index`` (a move) timed by ``law``, which must repeat the first ``followed``
-        samples of its present law (those the robot has followed already)."""
-        piece = self.pieces[index]
-        if piece.law is None:
-            raise ValueError(f"piece {index} is a dwell, not a move")
-        for name in ("tau", "tau_dot", "tau_ddot"):
-            past = getattr(piece.law, name)[:followed]
-            if len(law) < followed or not np.array_equal(getattr(law, name)[:followed], past):
-                raise ValueError(f"a retimed law must repeat the {followed} samples already followed ({name} differs)")
-        pieces = list(self.pieces)
-        pieces[index] = TimedPiece(piece.shape, len(law), law, piece.carry)
-        return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits, self.release)
-
-    def held(self, sample: int, extra: int) -> tuple[TimedCycles, int]:
-        """The same cycles with the first dwell that ends at or after ``sample`` ``extra`` samples longer, and the
-        sample after which its :meth:`trajectory` has the ``extra`` more samples at the dwell's point: ``sample``
-        itself in that dwell, or the dwell's first when ``sample`` is still in the move's end at rest (a time law may
-        reach its end a few samples early).
-
-        Raises:
-            ValueError: no dwell ends at or after ``sample``.
-        """
-        for index, (start, piece) in enumerate(zip(self.starts(), self.pieces, strict=True)):
-            if piece.law is None and start + piece.samples - 1 >= sample:
-                pieces = list(self.pieces)
-                pieces[index] = TimedPiece(piece.shape, piece.samples + extra)
-                return TimedCycles(self.geometry, self.dt, tuple(pieces), self.limits, self.release), max(sample, start)
-        raise ValueError(f"no dwell of the timed cycles ends at or after sample {sample}")
-
-    def trajectory(self) -> Trajectory:
-        """The sampled reference: joint references by exact inverse kinematics, gripper events mid-dwell or on the
-        dwell's last sample."""
-        starts = self.starts()
-        parts = []
-        for piece in self.pieces:
-            if piece.law is None:
-                rest = np.zeros((piece.samples, 3))
-                parts.append((rest + piece.shape.start, rest, rest))
-            else:
-                parts.append(move_samples(piece.shape, piece.law))
-        xyz, xyz_dot, xyz_ddot = (
-            np.concatenate([part[k][1 if i else 0 :] for i, part in enumerate(parts)]) for k in range(3)
-        )
-        require_admissible(self.geometry, xyz, self.limits, "path point")
-        theta, theta_dot, theta_ddot = cartesian_to_joint(self.geometry, xyz, xyz_dot, xyz_ddot)
-        # A carry's object is picked in the dwell before it and released in the one after: in their middle, or on
-        # their last sample (the carry's first, the next move's first).
-        carries = [index for index, piece in enumerate(self.pieces) if piece.carry is not None]
-        halved = self.release == "timed"
-
-        def switch(index: int) -> int:
-            return starts[index] + ((self.pieces[index].samples - 1) // 2 if halved else self.pieces[index].samples - 1)
-
-        picks = [switch(i - 1) for i in carries]
-        places = [switch(i + 1) for i in carries]
-        gripper = np.zeros(len(xyz), dtype=bool)
-        for pick, place in zip(picks, places, strict=True):
-            gripper[pick:place] = True
-        return Trajectory(self.dt, xyz, xyz_dot, xyz_ddot, theta, theta_dot, theta_ddot, gripper, picks, places)

@@ -30,8 +30,8 @@ from delta_env.faults import FaultSpec, InjectedFault, require_fault_specs
 from delta_env.measurement import Sensors, observation_space
 from delta_env.plant import DeltaPlant
 from delta_env.reference import EpisodeReference
-from delta_env.release import InPositionRelease, ReleaseSettings, Settle
-from delta_env.scenario import Scenario, resolve_scenario
+from delta_env.release import InPositionRelease, Settle
+from delta_env.scenario import PickPlaceTask, Scenario, resolve_scenario
 from delta_env.scene import RENDER_SIZE
 from delta_env.sensors import CONTROL_PERIOD, control_substeps, encoder_resolution
 from delta_env.timing import MoveTiming
@@ -82,6 +82,12 @@ class RewardWeights:
 
 DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY")
 """Environment variables through which a window system is reached on Linux."""
+
+
+def _repeats(task: PickPlaceTask, name: str, value: object) -> bool:
+    """Whether ``value`` repeats ``task``'s field ``name`` (same type, equal): an override that changes nothing."""
+    current = getattr(task, name)
+    return type(value) is type(current) and value == current
 
 
 def require_display() -> None:
@@ -213,16 +219,6 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         settle_timeout: float | None = None,
     ) -> None:
         base = Scenario() if scenario is None else resolve_scenario(scenario)
-        release_arguments = {
-            "release": release,
-            "in_position_window": in_position_window,
-            "in_position_time": in_position_time,
-            "air_activation": air_activation,
-            "settle_timeout": settle_timeout,
-        }
-        self.release = ReleaseSettings(
-            **{name: getattr(base.task, name) if value is None else value for name, value in release_arguments.items()}
-        )
         overrides = {
             "n_cycles": n_cycles,
             "cycle": cycle,
@@ -230,10 +226,20 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             "peak_acceleration": peak_acceleration,
             "payload_mass_range": payload_mass_range,
             "domain_randomization": domain_randomization,
+            "release": release,
+            "in_position_window": in_position_window,
+            "in_position_time": in_position_time,
+            "air_activation": air_activation,
+            "settle_timeout": settle_timeout,
         }
         plant = base.effective_plant if plant is None else plant
-        # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges.
-        task = dataclasses.replace(base.task, **{name: value for name, value in overrides.items() if value is not None})
+        # The task checks the overrides as it checks a scenario's (PickPlaceTask): one home for their ranges. The
+        # scenario's own task was checked as the scenario was made: with no override that changes it, it is used as is.
+        changes = {
+            key: value for key, value in overrides.items() if value is not None and not _repeats(base.task, key, value)
+        }
+        task = dataclasses.replace(base.task, **changes) if changes else base.task
+        self.release = task.release_settings
         n_cycles, cycle, start, peak_acceleration = task.n_cycles, task.cycle, task.start, task.peak_acceleration
         (low, high), domain_randomization = task.payload_mass_range, task.domain_randomization
         if plant is not None:
@@ -275,7 +281,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self._drive = DriveMonitor(drive, self.dt)
         self._faults = FaultInjector(faults, self.plant, drive.peak_torque, self.dt, self._drop_object)
         self._reference = EpisodeReference(
-            self.plant_config.geometry, self.n_cycles, cycle, start, self.peak_acceleration, self.release
+            self.plant_config.geometry, self.n_cycles, cycle, start, task.move_profile, self.release
         )
         # the cell judges the platform on its own model of the robot, the geometry the reference is planned on
         self._in_position = InPositionRelease(self.release, self.plant_config.geometry)

@@ -10,10 +10,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from delta_env.cycles import TimedCycles, conveyor_cycles, standard_cycle
+from delta_env.cycles import MoveProfile, plan_conveyor_cycles, plan_standard_cycle
 from delta_env.geometry import DeltaGeometry
 from delta_env.override import SpeedOverride, override_speed
 from delta_env.release import ReleaseSettings
+from delta_env.timed_cycles import TimedCycles
 from delta_env.timing import MoveTiming
 from delta_env.trajectories import REST_SPEED, Trajectory, arrivals
 
@@ -31,8 +32,9 @@ class EpisodeReference:
         n_cycles: Pick-and-place cycles per episode.
         cycle: ``"conveyor"`` (random points) or ``"standard"`` (the 25/305/25 mm cycle).
         start: ``"place"`` or ``"pick"``: where an episode starts at rest.
-        peak_acceleration: Peak Cartesian acceleration of a fixed timing (m/s^2).
-        release: Where the gripper switches in the dwells (their length: ``release.dwell``).
+        profile: The moves' shared timing and shape (the peak acceleration of a fixed timing, the dwells), checked
+            where it was made (the scenario's task: :attr:`~delta_env.scenario.PickPlaceTask.move_profile`).
+        release: Where the gripper switches in the dwells and how the cell judges the platform in position.
 
     Attributes:
         trajectory: The reference followed from now on (1 kHz samples); None before the first plan.
@@ -51,7 +53,7 @@ class EpisodeReference:
         n_cycles: int,
         cycle: Literal["conveyor", "standard"],
         start: Literal["place", "pick"],
-        peak_acceleration: float,
+        profile: MoveProfile,
         release: ReleaseSettings,
     ) -> None:
         self.geometry = geometry
@@ -59,7 +61,7 @@ class EpisodeReference:
         self.n_cycles = n_cycles
         self.cycle = cycle
         self.start = start
-        self.peak_acceleration = peak_acceleration
+        self.profile = profile
         self.trajectory: Trajectory | None = None
         self.events: dict[int, tuple[str, int]] = {}
         self.gates: dict[int, tuple[str, int]] = {}
@@ -84,7 +86,7 @@ class EpisodeReference:
         Args:
             rng: The episode's generator (conveyor points).
             masses: The objects' masses (kg), one per cycle, declared to ``timing``.
-            timing: Times every move, or None for the fixed ``peak_acceleration``.
+            timing: Times every move, or None for the profile's fixed peak acceleration.
             reference: A path to follow instead of the cycles (``timing`` then unused), as given: it is never held
                 for the in-position signal. Or None.
         """
@@ -92,27 +94,12 @@ class EpisodeReference:
         if reference is not None:
             planned = reference
         elif self.cycle == "conveyor":
-            planned = conveyor_cycles(
-                self.geometry,
-                rng,
-                self.n_cycles,
-                peak_acceleration=self.peak_acceleration,
-                dwell=self.release.dwell,
-                start=self.start,
-                release=self.release.release,
-                timing=timing,
-                declared_masses=masses,
+            planned = plan_conveyor_cycles(
+                self.geometry, rng, self.n_cycles, self.profile, self.start, timing=timing, declared_masses=masses
             )
         else:
-            planned = standard_cycle(
-                self.geometry,
-                self.peak_acceleration,
-                n_cycles=self.n_cycles,
-                dwell=self.release.dwell,
-                start=self.start,
-                release=self.release.release,
-                timing=timing,
-                declared_masses=masses,
+            planned = plan_standard_cycle(
+                self.geometry, self.profile, self.n_cycles, self.start, timing=timing, declared_masses=masses
             )
         self._timing = timing
         self._given = reference is not None  # followed as given: no waits for the in-position signal

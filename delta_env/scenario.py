@@ -68,6 +68,7 @@ with a robot file takes both) is that robot. :func:`load_robot` and :func:`save_
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass, field, replace
 from importlib import resources
@@ -77,7 +78,7 @@ from typing import Any, Literal
 import tomli_w
 
 from delta_env.config import MAX_PAYLOAD_MASS, PlantConfig, RandomizationRanges
-from delta_env.cycles import require_start
+from delta_env.cycles import DEFAULT_LIFT_FRACTION, STANDARD_LIFT, MoveProfile, require_start
 from delta_env.drive import DriveLimits
 from delta_env.faults import FAULT_REACTIONS, FaultSpec
 from delta_env.geometry import GRAVITY, DeltaGeometry, DeltaMasses
@@ -89,6 +90,7 @@ from delta_env.release import (
     DEFAULT_SETTLE_TIMEOUT,
     ReleaseSettings,
 )
+from delta_env.sensors import CONTROL_PERIOD
 from delta_env.timing import DEFAULT_TORQUE_SHARE
 from delta_env.trajectories import require_peak_acceleration
 from delta_env.validation import require_count, require_in, require_interval
@@ -194,7 +196,7 @@ class PickPlaceTask:
     settle_timeout: float = DEFAULT_SETTLE_TIMEOUT
 
     def __post_init__(self) -> None:
-        self.release_settings  # noqa: B018 - checks the release's fields
+        self.release_settings  # noqa: B018 - checks the release's fields (once: the settings are kept)
         if not isinstance(self.faults, tuple) or not all(isinstance(f, FaultSpec) for f in self.faults):
             raise ValueError(f"faults must be a tuple of FaultSpec, got {self.faults!r}")
         require_timing(self.timing)
@@ -212,9 +214,15 @@ class PickPlaceTask:
                 f"domain_randomization must be RandomizationRanges or None, got {type(self.domain_randomization)}"
             )
 
-    @property
+    @functools.cached_property
+    def move_profile(self) -> MoveProfile:
+        """The moves' shared timing and shape on the control period, from the task's fields (checked as it is made)."""
+        acceleration, dwell = float(self.peak_acceleration), self.release_settings.dwell
+        return MoveProfile(acceleration, STANDARD_LIFT, DEFAULT_LIFT_FRACTION, dwell, CONTROL_PERIOD, self.release)
+
+    @functools.cached_property
     def release_settings(self) -> ReleaseSettings:
-        """The release's fields as :class:`~delta_env.release.ReleaseSettings` (checked there)."""
+        """The release's fields as :class:`~delta_env.release.ReleaseSettings` (checked there, as the task is made)."""
         return ReleaseSettings(**{name: getattr(self, name) for name in RELEASE_FIELDS})
 
 

@@ -58,7 +58,7 @@ from controllers.registry import (
 )
 from controllers.residual import read_policy_settings
 from delta_env.sensors import CONTROL_PERIOD
-from eval import metrics, plots, video
+from eval import plots, video
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds
 from eval.comparison import (
     TABLE2_KEY,
@@ -70,14 +70,17 @@ from eval.comparison import (
     tabulate,
     tabulate_faults,
 )
+from eval.comparison_report import (
+    bound_section,
+    fault_section,
+    payload_target_section,
+    pick_rate_section,
+    residual_section,
+)
 from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
 from eval.faults import (
-    DETECTION_GRACE_S,
-    NO_FAULT,
     confusion_counts,
-    confusion_table,
-    fault_table,
     write_confusion_csv,
     write_fault_csv,
 )
@@ -86,6 +89,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     write_csv,
 )
 from eval.scenario_args import (
@@ -99,22 +103,11 @@ from eval.scenario_args import (
     check_ranges,
     scenario_from_arguments,
 )
-from eval.tables import (
-    BOUND_HOLDS,
-    FEEDBACK_LINES,
-    bound_violations,
-    controller_table,
-    payload_target_table,
-    pick_rate_table,
-    residual_gain,
-    table2_table,
-    unbounded_episodes,
-)
+from eval.tables import FEEDBACK_LINES, controller_table, table2_table
 
 
-def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
-    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
-    error."""
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     width = max(map(len, CONTROLLER_LABELS))
     rows = "\n".join(f"  {key:<{width}}  {label}" for key, label in CONTROLLER_LABELS.items())
     parser = CommandParser(
@@ -154,7 +147,11 @@ def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
         action="store_true",
         help="also film the first episode of each row into the run folder (video_<key>.mp4; MUJOCO_GL=egl headless)",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ComparisonConfig:
+    """The configuration of the parsed command line ``args`` (left as they are); a bad value is a parser error."""
     try:
         controllers = parse_controller_keys(args.controllers or ",".join(CONTROLLER_LABELS))
     except ValueError as error:
@@ -174,6 +171,13 @@ def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
         }
     )
     return _with_policy_base(parser, config, chosen=args.controllers is not None)
+
+
+def parse_args(argv: Sequence[str] | None) -> ComparisonConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 def _with_policy_base(parser: argparse.ArgumentParser, config: ComparisonConfig, *, chosen: bool) -> ComparisonConfig:
@@ -213,116 +217,12 @@ def _with_policy_base(parser: argparse.ArgumentParser, config: ComparisonConfig,
     )
 
 
-SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
-"""The columns of an episode row that the bound check's note on a skipped oracle episode names."""
-
-
-def _bound_section(episode_rows: list[dict[str, Any]]) -> list[str]:
-    """The check of the table's invariant for each bound among the rows (a privileged entry, the oracle)
-    (:func:`_bound_check`)."""
-    keys = dict.fromkeys(row["key"] for row in episode_rows)
-    return [line for key in keys if controller_entry(key).privileged for line in _bound_check(episode_rows, key)]
-
-
-def _bound_check(episode_rows: list[dict[str, Any]], key: str) -> list[str]:
-    """The check of the table's invariant: no controller tracks better than the bound ``key``, on the episodes
-    where it is a bound: the drive neither clipped its commands nor let a joint exceed its speed, and no
-    fault was injected (the bound knows the fault-free plant and the payloads)."""
-    bound = controller_label(key)
-    oracle_rows = [row for row in episode_rows if row["controller"] == bound]
-    if not oracle_rows:
-        return []
-    skipped = unbounded_episodes(episode_rows, bound)
-    note = []
-    limited = [row for row in skipped if row["saturated_steps"] > 0 or row["speed_exceeded_steps"] > 0]
-    if limited:
-        seeds, clipped, fast = (", ".join(str(row[name]) for row in limited) for name in SKIP_COLUMNS)
-        note = [
-            f"Not a bound on episode(s) {seeds}: the drive clipped {bound}'s command on {clipped} steps and a joint "
-            f"was beyond the drive's maximum speed on {fast} steps; the bound check skips these episodes.",
-            "",
-        ]
-    faulted = [row for row in skipped if row.get("faults_injected", 0) > 0]
-    if faulted:
-        seeds, counts = (", ".join(str(row[name]) for row in faulted) for name in ("seed", "faults_injected"))
-        note += [
-            f"Not a bound on episode(s) {seeds}: {counts} fault(s) were injected, and {bound} knows the fault-free "
-            "plant and the payloads; the bound check skips these episodes.",
-            "",
-        ]
-    if len(skipped) == len(oracle_rows):
-        return note
-    violations = bound_violations(episode_rows, bound)
-    if violations:
-        return [*note, "## Bound violated", "", *violations, ""]
-    return [*note, BOUND_HOLDS.format(bound=bound), ""]
-
-
-def _fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[str]:
-    """The summary's lines on the faults (:func:`eval.faults.fault_table`); none when no fault was injected and none
-    detected."""
-    if not fault_rows:
-        return []
-    return [
-        "## Faults",
-        "",
-        "Per controller and fault kind, over its episodes (faults.csv has every one). A detection matches an injected "
-        f"fault of its kind from the fault's start to {1e3 * DETECTION_GRACE_S:.0f} ms after its end; latency: "
-        "detection time minus the fault's start. Consequences: other detections within a fault or its grace, "
-        "counted under the kind of the fault they followed. False alarms: detections with no fault under way, "
-        "counted under the detected kind. Latent: drive faults whose every command stayed within what the drive "
-        "kept (they changed nothing; not scored).",
-        "",
-        fault_table(fault_rows, labels),
-        "",
-        "Confusion matrix (confusion.csv): per controller, injected kind by detected kind. A cell counts the injected "
-        "faults the controller reported at least once as that kind within the fault's window (its match or a "
-        f"consequence), so a fault reported as two kinds counts twice; column {NO_FAULT}: faults with no detection; "
-        f"row {NO_FAULT}: false alarms.",
-        "",
-        confusion_table(confusion_counts(fault_rows, labels)),
-        "",
-    ]
-
-
-def _residual_section(config: ComparisonConfig, episode_rows: list[dict[str, Any]]) -> list[str]:
-    """Which policy each row that reads the policy file runs (the residual), on which base, and what it adds over that
-    base's row."""
-    lines = []
-    for key in config.controllers:
-        if controller_entry(key).reads_policy_file:
-            lines += _policy_lines(config, episode_rows, controller_label(key))
-    return lines
-
-
-def _policy_lines(config: ComparisonConfig, episode_rows: list[dict[str, Any]], label: str) -> list[str]:
-    """The lines of :func:`_residual_section` on the row labelled ``label``."""
-    base = config.residual_base or "a custom base"
-    moves = "has its own, from its training" if config.residual_base_moves else "does not carry"
-    lines = [
-        f"{label}: the policy {config.residual.name} on the base it was trained on, {base}, rebuilt from the policy "
-        "file; the gain below is against this run's row of that controller (same identification; this run's "
-        f"tare and, unless the plant is randomized per episode, the calibration's empty moves, which the policy "
-        f"file's base {moves}).",
-        "",
-    ]
-    if config.residual_base is not None and config.residual_base_servo != config.servo:
-        lines += [
-            f"No gain over its base is computed: the base's feedback is '{config.residual_base_servo}', this run's "
-            f"model rows run '{config.servo}' (--servo {config.residual_base_servo} runs the same base).",
-            "",
-        ]
-    elif config.residual_base is not None:
-        lines += residual_gain(episode_rows, label, config.residual_base)
-    return lines
-
-
 @command_main("python -m eval")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     config = parse_args(argv)
     with command_run_folder(
-        "eval", "eval", argv, config, {"arguments": config.manifest()}, scenarios=[config.scenario]
+        "eval", "eval", argv, config, {"arguments": configuration_record(config)}, scenarios=[config.scenario]
     ) as run:
         compare(config, run, started)
     return 0
@@ -421,7 +321,7 @@ def _summarize(
     total_time = time.perf_counter() - started
     task = scenario.task
     manifest = {
-        "arguments": config.manifest(),
+        "arguments": configuration_record(config),
         "scenario": {
             "name": scenario.name,
             "file": "scenario.toml",
@@ -476,8 +376,8 @@ def _summarize(
             "",
             controller_table(episode_rows, carry_rows),
             "",
-            *_pick_rate_section(episode_rows),
-            *_payload_target_section(carry_rows),
+            *pick_rate_section(episode_rows),
+            *payload_target_section(carry_rows),
             f"## Table 2 analogue: {controller_label(TABLE2_KEY)}, every object {TABLE2_PAYLOAD} kg, "
             "tau_measured - tau_MId+F+R",
             "",
@@ -486,9 +386,9 @@ def _summarize(
             "Tare (apparent payload of the empty gripper): "
             + ", ".join(f"{controller_label(k)} {tares[k]:+.3f} kg (spread {tare_spreads[k]:.3f})" for k in tares),
             "",
-            *_fault_section(fault_rows, [controller_label(key) for key in keys]),
-            *_bound_section(episode_rows),
-            *_residual_section(config, episode_rows),
+            *fault_section(fault_rows, [controller_label(key) for key in keys]),
+            *bound_section(episode_rows),
+            *residual_section(config, episode_rows),
             *([config.left_out, ""] if config.left_out else []),
             *(["", "## Videos", "", *video.video_lines(videos), ""] if videos else []),
             f"Run folder: {out} ({total_time:.0f} s)",
@@ -496,44 +396,6 @@ def _summarize(
     )
     (out / "summary.md").write_text(summary + "\n")
     return summary
-
-
-def _pick_rate_section(episode_rows: list[dict[str, Any]]) -> list[str]:
-    """The summary's lines on the pick rate (:func:`eval.tables.pick_rate_table`)."""
-    return [
-        "## Pick rate",
-        "",
-        "Mean ± std over the completed episodes. Picks/min and cycle times are the reference's timing: from its "
-        "arrival at rest at the first pick point to its end, at rest at the next pick point, waits for the "
-        "in-position signal included. Place error: platform to place point as the gripper opens. Settle time: from "
-        "the reference's arrival at a pick or place point to the cell's in-position signal, a time-out counting as "
-        "the time waited; time-outs summed (episodes with any); n/a with the timed release. Path deviation: platform "
-        "to the nearest segment of the reference path. Envelope violations: steps the drive clipped plus steps over "
-        "the maximum joint speed, summed (episodes with any). Torque against the drive's ratings; thermal margin = "
-        "1 - max RMS torque / rated torque.",
-        "",
-        pick_rate_table(episode_rows),
-        "",
-    ]
-
-
-def _payload_target_section(carry_rows: list[dict[str, Any]]) -> list[str]:
-    """The summary's lines on the payload targets: every carry of every estimating controller counted; none
-    without carries."""
-    if not carry_rows:
-        return []
-    bound_kg, bound_fraction = metrics.OVERSHOOT_BOUND
-    return [
-        "## Payload targets",
-        "",
-        f"Every carry counted: end-of-carry estimate within ±{100 * metrics.PAYLOAD_BAND:.0f} % for objects of "
-        f"{metrics.MIN_RELATIVE_MASS} kg and more and within ±{1e3 * metrics.LIGHT_OBJECT_BAND_KG:.0f} g below; "
-        f"during a carry never more than max({bound_kg} kg, {100 * bound_fraction:.0f} %) above the mass; within "
-        f"±{100 * metrics.PAYLOAD_BAND:.0f} % by {metrics.SETTLING_DEADLINE_MS:.0f} ms after the pick.",
-        "",
-        payload_target_table(carry_rows),
-        "",
-    ]
 
 
 if __name__ == "__main__":

@@ -230,7 +230,23 @@ def _legend(runs: Sequence[RunRows]) -> list[str]:
     ]
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+@dataclass(frozen=True)
+class CompareConfig:
+    """The resolved configuration of a comparison of run folders (``python -m eval.compare``).
+
+    Attributes:
+        runs: The run folders, the baseline first; two or more.
+        metrics: The printed table's metrics (:data:`eval.metrics.METRIC_LABELS`), in order.
+        out: The CSV file of every shared metric, or None.
+    """
+
+    runs: tuple[Path, ...]
+    metrics: tuple[str, ...]
+    out: Path | None
+
+
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     parser = CommandParser(
         prog="python -m eval.compare", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -242,7 +258,34 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         f"{', '.join(metrics.METRIC_LABELS)})",
     )
     parser.add_argument("--out", type=Path, default=None, help="CSV file of every shared metric (default: none)")
-    return parser.parse_args(argv)
+    return parser
+
+
+def resolve(arguments: argparse.Namespace) -> CompareConfig:
+    """The configuration of the parsed command line ``arguments`` (left as they are).
+
+    Raises:
+        UsageError: for fewer than two run folders or an unknown metric.
+    """
+    if len(arguments.runs) < 2:
+        raise UsageError(f"compare needs two run folders or more, got {len(arguments.runs)}: {arguments.runs[0]}")
+    chosen = tuple(name.strip() for name in arguments.metrics.split(",") if name.strip())
+    unknown = [name for name in chosen if name not in metrics.METRIC_LABELS]
+    if unknown or not chosen:
+        raise UsageError(
+            f"--metrics {arguments.metrics!r}: unknown {', '.join(unknown) or 'none given'}; "
+            f"allowed: {', '.join(metrics.METRIC_LABELS)}"
+        )
+    return CompareConfig(runs=tuple(arguments.runs), metrics=chosen, out=arguments.out)
+
+
+def parse_args(argv: Sequence[str] | None) -> CompareConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``).
+
+    Raises:
+        UsageError: as :func:`resolve`.
+    """
+    return resolve(argument_parser().parse_args(argv))
 
 
 def feedbacks(runs: Sequence[RunRows]) -> list[str | None]:
@@ -257,31 +300,22 @@ def feedbacks(runs: Sequence[RunRows]) -> list[str | None]:
 @command_main("python -m eval.compare")
 def main(argv: Sequence[str] | None = None) -> int:
     """Compare the run folders of ``argv``; 0 on success (a usage error: one line on stderr and exit code 2)."""
-    args = parse_args(argv)
-    if len(args.runs) < 2:
-        raise UsageError(f"compare needs two run folders or more, got {len(args.runs)}: {args.runs[0]}")
-    chosen = [name.strip() for name in args.metrics.split(",") if name.strip()]
-    unknown = [name for name in chosen if name not in metrics.METRIC_LABELS]
-    if unknown or not chosen:
-        raise UsageError(
-            f"--metrics {args.metrics!r}: unknown {', '.join(unknown) or 'none given'}; "
-            f"allowed: {', '.join(metrics.METRIC_LABELS)}"
-        )
+    config = parse_args(argv)
     try:
-        runs = read_runs(args.runs)
+        runs = read_runs(config.runs)
     except CompareError as error:
         raise UsageError(str(error)) from None
     shared = shared_metrics(runs)
-    missing = [name for name in chosen if name not in shared]
+    missing = [name for name in config.metrics if name not in shared]
     if missing:
         raise UsageError(
             f"--metrics: {', '.join(missing)} not in every run folder; shared: {', '.join(shared) or 'none'}"
         )
-    if args.out is not None:
+    if config.out is not None:
         try:  # before anything is printed: a folder that cannot be made is the user's to fix
-            args.out.parent.mkdir(parents=True, exist_ok=True)
+            config.out.parent.mkdir(parents=True, exist_ok=True)
         except OSError as error:
-            raise UsageError(f"--out {args.out}: cannot write it ({error.strerror or error})") from None
+            raise UsageError(f"--out {config.out}: cannot write it ({error.strerror or error})") from None
     print(f"Comparison of {len(runs)} {runs[0].kind!r} runs:")
     print("\n".join(_legend(runs)))
     servos = feedbacks(runs)
@@ -292,10 +326,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             + "); their labels are the same."
         )
     print()
-    print(markdown(runs, chosen))
-    if args.out is not None:
-        write_csv(args.out, comparison_rows(runs, shared))
-        print(f"\nEvery shared metric: {args.out}")
+    print(markdown(runs, config.metrics))
+    if config.out is not None:
+        write_csv(config.out, comparison_rows(runs, shared))
+        print(f"\nEvery shared metric: {config.out}")
     return 0
 
 

@@ -44,7 +44,7 @@ TABLE2_PAYLOAD = 3.8
 @dataclasses.dataclass(frozen=True)
 class ComparisonConfig:
     """The resolved configuration of a comparison (``python -m eval``), recorded as it is in the run's manifest
-    (:meth:`manifest`).
+    (:func:`eval.run_folder.configuration_record`).
 
     Attributes:
         scenario: The scenario, on ``geometry``'s robot and released as ``release`` says.
@@ -89,12 +89,6 @@ class ComparisonConfig:
     residual_base: str | None = None
     residual_base_moves: bool = False
     residual_base_servo: str | None = None
-
-    def manifest(self) -> dict[str, Any]:
-        """The configuration as the manifest records it: every field, the scenario by its name (its file is
-        ``scenario.toml`` beside)."""
-        fields = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
-        return {**fields, "scenario": self.scenario.name}
 
 
 def queue_order(key: str) -> tuple[bool, bool]:

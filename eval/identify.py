@@ -27,16 +27,17 @@ identification never sees it. Logs come with no truth.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
 from delta_env.geometry import DeltaGeometry, DeltaMasses
-from delta_env.scenario import save_robot
+from delta_env.scenario import Scenario, save_robot
 from eval.console import CommandParser, command_main, resolved_arguments
 from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
@@ -46,8 +47,8 @@ from eval.run_folder import (
     Run,
     add_force_argument,
     add_runs_dir_argument,
-    command_line,
     command_run_folder,
+    configuration_record,
     utc_stamp,
 )
 from eval.scenario_args import add_scenario_arguments, scenario_from_arguments
@@ -110,7 +111,65 @@ def _joint_names(text: str) -> tuple[str, str, str]:
     return names
 
 
-def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
+@dataclasses.dataclass(frozen=True)
+class IdentifyConfig:
+    """The resolved configuration of an identification (``python -m eval.identify``), recorded as it is in the run's
+    manifest (:func:`eval.run_folder.configuration_record`); the options are described by ``--help``.
+
+    Attributes:
+        scenario: The scenario whose robot is simulated (on ``geometry``'s robot), or None with ``log``.
+        geometry: The geometry file of ``--geometry``, or None.
+        release: ``--release``, or None.
+        seed: Seed of the trajectories and the sensor noise.
+        trajectories: Excitation trajectories (``--quick``'s unless given).
+        duration: Length of each trajectory (s).
+        validation_duration: Length of the held-out stress trajectory (s).
+        quick: A smoke run (:data:`QUICK`), written to the run folder only.
+        save_logs: The folder of ``--save-logs``, or None.
+        log_format: The format of ``--save-logs`` (:data:`LOG_FORMATS`).
+        log: The logs identified from instead of a simulation, the held-out one last; or None.
+        topic: Bags: the JointState topic of the measured joints.
+        joint_names: Bags: the names of joints 1, 2, 3, or None.
+        command_topic: Bags: the topic of the commanded torques, or None.
+        robot: The robot file of ``log``, or None.
+        workers: Processes, or None (up to 2 cores).
+        out: The run folder: ``--out`` until the folder is made, then the folder.
+        force: Write into an existing, non-empty ``out``.
+        runs_dir: ``--runs-dir``, or None.
+        parameters: Where the parameter file is installed besides the run folder, or None (run folder only).
+        no_install: Write the parameters to the run folder only.
+        no_progress: Hide the progress bar.
+        robot_identity: The identified robot's identity: the scenario's, or, from logs, the robot file's once the
+            logs are read (None until then).
+    """
+
+    scenario: Scenario | None
+    geometry: str | None
+    release: str | None
+    seed: int
+    trajectories: int
+    duration: float
+    validation_duration: float
+    quick: bool
+    save_logs: Path | None
+    log_format: str
+    log: tuple[Path, ...] | None
+    topic: str
+    joint_names: tuple[str, str, str] | None
+    command_topic: str | None
+    robot: Path | None
+    workers: int | None
+    out: Path | None
+    force: bool
+    runs_dir: Path | None
+    parameters: Path | None
+    no_install: bool
+    no_progress: bool
+    robot_identity: str | None
+
+
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     parser = CommandParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
@@ -201,34 +260,50 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--no-install", action="store_true", help="write the parameters to the run folder only")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    arguments = parser.parse_args(argv)
+    return parser
+
+
+def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> IdentifyConfig:
+    """The configuration of the parsed command line ``arguments`` (left as they are): ``--quick``'s settings where
+    not given, the scenario and the parameter file's install path resolved; a bad combination is a parser error."""
     bag_options = [name for name in BAG_OPTIONS if getattr(arguments, name) != parser.get_default(name)]
     if bag_options and not any(map(is_bag, arguments.log or ())):
         names = ", ".join("--" + name.replace("_", "-") for name in bag_options)
         parser.error(f"{names} say what to read from ROS 2 bags; no --log file is a bag (.mcap, .db3 or a folder)")
-    if arguments.quick and arguments.log is None:
+    if arguments.log is not None:
+        _check_log_arguments(arguments, parser)
+        return IdentifyConfig(
+            **{**vars(arguments), "scenario": None, "log": tuple(arguments.log), "robot_identity": None}
+        )
+    if arguments.quick:
         if arguments.parameters is not None:
             parser.error("--quick writes its rough parameters to the run folder only; drop --parameters")
         # an explicit setting wins over --quick
         quick = {name: value for name, value in QUICK.items() if getattr(arguments, name) == parser.get_default(name)}
         arguments = resolved_arguments(arguments, **quick, no_install=True)
-    if arguments.log is None:
-        if arguments.robot is not None:
-            parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
-        scenario = scenario_from_arguments(arguments, parser)
-        own = parameter_path(scenario.plant, identification_root(arguments.runs_dir))
-        settings = simulation_settings(arguments)
-        if arguments.parameters is None:
-            parameters = install_path(scenario.plant, settings, identification_root(arguments.runs_dir))
-        elif arguments.parameters.resolve() == own.resolve() and settings != DEFAULT_SETTINGS:
-            parser.error(
-                f"--parameters {arguments.parameters} is the robot's own identification, which holds the default "
-                f"settings ({describe_settings(DEFAULT_SETTINGS)}), not {describe_settings(settings)}; name another "
-                "file"
-            )
-        else:
-            parameters = arguments.parameters
-        return resolved_arguments(arguments, scenario=scenario, parameters=parameters)
+    if arguments.robot is not None:
+        parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
+    scenario = scenario_from_arguments(arguments, parser)
+    own = parameter_path(scenario.plant, identification_root(arguments.runs_dir))
+    settings = simulation_settings(arguments)
+    if arguments.parameters is None:
+        parameters = install_path(scenario.plant, settings, identification_root(arguments.runs_dir))
+    elif arguments.parameters.resolve() == own.resolve() and settings != DEFAULT_SETTINGS:
+        parser.error(
+            f"--parameters {arguments.parameters} is the robot's own identification, which holds the default "
+            f"settings ({describe_settings(DEFAULT_SETTINGS)}), not {describe_settings(settings)}; name another "
+            "file"
+        )
+    else:
+        parameters = arguments.parameters
+    return IdentifyConfig(
+        **{**vars(arguments), "scenario": scenario, "parameters": parameters, "robot_identity": scenario.robot_identity}
+    )
+
+
+def _check_log_arguments(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """A parser error unless ``arguments`` identify from logs alone: no simulation option, a robot file, 2 logs or
+    more."""
     given = [name for name in SIMULATION_OPTIONS if getattr(arguments, name) != parser.get_default(name)]
     if arguments.scenario != parser.get_default("scenario"):
         given.insert(0, "scenario")
@@ -239,12 +314,18 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--log needs --robot ROBOT.toml, the robot file of the logs ([geometry] in m, [masses] in kg)")
     if len(arguments.log) < 2:
         parser.error(f"--log needs at least 2 files (the last one is held out), got {len(arguments.log)}")
-    return resolved_arguments(arguments, scenario=None)
 
 
-def simulation_settings(arguments: argparse.Namespace) -> dict[str, float]:
+def parse_args(argv: Sequence[str] | None = None) -> IdentifyConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
+
+
+def simulation_settings(arguments: argparse.Namespace | IdentifyConfig) -> dict[str, float]:
     """The settings of a simulated identification (:data:`eval.parameter_files.DEFAULT_SETTINGS`' keys) given by
-    ``arguments``."""
+    ``arguments``: the parsed command line or its configuration."""
     return {
         "trajectories": arguments.trajectories,
         "duration_s": arguments.duration,
@@ -265,74 +346,78 @@ def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMass
 
 
 @command_main("python -m eval.identify")
-def main(argv: list[str] | None = None) -> int:
-    arguments = parse_arguments(argv)
+def main(argv: Sequence[str] | None = None) -> int:
+    config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    command = command_line("eval.identify", argv)
-    if arguments.quick:
+    if config.quick:
         print(
-            f"Quick identification (--quick): {arguments.trajectories} excitation "
-            f"{'trajectory' if arguments.trajectories == 1 else 'trajectories'} of "
-            f"{arguments.duration:g} s and a {arguments.validation_duration:g} s held-out one, not "
+            f"Quick identification (--quick): {config.trajectories} excitation "
+            f"{'trajectory' if config.trajectories == 1 else 'trajectories'} of "
+            f"{config.duration:g} s and a {config.validation_duration:g} s held-out one, not "
             f"{DEFAULT_TRAJECTORIES} of {DEFAULT_DURATION:g} s and {VALIDATION_DURATION:g} s: rough parameters, "
             "written to the run folder only (never as the robot's identification)."
         )
-    if arguments.log:
+    run = None
+    if config.log is not None:
         try:
             run = identify_logs(
-                arguments.log,
-                arguments.robot,
-                workers=arguments.workers or 1,
-                progress=not arguments.no_progress,
-                topics=BagTopics(arguments.topic, arguments.joint_names, arguments.command_topic),
+                config.log,
+                config.robot,
+                workers=config.workers or 1,
+                progress=not config.no_progress,
+                topics=BagTopics(config.topic, config.joint_names, config.command_topic),
             )
         except ValueError as error:  # a bad log or robot file, or logs that do not excite the model
             print(f"python -m eval.identify: error: {error}", file=sys.stderr)
             return 2
-        config = {**vars(arguments), "robot_identity": run.result.provenance["plant"]["identity"]}
-        scenarios, stamp = [], f"{utc_stamp()}_logs"
-    else:
-        run, scenario = None, arguments.scenario
-        config = {**vars(arguments), "scenario": scenario.name, "robot_identity": scenario.robot_identity}
-        scenarios, stamp = [scenario], f"{utc_stamp()}_seed{arguments.seed}"
+        config = dataclasses.replace(config, robot_identity=run.result.provenance["plant"]["identity"])
+    suffix = "logs" if config.scenario is None else f"seed{config.seed}"
+    scenarios = [] if config.scenario is None else [config.scenario]
     with command_run_folder(
-        "identification", "eval.identify", argv, arguments, config, scenarios=scenarios, stamp=stamp
+        "identification",
+        "eval.identify",
+        argv,
+        config,
+        configuration_record(config),
+        scenarios=scenarios,
+        stamp=f"{utc_stamp()}_{suffix}",
     ) as run_dir:
-        run_dir.record(config={**config, "out": run_dir.folder})
-        identify_into(arguments, run_dir, command, run)
+        config = dataclasses.replace(config, out=run_dir.folder)
+        run_dir.record(config=configuration_record(config))
+        identify_into(config, run_dir, run)
     return 0
 
 
-def identify_into(arguments: argparse.Namespace, run_dir: Run, command: str, run: IdentificationRun | None) -> None:
-    """Identify the robot of ``arguments`` (:func:`parse_arguments`), or take ``run``, its identification from logs,
+def identify_into(config: IdentifyConfig, run_dir: Run, run: IdentificationRun | None) -> None:
+    """Identify the robot of ``config`` (:func:`parse_args`), or take ``run``, its identification from logs,
     and write the parameters, the validation data, the figures and the report into the run folder, the method into
     its manifest; print the report."""
     folder = run_dir.folder
     if run is not None:
         plant = run.result.provenance["plant"]
         save_robot(DeltaGeometry(**plant["geometry_m"]), DeltaMasses(**plant["masses_kg"]), folder / "robot.toml")
-        truth, install = None, arguments.parameters
+        truth, install = None, config.parameters
     else:
-        scenario = arguments.scenario
+        scenario = config.scenario
         run = run_identification(
-            arguments.trajectories,
-            arguments.seed,
-            arguments.duration,
-            validation_duration=arguments.validation_duration,
-            progress=not arguments.no_progress,
-            workers=arguments.workers,
+            config.trajectories,
+            config.seed,
+            config.duration,
+            validation_duration=config.validation_duration,
+            progress=not config.no_progress,
+            workers=config.workers,
             plant=scenario.plant,
         )
-        if arguments.save_logs is not None:
-            suffix = LOG_FORMATS[arguments.log_format]
-            save_logs(run, scenario.plant.geometry, scenario.plant.masses, arguments.save_logs, suffix)
+        if config.save_logs is not None:
+            suffix = LOG_FORMATS[config.log_format]
+            save_logs(run, scenario.plant.geometry, scenario.plant.masses, config.save_logs, suffix)
             if suffix in BAG_SUFFIXES:
                 print(
                     f"The runs are ROS 2 bags: JointState on {JOINT_STATES_TOPIC}, commands on {JOINT_COMMANDS_TOPIC} "
                     f"(--log ... --command-topic {JOINT_COMMANDS_TOPIC} reads them back)."
                 )
         truth = ground_truth(scenario.plant)
-        install = None if arguments.no_install else arguments.parameters
+        install = None if config.no_install else config.parameters
     save_result(run.result, folder / "parameters.json")
     if install is not None:
         save_result(run.result, install)
@@ -341,20 +426,20 @@ def identify_into(arguments: argparse.Namespace, run_dir: Run, command: str, run
     validation_file = folder / "validation.npz"
     save_validation_data(run, validation_file)
     figures = plot_figures(validation_file, folder)
-    report = render_report(run, validation_file, command, figures, truth)
-    if arguments.quick:
+    report = render_report(run, validation_file, run_dir.manifest["command"], figures, truth)
+    if config.quick:
         report += "\nA quick run (--quick): rough parameters from little data, not the robot's identification.\n"
     (folder / "report.md").write_text(report)
     print(report)
     written = "" if install is None else f" and {install}"
-    if install is None and truth is not None and not arguments.no_install:
+    if install is None and truth is not None and not config.no_install:
         written += (
             " (not installed as the robot's identification: made with "
-            f"{describe_settings(simulation_settings(arguments))}, not the defaults "
+            f"{describe_settings(simulation_settings(config))}, not the defaults "
             f"{describe_settings(DEFAULT_SETTINGS)}; --parameters FILE installs it there)"
         )
-    if arguments.save_logs is not None:
-        written += f"; the logs and robot.toml in {arguments.save_logs}/"
+    if config.save_logs is not None:
+        written += f"; the logs and robot.toml in {config.save_logs}/"
     print(f"Wrote {folder}/ (parameters.json, config.json, report.md, figures){written}.")
 
 

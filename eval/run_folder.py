@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import dataclasses
 import datetime
 import json
 import os
@@ -256,6 +257,23 @@ def json_ready(value: Any) -> Any:
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     return str(value)
+
+
+def configuration_record(config: Any) -> dict[str, Any]:
+    """A command line's resolved configuration (a dataclass) as its manifest records it: every field as it is, a
+    scenario by its name (its file is beside, :func:`run_folder`), scenarios by their names, another dataclass (a
+    settings record) as its table."""
+
+    def recorded(value: Any) -> Any:
+        if isinstance(value, Scenario):
+            return value.name
+        if isinstance(value, tuple) and value and all(isinstance(item, Scenario) for item in value):
+            return [item.name for item in value]
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return dataclasses.asdict(value)
+        return value
+
+    return {field.name: recorded(getattr(config, field.name)) for field in dataclasses.fields(config)}
 
 
 def write_json(path: Path, document: Mapping[str, Any]) -> Path:

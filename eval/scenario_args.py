@@ -151,10 +151,10 @@ def scenario_from_arguments(args: argparse.Namespace, parser: argparse.ArgumentP
     return scenario
 
 
-def check_episode_seeds(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+def check_episode_seeds(parser: argparse.ArgumentParser, args: object) -> None:
     """A parser error when the episodes ``--seed`` .. ``--seed + --episodes - 1`` reach the tare calibration's
     seeds (:data:`eval.calibration.CALIBRATION_SEED_OFFSET` and up): a tare measured on the episodes it is
-    scored on would flatter the estimator."""
+    scored on would flatter the estimator. ``args``: the parsed arguments or the resolved configuration."""
     last = args.seed + getattr(args, "episodes", 1) - 1
     if last >= CALIBRATION_SEED_OFFSET:
         parser.error(
@@ -166,7 +166,7 @@ def check_episode_seeds(parser: argparse.ArgumentParser, args: argparse.Namespac
 
 def check_ranges(
     parser: argparse.ArgumentParser,
-    args: argparse.Namespace,
+    args: object,
     counts: Mapping[str, int],
     positive: Sequence[str] = (),
 ) -> None:
@@ -175,7 +175,7 @@ def check_ranges(
 
     Args:
         parser: The command line's parser.
-        args: Its parsed arguments.
+        args: Its parsed arguments or resolved configuration.
         counts: Integer arguments by ``dest`` and their minimum.
         positive: Real arguments (``dest``) that must be finite and > 0.
     """

@@ -20,6 +20,7 @@ from controllers.registry import ControllerEntry, ControllerSetup, loaded_policy
 from controllers.residual import read_policy_settings, residual_controller
 from delta_env.scenario import Scenario
 from eval import metrics
+from eval.console import plural
 from eval.episodes import EpisodeRecord
 from eval.work import WorkUnit, run_grid
 
@@ -156,3 +157,28 @@ def score_policy(
         "episodes": per_episode,
         "wall_time_s": round(time.monotonic() - start, 1),
     }
+
+
+def score_summary(scores: dict[str, Any]) -> str:
+    """The scores of :func:`eval.scoring.score_policy` as a few lines of rounded numbers: each row's pooled
+    tracking and torque RMS and worst place error, the residual's change over its base and the episodes it improved."""
+    summary = scores["summary"]
+    rows = {"base": scores["base"], "residual": scores["residual"]}
+    width = max(map(len, rows.values()))
+    lines = [
+        f"Scores of {Path(scores['policy']).name} on {plural(len(scores['episodes']), 'held-out episode')} "
+        f"({plural(len(scores['seeds']), 'seed')}, {plural(len(scores['payloads']), 'fixed payload')}), pooled over "
+        "every control step:"
+    ]
+    for name, label in rows.items():
+        row = summary[name]
+        lines.append(
+            f"  {label:<{width}}  tracking RMS {row['tracking_rms_mm']:.3f} mm (max {row['tracking_max_mm']:.2f} mm), "
+            f"torque RMS {row['torque_rms_nm']:.2f} N m, place error at most {row['place_error_max_mm']:.3f} mm"
+        )
+    improved, total = summary["episodes_improved"].split("/")
+    lines.append(
+        f"  residual vs base: tracking {100 * summary['tracking_rms_change']:+.1f} %, torque "
+        f"{100 * summary['torque_rms_change']:+.1f} %; better on {improved} of {plural(int(total), 'episode')}"
+    )
+    return "\n".join(lines)

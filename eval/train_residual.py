@@ -49,464 +49,30 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
-import math
-import time
-import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-import torch
-from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
-from stable_baselines3.common.logger import configure, make_output_format
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.utils import set_random_seed
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
-
-from controllers.base import Controller
-from controllers.residual import (
-    ALGORITHMS,
-    PolicyBase,
-    ResidualConfig,
-    algorithm_class,
-    read_policy_settings,
-    save_residual_policy,
-)
-from controllers.residual.env import action_rate_penalty
-from controllers.residual.features import PREVIOUS_ACTION
-from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
-from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
-from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
-from eval.residual_envs import (
-    BASE_KEYS,
-    CALIBRATION_SEEDS,
-    TRAINING_SEEDS,
-    VALIDATION_SEEDS,
-    base_setup,
-    make_env,
-)
+from controllers.residual import ALGORITHMS, ResidualConfig, read_policy_settings
+from eval.console import CommandParser, command_main, progress_bar, resolved_arguments
+from eval.hyperparameters import load_hyperparameters, override_hyperparameters
+from eval.residual_envs import BASE_KEYS
+from eval.residual_training import RESIDUAL_OPTIONS, TrainingConfig, train
 from eval.run_folder import (
-    Run,
     add_force_argument,
     add_runs_dir_argument,
-    append_csv_rows,
     command_run_folder,
+    configuration_record,
     write_json,
 )
 from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
-from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy
-
-CHECKPOINT_PREFIX = "residual"
-"""CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
-
-HAS_RICH = importlib.util.find_spec("rich") is not None
-"""SB3's progress bar needs tqdm and rich; without rich a plain tqdm bar is used."""
+from eval.scoring import score_policy, score_summary
 
 HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
 """``--tensorboard`` needs the tensorboard package."""
 
 
-def resume_mismatch(checkpoint: Path, scenario: str, base: str) -> str | None:
-    """What differs between the run a checkpoint comes from and a resumed run's ``scenario`` and ``base``
-    (as a sentence), from the ``config.json`` of its run folder; None when nothing differs or no record is
-    found (a checkpoint outside a run folder)."""
-    for folder in (checkpoint.parent, checkpoint.parent.parent):
-        record = folder / "config.json"
-        if record.is_file():
-            arguments = json.loads(record.read_text())["config"]["arguments"]
-            trained = {"scenario": arguments.get("scenario"), "base": arguments.get("base", "mid_f_rls")}
-            resumed = {"scenario": scenario, "base": base}
-            changed = [f"{key} {trained[key]} -> {resumed[key]}" for key in trained if trained[key] != resumed[key]]
-            return f"{checkpoint} was trained with another setting: {', '.join(changed)}" if changed else None
-    return None
-
-
-REWARD_FIELDS = ("reward_scale", "torque_weight", "action_rate_weight", "plant_torque_weight")
-"""The :class:`ResidualConfig` fields a replay buffer's rewards were computed with."""
-
-
-def trained_config(checkpoint: Path) -> ResidualConfig | None:
-    """The residual settings of the run a checkpoint comes from, from the ``config.json`` of its run folder (fields
-    its record predates take their defaults); None when no record is found (a checkpoint outside a run folder)."""
-    for folder in (checkpoint.parent, checkpoint.parent.parent):
-        record = folder / "config.json"
-        if record.is_file():
-            return ResidualConfig.from_dict(json.loads(record.read_text())["config"]["residual_config"])
-    return None
-
-
-def reward_change(checkpoint: Path, config: ResidualConfig) -> str | None:
-    """What of the reward (:data:`REWARD_FIELDS`) differs between the run a checkpoint comes from and ``config``,
-    as a sentence; None when nothing differs or no record is found."""
-    trained = trained_config(checkpoint)
-    if trained is None:
-        return None
-    changed = [
-        f"{key} {getattr(trained, key)} -> {getattr(config, key)}"
-        for key in REWARD_FIELDS
-        if getattr(trained, key) != getattr(config, key)
-    ]
-    return f"the reward changed since {checkpoint}: {', '.join(changed)}" if changed else None
-
-
-def relabelable(trained: ResidualConfig, config: ResidualConfig) -> bool:
-    """Whether a replay buffer filled under ``trained`` can be relabelled for ``config``: of the reward
-    (:data:`REWARD_FIELDS`) and the residual's scale only ``action_rate_weight`` changed. The other terms depend on
-    the plant's response, which a buffer does not keep."""
-    fixed = [key for key in (*REWARD_FIELDS, "residual_limit") if key != "action_rate_weight"]
-    return all(getattr(trained, key) == getattr(config, key) for key in fixed)
-
-
-def relabel_action_rate(buffer: ReplayBuffer, trained: ResidualConfig, config: ResidualConfig) -> None:
-    """Recompute, in place, the action-rate term of the rewards in ``buffer`` (filled under ``trained``) for
-    ``config``: the term is a function of a transition's action and of the previous action its observation holds
-    (:data:`~controllers.residual.features.PREVIOUS_ACTION`), so the relabelled rewards are those the transitions
-    would have had under ``config``, to float32 round-off.
-
-    Raises:
-        ValueError: if the buffer cannot be relabelled (:func:`relabelable`).
-    """
-    if not relabelable(trained, config):
-        raise ValueError(
-            f"only action_rate_weight can be relabelled in a replay buffer: it was filled under {trained}, not {config}"
-        )
-    filled = buffer.buffer_size if buffer.full else buffer.pos
-    actions = buffer.actions[:filled]
-    previous = buffer.observations[:filled, ..., PREVIOUS_ACTION]
-    change = action_rate_penalty(actions, previous, config) - action_rate_penalty(actions, previous, trained)
-    buffer.rewards[:filled] += (config.reward_scale * change).astype(buffer.rewards.dtype)
-
-
-class LatestReplayCheckpoint(CheckpointCallback):
-    """CheckpointCallback that keeps only the newest replay buffer (each is ~100 MB; models are kept)."""
-
-    def _on_step(self) -> bool:
-        result = super()._on_step()
-        if self.save_replay_buffer and self.n_calls % self.save_freq == 0:
-            newest = Path(self._checkpoint_path("replay_buffer_", extension="pkl"))
-            for path in newest.parent.glob(f"{self.name_prefix}_replay_buffer_*_steps.pkl"):
-                if path != newest:
-                    path.unlink()
-        return result
-
-
-class HeldOutEvalCallback(EvalCallback):
-    """EvalCallback that replays the same held-out episodes (``EpisodeSeeds.restart``) at every evaluation and, with
-    a ``curve`` path, appends each evaluation's scores to that CSV file (:data:`eval.plots.LEARNING_CURVE_COLUMNS`)."""
-
-    def __init__(self, *args: Any, curve: Path | None = None, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.curve = curve
-
-    def _on_step(self) -> bool:
-        evaluates = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
-        if evaluates:
-            self.eval_env.env_method("restart")
-        keep_going = super()._on_step()
-        if evaluates and self.curve is not None:
-            returns = np.asarray(self.evaluations_results[-1], dtype=float)
-            row = {
-                "timesteps": self.num_timesteps,
-                "mean_reward": float(returns.mean()),
-                "std_reward": float(returns.std()),
-                "min_reward": float(returns.min()),
-                "max_reward": float(returns.max()),
-                "episodes": returns.size,
-            }
-            append_csv_rows(self.curve, LEARNING_CURVE_COLUMNS, [row])
-        return keep_going
-
-
-class WallTimeLimit(BaseCallback):
-    """Stops training once a wall-time budget (minutes) is spent."""
-
-    def __init__(self, minutes: float) -> None:
-        super().__init__()
-        self.minutes = minutes
-        self.deadline = math.inf
-
-    def _on_training_start(self) -> None:
-        self.deadline = time.monotonic() + 60.0 * self.minutes
-
-    def _on_step(self) -> bool:
-        return time.monotonic() < self.deadline
-
-
-class TqdmProgress(BaseCallback):
-    """Plain-tqdm progress bar, for when rich (which SB3's ``progress_bar=True`` needs) is not installed."""
-
-    def _on_training_start(self) -> None:
-        self.bar = progress_bar(self.locals["total_timesteps"] - self.model.num_timesteps, "training", "step")
-
-    def _on_step(self) -> bool:
-        self.bar.update(self.training_env.num_envs)
-        return True
-
-    def _on_training_end(self) -> None:
-        self.bar.close()
-
-
-def _callbacks(args: argparse.Namespace, out: Path, eval_env: VecEnv) -> list[BaseCallback]:
-    n_envs = args.n_envs
-    callbacks: list[BaseCallback] = [
-        LatestReplayCheckpoint(
-            save_freq=max(args.checkpoint_freq // n_envs, 1),
-            save_path=str(out / "checkpoints"),
-            name_prefix=CHECKPOINT_PREFIX,
-            save_replay_buffer=issubclass(algorithm_class(args.algo), OffPolicyAlgorithm),
-        ),
-        HeldOutEvalCallback(
-            eval_env,
-            n_eval_episodes=len(VALIDATION_SEEDS),
-            eval_freq=max(args.eval_freq // n_envs, 1),
-            log_path=str(out),
-            best_model_save_path=str(out / "best_model"),
-            deterministic=True,
-            verbose=int(args.verbose),
-            curve=out / LEARNING_CURVE_FILE,
-        ),
-    ]
-    if args.max_minutes is not None:
-        callbacks.append(WallTimeLimit(args.max_minutes))
-    if args.progress and not HAS_RICH:
-        callbacks.append(TqdmProgress())
-    return callbacks
-
-
-def recorded_arguments(args: argparse.Namespace) -> dict[str, Any]:
-    """The command line's arguments for the run's record, the scenarios by name."""
-    return {**vars(args), "scenario": args.scenario.name, "mixture": [scenario.name for scenario in args.mixture]}
-
-
-def residual_config(args: argparse.Namespace) -> ResidualConfig:
-    """The residual settings of the command line."""
-    return ResidualConfig(
-        residual_limit=args.residual_limit,
-        action_period=args.action_period,
-        reward_scale=args.reward_scale,
-        torque_weight=args.torque_weight,
-        action_rate_weight=args.action_rate_weight,
-        off_at_rest=args.off_at_rest,
-        fade_speed=args.fade_speed,
-        plant_torque_weight=args.plant_torque_weight,
-    )
-
-
-def train(
-    args: argparse.Namespace,
-    base_factory: Callable[[], Controller] | None = None,
-    *,
-    base: PolicyBase | None = None,
-    callbacks: Sequence[BaseCallback] = (),
-) -> Path:
-    """Train per ``args`` (see :func:`parse_args`); returns the run folder.
-
-    Args:
-        args: Parsed command-line arguments.
-        base_factory: Builds the base controller instead of the one of ``args.base`` (tests).
-        base: The setup of ``args.base`` already identified and calibrated (:func:`base_setup`), so that
-            several runs share one; None makes it.
-        callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
-    """
-    torch.set_num_threads(args.torch_threads)
-    with command_run_folder(
-        "residual",
-        "eval.train_residual",
-        None,
-        args,
-        {"arguments": recorded_arguments(args)},
-        scenarios=[args.scenario, *args.mixture],
-    ) as run:
-        summary = _train(args, run, base_factory, base, callbacks)
-    print(f"{summary}\nRun folder: {run.folder}")
-    return run.folder
-
-
-def _train(
-    args: argparse.Namespace,
-    run: Run,
-    base_factory: Callable[[], Controller] | None,
-    base: PolicyBase | None,
-    callbacks: Sequence[BaseCallback],
-) -> str:
-    """The training of :func:`train` into ``run``'s folder; returns its summary: what was trained, and the scores."""
-    out = run.folder
-    config = residual_config(args)
-    env_kwargs = {"n_cycles": args.cycles, "scenario": args.scenario}
-    mixture = [
-        {"n_cycles": cycles, "scenario": scenario}
-        for cycles, scenario in zip(args.mixture_cycles, args.mixture, strict=True)
-    ]
-    if base is None and base_factory is None:
-        base = base_setup(env_kwargs, base=args.base, runs_dir=args.runs_dir, servo=args.servo)
-    hyperparameters = override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
-
-    command = run.manifest["command"]
-    resolved = {
-        "arguments": recorded_arguments(args),
-        "hyperparameter_file": HYPERPARAMETER_FILE.name,
-        "residual_config": asdict(config),
-        "env_kwargs": {**env_kwargs, "scenario": args.scenario.name},
-        "mixture": [{**kwargs, "scenario": kwargs["scenario"].name} for kwargs in mixture],
-        "scenario": {"name": args.scenario.name, "file": "scenario.toml", "robot": args.scenario.robot_identity},
-        "hyperparameters": hyperparameters,
-        "base_controller": "custom (base_factory)" if base is None else base.to_table(),
-        "seeds": {
-            "training": f"per worker from default_rng([seed, rank]) in {TRAINING_SEEDS}",
-            "calibration": list(CALIBRATION_SEEDS),
-            "validation": list(VALIDATION_SEEDS),
-            "test": list(TEST_SEEDS),
-            "test_payloads": list(TEST_PAYLOADS),
-        },
-    }
-    run.record(config=resolved)
-
-    set_random_seed(args.seed)
-    factories = [
-        make_env(
-            config=config,
-            env_kwargs=env_kwargs,
-            base=base,
-            seed=args.seed,
-            rank=rank,
-            base_factory=base_factory,
-            mixture=mixture,
-        )
-        for rank in range(args.n_envs)
-    ]
-    vec_env = SubprocVecEnv(factories) if args.n_envs > 1 else DummyVecEnv(factories)
-    eval_env = DummyVecEnv(
-        [
-            make_env(
-                config=config,
-                env_kwargs=env_kwargs,
-                base=base,
-                seeds=VALIDATION_SEEDS,
-                base_factory=base_factory,
-                mixture=mixture,
-            )
-        ]
-    )
-    algorithm = algorithm_class(args.algo)
-    formats = ["stdout", "csv"] if args.verbose else ["csv"]
-    if args.resume is not None:
-        mismatch = resume_mismatch(args.resume, args.scenario.name, args.base)
-        if mismatch is not None:
-            warnings.warn(f"{mismatch}; training goes on with the new one", stacklevel=1)
-        # The --hyperparams given apply to the resumed model, except its networks, which the checkpoint fixes.
-        overrides = override_hyperparameters({}, args.hyperparams, args.algo)
-        policy_kwargs = overrides.pop("policy_kwargs", {})
-        model = algorithm.load(args.resume, env=vec_env, device="cpu", **overrides)
-        changed = {key: value for key, value in policy_kwargs.items() if model.policy_kwargs.get(key) != value}
-        if changed:
-            raise ValueError(
-                f"--hyperparams policy_kwargs {changed}: the checkpoint {args.resume} has {model.policy_kwargs}"
-            )
-        off_policy = isinstance(model, OffPolicyAlgorithm)
-        replay = args.resume.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{model.num_timesteps}_steps.pkl")
-        reward = reward_change(args.resume, config)
-        trained = trained_config(args.resume)
-        relabel = reward is not None and trained is not None and relabelable(trained, config)
-        if off_policy and reward is not None and not (relabel and replay.is_file()):
-            # its transitions carry the old reward: the critic would learn from two rewards at once
-            warnings.warn(f"{reward}: resuming with an empty replay buffer", stacklevel=1)
-            replay = None
-        elif off_policy and replay.is_file():
-            model.load_replay_buffer(replay)
-            if relabel:
-                relabel_action_rate(model.replay_buffer, trained, config)
-        elif off_policy:
-            # Only the newest replay buffer is kept: an older checkpoint restarts with an empty one.
-            warnings.warn(f"no replay buffer at {replay}: resuming with an empty one", stacklevel=1)
-            replay = None
-        resolved["resumed_from"] = {
-            "checkpoint": str(args.resume),
-            "setting_changed": mismatch,
-            "num_timesteps": model.num_timesteps,
-            "replay_buffer": replay if off_policy else None,
-            "replay_buffer_relabelled": off_policy and replay is not None and relabel,
-            "hyperparameters_changed": overrides,
-        }
-        run.record(config=resolved)
-    else:
-        model = algorithm("MlpPolicy", vec_env, seed=args.seed, device="cpu", verbose=0, **hyperparameters)
-    logger = configure(str(out), formats)
-    if args.tensorboard is not None:
-        # One event folder per run under DIR, for `tensorboard --logdir DIR`.
-        logger.output_formats.append(make_output_format("tensorboard", str(args.tensorboard / out.name)))
-    model.set_logger(logger)
-
-    all_callbacks = [*_callbacks(args, out, eval_env), *callbacks]
-    # SubprocVecEnv for training, DummyVecEnv for the held-out episodes: intended, not worth a warning.
-    warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
-    remaining = max(args.timesteps - model.num_timesteps, 0)
-    start = time.monotonic()
-    model.learn(
-        total_timesteps=remaining,
-        callback=all_callbacks,
-        reset_num_timesteps=args.resume is None,
-        progress_bar=args.progress and HAS_RICH,
-    )
-    wall_time = time.monotonic() - start
-    notes = {"command": command, "seed": args.seed, "timesteps": model.num_timesteps}
-    notes["wall_time_s"] = round(wall_time, 1)
-    save_residual_policy(model, out / "final_policy.zip", config, args.algo, base=base, extra=notes)
-    best = out / "best_model" / "best_model.zip"
-    if best.is_file():
-        best_model = algorithm.load(best, device="cpu")
-        save_residual_policy(best_model, out / "best_policy.zip", config, args.algo, base=base, extra=notes)
-    vec_env.close()
-    eval_env.close()
-    learning_curve_figure(out)
-    run.record(training={"wall_time_s": round(wall_time, 1), "num_timesteps": model.num_timesteps})
-    policies = "final_policy.zip" + (" and best_policy.zip" if best.is_file() else "")
-    lines = [
-        f"Trained {args.algo.upper()} on {args.scenario.name} for {model.num_timesteps:,} steps in "
-        f"{f'{wall_time:.0f} s' if wall_time < 120 else f'{wall_time / 60:.1f} min'}: {policies}."
-    ]
-    if args.score and base is None:
-        lines.append(
-            "No scores: the policy was trained on a custom base (base_factory), which its file does not record."
-        )
-    elif args.score:
-        policy = out / ("best_policy.zip" if best.is_file() else "final_policy.zip")
-        with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
-            scores = score_policy(policy, env_kwargs, progress=bar)
-        write_json(out / "scores.json", scores)
-        lines.append(score_summary(scores))
-    return "\n".join(lines)
-
-
-def score_summary(scores: dict[str, Any]) -> str:
-    """The scores of :func:`eval.scoring.score_policy` as a few lines of rounded numbers: each row's pooled
-    tracking and torque RMS and worst place error, the residual's change over its base and the episodes it improved."""
-    summary = scores["summary"]
-    rows = {"base": scores["base"], "residual": scores["residual"]}
-    width = max(map(len, rows.values()))
-    lines = [
-        f"Scores of {Path(scores['policy']).name} on {plural(len(scores['episodes']), 'held-out episode')} "
-        f"({plural(len(scores['seeds']), 'seed')}, {plural(len(scores['payloads']), 'fixed payload')}), pooled over "
-        "every control step:"
-    ]
-    for name, label in rows.items():
-        row = summary[name]
-        lines.append(
-            f"  {label:<{width}}  tracking RMS {row['tracking_rms_mm']:.3f} mm (max {row['tracking_max_mm']:.2f} mm), "
-            f"torque RMS {row['torque_rms_nm']:.2f} N m, place error at most {row['place_error_max_mm']:.3f} mm"
-        )
-    improved, total = summary["episodes_improved"].split("/")
-    lines.append(
-        f"  residual vs base: tracking {100 * summary['tracking_rms_change']:+.1f} %, torque "
-        f"{100 * summary['torque_rms_change']:+.1f} %; better on {improved} of {plural(int(total), 'episode')}"
-    )
-    return "\n".join(lines)
-
-
-def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     summary, _, details = __doc__.partition("\n\n")
     parser = CommandParser(
         prog="python -m eval.train_residual",
@@ -616,64 +182,83 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar="POLICY",
         help="no training: score this policy zip on the test seeds",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> TrainingConfig:
+    """The configuration of the parsed command line ``arguments`` (left as they are): the scenarios, their cycles
+    and the residual's settings resolved; a bad value is a parser error."""
     counts = {"seed": 0, "timesteps": 1, "n_envs": 1, "cycles": 1, "checkpoint_freq": 1, "eval_freq": 1}
-    check_ranges(parser, args, {**counts, "torch_threads": 1}, ("max_minutes",))
-    scenario = scenario_from_arguments(args, parser)
-    mixture = [scenario_from_arguments(resolved_arguments(args, scenario=name), parser) for name in args.mix]
+    check_ranges(parser, arguments, {**counts, "torch_threads": 1}, ("max_minutes",))
+    scenario = scenario_from_arguments(arguments, parser)
+    mixture = tuple(
+        scenario_from_arguments(resolved_arguments(arguments, scenario=name), parser) for name in arguments.mix
+    )
     for mixed in mixture:
         if mixed.robot_identity != scenario.robot_identity:
             parser.error(f"--mix {mixed.name}: not the robot of --scenario {scenario.name}, whose base it uses")
-    args = resolved_arguments(
-        args,
-        scenario=scenario,
-        cycles=scenario.task.n_cycles if args.cycles is None else args.cycles,
-        mixture=mixture,
-        mixture_cycles=[args.cycles or mixed.task.n_cycles for mixed in mixture],
-    )
-    if args.tensorboard is not None and not HAS_TENSORBOARD:
+    if arguments.tensorboard is not None and not HAS_TENSORBOARD:
         parser.error("--tensorboard needs the tensorboard package (pip install tensorboard)")
     try:
-        residual_config(args)
+        residual = ResidualConfig(**{name: getattr(arguments, name) for name in RESIDUAL_OPTIONS})
     except ValueError as error:
-        flags = (
-            "--residual-limit, --action-period, --reward-scale, --torque-weight, --action-rate-weight, --fade-speed, "
-            "--plant-torque-weight"
-        )
+        flags = ", ".join("--" + name.replace("_", "-") for name in RESIDUAL_OPTIONS if name != "off_at_rest")
         parser.error(f"{flags}: {error}")
     try:
-        override_hyperparameters(load_hyperparameters(args.algo), args.hyperparams, args.algo)
+        override_hyperparameters(load_hyperparameters(arguments.algo), arguments.hyperparams, arguments.algo)
     except (ValueError, ImportError) as error:
         parser.error(str(error))
-    if args.score_only is not None and args.mix:
+    if arguments.score_only is not None and arguments.mix:
         parser.error("--mix is for training: --score-only scores the episodes of --scenario")
-    if args.score_only is not None:
+    if arguments.score_only is not None:
         try:
-            base = read_policy_settings(args.score_only).base
+            base = read_policy_settings(arguments.score_only).base
         except (FileNotFoundError, ValueError) as error:
-            parser.error(f"--score-only {args.score_only}: {error}")
+            parser.error(f"--score-only {arguments.score_only}: {error}")
         if base is None:
-            parser.error(f"--score-only {args.score_only}: trained on a custom base, which the file does not record")
+            parser.error(
+                f"--score-only {arguments.score_only}: trained on a custom base, which the file does not record"
+            )
+    given = {name: value for name, value in vars(arguments).items() if name not in RESIDUAL_OPTIONS}
+    return TrainingConfig(
+        **{
+            **given,
+            "scenario": scenario,
+            "cycles": scenario.task.n_cycles if arguments.cycles is None else arguments.cycles,
+            "mix": tuple(arguments.mix),
+            "residual": residual,
+            "hyperparams": tuple(arguments.hyperparams),
+            "mixture": mixture,
+            "mixture_cycles": tuple(arguments.cycles or mixed.task.n_cycles for mixed in mixture),
+        }
+    )
 
-    return args
+
+def parse_args(argv: Sequence[str] | None = None) -> TrainingConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 @command_main("python -m eval.train_residual")
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    if args.score_only is None:
-        train(args)
+    config = parse_args(argv)
+    if config.score_only is None:
+        train(config)
         return 0
     with command_run_folder(
         "residual_scores",
         "eval.train_residual",
         argv,
-        args,
-        {"arguments": recorded_arguments(args)},
-        scenarios=[args.scenario],
+        config,
+        {"arguments": configuration_record(config)},
+        scenarios=[config.scenario],
     ) as run:
-        with progress_bar(desc="test episodes", unit="episode", disable=not args.progress) as bar:
-            scores = score_policy(args.score_only, {"n_cycles": args.cycles, "scenario": args.scenario}, progress=bar)
+        with progress_bar(desc="test episodes", unit="episode", disable=not config.progress) as bar:
+            scores = score_policy(
+                config.score_only, {"n_cycles": config.cycles, "scenario": config.scenario}, progress=bar
+            )
         write_json(run.folder / "scores.json", scores)
     print(f"{score_summary(scores)}\nRun folder: {run.folder}")
     return 0

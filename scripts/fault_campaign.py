@@ -44,7 +44,7 @@ from delta_env.faults import FAULT_KINDS, FAULT_REACTIONS, SENSOR_KINDS, FaultSp
 from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.console import CommandParser, command_main, plural, progress_bar
+from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import (
@@ -55,7 +55,7 @@ from eval.faults import (
     write_confusion_csv,
     write_fault_csv,
 )
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_line, run_folder, write_csv
+from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_run_folder, write_csv
 from eval.scenario_args import (
     add_scenario_arguments,
     add_workers_argument,
@@ -92,22 +92,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     check_ranges(parser, args, {"episodes": 1, "seed": 0, "workers": 1})
     check_episode_seeds(parser, args)
-    args.kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
-    unknown = sorted(set(args.kinds) - set(FAULT_KINDS))
+    kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
+    unknown = sorted(set(kinds) - set(FAULT_KINDS))
     if unknown:
         parser.error(f"--kinds: unknown {unknown}; choose from {list(FAULT_KINDS)} or 'all'")
     try:
-        args.controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    args.scenario = scenario_from_arguments(args, parser)
-    args.reactions = args.reactions.split(",") if args.reactions else [args.scenario.task.fault_reaction]
-    unknown = sorted(set(args.reactions) - set(FAULT_REACTIONS))
-    if unknown or len(set(args.reactions)) < len(args.reactions):
-        parser.error(
-            f"--reactions: unknown or repeated {unknown or args.reactions}; choose from {list(FAULT_REACTIONS)}"
-        )
-    return args
+    scenario = scenario_from_arguments(args, parser)
+    reactions = args.reactions.split(",") if args.reactions else [scenario.task.fault_reaction]
+    unknown = sorted(set(reactions) - set(FAULT_REACTIONS))
+    if unknown or len(set(reactions)) < len(reactions):
+        parser.error(f"--reactions: unknown or repeated {unknown or reactions}; choose from {list(FAULT_REACTIONS)}")
+    return resolved_arguments(args, kinds=kinds, controllers=controllers, scenario=scenario, reactions=reactions)
 
 
 def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...], reaction: str | None = None) -> Scenario:
@@ -227,14 +225,13 @@ def reaction_table(rows: list[dict[str, Any]], kinds: Sequence[str], reactions: 
 @command_main("python scripts/fault_campaign.py")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    with run_folder(
+    with command_run_folder(
         "fault_campaign",
-        command_line("scripts/fault_campaign.py", argv),
+        "scripts/fault_campaign.py",
+        argv,
+        args,
         {**vars(args), "scenario": args.scenario.name},
-        out=args.out,
-        runs_dir=args.runs_dir,
         scenarios=[args.scenario],
-        reuse=args.force,
     ) as run:
         campaign(args, run)
     return 0

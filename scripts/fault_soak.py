@@ -8,7 +8,8 @@ Runs fault-free episodes ``seed, seed + 1, ...`` of each controller on each cond
   payload);
 - ``declared-mixed``, ``declared-0.1kg``, ``declared-4kg``, ``online-mixed``, ``online-0.1kg``, ``online-4kg``: the
   pick-rate data sheet's time-optimal timings on the whole envelope, built as ``python -m eval.rate`` builds them
-  (:func:`eval.rate.rate_scenario`: the standard cycle, ``torque_share`` :data:`eval.rate.RATE_TORQUE_SHARE`, its
+  (:func:`eval.rate_study.rate_scenario`: the standard cycle, ``torque_share``
+  :data:`eval.rate_study.RATE_TORQUE_SHARE`, its
   cycles per episode), with objects U[0, 4] kg, 0.1 kg or 4 kg. Every controller runs at its own pace (an online
   carry of a row without an estimator is retimed on the cell's, as a cell would run it), where the data sheet has
   those rows replay its first controller's references;
@@ -64,11 +65,11 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
-from eval.console import CommandParser, UsageError, command_main, progress_bar
+from eval.console import CommandParser, UsageError, command_main, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.faults import FAULT_COLUMNS, fault_rows
-from eval.rate import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
+from eval.rate_study import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
 from eval.work import WorkUnit, run_grid
@@ -80,8 +81,8 @@ class SoakCondition:
 
     Attributes:
         timing: How the moves are timed (:data:`delta_env.scenario.TIMINGS`): ``fixed`` on the scenario's conveyor
-            cycle, else the data sheet's time-optimal timing (:func:`eval.rate.rate_scenario`).
-        payload: Every object's mass (kg), or :data:`eval.rate.MIXED` (U[0, rated payload]).
+            cycle, else the data sheet's time-optimal timing (:func:`eval.rate_study.rate_scenario`).
+        payload: Every object's mass (kg), or :data:`eval.rate_study.MIXED` (U[0, rated payload]).
         peak_acceleration: Peak Cartesian acceleration of a fixed timing (m/s^2); unused by the others.
         description: What the condition is, in words.
     """
@@ -197,24 +198,24 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_runs_dir_argument(parser)
     add_workers_argument(parser)
     args = parser.parse_args(argv)
-    if args.carries is None and args.minutes is None:
-        args.carries = DEFAULT_CARRIES
+    carries = DEFAULT_CARRIES if args.carries is None and args.minutes is None else args.carries
     check_ranges(
         parser,
-        args,
-        {"seed": 0, "workers": 1, **({"carries": 1} if args.carries is not None else {})},
+        resolved_arguments(args, carries=carries),
+        {"seed": 0, "workers": 1, **({"carries": 1} if carries is not None else {})},
         ("minutes",) if args.minutes is not None else (),
     )
     conditions = [name.strip() for name in args.conditions.split(",") if name.strip()]
     unknown = [name for name in conditions if name not in CONDITIONS]
     if unknown or not conditions:
         parser.error(f"--conditions: unknown or no values {unknown}; choose from {', '.join(CONDITIONS)}")
-    args.conditions = list(dict.fromkeys(conditions))
     try:
-        args.controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    return args
+    return resolved_arguments(
+        args, carries=carries, conditions=list(dict.fromkeys(conditions)), controllers=controllers
+    )
 
 
 def condition_scenarios(base: Scenario, names: Sequence[str]) -> dict[str, Scenario]:

@@ -6,7 +6,7 @@
     python scripts/residual_learning_curve.py --recipe new --runs 1 -- --reward-scale 0.1
 
 Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--seed + --runs - 1``, with
-:func:`eval.train_residual.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
+:func:`eval.residual_training.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
 policy steps pauses to save the policy (``validation_policy.zip`` in the run's folder) and score it with
 :func:`eval.scoring.score_policy` on the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
 scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``): the base controller
@@ -43,12 +43,13 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, save_residual_policy
-from eval.console import CommandParser, UsageError, command_main
+from eval.console import CommandParser, UsageError, command_main, resolved_arguments
 from eval.residual_envs import VALIDATION_SEEDS, base_setup
+from eval.residual_training import train
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import check_ranges
 from eval.scoring import score_policy
-from eval.train_residual import parse_args, residual_config, train
+from eval.train_residual import parse_args
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     "old": ("sac", ("train_freq:2", "gradient_steps:1", "learning_rate:3e-4"), ("--residual-limit", "40")),
@@ -317,7 +318,7 @@ def run(recipe: Recipe, seed: int, args: argparse.Namespace, out: Path, shared: 
         recipe=recipe,
         seed=seed,
         base=base,
-        config=residual_config(train_arguments),
+        config=train_arguments.residual,
         env_kwargs=env_kwargs,
         policy_path=folder / "validation_policy.zip",
         curve_path=out / "curve.csv",
@@ -361,8 +362,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     if args.recipe and (args.hyperparams or args.label):
         parser.error("--hyperparams and --label go with --algo, not with --recipe")
     check_ranges(parser, args, {"seed": 0, "runs": 1, "timesteps": 1, "eval_freq": 1}, ("max_minutes",))
-    args.seeds = list(range(args.seed, args.seed + args.runs))
-    return args
+    return resolved_arguments(args, seeds=list(range(args.seed, args.seed + args.runs)))
 
 
 @command_main("python scripts/residual_learning_curve.py")

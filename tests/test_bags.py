@@ -309,22 +309,22 @@ def test_bag_errors_on_the_command_line_are_messages(bag_runs, tmp_path, capsys)
 )
 def test_bad_bag_and_quick_command_lines_are_parser_errors(capsys, arguments, message) -> None:
     with pytest.raises(SystemExit) as exit_code:
-        cli.parse_arguments(arguments)
+        cli.parse_args(arguments)
     assert exit_code.value.code == 2
     assert message in capsys.readouterr().err
 
 
 def test_quick_settings_yield_to_explicit_ones() -> None:
-    quick = cli.parse_arguments(["--quick"])
+    quick = cli.parse_args(["--quick"])
     settings = (quick.trajectories, quick.duration, quick.validation_duration, quick.workers, quick.no_install)
     assert settings == (3, 3.0, 3.0, 1, True)
-    assert cli.parse_arguments(["--quick", "--duration", "5"]).duration == 5.0
+    assert cli.parse_args(["--quick", "--duration", "5"]).duration == 5.0
 
 
 def test_a_quick_identification_never_replaces_the_robots_parameter_file(tmp_path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(cli, "QUICK", {"trajectories": 1, "duration": 2.0, "validation_duration": 2.0, "workers": 1})
     runs = tmp_path / "runs"
-    cached = parameter_path(cli.parse_arguments(["--runs-dir", str(runs)]).scenario.plant, identification_root(runs))
+    cached = parameter_path(cli.parse_args(["--runs-dir", str(runs)]).scenario.plant, identification_root(runs))
     cached.parent.mkdir(parents=True)
     cached.write_text("the default identification")
     cli.main(["--quick", "--runs-dir", str(runs), "--out", str(tmp_path / "run"), "--no-progress"])

@@ -192,12 +192,12 @@ def test_the_robots_cache_refuses_an_identification_of_other_settings(tmp_path) 
 def test_eval_identify_installs_only_the_default_settings_as_the_robots_identification(tmp_path, capsys) -> None:
     runs = ["--runs-dir", str(tmp_path)]
     own = parameter_files.parameter_path(preset("nominal").plant, tmp_path / "identification")
-    assert identify.parse_arguments(runs).parameters == own
-    assert identify.parse_arguments([*runs, "--trajectories", "3", "--duration", "3"]).parameters is None
-    assert identify.parse_arguments([*runs, "--seed", "1"]).parameters is None
+    assert identify.parse_args(runs).parameters == own
+    assert identify.parse_args([*runs, "--trajectories", "3", "--duration", "3"]).parameters is None
+    assert identify.parse_args([*runs, "--seed", "1"]).parameters is None
     chosen = tmp_path / "short.json"
-    assert identify.parse_arguments([*runs, "--trajectories", "3", "--parameters", str(chosen)]).parameters == chosen
-    line = usage_error(identify.parse_arguments, [*runs, "--trajectories", "3", "--parameters", str(own)], capsys)
+    assert identify.parse_args([*runs, "--trajectories", "3", "--parameters", str(chosen)]).parameters == chosen
+    line = usage_error(identify.parse_args, [*runs, "--trajectories", "3", "--parameters", str(own)], capsys)
     assert f"--parameters {own} is the robot's own identification" in line and "--trajectories 3" in line
 
 

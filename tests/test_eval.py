@@ -497,34 +497,34 @@ def bound_row(
 
 
 def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverged_episodes() -> None:
-    from eval.__main__ import _bound_section
+    from eval.comparison_report import bound_section
 
     row = bound_row
 
     bound = "Oracle+PD (bound)"
     holds = [row(bound, 0, 0.03), row(bound, 1, 0.05), row("PD", 0, 6.0), row("MId+F+R+RLS+lag+PD", 1, 0.051)]
     holds_line = BOUND_HOLDS.format(bound=bound)
-    assert _bound_section(holds) == [holds_line, ""]
+    assert bound_section(holds) == [holds_line, ""]
     # Mean 0.035 < 0.04: a violation, and so is its episode 1 (0.04 < 0.05); a diverged episode's short record
     # counts neither in the mean nor as an episode.
     broken = [*holds, row("A", 0, 0.03), row("A", 1, 0.04), row("A", 2, 0.001, diverged=True)]
-    section = _bound_section(broken)
+    section = bound_section(broken)
     assert section[0] == "## Bound violated" and len(section) == 5
     assert "A tracks at 0.035 mm RMS, below Oracle+PD (bound) at 0.040 mm" in section[2]
     assert "A tracks episode 1 at 0.040 mm RMS, below Oracle+PD (bound) at 0.050 mm on the same episode" in section[3]
     # A mean above the bound's still violates it on an episode the controller tracked better.
     one_episode = [*holds, row("B", 0, 0.02), row("B", 1, 0.09)]
-    assert _bound_section(one_episode)[2:] == [
+    assert bound_section(one_episode)[2:] == [
         "- B tracks episode 0 at 0.020 mm RMS, below Oracle+PD (bound) at 0.030 mm on the same episode",
         "",
     ]
-    assert _bound_section([row("PD", 0, 6.0)]) == []  # no oracle row, nothing to check
+    assert bound_section([row("PD", 0, 6.0)]) == []  # no oracle row, nothing to check
 
 
 def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
     """An oracle episode whose commands the drive clipped, or in which a joint exceeded the drive's speed, is no
     bound: its seed leaves the check (mean and episodes) for every controller, and the summary says so."""
-    from eval.__main__ import _bound_section
+    from eval.comparison_report import bound_section
 
     bound = "Oracle+PD (bound)"
     rows = [
@@ -540,16 +540,16 @@ def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
         "the drive's maximum speed on 0, 3 steps; the bound check skips these episodes."
     )
     holds = BOUND_HOLDS.format(bound=bound)
-    assert _bound_section(rows) == [note, "", holds, ""]
+    assert bound_section(rows) == [note, "", holds, ""]
     rows[3] = bound_row("A", 0, 0.02)  # episode 0 is still checked
-    assert _bound_section(rows)[2] == "## Bound violated"
-    assert _bound_section(rows[1:3]) == [note, ""]  # no episode left to check
+    assert bound_section(rows)[2] == "## Bound violated"
+    assert bound_section(rows[1:3]) == [note, ""]  # no episode left to check
 
 
 def test_bound_check_skips_the_oracle_episodes_with_an_injected_fault() -> None:
     """The oracle knows the fault-free plant and the payloads: on an episode with an injected fault it is no bound,
     and the check skips that seed for every controller."""
-    from eval.__main__ import _bound_section
+    from eval.comparison_report import bound_section
     from eval.tables import unbounded_episodes
 
     bound = "Oracle+PD (bound)"
@@ -571,8 +571,8 @@ def test_bound_check_skips_the_oracle_episodes_with_an_injected_fault() -> None:
         "payloads; the bound check skips these episodes."
     )
     holds = BOUND_HOLDS.format(bound=bound)
-    assert _bound_section(rows) == [clipped, "", faulted, "", holds, ""]
-    assert _bound_section(rows[1:2]) == [faulted, ""]  # no episode left to check
+    assert bound_section(rows) == [clipped, "", faulted, "", holds, ""]
+    assert bound_section(rows[1:2]) == [faulted, ""]  # no episode left to check
 
 
 def test_run_episode_records_the_largest_loop_gap() -> None:

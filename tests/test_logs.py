@@ -314,7 +314,7 @@ def test_a_bad_log_on_the_command_line_is_an_error_message_not_a_traceback(logge
 )
 def test_bad_command_lines_are_parser_errors(capsys, arguments, message) -> None:
     with pytest.raises(SystemExit) as exit_code:
-        cli.parse_arguments(arguments)
+        cli.parse_args(arguments)
     assert exit_code.value.code == 2
     assert message in capsys.readouterr().err
 

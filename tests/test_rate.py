@@ -22,22 +22,17 @@ from delta_env.config import RATED_PAYLOAD
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.scenario import PickPlaceTask, Scenario
 from eval.published_rates import ABB_IRB_360, DIFFERENCES
-from eval.rate import (
+from eval.rate import main, parse_args
+from eval.rate_report import _cycle_line, _pace_line, _published_lines, rate_figure, summary_lines
+from eval.rate_study import (
     FULL_STUDY,
     MIXED,
     QUICK_NOTE,
     QUICK_STUDY,
     RATE_TORQUE_SHARE,
-    _cycle_line,
-    _pace_line,
-    _published_lines,
-    _summary,
     cycle_terms,
     holds,
-    main,
     paced,
-    parse_args,
-    rate_figure,
     rate_scenario,
     summarize,
 )
@@ -119,8 +114,8 @@ def test_a_rows_scenario_keeps_every_other_term_of_the_task() -> None:
 
 
 def rate_rows(planners: tuple[str, ...], loads: tuple[str, ...]) -> list[dict[str, Any]]:
-    """Rows of the lead as :func:`eval.rate.run_rows` gives them: every planned timing at the same rate for objects of
-    one mass (the case where lines coincide), declared and online faster on the mixed stream."""
+    """Rows of the lead as :func:`eval.rate_study.run_rows` gives them: every planned timing at the same rate for
+    objects of one mass (the case where lines coincide), declared and online faster on the mixed stream."""
     rows = []
     for planner in planners:
         for load in loads:
@@ -210,9 +205,9 @@ def test_the_summary_shows_the_settle_columns_when_the_rows_have_them(tmp_path: 
     args = parse_args(["--quick", "--planners", "fixed,online", "--controllers", "mid_f_rls_lag"])
     settle = {"settle_time_mean_ms": 14.0, "settle_time_max_ms": 52.0, "settle_timeouts": 1}
     rows = rate_rows(("fixed", "online"), ("0.1", "4", MIXED))
-    text = "\n".join(_summary(args, rows, [], tmp_path, 1.0))
+    text = "\n".join(summary_lines(args, rows, [], tmp_path, 1.0))
     assert "settle (ms)" not in text and text.count(QUICK_NOTE) == 1 and "1 episode x 2 cycles" in text
-    settled = "\n".join(_summary(args, [row | settle for row in rows], [], tmp_path, 1.0))
+    settled = "\n".join(summary_lines(args, [row | settle for row in rows], [], tmp_path, 1.0))
     assert "| settle (ms) | settle max | time-outs |" in settled and "| 14.0 | 52.0 | 1 |" in settled
     assert "no settle time-out" in settled and "IRB 360-3/1130" in settled
 

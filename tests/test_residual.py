@@ -59,9 +59,11 @@ from eval.residual_envs import (
     base_setup,
     make_env,
 )
+from eval.residual_resume import relabel_action_rate, resume_mismatch, reward_change, trained_config
+from eval.residual_training import train
 from eval.run_folder import read_csv_rows
 from eval.scoring import TEST_SEEDS
-from eval.train_residual import parse_args, relabel_action_rate, resume_mismatch, reward_change, train, trained_config
+from eval.train_residual import parse_args
 from tests.conftest import NOMINAL_SETUP, run_python
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
@@ -472,7 +474,7 @@ def test_a_scenario_mixture_runs_each_episode_on_the_scenario_its_seed_picks(tmp
     with pytest.raises(ValueError, match="reset it with a seed"):
         ScenarioMixture([DeltaResidualEnv(base=make_base(), n_cycles=1)]).reset()
     args = parse_args(["--mix", "pick-rate-randomized", "nominal", "--cycles", "2"])
-    assert [s.name for s in args.mixture] == ["pick-rate-randomized", "nominal"] and args.mixture_cycles == [2, 2]
+    assert [s.name for s in args.mixture] == ["pick-rate-randomized", "nominal"] and args.mixture_cycles == (2, 2)
     with pytest.raises(SystemExit):
         parse_args(["--mix", "nominal", "--score-only", str(DEFAULT_POLICY_PATH)])
     run = train(tiny_training_args(tmp_path / "mixed", 0, "--mix", "nominal"), base_factory=make_base)
@@ -500,12 +502,13 @@ def test_training_and_held_out_seeds_are_disjoint() -> None:
     assert seeds == [VALIDATION_SEEDS[0], VALIDATION_SEEDS[1], VALIDATION_SEEDS[0], VALIDATION_SEEDS[0]]
 
 
-def tiny_training_args(out: Path, seed: int, *extra: str):
+def tiny_training_args(out: Path, seed: int, *extra: str, timesteps: int = 60, hyperparams: tuple[str, ...] = ()):
     return parse_args(
         [
-            "--seed", str(seed), "--timesteps", "60", "--n-envs", "1", "--cycles", "1",
+            "--seed", str(seed), "--timesteps", str(timesteps), "--n-envs", "1", "--cycles", "1",
             "--hyperparams", "learning_starts:30", "batch_size:16", "buffer_size:500", "policy_kwargs.net_arch:[16,16]",
             "train_freq:1",  # steps in multiples of 30, as the checkpoints
+            *hyperparams,
             "--eval-freq", "60", "--checkpoint-freq", "30", "--no-progress", "--no-score", "--out", str(out),
             *extra,
         ]
@@ -537,9 +540,10 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path, capsys: 
     # Resume from the last checkpoint (with its replay buffer, the only one kept) and train further.
     checkpoints = sorted(p.name for p in (runs[0] / "checkpoints").iterdir())
     assert checkpoints == ["residual_30_steps.zip", "residual_60_steps.zip", "residual_replay_buffer_60_steps.pkl"]
-    args = tiny_training_args(tmp_path / "resumed", 0, "--resume", str(runs[0] / "checkpoints" / checkpoints[1]))
-    args.timesteps = 90
-    args.hyperparams.append("learning_rate:0.0005")
+    checkpoint = str(runs[0] / "checkpoints" / checkpoints[1])
+    args = tiny_training_args(
+        tmp_path / "resumed", 0, "--resume", checkpoint, timesteps=90, hyperparams=("learning_rate:0.0005",)
+    )
     resumed = train(args, base_factory=make_base)
     model = load_residual_policy(resumed / "final_policy.zip").model
     assert model.num_timesteps == 90
@@ -781,7 +785,7 @@ def test_hyperparams_override_any_key_with_toml_values() -> None:
         load_hyperparameters("crossq"), ["policy_kwargs.net_arch.qf:[128, 128]"], "crossq"
     )
     assert crossq["policy_kwargs"]["net_arch"] == {"pi": [256, 256], "qf": [128, 128]}
-    assert parse_args(["--hyperparams", "gamma:0.9", "batch_size:64"]).hyperparams == ["gamma:0.9", "batch_size:64"]
+    assert parse_args(["--hyperparams", "gamma:0.9", "batch_size:64"]).hyperparams == ("gamma:0.9", "batch_size:64")
 
 
 @pytest.mark.parametrize(
@@ -824,8 +828,7 @@ def test_tensorboard_without_the_package_is_a_command_line_error(capsys, monkeyp
 @pytest.mark.parametrize("algo", ["tqc", "crossq"])
 def test_sb3_contrib_algorithms_train_save_and_reload(algo: str, tmp_path: Path) -> None:
     pytest.importorskip("sb3_contrib", reason="TQC and CrossQ need sb3-contrib (the rl extra)")
-    args = tiny_training_args(tmp_path / algo, 0, "--algo", algo)
-    args.hyperparams = [*args.hyperparams, "policy_kwargs.net_arch:[16, 16]"]
+    args = tiny_training_args(tmp_path / algo, 0, "--algo", algo, hyperparams=("policy_kwargs.net_arch:[16, 16]",))
     run = train(args, base_factory=make_base)
     policy = load_residual_policy(run / "final_policy.zip")
     assert policy.algo == algo and policy.model.num_timesteps == 60

@@ -278,7 +278,7 @@ def train_residual_parser(argv: list[str]) -> Any:
 PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "eval": eval_cli.parse_args,
     "sweep": sweep_cli.parse_args,
-    "identify": identify.parse_arguments,
+    "identify": identify.parse_args,
     "rate": rate.parse_args,
     "design": design_cli.parse_args,
     "train_residual": train_residual_parser,

@@ -11,6 +11,8 @@ import delta_env  # noqa: F401 - registers DeltaPickPlace-v0
 from controllers.base import PDController, payload_estimator_of
 from controllers.payload_timing import EstimatingController
 from controllers.registry import build_controller, cell_estimator, monitored
+from delta_env import cycles
+from delta_env import scenario as scenario_module
 from delta_env.config import PlantConfig, PlantRealism, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY, DeltaGeometry
@@ -297,3 +299,28 @@ def test_a_timestep_the_env_refuses_is_refused_by_the_plant_config_with_the_same
 def test_a_timestep_that_divides_the_control_period_is_accepted(timestep: float, n_substeps: int) -> None:
     assert PlantConfig(timestep=timestep).timestep == timestep
     assert control_substeps(timestep) == n_substeps
+
+
+@pytest.mark.parametrize("cycle", ["conveyor", "standard"])
+def test_a_tasks_peak_acceleration_is_checked_once_on_its_way_to_the_cycles(
+    cycle: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    checked = []
+
+    def counted(module: object) -> None:
+        check = module.require_peak_acceleration
+        monkeypatch.setattr(module, "require_peak_acceleration", lambda value: checked.append(value) or check(value))
+
+    counted(scenario_module)
+    counted(cycles)
+    scenario = Scenario(task=PickPlaceTask(cycle=cycle, n_cycles=1, peak_acceleration=2.0 * GRAVITY))
+    assert checked == [2.0 * GRAVITY], "the task checks it as it is made"
+    env = DeltaPickPlaceEnv(scenario=scenario, n_cycles=1)  # as the evaluation makes it: its own cycle count
+    for seed in (0, 1):
+        env.reset(seed=seed)
+    assert checked == [2.0 * GRAVITY], "neither the env nor the cycles it plans check it again"
+    assert env.peak_acceleration == 2.0 * GRAVITY
+    cycles.standard_cycle(scenario.plant.geometry, 3.0 * GRAVITY)
+    assert checked == [2.0 * GRAVITY, 3.0 * GRAVITY], "a cycle built from given values checks them"
+    with pytest.raises(ValueError, match="peak_acceleration must be a finite number"):
+        DeltaPickPlaceEnv(scenario=scenario, peak_acceleration=0.0)  # an override is checked by the task

@@ -7,11 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from delta_env.cycles import TimedCycles, conveyor_cycles, standard_cycle
+from delta_env.cycles import conveyor_cycles, standard_cycle
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scenario import PickPlaceTask, Scenario
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.timed_cycles import TimedCycles
 from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import Segment, evaluate_segments, quintic
 

@@ -44,7 +44,7 @@ from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
 from eval import calibration, excitation, identification
-from eval.console import CommandParser, command_main, progress_bar, resolved_arguments
+from eval.console import CommandParser, command_main, progress_bar
 from eval.design import (
     codesign,
     drive_modes,
@@ -66,6 +66,7 @@ from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
     command_run_folder,
+    configuration_record,
     package_versions,
     write_csv,
 )
@@ -83,7 +84,46 @@ QUICK = {
 """Settings of ``--quick`` (tests and smoke runs)."""
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+@dataclasses.dataclass(frozen=True)
+class DesignConfig:
+    """The resolved configuration of a design study (``python -m eval.design``), recorded as it is in the run's
+    manifest (``arguments``, beside the study's fixed settings: :func:`_resolved_config`).
+
+    Attributes:
+        seed: Seed of the optimizers' first search and of the episodes.
+        search_seeds: Seeds of each optimizer, from ``seed``.
+        population: Population of NSGA-II and the GA.
+        generations: Generations of each optimizer.
+        episodes: Verification episodes per controller.
+        verified_designs: Chosen designs verified besides the nominal.
+        screw_settings: Settings of the reconfiguration's grid over the screw stroke.
+        mass_samples: Robots drawn by the mass sensitivity of each chosen design.
+        quick: A small run (:data:`QUICK` where not given); pick rates by the optimizer's cheap path.
+        no_verify: Skip the closed-loop verification.
+        workers: Processes.
+        out: ``--out``, or None.
+        force: Write into an existing, non-empty ``out``.
+        runs_dir: ``--runs-dir``, or None.
+    """
+
+    seed: int
+    search_seeds: int
+    population: int
+    generations: int
+    episodes: int
+    verified_designs: int
+    screw_settings: int
+    mass_samples: int
+    quick: bool
+    no_verify: bool
+    workers: int
+    out: Path | None
+    force: bool
+    runs_dir: Path | None
+
+
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     parser = CommandParser(
         prog="python -m eval.design", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -125,11 +165,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default <runs root>/design/<UTC time>)")
     add_force_argument(parser)
     add_runs_dir_argument(parser)
-    args = parser.parse_args(argv)
-    if args.quick:
-        # Only the settings left at their defaults: an explicit --population etc. wins over --quick.
-        quick = {key: value for key, value in QUICK.items() if getattr(args, key) == parser.get_default(key)}
-        args = resolved_arguments(args, **quick)
+    return parser
+
+
+def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> DesignConfig:
+    """The configuration of the parsed command line ``arguments`` (left as they are): ``--quick``'s settings where
+    not given; a value out of range is a parser error."""
+    quick = {}
+    if arguments.quick:  # only the settings left at their defaults: an explicit --population etc. wins over --quick
+        quick = {key: value for key, value in QUICK.items() if getattr(arguments, key) == parser.get_default(key)}
+    config = DesignConfig(**{**vars(arguments), **quick})
     minimums = {
         "seed": 0,
         "search_seeds": 1,
@@ -141,9 +186,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "screw_settings": 3,
         "mass_samples": 2,
     }
-    check_ranges(parser, args, minimums)
-    check_episode_seeds(parser, args)
-    return args
+    check_ranges(parser, config, minimums)
+    check_episode_seeds(parser, config)
+    return config
+
+
+def parse_args(argv: Sequence[str] | None) -> DesignConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performance.Performance]:
@@ -156,11 +208,11 @@ def _distinct(designs: dict[str, performance.Performance]) -> dict[str, performa
     return kept
 
 
-def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None] | None = None) -> dict[str, object]:
+def _resolved_config(config: DesignConfig, fixed_ra: dict[str, float | None] | None = None) -> dict[str, object]:
     """The run's arguments and every setting of the study, for ``config.json``."""
     drive = PlantRealism()
     return {
-        "arguments": vars(args),
+        "arguments": configuration_record(config),
         "bounds": dataclasses.asdict(optimize.DEFAULT_BOUNDS),
         "criteria": dataclasses.asdict(workspace.DEXTEROUS),
         "task": {
@@ -192,7 +244,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None]
             "length_tolerance_m": robustness.LENGTH_TOLERANCE,
             "length_samples": robustness.LENGTH_SAMPLES,
             "mass_tolerance": robustness.MASS_TOLERANCE,
-            "mass_samples": args.mass_samples,
+            "mass_samples": config.mass_samples,
         },
         "reconfiguration": {
             "linkage": {
@@ -203,7 +255,7 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None]
                 "coupler_length_m": mechanism.COUPLER_LENGTH,
                 "coupler_angle_rad": mechanism.COUPLER_ANGLE,
             },
-            "grid_settings": args.screw_settings,
+            "grid_settings": config.screw_settings,
             "travel_tolerance_m": reconfigure.TRAVEL_TOLERANCE,
             "profiles": [dataclasses.asdict(p) for p in reconfigure.PROFILES],
             "fixed_ra_m": fixed_ra,  # None where no setting serves every profile (JSON has no NaN)
@@ -223,14 +275,14 @@ def _resolved_config(args: argparse.Namespace, fixed_ra: dict[str, float | None]
 @command_main("python -m eval.design")
 def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
-    args = parse_args(argv)
-    with command_run_folder("design", "eval.design", argv, args, _resolved_config(args)) as run:
-        study(args, run, started)
+    config = parse_args(argv)
+    with command_run_folder("design", "eval.design", argv, config, _resolved_config(config)) as run:
+        study(config, run, started)
     return 0
 
 
-def study(args: argparse.Namespace, run: Run, started: float) -> None:
-    """The design study of ``args`` (:func:`parse_args`) into ``run``'s folder, its summary printed; ``started`` is
+def study(config: DesignConfig, run: Run, started: float) -> None:
+    """The design study of ``config`` (:func:`parse_args`) into ``run``'s folder, its summary printed; ``started`` is
     the :func:`time.perf_counter` time at the start of the command."""
     out = run.folder
     seconds = {}
@@ -238,25 +290,27 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     nominal = performance.evaluate(NOMINAL_GEOMETRY)
     if not nominal.feasible:
         raise RuntimeError(f"the nominal robot does not meet the study's own constraints: {nominal.reason}")
-    seeds = list(range(args.seed, args.seed + args.search_seeds))
+    seeds = list(range(config.seed, config.seed + config.search_seeds))
     with progress_bar(len(seeds) + 1, "NSGA-II on every seed, the GA", "run") as bar:
-        searches = front.search(nominal, args.population, args.generations, seeds, workers=args.workers, progress=bar)
+        searches = front.search(
+            nominal, config.population, config.generations, seeds, workers=config.workers, progress=bar
+        )
     pareto = searches.result
     seconds["optimization"] = time.perf_counter() - started
 
     roles = optimize.design_roles(pareto, nominal)
     chosen = {name: pareto.archive.performance[i] for name, i in optimize.choose_designs(roles).items()}
     designs = {"nominal": nominal, **chosen}
-    if not args.quick:  # the reported designs' drives by the full planner (the optimizer used the cheap path)
+    if not config.quick:  # the reported designs' drives by the full planner (the optimizer used the cheap path)
         designs = {n: performance.evaluate(p.geometry, masses=p.masses, exact_drive=True) for n, p in designs.items()}
     front_designs = [pareto.archive.performance[i] for i in pareto.front]
     sensitivity = {
-        name: robustness.analyse(p, seed=args.seed, mass_samples=args.mass_samples)
+        name: robustness.analyse(p, seed=config.seed, mass_samples=config.mass_samples)
         for name, p in _distinct(designs).items()
     }
     seconds["robustness"] = time.perf_counter() - started - seconds["optimization"]
 
-    reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=args.seed) for name, p in designs.items()}
+    reachable = {name: workspace.reachable_volume_estimate(p.geometry, seed=config.seed) for name, p in designs.items()}
     region = performance.task_region_points()
     frequency = {  # lowest over the conveyors' region, rated payload (eval.design.stiffness: an upper bound)
         name: float(np.min(stiffness.first_natural_frequency(p.geometry, region, RATED_PAYLOAD, p.masses)))
@@ -268,17 +322,17 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         for name, p in designs.items()
     }
     reconfigured = {
-        name: reconfigure.study(designs[name].geometry, grid_settings=args.screw_settings)
+        name: reconfigure.study(designs[name].geometry, grid_settings=config.screw_settings)
         for name in ("nominal", "compromise")
     }
     seconds["reconfiguration"] = time.perf_counter() - started - sum(seconds.values())
 
     verifications: list[verify.Verification] = []
-    if not args.no_verify:
-        verified = dict(list(_distinct(designs).items())[: 1 + args.verified_designs])
+    if not config.no_verify:
+        verified = dict(list(_distinct(designs).items())[: 1 + config.verified_designs])
         for name, design in progress_bar(desc="closed-loop verification", unit="design", iterable=verified.items()):
             verifications.append(
-                verify.verify_design(name, design, seed=args.seed, episodes=args.episodes, workers=args.workers)
+                verify.verify_design(name, design, seed=config.seed, episodes=config.episodes, workers=config.workers)
             )
         seconds["verification"] = time.perf_counter() - started - sum(seconds.values())
 
@@ -352,7 +406,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     seconds["total"] = time.perf_counter() - started
 
     lines = [
-        f"# Design study: NSGA-II and GA, population {args.population}, {args.generations} generations, "
+        f"# Design study: NSGA-II and GA, population {config.population}, {config.generations} generations, "
         f"seeds {seeds[0]}-{seeds[-1]}",
         "",
         "Objectives relative to the nominal robot. Reachable volume: Monte Carlo over the points with the motor "
@@ -384,7 +438,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         "",
         f"Position error: {robustness.LENGTH_SAMPLES} robots, each of the 12 lengths (ra, rb, l1, l2 of each chain) "
         "uniform in its band, commanded by the drawn lengths' inverse kinematics at points filling the workspace "
-        f"cylinder. Masses: {args.mass_samples} robots, m1, m2, m0 each uniform in its band; last column: each "
+        f"cylinder. Masses: {config.mass_samples} robots, m1, m2, m0 each uniform in its band; last column: each "
         f"mass alone +{100 * robustness.MASS_TOLERANCE:.0f} %. Mean ± std [5 %, 95 %]:",
         "",
         robustness.table(sensitivity),
@@ -412,7 +466,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
         table, checks = report.verification_table(verifications)
         lines += [
             "",
-            f"## Closed-loop verification: each design's own plant, {args.episodes} episode(s) of "
+            f"## Closed-loop verification: each design's own plant, {config.episodes} episode(s) of "
             f"{verify.EPISODE_CYCLES} standard cycles with {performance.PAYLOAD} kg per controller",
             "",
             table,
@@ -428,7 +482,7 @@ def study(args: argparse.Namespace, run: Run, started: float) -> None:
     (out / "summary.md").write_text(summary + "\n")
 
     fixed_ra = {n: s.fixed_ra if math.isfinite(s.fixed_ra) else None for n, s in reconfigured.items()}
-    run.record(config=_resolved_config(args, fixed_ra), seconds=seconds)
+    run.record(config=_resolved_config(config, fixed_ra), seconds=seconds)
     print(summary)
 
 

@@ -26,10 +26,11 @@ from controllers.dynamics import DeltaDynamics
 from controllers.payload_timing import PayloadTiming
 from controllers.timing import TimeOptimalPlanner
 from delta_env.catalogue import DriveOption
-from delta_env.cycles import TimedCycles, standard_cycle
+from delta_env.cycles import standard_cycle
 from delta_env.drive import DriveLimits
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.sensors import CONTROL_PERIOD
+from delta_env.timed_cycles import TimedCycles
 from delta_env.trajectories import WORKING_HEIGHT, Trajectory
 from delta_env.validation import require_in
 from eval import metrics

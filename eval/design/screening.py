@@ -31,8 +31,8 @@ from controllers.timing import DEFAULT_MARGIN, TimeOptimalPlanner
 from delta_env import kinematics
 from delta_env.catalogue import CATALOGUE, MOTORS, DriveOption
 from delta_env.config import RATED_PAYLOAD
-from delta_env.cycles import TimedCycles
 from delta_env.geometry import NOMINAL_GEOMETRY, DeltaGeometry, DeltaMasses
+from delta_env.timed_cycles import TimedCycles
 from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import WORKING_HEIGHT, Segment
 from delta_env.validation import require_in

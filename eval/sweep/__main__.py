@@ -53,8 +53,8 @@ from eval.processes import import_ray
 from eval.run_folder import (
     Run,
     add_runs_dir_argument,
-    command_line,
     command_run_folder,
+    configuration_record,
     runs_root,
     write_csv,
 )
@@ -114,9 +114,8 @@ class SweepConfig:
         return list(range(self.seed, self.seed + self.episodes))
 
 
-def parse_args(argv: Sequence[str] | None) -> SweepConfig:
-    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
-    error."""
+def argument_parser() -> CommandParser:
+    """The parser of the command line."""
     parser = CommandParser(
         prog="python -m eval.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -143,7 +142,11 @@ def parse_args(argv: Sequence[str] | None) -> SweepConfig:
     parser.add_argument("--residual", type=Path, default=DEFAULT_POLICY_PATH, help="policy of the 'residual' row")
     add_servo_argument(parser)
     add_geometry_argument(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> SweepConfig:
+    """The configuration of the parsed command line ``args`` (left as they are); a bad value is a parser error."""
     check_ranges(parser, args, {"seed": 0, "episodes": 1, "cycles": 1, "workers": 1})
     check_episode_seeds(parser, args)
     try:
@@ -179,6 +182,13 @@ def parse_args(argv: Sequence[str] | None) -> SweepConfig:
     return config
 
 
+def parse_args(argv: Sequence[str] | None) -> SweepConfig:
+    """The resolved configuration of the command line ``argv`` (None: ``sys.argv[1:]``); a bad value is a parser
+    error."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
+
+
 def _require_ray(parser: argparse.ArgumentParser) -> None:
     """A parser error naming the extra to install when Ray is missing."""
     try:
@@ -190,7 +200,6 @@ def _require_ray(parser: argparse.ArgumentParser) -> None:
 @command_main("python -m eval.sweep")
 def main(argv: Sequence[str] | None = None) -> int:
     config = parse_args(argv)
-    command = command_line("eval.sweep", argv)
     grid = {"scenarios": [s.name for s in config.scenarios], "controllers": config.controllers, "seeds": config.seeds}
     backend = {"name": config.backend, "address": config.address, "workers": config.workers}
     with command_run_folder(
@@ -198,20 +207,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "eval.sweep",
         argv,
         config,
-        {"grid": grid, "backend": backend},
+        {"arguments": configuration_record(config), "grid": grid, "backend": backend},
         scenarios=config.scenarios,
         reuse=True,  # a sweep resumes in its folder
     ) as run:
-        sweep(config, run, command)
+        sweep(config, run)
     return 0
 
 
-def sweep(config: SweepConfig, run: Run, command: str) -> None:
+def sweep(config: SweepConfig, run: Run) -> None:
     """Run the sweep of ``config`` (:func:`parse_args`) into ``run``'s folder, the rows already there skipped unless
     ``--force``; write the summary and print it."""
     out = run.folder
     with (out / "commands.log").open("a") as log:
-        log.write(command + "\n")
+        log.write(run.manifest["command"] + "\n")
     setups = {
         s.content_hash: prepare(
             s,
@@ -229,6 +238,7 @@ def sweep(config: SweepConfig, run: Run, command: str) -> None:
     }
     units = [WorkUnit(s, key, seed) for s in config.scenarios for key in config.controllers for seed in config.seeds]
     manifest = {
+        "arguments": configuration_record(config),
         "grid": {
             "scenarios": {
                 s.name: {
