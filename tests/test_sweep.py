@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from controllers.compliance import DriveCompliance
 from controllers.dynamics import ModelParameters
 from controllers.payload import EmptyMoveSums
 from delta_env.cycles import standard_cycle
@@ -311,6 +312,7 @@ def test_the_setup_digest_covers_every_field_a_controller_knows_and_nothing_of_t
         "drive": DriveLimits(peak_torque=300.0),
         "encoder_bits": 20,
         "fault_reaction": "stop",
+        "compliance": DriveCompliance.nominal(),
     }
     assert {*changed, "residual_policy"} == {field.name for field in dataclasses.fields(SETUP)}
     base = setup_digest(SETUP, "mid_f_rls_lag")
