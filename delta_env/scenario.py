@@ -52,7 +52,7 @@ table of the four lengths in metres; other top-level tables (e.g. the design's o
 
 :func:`load_geometry` and :func:`save_geometry` are the one reader and writer of that format.
 
-A robot file (``--robot FILE`` of ``python -m eval.identify --log``, written by its ``--save-logs``) is a geometry
+A robot file (``--robot FILE`` of ``python -m eval.identification --log``, written by its ``--save-logs``) is a geometry
 file with a second table, the datasheet masses of the analytical model in kg (:class:`DeltaMasses`)::
 
     [masses]

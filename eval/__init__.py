@@ -1,16 +1,22 @@
-"""Experiments on the Delta robot and their command lines (docs/design.md section 8).
+"""Experiments on the Delta robot and their command lines (docs/design.md section 8): one folder per experiment.
 
-- ``python -m eval``: the controller comparison (:mod:`eval.comparison`, tables in :mod:`eval.tables`);
-- ``python -m eval.identify``: the identification experiment and its report (:mod:`eval.identification`), on the
-  simulated plant or on a real robot's drive logs;
-- ``python -m eval.train_residual``: training the residual policy (stable-baselines3);
-- :func:`record_episode` (:mod:`eval.video`): one episode filmed to MP4 (``python -m eval --video``).
+- :mod:`eval.comparison`, ``python -m eval``: every controller on the same seeded episodes (``--video`` films them);
+- :mod:`eval.identification`, ``python -m eval.identification``: the robot's identification, on the simulated plant
+  or on a real robot's drive logs, its report and the parameter files kept per robot;
+- :mod:`eval.rate`, ``python -m eval.rate``: the pick-rate data sheet beside a published industrial robot's;
+- :mod:`eval.faults`, ``python -m eval.faults`` and ``python -m eval.faults.soak``: the fault campaign and the
+  false-alarm soak;
+- :mod:`eval.residual`, ``python -m eval.residual``: training and scoring the residual policy (stable-baselines3);
+- :mod:`eval.design`, ``python -m eval.design``: the design study;
+- :mod:`eval.sweep`, ``python -m eval.sweep``: scenarios x controllers x seeds, locally or on Ray.
 
-Every experiment runs its episodes with :func:`eval.episodes.run_episode` on the one executor
+Beside them, the engine and the shared pieces: :mod:`eval.engine` prepares what the controllers know, every
+experiment runs its episodes with :func:`eval.episodes.run_episode` on the one executor
 (:func:`eval.processes.run_jobs`: a local process pool or Ray; the controllers' episodes as work units,
-:mod:`eval.work`) and writes its run folder with :mod:`eval.run_folder`; every command line reports a usage error or
-an interruption in one line and shows its progress with :mod:`eval.console`. Importing the package imports none of
-its modules: the names below load on first use.
+:mod:`eval.work`), scores them with :mod:`eval.metrics` and writes its run folder with :mod:`eval.run_folder`;
+:mod:`eval.compare` sets run folders side by side; every command line reports a usage error or an interruption in
+one line and shows its progress with :mod:`eval.console`. Importing the package imports none of its modules: the
+names below load on first use.
 """
 
 import importlib
@@ -42,13 +48,13 @@ _HOMES = {
     "calibrate_tares": "eval.calibration",
     "command_main": "eval.console",
     "create_run_folder": "eval.run_folder",
-    "identification_root": "eval.parameter_files",
-    "identify_logs": "eval.identification",
-    "load_or_identify": "eval.parameter_files",
+    "identification_root": "eval.identification.parameter_files",
+    "identify_logs": "eval.identification.run",
+    "load_or_identify": "eval.identification.parameter_files",
     "progress_bar": "eval.console",
-    "record_episode": "eval.video",
+    "record_episode": "eval.comparison.video",
     "run_episode": "eval.episodes",
-    "run_identification": "eval.identification",
+    "run_identification": "eval.identification.run",
     "runs_root": "eval.run_folder",
 }
 """The module of each name this package exports (none named as a module of the package: importing a submodule

@@ -2,16 +2,16 @@
 
 :func:`robot_knowledge` gives what every row knows of a scenario's robot: its identification (a given parameter
 file, or the robot's own, identified once and cached per robot identity:
-:func:`eval.parameter_files.robot_identification`) and the :class:`~controllers.setup.ControllerSetup` built from
-it with the scenario's fault reaction. :func:`prepare` adds the tares and empty-move sums of the tared controllers,
-measured once on the scenario's payload-free episodes on the calibration seeds and kept beside the identification
-(:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`grid` lays out the episodes, work units
+:func:`eval.identification.parameter_files.robot_identification`) and the :class:`~controllers.setup.ControllerSetup`
+built from it with the scenario's fault reaction. :func:`prepare` adds the tares and empty-move sums of the tared
+controllers, measured once on the scenario's payload-free episodes on the calibration seeds and kept beside the
+identification (:func:`eval.calibration.tare_setup`, :func:`kept_tares`). :func:`grid` lays out the episodes, work units
 (:class:`eval.work.WorkUnit`: a scenario, a controller, a seed), which :func:`eval.work.run_grid` runs on the one
 executor (:func:`eval.processes.run_jobs`: a local process pool or Ray), returning each unit's record
-(:func:`eval.work.unit_record`) or row (:func:`eval.sweep.work.run_unit`). The comparison (:mod:`eval.comparison`), the
-sweep (:mod:`eval.sweep`, on top of it), the residual scores (:mod:`eval.scoring`), the design verification
-(:mod:`eval.design.verify`), the pick-rate study (:mod:`eval.rate`) and the fault campaign and soak (``scripts/``)
-are its callers.
+(:func:`eval.work.unit_record`) or row (:func:`eval.sweep.work.run_unit`). The comparison (:mod:`eval.comparison.run`),
+the sweep (:mod:`eval.sweep`, on top of it), the residual scores (:mod:`eval.residual.scoring`), the design verification
+(:mod:`eval.design.verify`), the pick-rate study (:mod:`eval.rate.__main__`) and the fault campaign and soak
+(``scripts/``) are its callers.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from controllers.registry import ControllerSetup
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
 from eval.console import UsageError
-from eval.parameter_files import identification_root, parameter_path, robot_identification, robot_setup
+from eval.identification.parameter_files import identification_root, parameter_path, robot_identification, robot_setup
 from eval.work import WorkUnit
 
 
@@ -57,7 +57,7 @@ def robot_knowledge(
 
 def kept_tares(scenario: Scenario, runs_dir: str | Path | None = None) -> Path:
     """Folder of the kept tares of ``scenario``'s robot (:func:`eval.calibration.tare_setup`): ``tares`` beside its
-    identification under the runs root (:func:`eval.parameter_files.parameter_path`)."""
+    identification under the runs root (:func:`eval.identification.parameter_files.parameter_path`)."""
     return parameter_path(scenario.plant, identification_root(runs_dir)).parent / "tares"
 
 
@@ -78,7 +78,7 @@ def prepare(
         scenario: The robot and the work; its faults are left out of the tare's episodes.
         controllers: Controller keys (:func:`controllers.registry.controller_entry`); the tared ones are tared.
         parameters: An existing parameter file of this robot; None: the robot's own (identified when missing), under
-            the runs root (:func:`eval.parameter_files.identification_root` of ``runs_dir``).
+            the runs root (:func:`eval.identification.parameter_files.identification_root` of ``runs_dir``).
         runs_dir: The runs root (:func:`eval.run_folder.runs_root`).
         calibration_episodes: Payload-free episodes per tared controller.
         workers: Processes of the identification's and the calibration's episodes.

@@ -3,8 +3,9 @@ safe next to torch, or on Ray.
 
 Every parallel run of the project goes through it: the episodes of the experiment engine (:func:`eval.work.run_grid`:
 the comparison, the tare calibration, the sweep, the pick-rate study, the residual scores, the design verification),
-the identification's excitation runs and log smoothing (:mod:`eval.identification`, :mod:`eval.excitation`), the
-design front's optimizer runs (:mod:`eval.design.front`) and the videos (:mod:`eval.video`).
+the identification's excitation runs and log smoothing (:mod:`eval.identification.run`,
+:mod:`eval.identification.excitation`), the design front's optimizer runs (:mod:`eval.design.front`) and the videos
+(:mod:`eval.comparison.video`).
 
 Backends:
 

@@ -4,7 +4,8 @@ Every command line runs inside :func:`run_folder`: it creates the folder (``--ou
 ``<runs root>/<tool>/<UTC time stamp>``) and keeps its manifest, ``config.json``, from the start of the run to its
 end, in the same schema for every tool (:func:`run_folder` lists the entries). The runs root is ``--runs-dir``, else
 the environment variable ``DELTA_RUNS_DIR``, else ``./runs`` (:func:`runs_root`); the cached identifications live
-under it too (:func:`eval.parameter_files.identification_root`). Tables go in as CSV with :func:`write_csv`.
+under it too (:func:`eval.identification.parameter_files.identification_root`). Tables go in as CSV with
+:func:`write_csv`.
 """
 
 from __future__ import annotations
@@ -468,7 +469,7 @@ def command_run_folder(
 
     Args:
         tool: The tool's folder under the runs root.
-        program: The module run (``eval.rate``).
+        program: The module run (``eval.rate.__main__``).
         argv: The command line's arguments (None: ``sys.argv[1:]``).
         options: Its parsed arguments or resolved configuration.
         config: The resolved configuration known at the start, as the manifest records it.

@@ -24,7 +24,7 @@ from delta_env.scenario import (
 )
 from delta_env.validation import require_count, require_positive
 from eval.calibration import CALIBRATION_SEED_OFFSET
-from eval.parameter_files import MISSING_PARAMETER_FILE, check_identity
+from eval.identification.parameter_files import MISSING_PARAMETER_FILE, check_identity
 from eval.processes import DEFAULT_WORKERS
 
 GEOMETRY_HELP = (
@@ -59,7 +59,8 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, default: str = "nomi
 
 def existing_parameter_file(text: str) -> Path:
     """An argparse type: the path ``text`` if it is a readable parameter file, else an error naming it (a parameter
-    file the user gives is read, never identified there: :func:`eval.parameter_files.robot_identification`)."""
+    file the user gives is read, never identified there:
+    :func:`eval.identification.parameter_files.robot_identification`)."""
     path = Path(text)
     if not path.is_file():
         raise argparse.ArgumentTypeError(f"{text}: {MISSING_PARAMETER_FILE}")
@@ -72,7 +73,7 @@ def existing_parameter_file(text: str) -> Path:
 
 def check_parameter_file(parser: argparse.ArgumentParser, parameters: Path | None, scenario: Scenario) -> None:
     """A parser error when ``--parameters`` records another robot than ``scenario``'s
-    (:func:`eval.parameter_files.check_identity`)."""
+    (:func:`eval.identification.parameter_files.check_identity`)."""
     if parameters is None:
         return
     try:

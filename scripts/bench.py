@@ -38,7 +38,7 @@ from controllers.registry import (
 from delta_env.env import DeltaPickPlaceEnv
 from eval.scenario_args import check_ranges
 
-# Representative identified values (python -m eval.identify on the default plant, rounded).
+# Representative identified values (python -m eval.identification on the default plant, rounded).
 SETUP = ControllerSetup(
     mid=ModelParameters(rho1=1.80, rho2=0.94),
     mid_f=ModelParameters(rho1=1.76, rho2=0.88, viscous=(1.97, 2.41, 1.73), coulomb=(4.07, 3.35, 4.46)),

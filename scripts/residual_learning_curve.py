@@ -6,9 +6,9 @@
     python scripts/residual_learning_curve.py --recipe new --runs 1 -- --reward-scale 0.1
 
 Each recipe trains ``--runs`` times, from the training seeds ``--seed`` to ``--seed + --runs - 1``, with
-:func:`eval.residual_training.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
+:func:`eval.residual.training.train` (one env, ``DummyVecEnv``), and every ``--eval-freq``
 policy steps pauses to save the policy (``validation_policy.zip`` in the run's folder) and score it with
-:func:`eval.scoring.score_policy` on the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
+:func:`eval.residual.scoring.score_policy` on the held-out validation episodes (``VALIDATION_SEEDS``, the ``randomized``
 scenario unless other training arguments follow ``--``; ``--scenario``'s alone with ``--mix``): the base controller
 alone and with the residual, as the file records them, run by the experiment engine (:func:`eval.work.run_grid`, in
 this process: a pool's fresh workers would plan an online timing's tables again at every evaluation), tracking RMS
@@ -44,19 +44,19 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from controllers.residual import ALGORITHMS, PolicyBase, ResidualConfig, save_residual_policy
 from eval.console import CommandParser, UsageError, command_main, resolved_arguments
-from eval.residual_envs import VALIDATION_SEEDS, base_setup
-from eval.residual_training import train
+from eval.residual.__main__ import parse_args
+from eval.residual.envs import VALIDATION_SEEDS, base_setup
+from eval.residual.scoring import score_policy
+from eval.residual.training import train
 from eval.run_folder import add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import check_ranges
-from eval.scoring import score_policy
-from eval.train_residual import parse_args
 
 RECIPES: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     "old": ("sac", ("train_freq:2", "gradient_steps:1", "learning_rate:3e-4"), ("--residual-limit", "40")),
     "new": ("sac", (), ()),
 }
-"""Named recipes: algorithm, ``--hyperparams`` items on top of its table in ``eval/hyperparams/residual.toml`` and
-more training arguments. ``old`` is the shipped policy's (SAC at 3e-4, 40 N m, one update per two samples: it
+"""Named recipes: algorithm, ``--hyperparams`` items on top of its table in ``eval/residual/hyperparams/residual.toml``
+and more training arguments. ``old`` is the shipped policy's (SAC at 3e-4, 40 N m, one update per two samples: it
 was trained on two envs with one update per vector step); ``new`` the tool's defaults."""
 
 THRESHOLDS = (0.5, 0.7)
@@ -102,7 +102,7 @@ def first_crossing(rows: Sequence[dict[str, Any]], threshold: float, max_torque_
 
 def validation_scores(policy_path: Path, env_kwargs: dict[str, Any]) -> dict[str, dict[str, float]]:
     """Pooled tracking and torque RMS of the validation episodes of the policy file ``policy_path``: ``"base"`` (its
-    base alone) and ``"residual"`` (the policy on it), by :func:`eval.scoring.score_policy`."""
+    base alone) and ``"residual"`` (the policy on it), by :func:`eval.residual.scoring.score_policy`."""
     scores = score_policy(policy_path, env_kwargs, seeds=VALIDATION_SEEDS, payloads=())
     return {row: scores["summary"][row] for row in ("base", "residual")}
 
@@ -357,7 +357,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--full-curve", action="store_true", help="go on after every threshold is reached")
     parser.add_argument("--out", type=Path, default=None, help="default <runs root>/learning_curve/<UTC time>")
     add_runs_dir_argument(parser)
-    parser.add_argument("train_args", nargs="*", help="after --: more arguments of python -m eval.train_residual")
+    parser.add_argument("train_args", nargs="*", help="after --: more arguments of python -m eval.residual")
     args = parser.parse_args(argv)
     if args.recipe and (args.hyperparams or args.label):
         parser.error("--hyperparams and --label go with --algo, not with --recipe")

@@ -21,7 +21,7 @@ from controllers.base import PDController
 from controllers.dynamics import ModelParameters
 from controllers.registry import ControllerSetup
 from delta_env import NOMINAL_GEOMETRY, DeltaPickPlaceEnv, kinematics
-from eval.parameter_files import load_or_identify
+from eval.identification.parameter_files import load_or_identify
 
 # ---------------------------------------------------------------------------------------------
 # Order of the test files
@@ -131,7 +131,7 @@ NOMINAL_SETUP = ControllerSetup(
     mid_f_rods=ModelParameters(rho1=1.95, rho2=0.951, viscous=(2.01, 2.41, 1.71), coulomb=(3.98, 3.38, 4.59)),
     drive_lag=(0.001, 0.001, 0.001),
 )
-"""The parameters identified on the default realistic plant (``python -m eval.identify``, seed 0), rounded:
+"""The parameters identified on the default realistic plant (``python -m eval.identification``, seed 0), rounded:
 the tests do not wait a minute for the identification."""
 
 

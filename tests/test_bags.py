@@ -1,5 +1,6 @@
 """ROS 2 bags as drive logs: the round trip, the joint names, the clocks, the command topic, the errors, the
-identification from bags against the one from CSV logs of the same runs, and ``python -m eval.identify --quick``."""
+identification from bags against the one from CSV logs of the same runs, and ``python -m eval.identification
+--quick``."""
 
 import json
 
@@ -9,9 +10,9 @@ from numpy.testing import assert_allclose
 
 from controllers.identification import LogFileError, load_result, read_log, resample_log, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATE_TYPE, BagTopics, read_bag, ros2_typestore
-from eval import identify as cli
-from eval.identification import identify_logs
-from eval.parameter_files import identification_root, parameter_path
+from eval.identification import __main__ as cli
+from eval.identification.parameter_files import identification_root, parameter_path
+from eval.identification.run import identify_logs
 from tests.test_logs import random_log
 
 COMMANDS = BagTopics(commands=JOINT_COMMANDS_TOPIC)

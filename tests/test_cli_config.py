@@ -17,19 +17,19 @@ from eval.run_folder import MANIFEST, configuration_record, json_ready
 
 RESOLVED = [
     # module, argv, a field that resolving changes from its parsed value
-    ("eval.__main__", ["--controllers", "pd", "--episodes", "2"], "cycles"),
-    ("eval.rate", ["--quick"], "episodes"),
+    ("eval.comparison.__main__", ["--controllers", "pd", "--episodes", "2"], "cycles"),
+    ("eval.rate.__main__", ["--quick"], "episodes"),
     ("eval.sweep.__main__", ["--episodes", "2"], "out"),
-    ("eval.identify", ["--quick"], "trajectories"),
-    ("eval.identify", ["--log", "a.csv", "b.csv", "--robot", "r.toml"], "log"),
+    ("eval.identification.__main__", ["--quick"], "trajectories"),
+    ("eval.identification.__main__", ["--log", "a.csv", "b.csv", "--robot", "r.toml"], "log"),
     ("eval.design.__main__", ["--quick", "--screw-settings", "7"], "population"),
     ("eval.compare", ["a", "b", "--metrics", "tracking_rms_mm"], "metrics"),
-    ("eval.train_residual", ["--mix", "nominal", "--hyperparams", "gamma:0.9"], "cycles"),
+    ("eval.residual.__main__", ["--mix", "nominal", "--hyperparams", "gamma:0.9"], "cycles"),
 ]
 
 
 def command_line_module(name: str) -> Any:
-    if name == "eval.train_residual":
+    if name == "eval.residual.__main__":
         pytest.importorskip("stable_baselines3", reason="needs the rl extra (stable-baselines3)")
     return importlib.import_module(name)
 
@@ -55,14 +55,14 @@ def test_each_command_line_resolves_a_frozen_configuration_and_leaves_the_namesp
 RECORDED = [
     # module, the function the main hands its configuration to ([module:]name), argv; the manifest's entry holding
     # the configuration
-    ("eval.__main__", "compare", ["--controllers", "pd", "--episodes", "2"], "arguments"),
-    ("eval.rate", "rate", ["--quick"], "arguments"),
+    ("eval.comparison.__main__", "compare", ["--controllers", "pd", "--episodes", "2"], "arguments"),
+    ("eval.rate.__main__", "rate", ["--quick"], "arguments"),
     ("eval.sweep.__main__", "sweep", ["--episodes", "2"], "arguments"),
-    ("eval.identify", "identify_into", ["--quick"], None),
+    ("eval.identification.__main__", "identify_into", ["--quick"], None),
     ("eval.design.__main__", "study", ["--quick", "--no-verify"], "arguments"),
     (
-        "eval.train_residual",
-        "eval.residual_training:_train",
+        "eval.residual.__main__",
+        "eval.residual.training:_train",
         ["--cycles", "1", "--hyperparams", "gamma:0.9"],
         "arguments",
     ),

@@ -134,7 +134,7 @@ def test_runs_without_controller_rows_and_bad_arguments_are_refused(two_runs, tm
 
 
 def test_two_real_runs_of_python_m_eval(parameter_file: Path, tmp_path: Path, capsys) -> None:
-    from eval.__main__ import main as eval_main
+    from eval.comparison.__main__ import main as eval_main
 
     argv = ["--controllers", "pd", "--episodes", "1", "--cycles", "1", "--workers", "1"]
     argv += ["--parameters", str(parameter_file), "--runs-dir", str(tmp_path / "runs")]

@@ -27,7 +27,7 @@ from delta_env import kinematics
 from delta_env.config import ARCMIN, RATED_PAYLOAD, PlantConfig
 from delta_env.excitation import multisine_torques
 from delta_env.scenario import preset, save_robot
-from eval.compliance import (
+from eval.identification.compliance import (
     COMPLIANCE_POSES,
     MAP_HEIGHTS,
     MAP_RADII,
@@ -35,9 +35,9 @@ from eval.compliance import (
     measure_first_mode,
     run_compliance_excitation,
 )
-from eval.excitation import ExcitationSpec, run_excitation
-from eval.identification import NO_LOAD_ENCODER, identify_logs, run_identification
-from eval.identification_report import ground_truth, render_report, save_validation_data
+from eval.identification.excitation import ExcitationSpec, run_excitation
+from eval.identification.report import ground_truth, render_report, save_validation_data
+from eval.identification.run import NO_LOAD_ENCODER, identify_logs, run_identification
 
 COMPLIANT = preset("compliant").plant
 

@@ -17,7 +17,7 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from delta_env import kinematics
 from delta_env.config import RATED_PAYLOAD
 from delta_env.scenario import preset
-from eval.compliance import COMPLIANCE_POSES, measure_first_mode
+from eval.identification.compliance import COMPLIANCE_POSES, measure_first_mode
 
 POSES = [np.zeros(3), np.array([0.3, 0.1, 0.5]), np.array([0.8, 0.8, 0.8]), np.array([-0.2, 0.6, 0.1])]
 

@@ -19,9 +19,10 @@ import pytest
 
 from controllers.identification import ParameterFileError, save_result
 from delta_env.scenario import preset, with_geometry
-from eval import __main__ as eval_cli
-from eval import identify, parameter_files
+from eval.comparison import __main__ as eval_cli
 from eval.console import UsageError, command_main, plural, progress_bar
+from eval.identification import __main__ as identify
+from eval.identification import parameter_files
 from eval.processes import holding_interrupts, run_jobs
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, Terminated
 from tests.test_robot_identity import DESIGN, fake_result
@@ -89,9 +90,9 @@ def test_command_main_turns_usage_errors_and_interruptions_into_one_line(capsys)
 
 
 def test_score_only_of_a_missing_file_is_a_usage_error_leaving_no_run_folder(runs, capsys) -> None:
-    train_residual = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
+    train_residual = pytest.importorskip("eval.residual.__main__", reason="needs the rl extra (stable-baselines3)")
     line = usage_error(train_residual.main, ["--score-only", "nofile.zip"], capsys)
-    assert line.startswith("python -m eval.train_residual: error: ") and "--score-only nofile.zip" in line
+    assert line.startswith("python -m eval.residual: error: ") and "--score-only nofile.zip" in line
     assert "not found" in line and run_folders(runs) == []
 
 
@@ -242,7 +243,7 @@ def test_plan_times_help_does_not_run_the_benchmark(capsys) -> None:
 
 
 def test_train_residual_help_shows_its_options_first_each_with_help(capsys) -> None:
-    train_residual = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
+    train_residual = pytest.importorskip("eval.residual.__main__", reason="needs the rl extra (stable-baselines3)")
     with pytest.raises(SystemExit):
         train_residual.parse_args(["--help"])
     printed = capsys.readouterr().out
@@ -298,10 +299,10 @@ def test_ctrl_c_on_a_running_comparison_with_workers_prints_one_line(parameter_f
 
 @pytest.mark.parametrize("delay", [0.3, 1.0])
 def test_ctrl_c_while_a_command_starts_prints_one_line(tmp_path, delay: float) -> None:
-    """SIGINT while ``python -m eval.identify`` still imports its modules (or, later, runs): one line, exit code 130,
-    no traceback and no run folder left running."""
+    """SIGINT while ``python -m eval.identification`` still imports its modules (or, later, runs): one line, exit code
+    130, no traceback and no run folder left running."""
     out = tmp_path / "run"
-    command = [sys.executable, "-m", "eval.identify", "--quick", "--out", str(out), "--runs-dir", str(tmp_path)]
+    command = [sys.executable, "-m", "eval.identification", "--quick", "--out", str(out), "--runs-dir", str(tmp_path)]
     process = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     try:
         time.sleep(delay)
@@ -319,8 +320,8 @@ def test_ctrl_c_while_a_command_starts_prints_one_line(tmp_path, delay: float) -
 @pytest.mark.parametrize(
     ("module", "argv", "message"),
     [
-        ("eval.__main__", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
-        ("eval.rate", ["--planners", "fastest"], "--planners"),
+        ("eval.comparison.__main__", ["--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+        ("eval.rate.__main__", ["--planners", "fastest"], "--planners"),
         ("eval.compare", ["--metrics"], "--metrics"),
     ],
 )

@@ -19,7 +19,7 @@ from delta_env.trajectories import WORKING_HEIGHT
 from eval.design import codesign, optimize, performance, report, verify
 from eval.design import model as design_model
 from eval.design.__main__ import QUICK, main, parse_args
-from eval.identification import run_identification
+from eval.identification.run import run_identification
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,6 @@ from delta_env import kinematics
 from delta_env.catalogue import MOTORS, DriveOption
 from delta_env.config import GEARHEAD_STIFFNESS, RATED_PAYLOAD, ROTOR_INERTIA
 from delta_env.geometry import NOMINAL_GEOMETRY
-from eval.compliance import mode_map, workspace_grid
 from eval.design.drive_modes import (
     GEARHEAD_DAMPING_RATIO,
     REFERENCE_PEAK_TORQUE,
@@ -16,6 +15,7 @@ from eval.design.drive_modes import (
     drive_mode_columns,
 )
 from eval.design.model import design_model
+from eval.identification.compliance import mode_map, workspace_grid
 
 
 @pytest.mark.parametrize(("motor", "ratio"), [("SGM7A-20A", 21.0), ("SGM7A-25A", 50.0), ("SGM7J-08A", 10.0)])

@@ -20,12 +20,12 @@ from delta_env.geometry import GRAVITY
 from delta_env.scenario import Scenario, preset
 from delta_env.trajectories import WORKING_HEIGHT, Segment, Trajectory
 from eval import metrics
-from eval.__main__ import main
-from eval.comparison import TABLE2_KEY, table2_statistics
+from eval.comparison.__main__ import main
+from eval.comparison.run import TABLE2_KEY, table2_statistics
+from eval.comparison.tables import BOUND_HOLDS, bound_violations, controller_table, residual_gain
 from eval.episodes import EpisodeRecord, run_episode
-from eval.faults import FAULT_COLUMNS
-from eval.parameter_files import load_or_identify
-from eval.tables import BOUND_HOLDS, bound_violations, controller_table, residual_gain
+from eval.faults.scores import FAULT_COLUMNS
+from eval.identification.parameter_files import load_or_identify
 from tests.conftest import pd_episode
 
 DT = 1e-3
@@ -89,7 +89,7 @@ def test_payload_targets_count_every_carry_against_each_target() -> None:
 
 
 def test_payload_target_table_has_a_row_per_estimating_controller() -> None:
-    from eval.tables import payload_target_table
+    from eval.comparison.tables import payload_target_table
 
     def row(label: str, item: metrics.CarryMetrics) -> dict:
         return {
@@ -497,7 +497,7 @@ def bound_row(
 
 
 def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverged_episodes() -> None:
-    from eval.comparison_report import bound_section
+    from eval.comparison.report import bound_section
 
     row = bound_row
 
@@ -524,7 +524,7 @@ def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverge
 def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
     """An oracle episode whose commands the drive clipped, or in which a joint exceeded the drive's speed, is no
     bound: its seed leaves the check (mean and episodes) for every controller, and the summary says so."""
-    from eval.comparison_report import bound_section
+    from eval.comparison.report import bound_section
 
     bound = "Oracle+PD (bound)"
     rows = [
@@ -549,8 +549,8 @@ def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
 def test_bound_check_skips_the_oracle_episodes_with_an_injected_fault() -> None:
     """The oracle knows the fault-free plant and the payloads: on an episode with an injected fault it is no bound,
     and the check skips that seed for every controller."""
-    from eval.comparison_report import bound_section
-    from eval.tables import unbounded_episodes
+    from eval.comparison.report import bound_section
+    from eval.comparison.tables import unbounded_episodes
 
     bound = "Oracle+PD (bound)"
     rows = [
@@ -612,7 +612,9 @@ def test_residual_gain_compares_the_residual_with_its_base_on_the_episodes_both_
     assert residual_gain(rows, "res", "absent") == []
 
 
-@pytest.mark.parametrize("module", ["eval.__main__", "eval.sweep.__main__", "eval.rate", "eval.design.__main__"])
+@pytest.mark.parametrize(
+    "module", ["eval.comparison.__main__", "eval.sweep.__main__", "eval.rate.__main__", "eval.design.__main__"]
+)
 def test_episode_seeds_may_not_reach_the_tare_seeds(module: str, capsys: pytest.CaptureFixture) -> None:
     import importlib
 

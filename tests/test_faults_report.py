@@ -14,7 +14,7 @@ from controllers.monitor import DetectedFault, ReportsFaults
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec, InjectedFault, is_latent
 from eval.episodes import run_episode
-from eval.faults import (
+from eval.faults.scores import (
     CONFUSION_COLUMNS,
     DETECTION_GRACE_S,
     FAULT_COLUMNS,
@@ -231,7 +231,7 @@ def test_run_episode_records_injected_and_detected_faults() -> None:
 
 
 def test_the_comparison_summary_has_a_faults_section_only_with_faults() -> None:
-    from eval.__main__ import _fault_section
+    from eval.comparison.__main__ import _fault_section
 
     assert _fault_section([], ["PD"]) == []
     rows = fault_rows({"controller": "A"}, match_faults(INJECTED, DETECTED))

@@ -34,10 +34,10 @@ from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
 from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
 from delta_env.sensors import ENCODER_RESOLUTION
-from eval import parameter_files
-from eval.excitation import ExcitationSpec, collect_excitation_data
-from eval.identification import identify
-from eval.parameter_files import load_or_identify
+from eval.identification import parameter_files
+from eval.identification.excitation import ExcitationSpec, collect_excitation_data
+from eval.identification.parameter_files import load_or_identify
+from eval.identification.run import identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
@@ -378,7 +378,7 @@ def test_load_of_a_missing_file_says_how_to_create_it(tmp_path) -> None:
     path = tmp_path / "absent.json"
     with pytest.raises(FileNotFoundError) as error:
         load_result(path)
-    assert str(path) in str(error.value) and "python -m eval.identify" in str(error.value)
+    assert str(path) in str(error.value) and "python -m eval.identification" in str(error.value)
 
 
 def test_load_or_identify_loads_an_existing_file_without_identifying(tmp_path, monkeypatch) -> None:
@@ -453,8 +453,8 @@ def test_identify_end_to_end_on_two_short_trajectories(tmp_path) -> None:
 
 
 def test_command_line_writes_parameters_configuration_report_and_figures(tmp_path, capsys) -> None:
-    from eval import identify as cli
-    from eval.identification_report import FIGURES
+    from eval.identification import __main__ as cli
+    from eval.identification.report import FIGURES
 
     folder, installed = tmp_path / "run", tmp_path / "installed" / "parameters.json"
     arguments = ["--trajectories", "2", "--duration", "2", "--validation-duration", "2", "--seed", "5"]
@@ -467,7 +467,7 @@ def test_command_line_writes_parameters_configuration_report_and_figures(tmp_pat
     assert config["config"]["trajectories"] == 2
     assert config["config"]["scenario"] == "nominal"
     assert load_result(installed).provenance["plant"]["identity"] == config["config"]["robot_identity"]
-    assert config["command"].startswith("python -m eval.identify --trajectories 2")
+    assert config["command"].startswith("python -m eval.identification --trajectories 2")
     report = (folder / "report.md").read_text()
     assert report in capsys.readouterr().out
     for heading in ("## Table 1 analogue", "## Identified parameters", "## Run time", "coulomb_3"):

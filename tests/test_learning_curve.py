@@ -70,8 +70,8 @@ def test_unfinished_runs_restart_and_finished_ones_are_kept(tmp_path: Path) -> N
 
 
 def test_named_recipes_exist_in_the_hyperparameter_file() -> None:
-    from eval.hyperparameters import load_hyperparameters, override_hyperparameters
-    from eval.train_residual import parse_args
+    from eval.residual.__main__ import parse_args
+    from eval.residual.hyperparameters import load_hyperparameters, override_hyperparameters
 
     for algo, items, train_args in curve.RECIPES.values():
         override_hyperparameters(load_hyperparameters(algo), items, algo)

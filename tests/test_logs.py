@@ -28,10 +28,10 @@ from delta_env.scenario import (
     with_geometry,
 )
 from delta_env.sensors import CONTROL_PERIOD
-from eval import identify as cli
-from eval.__main__ import main as evaluate
-from eval.__main__ import parse_args as parse_eval_args
-from eval.parameter_files import robot_identification, robot_setup
+from eval.comparison.__main__ import main as evaluate
+from eval.comparison.__main__ import parse_args as parse_eval_args
+from eval.identification import __main__ as cli
+from eval.identification.parameter_files import robot_identification, robot_setup
 from eval.scenario_args import on_geometry
 
 PLANT = """
@@ -274,7 +274,7 @@ def test_logs_without_commands_identify_everything_but_the_drive_lag(logged_plan
     with pytest.raises(ValueError, match="needs the identified drive lag"):
         build_controller("mid_f_rls_lag", setup)
     # the comparison refuses the file in one line before any episode: the servo layer's gains need the lag
-    from eval.__main__ import main as compare
+    from eval.comparison.__main__ import main as compare
 
     argv = ["--geometry", str(robot), "--parameters", str(tmp_path / "run" / "parameters.json"), "--episodes", "1"]
     argv += ["--controllers", "pd,mid_f", "--runs-dir", str(tmp_path / "runs"), "--out", str(tmp_path / "eval")]

@@ -11,10 +11,12 @@ PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
 SCRIPTS = PROJECT["scripts"]
 COMMAND_LINES = {
     "delta-eval": "eval",
-    "delta-identify": "eval.identify",
-    "delta-train-residual": "eval.train_residual",
+    "delta-identify": "eval.identification",
+    "delta-train-residual": "eval.residual",
     "delta-sweep": "eval.sweep",
     "delta-rate": "eval.rate",
+    "delta-faults": "eval.faults",
+    "delta-fault-soak": "eval.faults.soak",
     "delta-design": "eval.design",
     "delta-compare": "eval.compare",
 }

@@ -34,8 +34,8 @@ from delta_env.scenario import PickPlaceTask, Scenario
 from delta_env.timing import TimeLaw, move_samples
 from delta_env.trajectories import WORKING_HEIGHT, Segment
 from eval.episodes import run_episode
-from eval.rate import main
-from eval.rate_study import MIXED, rate_scenario
+from eval.rate.__main__ import main
+from eval.rate.study import MIXED, rate_scenario
 from eval.work import timed, timed_controller
 
 CARRY = Segment(

@@ -10,8 +10,8 @@ import matplotlib.figure
 import numpy as np
 import pytest
 
-from eval import plots
-from eval.faults import FAULT_COLUMNS, write_fault_csv
+from eval.comparison import plots
+from eval.faults.scores import FAULT_COLUMNS, write_fault_csv
 from eval.processes import pool_context
 from tests.figure_checks import hidden_legend_entries, kept_figures
 
@@ -118,7 +118,7 @@ def _figures(folder: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
-    """The figures :func:`eval.plots.make_plots` makes of :func:`_run_folder`."""
+    """The figures :func:`eval.comparison.plots.make_plots` makes of :func:`_run_folder`."""
     folder = _run_folder(tmp_path_factory.mktemp("all_at_once"))
     assert plots.make_plots(folder) == [folder / name for name in plots.FIGURES]
     return _figures(folder)

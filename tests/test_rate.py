@@ -21,10 +21,10 @@ from matplotlib.patches import Patch
 from delta_env.config import RATED_PAYLOAD
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.scenario import PickPlaceTask, Scenario
-from eval.published_rates import ABB_IRB_360, DIFFERENCES
-from eval.rate import main, parse_args
-from eval.rate_report import _cycle_line, _pace_line, _published_lines, rate_figure, summary_lines
-from eval.rate_study import (
+from eval.rate.__main__ import main, parse_args
+from eval.rate.published import ABB_IRB_360, DIFFERENCES
+from eval.rate.report import _cycle_line, _pace_line, _published_lines, rate_figure, summary_lines
+from eval.rate.study import (
     FULL_STUDY,
     MIXED,
     QUICK_NOTE,
@@ -114,7 +114,7 @@ def test_a_rows_scenario_keeps_every_other_term_of_the_task() -> None:
 
 
 def rate_rows(planners: tuple[str, ...], loads: tuple[str, ...]) -> list[dict[str, Any]]:
-    """Rows of the lead as :func:`eval.rate_study.run_rows` gives them: every planned timing at the same rate for
+    """Rows of the lead as :func:`eval.rate.study.run_rows` gives them: every planned timing at the same rate for
     objects of one mass (the case where lines coincide), declared and online faster on the mixed stream."""
     rows = []
     for planner in planners:

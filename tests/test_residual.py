@@ -1,4 +1,4 @@
-"""The residual env, controller, policy files and training CLI (controllers.residual, eval.train_residual)."""
+"""The residual env, controller, policy files and training CLI (controllers.residual, eval.residual.__main__)."""
 
 from __future__ import annotations
 
@@ -48,9 +48,9 @@ from controllers.residual.policy_file import METADATA_NAME
 from controllers.setup import ControllerSetup
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import preset
-from eval.hyperparameters import load_hyperparameters, override_hyperparameters
-from eval.plots import LEARNING_CURVE_FILE
-from eval.residual_envs import (
+from eval.comparison.plots import LEARNING_CURVE_FILE
+from eval.residual.__main__ import parse_args
+from eval.residual.envs import (
     CALIBRATION_SEEDS,
     TRAINING_SEEDS,
     VALIDATION_SEEDS,
@@ -59,11 +59,11 @@ from eval.residual_envs import (
     base_setup,
     make_env,
 )
-from eval.residual_resume import relabel_action_rate, resume_mismatch, reward_change, trained_config
-from eval.residual_training import train
+from eval.residual.hyperparameters import load_hyperparameters, override_hyperparameters
+from eval.residual.resume import relabel_action_rate, resume_mismatch, reward_change, trained_config
+from eval.residual.scoring import TEST_SEEDS
+from eval.residual.training import train
 from eval.run_folder import read_csv_rows
-from eval.scoring import TEST_SEEDS
-from eval.train_residual import parse_args
 from tests.conftest import NOMINAL_SETUP, run_python
 
 # Close to what identification finds on the default plant; fixed here so tests need no parameter file.
@@ -549,7 +549,7 @@ def test_seeded_training_is_deterministic_and_resumable(tmp_path: Path, capsys: 
     assert model.num_timesteps == 90
     assert model.learning_rate == 0.0005, "--hyperparams apply to a resumed run"
     written = json.loads((resumed / "config.json").read_text())
-    assert written["command"].startswith("python -m eval.train_residual") and "git_commit" in written
+    assert written["command"].startswith("python -m eval.residual") and "git_commit" in written
     assert written["config"]["scenario"]["name"] == "randomized", "domain randomization is on by default"
     resumed_from = written["config"]["resumed_from"]
     assert resumed_from["num_timesteps"] == 60
@@ -817,7 +817,7 @@ def test_bad_hyperparams_are_a_command_line_error(capsys) -> None:
 
 
 def test_tensorboard_without_the_package_is_a_command_line_error(capsys, monkeypatch) -> None:
-    import eval.train_residual as tool
+    import eval.residual.__main__ as tool
 
     monkeypatch.setattr(tool, "HAS_TENSORBOARD", False)
     with pytest.raises(SystemExit):
@@ -851,7 +851,7 @@ def test_residual_features_use_the_drives_datasheet_values() -> None:
 
 
 def test_a_missing_shipped_policy_says_how_to_get_a_base(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match=r"pass base=.*python -m eval\.identify"):
+    with pytest.raises(FileNotFoundError, match=r"pass base=.*python -m eval\.identification"):
         shipped_base_setup(tmp_path / "absent.zip")
 
 

@@ -12,7 +12,8 @@ from controllers.identification import IdentificationResult, ParameterFileError
 from controllers.registry import build_controller, estimation_model
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import preset, with_geometry
-from eval import identification, parameter_files
+from eval.identification import parameter_files
+from eval.identification import run as identification
 from tests.conftest import NOMINAL_SETUP
 
 DESIGN = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)

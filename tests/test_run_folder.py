@@ -22,13 +22,16 @@ import pytest
 from controllers.monitor.events import DetectedFault
 from delta_env.config import PlantConfig
 from delta_env.scenario import preset
-from eval import __main__ as eval_cli
-from eval import identify, rate
+from eval.comparison import __main__ as eval_cli
 from eval.console import Terminated
 from eval.design import __main__ as design_cli
 from eval.engine import Prepared
-from eval.faults import EpisodeFaults
-from eval.parameter_files import identification_root, parameter_path
+from eval.faults import __main__ as campaign
+from eval.faults import soak
+from eval.faults.scores import EpisodeFaults
+from eval.identification import __main__ as identify
+from eval.identification.parameter_files import identification_root, parameter_path
+from eval.rate import __main__ as rate
 from eval.run_folder import MANIFEST, RUNS_DIR_VARIABLE, create_run_folder, read_csv_rows, run_folder, runs_root
 from eval.sweep import __main__ as sweep_cli
 from tests.conftest import NOMINAL_SETUP as SETUP
@@ -215,7 +218,7 @@ def test_a_finished_sweep_rerun_on_ray_runs_nothing_and_force_runs_it_again(
 
 
 def fake_scores(path: Path) -> dict[str, Any]:
-    """Scores as :func:`eval.scoring.score_policy` returns them, with 17-digit numbers."""
+    """Scores as :func:`eval.residual.scoring.score_policy` returns them, with 17-digit numbers."""
     row = {"tracking_rms_mm": 0.41234567890123456, "tracking_max_mm": 1.5, "torque_rms_nm": 10.123456789012345}
     row["place_error_max_mm"] = 0.0812345678901234
     return {
@@ -238,7 +241,7 @@ def fake_scores(path: Path) -> dict[str, Any]:
 def test_score_only_writes_into_a_run_folder_not_beside_the_policy(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    train_residual = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
+    train_residual = pytest.importorskip("eval.residual.__main__", reason="needs the rl extra (stable-baselines3)")
     policies = tmp_path / "package" / "policies"
     policies.mkdir(parents=True)
     policy = policies / "residual.zip"
@@ -271,7 +274,7 @@ def test_score_only_writes_into_a_run_folder_not_beside_the_policy(
 
 
 def train_residual_parser(argv: list[str]) -> Any:
-    module = pytest.importorskip("eval.train_residual", reason="needs the rl extra (stable-baselines3)")
+    module = pytest.importorskip("eval.residual.__main__", reason="needs the rl extra (stable-baselines3)")
     return module.parse_args(argv)
 
 
@@ -282,8 +285,8 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "rate": rate.parse_args,
     "design": design_cli.parse_args,
     "train_residual": train_residual_parser,
-    "fault_soak": lambda argv: script("fault_soak").parse_args(argv),
-    "fault_campaign": lambda argv: script("fault_campaign").parse_args(argv),
+    "fault_soak": lambda argv: soak.parse_args(argv),
+    "fault_campaign": lambda argv: campaign.parse_args(argv),
 }
 
 
@@ -334,7 +337,6 @@ def test_one_spelling_of_cycles_and_seeds(capsys: pytest.CaptureFixture) -> None
 def test_the_campaign_prices_each_reaction_against_the_twins(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A slip on the lag row, run under each reaction against its fault-free twin: continuing costs the cell
     (almost) nothing, slowing down costs picks for the rest of the episode, and a stop ends it."""
-    campaign = script("fault_campaign")
     monkeypatch.setattr(campaign, "prepare", lambda *args, **kwargs: Prepared(SETUP, None, None, None))
     argv = ["--kinds", "slip", "--controllers", "mid_f_rls_lag", "--reactions", "continue,slow,stop", "--episodes", "1"]
     assert campaign.main([*argv, "--workers", "1", "--out", str(tmp_path / "run")]) == 0
@@ -346,7 +348,6 @@ def test_the_campaign_prices_each_reaction_against_the_twins(tmp_path: Path, mon
 
 
 def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs_gaps() -> None:
-    soak = script("fault_soak")
     rows = [
         {"condition": "6g", "key": "pd", "simulated_s": "9.0", "carries": "3"},
         {"condition": "6g", "key": "pd", "simulated_s": "11.0", "carries": "5"},
@@ -382,7 +383,6 @@ def test_the_soak_runs_each_controller_to_its_target_in_bounded_grids(
 ) -> None:
     # PD's episodes last 0.5 s (say they diverge), MId's 10 s: each runs as many as its own target needs, in grids of
     # at most GRID_EPISODES_PER_WORKER per worker (plus one seed's), never an episode twice.
-    soak = script("fault_soak")
     lengths = {"pd": 0.5, "mid_f_rls": 10.0}
     grids: list[list[tuple[str, int]]] = []
 
@@ -427,7 +427,6 @@ def test_the_soak_counts_the_carries_placed_and_reports_a_false_alarm_by_kind(
 ) -> None:
     # Real episodes (PD, nominal robot, 6 g); a collision that never happened is slipped into the second episode's
     # detections, as a monitor's false alarm would be: it must reach faults.csv and the table, per 10,000 carries.
-    soak = script("fault_soak")
     records: list = []
     real_run_grid = soak.run_grid
 

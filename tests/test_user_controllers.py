@@ -30,7 +30,7 @@ from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec
 from delta_env.scenario import PickPlaceTask, Scenario
 from eval import metrics
-from eval.__main__ import main as eval_main
+from eval.comparison.__main__ import main as eval_main
 from eval.episodes import run_episode
 from eval.sweep.work import run_unit
 from eval.work import WorkUnit, timed_controller

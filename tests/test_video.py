@@ -1,5 +1,5 @@
-"""Videos of episodes (eval.video): read back, their frames counted against the episode's duration and frame rate;
-the conveyors they show are drawn only."""
+"""Videos of episodes (eval.comparison.video): read back, their frames counted against the episode's duration and frame
+rate; the conveyors they show are drawn only."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ from controllers.registry import ControllerSetup, build_controller
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scene import build_model
-from eval import video
-from eval.__main__ import parse_args
+from eval.comparison import video
+from eval.comparison.__main__ import parse_args
+from eval.comparison.video import record_episode
 from eval.episodes import run_episode
-from eval.video import record_episode
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Offline identification of MId, MId+F and MId+F+R from recorded joint motion (docs/design.md section 7).
 
 The algorithms, on samples of encoder angles and measured motor torques (the experiment that records them
-is ``eval.identification``, its excitation runs ``eval.excitation``):
+is ``eval.identification.run``, its excitation runs ``eval.identification.excitation``):
 
 - :mod:`~controllers.identification.data`: smoothed motion aligned with the torque samples (:class:`MotionData`);
 - :mod:`~controllers.identification.paper`: the paper's method, replicated (grid search of rho1, rho2 per

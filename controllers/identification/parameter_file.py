@@ -208,7 +208,7 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(
-            f"identified parameter file {path} does not exist; run `python -m eval.identify` to create it"
+            f"identified parameter file {path} does not exist; run `python -m eval.identification` to create it"
         )
     try:
         document = json.loads(path.read_text())
@@ -219,7 +219,7 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     if version != FILE_FORMAT_VERSION:
         raise ParameterFileError(
             f"{path}: format_version {version!r} is not {FILE_FORMAT_VERSION}; delete the file or run "
-            "`python -m eval.identify` to identify again"
+            "`python -m eval.identification` to identify again"
         )
     models = {name: _model_from_json(path, document, name) for name in MODEL_FIELDS}
     drive_lag = _joint_values(path, document, "drive_lag_s", MAX_TIME_CONSTANT)

@@ -381,12 +381,13 @@ def shipped_base_setup(path: str | Path = DEFAULT_POLICY_PATH) -> PolicyBase:
     except FileNotFoundError as error:
         raise FileNotFoundError(
             f"{error}: it holds the default base controller of DeltaPickPlaceResidual-v0; reinstall the package or "
-            "pass base= (e.g. controllers.feedforward.model_controller with parameters from `python -m eval.identify`)"
+            "pass base= (e.g. controllers.feedforward.model_controller with parameters from "
+            "`python -m eval.identification`)"
         ) from None
     if metadata.get("base") is None:
         raise ValueError(
             f"{path} records no base controller; pass base= (e.g. controllers.feedforward.model_controller with "
-            "parameters from `python -m eval.identify`)"
+            "parameters from `python -m eval.identification`)"
         )
     try:
         return PolicyBase.from_table(metadata["base"])

@@ -43,7 +43,7 @@ from delta_env.geometry import NOMINAL_GEOMETRY
 from delta_env.scaling import GRIPPER_MASS
 from delta_env.scenario import save_geometry
 from delta_env.trajectories import WORKING_HEIGHT
-from eval import calibration, excitation, identification
+from eval import calibration
 from eval.console import CommandParser, command_main, progress_bar
 from eval.design import (
     codesign,
@@ -61,6 +61,8 @@ from eval.design import (
     stiffness,
     verify,
 )
+from eval.identification import excitation
+from eval.identification import run as identification
 from eval.run_folder import (
     Run,
     add_force_argument,

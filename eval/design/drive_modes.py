@@ -21,9 +21,9 @@ from controllers.compliance import DriveCompliance
 from delta_env.catalogue import DriveOption
 from delta_env.config import ARCMIN, GEARHEAD_DAMPING, GEARHEAD_STIFFNESS, RATED_PAYLOAD, ROTOR_INERTIA
 from delta_env.drive import REPRESENTATIVE_GEAR_EFFICIENCY, REPRESENTATIVE_GEAR_RATIO, REPRESENTATIVE_MOTOR, DriveLimits
-from eval.compliance import ModeMap, mode_map, workspace_grid
 from eval.design.model import design_model
 from eval.design.performance import TASK_BAND, TASK_RADIUS, Performance
+from eval.identification.compliance import ModeMap, mode_map, workspace_grid
 
 REFERENCE_PEAK_TORQUE = DriveLimits.of(
     REPRESENTATIVE_MOTOR, REPRESENTATIVE_GEAR_RATIO, REPRESENTATIVE_GEAR_EFFICIENCY

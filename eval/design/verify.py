@@ -1,7 +1,7 @@
 """Closed-loop verification of a design on its own MuJoCo plant (beyond the paper).
 
 For a geometry: build the realistic plant with the scaled masses, identify it by the nominal robot's
-identification (:func:`eval.identification.run_identification`, the same excitation runs in closed loop but
+identification (:func:`eval.identification.run.run_identification`, the same excitation runs in closed loop but
 inside the design's dexterous cylinder, the same fits on that geometry's models, the drive lag), tare the
 payload estimator by :func:`eval.calibration.calibrate_tares` on payload-free standard cycles, then run PD,
 MId+F+R+RLS+PD and the oracle by the experiment engine (:func:`eval.work.run_grid`) on seeded standard
@@ -35,9 +35,9 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES, calibration_seeds, ta
 from eval.design.model import design_model, payload_profile
 from eval.design.performance import PAYLOAD, TASK_BAND, TASK_CYCLES, Performance, task_cycle
 from eval.episodes import EpisodeRecord
-from eval.excitation import ExcitationRegion
-from eval.identification import run_identification
-from eval.parameter_files import robot_setup
+from eval.identification.excitation import ExcitationRegion
+from eval.identification.parameter_files import robot_setup
+from eval.identification.run import run_identification
 from eval.work import WorkUnit, run_grid
 
 LOOP_GAP_LIMIT = 1e-4
@@ -187,7 +187,7 @@ def excitation_region(performance: Performance) -> ExcitationRegion:
 
 def identify_design(plant: PlantConfig, performance: Performance, seed: int, workers: int = 1) -> ControllerSetup:
     """MId, MId+F, MId+F+R and the drive lag of a design's plant by the nominal robot's identification
-    (:func:`eval.identification.run_identification`, same trajectory count and length), inside the design's
+    (:func:`eval.identification.run.run_identification`, same trajectory count and length), inside the design's
     dexterous cylinder.
 
     Args:

@@ -160,7 +160,7 @@ def score_policy(
 
 
 def score_summary(scores: dict[str, Any]) -> str:
-    """The scores of :func:`eval.scoring.score_policy` as a few lines of rounded numbers: each row's pooled
+    """The scores of :func:`eval.residual.scoring.score_policy` as a few lines of rounded numbers: each row's pooled
     tracking and torque RMS and worst place error, the residual's change over its base and the episodes it improved."""
     summary = scores["summary"]
     rows = {"base": scores["base"], "residual": scores["residual"]}

@@ -1,5 +1,5 @@
-"""The sections of ``python -m eval``'s summary beside its tables (:mod:`eval.tables`): the pick rate, the payload
-targets, the faults, the bound check and the residual's gain over its base."""
+"""The sections of ``python -m eval``'s summary beside its tables (:mod:`eval.comparison.tables`): the pick rate, the
+payload targets, the faults, the bound check and the residual's gain over its base."""
 
 from __future__ import annotations
 
@@ -7,9 +7,8 @@ from typing import Any
 
 from controllers.registry import controller_entry, controller_label
 from eval import metrics
-from eval.comparison import ComparisonConfig
-from eval.faults import DETECTION_GRACE_S, NO_FAULT, confusion_counts, confusion_table, fault_table
-from eval.tables import (
+from eval.comparison.run import ComparisonConfig
+from eval.comparison.tables import (
     BOUND_HOLDS,
     bound_violations,
     payload_target_table,
@@ -17,6 +16,7 @@ from eval.tables import (
     residual_gain,
     unbounded_episodes,
 )
+from eval.faults.scores import DETECTION_GRACE_S, NO_FAULT, confusion_counts, confusion_table, fault_table
 
 SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
 """The columns of an episode row that the bound check's note on a skipped oracle episode names."""
@@ -64,8 +64,8 @@ def _bound_check(episode_rows: list[dict[str, Any]], key: str) -> list[str]:
 
 
 def fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[str]:
-    """The summary's lines on the faults (:func:`eval.faults.fault_table`); none when no fault was injected and none
-    detected."""
+    """The summary's lines on the faults (:func:`eval.faults.scores.fault_table`); none when no fault was injected and
+    none detected."""
     if not fault_rows:
         return []
     return [
@@ -123,7 +123,7 @@ def _policy_lines(config: ComparisonConfig, episode_rows: list[dict[str, Any]], 
 
 
 def pick_rate_section(episode_rows: list[dict[str, Any]]) -> list[str]:
-    """The summary's lines on the pick rate (:func:`eval.tables.pick_rate_table`)."""
+    """The summary's lines on the pick rate (:func:`eval.comparison.tables.pick_rate_table`)."""
     return [
         "## Pick rate",
         "",

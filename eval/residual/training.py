@@ -1,7 +1,7 @@
 """Training a residual policy with stable-baselines3 (docs/design.md section 6): the resolved configuration of a
-training (:class:`TrainingConfig`, built by ``python -m eval.train_residual``), the callbacks (checkpoints, the
+training (:class:`TrainingConfig`, built by ``python -m eval.residual``), the callbacks (checkpoints, the
 held-out evaluations and their learning curve, a wall-time budget, a progress bar) and the run itself
-(:func:`train`), whose run folder ``eval.train_residual`` describes."""
+(:func:`train`), whose run folder ``eval.residual.__main__`` describes."""
 
 from __future__ import annotations
 
@@ -25,13 +25,13 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from controllers.base import Controller
 from controllers.residual import PolicyBase, ResidualConfig, algorithm_class, save_residual_policy
 from delta_env.scenario import Scenario
+from eval.comparison.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
 from eval.console import progress_bar
-from eval.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
-from eval.plots import LEARNING_CURVE_COLUMNS, LEARNING_CURVE_FILE, learning_curve_figure
-from eval.residual_envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, base_setup, make_env
-from eval.residual_resume import relabel_action_rate, relabelable, resume_mismatch, reward_change, trained_config
+from eval.residual.envs import CALIBRATION_SEEDS, TRAINING_SEEDS, VALIDATION_SEEDS, base_setup, make_env
+from eval.residual.hyperparameters import HYPERPARAMETER_FILE, load_hyperparameters, override_hyperparameters
+from eval.residual.resume import relabel_action_rate, relabelable, resume_mismatch, reward_change, trained_config
+from eval.residual.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy, score_summary
 from eval.run_folder import Run, append_csv_rows, command_run_folder, configuration_record, write_json
-from eval.scoring import TEST_PAYLOADS, TEST_SEEDS, score_policy, score_summary
 
 CHECKPOINT_PREFIX = "residual"
 """CheckpointCallback names: residual_<n>_steps.zip and residual_replay_buffer_<n>_steps.pkl."""
@@ -55,7 +55,8 @@ class LatestReplayCheckpoint(CheckpointCallback):
 
 class HeldOutEvalCallback(EvalCallback):
     """EvalCallback that replays the same held-out episodes (``EpisodeSeeds.restart``) at every evaluation and, with
-    a ``curve`` path, appends each evaluation's scores to that CSV file (:data:`eval.plots.LEARNING_CURVE_COLUMNS`)."""
+    a ``curve`` path, appends each evaluation's scores to that CSV file
+    (:data:`eval.comparison.plots.LEARNING_CURVE_COLUMNS`)."""
 
     def __init__(self, *args: Any, curve: Path | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -151,7 +152,7 @@ RESIDUAL_OPTIONS = (
 
 @dataclass(frozen=True)
 class TrainingConfig:
-    """The resolved configuration of ``python -m eval.train_residual`` (a training, or with ``score_only`` the
+    """The resolved configuration of ``python -m eval.residual`` (a training, or with ``score_only`` the
     scores of a policy file), recorded as it is in the run's manifest (:func:`eval.run_folder.configuration_record`);
     the options are described by ``--help``.
 
@@ -170,7 +171,7 @@ class TrainingConfig:
         scenario: The training episodes' scenario (on ``geometry``'s robot, released as ``release`` says).
         geometry: The geometry file of ``--geometry``, or None.
         release: ``--release``, or None.
-        base: The base controller's key (:data:`~eval.residual_envs.BASE_KEYS`).
+        base: The base controller's key (:data:`~eval.residual.envs.BASE_KEYS`).
         servo: The base's feedback (:data:`controllers.setup.SERVOS`).
         cycles: Pick-and-place cycles per episode of ``scenario``.
         mix: ``--mix``: the mixed scenarios as given.
@@ -223,19 +224,19 @@ def train(
     base: PolicyBase | None = None,
     callbacks: Sequence[BaseCallback] = (),
 ) -> Path:
-    """Train per ``config`` (:func:`eval.train_residual.parse_args`); returns the run folder.
+    """Train per ``config`` (:func:`eval.residual.__main__.parse_args`); returns the run folder.
 
     Args:
         config: The resolved configuration.
         base_factory: Builds the base controller instead of the one of ``config.base`` (tests).
         base: The setup of ``config.base`` already identified and calibrated
-            (:func:`eval.residual_envs.base_setup`), so that several runs share one; None makes it.
+            (:func:`eval.residual.envs.base_setup`), so that several runs share one; None makes it.
         callbacks: More SB3 callbacks (after the checkpoint, evaluation and wall-time ones).
     """
     torch.set_num_threads(config.torch_threads)
     with command_run_folder(
         "residual",
-        "eval.train_residual",
+        "eval.residual",
         None,
         config,
         {"arguments": configuration_record(config)},

@@ -4,12 +4,12 @@ The identification belongs to a robot (its plant), not to the conditions it runs
 one file per robot identity (:func:`delta_env.scenario.plant_identity`),
 ``<runs root>/identification/<identity>/parameters.json`` (the runs root of :func:`eval.run_folder.runs_root`:
 ``--runs-dir``, ``$DELTA_RUNS_DIR`` or ``./runs``), which :func:`load_or_identify` reads, or creates with
-:func:`eval.identification.identify` when it is missing; the file records the identity and
+:func:`eval.identification.run.identify` when it is missing; the file records the identity and
 :func:`check_identity` checks it on reading. A new robot is identified once, when first needed.
 
 That file holds the identification of the default settings (:data:`DEFAULT_SETTINGS`) and nothing else: the
 settings a simulated identification ran with are in its provenance (:func:`identification_settings`);
-:func:`check_settings` refuses a robot's file made with others, and ``python -m eval.identify`` installs a run of
+:func:`check_settings` refuses a robot's file made with others, and ``python -m eval.identification`` installs a run of
 other settings only where ``--parameters`` says (:func:`install_path`). A parameter file given by the user
 (``--parameters``) is read as it is, whatever its settings, and must exist.
 """
@@ -27,8 +27,8 @@ from controllers.identification import IdentificationResult, ParameterFileError,
 from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.scenario import datasheet_identity, plant_identity
-from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
-from eval.identification import DEFAULT_TRAJECTORIES, identify
+from eval.identification.excitation import DEFAULT_DURATION, VALIDATION_DURATION
+from eval.identification.run import DEFAULT_TRAJECTORIES, identify
 from eval.run_folder import runs_root
 
 logger = logging.getLogger(__name__)
@@ -39,7 +39,7 @@ DEFAULT_SETTINGS = {
     "validation_duration_s": VALIDATION_DURATION,
     "seed": 0,
 }
-"""The settings of the identification kept per robot (:func:`parameter_path`): ``python -m eval.identify``'s
+"""The settings of the identification kept per robot (:func:`parameter_path`): ``python -m eval.identification``'s
 defaults and those :func:`identify_robot` identifies a missing robot with."""
 
 SETTING_FLAGS = {
@@ -48,12 +48,12 @@ SETTING_FLAGS = {
     "validation_duration_s": "--validation-duration",
     "seed": "--seed",
 }
-"""The ``python -m eval.identify`` option of each setting."""
+"""The ``python -m eval.identification`` option of each setting."""
 
 
 MISSING_PARAMETER_FILE = (
-    "no such parameter file; give an existing one (python -m eval.identify --parameters FILE writes one), or leave "
-    "--parameters out to use the robot's own identification"
+    "no such parameter file; give an existing one (python -m eval.identification --parameters FILE writes one), or "
+    "leave --parameters out to use the robot's own identification"
 )
 """Why a ``--parameters`` that does not exist is refused (rather than identified there)."""
 
@@ -91,7 +91,7 @@ def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> Id
         if json.loads(path.read_text()).get("provenance", {}).get("plant", {}).get("source") == "logs":
             raise ParameterFileError(
                 f"{path}: an identification from logs in an older file format; identify the logs again "
-                "(python -m eval.identify --log FILE ... --robot ROBOT) to write this version's format"
+                "(python -m eval.identification --log FILE ... --robot ROBOT) to write this version's format"
             )
         logger.warning("%s was written by an older version of this project: identifying again (about a minute)", path)
     else:
@@ -118,14 +118,14 @@ def identification_settings(result: IdentificationResult) -> dict[str, float] | 
 
 
 def describe_settings(settings: dict[str, float]) -> str:
-    """``settings`` as the options of ``python -m eval.identify``: ``--trajectories 3 --duration 3 ...``."""
+    """``settings`` as the options of ``python -m eval.identification``: ``--trajectories 3 --duration 3 ...``."""
     return " ".join(f"{SETTING_FLAGS[name]} {value:g}" for name, value in settings.items())
 
 
 def install_path(
     plant: PlantConfig, settings: dict[str, float], root: str | os.PathLike[str] | None = None
 ) -> Path | None:
-    """Where ``python -m eval.identify`` installs an identification of ``plant`` made with ``settings`` when no
+    """Where ``python -m eval.identification`` installs an identification of ``plant`` made with ``settings`` when no
     ``--parameters`` is given: the robot's own file (:func:`parameter_path`) for :data:`DEFAULT_SETTINGS`, else
     nowhere (None): the robot's file never holds a shorter or otherwise different identification."""
     return parameter_path(plant, root) if settings == DEFAULT_SETTINGS else None

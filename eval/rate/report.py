@@ -1,6 +1,6 @@
 """The pick-rate data sheet's report (``python -m eval.rate``): the summary's lines (the data sheet beside ABB's
 published rows, the rows in full, the targets, what the model buys) and the figure ``rate.png``, from the rows of
-:mod:`eval.rate_study`."""
+:mod:`eval.rate.study`."""
 
 from __future__ import annotations
 
@@ -19,9 +19,10 @@ from delta_env.cycles import DEFAULT_DWELL
 from delta_env.geometry import GRAVITY
 from delta_env.scenario import PickPlaceTask
 from eval import metrics
+from eval.comparison.tables import FEEDBACK_LINES
 from eval.console import plural
-from eval.published_rates import ABB_IRB_360, DIFFERENCES, PublishedSheet
-from eval.rate_study import (
+from eval.rate.published import ABB_IRB_360, DIFFERENCES, PublishedSheet
+from eval.rate.study import (
     COMPARED_PLANNERS,
     FASTEST_SEARCH,
     MIXED,
@@ -36,7 +37,6 @@ from eval.rate_study import (
     paced,
     payload_label,
 )
-from eval.tables import FEEDBACK_LINES
 
 
 def _settle_cell(value: float, kind: type) -> str:

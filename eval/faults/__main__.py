@@ -6,7 +6,8 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 ``--controllers`` (rows of the registry, ``mid_f_rls`` by default):
 
 - detected / scored (latent drive faults, which changed nothing, are counted apart), median and worst latency
-  (ms), consequences and false alarms (:mod:`eval.faults`), and the confusion matrix, injected kind by detected kind;
+  (ms), consequences and false alarms (:mod:`eval.faults.scores`), and the confusion matrix, injected kind by detected
+  kind;
 - for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
   the payload estimate against the twin from the fault to the end of its carry, and the change left at the place,
   as shares of the object's mass;
@@ -15,13 +16,13 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
   cost: the pick rate of the faulty episode against its twin's (picks/min lost, :func:`reaction_cost`) and the
   episodes a stop ended. The detection tables are those of the first reaction listed.
 
-Writes ``faults.csv`` (:data:`eval.faults.FAULT_COLUMNS`; the twins' detections too, false alarms),
-``confusion.csv`` (:data:`eval.faults.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
+Writes ``faults.csv`` (:data:`eval.faults.scores.FAULT_COLUMNS`; the twins' detections too, false alarms),
+``confusion.csv`` (:data:`eval.faults.scores.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
 ``summary.md`` into ``--out`` (default ``<runs root>/fault_campaign/<UTC time>``, with the manifest ``config.json`` of
 :mod:`eval.run_folder`), and prints the tables. The controllers are tared on fault-free payload-free episodes, as
 ``python -m eval`` tares them.
 
-Usage: python scripts/fault_campaign.py [--scenario nominal] [--geometry FILE] [--episodes 20] [--kinds all] [--seed 0]
+Usage: python -m eval.faults [--scenario nominal] [--geometry FILE] [--episodes 20] [--kinds all] [--seed 0]
                                         [--controllers mid_f_rls] [--reactions continue,slow,stop] [--out DIR]
                                         [--workers 2] [--runs-dir DIR]
 """
@@ -47,7 +48,7 @@ from eval import metrics
 from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.faults import (
+from eval.faults.scores import (
     confusion_counts,
     confusion_table,
     fault_rows,
@@ -70,7 +71,7 @@ GONE_MASS = 0.1
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = CommandParser(prog="python scripts/fault_campaign.py", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="python -m eval.faults", description=__doc__.split("\n\n")[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--episodes", type=int, default=20, help="episodes per fault kind (default 20)")
@@ -222,12 +223,12 @@ def reaction_table(rows: list[dict[str, Any]], kinds: Sequence[str], reactions: 
     return metrics.markdown_table(["Fault", *(f"{r}: picks/min lost, mean / max" for r in reactions)], body)
 
 
-@command_main("python scripts/fault_campaign.py")
+@command_main("python -m eval.faults")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     with command_run_folder(
         "fault_campaign",
-        "scripts/fault_campaign.py",
+        "eval.faults",
         argv,
         args,
         {**vars(args), "scenario": args.scenario.name},

@@ -1,9 +1,9 @@
-"""The environments of residual training and their seeds (``python -m eval.train_residual``).
+"""The environments of residual training and their seeds (``python -m eval.residual``).
 
 Training episodes draw their env seeds from :data:`TRAINING_SEEDS` (per worker, :class:`EpisodeSeeds`), validation
 uses :data:`VALIDATION_SEEDS` and the base controller's tare :data:`CALIBRATION_SEEDS`: disjoint sets, disjoint too
-from the test seeds of :mod:`eval.scoring` and from ``python -m eval``'s defaults. :func:`base_setup` makes the base
-controller's setup, :func:`make_env` the picklable env factories of SB3's vector envs.
+from the test seeds of :mod:`eval.residual.scoring` and from ``python -m eval``'s defaults. :func:`base_setup` makes
+the base controller's setup, :func:`make_env` the picklable env factories of SB3's vector envs.
 """
 
 from __future__ import annotations

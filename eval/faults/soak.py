@@ -8,8 +8,8 @@ Runs fault-free episodes ``seed, seed + 1, ...`` of each controller on each cond
   payload);
 - ``declared-mixed``, ``declared-0.1kg``, ``declared-4kg``, ``online-mixed``, ``online-0.1kg``, ``online-4kg``: the
   pick-rate data sheet's time-optimal timings on the whole envelope, built as ``python -m eval.rate`` builds them
-  (:func:`eval.rate_study.rate_scenario`: the standard cycle, ``torque_share``
-  :data:`eval.rate_study.RATE_TORQUE_SHARE`, its
+  (:func:`eval.rate.study.rate_scenario`: the standard cycle, ``torque_share``
+  :data:`eval.rate.study.RATE_TORQUE_SHARE`, its
   cycles per episode), with objects U[0, 4] kg, 0.1 kg or 4 kg. Every controller runs at its own pace (an online
   carry of a row without an estimator is retimed on the cell's, as a cell would run it), where the data sheet has
   those rows replay its first controller's references;
@@ -17,7 +17,7 @@ Runs fault-free episodes ``seed, seed + 1, ...`` of each controller on each cond
 
 The plants are the ``--scenario`` preset's (``randomized``: masses +-10 %, friction +-30 %, current-loop lag
 0.5-2 ms, drawn per episode; or ``nominal``). No fault is injected, so every detection is a false alarm
-(:mod:`eval.faults` counts them; an episode that carried an injected fault all the same is counted apart and
+(:mod:`eval.faults.scores` counts them; an episode that carried an injected fault all the same is counted apart and
 reported). The controllers are built as ``python -m eval`` builds them: the nominal robot's identification
 (``<runs root>/identification``, identified once when missing, about a minute) and the tares of the payload
 estimators measured on payload-free episodes of the same conditions on the comparison's calibration seeds
@@ -30,7 +30,7 @@ one's episode seed and time.
 Writes into the folder ``--out`` (default ``<runs root>/fault_soak/<UTC time>``; :mod:`eval.run_folder`):
 
 - ``episodes.csv``: one row per episode (:data:`EPISODE_COLUMNS`), appended as each finishes;
-- ``faults.csv``: every detection, as rows of :data:`eval.faults.FAULT_COLUMNS` with the episode's condition
+- ``faults.csv``: every detection, as rows of :data:`eval.faults.scores.FAULT_COLUMNS` with the episode's condition
   (false alarms here);
 - ``config.json``: the manifest (the command, the conditions, status, times); ``summary.md``: the table, also
   printed.
@@ -39,7 +39,7 @@ An interrupted run loses nothing already written: rerun the same command with th
 running only the episodes it lacks (a larger ``--carries`` or ``--minutes``, or more conditions or controllers,
 extend a finished soak).
 
-Usage: python scripts/fault_soak.py [--carries 10000] [--minutes M] [--conditions 3g,online-4kg,...]
+Usage: python -m eval.faults.soak [--carries 10000] [--minutes M] [--conditions 3g,online-4kg,...]
                                     [--scenario randomized|nominal] [--controllers mid_f_rls] [--seed 0]
                                     [--out DIR] [--workers 2] [--runs-dir DIR]
 """
@@ -68,8 +68,8 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.console import CommandParser, UsageError, command_main, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.faults import FAULT_COLUMNS, fault_rows
-from eval.rate_study import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
+from eval.faults.scores import FAULT_COLUMNS, fault_rows
+from eval.rate.study import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
 from eval.work import WorkUnit, run_grid
@@ -81,8 +81,8 @@ class SoakCondition:
 
     Attributes:
         timing: How the moves are timed (:data:`delta_env.scenario.TIMINGS`): ``fixed`` on the scenario's conveyor
-            cycle, else the data sheet's time-optimal timing (:func:`eval.rate_study.rate_scenario`).
-        payload: Every object's mass (kg), or :data:`eval.rate_study.MIXED` (U[0, rated payload]).
+            cycle, else the data sheet's time-optimal timing (:func:`eval.rate.study.rate_scenario`).
+        payload: Every object's mass (kg), or :data:`eval.rate.study.MIXED` (U[0, rated payload]).
         peak_acceleration: Peak Cartesian acceleration of a fixed timing (m/s^2); unused by the others.
         description: What the condition is, in words.
     """
@@ -166,12 +166,12 @@ completed carries, whether it diverged, faults injected (0 in a fault-free soak)
 figures of how hard it ran."""
 
 SOAK_FAULT_COLUMNS = ("condition", *FAULT_COLUMNS)
-"""Columns of ``faults.csv``: the episode's condition and :data:`eval.faults.FAULT_COLUMNS`."""
+"""Columns of ``faults.csv``: the episode's condition and :data:`eval.faults.scores.FAULT_COLUMNS`."""
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = CommandParser(
-        prog="scripts/fault_soak.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m eval.faults.soak", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
         "--carries",
@@ -410,7 +410,7 @@ def matrix_table(
     return metrics.markdown_table(["False alarms / carries", *ran], body)
 
 
-@command_main("python scripts/fault_soak.py")
+@command_main("python -m eval.faults.soak")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     base = preset(args.scenario)
@@ -426,7 +426,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "workers": args.workers,
     }
     rows = resume(args.out, config) if args.out is not None else []
-    command = command_line("scripts/fault_soak.py", argv)
+    command = command_line("eval.faults.soak", argv)
     with run_folder(
         "fault_soak",
         command,

@@ -1,7 +1,7 @@
 """The pick-rate data sheet's study (``python -m eval.rate``, docs/design.md section 9): its settings (the payloads,
 the study sizes, the goals, :class:`RateConfig`) and its runs: a row per planner, controller and payload
 (:func:`run_rows`) and the second controller's fastest fixed timing (:func:`fastest_fixed`). The report of the rows
-is :mod:`eval.rate_report`."""
+is :mod:`eval.rate.report`."""
 
 from __future__ import annotations
 

@@ -31,7 +31,7 @@ from delta_env.excitation import MULTISINE_BAND, MULTISINE_PERIOD, multisine_tor
 from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT
-from eval.excitation import robot_model
+from eval.identification.excitation import robot_model
 
 COMPLIANCE_POSES = ((0.0, 0.0, WORKING_HEIGHT), (0.3, -0.15, -1.0), (-0.2, 0.35, -0.8))
 """Platform positions (m) where the compliance excitation holds the robot: the work zone's centre, low and off

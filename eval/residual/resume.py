@@ -1,4 +1,4 @@
-"""Resuming a residual training from a checkpoint (``python -m eval.train_residual --resume``): what changed since
+"""Resuming a residual training from a checkpoint (``python -m eval.residual --resume``): what changed since
 the run it comes from (read from that run's ``config.json``), and the replay buffer's rewards relabelled for a new
 action-rate weight (docs/design.md section 6)."""
 

@@ -1,10 +1,10 @@
 """Train the residual policy of ``DeltaPickPlaceResidual-v0`` with stable-baselines3 (docs/design.md section 6).
 
-    python -m eval.train_residual --seed 0 --timesteps 300000 --max-minutes 15
+    python -m eval.residual --seed 0 --timesteps 300000 --max-minutes 15
 
 SAC by default (``--algo`` ppo, tqc or crossq selectable; TQC and CrossQ come from sb3-contrib), with the
-hyperparameters of ``eval/hyperparams/residual.toml`` (:mod:`eval.hyperparameters`). ``--hyperparams key:value
-...`` overrides any of them as the RL Zoo does; each value is a TOML value, as in the file (of bare words only
+hyperparameters of ``eval/residual/hyperparams/residual.toml`` (:mod:`eval.residual.hyperparameters`). ``--hyperparams
+key:value ...`` overrides any of them as the RL Zoo does; each value is a TOML value, as in the file (of bare words only
 ``auto`` and ``auto_<x>`` are strings; quote others), and a dotted key sets one entry of a table::
 
     --hyperparams learning_rate:1e-3 train_freq:4 gradient_steps:2 policy_kwargs.net_arch:[64,64]
@@ -19,11 +19,11 @@ Every run folder (``--out``, default ``<runs root>/residual/<UTC time>``; :func:
 - ``evaluations.npz`` and ``best_model/``: SB3's EvalCallback on held-out seeds (validation), distinct
   from every training seed, and its best model;
 - ``learning_curve.csv`` (a row per evaluation, appended as it is made: policy steps, mean, std, min and max
-  return) and ``learning_curve.png``, drawn from that file at the end of training (:mod:`eval.plots`);
+  return) and ``learning_curve.png``, drawn from that file at the end of training (:mod:`eval.comparison.plots`);
 - ``progress.csv``: training curves (TensorBoard event files go to ``--tensorboard DIR`` when given);
 - ``final_policy.zip`` and ``best_policy.zip``: loadable by :func:`controllers.residual.load_residual_controller`;
 - ``scores.json``: base vs residual on held-out test seeds (a third, disjoint set), after training
-  (:func:`eval.scoring.score_policy`).
+  (:func:`eval.residual.scoring.score_policy`).
 
 ``--score-only POLICY`` scores a policy file without training, into its own run folder (``--out``, default
 ``<runs root>/residual_scores/<UTC time>``: ``config.json``, ``scenario.toml``, ``scores.json``), never beside the
@@ -31,7 +31,7 @@ policy file.
 
 Seeds: training episodes draw their env seeds from ``TRAINING_SEEDS`` (per worker, from ``--seed``), validation
 uses ``VALIDATION_SEEDS``, the final scores ``TEST_SEEDS`` and the tare calibration ``CALIBRATION_SEEDS``
-(:mod:`eval.residual_envs`, :mod:`eval.scoring`): four disjoint sets, all disjoint from ``python -m eval``'s
+(:mod:`eval.residual.envs`, :mod:`eval.residual.scoring`): four disjoint sets, all disjoint from ``python -m eval``'s
 defaults (seeds 0-9 and its calibration seeds from 100000), so no evaluation episode (reference path, payload
 masses, noise) is ever trained on.
 
@@ -40,7 +40,7 @@ and drive lag on the nominal robot; ``--scenario`` chooses another). The base co
 ``mid_f_rls_lag`` row (``--base mid_f_rls`` for the one without the lead):
 MId+F+R with its feedback (the servo layer by default, ``--servo pd`` the paper's PD) and the payload RLS, its
 feedforward leading the identified drive lag, its parameters those
-of the scenario's robot (``--scenario``, ``--geometry``; ``eval.parameter_files.identify_robot``) and
+of the scenario's robot (``--scenario``, ``--geometry``; ``eval.identification.parameter_files.identify_robot``) and
 its tare calibrated on the scenario as the eval does (:mod:`eval.calibration` on payload-free episodes).
 Both, and the robot's geometry and masses, are saved in the policy.
 """
@@ -54,9 +54,10 @@ from pathlib import Path
 
 from controllers.residual import ALGORITHMS, ResidualConfig, read_policy_settings
 from eval.console import CommandParser, command_main, progress_bar, resolved_arguments
-from eval.hyperparameters import load_hyperparameters, override_hyperparameters
-from eval.residual_envs import BASE_KEYS
-from eval.residual_training import RESIDUAL_OPTIONS, TrainingConfig, train
+from eval.residual.envs import BASE_KEYS
+from eval.residual.hyperparameters import load_hyperparameters, override_hyperparameters
+from eval.residual.scoring import score_policy, score_summary
+from eval.residual.training import RESIDUAL_OPTIONS, TrainingConfig, train
 from eval.run_folder import (
     add_force_argument,
     add_runs_dir_argument,
@@ -65,7 +66,6 @@ from eval.run_folder import (
     write_json,
 )
 from eval.scenario_args import add_scenario_arguments, add_servo_argument, check_ranges, scenario_from_arguments
-from eval.scoring import score_policy, score_summary
 
 HAS_TENSORBOARD = importlib.util.find_spec("tensorboard") is not None
 """``--tensorboard`` needs the tensorboard package."""
@@ -75,7 +75,7 @@ def argument_parser() -> CommandParser:
     """The parser of the command line."""
     summary, _, details = __doc__.partition("\n\n")
     parser = CommandParser(
-        prog="python -m eval.train_residual",
+        prog="python -m eval.residual",
         description=summary,
         epilog=details,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -84,7 +84,7 @@ def argument_parser() -> CommandParser:
         "--algo",
         choices=ALGORITHMS,
         default="sac",
-        help="SB3 algorithm, its hyperparameters from eval/hyperparams/residual.toml (default: %(default)s)",
+        help="SB3 algorithm, its hyperparameters from eval/residual/hyperparams/residual.toml (default: %(default)s)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the model and of the training episodes")
     parser.add_argument("--timesteps", type=int, default=300_000, help="total policy steps (100 Hz by default)")
@@ -241,7 +241,7 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainingConfig:
     return resolve(parser.parse_args(argv), parser)
 
 
-@command_main("python -m eval.train_residual")
+@command_main("python -m eval.residual")
 def main(argv: Sequence[str] | None = None) -> int:
     config = parse_args(argv)
     if config.score_only is None:
@@ -249,7 +249,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     with command_run_folder(
         "residual_scores",
-        "eval.train_residual",
+        "eval.residual",
         argv,
         config,
         {"arguments": configuration_record(config)},

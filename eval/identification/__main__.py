@@ -1,25 +1,25 @@
-"""``python -m eval.identify``: identify MId, MId+F and MId+F+R on the plant and write a validation report.
+"""``python -m eval.identification``: identify MId, MId+F and MId+F+R on the plant and write a validation report.
 
 The plant is the robot of ``--scenario`` (and ``--geometry``); its condition (wear) and task do not enter:
-an identification belongs to the robot. Runs :func:`eval.identification.run_identification`, writes the
+an identification belongs to the robot. Runs :func:`eval.identification.run.run_identification`, writes the
 parameter file into the run folder and (unless ``--no-install``) to the path the controllers of that robot
 load (``<runs root>/identification/<robot identity>/parameters.json``; :func:`eval.run_folder.runs_root`; for
-the default settings only: :func:`eval.parameter_files.install_path`, else ``--parameters`` if given), the
-scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and the
-figures (made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
+the default settings only: :func:`eval.identification.parameter_files.install_path`, else ``--parameters`` if given),
+the scenario (``scenario.toml``), the manifest (``config.json``), the held-out validation data, a Markdown report and
+the figures (made from the saved data), and prints the report. ``--save-logs DIR`` also writes what the drive recorded
 along every run as log files (:mod:`controllers.identification.logs`; ``--log-format mcap`` or ``sqlite3``: ROS 2
 bags, :mod:`controllers.identification.bags`) and the robot file ``robot.toml``. ``--quick`` is a smoke run of a
 few seconds (:data:`QUICK`), said on the console and in the report, recorded in ``config.json`` and written to the
 run folder only: it never replaces the robot's parameter file, which ``python -m eval`` loads.
 
 With ``--log FILE [FILE ...] --robot ROBOT.toml`` nothing is simulated: the robot is identified from its logs
-alone (:func:`eval.identification.identify_logs`, the same fits), the last log held out for the report (a log is a
+alone (:func:`eval.identification.run.identify_logs`, the same fits), the last log held out for the report (a log is a
 CSV or Parquet table or a ROS 2 bag; ``--topic``, ``--joint-names`` and ``--command-topic`` say what to read from
 a bag); the parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of
 the robot file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot
 (``--geometry ROBOT.toml``).
 
-The report (:mod:`eval.identification_report`) of a simulation compares the identified friction and drive lag with
+The report (:mod:`eval.identification.report`) of a simulation compares the identified friction and drive lag with
 the plant's true values: the only place that reads the plant's truth, labelled as ground truth for the report; the
 identification never sees it. Logs come with no truth.
 """
@@ -39,10 +39,16 @@ from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_T
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import Scenario, save_robot
 from eval.console import CommandParser, command_main, resolved_arguments
-from eval.excitation import DEFAULT_DURATION, VALIDATION_DURATION
-from eval.identification import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
-from eval.identification_report import ground_truth, plot_figures, render_report, save_validation_data
-from eval.parameter_files import DEFAULT_SETTINGS, describe_settings, identification_root, install_path, parameter_path
+from eval.identification.excitation import DEFAULT_DURATION, VALIDATION_DURATION
+from eval.identification.parameter_files import (
+    DEFAULT_SETTINGS,
+    describe_settings,
+    identification_root,
+    install_path,
+    parameter_path,
+)
+from eval.identification.report import ground_truth, plot_figures, render_report, save_validation_data
+from eval.identification.run import DEFAULT_TRAJECTORIES, IdentificationRun, identify_logs, run_identification
 from eval.run_folder import (
     Run,
     add_force_argument,
@@ -113,8 +119,8 @@ def _joint_names(text: str) -> tuple[str, str, str]:
 
 @dataclasses.dataclass(frozen=True)
 class IdentifyConfig:
-    """The resolved configuration of an identification (``python -m eval.identify``), recorded as it is in the run's
-    manifest (:func:`eval.run_folder.configuration_record`); the options are described by ``--help``.
+    """The resolved configuration of an identification (``python -m eval.identification``), recorded as it is in the
+    run's manifest (:func:`eval.run_folder.configuration_record`); the options are described by ``--help``.
 
     Attributes:
         scenario: The scenario whose robot is simulated (on ``geometry``'s robot), or None with ``log``.
@@ -170,7 +176,7 @@ class IdentifyConfig:
 
 def argument_parser() -> CommandParser:
     """The parser of the command line."""
-    parser = CommandParser(prog="python -m eval.identify", description=__doc__.splitlines()[0])
+    parser = CommandParser(prog="python -m eval.identification", description=__doc__.splitlines()[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of trajectories and sensor noise")
     parser.add_argument(
@@ -324,8 +330,8 @@ def parse_args(argv: Sequence[str] | None = None) -> IdentifyConfig:
 
 
 def simulation_settings(arguments: argparse.Namespace | IdentifyConfig) -> dict[str, float]:
-    """The settings of a simulated identification (:data:`eval.parameter_files.DEFAULT_SETTINGS`' keys) given by
-    ``arguments``: the parsed command line or its configuration."""
+    """The settings of a simulated identification (:data:`eval.identification.parameter_files.DEFAULT_SETTINGS`' keys)
+    given by ``arguments``: the parsed command line or its configuration."""
     return {
         "trajectories": arguments.trajectories,
         "duration_s": arguments.duration,
@@ -345,7 +351,7 @@ def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMass
     return save_robot(geometry, masses, folder / "robot.toml")
 
 
-@command_main("python -m eval.identify")
+@command_main("python -m eval.identification")
 def main(argv: Sequence[str] | None = None) -> int:
     config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -368,14 +374,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 topics=BagTopics(config.topic, config.joint_names, config.command_topic),
             )
         except ValueError as error:  # a bad log or robot file, or logs that do not excite the model
-            print(f"python -m eval.identify: error: {error}", file=sys.stderr)
+            print(f"python -m eval.identification: error: {error}", file=sys.stderr)
             return 2
         config = dataclasses.replace(config, robot_identity=run.result.provenance["plant"]["identity"])
     suffix = "logs" if config.scenario is None else f"seed{config.seed}"
     scenarios = [] if config.scenario is None else [config.scenario]
     with command_run_folder(
         "identification",
-        "eval.identify",
+        "eval.identification",
         argv,
         config,
         configuration_record(config),

@@ -4,7 +4,7 @@ Picks per minute on the industry's 25/305/25 mm standard cycle, like a Delta pic
 0.1, 1, 2 and 4 kg (the rated payload) and on a mixed stream of objects drawn from U[0, 4] kg, for each way of
 timing the moves (``--planners``). Planned timings use the drive's whole envelope (after the planner's 10 % margin
 for model error) within its thermal rating (``--torque-share`` takes less); the cycle's ends (air activation, the
-in-position window) are the scenario's. ABB's published rows (:mod:`eval.published_rates`) stand beside ours.
+in-position window) are the scenario's. ABB's published rows (:mod:`eval.rate.published`) stand beside ours.
 
 - ``fixed``: today's timing, every move at the scenario's peak acceleration (3 g);
 - ``worst_case``: time-optimal within the drive, every carry for the heaviest object of the stream;
@@ -14,11 +14,11 @@ in-position window) are the scenario's. ABB's published rows (:mod:`eval.publish
 
 The first controller of ``--controllers`` (by default the model-based MId+F+R+RLS+lag+PD) runs every row, and
 so does every other controller that estimates the payload itself (the RLS rows, the residual:
-:func:`eval.rate_study.paced`), at its own pace: timed on its own estimate, released in position. The others (PD, the
+:func:`eval.rate.study.paced`), at its own pace: timed on its own estimate, released in position. The others (PD, the
 rows without an estimate) run the first's references (its episodes' reference, replayed with the same objects), so
 that they are scored at the same timings. For each payload it also finds the fastest fixed timing at which the second
-controller (PD by default) meets the tracking and place goals (:data:`eval.rate_study.TRACKING_GOAL_MM`,
-:data:`~eval.rate_study.PLACE_GOAL_MM`):
+controller (PD by default) meets the tracking and place goals (:data:`eval.rate.study.TRACKING_GOAL_MM`,
+:data:`~eval.rate.study.PLACE_GOAL_MM`):
 the ratio of the two pick rates is what the model buys.
 
 ``--quick`` measures 1 episode x 2 cycles per row at 0.1 and 4 kg and the mixed stream in one process, without
@@ -56,9 +56,9 @@ from delta_env.scenario import TIMINGS
 from eval.calibration import calibration_seeds
 from eval.console import CommandParser, command_main, progress_bar
 from eval.engine import prepare
-from eval.published_rates import ABB_IRB_360
-from eval.rate_report import save_rate_figure, study_line, summary_lines
-from eval.rate_study import (
+from eval.rate.published import ABB_IRB_360
+from eval.rate.report import save_rate_figure, study_line, summary_lines
+from eval.rate.study import (
     CALIBRATION_EPISODES,
     DEFAULT_CONTROLLERS,
     FULL_STUDY,

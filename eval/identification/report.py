@@ -1,4 +1,4 @@
-"""The Markdown validation report of an identification and its figures (``python -m eval.identify``).
+"""The Markdown validation report of an identification and its figures (``python -m eval.identification``).
 
 The report compares every model on the held-out data (the paper's Table 1 analogue, errors by joint speed),
 lists the identified parameters (against the plant's truth for a simulation: :func:`ground_truth`, read by this
@@ -26,8 +26,8 @@ from controllers.identification import (
 from delta_env.config import ARCMIN, PlantConfig
 from delta_env.geometry import GRAVITY
 from delta_env.kernels import STRIBECK_PEAK
-from eval.compliance import mode_map, mode_map_lines, workspace_grid
-from eval.identification import IdentificationRun
+from eval.identification.compliance import mode_map, mode_map_lines, workspace_grid
+from eval.identification.run import IdentificationRun
 
 FIGURES = {
     "fig3_mkh.png": "MKH",

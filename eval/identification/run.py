@@ -1,15 +1,15 @@
 """The identification experiment: excitation runs on the plant, then every fit (docs/design.md section 7).
 
-Data: excitation trajectories run in closed loop on the plant by :mod:`eval.excitation`; only the observations
-are kept: encoder angles and measured motor torques. The algorithms of :mod:`controllers.identification` then fit,
-on the same samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod
+Data: excitation trajectories run in closed loop on the plant by :mod:`eval.identification.excitation`; only the
+observations are kept: encoder angles and measured motor torques. The algorithms of :mod:`controllers.identification`
+then fit, on the same samples, MId and MId+F by the paper's method and by our joint least squares, and MId+F+R (rod
 forearms, beyond the paper), and compare every model on a held-out stress trajectory. The drive's lag is fitted
 separately (:func:`controllers.drive.identify_lag`) to the commands each run held and the torques the drive
 reported, one fit per trajectory; the file keeps the median over the trajectories. A robot's drive logs
 (:func:`identify_logs`) go through the same fits.
 
 The result is an :class:`~controllers.identification.IdentificationResult` with provenance; the parameter files,
-one per robot identity, are kept by :mod:`eval.parameter_files`.
+one per robot identity, are kept by :mod:`eval.identification.parameter_files`.
 """
 
 from __future__ import annotations
@@ -64,9 +64,9 @@ from delta_env.scenario import datasheet_identity, load_robot, plant_identity
 from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
-from eval.compliance import identify_compliance
 from eval.console import progress_bar
-from eval.excitation import (
+from eval.identification.compliance import identify_compliance
+from eval.identification.excitation import (
     DEFAULT_DURATION,
     NOMINAL_REGION,
     VALIDATION_DURATION,
@@ -116,8 +116,8 @@ class IdentificationRun:
         logs: The logs identified on, then the held-out one: what the drive recorded.
         max_loop_gap: Largest loop gap of the plant over every excitation run (m), the simulation's health; None
             for logs.
-        compliance_logs: The compliance excitation's logs (:mod:`eval.compliance`) the drives' compliance was
-            identified on; empty without it.
+        compliance_logs: The compliance excitation's logs (:mod:`eval.identification.compliance`) the drives'
+            compliance was identified on; empty without it.
     """
 
     result: IdentificationResult
@@ -253,8 +253,8 @@ def run_identification(
 
 
 def _drive_compliance(plant: PlantConfig, seed: int) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict] | None:
-    """The compliance fit of :func:`eval.compliance.identify_compliance` for a plant whose compliant drives carry a
-    load-side encoder, else None (rigid drives, or no encoder to identify them with)."""
+    """The compliance fit of :func:`eval.identification.compliance.identify_compliance` for a plant whose compliant
+    drives carry a load-side encoder, else None (rigid drives, or no encoder to identify them with)."""
     compliance = plant.realism.compliance
     if compliance is None or compliance.load_encoder_bits is None:
         return None
@@ -319,8 +319,8 @@ def identify_logs(
         progress: Show a tqdm progress bar.
         topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
             commands.
-        compliance_paths: Logs of the compliance excitation (:mod:`eval.compliance`: the multisine at rest poses,
-            with ``load_angle`` columns) to identify compliant drives on; none for rigid drives.
+        compliance_paths: Logs of the compliance excitation (:mod:`eval.identification.compliance`: the multisine
+            at rest poses, with ``load_angle`` columns) to identify compliant drives on; none for rigid drives.
         compliance_period: The sample period (s) those logs are resampled onto: a drive trace's own (the
             simulated trace's is the physics step).
         torque_delay: Age of the compliance logs' torques against their angles (s): the drive's timing.

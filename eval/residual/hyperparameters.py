@@ -1,6 +1,6 @@
-"""The hyperparameters of ``python -m eval.train_residual``: the file beside the tool and ``--hyperparams`` overrides.
+"""The hyperparameters of ``python -m eval.residual``: the file beside the tool and ``--hyperparams`` overrides.
 
-The SB3 keyword arguments of each algorithm are one TOML table of ``eval/hyperparams/residual.toml``
+The SB3 keyword arguments of each algorithm are one TOML table of ``eval/residual/hyperparams/residual.toml``
 (:func:`load_hyperparameters`); ``--hyperparams key:value ...`` overrides any of them as the RL Zoo does
 (:func:`override_hyperparameters`), each value a TOML value and a dotted key one entry of a table.
 """

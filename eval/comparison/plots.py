@@ -14,7 +14,7 @@
   on a time axis, one lane per episode (``faults.csv``).
 
 :func:`learning_curve_figure` draws the residual training's held-out scores (``learning_curve.csv`` of
-:mod:`eval.train_residual`) into ``learning_curve.png``.
+:mod:`eval.residual.__main__`) into ``learning_curve.png``.
 
 Every figure's title names the scenario of the run (``scenario.toml`` in the run folder). :func:`make_plots` makes
 them all from a finished run folder; a :class:`Plotter` makes each as soon as the files it is made from are saved,
@@ -61,7 +61,7 @@ REFERENCE_FIELD = "reference_xyz"
 per controller key in ``traces.npz`` as ``"<key>.reference_xyz"``: the platform's path is drawn against them."""
 
 LEARNING_CURVE_FILE = "learning_curve.csv"
-"""The residual training's held-out scores, beside its run folder's other files (:mod:`eval.train_residual`)."""
+"""The residual training's held-out scores, beside its run folder's other files (:mod:`eval.residual.__main__`)."""
 
 LEARNING_CURVE_COLUMNS = ("timesteps", "mean_reward", "std_reward", "min_reward", "max_reward", "episodes")
 """Columns of :data:`LEARNING_CURVE_FILE`: one row per held-out evaluation of the residual training (policy steps so
@@ -303,7 +303,8 @@ def _platform_label(scale: int) -> str:
 
 
 DETECTION_MARKERS = {"detected": "v", "consequence": "o", "false_alarm": "X"}
-"""The marker of a detection in the fault timeline, by the ``outcome`` of its row (:data:`eval.faults.OUTCOMES`)."""
+"""The marker of a detection in the fault timeline, by the ``outcome`` of its row
+(:data:`eval.faults.scores.OUTCOMES`)."""
 
 _DETECTION_NAMES = {
     "detected": "detection of the fault",

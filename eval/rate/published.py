@@ -1,4 +1,4 @@
-"""Published pick rates of an industrial Delta robot, set beside the simulated data sheet (:mod:`eval.rate`).
+"""Published pick rates of an industrial Delta robot, set beside the simulated data sheet (:mod:`eval.rate.__main__`).
 
 The one home of these figures: ABB's IRB 360 FlexPicker, product specification 3HAC079010-001, "Cycle 1" (the
 25/305/25 mm standard cycle: 25 mm up, 305 mm across, 25 mm down and back, with 35 ms of air activation at each
