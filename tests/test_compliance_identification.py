@@ -27,6 +27,7 @@ from delta_env import kinematics
 from delta_env.config import ARCMIN, RATED_PAYLOAD, PlantConfig
 from delta_env.excitation import multisine_torques
 from delta_env.scenario import preset, save_robot
+from delta_env.sensors import CONTROL_PERIOD
 from eval.compliance import (
     COMPLIANCE_POSES,
     MAP_HEIGHTS,
@@ -57,6 +58,16 @@ def known_plant_logs() -> tuple[PlantConfig, list[DriveLog]]:
         for n, pose in enumerate(COMPLIANCE_POSES)
     ]
     return plant, logs
+
+
+def test_the_traces_command_is_the_one_sent_with_its_sample(known_plant_logs) -> None:
+    """DriveLog's convention: command k is sent with sample k and held until sample k + 1. The hold reads the rotor
+    at the last physics step of each control period, so the trace's command changes at exactly those rows."""
+    plant, logs = known_plant_logs
+    substeps = round(CONTROL_PERIOD / plant.timestep)
+    changes = np.flatnonzero(np.any(np.diff(logs[0].commands, axis=0) != 0.0, axis=1)) + 1
+    assert len(changes) > 100
+    np.testing.assert_array_equal((changes + 1) % substeps, 0)
 
 
 def test_known_stiffness_and_damping_are_identified(known_plant_logs) -> None:
