@@ -149,10 +149,8 @@ def compliant_oracle_gains(
     rotor's angle and its rate measured over ``rate_window`` (s; the backward difference of the samples when it is
     the period). Kp is :data:`ORACLE_KP`, halved until a Kd of :data:`COMPLIANT_KD_GRID` keeps every pole of the
     sampled loop inside the unit circle at both inertias; Kd is the one whose largest pole is least there, the
-    gearhead's mode damped best. Through the lag and the sampling a larger Kd damps the mode less again: on the preset
-    (10 N m s/rad of gearhead damping, 1 ms lag) the loop holds Kp 6000 for Kd from 7.5 to 34 and is best at 27.5,
-    with half that damping from 7.5 to 17 (best 14.5), and without it for no Kd (Kp falls to 1500, Kd 3; docs/design.md
-    section 4).
+    gearhead's mode damped best. Through the lag and the sampling a larger Kd damps the mode less again (the windows
+    of Kd on the preset, with and without its gearhead damping: docs/design.md section 4).
     """
     arm_inertias = [joint_inertia(drives.arm.torques, payload=payload) for payload in (0.0, RATED_PAYLOAD)]
     gains = []
@@ -264,8 +262,7 @@ class OracleController:
     jerk and snap from its samples (:meth:`~controllers.drive.ReferencePredictor.jet`). The motor encoders read the
     rotors, so the feedback compares them with the rotors' reference, the arms' plus the gearheads' deflection, and
     it is the PD of :func:`compliant_oracle_gains` whichever ``servo`` is asked: the
-    servo layer's gains, placed on the rigid inertia, drive the gearhead's mode unstable (docs/design.md section 4;
-    7.6 mm RMS on the preset's episode 0).
+    servo layer's gains, placed on the rigid inertia, drive the gearhead's mode unstable (docs/design.md section 4).
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).

@@ -390,10 +390,7 @@ class CompliantDriveOracle:
         # MuJoCo's implicit integrators take a fixed tendon's damping into the step's matrix M + h D only where M has
         # entries: the rotor and the arm are separate trees, so D keeps c on each joint and drops the coupling -c.
         # Each joint then moves as if its inertia were h c larger (2.5e-3 kg m^2 on the preset: 2.3 % of J_m).
-        implicit = model.opt.integrator in (
-            mujoco.mjtIntegrator.mjINT_IMPLICIT,
-            mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-        )
+        implicit = model.opt.integrator in IMPLICIT_INTEGRATORS
         self.step_inertia = model.opt.timestep * self.damping if implicit else np.zeros(3)
 
     def motion(

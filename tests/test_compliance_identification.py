@@ -27,6 +27,7 @@ from delta_env import kinematics
 from delta_env.config import ARCMIN, RATED_PAYLOAD, PlantConfig
 from delta_env.excitation import multisine_torques
 from delta_env.scenario import preset, save_robot
+from delta_env.sensors import CONTROL_PERIOD
 from eval.identification.compliance import (
     COMPLIANCE_POSES,
     MAP_HEIGHTS,
@@ -59,17 +60,27 @@ def known_plant_logs() -> tuple[PlantConfig, list[DriveLog]]:
     return plant, logs
 
 
+def test_the_traces_command_is_the_one_sent_with_its_sample(known_plant_logs) -> None:
+    """DriveLog's convention: command k is sent with sample k and held until sample k + 1. The hold reads the rotor
+    at the last physics step of each control period, so the trace's command changes at exactly those rows."""
+    plant, logs = known_plant_logs
+    substeps = round(CONTROL_PERIOD / plant.timestep)
+    changes = np.flatnonzero(np.any(np.diff(logs[0].commands, axis=0) != 0.0, axis=1)) + 1
+    assert len(changes) > 100
+    np.testing.assert_array_equal((changes + 1) % substeps, 0)
+
+
 def test_known_stiffness_and_damping_are_identified(known_plant_logs) -> None:
-    """Stiffness within 5 % per joint (measured: -0.01, +1.0, +0.5 %), damping within 25 % (-4, -7, -20 %: its torque
-    is 4 % of the spring's at the mode, so a few microseconds of timing move it), the rotor inertia within 6 %
-    (+1 to +2 %); no backlash found where there is none. The standard errors are the periods' noise only, far below
-    the bias, but not zero."""
+    """Stiffness within 1.8 % per joint (the issue's target is 5 %; measured: -0.01, +1.0, +0.5 %), damping within 25 %
+    (-4, -7, -20 %: its torque is 4 % of the spring's at the mode, so a few microseconds of timing move it), the rotor
+    inertia within 3.5 % (+1 to +2 %); no backlash found where there is none. The standard errors are the periods'
+    noise only, far below the bias, but not zero."""
     plant, logs = known_plant_logs
     truth = plant.realism.compliance
     fit = fit_compliance(logs, torque_delay=plant.timestep)
-    np.testing.assert_allclose(fit.compliance.stiffness, truth.stiffness_per_joint, rtol=0.05)
+    np.testing.assert_allclose(fit.compliance.stiffness, truth.stiffness_per_joint, rtol=0.018)
     np.testing.assert_allclose(fit.compliance.damping, truth.damping_per_joint, rtol=0.25)
-    np.testing.assert_allclose(fit.compliance.rotor_inertia, truth.rotor_inertia, rtol=0.06)
+    np.testing.assert_allclose(fit.compliance.rotor_inertia, truth.rotor_inertia, rtol=0.035)
     assert np.all(fit.estimate[:, 5] < 1e-5)  # backlash (rad): 0.03 arcmin
     stiffness_errors = fit.standard_errors[:, 3] / fit.estimate[:, 3]
     assert np.all((stiffness_errors > 0.0) & (stiffness_errors < 0.01))
@@ -87,8 +98,8 @@ def test_known_stiffness_and_damping_are_identified(known_plant_logs) -> None:
 def test_stiffness_and_backlash_are_identified_behind_a_backlash(
     backlash_arcmin: float, stiffness_scale: tuple, damping_scale: tuple, seed: int
 ) -> None:
-    """Behind 0.5 to 3 arcmin of backlash the stiffness within 5 % (measured within 2.3 %), the backlash within 10 %
-    (within 6 %), the damping within 25 % (within 8 %)."""
+    """Behind 0.5 to 3 arcmin of backlash the stiffness within 4 % (the issue's target is 5 %; measured within 2.3 %),
+    the backlash within 10 % (within 6 %), the damping within 15 % (within 8 %)."""
     plant = _plant(stiffness_scale=stiffness_scale, damping_scale=damping_scale, backlash=backlash_arcmin * ARCMIN)
     logs = [
         run_compliance_excitation(ComplianceExcitationSpec(seed=seed + n, pose=pose), plant)
@@ -96,9 +107,9 @@ def test_stiffness_and_backlash_are_identified_behind_a_backlash(
     ]
     truth = plant.realism.compliance
     fit = fit_compliance(logs, torque_delay=plant.timestep)
-    np.testing.assert_allclose(fit.compliance.stiffness, truth.stiffness_per_joint, rtol=0.05)
+    np.testing.assert_allclose(fit.compliance.stiffness, truth.stiffness_per_joint, rtol=0.04)
     np.testing.assert_allclose(fit.estimate[:, 5], truth.backlash, rtol=0.1)
-    np.testing.assert_allclose(fit.compliance.damping, truth.damping_per_joint, rtol=0.25)
+    np.testing.assert_allclose(fit.compliance.damping, truth.damping_per_joint, rtol=0.15)
 
 
 def test_the_stiffness_needs_the_load_side_and_whole_periods(known_plant_logs) -> None:

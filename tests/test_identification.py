@@ -10,6 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from controllers import identification
+from controllers.compliance import DriveCompliance
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.identification import (
     JOINT_PARAMETER_NAMES,
@@ -33,10 +34,11 @@ from delta_env.config import PlantConfig
 from delta_env.geometry import NOMINAL_GEOMETRY, TORQUE_LIMIT, DeltaGeometry
 from delta_env.limits import WorkspaceLimits
 from delta_env.scaling import scaled_masses
+from delta_env.scenario import preset
 from delta_env.sensors import ENCODER_RESOLUTION
 from eval.identification import parameter_files
 from eval.identification.excitation import ExcitationSpec, collect_excitation_data
-from eval.identification.parameter_files import load_or_identify
+from eval.identification.parameter_files import load_or_identify, misses_drive_compliance
 from eval.identification.run import identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
@@ -408,6 +410,28 @@ def test_load_or_identify_never_replaces_a_corrupt_file(tmp_path, monkeypatch) -
     with pytest.raises(ParameterFileError):
         load_or_identify(path)
     assert path.read_text() == "{corrupt"
+
+
+def test_a_compliant_robots_cache_without_its_drives_identified_is_identified_again(tmp_path, monkeypatch) -> None:
+    """The cache key (the plant's identity) does not change with the identification's code: a file of a compliant
+    robot with a load-side encoder identified before its drives were (no compliance, no notch on the excitation's PD)
+    is replaced, and a current one, a rigid robot's and one from logs are read as they are."""
+    compliant = preset("compliant").plant
+    drives = DriveCompliance.nominal()
+    current = dataclasses.replace(
+        RESULT, compliance=drives, provenance={"method": {"controller": {"notch": {"quality": 0.7}}}}
+    )
+    no_notch = dataclasses.replace(current, provenance={"method": {"controller": {"kp": 3000.0}}})
+    from_logs = dataclasses.replace(RESULT, provenance={"plant": {"source": "logs"}})
+    assert misses_drive_compliance(RESULT, compliant) and misses_drive_compliance(no_notch, compliant)
+    assert not misses_drive_compliance(current, compliant) and not misses_drive_compliance(from_logs, compliant)
+    assert not misses_drive_compliance(RESULT, PlantConfig())
+    path = save_result(RESULT, tmp_path / "parameters.json")
+    monkeypatch.setattr(parameter_files, "identify", lambda **kwargs: current)
+    assert load_or_identify(path, outdated=lambda cached: misses_drive_compliance(cached, compliant)) == current
+    assert load_result(path) == current
+    monkeypatch.setattr(parameter_files, "identify", pytest.fail)
+    assert load_or_identify(path, outdated=lambda cached: misses_drive_compliance(cached, compliant)) == current
 
 
 def test_load_or_identify_identifies_again_over_a_cache_of_an_older_format(tmp_path, monkeypatch, caplog) -> None:

@@ -257,6 +257,7 @@ def fit_compliance(
         period: The excitation's period (s), a whole number of samples.
         torque_delay: Age of a torque reading relative to its angle sample (s): the simulated drive's physics step.
         settle_periods: Periods at each log's start left out.
+        highest_line: Highest DFT line fitted (Hz).
 
     Raises:
         ValueError: without logs, without load-side angles, on logs too short, or if the data do not excite a

@@ -127,7 +127,8 @@ def run_compliance_excitation(spec: ComplianceExcitationSpec, plant: PlantConfig
             row += 1
         if not simulated.loop_gap() <= DIVERGENCE_LOOP_GAP:
             raise RuntimeError(f"the plant diverged at step {step + 1} of compliance excitation seed {spec.seed}")
-    return DriveLog(motor, torque, command[:-1], plant.timestep, motor_angles=motor, load_angles=load)
+    # command k is the one sent with sample k and held until sample k + 1: the action of the step after row k
+    return DriveLog(motor, torque, command[1:], plant.timestep, motor_angles=motor, load_angles=load)
 
 
 RESPONSE_BAND = (100.0, 450.0)

@@ -20,6 +20,7 @@ import dataclasses
 import json
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -70,11 +71,18 @@ def parameter_path(plant: PlantConfig, root: str | os.PathLike[str] | None = Non
     return Path(identification_root() if root is None else root) / plant_identity(plant) / "parameters.json"
 
 
-def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> IdentificationResult:
+def load_or_identify(
+    path: str | os.PathLike[str],
+    outdated: Callable[[IdentificationResult], bool] | None = None,
+    **identify_kwargs: Any,
+) -> IdentificationResult:
     """The identified parameters at ``path``; if the file does not exist, identify and save them there.
 
     Args:
         path: Parameter file.
+        outdated: Whether a readable file's result was made by an older version of the identification (e.g.
+            :func:`misses_drive_compliance`); such a cache is identified again and replaced, with a warning. None:
+            none is.
         **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
 
     A file of an older format (:func:`~controllers.identification.parameter_file.older_format`) is a cache this
@@ -86,8 +94,15 @@ def load_or_identify(path: str | os.PathLike[str], **identify_kwargs: Any) -> Id
     """
     path = Path(path)
     if path.exists() and not older_format(path):
-        return load_result(path)
-    if path.exists():
+        result = load_result(path)
+        if outdated is None or not outdated(result):
+            return result
+        logger.warning(
+            "%s was identified by an older version of this project (its compliant drives not identified first): "
+            "identifying again (about a minute)",
+            path,
+        )
+    elif path.exists():
         if json.loads(path.read_text()).get("provenance", {}).get("plant", {}).get("source") == "logs":
             raise ParameterFileError(
                 f"{path}: an identification from logs in an older file format; identify the logs again "
@@ -177,6 +192,22 @@ def check_identity(result: IdentificationResult, plant: PlantConfig, path: str |
         )
 
 
+def misses_drive_compliance(result: IdentificationResult, plant: PlantConfig) -> bool:
+    """Whether ``result``, a simulated identification of ``plant``, predates the identification of compliant drives:
+    ``plant``'s drives are compliant with a load-side encoder, but ``result`` holds no compliance or its excitation's
+    PD ran without the notch at their modes (both came with docs/design.md section 7's "The drives first"). The cache
+    key, the plant's identity, does not change with the identification's code, so such a file would be read as it is
+    and the model rows would run without their notch. An identification from logs is never outdated here."""
+    compliance = plant.realism.compliance
+    if compliance is None or compliance.load_encoder_bits is None:
+        return False
+    provenance = result.provenance
+    if provenance.get("plant", {}).get("source") == "logs":
+        return False
+    controller = provenance.get("method", {}).get("controller")
+    return result.compliance is None or not (isinstance(controller, dict) and "notch" in controller)
+
+
 def identify_robot(
     plant: PlantConfig, root: str | os.PathLike[str] | None = None, **identify_kwargs: Any
 ) -> IdentificationResult:
@@ -193,7 +224,9 @@ def identify_robot(
             (:func:`check_settings`).
     """
     path = parameter_path(plant, root)
-    result = load_or_identify(path, plant=plant, **identify_kwargs)
+    result = load_or_identify(
+        path, outdated=lambda cached: misses_drive_compliance(cached, plant), plant=plant, **identify_kwargs
+    )
     check_identity(result, plant, path)
     check_settings(result, path)
     return result
