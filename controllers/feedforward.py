@@ -176,6 +176,11 @@ def compliant_oracle_gains(
             if radii[best] < 1.0:
                 break
             kp *= 0.5
+        else:
+            raise ValueError(
+                f"no stable oracle gains for joint {joint + 1}: at Kp {kp:g} N m/rad the least unstable Kd of the "
+                f"grid leaves a pole at |z| = {radii[best]:.3f} (>= 1)"
+            )
         gains.append((kp, float(COMPLIANT_KD_GRID[best])))
     kp, kd = zip(*gains, strict=True)
     return kp, kd

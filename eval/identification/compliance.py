@@ -14,6 +14,7 @@ with ``load_angles``).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 
@@ -32,6 +33,7 @@ from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT
 from eval.identification.excitation import robot_model
+from eval.processes import run_jobs
 
 COMPLIANCE_POSES = ((0.0, 0.0, WORKING_HEIGHT), (0.3, -0.15, -1.0), (-0.2, 0.35, -0.8))
 """Platform positions (m) where the compliance excitation holds the robot: the work zone's centre, low and off
@@ -248,8 +250,14 @@ def _first_peak(frequencies: NDArray[np.float64], gain: NDArray[np.float64]) -> 
     spacing = frequencies[1] - frequencies[0]
     frequency = float(frequencies[peak] + offset * spacing)
     half_power = math.exp(middle - 0.25 * (left - right) * offset) / math.sqrt(2.0)
-    below = peak - np.argmax(gain[peak::-1] < half_power)
-    above = peak + np.argmax(gain[peak:] < half_power)
+    lower, upper = gain[peak::-1] < half_power, gain[peak:] < half_power
+    if not (lower.any() and upper.any()):
+        raise ValueError(
+            f"the peak at {frequency:g} Hz does not fall to half power on both sides between {frequencies[0]:g} and "
+            f"{frequencies[-1]:g} Hz: its damping ratio cannot be read"
+        )
+    below = peak - int(np.argmax(lower))
+    above = peak + int(np.argmax(upper))
 
     def crossing(first: int, second: int) -> float:
         """Where the gain crosses half power between two adjacent lines (Hz), linearly."""
@@ -366,8 +374,11 @@ COMPLIANCE_METHOD = (
 """How the compliance was identified (the provenance's ``compliance.method``)."""
 
 
-def identify_compliance(plant: PlantConfig, seed: int) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict]:
-    """Run the compliance excitation at :data:`COMPLIANCE_POSES` on ``plant`` and fit its drives.
+def identify_compliance(
+    plant: PlantConfig, seed: int, workers: int = 1
+) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict]:
+    """Run the compliance excitation at :data:`COMPLIANCE_POSES` on ``plant`` (``workers`` processes of the one
+    executor, :func:`eval.processes.run_jobs`) and fit its drives.
 
     Returns:
         The fit, the logs and the provenance (method, poses, seeds, the fit's summary).
@@ -377,7 +388,7 @@ def identify_compliance(plant: PlantConfig, seed: int) -> tuple[ComplianceFit, t
     """
     seeds = [int(s) for s in np.random.SeedSequence([seed, 36]).generate_state(len(COMPLIANCE_POSES))]
     specs = [ComplianceExcitationSpec(seed=s, pose=pose) for s, pose in zip(seeds, COMPLIANCE_POSES, strict=True)]
-    logs = tuple(run_compliance_excitation(spec, plant) for spec in specs)
+    logs = tuple(run_jobs(functools.partial(run_compliance_excitation, plant=plant), specs, workers=workers))
     fit = fit_compliance(logs, torque_delay=plant.timestep)
     spec = specs[0]
     method = COMPLIANCE_METHOD.format(

@@ -16,10 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import Observation, PDController
-from controllers.compliance import joint_space_inertia
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import DriveLog
-from controllers.servo import ResonanceNotch, notch_sample
+from controllers.servo import ResonanceNotch, joint_inertia, notch_sample
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.excitation import excitation_trajectory
@@ -172,10 +171,9 @@ class ReferenceFeedforward:
 
 def notch_along(notch: ResonanceNotch, model: DeltaDynamics, reference: Trajectory) -> NDArray[np.float64]:
     """The coefficients of ``notch`` centred on each joint's drive mode along ``reference``, ``(N, 3, 5)``: the
-    joint's inertia, rotor included, is the diagonal of the model's joint-space inertia at the reference's angles
-    (:func:`controllers.compliance.joint_space_inertia`; the datasheet model, whose ``rho1`` is 1, holds no rotor)
-    plus the rotor's."""
-    inertia = np.array([np.diag(joint_space_inertia(model, theta)) for theta in reference.theta])
+    joint's inertia, rotor included, is the model's at the reference's angles (:func:`controllers.servo.joint_inertia`,
+    as the servo centres its notch; the datasheet model, whose ``rho1`` is 1, holds no rotor) plus the rotor's."""
+    inertia = np.array([joint_inertia(model.inverse_dynamics, theta) for theta in reference.theta])
     inertia += np.asarray(notch.rotor_inertia)
     frequencies = np.array([notch.frequency(row) for row in inertia])
     return np.array([[notch.coefficients(float(f)) for f in row] for row in frequencies])

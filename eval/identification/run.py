@@ -215,7 +215,7 @@ def run_identification(
 
     # Compliant drives are identified first, at rest poses: the excitation's PD then notches their modes, as a servo
     # drive's resonance filter is set before it moves the robot far and fast (docs/design.md section 7).
-    drives = _drive_compliance(plant, seed)
+    drives = _drive_compliance(plant, seed, workers)
     notch = (
         None if drives is None else ResonanceNotch(drives[0].compliance.rotor_inertia, drives[0].compliance.stiffness)
     )
@@ -252,13 +252,15 @@ def run_identification(
     return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
 
 
-def _drive_compliance(plant: PlantConfig, seed: int) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict] | None:
+def _drive_compliance(
+    plant: PlantConfig, seed: int, workers: int
+) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict] | None:
     """The compliance fit of :func:`eval.identification.compliance.identify_compliance` for a plant whose compliant
     drives carry a load-side encoder, else None (rigid drives, or no encoder to identify them with)."""
     compliance = plant.realism.compliance
     if compliance is None or compliance.load_encoder_bits is None:
         return None
-    return identify_compliance(plant, seed)
+    return identify_compliance(plant, seed, workers)
 
 
 NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
