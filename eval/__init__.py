@@ -13,7 +13,8 @@
 Beside them, the engine and the shared pieces: :mod:`eval.engine` prepares what the controllers know, every
 experiment runs its episodes with :func:`eval.episodes.run_episode` on the one executor
 (:func:`eval.processes.run_jobs`: a local process pool or Ray; the controllers' episodes as work units,
-:mod:`eval.work`), scores them with :mod:`eval.metrics` and writes its run folder with :mod:`eval.run_folder`;
+:mod:`eval.work`), scores them with :mod:`eval.metrics` (the faults against what was injected with
+:mod:`eval.fault_scores`) and writes its run folder with :mod:`eval.run_folder`;
 :mod:`eval.compare` sets run folders side by side; every command line reports a usage error or an interruption in
 one line and shows its progress with :mod:`eval.console`. Importing the package imports none of its modules: the
 names below load on first use.

@@ -28,7 +28,7 @@ from delta_env.release import Settle
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import Trajectory
 from eval import metrics
-from eval.faults.scores import EpisodeFaults, fault_metrics, match_faults
+from eval.fault_scores import EpisodeFaults, fault_metrics, match_faults
 
 
 @dataclass
@@ -66,7 +66,7 @@ class EpisodeRecord:
         injected_faults: The truth of the faults injected into the episode (``env.injected_faults`` at its end),
             in the order they started.
         detected_faults: The faults the controller detected (its ``detected_faults`` at the episode's end, if it
-            :class:`~controllers.monitor.ReportsFaults`; else none), in time order. :mod:`eval.faults.scores` matches
+            :class:`~controllers.monitor.ReportsFaults`; else none), in time order. :mod:`eval.fault_scores` matches
             them to the injected ones.
         robot_contacts: Pairs of robot links (or a link and the base) that touched during the episode, each with its
             deepest penetration (m): ``plant.robot_contacts`` at its end, empty unless the plant was built with
@@ -106,7 +106,7 @@ class EpisodeRecord:
 
     def metrics(self) -> dict[str, Any]:
         """Scalar metrics of the episode (see :mod:`eval.metrics` for the definitions), and its faults'
-        (:data:`eval.faults.scores.FAULT_METRICS`: ``faults_injected``, ``faults_detected``, ...)."""
+        (:data:`eval.fault_scores.FAULT_METRICS`: ``faults_injected``, ``faults_detected``, ...)."""
         rms, peak = metrics.tracking_metrics(self.tracking_error)
         torque_rms, torque_peak = metrics.torque_metrics(self.torque)
         joint_rms = 1e3 * float(np.sqrt(np.mean(self.joint_error**2)))
@@ -154,7 +154,7 @@ class EpisodeRecord:
         }
 
     def faults(self) -> EpisodeFaults:
-        """The episode's detections matched to its injected faults (:func:`eval.faults.scores.match_faults`)."""
+        """The episode's detections matched to its injected faults (:func:`eval.fault_scores.match_faults`)."""
         return match_faults(self.injected_faults, self.detected_faults)
 
     def place_errors(self) -> NDArray[np.float64]:

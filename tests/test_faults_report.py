@@ -14,7 +14,7 @@ from controllers.monitor import DetectedFault, ReportsFaults
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec, InjectedFault, is_latent
 from eval.episodes import run_episode
-from eval.faults.scores import (
+from eval.fault_scores import (
     CONFUSION_COLUMNS,
     DETECTION_GRACE_S,
     FAULT_COLUMNS,

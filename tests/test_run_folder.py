@@ -26,9 +26,9 @@ from eval.comparison import __main__ as eval_cli
 from eval.console import Terminated
 from eval.design import __main__ as design_cli
 from eval.engine import Prepared
+from eval.fault_scores import EpisodeFaults
 from eval.faults import __main__ as campaign
 from eval.faults import soak
-from eval.faults.scores import EpisodeFaults
 from eval.identification import __main__ as identify
 from eval.identification.parameter_files import identification_root, parameter_path
 from eval.rate import __main__ as rate

@@ -17,7 +17,7 @@ robot (``--geometry``, a design of the design study).
    ``scenario.toml`` (the scenario, every field resolved),
    ``episodes.csv`` and ``carries.csv`` (per episode, pick-rate scores included, and per carried object),
    ``table2.csv``, ``faults.csv`` (every injected fault, detected, missed or latent, and every detection that
-   matched none: :mod:`eval.faults.scores`; a header only when there were none), ``confusion.csv`` (only then: per
+   matched none: :mod:`eval.fault_scores`; a header only when there were none), ``confusion.csv`` (only then: per
    controller, injected kind by detected kind), ``traces.npz`` and ``table2_run.npz`` (time
    series: the first episode of each row, with its reference and platform paths), ``summary.md`` (with a Faults
    section when any fault was injected or detected) and the plots made from these files (:mod:`eval.comparison.plots`);
@@ -80,7 +80,7 @@ from eval.comparison.run import (
 from eval.comparison.tables import FEEDBACK_LINES, controller_table, table2_table
 from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
-from eval.faults.scores import (
+from eval.fault_scores import (
     confusion_counts,
     write_confusion_csv,
     write_fault_csv,

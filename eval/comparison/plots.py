@@ -304,7 +304,7 @@ def _platform_label(scale: int) -> str:
 
 DETECTION_MARKERS = {"detected": "v", "consequence": "o", "false_alarm": "X"}
 """The marker of a detection in the fault timeline, by the ``outcome`` of its row
-(:data:`eval.faults.scores.OUTCOMES`)."""
+(:data:`eval.fault_scores.OUTCOMES`)."""
 
 _DETECTION_NAMES = {
     "detected": "detection of the fault",

@@ -6,7 +6,7 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 ``--controllers`` (rows of the registry, ``mid_f_rls`` by default):
 
 - detected / scored (latent drive faults, which changed nothing, are counted apart), median and worst latency
-  (ms), consequences and false alarms (:mod:`eval.faults.scores`), and the confusion matrix, injected kind by detected
+  (ms), consequences and false alarms (:mod:`eval.fault_scores`), and the confusion matrix, injected kind by detected
   kind;
 - for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
   the payload estimate against the twin from the fault to the end of its carry, and the change left at the place,
@@ -16,8 +16,8 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
   cost: the pick rate of the faulty episode against its twin's (picks/min lost, :func:`reaction_cost`) and the
   episodes a stop ended. The detection tables are those of the first reaction listed.
 
-Writes ``faults.csv`` (:data:`eval.faults.scores.FAULT_COLUMNS`; the twins' detections too, false alarms),
-``confusion.csv`` (:data:`eval.faults.scores.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
+Writes ``faults.csv`` (:data:`eval.fault_scores.FAULT_COLUMNS`; the twins' detections too, false alarms),
+``confusion.csv`` (:data:`eval.fault_scores.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
 ``summary.md`` into ``--out`` (default ``<runs root>/fault_campaign/<UTC time>``, with the manifest ``config.json`` of
 :mod:`eval.run_folder`), and prints the tables. The controllers are tared on fault-free payload-free episodes, as
 ``python -m eval`` tares them.
@@ -48,7 +48,7 @@ from eval import metrics
 from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.faults.scores import (
+from eval.fault_scores import (
     confusion_counts,
     confusion_table,
     fault_rows,

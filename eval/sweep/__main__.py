@@ -5,7 +5,7 @@ The run folder (``--out``, by default ``<runs root>/sweep/sweep-<hash of the gri
 the same folder; :func:`eval.run_folder.runs_root`) holds:
 
 - ``results.csv``: one row per episode (scenario, controller, seed, status, error, every metric, the faults'
-  counts and detection latencies included: :data:`eval.faults.scores.FAULT_METRICS`),
+  counts and detection latencies included: :data:`eval.fault_scores.FAULT_METRICS`),
   appended as each episode finishes; rerun the same command after an interruption and only the missing
   episodes run. An episode's key holds what decides its result and nothing of how it ran (backend, workers,
   host): a rerun on another backend of a finished sweep runs nothing and says so; ``--force`` runs the grid again
@@ -47,7 +47,7 @@ from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import Scenario, preset_names, resolve_scenario
 from eval.console import CommandParser, UsageError, command_main, plural, progress_bar
 from eval.engine import prepare
-from eval.faults.scores import sweep_fault_table
+from eval.fault_scores import sweep_fault_table
 from eval.identification.parameter_files import identification_root, parameter_path
 from eval.processes import import_ray
 from eval.run_folder import (

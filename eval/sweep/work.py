@@ -21,7 +21,7 @@ from controllers.registry import (
     residual_policy_path,
 )
 from eval import metrics
-from eval.faults.scores import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
+from eval.fault_scores import FAULT_KIND_METRICS, FAULT_METRICS, fault_kind_metrics
 from eval.work import WorkUnit, unit_record
 
 EPISODE_METRICS = (
@@ -52,9 +52,9 @@ EPISODE_METRICS = (
 reaction's speed override and stop (:class:`~eval.episodes.EpisodeRecord`)."""
 
 METRIC_FIELDS = (*EPISODE_METRICS, *metrics.PAYLOAD_SCORES, *FAULT_METRICS, *FAULT_KIND_METRICS)
-"""The metrics of a row: the episode's, the payload's and the faults' (:data:`eval.faults.scores.FAULT_METRICS`: faults
+"""The metrics of a row: the episode's, the payload's and the faults' (:data:`eval.fault_scores.FAULT_METRICS`: faults
 injected, detected and missed, detections, false alarms, consequences, median and worst detection latency; and
-:data:`eval.faults.scores.FAULT_KIND_METRICS` per fault kind)."""
+:data:`eval.fault_scores.FAULT_KIND_METRICS` per fault kind)."""
 
 
 def run_unit(unit: WorkUnit, setup: ControllerSetup) -> dict[str, Any]:
