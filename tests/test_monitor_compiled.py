@@ -563,12 +563,20 @@ def test_a_known_force_on_the_moving_platform_is_estimated_and_found_when_its_cu
     for k, observation in enumerate(observations):
         monitor.update(observation, None if k == 0 else observation["joint_torques"].copy())
         estimates.append(monitor.force)
+    # the torque J^T F changes slowly along the move; the check takes the part of each change that the smoother's
+    # lag would have put into the acceleration (the tracking error's steps) off the residual, a few hundredths of a
+    # newton here
     found = np.linalg.norm(estimates[60])
-    assert 0.98 * magnitude < found < magnitude
+    assert 0.98 * magnitude < found < 1.002 * magnitude
     np.testing.assert_allclose(estimates[60] / found, force / magnitude, atol=0.01)
-    assert 0.98 * magnitude < np.linalg.norm(estimates[80]) < magnitude
+    assert 0.98 * magnitude < np.linalg.norm(estimates[80]) < 1.002 * magnitude
+    # These drives step their torque with the force while the arm's acceleration does not change (a drive stiffer
+    # than any servo: a real push accelerates the arm first, the torque follows). The check reads a torque step as
+    # the arm's (it takes the smoother's lag error g_m d tau off the residual), so for the samples whose estimate
+    # leans on readings just after the step (g = -0.52, -0.37, -0.24, ...) it sees part of this force explained:
+    # the CUSUM passes the evidence 3 samples later than a steady force's share would.
     samples = math.floor(FORCE_EVIDENCE / (found - FORCE_REFERENCE)) + 1 if found > FORCE_REFERENCE else None
-    expected = [] if samples is None else [("collision", None, 40 + SMOOTHER_LAG + samples - 1)]
+    expected = [] if samples is None else [("collision", None, 40 + SMOOTHER_LAG + samples - 1 + 3)]
     assert _found(monitor, collisions=True) == expected
 
 
@@ -590,7 +598,11 @@ def test_a_force_at_rest_is_detected_a_smoothers_lag_later_and_again_after_repla
 
     first = run()
     found_again = 71 + SENSOR_QUIET + SMOOTHER_LAG + 1
-    assert first == [("collision", None, 40 + SMOOTHER_LAG), ("sensor_nan", 0, 70), ("collision", None, found_again)]
+    # a torque step that does not move the arm shows a sample before the checked state reaches it: the smoother's
+    # estimate there already leans a third on the reading after the step (torque_step_response), which the arm did
+    # not follow
+    found = 40 + SMOOTHER_LAG - 1
+    assert first == [("collision", None, found), ("sensor_nan", 0, 70), ("collision", None, found_again)]
     assert monitor.events[0].magnitude > 100.0 and monitor.collision
     state = monitor._state_bytes.tobytes()
     assert run() == first and monitor._state_bytes.tobytes() == state
