@@ -308,6 +308,9 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
             state.reference_torques[row, :] = planned
             state.reference_regressors[row, :] = state.planned_regressor
     jerk_variance = torque_step_variance(state.torques, torque, state.squared_response)
+    # the reference's windows shift with the measured torques' from the first sample, so that their rows align
+    model_band = reference_step_bound(state.reference_torques, planned, state.step_weights)
+    shift_in(state.reference_regressors, state.planned_regressor)
     if head < 0:
         return 0
     held_then = state.pending_holding[head] != 0
@@ -316,8 +319,6 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     held_known = held_then and state.held_known
     held = state.held_mass if held_known else 0.0
     other = 0.0 if state.slip_armed else state.slip_mass
-    model_band = reference_step_bound(state.reference_torques, planned, state.step_weights)
-    shift_in(state.reference_regressors, state.planned_regressor)
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
     # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
