@@ -102,13 +102,7 @@ def test_time_optimal_moves_raise_no_false_alarm(
 
 @pytest.mark.parametrize(
     ("key", "seed", "heavy"),
-    [
-        pytest.param("mid_f_rls_ref", 0, False, marks=pytest.mark.slow),
-        pytest.param("pd", 3, False, marks=pytest.mark.slow),
-        ("mkh", 0, True),
-        ("mkh", 1, True),
-        ("mkh", 2, True),
-    ],
+    [("mid_f_rls_ref", 0, False), ("pd", 3, False), ("mkh", 0, True), ("mkh", 1, True), ("mkh", 2, True)],
 )
 def test_rows_that_do_not_follow_the_reference_raise_no_false_alarm_on_a_robot_unlike_its_identification(
     controller_setup: ControllerSetup, key: str, seed: int, heavy: bool
