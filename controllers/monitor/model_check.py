@@ -15,7 +15,13 @@ The joint's torque steps with its acceleration (I da), so the measured torque's 
 torque's error variance sum_m h_m^2 (tau_m - tau_{m-1})^2 (N^2 m^2), per joint, which the slip check adds to its
 residual variance. The collision check instead leaves out, per joint, the most that error can be where the
 reference's own acceleration steps and the plant follows a sample or two later (:func:`lagged_step_weights`, the
-steps of the model's torque along the reference): a band a push cannot widen.
+steps of the model's torque along the reference): a band a push cannot widen. Where the plant's acceleration steps
+at another time than the reference's (a drive faster or slower than the identified one, a feedforward that ignores
+the object, a stop the plant reaches late), the collision check also takes the smoother's error off the residual:
+the plant's acceleration steps with its measured torque (M da = d tau), the reference's with the model's torque
+along it, so the error in torque is sum_m g_m d tau_m - sum_m h_m d tau*_m (:func:`torque_step_response`,
+:func:`~controllers.monitor.compiled.tracking_step_error`). A pick or a place in the window steps the acceleration
+with the mass carried instead: for those samples the part along the payload regressor is left out.
 
 :data:`MODEL_CHECK_FIELDS` are the fields of the monitor's record (:data:`~controllers.monitor.step.MONITOR`) that
 :func:`check_sample` keeps: the smoother's window, the readings it lags behind, the CUSUMs and the mass held.
