@@ -1,6 +1,7 @@
 """The fault monitor's arithmetic on three-vectors, compiled for the 1 kHz loop (docs/design.md section 6, "Fault
 monitor"): the model's residual, the platform force, the slip check's sums and the torque steps' variance, the
-collision check's band along the reference, the current loop's output.
+collision check's band along the reference and the smoother's error at the tracking error's steps, the current
+loop's output.
 
 The dot products are summed as OpenBLAS's kernels sum three terms, one fused multiply-add per term after the first
 (``_dot3``, which alone may contract): the monitor's thresholds and campaigns were set with NumPy's ``@`` on
