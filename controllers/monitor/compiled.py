@@ -1,6 +1,7 @@
 """The fault monitor's arithmetic on three-vectors, compiled for the 1 kHz loop (docs/design.md section 6, "Fault
 monitor"): the model's residual, the platform force, the slip check's sums and the torque steps' variance, the
-collision check's band along the reference, the current loop's output.
+collision check's band along the reference and the smoother's error at the tracking error's steps, the current
+loop's output.
 
 The dot products are summed as OpenBLAS's kernels sum three terms, one fused multiply-add per term after the first
 (``_dot3``, which alone may contract): the monitor's thresholds and campaigns were set with NumPy's ``@`` on
@@ -212,7 +213,7 @@ def loop_output(previous: float, before: float, held: float, hold: float, keep: 
 
 
 @numba.njit(cache=True)
-def _shift_in(torques: NDArray[np.float64], torque: NDArray[np.float64]) -> None:
+def shift_in(torques: NDArray[np.float64], torque: NDArray[np.float64]) -> None:
     """Shift ``torque`` ((3,)) into the window ``torques`` ((n + 1, 3), oldest first), in place."""
     rows = torques.shape[0]
     for row in range(rows - 1):
@@ -229,7 +230,7 @@ def torque_step_variance(
     """Shift ``torque`` (N m, (3,)) into ``torques`` (the window's measured torques and the one before, (n + 1, 3),
     oldest first; in place) and return, per joint, sum_m ``squared_response``_m (tau_{m+1} - tau_m)^2 (N^2 m^2,
     (3,)): the NumPy ``squared_response @ np.diff(torques, axis=0) ** 2`` summed from the oldest step."""
-    _shift_in(torques, torque)
+    shift_in(torques, torque)
     rows = torques.shape[0]
     variance = np.zeros(3)
     for row in range(rows - 1):
@@ -241,6 +242,35 @@ def torque_step_variance(
 
 
 @numba.njit(cache=True)
+def tracking_step_error(
+    torques: NDArray[np.float64],
+    torque_response: NDArray[np.float64],
+    reference_torques: NDArray[np.float64],
+    reference_regressors: NDArray[np.float64],
+    acceleration_response: NDArray[np.float64],
+    mass: float,
+) -> NDArray[np.float64]:
+    """Per joint (N m, (3,)), what the residual at the smoothed state lacks where the tracking error's acceleration
+    stepped within the window: sum_m g_m d tau_m - sum_m h_m (d tau*_m + ``mass`` d phi*_m).
+
+    The plant's acceleration steps with its measured torque (M da = d tau; ``torques``, the window's measured
+    torques and the one before, (n + 1, 3), oldest first; g ``torque_response`` of
+    :func:`~controllers.monitor.model_check.torque_step_response`), the reference's with the model's torque along
+    it (``reference_torques``, with the feedforward's mass, plus ``mass`` (kg) more along its payload regressor
+    ``reference_regressors``; h ``acceleration_response`` of
+    :func:`~controllers.monitor.model_check.acceleration_step_response`); the smoother, which adds the reference's
+    own acceleration back, errs only by the difference (docs/design.md section 6, "Fault monitor")."""
+    error = np.zeros(3)
+    for row in range(torques.shape[0] - 1):
+        plant, reference = torque_response[row], acceleration_response[row]
+        for joint in range(3):
+            planned = reference_torques[row + 1, joint] - reference_torques[row, joint]
+            planned += mass * (reference_regressors[row + 1, joint] - reference_regressors[row, joint])
+            error[joint] += plant * (torques[row + 1, joint] - torques[row, joint]) - reference * planned
+    return error
+
+
+@numba.njit(cache=True)
 def reference_step_bound(
     torques: NDArray[np.float64], torque: NDArray[np.float64], step_weights: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -248,7 +278,7 @@ def reference_step_bound(
     ((n + 1, 3), oldest first; in place) and return, per joint, sum_m ``step_weights``_m |d tau_m| (N m, (3,)): the
     most the smoother's acceleration error can put into the model torque where the command's feedforward steps
     (docs/design.md section 6, "Fault monitor")."""
-    _shift_in(torques, torque)
+    shift_in(torques, torque)
     bound = np.zeros(3)
     for row in range(torques.shape[0] - 1):
         weight = step_weights[row]

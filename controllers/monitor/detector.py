@@ -12,10 +12,15 @@ from numpy.typing import NDArray
 
 from controllers.base import Observation
 from controllers.dynamics import DeltaDynamics
-from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother
 from controllers.monitor.compiled import correction_terms
 from controllers.monitor.events import DetectedFault
-from controllers.monitor.model_check import acceleration_step_response, lagged_step_weights, samples_to_show
+from controllers.monitor.model_check import (
+    acceleration_step_response,
+    lagged_step_weights,
+    samples_to_show,
+    torque_step_response,
+)
 from controllers.monitor.sensor_check import ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED
 from controllers.monitor.step import BAD_SHAPE, DETECTED, MONITOR, monitor_step
 from controllers.monitor.tuning import (
@@ -102,11 +107,14 @@ class FaultMonitor:
         initial["weights"] = smoother.weights
         response = acceleration_step_response(smoother)
         initial["squared_response"] = response**2
+        initial["torque_response"] = torque_step_response(smoother, TORQUE_AGE)
+        initial["acceleration_response"] = response
         initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
         initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)
         initial["static_friction"] = dynamics.parameters.coulomb
         initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
         initial["held_glitch"] = math.nan
+        initial["gripper_changed"] = -SMOOTHER_WINDOW
         initial["scatter"] = INITIAL_RESIDUAL_STD**2
         self._initial = initial
         self.events: list[DetectedFault] = []

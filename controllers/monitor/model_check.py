@@ -15,7 +15,13 @@ The joint's torque steps with its acceleration (I da), so the measured torque's 
 torque's error variance sum_m h_m^2 (tau_m - tau_{m-1})^2 (N^2 m^2), per joint, which the slip check adds to its
 residual variance. The collision check instead leaves out, per joint, the most that error can be where the
 reference's own acceleration steps and the plant follows a sample or two later (:func:`lagged_step_weights`, the
-steps of the model's torque along the reference): a band a push cannot widen.
+steps of the model's torque along the reference): a band a push cannot widen. Where the plant's acceleration steps
+at another time than the reference's (a drive faster or slower than the identified one, a feedforward that ignores
+the object, a stop the plant reaches late), the collision check also takes the smoother's error off the residual:
+the plant's acceleration steps with its measured torque (M da = d tau), the reference's with the model's torque
+along it, so the error in torque is sum_m g_m d tau_m - sum_m h_m d tau*_m (:func:`torque_step_response`,
+:func:`~controllers.monitor.compiled.tracking_step_error`). A pick or a place in the window steps the acceleration
+with the mass carried instead: for those samples the part along the payload regressor is left out.
 
 :data:`MODEL_CHECK_FIELDS` are the fields of the monitor's record (:data:`~controllers.monitor.step.MONITOR`) that
 :func:`check_sample` keeps: the smoother's window, the readings it lags behind, the CUSUMs and the mass held.
@@ -43,8 +49,10 @@ from controllers.monitor.compiled import (
     platform_force,
     reference_step_bound,
     reference_torque,
+    shift_in,
     slip_moments,
     torque_step_variance,
+    tracking_step_error,
 )
 from controllers.monitor.tuning import (
     FORCE_EVIDENCE,
@@ -69,16 +77,22 @@ MODEL_CHECK_FIELDS = [
     # the measured torques of the window and the one before, and the smoother's response to a step
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
+    ("torque_response", np.float64, (SMOOTHER_WINDOW,)),
+    ("acceleration_response", np.float64, (SMOOTHER_WINDOW,)),
     # the feedforward's mass (kg, the controller's payload estimate, set before each sample), the model's torque
     # with it along the reference over the window and the one before, the last torque and payload regressor, whether
     # any was valid yet, and the weights of the torque's steps in the collision check's band
     ("feedforward_mass", np.float64),
     ("reference_torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
+    ("reference_regressors", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("planned_torque", np.float64, (3,)),
     ("planned_regressor", np.float64, (3,)),
     ("reference_started", np.bool_),
     ("step_weights", np.float64, (SMOOTHER_WINDOW,)),
     ("pending_quiet", np.uint8, (SMOOTHER_LAG + 1,)),  # beside the pending readings
+    # the gripper at the last sample and the sample at which it last changed: the mass carried changes there
+    ("gripper_before", np.bool_),
+    ("gripper_changed", np.int64),
     # what the residual takes off (the estimator's corrections of the model), the friction it charges and what a
     # joint at rest may hold, the slip check's friction band
     ("corrections", CORRECTION_TERMS),
@@ -120,6 +134,29 @@ def acceleration_step_response(smoother: JointStateSmoother) -> NDArray[np.float
         start = (m - estimated - 0.5) * CONTROL_PERIOD
         angles = np.where(times > start, 0.5 * (times - start) ** 2, 0.0)
         response[m] = smoother.weights[2] @ angles - (1.0 if estimated >= m else 0.0)
+    return response
+
+
+def torque_step_response(smoother: JointStateSmoother, age: float) -> NDArray[np.float64]:
+    """The error (per rad/s^2) of ``smoother``'s acceleration estimate at a measured torque's instant, ``age``
+    periods before its encoder sample (the estimate interpolated that far back towards the one before, as
+    :func:`~controllers.monitor.compiled.model_residual` takes it), when the joint's acceleration steps by 1 rad/s^2
+    with the measured torque between the torques read with readings m - 1 and m of the window, for each m (oldest
+    first): the torque read with reading m is the one held over the physics step before it, so the step lies
+    ``age`` periods before the middle of the two readings."""
+    readings = smoother.weights.shape[1]
+    estimated = smoother.history
+    response = np.empty(readings)
+    for m in range(readings):
+        start = m - 0.5 - age  # the step's time (periods) on the window's clock (reading j at j)
+
+        def estimate(first: int, start: float = start) -> float:
+            times = np.arange(first, first + readings, dtype=float)
+            angles = np.where(times > start, 0.5 * ((times - start) * CONTROL_PERIOD) ** 2, 0.0)
+            return float(smoother.weights[2] @ angles)
+
+        interpolated = (1.0 - age) * estimate(0) + age * estimate(-1)
+        response[m] = interpolated - (1.0 if estimated - age > start else 0.0)
     return response
 
 
@@ -258,6 +295,9 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     :data:`COLLIDING`."""
     angles, torque, reference = state.clean[0], state.clean[2], state.reference
     first = not state.started
+    if holding != state.gripper_before:
+        state.gripper_changed = state.sample
+    state.gripper_before = holding
     # the quiet flag rides beside the pending readings, in the slot delayed_state_step fills now
     state.pending_quiet[(state.pending_head + state.pending_count) % (SMOOTHER_LAG + 1)] = quiet
     head, smoothed, previous = delayed_state_step(
@@ -272,7 +312,11 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
         state.reference_started = True
         for row in range(SMOOTHER_WINDOW + 1):
             state.reference_torques[row, :] = planned
+            state.reference_regressors[row, :] = state.planned_regressor
     jerk_variance = torque_step_variance(state.torques, torque, state.squared_response)
+    # the reference's windows shift with the measured torques' from the first sample, so that their rows align
+    model_band = reference_step_bound(state.reference_torques, planned, state.step_weights)
+    shift_in(state.reference_regressors, state.planned_regressor)
     if head < 0:
         return 0
     held_then = state.pending_holding[head] != 0
@@ -281,7 +325,6 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     held_known = held_then and state.held_known
     held = state.held_mass if held_known else 0.0
     other = 0.0 if state.slip_armed else state.slip_mass
-    model_band = reference_step_bound(state.reference_torques, planned, state.step_weights)
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
     # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
@@ -290,15 +333,39 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     )
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if state.collision else 0
+    # a pick or a place in the smoothing window steps the acceleration with the mass carried, not with the torque:
+    # the smoothed state mixes both masses, and the force along phi is any admissible mass's
+    straddles = state.sample - state.gripper_changed < SMOOTHER_WINDOW
+    # the collision check's residual without the smoother's error where the tracking error's acceleration stepped:
+    # the plant's with its measured torque, the reference's with the model's torque along it, with the mass the
+    # check takes off
+    checked_mass = held if held_known and not straddles else state.feedforward_mass
+    corrected = terms.copy()
+    steps = tracking_step_error(
+        state.torques,
+        state.torque_response,
+        state.reference_torques,
+        state.reference_regressors,
+        state.acceleration_response,
+        checked_mass - state.feedforward_mass,
+    )
+    for joint in range(3):
+        corrected[0, joint] += steps[joint]
     # the platform force the residual leaves with the mass held (or, before it is known, without the part along phi),
     # and with the other mass; each less what the model's own error explains (platform_force)
     force, magnitude = platform_force(
-        terms, held, held_known, held_then, state.charged_coulomb, state.breakaway, model_band
+        corrected,
+        held,
+        held_known and not straddles,
+        held_then or straddles,
+        state.charged_coulomb,
+        state.breakaway,
+        model_band,
     )
     other_magnitude = math.inf  # the other mass only while the gripper holds
     if held_then:
         _, other_magnitude = platform_force(
-            terms, other, True, False, state.charged_coulomb, state.breakaway, model_band
+            corrected, other, True, False, state.charged_coulomb, state.breakaway, model_band
         )
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
     explained = held_then and other_magnitude <= FORCE_REFERENCE
