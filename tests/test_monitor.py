@@ -116,7 +116,7 @@ def test_rows_that_do_not_follow_the_reference_raise_no_false_alarm_on_a_robot_u
     from delta_env.config import RandomizationRanges
     from delta_env.geometry import GRAVITY
     from delta_env.scenario import PickPlaceTask, Scenario
-    from eval.tasks import timed_controller
+    from eval.work import timed_controller
 
     randomized = RandomizationRanges()
     if heavy:
