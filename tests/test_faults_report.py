@@ -231,11 +231,11 @@ def test_run_episode_records_injected_and_detected_faults() -> None:
 
 
 def test_the_comparison_summary_has_a_faults_section_only_with_faults() -> None:
-    from eval.comparison.__main__ import _fault_section
+    from eval.comparison.report import fault_section
 
-    assert _fault_section([], ["PD"]) == []
+    assert fault_section([], ["PD"]) == []
     rows = fault_rows({"controller": "A"}, match_faults(INJECTED, DETECTED))
-    section = _fault_section(rows, ["PD", "A"])
+    section = fault_section(rows, ["PD", "A"])
     assert section[0] == "## Faults" and "50 ms after its end" in section[2]
     table = section[4].splitlines()
     assert table[2] == "| PD | all | 0 | 0 | 0 | 0 | n/a | n/a | 0 | 0 |"  # a controller without faults is listed
