@@ -24,7 +24,7 @@ from eval.comparison.__main__ import main
 from eval.comparison.run import TABLE2_KEY, table2_statistics
 from eval.comparison.tables import BOUND_HOLDS, bound_violations, controller_table, residual_gain
 from eval.episodes import EpisodeRecord, run_episode
-from eval.fault_scores import FAULT_COLUMNS
+from eval.fault_tables import FAULT_COLUMNS
 from eval.identification.parameter_files import load_or_identify
 from tests.conftest import pd_episode
 

@@ -14,21 +14,17 @@ from controllers.monitor import DetectedFault, ReportsFaults
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec, InjectedFault, is_latent
 from eval.episodes import run_episode
-from eval.fault_scores import (
+from eval.fault_scores import DETECTION_GRACE_S, FAULT_METRICS, fault_kind_metrics, fault_metrics, match_faults
+from eval.fault_tables import (
     CONFUSION_COLUMNS,
-    DETECTION_GRACE_S,
     FAULT_COLUMNS,
-    FAULT_METRICS,
     NO_FAULT,
     confusion_counts,
     confusion_rows,
     confusion_table,
-    fault_kind_metrics,
-    fault_metrics,
     fault_rows,
     fault_summary,
     fault_table,
-    match_faults,
     sweep_fault_table,
     write_confusion_csv,
     write_fault_csv,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from eval.comparison import plots
-from eval.fault_scores import FAULT_COLUMNS, write_fault_csv
+from eval.fault_tables import FAULT_COLUMNS, write_fault_csv
 from eval.processes import pool_context
 from tests.figure_checks import hidden_legend_entries, kept_figures
 

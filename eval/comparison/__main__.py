@@ -80,11 +80,7 @@ from eval.comparison.run import (
 from eval.comparison.tables import FEEDBACK_LINES, controller_table, table2_table
 from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import Prepared, kept_tares
-from eval.fault_scores import (
-    confusion_counts,
-    write_confusion_csv,
-    write_fault_csv,
-)
+from eval.fault_tables import confusion_counts, write_confusion_csv, write_fault_csv
 from eval.run_folder import (
     Run,
     add_force_argument,

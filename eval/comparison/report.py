@@ -16,7 +16,8 @@ from eval.comparison.tables import (
     residual_gain,
     unbounded_episodes,
 )
-from eval.fault_scores import DETECTION_GRACE_S, NO_FAULT, confusion_counts, confusion_table, fault_table
+from eval.fault_scores import DETECTION_GRACE_S
+from eval.fault_tables import NO_FAULT, confusion_counts, confusion_table, fault_table
 
 SKIP_COLUMNS = ("seed", "saturated_steps", "speed_exceeded_steps")
 """The columns of an episode row that the bound check's note on a skipped oracle episode names."""
@@ -64,7 +65,7 @@ def _bound_check(episode_rows: list[dict[str, Any]], key: str) -> list[str]:
 
 
 def fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[str]:
-    """The summary's lines on the faults (:func:`eval.fault_scores.fault_table`); none when no fault was injected and
+    """The summary's lines on the faults (:func:`eval.fault_tables.fault_table`); none when no fault was injected and
     none detected."""
     if not fault_rows:
         return []

@@ -31,7 +31,7 @@ from eval.calibration import tared_keys
 from eval.console import progress_bar
 from eval.engine import Prepared, grid, prepare
 from eval.episodes import EpisodeRecord
-from eval.fault_scores import fault_rows
+from eval.fault_tables import fault_rows
 from eval.work import WorkUnit, run_grid
 
 TABLE2_KEY = "mid_f_rls"
@@ -188,7 +188,7 @@ def first_episodes(
 def tabulate_faults(
     results: list[tuple[WorkUnit, EpisodeRecord]], keys: Sequence[str], first_seed: int
 ) -> list[dict[str, Any]]:
-    """The rows of ``faults.csv`` (:func:`eval.fault_scores.fault_rows`) of the comparison's episodes, in the order of
+    """The rows of ``faults.csv`` (:func:`eval.fault_tables.fault_rows`) of the comparison's episodes, in the order of
     :func:`tabulate`: every injected fault, detected or missed, and every detection that matched none."""
     rows = []
     for unit, record in _episodes_in_order(results, keys):

@@ -16,8 +16,8 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
   cost: the pick rate of the faulty episode against its twin's (picks/min lost, :func:`reaction_cost`) and the
   episodes a stop ended. The detection tables are those of the first reaction listed.
 
-Writes ``faults.csv`` (:data:`eval.fault_scores.FAULT_COLUMNS`; the twins' detections too, false alarms),
-``confusion.csv`` (:data:`eval.fault_scores.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
+Writes ``faults.csv`` (:data:`eval.fault_tables.FAULT_COLUMNS`; the twins' detections too, false alarms),
+``confusion.csv`` (:data:`eval.fault_tables.CONFUSION_COLUMNS`), ``campaign.csv`` (one row per faulty episode) and
 ``summary.md`` into ``--out`` (default ``<runs root>/fault_campaign/<UTC time>``, with the manifest ``config.json`` of
 :mod:`eval.run_folder`), and prints the tables. The controllers are tared on fault-free payload-free episodes, as
 ``python -m eval`` tares them.
@@ -48,7 +48,7 @@ from eval import metrics
 from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.fault_scores import (
+from eval.fault_tables import (
     confusion_counts,
     confusion_table,
     fault_rows,

@@ -30,7 +30,7 @@ one's episode seed and time.
 Writes into the folder ``--out`` (default ``<runs root>/fault_soak/<UTC time>``; :mod:`eval.run_folder`):
 
 - ``episodes.csv``: one row per episode (:data:`EPISODE_COLUMNS`), appended as each finishes;
-- ``faults.csv``: every detection, as rows of :data:`eval.fault_scores.FAULT_COLUMNS` with the episode's condition
+- ``faults.csv``: every detection, as rows of :data:`eval.fault_tables.FAULT_COLUMNS` with the episode's condition
   (false alarms here);
 - ``config.json``: the manifest (the command, the conditions, status, times); ``summary.md``: the table, also
   printed.
@@ -68,7 +68,7 @@ from eval.calibration import DEFAULT_CALIBRATION_EPISODES
 from eval.console import CommandParser, UsageError, command_main, progress_bar, resolved_arguments
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
-from eval.fault_scores import FAULT_COLUMNS, fault_rows
+from eval.fault_tables import FAULT_COLUMNS, fault_rows
 from eval.rate.study import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
 from eval.scenario_args import add_workers_argument, check_ranges
@@ -166,7 +166,7 @@ completed carries, whether it diverged, faults injected (0 in a fault-free soak)
 figures of how hard it ran."""
 
 SOAK_FAULT_COLUMNS = ("condition", *FAULT_COLUMNS)
-"""Columns of ``faults.csv``: the episode's condition and :data:`eval.fault_scores.FAULT_COLUMNS`."""
+"""Columns of ``faults.csv``: the episode's condition and :data:`eval.fault_tables.FAULT_COLUMNS`."""
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:

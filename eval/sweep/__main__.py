@@ -47,7 +47,7 @@ from controllers.residual import DEFAULT_POLICY_PATH
 from delta_env.scenario import Scenario, preset_names, resolve_scenario
 from eval.console import CommandParser, UsageError, command_main, plural, progress_bar
 from eval.engine import prepare
-from eval.fault_scores import sweep_fault_table
+from eval.fault_tables import sweep_fault_table
 from eval.identification.parameter_files import identification_root, parameter_path
 from eval.processes import import_ray
 from eval.run_folder import (
