@@ -34,6 +34,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.timing import TimeLaw
 from delta_env.trajectories import Segment
 from eval.episodes import run_episode
+from eval.rate.study import rate_scenario
 
 COMPLIANT = preset("compliant")
 GEARHEAD = COMPLIANT.plant.realism.compliance
@@ -130,6 +131,46 @@ def test_the_notched_servo_places_on_the_compliant_plant(controller_setup) -> No
         assert metrics["tracking_rms_mm"] < 0.2
         assert metrics["place_error_max_mm"] < 0.08
         assert metrics["envelope_violations"] == 0 and metrics["settle_timeouts"] == 0
+
+
+def test_gains_on_the_inertia_matrix_give_every_direction_its_triple_pole() -> None:
+    """Placed on a joint-space inertia matrix M, the servo pushes along each of M's eigenvectors v the per-unit gains
+    times that direction's inertia lambda (kp / J) lambda v, not the diagonal's; on a diagonal M it is the per-joint
+    schedule, to rounding."""
+    gains = servo_gains(np.full(3, 0.43), 0.0, 1e-3)
+    coupled = np.array([[0.43, -0.06, -0.06], [-0.06, 0.43, -0.06], [-0.06, -0.06, 0.43]])
+    eigenvalues, eigenvectors = np.linalg.eigh(coupled)
+    observation = {key: np.zeros(3) for key in ("reference_velocities", "reference_accelerations", "joint_velocities")}
+    for value, vector in zip(eigenvalues, eigenvectors.T, strict=True):
+        servo = JointServo(gains)
+        servo.schedule(coupled)
+        torque = servo({**observation, "reference_angles": 1e-4 * vector, "joint_angles": np.zeros(3)})
+        per_unit = (gains.kp[0] + gains.ki[0] * CONTROL_PERIOD) / 0.43
+        np.testing.assert_allclose(torque, per_unit * value * 1e-4 * vector, rtol=1e-9, atol=1e-12)
+    assert eigenvalues[0] < 0.33  # the in-phase direction: 0.72 of the diagonal
+    matrix, vector = JointServo(gains), JointServo(gains)
+    matrix.schedule(np.diag([0.3, 0.5, 0.7]))
+    vector.schedule([0.3, 0.5, 0.7])
+    sample = {**observation, "reference_angles": np.array([1e-4, -2e-4, 3e-4]), "joint_angles": np.zeros(3)}
+    np.testing.assert_allclose(matrix(sample), vector(sample), rtol=1e-12)
+    np.testing.assert_allclose(matrix.current_gains, vector.current_gains, rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_the_light_arm_stays_stable_with_identified_like_knowledge(controller_setup) -> None:
+    """The lag row on the ``compliant`` preset at 0.1 kg, knowing the compliance and a drive lag identified 20 % short
+    (0.8 ms, what the compliant plant's identification gives): it diverged to 240 mm RMS and hundreds of envelope
+    violations when its gains sat on each joint's inertia alone (the arm's in-phase direction has 0.6 to 0.7 of it);
+    on the inertia matrix it tracks within 0.2 mm RMS (measured 0.055 mm) and places within 0.05 mm (0.014 mm)."""
+    scenario = rate_scenario(COMPLIANT, "fixed", 0.1)
+    env = DeltaPickPlaceEnv(scenario=replace(scenario, task=replace(scenario.task, n_cycles=2)))
+    setup = replace(controller_setup, compliance=IDENTIFIED, drive_lag=(0.0008,) * 3)
+    controller = controller_entry("mid_f_rls_lag").build(setup).controller
+    metrics = run_episode(env, controller, seed=0).metrics()
+    assert not metrics["diverged"]
+    assert metrics["tracking_rms_mm"] < 0.2
+    assert metrics["place_error_max_mm"] < 0.05
+    assert metrics["envelope_violations"] == 0 and metrics["settle_timeouts"] == 0
 
 
 # --- input shaping ------------------------------------------------------------------------------------------------
