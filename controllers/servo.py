@@ -136,9 +136,12 @@ class ResonanceNotch:
         return np.minimum(omega / (2.0 * math.pi), self.highest_frequency(period))
 
     def highest_frequency(self, period: float = CONTROL_PERIOD) -> float:
-        """The highest centre (Hz) the notch takes when sampled every ``period`` (s): its width f0 / Q must stay
-        within the Nyquist rate, kept at 0.9 of it and below 0.45 / ``period``."""
-        return min(0.45, 0.45 * self.quality) / period
+        """The highest centre (Hz) the notch takes when sampled every ``period`` (s): the one whose band, between its
+        -3 dB edges f0 (sqrt(1 + 1 / (4 Q^2)) -+ 1 / (2 Q)), ends at the Nyquist rate (257 Hz at Q 0.7 and 1 kHz).
+        Above it the band folds into the sampling's warp, and the notch's lag at the servo's crossover grows
+        steeply instead of falling (docs/design.md section 6)."""
+        half = 0.5 / self.quality
+        return 0.5 / period / (math.sqrt(1.0 + half * half) + half)
 
     def coefficients(
         self, frequency: float, period: float = CONTROL_PERIOD
