@@ -20,7 +20,9 @@ The gains are placed on one inertia, the arm's empty at home; the joint's inerti
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
 servo (:meth:`JointServo.schedule`) scales kp, kd and ki with the inertia it is given, which keeps the triple pole and
 the margin (J cancels in the open loop): the model rows give it their model's inertia at the reference's pose, without
-payload, every :data:`SCHEDULE_PERIOD` (why without: docs/design.md section 6).
+payload, every :data:`SCHEDULE_PERIOD` (why without: docs/design.md section 6). On compliant drives (a
+:class:`ResonanceNotch`) they give it the model's inertia matrix instead, and the gains become matrices: behind the
+notch the loop has no margin left for the arms' coupled directions, whose inertia the diagonal overstates.
 """
 
 from __future__ import annotations
@@ -344,7 +346,8 @@ class JointServo:
         """(kp, ki, kd) per joint in use: the gains' own, or scaled by the last :meth:`schedule` (placed on a
         matrix: the diagonals of the gain matrices)."""
         if self._gain_matrices is not None:
-            return tuple(list(np.diag(matrix)) for matrix in self._gain_matrices)  # type: ignore[return-value]
+            kp, ki, kd = self._gain_matrices
+            return list(np.diag(kp)), list(np.diag(ki)), list(np.diag(kd))
         return list(self._kp), list(self._ki), list(self._kd)
 
     def schedule(self, inertia: ArrayLike, loaded_inertia: ArrayLike | None = None) -> None:

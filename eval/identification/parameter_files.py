@@ -82,8 +82,8 @@ def load_or_identify(
     Args:
         path: Parameter file.
         outdated: Whether a readable file's result was made by an older version of the identification (e.g.
-            :func:`misses_drive_compliance`, :func:`misreads_torque_age`); such a cache is identified again and replaced, with a warning. None:
-            none is.
+            :func:`misses_drive_compliance`, :func:`misreads_torque_age`); such a cache is identified again and
+            replaced, with a warning. None: none is.
         **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
 
     A file of an older format (:func:`~controllers.identification.parameter_file.older_format`) is a cache this
