@@ -35,6 +35,7 @@ from controllers.servo import (
     ServoGains,
     joint_inertia,
     model_inertia,
+    model_inertia_matrix,
     servo_gains,
 )
 from delta_env.config import RATED_PAYLOAD, PhysicalParameters, PlantConfig
@@ -95,7 +96,11 @@ class FeedforwardController:
         if self._scheduled:
             angles = observation["reference_angles"]
             self.servo.follow_inertia(
-                lambda: model_inertia(self.dynamics, angles, 0.0),
+                lambda: (
+                    model_inertia(self.dynamics, angles, 0.0)
+                    if self.servo.notch is None
+                    else model_inertia_matrix(self.dynamics, angles, 0.0)
+                ),
                 None
                 if self.servo.notch is None
                 else lambda: model_inertia(self.dynamics, angles, max(0.0, self.feedforward_mass)),

@@ -20,7 +20,9 @@ The gains are placed on one inertia, the arm's empty at home; the joint's inerti
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
 servo (:meth:`JointServo.schedule`) scales kp, kd and ki with the inertia it is given, which keeps the triple pole and
 the margin (J cancels in the open loop): the model rows give it their model's inertia at the reference's pose, without
-payload, every :data:`SCHEDULE_PERIOD` (why without: docs/design.md section 6).
+payload, every :data:`SCHEDULE_PERIOD` (why without: docs/design.md section 6). On compliant drives (a
+:class:`ResonanceNotch`) they give it the model's inertia matrix instead, and the gains become matrices: behind the
+notch the loop has no margin left for the arms' coupled directions, whose inertia the diagonal overstates.
 """
 
 from __future__ import annotations
@@ -136,9 +138,12 @@ class ResonanceNotch:
         return np.minimum(omega / (2.0 * math.pi), self.highest_frequency(period))
 
     def highest_frequency(self, period: float = CONTROL_PERIOD) -> float:
-        """The highest centre (Hz) the notch takes when sampled every ``period`` (s): its width f0 / Q must stay
-        within the Nyquist rate, kept at 0.9 of it and below 0.45 / ``period``."""
-        return min(0.45, 0.45 * self.quality) / period
+        """The highest centre (Hz) the notch takes when sampled every ``period`` (s): the one whose band, between its
+        -3 dB edges f0 (sqrt(1 + 1 / (4 Q^2)) -+ 1 / (2 Q)), ends at the Nyquist rate (257 Hz at Q 0.7 and 1 kHz).
+        Above it the band folds into the sampling's warp, and the notch's lag at the servo's crossover grows
+        steeply instead of falling (docs/design.md section 6)."""
+        half = 0.5 / self.quality
+        return 0.5 / period / (math.sqrt(1.0 + half * half) + half)
 
     def coefficients(
         self, frequency: float, period: float = CONTROL_PERIOD
@@ -223,10 +228,22 @@ def joint_inertia(
     return np.array([inverse_dynamics(theta, zero, np.eye(3)[i], payload)[i] - static[i] for i in range(3)])
 
 
-def model_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> NDArray[np.float64]:
-    """:func:`joint_inertia` of the model ``dynamics`` at ``theta`` (rad) with ``payload`` (kg), from its single-sample
-    path (:meth:`~controllers.dynamics.DeltaDynamics.torque_and_payload_regressor`): tens of microseconds, cheap
-    enough every :data:`SCHEDULE_PERIOD`."""
+def joint_inertia_matrix(
+    inverse_dynamics: Callable[..., NDArray[np.float64]], theta: ArrayLike = HOME, payload: float = 0.0
+) -> NDArray[np.float64]:
+    """A model's joint-space inertia matrix (kg m^2), (3, 3), symmetrized, at rest at ``theta`` (rad) with
+    ``payload`` (kg): column i is tau(thdd = e_i) - tau(thdd = 0) (arguments as :func:`joint_inertia`'s, whose values
+    are its diagonal)."""
+    theta = np.asarray(theta, dtype=float)
+    zero = np.zeros(3)
+    static = inverse_dynamics(theta, zero, zero, payload)
+    columns = np.column_stack([inverse_dynamics(theta, zero, np.eye(3)[i], payload) - static for i in range(3)])
+    return 0.5 * (columns + columns.T)
+
+
+def _single_sample_dynamics(dynamics: DeltaDynamics) -> Callable[..., NDArray[np.float64]]:
+    """``inverse_dynamics(theta, theta_dot, theta_ddot, payload)`` of the model ``dynamics`` by its single-sample path
+    (:meth:`~controllers.dynamics.DeltaDynamics.torque_and_payload_regressor`)."""
 
     def inverse_dynamics(
         angles: ArrayLike, rates: ArrayLike, accelerations: ArrayLike, mass: float
@@ -234,7 +251,20 @@ def model_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> 
         tau0, phi = dynamics.torque_and_payload_regressor(angles, rates, accelerations)
         return tau0 + mass * phi
 
-    return joint_inertia(inverse_dynamics, theta, payload)
+    return inverse_dynamics
+
+
+def model_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> NDArray[np.float64]:
+    """:func:`joint_inertia` of the model ``dynamics`` at ``theta`` (rad) with ``payload`` (kg), from its single-sample
+    path (:meth:`~controllers.dynamics.DeltaDynamics.torque_and_payload_regressor`): tens of microseconds, cheap
+    enough every :data:`SCHEDULE_PERIOD`."""
+    return joint_inertia(_single_sample_dynamics(dynamics), theta, payload)
+
+
+def model_inertia_matrix(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> NDArray[np.float64]:
+    """:func:`joint_inertia_matrix` of the model ``dynamics`` at ``theta`` (rad) with ``payload`` (kg), by the same
+    single-sample path as :func:`model_inertia`."""
+    return joint_inertia_matrix(_single_sample_dynamics(dynamics), theta, payload)
 
 
 def servo_gains(
@@ -313,7 +343,11 @@ class JointServo:
 
     @property
     def current_gains(self) -> tuple[list[float], list[float], list[float]]:
-        """(kp, ki, kd) per joint in use: the gains' own, or scaled by the last :meth:`schedule`."""
+        """(kp, ki, kd) per joint in use: the gains' own, or scaled by the last :meth:`schedule` (placed on a
+        matrix: the diagonals of the gain matrices)."""
+        if self._gain_matrices is not None:
+            kp, ki, kd = self._gain_matrices
+            return list(np.diag(kp)), list(np.diag(ki)), list(np.diag(kd))
         return list(self._kp), list(self._ki), list(self._kd)
 
     def schedule(self, inertia: ArrayLike, loaded_inertia: ArrayLike | None = None) -> None:
@@ -323,12 +357,22 @@ class JointServo:
         step (a step would shake the arm, and the payload estimate with it). The notch, if any, is centred on the
         mode of ``loaded_inertia`` (the joints' inertia with the payload, kg m^2), or of ``inertia`` if None.
 
+        ``inertia`` is the joints' inertias, (3,), or the joint-space inertia matrix M, (3, 3), symmetric positive
+        definite: then the gains become matrices, K = S M S with S = diag(sqrt(k_j / J_j)) (each joint's gain per
+        unit of the inertia it was placed on), which give every direction of the coupled arm, not only each joint
+        alone, the triple pole (docs/design.md section 6, "The servo on a compliant joint").
+
         Raises:
             ValueError: for gains not placed on an inertia (:attr:`ServoGains.inertia` None).
         """
         if self.gains.inertia is None:
             raise ValueError("these servo gains are not placed on an inertia (ServoGains.inertia is None)")
         gains, limit = self.gains, self.gains.integral_limit
+        if np.ndim(inertia) == 2:
+            self._schedule_matrix(np.asarray(inertia, dtype=float))
+            diagonal = np.diag(np.asarray(inertia, dtype=float))
+            self._tune_notch(diagonal if loaded_inertia is None else loaded_inertia)
+            return
         for joint in range(3):
             scale = float(inertia[joint]) / gains.inertia[joint]
             kp, kd = gains.kp[joint] * scale, gains.kd[joint] * scale
@@ -336,6 +380,21 @@ class JointServo:
             self._integral[joint] = min(max(self._integral[joint] - change, -limit), limit)
             self._kp[joint], self._kd[joint], self._ki[joint] = kp, kd, gains.ki[joint] * scale
         self._tune_notch(inertia if loaded_inertia is None else loaded_inertia)
+
+    def _schedule_matrix(self, inertia: NDArray[np.float64]) -> None:
+        """Gain matrices on the joint-space inertia matrix ``inertia`` (kg m^2), (3, 3), bumpless (:meth:`schedule`)."""
+        gains, limit = self.gains, self.gains.integral_limit
+        placed = np.asarray(gains.inertia)
+        scales = (np.sqrt(np.asarray(per_joint) / placed) for per_joint in (gains.kp, gains.ki, gains.kd))
+        kp, ki, kd = (scale[:, None] * inertia * scale[None, :] for scale in scales)
+        old_kp, _, old_kd = (
+            self._gain_matrices
+            if self._gain_matrices is not None
+            else (np.diag(self._kp), np.diag(self._ki), np.diag(self._kd))
+        )
+        change = (kp - old_kp) @ np.array(self._error) + (kd - old_kd) @ np.array(self._rate_error)
+        self._integral = np.clip(np.array(self._integral) - change, -limit, limit).tolist()
+        self._gain_matrices = (kp, ki, kd)
 
     def follow_inertia(
         self, inertia: Callable[[], ArrayLike], loaded_inertia: Callable[[], ArrayLike] | None = None
@@ -349,6 +408,7 @@ class JointServo:
 
     def _unscheduled(self) -> None:
         self._kp, self._ki, self._kd = list(self.gains.kp), list(self.gains.ki), list(self.gains.kd)
+        self._gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
         if self.gains.inertia is not None:
             self._tune_notch(self.gains.inertia)
 
@@ -387,6 +447,8 @@ class JointServo:
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
         measured_reference_rates = self.reference_rate.rates(observation)
+        if self._gain_matrices is not None:
+            return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
         # Per joint in Python floats: at three values, cheaper than NumPy's operations.
         for joint in range(3):
@@ -405,6 +467,33 @@ class JointServo:
             for joint in range(3):
                 torque[joint] = notch_sample(self._notch_coefficients[joint], self._notch_state[joint], torque[joint])
         return np.array(torque)
+
+    def _matrix_feedback(
+        self,
+        reference: list[float],
+        angles: list[float],
+        reference_rates: list[float],
+        rates: list[float],
+        measured_reference_rates: ArrayLike,
+    ) -> NDArray[np.float64]:
+        """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix): the same law, its P, I and D
+        terms coupled."""
+        kp, ki, kd = self._gain_matrices
+        gains, limit = self.gains, self.gains.integral_limit
+        error = np.array(reference) - np.array(angles)
+        rate_error = np.asarray(measured_reference_rates, dtype=float) - np.array(rates)
+        self._error, self._rate_error = error.tolist(), rate_error.tolist()
+        integral = np.clip(np.array(self._integral) + (ki @ error) * self.period, -limit, limit)
+        self._integral = integral.tolist()
+        torque = kp @ error + kd @ rate_error + integral
+        at_rest = np.array(reference_rates) == 0.0
+        push = np.asarray(gains.breakaway) * np.clip(error / gains.friction_width, -1.0, 1.0)
+        torque = torque + np.where(at_rest, push, 0.0)
+        if self.notch is not None:
+            torque = np.array(
+                [notch_sample(self._notch_coefficients[j], self._notch_state[j], float(torque[j])) for j in range(3)]
+            )
+        return torque
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         return self.feedback(observation)

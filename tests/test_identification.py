@@ -38,7 +38,7 @@ from delta_env.scenario import preset
 from delta_env.sensors import ENCODER_RESOLUTION
 from eval.identification import parameter_files
 from eval.identification.excitation import ExcitationSpec, collect_excitation_data
-from eval.identification.parameter_files import load_or_identify, misses_drive_compliance
+from eval.identification.parameter_files import load_or_identify, misreads_torque_age, misses_drive_compliance
 from eval.identification.run import identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
@@ -432,6 +432,21 @@ def test_a_compliant_robots_cache_without_its_drives_identified_is_identified_ag
     assert load_result(path) == current
     monkeypatch.setattr(parameter_files, "identify", pytest.fail)
     assert load_or_identify(path, outdated=lambda cached: misses_drive_compliance(cached, compliant)) == current
+
+
+def test_a_cache_that_read_its_torques_at_another_age_than_its_plants_step_is_outdated() -> None:
+    """A simulated identification records the age its torque readings were prepared with; on the ``compliant``
+    preset's 0.25 ms step one prepared at the default 0.5 ms (before 2026-11-29: its drive lag 20 % short) is outdated,
+    one at 0.25 ms is not, nor the rigid plant's at 0.5 ms, nor one from logs."""
+    compliant = preset("compliant").plant
+
+    def aged(delay: float) -> IdentificationResult:
+        return dataclasses.replace(RESULT, provenance={"method": {"torque_sample_delay_s": delay}})
+
+    assert misreads_torque_age(aged(0.0005), compliant) and not misreads_torque_age(aged(0.00025), compliant)
+    assert not misreads_torque_age(aged(0.0005), PlantConfig())
+    from_logs = dataclasses.replace(aged(0.0005), provenance={**aged(0.0005).provenance, "plant": {"source": "logs"}})
+    assert not misreads_torque_age(from_logs, compliant)
 
 
 def test_load_or_identify_identifies_again_over_a_cache_of_an_older_format(tmp_path, monkeypatch, caplog) -> None:

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.drive import identify_lag
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 
 TIME_COLUMN = "time_s"
 """Sample time (s)."""
@@ -142,12 +142,13 @@ class DriveLog:
     def __len__(self) -> int:
         return len(self.angles)
 
-    def drive_lag(self) -> NDArray[np.float64] | None:
+    def drive_lag(self, torque_delay: float = MEASURED_TORQUE_DELAY) -> NDArray[np.float64] | None:
         """The drive lag (s) per joint fitted to the commands and the torques reported after them
-        (:func:`controllers.drive.identify_lag`); None without commands."""
+        (:func:`controllers.drive.identify_lag`), each reading ``torque_delay`` (s) older than the instant after its
+        command; None without commands."""
         if self.commands is None:
             return None
-        return identify_lag(self.commands, self.torques[1:], self.dt)
+        return identify_lag(self.commands, self.torques[1:], self.dt, sample_delay=torque_delay)
 
 
 def write_table_log(log: DriveLog, path: Path, start: float = 0.0) -> Path:

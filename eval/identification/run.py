@@ -87,12 +87,16 @@ DEFAULT_TRAJECTORIES = 12
 _Output = TypeVar("_Output")
 
 
-def prepare_log(log: DriveLog) -> tuple[MotionData, NDArray[np.float64] | None]:
-    """The smoothed samples of one log and the drive lag (s, per joint) fitted to it (None without commands).
+def prepare_log(
+    log: DriveLog, torque_delay: float = MEASURED_TORQUE_DELAY
+) -> tuple[MotionData, NDArray[np.float64] | None]:
+    """The smoothed samples of one log and the drive lag (s, per joint) fitted to it (None without commands), its
+    torque readings ``torque_delay`` (s) older than their encoder samples: a simulated plant's physics step (the
+    force held over the last step), ``MEASURED_TORQUE_DELAY`` for a log file.
 
     The one preparation of every record, simulated or read from a file.
     """
-    return prepare_motion(log.angles, log.torques, log.dt), log.drive_lag()
+    return prepare_motion(log.angles, log.torques, log.dt, torque_delay=torque_delay), log.drive_lag(torque_delay)
 
 
 def _collect_and_prepare(
@@ -101,7 +105,7 @@ def _collect_and_prepare(
     """One excitation run (``notch``: on the PD at compliant drives' modes), its smoothed samples and the drive lag
     (s, per joint) fitted to it."""
     record = run_excitation(spec, plant, notch)
-    return record, *prepare_log(record.log)
+    return record, *prepare_log(record.log, (PlantConfig() if plant is None else plant).timestep)
 
 
 @dataclass(frozen=True)
@@ -242,6 +246,7 @@ def run_identification(
         workers=workers,
         started=start,
         max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
+        torque_delay=plant.timestep,
     )
     if drives is not None:
         return _with_compliance(run, *drives)
@@ -362,6 +367,7 @@ def identify_logs(
         workers=workers,
         started=start,
         max_loop_gap=None,
+        torque_delay=MEASURED_TORQUE_DELAY,
     )
     if not compliance_paths:
         return run
@@ -419,6 +425,7 @@ def _identify(
     workers: int,
     started: float,
     max_loop_gap: float | None,
+    torque_delay: float,
 ) -> IdentificationRun:
     """Every fit and the held-out validation on prepared logs (:func:`prepare_log`), the last one held out: the
     one identification of simulated runs and of real logs.
@@ -434,6 +441,8 @@ def _identify(
         workers: Processes used (provenance).
         started: ``time.perf_counter()`` when the identification started.
         max_loop_gap: The simulation's largest loop gap (m), None for logs.
+        torque_delay: Age of the logs' torque readings against their encoder samples (s) they were prepared with
+            (:func:`prepare_log`; the provenance's ``method.torque_sample_delay_s``).
     """
     *prepared, (validation, _) = prepared
     data = [motion for motion, _ in prepared]
@@ -491,7 +500,7 @@ def _identify(
             "velocity_threshold_rad_s": FRICTION_VELOCITY_THRESHOLD,
             "rest_velocity_rad_s": REST_VELOCITY,
             "trim_samples": TRIM_SAMPLES,
-            "torque_sample_delay_s": MEASURED_TORQUE_DELAY,
+            "torque_sample_delay_s": torque_delay,
             "smoother": {"jerk_std": SMOOTHER_JERK_STD, "measurement_std": ENCODER_NOISE_STD},
             "rho1_grid": list(RHO1_GRID),
             "rho2_grid": list(RHO2_GRID),
