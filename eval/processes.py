@@ -247,12 +247,13 @@ def _run_local(
                     process.terminate()
                 pool.shutdown(wait=False, cancel_futures=True)
                 raise
-            if broken:  # the other items in flight died with the pool
+            if broken:  # the other items in flight died with the pool, unless they had finished
                 for future, index in running.items():
-                    if future.done() and not future.exception():
-                        finished(index, future.result())
-                    else:
+                    died = future.cancelled() or not future.done() or isinstance(future.exception(), BrokenProcessPool)
+                    if died:
                         retry_or_lose(index)
+                    else:
+                        finished(index, future.result())  # an item's own error is raised, not retried
 
 
 def _run_ray(
