@@ -25,6 +25,7 @@ RESOLVED = [
     ("eval.design.__main__", ["--quick", "--screw-settings", "7"], "population"),
     ("eval.compare", ["a", "b", "--metrics", "tracking_rms_mm"], "metrics"),
     ("eval.residual.__main__", ["--mix", "nominal", "--hyperparams", "gamma:0.9"], "cycles"),
+    ("eval.faults.__main__", ["--kinds", "slip,collision", "--reactions", "slow,stop"], "reactions"),
 ]
 
 
@@ -60,6 +61,7 @@ RECORDED = [
     ("eval.sweep.__main__", "sweep", ["--episodes", "2"], "arguments"),
     ("eval.identification.__main__", "identify_into", ["--quick"], None),
     ("eval.design.__main__", "study", ["--quick", "--no-verify"], "arguments"),
+    ("eval.faults.__main__", "campaign", ["--kinds", "slip", "--episodes", "1"], None),
     (
         "eval.residual.__main__",
         "eval.residual.training:_train",

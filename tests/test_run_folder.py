@@ -327,7 +327,7 @@ def test_one_spelling_of_cycles_and_seeds(capsys: pytest.CaptureFixture) -> None
     assert train_residual_parser(["--cycles", "2"]).cycles == 2
     assert sweep_cli.parse_args(["--seed", "3", "--episodes", "2"]).seeds == [3, 4]
     assert sweep_cli.parse_args([]).seeds == list(range(10))
-    assert PARSERS["fault_campaign"](["--controllers", "pd,mid_f_rls"]).controllers == ["pd", "mid_f_rls"]
+    assert PARSERS["fault_campaign"](["--controllers", "pd,mid_f_rls"]).controllers == ("pd", "mid_f_rls")
     for tool, old_spelling in [("train_residual", ["--n-cycles", "2"]), ("sweep", ["--seeds", "0-9"])]:
         with pytest.raises(SystemExit) as exit:
             PARSERS[tool](old_spelling)

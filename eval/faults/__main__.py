@@ -34,6 +34,7 @@ import dataclasses
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ from delta_env.faults import FAULT_KINDS, FAULT_REACTIONS, SENSOR_KINDS, FaultSp
 from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from eval import metrics
-from eval.console import CommandParser, command_main, plural, progress_bar, resolved_arguments
+from eval.console import CommandParser, command_main, plural, progress_bar
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.fault_tables import (
@@ -56,7 +57,14 @@ from eval.fault_tables import (
     write_confusion_csv,
     write_fault_csv,
 )
-from eval.run_folder import Run, add_force_argument, add_runs_dir_argument, command_run_folder, write_csv
+from eval.run_folder import (
+    Run,
+    add_force_argument,
+    add_runs_dir_argument,
+    command_run_folder,
+    configuration_record,
+    write_csv,
+)
 from eval.scenario_args import (
     add_scenario_arguments,
     add_workers_argument,
@@ -70,7 +78,38 @@ GONE_MASS = 0.1
 """Estimate (kg) below which a slipped object counts as forgotten."""
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+@dataclass(frozen=True)
+class CampaignConfig:
+    """The resolved configuration of a campaign (:func:`parse_args`), as ``config.json`` records it.
+
+    Attributes:
+        scenario: The robot and the work (its own faults are replaced).
+        seed: Seed of the first episode.
+        episodes: Episodes per fault kind.
+        kinds: The fault kinds injected.
+        controllers: Registry keys of the rows.
+        reactions: The cell's reactions to a detected fault, each run on every faulty episode; the first gives the
+            detection tables.
+        out: Run folder; None: ``<runs root>/fault_campaign/<UTC time>``.
+        force: Write into a non-empty ``out``.
+        runs_dir: Root of the run folders and of the cached identifications; None: the default.
+        workers: Processes running the episodes.
+    """
+
+    scenario: Scenario
+    seed: int
+    episodes: int
+    kinds: tuple[str, ...]
+    controllers: tuple[str, ...]
+    reactions: tuple[str, ...]
+    out: Path | None
+    force: bool
+    runs_dir: Path | None
+    workers: int
+
+
+def argument_parser() -> CommandParser:
+    """The command line's parser."""
     parser = CommandParser(prog="python -m eval.faults", description=__doc__.split("\n\n")[0])
     add_scenario_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
@@ -90,23 +129,45 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_force_argument(parser)
     add_runs_dir_argument(parser)
     add_workers_argument(parser)
-    args = parser.parse_args(argv)
-    check_ranges(parser, args, {"episodes": 1, "seed": 0, "workers": 1})
-    check_episode_seeds(parser, args)
-    kinds = list(FAULT_KINDS) if args.kinds == "all" else args.kinds.split(",")
+    return parser
+
+
+def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> CampaignConfig:
+    """The campaign's configuration from the parsed ``arguments`` (left as parsed); a bad value is ``parser``'s
+    error."""
+    check_ranges(parser, arguments, {"episodes": 1, "seed": 0, "workers": 1})
+    check_episode_seeds(parser, arguments)
+    kinds = list(FAULT_KINDS) if arguments.kinds == "all" else arguments.kinds.split(",")
     unknown = sorted(set(kinds) - set(FAULT_KINDS))
     if unknown:
         parser.error(f"--kinds: unknown {unknown}; choose from {list(FAULT_KINDS)} or 'all'")
     try:
-        controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(arguments.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    scenario = scenario_from_arguments(args, parser)
-    reactions = args.reactions.split(",") if args.reactions else [scenario.task.fault_reaction]
+    scenario = scenario_from_arguments(arguments, parser)
+    reactions = arguments.reactions.split(",") if arguments.reactions else [scenario.task.fault_reaction]
     unknown = sorted(set(reactions) - set(FAULT_REACTIONS))
     if unknown or len(set(reactions)) < len(reactions):
         parser.error(f"--reactions: unknown or repeated {unknown or reactions}; choose from {list(FAULT_REACTIONS)}")
-    return resolved_arguments(args, kinds=kinds, controllers=controllers, scenario=scenario, reactions=reactions)
+    return CampaignConfig(
+        scenario=scenario,
+        seed=arguments.seed,
+        episodes=arguments.episodes,
+        kinds=tuple(kinds),
+        controllers=tuple(controllers),
+        reactions=tuple(reactions),
+        out=arguments.out,
+        force=arguments.force,
+        runs_dir=arguments.runs_dir,
+        workers=arguments.workers,
+    )
+
+
+def parse_args(argv: Sequence[str] | None) -> CampaignConfig:
+    """The campaign's configuration from the command line ``argv``."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 def with_faults(scenario: Scenario, faults: tuple[FaultSpec, ...], reaction: str | None = None) -> Scenario:
@@ -225,20 +286,15 @@ def reaction_table(rows: list[dict[str, Any]], kinds: Sequence[str], reactions: 
 
 @command_main("python -m eval.faults")
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
+    config = parse_args(argv)
     with command_run_folder(
-        "fault_campaign",
-        "eval.faults",
-        argv,
-        args,
-        {**vars(args), "scenario": args.scenario.name},
-        scenarios=[args.scenario],
+        "fault_campaign", "eval.faults", argv, config, configuration_record(config), scenarios=[config.scenario]
     ) as run:
-        campaign(args, run)
+        campaign(config, run)
     return 0
 
 
-def campaign(args: argparse.Namespace, run: Run) -> None:
+def campaign(args: CampaignConfig, run: Run) -> None:
     """The campaign of ``args`` (:func:`parse_args`) into ``run``'s folder, its tables printed."""
     out = run.folder
     healthy = with_faults(args.scenario, ())
