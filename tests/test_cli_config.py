@@ -26,6 +26,7 @@ RESOLVED = [
     ("eval.compare", ["a", "b", "--metrics", "tracking_rms_mm"], "metrics"),
     ("eval.residual.__main__", ["--mix", "nominal", "--hyperparams", "gamma:0.9"], "cycles"),
     ("eval.faults.__main__", ["--kinds", "slip,collision", "--reactions", "slow,stop"], "reactions"),
+    ("eval.faults.soak", ["--conditions", "6g,3g,6g"], "conditions"),
 ]
 
 

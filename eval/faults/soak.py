@@ -65,7 +65,7 @@ from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES
-from eval.console import CommandParser, UsageError, command_main, progress_bar, resolved_arguments
+from eval.console import CommandParser, UsageError, command_main, progress_bar
 from eval.engine import prepare
 from eval.episodes import EpisodeRecord
 from eval.fault_tables import FAULT_COLUMNS, fault_rows
@@ -169,7 +169,35 @@ SOAK_FAULT_COLUMNS = ("condition", *FAULT_COLUMNS)
 """Columns of ``faults.csv``: the episode's condition and :data:`eval.fault_tables.FAULT_COLUMNS`."""
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+@dataclass(frozen=True)
+class SoakConfig:
+    """The resolved configuration of a soak (:func:`parse_args`).
+
+    Attributes:
+        carries: Carries per controller and condition; None: ``minutes`` alone bounds the soak.
+        minutes: Simulated minutes per controller and condition; None: no bound in time.
+        conditions: The conditions run (:data:`CONDITIONS`), each once, in the order given.
+        scenario: The plants' preset (:data:`SCENARIOS`).
+        controllers: Registry keys of the rows.
+        seed: Seed of the first episode.
+        out: Output folder; None: ``<runs root>/fault_soak/<UTC time>``.
+        runs_dir: Root of the run folders and of the cached identifications; None: the default.
+        workers: Processes running the episodes.
+    """
+
+    carries: int | None
+    minutes: float | None
+    conditions: tuple[str, ...]
+    scenario: str
+    controllers: tuple[str, ...]
+    seed: int
+    out: Path | None
+    runs_dir: Path | None
+    workers: int
+
+
+def argument_parser() -> CommandParser:
+    """The command line's parser."""
     parser = CommandParser(
         prog="python -m eval.faults.soak", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -197,25 +225,43 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     add_runs_dir_argument(parser)
     add_workers_argument(parser)
-    args = parser.parse_args(argv)
-    carries = DEFAULT_CARRIES if args.carries is None and args.minutes is None else args.carries
+    return parser
+
+
+def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> SoakConfig:
+    """The soak's configuration from the parsed ``arguments`` (left as parsed); a bad value is ``parser``'s error."""
+    carries = DEFAULT_CARRIES if arguments.carries is None and arguments.minutes is None else arguments.carries
     check_ranges(
         parser,
-        resolved_arguments(args, carries=carries),
+        argparse.Namespace(**{**vars(arguments), "carries": carries}),
         {"seed": 0, "workers": 1, **({"carries": 1} if carries is not None else {})},
-        ("minutes",) if args.minutes is not None else (),
+        ("minutes",) if arguments.minutes is not None else (),
     )
-    conditions = [name.strip() for name in args.conditions.split(",") if name.strip()]
+    conditions = [name.strip() for name in arguments.conditions.split(",") if name.strip()]
     unknown = [name for name in conditions if name not in CONDITIONS]
     if unknown or not conditions:
         parser.error(f"--conditions: unknown or no values {unknown}; choose from {', '.join(CONDITIONS)}")
     try:
-        controllers = parse_controller_keys(args.controllers)
+        controllers = parse_controller_keys(arguments.controllers)
     except ValueError as error:
         parser.error(f"--controllers: {error}")
-    return resolved_arguments(
-        args, carries=carries, conditions=list(dict.fromkeys(conditions)), controllers=controllers
+    return SoakConfig(
+        carries=carries,
+        minutes=arguments.minutes,
+        conditions=tuple(dict.fromkeys(conditions)),
+        scenario=arguments.scenario,
+        controllers=tuple(controllers),
+        seed=arguments.seed,
+        out=arguments.out,
+        runs_dir=arguments.runs_dir,
+        workers=arguments.workers,
     )
+
+
+def parse_args(argv: Sequence[str] | None) -> SoakConfig:
+    """The soak's configuration from the command line ``argv``."""
+    parser = argument_parser()
+    return resolve(parser.parse_args(argv), parser)
 
 
 def condition_scenarios(base: Scenario, names: Sequence[str]) -> dict[str, Scenario]:
@@ -422,7 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "condition_hashes": {name: scenario.content_hash for name, scenario in scenarios.items()},
         "carries": args.carries,
         "minutes": args.minutes,
-        "controllers": args.controllers,
+        "controllers": list(args.controllers),
         "workers": args.workers,
     }
     rows = resume(args.out, config) if args.out is not None else []
@@ -440,7 +486,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def soak_setups(args: argparse.Namespace, base: Scenario) -> dict[str, Any]:
+def soak_setups(args: SoakConfig, base: Scenario) -> dict[str, Any]:
     """What the controllers know on each condition's scenario, by its content hash: tared once per tare scenario
     (:meth:`SoakCondition.tare_scenario`), the timed ones with the cell's estimator as the data sheet tares it."""
     setups: dict[str, Any] = {}
@@ -461,7 +507,7 @@ def soak_setups(args: argparse.Namespace, base: Scenario) -> dict[str, Any]:
     return setups
 
 
-def soak(args: argparse.Namespace, run: Run, base: Scenario, rows: list[dict[str, Any]]) -> None:
+def soak(args: SoakConfig, run: Run, base: Scenario, rows: list[dict[str, Any]]) -> None:
     """Run the soak of ``args`` (:func:`parse_args`) on ``base``'s plants into ``run``'s folder, after the episodes
     ``rows`` already there; its table printed."""
     out, keys = run.folder, args.controllers
