@@ -1,5 +1,5 @@
 """The servo layer: each joint's position loop with integral action and friction compensation at rest (docs/design.md
-section 6, "Servo").
+section 6, "The servo layer").
 
 A servo drive closes its position loop around the feedforward: per joint
 
