@@ -172,15 +172,14 @@ def compliant_oracle_gains(
             )
             for inertia in arm_inertias
         ]
-        kp = ORACLE_KP
-        for _ in range(8):
+        for halvings in range(8):
+            kp = ORACLE_KP * 0.5**halvings
             radii = [
                 max(_largest_pole(*loop, kp, kd, period, rate_window) for loop in loops) for kd in COMPLIANT_KD_GRID
             ]
             best = int(np.argmin(radii))
             if radii[best] < 1.0:
                 break
-            kp *= 0.5
         else:
             raise ValueError(
                 f"no stable oracle gains for joint {joint + 1}: at Kp {kp:g} N m/rad the least unstable Kd of the "

@@ -1,5 +1,5 @@
 """The servo layer: each joint's position loop with integral action and friction compensation at rest (docs/design.md
-section 6, "Servo").
+section 6, "The servo layer").
 
 A servo drive closes its position loop around the feedforward: per joint
 
@@ -103,7 +103,7 @@ class ServoGains:
 
 @dataclass(frozen=True)
 class ResonanceNotch:
-    """A notch on the servo's torque at each joint's drive mode (docs/design.md section 6, "The servo on a compliant
+    """A notch on the servo's torque at each joint's drive mode (docs/design.md section 6, "On a compliant
     joint"): what a servo drive does about a resonance its loop would otherwise drive.
 
     Each joint is taken as a two-mass drive, the rotor J_m coupled through the gearhead's stiffness k to the arm side
@@ -360,7 +360,7 @@ class JointServo:
         ``inertia`` is the joints' inertias, (3,), or the joint-space inertia matrix M, (3, 3), symmetric positive
         definite: then the gains become matrices, K = S M S with S = diag(sqrt(k_j / J_j)) (each joint's gain per
         unit of the inertia it was placed on), which give every direction of the coupled arm, not only each joint
-        alone, the triple pole (docs/design.md section 6, "The servo on a compliant joint").
+        alone, the triple pole (docs/design.md section 6, "Gains on the inertia matrix").
 
         Raises:
             ValueError: for gains not placed on an inertia (:attr:`ServoGains.inertia` None).

@@ -371,7 +371,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         if reference is None and self.timing is None and self.task_timing != "fixed":
             raise ValueError(
                 f"the scenario times its moves {self.task_timing!r}, which needs a planner on the identified model: "
-                "set env.timing (a delta_env.timing.MoveTiming, e.g. controllers.timing.payload_timing(...))"
+                "set env.timing (a delta_env.timing.MoveTiming, e.g. controllers.payload_timing.PayloadTiming(...))"
             )
 
         # Draw everything in a fixed order so that overriding the masses changes nothing else.
