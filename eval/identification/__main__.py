@@ -16,8 +16,8 @@ With ``--log FILE [FILE ...] --robot ROBOT.toml`` nothing is simulated: the robo
 alone (:func:`eval.identification.run.identify_logs`, the same fits), the last log held out for the report (a log is a
 CSV or Parquet table or a ROS 2 bag; ``--topic``, ``--joint-names`` and ``--command-topic`` say what to read from
 a bag; ``--compliance-log`` the compliance excitation's tables of compliant drives, ``--torque-age`` the age of the
-drive's torque readings); the parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of
-the robot file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot
+drive's torque readings); the parameter file goes to the run folder (and to ``--parameters`` if given) and records
+the identity of the robot file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot
 (``--geometry ROBOT.toml``).
 
 The report (:mod:`eval.identification.report`) of a simulation compares the identified friction and drive lag with

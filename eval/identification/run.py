@@ -85,6 +85,12 @@ logger = logging.getLogger(__name__)
 DEFAULT_TRAJECTORIES = 12
 """Excitation trajectories of the identification, as in the paper."""
 
+IDENTIFICATION_VERSION = 1
+"""Version of the simulated identification, recorded in its provenance (``method.version``). Raise it with every
+change of this code that changes the numbers it writes: the cache of a robot's identification is keyed by the robot
+alone, and a cached file of another version (or of none, written before the version was recorded) is identified again
+(:func:`eval.identification.parameter_files.outdated`)."""
+
 _Output = TypeVar("_Output")
 
 
@@ -491,6 +497,7 @@ def _identify(
     training_table = error_table(models, concatenate(data))
     provenance = {
         "method": {
+            "version": IDENTIFICATION_VERSION,
             "data": data_method,
             "mid": "linear least squares of (rho1, rho2), all samples",
             "mid_f": "joint linear least squares of [rho1, rho2, fv_1..3, fc_1..3]; rows with "
