@@ -235,12 +235,47 @@ def test_compliant_drives_are_identified_from_log_files(known_plant_logs, tmp_pa
     for log, path in zip(run.logs, rigid, strict=True):
         write_log(log, path)
     robot = save_robot(plant.geometry, plant.masses, tmp_path / "robot.toml")
-    from_files = identify_logs(
-        rigid, robot, compliance_paths=paths, compliance_period=plant.timestep, torque_delay=plant.timestep
-    )
+    # read at their own sample period (the physics step, four times the control period's rate) by default
+    from_files = identify_logs(rigid, robot, compliance_paths=paths, torque_delay=plant.timestep)
     expected = fit_compliance(logs, torque_delay=plant.timestep).compliance
     np.testing.assert_allclose(from_files.result.compliance.stiffness, expected.stiffness, rtol=1e-12)
     assert len(from_files.result.provenance["compliance"]["logs"]) == len(paths)
+    with pytest.raises(ValueError, match=r"compliance log .*a\.mcap is a ROS 2 bag"):
+        identify_logs(rigid, robot, compliance_paths=[tmp_path / "a.mcap"])
+
+
+@pytest.mark.slow
+def test_the_command_line_identifies_compliant_drives_from_saved_logs(tmp_path) -> None:
+    """``--save-logs`` on the compliant preset writes the compliance excitation's logs beside the rigid ones and prints
+    the command that reads them back; that command (``--compliance-log``, ``--torque-age`` the physics step)
+    identifies the same drives and drive lag as the simulation, from the files alone (about 40 s)."""
+    from eval.identification import __main__ as cli
+
+    logs, quiet = tmp_path / "logs", ["--no-progress", "--workers", "1", "--no-install"]
+    short = ["--trajectories", "1", "--duration", "1.5", "--validation-duration", "1.5"]
+    cli.main(["--scenario", "compliant", *short, *quiet, "--out", str(tmp_path / "sim"), "--save-logs", str(logs)])
+    rigid = [logs / "excitation_01.csv", logs / "validation.csv"]
+    compliance = sorted(logs.glob("compliance_*.csv"))
+    assert len(compliance) == len(COMPLIANCE_POSES)
+    arguments = ["--log", *map(str, rigid), "--robot", str(logs / "robot.toml"), "--compliance-log"]
+    out = ["--out", str(tmp_path / "fromlogs")]
+    cli.main([*arguments, *map(str, compliance), "--torque-age", f"{COMPLIANT.timestep:g}", *quiet[:-1], *out])
+    simulated = load_result(tmp_path / "sim" / "parameters.json")
+    logged = load_result(tmp_path / "fromlogs" / "parameters.json")
+    for name in ("rotor_inertia", "stiffness", "damping"):
+        np.testing.assert_allclose(getattr(logged.compliance, name), getattr(simulated.compliance, name), rtol=1e-9)
+    np.testing.assert_allclose(logged.drive_lag, simulated.drive_lag, rtol=1e-9)
+
+
+def test_compliance_options_belong_to_log_files(capsys) -> None:
+    from eval.identification import __main__ as cli
+
+    with pytest.raises(SystemExit):
+        cli.parse_args(["--scenario", "compliant", "--torque-age", "0.00025"])
+    assert "--torque-age describe --log files" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.parse_args(["--log", "a.csv", "b.csv", "--robot", "r.toml", "--torque-age", "0.02"])
+    assert "must lie in [0, 0.01] s, got 0.02" in capsys.readouterr().err
 
 
 def test_the_excitation_notches_the_drive_mode_it_would_otherwise_ring_at() -> None:

@@ -10,7 +10,6 @@ import pytest
 from numpy.testing import assert_allclose
 
 from controllers import identification
-from controllers.compliance import DriveCompliance
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.identification import (
     JOINT_PARAMETER_NAMES,
@@ -38,8 +37,8 @@ from delta_env.scenario import preset
 from delta_env.sensors import ENCODER_RESOLUTION
 from eval.identification import parameter_files
 from eval.identification.excitation import ExcitationSpec, collect_excitation_data
-from eval.identification.parameter_files import load_or_identify, misreads_torque_age, misses_drive_compliance
-from eval.identification.run import identify
+from eval.identification.parameter_files import identify_robot, load_or_identify, outdated, parameter_path
+from eval.identification.run import IDENTIFICATION_VERSION, identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
@@ -412,41 +411,25 @@ def test_load_or_identify_never_replaces_a_corrupt_file(tmp_path, monkeypatch) -
     assert path.read_text() == "{corrupt"
 
 
-def test_a_compliant_robots_cache_without_its_drives_identified_is_identified_again(tmp_path, monkeypatch) -> None:
-    """The cache key (the plant's identity) does not change with the identification's code: a file of a compliant
-    robot with a load-side encoder identified before its drives were (no compliance, no notch on the excitation's PD)
-    is replaced, and a current one, a rigid robot's and one from logs are read as they are."""
-    compliant = preset("compliant").plant
-    drives = DriveCompliance.nominal()
-    current = dataclasses.replace(
-        RESULT, compliance=drives, provenance={"method": {"controller": {"notch": {"quality": 0.7}}}}
-    )
-    no_notch = dataclasses.replace(current, provenance={"method": {"controller": {"kp": 3000.0}}})
+def test_a_cache_of_another_identification_version_is_identified_again(tmp_path, monkeypatch) -> None:
+    """The cache key (the robot's identity) does not change with the identification's code: a robot's file written
+    by another version, or before the version was recorded, is identified again and replaced; a current one and one
+    from logs are read as they are."""
+    plant = preset("compliant").plant
+
+    def versioned(version: object) -> IdentificationResult:
+        return dataclasses.replace(RESULT, provenance={"method": {"version": version}})
+
+    current, older = versioned(IDENTIFICATION_VERSION), versioned(IDENTIFICATION_VERSION - 1)
     from_logs = dataclasses.replace(RESULT, provenance={"plant": {"source": "logs"}})
-    assert misses_drive_compliance(RESULT, compliant) and misses_drive_compliance(no_notch, compliant)
-    assert not misses_drive_compliance(current, compliant) and not misses_drive_compliance(from_logs, compliant)
-    assert not misses_drive_compliance(RESULT, PlantConfig())
-    path = save_result(RESULT, tmp_path / "parameters.json")
+    assert outdated(older) and outdated(RESULT) and not outdated(current) and not outdated(from_logs)
+    path = save_result(older, parameter_path(plant, tmp_path))
     monkeypatch.setattr(parameter_files, "identify", lambda **kwargs: current)
-    assert load_or_identify(path, outdated=lambda cached: misses_drive_compliance(cached, compliant)) == current
-    assert load_result(path) == current
+    monkeypatch.setattr(parameter_files, "check_identity", lambda *args: None)
+    monkeypatch.setattr(parameter_files, "check_settings", lambda *args: None)
+    assert identify_robot(plant, tmp_path) == current and load_result(path) == current
     monkeypatch.setattr(parameter_files, "identify", pytest.fail)
-    assert load_or_identify(path, outdated=lambda cached: misses_drive_compliance(cached, compliant)) == current
-
-
-def test_a_cache_that_read_its_torques_at_another_age_than_its_plants_step_is_outdated() -> None:
-    """A simulated identification records the age its torque readings were prepared with; on the ``compliant``
-    preset's 0.25 ms step one prepared at the default 0.5 ms (before 2026-11-29: its drive lag 20 % short) is outdated,
-    one at 0.25 ms is not, nor the rigid plant's at 0.5 ms, nor one from logs."""
-    compliant = preset("compliant").plant
-
-    def aged(delay: float) -> IdentificationResult:
-        return dataclasses.replace(RESULT, provenance={"method": {"torque_sample_delay_s": delay}})
-
-    assert misreads_torque_age(aged(0.0005), compliant) and not misreads_torque_age(aged(0.00025), compliant)
-    assert not misreads_torque_age(aged(0.0005), PlantConfig())
-    from_logs = dataclasses.replace(aged(0.0005), provenance={**aged(0.0005).provenance, "plant": {"source": "logs"}})
-    assert not misreads_torque_age(from_logs, compliant)
+    assert identify_robot(plant, tmp_path) == current
 
 
 def test_load_or_identify_identifies_again_over_a_cache_of_an_older_format(tmp_path, monkeypatch, caplog) -> None:

@@ -188,9 +188,9 @@ def write_table_log(log: DriveLog, path: Path, start: float = 0.0) -> Path:
     return path
 
 
-def read_table_log(path: Path, period: float = CONTROL_PERIOD) -> DriveLog:
-    """The CSV or Parquet log at ``path`` (format in the module docstring), resampled onto ``period``. Any log file
-    by its ending: :func:`controllers.identification.read_log`.
+def read_table_log(path: Path, period: float | None = CONTROL_PERIOD) -> DriveLog:
+    """The CSV or Parquet log at ``path`` (format in the module docstring), resampled onto ``period`` (s; None: the
+    log's own, :func:`resample_log`). Any log file by its ending: :func:`controllers.identification.read_log`.
 
     Raises:
         LogFileError: for a missing or unreadable file, a missing column, a value that is not a finite number,
@@ -207,13 +207,14 @@ def read_table_log(path: Path, period: float = CONTROL_PERIOD) -> DriveLog:
         raise LogFileError(f"log {path}: {error}") from None
 
 
-def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) -> DriveLog:
-    """A log's columns (name -> values) checked and resampled onto ``period`` (s); errors count data rows from 1.
+def resample_log(columns: dict[str, ArrayLike], period: float | None = CONTROL_PERIOD) -> DriveLog:
+    """A log's columns (name -> values) checked and resampled onto ``period`` (s; None: the log's own, the median
+    step of its times, for a trace sampled faster than the control period); errors count data rows from 1.
 
     Raises:
         ValueError: naming the column and the row (module docstring).
     """
-    if not (math.isfinite(period) and 0.0 < period <= MAX_LOG_GAP):
+    if period is not None and not (math.isfinite(period) and 0.0 < period <= MAX_LOG_GAP):
         raise ValueError(f"period must lie in (0, {MAX_LOG_GAP:g}] s, got {period!r}")
     required = (TIME_COLUMN, *ANGLE_COLUMNS, *TORQUE_COLUMNS)
     missing = [name for name in required if name not in columns]
@@ -254,6 +255,8 @@ def resample_log(columns: dict[str, ArrayLike], period: float = CONTROL_PERIOD) 
             f"({float(time[row])!r} s); steps may be at most {1e3 * MAX_LOG_GAP:g} ms: split the log at the gap into "
             "two files"
         )
+    if period is None:
+        period = float(np.median(steps))
     # 1e-6 periods of slack: a log on the grid keeps its last sample despite rounding of its times
     grid = time[0] + np.arange(math.floor((time[-1] - time[0]) / period + 1e-6) + 1) * period
     angles = np.column_stack([np.interp(grid, time, values[name]) for name in ANGLE_COLUMNS])

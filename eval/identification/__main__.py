@@ -15,8 +15,9 @@ run folder only: it never replaces the robot's parameter file, which ``python -m
 With ``--log FILE [FILE ...] --robot ROBOT.toml`` nothing is simulated: the robot is identified from its logs
 alone (:func:`eval.identification.run.identify_logs`, the same fits), the last log held out for the report (a log is a
 CSV or Parquet table or a ROS 2 bag; ``--topic``, ``--joint-names`` and ``--command-topic`` say what to read from
-a bag); the parameter file goes to the run folder (and to ``--parameters`` if given) and records the identity of
-the robot file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot
+a bag; ``--compliance-log`` the compliance excitation's tables of compliant drives, ``--torque-age`` the age of the
+drive's torque readings); the parameter file goes to the run folder (and to ``--parameters`` if given) and records
+the identity of the robot file, which ``python -m eval --parameters FILE`` accepts for a scenario on that robot
 (``--geometry ROBOT.toml``).
 
 The report (:mod:`eval.identification.report`) of a simulation compares the identified friction and drive lag with
@@ -38,6 +39,7 @@ from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import Scenario, save_robot
+from delta_env.sensors import MEASURED_TORQUE_DELAY
 from eval.console import CommandParser, command_main, resolved_arguments
 from eval.identification.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification.parameter_files import (
@@ -69,6 +71,9 @@ LOG_FORMATS = {"csv": ".csv", "parquet": ".parquet", "mcap": ".mcap", "sqlite3":
 QUICK = {"trajectories": 3, "duration": 3.0, "validation_duration": 3.0, "workers": 1}
 """Settings of ``--quick`` (a smoke run in seconds, rough parameters), unless given explicitly; one process, as
 starting a second costs more than the four short runs it would share."""
+
+TORQUE_AGE_RANGE = (0.0, 0.01)
+"""Allowed ages (s) of the logs' torque readings against their angles (``--torque-age``)."""
 
 BAG_OPTIONS = ("topic", "joint_names", "command_topic")
 """Options that say what to read from the ROS 2 bags among the ``--log`` files."""
@@ -138,6 +143,8 @@ class IdentifyConfig:
         joint_names: Bags: the names of joints 1, 2, 3, or None.
         command_topic: Bags: the topic of the commanded torques, or None.
         robot: The robot file of ``log``, or None.
+        compliance_log: Logs of the compliance excitation to identify compliant drives on (with ``log``), or None.
+        torque_age: Age of the logs' torque readings against their angles (s).
         workers: Processes, or None (up to 2 cores).
         out: The run folder: ``--out`` until the folder is made, then the folder.
         force: Write into an existing, non-empty ``out``.
@@ -164,6 +171,8 @@ class IdentifyConfig:
     joint_names: tuple[str, str, str] | None
     command_topic: str | None
     robot: Path | None
+    compliance_log: tuple[Path, ...] | None
+    torque_age: float
     workers: int | None
     out: Path | None
     force: bool
@@ -249,6 +258,25 @@ def argument_parser() -> CommandParser:
         "--robot", type=Path, default=None, help="robot file of the logs ([geometry] in m, [masses] in kg)"
     )
     parser.add_argument(
+        "--compliance-log",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="FILE",
+        help="with --log: the compliance excitation's logs (CSV or Parquet with load_angle columns; --save-logs "
+        "writes them as compliance_NN for a compliant plant with an arm encoder), to identify the drives' stiffness "
+        "and damping on, read at their own sample period",
+    )
+    parser.add_argument(
+        "--torque-age",
+        type=_number_in(float, *TORQUE_AGE_RANGE, "s"),
+        default=MEASURED_TORQUE_DELAY,
+        metavar="S",
+        help="with --log: how much older the logs' torque readings are than their angles (s), "
+        f"{TORQUE_AGE_RANGE[0]:g} to {TORQUE_AGE_RANGE[1]:g} (default {MEASURED_TORQUE_DELAY:g}, a simulated drive "
+        "at the default physics step; a simulated plant's is its physics step)",
+    )
+    parser.add_argument(
         "--workers", type=_number_in(int, 1, 64), default=None, help="processes (default: up to 2 cores)"
     )
     parser.add_argument(
@@ -278,8 +306,15 @@ def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> I
         parser.error(f"{names} say what to read from ROS 2 bags; no --log file is a bag (.mcap, .db3 or a folder)")
     if arguments.log is not None:
         _check_log_arguments(arguments, parser)
+        compliance_log = None if arguments.compliance_log is None else tuple(arguments.compliance_log)
         return IdentifyConfig(
-            **{**vars(arguments), "scenario": None, "log": tuple(arguments.log), "robot_identity": None}
+            **{
+                **vars(arguments),
+                "scenario": None,
+                "log": tuple(arguments.log),
+                "compliance_log": compliance_log,
+                "robot_identity": None,
+            }
         )
     if arguments.quick:
         if arguments.parameters is not None:
@@ -289,6 +324,12 @@ def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> I
         arguments = resolved_arguments(arguments, **quick, no_install=True)
     if arguments.robot is not None:
         parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
+    log_options = [
+        name for name in ("compliance_log", "torque_age") if getattr(arguments, name) != parser.get_default(name)
+    ]
+    if log_options:
+        names = ", ".join("--" + name.replace("_", "-") for name in log_options)
+        parser.error(f"{names} describe --log files; a simulation knows its own drives' timing and logs")
     scenario = scenario_from_arguments(arguments, parser)
     own = parameter_path(scenario.plant, identification_root(arguments.runs_dir))
     settings = simulation_settings(arguments)
@@ -340,15 +381,34 @@ def simulation_settings(arguments: argparse.Namespace | IdentifyConfig) -> dict[
     }
 
 
-def save_logs(run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMasses, folder: Path, suffix: str) -> Path:
-    """Write the run's logs as a robot's logger would (excitation_01 ... and, last, validation) and the robot file
-    ``robot.toml``, what ``--log`` and ``--robot`` read; returns the robot file."""
+def save_logs(
+    run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMasses, folder: Path, suffix: str
+) -> tuple[Path, list[Path]]:
+    """Write the run's logs as a robot's logger would (excitation_01 ... and, last, validation), the compliance
+    excitation's (compliance_01 ..., for compliant drives with an arm encoder: CSV when ``suffix`` is a bag's, which
+    holds no load-side angle) and the robot file ``robot.toml``, what ``--log``, ``--compliance-log`` and
+    ``--robot`` read; returns the robot file and the compliance logs."""
     *excitation, validation = run.logs
     digits = max(2, len(str(len(excitation))))  # the names sort in run order, the held-out one last
     for index, log in enumerate(excitation, start=1):
         write_log(log, folder / f"excitation_{index:0{digits}d}{suffix}")
     write_log(validation, folder / f"validation{suffix}")
-    return save_robot(geometry, masses, folder / "robot.toml")
+    table_suffix = ".csv" if suffix in BAG_SUFFIXES else suffix
+    compliance = [
+        write_log(log, folder / f"compliance_{index:02d}{table_suffix}")
+        for index, log in enumerate(run.compliance_logs, start=1)
+    ]
+    return save_robot(geometry, masses, folder / "robot.toml"), compliance
+
+
+def read_back_command(folder: Path, robot: Path, compliance: Sequence[Path], scenario: Scenario) -> str:
+    """The command line that identifies the robot from the logs :func:`save_logs` wrote into ``folder``."""
+    command = f"python -m eval.identification --log {folder}/excitation_* {folder}/validation.* --robot {robot}"
+    if compliance:
+        command += f" --compliance-log {folder}/compliance_*"
+    if scenario.plant.timestep != MEASURED_TORQUE_DELAY:
+        command += f" --torque-age {scenario.plant.timestep:g}"
+    return command
 
 
 @command_main("python -m eval.identification")
@@ -372,6 +432,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 workers=config.workers or 1,
                 progress=not config.no_progress,
                 topics=BagTopics(config.topic, config.joint_names, config.command_topic),
+                compliance_paths=config.compliance_log or (),
+                torque_delay=config.torque_age,
             )
         except ValueError as error:  # a bad log or robot file, or logs that do not excite the model
             print(f"python -m eval.identification: error: {error}", file=sys.stderr)
@@ -416,12 +478,13 @@ def identify_into(config: IdentifyConfig, run_dir: Run, run: IdentificationRun |
         )
         if config.save_logs is not None:
             suffix = LOG_FORMATS[config.log_format]
-            save_logs(run, scenario.plant.geometry, scenario.plant.masses, config.save_logs, suffix)
+            robot, compliance = save_logs(run, scenario.plant.geometry, scenario.plant.masses, config.save_logs, suffix)
             if suffix in BAG_SUFFIXES:
                 print(
                     f"The runs are ROS 2 bags: JointState on {JOINT_STATES_TOPIC}, commands on {JOINT_COMMANDS_TOPIC} "
                     f"(--log ... --command-topic {JOINT_COMMANDS_TOPIC} reads them back)."
                 )
+            print(f"To identify from these logs: {read_back_command(config.save_logs, robot, compliance, scenario)}")
         truth = ground_truth(scenario.plant)
         install = None if config.no_install else config.parameters
     save_result(run.result, folder / "parameters.json")

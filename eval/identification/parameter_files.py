@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -30,7 +29,7 @@ from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.scenario import datasheet_identity, plant_identity
 from eval.identification.excitation import DEFAULT_DURATION, VALIDATION_DURATION
-from eval.identification.run import DEFAULT_TRAJECTORIES, identify
+from eval.identification.run import DEFAULT_TRAJECTORIES, IDENTIFICATION_VERSION, identify
 from eval.run_folder import runs_root
 
 logger = logging.getLogger(__name__)
@@ -81,8 +80,8 @@ def load_or_identify(
 
     Args:
         path: Parameter file.
-        outdated: Whether a readable file's result was made by an older version of the identification (e.g.
-            :func:`misses_drive_compliance`, :func:`misreads_torque_age`); such a cache is identified again and
+        outdated: Whether a readable file's result was made by another version of the identification
+            (:func:`outdated`); such a cache is identified again and
             replaced, with a warning. None: none is.
         **identify_kwargs: Arguments of :func:`identify`, used only when the file is missing.
 
@@ -99,9 +98,7 @@ def load_or_identify(
         if outdated is None or not outdated(result):
             return result
         logger.warning(
-            "%s was identified by an older version of this project (e.g. compliant drives not identified first, "
-            "or torque readings taken at another age than the plant's physics step): identifying again (about a "
-            "minute)",
+            "%s was identified by another version of this project's identification: identifying again (about a minute)",
             path,
         )
     elif path.exists():
@@ -194,33 +191,16 @@ def check_identity(result: IdentificationResult, plant: PlantConfig, path: str |
         )
 
 
-def misses_drive_compliance(result: IdentificationResult, plant: PlantConfig) -> bool:
-    """Whether ``result``, a simulated identification of ``plant``, predates the identification of compliant drives:
-    ``plant``'s drives are compliant with a load-side encoder, but ``result`` holds no compliance or its excitation's
-    PD ran without the notch at their modes (both came with docs/design.md section 7's "The drives first"). The cache
-    key, the plant's identity, does not change with the identification's code, so such a file would be read as it is
-    and the model rows would run without their notch. An identification from logs is never outdated here."""
-    compliance = plant.realism.compliance
-    if compliance is None or compliance.load_encoder_bits is None:
-        return False
+def outdated(result: IdentificationResult) -> bool:
+    """Whether ``result``, a cached simulated identification, was written by another version of the identification
+    than this code's (:data:`~eval.identification.run.IDENTIFICATION_VERSION`; a file written before the version was
+    recorded has none). The cache key, the robot's identity, does not change with the code, so such a file would be
+    read as it is. An identification from logs is never outdated: it is the user's, from data this code cannot
+    make again."""
     provenance = result.provenance
     if provenance.get("plant", {}).get("source") == "logs":
         return False
-    controller = provenance.get("method", {}).get("controller")
-    return result.compliance is None or not (isinstance(controller, dict) and "notch" in controller)
-
-
-def misreads_torque_age(result: IdentificationResult, plant: PlantConfig) -> bool:
-    """Whether ``result``, a simulated identification of ``plant``, prepared its torque readings with another age than
-    the plant's physics step, the age of its readings (the force held over the last step): before 2026-11-29 every
-    plant was taken at the default 0.5 ms step, which on the ``compliant`` preset's 0.25 ms step put the identified
-    drive lag 20 % short (0.79 against 1 ms). As for :func:`misses_drive_compliance`, the cache key does not see
-    it; an identification from logs is never outdated here."""
-    provenance = result.provenance
-    if provenance.get("plant", {}).get("source") == "logs":
-        return False
-    recorded = provenance.get("method", {}).get("torque_sample_delay_s")
-    return isinstance(recorded, float) and not math.isclose(recorded, plant.timestep, rel_tol=1e-9)
+    return provenance.get("method", {}).get("version") != IDENTIFICATION_VERSION
 
 
 def identify_robot(
@@ -241,7 +221,7 @@ def identify_robot(
     path = parameter_path(plant, root)
     result = load_or_identify(
         path,
-        outdated=lambda cached: misses_drive_compliance(cached, plant) or misreads_torque_age(cached, plant),
+        outdated=outdated,
         plant=plant,
         **identify_kwargs,
     )

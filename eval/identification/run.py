@@ -57,6 +57,7 @@ from controllers.identification import (
     read_log,
 )
 from controllers.identification.bags import BagTopics, is_bag, read_bag
+from controllers.identification.logs import read_table_log
 from controllers.servo import ResonanceNotch
 from delta_env.config import PlantConfig
 from delta_env.geometry import DeltaGeometry, DeltaMasses
@@ -83,6 +84,12 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_TRAJECTORIES = 12
 """Excitation trajectories of the identification, as in the paper."""
+
+IDENTIFICATION_VERSION = 1
+"""Version of the simulated identification, recorded in its provenance (``method.version``). Raise it with every
+change of this code that changes the numbers it writes: the cache of a robot's identification is keyed by the robot
+alone, and a cached file of another version (or of none, written before the version was recorded) is identified again
+(:func:`eval.identification.parameter_files.outdated`)."""
 
 _Output = TypeVar("_Output")
 
@@ -311,7 +318,7 @@ def identify_logs(
     progress: bool = False,
     topics: BagTopics | None = None,
     compliance_paths: Sequence[str | os.PathLike[str]] = (),
-    compliance_period: float = CONTROL_PERIOD,
+    compliance_period: float | None = None,
     torque_delay: float = MEASURED_TORQUE_DELAY,
 ) -> IdentificationRun:
     """Identify the robot of the robot file ``robot`` from its drive logs alone: the algorithms, fits and
@@ -327,23 +334,33 @@ def identify_logs(
         topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
             commands.
         compliance_paths: Logs of the compliance excitation (:mod:`eval.identification.compliance`: the multisine
-            at rest poses, with ``load_angle`` columns) to identify compliant drives on; none for rigid drives.
-        compliance_period: The sample period (s) those logs are resampled onto: a drive trace's own (the
-            simulated trace's is the physics step).
-        torque_delay: Age of the compliance logs' torques against their angles (s): the drive's timing.
+            at rest poses, with ``load_angle`` columns), CSV or Parquet tables, to identify compliant drives on; none
+            for rigid drives.
+        compliance_period: The sample period (s) those logs are resampled onto; None: their own (the median step
+            of the first one's times; a simulated trace's is the physics step), which keeps the drive mode's band.
+        torque_delay: Age of every log's torque readings against their angles (s): the drive's timing (a simulated
+            drive's is its physics step, :data:`~delta_env.sensors.MEASURED_TORQUE_DELAY` by default).
 
     Raises:
-        ValueError: for fewer than 2 logs; LogFileError for a bad log; ValueError naming the robot file for a bad
-            one.
+        ValueError: for fewer than 2 logs or a compliance log that is a ROS 2 bag (a JointState carries no load-side
+            angle); LogFileError for a bad log; ValueError naming the robot file for a bad one.
     """
     start = time.perf_counter()
     paths = [Path(path) for path in paths]
     if len(paths) < 2:
         raise ValueError(f"need at least 2 logs (the last one is held out for validation), got {len(paths)}")
+    bags = [str(path) for path in compliance_paths if is_bag(path)]
+    if bags:
+        raise ValueError(
+            f"compliance log {bags[0]} is a ROS 2 bag, whose JointState carries no load-side angle; give the "
+            "compliance excitation as CSV or Parquet tables with load_angle columns"
+        )
     geometry, masses = load_robot(robot)
     logs, summaries = zip(*(_read_log(path, topics) for path in paths), strict=True)
     with progress_bar(len(logs), "logs", "log", disable=not progress) as bar:
-        prepared = run_jobs(prepare_log, logs, workers=workers, progress=bar)
+        prepared = run_jobs(
+            functools.partial(prepare_log, torque_delay=torque_delay), logs, workers=workers, progress=bar
+        )
     source = {
         "logs": list(summaries[:-1]),
         "validation_log": summaries[-1],
@@ -367,11 +384,12 @@ def identify_logs(
         workers=workers,
         started=start,
         max_loop_gap=None,
-        torque_delay=MEASURED_TORQUE_DELAY,
+        torque_delay=torque_delay,
     )
     if not compliance_paths:
         return run
-    compliance_logs = tuple(read_log(path, compliance_period) for path in compliance_paths)
+    first = read_table_log(Path(compliance_paths[0]), compliance_period)
+    compliance_logs = (first, *(read_table_log(Path(path), first.dt) for path in compliance_paths[1:]))
     fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
     provenance = {
         "method": "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance) "
@@ -479,6 +497,7 @@ def _identify(
     training_table = error_table(models, concatenate(data))
     provenance = {
         "method": {
+            "version": IDENTIFICATION_VERSION,
             "data": data_method,
             "mid": "linear least squares of (rho1, rho2), all samples",
             "mid_f": "joint linear least squares of [rho1, rho2, fv_1..3, fc_1..3]; rows with "
