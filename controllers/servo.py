@@ -178,35 +178,41 @@ def loop_delay(drive_lag: float, period: float = CONTROL_PERIOD) -> float:
     return drive_lag + period
 
 
+def _crossover_ratio() -> float:
+    """The triple-pole loop's gain crossover over its pole, w_c / w0 (module docstring of :func:`phase_margin`): with
+    y = (w_c / w0)^2, |L| = 1 reads y^3 - 9 y^2 - 3 y - 1 = 0, whose one real root is positive."""
+    roots = np.roots([1.0, -9.0, -3.0, -1.0])
+    return math.sqrt(float(roots[np.argmin(np.abs(roots.imag))].real))
+
+
+CROSSOVER_RATIO = _crossover_ratio()
+"""Gain crossover of the triple-pole PID loop over its closed-loop pole, w_c / w0 (dimensionless, about 3.06): the
+same for every bandwidth, since the pole-placement gains make |L(j w)| a function of w / w0 alone."""
+
+UNDELAYED_PHASE_MARGIN = math.atan2(3.0 * CROSSOVER_RATIO, 1.0 - 3.0 * CROSSOVER_RATIO**2) - math.pi / 2
+"""Phase margin (rad) of the triple-pole PID loop without delay (about 71 degrees); a delay takes w_c delay of it."""
+
+
 def phase_margin(bandwidth: float, delay: float) -> float:
     """Phase margin (rad) of the triple-pole PID loop at closed-loop pole ``bandwidth`` (rad/s) with a pure delay.
 
     The open loop is L(s) = (kd s^2 + kp s + ki) / (J s^3) e^{-s delay}; with the pole-placement gains J cancels,
-    L(s) = w0 (3 s^2 + 3 w0 s + w0^2) / s^3 e^{-s delay}.
+    L(s) = w0 (3 s^2 + 3 w0 s + w0^2) / s^3 e^{-s delay}. It crosses over at w_c = :data:`CROSSOVER_RATIO` w0, where
+    the margin is :data:`UNDELAYED_PHASE_MARGIN` - w_c delay.
     """
-    w0 = bandwidth
-    # |L| is decreasing in w; find the crossover by bisection on log w.
-    low, high = 1e-3 * w0, 1e3 * w0
-    for _ in range(100):
-        w = math.sqrt(low * high)
-        numerator = complex(-3.0 * w * w + w0 * w0, 3.0 * w0 * w)
-        magnitude = w0 * abs(numerator) / w**3
-        low, high = (w, high) if magnitude > 1.0 else (low, w)
-    w = math.sqrt(low * high)
-    numerator = complex(-3.0 * w * w + w0 * w0, 3.0 * w0 * w)
-    phase = math.atan2(numerator.imag, numerator.real) - 1.5 * math.pi - w * delay
-    return math.pi + phase
+    return UNDELAYED_PHASE_MARGIN - CROSSOVER_RATIO * bandwidth * delay
 
 
 def servo_bandwidth(delay: float, margin: float = DEFAULT_PHASE_MARGIN) -> float:
-    """The largest closed-loop pole w0 (rad/s) whose loop keeps phase margin ``margin`` (rad) through ``delay`` (s)."""
+    """The largest closed-loop pole w0 (rad/s) whose loop keeps phase margin ``margin`` (rad) through ``delay`` (s):
+    :func:`phase_margin` solved for w0.
+
+    Raises:
+        ValueError: for a delay not positive or a margin outside (0, :data:`UNDELAYED_PHASE_MARGIN`).
+    """
     require_in("delay", delay, 0.0, unit="s", low_open=True)
-    require_in("margin", margin, 0.0, math.pi / 2, unit="rad", low_open=True)
-    low, high = 1e-3 / delay, 10.0 / delay
-    for _ in range(100):
-        middle = math.sqrt(low * high)
-        low, high = (middle, high) if phase_margin(middle, delay) > margin else (low, middle)
-    return low
+    require_in("margin", margin, 0.0, UNDELAYED_PHASE_MARGIN, unit="rad", low_open=True, high_open=True)
+    return (UNDELAYED_PHASE_MARGIN - margin) / (CROSSOVER_RATIO * delay)
 
 
 def joint_inertia(

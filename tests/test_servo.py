@@ -126,6 +126,9 @@ def test_gains_refuse_bad_values() -> None:
         ServoGains(kp=(1.0,) * 3, ki=(0.0,) * 3, kd=(0.0,) * 3, friction_width=0.0)
     with pytest.raises(ValueError, match="delay"):
         servo_bandwidth(0.0)
+    # no bandwidth keeps more margin than the loop has without delay (about 71 degrees)
+    with pytest.raises(ValueError, match=r"margin must be a finite number in \(0, 1\.24"):
+        servo_bandwidth(0.001, math.radians(75.0))
 
 
 def step_reference(step: float, samples: int = 400) -> Trajectory:
