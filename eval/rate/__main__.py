@@ -186,6 +186,12 @@ def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RateCo
     except ValueError as error:
         parser.error(f"--torque-share: {error}")
     planners = _listed(parser, "--planners", args.planners, PLANNERS)
+    jerky = [planner for planner in planners if planner.endswith(JERK_LIMITED)]
+    if jerky and scenario.plant.realism.compliance is None:
+        parser.error(
+            f"--planners {','.join(jerky)}: a jerk-limited timing averages over the drives' mode; the scenario "
+            f"{scenario.name!r} has rigid drives (e.g. --scenario compliant)"
+        )
     try:
         controllers = parse_controller_keys(args.controllers)
     except ValueError as error:
