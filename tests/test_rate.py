@@ -23,7 +23,14 @@ from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
 from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval.rate.__main__ import main, parse_args
 from eval.rate.published import ABB_IRB_360, DIFFERENCES
-from eval.rate.report import _cycle_line, _pace_line, _published_lines, rate_figure, summary_lines
+from eval.rate.report import (
+    _cycle_line,
+    _pace_line,
+    _published_lines,
+    compared_planner,
+    rate_figure,
+    summary_lines,
+)
 from eval.rate.study import (
     FULL_STUDY,
     JERK_LIMITED,
@@ -111,6 +118,7 @@ def test_a_jerk_limited_planner_is_a_planned_timing_with_the_tasks_jerk_limit(ca
     assert planner_name(row.task) == "online+jerk" and planner_name(rate_scenario(base, "online", 1.0).task) == "online"
     assert row.content_hash != rate_scenario(base, "online", 1.0).content_hash
     assert set(PLANNERS) == {*TIMINGS, "worst_case+jerk", "declared+jerk", "online+jerk"}
+    assert compared_planner(["online+jerk", "fixed"]) == "fixed" and compared_planner(["online+jerk"]) == "online+jerk"
     compliant = parse_args(["--scenario", "compliant", "--planners", "online,online+jerk", "--no-fastest"])
     assert compliant.planners == ("online", "online+jerk")
     for argv, message in (

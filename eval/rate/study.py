@@ -43,8 +43,9 @@ laws averaged over one period of the drives' first mode, :class:`controllers.sha
 PLANNERS = (*TIMINGS, *(f"{timing}{JERK_LIMITED}" for timing in TIMINGS if timing != "fixed"))
 """The data sheet's planners: the timings (:data:`delta_env.scenario.TIMINGS`) and the planned ones jerk-limited."""
 
-COMPARED_PLANNERS = ("online", "declared", "worst_case", "fixed")
-"""The planner whose rows stand beside the published ones: the first of these that ran."""
+COMPARED_PLANNERS = ("online", "declared", "worst_case", "fixed", *PLANNERS[len(TIMINGS) :])
+"""The planner whose rows stand beside the published ones: the first of these that ran (a jerk-limited one only
+when no other did)."""
 
 
 @dataclass(frozen=True)
