@@ -107,6 +107,16 @@ class Privileged(Protocol):
         and whenever the env replaces it (an online retiming, a speed override)."""
 
 
+@runtime_checkable
+class ShapesReference(Protocol):
+    """A controller that follows its own reference shaped from the env's (an input shaper,
+    :class:`controllers.shaping.ShapedController`): the experiments judge its tracking against that reference."""
+
+    def followed_reference(self, observation: Observation) -> NDArray[np.float64]:
+        """The reference angles (rad), shape (3,), it will follow when called with ``observation`` (the next one),
+        computed as that call will compute them; nothing is kept."""
+
+
 class PDController:
     """Joint PD feedback: tau = Kp (th_ref - th) + Kd (thd_ref - thd).
 

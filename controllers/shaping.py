@@ -44,6 +44,8 @@ from controllers.payload import PayloadEstimator
 from controllers.registry import ControllerEntry, controller_entry
 from controllers.servo import SCHEDULE_PERIOD
 from controllers.setup import ControllerSetup
+from delta_env import kinematics
+from delta_env.geometry import DeltaGeometry
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.timing import MoveTiming, TimeLaw
 from delta_env.trajectories import Segment
@@ -158,6 +160,12 @@ class ReferenceHistory:
         """Forget the reference."""
         self._samples.clear()
 
+    def copy(self) -> ReferenceHistory:
+        """A history of the same samples, to extend without changing this one."""
+        history = ReferenceHistory(self.period)
+        history._samples = self._samples.copy()
+        return history
+
     def append(self, observation: Observation) -> None:
         """Keep this sample's reference."""
         angles, rates, accelerations = (np.array(observation[key], dtype=float) for key in REFERENCE_KEYS)
@@ -184,6 +192,12 @@ class ReferenceHistory:
         return angles, rates, accelerations
 
 
+def arm_side(setup: ControllerSetup) -> DeltaDynamics:
+    """The model a shaper or a jerk-limited timing designs on: the nominal model of the robot of ``setup`` (datasheet
+    masses, rod forearms), whose rho1 holds no rotor (:func:`controllers.compliance.joint_space_inertia`)."""
+    return DeltaDynamics.of_robot(setup.geometry, setup.masses, None, forearm_rods=True)
+
+
 def shaped_entry(base_key: str, kind: str) -> ControllerEntry:
     """The registry entry of the row ``base_key`` following its reference shaped by ``kind`` (:class:`ShapedController`,
     the shaper's mode from the nominal model's arm side and ``ControllerSetup.compliance``). Its estimator is its
@@ -196,8 +210,7 @@ def shaped_entry(base_key: str, kind: str) -> ControllerEntry:
     def factory(setup: ControllerSetup) -> ShapedController:
         if setup.compliance is None:
             raise ValueError(f"a shaped {base_key!r} needs the drives' compliance; ControllerSetup.compliance is None")
-        arm_side = DeltaDynamics.of_robot(setup.geometry, setup.masses, None, forearm_rods=True)
-        return ShapedController(base.factory(setup), arm_side, setup.compliance, kind)
+        return ShapedController(base.factory(setup), arm_side(setup), setup.compliance, kind)
 
     return ControllerEntry(
         f"{base_key}+{kind}",
@@ -271,12 +284,28 @@ class ShapedController:
         self._samples = 0
         self.mode = self.shaper = None
 
+    def _designed(self, history: ReferenceHistory, observation: Observation) -> tuple[DriveMode, Shaper] | None:
+        """The mode and shaper the call with ``observation`` designs (``history`` holds it last), or None when the
+        call keeps the present ones (a redesign every :data:`~controllers.servo.SCHEDULE_PERIOD`)."""
+        if self._samples % self._redesign != 0:
+            return None
+        pose = observation["reference_angles"] if self.shaper is None else history.shaped(self.shaper)[0]
+        mode = first_mode(self.dynamics, self.compliance, pose, max(0.0, self._payload()))
+        return mode, self._design(mode.frequency_hz, mode.damping_ratio).sampled(history.period)
+
+    def followed_reference(self, observation: Observation) -> NDArray[np.float64]:
+        """The shaped reference angles (rad), shape (3,), the next call, with ``observation``, will follow (the
+        same design, the same history); nothing is kept (:class:`~controllers.base.ShapesReference`)."""
+        history = self.history.copy()
+        history.append(observation)
+        designed = self._designed(history, observation)
+        return history.shaped(self.shaper if designed is None else designed[1])[0]
+
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         self.history.append(observation)
-        if self._samples % self._redesign == 0:
-            pose = observation["reference_angles"] if self.shaper is None else self.history.shaped(self.shaper)[0]
-            self.mode = first_mode(self.dynamics, self.compliance, pose, max(0.0, self._payload()))
-            self.shaper = self._design(self.mode.frequency_hz, self.mode.damping_ratio).sampled(self.history.period)
+        designed = self._designed(self.history, observation)
+        if designed is not None:
+            self.mode, self.shaper = designed
         self._samples += 1
         angles, rates, accelerations = self.history.shaped(self.shaper)
         shaped = dict(observation)
@@ -298,31 +327,79 @@ def jerk_limited(law: TimeLaw, samples: int) -> TimeLaw:
     return TimeLaw(law.dt, tau, *rates)
 
 
-class JerkLimitedTiming:
-    """A :class:`~delta_env.timing.MoveTiming` whose laws are another timing's averaged over ``window`` (s)
-    (:func:`jerk_limited`): with the window one period of the drives' mode, the moving average leaves none of it.
+def mode_period(
+    dynamics: DeltaDynamics, compliance: DriveCompliance, geometry: DeltaGeometry
+) -> Callable[[Segment, float], float]:
+    """The window (s) of a :class:`JerkLimitedTiming` that leaves none of the drives' first mode at a move's end:
+    ``window(shape, payload)``, one period of the two-mass model's first mode at ``shape.end`` (m, through the
+    inverse kinematics of ``geometry``) carrying ``payload`` (kg), the place where the ring would hold the platform.
 
     Args:
-        timing: The timing whose laws are smoothed (one that does not retime online).
-        window: The averaging window (s), whole control periods of the laws' samples (at least one).
+        dynamics: The model of the arm side (the nominal model, whose rho1 holds no rotor).
+        compliance: The drives' compliance as the controllers know it.
+        geometry: The geometry the moves are planned on.
     """
 
-    retimes_online = False
+    def window(shape: Segment, payload: float) -> float:
+        theta = kinematics.inverse(geometry, shape.end)
+        return 1.0 / first_mode(dynamics, compliance, theta, payload).frequency_hz
 
-    def __init__(self, timing: MoveTiming, window: float) -> None:
-        if timing.retimes_online:
-            raise ValueError("a jerk-limited timing smooths whole laws: its timing must not retime online")
+    return window
+
+
+class JerkLimitedTiming:
+    """A :class:`~delta_env.timing.MoveTiming` whose laws are another timing's averaged over a window
+    (:func:`jerk_limited`): with the window one period of the drives' mode (:func:`mode_period`), the moving average
+    leaves none of it.
+
+    An online timing's retimed carry is averaged too: the moving average is causal, so the averaged continuation
+    repeats the samples already followed (they are copied from the law followed, bit for bit, as
+    :meth:`~delta_env.timing.MoveTiming.retime` requires).
+
+    Args:
+        timing: The timing whose laws are smoothed.
+        window: The averaging window (s) of a move, ``window(shape, payload)`` with the payload (kg) it carries
+            (:func:`mode_period`); rounded to whole samples of the laws (at least one), at most
+            :data:`MAX_SHAPER_DURATION`.
+        carried_payload: The payload (kg) a carry's window is designed for (the task's heaviest object: a timing
+            that does not weigh its objects knows no other); an empty move's is 0.
+    """
+
+    def __init__(self, timing: MoveTiming, window: Callable[[Segment, float], float], carried_payload: float) -> None:
         self.timing = timing
-        self.window = require_in("window", window, 0.0, MAX_SHAPER_DURATION, unit="s", low_open=True)
+        self.window = window
+        self.carried_payload = require_in("carried_payload", carried_payload, 0.0, unit="kg")
+        self.retimes_online = timing.retimes_online
+        self._inner: dict[TimeLaw, TimeLaw] = {}  # each smoothed law given out -> the timing's law it smooths
 
-    def _smoothed(self, law: TimeLaw) -> TimeLaw:
-        return jerk_limited(law, max(1, round(self.window / law.dt)))
+    def _smoothed(self, shape: Segment, law: TimeLaw, payload: float) -> TimeLaw:
+        window = require_in("window", self.window(shape, payload), 0.0, MAX_SHAPER_DURATION, unit="s", low_open=True)
+        return jerk_limited(law, max(1, round(window / law.dt)))
+
+    def _given(self, smoothed: TimeLaw, law: TimeLaw) -> TimeLaw:
+        """``smoothed``, the average of the timing's ``law``, remembered for :meth:`retime` if the timing retimes."""
+        if self.retimes_online:
+            self._inner[smoothed] = law
+        return smoothed
 
     def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
-        return self._smoothed(self.timing.carry(shape, declared_mass))
+        law = self.timing.carry(shape, declared_mass)
+        return self._given(self._smoothed(shape, law, self.carried_payload), law)
 
     def empty(self, shape: Segment) -> TimeLaw:
-        return self._smoothed(self.timing.empty(shape))
+        law = self.timing.empty(shape)
+        return self._given(self._smoothed(shape, law, 0.0), law)
 
     def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
-        return None
+        """The timing's retimed law, averaged, for the carry that follows the averaged ``law``, or None."""
+        inner = self._inner.get(law)
+        continued = None if inner is None else self.timing.retime(shape, inner, index)
+        if continued is None:
+            return None
+        smoothed = self._smoothed(shape, continued, self.carried_payload)
+        followed = index + 1
+        rates = [
+            np.concatenate((getattr(law, name)[:followed], getattr(smoothed, name)[followed:]))
+            for name in ("tau", "tau_dot", "tau_ddot")
+        ]
+        return self._given(TimeLaw(law.dt, *rates), continued)

@@ -266,6 +266,7 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
         self.domain_randomization = domain_randomization
         self.timing = timing
         self.task_timing = base.task.timing
+        self.jerk_limited = base.task.jerk_limited
         self.torque_share = base.task.torque_share
         self.reward_weights = reward_weights if reward_weights is not None else RewardWeights()
         self.divergence_penalty = float(divergence_penalty)

@@ -163,6 +163,9 @@ class PickPlaceTask:
             identified model, so the env then needs a ``timing`` object (the evaluation builds it).
         torque_share: Share of the drive's envelope (after the planner's margin) a planned timing may use, in
             (0, 1]: the margin for tracking (:data:`delta_env.timing.DEFAULT_TORQUE_SHARE`).
+        jerk_limited: Whether a planned timing's laws are averaged over one period of the drives' first mode
+            (:class:`controllers.shaping.JerkLimitedTiming`, built by the evaluation from the drives the controllers
+            know): the path acceleration ramps instead of stepping. Only with a planned ``timing``.
         faults: Faults injected into the episodes (:class:`~delta_env.faults.FaultSpec`), drawn per episode;
             none by default.
         release: When the gripper switches at each pick and place point: ``"in_position"`` (the reference holds at
@@ -187,6 +190,7 @@ class PickPlaceTask:
     domain_randomization: RandomizationRanges | None = None
     timing: Literal["fixed", "worst_case", "declared", "online"] = "fixed"
     torque_share: float = DEFAULT_TORQUE_SHARE
+    jerk_limited: bool = False
     faults: tuple[FaultSpec, ...] = ()
     fault_reaction: Literal["continue", "slow", "stop"] = "continue"
     release: Literal["in_position", "timed"] = "in_position"
@@ -200,6 +204,8 @@ class PickPlaceTask:
         if not isinstance(self.faults, tuple) or not all(isinstance(f, FaultSpec) for f in self.faults):
             raise ValueError(f"faults must be a tuple of FaultSpec, got {self.faults!r}")
         require_timing(self.timing)
+        if self.jerk_limited and self.timing == "fixed":
+            raise ValueError("jerk_limited smooths a planned timing's laws; the 'fixed' timing plans none")
         if self.fault_reaction not in FAULT_REACTIONS:
             raise ValueError(f"fault_reaction must be one of {list(FAULT_REACTIONS)}, got {self.fault_reaction!r}")
         require_in("torque_share", self.torque_share, 0.0, 1.0, unit="of the envelope", low_open=True)
@@ -335,8 +341,9 @@ def _plant_table(plant: PlantConfig) -> dict[str, Any]:
 
 def _task_table(task: PickPlaceTask) -> dict[str, Any]:
     """The table of ``task`` that the content hash covers: without the timing fields while the moves are timed
-    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then), without
-    ``faults`` when there are none and ``fault_reaction`` when it is ``"continue"``, and without the release's
+    fixed (they came later; earlier scenarios keep their hashes, and the share does nothing then) and without
+    ``jerk_limited`` while it is False (it came later too), without ``faults`` when there are none and
+    ``fault_reaction`` when it is ``"continue"``, and without the release's
     fields when it is ``"timed"`` (likewise: a timed scenario is the one before the in-position release existed), and
     without the domain randomization's gearhead fractions while they are 0 (they came later too)."""
     table = to_table(task)
@@ -345,6 +352,8 @@ def _task_table(task: PickPlaceTask) -> dict[str, Any]:
         del table["domain_randomization"]["stiffness_fraction"], table["domain_randomization"]["damping_fraction"]
     if task.timing == "fixed":
         del table["timing"], table["torque_share"]
+    if not task.jerk_limited:
+        del table["jerk_limited"]
     if not task.faults:
         del table["faults"]
     if task.fault_reaction == "continue":

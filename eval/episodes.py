@@ -17,11 +17,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.base import Controller, EstimatesPayload, Observation, Privileged
+from controllers.base import Controller, EstimatesPayload, Observation, Privileged, ShapesReference
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import TRIM_SAMPLES, motion_at_torque_samples
 from controllers.monitor import DetectedFault, MonitoredController, ReportsFaults
 from controllers.payload_timing import EstimatingController
+from delta_env import kinematics
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import InjectedFault
 from delta_env.release import Settle
@@ -36,11 +37,12 @@ class EpisodeRecord:
     """One episode, step by step (N steps), with the truth the evaluator scores it by.
 
     Attributes:
-        tracking_error: Cartesian tracking error (m), ``(N,)``; NaN after a divergence.
+        tracking_error: Cartesian tracking error (m), ``(N,)``, from the reference the controller follows (the env's,
+            or the one it shapes from it: :class:`~controllers.base.ShapesReference`); NaN after a divergence.
         torque: Motor torque that acted (N m), ``(N, 3)``.
         command: Command the drive held over each step (N m), ``(N, 3)``: the action within the torque limit.
         joint_velocity: True joint rates (rad/s), ``(N, 3)``.
-        joint_error: True joint angle minus reference (rad), ``(N, 3)``.
+        joint_error: True joint angle minus the reference the controller follows (rad), ``(N, 3)``.
         payload_mass: True carried mass (kg) at each observation, ``(N + 1,)``, from the reset on.
         payload_estimate: The controller's payload estimate used at each step (kg), ``(N,)``: the one it
             formed from observation n.
@@ -122,6 +124,7 @@ class EpisodeRecord:
         settle_mean, settle_max, settle_timeouts = metrics.settle_metrics(
             [settle.settle_time for settle in self.settles], [settle.timed_out for settle in self.settles]
         )
+        residual = self.residual_vibrations()
         return {
             "tracking_rms_mm": rms,
             "tracking_max_mm": peak,
@@ -144,6 +147,8 @@ class EpisodeRecord:
             "settle_time_mean_ms": settle_mean,
             "settle_time_max_ms": settle_max,
             "settle_timeouts": settle_timeouts,
+            "residual_vibration_mean_um": float(np.mean(residual)) if residual.size else math.nan,
+            "residual_vibration_max_um": float(np.max(residual)) if residual.size else math.nan,
             "path_deviation_rms_mm": deviation_rms,
             "path_deviation_max_mm": deviation_max,
             "envelope_violations": metrics.envelope_violations(self.saturated_steps, self.speed_exceeded_steps),
@@ -163,6 +168,25 @@ class EpisodeRecord:
         released = self.place_indices[(self.place_indices >= 1) & (self.place_indices <= len(self.platform_position))]
         errors = metrics.place_errors(self.platform_position[released - 1], self.reference.xyz[released])
         return errors[np.isfinite(errors)]  # a release on the step that diverged is no placement
+
+    def residual_vibrations(self) -> NDArray[np.float64]:
+        """The residual vibration at each place the cell waited at (um): the peak to peak of the platform's true
+        position over :data:`eval.metrics.RESIDUAL_WINDOW` from the cell's in-position signal (or its time-out), the
+        start of the air activation, cut at the release; a place whose window holds no sample before the episode
+        ended, or a non-finite position, is left out."""
+        dt = self.reference.dt
+        window = round(metrics.RESIDUAL_WINDOW / dt)
+        steps = len(self.platform_position)
+        vibrations = []
+        for settle in self.settles:
+            if settle.kind != "place" or settle.cycle >= len(self.place_indices):
+                continue
+            start = settle.arrival_step + round(settle.settle_time / dt)  # reference sample s: as step s - 1 ends
+            end = min(start + window, int(self.place_indices[settle.cycle]), steps + 1)
+            if end > start:
+                vibrations.append(1e6 * metrics.peak_to_peak(self.platform_position[start - 1 : end - 1]))
+        values = np.array(vibrations, dtype=float)
+        return values[np.isfinite(values)]
 
     def model_torques(
         self, dynamics: DeltaDynamics, tare: float = 0.0, trim: int = TRIM_SAMPLES
@@ -249,6 +273,7 @@ def run_episode(
         privileged = privileged.controller
     inner = next((wrapper for wrapper in wrappers if isinstance(wrapper, MonitoredController)), controller)
     knows_reference = isinstance(privileged, Privileged)
+    shaping = privileged if isinstance(privileged, ShapesReference) else None
     if knows_reference:
         privileged.set_payload_masses(info["payload_masses"])
         privileged.set_physical_parameters(env.plant.parameters)
@@ -268,7 +293,7 @@ def run_episode(
     platform: list[float] = []
     true_angles: list[float] = []
     true_velocities: list[float] = []
-    reference_angles: list[NDArray[np.float64]] = []
+    reference_angles: list[NDArray[np.float64]] = []  # the reference the controller follows, at each step's end
     saturated, speed_exceeded, thermal_exceeded = 0, 0, False
     mass, measured, angles = [0.0], [observation["joint_torques"]], [observation["joint_angles"]]
     observations = [observation] if keep_observations else None
@@ -292,7 +317,9 @@ def run_episode(
         platform.extend(info["platform_position"].tolist())
         true_angles.extend(plant.joint_angle_values())
         true_velocities.extend(plant.joint_velocity_values())
-        reference_angles.append(observation["reference_angles"])
+        reference_angles.append(
+            observation["reference_angles"] if shaping is None else shaping.followed_reference(observation)
+        )
         mass.append(info["payload_mass"])
         saturated += info["torque_saturated"]
         speed_exceeded += info["speed_exceeded"]
@@ -312,12 +339,18 @@ def run_episode(
     gaps = np.array(loop_gaps)
     trajectory = env.trajectory
     drive = env.plant_config.drive
+    followed = np.array(reference_angles)
+    tracking_error = np.array(tracking)
+    if shaping is not None:  # judged against the reference it follows, on the geometry the env's is planned on
+        tracking_error = np.linalg.norm(
+            platform_position - kinematics.forward(env.plant_config.geometry, followed), axis=1
+        )
     return EpisodeRecord(
-        tracking_error=np.array(tracking),
+        tracking_error=tracking_error,
         torque=_rows(torque),
         command=_rows(command),
         joint_velocity=_rows(true_velocities),
-        joint_error=_rows(true_angles) - np.array(reference_angles),
+        joint_error=_rows(true_angles) - followed,
         payload_mass=np.array(mass),
         payload_estimate=np.array(estimates, dtype=float) if estimates_payload else np.zeros(len(tracking)),
         measured_torque=np.array(measured),

@@ -26,6 +26,10 @@ Pick rate, scored like a picker's data sheet (:func:`arrivals`):
 - settle time: per pick and place with the in-position release, from the reference's arrival at rest to the cell's
   in-position signal (ms), a wait that timed out counting as the time-out (the time it waited); mean and max over
   the episode's waits, and the count of time-outs (``settle_timeouts``);
+- residual vibration at the place: per place with the in-position release, the peak to peak of the platform's true
+  position (the largest distance between two of its positions) over :data:`RESIDUAL_WINDOW` from the cell's
+  in-position signal, while the gripper's air activation runs, cut at the release (um); mean and max over the
+  episode's places;
 - path deviation: the platform's distance to the reference polyline, nearest segment, RMS and max (mm): a
   time-independent tracking score (lagging along the path but on it scores well);
 - envelope violations: steps on which the drive clipped the command plus steps on which a joint exceeded its
@@ -67,6 +71,22 @@ SETTLING_DEADLINE_MS = 150.0
 PATH_WINDOW = 100
 """Reference segments searched on either side of a sample's own reference sample by :func:`path_deviation`:
 0.1 s at 1 kHz, far more than any controller's lag along the path, and the search stays linear in N."""
+
+
+RESIDUAL_WINDOW = 0.030
+"""Window (s) of the residual vibration at the place, from the cell's in-position signal (the platform measured
+within the in-position window): the motion the object sees while the gripper releases it. Six periods of the
+compliant drives' first mode (146-234 Hz over the designs and payloads) and about two of its decay times (damping
+ratio near 0.05), and within the default air activation (35 ms), so that the release's step in the static deflection
+is not in it. docs/design.md section 9."""
+
+
+def peak_to_peak(positions: ArrayLike) -> float:
+    """The largest distance (m) between two of ``positions`` (m), ``(M, 3)``; NaN for none or a non-finite one."""
+    points = np.asarray(positions, dtype=float).reshape(-1, 3)
+    if len(points) == 0 or not np.all(np.isfinite(points)):
+        return math.nan
+    return float(np.max(np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1)))
 
 
 def settle_metrics(settle_times: Sequence[float], timed_out: Sequence[bool]) -> tuple[float, float, int]:

@@ -30,6 +30,7 @@ from controllers.registry import (
     controller_entry,
     controller_packages,
 )
+from controllers.shaping import JerkLimitedTiming, arm_side, mode_period
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.scenario import Scenario
 from delta_env.trajectories import Trajectory
@@ -69,14 +70,18 @@ Setups = Mapping[str, ControllerSetup]
 
 
 def timed(env: DeltaPickPlaceEnv, setup: ControllerSetup, estimator: PayloadEstimator | None = None) -> None:
-    """Give ``env`` the timing its scenario asks for (:attr:`PickPlaceTask.timing`), planned on ``setup``'s model.
+    """Give ``env`` the timing its scenario asks for (:attr:`PickPlaceTask.timing`), planned on ``setup``'s model, its
+    laws averaged over one period of the drives' first mode if the task is ``jerk_limited``
+    (:class:`~controllers.shaping.JerkLimitedTiming`: the mode of the two-mass model of ``setup.compliance`` at each
+    move's end, carries designed for the task's heaviest object, as the shaped rows design theirs on the nominal
+    model's arm side).
 
     An ``"online"`` timing reads ``estimator``: the controller's own payload estimator, or the cell's run beside a
     controller without one (:func:`timed_controller` chooses). A ``"fixed"`` scenario leaves ``env`` as it is.
 
     Raises:
-        ValueError: for a timing that plans without the identified drive lag, or an online timing without
-            ``estimator``.
+        ValueError: for a timing that plans without the identified drive lag, an online timing without
+            ``estimator``, or a jerk-limited one on a setup without the drives' compliance.
     """
     if env.task_timing == "fixed":
         return
@@ -90,7 +95,7 @@ def timed(env: DeltaPickPlaceEnv, setup: ControllerSetup, estimator: PayloadEsti
     )
     # the thermal budget rests the task's planned dwell after each move: with the in-position release, the air
     # activation (the waits only add rest)
-    env.timing = PayloadTiming(
+    timing = PayloadTiming(
         planner,
         env.task_timing,
         env.payload_mass_range[1],
@@ -99,6 +104,12 @@ def timed(env: DeltaPickPlaceEnv, setup: ControllerSetup, estimator: PayloadEsti
         torque_share=env.torque_share,
         min_payload=env.payload_mass_range[0],
     )
+    if env.jerk_limited:
+        if setup.compliance is None:
+            raise ValueError("a jerk-limited timing averages over the drives' mode; the setup knows no compliance")
+        window = mode_period(arm_side(setup), setup.compliance, env.plant_config.geometry)
+        timing = JerkLimitedTiming(timing, window, env.payload_mass_range[1])
+    env.timing = timing
 
 
 def timed_controller(env: DeltaPickPlaceEnv, key: str, setup: ControllerSetup) -> Controller:

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from controllers.compliance import DriveCompliance
+from controllers.base import PDController
+from controllers.compliance import DriveCompliance, first_mode
 from controllers.dynamics import DeltaDynamics
 from controllers.registry import controller_entry
 from controllers.servo import JointServo, ResonanceNotch, ServoGains, servo_gains
@@ -22,10 +23,13 @@ from controllers.shaping import (
     ReferenceHistory,
     ShapedController,
     Shaper,
+    arm_side,
     jerk_limited,
+    mode_period,
     zv_shaper,
     zvd_shaper,
 )
+from delta_env import kinematics
 from delta_env.config import PlantConfig, PlantRealism
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.plant import DeltaPlant
@@ -369,23 +373,146 @@ def test_a_jerk_limited_law_ramps_the_acceleration_steps() -> None:
         jerk_limited(smoothed, 0)
 
 
+def _law(samples: int) -> TimeLaw:
+    """A constant-rate law over ``samples`` samples of 1 ms."""
+    return TimeLaw(
+        1e-3, np.linspace(0.0, 1.0, samples), np.full(samples, 1.0 / ((samples - 1) * 1e-3)), np.zeros(samples)
+    )
+
+
 def test_a_jerk_limited_timing_smooths_every_law_of_its_timing() -> None:
     class Fixed:
         retimes_online = False
 
         def empty(self, shape: Segment) -> TimeLaw:
-            return TimeLaw(1e-3, np.linspace(0.0, 1.0, 11), np.full(11, 100.0), np.zeros(11))
+            return _law(11)
 
         def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
             return self.empty(shape)
 
-    timing = JerkLimitedTiming(Fixed(), 0.005)
+    windows = []
+
+    def window(shape: Segment, payload: float) -> float:
+        windows.append(payload)
+        return 0.005
+
+    timing = JerkLimitedTiming(Fixed(), window, carried_payload=4.0)
     shape = Segment.line(np.zeros(3), np.ones(3), 1.0)
-    assert len(timing.carry(shape, 1.0)) == len(timing.empty(shape)) == 15
-    assert timing.retime(shape, timing.empty(shape), 3) is None
-    Fixed.retimes_online = True
-    with pytest.raises(ValueError, match="online"):
-        JerkLimitedTiming(Fixed(), 0.005)
+    assert len(timing.carry(shape, 1.0)) == len(timing.empty(shape)) == 15 and windows == [4.0, 0.0]
+    assert timing.retime(shape, timing.empty(shape), 3) is None and not timing.retimes_online
+    with pytest.raises(ValueError, match="window"):
+        JerkLimitedTiming(Fixed(), lambda shape, payload: 0.2, 4.0).empty(shape)
+
+
+def test_a_jerk_limited_online_timing_averages_the_retimed_carry_and_keeps_its_past() -> None:
+    """An online timing's continuation, averaged: the samples already followed are the averaged law's, bit for bit
+    (what the env's retime requires), and the rest are the continuation's average (the moving average is causal)."""
+    start, continuation = _law(41), _law(31)
+    continuation = TimeLaw(
+        1e-3,
+        np.concatenate((start.tau[:11], np.linspace(start.tau[10], 1.0, 21)[1:])),
+        np.concatenate((start.tau_dot[:11], np.full(20, (1.0 - start.tau[10]) / 20e-3))),
+        np.zeros(31),
+    )
+
+    class Online:
+        retimes_online = True
+
+        def carry(self, shape: Segment, declared_mass: float) -> TimeLaw:
+            return start
+
+        def empty(self, shape: Segment) -> TimeLaw:
+            return start
+
+        def retime(self, shape: Segment, law: TimeLaw, index: int) -> TimeLaw | None:
+            return continuation if law is start and index == 10 else None
+
+    timing = JerkLimitedTiming(Online(), lambda shape, payload: 0.004, 4.0)
+    shape = Segment.line(np.zeros(3), np.ones(3), 1.0)
+    smoothed = timing.carry(shape, 1.0)
+    assert timing.retimes_online and timing.retime(shape, smoothed, 9) is None
+    retimed = timing.retime(shape, smoothed, 10)
+    expected = jerk_limited(continuation, 4)
+    for name in ("tau", "tau_dot", "tau_ddot"):
+        assert np.array_equal(getattr(retimed, name)[:11], getattr(smoothed, name)[:11])
+        np.testing.assert_allclose(getattr(retimed, name), getattr(expected, name), rtol=0, atol=1e-12)
+    assert len(retimed) == 31 + 3
+    assert timing.retime(shape, retimed, 12) is None  # the continuation's own law is known, and not retimed again
+
+
+def test_the_jerk_limited_window_is_a_period_of_the_first_mode_at_the_moves_end(controller_setup) -> None:
+    setup = replace(controller_setup, compliance=IDENTIFIED)
+    window = mode_period(arm_side(setup), IDENTIFIED, setup.geometry)
+    shape = Segment.line(np.array([0.0, -0.15, -0.9]), np.array([0.0, 0.15, -0.9]), 0.2)
+    theta = kinematics.inverse(setup.geometry, shape.end)
+    for payload in (0.0, 4.0):
+        period = 1.0 / first_mode(arm_side(setup), IDENTIFIED, theta, payload).frequency_hz
+        assert window(shape, payload) == pytest.approx(period, rel=1e-12)
+    assert 1.0 / 270.0 < window(shape, 0.0) < window(shape, 4.0) < 1.0 / 200.0  # heavier: a slower mode
+
+
+def test_the_shaped_controller_says_which_reference_its_next_call_follows(controller_setup) -> None:
+    """followed_reference(observation) is, at every sample (redesigns included, the payload estimate changing), the
+    reference the call with that observation passes on, and it changes nothing."""
+
+    class Recording:
+        name, payload_estimate = "recording", 0.0
+
+        def __init__(self) -> None:
+            self.received: list[np.ndarray] = []
+
+        def reset(self) -> None:
+            self.received.clear()
+
+        def __call__(self, observation):
+            self.received.append(np.array(observation["reference_angles"]))
+            self.payload_estimate += 0.2  # a changing estimate: each redesign sees another mode
+            return np.zeros(3)
+
+    inner = Recording()
+    shaped = ShapedController(inner, arm_side(controller_setup), IDENTIFIED, "zvd")
+    ramp = np.linspace(0.0, 0.3, 40)
+    peeked = []
+    for n, angle in enumerate(ramp):
+        observation = {
+            "reference_angles": np.array([angle, -angle, 0.5 * angle]),
+            "reference_velocities": np.full(3, 0.3 / 40e-3),
+            "reference_accelerations": np.zeros(3),
+        }
+        if n:
+            peeked.append(shaped.followed_reference(observation))
+            peeked.append(shaped.followed_reference(observation))  # twice: nothing kept
+        shaped(observation)
+    np.testing.assert_array_equal(np.array(peeked[::2]), np.array(inner.received[1:]))
+    np.testing.assert_array_equal(np.array(peeked[1::2]), np.array(inner.received[1:]))
+    assert not np.allclose(np.array(inner.received)[:, 0], ramp)  # shaped: behind the ramp
+
+
+def test_a_shaped_rows_tracking_is_judged_against_the_reference_it_follows(controller_setup) -> None:
+    """The episode runner scores a shaped row against its shaped reference: step n's error is the platform's distance
+    from the forward kinematics of the reference the controller's next call follows; against the env's reference the
+    shaper's delay would count too (PD on the rigid plant at 3 g: 4.8 mm RMS against 3.0)."""
+
+    class Recording(PDController):
+        def __init__(self) -> None:
+            super().__init__(*controller_setup.pd_gains)
+            self.received: list[np.ndarray] = []
+
+        def __call__(self, observation):
+            self.received.append(np.array(observation["reference_angles"]))
+            return super().__call__(observation)
+
+    inner = Recording()
+    shaped = ShapedController(inner, arm_side(controller_setup), IDENTIFIED, "zvd")
+    env = DeltaPickPlaceEnv(n_cycles=1, cycle="standard", start="pick")
+    record = run_episode(env, shaped, seed=0, payload_masses=[0.0])
+    followed = kinematics.forward(env.plant_config.geometry, np.array(inner.received[1:]))
+    np.testing.assert_allclose(
+        record.tracking_error[:-1], np.linalg.norm(record.platform_position[:-1] - followed, axis=1), rtol=1e-12
+    )
+    steps = len(record.tracking_error)
+    against_env = np.linalg.norm(record.platform_position - record.reference.xyz[1 : steps + 1], axis=1)
+    assert np.sqrt(np.mean(against_env**2)) > 1.3 * np.sqrt(np.mean(record.tracking_error**2))
 
 
 def test_the_shaped_rows_join_the_registry_by_import_path(controller_setup) -> None:

@@ -17,6 +17,7 @@ from delta_env import NOMINAL_GEOMETRY
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL, standard_cycle
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.geometry import GRAVITY
+from delta_env.release import Settle
 from delta_env.scenario import Scenario, preset
 from delta_env.trajectories import WORKING_HEIGHT, Segment, Trajectory
 from eval import metrics
@@ -320,6 +321,51 @@ def test_episode_metrics_score_the_pick_rate_the_placements_and_the_drive() -> N
     assert scores["peak_torque_ratio"] == pytest.approx(0.5)
     rms_ratio = 200.0 / math.sqrt(len(platform)) / 128.0
     assert (scores["rms_torque_ratio"], scores["thermal_margin"]) == pytest.approx((rms_ratio, 1.0 - rms_ratio))
+
+
+def test_peak_to_peak_is_the_largest_distance_between_two_positions() -> None:
+    t = np.arange(30) * 1e-3
+    ring = np.column_stack([3e-6 * np.sin(2 * np.pi * 220.0 * t), np.zeros_like(t), np.full_like(t, -0.9)])
+    assert metrics.peak_to_peak(ring) == pytest.approx(np.ptp(ring[:, 0]), rel=1e-12)  # one axis: its peak to peak
+    circle = np.column_stack(
+        [2e-6 * np.cos(np.linspace(0, 2 * np.pi, 41)), 2e-6 * np.sin(np.linspace(0, 2 * np.pi, 41))]
+    )
+    assert metrics.peak_to_peak(np.column_stack([circle, np.zeros(41)])) == pytest.approx(4e-6, rel=1e-9)  # diameter
+    assert math.isnan(metrics.peak_to_peak(np.zeros((0, 3)))) and math.isnan(metrics.peak_to_peak([[0.0, 0, math.nan]]))
+
+
+def test_the_residual_vibration_is_the_peak_to_peak_from_the_in_position_signal_to_the_window_end() -> None:
+    """A platform that rings at a known amplitude inside each place's window (from the in-position signal on, for
+    :data:`eval.metrics.RESIDUAL_WINDOW`) and moves far more before it (the approach) and from the release on: the
+    residual vibration is the ring's peak to peak; a window that reaches the release is cut there; the pick's wait
+    is not a place."""
+    reference = standard_cycle(NOMINAL_GEOMETRY, n_cycles=2, start="pick")
+    platform = reference.xyz[1:].copy()
+    window = round(metrics.RESIDUAL_WINDOW / reference.dt)
+    settles, expected = [], []
+    for cycle, (place, amplitude) in enumerate(zip(reference.place_indices, (2e-6, 5e-6), strict=True)):
+        arrival = place - 40  # at rest from 40 samples before the release
+        signal = arrival + 3  # a settle time of 3 ms
+        settles += [Settle("pick", cycle, arrival - 200, 0.05, True), Settle("place", cycle, arrival, 0.003, False)]
+        platform[arrival - 200 : arrival - 150, 1] += 1e-2  # large motion at the pick: no place
+        platform[arrival - 1 : signal - 1, 0] += 1e-3  # the approach: 1 mm off until the signal
+        ring = amplitude * np.sin(2 * np.pi * 220.0 * np.arange(window) * reference.dt + 0.3)
+        platform[signal - 1 : signal - 1 + window, 0] += ring
+        platform[place - 1 : place + 20, 2] += 1e-3  # the release's step, from reference sample ``place`` on
+        expected.append(1e6 * np.ptp(ring))
+    assert expected == pytest.approx([4.0, 10.0], rel=0.02)  # about twice the amplitudes (um)
+    zero = np.zeros((len(platform), 3))
+    record = constructed_record(reference, platform, zero, settles=settles)
+    np.testing.assert_allclose(record.residual_vibrations(), expected, rtol=1e-9)
+    scores = record.metrics()
+    assert scores["residual_vibration_mean_um"] == pytest.approx(np.mean(expected), rel=1e-9)
+    assert scores["residual_vibration_max_um"] == pytest.approx(max(expected), rel=1e-9)
+    # in position 35 ms after the arrival: the window, 5 samples at rest, ends at the release, not 25 samples later
+    late = [dataclasses.replace(settle, settle_time=0.035) for settle in settles]
+    cut = constructed_record(reference, platform, zero, settles=late).residual_vibrations()
+    np.testing.assert_allclose(cut, 0.0, atol=1e-6)
+    # the timed release waits nowhere: no residual vibration
+    assert math.isnan(constructed_record(reference, platform, zero).metrics()["residual_vibration_mean_um"])
 
 
 def test_diverged_episodes_are_counted_and_left_out_of_the_means() -> None:

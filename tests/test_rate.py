@@ -20,19 +20,29 @@ from matplotlib.patches import Patch
 
 from delta_env.config import RATED_PAYLOAD
 from delta_env.cycles import STANDARD_LIFT, STANDARD_TRAVEL
-from delta_env.scenario import PickPlaceTask, Scenario
+from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval.rate.__main__ import main, parse_args
 from eval.rate.published import ABB_IRB_360, DIFFERENCES
-from eval.rate.report import _cycle_line, _pace_line, _published_lines, rate_figure, summary_lines
+from eval.rate.report import (
+    _cycle_line,
+    _pace_line,
+    _published_lines,
+    compared_planner,
+    rate_figure,
+    summary_lines,
+)
 from eval.rate.study import (
     FULL_STUDY,
+    JERK_LIMITED,
     MIXED,
+    PLANNERS,
     QUICK_NOTE,
     QUICK_STUDY,
     RATE_TORQUE_SHARE,
     cycle_terms,
     holds,
     paced,
+    planner_name,
     rate_scenario,
     summarize,
 )
@@ -90,6 +100,34 @@ def test_a_row_aggregates_its_episodes_and_their_settle_times() -> None:
     without = summarize([episode(150.0, 0.08), settled[1]])
     assert not {"settle_time_mean_ms", "settle_time_max_ms", "settle_timeouts"} & set(without)
     assert summarize([*settled[:2], episode(150.0, 0.1, thermal_exceeded=True)])["thermal_exceeded"]
+
+
+def test_a_row_aggregates_the_residual_vibration_mean_and_largest() -> None:
+    rows = [
+        episode(150.0, 0.05, residual_vibration_mean_um=2.0, residual_vibration_max_um=3.0),
+        episode(140.0, 0.05, residual_vibration_mean_um=6.0, residual_vibration_max_um=11.0),
+    ]
+    row = summarize(rows)
+    assert (row["residual_vibration_mean_um"], row["residual_vibration_max_um"]) == pytest.approx((4.0, 11.0))
+
+
+def test_a_jerk_limited_planner_is_a_planned_timing_with_the_tasks_jerk_limit(capsys: pytest.CaptureFixture) -> None:
+    base = Scenario(task=PickPlaceTask(n_cycles=2))
+    row = rate_scenario(base, f"online{JERK_LIMITED}", 1.0)
+    assert (row.task.timing, row.task.jerk_limited) == ("online", True) and "online+jerk" in row.name
+    assert planner_name(row.task) == "online+jerk" and planner_name(rate_scenario(base, "online", 1.0).task) == "online"
+    assert row.content_hash != rate_scenario(base, "online", 1.0).content_hash
+    assert set(PLANNERS) == {*TIMINGS, "worst_case+jerk", "declared+jerk", "online+jerk"}
+    assert compared_planner(["online+jerk", "fixed"]) == "fixed" and compared_planner(["online+jerk"]) == "online+jerk"
+    compliant = parse_args(["--scenario", "compliant", "--planners", "online,online+jerk", "--no-fastest"])
+    assert compliant.planners == ("online", "online+jerk")
+    for argv, message in (
+        (["--planners", "online+jerk"], "--planners online+jerk: a jerk-limited timing averages over the drives' mode"),
+        (["--scenario", "compliant", "--planners", "fixed+jerk"], "--planners: unknown or no values ['fixed+jerk']"),
+    ):
+        with pytest.raises(SystemExit):
+            parse_args(argv)
+        assert message in capsys.readouterr().err
 
 
 def test_the_cycle_ends_are_the_scenarios() -> None:

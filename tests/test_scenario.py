@@ -256,6 +256,17 @@ def test_start_is_part_of_the_task_hash_not_of_the_robot() -> None:
         PickPlaceTask(start="home")
 
 
+def test_jerk_limited_is_part_of_the_task_hash_only_when_set() -> None:
+    online = Scenario(task=PickPlaceTask(timing="online"))
+    jerky = Scenario(task=PickPlaceTask(timing="online", jerk_limited=True))
+    assert "jerk_limited" not in scenario_module._task_table(online.task)  # earlier scenarios keep their hashes
+    assert jerky.content_hash != online.content_hash and jerky.robot_identity == online.robot_identity
+    assert Scenario.from_toml(jerky.to_toml()).task.jerk_limited
+    assert DeltaPickPlaceEnv(scenario=jerky).jerk_limited and not DeltaPickPlaceEnv(scenario=online).jerk_limited
+    with pytest.raises(ValueError, match="jerk_limited smooths a planned timing's laws; the 'fixed' timing plans none"):
+        PickPlaceTask(jerk_limited=True)
+
+
 def test_keywords_override_the_scenario_and_plant_replaces_its_plant() -> None:
     ideal = PlantConfig.ideal()
     env = DeltaPickPlaceEnv(plant=ideal, scenario="worn", payload_mass_range=(1.0, 2.0), cycle="standard")

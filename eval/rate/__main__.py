@@ -10,7 +10,12 @@ in-position window) are the scenario's. ABB's published rows (:mod:`eval.rate.pu
 - ``worst_case``: time-optimal within the drive, every carry for the heaviest object of the stream;
 - ``declared``: time-optimal, each carry for its object's true mass (the reference, not a controller);
 - ``online``: time-optimal, a carry starts for the heaviest object and is retimed once the payload estimate
-  has settled (:mod:`controllers.payload_timing`).
+  has settled (:mod:`controllers.payload_timing`);
+- ``worst_case+jerk``, ``declared+jerk``, ``online+jerk``: a planned timing whose laws are averaged over one period
+  of the drives' first mode (:class:`controllers.shaping.JerkLimitedTiming`), for compliant drives: the path
+  acceleration ramps instead of stepping, each move a period longer. The input-shaped rows are controllers:
+  ``--controllers mid_f_rls_lag,controllers.shaping:LAG_ZV,controllers.shaping:LAG_ZVD`` (their tracking is judged
+  against the shaped reference they follow).
 
 The first controller of ``--controllers`` (by default the model-based MId+F+R+RLS+lag+PD) runs every row, and
 so does every other controller that estimates the payload itself (the RLS rows, the residual:
@@ -62,8 +67,10 @@ from eval.rate.study import (
     CALIBRATION_EPISODES,
     DEFAULT_CONTROLLERS,
     FULL_STUDY,
+    JERK_LIMITED,
     MIXED,
     PLACE_GOAL_MM,
+    PLANNERS,
     QUICK_NOTE,
     QUICK_STUDY,
     RATE_TORQUE_SHARE,
@@ -126,7 +133,8 @@ def argument_parser() -> CommandParser:
     parser.add_argument(
         "--planners",
         default=",".join(TIMINGS),
-        help=f"comma-separated timings from {', '.join(TIMINGS)} (default: all)",
+        help=f"comma-separated timings from {', '.join(PLANNERS)} (default: {', '.join(TIMINGS)}); {JERK_LIMITED}: "
+        "the planned timing's laws averaged over one period of the drives' first mode (needs the drives' compliance)",
     )
     parser.add_argument(
         "--controllers",
@@ -177,7 +185,13 @@ def resolve(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RateCo
         task = dataclasses.replace(scenario.task, n_cycles=cycles, torque_share=args.torque_share)
     except ValueError as error:
         parser.error(f"--torque-share: {error}")
-    planners = _listed(parser, "--planners", args.planners, TIMINGS)
+    planners = _listed(parser, "--planners", args.planners, PLANNERS)
+    jerky = [planner for planner in planners if planner.endswith(JERK_LIMITED)]
+    if jerky and scenario.plant.realism.compliance is None:
+        parser.error(
+            f"--planners {','.join(jerky)}: a jerk-limited timing averages over the drives' mode; the scenario "
+            f"{scenario.name!r} has rigid drives (e.g. --scenario compliant)"
+        )
     try:
         controllers = parse_controller_keys(args.controllers)
     except ValueError as error:

@@ -25,6 +25,7 @@ from eval.rate.published import ABB_IRB_360, DIFFERENCES, PublishedSheet
 from eval.rate.study import (
     COMPARED_PLANNERS,
     FASTEST_SEARCH,
+    JERK_LIMITED,
     MIXED,
     PLACE_GOAL_MM,
     QUICK_NOTE,
@@ -102,7 +103,13 @@ def summary_lines(
         ),
         "",
         "Every row: tracking RMS and path deviation RMS (mean, mm), place error at release (worst, mm), "
-        + ("settle time in position (mean and longest, ms) and places that timed out, " if settled else "")
+        + (
+            "settle time in position (mean and longest, ms), places that timed out, residual vibration at the place "
+            f"(the platform's true peak to peak over {1e3 * metrics.RESIDUAL_WINDOW:.0f} ms from the in-position "
+            "signal, mean and largest, um), "
+            if settled
+            else ""
+        )
         + "envelope violations (steps), peak and RMS torque over the drive's peak and rated torque (largest); holds = "
         f"tracking <= {TRACKING_GOAL_MM} mm, place error <= {PLACE_GOAL_MM} mm, no violation, no overheating"
         + (", no settle time-out." if settled else "."),
@@ -271,7 +278,15 @@ def _published_lines(
     ]
 
 
-PLANNER_COLORS = {"fixed": "tab:blue", "worst_case": "tab:orange", "declared": "tab:green", "online": "tab:red"}
+PLANNER_COLORS = {
+    "fixed": "tab:blue",
+    "worst_case": "tab:orange",
+    "declared": "tab:green",
+    "online": "tab:red",
+    f"worst_case{JERK_LIMITED}": "tab:olive",
+    f"declared{JERK_LIMITED}": "tab:cyan",
+    f"online{JERK_LIMITED}": "tab:pink",
+}
 """The colour of each planner's bars in ``rate.png``."""
 
 FASTEST_COLOR = "tab:gray"

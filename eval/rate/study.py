@@ -20,7 +20,7 @@ from controllers.registry import (
 )
 from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import GRAVITY
-from delta_env.scenario import PickPlaceTask, Scenario
+from delta_env.scenario import TIMINGS, PickPlaceTask, Scenario
 from eval.engine import grid
 from eval.processes import DEFAULT_WORKERS
 from eval.work import WorkUnit, run_grid
@@ -36,8 +36,16 @@ CYCLE_TERMS = ("air_activation", "in_position_window")
 """The scenario task's terms of the cycle's ends with the in-position release: the air-activation time at pick and
 place (s) and the in-position window within which the gripper switches (m)."""
 
-COMPARED_PLANNERS = ("online", "declared", "worst_case", "fixed")
-"""The planner whose rows stand beside the published ones: the first of these that ran."""
+JERK_LIMITED = "+jerk"
+"""The suffix of a planner whose planned timing is jerk-limited (``online+jerk``: the task's ``jerk_limited``, its
+laws averaged over one period of the drives' first mode, :class:`controllers.shaping.JerkLimitedTiming`)."""
+
+PLANNERS = (*TIMINGS, *(f"{timing}{JERK_LIMITED}" for timing in TIMINGS if timing != "fixed"))
+"""The data sheet's planners: the timings (:data:`delta_env.scenario.TIMINGS`) and the planned ones jerk-limited."""
+
+COMPARED_PLANNERS = ("online", "declared", "worst_case", "fixed", *PLANNERS[len(TIMINGS) :])
+"""The planner whose rows stand beside the published ones: the first of these that ran (a jerk-limited one only
+when no other did)."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +112,7 @@ class RateConfig:
         seed: Seed of the first episode.
         episodes: Episodes per row.
         cycles: Pick-and-place cycles per episode.
-        planners: The timings (:data:`delta_env.scenario.TIMINGS`), in order.
+        planners: The planners (:data:`PLANNERS`), in order.
         controllers: The controller keys; the first runs every row.
         residual: The policy file of the rows that read one.
         payloads: Payloads (kg) besides the mixed stream.
@@ -146,11 +154,20 @@ def kilograms(payloads: Sequence[float]) -> str:
     return ",".join(f"{payload:g}" for payload in payloads)
 
 
-def rate_scenario(base: Scenario, timing: str, payload: float | str) -> Scenario:
-    """``base`` on the standard cycle, timed by ``timing``, with every object ``payload`` kg (or the mixed stream)."""
+def rate_scenario(base: Scenario, planner: str, payload: float | str) -> Scenario:
+    """``base`` on the standard cycle, timed by ``planner`` (:data:`PLANNERS`), with every object ``payload`` kg (or
+    the mixed stream)."""
     masses = (0.0, RATED_PAYLOAD) if payload == MIXED else (float(payload), float(payload))
-    task = dataclasses.replace(base.task, cycle="standard", timing=timing, payload_mass_range=masses)
-    return dataclasses.replace(base, name=f"{base.name}/{timing}/{payload_label(payload)}", task=task)
+    timing = planner.removesuffix(JERK_LIMITED)
+    task = dataclasses.replace(
+        base.task, cycle="standard", timing=timing, jerk_limited=planner != timing, payload_mass_range=masses
+    )
+    return dataclasses.replace(base, name=f"{base.name}/{planner}/{payload_label(payload)}", task=task)
+
+
+def planner_name(task: PickPlaceTask) -> str:
+    """The planner (:data:`PLANNERS`) of a task :func:`rate_scenario` made."""
+    return task.timing + (JERK_LIMITED if task.jerk_limited else "")
 
 
 def payload_label(payload: float | str) -> str:
@@ -170,10 +187,13 @@ SETTLE_COLUMNS = (
     ("settle_time_mean_ms", np.mean, float, "settle (ms)"),
     ("settle_time_max_ms", np.max, float, "settle max"),
     ("settle_timeouts", np.sum, int, "time-outs"),
+    ("residual_vibration_mean_um", np.mean, float, "residual p-p (um)"),
+    ("residual_vibration_max_um", np.max, float, "residual max"),
 )
 """Per-episode settle metrics of the in-position release, how a row aggregates each over its episodes, the type of
-its cell and its header in the summary: the mean settle time (ms), the longest (ms) and the places that never
-settled within the time-out (count)."""
+its cell and its header in the summary: the mean settle time (ms), the longest (ms), the places that never
+settled within the time-out (count), and the residual vibration at the place, mean and largest (um: the platform's
+peak to peak over :data:`eval.metrics.RESIDUAL_WINDOW` from the in-position signal)."""
 
 
 def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -249,7 +269,7 @@ def run_rows(config: RateConfig, setup: Any, progress: Any = None) -> tuple[list
     grouped: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     episode_rows = []
     for unit, record in zip([*units, *replays], records, strict=True):
-        timing, (low, high) = unit.scenario.task.timing, unit.scenario.task.payload_mass_range
+        timing, (low, high) = planner_name(unit.scenario.task), unit.scenario.task.payload_mass_range
         load = payload_label(low) if low == high else MIXED
         episode = record.metrics()
         grouped.setdefault((timing, controller_label(unit.controller), load), []).append(episode)
