@@ -65,6 +65,9 @@ class ControllerEntry:
             ``estimates_payload``.
         tared: Its estimator reads ``setup.tares[key]`` and ``setup.empty_moves[key]``: the experiments measure both
             on payload-free episodes before they run it (implies ``has_estimator``).
+        tares_as: The key of a tared row whose tare and empty moves its estimator reads instead (its base's, for a
+            row that wraps another), which the experiments then tare even where that row does not run; None: none
+            (implies ``has_estimator``, excludes ``tared``).
         needs_drive_lag: Its factory needs the identified drive lag (``setup.drive_lag``): a setup without one is
             refused before the factory runs.
         reads_policy_file: Its factory reads the residual policy file of the setup (:func:`residual_policy_path`):
@@ -82,6 +85,7 @@ class ControllerEntry:
     estimates_payload: bool = False
     has_estimator: bool = False
     tared: bool = False
+    tares_as: str | None = None
     needs_drive_lag: bool = False
     reads_policy_file: bool = False
     privileged: bool = False
@@ -90,13 +94,23 @@ class ControllerEntry:
     def __post_init__(self) -> None:
         if not self.key or "," in self.key:
             raise ValueError(f"a controller key must be non-empty and without commas, got {self.key!r}")
-        if self.tared and not self.has_estimator:
+        if (self.tared or self.tares_as is not None) and not self.has_estimator:
             raise ValueError(f"controller {self.key!r}: a tared controller has a payload estimator (has_estimator)")
+        if self.tared and self.tares_as is not None:
+            raise ValueError(
+                f"controller {self.key!r}: tared on its own key or as {self.tares_as!r} (tares_as), not both"
+            )
         if self.has_estimator and not self.estimates_payload:
             raise ValueError(
                 f"controller {self.key!r}: a controller with a payload estimator reports its estimate "
                 "(estimates_payload)"
             )
+
+    @property
+    def tare_key(self) -> str | None:
+        """The key its estimator's tare is measured and kept under (``setup.tares``): its own if ``tared``, else
+        ``tares_as`` (None: an untared row)."""
+        return self.key if self.tared else self.tares_as
 
     def build(
         self,

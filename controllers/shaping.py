@@ -201,8 +201,9 @@ def arm_side(setup: ControllerSetup) -> DeltaDynamics:
 def shaped_entry(base_key: str, kind: str) -> ControllerEntry:
     """The registry entry of the row ``base_key`` following its reference shaped by ``kind`` (:class:`ShapedController`,
     the shaper's mode from the nominal model's arm side and ``ControllerSetup.compliance``). Its estimator is its
-    base's, with the tare and empty moves of ``base_key``: run it beside its base row, which the experiments tare.
-    A setup without a compliance is refused (nothing to shape against)."""
+    base's, with the tare and empty moves of ``base_key`` (:attr:`~controllers.registry.ControllerEntry.tares_as`),
+    which the experiments measure whether or not the base row runs too. A setup without a compliance is refused
+    (nothing to shape against)."""
     base = controller_entry(base_key)
     if kind not in SHAPERS:
         raise ValueError(f"kind must be one of {', '.join(SHAPERS)}, got {kind!r}")
@@ -218,6 +219,7 @@ def shaped_entry(base_key: str, kind: str) -> ControllerEntry:
         factory,
         estimates_payload=base.estimates_payload,
         has_estimator=base.has_estimator,
+        tares_as=base.tare_key,
         needs_drive_lag=base.needs_drive_lag,
     )
 

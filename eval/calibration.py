@@ -52,10 +52,12 @@ def calibration_seeds(episodes: int) -> list[int]:
 
 
 def tared_keys(controllers: Iterable[str], scenario: Scenario | None) -> list[str]:
-    """The controllers among ``controllers`` whose estimators an experiment tares (:attr:`ControllerEntry.tared`),
-    and the cell's estimator (:data:`controllers.registry.CELL_ESTIMATOR_KEY`) when ``scenario``'s online timing
-    reads it beside controllers without one of their own."""
-    keys = [key for key in dict.fromkeys(controllers) if controller_entry(key).tared]
+    """The keys under which an experiment tares the estimators of ``controllers``
+    (:attr:`ControllerEntry.tare_key`: a tared row's own, a wrapping row's base's), and the cell's estimator
+    (:data:`controllers.registry.CELL_ESTIMATOR_KEY`) when ``scenario``'s online timing reads it beside controllers
+    without one of their own."""
+    tare_keys = (controller_entry(key).tare_key for key in controllers)
+    keys = [key for key in dict.fromkeys(tare_keys) if key is not None]
     if scenario is not None and scenario.task.timing == "online" and CELL_ESTIMATOR_KEY not in keys:
         keys.append(CELL_ESTIMATOR_KEY)
     return keys

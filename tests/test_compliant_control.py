@@ -37,6 +37,7 @@ from delta_env.scenario import preset
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.timing import TimeLaw
 from delta_env.trajectories import Segment
+from eval.calibration import tared_keys
 from eval.episodes import run_episode
 from eval.identification.excitation import ExcitationSpec, run_excitation
 from eval.rate.study import rate_scenario
@@ -518,6 +519,10 @@ def test_a_shaped_rows_tracking_is_judged_against_the_reference_it_follows(contr
 def test_the_shaped_rows_join_the_registry_by_import_path(controller_setup) -> None:
     entry = controller_entry("controllers.shaping:LAG_ZVD")
     assert entry.label == "MId+F+R+RLS+lag+PD+ZVD" and entry.has_estimator and not entry.tared
+    # its estimator is its base's: the experiments tare the base's key, with or without the base row beside it
+    assert entry.tare_key == "mid_f_rls_lag"
+    assert tared_keys(["controllers.shaping:LAG_ZVD"], None) == ["mid_f_rls_lag"]
+    assert tared_keys(["mid_f_rls_lag", "controllers.shaping:LAG_ZV", "pd"], None) == ["mid_f_rls_lag"]
     controller = entry.build(replace(controller_setup, compliance=IDENTIFIED)).controller
     assert isinstance(controller, ShapedController) and controller.kind == "zvd"
     with pytest.raises(ValueError, match="compliance"):

@@ -58,7 +58,7 @@ from controllers.registry import (
 from controllers.residual import read_policy_settings
 from delta_env.config import RATED_PAYLOAD
 from delta_env.scenario import TIMINGS
-from eval.calibration import calibration_seeds
+from eval.calibration import calibration_seeds, tared_keys
 from eval.console import CommandParser, command_main, progress_bar
 from eval.engine import prepare
 from eval.rate.published import ABB_IRB_360
@@ -255,7 +255,7 @@ def rate(config: RateConfig, run: Run, started: float) -> None:
     out = run.folder
     scenario = config.scenario
     # Every tared row is tared; the lead's estimator retimes the online carries (the cell's own if the lead has none).
-    tared = [key for key in config.controllers if controller_entry(key).tared]
+    tared = tared_keys(config.controllers, None)
     if not controller_entry(config.controllers[0]).has_estimator:
         tared.append(CELL_ESTIMATOR_KEY)
     if config.quick:
