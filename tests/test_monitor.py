@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import model_controller
 from controllers.monitor import FaultMonitor, MonitoredController
+from controllers.payload.equation import EQUATION
 from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller
 from delta_env.config import PlantConfig
 from delta_env.env import DeltaPickPlaceEnv
@@ -305,6 +308,23 @@ def test_a_reset_of_the_estimate_mid_carry_makes_no_force_and_hides_no_push(
     assert kinds == [] and max(forces) < 10.0
     _, kinds, latency = carry(push=True)
     assert kinds == ["collision"] and 0.0 <= latency <= 0.010
+
+
+@pytest.mark.parametrize("torque_delay", [0.5e-3, 0.25e-3], ids=["rigid", "compliant"])
+def test_the_monitor_and_the_estimator_take_the_robots_torque_age(
+    controller_setup: ControllerSetup, torque_delay: float
+) -> None:
+    # A torque reading is the plant's physics step older than its encoder sample: 0.5 ms on the rigid default, 0.25
+    # ms on the compliant preset, as the identification takes it. The estimator's equations, the monitor's model
+    # checks and its current-loop prediction take the setup's.
+    setup = dataclasses.replace(controller_setup, torque_delay=torque_delay)
+    controller = build_controller("mid_f_rls", setup)
+    assert isinstance(controller, MonitoredController) and controller.estimator is not None
+    age = torque_delay / CONTROL_PERIOD
+    assert controller.monitor._field["torque_age"][0] == age
+    assert controller.estimator._regressor._equation.view(EQUATION)[0].torque_age == age
+    hold = controller.monitor._field["loop_response"][0][0]
+    np.testing.assert_allclose(hold, np.exp(-(1.0 - age) * CONTROL_PERIOD / np.array(setup.drive_lag)), rtol=1e-12)
 
 
 def test_monitored_controller_refuses_an_unknown_reaction() -> None:

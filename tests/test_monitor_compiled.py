@@ -44,14 +44,16 @@ from controllers.monitor.tuning import (
     STUCK_SAMPLES,
     TORQUE_MARGIN,
 )
-from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE, ModelCorrections, residual_std
+from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, residual_std
 from delta_env import kernels
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 
 PARAMETERS = ModelParameters(rho1=1.8, rho2=0.9, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
 TOLERANCE = 1e-12
 """Relative agreement asked of a kernel with the formula it evaluates (module docstring)."""
 PEAK_TORQUE = 400.0  # N m
+TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
+"""How many control periods the default plant's torque readings are older than their encoder samples."""
 
 
 def _same(actual: np.ndarray, expected: np.ndarray) -> None:
@@ -299,7 +301,7 @@ def test_loop_output_is_the_first_order_loop_sampled_half_a_period_late() -> Non
     # The reading at t_k - d: from the last reading (t_{k-1} - d) towards the command before for d, then towards
     # the command held since t_{k-1}; integrated finely, against the closed form.
     lag, period, age = 1.3e-3, CONTROL_PERIOD, TORQUE_AGE
-    hold, keep = (value[0] for value in loop_response([lag]))
+    hold, keep = (value[0] for value in loop_response([lag], TORQUE_AGE))
     output, substeps = 12.0, 10000
     for target, duration in ((-40.0, age * period), (25.0, (1.0 - age) * period)):
         for _ in range(substeps):
@@ -547,7 +549,7 @@ def test_a_drive_that_does_not_follow_a_small_step_is_found_by_the_shortfall_cus
     monitor = _monitor()
     for observation, command in zip(observations, commands, strict=True):
         monitor.update(observation, command)
-    hold, keep = (value[0] for value in loop_response([SLOWEST_LAG_FACTOR * 1e-3]))
+    hold, keep = (value[0] for value in loop_response([SLOWEST_LAG_FACTOR * 1e-3], TORQUE_AGE))
     evidence, sample = 0.0, 50
     while evidence <= DRIVE_FAULT_EVIDENCE:
         before = steady[2] if sample == 50 else stepped[2]

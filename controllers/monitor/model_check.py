@@ -64,7 +64,7 @@ from controllers.monitor.tuning import (
     SLIP_PRECISION,
     SLIP_SETTLE,
 )
-from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE
+from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY, RESIDUAL_STD
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 
@@ -74,7 +74,9 @@ under way after it."""
 
 MODEL_CHECK_FIELDS = [
     *DELAYED_STATE_FIELDS,
-    # the measured torques of the window and the one before, and the smoother's response to a step
+    # how many periods a torque reading is older than its encoder sample, the measured torques of the window and the
+    # one before, and the smoother's response to a step
+    ("torque_age", np.float64),
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
     ("torque_response", np.float64, (SMOOTHER_WINDOW,)),
@@ -327,9 +329,9 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     other = 0.0 if state.slip_armed else state.slip_mass
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
-    # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
+    # the torque was measured torque_age periods (the plant's physics step) before the encoder sample of its state
     status, terms = model_residual(
-        model_constants, smoothed, previous, TORQUE_AGE, state.pending_torque[head].copy(), state.corrections
+        model_constants, smoothed, previous, state.torque_age, state.pending_torque[head].copy(), state.corrections
     )
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if state.collision else 0
