@@ -115,6 +115,8 @@ MODEL_CHECK_FIELDS = [
     ("held_mass", np.float64),
     ("held_information", np.float64),
     ("held_moment", np.float64),
+    ("pending_information", np.float64),
+    ("pending_moment", np.float64),
     ("evidence", np.float64),
     ("slip_armed", np.bool_),
     ("slip_mass", np.float64),
@@ -186,6 +188,8 @@ def _restart_held(check: np.record) -> None:
     check.held_since = check.sample
     check.held_information = 0.0
     check.held_moment = 0.0
+    check.pending_information = 0.0
+    check.pending_moment = 0.0
     check.evidence = 0.0
     check.held_known = False
 
@@ -213,10 +217,11 @@ def _check_payload(
 ) -> int:
     """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
     since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi are
-    ``terms`` of :func:`model_residual`. A sample whose residual, with nothing held, leaves a platform force
-    ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no evidence of a loss (a push): it clears the CUSUM. No
-    sample adds more than :data:`SLIP_EVIDENCE` over the record's ``onset_samples``, so that no run shorter than a
-    push's onset (which, half shown, can look like the loss of a heavy object) makes a slip.
+    ``terms`` of :func:`model_residual`, m measured on the samples before the CUSUM's current run. A sample whose
+    residual, with nothing held, leaves a platform force ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no
+    evidence of a loss (a push): it clears the CUSUM. No sample adds more than :data:`SLIP_EVIDENCE` over the
+    record's ``onset_samples``, so that no run shorter than a push's onset (which, half shown, can look like the
+    loss of a heavy object) makes a slip.
     Returns :data:`SLIPPED` or 0."""
     if not holding:
         check.held_since = -1
@@ -244,6 +249,7 @@ def _check_payload(
             evidence = check.evidence + min(ratio, SLIP_EVIDENCE / check.onset_samples)
             check.evidence = evidence if evidence > 0.0 and gone_force <= FORCE_REFERENCE else 0.0
             if check.evidence > SLIP_EVIDENCE:
+                check.pending_information = check.pending_moment = 0.0
                 check.slip_mass = held
                 check.slip_armed = False
                 check.held_mass = 0.0
@@ -251,8 +257,15 @@ def _check_payload(
                 check.force_evidence = 0.0  # the force the loss left was the slip's
                 return SLIPPED
     if check.force_evidence == 0.0:  # a collision's samples stay out of the mass held
-        check.held_information += information
-        check.held_moment += moment
+        # while the CUSUM runs, its samples may be the loss's: they wait outside the mass held, which they would
+        # drag towards "gone" (a light object's held mass fell below SLIP_MIN_MASS and its loss was never found),
+        # and join it once the CUSUM is back at zero
+        check.pending_information += information
+        check.pending_moment += moment
+        if check.evidence == 0.0:
+            check.held_information += check.pending_information
+            check.held_moment += check.pending_moment
+            check.pending_information = check.pending_moment = 0.0
     return 0
 
 
