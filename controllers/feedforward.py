@@ -42,7 +42,7 @@ from delta_env.config import RATED_PAYLOAD, PhysicalParameters, PlantConfig
 from delta_env.drive import SampledLag
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, DeltaGeometry, DeltaMasses
 from delta_env.oracle import CompliantDriveOracle, InverseDynamicsOracle, RotorMotion
-from delta_env.sensors import CONTROL_PERIOD, encoder_resolution, rate_window
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY, encoder_resolution, rate_window
 from delta_env.trajectories import Trajectory
 from delta_env.validation import require_in
 
@@ -472,6 +472,7 @@ def model_controller(
     geometry: DeltaGeometry = NOMINAL_GEOMETRY,
     masses: DeltaMasses = NOMINAL_MASSES,
     drive_lag: ArrayLike | None = None,
+    torque_delay: float = MEASURED_TORQUE_DELAY,
 ) -> FeedforwardController | LagCompensatedController:
     """A model feedforward + servo controller, optionally with the online payload estimator and the drive-lag lead.
 
@@ -489,12 +490,18 @@ def model_controller(
         masses: Datasheet masses of that robot (kg).
         drive_lag: Identified drive lag T (s) per joint (or one for all): the feedforward leads it
             (:class:`LagCompensatedController`); None feeds forward without a lead.
+        torque_delay: Age of the torque readings against their encoder samples (s), for the payload estimator.
     """
     dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
     estimator = None
     if regressor is not None:
         estimator = PayloadEstimator(
-            dynamics, regressor=regressor, tare=tare, friction_velocity=friction_velocity, empty_moves=empty_moves
+            dynamics,
+            regressor=regressor,
+            tare=tare,
+            friction_velocity=friction_velocity,
+            empty_moves=empty_moves,
+            torque_delay=torque_delay,
         )
     label = name if name is not None else controller_name(forearm_rods, regressor is not None, drive_lag is not None)
     controller = FeedforwardController(label, dynamics, servo=servo, estimator=estimator)

@@ -349,6 +349,7 @@ def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
         setup.drive.peak_torque,
         drive_lag=setup.drive_lag,
         encoder_step=None if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits),
+        torque_delay=setup.torque_delay,
     )
 
 

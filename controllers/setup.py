@@ -25,8 +25,15 @@ from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, ResonanceNotch
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
-from delta_env.sensors import ENCODER_BITS, PHYSICS_TIMESTEP, encoder_resolution, rate_window
-from delta_env.validation import require_joint_vector
+from delta_env.sensors import (
+    CONTROL_PERIOD,
+    ENCODER_BITS,
+    MEASURED_TORQUE_DELAY,
+    PHYSICS_TIMESTEP,
+    encoder_resolution,
+    rate_window,
+)
+from delta_env.validation import require_in, require_joint_vector
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,9 @@ class ControllerSetup:
         masses: Datasheet masses (kg) of that robot.
         drive: The robot's drive (its data sheet), for the fault monitor's plausibility checks.
         encoder_bits: Its encoders' resolution (bits per revolution; None: exact), likewise.
+        torque_delay: How much older (s) its torque readings are than the encoder sample they come with: the
+            plant's physics step, as its identification takes it (the payload estimator and the fault monitor form
+            their equations at the state this far back).
         fault_reaction: What the monitored rows do after detecting a collision, a slip or a drive fault
             (:data:`delta_env.faults.FAULT_REACTIONS`).
         compliance: The drives' compliance (rotor inertia, gearhead stiffness and damping per joint,
@@ -120,6 +130,7 @@ class ControllerSetup:
     masses: DeltaMasses = NOMINAL_MASSES
     drive: DriveLimits = field(default_factory=DriveLimits)
     encoder_bits: int | None = ENCODER_BITS
+    torque_delay: float = MEASURED_TORQUE_DELAY
     fault_reaction: Literal["continue", "slow", "stop"] = "continue"
     compliance: DriveCompliance | None = None
 
@@ -130,6 +141,7 @@ class ControllerSetup:
             require_joint_vector("drive_lag", self.drive_lag, 0.0, MAX_TIME_CONSTANT, unit="s")
         if self.stribeck_excess is not None:
             require_joint_vector("stribeck_excess", self.stribeck_excess, 0.0, TORQUE_LIMIT, unit="N m")
+        require_in("torque_delay", self.torque_delay, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
 
     def to_table(self) -> dict[str, Any]:
         """Every field as a table of TOML values (:func:`delta_env.records.to_table`): the record's written form."""
@@ -172,6 +184,7 @@ def model_row(
         geometry=setup.geometry,
         masses=setup.masses,
         drive_lag=setup.drive_lag if row.leads_lag else None,
+        torque_delay=setup.torque_delay,
     )
 
 

@@ -33,9 +33,9 @@ from controllers.monitor.tuning import (
     SLOWEST_LAG_FACTOR,
     STUCK_COUNTS,
 )
-from controllers.payload import TORQUE_AGE, ModelCorrections
+from controllers.payload import ModelCorrections
 from delta_env.faults import FAULT_KINDS
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_in, require_positive
 
 SETTINGS = ("corrections", "charged_coulomb", "breakaway")
@@ -45,13 +45,13 @@ NO_COMMAND = np.zeros(3)
 """What :func:`~controllers.monitor.step.monitor_step` is given for the command at a sample without one."""
 
 
-def loop_response(lags: Sequence[float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def loop_response(lags: Sequence[float], age: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(hold, keep) per joint of a first-order current loop of time constant ``lags`` (s; 0 for none) over one
-    control period whose torque reading is :data:`~controllers.payload.TORQUE_AGE` periods old: the reading lags
-    the command's change by that much, so the loop ran that long towards the command held before, then the rest of
-    the period towards the one held since (:func:`~controllers.monitor.compiled.loop_output`).
+    control period whose torque reading is ``age`` periods old: the reading lags the command's change by that much,
+    so the loop ran that long towards the command held before, then the rest of the period towards the one held
+    since (:func:`~controllers.monitor.compiled.loop_output`).
     hold = exp(-(1 - age) T / lag), keep = exp(-T / lag)."""
-    hold = [math.exp(-(1.0 - TORQUE_AGE) * CONTROL_PERIOD / lag) if lag > 0 else 0.0 for lag in lags]
+    hold = [math.exp(-(1.0 - age) * CONTROL_PERIOD / lag) if lag > 0 else 0.0 for lag in lags]
     keep = [math.exp(-CONTROL_PERIOD / lag) if lag > 0 else 0.0 for lag in lags]
     return np.array(hold), np.array(keep)
 
@@ -68,6 +68,9 @@ class FaultMonitor:
         drive_lag: The identified current-loop time constant per joint (s), for the torque prediction; None
             uses 1 ms.
         encoder_step: Encoder resolution (rad); None for ideal encoders.
+        torque_delay: How much older (s) a torque reading is than its encoder sample: the plant's physics step
+            (:data:`~delta_env.sensors.MEASURED_TORQUE_DELAY` by default), for the current loop's prediction and the
+            model checks' state at the torque's instant.
 
     Attributes:
         events: The faults detected since the reset, in time order.
@@ -81,8 +84,11 @@ class FaultMonitor:
         *,
         drive_lag: Sequence[float] | None = None,
         encoder_step: float | None = None,
+        torque_delay: float = MEASURED_TORQUE_DELAY,
     ) -> None:
         require_positive("peak_torque", peak_torque, unit="N m")
+        require_in("torque_delay", torque_delay, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
+        age = torque_delay / CONTROL_PERIOD
         lags = (1e-3,) * 3 if drive_lag is None else tuple(drive_lag)
         for lag in lags:
             require_in("drive_lag", lag, 0.0, 0.1, unit="s")
@@ -100,14 +106,15 @@ class FaultMonitor:
         arm_inertia = dynamics.parameters.rho1 * dynamics.inertia
         initial["jump_bound"] = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
         initial["stuck_step"] = max(STUCK_COUNTS * step, 1e-9)
-        initial["loop_response"] = loop_response(lags)
-        initial["slowest_response"] = loop_response([SLOWEST_LAG_FACTOR * lag for lag in lags])
+        initial["loop_response"] = loop_response(lags, age)
+        initial["slowest_response"] = loop_response([SLOWEST_LAG_FACTOR * lag for lag in lags], age)
         initial["peak_torque"] = self.peak_torque
         smoother = JointStateSmoother(lag=SMOOTHER_LAG, jerk_std=MONITOR_JERK_STD)
         initial["weights"] = smoother.weights
         response = acceleration_step_response(smoother)
         initial["squared_response"] = response**2
-        initial["torque_response"] = torque_step_response(smoother, TORQUE_AGE)
+        initial["torque_age"] = age
+        initial["torque_response"] = torque_step_response(smoother, age)
         initial["acceleration_response"] = response
         initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
         initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)

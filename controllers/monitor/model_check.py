@@ -64,7 +64,7 @@ from controllers.monitor.tuning import (
     SLIP_PRECISION,
     SLIP_SETTLE,
 )
-from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY, RESIDUAL_STD, TORQUE_AGE
+from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY, RESIDUAL_STD
 from delta_env import kernels
 from delta_env.sensors import CONTROL_PERIOD
 
@@ -74,7 +74,9 @@ under way after it."""
 
 MODEL_CHECK_FIELDS = [
     *DELAYED_STATE_FIELDS,
-    # the measured torques of the window and the one before, and the smoother's response to a step
+    # how many periods a torque reading is older than its encoder sample, the measured torques of the window and the
+    # one before, and the smoother's response to a step
+    ("torque_age", np.float64),
     ("torques", np.float64, (SMOOTHER_WINDOW + 1, 3)),
     ("squared_response", np.float64, (SMOOTHER_WINDOW,)),
     ("torque_response", np.float64, (SMOOTHER_WINDOW,)),
@@ -113,6 +115,8 @@ MODEL_CHECK_FIELDS = [
     ("held_mass", np.float64),
     ("held_information", np.float64),
     ("held_moment", np.float64),
+    ("pending_information", np.float64),
+    ("pending_moment", np.float64),
     ("evidence", np.float64),
     ("slip_armed", np.bool_),
     ("slip_mass", np.float64),
@@ -184,6 +188,8 @@ def _restart_held(check: np.record) -> None:
     check.held_since = check.sample
     check.held_information = 0.0
     check.held_moment = 0.0
+    check.pending_information = 0.0
+    check.pending_moment = 0.0
     check.evidence = 0.0
     check.held_known = False
 
@@ -211,10 +217,11 @@ def _check_payload(
 ) -> int:
     """The slip check: a CUSUM of the log-likelihood ratio of "the object is gone" (r = e) against "the mass held
     since the pick is still there" (r = m phi + e), e weighted as the payload estimator weights it; r and phi are
-    ``terms`` of :func:`model_residual`. A sample whose residual, with nothing held, leaves a platform force
-    ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no evidence of a loss (a push): it clears the CUSUM. No
-    sample adds more than :data:`SLIP_EVIDENCE` over the record's ``onset_samples``, so that no run shorter than a
-    push's onset (which, half shown, can look like the loss of a heavy object) makes a slip.
+    ``terms`` of :func:`model_residual`, m measured on the samples before the CUSUM's current run. A sample whose
+    residual, with nothing held, leaves a platform force ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no
+    evidence of a loss (a push): it clears the CUSUM. No sample adds more than :data:`SLIP_EVIDENCE` over the
+    record's ``onset_samples``, so that no run shorter than a push's onset (which, half shown, can look like the
+    loss of a heavy object) makes a slip.
     Returns :data:`SLIPPED` or 0."""
     if not holding:
         check.held_since = -1
@@ -242,6 +249,7 @@ def _check_payload(
             evidence = check.evidence + min(ratio, SLIP_EVIDENCE / check.onset_samples)
             check.evidence = evidence if evidence > 0.0 and gone_force <= FORCE_REFERENCE else 0.0
             if check.evidence > SLIP_EVIDENCE:
+                check.pending_information = check.pending_moment = 0.0
                 check.slip_mass = held
                 check.slip_armed = False
                 check.held_mass = 0.0
@@ -249,8 +257,15 @@ def _check_payload(
                 check.force_evidence = 0.0  # the force the loss left was the slip's
                 return SLIPPED
     if check.force_evidence == 0.0:  # a collision's samples stay out of the mass held
-        check.held_information += information
-        check.held_moment += moment
+        # while the CUSUM runs, its samples may be the loss's: they wait outside the mass held, which they would
+        # drag towards "gone" (a light object's held mass fell below SLIP_MIN_MASS and its loss was never found),
+        # and join it once the CUSUM is back at zero
+        check.pending_information += information
+        check.pending_moment += moment
+        if check.evidence == 0.0:
+            check.held_information += check.pending_information
+            check.held_moment += check.pending_moment
+            check.pending_information = check.pending_moment = 0.0
     return 0
 
 
@@ -327,9 +342,9 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     other = 0.0 if state.slip_armed else state.slip_mass
     # a faulty reading found since lies in the smoothing window too
     quiet_then = state.pending_quiet[head] != 0 or quiet
-    # the torque was measured TORQUE_AGE periods (MEASURED_TORQUE_DELAY) before the encoder sample of its state
+    # the torque was measured torque_age periods (the plant's physics step) before the encoder sample of its state
     status, terms = model_residual(
-        model_constants, smoothed, previous, TORQUE_AGE, state.pending_torque[head].copy(), state.corrections
+        model_constants, smoothed, previous, state.torque_age, state.pending_torque[head].copy(), state.corrections
     )
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if state.collision else 0

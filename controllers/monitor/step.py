@@ -108,14 +108,16 @@ def monitor_step(
     state.faulty_run = state.faulty_run + 1 if faulty else 0
     # A lone replaced reading is as good as the reading (the reference plus the tracking error a millisecond ago, or
     # the current loop's prediction): the model's equations keep it. Replacements in a row drift from the joint (a
-    # stuck encoder: the joint runs on its feedforward), so they and the smoother's lag after them are left out, as
-    # is a repeated reading not yet called stuck, and the smoother's window after a step back: of the clean readings
-    # onto an encoder, or of a drive's torque onto its command when a drive fault ends (its joint's acceleration
-    # steps with it, which the smoother spreads over its window).
+    # stuck encoder: the joint runs on its feedforward), so they and the smoother's lag after them are left out, and
+    # the smoother's window after a step back: of the clean readings onto an encoder, or of a drive's torque onto its
+    # command when a drive fault ends (its joint's acceleration steps with it, which the smoother spreads over its
+    # window). A suspect repeated reading is a replaced one like any other: a push that stops a moving joint repeats
+    # its reading once, and leaving the window out from that first repeat on hid the push for 26 samples; a stuck
+    # encoder's second repeat is a replacement in a row.
     # a step back: onto the encoder, or of a faulty drive's torque onto its command (from its first delivering reading)
     if state.resynced or stepped_back or state.drive_ended:
         state.quiet_samples = RESYNC_QUIET
-    elif suspect or state.faulty_run > 1:
+    elif state.faulty_run > 1:
         state.quiet_samples = SENSOR_QUIET
     elif short:  # maybe a drive's loss: the command's prediction is not what the joint got
         state.quiet_samples = 1

@@ -90,7 +90,6 @@ from controllers.payload.tuning import (
     PICK_PRIOR_VARIANCE,
     RESIDUAL_STD,
     REST_RATE,
-    TORQUE_AGE,
     residual_std,
 )
 
@@ -103,7 +102,6 @@ __all__ = [
     "PICK_PRIOR_VARIANCE",
     "RESIDUAL_STD",
     "REST_RATE",
-    "TORQUE_AGE",
     "CheckpointRing",
     "CorrectionFit",
     "EmptyMoveSums",

@@ -16,7 +16,6 @@ from numpy.typing import NDArray
 
 from controllers.compiled_model import single_sample_model
 from controllers.dynamics import DeltaDynamics
-from controllers.payload.tuning import TORQUE_AGE
 from delta_env import kernels
 
 PLATFORM_MASS, ARM_MASS_SCALE, FRICTION_SCALE, PARAMETERS = 0, 1, 2, 5
@@ -68,9 +67,11 @@ def equation_constants(
     friction_velocity: float,
     correlation_samples: float,
     rest_rate: float,
+    torque_age: float,
 ) -> NDArray[np.uint8]:
     """The bytes of the :data:`EQUATION` record of ``dynamics`` and the weighting of
-    :func:`~controllers.payload.tuning.residual_std` (arguments in its units; the rest rate in rad/s)."""
+    :func:`~controllers.payload.tuning.residual_std` (arguments in its units; the rest rate in rad/s), its torques
+    ``torque_age`` control periods older than their encoder samples."""
     record = np.zeros(1, EQUATION)
     equation = record[0]
     # the band's standard deviation is sqrt(n_c) f_i
@@ -78,7 +79,7 @@ def equation_constants(
     equation["inverse_friction_velocity"] = 1.0 / friction_velocity
     equation["nominal_variance"] = nominal_std**2
     equation["viscous"], equation["coulomb"] = dynamics.parameters.viscous, dynamics.parameters.coulomb
-    equation["torque_age"], equation["rest_rate"] = TORQUE_AGE, rest_rate
+    equation["torque_age"], equation["rest_rate"] = torque_age, rest_rate
     equation["inertia"], equation["gravity"] = dynamics.inertia, dynamics.gravity_amplitude
     return record.view(np.uint8)
 

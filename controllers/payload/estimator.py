@@ -30,6 +30,7 @@ from controllers.payload.tuning import (
     REST_RATE,
     residual_std,
 )
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_in, require_positive
 
 
@@ -68,6 +69,9 @@ class PayloadEstimator:
         empty_moves: Sums of this robot's earlier empty moves (:class:`EmptyMoveSums`, e.g. its calibration
             episodes) that seed the fit of the corrections at every episode; None starts each episode from the
             priors alone (a robot with no history). Needs a fit (a correction std not None).
+        torque_delay: How much older (s) a torque reading is than its encoder sample: the plant's physics step
+            (:data:`~delta_env.sensors.MEASURED_TORQUE_DELAY` by default); the equation of a sample is formed at the
+            state interpolated that far back towards the previous one.
 
     Attributes:
         rls: The :class:`PayloadRLS` of the apparent payload (whitened: its noise standard deviation is 1).
@@ -97,6 +101,7 @@ class PayloadEstimator:
         friction_scale_std: float | None = FRICTION_SCALE_STD,
         mass_correction_std: tuple[float, float] | None = MASS_CORRECTION_STD,
         empty_moves: EmptyMoveSums | None = None,
+        torque_delay: float = MEASURED_TORQUE_DELAY,
     ) -> None:
         if regressor not in REGRESSORS:
             raise ValueError(f"regressor must be one of {tuple(REGRESSORS)}, got {regressor!r}")
@@ -105,6 +110,7 @@ class PayloadEstimator:
         require_positive("correlation_samples", correlation_samples)
         require_in("tare", tare, unit="kg")
         require_in("rest_rate", rest_rate, 0.0, unit="rad/s")
+        require_in("torque_delay", torque_delay, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
         friction = dynamics.parameters.coulomb if static_friction is None else tuple(static_friction)
         if len(friction) != 3 or not all(math.isfinite(f) and f >= 0.0 for f in friction):
             raise ValueError(f"static_friction must be 3 finite values >= 0 N m, got {static_friction!r}")
@@ -120,7 +126,13 @@ class PayloadEstimator:
         )
         self.fit = CorrectionFit(mass_correction_std, friction_scale_std, empty_moves)
         equation = equation_constants(
-            dynamics, friction, float(nominal_std), float(friction_velocity), float(correlation_samples), rest_rate
+            dynamics,
+            friction,
+            float(nominal_std),
+            float(friction_velocity),
+            float(correlation_samples),
+            rest_rate,
+            torque_delay / CONTROL_PERIOD,
         )
         self._regressor: Regressor = REGRESSORS[regressor](dynamics, equation, self.fit.state)
         self._moments = self._regressor.moments

@@ -6,8 +6,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
-
 RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
 ripple (1 N m amplitude, 0.7 N m RMS) and the model's error on the plant (about 1 N m RMS of
@@ -30,10 +28,6 @@ FRICTION_CORRELATION_SAMPLES = 100
 and the value was kept from the timed cell's tuning). Static friction is not white noise but one unknown constant
 per stop; inflating its variance by the number of correlated samples makes a whole dwell count as about one
 independent equation (the usual effective-sample-size correction of least squares with correlated errors)."""
-
-TORQUE_AGE = MEASURED_TORQUE_DELAY / CONTROL_PERIOD
-"""How long (in control periods) a measured torque precedes the encoder sample it comes with: the
-payload equation of a sample is formed at the state interpolated this far back towards the previous one."""
 
 REST_RATE = 0.05
 """Joint rate (rad/s) below which every joint counts as at rest: the payload equation of a sample with all

@@ -270,6 +270,7 @@ def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs
         masses=plant.masses,
         drive=plant.drive,
         encoder_bits=plant.realism.encoder_bits,
+        torque_delay=plant.timestep,
         compliance=result.compliance,
         **setup_kwargs,
     )

@@ -158,6 +158,7 @@ def base_setup(
             drive_lag=drive_lag,
             geometry=robot.geometry,
             masses=robot.masses,
+            torque_delay=robot.timestep,
             fault_reaction=scenario.task.fault_reaction,
             servo=servo,
         )
