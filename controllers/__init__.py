@@ -15,6 +15,7 @@ from controllers.compliance import (
     drive_modes,
     first_mode,
     first_mode_map,
+    gearhead_deflection,
 )
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
@@ -66,6 +67,7 @@ __all__ = [
     "drive_modes",
     "first_mode",
     "first_mode_map",
+    "gearhead_deflection",
     "model_controller",
     "servo_gains",
     "smooth_joint_motion",
