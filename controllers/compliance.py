@@ -147,33 +147,16 @@ class TwoMassLinearization:
         return modes[0]
 
 
-def gearhead_deflection(
-    dynamics: DeltaDynamics,
-    compliance: DriveCompliance,
-    model_torque: ArrayLike,
-    theta_dot: ArrayLike,
-    theta_ddot: ArrayLike,
+def static_deflection(
+    dynamics: DeltaDynamics, compliance: DriveCompliance, theta: ArrayLike, payload: float
 ) -> NDArray[np.float64]:
-    """The gearheads' deflection phi - theta (rad), (3,), that passes the arms' share of a model torque: the rotors'
-    reference is the arms' plus this (docs/design.md section 6, "The deflection feedforward").
-
-    The model's joint torque tau (rotor included, as the rigid model's is) drives the rotor J_m and its friction,
-    the rest passes the gearhead to the arm: tau_a = tau - J_m thdd - f_v thd - f_c sign(thd), and the gearhead
-    holds it at k delta = tau_a (its damper's c delta_dot, c / k = 55 us on the preset, left out).
-
-    Args:
-        dynamics: The model that gave ``model_torque`` (its friction acts on the rotor).
-        compliance: The drives.
-        model_torque: The model's joint torque at the reference (N m), (3,), with the payload it feeds forward.
-        theta_dot: The reference's rates (rad/s), (3,).
-        theta_ddot: The reference's accelerations (rad/s^2), (3,).
-    """
-    arm_torque = (
-        np.asarray(model_torque, dtype=float)
-        - np.asarray(compliance.rotor_inertia) * np.asarray(theta_ddot, dtype=float)
-        - dynamics.friction(theta_dot)
-    )
-    return arm_torque / np.asarray(compliance.stiffness)
+    """The gearheads' deflection phi - theta (rad), (3,), under the arms' static load at the pose ``theta`` (rad) with
+    ``payload`` (kg): the model's torque at rest there (gravity's, the arms' and the payload's; the rotor's inertia
+    and friction take none) over each gearhead's stiffness. The servo holds the rotors this far past the arms'
+    reference (docs/design.md section 6, "The deflection feedforward")."""
+    zero = np.zeros(3)
+    torque, regressor = dynamics.torque_and_payload_regressor(theta, zero, zero)
+    return (torque + payload * regressor) / np.asarray(compliance.stiffness)
 
 
 def joint_space_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:

@@ -382,14 +382,8 @@ class DeltaDynamics:
         """rho1 I thdd + rho2 G + fv thd + fc sign(thd) (N m): everything but the platform's share."""
         torque = self._scaled_inertia * theta_ddot + self._scaled_gravity * np.cos(theta)
         if self._has_friction:
-            torque = torque + self.friction(theta_dot)
+            torque = torque + self._viscous * theta_dot + self._coulomb * np.sign(theta_dot)
         return torque
-
-    def friction(self, theta_dot: ArrayLike) -> NDArray[np.float64]:
-        """The model's joint friction fv thd + fc sign(thd) (N m), shaped as ``theta_dot`` (rad/s, ``(..., 3)``);
-        sign(0) = 0."""
-        theta_dot = np.asarray(theta_dot, dtype=float)
-        return self._viscous * theta_dot + self._coulomb * np.sign(theta_dot)
 
 
 def _three_floats(value: ArrayLike) -> list[float]:

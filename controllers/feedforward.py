@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from controllers.base import JointFeedback, Observation, PDController
-from controllers.compliance import DriveCompliance, gearhead_deflection
+from controllers.compliance import DriveCompliance, static_deflection
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
@@ -57,8 +57,8 @@ class FeedforwardController:
         servo: The feedback part; ``PDController()`` (Kp 3000 N m/rad, Kd 60 N m s/rad) when None.
         estimator: Online payload estimator; None feeds forward mp = 0.
         compliance: The drives' compliance (:class:`~controllers.compliance.DriveCompliance`), whose encoders read the
-            rotors: the servo layer then holds them at the reference plus the gearheads' deflection under the model's
-            torque (:meth:`deflection`); None: rigid drives. It needs the servo layer
+            rotors: the servo layer then holds them at the reference plus the gearheads' deflection under the static
+            load (:meth:`deflection`); None: rigid drives. It needs the servo layer
             (:class:`~controllers.servo.JointServo`).
     """
 
@@ -117,43 +117,21 @@ class FeedforwardController:
                 else lambda: model_inertia(self.dynamics, angles, max(0.0, self.feedforward_mass)),
             )
 
-    def deflection(
-        self,
-        observation: Observation,
-        tau0: NDArray[np.float64] | None = None,
-        phi: NDArray[np.float64] | None = None,
-    ) -> NDArray[np.float64] | None:
-        """The gearheads' deflection (rad), (3,), under the model's torque at this step's reference with the apparent
-        payload of the last call (:func:`~controllers.compliance.gearhead_deflection`); None on rigid drives.
-        ``tau0`` and ``phi``: the model's torque and payload regressor there, if already evaluated."""
+    def deflection(self, observation: Observation) -> NDArray[np.float64] | None:
+        """The gearheads' deflection (rad), (3,), under the static load at this step's reference pose with the
+        apparent payload of the last call (:func:`~controllers.compliance.static_deflection`); None on rigid
+        drives."""
         if self.compliance is None:
             return None
-        if tau0 is None or phi is None:
-            tau0, phi = self.dynamics.torque_and_payload_regressor(
-                observation["reference_angles"],
-                observation["reference_velocities"],
-                observation["reference_accelerations"],
-            )
-        return gearhead_deflection(
-            self.dynamics,
-            self.compliance,
-            tau0 + self.feedforward_mass * phi,
-            observation["reference_velocities"],
-            observation["reference_accelerations"],
-        )
+        return static_deflection(self.dynamics, self.compliance, observation["reference_angles"], self.feedforward_mass)
 
-    def feedback(
-        self,
-        observation: Observation,
-        tau0: NDArray[np.float64] | None = None,
-        phi: NDArray[np.float64] | None = None,
-    ) -> NDArray[np.float64]:
+    def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The servo's torque (N m), (3,), scheduled first; on compliant drives with the rotors' reference
-        (:meth:`deflection`, ``tau0`` and ``phi`` as there)."""
+        (:meth:`deflection`)."""
         self.schedule_servo(observation)
         if self.compliance is None:
             return self.servo.feedback(observation)
-        return self.servo.feedback(observation, self.deflection(observation, tau0, phi))
+        return self.servo.feedback(observation, self.deflection(observation))
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         tau0, phi = self.dynamics.torque_and_payload_regressor(
@@ -161,7 +139,7 @@ class FeedforwardController:
             observation["reference_velocities"],
             observation["reference_accelerations"],
         )
-        feedback = self.feedback(observation, tau0, phi)
+        feedback = self.feedback(observation)
         if self.estimator is None:
             return tau0 + feedback
         mass = self.estimator.update(observation, tau0, phi)

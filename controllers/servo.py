@@ -446,7 +446,7 @@ class JointServo:
         Args:
             observation: The step's observation: the reference and the encoders' angles and rates.
             deflection: On compliant drives, the gearheads' deflection phi - theta (rad), (3,), that the arms'
-                reference asks of the rotors the encoders read (:func:`controllers.compliance.gearhead_deflection`):
+                reference asks of the rotors the encoders read (:func:`controllers.compliance.static_deflection`):
                 the servo holds the rotors at the reference plus it, its rate taken over the measured rate's window
                 (docs/design.md section 6, "The deflection feedforward"). None: the encoders read the arms.
         """

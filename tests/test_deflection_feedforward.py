@@ -1,6 +1,6 @@
 """The deflection feedforward of compliant drives (issue 36, docs/design.md section 6, "The deflection feedforward"):
 the servo on the motor encoder holds the rotor at the arm's reference plus the gearhead's deflection under the
-model's torque, so that the arm, not the rotor, comes to rest on the reference."""
+static load, so that the arm, not the rotor, comes to rest on the reference."""
 
 from dataclasses import replace
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from controllers.compliance import DriveCompliance, gearhead_deflection
+from controllers.compliance import DriveCompliance, static_deflection
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController
 from controllers.servo import JointServo, ResonanceNotch, ServoGains, servo_gains
@@ -83,29 +83,21 @@ def test_the_arm_rests_on_the_reference_with_the_deflection_fed_forward() -> Non
     arm sits L / k off it; with the deflection L / k fed forward it sits on it, and with a deflection from a stiffness
     twice the plant's it keeps half of L / k."""
     sag = LOAD / np.asarray(SOFT.stiffness)
-    model = DeltaDynamics.nominal()  # no friction: at rest the deflection is the load over the stiffness
-    deflection = gearhead_deflection(model, SOFT, LOAD, np.zeros(3), np.zeros(3))
-    np.testing.assert_allclose(deflection, sag, rtol=1e-12)
     np.testing.assert_allclose(_arm_at_rest(None), -sag, rtol=0.02)
-    np.testing.assert_allclose(_arm_at_rest(deflection), 0.0, atol=0.01 * np.abs(sag).min())
-    stiff = replace(SOFT, stiffness=tuple(2.0 * np.asarray(SOFT.stiffness)))
-    halved = gearhead_deflection(model, stiff, LOAD, np.zeros(3), np.zeros(3))
-    np.testing.assert_allclose(_arm_at_rest(halved), -0.5 * sag, rtol=0.02)
+    np.testing.assert_allclose(_arm_at_rest(sag), 0.0, atol=0.01 * np.abs(sag).min())
+    np.testing.assert_allclose(_arm_at_rest(0.5 * sag), -0.5 * sag, rtol=0.02)
 
 
-def test_the_deflection_takes_the_rotors_inertia_and_friction_off_the_models_torque() -> None:
-    """tau_a = tau - J_m thdd - f_v thd - f_c sign(thd): the rotor's share of the model torque does not pass the
-    gearhead."""
+@pytest.mark.parametrize("payload", [0.0, 2.5])
+def test_the_static_deflection_is_the_models_torque_at_rest_over_the_stiffness(payload: float) -> None:
+    """delta = tau(theta, 0, 0; m) / k: gravity's torque on the arms and the payload at the pose, whatever friction
+    the model has (it takes none at rest)."""
     model = DeltaDynamics.nominal(ModelParameters(viscous=(2.0, 3.0, 4.0), coulomb=(5.0, 6.0, 7.0)))
-    torque, rate = np.array([100.0, -50.0, 20.0]), np.array([1.0, -2.0, 0.0])
-    acceleration = np.array([30.0, 0.0, -40.0])
-    expected = (
-        torque
-        - GEARHEAD.rotor_inertia * acceleration
-        - np.array([2.0, 3.0, 4.0]) * rate
-        - np.array([5.0, 6.0, 7.0]) * np.sign(rate)
-    ) / np.asarray(SOFT.stiffness)
-    np.testing.assert_allclose(gearhead_deflection(model, SOFT, torque, rate, acceleration), expected, rtol=1e-12)
+    theta = np.array([0.3, -0.1, 0.5])
+    torque = model.inverse_dynamics(theta, np.zeros(3), np.zeros(3), payload)
+    expected = torque / np.asarray(SOFT.stiffness)
+    np.testing.assert_allclose(static_deflection(model, SOFT, theta, payload), expected, rtol=1e-9)
+    assert np.all(np.abs(expected) > 1e-5)  # tens of N m over 1.3e5 N m/rad
 
 
 @pytest.mark.parametrize("window", [CONTROL_PERIOD, 0.25e-3])
@@ -129,7 +121,7 @@ def test_the_servo_takes_the_deflections_rate_over_the_encoders_window(window: f
 @pytest.mark.parametrize("compliance", [None, SOFT])
 def test_the_model_rows_feed_the_deflection_forward_only_on_compliant_drives(controller_setup, compliance) -> None:
     """A model row of a rigid setup gives its servo no deflection (the rigid results unchanged); one of a compliant
-    setup gives it the deflection under its model's torque at the reference."""
+    setup gives it the deflection under its model's static load at the reference pose."""
     controller = model_row("mid_f_r", replace(controller_setup, compliance=compliance))
     assert isinstance(controller, FeedforwardController)
     observation = {
@@ -141,9 +133,8 @@ def test_the_model_rows_feed_the_deflection_forward_only_on_compliant_drives(con
     if compliance is None:
         assert deflection is None
         return
-    tau = controller.dynamics.inverse_dynamics(*observation.values())
-    expected = gearhead_deflection(controller.dynamics, SOFT, tau, *list(observation.values())[1:])
-    np.testing.assert_allclose(deflection, expected, rtol=1e-9)
+    expected = static_deflection(controller.dynamics, SOFT, observation["reference_angles"], 0.0)
+    np.testing.assert_allclose(deflection, expected, rtol=1e-12)
     assert np.all(np.abs(deflection) > 1e-5)
 
 
