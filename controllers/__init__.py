@@ -15,6 +15,7 @@ from controllers.compliance import (
     drive_modes,
     first_mode,
     first_mode_map,
+    static_deflection,
 )
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import JointStateFilter, JointStateSmoother, PayloadRLS, smooth_joint_motion
@@ -69,6 +70,7 @@ __all__ = [
     "model_controller",
     "servo_gains",
     "smooth_joint_motion",
+    "static_deflection",
     "tare_from_observations",
     "zv_shaper",
     "zvd_shaper",

@@ -147,6 +147,18 @@ class TwoMassLinearization:
         return modes[0]
 
 
+def static_deflection(
+    dynamics: DeltaDynamics, compliance: DriveCompliance, theta: ArrayLike, payload: float
+) -> NDArray[np.float64]:
+    """The gearheads' deflection phi - theta (rad), (3,), under the arms' static load at the pose ``theta`` (rad) with
+    ``payload`` (kg): the model's torque at rest there (gravity's, the arms' and the payload's; the rotor's inertia
+    and friction take none) over each gearhead's stiffness. The servo holds the rotors this far past the arms'
+    reference (docs/design.md section 6, "The deflection feedforward")."""
+    zero = np.zeros(3)
+    torque, regressor = dynamics.torque_and_payload_regressor(theta, zero, zero)
+    return (torque + payload * regressor) / np.asarray(compliance.stiffness)
+
+
 def joint_space_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:
     """The arm side's joint-space inertia M(theta, m_p) (kg m^2), shape (3, 3), of the analytical model.
 

@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from controllers.base import JointFeedback, Observation, PDController
+from controllers.compliance import DriveCompliance, static_deflection
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
@@ -55,6 +56,10 @@ class FeedforwardController:
         dynamics: The model; use ``DeltaDynamics.nominal(parameters)`` for nominal geometry and masses.
         servo: The feedback part; ``PDController()`` (Kp 3000 N m/rad, Kd 60 N m s/rad) when None.
         estimator: Online payload estimator; None feeds forward mp = 0.
+        compliance: The drives' compliance (:class:`~controllers.compliance.DriveCompliance`), whose encoders read the
+            rotors: the servo layer then holds them at the reference plus the gearheads' deflection under the static
+            load (:meth:`deflection`); None: rigid drives. It needs the servo layer
+            (:class:`~controllers.servo.JointServo`).
     """
 
     def __init__(
@@ -64,13 +69,19 @@ class FeedforwardController:
         *,
         servo: JointFeedback | None = None,
         estimator: PayloadEstimator | None = None,
+        compliance: DriveCompliance | None = None,
     ) -> None:
         if estimator is not None and estimator.dynamics is not dynamics:
             raise ValueError("the estimator must use the controller's model (the same DeltaDynamics)")
+        if compliance is not None and not isinstance(servo, JointServo):
+            raise ValueError(
+                f"the deflection feedforward of compliant drives needs the servo layer (a JointServo), got {servo!r}"
+            )
         self.name = name
         self.dynamics = dynamics
         self.servo = PDController() if servo is None else servo
         self.estimator = estimator
+        self.compliance = compliance
         self._scheduled = isinstance(self.servo, JointServo) and self.servo.scheduled
 
     @property
@@ -106,14 +117,29 @@ class FeedforwardController:
                 else lambda: model_inertia(self.dynamics, angles, max(0.0, self.feedforward_mass)),
             )
 
+    def deflection(self, observation: Observation) -> NDArray[np.float64] | None:
+        """The gearheads' deflection (rad), (3,), under the static load at this step's reference pose with the
+        apparent payload of the last call (:func:`~controllers.compliance.static_deflection`); None on rigid
+        drives."""
+        if self.compliance is None:
+            return None
+        return static_deflection(self.dynamics, self.compliance, observation["reference_angles"], self.feedforward_mass)
+
+    def feedback(self, observation: Observation) -> NDArray[np.float64]:
+        """The servo's torque (N m), (3,), scheduled first; on compliant drives with the rotors' reference
+        (:meth:`deflection`)."""
+        self.schedule_servo(observation)
+        if self.compliance is None:
+            return self.servo.feedback(observation)
+        return self.servo.feedback(observation, self.deflection(observation))
+
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
         tau0, phi = self.dynamics.torque_and_payload_regressor(
             observation["reference_angles"],
             observation["reference_velocities"],
             observation["reference_accelerations"],
         )
-        self.schedule_servo(observation)
-        feedback = self.servo.feedback(observation)
+        feedback = self.feedback(observation)
         if self.estimator is None:
             return tau0 + feedback
         mass = self.estimator.update(observation, tau0, phi)
@@ -437,8 +463,7 @@ class LagCompensatedController:
         self.reference.reset()
 
     def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        self.base.schedule_servo(observation)
-        feedback = self.base.servo.feedback(observation)
+        feedback = self.base.feedback(observation)
         if self.base.estimator is not None:  # the base's payload estimate from this step's observation
             self.base.estimator.update(observation)
         tau0, phi = self.base.dynamics.torque_and_payload_regressor(*self.reference.next(observation))
@@ -472,7 +497,11 @@ def model_controller(
     geometry: DeltaGeometry = NOMINAL_GEOMETRY,
     masses: DeltaMasses = NOMINAL_MASSES,
     drive_lag: ArrayLike | None = None,
+<<<<<<< HEAD
     torque_delay: float = MEASURED_TORQUE_DELAY,
+=======
+    compliance: DriveCompliance | None = None,
+>>>>>>> deflect
 ) -> FeedforwardController | LagCompensatedController:
     """A model feedforward + servo controller, optionally with the online payload estimator and the drive-lag lead.
 
@@ -490,7 +519,12 @@ def model_controller(
         masses: Datasheet masses of that robot (kg).
         drive_lag: Identified drive lag T (s) per joint (or one for all): the feedforward leads it
             (:class:`LagCompensatedController`); None feeds forward without a lead.
+<<<<<<< HEAD
         torque_delay: Age of the torque readings against their encoder samples (s), for the payload estimator.
+=======
+        compliance: Compliant drives' compliance, for the servo layer's deflection feedforward
+            (:class:`FeedforwardController`); None: rigid drives.
+>>>>>>> deflect
     """
     dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
     estimator = None
@@ -504,7 +538,7 @@ def model_controller(
             torque_delay=torque_delay,
         )
     label = name if name is not None else controller_name(forearm_rods, regressor is not None, drive_lag is not None)
-    controller = FeedforwardController(label, dynamics, servo=servo, estimator=estimator)
+    controller = FeedforwardController(label, dynamics, servo=servo, estimator=estimator, compliance=compliance)
     if drive_lag is None:
         return controller
     return LagCompensatedController(label, controller, drive_lag)

@@ -339,6 +339,7 @@ class JointServo:
         self._error = [0.0, 0.0, 0.0]  # the last sample's e and de/dt per joint (rad, rad/s), for a bumpless schedule
         self._rate_error = [0.0, 0.0, 0.0]
         self._schedule_samples = max(1, round(SCHEDULE_PERIOD / self.period))
+        self._deflections: list[list[float]] = []  # the last two samples' rotor deflections (rad), newest last
         self._samples = 0  # samples since the reset, for follow_inertia
         self._unscheduled()
 
@@ -441,11 +442,20 @@ class JointServo:
         self._rate_error = [0.0, 0.0, 0.0]
         self._samples = 0
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
+        self._deflections = []
         self.reference_rate.reset()
         self._unscheduled()
 
-    def feedback(self, observation: Observation) -> NDArray[np.float64]:
-        """The servo torque (N m), (3,)."""
+    def feedback(self, observation: Observation, deflection: ArrayLike | None = None) -> NDArray[np.float64]:
+        """The servo torque (N m), (3,).
+
+        Args:
+            observation: The step's observation: the reference and the encoders' angles and rates.
+            deflection: On compliant drives, the gearheads' deflection phi - theta (rad), (3,), that the arms'
+                reference asks of the rotors the encoders read (:func:`controllers.compliance.static_deflection`):
+                the servo holds the rotors at the reference plus it, its rate taken over the measured rate's window
+                (docs/design.md section 6, "The deflection feedforward"). None: the encoders read the arms.
+        """
         gains, period, kp, ki, kd = self.gains, self.period, self._kp, self._ki, self._kd
         limit, width = gains.integral_limit, gains.friction_width
         reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
@@ -453,6 +463,11 @@ class JointServo:
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
         measured_reference_rates = self.reference_rate.rates(observation)
+        if deflection is not None:
+            offset = np.asarray(deflection, dtype=float).tolist()
+            offset_rate = self._deflection_rate(offset)
+            reference = [reference[j] + offset[j] for j in range(3)]
+            measured_reference_rates = [measured_reference_rates[j] + offset_rate[j] for j in range(3)]
         if self._gain_matrices is not None:
             return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
@@ -473,6 +488,25 @@ class JointServo:
             for joint in range(3):
                 torque[joint] = notch_sample(self._notch_coefficients[joint], self._notch_state[joint], torque[joint])
         return np.array(torque)
+
+    def _deflection_rate(self, deflection: list[float]) -> list[float]:
+        """The mean rate (rad/s) of the rotors' ``deflection`` (rad) over the measured rate's window w ending now, from
+        this and the last two samples' (remembered here): the backward difference d1 over the period T is the mean
+        over T, and the mean over w < T is d1 + (T - w) d2 / 2 to first order, d2 the second difference over T^2;
+        0 before the second sample."""
+        history = self._deflections
+        history.append(deflection)
+        if len(history) > 3:
+            del history[0]
+        if len(history) == 1:
+            return [0.0, 0.0, 0.0]
+        period, shortfall = self.period, self.period - self.reference_rate.window
+        rates = [(history[-1][j] - history[-2][j]) / period for j in range(3)]
+        if len(history) == 3 and shortfall > 0.0:
+            for j in range(3):
+                second = (history[2][j] - 2.0 * history[1][j] + history[0][j]) / period**2
+                rates[j] += 0.5 * shortfall * second
+        return rates
 
     def _matrix_feedback(
         self,
@@ -501,5 +535,5 @@ class JointServo:
             )
         return torque
 
-    def __call__(self, observation: Observation) -> NDArray[np.float64]:
-        return self.feedback(observation)
+    def __call__(self, observation: Observation, deflection: ArrayLike | None = None) -> NDArray[np.float64]:
+        return self.feedback(observation, deflection)

@@ -165,7 +165,9 @@ def model_row(
     """The built-in model row ``key`` (one of :data:`MODEL_ROWS`) for the robot of ``setup``: its feedforward from
     the identified model, its PD and, for the RLS rows, its payload estimator with the setup's tare and empty moves
     of ``key`` (not behind a fault monitor). ``name``: its label (None: the model's name,
-    :func:`controllers.feedforward.controller_name`)."""
+    :func:`controllers.feedforward.controller_name`). With compliant drives (``setup.compliance``) its servo layer
+    holds the rotors at the reference plus the gearheads' deflection (docs/design.md section 6, "The deflection
+    feedforward"); the paper's PD (``servo="pd"``) holds them at the reference."""
     if key not in MODEL_ROWS:
         raise ValueError(f"{key!r} is not a model row; choose from {', '.join(MODEL_ROWS)}")
     row = MODEL_ROWS[key]
@@ -173,18 +175,23 @@ def model_row(
         raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
     parameters = row.model_parameters(setup)
     dynamics = DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=row.forearm_rods)
+    servo = row_servo(setup, dynamics)
     return model_controller(
         parameters,
         forearm_rods=row.forearm_rods,
         regressor=row.regressor,
         tare=setup.tares.get(key, 0.0),
         empty_moves=setup.empty_moves.get(key),
-        servo=row_servo(setup, dynamics),
+        servo=servo,
         name=name,
         geometry=setup.geometry,
         masses=setup.masses,
         drive_lag=setup.drive_lag if row.leads_lag else None,
+<<<<<<< HEAD
         torque_delay=setup.torque_delay,
+=======
+        compliance=setup.compliance if isinstance(servo, JointServo) else None,
+>>>>>>> deflect
     )
 
 

@@ -115,8 +115,9 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
     travel, descend 25 mm, dwell, and back to the next pick point). At each pick point a suction
     gripper (a weld) attaches a new object whose mass is drawn at random; it is released at the
     place point. By default (``release="in_position"``) the reference holds at rest at each point until the cell
-    judges the platform in position from its encoders, then the air activation runs (35 ms) and the gripper
-    switches at its end (:mod:`delta_env.release`); ``release="timed"`` switches it mid-way through a 0.1 s dwell.
+    judges the platform in position from its encoders (the arms' load encoders where fitted), then the air
+    activation runs (35 ms) and the gripper switches at its end (:mod:`delta_env.release`); ``release="timed"``
+    switches it mid-way through a 0.1 s dwell.
     The plant is the ``realistic`` MuJoCo model by default: true parallelograms, distributed masses, armature,
     friction, torque ripple and actuator lag that no analytical model in this project knows. One step is one
     control period, :attr:`dt` = 1 ms (two 0.5 ms physics steps).
@@ -500,10 +501,11 @@ class DeltaPickPlaceEnv(gym.Env[dict[str, NDArray[np.float64]], NDArray[np.float
             reward_torque = -self._torque_weight * (t0 * t0 + t1 * t1 + t2 * t2)
             reward = reward_tracking + reward_torque
 
-        # The cell's in-position signal, from the encoders only; waiting for it holds the reference at rest.
+        # The cell's in-position signal, from the encoders only (the arms' where fitted); waiting for it holds the
+        # reference at rest.
         in_position, settle = False, None
         if not diverged:
-            in_position, settle = self._in_position.step(k, self._sensors.angles, reference)
+            in_position, settle = self._in_position.step(k, self._sensors.cell_angles, reference)
             if reference.trajectory is not trajectory:
                 self._sensors.cover(len(reference.trajectory), self.np_random)
         truncated = k >= len(reference.trajectory) - 1

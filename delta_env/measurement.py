@@ -50,6 +50,9 @@ class Sensors:
 
     Attributes:
         angles: The last encoder readings (rad), three floats.
+        cell_angles: The last readings the cell judges the platform from (rad), three floats: the load encoder's
+            where one is fitted (it reads the arms, which the motor encoders of compliant drives do not: they read
+            the rotors, a gearhead's deflection away), else :attr:`angles`.
         torque_noise: The measured torques' noise of every sample of the reference (N m), (samples, 3).
     """
 
@@ -66,6 +69,7 @@ class Sensors:
         self.torque_noise_std = torque_noise_std
         self._actuator_force = plant.data.actuator_force  # a view: mjData keeps its buffers for its lifetime
         self.angles = [0.0, 0.0, 0.0]
+        self.cell_angles = self.angles
         self.torque_noise = np.zeros((1, 3))
         self._spare_noise: np.random.Generator | None = None
 
@@ -143,8 +147,12 @@ class Sensors:
             "reference_accelerations": trajectory.theta_ddot[k],
             "gripper": (_GRIPPER_CLOSED if holding else _GRIPPER_OPEN).copy(),
         }
-        if self.load_encoder_step is not None:
-            observation["load_angles"] = self._load_angles()
+        if self.load_encoder_step is None:
+            self.cell_angles = self.angles
+        else:
+            load_angles = self._load_angles()
+            observation["load_angles"] = load_angles
+            self.cell_angles = load_angles.tolist()
         return observation
 
     def _load_angles(self) -> NDArray[np.float64]:

@@ -4,8 +4,10 @@
 A real cell switches the suction cup's air only once its axes report "in position", then waits for the air to act
 (ABB's IRB 360 data sheet counts 35 ms of air activation at each end of its cycle). With ``release="in_position"``
 the reference arrives at each pick and place point and holds there at rest; every control step the cell judges
-the platform from what it measures only: the encoder angles through the forward kinematics of its own model of
-the robot (the declared geometry the reference is planned on), never the simulator's truth. The platform is *in
+the platform from what it measures only: the encoder angles (the load encoders' where the arms have them:
+compliant drives' motor encoders read the rotors, a gearhead's deflection away from the arms) through the forward
+kinematics of its own model of the robot (the declared geometry the reference is planned on), never the
+simulator's truth. The platform is *in
 position* once that position has stayed within ``in_position_window`` of the reference for ``in_position_time``
 (a number of consecutive samples, as a drive's positioning window with its monitoring time). Then the air
 activation runs (``air_activation``, the planned rest after the arrival): the object attaches or detaches at its

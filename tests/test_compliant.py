@@ -124,7 +124,7 @@ def test_backlash_is_a_dead_band() -> None:
 
 def test_drive_acts_on_the_rotor_and_its_encoder_reads_the_motor_shaft() -> None:
     """The actuator, the friction and the encoder sit on the rotor; the encoder's step at the joint is its own over
-    the gear ratio; the optional load encoder reads the arms."""
+    the gear ratio; the optional load encoder reads the arms, and the cell's in-position judge reads it."""
     compliance = replace(COMPLIANT.plant.realism.compliance, load_encoder_bits=20)
     plant_config = replace(COMPLIANT.plant, realism=replace(COMPLIANT.plant.realism, compliance=compliance))
     env = DeltaPickPlaceEnv(plant=plant_config, n_cycles=1)
@@ -145,6 +145,8 @@ def test_drive_acts_on_the_rotor_and_its_encoder_reads_the_motor_shaft() -> None
     np.testing.assert_allclose(observation["joint_angles"], rotor, rtol=0.0, atol=0.501 * step)
     np.testing.assert_allclose(observation["load_angles"], arm, rtol=0.0, atol=0.501 * load_step)
     assert env.observation_space.contains(observation)
+    # the cell judges in position on the arms' encoders where fitted, not on the rotors a deflection away
+    assert env._sensors.cell_angles == observation["load_angles"].tolist()
 
 
 def test_gearhead_randomization() -> None:
