@@ -36,16 +36,22 @@ ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED = 1, 2, 4
 """Bits of the checks' results: the clean row differs from the sample's reading (a new array is due)."""
 
 SENSOR_FIELDS = [
-    # the encoders: the last two clean readings (how many there are), the last raw one (if any) and the last good
-    # tracking error (rad); per joint, repeated readings in a suspect run, a stuck spell whose readings are still
-    # being replaced, and whether the last reading was replaced
+    # the encoders: the last three clean readings (how many there are, up to 3), the last raw one (if any) and the
+    # last good tracking error (rad); per joint, repeated readings in a suspect run, a stuck spell whose readings are
+    # still being replaced, and whether the last reading was replaced
     ("clean_count", np.int64),
     ("last", np.float64, (3,)),
     ("before", np.float64, (3,)),
+    ("earlier", np.float64, (3,)),
     ("raw_known", np.bool_),
     ("raw_previous", np.float64, (3,)),
     ("error", np.float64, (3,)),
     ("stuck", np.int64, (3,)),
+    # per joint, since its reading last changed: the repeats in a row while its reference moved, the torque (N m)
+    # and the tracking error (rad) of the last reading before them
+    ("rest_repeats", np.int64, (3,)),
+    ("rest_torque", np.float64, (3,)),
+    ("rest_error", np.float64, (3,)),
     ("after_stuck", np.uint8, (3,)),  # flags (numba has no boolean subarrays)
     ("encoder_bad", np.uint8, (3,)),
     ("glitch_active", np.uint8, (3,)),
@@ -138,7 +144,7 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
         if missing and state.nan_active[joint] == 0:
             record_event(state, SENSOR_NAN, joint, math.nan)
         state.nan_active[joint] = missing
-    if state.clean_count == 2:
+    if state.clean_count >= 2:
         last, before, previous = state.last, state.before, state.raw_previous
         second_difference = raw - 2.0 * last + before
         jump = np.empty(3, dtype=np.bool_)
@@ -164,8 +170,31 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
             # per sample (at rest, or coming to rest, a reading repeats rightly); once stuck, a joint stays stuck
             # while its reading repeats, whatever the reference does
             commanded = abs(reference_rates[joint]) * CONTROL_PERIOD >= state.stuck_step
-            moving = abs(last[joint] - before[joint]) >= state.stuck_step
+            # moving: the joint's next step, had it kept its last acceleration, is several counts (a joint that
+            # brakes through a reversal repeats its reading rightly, whatever its reference does)
+            step = last[joint] - before[joint]
+            if state.clean_count == 3:
+                step += last[joint] - 2.0 * before[joint] + state.earlier[joint]
+            moving = abs(step) >= state.stuck_step
             suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
+            # the reading before a run of repeats (or the first with a torque, in a run since the reset): the joint's
+            # torque and error where it stopped
+            if not repeated or (math.isnan(state.rest_torque[joint]) and state.torque_known):
+                state.rest_torque[joint] = state.torque_previous[joint] if state.torque_known else math.nan
+                state.rest_error[joint] = state.error[joint]
+            state.rest_repeats[joint] = state.rest_repeats[joint] + 1 if repeated and commanded else 0
+            # a joint whose reading repeats while its reference moves away from it is stuck once its drive's torque
+            # has moved towards the motion by more than rest can absorb, unless a force on the platform (a collision
+            # under way) may hold it (docs/design.md section 6, "Fault monitor"): the repeats are then replaced
+            # from the error held where it stopped, as a stuck spell's are
+            direction = _sign(reference_rates[joint])
+            behind = (reference[joint] - raw[joint]) * direction >= state.stuck_step
+            pushed = (state.torque_previous[joint] - state.rest_torque[joint]) * direction
+            must_move = behind and pushed > 2.0 * state.breakaway[joint] + TORQUE_MARGIN and not state.collision
+            if repeated and state.stuck[joint] == 0 and state.rest_repeats[joint] >= STUCK_SAMPLES and must_move:
+                suspect[joint] = True
+                state.stuck[joint] = STUCK_SAMPLES - 1
+                state.error[joint] = state.rest_error[joint]
             state.stuck[joint] = state.stuck[joint] + 1 if suspect[joint] else 0
         for joint in range(3):
             # a reading that repeats the last while the joint moves is a stuck encoder's (its jump is the joint's
@@ -200,12 +229,13 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
                 replaced |= RATES_REPLACED
         state.clean[0, joint], state.clean[1, joint] = angle, rate
         state.encoder_bad[joint] = bad[joint]
+    state.earlier[:] = state.before
     state.before[:] = state.last
     state.last[:] = state.clean[0]
     for joint in range(3):
         if continued[joint]:  # the reading it continued was the joint's too: the next second difference takes it
             state.before[joint] = continued_from[joint]
-    state.clean_count = min(state.clean_count + 1, 2)
+    state.clean_count = min(state.clean_count + 1, 3)
     return replaced
 
 
