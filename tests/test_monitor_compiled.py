@@ -512,8 +512,9 @@ def test_an_encoder_stuck_as_its_joint_leaves_rest_is_stuck_within_five_samples_
 
 
 def test_a_reading_that_repeats_at_rest_while_the_reference_starts_is_not_stuck() -> None:
-    # The joint's friction holds it for 10 samples while its reference starts and its torque rises by less than rest
-    # absorbs (twice the breakaway): a healthy start, not a stuck encoder.
+    # The joint's friction holds it for 10 samples while its reference starts and its torque rises to 3 N m beyond
+    # what rest absorbs (twice the breakaway) in the last two: too short to move it a count, a healthy start, not a
+    # stuck encoder.
     step, acceleration = 1e-4, np.array([200.0, 0.0, 0.0])
     breakaway = BREAKAWAY_FACTOR * PARAMETERS.coulomb[0]
     observations = _joint_stream(100, lambda k: _start(k, 1000, acceleration), lambda k: _start(k, 50, acceleration))
