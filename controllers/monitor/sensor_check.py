@@ -145,11 +145,13 @@ def _joint_inertia(constants: NDArray[np.uint8], angles: NDArray[np.float64], jo
 def clean_encoders(
     state: np.record, raw: NDArray[np.float64], rates: NDArray[np.float64], model_constants: NDArray[np.uint8]
 ) -> int:
-    """Check encoder readings (rad) and their rates (rad/s) against the last two clean readings and write the clean
+    """Check encoder readings (rad) and their rates (rad/s) against the last clean readings and write the clean
     ones into ``state.clean`` rows 0 and 1: a NaN or inf, an implausible jump (a second difference beyond
-    ``jump_bound``), a suspect repeat and a stuck run are detected and replaced by the reference plus the joint's
-    last good tracking error, their rates by the reference's; a rate next to a replaced reading, or missing, is the
-    clean backward difference. Returns :data:`ANGLES_REPLACED` and :data:`RATES_REPLACED` bits."""
+    ``jump_bound``), a suspect repeat and a stuck run (of a moving joint, or of one that left rest: its measured
+    torque, with the model's inertia from ``model_constants``, moved it a count) are detected and replaced by the
+    reference plus the joint's last good tracking error, their rates by the reference's; a rate next to a replaced
+    reading, or missing, is the clean backward difference. Returns :data:`ANGLES_REPLACED` and
+    :data:`RATES_REPLACED` bits."""
     reference, reference_rates = state.reference[0], state.reference[1]
     bad = np.empty(3, dtype=np.bool_)
     rate_missing = np.empty(3, dtype=np.bool_)
