@@ -217,7 +217,9 @@ def clean_encoders(
             pushed = (state.torque_previous[joint] - state.rest_torque[joint]) * direction
             excess = pushed - 2.0 * state.breakaway[joint]
             speed = 0.0  # where nothing pushes the joint on, its friction may have stopped it
-            if repeated and commanded and behind and excess > 0.0 and not state.collision:
+            # a mass picked up and not yet known may hold the joint too: the torque that lifts it moves nothing
+            unknown_load = state.gripper_before and not state.held_known
+            if repeated and commanded and behind and excess > 0.0 and not (state.collision or unknown_load):
                 held = state.held_mass if state.held_known else 0.0
                 inertia = _joint_inertia(model_constants, last, joint, max(state.feedforward_mass, held))
                 speed = state.rest_speed[joint] + excess * CONTROL_PERIOD / inertia
