@@ -7,6 +7,7 @@ magnitude; the checks on readings of known truth ask for the detection, its samp
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -30,6 +31,7 @@ from controllers.monitor.detector import loop_response
 from controllers.monitor.model_check import _slip_band, acceleration_step_response, lagged_step_weights, samples_to_show
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
+    BREAKAWAY_FACTOR,
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_STEP,
@@ -463,6 +465,93 @@ def test_a_reading_that_repeats_while_the_joint_moves_is_stuck_after_its_third_r
         assert cleans[k]["joint_angles"][0] == pytest.approx(observations[k]["reference_angles"][0] + ERROR[0])
         assert quiet[k] == (0 if k == 50 else SENSOR_QUIET)
     assert quiet[60] == 0 and cleans[60]["joint_angles"] is observations[60]["joint_angles"]
+
+
+def _joint_stream(
+    samples: int, arm: Callable[[float], np.ndarray], reference: Callable[[float], np.ndarray]
+) -> list[dict[str, np.ndarray]]:
+    """Observations of an arm at ``arm(k)`` ((3, 3): angles, rates, accelerations at sample k) whose drives deliver
+    the model's torque for it, following ``reference(k)``; the gripper open."""
+    observations = []
+    for k in range(samples):
+        state, planned = arm(k), reference(k)
+        torque, _, _ = DYNAMICS.torque_regressor_and_force_map(*arm(k - TORQUE_AGE))
+        observations.append(
+            {
+                "joint_angles": state[0].copy(),
+                "joint_velocities": state[1].copy(),
+                "joint_torques": np.array(torque.tolist()),
+                "reference_angles": planned[0],
+                "reference_velocities": planned[1],
+                "reference_accelerations": planned[2],
+                "gripper": np.zeros(1),
+            }
+        )
+    return observations
+
+
+def _start(k: float, start: int, acceleration: np.ndarray) -> np.ndarray:
+    """A reference at rest at 0.4 rad that starts at sample ``start`` with ``acceleration`` (rad/s^2), (3, 3)."""
+    t = max(k - start, 0.0) * CONTROL_PERIOD
+    moving = acceleration if k >= start else np.zeros(3)
+    return np.stack((0.4 + 0.5 * acceleration * t**2, acceleration * t, moving))
+
+
+def test_an_encoder_stuck_as_its_joint_leaves_rest_is_stuck_within_five_samples_and_no_collision() -> None:
+    # The reading freezes at rest as the move starts: the joint was not moving, so only its torque, which accelerates
+    # it from sample 50 by far more than its friction can hold, and its reference moving away tell that it moves.
+    step, acceleration = 1e-4, np.array([200.0, -150.0, 100.0])
+    observations = _joint_stream(100, lambda k: _start(k, 50, acceleration), lambda k: _start(k, 50, acceleration))
+    frozen = observations[49]["joint_angles"][0]
+    for observation in observations[50:80]:
+        observation["joint_angles"] = np.array([frozen, *observation["joint_angles"][1:]])
+    monitor = _monitor(encoder_step=step)
+    cleans = _run(monitor, observations)
+    ((kind, joint, sample),) = _found(monitor, collisions=True)
+    assert (kind, joint) == ("encoder_stuck", 0) and 50 + STUCK_SAMPLES - 1 <= sample <= 55
+    # from then on the joint is read from its reference and its error where it stopped (nil here)
+    for k in range(sample, 80):
+        assert cleans[k]["joint_angles"][0] == pytest.approx(observations[k]["reference_angles"][0], abs=1e-12)
+
+
+def test_a_reading_that_repeats_at_rest_while_the_reference_starts_is_not_stuck() -> None:
+    # The joint's friction holds it for 10 samples while its reference starts and its torque rises to 3 N m beyond
+    # what rest absorbs (twice the breakaway) in the last two: too short to move it a count, a healthy start, not a
+    # stuck encoder.
+    step, acceleration = 1e-4, np.array([200.0, 0.0, 0.0])
+    breakaway = BREAKAWAY_FACTOR * PARAMETERS.coulomb[0]
+    observations = _joint_stream(100, lambda k: _start(k, 1000, acceleration), lambda k: _start(k, 50, acceleration))
+    held = observations[49]["joint_torques"][0]
+    for k, observation in enumerate(observations[50:60]):
+        observation["joint_torques"][0] = held + (2.0 * breakaway + 0.5 * TORQUE_MARGIN) * k / 9
+    monitor = _monitor(encoder_step=step)
+    _run(monitor, observations[:60])
+    assert [event for event in monitor.events if event.kind.startswith("encoder")] == []
+    assert not monitor.suspect
+
+
+def test_a_joint_that_brakes_through_a_reversal_repeats_its_reading_rightly() -> None:
+    # Joint 0 brakes at 500 rad/s^2 through a stop half-way between samples 51 and 52, which read the same, while its
+    # reference runs away at 5 rad/s (a PD that lost its reference): its last step (5 counts) was a suspect's, but
+    # braking on, the step it was to make was nil, so the repeat is plausible and nothing is replaced (replaced from
+    # the reference, the joint's next readings made encoder glitches and fed the PD false readings).
+    step = 1e-4
+    braking = np.array([500.0, 0.0, 0.0])
+
+    def arm(k: float) -> np.ndarray:
+        t = (k - 51.5) * CONTROL_PERIOD
+        return np.stack((0.4 + 0.5 * braking * t**2, braking * t, braking))
+
+    def reference(k: float) -> np.ndarray:
+        rates = np.array([5.0, 0.0, 0.0])
+        return np.stack((0.4 + rates * (k - 40) * CONTROL_PERIOD, rates, np.zeros(3)))
+
+    observations = _joint_stream(70, arm, reference)
+    assert observations[52]["joint_angles"][0] == observations[51]["joint_angles"][0]
+    monitor = _monitor(encoder_step=step)
+    cleans = _run(monitor, observations)
+    assert [event for event in monitor.events if event.kind.startswith("encoder")] == []
+    assert all(clean["joint_angles"] is seen["joint_angles"] for clean, seen in zip(cleans, observations, strict=True))
 
 
 @pytest.mark.parametrize("reading", ["joint_angles", "joint_velocities"])

@@ -4,7 +4,8 @@
 
 - **Sensor plausibility**, at the sample itself: a NaN or inf reading; an encoder step whose second difference
   asks an acceleration no drive could give (:data:`ACCELERATION_FACTOR`); an encoder that repeats its reading while
-  the joint was moving several counts per sample (:data:`STUCK_SAMPLES`); a measured torque outside what a
+  the joint was moving several counts per sample, or while its torque beyond what rest holds moved it from rest
+  (:data:`STUCK_SAMPLES`); a measured torque outside what a
   first-order current loop can do between the last torque and the held command (:data:`TORQUE_MARGIN`). Measured
   torques that stay short of the prediction, or keep falling short of what the slowest healthy loop would reach (a
   CUSUM, :data:`DRIVE_FAULT_EVIDENCE`), are a drive that does not deliver its command.

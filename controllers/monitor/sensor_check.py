@@ -14,12 +14,14 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from controllers.compiled_model import single_sample_model
 from controllers.monitor.compiled import loop_output
 from controllers.monitor.tuning import (
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_SAMPLES,
     DRIVE_FAULT_STEP,
+    STUCK_COUNTS,
     STUCK_SAMPLES,
     TORQUE_MARGIN,
 )
@@ -36,16 +38,24 @@ ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED = 1, 2, 4
 """Bits of the checks' results: the clean row differs from the sample's reading (a new array is due)."""
 
 SENSOR_FIELDS = [
-    # the encoders: the last two clean readings (how many there are), the last raw one (if any) and the last good
-    # tracking error (rad); per joint, repeated readings in a suspect run, a stuck spell whose readings are still
-    # being replaced, and whether the last reading was replaced
+    # the encoders: the last three clean readings (how many there are, up to 3), the last raw one (if any) and the
+    # last good tracking error (rad); per joint, repeated readings in a suspect run, a stuck spell whose readings are
+    # still being replaced, and whether the last reading was replaced
     ("clean_count", np.int64),
     ("last", np.float64, (3,)),
     ("before", np.float64, (3,)),
+    ("earlier", np.float64, (3,)),
     ("raw_known", np.bool_),
     ("raw_previous", np.float64, (3,)),
     ("error", np.float64, (3,)),
     ("stuck", np.int64, (3,)),
+    # per joint, since its reading last changed: its repeats, the torque (N m) and the tracking error (rad) where it
+    # stopped, and the speed (rad/s) and travel (rad) that the torque beyond what rest absorbs gave it since
+    ("rest_repeats", np.int64, (3,)),
+    ("rest_torque", np.float64, (3,)),
+    ("rest_error", np.float64, (3,)),
+    ("rest_speed", np.float64, (3,)),
+    ("rest_travel", np.float64, (3,)),
     ("after_stuck", np.uint8, (3,)),  # flags (numba has no boolean subarrays)
     ("encoder_bad", np.uint8, (3,)),
     ("glitch_active", np.uint8, (3,)),
@@ -117,12 +127,31 @@ def _sign(value: float) -> float:
 
 
 @numba.njit(cache=True)
-def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np.float64]) -> int:
-    """Check encoder readings (rad) and their rates (rad/s) against the last two clean readings and write the clean
+def _joint_inertia(constants: NDArray[np.uint8], angles: NDArray[np.float64], joint: int, mass: float) -> float:
+    """The model's inertia (kg m^2) of ``joint`` at rest at ``angles`` (rad, (3,)) with ``mass`` (kg) held: its torque
+    per unit of its own acceleration, the other joints at rest; NaN where the model cannot take the pose."""
+    accelerations = np.zeros(3)
+    accelerations[joint] = 1.0
+    status, rest = single_sample_model(constants, angles[0], angles[1], angles[2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    moved_status, moved = single_sample_model(
+        constants, angles[0], angles[1], angles[2], 0.0, 0.0, 0.0, accelerations[0], accelerations[1], accelerations[2]
+    )
+    if status != 0 or moved_status != 0:
+        return math.nan
+    return moved[0, joint] - rest[0, joint] + mass * (moved[1, joint] - rest[1, joint])
+
+
+@numba.njit(cache=True)
+def clean_encoders(
+    state: np.record, raw: NDArray[np.float64], rates: NDArray[np.float64], model_constants: NDArray[np.uint8]
+) -> int:
+    """Check encoder readings (rad) and their rates (rad/s) against the last clean readings and write the clean
     ones into ``state.clean`` rows 0 and 1: a NaN or inf, an implausible jump (a second difference beyond
-    ``jump_bound``), a suspect repeat and a stuck run are detected and replaced by the reference plus the joint's
-    last good tracking error, their rates by the reference's; a rate next to a replaced reading, or missing, is the
-    clean backward difference. Returns :data:`ANGLES_REPLACED` and :data:`RATES_REPLACED` bits."""
+    ``jump_bound``), a suspect repeat and a stuck run (of a moving joint, or of one that left rest: its measured
+    torque, with the model's inertia from ``model_constants``, moved it a count) are detected and replaced by the
+    reference plus the joint's last good tracking error, their rates by the reference's; a rate next to a replaced
+    reading, or missing, is the clean backward difference. Returns :data:`ANGLES_REPLACED` and
+    :data:`RATES_REPLACED` bits."""
     reference, reference_rates = state.reference[0], state.reference[1]
     bad = np.empty(3, dtype=np.bool_)
     rate_missing = np.empty(3, dtype=np.bool_)
@@ -138,7 +167,7 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
         if missing and state.nan_active[joint] == 0:
             record_event(state, SENSOR_NAN, joint, math.nan)
         state.nan_active[joint] = missing
-    if state.clean_count == 2:
+    if state.clean_count >= 2:
         last, before, previous = state.last, state.before, state.raw_previous
         second_difference = raw - 2.0 * last + before
         jump = np.empty(3, dtype=np.bool_)
@@ -164,8 +193,46 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
             # per sample (at rest, or coming to rest, a reading repeats rightly); once stuck, a joint stays stuck
             # while its reading repeats, whatever the reference does
             commanded = abs(reference_rates[joint]) * CONTROL_PERIOD >= state.stuck_step
-            moving = abs(last[joint] - before[joint]) >= state.stuck_step
+            # moving: the joint's next step, had it kept its last acceleration, is several counts (a joint that
+            # brakes through a reversal repeats its reading rightly, whatever its reference does)
+            step = last[joint] - before[joint]
+            if state.clean_count == 3:
+                step += last[joint] - 2.0 * before[joint] + state.earlier[joint]
+            moving = abs(step) >= state.stuck_step
             suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
+            # the joint's torque and error where it stopped: at the reading before a run of repeats, or later while
+            # its reference rests (a pick's load held at rest is no push)
+            resting = abs(reference_rates[joint]) * CONTROL_PERIOD * STUCK_COUNTS < state.stuck_step
+            if not repeated or resting or (math.isnan(state.rest_torque[joint]) and state.torque_known):
+                state.rest_torque[joint] = state.torque_previous[joint] if state.torque_known else math.nan
+                state.rest_error[joint] = state.error[joint]
+            state.rest_repeats[joint] = state.rest_repeats[joint] + 1 if repeated else 0
+            # a joint whose reading repeats while its reference moves away from it is stuck once its drive's torque
+            # beyond what rest absorbs (it moved towards the motion by more than the friction's whole swing) has
+            # moved the joint, with the model's inertia, by more than a count, unless a force on the platform (a
+            # collision under way) may hold it (docs/design.md section 6, "Fault monitor"): the repeats are then
+            # replaced from the error held where it stopped, as a stuck spell's are
+            direction = _sign(reference_rates[joint])
+            behind = (reference[joint] - raw[joint]) * direction >= state.stuck_step
+            pushed = (state.torque_previous[joint] - state.rest_torque[joint]) * direction
+            excess = pushed - 2.0 * state.breakaway[joint]
+            speed = 0.0  # where nothing pushes the joint on, its friction may have stopped it
+            # a mass picked up and not yet known may hold the joint too: the torque that lifts it moves nothing
+            unknown_load = state.gripper_before and not state.held_known
+            if repeated and commanded and behind and excess > 0.0 and not (state.collision or unknown_load):
+                held = state.held_mass if state.held_known else 0.0
+                inertia = _joint_inertia(model_constants, last, joint, max(state.feedforward_mass, held))
+                speed = state.rest_speed[joint] + excess * CONTROL_PERIOD / inertia
+            if not repeated:
+                state.rest_travel[joint] = 0.0
+            else:
+                state.rest_travel[joint] += 0.5 * (state.rest_speed[joint] + speed) * CONTROL_PERIOD
+            state.rest_speed[joint] = speed
+            must_move = state.rest_travel[joint] > state.stuck_step / STUCK_COUNTS  # beyond one count
+            if state.stuck[joint] == 0 and state.rest_repeats[joint] >= STUCK_SAMPLES and must_move:
+                suspect[joint] = True
+                state.stuck[joint] = STUCK_SAMPLES - 1
+                state.error[joint] = state.rest_error[joint]
             state.stuck[joint] = state.stuck[joint] + 1 if suspect[joint] else 0
         for joint in range(3):
             # a reading that repeats the last while the joint moves is a stuck encoder's (its jump is the joint's
@@ -200,12 +267,13 @@ def clean_encoders(state: np.record, raw: NDArray[np.float64], rates: NDArray[np
                 replaced |= RATES_REPLACED
         state.clean[0, joint], state.clean[1, joint] = angle, rate
         state.encoder_bad[joint] = bad[joint]
+    state.earlier[:] = state.before
     state.before[:] = state.last
     state.last[:] = state.clean[0]
     for joint in range(3):
         if continued[joint]:  # the reading it continued was the joint's too: the next second difference takes it
             state.before[joint] = continued_from[joint]
-    state.clean_count = min(state.clean_count + 1, 2)
+    state.clean_count = min(state.clean_count + 1, 3)
     return replaced
 
 

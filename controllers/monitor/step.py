@@ -96,7 +96,8 @@ def monitor_step(
     state.reference[0, :] = reference_angles
     state.reference[1, :] = reference_rates
     state.reference[2, :] = reference_accelerations
-    replaced = clean_encoders(state, angles, rates) | clean_torques(state, torques, command, has_command)
+    replaced = clean_encoders(state, angles, rates, model_constants)
+    replaced |= clean_torques(state, torques, command, has_command)
     faulty = suspect = short = stepped_back = False
     for joint in range(3):
         faulty |= state.encoder_bad[joint] != 0 or state.torque_bad[joint] > 0

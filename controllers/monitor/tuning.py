@@ -12,8 +12,9 @@ joint's own drive gives its arm at peak torque (peak / (rho1 I)): the other chai
 to it, but not double it (a 1000 N push on the platform adds about 300 N m at a joint)."""
 
 STUCK_COUNTS = 4.0
-"""An encoder that repeats its reading is suspect when its last step, and its reference's step, were at least this
-many counts."""
+"""An encoder that repeats its reading is suspect when the step its joint was to make (its last step plus its last
+second difference) and its reference's step were at least this many counts; a joint that left rest is stuck only
+while its reference runs this many counts per sample and lies this many counts beyond the reading."""
 
 STUCK_SAMPLES = 3
 """Repeated readings of a suspect encoder that make it stuck."""
