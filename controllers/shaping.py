@@ -30,6 +30,7 @@ reference pose and the controller's payload estimate, redesigned every :data:`~c
 from __future__ import annotations
 
 import math
+import weakref
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -372,7 +373,9 @@ class JerkLimitedTiming:
         self.window = window
         self.carried_payload = require_in("carried_payload", carried_payload, 0.0, unit="kg")
         self.retimes_online = timing.retimes_online
-        self._inner: dict[TimeLaw, TimeLaw] = {}  # each smoothed law given out -> the timing's law it smooths
+        # each smoothed law given out -> the timing's law it smooths, while the reference that follows it keeps it
+        # (the env plans every move of an episode at its reset, episode after episode)
+        self._inner: weakref.WeakKeyDictionary[TimeLaw, TimeLaw] = weakref.WeakKeyDictionary()
 
     def _smoothed(self, shape: Segment, law: TimeLaw, payload: float) -> TimeLaw:
         window = require_in("window", self.window(shape, payload), 0.0, MAX_SHAPER_DURATION, unit="s", low_open=True)

@@ -75,8 +75,8 @@ PATH_WINDOW = 100
 
 RESIDUAL_WINDOW = 0.030
 """Window (s) of the residual vibration at the place, from the cell's in-position signal (the platform measured
-within the in-position window): the motion the object sees while the gripper releases it. Six periods of the
-compliant drives' first mode (146-234 Hz over the designs and payloads) and about two of its decay times (damping
+within the in-position window): the motion the object sees while the gripper releases it. Four to seven periods of
+the compliant drives' first mode (146-234 Hz over the designs and payloads) and 1.4 to 2.2 of its decay times (damping
 ratio near 0.05), and within the default air activation (35 ms), so that the release's step in the static deflection
 is not in it. docs/design.md section 9."""
 

@@ -256,7 +256,7 @@ def rate(config: RateConfig, run: Run, started: float) -> None:
     scenario = config.scenario
     # Every tared row is tared; the lead's estimator retimes the online carries (the cell's own if the lead has none).
     tared = tared_keys(config.controllers, None)
-    if not controller_entry(config.controllers[0]).has_estimator:
+    if not controller_entry(config.controllers[0]).has_estimator and CELL_ESTIMATOR_KEY not in tared:
         tared.append(CELL_ESTIMATOR_KEY)
     if config.quick:
         print(f"{QUICK_NOTE} Measuring {study_line(config)}.", flush=True)
