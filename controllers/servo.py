@@ -179,7 +179,7 @@ def loop_delay(drive_lag: float, period: float = CONTROL_PERIOD) -> float:
 
 
 def _crossover_ratio() -> float:
-    """The triple-pole loop's gain crossover over its pole, w_c / w0 (module docstring of :func:`phase_margin`): with
+    """The triple-pole loop's gain crossover over its pole, w_c / w0 (the docstring of :func:`phase_margin`): with
     y = (w_c / w0)^2, |L| = 1 reads y^3 - 9 y^2 - 3 y - 1 = 0, whose one real root is positive."""
     roots = np.roots([1.0, -9.0, -3.0, -1.0])
     return math.sqrt(float(roots[np.argmin(np.abs(roots.imag))].real))

@@ -26,14 +26,14 @@ from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
 from delta_env.sensors import (
-    CONTROL_PERIOD,
     ENCODER_BITS,
     MEASURED_TORQUE_DELAY,
     PHYSICS_TIMESTEP,
     encoder_resolution,
     rate_window,
+    require_torque_age,
 )
-from delta_env.validation import require_in, require_joint_vector
+from delta_env.validation import require_joint_vector
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,7 @@ class ControllerSetup:
             require_joint_vector("drive_lag", self.drive_lag, 0.0, MAX_TIME_CONSTANT, unit="s")
         if self.stribeck_excess is not None:
             require_joint_vector("stribeck_excess", self.stribeck_excess, 0.0, TORQUE_LIMIT, unit="N m")
-        require_in("torque_delay", self.torque_delay, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
+        require_torque_age(self.torque_delay)
 
     def to_table(self) -> dict[str, Any]:
         """Every field as a table of TOML values (:func:`delta_env.records.to_table`): the record's written form."""

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from delta_env.validation import require_in
+
 CONTROL_PERIOD = 1e-3
 """Sample period of the encoders, the torque sensing and the controller (s): a 1 kHz loop."""
 
@@ -53,6 +55,12 @@ one physics step before the encoder sample. The within-period shape of the drive
 the best fit by a fraction of h (to about 0.45 ms with the default 1 ms lag); tested against the
 simulator in ``tests/test_sensors.py``.
 """
+
+
+def require_torque_age(value: float) -> float:
+    """``value``, the age (s) of a measured torque against its encoder sample, as a float if it lies in
+    (0, :data:`CONTROL_PERIOD`] (a reading taken within the period it is read in), else ValueError naming it."""
+    return require_in("torque_delay", value, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
 
 
 def rate_window(encoder_bits: int | None, timestep: float) -> float:

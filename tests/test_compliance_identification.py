@@ -272,10 +272,14 @@ def test_compliance_options_belong_to_log_files(capsys) -> None:
 
     with pytest.raises(SystemExit):
         cli.parse_args(["--scenario", "compliant", "--torque-age", "0.00025"])
-    assert "--torque-age describe --log files" in capsys.readouterr().err
+    assert "--torque-age: only for --log files" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # the default's value too: a simulation takes none
+        cli.parse_args(["--scenario", "compliant", "--torque-age", "0.0005"])
     with pytest.raises(SystemExit):
-        cli.parse_args(["--log", "a.csv", "b.csv", "--robot", "r.toml", "--torque-age", "0.02"])
-    assert "must lie in [0, 0.01] s, got 0.02" in capsys.readouterr().err
+        cli.parse_args(["--log", "a.csv", "b.csv", "--robot", "r.toml", "--torque-age", "0.002"])
+    assert "torque_delay must be a finite number in (0, 0.001] s, got 0.002" in capsys.readouterr().err
+    config = cli.parse_args(["--log", "a.csv", "b.csv", "--robot", "r.toml"])
+    assert config.torque_age == 0.0005
 
 
 def test_the_excitation_notches_the_drive_mode_it_would_otherwise_ring_at() -> None:

@@ -37,7 +37,7 @@ from delta_env.scenario import preset
 from delta_env.sensors import ENCODER_RESOLUTION
 from eval.identification import parameter_files
 from eval.identification.excitation import ExcitationSpec, collect_excitation_data
-from eval.identification.parameter_files import identify_robot, load_or_identify, outdated, parameter_path
+from eval.identification.parameter_files import identify_robot, load_or_identify, outdated, parameter_path, robot_setup
 from eval.identification.run import IDENTIFICATION_VERSION, identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
@@ -540,3 +540,15 @@ def test_load_or_identify_refuses_an_older_identification_from_logs(tmp_path, mo
     monkeypatch.setattr(parameter_files, "identify", pytest.fail)
     with pytest.raises(ParameterFileError, match="identification from logs in an older file format"):
         load_or_identify(path)
+
+
+def test_the_controllers_take_a_log_identified_robots_torque_age_from_its_file() -> None:
+    """A robot identified from logs knows its torque readings' age only from the file (``--torque-age``); a
+    simulated one has its plant's physics step, whatever its file says."""
+    plant = preset("compliant").plant
+    from_logs = dataclasses.replace(
+        RESULT, provenance={"plant": {"source": "logs"}, "method": {"torque_sample_delay_s": 0.0003}}
+    )
+    simulated = dataclasses.replace(RESULT, provenance={"method": {"torque_sample_delay_s": 0.0003}})
+    assert robot_setup(plant, from_logs).torque_delay == 0.0003
+    assert robot_setup(plant, simulated).torque_delay == plant.timestep == 0.00025

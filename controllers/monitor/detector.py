@@ -35,7 +35,7 @@ from controllers.monitor.tuning import (
 )
 from controllers.payload import ModelCorrections
 from delta_env.faults import FAULT_KINDS
-from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY, require_torque_age
 from delta_env.validation import require_in, require_positive
 
 SETTINGS = ("corrections", "charged_coulomb", "breakaway")
@@ -87,7 +87,7 @@ class FaultMonitor:
         torque_delay: float = MEASURED_TORQUE_DELAY,
     ) -> None:
         require_positive("peak_torque", peak_torque, unit="N m")
-        require_in("torque_delay", torque_delay, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
+        require_torque_age(torque_delay)
         age = torque_delay / CONTROL_PERIOD
         lags = (1e-3,) * 3 if drive_lag is None else tuple(drive_lag)
         for lag in lags:

@@ -30,7 +30,7 @@ from controllers.payload.tuning import (
     REST_RATE,
     residual_std,
 )
-from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY, require_torque_age
 from delta_env.validation import require_in, require_positive
 
 
@@ -110,7 +110,7 @@ class PayloadEstimator:
         require_positive("correlation_samples", correlation_samples)
         require_in("tare", tare, unit="kg")
         require_in("rest_rate", rest_rate, 0.0, unit="rad/s")
-        require_in("torque_delay", torque_delay, 0.0, CONTROL_PERIOD, unit="s", low_open=True)
+        require_torque_age(torque_delay)
         friction = dynamics.parameters.coulomb if static_friction is None else tuple(static_friction)
         if len(friction) != 3 or not all(math.isfinite(f) and f >= 0.0 for f in friction):
             raise ValueError(f"static_friction must be 3 finite values >= 0 N m, got {static_friction!r}")

@@ -39,7 +39,7 @@ from controllers.identification import BAG_SUFFIXES, save_result, write_log
 from controllers.identification.bags import JOINT_COMMANDS_TOPIC, JOINT_STATES_TOPIC, BagTopics, is_bag
 from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.scenario import Scenario, save_robot
-from delta_env.sensors import MEASURED_TORQUE_DELAY
+from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY, require_torque_age
 from eval.console import CommandParser, command_main, resolved_arguments
 from eval.identification.excitation import DEFAULT_DURATION, VALIDATION_DURATION
 from eval.identification.parameter_files import (
@@ -71,9 +71,6 @@ LOG_FORMATS = {"csv": ".csv", "parquet": ".parquet", "mcap": ".mcap", "sqlite3":
 QUICK = {"trajectories": 3, "duration": 3.0, "validation_duration": 3.0, "workers": 1}
 """Settings of ``--quick`` (a smoke run in seconds, rough parameters), unless given explicitly; one process, as
 starting a second costs more than the four short runs it would share."""
-
-TORQUE_AGE_RANGE = (0.0, 0.01)
-"""Allowed ages (s) of the logs' torque readings against their angles (``--torque-age``)."""
 
 BAG_OPTIONS = ("topic", "joint_names", "command_topic")
 """Options that say what to read from the ROS 2 bags among the ``--log`` files."""
@@ -114,6 +111,18 @@ def _describe_quick() -> str:
     return ", ".join(f"--{name.replace('_', '-')} {value:g}" for name, value in QUICK.items())
 
 
+def _torque_age(text: str) -> float:
+    """An argparse type: a torque reading's age (s), :func:`~delta_env.sensors.require_torque_age`."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    try:
+        return require_torque_age(value)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def _joint_names(text: str) -> tuple[str, str, str]:
     """An argparse type: three distinct joint names separated by commas."""
     names = tuple(name.strip() for name in text.split(","))
@@ -144,7 +153,8 @@ class IdentifyConfig:
         command_topic: Bags: the topic of the commanded torques, or None.
         robot: The robot file of ``log``, or None.
         compliance_log: Logs of the compliance excitation to identify compliant drives on (with ``log``), or None.
-        torque_age: Age of the logs' torque readings against their angles (s).
+        torque_age: Age of the logs' torque readings against their angles (s), with ``log`` (the default physics
+            step's unless given); None for a simulation, which knows its own.
         workers: Processes, or None (up to 2 cores).
         out: The run folder: ``--out`` until the folder is made, then the folder.
         force: Write into an existing, non-empty ``out``.
@@ -172,7 +182,7 @@ class IdentifyConfig:
     command_topic: str | None
     robot: Path | None
     compliance_log: tuple[Path, ...] | None
-    torque_age: float
+    torque_age: float | None
     workers: int | None
     out: Path | None
     force: bool
@@ -269,12 +279,12 @@ def argument_parser() -> CommandParser:
     )
     parser.add_argument(
         "--torque-age",
-        type=_number_in(float, *TORQUE_AGE_RANGE, "s"),
-        default=MEASURED_TORQUE_DELAY,
+        type=_torque_age,
+        default=None,
         metavar="S",
-        help="with --log: how much older the logs' torque readings are than their angles (s), "
-        f"{TORQUE_AGE_RANGE[0]:g} to {TORQUE_AGE_RANGE[1]:g} (default {MEASURED_TORQUE_DELAY:g}, a simulated drive "
-        "at the default physics step; a simulated plant's is its physics step)",
+        help="with --log: how much older the logs' torque readings are than their angles (s), in "
+        f"(0, {CONTROL_PERIOD:g}] (default {MEASURED_TORQUE_DELAY:g}, a simulated drive at the default physics step; "
+        "a simulated plant's is its physics step)",
     )
     parser.add_argument(
         "--workers", type=_number_in(int, 1, 64), default=None, help="processes (default: up to 2 cores)"
@@ -313,6 +323,7 @@ def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> I
                 "scenario": None,
                 "log": tuple(arguments.log),
                 "compliance_log": compliance_log,
+                "torque_age": MEASURED_TORQUE_DELAY if arguments.torque_age is None else arguments.torque_age,
                 "robot_identity": None,
             }
         )
@@ -324,12 +335,10 @@ def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> I
         arguments = resolved_arguments(arguments, **quick, no_install=True)
     if arguments.robot is not None:
         parser.error("--robot names the robot of --log files; without --log the robot is the scenario's")
-    log_options = [
-        name for name in ("compliance_log", "torque_age") if getattr(arguments, name) != parser.get_default(name)
-    ]
+    log_options = [name for name in ("compliance_log", "torque_age") if getattr(arguments, name) is not None]
     if log_options:
-        names = ", ".join("--" + name.replace("_", "-") for name in log_options)
-        parser.error(f"{names} describe --log files; a simulation knows its own drives' timing and logs")
+        names = " and ".join("--" + name.replace("_", "-") for name in log_options)
+        parser.error(f"{names}: only for --log files; a simulation knows its own drives' timing and logs")
     scenario = scenario_from_arguments(arguments, parser)
     own = parameter_path(scenario.plant, identification_root(arguments.runs_dir))
     settings = simulation_settings(arguments)

@@ -251,6 +251,16 @@ def robot_identification(
     return Path(parameters), result
 
 
+def identified_torque_age(result: IdentificationResult, plant: PlantConfig) -> float:
+    """The age (s) of the robot's torque readings against their encoder samples: ``plant``'s physics step for a
+    simulated identification (the age its readings have), the age the logs were identified with
+    (``--torque-age``, recorded in ``result``'s provenance) for a robot identified from its logs."""
+    provenance = result.provenance
+    if provenance.get("plant", {}).get("source") == "logs":
+        return float(provenance["method"]["torque_sample_delay_s"])
+    return plant.timestep
+
+
 def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs: Any) -> ControllerSetup:
     """What the controllers know of the robot ``plant`` builds: its lengths, datasheet masses and ``result`` (with the
     drives' compliance when the identification fitted it: the model rows' servo then notches its drive mode).
@@ -270,7 +280,7 @@ def robot_setup(plant: PlantConfig, result: IdentificationResult, **setup_kwargs
         masses=plant.masses,
         drive=plant.drive,
         encoder_bits=plant.realism.encoder_bits,
-        torque_delay=plant.timestep,
+        torque_delay=identified_torque_age(result, plant),
         compliance=result.compliance,
         **setup_kwargs,
     )
