@@ -497,11 +497,8 @@ def model_controller(
     geometry: DeltaGeometry = NOMINAL_GEOMETRY,
     masses: DeltaMasses = NOMINAL_MASSES,
     drive_lag: ArrayLike | None = None,
-<<<<<<< HEAD
     torque_delay: float = MEASURED_TORQUE_DELAY,
-=======
     compliance: DriveCompliance | None = None,
->>>>>>> deflect
 ) -> FeedforwardController | LagCompensatedController:
     """A model feedforward + servo controller, optionally with the online payload estimator and the drive-lag lead.
 
@@ -519,12 +516,9 @@ def model_controller(
         masses: Datasheet masses of that robot (kg).
         drive_lag: Identified drive lag T (s) per joint (or one for all): the feedforward leads it
             (:class:`LagCompensatedController`); None feeds forward without a lead.
-<<<<<<< HEAD
         torque_delay: Age of the torque readings against their encoder samples (s), for the payload estimator.
-=======
         compliance: Compliant drives' compliance, for the servo layer's deflection feedforward
             (:class:`FeedforwardController`); None: rigid drives.
->>>>>>> deflect
     """
     dynamics = DeltaDynamics.of_robot(geometry, masses, parameters, forearm_rods=forearm_rods)
     estimator = None

@@ -187,11 +187,8 @@ def model_row(
         geometry=setup.geometry,
         masses=setup.masses,
         drive_lag=setup.drive_lag if row.leads_lag else None,
-<<<<<<< HEAD
         torque_delay=setup.torque_delay,
-=======
         compliance=setup.compliance if isinstance(servo, JointServo) else None,
->>>>>>> deflect
     )
 
 
