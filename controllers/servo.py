@@ -318,6 +318,11 @@ class JointServo:
             (:func:`delta_env.sensors.rate_window`: one period with an encoder).
         notch: A notch on the torque at each joint's drive mode (:class:`ResonanceNotch`), for a compliant drive;
             None: none (a rigid drive). It needs gains placed on an inertia.
+        backlash: The gearheads' backlash b per joint (rad), (3,), for compliant drives with a load encoder (the
+            observation's ``load_angles``): while a joint's measured twist (motor encoder minus load encoder) lies
+            within b / 2 of zero its rotor is alone, and the gains are placed on the rotor's inertia
+            (:meth:`band_inertia`; docs/design.md section 6, "Backlash"). None or zeros: none. It needs the notch
+            (whose rotor inertia it takes).
     """
 
     def __init__(
@@ -326,12 +331,18 @@ class JointServo:
         period: float = CONTROL_PERIOD,
         rate_window: float = CONTROL_PERIOD,
         notch: ResonanceNotch | None = None,
+        backlash: ArrayLike | None = None,
     ) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
         if notch is not None and gains.inertia is None:
             raise ValueError("a notch at the drive mode needs servo gains placed on an inertia (ServoGains.inertia)")
         self.notch = notch
+        self.half_band: NDArray[np.float64] | None = None
+        if backlash is not None and np.any(np.asarray(backlash, dtype=float) > 0.0):
+            if notch is None:
+                raise ValueError("the servo's backlash needs the notch of the compliant drives (its rotor inertia)")
+            self.half_band = 0.5 * require_joint_vector("backlash", backlash, 0.0, unit="rad")
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]  # the biquad's two delays per joint (N m)
         self._notch_coefficients: list[tuple[float, float, float, float, float]] = []
         self.reference_rate = MeasuredReferenceRate(rate_window, period)
@@ -375,6 +386,8 @@ class JointServo:
         if self.gains.inertia is None:
             raise ValueError("these servo gains are not placed on an inertia (ServoGains.inertia is None)")
         gains, limit = self.gains, self.gains.integral_limit
+        matrix = np.asarray(inertia, dtype=float)
+        self._inertia_matrix = matrix if matrix.ndim == 2 else np.diag(matrix)
         if np.ndim(inertia) == 2:
             self._schedule_matrix(np.asarray(inertia, dtype=float))
             diagonal = np.diag(np.asarray(inertia, dtype=float))
@@ -390,10 +403,8 @@ class JointServo:
 
     def _schedule_matrix(self, inertia: NDArray[np.float64]) -> None:
         """Gain matrices on the joint-space inertia matrix ``inertia`` (kg m^2), (3, 3), bumpless (:meth:`schedule`)."""
-        gains, limit = self.gains, self.gains.integral_limit
-        placed = np.asarray(gains.inertia)
-        scales = (np.sqrt(np.asarray(per_joint) / placed) for per_joint in (gains.kp, gains.ki, gains.kd))
-        kp, ki, kd = (scale[:, None] * inertia * scale[None, :] for scale in scales)
+        limit = self.gains.integral_limit
+        kp, ki, kd = self._gains_on(inertia)
         old_kp, _, old_kd = (
             self._gain_matrices
             if self._gain_matrices is not None
@@ -416,6 +427,7 @@ class JointServo:
     def _unscheduled(self) -> None:
         self._kp, self._ki, self._kd = list(self.gains.kp), list(self.gains.ki), list(self.gains.kd)
         self._gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._inertia_matrix = None if self.gains.inertia is None else np.diag(self.gains.inertia)
         if self.gains.inertia is not None:
             self._tune_notch(self.gains.inertia)
 
@@ -468,6 +480,14 @@ class JointServo:
             offset_rate = self._deflection_rate(offset)
             reference = [reference[j] + offset[j] for j in range(3)]
             measured_reference_rates = [measured_reference_rates[j] + offset_rate[j] for j in range(3)]
+        if self.half_band is not None:
+            in_band = self.in_band(observation)
+            if in_band.any():
+                # A rotor free of its arm: the loop's gains on the inertia it drives now (docs/design.md section 6).
+                band_gains = self._gains_on(self.band_inertia(in_band))
+                return self._matrix_feedback(
+                    reference, angles, reference_rates, rates, measured_reference_rates, band_gains
+                )
         if self._gain_matrices is not None:
             return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
@@ -508,6 +528,34 @@ class JointServo:
                 rates[j] += 0.5 * shortfall * second
         return rates
 
+    def in_band(self, observation: Observation) -> NDArray[np.bool_]:
+        """Per joint (3,), whether its gearhead's measured twist, the motor encoder's angle minus the load encoder's,
+        lies inside the backlash's band (its rotor free of the arm); all False without a backlash or a load
+        encoder."""
+        if self.half_band is None or "load_angles" not in observation:
+            return np.zeros(3, dtype=bool)
+        twist = np.asarray(observation["joint_angles"]) - np.asarray(observation["load_angles"])
+        return np.abs(twist) < self.half_band
+
+    def band_inertia(self, in_band: ArrayLike) -> NDArray[np.float64]:
+        """The joint-space inertia (kg m^2), (3, 3), the motors drive with the joints ``in_band`` (3 bools) free of
+        their arms: the scheduled matrix with each such joint's row and column replaced by its rotor's inertia
+        alone."""
+        inertia = self._inertia_matrix.copy()
+        for joint in np.flatnonzero(in_band):
+            inertia[joint, :] = inertia[:, joint] = 0.0
+            inertia[joint, joint] = self.notch.rotor_inertia[joint]
+        return inertia
+
+    def _gains_on(
+        self, inertia: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(kp, ki, kd) matrices on the joint-space ``inertia`` (kg m^2), (3, 3): K = S M S (:meth:`schedule`)."""
+        gains, placed = self.gains, np.asarray(self.gains.inertia)
+        scales = (np.sqrt(np.asarray(per_joint) / placed) for per_joint in (gains.kp, gains.ki, gains.kd))
+        kp, ki, kd = (scale[:, None] * inertia * scale[None, :] for scale in scales)
+        return kp, ki, kd
+
     def _matrix_feedback(
         self,
         reference: list[float],
@@ -515,10 +563,11 @@ class JointServo:
         reference_rates: list[float],
         rates: list[float],
         measured_reference_rates: ArrayLike,
+        gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
     ) -> NDArray[np.float64]:
-        """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix): the same law, its P, I and D
-        terms coupled."""
-        kp, ki, kd = self._gain_matrices
+        """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix, or ``gain_matrices``): the same
+        law, its P, I and D terms coupled."""
+        kp, ki, kd = self._gain_matrices if gain_matrices is None else gain_matrices
         gains, limit = self.gains, self.gains.integral_limit
         error = np.array(reference) - np.array(angles)
         rate_error = np.asarray(measured_reference_rates, dtype=float) - np.array(rates)

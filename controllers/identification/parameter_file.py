@@ -33,6 +33,7 @@ COMPLIANCE_FIELDS = {
     "rotor_inertia": "rotor_inertia_kg_m2",
     "stiffness": "stiffness_nm_per_rad",
     "damping": "damping_nm_s_per_rad",
+    "backlash": "backlash_rad",
 }
 """The section's keys (per joint, SI) by the :class:`~controllers.compliance.DriveCompliance` field they hold."""
 
