@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
@@ -161,6 +162,13 @@ class ResonanceNotch:
         cosine = math.cos(angle)
         return gain, -2.0 * gain * cosine, gain, -2.0 * gain * cosine, 2.0 * gain - 1.0
 
+    def phase_lag(self, frequency: float, angular_frequency: float, period: float = CONTROL_PERIOD) -> float:
+        """The phase lag (rad) of the digital notch centred at ``frequency`` (Hz) at ``angular_frequency`` (rad/s) below
+        its centre: -arg H(e^{i w T}) of :meth:`coefficients`, positive below the centre."""
+        b0, b1, b2, a1, a2 = self.coefficients(frequency, period)
+        z = np.exp(-1j * angular_frequency * period)
+        return float(-np.angle((b0 + b1 * z + b2 * z * z) / (1.0 + a1 * z + a2 * z * z)))
+
 
 def notch_sample(coefficients: tuple[float, float, float, float, float], state: list[float], value: float) -> float:
     """One sample (N m) through a notch of :meth:`ResonanceNotch.coefficients`, its two delays ``state`` updated in
@@ -203,16 +211,30 @@ def phase_margin(bandwidth: float, delay: float) -> float:
     return UNDELAYED_PHASE_MARGIN - CROSSOVER_RATIO * bandwidth * delay
 
 
-def servo_bandwidth(delay: float, margin: float = DEFAULT_PHASE_MARGIN) -> float:
+def servo_bandwidth(
+    delay: float, margin: float = DEFAULT_PHASE_MARGIN, lag: Callable[[float], float] | None = None
+) -> float:
     """The largest closed-loop pole w0 (rad/s) whose loop keeps phase margin ``margin`` (rad) through ``delay`` (s):
-    :func:`phase_margin` solved for w0.
+    :func:`phase_margin` solved for w0; with ``lag``, the phase (rad) a filter in the loop takes at an angular
+    frequency (rad/s) too (a notch, :meth:`ResonanceNotch.phase_lag`): then the margin left at the crossover
+    :data:`CROSSOVER_RATIO` w0, :data:`UNDELAYED_PHASE_MARGIN` - w_c delay - lag(w_c), is ``margin``.
 
     Raises:
         ValueError: for a delay not positive or a margin outside (0, :data:`UNDELAYED_PHASE_MARGIN`).
     """
     require_in("delay", delay, 0.0, unit="s", low_open=True)
     require_in("margin", margin, 0.0, UNDELAYED_PHASE_MARGIN, unit="rad", low_open=True, high_open=True)
-    return (UNDELAYED_PHASE_MARGIN - margin) / (CROSSOVER_RATIO * delay)
+    undelayed = (UNDELAYED_PHASE_MARGIN - margin) / (CROSSOVER_RATIO * delay)
+    if lag is None:
+        return undelayed
+
+    def excess(bandwidth: float) -> float:
+        crossover = CROSSOVER_RATIO * bandwidth
+        return UNDELAYED_PHASE_MARGIN - crossover * delay - lag(crossover) - margin
+
+    # the margin falls monotonically with w0 (delay and a notch's lag below its centre both grow), from the whole
+    # excess at 0 to the filter's lag short at the delay's bandwidth
+    return float(scipy.optimize.brentq(excess, 1e-6 * undelayed, undelayed, xtol=1e-9 * undelayed))
 
 
 def joint_inertia(
@@ -282,8 +304,11 @@ def servo_gains(
     period: float = CONTROL_PERIOD,
     friction_width: float = DEFAULT_FRICTION_WIDTH,
     integral_limit: float = DEFAULT_INTEGRAL_LIMIT,
+    notch: ResonanceNotch | None = None,
 ) -> ServoGains:
-    """Pole-placement gains: a triple pole at :func:`servo_bandwidth` of each joint's delay on its inertia.
+    """Pole-placement gains: a triple pole at :func:`servo_bandwidth` of each joint's delay on its inertia; with a
+    notch in the loop, the margin kept through its lag too (centred at the drive mode of ``inertia``; docs/design.md
+    section 6, "The notch's lag in the margin").
 
     Args:
         inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home.
@@ -293,10 +318,24 @@ def servo_gains(
         period: Control period (s).
         friction_width: :attr:`ServoGains.friction_width` (rad).
         integral_limit: :attr:`ServoGains.integral_limit` (N m).
+        notch: The notch of compliant drives the servo will run (:class:`ResonanceNotch`); None: none.
     """
     inertia = require_joint_vector("inertia", inertia, 0.0, unit="kg m^2", low_open=True)
     lag = np.broadcast_to(np.asarray(drive_lag, dtype=float), (3,))
-    w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
+    if notch is None:
+        w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
+    else:
+        centres = notch.frequency(inertia, period)
+        w0 = np.array(
+            [
+                servo_bandwidth(
+                    loop_delay(float(t), period),
+                    margin,
+                    lambda w, centre=float(centre): notch.phase_lag(centre, w, period),
+                )
+                for t, centre in zip(lag, centres, strict=True)
+            ]
+        )
     return ServoGains(
         kp=tuple(3.0 * inertia * w0**2),
         ki=tuple(inertia * w0**3),

@@ -215,9 +215,9 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     inertia = joint_inertia(dynamics.inverse_dynamics)
     coulomb = np.array(dynamics.parameters.coulomb)
     excess = setup.stribeck_excess if setup.stribeck_excess is not None and coulomb.any() else (0.0, 0.0, 0.0)
-    gains = servo_gains(inertia, coulomb + excess, setup.drive_lag, friction_width=step)
-    compliance = setup.compliance
+    compliance, breakaway = setup.compliance, coulomb + excess
     if compliance is None:
-        return JointServo(gains, rate_window=window)
+        return JointServo(servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step), rate_window=window)
     notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
+    gains = servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step, notch=notch)
     return JointServo(gains, rate_window=window, notch=notch, backlash=compliance.resolved_backlash)
