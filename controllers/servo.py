@@ -49,6 +49,13 @@ DEFAULT_PHASE_MARGIN = math.radians(35.0)
 standard cycle at 3 and 6 g (docs/measurements.md). A lag twice the identified one leaves 17 degrees; a payload,
 which the schedule leaves out, about 27 with 4 kg at the conveyors (docs/design.md section 6)."""
 
+NOTCHED_PHASE_MARGIN = math.radians(16.0)
+"""Phase margin (rad) a notched servo's bandwidth keeps through the delay and the notch's lag together
+(:func:`servo_gains` with a notch): the one at which the slowest closed-loop pole of the one-joint notched loop (the
+preset's gearhead, arm sides 0.195 to 1 kg m^2, the 1 ms lag) is fastest, |z| 0.953 against 0.975 for the bandwidth
+placed on the delay alone and 0.969 with 35 degrees through both (docs/design.md section 6). The margin formula
+counts the delay crudely (a pure delay of the lag plus a period), so the loop's true margin is larger."""
+
 DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
 
@@ -300,7 +307,7 @@ def servo_gains(
     breakaway: ArrayLike,
     drive_lag: ArrayLike,
     *,
-    margin: float = DEFAULT_PHASE_MARGIN,
+    margin: float | None = None,
     period: float = CONTROL_PERIOD,
     friction_width: float = DEFAULT_FRICTION_WIDTH,
     integral_limit: float = DEFAULT_INTEGRAL_LIMIT,
@@ -314,7 +321,7 @@ def servo_gains(
         inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home.
         breakaway: Friction torque pushed at rest per joint (N m), (3,) or a scalar: :attr:`ServoGains.breakaway`.
         drive_lag: Drive lag per joint (s), (3,) or a scalar.
-        margin: Phase margin (rad).
+        margin: Phase margin (rad); None: :data:`DEFAULT_PHASE_MARGIN`, or :data:`NOTCHED_PHASE_MARGIN` with a notch.
         period: Control period (s).
         friction_width: :attr:`ServoGains.friction_width` (rad).
         integral_limit: :attr:`ServoGains.integral_limit` (N m).
@@ -322,6 +329,8 @@ def servo_gains(
     """
     inertia = require_joint_vector("inertia", inertia, 0.0, unit="kg m^2", low_open=True)
     lag = np.broadcast_to(np.asarray(drive_lag, dtype=float), (3,))
+    if margin is None:
+        margin = DEFAULT_PHASE_MARGIN if notch is None else NOTCHED_PHASE_MARGIN
     if notch is None:
         w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
     else:
