@@ -21,11 +21,16 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.dynamics import DeltaDynamics
-from delta_env.config import MAX_STIFFNESS, MAX_VISCOUS, GearheadCompliance
+from delta_env.config import MAX_BACKLASH, MAX_STIFFNESS, MAX_VISCOUS, GearheadCompliance
 from delta_env.validation import require_in
 
 MAX_ROTOR_INERTIA = 10.0
 """Largest reflected rotor inertia accepted (kg m^2), as the plant's."""
+
+SMALLEST_BACKLASH = 3e-5
+"""Smallest backlash (rad) the controllers act on, 0.1 arcmin: a tenth of the reduced-backlash class of precision
+planetary gearheads (1 arcmin), five steps of a 20-bit load encoder; the identification's estimate on a drive
+without backlash is a few microradians (docs/measurements.md)."""
 
 
 def _three(name: str, values: ArrayLike, low: float, high: float, unit: str, *, low_open: bool) -> tuple:
@@ -44,11 +49,15 @@ class DriveCompliance:
         rotor_inertia: Reflected rotor inertia J_m per joint (kg m^2), each in (0, 10].
         stiffness: Gearhead torsional stiffness k per joint (N m/rad), each in (0, 1e8].
         damping: Gearhead torsional damping c per joint (N m s/rad), each in [0, 1000].
+        backlash: The gearhead's lost motion b per joint (rad), each in [0, 0.01]: the spring carries nothing while
+            the twist phi - theta is within b / 2 of zero. Below :data:`SMALLEST_BACKLASH` the controllers treat it
+            as none (:attr:`resolved_backlash`).
     """
 
     rotor_inertia: tuple[float, float, float]
     stiffness: tuple[float, float, float]
     damping: tuple[float, float, float]
+    backlash: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -62,6 +71,16 @@ class DriveCompliance:
         object.__setattr__(
             self, "damping", _three("damping", self.damping, 0.0, MAX_VISCOUS, "N m s/rad", low_open=False)
         )
+        object.__setattr__(
+            self, "backlash", _three("backlash", self.backlash, 0.0, MAX_BACKLASH, "rad", low_open=False)
+        )
+
+    @property
+    def resolved_backlash(self) -> NDArray[np.float64]:
+        """The backlash per joint (rad), (3,), that the controllers act on: :attr:`backlash`, zero where it is below
+        :data:`SMALLEST_BACKLASH` (an identification's few-microradian estimate on a drive without any)."""
+        backlash = np.asarray(self.backlash)
+        return np.where(backlash >= SMALLEST_BACKLASH, backlash, 0.0)
 
     @classmethod
     def of_gearhead(cls, gearhead: GearheadCompliance) -> DriveCompliance:
@@ -70,6 +89,7 @@ class DriveCompliance:
             rotor_inertia=(gearhead.rotor_inertia,) * 3,
             stiffness=tuple(gearhead.stiffness_per_joint),
             damping=tuple(gearhead.damping_per_joint),
+            backlash=(gearhead.backlash,) * 3,
         )
 
     @classmethod
@@ -152,11 +172,13 @@ def static_deflection(
 ) -> NDArray[np.float64]:
     """The gearheads' deflection phi - theta (rad), (3,), under the arms' static load at the pose ``theta`` (rad) with
     ``payload`` (kg): the model's torque at rest there (gravity's, the arms' and the payload's; the rotor's inertia
-    and friction take none) over each gearhead's stiffness. The servo holds the rotors this far past the arms'
-    reference (docs/design.md section 6, "The deflection feedforward")."""
+    and friction take none) over each gearhead's stiffness, plus half the backlash in the torque's direction (the
+    rotor rests on that flank; :attr:`DriveCompliance.resolved_backlash`). The servo holds the rotors this far past
+    the arms' reference (docs/design.md section 6, "The deflection feedforward")."""
     zero = np.zeros(3)
     torque, regressor = dynamics.torque_and_payload_regressor(theta, zero, zero)
-    return (torque + payload * regressor) / np.asarray(compliance.stiffness)
+    load = torque + payload * regressor
+    return load / np.asarray(compliance.stiffness) + 0.5 * np.sign(load) * compliance.resolved_backlash
 
 
 def joint_space_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:

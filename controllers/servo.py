@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
@@ -47,6 +48,13 @@ DEFAULT_PHASE_MARGIN = math.radians(35.0)
 """Phase margin (rad) the servo's bandwidth keeps through the loop's delay: the best of 35, 40 and 50 degrees on the
 standard cycle at 3 and 6 g (docs/measurements.md). A lag twice the identified one leaves 17 degrees; a payload,
 which the schedule leaves out, about 27 with 4 kg at the conveyors (docs/design.md section 6)."""
+
+NOTCHED_PHASE_MARGIN = math.radians(16.0)
+"""Phase margin (rad) a notched servo's bandwidth keeps through the delay and the notch's lag together
+(:func:`servo_gains` with a notch): the one at which the slowest closed-loop pole of the one-joint notched loop (the
+preset's gearhead, arm sides 0.195 to 1 kg m^2, the 1 ms lag) is fastest, |z| 0.953 against 0.975 for the bandwidth
+placed on the delay alone and 0.969 with 35 degrees through both (docs/design.md section 6). The margin formula
+counts the delay crudely (a pure delay of the lag plus a period), so the loop's true margin is larger."""
 
 DEFAULT_INTEGRAL_LIMIT = 40.0
 """Largest integral torque (N m), a tenth of the representative drive's peak: the anti-windup clamp."""
@@ -161,6 +169,13 @@ class ResonanceNotch:
         cosine = math.cos(angle)
         return gain, -2.0 * gain * cosine, gain, -2.0 * gain * cosine, 2.0 * gain - 1.0
 
+    def phase_lag(self, frequency: float, angular_frequency: float, period: float = CONTROL_PERIOD) -> float:
+        """The phase lag (rad) of the digital notch centred at ``frequency`` (Hz) at ``angular_frequency`` (rad/s) below
+        its centre: -arg H(e^{i w T}) of :meth:`coefficients`, positive below the centre."""
+        b0, b1, b2, a1, a2 = self.coefficients(frequency, period)
+        z = np.exp(-1j * angular_frequency * period)
+        return float(-np.angle((b0 + b1 * z + b2 * z * z) / (1.0 + a1 * z + a2 * z * z)))
+
 
 def notch_sample(coefficients: tuple[float, float, float, float, float], state: list[float], value: float) -> float:
     """One sample (N m) through a notch of :meth:`ResonanceNotch.coefficients`, its two delays ``state`` updated in
@@ -203,16 +218,30 @@ def phase_margin(bandwidth: float, delay: float) -> float:
     return UNDELAYED_PHASE_MARGIN - CROSSOVER_RATIO * bandwidth * delay
 
 
-def servo_bandwidth(delay: float, margin: float = DEFAULT_PHASE_MARGIN) -> float:
+def servo_bandwidth(
+    delay: float, margin: float = DEFAULT_PHASE_MARGIN, lag: Callable[[float], float] | None = None
+) -> float:
     """The largest closed-loop pole w0 (rad/s) whose loop keeps phase margin ``margin`` (rad) through ``delay`` (s):
-    :func:`phase_margin` solved for w0.
+    :func:`phase_margin` solved for w0; with ``lag``, the phase (rad) a filter in the loop takes at an angular
+    frequency (rad/s) too (a notch, :meth:`ResonanceNotch.phase_lag`): then the margin left at the crossover
+    :data:`CROSSOVER_RATIO` w0, :data:`UNDELAYED_PHASE_MARGIN` - w_c delay - lag(w_c), is ``margin``.
 
     Raises:
         ValueError: for a delay not positive or a margin outside (0, :data:`UNDELAYED_PHASE_MARGIN`).
     """
     require_in("delay", delay, 0.0, unit="s", low_open=True)
     require_in("margin", margin, 0.0, UNDELAYED_PHASE_MARGIN, unit="rad", low_open=True, high_open=True)
-    return (UNDELAYED_PHASE_MARGIN - margin) / (CROSSOVER_RATIO * delay)
+    undelayed = (UNDELAYED_PHASE_MARGIN - margin) / (CROSSOVER_RATIO * delay)
+    if lag is None:
+        return undelayed
+
+    def excess(bandwidth: float) -> float:
+        crossover = CROSSOVER_RATIO * bandwidth
+        return UNDELAYED_PHASE_MARGIN - crossover * delay - lag(crossover) - margin
+
+    # the margin falls monotonically with w0 (delay and a notch's lag below its centre both grow), from the whole
+    # excess at 0 to the filter's lag short at the delay's bandwidth
+    return float(scipy.optimize.brentq(excess, 1e-6 * undelayed, undelayed, xtol=1e-9 * undelayed))
 
 
 def joint_inertia(
@@ -278,25 +307,44 @@ def servo_gains(
     breakaway: ArrayLike,
     drive_lag: ArrayLike,
     *,
-    margin: float = DEFAULT_PHASE_MARGIN,
+    margin: float | None = None,
     period: float = CONTROL_PERIOD,
     friction_width: float = DEFAULT_FRICTION_WIDTH,
     integral_limit: float = DEFAULT_INTEGRAL_LIMIT,
+    notch: ResonanceNotch | None = None,
 ) -> ServoGains:
-    """Pole-placement gains: a triple pole at :func:`servo_bandwidth` of each joint's delay on its inertia.
+    """Pole-placement gains: a triple pole at :func:`servo_bandwidth` of each joint's delay on its inertia; with a
+    notch in the loop, the margin kept through its lag too (centred at the drive mode of ``inertia``; docs/design.md
+    section 6, "The notch's lag in the margin").
 
     Args:
         inertia: Each joint's inertia (kg m^2), (3,): :func:`joint_inertia` of the identified model, empty at home.
         breakaway: Friction torque pushed at rest per joint (N m), (3,) or a scalar: :attr:`ServoGains.breakaway`.
         drive_lag: Drive lag per joint (s), (3,) or a scalar.
-        margin: Phase margin (rad).
+        margin: Phase margin (rad); None: :data:`DEFAULT_PHASE_MARGIN`, or :data:`NOTCHED_PHASE_MARGIN` with a notch.
         period: Control period (s).
         friction_width: :attr:`ServoGains.friction_width` (rad).
         integral_limit: :attr:`ServoGains.integral_limit` (N m).
+        notch: The notch of compliant drives the servo will run (:class:`ResonanceNotch`); None: none.
     """
     inertia = require_joint_vector("inertia", inertia, 0.0, unit="kg m^2", low_open=True)
     lag = np.broadcast_to(np.asarray(drive_lag, dtype=float), (3,))
-    w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
+    if margin is None:
+        margin = DEFAULT_PHASE_MARGIN if notch is None else NOTCHED_PHASE_MARGIN
+    if notch is None:
+        w0 = np.array([servo_bandwidth(loop_delay(float(t), period), margin) for t in lag])
+    else:
+        centres = notch.frequency(inertia, period)
+        w0 = np.array(
+            [
+                servo_bandwidth(
+                    loop_delay(float(t), period),
+                    margin,
+                    lambda w, centre=float(centre): notch.phase_lag(centre, w, period),
+                )
+                for t, centre in zip(lag, centres, strict=True)
+            ]
+        )
     return ServoGains(
         kp=tuple(3.0 * inertia * w0**2),
         ki=tuple(inertia * w0**3),
@@ -318,6 +366,11 @@ class JointServo:
             (:func:`delta_env.sensors.rate_window`: one period with an encoder).
         notch: A notch on the torque at each joint's drive mode (:class:`ResonanceNotch`), for a compliant drive;
             None: none (a rigid drive). It needs gains placed on an inertia.
+        backlash: The gearheads' backlash b per joint (rad), (3,), for compliant drives with a load encoder (the
+            observation's ``load_angles``): while a joint's measured twist (motor encoder minus load encoder) lies
+            within b / 2 of zero its rotor is alone, and the gains are placed on the rotor's inertia
+            (:meth:`band_inertia`; docs/design.md section 6, "Backlash"). None or zeros: none. It needs the notch
+            (whose rotor inertia it takes).
     """
 
     def __init__(
@@ -326,12 +379,18 @@ class JointServo:
         period: float = CONTROL_PERIOD,
         rate_window: float = CONTROL_PERIOD,
         notch: ResonanceNotch | None = None,
+        backlash: ArrayLike | None = None,
     ) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
         if notch is not None and gains.inertia is None:
             raise ValueError("a notch at the drive mode needs servo gains placed on an inertia (ServoGains.inertia)")
         self.notch = notch
+        self.half_band: NDArray[np.float64] | None = None
+        if backlash is not None and np.any(np.asarray(backlash, dtype=float) > 0.0):
+            if notch is None:
+                raise ValueError("the servo's backlash needs the notch of the compliant drives (its rotor inertia)")
+            self.half_band = 0.5 * require_joint_vector("backlash", backlash, 0.0, unit="rad")
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]  # the biquad's two delays per joint (N m)
         self._notch_coefficients: list[tuple[float, float, float, float, float]] = []
         self.reference_rate = MeasuredReferenceRate(rate_window, period)
@@ -375,6 +434,8 @@ class JointServo:
         if self.gains.inertia is None:
             raise ValueError("these servo gains are not placed on an inertia (ServoGains.inertia is None)")
         gains, limit = self.gains, self.gains.integral_limit
+        matrix = np.asarray(inertia, dtype=float)
+        self._inertia_matrix = matrix if matrix.ndim == 2 else np.diag(matrix)
         if np.ndim(inertia) == 2:
             self._schedule_matrix(np.asarray(inertia, dtype=float))
             diagonal = np.diag(np.asarray(inertia, dtype=float))
@@ -390,10 +451,8 @@ class JointServo:
 
     def _schedule_matrix(self, inertia: NDArray[np.float64]) -> None:
         """Gain matrices on the joint-space inertia matrix ``inertia`` (kg m^2), (3, 3), bumpless (:meth:`schedule`)."""
-        gains, limit = self.gains, self.gains.integral_limit
-        placed = np.asarray(gains.inertia)
-        scales = (np.sqrt(np.asarray(per_joint) / placed) for per_joint in (gains.kp, gains.ki, gains.kd))
-        kp, ki, kd = (scale[:, None] * inertia * scale[None, :] for scale in scales)
+        limit = self.gains.integral_limit
+        kp, ki, kd = self._gains_on(inertia)
         old_kp, _, old_kd = (
             self._gain_matrices
             if self._gain_matrices is not None
@@ -416,6 +475,7 @@ class JointServo:
     def _unscheduled(self) -> None:
         self._kp, self._ki, self._kd = list(self.gains.kp), list(self.gains.ki), list(self.gains.kd)
         self._gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._inertia_matrix = None if self.gains.inertia is None else np.diag(self.gains.inertia)
         if self.gains.inertia is not None:
             self._tune_notch(self.gains.inertia)
 
@@ -468,6 +528,14 @@ class JointServo:
             offset_rate = self._deflection_rate(offset)
             reference = [reference[j] + offset[j] for j in range(3)]
             measured_reference_rates = [measured_reference_rates[j] + offset_rate[j] for j in range(3)]
+        if self.half_band is not None:
+            in_band = self.in_band(observation)
+            if in_band.any():
+                # A rotor free of its arm: the loop's gains on the inertia it drives now (docs/design.md section 6).
+                band_gains = self._gains_on(self.band_inertia(in_band))
+                return self._matrix_feedback(
+                    reference, angles, reference_rates, rates, measured_reference_rates, band_gains
+                )
         if self._gain_matrices is not None:
             return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
@@ -508,6 +576,34 @@ class JointServo:
                 rates[j] += 0.5 * shortfall * second
         return rates
 
+    def in_band(self, observation: Observation) -> NDArray[np.bool_]:
+        """Per joint (3,), whether its gearhead's measured twist, the motor encoder's angle minus the load encoder's,
+        lies inside the backlash's band (its rotor free of the arm); all False without a backlash or a load
+        encoder."""
+        if self.half_band is None or "load_angles" not in observation:
+            return np.zeros(3, dtype=bool)
+        twist = np.asarray(observation["joint_angles"]) - np.asarray(observation["load_angles"])
+        return np.abs(twist) < self.half_band
+
+    def band_inertia(self, in_band: ArrayLike) -> NDArray[np.float64]:
+        """The joint-space inertia (kg m^2), (3, 3), the motors drive with the joints ``in_band`` (3 bools) free of
+        their arms: the scheduled matrix with each such joint's row and column replaced by its rotor's inertia
+        alone."""
+        inertia = self._inertia_matrix.copy()
+        for joint in np.flatnonzero(in_band):
+            inertia[joint, :] = inertia[:, joint] = 0.0
+            inertia[joint, joint] = self.notch.rotor_inertia[joint]
+        return inertia
+
+    def _gains_on(
+        self, inertia: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(kp, ki, kd) matrices on the joint-space ``inertia`` (kg m^2), (3, 3): K = S M S (:meth:`schedule`)."""
+        gains, placed = self.gains, np.asarray(self.gains.inertia)
+        scales = (np.sqrt(np.asarray(per_joint) / placed) for per_joint in (gains.kp, gains.ki, gains.kd))
+        kp, ki, kd = (scale[:, None] * inertia * scale[None, :] for scale in scales)
+        return kp, ki, kd
+
     def _matrix_feedback(
         self,
         reference: list[float],
@@ -515,10 +611,11 @@ class JointServo:
         reference_rates: list[float],
         rates: list[float],
         measured_reference_rates: ArrayLike,
+        gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
     ) -> NDArray[np.float64]:
-        """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix): the same law, its P, I and D
-        terms coupled."""
-        kp, ki, kd = self._gain_matrices
+        """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix, or ``gain_matrices``): the same
+        law, its P, I and D terms coupled."""
+        kp, ki, kd = self._gain_matrices if gain_matrices is None else gain_matrices
         gains, limit = self.gains, self.gains.integral_limit
         error = np.array(reference) - np.array(angles)
         rate_error = np.asarray(measured_reference_rates, dtype=float) - np.array(rates)

@@ -197,7 +197,8 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     (``setup.servo == "servo"``), or the paper's PD with ``setup.pd_gains``. The servo pushes at rest the breakaway
     torque of the model's friction: its Coulomb friction plus the identified Stribeck excess (none for a model
     without friction). With compliant drives (``setup.compliance``) it notches its torque at each joint's drive mode
-    (:class:`~controllers.servo.ResonanceNotch`).
+    (:class:`~controllers.servo.ResonanceNotch`) and places its gains on the rotor alone inside a backlash's band
+    (:attr:`~controllers.compliance.DriveCompliance.resolved_backlash`).
 
     Raises:
         ValueError: for the servo layer without an identified drive lag.
@@ -214,7 +215,9 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     inertia = joint_inertia(dynamics.inverse_dynamics)
     coulomb = np.array(dynamics.parameters.coulomb)
     excess = setup.stribeck_excess if setup.stribeck_excess is not None and coulomb.any() else (0.0, 0.0, 0.0)
-    gains = servo_gains(inertia, coulomb + excess, setup.drive_lag, friction_width=step)
-    compliance = setup.compliance
-    notch = None if compliance is None else ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
-    return JointServo(gains, rate_window=window, notch=notch)
+    compliance, breakaway = setup.compliance, coulomb + excess
+    if compliance is None:
+        return JointServo(servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step), rate_window=window)
+    notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
+    gains = servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step, notch=notch)
+    return JointServo(gains, rate_window=window, notch=notch, backlash=compliance.resolved_backlash)

@@ -52,6 +52,9 @@ MAX_LAG = 0.1
 ARCMIN = math.pi / (180.0 * 60.0)
 """One minute of arc in rad."""
 
+MAX_BACKLASH = 0.01
+"""Largest gearhead backlash accepted (rad), about 34 arcmin: ten times a standard-class planetary gearhead's."""
+
 GEARHEAD_STIFFNESS = 53.0 / ARCMIN
 """Torsional stiffness (N m/rad) at the output of the gearhead of :class:`GearheadCompliance`: 53 N m/arcmin, the
 maximum torsional rigidity Ct21 of a WITTENSTEIN alpha SP+ 140 MF precision planetary gearhead (Beckhoff AG2300
@@ -115,7 +118,7 @@ class GearheadCompliance:
         require_in("damping", self.damping, 0.0, MAX_VISCOUS, unit="N m s/rad")
         require_joint_vector("stiffness_scale", self.stiffness_scale, 0.0, MAX_SCALE, low_open=True)
         require_joint_vector("damping_scale", self.damping_scale, 0.0, MAX_SCALE)
-        require_in("backlash", self.backlash, 0.0, 0.01, unit="rad")
+        require_in("backlash", self.backlash, 0.0, MAX_BACKLASH, unit="rad")
         require_in("gear_ratio", self.gear_ratio, 1.0, 1000.0)
         if self.load_encoder_bits is not None:
             require_count("load_encoder_bits", self.load_encoder_bits, 8, 32)

@@ -109,6 +109,7 @@ def test_stiffness_and_backlash_are_identified_behind_a_backlash(
     fit = fit_compliance(logs, torque_delay=plant.timestep)
     np.testing.assert_allclose(fit.compliance.stiffness, truth.stiffness_per_joint, rtol=0.04)
     np.testing.assert_allclose(fit.estimate[:, 5], truth.backlash, rtol=0.1)
+    np.testing.assert_allclose(fit.compliance.backlash, fit.estimate[:, 5], rtol=1e-12)  # what the servo is told
     np.testing.assert_allclose(fit.compliance.damping, truth.damping_per_joint, rtol=0.15)
 
 
@@ -183,10 +184,14 @@ def test_the_parameter_file_keeps_the_compliance_and_rigid_files_stay_as_they_we
     path = save_result(rigid, tmp_path / "rigid.json")
     assert "compliance" not in json.loads(path.read_text())
     assert load_result(path).compliance is None
-    drives = DriveCompliance((0.11, 0.1, 0.12), (1.2e5, 1.8e5, 2.5e5), (9.0, 10.0, 11.0))
+    drives = DriveCompliance((0.11, 0.1, 0.12), (1.2e5, 1.8e5, 2.5e5), (9.0, 10.0, 11.0), (3e-4, 2.9e-4, 0.0))
     back = load_result(save_result(replace(rigid, compliance=drives), tmp_path / "compliant.json"))
     assert back.compliance == drives
     document = json.loads((tmp_path / "compliant.json").read_text())
+    older = json.loads(json.dumps(document))
+    del older["compliance"]["backlash_rad"]  # written before the backlash was stored
+    (tmp_path / "older.json").write_text(json.dumps(older))
+    assert load_result(tmp_path / "older.json").compliance == replace(drives, backlash=(0.0, 0.0, 0.0))
     document["compliance"]["stiffness_nm_per_rad"][1] = -1.0
     (tmp_path / "bad.json").write_text(json.dumps(document))
     with pytest.raises(ParameterFileError, match="stiffness"):

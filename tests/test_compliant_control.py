@@ -16,7 +16,18 @@ from controllers.base import PDController
 from controllers.compliance import DriveCompliance, first_mode
 from controllers.dynamics import DeltaDynamics
 from controllers.registry import controller_entry
-from controllers.servo import JointServo, ResonanceNotch, ServoGains, servo_gains
+from controllers.servo import (
+    CROSSOVER_RATIO,
+    DEFAULT_PHASE_MARGIN,
+    NOTCHED_PHASE_MARGIN,
+    UNDELAYED_PHASE_MARGIN,
+    JointServo,
+    ResonanceNotch,
+    ServoGains,
+    phase_margin,
+    servo_bandwidth,
+    servo_gains,
+)
 from controllers.setup import row_servo
 from controllers.shaping import (
     JerkLimitedTiming,
@@ -139,9 +150,12 @@ def test_the_notchs_highest_centre_ends_its_band_at_the_nyquist_rate() -> None:
 
 def test_the_servo_notches_only_a_compliant_setup(controller_setup) -> None:
     dynamics = DeltaDynamics.nominal(controller_setup.mid_f_rods, forearm_rods=True)
-    assert row_servo(controller_setup, dynamics).notch is None
+    rigid = row_servo(controller_setup, dynamics)
+    assert rigid.notch is None
     notched = row_servo(replace(controller_setup, compliance=IDENTIFIED), dynamics)
     assert notched.notch == ResonanceNotch(IDENTIFIED.rotor_inertia, IDENTIFIED.stiffness)
+    # placed through the notch's lag: about three quarters of the rigid loop's bandwidth (kd is proportional to it)
+    np.testing.assert_allclose(np.array(notched.gains.kd) / np.array(rigid.gains.kd), 0.76, atol=0.04)
     assert np.all((notched.notch_frequency > 200.0) & (notched.notch_frequency < 270.0))
 
 
@@ -527,3 +541,61 @@ def test_the_shaped_rows_join_the_registry_by_import_path(controller_setup) -> N
     assert isinstance(controller, ShapedController) and controller.kind == "zvd"
     with pytest.raises(ValueError, match="compliance"):
         entry.build(controller_setup)
+
+
+@pytest.mark.parametrize("arm_inertia", [0.195, 0.3, 0.45, 1.0])
+def test_gains_placed_through_the_notchs_lag_damp_the_loops_own_pair(arm_inertia: float) -> None:
+    """The notch takes 31-35 degrees at the servo's crossover, the margin the delay left: placed on the delay alone
+    the loop's own pair rings near 40 Hz damped 0.09 to 0.13 (slowest |z| up to 0.975); with the notch's lag in the
+    margin (``servo_gains(..., notch=)``, NOTCHED_PHASE_MARGIN through both) the pair is damped over 0.2 and the
+    slowest pole is faster (|z| about 0.953), faster too than with 4 degrees more or less margin."""
+    notch = ResonanceNotch((GEARHEAD.rotor_inertia,) * 3, (GEARHEAD.stiffness,) * 3)
+    inertia = np.full(3, GEARHEAD.rotor_inertia + arm_inertia)
+
+    def poles(gains: ServoGains) -> tuple[float, float]:
+        z = _joint_loop_poles(arm_inertia, (gains.kp[0], gains.kd[0], gains.ki[0]), notch)
+        s = np.log(z.astype(complex)) / CONTROL_PERIOD
+        loop = (np.abs(s.imag) > 2.0 * np.pi * 5.0) & (np.abs(s.imag) < 2.0 * np.pi * 100.0)
+        return float(np.min(-s.real[loop] / np.abs(s[loop]))), float(np.max(np.abs(z)))
+
+    delay_only, delay_only_slowest = poles(servo_gains(inertia, 0.0, 1e-3))
+    through_notch, slowest = poles(servo_gains(inertia, 0.0, 1e-3, notch=notch))
+    assert delay_only < 0.15
+    assert through_notch > 0.2
+    assert slowest < delay_only_slowest - 0.01
+
+
+def test_the_notched_margin_makes_the_slowest_pole_over_the_arm_sides_fastest() -> None:
+    """NOTCHED_PHASE_MARGIN is where the slowest closed-loop pole of the one-joint notched loop, the worst over arm
+    sides 0.195 to 1 kg m^2, is fastest: 4 degrees more or less leave it slower."""
+    notch = ResonanceNotch((GEARHEAD.rotor_inertia,) * 3, (GEARHEAD.stiffness,) * 3)
+
+    def worst(margin: float) -> float:
+        slowest = 0.0
+        for arm_inertia in (0.195, 0.3, 0.45, 1.0):
+            gains = servo_gains(np.full(3, GEARHEAD.rotor_inertia + arm_inertia), 0.0, 1e-3, margin=margin, notch=notch)
+            z = _joint_loop_poles(arm_inertia, (gains.kp[0], gains.kd[0], gains.ki[0]), notch)
+            slowest = max(slowest, float(np.max(np.abs(z))))
+        return slowest
+
+    chosen = worst(NOTCHED_PHASE_MARGIN)
+    assert chosen < 0.956
+    assert chosen < worst(NOTCHED_PHASE_MARGIN - math.radians(4.0))
+    assert chosen < worst(NOTCHED_PHASE_MARGIN + math.radians(4.0))
+
+
+def test_the_bandwidth_keeps_the_margin_through_a_filters_lag() -> None:
+    """A constant lag phi takes phi of the margin: w0 = (71 deg - margin - phi) / (w_c/w0 delay); the notch's lag is the
+    sampled notch's phase (scipy's freqz), and with it the loop's margin at the crossover is the one asked."""
+    delay, lag = 2e-3, math.radians(10.0)
+    expected = (UNDELAYED_PHASE_MARGIN - DEFAULT_PHASE_MARGIN - lag) / (CROSSOVER_RATIO * delay)
+    assert servo_bandwidth(delay, lag=lambda w: lag) == pytest.approx(expected, rel=1e-9)
+    notch = ResonanceNotch((0.1,) * 3, (1.3e5,) * 3)
+    b0, b1, b2, a1, a2 = notch.coefficients(200.0)
+    _, response = scipy.signal.freqz([b0, b1, b2], [1.0, a1, a2], worN=[50.0], fs=1.0 / CONTROL_PERIOD)
+    assert notch.phase_lag(200.0, 2.0 * math.pi * 50.0) == pytest.approx(-np.angle(response[0]), rel=1e-9)
+    bandwidth = servo_bandwidth(delay, lag=lambda w: notch.phase_lag(200.0, w))
+    crossover = CROSSOVER_RATIO * bandwidth
+    margin = phase_margin(bandwidth, delay) - notch.phase_lag(200.0, crossover)
+    assert margin == pytest.approx(DEFAULT_PHASE_MARGIN, rel=1e-6)
+    assert bandwidth < 0.6 * servo_bandwidth(delay)

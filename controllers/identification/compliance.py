@@ -286,7 +286,9 @@ def fit_compliance(
             f"the fit gave a rotor inertia {rotor_inertia.tolist()} kg m^2 or a stiffness {stiffness.tolist()} N m/rad "
             "that is not positive: the logs do not excite the drives' mode"
         )
-    compliance = DriveCompliance(tuple(rotor_inertia), tuple(stiffness), tuple(np.maximum(damping, 0.0)))
+    compliance = DriveCompliance(
+        tuple(rotor_inertia), tuple(stiffness), tuple(np.maximum(damping, 0.0)), tuple(estimate[:, 6])
+    )
     kept = [0, 1, 2, 3, 4, 6]
     return ComplianceFit(
         compliance=compliance,

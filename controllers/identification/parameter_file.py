@@ -33,8 +33,10 @@ COMPLIANCE_FIELDS = {
     "rotor_inertia": "rotor_inertia_kg_m2",
     "stiffness": "stiffness_nm_per_rad",
     "damping": "damping_nm_s_per_rad",
+    "backlash": "backlash_rad",
 }
-"""The section's keys (per joint, SI) by the :class:`~controllers.compliance.DriveCompliance` field they hold."""
+"""The section's keys (per joint, SI) by the :class:`~controllers.compliance.DriveCompliance` field they hold; a file
+without ``backlash_rad`` (written before it was stored) holds none."""
 
 
 @dataclass(frozen=True)
@@ -240,6 +242,8 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
         section = _json_object(path, document[COMPLIANCE_KEY], COMPLIANCE_KEY)
         values = {}
         for name, key in COMPLIANCE_FIELDS.items():
+            if name == "backlash" and key not in section:
+                continue  # written before the backlash was stored: none
             joints = _entry(path, section, key, COMPLIANCE_KEY)
             if not isinstance(joints, list) or len(joints) != 3:
                 raise ParameterFileError(f"{path}: {COMPLIANCE_KEY}.{key} must be a list of 3 numbers, got {joints!r}")

@@ -85,7 +85,7 @@ logger = logging.getLogger(__name__)
 DEFAULT_TRAJECTORIES = 12
 """Excitation trajectories of the identification, as in the paper."""
 
-IDENTIFICATION_VERSION = 1
+IDENTIFICATION_VERSION = 2
 """Version of the simulated identification, recorded in its provenance (``method.version``). Raise it with every
 change of this code that changes the numbers it writes: the cache of a robot's identification is keyed by the robot
 alone, and a cached file of another version (or of none, written before the version was recorded) is identified again

@@ -1,0 +1,115 @@
+"""The servo on a gearhead with backlash (issue 36, docs/design.md section 6, "Backlash"): inside the band the rotor
+is alone, and gains placed on the rotor and the arm together are several times too high for it; with the band known
+and a load encoder the servo places them on the rotor alone there and the joint comes to rest."""
+
+import numpy as np
+import pytest
+
+from controllers.compliance import SMALLEST_BACKLASH, DriveCompliance, static_deflection
+from controllers.dynamics import DeltaDynamics
+from controllers.servo import JointServo, ResonanceNotch, servo_gains
+from delta_env.scenario import preset
+from delta_env.sensors import CONTROL_PERIOD
+
+GEARHEAD = preset("compliant").plant.realism.compliance
+ROTOR = GEARHEAD.rotor_inertia
+STIFFNESS = GEARHEAD.stiffness_per_joint
+DAMPING = GEARHEAD.damping_per_joint
+BACKLASH = np.full(3, 3.0 * 2.908882e-4)
+"""3 arcmin per gearhead (rad): the SP+ 140's standard class."""
+
+ARM_INERTIA = np.array([0.2, 0.3, 0.45])
+"""Arm side of each joint (kg m^2): the nominal arm's diagonal, empty at home to loaded."""
+
+LAG = 1e-3
+"""The drive's current-loop lag (s)."""
+
+SUBSTEPS = 20
+"""Integration steps per control period: the dead band's kinks need a step well below the mode's period."""
+
+
+def _rattle(backlash_known: np.ndarray | None, duration: float = 0.5) -> np.ndarray:
+    """Per joint, the rotor's peak-to-peak motion (rad) over the last 0.1 s of ``duration`` (s) at a reference at rest
+    at 0 with no load (the rotor inside the band, which it starts at its edge), three independent joints with the
+    band ``BACKLASH``, under the notched servo placed on the rotor and the arm, told ``backlash_known`` (rad) or
+    None; the observation carries the load encoder's angle."""
+    inertia = ROTOR + ARM_INERTIA
+    servo = JointServo(
+        servo_gains(inertia, 0.0, LAG),
+        notch=ResonanceNotch((ROTOR,) * 3, tuple(STIFFNESS)),
+        rate_window=CONTROL_PERIOD,
+        backlash=backlash_known,
+    )
+    servo.schedule(inertia)
+    rotor, rotor_rate = 0.5 * BACKLASH.copy(), np.zeros(3)
+    arm, arm_rate, drive = np.zeros(3), np.zeros(3), np.zeros(3)
+    last_rotor, zero = rotor.copy(), np.zeros(3)
+    history = []
+    h = CONTROL_PERIOD / SUBSTEPS
+    for _ in range(round(duration / CONTROL_PERIOD)):
+        observation = {
+            "reference_angles": zero,
+            "reference_velocities": zero,
+            "reference_accelerations": zero,
+            "joint_angles": rotor.copy(),
+            "joint_velocities": (rotor - last_rotor) / CONTROL_PERIOD,
+            "load_angles": arm.copy(),
+        }
+        command = servo.feedback(observation)
+        last_rotor = rotor.copy()
+        for _ in range(SUBSTEPS):
+            twist = rotor - arm
+            beyond = twist - np.clip(twist, -0.5 * BACKLASH, 0.5 * BACKLASH)
+            spring = np.where(beyond != 0.0, STIFFNESS * beyond + DAMPING * (rotor_rate - arm_rate), 0.0)
+            drive += h * (command - drive) / LAG
+            rotor_rate += h * (drive - spring) / ROTOR
+            arm_rate += h * spring / ARM_INERTIA
+            rotor += h * rotor_rate
+            arm += h * arm_rate
+        history.append(rotor.copy())
+    tail = np.array(history[-round(0.1 / CONTROL_PERIOD) :])
+    return tail.max(axis=0) - tail.min(axis=0)
+
+
+def test_gains_on_the_rotor_inside_the_band_stop_the_rattle() -> None:
+    """Told nothing of the band, the servo drives the lone rotor with gains three to five times its inertia's, whose
+    loop is unstable (|z| 1.09 to 1.18): it rattles from flank to flank, across the whole band. Told the band, it
+    places them on the rotor there and the rotor comes to rest, to a hundredth of the band."""
+    np.testing.assert_array_less(0.5 * BACKLASH, _rattle(None))
+    np.testing.assert_array_less(_rattle(BACKLASH), 0.01 * BACKLASH)
+
+
+def test_the_band_inertia_frees_each_rotor_in_the_band_of_its_arm() -> None:
+    """Inside the band a joint's row and column of the inertia matrix become its rotor's inertia alone; the joints
+    outside keep theirs, and the twist is the motor encoder's angle minus the load encoder's."""
+    inertia = np.array([[0.5, 0.1, -0.05], [0.1, 0.6, 0.08], [-0.05, 0.08, 0.7]])
+    servo = JointServo(
+        servo_gains(np.diag(inertia), 0.0, LAG),
+        notch=ResonanceNotch((ROTOR,) * 3, tuple(STIFFNESS)),
+        backlash=BACKLASH,
+    )
+    servo.schedule(inertia)
+    twist = np.array([0.4, 0.6, -0.4]) * BACKLASH
+    observation = {"joint_angles": np.array([0.1, 0.2, 0.3]) + twist, "load_angles": np.array([0.1, 0.2, 0.3])}
+    in_band = servo.in_band(observation)
+    np.testing.assert_array_equal(in_band, [True, False, True])
+    expected = np.array([[ROTOR, 0.0, 0.0], [0.0, 0.6, 0.0], [0.0, 0.0, ROTOR]])
+    np.testing.assert_allclose(servo.band_inertia(in_band), expected, rtol=1e-12)
+
+
+def test_a_servo_backlash_needs_the_notch() -> None:
+    with pytest.raises(ValueError, match="notch"):
+        JointServo(servo_gains(np.full(3, 0.4), 0.0, LAG), backlash=BACKLASH)
+
+
+def test_the_deflection_takes_half_the_band_in_the_loads_direction() -> None:
+    """The rotor rests on the flank the static load presses: delta = g / k + sign(g) b / 2; a backlash below
+    SMALLEST_BACKLASH (an identification's estimate on a drive without any) is none."""
+    model = DeltaDynamics.nominal()
+    theta = np.array([0.3, -0.1, 0.5])
+    load = model.inverse_dynamics(theta, np.zeros(3), np.zeros(3), 1.0)
+    drives = DriveCompliance((ROTOR,) * 3, tuple(STIFFNESS), tuple(DAMPING), tuple(BACKLASH))
+    expected = load / STIFFNESS + 0.5 * np.sign(load) * BACKLASH
+    np.testing.assert_allclose(static_deflection(model, drives, theta, 1.0), expected, rtol=1e-12)
+    tiny = DriveCompliance((ROTOR,) * 3, tuple(STIFFNESS), tuple(DAMPING), (0.5 * SMALLEST_BACKLASH,) * 3)
+    np.testing.assert_allclose(static_deflection(model, tiny, theta, 1.0), load / STIFFNESS, rtol=1e-12)
