@@ -20,7 +20,8 @@ DESIGN = DeltaGeometry(ra=0.22, rb=0.06, l1=0.35, l2=0.90)
 
 
 def fake_result(plant: Any, **provenance: Any) -> IdentificationResult:
-    """An identification of ``plant`` with the nominal parameters and the provenance entries ``provenance``."""
+    """An identification of ``plant`` by this version of the code, with the nominal parameters and the provenance
+    entries ``provenance``."""
     setup = NOMINAL_SETUP
     return IdentificationResult(
         mid=setup.mid,
@@ -32,7 +33,11 @@ def fake_result(plant: Any, **provenance: Any) -> IdentificationResult:
         stribeck_excess=None,
         stribeck_velocity=None,
         standard_errors={},
-        provenance={"plant": identification._plant_summary(plant), **provenance},
+        provenance={
+            "plant": identification._plant_summary(plant),
+            "method": {"version": identification.IDENTIFICATION_VERSION},
+            **provenance,
+        },
     )
 
 

@@ -313,6 +313,7 @@ def test_the_setup_digest_covers_every_field_a_controller_knows_and_nothing_of_t
         "encoder_bits": 20,
         "fault_reaction": "stop",
         "compliance": DriveCompliance.nominal(),
+        "torque_delay": 0.00025,
     }
     assert {*changed, "residual_policy"} == {field.name for field in dataclasses.fields(SETUP)}
     base = setup_digest(SETUP, "mid_f_rls_lag")
