@@ -127,18 +127,31 @@ def _sign(value: float) -> float:
 
 
 @numba.njit(cache=True)
-def _joint_inertia(constants: NDArray[np.uint8], angles: NDArray[np.float64], joint: int, mass: float) -> float:
-    """The model's inertia (kg m^2) of ``joint`` at rest at ``angles`` (rad, (3,)) with ``mass`` (kg) held: its torque
-    per unit of its own acceleration, the other joints at rest; NaN where the model cannot take the pose."""
-    accelerations = np.zeros(3)
-    accelerations[joint] = 1.0
-    status, rest = single_sample_model(constants, angles[0], angles[1], angles[2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    moved_status, moved = single_sample_model(
-        constants, angles[0], angles[1], angles[2], 0.0, 0.0, 0.0, accelerations[0], accelerations[1], accelerations[2]
+def _held_joint(
+    constants: NDArray[np.uint8],
+    angles: NDArray[np.float64],
+    rates: NDArray[np.float64],
+    accelerations: NDArray[np.float64],
+    joint: int,
+    mass: float,
+) -> tuple[float, float]:
+    """The model's inertia (kg m^2) of ``joint`` at ``angles`` (rad, (3,)) with ``mass`` (kg) held, its torque per unit
+    of its own acceleration, and the torque (N m) the model asks of it held still (its rate and acceleration 0) while
+    the other joints move at ``rates`` (rad/s) and ``accelerations`` (rad/s^2): their share through the arm, gravity
+    and the object's; (NaN, NaN) where the model cannot take the state."""
+    w = rates.copy()
+    u = accelerations.copy()
+    w[joint] = 0.0
+    u[joint] = 0.0
+    status, held = single_sample_model(constants, angles[0], angles[1], angles[2], w[0], w[1], w[2], u[0], u[1], u[2])
+    u[joint] = 1.0
+    pushed_status, pushed = single_sample_model(
+        constants, angles[0], angles[1], angles[2], w[0], w[1], w[2], u[0], u[1], u[2]
     )
-    if status != 0 or moved_status != 0:
-        return math.nan
-    return moved[0, joint] - rest[0, joint] + mass * (moved[1, joint] - rest[1, joint])
+    if status != 0 or pushed_status != 0:
+        return math.nan, math.nan
+    torque = held[0, joint] + mass * held[1, joint]
+    return pushed[0, joint] + mass * pushed[1, joint] - torque, torque
 
 
 @numba.njit(cache=True)
@@ -221,8 +234,20 @@ def clean_encoders(
             unknown_load = state.gripper_before and not state.held_known
             if repeated and commanded and behind and excess > 0.0 and not (state.collision or unknown_load):
                 held = state.held_mass if state.held_known else 0.0
-                inertia = _joint_inertia(model_constants, last, joint, max(state.feedforward_mass, held))
-                speed = state.rest_speed[joint] + excess * CONTROL_PERIOD / inertia
+                # the torque the model asks of the joint held while the others move on (their rates and accelerations
+                # from the clean readings) changes with them: a heavy object swings it by tens of N m as a joint
+                # slows through a reversal, a count a sample. What pushes the joint on is the measured torque beyond
+                # that, less what rest absorbs (docs/design.md section 6, "Encoders")
+                others_rate = (last - before) / CONTROL_PERIOD
+                others_acceleration = np.zeros(3)
+                if state.clean_count == 3:
+                    others_acceleration = (last - 2.0 * before + state.earlier) / CONTROL_PERIOD**2
+                mass = max(state.feedforward_mass, held)
+                inertia, held_torque = _held_joint(model_constants, last, others_rate, others_acceleration, joint, mass)
+                model_excess = (state.torque_previous[joint] - held_torque) * direction - 2.0 * state.breakaway[joint]
+                push = min(excess, model_excess)
+                if push > 0.0:
+                    speed = state.rest_speed[joint] + push * CONTROL_PERIOD / inertia
             if not repeated:
                 state.rest_travel[joint] = 0.0
             else:
