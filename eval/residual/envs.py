@@ -149,7 +149,7 @@ def base_setup(
     scenario = env_kwargs.get("scenario") or Scenario()
     if parameters is None:
         setup = robot_knowledge(scenario, runs_dir=runs_dir, servo=servo)[2]
-    else:  # the base uses the MId+F+R set only
+    else:  # the base uses the MId+F+R set only, on the scenario's drive and encoders (no drive compliance)
         robot = scenario.plant
         setup = ControllerSetup(
             mid=parameters,
@@ -158,6 +158,8 @@ def base_setup(
             drive_lag=drive_lag,
             geometry=robot.geometry,
             masses=robot.masses,
+            drive=robot.drive,
+            encoder_bits=robot.realism.encoder_bits,
             torque_delay=robot.timestep,
             fault_reaction=scenario.task.fault_reaction,
             servo=servo,
