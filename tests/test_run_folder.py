@@ -347,6 +347,16 @@ def test_the_campaign_prices_each_reaction_against_the_twins(tmp_path: Path, mon
     assert "| slip | " in (tmp_path / "run" / "summary.md").read_text().split("What each reaction cost")[1]
 
 
+def test_the_soak_runs_any_scenario_and_injects_none_of_its_faults() -> None:
+    """A soak counts false alarms: a preset's or file's faults are left out, its plants and robot kept."""
+    faulty = soak.parse_args(["--scenario", "faults"]).scenario
+    assert preset("faults").task.faults and faulty.task.faults == ()
+    assert faulty.plant == preset("faults").plant
+    compliant = soak.parse_args(["--scenario", "compliant"]).scenario
+    assert compliant.plant == preset("compliant").plant and compliant.plant != preset("randomized").plant
+    assert soak.parse_args([]).scenario.plant == preset("randomized").plant
+
+
 def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs_gaps() -> None:
     rows = [
         {"condition": "6g", "key": "pd", "simulated_s": "9.0", "carries": "3"},

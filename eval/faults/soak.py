@@ -15,11 +15,13 @@ Runs fault-free episodes ``seed, seed + 1, ...`` of each controller on each cond
   those rows replay its first controller's references;
 - ``10kg-3g``, ``10kg-6g``: conveyor cycles at 3 or 6 g with 10 kg objects (2.5 x the rated payload).
 
-The plants are the ``--scenario`` preset's (``randomized``: masses +-10 %, friction +-30 %, current-loop lag
-0.5-2 ms, drawn per episode; or ``nominal``). No fault is injected, so every detection is a false alarm
-(:mod:`eval.fault_scores` counts them; an episode that carried an injected fault all the same is counted apart and
-reported). The controllers are built as ``python -m eval`` builds them: the nominal robot's identification
-(``<runs root>/identification``, identified once when missing, about a minute) and the tares of the payload
+The plants are the ``--scenario``'s, a preset or a scenario file (default ``randomized``: masses +-10 %, friction
++-30 %, current-loop lag 0.5-2 ms, drawn per episode; ``nominal``; ``compliant``: the gearheads' twist and
+motor-side encoders), on the robot of ``--geometry``; the scenario's own faults are left out. No fault is injected,
+so every detection is a false alarm (:mod:`eval.fault_scores` counts them; an episode that carried an injected fault
+all the same is counted apart and reported). The controllers are built as ``python -m eval`` builds them: the
+robot's identification (``<runs root>/identification``, identified once when missing, a minute or a few) and the
+tares of the payload
 estimators measured on payload-free episodes of the same conditions on the comparison's calibration seeds
 (:mod:`eval.calibration`; the timed conditions tare as the data sheet does, on its declared mixed stream).
 
@@ -40,7 +42,8 @@ running only the episodes it lacks (a larger ``--carries`` or ``--minutes``, or 
 extend a finished soak).
 
 Usage: python -m eval.faults.soak [--carries 10000] [--minutes M] [--conditions 3g,online-4kg,...]
-                                    [--scenario randomized|nominal] [--controllers mid_f_rls] [--seed 0]
+                                    [--scenario randomized|FILE] [--geometry FILE] [--controllers mid_f_rls]
+                                    [--seed 0]
                                     [--out DIR] [--workers 2] [--runs-dir DIR]
 """
 
@@ -60,7 +63,7 @@ from typing import Any
 from controllers.registry import CELL_ESTIMATOR_KEY, controller_label, controllers_help, parse_controller_keys
 from delta_env.config import RATED_PAYLOAD
 from delta_env.geometry import GRAVITY
-from delta_env.scenario import Scenario, preset
+from delta_env.scenario import Scenario
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.validation import require_count
 from eval import metrics
@@ -71,7 +74,7 @@ from eval.episodes import EpisodeRecord
 from eval.fault_tables import FAULT_COLUMNS, fault_rows
 from eval.rate.study import CALIBRATION_EPISODES, FULL_STUDY, MIXED, RATE_TORQUE_SHARE, payload_label, rate_scenario
 from eval.run_folder import Run, add_runs_dir_argument, append_csv_rows, command_line, read_csv_rows, run_folder
-from eval.scenario_args import add_workers_argument, check_ranges
+from eval.scenario_args import add_scenario_arguments, add_workers_argument, check_ranges, scenario_from_arguments
 from eval.work import WorkUnit, run_grid
 
 
@@ -142,8 +145,8 @@ CONDITIONS: dict[str, SoakCondition] = {
 DEFAULT_CARRIES = 10_000
 """Carries per controller and condition of the issue's false-alarm target."""
 
-SCENARIOS = ("randomized", "nominal")
-"""Presets whose plants the soak may run (``--scenario``)."""
+DEFAULT_SCENARIO = "randomized"
+"""The preset whose plants the soak runs unless ``--scenario`` says otherwise."""
 
 EPISODE_COLUMNS = (
     "condition",
@@ -177,7 +180,7 @@ class SoakConfig:
         carries: Carries per controller and condition; None: ``minutes`` alone bounds the soak.
         minutes: Simulated minutes per controller and condition; None: no bound in time.
         conditions: The conditions run (:data:`CONDITIONS`), each once, in the order given.
-        scenario: The plants' preset (:data:`SCENARIOS`).
+        scenario: The plants and the robot (``--scenario`` on ``--geometry``), without faults.
         controllers: Registry keys of the rows.
         seed: Seed of the first episode.
         out: Output folder; None: ``<runs root>/fault_soak/<UTC time>``.
@@ -188,7 +191,7 @@ class SoakConfig:
     carries: int | None
     minutes: float | None
     conditions: tuple[str, ...]
-    scenario: str
+    scenario: Scenario
     controllers: tuple[str, ...]
     seed: int
     out: Path | None
@@ -215,9 +218,7 @@ def argument_parser() -> CommandParser:
         default=",".join(CONDITIONS),
         help=f"comma-separated conditions from {', '.join(CONDITIONS)} (default: all)",
     )
-    parser.add_argument(
-        "--scenario", default=SCENARIOS[0], choices=SCENARIOS, help=f"the plants (default {SCENARIOS[0]})"
-    )
+    add_scenario_arguments(parser, default=DEFAULT_SCENARIO)
     parser.add_argument("--controllers", default="mid_f_rls", help=controllers_help("mid_f_rls"))
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument(
@@ -249,13 +250,18 @@ def resolve(arguments: argparse.Namespace, parser: argparse.ArgumentParser) -> S
         carries=carries,
         minutes=arguments.minutes,
         conditions=tuple(dict.fromkeys(conditions)),
-        scenario=arguments.scenario,
+        scenario=without_faults(scenario_from_arguments(arguments, parser)),
         controllers=tuple(controllers),
         seed=arguments.seed,
         out=arguments.out,
         runs_dir=arguments.runs_dir,
         workers=arguments.workers,
     )
+
+
+def without_faults(scenario: Scenario) -> Scenario:
+    """``scenario`` with no fault injected (a soak counts false alarms)."""
+    return dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, faults=()))
 
 
 def parse_args(argv: Sequence[str] | None) -> SoakConfig:
@@ -459,7 +465,7 @@ def matrix_table(
 @command_main("python -m eval.faults.soak")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    base = preset(args.scenario)
+    base = args.scenario
     scenarios = condition_scenarios(base, args.conditions)
     config = {
         "seed": args.seed,
