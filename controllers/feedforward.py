@@ -34,6 +34,7 @@ from controllers.servo import (
     DEFAULT_FRICTION_WIDTH,
     JointServo,
     ServoGains,
+    compliant_servo,
     joint_inertia,
     model_inertia,
     model_inertia_matrix,
@@ -295,14 +296,17 @@ class OracleController:
     On compliant drives (``PlantRealism.compliance``) the feedforward is :class:`~delta_env.oracle.CompliantDriveOracle`
     at the lead: the rotor's torque that moves the arm along the reference through the gearhead, with the reference's
     jerk and snap from its samples (:meth:`~controllers.drive.ReferencePredictor.jet`). The motor encoders read the
-    rotors, so the feedback compares them with the rotors' reference, the arms' plus the gearheads' deflection, and
-    it is the PD of :func:`compliant_oracle_gains` whichever ``servo`` is asked: the
-    servo layer's gains, placed on the rigid inertia, drive the gearhead's mode unstable (docs/design.md section 4).
+    rotors, so the feedback compares them with the rotors' reference, the arms' plus the gearheads' deflection. With
+    ``servo="servo"`` it is the model rows' servo on compliant drives (:func:`~controllers.servo.compliant_servo`)
+    on the plant's truth: its drives' compliance, exact inertia, true lag and Coulomb friction; with ``"pd"``, the PD
+    of :func:`compliant_oracle_gains` (docs/design.md section 4). A PD leaves the rotor where the friction at rest
+    stops it, which the rows' integral and push at rest do not: it is no bound at the place.
 
     Args:
         plant: The configuration of the plant to invert (the env's ``plant_config``).
-        servo: The feedback: ``"pd"``, a PD with :func:`oracle_gains` of the plant's lag, or ``"servo"``, the servo
-            layer on the plant's truth (on rigid drives); both follow :meth:`set_physical_parameters`.
+        servo: The feedback: ``"pd"``, a PD with :func:`oracle_gains` of the plant's lag (:func:`compliant_oracle_gains`
+            on compliant drives), or ``"servo"``, the servo layer on the plant's truth; both follow
+            :meth:`set_physical_parameters`.
         gains: Fixed feedback gains instead (:class:`~controllers.servo.ServoGains`), or None.
         period: Control period (s).
     """
@@ -337,24 +341,32 @@ class OracleController:
         self.drive = SampledLag(lag, period)
         self.reference = ReferencePredictor(period, horizon=self.drive.hold_lead(self._timestep))
         self.reference.follow(self._reference_ahead)
-        window = rate_window(self._encoder_bits, self._timestep)
-        self.servo = JointServo(self._feedback_gains(lag, period), period, rate_window=window)
+        self.servo = self._feedback(lag, period)
 
-    def _feedback_gains(self, lag: float, period: float) -> ServoGains:
-        """The feedback's gains on a plant with lag ``lag`` (s): fixed, the PD of :func:`oracle_gains` (no integral
-        and no push at rest), or the servo layer on the plant's truth."""
+    def _feedback(self, lag: float, period: float) -> JointServo:
+        """The feedback on a plant with lag ``lag`` (s): fixed gains, the PD of :func:`oracle_gains` or
+        :func:`compliant_oracle_gains` (no integral and no push at rest), or the servo layer on the plant's truth."""
+        window = rate_window(self._encoder_bits, self._timestep)
+        drives = self.compliant_drives
         if self._fixed_gains is not None:
-            return self._fixed_gains
-        if self.compliant_drives is not None:
-            window = rate_window(self._encoder_bits, self._timestep)
-            kp, kd = compliant_oracle_gains(self.compliant_drives, lag, period=period, rate_window=window)
-            return ServoGains(kp=kp, ki=(0.0,) * 3, kd=kd)
+            return JointServo(self._fixed_gains, period, rate_window=window)
         if self._servo_kind == "pd":
-            kp, kd = oracle_gains(lag)
-            return ServoGains(kp=(kp,) * 3, ki=(0.0,) * 3, kd=(kd,) * 3)
+            if drives is not None:
+                kp, kd = compliant_oracle_gains(drives, lag, period=period, rate_window=window)
+            else:
+                kp, kd = ((value,) * 3 for value in oracle_gains(lag))
+            return JointServo(ServoGains(kp=kp, ki=(0.0,) * 3, kd=kd), period, rate_window=window)
         step = DEFAULT_FRICTION_WIDTH if self._encoder_bits is None else encoder_resolution(self._encoder_bits)
-        inertia = joint_inertia(self.oracle.torques)
-        return servo_gains(inertia, self.oracle.breakaway, lag, period=period, friction_width=step)
+        inertia, breakaway = joint_inertia(self.oracle.torques), self.oracle.breakaway
+        if drives is None:
+            gains = servo_gains(inertia, breakaway, lag, period=period, friction_width=step)
+            return JointServo(gains, period, rate_window=window)
+        compliance = DriveCompliance(
+            tuple(drives.rotor_inertia), tuple(drives.stiffness), tuple(drives.damping), tuple(drives.backlash)
+        )
+        return compliant_servo(
+            inertia, breakaway, lag, compliance, friction_width=step, rate_window=window, period=period
+        )
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:
         """The true masses (kg) of the objects of the next episode, in pick order (the truth)."""
@@ -402,21 +414,14 @@ class OracleController:
             torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
             return self.drive.command(torque_next) + self.servo.feedback(observation)
         rotors = self.compliant_drives.motion(*self.reference.jet(observation), self.payload_estimate)
-        return self.drive.command(rotors.torque) + self.servo.feedback(self._rotor_reference(observation, rotors))
+        return self.drive.command(rotors.torque) + self.servo.feedback(observation, self._deflection_now(rotors))
 
-    def _rotor_reference(self, observation: Observation, rotors: RotorMotion) -> Observation:
-        """``observation`` with the rotors' reference at this instant, which the motor encoders measure: the arms'
-        plus the gearheads' deflection, taken back from ``rotors`` (at the hold lead) by a Taylor step (off by
-        lead^3 / 6 times the deflection's jerk: 3e-10 rad on the task's moves, 4e-7 rad next to a jerk step)."""
+    def _deflection_now(self, rotors: RotorMotion) -> NDArray[np.float64]:
+        """The gearheads' deflection (rad), (3,), at this instant, which the motor encoders measure on top of the
+        arms' reference: taken back from ``rotors`` (at the hold lead) by a Taylor step (off by lead^3 / 6 times the
+        deflection's jerk: 3e-10 rad on the task's moves, 4e-7 rad next to a jerk step)."""
         lead = self.reference.horizon
-        rate, acceleration = rotors.deflection_rate, rotors.deflection_acceleration
-        deflection = rotors.deflection - lead * (rate - 0.5 * lead * acceleration)
-        return {
-            **observation,
-            "reference_angles": observation["reference_angles"] + deflection,
-            "reference_velocities": observation["reference_velocities"] + rate - lead * acceleration,
-            "reference_accelerations": observation["reference_accelerations"] + acceleration,
-        }
+        return rotors.deflection - lead * (rotors.deflection_rate - 0.5 * lead * rotors.deflection_acceleration)
 
 
 class LagCompensatedController:

@@ -36,6 +36,7 @@ import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from controllers.base import Observation
+from controllers.compliance import DriveCompliance
 from controllers.drive import MeasuredReferenceRate
 from controllers.dynamics import DeltaDynamics
 from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
@@ -354,6 +355,26 @@ def servo_gains(
         integral_limit=integral_limit,
         inertia=tuple(float(v) for v in inertia),
     )
+
+
+def compliant_servo(
+    inertia: ArrayLike,
+    breakaway: ArrayLike,
+    drive_lag: ArrayLike,
+    compliance: DriveCompliance,
+    *,
+    friction_width: float = DEFAULT_FRICTION_WIDTH,
+    rate_window: float = CONTROL_PERIOD,
+    period: float = CONTROL_PERIOD,
+) -> JointServo:
+    """The servo layer on compliant drives (docs/design.md section 6): a notch at each joint's drive mode, gains
+    placed on each joint's ``inertia`` (kg m^2, rotor included) with the margin kept through the drive lag
+    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, and the gains on the rotor
+    alone inside the backlash's band. The model rows build it on the identified ``compliance``, the bound on the
+    plant's own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
+    notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
+    gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
+    return JointServo(gains, period, rate_window=rate_window, notch=notch, backlash=compliance.resolved_backlash)
 
 
 class JointServo:

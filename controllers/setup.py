@@ -21,7 +21,7 @@ from controllers.compliance import DriveCompliance
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
-from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, ResonanceNotch, joint_inertia, servo_gains
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, compliant_servo, joint_inertia, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
@@ -218,6 +218,4 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     compliance, breakaway = setup.compliance, coulomb + excess
     if compliance is None:
         return JointServo(servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step), rate_window=window)
-    notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
-    gains = servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step, notch=notch)
-    return JointServo(gains, rate_window=window, notch=notch, backlash=compliance.resolved_backlash)
+    return compliant_servo(inertia, breakaway, setup.drive_lag, compliance, friction_width=step, rate_window=window)

@@ -386,6 +386,8 @@ class CompliantDriveOracle:
         self.coulomb = model.dof_frictionloss[rotors].copy()
         self.stiffness = model.tendon_stiffness[self._gearheads].copy()
         self.damping = model.tendon_damping[self._gearheads].copy()
+        self.backlash = np.full(3, self.plant.config.realism.compliance.backlash)
+        """The gearheads' backlash per joint (rad)."""
         self._half_band = 0.5 * self.plant.config.realism.compliance.backlash
         # MuJoCo's implicit integrators take a fixed tendon's damping into the step's matrix M + h D only where M has
         # entries: the rotor and the arm are separate trees, so D keeps c on each joint and drops the coupling -c.
