@@ -116,6 +116,16 @@ def test_bad_parameter_files_are_usage_errors_before_any_run_folder(runs, tmp_pa
     assert run_folders(runs) == []
 
 
+def test_a_policy_trained_on_rigid_drives_is_left_out_on_compliant_ones(capsys) -> None:
+    """The shipped policy's base knows no drive compliance (no notch, no deflection feedforward), whose loop rings on
+    compliant drives: like a policy of another geometry it is left out of the default rows, and asked for, refused."""
+    config = eval_cli.parse_args(["--scenario", "compliant"])
+    assert "residual" not in config.controllers and "was trained on another robot" in config.left_out
+    assert "residual" in eval_cli.parse_args([]).controllers
+    line = usage_error(eval_cli.parse_args, ["--scenario", "compliant", "--controllers", "residual"], capsys)
+    assert "rigid drives, not on this scenario's" in line and "compliant drives" in line
+
+
 def test_an_out_folder_that_cannot_be_made_is_a_usage_error(runs, tmp_path, capsys) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("")

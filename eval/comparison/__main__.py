@@ -195,7 +195,11 @@ def _with_policy_base(parser: argparse.ArgumentParser, config: ComparisonConfig,
         residual_base_servo=None if base is None else base.setup.servo,
     )
     robot = config.scenario.plant
-    if base is None or (base.setup.geometry, base.setup.masses) == (robot.geometry, robot.masses):
+    if base is None:
+        return config
+    trained_on = _drives(base.setup.compliance is not None)
+    here = _drives(robot.realism.compliance is not None)
+    if (base.setup.geometry, base.setup.masses, trained_on) == (robot.geometry, robot.masses, here):
         return config
     rows = " and ".join(policy_rows)
     if not chosen:
@@ -206,11 +210,17 @@ def _with_policy_base(parser: argparse.ArgumentParser, config: ComparisonConfig,
             f"({config.residual.name}) was trained on another robot.",
         )
     parser.error(
-        f"--residual: {config.residual} was trained on a robot with {base.setup.geometry} and "
-        f"{base.setup.masses}, not on this scenario's {robot.geometry} and {robot.masses}; leave "
-        f"{' and '.join(repr(key) for key in policy_rows)} out of --controllers or train a policy on this "
-        "robot (python -m eval.residual --scenario/--geometry)"
+        f"--residual: {config.residual} was trained on a robot with {base.setup.geometry}, "
+        f"{base.setup.masses} and {trained_on}, not on this scenario's {robot.geometry}, {robot.masses} and "
+        f"{here}; leave {' and '.join(repr(key) for key in policy_rows)} out of --controllers or train a policy "
+        "on this robot (python -m eval.residual --scenario/--geometry)"
     )
+
+
+def _drives(compliant: bool) -> str:
+    """How a robot's drives are known to its controllers, in the words of the error above: a base that knows no
+    compliance runs no notch and no deflection feedforward, and on compliant drives its loop rings."""
+    return "compliant drives" if compliant else "rigid drives"
 
 
 @command_main("python -m eval")
