@@ -71,8 +71,8 @@ BAND_RATE_CUTOFF = 35.0
 """Frequency (Hz) above which a servo on gearheads with backlash damps on the arm's rate (the load encoder's) instead
 of the rotor's (:meth:`JointServo.band_rates`): a lone rotor bouncing between the band's flanks rings at 150 Hz and
 more (the rotor on the gearhead's spring, slowed by the band), where the loop's delay turns the derivative term into
-negative damping; the arm, ten times the rotor's inertia behind the gap, does not follow it. Of 10, 20, 30, 35, 40, 55
-and 80 Hz, the one at which the 3-arcmin plant settled fastest (docs/measurements.md); below it the damping is the
+negative damping; the arm, two to four times the rotor's inertia behind the gap, hardly follows it. Of 10, 20, 30, 35,
+40, 55 and 80 Hz, the one at which the 3-arcmin plant ran fastest (docs/measurements.md); below it the damping is the
 rotor's, as the loop was designed."""
 
 DEFAULT_NOTCH_QUALITY = 0.7
@@ -377,7 +377,8 @@ class JointServo:
         backlash: The gearheads' backlash b per joint (rad), (3,), for compliant drives with a load encoder (the
             observation's ``load_angles``): while a joint's measured twist (motor encoder minus load encoder) lies
             within b / 2 of zero its rotor is alone, and the gains are placed on the rotor's inertia
-            (:meth:`band_inertia`; docs/design.md section 6, "Backlash"). None or zeros: none. It needs the notch
+            (:meth:`band_inertia`; docs/design.md section 6, "Backlash"), and outside it the derivative term takes the
+            arm's rate above :data:`BAND_RATE_CUTOFF` (:meth:`band_rates`). None or zeros: none. It needs the notch
             (whose rotor inertia it takes).
     """
 
@@ -604,8 +605,9 @@ class JointServo:
         outside the band the arm's (the load encoder's backward difference, over the rotor encoder's window) plus the
         twist rate error low-passed at :data:`BAND_RATE_CUTOFF`, e = (w_ref - w_load) + LP[(w_ref + d_dot) - w_rotor
         - (w_ref - w_load)]: below the cutoff the rotor's rate error, as designed, above it the arm's, which the
-        rotor's rattle in the band does not reach (docs/design.md section 6, "Backlash"). Inside the band, and
-        without a load encoder or before its second reading, ``rates`` and ``rotor_reference_rates`` unchanged.
+        rotor's rattle in the band does not reach (docs/design.md section 6, "Through a torque reversal"). Inside the
+        band, and without a load encoder or before its second reading, ``rates`` and ``rotor_reference_rates``
+        unchanged.
 
         Args:
             observation: The step's observation, with ``load_angles`` for the arm's rate.
