@@ -175,10 +175,53 @@ def static_deflection(
     and friction take none) over each gearhead's stiffness, plus half the backlash in the torque's direction (the
     rotor rests on that flank; :attr:`DriveCompliance.resolved_backlash`). The servo holds the rotors this far past
     the arms' reference (docs/design.md section 6, "The deflection feedforward")."""
+    load = static_load(dynamics, theta, payload)
+    return load / np.asarray(compliance.stiffness) + 0.5 * np.sign(load) * compliance.resolved_backlash
+
+
+def static_load(dynamics: DeltaDynamics, theta: ArrayLike, payload: float) -> NDArray[np.float64]:
+    """The model's joint torque at rest (N m), (3,), at ``theta`` (rad) with ``payload`` (kg): the arms' static load."""
     zero = np.zeros(3)
     torque, regressor = dynamics.torque_and_payload_regressor(theta, zero, zero)
-    load = torque + payload * regressor
-    return load / np.asarray(compliance.stiffness) + 0.5 * np.sign(load) * compliance.resolved_backlash
+    return torque + payload * regressor
+
+
+def loaded_flank(
+    dynamics: DeltaDynamics,
+    compliance: DriveCompliance,
+    theta: ArrayLike,
+    theta_dot: ArrayLike,
+    theta_ddot: ArrayLike,
+    payload: float,
+) -> NDArray[np.float64]:
+    """The backlash flank each rotor must press along a reference (+1 or -1 per joint, (3,)): the sign of the torque
+    the gearhead passes to the arm there, the model's joint torque at ``theta`` (rad), ``theta_dot`` (rad/s) and
+    ``theta_ddot`` (rad/s^2) with ``payload`` (kg) less the rotor's own inertia torque J_m theta_ddot; at rest (a
+    joint's rate zero) the static load's sign, as in :func:`static_deflection` (docs/design.md section 6,
+    "Backlash")."""
+    theta_ddot = np.asarray(theta_ddot, dtype=float)
+    torque, regressor = dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
+    arm_torque = torque + payload * regressor - np.asarray(compliance.rotor_inertia) * theta_ddot
+    at_rest = np.asarray(theta_dot, dtype=float) == 0.0
+    return np.sign(np.where(at_rest, static_load(dynamics, theta, payload), arm_torque))
+
+
+def band_deflection(
+    dynamics: DeltaDynamics,
+    compliance: DriveCompliance,
+    theta: ArrayLike,
+    theta_dot: ArrayLike,
+    theta_ddot: ArrayLike,
+    payload: float,
+) -> NDArray[np.float64]:
+    """The rotors' deflection past the arms' reference (rad), (3,), on gearheads with backlash: the static load's
+    elastic deflection g / k of :func:`static_deflection`, and half the band on the flank the reference's torque
+    presses (:func:`loaded_flank`), so that the rotor's reference crosses the band when the arm's planned torque
+    reverses instead of leaving the crossing to the servo's error (docs/design.md section 6, "Backlash"). At rest it is
+    :func:`static_deflection`; without a resolved backlash it is the elastic part alone."""
+    elastic = static_load(dynamics, theta, payload) / np.asarray(compliance.stiffness)
+    flank = loaded_flank(dynamics, compliance, theta, theta_dot, theta_ddot, payload)
+    return elastic + 0.5 * compliance.resolved_backlash * flank
 
 
 def joint_space_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from controllers.base import JointFeedback, Observation, PDController
-from controllers.compliance import DriveCompliance, static_deflection
+from controllers.compliance import DriveCompliance, band_deflection, static_deflection
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
@@ -120,11 +120,16 @@ class FeedforwardController:
 
     def deflection(self, observation: Observation) -> NDArray[np.float64] | None:
         """The gearheads' deflection (rad), (3,), under the static load at this step's reference pose with the
-        apparent payload of the last call (:func:`~controllers.compliance.static_deflection`); None on rigid
-        drives."""
+        apparent payload of the last call (:func:`~controllers.compliance.static_deflection`); with backlash, half
+        the band on the flank the reference's torque presses (:func:`~controllers.compliance.band_deflection`); None
+        on rigid drives."""
         if self.compliance is None:
             return None
-        return static_deflection(self.dynamics, self.compliance, observation["reference_angles"], self.feedforward_mass)
+        theta, mass = observation["reference_angles"], self.feedforward_mass
+        if not self.compliance.resolved_backlash.any():
+            return static_deflection(self.dynamics, self.compliance, theta, mass)
+        rates, accelerations = observation["reference_velocities"], observation["reference_accelerations"]
+        return band_deflection(self.dynamics, self.compliance, theta, rates, accelerations, mass)
 
     def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The servo's torque (N m), (3,), scheduled first; on compliant drives with the rotors' reference

@@ -68,6 +68,14 @@ DEFAULT_FRICTION_WIDTH = encoder_resolution(ENCODER_BITS)
 """Error (rad) at which the friction compensation at rest reaches the full breakaway torque: one encoder step (17 bit),
 the smallest error the servo can see."""
 
+BAND_RATE_CUTOFF = 35.0
+"""Frequency (Hz) above which a servo on gearheads with backlash damps on the arm's rate (the load encoder's) instead
+of the rotor's (:meth:`JointServo.band_rates`): a lone rotor bouncing between the band's flanks rings at 150 Hz and
+more (the rotor on the gearhead's spring, slowed by the band), where the loop's delay turns the derivative term into
+negative damping; the arm, two to four times the rotor's inertia behind the gap, hardly follows it. Of 10, 20, 30, 35,
+40, 55 and 80 Hz, the one at which the 3-arcmin plant ran fastest (docs/measurements.md); below it the damping is the
+rotor's, as the loop was designed."""
+
 DEFAULT_NOTCH_QUALITY = 0.7
 """Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
 0.7 and 1, the one that a linear analysis of a compliant joint under the scheduled servo keeps stable with the
@@ -390,7 +398,8 @@ class JointServo:
         backlash: The gearheads' backlash b per joint (rad), (3,), for compliant drives with a load encoder (the
             observation's ``load_angles``): while a joint's measured twist (motor encoder minus load encoder) lies
             within b / 2 of zero its rotor is alone, and the gains are placed on the rotor's inertia
-            (:meth:`band_inertia`; docs/design.md section 6, "Backlash"). None or zeros: none. It needs the notch
+            (:meth:`band_inertia`; docs/design.md section 6, "Backlash"), and outside it the derivative term takes the
+            arm's rate above :data:`BAND_RATE_CUTOFF` (:meth:`band_rates`). None or zeros: none. It needs the notch
             (whose rotor inertia it takes).
     """
 
@@ -420,6 +429,8 @@ class JointServo:
         self._rate_error = [0.0, 0.0, 0.0]
         self._schedule_samples = max(1, round(SCHEDULE_PERIOD / self.period))
         self._deflections: list[list[float]] = []  # the last two samples' rotor deflections (rad), newest last
+        self._load_angles: list[float] | None = None  # the last sample's load encoder angles (rad), for band_rates
+        self._twist_rate_error = [0.0, 0.0, 0.0]  # the low-passed twist rate error of band_rates (rad/s)
         self._samples = 0  # samples since the reset, for follow_inertia
         self._unscheduled()
 
@@ -524,6 +535,8 @@ class JointServo:
         self._samples = 0
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
         self._deflections = []
+        self._load_angles = None
+        self._twist_rate_error = [0.0, 0.0, 0.0]
         self.reference_rate.reset()
         self._unscheduled()
 
@@ -544,6 +557,7 @@ class JointServo:
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
         measured_reference_rates = self.reference_rate.rates(observation)
+        arm_reference_rates = list(measured_reference_rates)
         if deflection is not None:
             offset = np.asarray(deflection, dtype=float).tolist()
             offset_rate = self._deflection_rate(offset)
@@ -551,6 +565,9 @@ class JointServo:
             measured_reference_rates = [measured_reference_rates[j] + offset_rate[j] for j in range(3)]
         if self.half_band is not None:
             in_band = self.in_band(observation)
+            rates, measured_reference_rates = self.band_rates(
+                observation, in_band, rates, arm_reference_rates, measured_reference_rates
+            )
             if in_band.any():
                 # A rotor free of its arm: the loop's gains on the inertia it drives now (docs/design.md section 6).
                 band_gains = self._gains_on(self.band_inertia(in_band))
@@ -596,6 +613,46 @@ class JointServo:
                 second = (history[2][j] - 2.0 * history[1][j] + history[0][j]) / period**2
                 rates[j] += 0.5 * shortfall * second
         return rates
+
+    def band_rates(
+        self,
+        observation: Observation,
+        in_band: NDArray[np.bool_],
+        rates: list[float],
+        arm_reference_rates: list[float],
+        rotor_reference_rates: list[float],
+    ) -> tuple[list[float], list[float]]:
+        """The measured and reference rates (rad/s) the derivative term compares on gearheads with backlash, per joint:
+        outside the band the arm's (the load encoder's backward difference, over the rotor encoder's window) plus the
+        twist rate error low-passed at :data:`BAND_RATE_CUTOFF`, e = (w_ref - w_load) + LP[(w_ref + d_dot) - w_rotor
+        - (w_ref - w_load)]: below the cutoff the rotor's rate error, as designed, above it the arm's, which the
+        rotor's rattle in the band does not reach (docs/design.md section 6, "Through a torque reversal"). Inside the
+        band, and without a load encoder or before its second reading, ``rates`` and ``rotor_reference_rates``
+        unchanged.
+
+        Args:
+            observation: The step's observation, with ``load_angles`` for the arm's rate.
+            in_band: Per joint, whether its rotor is inside the band (:meth:`in_band`).
+            rates: The rotor encoders' rates (rad/s).
+            arm_reference_rates: The arms' reference rates over the window (rad/s).
+            rotor_reference_rates: The rotors' reference rates (rad/s): the arms' plus the deflection's.
+        """
+        if "load_angles" not in observation:
+            return rates, rotor_reference_rates
+        load_angles = np.asarray(observation["load_angles"], dtype=float).tolist()
+        last, self._load_angles = self._load_angles, load_angles
+        if last is None:
+            return rates, rotor_reference_rates
+        smoothing = 1.0 - math.exp(-2.0 * math.pi * BAND_RATE_CUTOFF * self.period)
+        rates, reference_rates = list(rates), list(rotor_reference_rates)
+        for joint in range(3):
+            load_rate = (load_angles[joint] - last[joint]) / self.period
+            twist_error = (rotor_reference_rates[joint] - rates[joint]) - (arm_reference_rates[joint] - load_rate)
+            self._twist_rate_error[joint] += smoothing * (twist_error - self._twist_rate_error[joint])
+            if not in_band[joint]:
+                rates[joint] = load_rate
+                reference_rates[joint] = arm_reference_rates[joint] + self._twist_rate_error[joint]
+        return rates, reference_rates
 
     def in_band(self, observation: Observation) -> NDArray[np.bool_]:
         """Per joint (3,), whether its gearhead's measured twist, the motor encoder's angle minus the load encoder's,
