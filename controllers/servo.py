@@ -308,8 +308,8 @@ def compliant_friction_width(breakaway: ArrayLike, kp: ArrayLike, step: float) -
     loop's proportional gain, max_j(fb_j / kp_j), at least ``step`` (one encoder step; docs/design.md section 6,
     "The push at rest on a compliant joint").
 
-    Inside its width the push is a spring fb / e_f on the error; at one encoder step that is about 12 kp, and the
-    notched loop, whose margin is spent on the notch's lag, is unstable with its proportional gain three times its own
+    Inside its width the push is a spring fb / e_f on the error; at one encoder step that is 12 to 20 kp, and the
+    notched loop, whose margin is spent on the notch's lag, is unstable with its proportional gain four times its own
     (the one-joint model): the rotor hops from one side of its error to the other, and the arm, behind the gearhead,
     rings at the loop's own pair against the rotor its static friction holds between the hops.
 
