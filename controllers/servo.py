@@ -53,7 +53,7 @@ NOTCHED_PHASE_MARGIN = math.radians(28.0)
 """Phase margin (rad) a notched servo's bandwidth keeps through the delay and the notch's lag together
 (:func:`servo_gains` with a notch): the one at which the one-joint notched loop settles soonest after a stop (the drive
 released from a deceleration, the arm within about the cell's window), the worst over arm sides 0.195 to 1 kg m^2 and
-over the push at rest's spring from none to k_p (:func:`compliant_friction_width`), on gearheads 0.5 to 1.4 times the
+over the push at rest's describing-function gain from none to k_p, on gearheads 0.5 to 1.4 times the
 preset's alike (docs/design.md section 6, "The notch's lag in the margin"). The margin formula counts the delay
 crudely (a pure delay of the lag plus a period), so the loop's true margin is larger."""
 
@@ -303,26 +303,6 @@ def model_inertia_matrix(dynamics: DeltaDynamics, theta: ArrayLike, payload: flo
     return joint_inertia_matrix(_single_sample_dynamics(dynamics), theta, payload)
 
 
-def compliant_friction_width(breakaway: ArrayLike, kp: ArrayLike, step: float) -> float:
-    """The error (rad) at which a compliant drive's push at rest saturates: where no joint's push is stiffer than its
-    loop's proportional gain, max_j(fb_j / kp_j), at least ``step`` (one encoder step; docs/design.md section 6,
-    "The push at rest on a compliant joint").
-
-    Inside its width the push is a spring fb / e_f on the error; at one encoder step that is 12 to 20 kp, and the
-    notched loop, whose margin is spent on the notch's lag, is unstable with its proportional gain four times its own
-    (the one-joint model): the rotor hops from one side of its error to the other, and the arm, behind the gearhead,
-    rings at the loop's own pair against the rotor its static friction holds between the hops.
-
-    Args:
-        breakaway: Torque pushed at rest per joint (N m), (3,).
-        kp: Proportional gain per joint (N m/rad), (3,), positive.
-        step: The smallest width (rad), positive.
-    """
-    require_in("step", step, 0.0, unit="rad", low_open=True)
-    stiffest = np.asarray(breakaway, dtype=float) / require_joint_vector("kp", kp, 0.0, unit="N m/rad", low_open=True)
-    return max(step, float(np.max(stiffest)))
-
-
 def servo_gains(
     inertia: ArrayLike,
     breakaway: ArrayLike,
@@ -344,8 +324,7 @@ def servo_gains(
         drive_lag: Drive lag per joint (s), (3,) or a scalar.
         margin: Phase margin (rad); None: :data:`DEFAULT_PHASE_MARGIN`, or :data:`NOTCHED_PHASE_MARGIN` with a notch.
         period: Control period (s).
-        friction_width: :attr:`ServoGains.friction_width` (rad); with a notch, at least the width at which the push
-            is as stiff as the loop's kp (:func:`compliant_friction_width`).
+        friction_width: :attr:`ServoGains.friction_width` (rad).
         integral_limit: :attr:`ServoGains.integral_limit` (N m).
         notch: The notch of compliant drives the servo will run (:class:`ResonanceNotch`); None: none.
     """
@@ -367,14 +346,12 @@ def servo_gains(
                 for t, centre in zip(lag, centres, strict=True)
             ]
         )
-    kp = 3.0 * inertia * w0**2
-    breakaway = np.broadcast_to(np.asarray(breakaway, dtype=float), (3,))
     return ServoGains(
-        kp=tuple(kp),
+        kp=tuple(3.0 * inertia * w0**2),
         ki=tuple(inertia * w0**3),
         kd=tuple(3.0 * inertia * w0),
-        breakaway=tuple(float(c) for c in breakaway),
-        friction_width=friction_width if notch is None else compliant_friction_width(breakaway, kp, friction_width),
+        breakaway=tuple(float(c) for c in np.broadcast_to(np.asarray(breakaway, dtype=float), (3,))),
+        friction_width=friction_width,
         integral_limit=integral_limit,
         inertia=tuple(float(v) for v in inertia),
     )
