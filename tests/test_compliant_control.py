@@ -19,6 +19,7 @@ from controllers.registry import controller_entry
 from controllers.servo import (
     CROSSOVER_RATIO,
     DEFAULT_PHASE_MARGIN,
+    NOTCHED_PHASE_MARGIN,
     UNDELAYED_PHASE_MARGIN,
     JointServo,
     ResonanceNotch,
@@ -153,8 +154,8 @@ def test_the_servo_notches_only_a_compliant_setup(controller_setup) -> None:
     assert rigid.notch is None
     notched = row_servo(replace(controller_setup, compliance=IDENTIFIED), dynamics)
     assert notched.notch == ResonanceNotch(IDENTIFIED.rotor_inertia, IDENTIFIED.stiffness)
-    # placed through the notch's lag: about 0.6 of the rigid loop's bandwidth (kd is proportional to it)
-    np.testing.assert_allclose(np.array(notched.gains.kd) / np.array(rigid.gains.kd), 0.61, atol=0.04)
+    # placed through the notch's lag: about three quarters of the rigid loop's bandwidth (kd is proportional to it)
+    np.testing.assert_allclose(np.array(notched.gains.kd) / np.array(rigid.gains.kd), 0.76, atol=0.04)
     assert np.all((notched.notch_frequency > 200.0) & (notched.notch_frequency < 270.0))
 
 
@@ -546,8 +547,8 @@ def test_the_shaped_rows_join_the_registry_by_import_path(controller_setup) -> N
 def test_gains_placed_through_the_notchs_lag_damp_the_loops_own_pair(arm_inertia: float) -> None:
     """The notch takes 31-35 degrees at the servo's crossover, the margin the delay left: placed on the delay alone
     the loop's own pair rings near 40 Hz damped 0.09 to 0.13 (slowest |z| up to 0.975); with the notch's lag in the
-    margin (``servo_gains(..., notch=)``, NOTCHED_PHASE_MARGIN through both) the pair is damped 0.36 to 0.40 and the
-    slowest pole is faster (|z| 0.959 to 0.963). Where the margin lies: tests/test_compliant_push.py."""
+    margin (``servo_gains(..., notch=)``, NOTCHED_PHASE_MARGIN through both) the pair is damped over 0.2 and the
+    slowest pole is faster (|z| about 0.953), faster too than with 4 degrees more or less margin."""
     notch = ResonanceNotch((GEARHEAD.rotor_inertia,) * 3, (GEARHEAD.stiffness,) * 3)
     inertia = np.full(3, GEARHEAD.rotor_inertia + arm_inertia)
 
@@ -560,8 +561,27 @@ def test_gains_placed_through_the_notchs_lag_damp_the_loops_own_pair(arm_inertia
     delay_only, delay_only_slowest = poles(servo_gains(inertia, 0.0, 1e-3))
     through_notch, slowest = poles(servo_gains(inertia, 0.0, 1e-3, notch=notch))
     assert delay_only < 0.15
-    assert through_notch > 0.3
-    assert slowest < delay_only_slowest - 0.005
+    assert through_notch > 0.2
+    assert slowest < delay_only_slowest - 0.01
+
+
+def test_the_notched_margin_makes_the_slowest_pole_over_the_arm_sides_fastest() -> None:
+    """NOTCHED_PHASE_MARGIN is where the slowest closed-loop pole of the one-joint notched loop, the worst over arm
+    sides 0.195 to 1 kg m^2, is fastest: 4 degrees more or less leave it slower."""
+    notch = ResonanceNotch((GEARHEAD.rotor_inertia,) * 3, (GEARHEAD.stiffness,) * 3)
+
+    def worst(margin: float) -> float:
+        slowest = 0.0
+        for arm_inertia in (0.195, 0.3, 0.45, 1.0):
+            gains = servo_gains(np.full(3, GEARHEAD.rotor_inertia + arm_inertia), 0.0, 1e-3, margin=margin, notch=notch)
+            z = _joint_loop_poles(arm_inertia, (gains.kp[0], gains.kd[0], gains.ki[0]), notch)
+            slowest = max(slowest, float(np.max(np.abs(z))))
+        return slowest
+
+    chosen = worst(NOTCHED_PHASE_MARGIN)
+    assert chosen < 0.956
+    assert chosen < worst(NOTCHED_PHASE_MARGIN - math.radians(4.0))
+    assert chosen < worst(NOTCHED_PHASE_MARGIN + math.radians(4.0))
 
 
 def test_the_bandwidth_keeps_the_margin_through_a_filters_lag() -> None:
