@@ -41,7 +41,16 @@ DRIVE_FAULT_STEP = 8.0
 
 DRIVE_FAULT_EVIDENCE = 20.0
 """Accumulated shortfall beyond the drift (N m, summed over samples) that makes a drive fault: at least four
-samples that each fall short by more than 7 N m."""
+samples that each fall short by more than 7 N m. Also the threshold of the window's excess
+(:data:`DRIVE_FAULT_WINDOW`), in the same unit."""
+
+DRIVE_FAULT_WINDOW = 16
+"""Readings over which the current loop's integral identity is checked (docs/design.md section 6, "Torques"): the
+command less the measured torque, summed over them, is what any first-order loop with a lag up to the slowest healthy
+one owes in its output's change; a drive that holds its torque short of the command gathers the shortfall on every
+reading. The sum's noise is the readings' (0.5 N m each: 2 N m over 16, and about as much again from the output's
+change the identity takes off), a tenth of :data:`DRIVE_FAULT_EVIDENCE`, which a shortfall of 1.25 N m held over the
+window reaches; a longer window gathers the faults found no sooner, since a loss shows on every reading."""
 
 FORCE_REFERENCE = 60.0
 """Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
