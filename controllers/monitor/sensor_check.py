@@ -295,7 +295,12 @@ def clean_encoders(
             # error held where it stopped, as a stuck spell's are. Where the joint lies against the reference does
             # not matter: a PD ahead of its reference still drives it on with its rate's error
             direction = _sign(reference_rates[joint])
-            speed = 0.0  # where nothing pushes the joint on, its friction may have stopped it
+            if repeated and state.rest_repeats[joint] == 1:
+                # the joint's speed along the reference's run as its reading stopped changing: that of its last
+                # step where that ran against the run (a joint turning back must first stop), else nil
+                state.rest_speed[joint] = min(0.0, direction * (last[joint] - before[joint]) / CONTROL_PERIOD)
+            # where nothing pushes the joint on, its friction may have stopped it (not turned it back)
+            speed = min(state.rest_speed[joint], 0.0) if repeated else 0.0
             # a mass picked up and not yet known may hold the joint too: the torque that lifts it moves nothing
             unknown_load = state.gripper_before and not state.held_known
             if repeated and commanded and not (state.collision or unknown_load):
@@ -310,10 +315,14 @@ def clean_encoders(
                 # it, or still at rest at a start, is not accelerating as its reference is)
                 others_rate = (last - before) / CONTROL_PERIOD
                 mass = max(state.feedforward_mass, held)
-                held_torque, inertia = _held_joint(
-                    model_constants, last, others_rate, state.torque_previous, joint, mass
-                )
-                push = (state.torque_previous[joint] - held_torque) * direction - 2.0 * state.breakaway[joint]
+                # what the drives deliver: a drive that falls short of its command (a fault found, or short
+                # readings in a row) delivers its reading, not the loop's prediction that replaces it
+                delivered = state.torque_previous.copy()
+                for other in range(3):
+                    if state.drive_active[other] != 0 or state.short_run[other] > 0:
+                        delivered[other] = state.torque_measured[other]
+                held_torque, inertia = _held_joint(model_constants, last, others_rate, delivered, joint, mass)
+                push = (delivered[joint] - held_torque) * direction - 2.0 * state.breakaway[joint]
                 if push > 0.0:
                     speed = state.rest_speed[joint] + push * CONTROL_PERIOD / inertia
             if not repeated:
