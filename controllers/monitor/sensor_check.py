@@ -282,8 +282,8 @@ def clean_encoders(
                 step += last[joint] - 2.0 * before[joint] + state.earlier[joint]
             moving = abs(step) >= state.stuck_step
             suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
-            # the joint's torque and error where it stopped: at the reading before a run of repeats, or later while
-            # its reference rests (a pick's load held at rest is no push)
+            # the joint's tracking error where it stopped: at the reading before a run of repeats, or later while its
+            # reference rests
             resting = abs(reference_rates[joint]) * CONTROL_PERIOD * STUCK_COUNTS < state.stuck_step
             if not repeated or resting:
                 state.rest_error[joint] = state.error[joint]
