@@ -35,6 +35,7 @@ from controllers.monitor.tuning import (
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_STEP,
+    DRIVE_FAULT_WINDOW,
     FORCE_EVIDENCE,
     FORCE_REFERENCE,
     MONITOR_JERK_STD,
@@ -626,11 +627,13 @@ def test_a_lone_torque_glitch_is_reported_at_its_reading_or_the_next_when_it_rea
     assert monitor.events[0].magnitude == pytest.approx(glitch, abs=0.1 * abs(glitch))
 
 
-def test_a_drive_that_does_not_follow_a_small_step_is_found_by_the_shortfall_cusum() -> None:
+def test_a_drive_that_does_not_follow_a_small_step_is_found_by_the_loops_integral_before_the_cusum() -> None:
     # The command of joint 2 steps up by 12 N m at sample 50 and its readings stay where they were: within the span
-    # of the last reading and the commands, so no glitch, but short of what the slowest healthy loop (2.5 times the
-    # lag) would reach. The CUSUM of the shortfall, at most DRIVE_FAULT_STEP per sample less DRIVE_FAULT_DRIFT,
-    # finds the fault once it passes DRIVE_FAULT_EVIDENCE (docs/design.md).
+    # of the last reading and the commands, so no glitch. Over the window, the command less the readings sums to
+    # 12 N m per sample since the step; any healthy loop (a lag up to the slowest's) owes at most what its output's
+    # change allows, (dy - (1 - h) du) / (1 - q) with dy = 0 and du = 12 N m: -12 (1 - h) N m. The excess passes
+    # DRIVE_FAULT_EVIDENCE two samples after the step; the CUSUM of the shortfall, at most DRIVE_FAULT_STEP per
+    # sample less DRIVE_FAULT_DRIFT, would have needed 11 (docs/design.md section 6, "Torques").
     observations = _stream(100, AT_REST)
     steady = observations[0]["joint_torques"]
     stepped = steady + np.array([0.0, 0.0, 12.0])
@@ -639,14 +642,59 @@ def test_a_drive_that_does_not_follow_a_small_step_is_found_by_the_shortfall_cus
     for observation, command in zip(observations, commands, strict=True):
         monitor.update(observation, command)
     hold, keep = (value[0] for value in loop_response([SLOWEST_LAG_FACTOR * 1e-3], TORQUE_AGE))
-    evidence, sample = 0.0, 50
+    window = next(k for k in range(50, 100) if 12.0 * (k - 50) + 12.0 * (1.0 - hold) > DRIVE_FAULT_EVIDENCE)
+    evidence, cusum = 0.0, 50
     while evidence <= DRIVE_FAULT_EVIDENCE:
-        before = steady[2] if sample == 50 else stepped[2]
+        before = steady[2] if cusum == 50 else stepped[2]
         slowest = loop_output(steady[2], before, stepped[2], hold, keep)
         evidence = max(0.0, evidence + min(slowest - steady[2], DRIVE_FAULT_STEP) - DRIVE_FAULT_DRIFT)
-        sample += 1
-    assert sample - 1 > 55  # many samples: the CUSUM, not the span check
-    assert _found(monitor) == [("drive_fault", 2, sample - 1)]
+        cusum += 1
+    assert (window, cusum - 1) == (52, 61)
+    assert _found(monitor) == [("drive_fault", 2, window)]
+    # the torque held back over the window, per reading: 12 N m on the two readings since the step, less the bound
+    assert monitor.events[0].magnitude == pytest.approx((24.0 + 12.0 * (1.0 - hold)) / DRIVE_FAULT_WINDOW, rel=1e-9)
+
+
+def _dithered_drive(lag: float, kept: float, seed: int = 0) -> tuple[list[dict[str, np.ndarray]], list]:
+    """An arm at rest whose joint 1 is asked 8 N m plus a PD's dither (+-2 N m, uniform, every sample) and whose
+    drive, a first-order loop of time constant ``lag`` (s) read TORQUE_AGE periods before the encoders, holds at
+    most ``kept`` N m; the readings carry the sensor's noise (0.5 N m). Returns the observations and the commands
+    (None at the first)."""
+    rng = np.random.default_rng(seed)
+    observations = _stream(400, AT_REST)
+    steady = observations[0]["joint_torques"].copy()
+    hold, keep = (value[0] for value in loop_response([lag], TORQUE_AGE))
+    commands: list = [None]
+    output, before = steady[1], steady[1]
+    for k in range(1, 400):
+        asked = steady + np.array([0.0, 8.0 + rng.uniform(-2.0, 2.0), 0.0]) if k >= 100 else steady.copy()
+        held = min(asked[1], steady[1] + kept) if k >= 100 else asked[1]
+        output = loop_output(output, before, held, hold, keep)
+        before = held
+        observations[k]["joint_torques"] = steady + np.array([0.0, output - steady[1] + rng.normal(0.0, 0.5), 0.0])
+        commands.append(asked)
+    return observations, commands
+
+
+@pytest.mark.parametrize("lag", [0.0, 1e-3, SLOWEST_LAG_FACTOR * 1e-3])
+def test_a_drive_that_withholds_a_few_n_m_of_a_dithered_command_is_found_within_the_window(lag: float) -> None:
+    # The drive keeps 5 N m of the 8 +- 2 N m asked from sample 100 on: each reading falls short of what the slowest
+    # healthy loop would reach from the last by about 1 N m, under the CUSUM's drift, so only the loop's integral
+    # finds it; the same command delivered in full by a loop with no lag, the identified one or the slowest healthy
+    # one raises nothing.
+    for kept, found in ((5.0, True), (math.inf, False)):
+        observations, commands = _dithered_drive(lag, kept)
+        monitor = _monitor()
+        for observation, command in zip(observations, commands, strict=True):
+            monitor.update(observation, command)
+        drives = [(joint, sample) for kind, joint, sample in _found(monitor, collisions=True) if kind == "drive_fault"]
+        if found:
+            # 3 N m short on every reading; the bound lets the slowest loop owe its output's 5 N m rise over
+            # 1 - q = 0.33 of it, 15 N m: the excess passes the evidence after (20 + 15) / 3, 12 samples (a window
+            # or an evidence twice as large would take 17 or more)
+            assert len(drives) == 1 and drives[0][0] == 1 and 100 < drives[0][1] <= 113
+        else:
+            assert monitor.events == []
 
 
 @pytest.mark.parametrize("magnitude", [50.0, 80.0, 100.0])

@@ -8,7 +8,8 @@
   (:data:`STUCK_SAMPLES`); a measured torque outside what a
   first-order current loop can do between the last torque and the held command (:data:`TORQUE_MARGIN`). Measured
   torques that stay short of the prediction, or keep falling short of what the slowest healthy loop would reach (a
-  CUSUM, :data:`DRIVE_FAULT_EVIDENCE`), are a drive that does not deliver its command.
+  CUSUM, :data:`DRIVE_FAULT_EVIDENCE`), or whose sum over a window falls short of what any healthy loop owes the
+  commands (:data:`DRIVE_FAULT_WINDOW`), are a drive that does not deliver its command.
 - **External forces** (collisions): the residual of the identified model, measured torque minus the model's
   torque at the smoothed joint state (the tracking error smoothed, the reference's own derivatives added back; with
   the mass held, once known), mapped to a platform force F = J^-T r. Until the mass held is known, the residual's

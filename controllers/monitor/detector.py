@@ -120,7 +120,7 @@ class FaultMonitor:
         initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)
         initial["static_friction"] = dynamics.parameters.coulomb
         initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
-        initial["held_glitch"] = initial["rest_torque"] = math.nan
+        initial["held_glitch"] = math.nan
         initial["gripper_changed"] = -SMOOTHER_WINDOW
         initial["scatter"] = INITIAL_RESIDUAL_STD**2
         self._initial = initial

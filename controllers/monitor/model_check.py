@@ -383,6 +383,14 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
             corrected, other, True, False, state.charged_coulomb, state.breakaway, model_band
         )
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
+    if found & SLIPPED:
+        # this sample's force was taken with the mass the slip check has just found gone: it is the loss's, and the
+        # collision check takes none of it (kept, it made the next sample, with the lost mass as the other one, a
+        # collision)
+        state.force[:] = force
+        state.force_magnitude = magnitude
+        state.collision_samples = 0
+        return found | (COLLIDING if state.collision else 0)
     explained = held_then and other_magnitude <= FORCE_REFERENCE
     found |= _check_force(state, force, magnitude, explained, quiet_then)
     return found | (COLLIDING if state.collision else 0)

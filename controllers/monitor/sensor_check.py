@@ -15,12 +15,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.compiled_model import single_sample_model
-from controllers.monitor.compiled import loop_output
+from controllers.monitor.compiled import loop_output, shift_in
 from controllers.monitor.tuning import (
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_SAMPLES,
     DRIVE_FAULT_STEP,
+    DRIVE_FAULT_WINDOW,
     STUCK_COUNTS,
     STUCK_SAMPLES,
     TORQUE_MARGIN,
@@ -49,10 +50,9 @@ SENSOR_FIELDS = [
     ("raw_previous", np.float64, (3,)),
     ("error", np.float64, (3,)),
     ("stuck", np.int64, (3,)),
-    # per joint, since its reading last changed: its repeats, the torque (N m) and the tracking error (rad) where it
-    # stopped, and the speed (rad/s) and travel (rad) that the torque beyond what rest absorbs gave it since
+    # per joint, since its reading last changed: its repeats, the tracking error (rad) where it stopped, and the
+    # speed (rad/s) and travel (rad) that the torque beyond what rest absorbs gave it since
     ("rest_repeats", np.int64, (3,)),
-    ("rest_torque", np.float64, (3,)),
     ("rest_error", np.float64, (3,)),
     ("rest_speed", np.float64, (3,)),
     ("rest_travel", np.float64, (3,)),
@@ -76,6 +76,13 @@ SENSOR_FIELDS = [
     ("drive_active", np.uint8, (3,)),
     ("delivering", np.int64, (3,)),  # readings in a row that meet the loop's prediction, during a drive fault
     ("drive_ended", np.bool_),  # a drive fault ended on this sample: the torque steps back to the command
+    # the loop's integral check: the commands held (N m) at the last DRIVE_FAULT_WINDOW + 1 readings and their clean
+    # torques (oldest first), how many there are, and per joint whether the window shows a fault (its excess went
+    # beyond the evidence and has not been nil since)
+    ("loop_commands", np.float64, (DRIVE_FAULT_WINDOW + 1, 3)),
+    ("loop_torques", np.float64, (DRIVE_FAULT_WINDOW + 1, 3)),
+    ("loop_count", np.int64),
+    ("loop_over", np.uint8, (3,)),
     # constants: the encoder jump bound and stuck step (rad), the current loop's and the slowest healthy one's
     # (hold, keep) of detector.loop_response, the drive's peak torque (N m)
     ("jump_bound", np.float64),
@@ -131,27 +138,89 @@ def _held_joint(
     constants: NDArray[np.uint8],
     angles: NDArray[np.float64],
     rates: NDArray[np.float64],
-    accelerations: NDArray[np.float64],
+    torques: NDArray[np.float64],
     joint: int,
     mass: float,
 ) -> tuple[float, float]:
-    """The model's inertia (kg m^2) of ``joint`` at ``angles`` (rad, (3,)) with ``mass`` (kg) held, its torque per unit
-    of its own acceleration, and the torque (N m) the model asks of it held still (its rate and acceleration 0) while
-    the other joints move at ``rates`` (rad/s) and ``accelerations`` (rad/s^2): their share through the arm, gravity
-    and the object's; (NaN, NaN) where the model cannot take the state."""
+    """The torque (N m) that holds ``joint`` still (its rate and acceleration 0) at ``angles`` (rad, (3,)) with
+    ``mass`` (kg) held while the other joints move at ``rates`` (rad/s) under their measured ``torques`` (N m, (3,)),
+    and the joint's inertia (kg m^2) against what it is pushed with beyond that; (NaN, NaN) where the model cannot
+    take the state.
+
+    With the model's tau = M u + n (rates ``rates``, the joint's 0): the others accelerate as their torques drive them,
+    u_o = M_oo^-1 (tau_o - n_o - M_oj u_j), so the joint's own equation is S u_j = tau_j - h_j with
+    h_j = n_j + M_jo M_oo^-1 (tau_o - n_o) and S = M_jj - M_jo M_oo^-1 M_oj (docs/design.md section 6, "Encoders")."""
     w = rates.copy()
-    u = accelerations.copy()
     w[joint] = 0.0
-    u[joint] = 0.0
-    status, held = single_sample_model(constants, angles[0], angles[1], angles[2], w[0], w[1], w[2], u[0], u[1], u[2])
-    u[joint] = 1.0
-    pushed_status, pushed = single_sample_model(
-        constants, angles[0], angles[1], angles[2], w[0], w[1], w[2], u[0], u[1], u[2]
-    )
-    if status != 0 or pushed_status != 0:
+    status, base = single_sample_model(constants, angles[0], angles[1], angles[2], w[0], w[1], w[2], 0.0, 0.0, 0.0)
+    if status != 0:
         return math.nan, math.nan
-    torque = held[0, joint] + mass * held[1, joint]
-    return pushed[0, joint] + mass * pushed[1, joint] - torque, torque
+    bias = base[0] + mass * base[1]
+    inertia = np.empty((3, 3))
+    for column in range(3):
+        u = np.zeros(3)
+        u[column] = 1.0
+        status, unit = single_sample_model(
+            constants, angles[0], angles[1], angles[2], w[0], w[1], w[2], u[0], u[1], u[2]
+        )
+        if status != 0:
+            return math.nan, math.nan
+        inertia[:, column] = unit[0] + mass * unit[1] - bias
+    first, second = (1, 2) if joint == 0 else ((0, 2) if joint == 1 else (0, 1))
+    # M_oo^-1 of the other two joints, written out
+    a, b = inertia[first, first], inertia[first, second]
+    c, d = inertia[second, first], inertia[second, second]
+    determinant = a * d - b * c
+    if determinant == 0.0:
+        return math.nan, math.nan
+    driven_first = torques[first] - bias[first]
+    driven_second = torques[second] - bias[second]
+    accelerations = (
+        (d * driven_first - b * driven_second) / determinant,
+        (a * driven_second - c * driven_first) / determinant,
+    )
+    held = bias[joint] + inertia[joint, first] * accelerations[0] + inertia[joint, second] * accelerations[1]
+    coupled = (
+        inertia[joint, first] * (d * inertia[first, joint] - b * inertia[second, joint])
+        + inertia[joint, second] * (a * inertia[second, joint] - c * inertia[first, joint])
+    ) / determinant
+    return held, inertia[joint, joint] - coupled
+
+
+@numba.njit(cache=True)
+def loop_excess(
+    commands: NDArray[np.float64], torques: NDArray[np.float64], slowest_hold: float, slowest_keep: float
+) -> float:
+    """How far (N m, summed over readings) a drive's readings depart from every first-order current loop with a lag
+    from none to the slowest healthy one, over a window of readings (docs/design.md section 6, "Torques").
+
+    Reading k of such a loop is u_k + (u_{k-1} - u_k) h + (y_{k-1} - u_{k-1}) q, (h, q) the (hold, keep) of its lag,
+    so y_k - y_{k-1} = (1 - q)(u_{k-1} - y_{k-1}) + (1 - h)(u_k - u_{k-1}); summed over the window,
+    D = sum_{k<n} (u_k - y_k) = (y_n - y_0 - (1 - h)(u_n - u_0)) / (1 - q), with 1 - h and 1 - q between the slowest
+    loop's and 1 (no lag). Returns D less the nearest value that bound allows: 0 for a healthy loop (up to the
+    readings' noise), the torque held back over the window for a drive that does not deliver its command (its sign
+    the command's).
+
+    Args:
+        commands: The commands u held (N m) at the window's readings, oldest first, (n + 1,).
+        torques: The clean torque readings y (N m) of the same samples, (n + 1,).
+        slowest_hold: h of the slowest healthy loop.
+        slowest_keep: q of the slowest healthy loop.
+    """
+    n = commands.shape[0] - 1
+    owed = 0.0
+    for k in range(n):
+        owed += commands[k] - torques[k]
+    change, commanded = torques[n] - torques[0], commands[n] - commands[0]
+    ends = (change - commanded, change - (1.0 - slowest_hold) * commanded)
+    low, high = min(ends), max(ends)
+    share = 1.0 - slowest_keep
+    low, high = min(low, low / share), max(high, high / share)
+    if owed > high:
+        return owed - high
+    if owed < low:
+        return owed - low
+    return 0.0
 
 
 @numba.njit(cache=True)
@@ -213,39 +282,47 @@ def clean_encoders(
                 step += last[joint] - 2.0 * before[joint] + state.earlier[joint]
             moving = abs(step) >= state.stuck_step
             suspect[joint] = repeated and ((commanded and moving) or state.stuck[joint] > 0)
-            # the joint's torque and error where it stopped: at the reading before a run of repeats, or later while
-            # its reference rests (a pick's load held at rest is no push)
+            # the joint's tracking error where it stopped: at the reading before a run of repeats, or later while its
+            # reference rests
             resting = abs(reference_rates[joint]) * CONTROL_PERIOD * STUCK_COUNTS < state.stuck_step
-            if not repeated or resting or (math.isnan(state.rest_torque[joint]) and state.torque_known):
-                state.rest_torque[joint] = state.torque_previous[joint] if state.torque_known else math.nan
+            if not repeated or resting:
                 state.rest_error[joint] = state.error[joint]
             state.rest_repeats[joint] = state.rest_repeats[joint] + 1 if repeated else 0
-            # a joint whose reading repeats while its reference moves away from it is stuck once its drive's torque
-            # beyond what rest absorbs (it moved towards the motion by more than the friction's whole swing) has
-            # moved the joint, with the model's inertia, by more than a count, unless a force on the platform (a
-            # collision under way) may hold it (docs/design.md section 6, "Fault monitor"): the repeats are then
-            # replaced from the error held where it stopped, as a stuck spell's are
+            # a joint whose reading repeats while its reference runs is stuck once its drive's torque beyond what
+            # holds it still and what rest absorbs (the friction's whole swing) has moved it, with the model's
+            # inertia, by more than a count along the reference's run, unless a force on the platform (a collision
+            # under way) may hold it (docs/design.md section 6, "Encoders"): the repeats are then replaced from the
+            # error held where it stopped, as a stuck spell's are. Where the joint lies against the reference does
+            # not matter: a PD ahead of its reference still drives it on with its rate's error
             direction = _sign(reference_rates[joint])
-            behind = (reference[joint] - raw[joint]) * direction >= state.stuck_step
-            pushed = (state.torque_previous[joint] - state.rest_torque[joint]) * direction
-            excess = pushed - 2.0 * state.breakaway[joint]
-            speed = 0.0  # where nothing pushes the joint on, its friction may have stopped it
+            if repeated and state.rest_repeats[joint] == 1:
+                # the joint's speed along the reference's run as its reading stopped changing: that of its last
+                # step where that ran against the run (a joint turning back must first stop), else nil
+                state.rest_speed[joint] = min(0.0, direction * (last[joint] - before[joint]) / CONTROL_PERIOD)
+            # where nothing pushes the joint on, its friction may have stopped it (not turned it back)
+            speed = min(state.rest_speed[joint], 0.0) if repeated else 0.0
             # a mass picked up and not yet known may hold the joint too: the torque that lifts it moves nothing
             unknown_load = state.gripper_before and not state.held_known
-            if repeated and commanded and behind and excess > 0.0 and not (state.collision or unknown_load):
+            if repeated and commanded and not (state.collision or unknown_load):
                 held = state.held_mass if state.held_known else 0.0
-                # the torque the model asks of the joint held while the others move on (their rates and accelerations
-                # from the clean readings) changes with them: a heavy object swings it by tens of N m as a joint
-                # slows through a reversal, a count a sample. What pushes the joint on is the measured torque beyond
-                # that, less what rest absorbs (docs/design.md section 6, "Encoders")
+                # the torque that holds the joint still while the others move on, at the rates of their clean
+                # readings and driven by their measured torques, changes with them: a heavy object swings it by tens
+                # of N m as a joint slows through a reversal, a count a sample. What pushes the joint on is its
+                # measured torque beyond that, less what rest absorbs (docs/design.md section 6, "Encoders"). The
+                # torque where the repeats began is no baseline (the joint was still braking there, through a
+                # reversal), nor are the others' accelerations from their readings (a count's noise in a second
+                # difference, 50 rad/s^2, is tens of N m through the arm) or from the reference (a PD far behind
+                # it, or still at rest at a start, is not accelerating as its reference is)
                 others_rate = (last - before) / CONTROL_PERIOD
-                others_acceleration = np.zeros(3)
-                if state.clean_count == 3:
-                    others_acceleration = (last - 2.0 * before + state.earlier) / CONTROL_PERIOD**2
                 mass = max(state.feedforward_mass, held)
-                inertia, held_torque = _held_joint(model_constants, last, others_rate, others_acceleration, joint, mass)
-                model_excess = (state.torque_previous[joint] - held_torque) * direction - 2.0 * state.breakaway[joint]
-                push = min(excess, model_excess)
+                # what the drives deliver: a drive that falls short of its command (a fault found, or short
+                # readings in a row) delivers its reading, not the loop's prediction that replaces it
+                delivered = state.torque_previous.copy()
+                for other in range(3):
+                    if state.drive_active[other] != 0 or state.short_run[other] > 0:
+                        delivered[other] = state.torque_measured[other]
+                held_torque, inertia = _held_joint(model_constants, last, others_rate, delivered, joint, mass)
+                push = (delivered[joint] - held_torque) * direction - 2.0 * state.breakaway[joint]
                 if push > 0.0:
                     speed = state.rest_speed[joint] + push * CONTROL_PERIOD / inertia
             if not repeated:
@@ -329,6 +406,7 @@ def clean_torques(
         state.torque_known = True
         state.command_before[:] = command
         state.command_known = has_command
+        state.loop_count = 0  # the integral check's window starts again: a reading without its command owes unknown
         return replaced
     peak = state.peak_torque
     hold, keep = state.loop_response[0], state.loop_response[1]
@@ -390,6 +468,7 @@ def clean_torques(
         state.delivering[joint] = state.delivering[joint] + 1 if delivers and state.drive_active[joint] else 0
         recovered = state.delivering[joint] >= DRIVE_FAULT_SAMPLES
         evident = (state.shortfall[joint] > 0.0 or state.torque_bad[joint] > 0) and not recovered
+        evident = evident or state.loop_over[joint] != 0
         if state.drive_active[joint] != 0 and not evident:
             state.drive_ended = True
             state.shortfall[joint] = 0.0
@@ -403,6 +482,25 @@ def clean_torques(
             value = predicted[joint]
             replaced = TORQUES_REPLACED
         state.clean[2, joint] = state.torque_previous[joint] = value
+    # The loop's integral check over the window of clean readings (a glitch, replaced by the loop's prediction, owes
+    # nothing): a drive that holds its torque short of the command by less than the CUSUM's drift still falls
+    # short on every reading, and the sum gathers it while the readings' noise averages out
+    shift_in(state.loop_commands, held)
+    shift_in(state.loop_torques, state.clean[2])
+    state.loop_count = min(state.loop_count + 1, DRIVE_FAULT_WINDOW + 1)
+    if state.loop_count > DRIVE_FAULT_WINDOW:
+        for joint in range(3):
+            excess = loop_excess(
+                state.loop_commands[:, joint], state.loop_torques[:, joint], slowest_hold[joint], slowest_keep[joint]
+            )
+            over = abs(excess) > DRIVE_FAULT_EVIDENCE
+            if over and state.loop_over[joint] == 0 and state.drive_active[joint] == 0:
+                record_event(state, DRIVE_FAULT, joint, excess * _sign(held[joint]) / DRIVE_FAULT_WINDOW)
+                state.held_glitch[joint] = math.nan
+                state.drive_active[joint] = True
+            # once beyond the evidence, the window shows the fault until its readings fit a healthy loop again (a
+            # drive that withholds only the peaks of its command falls short again and again: one fault)
+            state.loop_over[joint] = over or (state.loop_over[joint] != 0 and excess != 0.0)
     state.command_before[:] = command
     state.command_known = True
     return replaced

@@ -14,7 +14,7 @@ to it, but not double it (a 1000 N push on the platform adds about 300 N m at a 
 STUCK_COUNTS = 4.0
 """An encoder that repeats its reading is suspect when the step its joint was to make (its last step plus its last
 second difference) and its reference's step were at least this many counts; a joint that left rest is stuck only
-while its reference runs this many counts per sample and lies this many counts beyond the reading."""
+while its reference runs this many counts per sample."""
 
 STUCK_SAMPLES = 3
 """Repeated readings of a suspect encoder that make it stuck."""
@@ -41,7 +41,18 @@ DRIVE_FAULT_STEP = 8.0
 
 DRIVE_FAULT_EVIDENCE = 20.0
 """Accumulated shortfall beyond the drift (N m, summed over samples) that makes a drive fault: at least four
-samples that each fall short by more than 7 N m."""
+samples that each fall short by more than 7 N m. Also the threshold of the window's excess
+(:data:`DRIVE_FAULT_WINDOW`), in the same unit."""
+
+DRIVE_FAULT_WINDOW = 16
+"""Readings over which the current loop's integral identity is checked (docs/design.md section 6, "Torques"): the
+command less the measured torque, summed over them, is what any first-order loop with a lag up to the slowest healthy
+one owes for its output's change; a drive that holds its torque short of the command gathers the shortfall on every
+reading. The sum's noise is the readings' (0.5 N m each: 2 N m over 16, and as much again from the output's change
+the identity takes off, which the slowest loop scales by 3), a sixth of :data:`DRIVE_FAULT_EVIDENCE`; a shortfall of
+1.25 N m held over the window reaches it, a few N m within a few samples. A longer window would find smaller losses
+and take more of a slow loop's transients; on fault-free work at 3-15 g, the time-optimal timings and 10 kg, the
+excess stayed at 7.2 N m at most on the rows measured (docs/measurements.md)."""
 
 FORCE_REFERENCE = 60.0
 """Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
