@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother
 from controllers.monitor import FaultMonitor
 from controllers.monitor.compiled import (
     correction_terms,
@@ -28,7 +28,14 @@ from controllers.monitor.compiled import (
     tracking_step_error,
 )
 from controllers.monitor.detector import loop_response
-from controllers.monitor.model_check import _slip_band, acceleration_step_response, lagged_step_weights, samples_to_show
+from controllers.monitor.model_check import (
+    _sliding,
+    _slip_band,
+    acceleration_step_response,
+    lagged_step_weights,
+    samples_to_show,
+)
+from controllers.monitor.step import MONITOR
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     BREAKAWAY_FACTOR,
@@ -192,6 +199,33 @@ def test_platform_force_takes_a_sliding_joints_friction_as_resisting_its_motion(
         terms[0] = (7.0, residual_1, -4.0)
         force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, NO_BAND, sliding)
         np.testing.assert_allclose(force, terms[3:] @ np.array([7.0, external_1, -4.0]), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_a_joint_slides_where_its_readings_move_across_the_checked_one(direction: float) -> None:
+    # The window's tracking errors plus their references, from the reading before the checked one to the one after:
+    # joint 0 moves a count there; joint 1 a count later (after the checked reading's neighbour); joint 2's error
+    # moves back by the count its reference moved (the joint stays put).
+    count = 1e-3
+    record = np.zeros(1, dtype=MONITOR)
+    state = record[0]
+    state.half_count = 0.5 * count
+    checked = SMOOTHER_WINDOW - 1 - SMOOTHER_LAG
+    errors = np.zeros((SMOOTHER_WINDOW, 3))
+    errors[checked + 1 :, 0] = direction * count
+    errors[checked + 2 :, 1] = direction * count
+    errors[checked + 1 :, 2] = -direction * count
+    state.next_slot = 7  # the window's oldest reading, each written twice
+    for reading in range(SMOOTHER_WINDOW):
+        row = (state.next_slot + reading) % SMOOTHER_WINDOW
+        state.readings[row] = state.readings[row + SMOOTHER_WINDOW] = errors[reading]
+    head = 4  # the checked sample's slot among the pending readings; its reference's angles are zero
+    state.pending_reference[(head + 1) % (SMOOTHER_LAG + 1), 0, 2] = direction * count
+    state.reference_before[:] = 0.0
+    np.testing.assert_array_equal(_sliding(state, head), [direction, 0.0, 0.0])
+    np.testing.assert_array_equal(state.reference_before, 0.0)  # the checked reference, kept for the next sample
+    state.reference_before[:] = np.nan  # before the first checked sample: no motion known
+    np.testing.assert_array_equal(_sliding(state, head), 0.0)
 
 
 @pytest.mark.parametrize("rate", [1.0, 0.05])
