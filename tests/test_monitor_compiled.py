@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
-from controllers.estimation import SMOOTHER_LAG, JointStateSmoother
+from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother
 from controllers.monitor import FaultMonitor
 from controllers.monitor.compiled import (
     correction_terms,
@@ -28,7 +28,14 @@ from controllers.monitor.compiled import (
     tracking_step_error,
 )
 from controllers.monitor.detector import loop_response
-from controllers.monitor.model_check import _slip_band, acceleration_step_response, lagged_step_weights, samples_to_show
+from controllers.monitor.model_check import (
+    _sliding,
+    _slip_band,
+    acceleration_step_response,
+    lagged_step_weights,
+    samples_to_show,
+)
+from controllers.monitor.step import MONITOR
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     BREAKAWAY_FACTOR,
@@ -66,6 +73,7 @@ def _same(actual: np.ndarray, expected: np.ndarray) -> None:
 CORRECTIONS = ModelCorrections(platform_mass=0.3, arm_mass_scale=-0.05, friction_scale=np.array([0.1, -0.2, 0.05]))
 NO_CORRECTIONS = correction_terms(None, 1.0, 1.0, (0.0,) * 3, (0.0,) * 3)
 NO_BAND = np.zeros(3)
+NOT_SLIDING = np.zeros(3)
 
 
 def _samples(count: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -143,19 +151,19 @@ def test_platform_force_recovers_a_known_force_less_the_mass_held_or_its_directi
         external = np.linalg.solve(terms[3:], force)
         phi = terms[1]
         terms[0] = external
-        found, magnitude = platform_force(terms, 0.0, False, False, coulomb, 1.5 * coulomb, NO_BAND)
+        found, magnitude = platform_force(terms, 0.0, False, False, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         np.testing.assert_allclose(found, force, rtol=1e-9, atol=1e-9)
         assert magnitude == pytest.approx(np.linalg.norm(force), rel=1e-9)
         terms[0] = external + 2.5 * phi
-        found, _ = platform_force(terms, 2.5, True, True, coulomb, 1.5 * coulomb, NO_BAND)
+        found, _ = platform_force(terms, 2.5, True, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         np.testing.assert_allclose(found, force, rtol=1e-9, atol=1e-9)
         # unknown mass: a residual along phi is invisible, one across it is the force
         across = external - (external @ phi) / (phi @ phi) * phi
         terms[0] = across + rng.normal(0.0, 5.0) * phi
-        found, _ = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND)
+        found, _ = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         np.testing.assert_allclose(found, terms[3:] @ across, rtol=1e-9, atol=1e-9)
         terms[0] = 3.0 * phi
-        found, magnitude = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND)
+        found, magnitude = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         assert magnitude < 1e-9 * np.linalg.norm(terms[3:] @ phi)
 
 
@@ -171,8 +179,54 @@ def test_platform_force_leaves_out_what_friction_at_rest_can_hold(rate: float) -
     low, high = -breakaway[1] - charged, breakaway[1] - charged
     for residual_1, external_1 in ((high + 2.0, 2.0), (low - 3.0, -3.0), (0.5 * (low + high), 0.0), (high, 0.0)):
         terms[0] = (7.0, residual_1, -4.0)
-        force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, NO_BAND)
+        force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, NO_BAND, NOT_SLIDING)
         np.testing.assert_allclose(force, terms[3:] @ np.array([7.0, external_1, -4.0]), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+@pytest.mark.parametrize("rate", [0.05, -0.05, 0.0])
+def test_platform_force_takes_a_sliding_joints_friction_as_resisting_its_motion(rate: float, direction: float) -> None:
+    # A slow joint whose readings moved has kinetic friction, which resists the motion: within direction [0, b], so
+    # a residual beyond the resisting side is external from 0 on (not from -b); on the other side as at rest.
+    coulomb = np.array(PARAMETERS.coulomb)
+    breakaway = 1.5 * coulomb
+    terms = _moving_terms(seed=2)[0]
+    terms[2, 1] = rate
+    sliding = np.array([0.0, direction, 0.0])
+    charged = coulomb[1] * np.sign(rate)
+    low, high = sorted((-charged, direction * breakaway[1] - charged))
+    cases = ((high + 2.0, 2.0), (low - 3.0, -3.0), (0.5 * (low + high), 0.0), (low, 0.0), (high, 0.0))
+    for residual_1, external_1 in cases:
+        terms[0] = (7.0, residual_1, -4.0)
+        force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, NO_BAND, sliding)
+        np.testing.assert_allclose(force, terms[3:] @ np.array([7.0, external_1, -4.0]), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_a_joint_slides_where_its_readings_move_across_the_checked_one(direction: float) -> None:
+    # The window's tracking errors plus their references, from the reading before the checked one to the one after:
+    # joint 0 moves a count there; joint 1 a count later (after the checked reading's neighbour); joint 2's error
+    # moves back by the count its reference moved (the joint stays put).
+    count = 1e-3
+    record = np.zeros(1, dtype=MONITOR)
+    state = record[0]
+    state.half_count = 0.5 * count
+    checked = SMOOTHER_WINDOW - 1 - SMOOTHER_LAG
+    errors = np.zeros((SMOOTHER_WINDOW, 3))
+    errors[checked + 1 :, 0] = direction * count
+    errors[checked + 2 :, 1] = direction * count
+    errors[checked + 1 :, 2] = -direction * count
+    state.next_slot = 7  # the window's oldest reading, each written twice
+    for reading in range(SMOOTHER_WINDOW):
+        row = (state.next_slot + reading) % SMOOTHER_WINDOW
+        state.readings[row] = state.readings[row + SMOOTHER_WINDOW] = errors[reading]
+    head = 4  # the checked sample's slot among the pending readings; its reference's angles are zero
+    state.pending_reference[(head + 1) % (SMOOTHER_LAG + 1), 0, 2] = direction * count
+    state.reference_before[:] = 0.0
+    np.testing.assert_array_equal(_sliding(state, head), [direction, 0.0, 0.0])
+    np.testing.assert_array_equal(state.reference_before, 0.0)  # the checked reference, kept for the next sample
+    state.reference_before[:] = np.nan  # before the first checked sample: no motion known
+    np.testing.assert_array_equal(_sliding(state, head), 0.0)
 
 
 @pytest.mark.parametrize("rate", [1.0, 0.05])
@@ -190,7 +244,7 @@ def test_platform_force_leaves_out_what_the_model_band_can_explain(rate: float) 
     high = band[1] + (breakaway[1] - charged if resting else 0.0)
     for residual_1, external_1 in ((high + 2.0, 2.0), (low - 3.0, -3.0), (0.5 * (low + high), 0.0), (low, 0.0)):
         terms[0] = (7.0, residual_1, -1.0)
-        force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, band)
+        force, _ = platform_force(terms, 0.0, False, False, coulomb, breakaway, band, NOT_SLIDING)
         np.testing.assert_allclose(force, terms[3:] @ np.array([3.0, external_1, 0.0]), rtol=1e-9, atol=1e-9)
 
 

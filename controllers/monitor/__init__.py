@@ -15,7 +15,7 @@
   the mass held, once known), mapped to a platform force F = J^-T r. Until the mass held is known, the residual's
   component along the payload regressor phi is left out (an unknown mass looks exactly like a force along
   J^T (xdd + g)). On a joint near rest, what friction up to its breakaway can hold is left out too
-  (:data:`REST_RATE`).
+  (:data:`REST_RATE`), and only what it can resist where the readings show the joint sliding.
 - **Payload consistency** (slips and drops): the apparent mass of the last few samples against the mass held since
   the pick.
 

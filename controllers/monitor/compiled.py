@@ -133,6 +133,7 @@ def platform_force(
     coulomb: NDArray[np.float64],
     breakaway: NDArray[np.float64],
     model_band: NDArray[np.float64],
+    sliding: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], float]:
     """The platform force F = J^-T e (N), (3,), and its norm, of :func:`model_residual`'s ``terms``.
 
@@ -141,7 +142,9 @@ def platform_force(
     +-``model_band`` (N m, (3,)), and on each joint slower than :data:`~controllers.monitor.tuning.REST_RATE` its
     unknown friction too: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the friction may be
     anything within +-``breakaway`` (N m), so e_i loses its part within [-w_i - b_i - fc_i s_i, w_i + b_i - fc_i s_i]
-    (the NumPy ``e - clip(e, low, high)``, w the band).
+    (the NumPy ``e - clip(e, low, high)``, w the band). A slow joint whose encoder shows it sliding (``sliding``
+    +1 or -1, the direction its readings moved across the checked sample; 0 where they did not) has kinetic friction,
+    which resists the motion: anything within ``sliding`` [0, b_i], not +-b_i.
     """
     r0, r1, r2 = terms[0, 0], terms[0, 1], terms[0, 2]
     p0, p1, p2 = terms[1, 0], terms[1, 1], terms[1, 2]
@@ -158,7 +161,9 @@ def platform_force(
         low, high = -model_band[joint], model_band[joint]
         if abs(rate) < REST_RATE:
             charged = coulomb[joint] * ((rate > 0.0) - (rate < 0.0))
-            low, high = low - breakaway[joint] - charged, high + breakaway[joint] - charged
+            least = 0.0 if sliding[joint] > 0.0 else -breakaway[joint]
+            most = 0.0 if sliding[joint] < 0.0 else breakaway[joint]
+            low, high = low + least - charged, high + most - charged
         value = external[joint]
         explained = low if value < low else (high if value > high else value)  # np.clip
         external[joint] = value - explained

@@ -119,6 +119,8 @@ class FaultMonitor:
         initial["step_weights"] = lagged_step_weights(response, PLANT_STEP_LAG)
         initial["onset_samples"] = samples_to_show(response, PUSH_SHOWN_SHARE)
         initial["static_friction"] = dynamics.parameters.coulomb
+        initial["reference_before"] = math.nan
+        initial["half_count"] = max(0.5 * step, 1e-9)
         initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
         initial["held_glitch"] = math.nan
         initial["gripper_changed"] = -SMOOTHER_WINDOW

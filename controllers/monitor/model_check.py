@@ -101,6 +101,9 @@ MODEL_CHECK_FIELDS = [
     ("charged_coulomb", np.float64, (3,)),
     ("breakaway", np.float64, (3,)),
     ("static_friction", np.float64, (3,)),
+    # the reference angles of the sample checked before (NaN before the first), and half an encoder count (rad)
+    ("reference_before", np.float64, (3,)),
+    ("half_count", np.float64),
     # the collision check
     ("force", np.float64, (3,)),
     ("force_magnitude", np.float64),
@@ -180,6 +183,25 @@ def lagged_step_weights(response: NDArray[np.float64], lags: int) -> NDArray[np.
     window)."""
     padded = np.concatenate((response, np.zeros(lags)))
     return np.max([np.abs(padded[k : k + len(response)] - response) for k in range(1, lags + 1)], axis=0)
+
+
+@numba.njit(cache=True)
+def _sliding(state: np.record, head: int) -> NDArray[np.float64]:
+    """Per joint, +1 or -1 where the clean readings moved by half a count or more, that way, from the reading before the
+    checked one to the reading after it (the tracking errors of the smoother's window plus their references), else
+    0; and keep the checked sample's reference angles for the next sample's."""
+    window = state.weights.shape[1]
+    checked = state.next_slot + window - 1 - SMOOTHER_LAG  # the checked reading's row in the window's slice
+    after = (head + 1) % (SMOOTHER_LAG + 1)
+    sliding = np.zeros(3)
+    for joint in range(3):
+        moved = (state.readings[checked + 1, joint] + state.pending_reference[after, 0, joint]) - (
+            state.readings[checked - 1, joint] + state.reference_before[joint]
+        )
+        if abs(moved) >= state.half_count:  # False for NaN
+            sliding[joint] = 1.0 if moved > 0.0 else -1.0
+        state.reference_before[joint] = state.pending_reference[head, 0, joint]
+    return sliding
 
 
 @numba.njit(cache=True)
@@ -335,6 +357,7 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
     if head < 0:
         return 0
     held_then = state.pending_holding[head] != 0
+    sliding = _sliding(state, head)
     # the mass the checks take off the checked sample's residual (none while it is not known), and the other mass
     # the cup may hold: none (the object gone) until a slip, then the one it lost (a slip that was not)
     held_known = held_then and state.held_known
@@ -376,11 +399,12 @@ def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: 
         state.charged_coulomb,
         state.breakaway,
         model_band,
+        sliding,
     )
     other_magnitude = math.inf  # the other mass only while the gripper holds
     if held_then:
         _, other_magnitude = platform_force(
-            corrected, other, True, False, state.charged_coulomb, state.breakaway, model_band
+            corrected, other, True, False, state.charged_coulomb, state.breakaway, model_band, sliding
         )
     found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
     if found & SLIPPED:

@@ -79,7 +79,8 @@ REST_RATE = FRICTION_VELOCITY_THRESHOLD
 fc instead of the model's fc sign(theta_dot): the identification's bound of the rate model's validity (0.2 rad/s,
 where the Stribeck excess has decayed). At a stop, the smoothed rate's sign says little, and a joint that sticks
 holds any torque up to its breakaway: at 3 g this friction made most of the healthy residual's force
-(docs/measurements.md, "Faults")."""
+(docs/measurements.md, "Faults"). A slow joint whose readings move slides, and its friction only resists the
+motion: within [0, b] on the motion's side (docs/design.md section 6, "Fault monitor")."""
 
 SLIP_MIN_MASS = 0.3
 """Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
