@@ -6,6 +6,7 @@ import csv
 import datetime
 import importlib.util
 import json
+import math
 import os
 import signal
 import subprocess
@@ -355,6 +356,20 @@ def test_the_soak_runs_any_scenario_and_injects_none_of_its_faults() -> None:
     compliant = soak.parse_args(["--scenario", "compliant"]).scenario
     assert compliant.plant == preset("compliant").plant and compliant.plant != preset("randomized").plant
     assert soak.parse_args([]).scenario.plant == preset("randomized").plant
+
+
+def test_the_campaign_scores_a_push_by_what_it_did_to_the_estimate(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A push leaves the object held: the campaign reports the estimate's change against the twin for collisions as
+    for sensor faults, and on the lag row it stays within the issue's 5 % at the place."""
+    monkeypatch.setattr(campaign, "prepare", lambda *args, **kwargs: Prepared(SETUP, None, None, None))
+    argv = ["--kinds", "collision", "--controllers", "mid_f_rls_lag", "--episodes", "3", "--workers", "1"]
+    assert campaign.main([*argv, "--out", str(tmp_path / "run")]) == 0
+    rows = read_csv_rows(tmp_path / "run" / "campaign.csv")
+    held = [row for row in rows if math.isfinite(float(row["end_change"]))]
+    assert held, [row["end_change"] for row in rows]  # at least one push met an object held
+    assert all(float(row["end_change"]) < 0.05 for row in held), [row["end_change"] for row in held]
 
 
 def test_the_soak_plans_its_episodes_from_their_lengths_and_fills_a_resumed_runs_gaps() -> None:

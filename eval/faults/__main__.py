@@ -8,9 +8,9 @@ episodes without it (the fault-free twins: the same seed, path, objects and nois
 - detected / scored (latent drive faults, which changed nothing, are counted apart), median and worst latency
   (ms), consequences and false alarms (:mod:`eval.fault_scores`), and the confusion matrix, injected kind by detected
   kind;
-- for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``): the largest change of
-  the payload estimate against the twin from the fault to the end of its carry, and the change left at the place,
-  as shares of the object's mass;
+- for sensor faults (``encoder_glitch``, ``encoder_stuck``, ``sensor_nan``, ``torque_glitch``) and collisions: the
+  largest change of the payload estimate against the twin from the fault to the end of its carry, and the change
+  left at the place, as shares of the object's mass (a push must not move the estimate: the object is still held);
 - for slips: the time from the slip until the estimate reads below 0.1 kg (the object is gone);
 - for each of ``--reactions`` (default: the scenario's ``fault_reaction``), what the cell's reaction to the fault
   cost: the pick rate of the faulty episode against its twin's (picks/min lost, :func:`reaction_cost`) and the
@@ -186,12 +186,12 @@ def reaction_cost(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float
 
 
 def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]:
-    """What the fault did: to the payload estimate (sensor faults), the largest change against the twin from the
-    fault to the end of its carry (the earlier of the two places) and the change left at its end, as shares of the
-    object's mass; for a slip, the time
-    until the estimate of the slipped object fell below :data:`GONE_MASS` (NaN if it did not before the place); for a
-    drive fault, the most torque (N m) it withheld from the command (the env's truth,
-    :attr:`~delta_env.faults.InjectedFault.withheld`; 0: the fault changed nothing, latent)."""
+    """What the fault did: to the payload estimate (sensor faults, collisions), the largest change against the twin
+    from the fault to the end of its carry (the earlier of the two places) and the change left at its end, as shares
+    of the object's mass; for a slip, the time until the estimate of the slipped object fell below
+    :data:`GONE_MASS` (NaN if it did not before the place); for a drive fault, the most torque (N m) it withheld from
+    the command (the env's truth, :attr:`~delta_env.faults.InjectedFault.withheld`; 0: the fault changed nothing,
+    latent)."""
     (fault,) = faulty.injected_faults
     start = fault.start_step + 1  # the first observation it affects
     carry = int(np.searchsorted(faulty.pick_indices, start, side="right")) - 1
@@ -208,7 +208,7 @@ def fault_effect(faulty: EpisodeRecord, twin: EpisodeRecord) -> dict[str, float]
     if fault.kind == "slip":
         below = np.flatnonzero(faulty.payload_estimate[start:end] < GONE_MASS)
         effect["forgotten_ms"] = 1e3 * below[0] * CONTROL_PERIOD if below.size else math.nan
-    elif fault.kind in SENSOR_KINDS and 0 <= carry < len(faulty.masses):
+    elif fault.kind in (*SENSOR_KINDS, "collision") and 0 <= carry < len(faulty.masses):
         change = np.abs(faulty.payload_estimate[start:end] - twin.payload_estimate[start:end])
         mass = max(faulty.masses[carry], GONE_MASS)
         effect["estimate_change"] = float(np.max(change) / mass)
