@@ -12,7 +12,7 @@ from controllers.dynamics import DeltaDynamics
 from controllers.feedforward import model_controller
 from controllers.monitor import FaultMonitor, MonitoredController
 from controllers.payload.equation import EQUATION
-from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller
+from controllers.registry import CONTROLLER_LABELS, ControllerSetup, build_controller, estimation_model, fault_monitor
 from delta_env.config import PlantConfig, RandomizationRanges
 from delta_env.env import DeltaPickPlaceEnv
 from delta_env.faults import FaultSpec
@@ -600,3 +600,37 @@ def test_an_encoder_stuck_as_a_pd_joint_turns_is_a_stuck_encoder_and_nothing_els
     (detected,) = record.detected_faults
     assert (detected.kind, detected.joint) == ("encoder_stuck", 1)
     assert 0 <= round((detected.time_s - injected.start_s) / CONTROL_PERIOD) <= latest
+
+
+@pytest.mark.parametrize("arm_encoder", [True, False])
+def test_on_compliant_drives_the_model_checks_read_the_arm_encoders(
+    controller_setup: ControllerSetup, joint_min_jerk_move, arm_encoder: bool
+) -> None:
+    """A move whose torques are the model's exactly, read through motor encoders that the gearheads' twist puts 1
+    mrad off the arms at 40 Hz (a saturated torque's ringing): with the arm encoders' readings (``load_angles``) the
+    model checks see the arms and raise nothing; without them they take the twist for the arms' motion, a push."""
+    setup = dataclasses.replace(controller_setup, encoder_bits=None)
+    monitor, dynamics = fault_monitor(setup), estimation_model(setup)
+    start = np.array([0.3, 0.35, 0.25])
+    angles, rates, accelerations = joint_min_jerk_move(start, start + np.array([0.4, -0.3, 0.2]), 0.4, CONTROL_PERIOD)
+    rest = np.zeros((200, 3))
+    angles = np.vstack([rest + angles[0], angles, rest + angles[-1]])
+    rates, accelerations = np.vstack([rest, rates, rest]), np.vstack([rest, accelerations, rest])
+    omega, sides = 2.0 * np.pi * 40.0, np.array([1.0, -1.0, 1.0])
+    for k, (angle, rate, acceleration) in enumerate(zip(angles, rates, accelerations, strict=True)):
+        torque, _ = dynamics.torque_and_payload_regressor(angle, rate, acceleration)
+        phase = omega * k * CONTROL_PERIOD
+        observation = {
+            "joint_angles": angle + 1e-3 * np.sin(phase) * sides,
+            "joint_velocities": rate + 1e-3 * omega * np.cos(phase) * sides,
+            "joint_torques": np.asarray(torque, dtype=float),
+            "reference_angles": angle,
+            "reference_velocities": rate,
+            "reference_accelerations": acceleration,
+            "gripper": np.zeros(1),
+        }
+        if arm_encoder:
+            observation["load_angles"] = angle.copy()
+        monitor.update(observation, None, 0.0)
+    kinds = {event.kind for event in monitor.events}
+    assert kinds == (set() if arm_encoder else {"collision"}), monitor.events

@@ -232,6 +232,8 @@ class FaultMonitor:
             NO_COMMAND if command is None else np.asarray(command, dtype=float),
             command is not None,
             observation["gripper"].item(0) > 0.5,
+            np.asarray(observation["load_angles"], dtype=float) if "load_angles" in observation else angles,
+            "load_angles" in observation,
         )
         if result == BAD_SHAPE:
             shapes = {key: np.shape(observation[key]) for key in observation if key != "gripper"}

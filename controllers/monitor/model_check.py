@@ -323,14 +323,17 @@ def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float,
 
 
 @numba.njit(cache=True)
-def check_sample(state: np.record, model_constants: NDArray[np.uint8], holding: bool, quiet: bool) -> int:
-    """The model checks of one sample on the monitor's record ``state`` (in place): its clean angles (rad) and torque
-    (N m) in ``state.clean``, its reference in ``state.reference``, its gripper (``holding``) and whether its
-    reading is kept out of the model's equations (``quiet``) go into the smoother; the checks run at the state
+def check_sample(
+    state: np.record, model_constants: NDArray[np.uint8], angles: NDArray[np.float64], holding: bool, quiet: bool
+) -> int:
+    """The model checks of one sample on the monitor's record ``state`` (in place): its arms' clean ``angles``
+    (rad), its clean torque (N m) in ``state.clean``, its reference in ``state.reference``, its gripper
+    (``holding``) and whether its reading is kept out of the model's equations (``quiet``) go into the smoother; the
+    checks run at the state
     :data:`~controllers.estimation.SMOOTHER_LAG` samples ago, with the model's constants of
     :class:`~controllers.dynamics.DeltaDynamics`. Returns the bits :data:`SLIPPED`, :data:`COLLIDED`,
     :data:`COLLIDING`."""
-    angles, torque, reference = state.clean[0], state.clean[2], state.reference
+    torque, reference = state.clean[2], state.reference
     first = not state.started
     if holding != state.gripper_before:
         state.gripper_changed = state.sample

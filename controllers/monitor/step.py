@@ -71,16 +71,21 @@ def monitor_step(
     command: NDArray[np.float64],
     has_command: bool,
     holding: bool,
+    arm_angles: NDArray[np.float64],
+    has_arm: bool,
 ) -> int:
     """One sample into the :data:`MONITOR` record ``state_bytes`` (its bytes, in place): the encoder readings (rad)
     and rates (rad/s), the measured torques (N m), the reference, the command (N m) sent after the last sample
-    (``has_command`` False at the first) and the gripper. Runs the sensor checks, then the model checks on the
-    clean readings (with the model's constants of :class:`~controllers.dynamics.DeltaDynamics`); the clean readings
-    are the record's ``clean`` rows, this sample's detections its events. Returns the bits of the rows that differ
-    from the readings (:data:`~controllers.monitor.sensor_check.ANGLES_REPLACED`, ``RATES_REPLACED``,
-    ``TORQUES_REPLACED``) and :data:`DETECTED`, or :data:`BAD_SHAPE`."""
+    (``has_command`` False at the first), the gripper, and the arm encoders' readings (rad) of compliant drives
+    (``has_arm`` False: none; the encoders read the arms). Runs the sensor checks, then the model checks on the
+    clean readings, the arms' angles where an arm encoder reads them (with the model's constants of
+    :class:`~controllers.dynamics.DeltaDynamics`); the clean readings are the record's ``clean`` rows, this sample's
+    detections its events. Returns the bits of the rows that differ from the readings
+    (:data:`~controllers.monitor.sensor_check.ANGLES_REPLACED`, ``RATES_REPLACED``, ``TORQUES_REPLACED``) and
+    :data:`DETECTED`, or :data:`BAD_SHAPE`."""
     if (
         angles.shape[0] != 3
+        or arm_angles.shape[0] != 3
         or rates.shape[0] != 3
         or torques.shape[0] != 3
         or reference_angles.shape[0] != 3
@@ -126,7 +131,10 @@ def monitor_step(
         state.quiet_samples = 0
     if state.quiet_samples:
         state.quiet_until = max(state.quiet_until, state.sample + state.quiet_samples)
-    found = check_sample(state, model_constants, holding, state.sample <= state.quiet_until)
+    # On compliant drives the motor encoders read the rotors, which the gearheads' twist puts off the arms by the
+    # arm's torque over the stiffness: the model's arm moves with the arm encoders (docs/design.md section 6).
+    checked_angles = arm_angles if has_arm else state.clean[0]
+    found = check_sample(state, model_constants, checked_angles, holding, state.sample <= state.quiet_until)
     if found & SLIPPED:
         record_event(state, SLIP, -1, state.slip_mass)
         state.slipped = True
