@@ -196,13 +196,17 @@ def loaded_flank(
 ) -> NDArray[np.float64]:
     """The backlash flank each rotor must press along a reference (+1 or -1 per joint, (3,)): the sign of the torque
     the gearhead passes to the arm there, the model's joint torque at ``theta`` (rad), ``theta_dot`` (rad/s) and
-    ``theta_ddot`` (rad/s^2) with ``payload`` (kg) less the rotor's own inertia torque J_m theta_ddot; at rest (a
+    ``theta_ddot`` (rad/s^2) with ``payload`` (kg) less what the rotor takes itself, its inertia torque
+    J_m theta_ddot and the drive's friction (the model's viscous and Coulomb terms act on the rotor); at rest (a
     joint's rate zero) the static load's sign, as in :func:`static_deflection` (docs/design.md section 6,
     "Backlash")."""
-    theta_ddot = np.asarray(theta_ddot, dtype=float)
+    theta_dot, theta_ddot = np.asarray(theta_dot, dtype=float), np.asarray(theta_ddot, dtype=float)
     torque, regressor = dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
-    arm_torque = torque + payload * regressor - np.asarray(compliance.rotor_inertia) * theta_ddot
-    at_rest = np.asarray(theta_dot, dtype=float) == 0.0
+    parameters = dynamics.parameters
+    rotor = np.asarray(compliance.rotor_inertia) * theta_ddot
+    friction = np.asarray(parameters.viscous) * theta_dot + np.asarray(parameters.coulomb) * np.sign(theta_dot)
+    arm_torque = torque + payload * regressor - rotor - friction
+    at_rest = theta_dot == 0.0
     return np.sign(np.where(at_rest, static_load(dynamics, theta, payload), arm_torque))
 
 

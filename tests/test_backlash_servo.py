@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from controllers.compliance import SMALLEST_BACKLASH, DriveCompliance, band_deflection, static_deflection
-from controllers.dynamics import DeltaDynamics
+from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.servo import JointServo, ResonanceNotch, servo_gains
 from delta_env.scenario import preset
 from delta_env.sensors import CONTROL_PERIOD
@@ -206,3 +206,24 @@ def test_the_band_deflection_takes_the_flank_of_the_references_torque() -> None:
     elastic = band_deflection(model, tiny, theta, rates, accelerations, 1.0)
     np.testing.assert_allclose(elastic, load / STIFFNESS, rtol=1e-12)
     assert np.sign(arm).tolist() != np.sign(load).tolist()  # the case tests a reversal
+
+
+def test_the_flank_leaves_the_drives_friction_to_the_rotor() -> None:
+    """The drive's friction acts on the rotor, not through the gearhead: on a model with friction, a joint whose
+    motion torque is a few N m against its Coulomb friction presses the flank of that motion torque, not of the sum
+    (the arm's torque computed by hand, on the frictionless model with the same inertia and gravity)."""
+    parameters = ModelParameters(rho1=1.35, rho2=1.12, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
+    frictionless = ModelParameters(rho1=1.35, rho2=1.12)
+    model, bare = DeltaDynamics.nominal(parameters), DeltaDynamics.nominal(frictionless)
+    drives = DriveCompliance((ROTOR,) * 3, tuple(STIFFNESS), tuple(DAMPING), tuple(BACKLASH))
+    theta, rates = np.array([0.3, -0.1, 0.5]), np.array([-0.5, 0.4, -0.3])
+    static = bare.inverse_dynamics(theta, np.zeros(3), np.zeros(3), 1.0)
+    # accelerations that leave each arm torque +2 N m (opposite the friction of its rate on joints 0 and 2)
+    column = np.array([bare.inverse_dynamics(theta, rates, np.eye(3)[j], 1.0) for j in range(3)]).T
+    velocity_only = bare.inverse_dynamics(theta, rates, np.zeros(3), 1.0)
+    accelerations = np.linalg.solve(column - velocity_only[:, None] - ROTOR * np.eye(3), 2.0 - velocity_only)
+    arm = bare.inverse_dynamics(theta, rates, accelerations, 1.0) - ROTOR * accelerations
+    np.testing.assert_allclose(arm, 2.0, atol=1e-9)
+    expected = static / STIFFNESS + 0.5 * BACKLASH  # every flank positive
+    got = band_deflection(model, drives, theta, rates, accelerations, 1.0)
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
