@@ -623,7 +623,7 @@ class JointServo:
         rotor_reference_rates: list[float],
     ) -> tuple[list[float], list[float]]:
         """The measured and reference rates (rad/s) the derivative term compares on gearheads with backlash, per joint:
-        outside the band the arm's (the load encoder's backward difference, over the rotor encoder's window) plus the
+        outside the band the arm's (the load encoder's backward difference over one period) plus the
         twist rate error low-passed at :data:`BAND_RATE_CUTOFF`, e = (w_ref - w_load) + LP[(w_ref + d_dot) - w_rotor
         - (w_ref - w_load)]: below the cutoff the rotor's rate error, as designed, above it the arm's, which the
         rotor's rattle in the band does not reach (docs/design.md section 6, "Through a torque reversal"). Inside the
