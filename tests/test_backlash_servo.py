@@ -126,8 +126,9 @@ ROTOR_FRICTION = 1.0
 def _through_reversal(band_rates: bool, move: float = 0.12, rest: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """Three dead-band joints (3 arcmin, arm sides ``ARM_INERTIA``, static loads ``REVERSAL_LOAD``) driven 0.3 rad
     along a half cosine in ``move`` (s), whose arm torque reverses mid-move, then held for ``rest`` (s), under the
-    model's feedforward and the notched servo told the band, fed the deflection the reference's torque asks
-    (:func:`controllers.compliance.band_deflection` of these joints); with the servo's ``band_rates`` or, if False,
+    model's feedforward and the notched servo told the band, fed the deflection the reference's torque asks (the
+    law of :func:`controllers.compliance.band_deflection`, written out for these one-joint arms: the static load's
+    g / k and half the band on the side of the arm's torque); with the servo's ``band_rates`` or, if False,
     the rotor's rate in the derivative term throughout. Returns per joint the twist's flank changes over the whole
     run and the arm's error (rad) over the last 50 ms."""
     inertia = ROTOR + ARM_INERTIA
