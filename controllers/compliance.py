@@ -193,21 +193,21 @@ def loaded_flank(
     theta_dot: ArrayLike,
     theta_ddot: ArrayLike,
     payload: float,
+    load: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """The backlash flank each rotor must press along a reference (+1 or -1 per joint, (3,)): the sign of the torque
     the gearhead passes to the arm there, the model's joint torque at ``theta`` (rad), ``theta_dot`` (rad/s) and
     ``theta_ddot`` (rad/s^2) with ``payload`` (kg) less what the rotor takes itself, its inertia torque
     J_m theta_ddot and the drive's friction (the model's viscous and Coulomb terms act on the rotor); at rest (a
-    joint's rate zero) the static load's sign, as in :func:`static_deflection` (docs/design.md section 6,
-    "Backlash")."""
+    joint's rate zero) the sign of ``load``, the static load (N m) there (:func:`static_load`), as in
+    :func:`static_deflection` (docs/design.md section 6, "Backlash")."""
     theta_dot, theta_ddot = np.asarray(theta_dot, dtype=float), np.asarray(theta_ddot, dtype=float)
     torque, regressor = dynamics.torque_and_payload_regressor(theta, theta_dot, theta_ddot)
     parameters = dynamics.parameters
     rotor = np.asarray(compliance.rotor_inertia) * theta_ddot
     friction = np.asarray(parameters.viscous) * theta_dot + np.asarray(parameters.coulomb) * np.sign(theta_dot)
     arm_torque = torque + payload * regressor - rotor - friction
-    at_rest = theta_dot == 0.0
-    return np.sign(np.where(at_rest, static_load(dynamics, theta, payload), arm_torque))
+    return np.sign(np.where(theta_dot == 0.0, load, arm_torque))
 
 
 def band_deflection(
@@ -223,9 +223,9 @@ def band_deflection(
     presses (:func:`loaded_flank`), so that the rotor's reference crosses the band when the arm's planned torque
     reverses instead of leaving the crossing to the servo's error (docs/design.md section 6, "Backlash"). At rest it is
     :func:`static_deflection`; without a resolved backlash it is the elastic part alone."""
-    elastic = static_load(dynamics, theta, payload) / np.asarray(compliance.stiffness)
-    flank = loaded_flank(dynamics, compliance, theta, theta_dot, theta_ddot, payload)
-    return elastic + 0.5 * compliance.resolved_backlash * flank
+    load = static_load(dynamics, theta, payload)
+    flank = loaded_flank(dynamics, compliance, theta, theta_dot, theta_ddot, payload, load)
+    return load / np.asarray(compliance.stiffness) + 0.5 * compliance.resolved_backlash * flank
 
 
 def joint_space_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:
