@@ -224,8 +224,11 @@ def band_deflection(
     reverses instead of leaving the crossing to the servo's error (docs/design.md section 6, "Backlash"). At rest it is
     :func:`static_deflection`; without a resolved backlash it is the elastic part alone."""
     load = static_load(dynamics, theta, payload)
-    flank = loaded_flank(dynamics, compliance, theta, theta_dot, theta_ddot, payload, load)
-    return load / np.asarray(compliance.stiffness) + 0.5 * compliance.resolved_backlash * flank
+    elastic = load / np.asarray(compliance.stiffness)
+    band = compliance.resolved_backlash
+    if not band.any():
+        return elastic
+    return elastic + 0.5 * band * loaded_flank(dynamics, compliance, theta, theta_dot, theta_ddot, payload, load)
 
 
 def joint_space_inertia(dynamics: DeltaDynamics, theta: ArrayLike, payload: float = 0.0) -> NDArray[np.float64]:

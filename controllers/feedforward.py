@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from controllers.base import JointFeedback, Observation, PDController
-from controllers.compliance import DriveCompliance, band_deflection, static_deflection
+from controllers.compliance import DriveCompliance, band_deflection
 from controllers.drive import ReferencePredictor
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
@@ -125,11 +125,14 @@ class FeedforwardController:
         on rigid drives."""
         if self.compliance is None:
             return None
-        theta, mass = observation["reference_angles"], self.feedforward_mass
-        if not self.compliance.resolved_backlash.any():
-            return static_deflection(self.dynamics, self.compliance, theta, mass)
-        rates, accelerations = observation["reference_velocities"], observation["reference_accelerations"]
-        return band_deflection(self.dynamics, self.compliance, theta, rates, accelerations, mass)
+        return band_deflection(
+            self.dynamics,
+            self.compliance,
+            observation["reference_angles"],
+            observation["reference_velocities"],
+            observation["reference_accelerations"],
+            self.feedforward_mass,
+        )
 
     def feedback(self, observation: Observation) -> NDArray[np.float64]:
         """The servo's torque (N m), (3,), scheduled first; on compliant drives with the rotors' reference
