@@ -329,8 +329,7 @@ def check_sample(
     """The model checks of one sample on the monitor's record ``state`` (in place): its arms' clean ``angles``
     (rad), its clean torque (N m) in ``state.clean``, its reference in ``state.reference``, its gripper
     (``holding``) and whether its reading is kept out of the model's equations (``quiet``) go into the smoother; the
-    checks run at the state
-    :data:`~controllers.estimation.SMOOTHER_LAG` samples ago, with the model's constants of
+    checks run at the state :data:`~controllers.estimation.SMOOTHER_LAG` samples ago, with the model's constants of
     :class:`~controllers.dynamics.DeltaDynamics`. Returns the bits :data:`SLIPPED`, :data:`COLLIDED`,
     :data:`COLLIDING`."""
     torque, reference = state.clean[2], state.reference
