@@ -36,6 +36,7 @@ from controllers.servo import (
     ServoGains,
     compliant_servo,
     joint_inertia,
+    joint_inertia_matrix,
     model_inertia,
     model_inertia_matrix,
     servo_gains,
@@ -306,7 +307,9 @@ class OracleController:
     jerk and snap from its samples (:meth:`~controllers.drive.ReferencePredictor.jet`). The motor encoders read the
     rotors, so the feedback compares them with the rotors' reference, the arms' plus the gearheads' deflection. With
     ``servo="servo"`` it is the model rows' servo on compliant drives (:func:`~controllers.servo.compliant_servo`)
-    on the plant's truth: its drives' compliance, exact inertia, true lag and Coulomb friction; with ``"pd"``, the PD
+    on the plant's truth: its drives' compliance, exact inertia, true lag and Coulomb friction, scheduled as theirs
+    (:meth:`FeedforwardController.schedule_servo`: the gains on the exact inertia matrix at the reference, the notch
+    on the exact inertia with the payload held); with ``"pd"``, the PD
     of :func:`compliant_oracle_gains` (docs/design.md section 4). A PD leaves the rotor where the friction at rest
     stops it, which the rows' integral and push at rest do not: it is no bound at the place.
 
@@ -416,8 +419,16 @@ class OracleController:
                 )
         self._holding = holding
         if self._fixed_gains is None and self.servo.scheduled:
-            # the servo layer's schedule on the truth: the exact inertia at the reference, without payload
-            self.servo.follow_inertia(lambda: joint_inertia(self.oracle.torque, observation["reference_angles"]))
+            # the servo layer's schedule on the truth, as the rows' (FeedforwardController.schedule_servo): the exact
+            # inertia at the reference without payload, its matrix behind a notch, the notch on it with the payload
+            angles = observation["reference_angles"]
+            if self.servo.notch is None:
+                self.servo.follow_inertia(lambda: joint_inertia(self.oracle.torque, angles))
+            else:
+                self.servo.follow_inertia(
+                    lambda: joint_inertia_matrix(self.oracle.torque, angles),
+                    lambda: joint_inertia(self.oracle.torque, angles, self.payload_estimate),
+                )
         if self.compliant_drives is None:
             torque_next = self.oracle.torque(*self.reference.next(observation), self.payload_estimate)
             return self.drive.command(torque_next) + self.servo.feedback(observation)
