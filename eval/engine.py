@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 
 from controllers.identification import IdentificationResult
 from controllers.registry import ControllerSetup
+from delta_env.config import PlantConfig
 from delta_env.scenario import Scenario
 from eval.calibration import DEFAULT_CALIBRATION_EPISODES, Calibration, tare_setup
 from eval.console import UsageError
@@ -52,7 +53,29 @@ def robot_knowledge(
     fault reaction (arguments as :func:`prepare`'s): what every row knows before the tare."""
     parameter_file, identification = robot_identification(scenario.plant, parameters, identification_root(runs_dir))
     fields = {"fault_reaction": scenario.task.fault_reaction, **setup_fields}
-    return parameter_file, identification, robot_setup(scenario.plant, identification, **fields)
+    setup = robot_setup(scenario.plant, identification, **fields)
+    require_known_drives(scenario.plant, setup)
+    return parameter_file, identification, setup
+
+
+def require_known_drives(plant: PlantConfig, setup: ControllerSetup) -> None:
+    """Refuse the servo layer (``setup.servo == "servo"``) on compliant drives it does not know: without the drives'
+    compliance (``setup.compliance`` None, as the identification leaves it on a plant without a load-side encoder)
+    the model rows run the rigid servo, without notch, deflection or backlash band, which the compliant plant drives
+    unstable (docs/design.md section 6, "Backlash").
+
+    Raises:
+        UsageError: naming the plant's ``load_encoder_bits`` and backlash.
+    """
+    drives = plant.realism.compliance
+    if drives is None or setup.compliance is not None or setup.servo != "servo":
+        return
+    raise UsageError(
+        f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = {drives.load_encoder_bits}: "
+        "without a load-side encoder their stiffness, damping and backlash are not identified, and the model rows' "
+        "servo, rigid without them, drives the gearheads unstable; fit one (PlantRealism.compliance."
+        "load_encoder_bits in [8, 32], the compliant preset's 20) or give a parameter file with the drives' compliance"
+    )
 
 
 def kept_tares(scenario: Scenario, runs_dir: str | Path | None = None) -> Path:

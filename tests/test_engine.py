@@ -8,13 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from controllers.compliance import DriveCompliance
 from controllers.payload import EmptyMoveSums
 from controllers.setup import ControllerSetup
 from delta_env.records import content_hash
 from delta_env.scenario import preset
 from eval import calibration
 from eval.calibration import calibration_seeds, tare_setup
-from eval.engine import grid, kept_tares, prepare
+from eval.console import UsageError
+from eval.engine import grid, kept_tares, prepare, require_known_drives
 from eval.sweep.work import METRIC_FIELDS, run_unit
 from eval.work import run_grid, unit_record
 from tests.conftest import NOMINAL_SETUP as SETUP
@@ -177,3 +179,23 @@ def test_run_grid_records_are_identical_on_ray() -> None:
     for one, other in zip(local, ray, strict=True):
         np.testing.assert_array_equal(one.tracking_error, other.tracking_error)
         np.testing.assert_array_equal(one.payload_estimate, other.payload_estimate)
+
+
+def _without_load_encoder(backlash: float):
+    """The compliant preset's plant with ``backlash`` (rad) per gearhead and no load-side encoder."""
+    plant = preset("compliant").plant
+    drives = dataclasses.replace(plant.realism.compliance, backlash=backlash, load_encoder_bits=None)
+    return dataclasses.replace(plant, realism=dataclasses.replace(plant.realism, compliance=drives))
+
+
+@pytest.mark.parametrize("backlash", [2.908882e-4, 0.0])
+def test_the_servo_layer_on_drives_it_does_not_know_is_refused_naming_the_encoder(backlash: float) -> None:
+    """Compliant drives without a load encoder leave the compliance unidentified (setup.compliance None): the servo
+    layer is refused, naming the encoder and the backlash; with the drives known, with the paper's PD, or on rigid
+    drives it is not."""
+    plant = _without_load_encoder(backlash)
+    with pytest.raises(UsageError, match=rf"backlash {backlash:.4g} rad and load_encoder_bits = None"):
+        require_known_drives(plant, SETUP)
+    require_known_drives(plant, dataclasses.replace(SETUP, compliance=DriveCompliance.nominal()))
+    require_known_drives(plant, dataclasses.replace(SETUP, servo="pd"))
+    require_known_drives(preset("nominal").plant, SETUP)
