@@ -290,12 +290,14 @@ def test_a_push_on_a_held_object_leaves_the_reference_rows_estimate_at_the_place
     assert abs(pushed.payload_estimate[place - 1] - clean.payload_estimate[place - 1]) < 0.015 * mass
 
 
-@pytest.mark.parametrize("seed", [0, 5])
+@pytest.mark.parametrize("seed", [0, 3, 5])
 def test_a_push_in_a_picks_dwell_is_a_collision_within_ten_ms(controller_setup: ControllerSetup, seed: int) -> None:
     # 300 N for 30 ms from the sample the gripper closes on, at rest (nominal robot): for the smoothing window that
     # holds the pick the check cannot tell the mass held from a force along phi. Taking the whole part along phi off
-    # as a mass, it found these pushes 13 ms after their start; now only as much as a mass the cup can hold
-    # explains (0 to MAX_PAYLOAD_MASS), 6 ms.
+    # as a mass, it found the pushes of seeds 0 and 5 13 ms after their start; now only as much as a mass the cup can
+    # hold explains (0 to MAX_PAYLOAD_MASS), 6 ms. Seed 3's push on 0.8 kg swings the arm back into a second peak
+    # after its CUSUM had cleared: the samples between, the collision still under way, entered the slip check's mass
+    # held (more than 3.9 kg, from a few samples at rest), and 50 ms later "gone" beat it, a slip.
     plant = {"n_cycles": 2, "release": "timed", "payload_mass_range": (0.5, 4.0)}
     probe = DeltaPickPlaceEnv(**plant)
     probe.reset(seed=seed)

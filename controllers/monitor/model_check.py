@@ -279,7 +279,7 @@ def _check_payload(
                 check.held_known = True
                 check.force_evidence = 0.0  # the force the loss left was the slip's
                 return SLIPPED
-    if check.force_evidence == 0.0:  # a collision's samples stay out of the mass held
+    if check.force_evidence == 0.0 and not check.collision:  # a collision's samples stay out of the mass held
         # while the CUSUM runs, its samples may be the loss's: they wait outside the mass held, which they would
         # drag towards "gone" (a light object's held mass fell below SLIP_MIN_MASS and its loss was never found),
         # and join it once the CUSUM is back at zero
