@@ -517,6 +517,16 @@ class PayloadRLS:
         self.P = prior * self.R / denominator
         return self.x
 
+    def normalized_innovation(self, information: float, moment: float) -> float:
+        """How far one sample, given as in :meth:`update_moments`, lies from the estimate, in standard deviations:
+        its score phi.y - phi.phi x over the score's standard deviation sqrt(phi.phi (R + phi.phi P-)) when y = phi
+        mp + e holds (the sample's noise and the estimate's own variance); 0 for a sample without information."""
+        if information <= 0.0:
+            return 0.0
+        prior = self.P * self._alpha_sq
+        # S = phi.phi R + (phi.phi)^2 P-: the variance of the score phi.(y - phi x)
+        return (moment - information * self.x) / math.sqrt(information * (self.R + prior * information))
+
     def reset_covariance(self) -> None:
         """Restore the prior variance, keeping the estimate: call it at a pick or a release."""
         self.P = self.initial_variance

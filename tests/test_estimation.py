@@ -108,6 +108,29 @@ def test_payload_rls_update_is_the_closed_form_of_one_sample() -> None:
     assert (rls.x, rls.P) == (1.0, 2.0)
 
 
+@pytest.mark.parametrize("forgetting_factor", [1.0, 0.99])
+def test_payload_rls_normalized_innovation_has_unit_variance_where_the_model_holds(
+    random_joint_states, forgetting_factor: float
+) -> None:
+    # y = phi mp + e with e ~ N(0, R I) and mp off the estimate by N(0, P-), P- = P / lambda: the score
+    # phi.y - phi.phi x has the variance phi.phi R + (phi.phi)^2 P-, so the normalized innovation is a standard normal;
+    # a sample whose mass lies 10 standard deviations of its score away reads 10
+    rng = np.random.default_rng(3)
+    noise_std, variance = 2.0, 0.04
+    rls = PayloadRLS(forgetting_factor=forgetting_factor, noise_std=noise_std, initial_variance=variance)
+    rls.reset(1.5)
+    phi = DeltaDynamics.nominal().payload_regressor(*random_joint_states(20000, seed=4))
+    mass = 1.5 + rng.normal(0.0, np.sqrt(variance / forgetting_factor), len(phi))
+    y = mass[:, None] * phi + rng.normal(0.0, noise_std, phi.shape)
+    information, moment = np.sum(phi * phi, axis=1), np.sum(phi * y, axis=1)
+    innovations = np.array([rls.normalized_innovation(i, m) for i, m in zip(information, moment, strict=True)])
+    assert np.std(innovations) == pytest.approx(1.0, abs=0.03) and abs(np.mean(innovations)) < 0.03
+    score_std = np.sqrt(information[0] * (noise_std**2 + information[0] * variance / forgetting_factor))
+    assert rls.normalized_innovation(information[0], information[0] * 1.5 + 10.0 * score_std) == pytest.approx(10.0)
+    assert rls.normalized_innovation(0.0, 0.0) == 0.0
+    assert (rls.x, rls.P) == (1.5, variance)  # it reads the state and changes nothing
+
+
 @pytest.mark.parametrize("mass", [0.5, 3.8])
 @pytest.mark.parametrize("forgetting_factor", [1.0, 0.999])
 def test_payload_rls_converges_to_the_mass(random_joint_states, mass, forgetting_factor) -> None:

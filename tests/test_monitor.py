@@ -266,6 +266,50 @@ def test_a_push_on_a_held_object_is_a_collision_and_leaves_the_estimate(
     assert pushed.payload_estimate[place - 1] == pytest.approx(clean.payload_estimate[place - 1], rel=0.05)
 
 
+@pytest.mark.parametrize("seed", [4, 11])
+def test_a_push_on_a_held_object_leaves_the_reference_rows_estimate_at_the_place(
+    controller_setup: ControllerSetup, seed: int
+) -> None:
+    # The fault campaign's pushes (the default draw) on MId+F+R+RLS(ref)+PD, which forms its equations at the
+    # reference and so reads the servo's recovery from a push as payload: seed 4, 808 N for 46 ms on 3.9 kg (with
+    # no gate after the collision, 66 % off the twin at the place); seed 11, 559 N for 21 ms on 2.4 kg (with the
+    # estimate kept from the collision to the place, 3.9 % off: it had not converged). Held out until its
+    # equations agree with the estimate again, it is 0.9 and 0.8 % off.
+    records = []
+    for faults in ([FaultSpec("collision")], []):
+        env = DeltaPickPlaceEnv(faults=faults)
+        records.append(run_episode(env, build_controller("mid_f_rls_ref", controller_setup), seed))
+        carries = env.trajectory.pick_indices, env.trajectory.place_indices
+    pushed, clean = records
+    (injected,) = pushed.injected_faults
+    assert [fault.kind for fault in pushed.detected_faults] == ["collision"]
+    carry = int(np.searchsorted(pushed.pick_indices, injected.start_step + 1, side="right")) - 1
+    place = min(pushed.place_indices[carry], clean.place_indices[carry])  # the in-position waits may differ
+    assert carries[0][carry] < injected.start_step < place
+    mass = pushed.masses[carry]
+    assert abs(pushed.payload_estimate[place - 1] - clean.payload_estimate[place - 1]) < 0.015 * mass
+
+
+@pytest.mark.parametrize("seed", [0, 3, 5])
+def test_a_push_in_a_picks_dwell_is_a_collision_within_ten_ms(controller_setup: ControllerSetup, seed: int) -> None:
+    # 300 N for 30 ms from the sample the gripper closes on, at rest (nominal robot): for the smoothing window that
+    # holds the pick the check cannot tell the mass held from a force along phi. Taking the whole part along phi off
+    # as a mass, it found the pushes of seeds 0 and 5 13 ms after their start; now only as much as a mass the cup can
+    # hold explains (0 to MAX_PAYLOAD_MASS), 6 ms. Seed 3's push on 0.8 kg swings the arm back into a second peak
+    # after its CUSUM had cleared: the samples between, the collision still under way, entered the slip check's mass
+    # held (more than 3.9 kg, from a few samples at rest), and 50 ms later "gone" beat it, a slip.
+    plant = {"n_cycles": 2, "release": "timed", "payload_mass_range": (0.5, 4.0)}
+    probe = DeltaPickPlaceEnv(**plant)
+    probe.reset(seed=seed)
+    start = probe.trajectory.pick_indices[0] * CONTROL_PERIOD
+    push = FaultSpec("collision", start=(start, start), size=(300.0, 300.0), duration=(0.03, 0.03))
+    env = DeltaPickPlaceEnv(faults=[push], **plant)
+    record = run_episode(env, build_controller("mid_f_rls_lag", controller_setup), seed)
+    (injected,) = env.injected_faults
+    assert [fault.kind for fault in record.detected_faults] == ["collision"]
+    assert 0.0 <= record.detected_faults[0].time_s - injected.start_s <= 0.010
+
+
 def test_a_push_that_stops_a_moving_joint_for_a_sample_is_a_collision_within_ten_ms(
     controller_setup: ControllerSetup,
 ) -> None:

@@ -56,6 +56,7 @@ from controllers.monitor.tuning import (
 )
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, residual_std
 from delta_env import kernels
+from delta_env.config import MAX_PAYLOAD_MASS
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 
 PARAMETERS = ModelParameters(rho1=1.8, rho2=0.9, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
@@ -141,9 +142,10 @@ def _moving_terms(seed: int) -> list[np.ndarray]:
     return terms
 
 
-def test_platform_force_recovers_a_known_force_less_the_mass_held_or_its_direction() -> None:
+def test_platform_force_recovers_a_known_force_less_the_mass_held_or_what_a_possible_mass_explains() -> None:
     # A force F on the platform gives the joint torques r = J^T F, which the force map J^-T takes back to F; a mass
-    # held adds m phi, which the check takes off once the mass is known, and before only the part along phi.
+    # held adds m phi, which the check takes off once the mass is known, and before only the part along phi that a
+    # mass the cup can hold (0 to MAX_PAYLOAD_MASS) explains: beyond, the rest of it is a force.
     rng = np.random.default_rng(1)
     coulomb = np.array(PARAMETERS.coulomb)
     for terms in _moving_terms(seed=1):
@@ -157,14 +159,19 @@ def test_platform_force_recovers_a_known_force_less_the_mass_held_or_its_directi
         terms[0] = external + 2.5 * phi
         found, _ = platform_force(terms, 2.5, True, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         np.testing.assert_allclose(found, force, rtol=1e-9, atol=1e-9)
-        # unknown mass: a residual along phi is invisible, one across it is the force
+        # unknown mass: a residual along phi that a possible mass explains is invisible, one across it is the force
         across = external - (external @ phi) / (phi @ phi) * phi
-        terms[0] = across + rng.normal(0.0, 5.0) * phi
+        terms[0] = across + rng.uniform(0.0, MAX_PAYLOAD_MASS) * phi
         found, _ = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         np.testing.assert_allclose(found, terms[3:] @ across, rtol=1e-9, atol=1e-9)
         terms[0] = 3.0 * phi
         found, magnitude = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
         assert magnitude < 1e-9 * np.linalg.norm(terms[3:] @ phi)
+        # beyond the masses the cup can hold, by 2 kg either way: 2 kg's force along phi is left
+        for mass, beyond in ((-2.0, -2.0), (MAX_PAYLOAD_MASS + 2.0, 2.0)):
+            terms[0] = across + mass * phi
+            found, _ = platform_force(terms, 0.0, False, True, coulomb, 1.5 * coulomb, NO_BAND, NOT_SLIDING)
+            np.testing.assert_allclose(found, terms[3:] @ (across + beyond * phi), rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("rate", [0.05, -0.05, 0.0])

@@ -12,10 +12,11 @@
   commands (:data:`DRIVE_FAULT_WINDOW`), are a drive that does not deliver its command.
 - **External forces** (collisions): the residual of the identified model, measured torque minus the model's
   torque at the smoothed joint state (the tracking error smoothed, the reference's own derivatives added back; with
-  the mass held, once known), mapped to a platform force F = J^-T r. Until the mass held is known, the residual's
-  component along the payload regressor phi is left out (an unknown mass looks exactly like a force along
-  J^T (xdd + g)). On a joint near rest, what friction up to its breakaway can hold is left out too
-  (:data:`REST_RATE`), and only what it can resist where the readings show the joint sliding.
+  the mass held, once known), mapped to a platform force F = J^-T r. Until the mass held is known (and while a pick or
+  a place lies in the smoother's window), the residual's component along the payload regressor phi is taken off as
+  far as a mass the cup can hold explains it, 0 to :data:`~delta_env.config.MAX_PAYLOAD_MASS` (an unknown mass looks
+  exactly like a force along J^T (xdd + g)). On a joint near rest, what friction up to its breakaway can hold is left
+  out too (:data:`REST_RATE`), and only what it can resist where the readings show the joint sliding.
 - **Payload consistency** (slips and drops): the apparent mass of the last few samples against the mass held since
   the pick.
 

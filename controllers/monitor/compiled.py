@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from controllers.compiled_model import single_sample_model
 from controllers.monitor.tuning import REST_RATE
+from delta_env.config import MAX_PAYLOAD_MASS
 
 if TYPE_CHECKING:
     from controllers.payload import ModelCorrections
@@ -129,7 +130,7 @@ def platform_force(
     terms: NDArray[np.float64],
     held_mass: float,
     subtract_held: bool,
-    project_out_phi: bool,
+    mass_unknown: bool,
     coulomb: NDArray[np.float64],
     breakaway: NDArray[np.float64],
     model_band: NDArray[np.float64],
@@ -137,23 +138,25 @@ def platform_force(
 ) -> tuple[NDArray[np.float64], float]:
     """The platform force F = J^-T e (N), (3,), and its norm, of :func:`model_residual`'s ``terms``.
 
-    e is the residual r less ``held_mass`` (kg) phi if ``subtract_held``, or without its part along phi if
-    ``project_out_phi``; then less what the model's own error can explain: on every joint its part within
-    +-``model_band`` (N m, (3,)), and on each joint slower than :data:`~controllers.monitor.tuning.REST_RATE` its
-    unknown friction too: the model charged fc_i sign(theta_dot_i) (``coulomb``, N m) where the friction may be
-    anything within +-``breakaway`` (N m), so e_i loses its part within [-w_i - b_i - fc_i s_i, w_i + b_i - fc_i s_i]
-    (the NumPy ``e - clip(e, low, high)``, w the band). A slow joint whose encoder shows it sliding (``sliding``
-    +1 or -1, the direction its readings moved across the checked sample; 0 where they did not) has kinetic friction,
-    which resists the motion: anything within ``sliding`` [0, b_i], not +-b_i.
+    e is the residual r less ``held_mass`` (kg) phi if ``subtract_held``, or, if ``mass_unknown``, less the m phi
+    that explains most of it, m = r.phi / phi.phi clipped to the masses the cup can hold,
+    [0, :data:`~delta_env.config.MAX_PAYLOAD_MASS`] (a residual along phi beyond any of them is a force); then less
+    what the model's own error can explain: on every joint its part within +-``model_band`` (N m, (3,)), and on each
+    joint slower than :data:`~controllers.monitor.tuning.REST_RATE` its unknown friction too: the model charged
+    fc_i sign(theta_dot_i) (``coulomb``, N m) where the friction may be anything within +-``breakaway`` (N m), so e_i
+    loses its part within [-w_i - b_i - fc_i s_i, w_i + b_i - fc_i s_i] (the NumPy ``e - clip(e, low, high)``, w the
+    band). A slow joint whose encoder shows it sliding (``sliding`` +1 or -1, the direction its readings moved across
+    the checked sample; 0 where they did not) has kinetic friction, which resists the motion: anything within
+    ``sliding`` [0, b_i], not +-b_i.
     """
     r0, r1, r2 = terms[0, 0], terms[0, 1], terms[0, 2]
     p0, p1, p2 = terms[1, 0], terms[1, 1], terms[1, 2]
     if subtract_held:
         r0, r1, r2 = r0 - held_mass * p0, r1 - held_mass * p1, r2 - held_mass * p2
-    elif project_out_phi:
+    elif mass_unknown:
         information = _dot3(p0, p1, p2, p0, p1, p2)
         if information > 0.0:
-            share = _dot3(r0, r1, r2, p0, p1, p2) / information
+            share = min(max(_dot3(r0, r1, r2, p0, p1, p2) / information, 0.0), MAX_PAYLOAD_MASS)
             r0, r1, r2 = r0 - share * p0, r1 - share * p1, r2 - share * p2
     external = np.array((r0, r1, r2))
     for joint in range(3):

@@ -173,7 +173,7 @@ class FaultMonitor:
     @property
     def force(self) -> NDArray[np.float64]:
         """The last estimate of the external force on the platform (N), (3,): while the gripper holds, without its
-        part along the payload regressor until the mass held is known."""
+        part along the payload regressor that a mass the cup can hold explains until the mass held is known."""
         return self._field["force"][0].copy()
 
     @property

@@ -21,7 +21,8 @@ the object, a stop the plant reaches late), the collision check also takes the s
 the plant's acceleration steps with its measured torque (M da = d tau), the reference's with the model's torque
 along it, so the error in torque is sum_m g_m d tau_m - sum_m h_m d tau*_m (:func:`torque_step_response`,
 :func:`~controllers.monitor.compiled.tracking_step_error`). A pick or a place in the window steps the acceleration
-with the mass carried instead: for those samples the part along the payload regressor is left out.
+with the mass carried instead: for those samples the part along the payload regressor that a mass the cup can hold
+explains is left out.
 
 :data:`MODEL_CHECK_FIELDS` are the fields of the monitor's record (:data:`~controllers.monitor.step.MONITOR`) that
 :func:`check_sample` keeps: the smoother's window, the readings it lags behind, the CUSUMs and the mass held.
@@ -278,7 +279,7 @@ def _check_payload(
                 check.held_known = True
                 check.force_evidence = 0.0  # the force the loss left was the slip's
                 return SLIPPED
-    if check.force_evidence == 0.0:  # a collision's samples stay out of the mass held
+    if check.force_evidence == 0.0 and not check.collision:  # a collision's samples stay out of the mass held
         # while the CUSUM runs, its samples may be the loss's: they wait outside the mass held, which they would
         # drag towards "gone" (a light object's held mass fell below SLIP_MIN_MASS and its loss was never found),
         # and join it once the CUSUM is back at zero
@@ -374,7 +375,8 @@ def check_sample(
     if status != kernels.VALID:  # a state the model cannot take (e.g. out of reach): no check
         return COLLIDING if state.collision else 0
     # a pick or a place in the smoothing window steps the acceleration with the mass carried, not with the torque:
-    # the smoothed state mixes both masses, and the force along phi is any admissible mass's
+    # the smoothed state mixes both masses, and the force along phi is any admissible mass's (0 to the most the cup
+    # can hold)
     straddles = state.sample - state.gripper_changed < SMOOTHER_WINDOW
     # the collision check's residual without the smoother's error where the tracking error's acceleration stepped:
     # the plant's with its measured torque, the reference's with the model's torque along it, with the mass the
@@ -391,7 +393,8 @@ def check_sample(
     )
     for joint in range(3):
         corrected[0, joint] += steps[joint]
-    # the platform force the residual leaves with the mass held (or, before it is known, without the part along phi),
+    # the platform force the residual leaves with the mass held (or, before it is known, less the mass the cup
+    # can hold that explains most of it along phi),
     # and with the other mass; each less what the model's own error explains (platform_force)
     force, magnitude = platform_force(
         corrected,

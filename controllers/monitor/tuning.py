@@ -87,7 +87,7 @@ SLIP_MIN_MASS = 0.3
 
 HELD_MASS_STD = 0.05
 """Standard error (kg) below which the mass held is taken out of the collision check's residual (before, the part
-along phi is left out): 0.05 kg times phi is about 1 N m."""
+along phi that a mass the cup can hold explains is left out): 0.05 kg times phi is about 1 N m."""
 
 SLIP_PRECISION = 0.1
 """The slip check starts once the standard error of the mass held is below this fraction of it: an early estimate

@@ -56,8 +56,6 @@ class MonitoredController:
         self.requested_speed = 1.0
         self._lasting = False
         """Whether a reaction answered a lasting fault (a slip, a drive fault), which full speed never follows."""
-        self._held_after_collision = False
-        """Whether a collision struck the carry under way."""
         self._estimate = payload_estimate_reader(controller)
         self._command: NDArray[np.float64] | None = None
         self._holding = False
@@ -86,7 +84,6 @@ class MonitoredController:
             self._corrections_fit.reset()
         self.requested_speed = 1.0
         self._lasting = False
-        self._held_after_collision = False
         self._command = None
         self._holding = False
         self.monitor.set_corrections(None)
@@ -102,12 +99,7 @@ class MonitoredController:
         clean = monitor.update(observation, self._command, self._estimate())
         new = monitor.events[seen:]
         collided = any(event.kind == "collision" for event in new)
-        # an estimator that forms its equations at the reference reads the arm's recovery from a push as payload:
-        # after a collision it keeps its estimate to the end of the carry
-        self._held_after_collision = holding and (self._held_after_collision or collided)
         for estimator in self._guarded:
-            if self._held_after_collision and not estimator.measures_state:
-                estimator.skip(1)
             if collided:
                 # the collision's first samples entered before it was detected, from the first reading of its onset
                 # on: undo them
@@ -115,6 +107,9 @@ class MonitoredController:
                 undo = min(self._checkpoints, monitor.lag - estimator.delay + onset + 1)
                 if undo > 0:
                     estimator.rollback(undo)
+                # and the servo's recovery follows it, which an estimator that forms its equations at the reference
+                # reads as payload: the carry's equations stay out until they agree with the estimate again
+                estimator.hold_out()
             if monitor.quiet_samples:
                 estimator.skip(monitor.quiet_samples)
             if monitor.collision:

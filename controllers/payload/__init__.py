@@ -82,10 +82,12 @@ from controllers.payload.fit import CorrectionFit, EmptyMoveSums, ModelCorrectio
 from controllers.payload.regressors import acceleration_lag
 from controllers.payload.tare import Tare, tare_from_observations
 from controllers.payload.tuning import (
+    CONSISTENT_SAMPLES,
     DROP_VARIANCE,
     FRICTION_CORRELATION_SAMPLES,
     FRICTION_SCALE_STD,
     FRICTION_VELOCITY,
+    INNOVATION_GATE,
     MASS_CORRECTION_STD,
     PICK_PRIOR_VARIANCE,
     RESIDUAL_STD,
@@ -94,10 +96,12 @@ from controllers.payload.tuning import (
 )
 
 __all__ = [
+    "CONSISTENT_SAMPLES",
     "DROP_VARIANCE",
     "FRICTION_CORRELATION_SAMPLES",
     "FRICTION_SCALE_STD",
     "FRICTION_VELOCITY",
+    "INNOVATION_GATE",
     "MASS_CORRECTION_STD",
     "PICK_PRIOR_VARIANCE",
     "RESIDUAL_STD",

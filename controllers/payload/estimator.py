@@ -20,10 +20,12 @@ from controllers.payload.equation import equation_constants
 from controllers.payload.fit import CorrectionFit, EmptyMoveSums, ModelCorrections
 from controllers.payload.regressors import REGRESSORS, Regressor
 from controllers.payload.tuning import (
+    CONSISTENT_SAMPLES,
     DROP_VARIANCE,
     FRICTION_CORRELATION_SAMPLES,
     FRICTION_SCALE_STD,
     FRICTION_VELOCITY,
+    INNOVATION_GATE,
     MASS_CORRECTION_STD,
     PICK_PRIOR_VARIANCE,
     RESIDUAL_STD,
@@ -141,6 +143,8 @@ class PayloadEstimator:
         self.checkpoints: CheckpointRing | None = None
         self._holding = False
         self._skip = 0  # updates still to leave out (skip)
+        self._held_out = False  # the carry's equations left out until they agree with the estimate (hold_out)
+        self._consistent = 0  # equations in a row that did, during a hold-out
 
     @property
     def mass(self) -> float:
@@ -193,6 +197,7 @@ class PayloadEstimator:
         self._regressor.reset()
         self._holding = False
         self._skip = 0
+        self._held_out = False
         if self.checkpoints is not None:
             self.checkpoints.forget()
 
@@ -210,6 +215,7 @@ class PayloadEstimator:
         rls, checkpoints = self.rls, self.checkpoints
         if holding != self._holding:
             self._holding = holding
+            self._held_out = False  # a hold-out ends with its carry
             if checkpoints is not None:
                 checkpoints.forget()  # a rollback never crosses a pick or a release
             if holding:
@@ -219,10 +225,15 @@ class PayloadEstimator:
         if checkpoints is not None:
             checkpoints.save(self.fit, rls)
         moments = self._moments(observation, holding, reference_torque, reference_regressor)
+        held_out = self._held_out
+        if held_out and moments is not None:
+            consistent = abs(rls.normalized_innovation(*moments)) <= INNOVATION_GATE
+            self._consistent = self._consistent + 1 if consistent else 0
+            self._held_out = self._consistent < CONSISTENT_SAMPLES
         if self._skip:
             self._skip -= 1
             checkpoints.restore_fit(self.fit)  # the sample entered neither the fit nor the RLS
-        elif moments is not None:
+        elif moments is not None and not held_out:
             rls.update_moments(*moments)
         return self.apparent_mass
 
@@ -236,6 +247,19 @@ class PayloadEstimator:
         if self.checkpoints is None:
             raise RuntimeError("skip() needs keep_checkpoints()")
         self._skip = max(self._skip, samples)
+
+    def hold_out(self) -> None:
+        """Leave the carry's equations out from the next update on until :data:`CONSISTENT_SAMPLES` of them in a
+        row agree with the estimate (normalized innovation within :data:`INNOVATION_GATE`), or the carry ends: after a
+        disturbance whose end the equations themselves show (a push, and the servo's recovery from it, which an
+        equation formed at the reference reads as payload). Nothing while the gripper is open."""
+        self._held_out = self._holding
+        self._consistent = 0
+
+    @property
+    def held_out(self) -> bool:
+        """Whether the carry's equations are being left out since :meth:`hold_out`."""
+        return self._held_out
 
     def rollback(self, samples: int) -> None:
         """Undo the last ``samples`` updates' equations (samples found faulty late), as far back as the checkpoints

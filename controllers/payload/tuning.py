@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from controllers.estimation import SMOOTHER_WINDOW
+
 RESIDUAL_STD = 1.5
 """Standard deviation (N m) of y - phi mp while the joints move: measured-torque noise (0.5 N m), torque
 ripple (1 N m amplitude, 0.7 N m RMS) and the model's error on the plant (about 1 N m RMS of
@@ -62,6 +64,18 @@ measured by the accelerations, which no other column resembles."""
 DROP_VARIANCE = 0.01
 """Variance (kg^2) of the estimate restarted at the tare when a slip is detected: nothing is held, give or take
 0.1 kg (the check that found the slip is that sure)."""
+
+INNOVATION_GATE = 3.0
+"""Normalized innovation (:meth:`~controllers.estimation.PayloadRLS.normalized_innovation`, standard deviations)
+within which a carry's equation agrees with the estimate, after a disturbance (:meth:`PayloadEstimator.hold_out`):
+99.7 % of the samples of a normal law. On fault-free carries 99 % lay within 2.2-2.5 (the RLS row, nominal) and
+3.0-3.6 (RLS(ref), nominal and ``randomized``), against up to 290 in a servo's recovery from a push
+(docs/measurements.md, "A push's recovery, the estimate at the place and the pick's blind spot")."""
+
+CONSISTENT_SAMPLES = SMOOTHER_WINDOW
+"""Equations in a row within :data:`INNOVATION_GATE` that end a hold-out: as long as the fault monitor's collision
+check asks its own residual to stay calm before it calls a collision over (the smoother's window, 26 samples). A
+servo's recovery from a push swings through zero, a few samples at a time within the gate."""
 
 PICK_PRIOR_VARIANCE = 16.0 / 3.0
 """Variance (kg^2) restored at a pick: the mean square of a mass uniform on [0, 4] kg (the rating)
