@@ -376,7 +376,14 @@ class OracleController:
             tuple(drives.rotor_inertia), tuple(drives.stiffness), tuple(drives.damping), tuple(drives.backlash)
         )
         return compliant_servo(
-            inertia, breakaway, lag, compliance, friction_width=step, rate_window=window, period=period
+            inertia,
+            breakaway,
+            lag,
+            compliance,
+            friction_width=step,
+            rate_window=window,
+            period=period,
+            rotor_friction=self.oracle.coulomb,
         )
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:

@@ -374,15 +374,24 @@ def compliant_servo(
     friction_width: float = DEFAULT_FRICTION_WIDTH,
     rate_window: float = CONTROL_PERIOD,
     period: float = CONTROL_PERIOD,
+    rotor_friction: ArrayLike = 0.0,
 ) -> JointServo:
     """The servo layer on compliant drives (docs/design.md section 6): a notch at each joint's drive mode, gains
     placed on each joint's ``inertia`` (kg m^2, rotor included) with the margin kept through the drive lag
-    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, and the gains on the rotor
-    alone inside the backlash's band. The model rows build it on the identified ``compliance``, the bound on the
-    plant's own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
+    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, the gains on the rotor
+    alone inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
+    ``rotor_friction`` (N m). The model rows build it on the identified ``compliance``, the bound on the plant's
+    own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
     notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
     gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
-    return JointServo(gains, period, rate_window=rate_window, notch=notch, backlash=compliance.resolved_backlash)
+    return JointServo(
+        gains,
+        period,
+        rate_window=rate_window,
+        notch=notch,
+        backlash=compliance.resolved_backlash,
+        rotor_friction=rotor_friction,
+    )
 
 
 class JointServo:
@@ -399,8 +408,11 @@ class JointServo:
             observation's ``load_angles``): while a joint's measured twist (motor encoder minus load encoder) lies
             within b / 2 of zero its rotor is alone, and the gains are placed on the rotor's inertia
             (:meth:`band_inertia`; docs/design.md section 6, "Backlash"), and outside it the derivative term takes the
-            arm's rate above :data:`BAND_RATE_CUTOFF` (:meth:`band_rates`). None or zeros: none. It needs the notch
-            (whose rotor inertia it takes).
+            arm's rate above :data:`BAND_RATE_CUTOFF` (:meth:`band_rates`); at rest the torque is held where it would
+            pull the rotor off its loaded flank (:meth:`flank_floor`). None or zeros: none. It needs the notch
+            (whose rotor inertia and stiffness it takes).
+        rotor_friction: The rotors' Coulomb friction per joint (N m), (3,) or a scalar: what a sliding rotor meets
+            in :meth:`flank_floor`.
     """
 
     def __init__(
@@ -410,6 +422,7 @@ class JointServo:
         rate_window: float = CONTROL_PERIOD,
         notch: ResonanceNotch | None = None,
         backlash: ArrayLike | None = None,
+        rotor_friction: ArrayLike = 0.0,
     ) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
@@ -421,6 +434,11 @@ class JointServo:
             if notch is None:
                 raise ValueError("the servo's backlash needs the notch of the compliant drives (its rotor inertia)")
             self.half_band = 0.5 * require_joint_vector("backlash", backlash, 0.0, unit="rad")
+        self.rotor_friction = require_joint_vector(
+            "rotor_friction", np.broadcast_to(np.asarray(rotor_friction, dtype=float), (3,)), 0.0, unit="N m"
+        )
+        # the rotor's rate (rad/s) above which it slides: two encoder steps over the rate window
+        self._sliding_rate = 2.0 * gains.friction_width / rate_window
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]  # the biquad's two delays per joint (N m)
         self._notch_coefficients: list[tuple[float, float, float, float, float]] = []
         self.reference_rate = MeasuredReferenceRate(rate_window, period)
@@ -541,7 +559,8 @@ class JointServo:
         self._unscheduled()
 
     def feedback(self, observation: Observation, deflection: ArrayLike | None = None) -> NDArray[np.float64]:
-        """The servo torque (N m), (3,).
+        """The servo torque (N m), (3,); on gearheads with backlash, held at rest on the loaded flank
+        (:meth:`flank_floor`).
 
         Args:
             observation: The step's observation: the reference and the encoders' angles and rates.
@@ -550,6 +569,14 @@ class JointServo:
                 the servo holds the rotors at the reference plus it, its rate taken over the measured rate's window
                 (docs/design.md section 6, "The deflection feedforward"). None: the encoders read the arms.
         """
+        if self.half_band is None or deflection is None:
+            return self._loop_torque(observation, deflection)
+        integral = list(self._integral)
+        torque = self._loop_torque(observation, deflection)
+        return self.flank_floor(observation, np.asarray(deflection, dtype=float), torque, integral)
+
+    def _loop_torque(self, observation: Observation, deflection: ArrayLike | None) -> NDArray[np.float64]:
+        """:meth:`feedback`'s loop: PID, the push at rest, the band's gains and rates, the notch."""
         gains, period, kp, ki, kd = self.gains, self.period, self._kp, self._ki, self._kd
         limit, width = gains.integral_limit, gains.friction_width
         reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
@@ -653,6 +680,45 @@ class JointServo:
                 rates[joint] = load_rate
                 reference_rates[joint] = arm_reference_rates[joint] + self._twist_rate_error[joint]
         return rates, reference_rates
+
+    def flank_floor(
+        self,
+        observation: Observation,
+        deflection: NDArray[np.float64],
+        torque: NDArray[np.float64],
+        integral: list[float],
+    ) -> NDArray[np.float64]:
+        """The servo torque (N m), (3,), held at rest where it would pull a rotor off the flank its static load
+        presses faster than the load lets the arm follow (docs/design.md section 6, "At rest on a light load").
+
+        With the rotor on flank s (the sign of ``deflection``, the rotors' rest deflection phi - theta in rad, (3,))
+        the gearhead passes the arm's static load |g| = k |deflection - s b / 2|. Pulled back by the servo, the lone
+        rotor accelerates at s (tau - f) / J_m, the arm behind it under its load alone at -|g| / J_a; the rotor stays
+        on the flank while s tau >= s f - |g| J / J_a, f the rotor's friction (Coulomb, against its measured rate;
+        against a pull from rest, its sliding value). At rest, each joint's torque below that floor is raised to it
+        and its integral kept as it was (anti-windup); in motion, and on a joint whose reference moves, nothing.
+
+        Args:
+            observation: The step's observation (its reference rates and the rotors' measured rates).
+            deflection: The rotors' deflection past the arms' reference (rad), (3,).
+            torque: The servo torque (N m), (3,), of this sample.
+            integral: The integral term (N m) before this sample, restored on a held joint.
+        """
+        at_rest = np.asarray(observation["reference_velocities"]) == 0.0
+        if not at_rest.any():
+            return torque
+        flank = np.sign(deflection)
+        load = np.abs(np.asarray(self.notch.stiffness) * (deflection - flank * self.half_band))
+        inertia = np.diag(self._inertia_matrix)
+        rotor = np.asarray(self.notch.rotor_inertia)
+        rising = flank * np.asarray(observation["joint_velocities"]) > self._sliding_rate
+        friction = np.where(rising, self.rotor_friction, -self.rotor_friction)
+        floor = friction - load * inertia / np.maximum(inertia - rotor, 1e-12)
+        held = at_rest & (flank != 0.0) & (flank * torque < floor)
+        if not held.any():
+            return torque
+        self._integral = [integral[j] if held[j] else self._integral[j] for j in range(3)]
+        return np.where(held, flank * floor, torque)
 
     def in_band(self, observation: Observation) -> NDArray[np.bool_]:
         """Per joint (3,), whether its gearhead's measured twist, the motor encoder's angle minus the load encoder's,

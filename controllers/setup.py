@@ -218,4 +218,12 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     compliance, breakaway = setup.compliance, coulomb + excess
     if compliance is None:
         return JointServo(servo_gains(inertia, breakaway, setup.drive_lag, friction_width=step), rate_window=window)
-    return compliant_servo(inertia, breakaway, setup.drive_lag, compliance, friction_width=step, rate_window=window)
+    return compliant_servo(
+        inertia,
+        breakaway,
+        setup.drive_lag,
+        compliance,
+        friction_width=step,
+        rate_window=window,
+        rotor_friction=coulomb,
+    )

@@ -10,7 +10,7 @@ from controllers.compliance import SMALLEST_BACKLASH, DriveCompliance, band_defl
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.servo import JointServo, ResonanceNotch, servo_gains
 from delta_env.scenario import preset
-from delta_env.sensors import CONTROL_PERIOD
+from delta_env.sensors import CONTROL_PERIOD, ENCODER_BITS, encoder_resolution
 
 GEARHEAD = preset("compliant").plant.realism.compliance
 ROTOR = GEARHEAD.rotor_inertia
@@ -228,3 +228,112 @@ def test_the_flank_leaves_the_drives_friction_to_the_rotor() -> None:
     expected = static / STIFFNESS + 0.5 * BACKLASH  # every flank positive
     got = band_deflection(model, drives, theta, rates, accelerations, 1.0)
     np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+LIGHT_LOAD = np.array([1.5, -1.5, 2.0])
+"""Static loads per joint (N m) a few times less than the servo's transient torques: the joints that hunted at rest
+on the 3-arcmin plant (about 1.5 N m through the gearhead)."""
+
+ROTOR_COULOMB = 4.0
+"""The rotor's Coulomb friction (N m): the plant's drive (4 N m, 0.85 to 1.15 times per joint)."""
+
+ROTOR_BREAKAWAY = 5.6
+"""Torque (N m) that starts the rotor from rest: Coulomb plus the Stribeck excess met on the way out."""
+
+
+def _light_rest(floor: bool, duration: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Three dead-band joints (3 arcmin, arm sides ``ARM_INERTIA``, static loads ``LIGHT_LOAD``) at rest at 0 under
+    the static load's feedforward and the notched servo told the band, the push at rest and the rotor's friction; the
+    rotor starts on the far flank, where the braking torque of a move leaves it, and the arm 0.3 mrad off the
+    reference on the side its load lets it fall, both moving that way at 0.02 rad/s. The rotor sticks below
+    ``ROTOR_BREAKAWAY`` and slides against ``ROTOR_COULOMB``. With :meth:`JointServo.flank_floor` or, if ``floor``
+    is False, without. Returns per joint the number of flank changes (the rotor meeting the other flank than the
+    one it last pressed) and the sample (ms) after the last one."""
+    inertia = ROTOR + ARM_INERTIA
+    notch = ResonanceNotch((ROTOR,) * 3, tuple(STIFFNESS))
+    gains = servo_gains(inertia, ROTOR_BREAKAWAY, LAG, notch=notch, friction_width=encoder_resolution(ENCODER_BITS))
+    servo = JointServo(gains, notch=notch, backlash=BACKLASH, rotor_friction=ROTOR_COULOMB)
+    if not floor:
+        servo.flank_floor = lambda observation, deflection, torque, integral: torque
+    servo.schedule(inertia)
+    half, flank, zero = 0.5 * BACKLASH, np.sign(LIGHT_LOAD), np.zeros(3)
+    deflection = LIGHT_LOAD / STIFFNESS + half * flank
+    arm = 3e-4 * flank
+    rotor = arm - half * flank
+    rotor_rate, arm_rate, drive = 0.02 * flank, 0.02 * flank, LIGHT_LOAD.copy()
+    last_rotor, sides = rotor.copy(), []
+    h = CONTROL_PERIOD / SUBSTEPS
+    for _ in range(round(duration / CONTROL_PERIOD)):
+        observation = {
+            "reference_angles": zero,
+            "reference_velocities": zero,
+            "reference_accelerations": zero,
+            "joint_angles": rotor.copy(),
+            "joint_velocities": (rotor - last_rotor) / CONTROL_PERIOD,
+            "load_angles": arm.copy(),
+        }
+        command = LIGHT_LOAD + servo.feedback(observation, deflection)
+        last_rotor = rotor.copy()
+        for _ in range(SUBSTEPS):
+            twist = rotor - arm
+            beyond = twist - np.clip(twist, -half, half)
+            spring = np.where(beyond != 0.0, STIFFNESS * beyond + DAMPING * (rotor_rate - arm_rate), 0.0)
+            drive += h * (command - drive) / LAG
+            net = drive - spring
+            sliding = rotor_rate != 0.0
+            slid = rotor_rate + h * (net - ROTOR_COULOMB * np.sign(rotor_rate)) / ROTOR
+            started = h * (net - ROTOR_COULOMB * np.sign(net)) / ROTOR
+            rotor_rate = np.where(
+                sliding,
+                np.where(np.sign(slid) == np.sign(rotor_rate), slid, 0.0),
+                np.where(np.abs(net) > ROTOR_BREAKAWAY, started, 0.0),
+            )
+            arm_rate += h * (spring - LIGHT_LOAD) / ARM_INERTIA
+            rotor += h * rotor_rate
+            arm += h * arm_rate
+        twist = (rotor - arm) / half
+        sides.append(np.where(np.abs(twist) >= 1.0, np.sign(twist), 0.0))
+    sides = np.array(sides)
+    changes, last_change = np.zeros(3, dtype=int), np.zeros(3, dtype=int)
+    for joint in range(3):
+        touching = np.flatnonzero(sides[:, joint])
+        flips = touching[1:][np.diff(sides[touching, joint]) != 0]
+        changes[joint] = flips.size
+        last_change[joint] = flips.max() + 1 if flips.size else 0
+    return changes, last_change
+
+
+def test_the_flank_floor_stops_a_light_joint_hunting_across_the_band_at_rest() -> None:
+    """A joint whose static load is a few N m holds its rotor on the load's flank only while the servo does not pull
+    the rotor back faster than the load lets the arm follow. Without the floor the servo's pulls (its push at rest,
+    the P and D terms on the arm's offset) throw the rotor to the far flank again and again (7, 45 and 73 flank
+    changes in 0.3 s, the last at 56, 219 and 299 ms); with it the rotor lands on the loaded flank and stays (3, 3
+    and 5 changes, the last at 35, 38 and 56 ms)."""
+    changes, last_change = _light_rest(floor=True)
+    np.testing.assert_array_less(changes, 10)
+    np.testing.assert_array_less(last_change, 110)
+    hunting_changes, hunting_last = _light_rest(floor=False)
+    assert hunting_changes.sum() > 60
+    assert hunting_last.max() > 200
+
+
+def test_the_flank_floor_holds_the_pull_to_what_the_load_lets_the_arm_follow() -> None:
+    """At rest the torque pulling a rotor off its loaded flank is raised to s f - |g| J / J_a (f the rotor's friction
+    against its rate, |g| the static load the deflection implies) and the integral of that joint kept; a push, a
+    joint whose reference moves and one whose pull is within the floor are left as they are."""
+    inertia = ROTOR + ARM_INERTIA
+    notch = ResonanceNotch((ROTOR,) * 3, tuple(STIFFNESS))
+    servo = JointServo(servo_gains(inertia, 5.0, LAG, notch=notch), notch=notch, backlash=BACKLASH, rotor_friction=4.0)
+    servo.schedule(inertia)
+    load = np.array([2.0, -2.0, 2.0])
+    deflection = load / STIFFNESS + 0.5 * BACKLASH * np.sign(load)
+    observation = {"reference_velocities": np.array([0.0, 0.0, 0.3]), "joint_velocities": np.zeros(3)}
+    servo._integral = [1.0, 2.0, 3.0]
+    torque = np.array([-10.0, 3.0, -10.0])
+    held = servo.flank_floor(observation, deflection, torque, [0.5, 0.5, 0.5])
+    floor = -4.0 - 2.0 * inertia / ARM_INERTIA
+    np.testing.assert_allclose(held, [floor[0], torque[1], torque[2]], rtol=1e-9)
+    np.testing.assert_allclose(servo.integral, [0.5, 2.0, 3.0])
+    rising = {"reference_velocities": np.zeros(3), "joint_velocities": np.array([1.0, -1.0, 1.0])}
+    held = servo.flank_floor(rising, deflection, np.array([0.0, 0.0, 0.0]), [0.0, 0.0, 0.0])
+    np.testing.assert_allclose(held, np.sign(load) * (4.0 - 2.0 * inertia / ARM_INERTIA), rtol=1e-9)
