@@ -292,6 +292,7 @@ def _slip_band(theta_dot: NDArray[np.float64], static_friction: NDArray[np.float
 def _check_payload(
     check: np.record,
     terms: NDArray[np.float64],
+    corrected: NDArray[np.float64],
     holding: bool,
     quiet: bool,
     jerk_variance: NDArray[np.float64],
@@ -321,8 +322,8 @@ def _check_payload(
         check.held_since = -1
         check.held_known = False
         learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
-        information, moment = slip_moments(terms, band, check.scatter + jerk_variance)
-        _learn_correlation(check, moment, information)
+        window_information, window_moment = slip_moments(corrected, band, check.scatter)
+        _learn_correlation(check, window_moment, window_information)
         return 0
     if check.held_since < 0:
         _restart_held(check)
@@ -333,6 +334,7 @@ def _check_payload(
     if check.held_known:
         learn_scatter(check.scatter, terms, check.held_mass, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
     information, moment = slip_moments(terms, band, check.scatter + jerk_variance)
+    window_information, window_moment = slip_moments(corrected, band, check.scatter)
     testing = False
     if (check.sample - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
         held = check.held_moment / check.held_information
@@ -345,7 +347,7 @@ def _check_payload(
             ratio = held * (0.5 * held * information - moment)
             cap = SLIP_EVIDENCE / check.onset_samples
             evidence = check.evidence + min(ratio, cap)
-            _shift_scalar(check.window_ratios, ratio)
+            _shift_scalar(check.window_ratios, held * (0.5 * held * window_information - window_moment))
             check.run_samples = min(check.run_samples + 1, SLIP_WINDOW)
             window = _window_evidence(check, cap)
             pushed = gone_force > FORCE_REFERENCE
@@ -365,7 +367,7 @@ def _check_payload(
     if not testing:
         check.run_samples = 0
     if check.held_known and check.force_evidence == 0.0:  # a collision's force is no model error
-        _learn_correlation(check, moment - check.held_mass * information, information)
+        _learn_correlation(check, window_moment - check.held_mass * window_information, window_information)
     else:
         check.chain = 0
     if check.force_evidence == 0.0:  # a collision's samples stay out of the mass held
@@ -498,7 +500,7 @@ def check_sample(
         _, other_magnitude = platform_force(
             corrected, other, True, False, state.charged_coulomb, state.breakaway, model_band, sliding
         )
-    found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
+    found = _check_payload(state, terms, corrected, held_then, quiet_then, jerk_variance, other_magnitude)
     if found & SLIPPED:
         # this sample's force was taken with the mass the slip check has just found gone: it is the loss's, and the
         # collision check takes none of it (kept, it made the next sample, with the lost mass as the other one, a
