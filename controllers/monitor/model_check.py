@@ -304,7 +304,10 @@ def _check_payload(
     residual, with nothing held, leaves a platform force ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no
     evidence of a loss (a push): it clears the CUSUM. No sample adds more than :data:`SLIP_EVIDENCE` over the
     record's ``onset_samples``, so that no run shorter than a push's onset (which, half shown, can look like the
-    loss of a heavy object) makes a slip.
+    loss of a heavy object) makes a slip. Beside the CUSUM, a window statistic (:func:`_window_evidence`) weighs the
+    run's last samples with the correlation of the residual ``corrected`` (``terms`` with the smoother's error at the
+    torque's steps taken off, weighted without the torque steps' variance), measured on this robot's samples with a
+    known mass (:func:`_learn_correlation`): either over :data:`SLIP_EVIDENCE` makes a slip.
     Returns :data:`SLIPPED` or 0."""
     if quiet:
         check.chain = 0
@@ -322,8 +325,11 @@ def _check_payload(
         check.held_since = -1
         check.held_known = False
         learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
-        window_information, window_moment = slip_moments(corrected, band, check.scatter)
-        _learn_correlation(check, window_moment, window_information)
+        if check.force_evidence == 0.0:  # a collision's force is no model error
+            window_information, window_moment = slip_moments(corrected, band, check.scatter)
+            _learn_correlation(check, window_moment, window_information)
+        else:
+            check.chain = 0
         return 0
     if check.held_since < 0:
         _restart_held(check)
