@@ -128,7 +128,7 @@ MODEL_CHECK_FIELDS = [
     ("onset_samples", np.int64),
     # the slip check's window statistic: the last samples' deviations from the known mass (phi^T W (r - m phi), kg^-1)
     # and information (kg^-2), how many of them are consecutive, the running means of their window sums' squares and
-    # of the sums' information per window length, the samples learned, and the CUSUM's terms of the current run
+    # of the sums' information per window length, the samples learned, and the current run's log-likelihood ratios
     ("window_deviations", np.float64, (SLIP_WINDOW,)),
     ("window_informations", np.float64, (SLIP_WINDOW,)),
     ("chain", np.int64),
@@ -258,10 +258,10 @@ def _learn_correlation(check: np.record, deviation: float, information: float) -
 @numba.njit(cache=True)
 def _window_evidence(check: np.record, cap: float) -> float:
     """The window statistic: the largest log-likelihood ratio of "gone" over the current run's last n samples,
-    n up to :data:`SLIP_WINDOW`, each sum of the CUSUM's terms divided by the window's variance inflation
-    kappa_n = E[(sum of deviations)^2] / E[sum of information] that the residual's correlation gives (1 for white
-    samples); each term capped at ``cap``. 0 until the correlation has been learned over 1 /
-    :data:`CORRELATION_RATE` samples."""
+    n up to :data:`SLIP_WINDOW`, each sum of the run's terms (the CUSUM's, of the corrected residual) divided by the
+    window's variance inflation kappa_n = E[(sum of deviations)^2] / E[sum of information] that the residual's
+    correlation gives (1 for white samples); each term capped at ``cap``. 0 until the correlation has been learned
+    over 1 / :data:`CORRELATION_RATE` samples."""
     if check.learned_samples * CORRELATION_RATE < 1.0:
         return 0.0
     best = 0.0
