@@ -29,8 +29,10 @@ from controllers.monitor.compiled import (
 )
 from controllers.monitor.detector import loop_response
 from controllers.monitor.model_check import (
+    _learn_correlation,
     _sliding,
     _slip_band,
+    _window_evidence,
     acceleration_step_response,
     lagged_step_weights,
     samples_to_show,
@@ -39,6 +41,7 @@ from controllers.monitor.step import MONITOR
 from controllers.monitor.tuning import (
     ACCELERATION_FACTOR,
     BREAKAWAY_FACTOR,
+    CORRELATION_RATE,
     DRIVE_FAULT_DRIFT,
     DRIVE_FAULT_EVIDENCE,
     DRIVE_FAULT_STEP,
@@ -50,6 +53,7 @@ from controllers.monitor.tuning import (
     PUSH_SHOWN_SHARE,
     REST_RATE,
     SENSOR_QUIET,
+    SLIP_WINDOW,
     SLOWEST_LAG_FACTOR,
     STUCK_SAMPLES,
     TORQUE_MARGIN,
@@ -359,6 +363,52 @@ def test_scatter_is_a_running_mean_square_and_the_slip_moments_weighted_sums() -
         assert information == pytest.approx(sum(w * p * p for w, p in zip(weights, phi, strict=True)), rel=TOLERANCE)
         expected_moment = sum(w * p * r for w, p, r in zip(weights, phi, residual, strict=True))
         assert moment == pytest.approx(expected_moment, rel=TOLERANCE, abs=1e-12)
+
+
+def test_the_window_statistic_is_the_largest_window_ratio_over_the_measured_variance_inflation() -> None:
+    # Deviations of a moving average of white noise (positively correlated) in runs broken twice: the running means
+    # of every window's squared sum and information against a brute-force sum over the runs, then the statistic
+    # of a run of ratios against its definition, max_n sum_{last n} min(l_j / kappa_n, cap).
+    rng = np.random.default_rng(11)
+    record = np.zeros(1, dtype=MONITOR)
+    state = record[0]
+    noise = rng.normal(size=700)
+    deviations = np.convolve(noise, np.ones(4) / 2.0, mode="same")
+    informations = rng.uniform(0.5, 3.0, size=700)
+    breaks = {250, 251, 480}
+    squared_sums, information_sums = np.zeros(SLIP_WINDOW), np.zeros(SLIP_WINDOW)
+    run: list[int] = []
+    for sample in range(700):
+        if sample in breaks:
+            state.chain = 0
+            run = []
+            continue
+        _learn_correlation(state, deviations[sample], informations[sample])
+        run.append(sample)
+        for length in range(1, min(len(run), SLIP_WINDOW) + 1):
+            window = run[-length:]
+            squared_sums[length - 1] += CORRELATION_RATE * (deviations[window].sum() ** 2 - squared_sums[length - 1])
+            information_sums[length - 1] += CORRELATION_RATE * (
+                informations[window].sum() - information_sums[length - 1]
+            )
+    np.testing.assert_allclose(state.squared_sums, squared_sums, rtol=1e-10)
+    np.testing.assert_allclose(state.information_sums, information_sums, rtol=1e-10)
+    assert state.learned_samples == 700 - len(breaks)
+    inflation = squared_sums / information_sums
+    # the moving average's correlation: a sum of 4 has 11/4 times the variance of 4 white samples (kappa 1.6 vs 0.6)
+    assert inflation[3] > 2.0 * inflation[0]
+    ratios = rng.normal(0.3, 1.0, size=SLIP_WINDOW)
+    state.window_ratios[:] = ratios
+    cap = 1.5
+    for run_samples in (1, 7, SLIP_WINDOW):
+        state.run_samples = run_samples
+        expected = max(
+            0.0,
+            *(np.minimum(ratios[SLIP_WINDOW - n :] / inflation[n - 1], cap).sum() for n in range(1, run_samples + 1)),
+        )
+        assert _window_evidence(state, cap) == pytest.approx(expected, rel=1e-12)
+    state.learned_samples = int(1.0 / CORRELATION_RATE) - 1  # not yet learned: no evidence
+    assert _window_evidence(state, cap) == 0.0
 
 
 def test_loop_output_is_the_first_order_loop_sampled_half_a_period_late() -> None:

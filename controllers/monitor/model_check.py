@@ -56,6 +56,7 @@ from controllers.monitor.compiled import (
     tracking_step_error,
 )
 from controllers.monitor.tuning import (
+    CORRELATION_RATE,
     FORCE_EVIDENCE,
     FORCE_REFERENCE,
     HELD_MASS_STD,
@@ -64,6 +65,7 @@ from controllers.monitor.tuning import (
     SLIP_MIN_MASS,
     SLIP_PRECISION,
     SLIP_SETTLE,
+    SLIP_WINDOW,
 )
 from controllers.payload import FRICTION_CORRELATION_SAMPLES, FRICTION_VELOCITY, RESIDUAL_STD
 from delta_env import kernels
@@ -125,6 +127,17 @@ MODEL_CHECK_FIELDS = [
     ("slip_armed", np.bool_),
     ("slip_mass", np.float64),
     ("onset_samples", np.int64),
+    # the slip check's window statistic: the last samples' deviations from the known mass (phi^T W (r - m phi), kg^-1)
+    # and information (kg^-2), how many of them are consecutive, the running means of their window sums' squares and
+    # of the sums' information per window length, the samples learned, and the current run's log-likelihood ratios
+    ("window_deviations", np.float64, (SLIP_WINDOW,)),
+    ("window_informations", np.float64, (SLIP_WINDOW,)),
+    ("chain", np.int64),
+    ("squared_sums", np.float64, (SLIP_WINDOW,)),
+    ("information_sums", np.float64, (SLIP_WINDOW,)),
+    ("learned_samples", np.int64),
+    ("window_ratios", np.float64, (SLIP_WINDOW,)),
+    ("run_samples", np.int64),
 ]
 """The fields of the monitor's record that :func:`check_sample` keeps, beside ``sample`` (the sample's index since
 the reset), ``reference`` (its reference angles, rates and accelerations, (3, 3)) and ``clean`` (its clean angles,
@@ -215,6 +228,53 @@ def _restart_held(check: np.record) -> None:
     check.pending_moment = 0.0
     check.evidence = 0.0
     check.held_known = False
+    check.run_samples = 0
+
+
+@numba.njit(cache=True)
+def _shift_scalar(values: NDArray[np.float64], value: float) -> None:
+    """Shift ``value`` into ``values`` (oldest first), in place."""
+    for row in range(len(values) - 1):
+        values[row] = values[row + 1]
+    values[len(values) - 1] = value
+
+
+@numba.njit(cache=True)
+def _learn_correlation(check: np.record, deviation: float, information: float) -> None:
+    """Take one sample's ``deviation`` phi^T W (r - m phi) (kg^-1, m the mass known to be held) and ``information``
+    phi^T W phi (kg^-2) into the running means of the window sums' squares and information, for every window length
+    the consecutive samples allow."""
+    _shift_scalar(check.window_deviations, deviation)
+    _shift_scalar(check.window_informations, information)
+    check.chain = min(check.chain + 1, SLIP_WINDOW)
+    deviations, informations = 0.0, 0.0
+    for length in range(1, check.chain + 1):
+        deviations += check.window_deviations[SLIP_WINDOW - length]
+        informations += check.window_informations[SLIP_WINDOW - length]
+        check.squared_sums[length - 1] += CORRELATION_RATE * (deviations * deviations - check.squared_sums[length - 1])
+        check.information_sums[length - 1] += CORRELATION_RATE * (informations - check.information_sums[length - 1])
+    check.learned_samples += 1
+
+
+@numba.njit(cache=True)
+def _window_evidence(check: np.record, cap: float) -> float:
+    """The window statistic: the largest log-likelihood ratio of "gone" over the current run's last n samples,
+    n up to :data:`SLIP_WINDOW`, each sum of the run's terms (the CUSUM's, of the corrected residual) divided by the
+    window's variance inflation kappa_n = E[(sum of deviations)^2] / E[sum of information] that the residual's
+    correlation gives (1 for white samples); each term capped at ``cap``. 0 until the correlation has been learned
+    over 1 / :data:`CORRELATION_RATE` samples."""
+    if check.learned_samples * CORRELATION_RATE < 1.0:
+        return 0.0
+    best = 0.0
+    for length in range(1, check.run_samples + 1):
+        inflation = check.squared_sums[length - 1] / check.information_sums[length - 1]
+        if not inflation > 0.0:
+            continue
+        total = 0.0
+        for row in range(SLIP_WINDOW - length, SLIP_WINDOW):
+            total += min(check.window_ratios[row] / inflation, cap)
+        best = max(best, total)
+    return best
 
 
 @numba.njit(cache=True)
@@ -233,6 +293,7 @@ def _slip_band(theta_dot: NDArray[np.float64], static_friction: NDArray[np.float
 def _check_payload(
     check: np.record,
     terms: NDArray[np.float64],
+    corrected: NDArray[np.float64],
     holding: bool,
     quiet: bool,
     jerk_variance: NDArray[np.float64],
@@ -244,23 +305,44 @@ def _check_payload(
     residual, with nothing held, leaves a platform force ``gone_force`` (N) beyond :data:`FORCE_REFERENCE` is no
     evidence of a loss (a push): it clears the CUSUM. No sample adds more than :data:`SLIP_EVIDENCE` over the
     record's ``onset_samples``, so that no run shorter than a push's onset (which, half shown, can look like the
-    loss of a heavy object) makes a slip.
+    loss of a heavy object) makes a slip. Beside the CUSUM, a window statistic (:func:`_window_evidence`) weighs the
+    run's last samples with the correlation of the residual ``corrected`` (``terms`` with the smoother's error at the
+    torque's steps taken off, weighted without the torque steps' variance), measured on this robot's samples with a
+    known mass (:func:`_learn_correlation`): either over :data:`SLIP_EVIDENCE` makes a slip.
     Returns :data:`SLIPPED` or 0."""
+    if quiet:
+        check.chain = 0
+        if holding:
+            check.run_samples = 0
+            if check.held_since < 0:
+                _restart_held(check)
+                check.slip_armed = True
+        else:
+            check.held_since = -1
+            check.held_known = False
+        return 0
+    band = _slip_band(terms[2], check.static_friction)
     if not holding:
         check.held_since = -1
         check.held_known = False
-        if not quiet:
-            learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
+        learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
+        if check.force_evidence == 0.0:  # a collision's force is no model error
+            window_information, window_moment = slip_moments(corrected, band, check.scatter)
+            _learn_correlation(check, window_moment, window_information)
+        else:
+            check.chain = 0
         return 0
     if check.held_since < 0:
         _restart_held(check)
         check.slip_armed = True
-    if quiet or not check.slip_armed:
+    if not check.slip_armed:
+        check.chain = 0
         return 0
     if check.held_known:
         learn_scatter(check.scatter, terms, check.held_mass, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
-    band = _slip_band(terms[2], check.static_friction)
     information, moment = slip_moments(terms, band, check.scatter + jerk_variance)
+    window_information, window_moment = slip_moments(corrected, band, check.scatter)
+    testing = False
     if (check.sample - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
         held = check.held_moment / check.held_information
         if check.held_information**-0.5 < HELD_MASS_STD:
@@ -268,10 +350,20 @@ def _check_payload(
             check.held_known = True
         # test "gone" against "held" once the mass held is known well enough to tell them apart
         if held >= SLIP_MIN_MASS and check.held_information**-0.5 < SLIP_PRECISION * held:
+            testing = True
             ratio = held * (0.5 * held * information - moment)
-            evidence = check.evidence + min(ratio, SLIP_EVIDENCE / check.onset_samples)
-            check.evidence = evidence if evidence > 0.0 and gone_force <= FORCE_REFERENCE else 0.0
-            if check.evidence > SLIP_EVIDENCE:
+            cap = SLIP_EVIDENCE / check.onset_samples
+            evidence = check.evidence + min(ratio, cap)
+            _shift_scalar(check.window_ratios, held * (0.5 * held * window_information - window_moment))
+            check.run_samples = min(check.run_samples + 1, SLIP_WINDOW)
+            window = _window_evidence(check, cap)
+            pushed = gone_force > FORCE_REFERENCE
+            check.evidence = evidence if evidence > 0.0 and not pushed else 0.0
+            if pushed:
+                check.run_samples = 0
+                window = 0.0
+            if check.evidence > SLIP_EVIDENCE or window > SLIP_EVIDENCE:
+                check.run_samples = check.chain = 0
                 check.pending_information = check.pending_moment = 0.0
                 check.slip_mass = held
                 check.slip_armed = False
@@ -279,6 +371,14 @@ def _check_payload(
                 check.held_known = True
                 check.force_evidence = 0.0  # the force the loss left was the slip's
                 return SLIPPED
+    if not testing:
+        check.run_samples = 0
+    if (
+        check.held_known and check.force_evidence == 0.0 and not check.collision
+    ):  # a collision's force is no model error
+        _learn_correlation(check, window_moment - check.held_mass * window_information, window_information)
+    else:
+        check.chain = 0
     if check.force_evidence == 0.0 and not check.collision:  # a collision's samples stay out of the mass held
         # while the CUSUM runs, its samples may be the loss's: they wait outside the mass held, which they would
         # drag towards "gone" (a light object's held mass fell below SLIP_MIN_MASS and its loss was never found),
@@ -411,7 +511,7 @@ def check_sample(
         _, other_magnitude = platform_force(
             corrected, other, True, False, state.charged_coulomb, state.breakaway, model_band, sliding
         )
-    found = _check_payload(state, terms, held_then, quiet_then, jerk_variance, other_magnitude)
+    found = _check_payload(state, terms, corrected, held_then, quiet_then, jerk_variance, other_magnitude)
     if found & SLIPPED:
         # this sample's force was taken with the mass the slip check has just found gone: it is the loss's, and the
         # collision check takes none of it (kept, it made the next sample, with the lost mass as the other one, a

@@ -3,7 +3,7 @@ controller (docs/design.md section 6, "Fault monitor")."""
 
 from __future__ import annotations
 
-from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_JERK_STD, SMOOTHER_LAG
+from controllers.estimation import SMOOTHER_HISTORY, SMOOTHER_JERK_STD, SMOOTHER_LAG, SMOOTHER_WINDOW
 from controllers.identification.least_squares import FRICTION_VELOCITY_THRESHOLD
 
 ACCELERATION_FACTOR = 2.0
@@ -112,6 +112,15 @@ robot's: the identified model's error on a robot whose masses and friction diffe
 SCATTER_RATE = 0.01
 """Weight of each moving sample in the running mean square of the model's residual (a memory of about 100 samples),
 from which the slip check takes the residual's variance, at least the payload estimator's 1.5 N m squared."""
+
+SLIP_WINDOW = 2 * SMOOTHER_WINDOW
+"""Longest run (samples) that the slip check's window statistic weighs with the residual's measured correlation:
+the residual's correlation spans the smoother's window, so over twice that its sums' variance per unit of
+information has settled (docs/design.md section 6, "Fault monitor"); longer runs are the CUSUM's."""
+
+CORRELATION_RATE = 0.002
+"""Weight of each sample in the running means from which the slip check measures its residual's correlation (a
+memory of about 500 samples); the window statistic waits for that many samples after a reset."""
 
 SLIP_SETTLE = 0.03
 """Time after the pick (s) before the mass held is trusted as a reference."""
