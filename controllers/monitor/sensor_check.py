@@ -342,8 +342,9 @@ def clean_encoders(
 ) -> int:
     """Check encoder readings (rad) and their rates (rad/s) against the last clean readings and write the clean
     ones into ``state.clean`` rows 0 and 1: a NaN or inf, an implausible jump (a second difference beyond
-    ``jump_bound``), a suspect repeat and a stuck run (of a moving joint, or of one that left rest: its measured
-    torque, with the model's inertia from ``model_constants``, moved it a count) are detected and replaced by the
+    ``jump_bound``), a suspect repeat and a stuck run (of a moving joint; of one that left rest: its measured
+    torque, with the model's inertia from ``model_constants``, moved it a count; or of one that no speed its readings
+    before allow keeps within a count under the accelerations its torque allows) are detected and replaced by the
     reference plus the joint's last good tracking error, their rates by the reference's; a rate next to a replaced
     reading, or missing, is the clean backward difference. Returns :data:`ANGLES_REPLACED` and
     :data:`RATES_REPLACED` bits."""
@@ -421,13 +422,14 @@ def clean_encoders(
             # a mass picked up and not yet known may hold the joint too: the torque that lifts it moves nothing
             unknown_load = state.gripper_before and not state.held_known
             # (c) takes a joint that a force on the platform may hold still for a stuck encoder: it asks the arm to
-            # move on, another joint's reading stepping by two counts (a force that holds the platform holds every
-            # joint; the collision check speaks then)
+            # move on, another joint's reading stepping by two counts on every repeat (a force that holds the
+            # platform holds every joint; the collision check speaks then). Neither (b) nor (c) needs the model at
+            # rest
             others_move = False
             for other in range(3):
                 others_move |= other != joint and stepping[other]
             bounded = False
-            if repeated and not (state.collision or unknown_load):
+            if repeated and (commanded or others_move) and not (state.collision or unknown_load):
                 # the bounds of the joint's acceleration at the last sample (the torques there, as the model's
                 # state there; the rates of the others' clean readings)
                 delivered = state.turn_torques[TURN_HISTORY]
@@ -437,13 +439,13 @@ def clean_encoders(
                     push = low if direction > 0.0 else -high
                     if push > 0.0:
                         speed = state.rest_speed[joint] + push * CONTROL_PERIOD
-                if bounded and state.rest_repeats[joint] == 1:
+                if bounded and others_move and state.rest_repeats[joint] == 1:
                     _start_turn(state, model_constants, joint, low, high)
                     state.turn_known[joint] = True
-                elif bounded and state.turn_known[joint] != 0:
+                elif bounded and others_move and state.turn_known[joint] != 0:
                     _extend_turn(state, joint, low, high)
                 state.turn_acceleration[joint, 0], state.turn_acceleration[joint, 1] = low, high
-            state.turn_known[joint] = state.turn_known[joint] != 0 and bounded
+            state.turn_known[joint] = state.turn_known[joint] != 0 and bounded and others_move
             if not repeated:
                 state.rest_travel[joint] = 0.0
             else:
@@ -456,7 +458,6 @@ def clean_encoders(
                 state.error[joint] = state.rest_error[joint]
             # (c): the readings cannot have repeated so far; the repeats already read count towards the stuck spell
             turned = state.turn_known[joint] != 0 and state.turn_speed[joint, 0] >= state.turn_speed[joint, 1]
-            turned = turned and others_move
             if state.stuck[joint] == 0 and turned:
                 suspect[joint] = True
                 state.stuck[joint] = min(state.rest_repeats[joint], STUCK_SAMPLES) - 1
