@@ -246,15 +246,14 @@ def _acceleration_bounds(
     angles_before: NDArray[np.float64],
     delivered: NDArray[np.float64],
     joint: int,
+    mass: float,
 ) -> tuple[float, float]:
     """The bounds (rad/s^2) of ``joint``'s acceleration at a sample of clean ``angles`` (rad, (3,)), the sample
     before's ``angles_before`` and the torques the drives ``delivered`` (N m, (3,)): (tau_i - h_i -+ 2 b_i) / S_i of
-    :func:`_held_joint`, with the mass the feedforward or the slip check holds and the others' rates the backward
-    difference of their readings. The joint's friction lies within +-b_i (its breakaway) at rest and in motion, and
-    the model's error within about as much again (masses 10 % off, friction 30 %: docs/design.md section 6,
-    "Encoders"). (NaN, NaN) where the model cannot take the state."""
-    held = state.held_mass if state.held_known else 0.0
-    mass = max(state.feedforward_mass, held)
+    :func:`_held_joint`, with ``mass`` (kg) held and the others' rates the backward difference of their readings. The
+    joint's friction lies within +-b_i (its breakaway) at rest and in motion, and the model's error within about as
+    much again (masses 10 % off, friction 30 %: docs/design.md section 6, "Encoders"). (NaN, NaN) where the model
+    cannot take the state."""
     others_rate = (angles - angles_before) / CONTROL_PERIOD
     held_torque, inertia = _held_joint(model_constants, angles, others_rate, delivered, joint, mass)
     if math.isnan(held_torque) or not inertia > 0.0:
@@ -264,10 +263,12 @@ def _acceleration_bounds(
 
 
 @numba.njit(cache=True)
-def _start_turn(state: np.record, model_constants: NDArray[np.uint8], joint: int, low: float, high: float) -> None:
+def _start_turn(
+    state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float, low: float, high: float
+) -> None:
     """At the first repeat of ``joint``'s reading, the speeds (rad/s) it may have had at its last new reading (the
-    last sample, whose acceleration bounds are ``low`` and ``high``, rad/s^2), from the readings before it
-    (docs/design.md section 6, "Encoders", case (c)).
+    last sample, whose acceleration bounds are ``low`` and ``high``, rad/s^2), from the readings before it, ``mass``
+    (kg) held throughout (docs/design.md section 6, "Encoders", case (c)).
 
     Going back m samples from there, x_0 - x_-m = v_0 m T - G_m with G_m the integral of (m T - u) a(-u) over
     u in [0, m T], whose bounds follow from the acceleration's in each period (the hull of the bounds at its ends);
@@ -286,7 +287,7 @@ def _start_turn(state: np.record, model_constants: NDArray[np.uint8], joint: int
         if replaced[newest, joint] != 0 or replaced[row, joint] != 0:
             break
         earlier_low, earlier_high = _acceleration_bounds(
-            state, model_constants, angles[row], angles[row - 1], torques[torques.shape[0] - 1 - back], joint
+            state, model_constants, angles[row], angles[row - 1], torques[torques.shape[0] - 1 - back], joint, mass
         )
         if math.isnan(earlier_low):
             break
@@ -429,22 +430,38 @@ def clean_encoders(
             for other in range(3):
                 others_move |= other != joint and stepping[other]
             bounded = False
-            if repeated and (commanded or others_move) and not (state.collision or unknown_load):
+            low = high = math.nan
+            if repeated and not (state.collision or unknown_load):
                 # the bounds of the joint's acceleration at the last sample (the torques there, as the model's
                 # state there; the rates of the others' clean readings)
                 delivered = state.turn_torques[TURN_HISTORY]
-                low, high = _acceleration_bounds(state, model_constants, last, before, delivered, joint)
-                bounded = not math.isnan(low)
-                if bounded and commanded:
+                held = state.held_mass if state.held_known else 0.0
+                pushing_mass = max(state.feedforward_mass, held)
+                if commanded:
+                    low, high = _acceleration_bounds(
+                        state, model_constants, last, before, delivered, joint, pushing_mass
+                    )
                     push = low if direction > 0.0 else -high
-                    if push > 0.0:
+                    if push > 0.0:  # False for NaN
                         speed = state.rest_speed[joint] + push * CONTROL_PERIOD
-                if bounded and others_move and state.rest_repeats[joint] == 1:
-                    _start_turn(state, model_constants, joint, low, high)
+                # (c) holds what the cup holds: the object leaves as the gripper opens, which the slip check, a
+                # smoother's lag behind, learns later (a 10 kg object released read as the joint's torque gone
+                # astray), so nothing while it is open and nothing across a switch within the readings it takes
+                turn_mass = held if state.gripper_before else 0.0
+                switched = state.sample - state.gripper_changed <= TURN_HISTORY + 2
+                if others_move and not switched:
+                    if not (commanded and turn_mass == pushing_mass):
+                        low, high = _acceleration_bounds(
+                            state, model_constants, last, before, delivered, joint, turn_mass
+                        )
+                    bounded = not math.isnan(low)
+                if bounded and state.rest_repeats[joint] == 1:
+                    _start_turn(state, model_constants, joint, turn_mass, low, high)
                     state.turn_known[joint] = True
-                elif bounded and others_move and state.turn_known[joint] != 0:
+                elif bounded and state.turn_known[joint] != 0:
                     _extend_turn(state, joint, low, high)
-                state.turn_acceleration[joint, 0], state.turn_acceleration[joint, 1] = low, high
+                if bounded:
+                    state.turn_acceleration[joint, 0], state.turn_acceleration[joint, 1] = low, high
             state.turn_known[joint] = state.turn_known[joint] != 0 and bounded and others_move
             if not repeated:
                 state.rest_travel[joint] = 0.0
