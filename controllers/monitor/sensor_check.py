@@ -449,11 +449,7 @@ def clean_encoders(
                 # astray), so nothing while it is open and nothing across a switch within the readings it takes
                 turn_mass = held if state.gripper_before else 0.0
                 switched = state.sample - state.gripper_changed <= TURN_HISTORY + 2
-                # and it waits while the collision check gathers evidence: a push that stops a joint at its turn
-                # holds it against its torque as a stuck encoder does (a 661 N push on nominal seed 19 was named a
-                # stuck encoder in 3 ms, and the collision, its readings kept out, 40 ms late)
-                pushed = state.force_evidence > 0.0
-                if others_move and not (switched or pushed):
+                if others_move and not switched:
                     if not (commanded and turn_mass == pushing_mass):
                         low, high = _acceleration_bounds(
                             state, model_constants, last, before, delivered, joint, turn_mass
