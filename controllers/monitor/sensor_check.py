@@ -263,17 +263,18 @@ def _acceleration_bounds(
 
 
 @numba.njit(cache=True)
-def _start_turn(
+def _speeds_before(
     state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float, low: float, high: float
-) -> None:
-    """At the first repeat of ``joint``'s reading, the speeds (rad/s) it may have had at its last new reading (the
-    last sample, whose acceleration bounds are ``low`` and ``high``, rad/s^2), from the readings before it, ``mass``
-    (kg) held throughout (docs/design.md section 6, "Encoders", case (c)).
+) -> tuple[float, float]:
+    """The speeds (rad/s) ``joint`` may have had at the last sample (whose acceleration bounds are ``low`` and
+    ``high``, rad/s^2) from its readings before, ``mass`` (kg) held throughout: the lowest and the highest (lowest
+    at or above highest where no speed fits; -inf and inf without readings).
 
     Going back m samples from there, x_0 - x_-m = v_0 m T - G_m with G_m the integral of (m T - u) a(-u) over
     u in [0, m T], whose bounds follow from the acceleration's in each period (the hull of the bounds at its ends);
     both readings are quantized to a count q, so c_0 - c_-m - q < x_0 - x_-m < c_0 - c_-m + q bounds v_0. Back to
-    :data:`~controllers.monitor.tuning.TURN_HISTORY` samples, and only over readings that were not replaced."""
+    :data:`~controllers.monitor.tuning.TURN_HISTORY` samples, and only over readings that were not replaced
+    (docs/design.md section 6, "Encoders", case (c))."""
     count = state.stuck_step / STUCK_COUNTS
     period = CONTROL_PERIOD
     lowest, highest = -math.inf, math.inf
@@ -300,9 +301,38 @@ def _start_turn(
         lowest = max(lowest, (step - count + travel_low) / (back * period))
         highest = min(highest, (step + count + travel_high) / (back * period))
         later_low, later_high = earlier_low, earlier_high
+    return lowest, highest
+
+
+@numba.njit(cache=True)
+def _start_turn(
+    state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float, low: float, high: float
+) -> None:
+    """At the first repeat of ``joint``'s reading, the speeds it may have had at its last new reading
+    (:func:`_speeds_before`), and nothing added since."""
+    lowest, highest = _speeds_before(state, model_constants, joint, mass, low, high)
     state.turn_speed[joint, 0], state.turn_speed[joint, 1] = lowest, highest
     state.turn_speed_change[joint, 0] = state.turn_speed_change[joint, 1] = 0.0
     state.turn_travel[joint, 0] = state.turn_travel[joint, 1] = 0.0
+
+
+@numba.njit(cache=True)
+def _others_follow_torques(state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float) -> bool:
+    """Whether the joints but ``joint`` moved as their torques allow over their last readings (some speed at the
+    last sample fits them, :func:`_speeds_before`, ``mass`` kg held): a force on the platform acts on every joint,
+    a stuck encoder on its own joint's readings only."""
+    last, before = state.turn_angles[TURN_HISTORY + 1], state.turn_angles[TURN_HISTORY]
+    delivered = state.turn_torques[TURN_HISTORY]
+    for other in range(3):
+        if other == joint:
+            continue
+        low, high = _acceleration_bounds(state, model_constants, last, before, delivered, other, mass)
+        if math.isnan(low):
+            return False
+        lowest, highest = _speeds_before(state, model_constants, other, mass, low, high)
+        if lowest >= highest:
+            return False
+    return True
 
 
 @numba.njit(cache=True)
@@ -431,11 +461,12 @@ def clean_encoders(
                 others_move |= other != joint and stepping[other]
             bounded = False
             low = high = math.nan
+            held = state.held_mass if state.held_known else 0.0
+            turn_mass = held if state.gripper_before else 0.0
             if repeated and not (state.collision or unknown_load):
                 # the bounds of the joint's acceleration at the last sample (the torques there, as the model's
                 # state there; the rates of the others' clean readings)
                 delivered = state.turn_torques[TURN_HISTORY]
-                held = state.held_mass if state.held_known else 0.0
                 pushing_mass = max(state.feedforward_mass, held)
                 if commanded:
                     low, high = _acceleration_bounds(
@@ -447,7 +478,6 @@ def clean_encoders(
                 # (c) holds what the cup holds: the object leaves as the gripper opens, which the slip check, a
                 # smoother's lag behind, learns later (a 10 kg object released read as the joint's torque gone
                 # astray), so nothing while it is open and nothing across a switch within the readings it takes
-                turn_mass = held if state.gripper_before else 0.0
                 switched = state.sample - state.gripper_changed <= TURN_HISTORY + 2
                 if others_move and not switched:
                     if not (commanded and turn_mass == pushing_mass):
@@ -475,6 +505,9 @@ def clean_encoders(
                 state.error[joint] = state.rest_error[joint]
             # (c): the readings cannot have repeated so far; the repeats already read count towards the stuck spell
             turned = state.turn_known[joint] != 0 and state.turn_speed[joint, 0] >= state.turn_speed[joint, 1]
+            # and the others moved as their torques allow: a push that stops the joint at its turn acts on them too
+            # (a 661 N push, nominal seed 19, was named a stuck encoder and the collision found 40 ms late)
+            turned = turned and _others_follow_torques(state, model_constants, joint, turn_mass)
             if state.stuck[joint] == 0 and turned:
                 suspect[joint] = True
                 state.stuck[joint] = min(state.rest_repeats[joint], STUCK_SAMPLES) - 1
