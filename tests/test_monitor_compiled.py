@@ -61,7 +61,7 @@ from controllers.monitor.tuning import (
 from controllers.payload import FRICTION_VELOCITY, RESIDUAL_STD, ModelCorrections, residual_std
 from delta_env import kernels
 from delta_env.config import MAX_PAYLOAD_MASS
-from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
+from delta_env.sensors import CONTROL_PERIOD, ENCODER_RESOLUTION, MEASURED_TORQUE_DELAY
 
 PARAMETERS = ModelParameters(rho1=1.8, rho2=0.9, viscous=(2.0, 2.4, 1.7), coulomb=(4.1, 3.4, 4.5))
 TOLERANCE = 1e-12
@@ -664,6 +664,38 @@ def test_a_joint_that_brakes_through_a_reversal_repeats_its_reading_rightly() ->
     cleans = _run(monitor, observations)
     assert [event for event in monitor.events if event.kind.startswith("encoder")] == []
     assert all(clean["joint_angles"] is seen["joint_angles"] for clean, seen in zip(cleans, observations, strict=True))
+
+
+def _turning(k: float) -> np.ndarray:
+    """An arm whose joint 0 turns back through a reversal at sample 52.3, at 60 rad/s^2 (three counts a sample at
+    sample 50), while joints 1 and 2 run on at 1 and -0.8 rad/s, (3, 3)."""
+    t = (k - 52.3) * CONTROL_PERIOD
+    accelerations, rates = np.array([60.0, 0.0, 0.0]), np.array([0.0, 1.0, -0.8])
+    return np.stack((0.4 + rates * t + 0.5 * accelerations * t**2, rates + accelerations * t, accelerations))
+
+
+@pytest.mark.parametrize("stuck", [True, False], ids=["stuck", "healthy"])
+def test_an_encoder_stuck_as_its_joint_turns_through_a_reversal_is_stuck_within_five_samples(stuck: bool) -> None:
+    # Joint 0 turns back slowly (its reference, which it follows, under four counts a sample for 3 ms either side of
+    # the turn): its reading stopped changing can be a healthy turn, so neither its last step nor its reference
+    # moving away tells. Its torque does: the speeds its readings before allow, under the accelerations its torque
+    # allows, take it a count away within a few samples. Quantized to the 17-bit encoders' count; healthy, the same
+    # turn repeats its reading for two samples and raises nothing.
+    step = ENCODER_RESOLUTION
+    observations = _joint_stream(100, _turning, _turning)
+    for observation in observations:
+        observation["joint_angles"] = np.floor(observation["joint_angles"] / step) * step
+    if stuck:
+        frozen = observations[49]["joint_angles"][0]
+        for observation in observations[50:80]:
+            observation["joint_angles"] = np.array([frozen, *observation["joint_angles"][1:]])
+    monitor = _monitor(encoder_step=step)
+    _run(monitor, observations)
+    if not stuck:
+        assert monitor.events == []
+        return
+    ((kind, joint, sample),) = _found(monitor, collisions=True)
+    assert (kind, joint) == ("encoder_stuck", 0) and 50 + STUCK_SAMPLES - 1 <= sample <= 53
 
 
 @pytest.mark.parametrize("reading", ["joint_angles", "joint_velocities"])

@@ -25,6 +25,7 @@ from controllers.monitor.tuning import (
     STUCK_COUNTS,
     STUCK_SAMPLES,
     TORQUE_MARGIN,
+    TURN_HISTORY,
 )
 from delta_env.faults import FAULT_KINDS
 from delta_env.sensors import CONTROL_PERIOD
@@ -56,6 +57,20 @@ SENSOR_FIELDS = [
     ("rest_error", np.float64, (3,)),
     ("rest_speed", np.float64, (3,)),
     ("rest_travel", np.float64, (3,)),
+    # per joint, over the same repeats: the bounds (rad/s^2) of its acceleration at the last sample, the speed
+    # (rad/s) it may have had where its reading stopped changing, and the bounds of what its acceleration since has
+    # added to its speed (rad/s) and to its travel (rad) beyond that speed's; whether those bounds are known
+    ("turn_acceleration", np.float64, (3, 2)),
+    ("turn_speed", np.float64, (3, 2)),
+    ("turn_speed_change", np.float64, (3, 2)),
+    ("turn_travel", np.float64, (3, 2)),
+    ("turn_known", np.uint8, (3,)),
+    # the last TURN_HISTORY + 2 clean angles (rad) and whether each was replaced, and the last TURN_HISTORY + 1
+    # torques (N m) the drives delivered (oldest first), how many there are
+    ("turn_angles", np.float64, (TURN_HISTORY + 2, 3)),
+    ("turn_replaced", np.uint8, (TURN_HISTORY + 2, 3)),
+    ("turn_torques", np.float64, (TURN_HISTORY + 1, 3)),
+    ("turn_samples", np.int64),
     ("after_stuck", np.uint8, (3,)),  # flags (numba has no boolean subarrays)
     ("encoder_bad", np.uint8, (3,)),
     ("glitch_active", np.uint8, (3,)),
@@ -224,13 +239,143 @@ def loop_excess(
 
 
 @numba.njit(cache=True)
+def _acceleration_bounds(
+    state: np.record,
+    model_constants: NDArray[np.uint8],
+    angles: NDArray[np.float64],
+    angles_before: NDArray[np.float64],
+    delivered: NDArray[np.float64],
+    joint: int,
+    mass: float,
+) -> tuple[float, float]:
+    """The bounds (rad/s^2) of ``joint``'s acceleration at a sample of clean ``angles`` (rad, (3,)), the sample
+    before's ``angles_before`` and the torques the drives ``delivered`` (N m, (3,)): (tau_i - h_i -+ 2 b_i) / S_i of
+    :func:`_held_joint`, with ``mass`` (kg) held and the others' rates the backward difference of their readings. The
+    joint's friction lies within +-b_i (its breakaway) at rest and in motion, and the model's error within about as
+    much again (masses 10 % off, friction 30 %: docs/design.md section 6, "Encoders"). (NaN, NaN) where the model
+    cannot take the state."""
+    others_rate = (angles - angles_before) / CONTROL_PERIOD
+    held_torque, inertia = _held_joint(model_constants, angles, others_rate, delivered, joint, mass)
+    if math.isnan(held_torque) or not inertia > 0.0:
+        return math.nan, math.nan
+    margin = 2.0 * state.breakaway[joint]
+    return (delivered[joint] - held_torque - margin) / inertia, (delivered[joint] - held_torque + margin) / inertia
+
+
+@numba.njit(cache=True)
+def _speeds_before(
+    state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float, low: float, high: float
+) -> tuple[float, float]:
+    """The speeds (rad/s) ``joint`` may have had at the last sample (whose acceleration bounds are ``low`` and
+    ``high``, rad/s^2) from its readings before, ``mass`` (kg) held throughout: the lowest and the highest (lowest
+    at or above highest where no speed fits; -inf and inf without readings).
+
+    Going back m samples from there, x_0 - x_-m = v_0 m T - G_m with G_m the integral of (m T - u) a(-u) over
+    u in [0, m T], whose bounds follow from the acceleration's in each period (the hull of the bounds at its ends);
+    both readings are quantized to a count q, so c_0 - c_-m - q < x_0 - x_-m < c_0 - c_-m + q bounds v_0. Back to
+    :data:`~controllers.monitor.tuning.TURN_HISTORY` samples, and only over readings that were not replaced
+    (docs/design.md section 6, "Encoders", case (c))."""
+    count = state.stuck_step / STUCK_COUNTS
+    period = CONTROL_PERIOD
+    lowest, highest = -math.inf, math.inf
+    angles, replaced, torques = state.turn_angles, state.turn_replaced, state.turn_torques
+    newest = angles.shape[0] - 1
+    reach = min(TURN_HISTORY, state.turn_samples - 2)
+    travel_low = travel_high = change_low = change_high = 0.0
+    later_low, later_high = low, high
+    for back in range(1, reach + 1):
+        row = newest - back
+        if replaced[newest, joint] != 0 or replaced[row, joint] != 0:
+            break
+        earlier_low, earlier_high = _acceleration_bounds(
+            state, model_constants, angles[row], angles[row - 1], torques[torques.shape[0] - 1 - back], joint, mass
+        )
+        if math.isnan(earlier_low):
+            break
+        period_low, period_high = min(earlier_low, later_low), max(earlier_high, later_high)
+        travel_low += change_low * period + 0.5 * period_low * period**2
+        travel_high += change_high * period + 0.5 * period_high * period**2
+        change_low += period_low * period
+        change_high += period_high * period
+        step = angles[newest, joint] - angles[row, joint]
+        lowest = max(lowest, (step - count + travel_low) / (back * period))
+        highest = min(highest, (step + count + travel_high) / (back * period))
+        later_low, later_high = earlier_low, earlier_high
+    return lowest, highest
+
+
+@numba.njit(cache=True)
+def _start_turn(
+    state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float, low: float, high: float
+) -> None:
+    """At the first repeat of ``joint``'s reading, the speeds it may have had at its last new reading
+    (:func:`_speeds_before`), and nothing added since."""
+    lowest, highest = _speeds_before(state, model_constants, joint, mass, low, high)
+    state.turn_speed[joint, 0], state.turn_speed[joint, 1] = lowest, highest
+    state.turn_speed_change[joint, 0] = state.turn_speed_change[joint, 1] = 0.0
+    state.turn_travel[joint, 0] = state.turn_travel[joint, 1] = 0.0
+
+
+@numba.njit(cache=True)
+def _others_follow_torques(state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float) -> bool:
+    """Whether the joints but ``joint`` moved as their torques allow over their last readings (some speed at the
+    last sample fits them, :func:`_speeds_before`, ``mass`` kg held): a force on the platform acts on every joint,
+    a stuck encoder on its own joint's readings only."""
+    last, before = state.turn_angles[TURN_HISTORY + 1], state.turn_angles[TURN_HISTORY]
+    delivered = state.turn_torques[TURN_HISTORY]
+    for other in range(3):
+        if other == joint:
+            continue
+        low, high = _acceleration_bounds(state, model_constants, last, before, delivered, other, mass)
+        if math.isnan(low):
+            return False
+        lowest, highest = _speeds_before(state, model_constants, other, mass, low, high)
+        if lowest >= highest:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _extend_turn(state: np.record, joint: int, low: float, high: float) -> None:
+    """Add the period before the last sample to ``joint``'s repeats: its acceleration within the hull of the bounds
+    at its ends (the last sample's ``low`` and ``high``, rad/s^2, and the one's before), and narrow the speeds it may
+    have had where its reading stopped changing to those that keep it within a count of where it was there at the last
+    sample too (docs/design.md section 6, "Encoders", case (c)).
+
+    With the speed v_0 there and the travel bounds D since, x_n - x_0 lies within v_0 n T + [D_low, D_high], and both
+    readings lie in one count q, so -q < x_n - x_0 < q: v_0 < (q - D_low) / (n T) and v_0 > (-q - D_high) / (n T)."""
+    count = state.stuck_step / STUCK_COUNTS
+    period = CONTROL_PERIOD
+    bounds = (min(state.turn_acceleration[joint, 0], low), max(state.turn_acceleration[joint, 1], high))
+    for side in range(2):
+        state.turn_travel[joint, side] += state.turn_speed_change[joint, side] * period + 0.5 * bounds[side] * period**2
+        state.turn_speed_change[joint, side] += bounds[side] * period
+    elapsed = (state.rest_repeats[joint] - 1) * period  # the last sample's time since the reading stopped changing
+    state.turn_speed[joint, 1] = min(state.turn_speed[joint, 1], (count - state.turn_travel[joint, 0]) / elapsed)
+    state.turn_speed[joint, 0] = max(state.turn_speed[joint, 0], (-count - state.turn_travel[joint, 1]) / elapsed)
+
+
+@numba.njit(cache=True)
+def _keep_delivered(state: np.record) -> None:
+    """Shift the torques the drives delivered on this sample into ``state.turn_torques``: the clean readings, but a
+    drive that falls short of its command (a fault found, or short readings in a row) delivers its measured reading,
+    not the loop's prediction that replaces it."""
+    delivered = state.torque_previous.copy()
+    for joint in range(3):
+        if state.drive_active[joint] != 0 or state.short_run[joint] > 0:
+            delivered[joint] = state.torque_measured[joint]
+    shift_in(state.turn_torques, delivered)
+
+
+@numba.njit(cache=True)
 def clean_encoders(
     state: np.record, raw: NDArray[np.float64], rates: NDArray[np.float64], model_constants: NDArray[np.uint8]
 ) -> int:
     """Check encoder readings (rad) and their rates (rad/s) against the last clean readings and write the clean
     ones into ``state.clean`` rows 0 and 1: a NaN or inf, an implausible jump (a second difference beyond
-    ``jump_bound``), a suspect repeat and a stuck run (of a moving joint, or of one that left rest: its measured
-    torque, with the model's inertia from ``model_constants``, moved it a count) are detected and replaced by the
+    ``jump_bound``), a suspect repeat and a stuck run (of a moving joint; of one that left rest: its measured
+    torque, with the model's inertia from ``model_constants``, moved it a count; or of one that no speed its readings
+    before allow keeps within a count under the accelerations its torque allows) are detected and replaced by the
     reference plus the joint's last good tracking error, their rates by the reference's; a rate next to a replaced
     reading, or missing, is the clean backward difference. Returns :data:`ANGLES_REPLACED` and
     :data:`RATES_REPLACED` bits."""
@@ -254,6 +399,8 @@ def clean_encoders(
         second_difference = raw - 2.0 * last + before
         jump = np.empty(3, dtype=np.bool_)
         suspect = np.empty(3, dtype=np.bool_)
+        # readings that step by two counts or more: the arm moves there (NaN steps do not)
+        stepping = np.abs(raw - previous) >= 2.0 * state.stuck_step / STUCK_COUNTS
         for joint in range(3):
             # after a stuck spell, a reading that continues the one flagged before it at a plausible rate is the
             # joint's true position, not a glitch: accepted, so that the clean readings follow the joint again (a
@@ -290,10 +437,12 @@ def clean_encoders(
             state.rest_repeats[joint] = state.rest_repeats[joint] + 1 if repeated else 0
             # a joint whose reading repeats while its reference runs is stuck once its drive's torque beyond what
             # holds it still and what rest absorbs (the friction's whole swing) has moved it, with the model's
-            # inertia, by more than a count along the reference's run, unless a force on the platform (a collision
-            # under way) may hold it (docs/design.md section 6, "Encoders"): the repeats are then replaced from the
-            # error held where it stopped, as a stuck spell's are. Where the joint lies against the reference does
-            # not matter: a PD ahead of its reference still drives it on with its rate's error
+            # inertia, by more than a count along the reference's run (b), or once no speed it may have had where its
+            # reading stopped changing keeps it within that count under the accelerations its torque allows (c),
+            # unless a force on the platform (a collision under way) may hold it (docs/design.md section 6,
+            # "Encoders"): the repeats are then replaced from the error held where it stopped, as a stuck spell's
+            # are. Where the joint lies against the reference does not matter: a PD ahead of its reference still
+            # drives it on with its rate's error
             direction = _sign(reference_rates[joint])
             if repeated and state.rest_repeats[joint] == 1:
                 # the joint's speed along the reference's run as its reading stopped changing: that of its last
@@ -303,28 +452,47 @@ def clean_encoders(
             speed = min(state.rest_speed[joint], 0.0) if repeated else 0.0
             # a mass picked up and not yet known may hold the joint too: the torque that lifts it moves nothing
             unknown_load = state.gripper_before and not state.held_known
-            if repeated and commanded and not (state.collision or unknown_load):
-                held = state.held_mass if state.held_known else 0.0
-                # the torque that holds the joint still while the others move on, at the rates of their clean
-                # readings and driven by their measured torques, changes with them: a heavy object swings it by tens
-                # of N m as a joint slows through a reversal, a count a sample. What pushes the joint on is its
-                # measured torque beyond that, less what rest absorbs (docs/design.md section 6, "Encoders"). The
-                # torque where the repeats began is no baseline (the joint was still braking there, through a
-                # reversal), nor are the others' accelerations from their readings (a count's noise in a second
-                # difference, 50 rad/s^2, is tens of N m through the arm) or from the reference (a PD far behind
-                # it, or still at rest at a start, is not accelerating as its reference is)
-                others_rate = (last - before) / CONTROL_PERIOD
-                mass = max(state.feedforward_mass, held)
-                # what the drives deliver: a drive that falls short of its command (a fault found, or short
-                # readings in a row) delivers its reading, not the loop's prediction that replaces it
-                delivered = state.torque_previous.copy()
-                for other in range(3):
-                    if state.drive_active[other] != 0 or state.short_run[other] > 0:
-                        delivered[other] = state.torque_measured[other]
-                held_torque, inertia = _held_joint(model_constants, last, others_rate, delivered, joint, mass)
-                push = (delivered[joint] - held_torque) * direction - 2.0 * state.breakaway[joint]
-                if push > 0.0:
-                    speed = state.rest_speed[joint] + push * CONTROL_PERIOD / inertia
+            # (c) takes a joint that a force on the platform may hold still for a stuck encoder: it asks the arm to
+            # move on, another joint's reading stepping by two counts on every repeat (a force that holds the
+            # platform holds every joint; the collision check speaks then). Neither (b) nor (c) needs the model at
+            # rest
+            others_move = False
+            for other in range(3):
+                others_move |= other != joint and stepping[other]
+            bounded = False
+            low = high = math.nan
+            held = state.held_mass if state.held_known else 0.0
+            turn_mass = held if state.gripper_before else 0.0
+            if repeated and not (state.collision or unknown_load):
+                # the bounds of the joint's acceleration at the last sample (the torques there, as the model's
+                # state there; the rates of the others' clean readings)
+                delivered = state.turn_torques[TURN_HISTORY]
+                pushing_mass = max(state.feedforward_mass, held)
+                if commanded:
+                    low, high = _acceleration_bounds(
+                        state, model_constants, last, before, delivered, joint, pushing_mass
+                    )
+                    push = low if direction > 0.0 else -high
+                    if push > 0.0:  # False for NaN
+                        speed = state.rest_speed[joint] + push * CONTROL_PERIOD
+                # (c) holds what the cup holds: the object leaves as the gripper opens, which the slip check, a
+                # smoother's lag behind, learns later (a 10 kg object released read as the joint's torque gone
+                # astray), so nothing while it is open and nothing across a switch within the readings it takes
+                switched = state.sample - state.gripper_changed <= TURN_HISTORY + 2
+                if others_move and not switched:
+                    if not (commanded and turn_mass == pushing_mass):
+                        low, high = _acceleration_bounds(
+                            state, model_constants, last, before, delivered, joint, turn_mass
+                        )
+                    bounded = not math.isnan(low)
+                if bounded and state.rest_repeats[joint] == 1:
+                    _start_turn(state, model_constants, joint, turn_mass, low, high)
+                    state.turn_known[joint] = True
+                elif bounded and state.turn_known[joint] != 0:
+                    _extend_turn(state, joint, low, high)
+                if bounded:
+                    state.turn_acceleration[joint, 0], state.turn_acceleration[joint, 1] = low, high
+            state.turn_known[joint] = state.turn_known[joint] != 0 and bounded and others_move
             if not repeated:
                 state.rest_travel[joint] = 0.0
             else:
@@ -334,6 +502,15 @@ def clean_encoders(
             if state.stuck[joint] == 0 and state.rest_repeats[joint] >= STUCK_SAMPLES and must_move:
                 suspect[joint] = True
                 state.stuck[joint] = STUCK_SAMPLES - 1
+                state.error[joint] = state.rest_error[joint]
+            # (c): the readings cannot have repeated so far; the repeats already read count towards the stuck spell
+            turned = state.turn_known[joint] != 0 and state.turn_speed[joint, 0] >= state.turn_speed[joint, 1]
+            # and the others moved as their torques allow: a push that stops the joint at its turn acts on them too
+            # (a 661 N push, nominal seed 19, was named a stuck encoder and the collision found 40 ms late)
+            turned = turned and _others_follow_torques(state, model_constants, joint, turn_mass)
+            if state.stuck[joint] == 0 and turned:
+                suspect[joint] = True
+                state.stuck[joint] = min(state.rest_repeats[joint], STUCK_SAMPLES) - 1
                 state.error[joint] = state.rest_error[joint]
             state.stuck[joint] = state.stuck[joint] + 1 if suspect[joint] else 0
         for joint in range(3):
@@ -376,6 +553,12 @@ def clean_encoders(
         if continued[joint]:  # the reading it continued was the joint's too: the next second difference takes it
             state.before[joint] = continued_from[joint]
     state.clean_count = min(state.clean_count + 1, 3)
+    shift_in(state.turn_angles, state.clean[0])
+    replaced_now = np.empty(3)
+    for joint in range(3):
+        replaced_now[joint] = state.encoder_bad[joint]
+    shift_in(state.turn_replaced, replaced_now)
+    state.turn_samples = min(state.turn_samples + 1, TURN_HISTORY + 2)
     return replaced
 
 
@@ -407,6 +590,7 @@ def clean_torques(
         state.command_before[:] = command
         state.command_known = has_command
         state.loop_count = 0  # the integral check's window starts again: a reading without its command owes unknown
+        _keep_delivered(state)
         return replaced
     peak = state.peak_torque
     hold, keep = state.loop_response[0], state.loop_response[1]
@@ -503,4 +687,5 @@ def clean_torques(
             state.loop_over[joint] = over or (state.loop_over[joint] != 0 and excess != 0.0)
     state.command_before[:] = command
     state.command_known = True
+    _keep_delivered(state)
     return replaced
