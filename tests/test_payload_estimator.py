@@ -156,6 +156,30 @@ def test_a_hold_out_leaves_out_the_equations_until_they_agree_with_the_estimate(
     assert not held.held_out
 
 
+def test_a_slip_found_during_a_hold_out_ends_it_and_a_false_one_recovers_as_without_it() -> None:
+    # A push holds the equations out, then a slip is (wrongly) found: the estimate restarts at the tare, whose
+    # distance from the object still held would keep every later equation out of a hold-out that went on. It ends
+    # with the restart: from there the estimate is the one of a slip found without a push before it, and the held
+    # object's equations take it back towards the mass (from 0.05 to over 0.8 of 1.2 kg in 350 samples).
+    pushed = PayloadEstimator(DYNAMICS, tare=0.05)
+    dropped = PayloadEstimator(DYNAMICS, tare=0.05)
+    for estimator in (pushed, dropped):
+        estimator.keep_checkpoints(12)
+    steps = observations()
+    for k, observation in enumerate(steps[:800]):
+        if k == 440:
+            pushed.hold_out()
+        if k == 451:
+            for estimator in (pushed, dropped):
+                estimator.drop_object()
+            assert not pushed.held_out
+        for estimator in (pushed, dropped):
+            estimator.update(observation)
+        if k >= 451:
+            assert pushed.rls.x == dropped.rls.x
+    assert pushed.rls.x > 0.8 * MASS
+
+
 def test_rollback_restores_the_state_of_that_many_updates_ago_back_to_the_last_pick() -> None:
     estimator = PayloadEstimator(DYNAMICS, tare=0.05)
     kept = 12

@@ -274,6 +274,7 @@ class PayloadEstimator:
         found, up to :attr:`delay` ago), and those whose smoothing window straddles the slip, are left out; needs
         :meth:`keep_checkpoints`."""
         self.rls.reset(self.tare, DROP_VARIANCE)
+        self._held_out = False  # the restarted estimate has nothing left to agree with
         self.skip(4 * self.delay + 1)
 
     def predicted_variance(self, theta: ArrayLike, theta_dot: ArrayLike, theta_ddot: ArrayLike) -> NDArray[np.float64]:
