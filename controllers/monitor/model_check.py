@@ -267,7 +267,10 @@ def _window_evidence(check: np.record, cap: float) -> float:
         return 0.0
     best = 0.0
     for length in range(1, check.run_samples + 1):
-        inflation = check.squared_sums[length - 1] / check.information_sums[length - 1]
+        information = check.information_sums[length - 1]
+        if not information > 0.0:  # no run of this length learned yet (numba raises on a division by zero)
+            continue
+        inflation = check.squared_sums[length - 1] / information
         if not inflation > 0.0:
             continue
         total = 0.0
@@ -326,7 +329,7 @@ def _check_payload(
         check.held_since = -1
         check.held_known = False
         learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
-        if check.force_evidence == 0.0:  # a collision's force is no model error
+        if check.force_evidence == 0.0 and not check.collision:  # a collision's force is no model error
             window_information, window_moment = slip_moments(corrected, band, check.scatter)
             _learn_correlation(check, window_moment, window_information)
         else:
@@ -373,9 +376,8 @@ def _check_payload(
                 return SLIPPED
     if not testing:
         check.run_samples = 0
-    if (
-        check.held_known and check.force_evidence == 0.0 and not check.collision
-    ):  # a collision's force is no model error
+    # a collision's force is no model error
+    if check.held_known and check.force_evidence == 0.0 and not check.collision:
         _learn_correlation(check, window_moment - check.held_mass * window_information, window_information)
     else:
         check.chain = 0

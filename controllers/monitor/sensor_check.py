@@ -554,7 +554,7 @@ def clean_encoders(
             state.before[joint] = continued_from[joint]
     state.clean_count = min(state.clean_count + 1, 3)
     shift_in(state.turn_angles, state.clean[0])
-    replaced_now = np.empty(3)
+    replaced_now = np.empty(3, dtype=np.uint8)
     for joint in range(3):
         replaced_now[joint] = state.encoder_bad[joint]
     shift_in(state.turn_replaced, replaced_now)
