@@ -74,7 +74,7 @@ def require_known_drives(plant: PlantConfig, setup: ControllerSetup) -> None:
         f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = {drives.load_encoder_bits}: "
         "without a load-side encoder their stiffness, damping and backlash are not identified, and the model rows' "
         "servo, rigid without them, drives the gearheads unstable; fit one (PlantRealism.compliance."
-        "load_encoder_bits in [8, 32], the compliant preset's 20) or give a parameter file with the drives' compliance"
+        "load_encoder_bits, as the compliant preset does) or give a parameter file with the drives' compliance"
     )
 
 

@@ -124,7 +124,8 @@ from which the slip check takes the residual's variance, at least the payload es
 SLIP_WINDOW = 2 * SMOOTHER_WINDOW
 """Longest run (samples) that the slip check's window statistic weighs with the residual's measured correlation:
 the residual's correlation spans the smoother's window, so over twice that its sums' variance per unit of
-information has settled (docs/design.md section 6, "Fault monitor"); longer runs are the CUSUM's."""
+information has settled (docs/design.md section 6, "Light slips: the residual's correlation"); longer runs are
+the CUSUM's."""
 
 CORRELATION_RATE = 0.002
 """Weight of each sample in the running means from which the slip check measures its residual's correlation (a
