@@ -29,6 +29,20 @@ SUBSTEPS = 20
 """Integration steps per control period: the dead band's kinks need a step well below the mode's period."""
 
 
+def _at_rest(rotor: np.ndarray, last_rotor: np.ndarray, arm: np.ndarray) -> dict[str, np.ndarray]:
+    """The servo's observation of joints whose reference rests at 0: the rotors' angles ``rotor`` (rad), their rates
+    from the sample before's ``last_rotor``, and the arms' angles ``arm`` (rad) on the load encoders."""
+    zero = np.zeros(3)
+    return {
+        "reference_angles": zero,
+        "reference_velocities": zero,
+        "reference_accelerations": zero,
+        "joint_angles": rotor.copy(),
+        "joint_velocities": (rotor - last_rotor) / CONTROL_PERIOD,
+        "load_angles": arm.copy(),
+    }
+
+
 def _rattle(backlash_known: np.ndarray | None, duration: float = 0.5) -> np.ndarray:
     """Per joint, the rotor's peak-to-peak motion (rad) over the last 0.1 s of ``duration`` (s) at a reference at rest
     at 0 with no load (the rotor inside the band, which it starts at its edge), three independent joints with the
@@ -44,18 +58,11 @@ def _rattle(backlash_known: np.ndarray | None, duration: float = 0.5) -> np.ndar
     servo.schedule(inertia)
     rotor, rotor_rate = 0.5 * BACKLASH.copy(), np.zeros(3)
     arm, arm_rate, drive = np.zeros(3), np.zeros(3), np.zeros(3)
-    last_rotor, zero = rotor.copy(), np.zeros(3)
+    last_rotor = rotor.copy()
     history = []
     h = CONTROL_PERIOD / SUBSTEPS
     for _ in range(round(duration / CONTROL_PERIOD)):
-        observation = {
-            "reference_angles": zero,
-            "reference_velocities": zero,
-            "reference_accelerations": zero,
-            "joint_angles": rotor.copy(),
-            "joint_velocities": (rotor - last_rotor) / CONTROL_PERIOD,
-            "load_angles": arm.copy(),
-        }
+        observation = _at_rest(rotor, last_rotor, arm)
         command = servo.feedback(observation)
         last_rotor = rotor.copy()
         for _ in range(SUBSTEPS):
@@ -256,7 +263,7 @@ def _light_rest(floor: bool, duration: float = 0.3) -> tuple[np.ndarray, np.ndar
     if not floor:
         servo.flank_floor = lambda observation, deflection, torque, integral: torque
     servo.schedule(inertia)
-    half, flank, zero = 0.5 * BACKLASH, np.sign(LIGHT_LOAD), np.zeros(3)
+    half, flank = 0.5 * BACKLASH, np.sign(LIGHT_LOAD)
     deflection = LIGHT_LOAD / STIFFNESS + half * flank
     arm = 3e-4 * flank
     rotor = arm - half * flank
@@ -264,14 +271,7 @@ def _light_rest(floor: bool, duration: float = 0.3) -> tuple[np.ndarray, np.ndar
     last_rotor, sides = rotor.copy(), []
     h = CONTROL_PERIOD / SUBSTEPS
     for _ in range(round(duration / CONTROL_PERIOD)):
-        observation = {
-            "reference_angles": zero,
-            "reference_velocities": zero,
-            "reference_accelerations": zero,
-            "joint_angles": rotor.copy(),
-            "joint_velocities": (rotor - last_rotor) / CONTROL_PERIOD,
-            "load_angles": arm.copy(),
-        }
+        observation = _at_rest(rotor, last_rotor, arm)
         command = LIGHT_LOAD + servo.feedback(observation, deflection)
         last_rotor = rotor.copy()
         for _ in range(SUBSTEPS):
