@@ -29,6 +29,13 @@ SUBSTEPS = 20
 """Integration steps per control period: the dead band's kinks need a step well below the mode's period."""
 
 
+def _gearhead(twist: np.ndarray, twist_rate: np.ndarray) -> np.ndarray:
+    """The torque (N m) each gearhead passes at a ``twist`` (rad, rotor minus arm) and its rate (rad/s): its spring
+    and damper beyond the half band of :data:`BACKLASH` on either side, nothing inside it."""
+    beyond = twist - np.clip(twist, -0.5 * BACKLASH, 0.5 * BACKLASH)
+    return np.where(beyond != 0.0, STIFFNESS * beyond + DAMPING * twist_rate, 0.0)
+
+
 def _at_rest(rotor: np.ndarray, last_rotor: np.ndarray, arm: np.ndarray) -> dict[str, np.ndarray]:
     """The servo's observation of joints whose reference rests at 0: the rotors' angles ``rotor`` (rad), their rates
     from the sample before's ``last_rotor``, and the arms' angles ``arm`` (rad) on the load encoders."""
@@ -66,9 +73,7 @@ def _rattle(backlash_known: np.ndarray | None, duration: float = 0.5) -> np.ndar
         command = servo.feedback(observation)
         last_rotor = rotor.copy()
         for _ in range(SUBSTEPS):
-            twist = rotor - arm
-            beyond = twist - np.clip(twist, -0.5 * BACKLASH, 0.5 * BACKLASH)
-            spring = np.where(beyond != 0.0, STIFFNESS * beyond + DAMPING * (rotor_rate - arm_rate), 0.0)
+            spring = _gearhead(rotor - arm, rotor_rate - arm_rate)
             drive += h * (command - drive) / LAG
             rotor_rate += h * (drive - spring) / ROTOR
             arm_rate += h * spring / ARM_INERTIA
@@ -169,9 +174,7 @@ def _through_reversal(band_rates: bool, move: float = 0.12, rest: float = 0.2) -
         command = inertia * acceleration + REVERSAL_LOAD + servo.feedback(observation, deflection)
         last_rotor = rotor.copy()
         for _ in range(SUBSTEPS):
-            twist = rotor - arm
-            beyond = twist - np.clip(twist, -half, half)
-            spring = np.where(beyond != 0.0, STIFFNESS * beyond + DAMPING * (rotor_rate - arm_rate), 0.0)
+            spring = _gearhead(rotor - arm, rotor_rate - arm_rate)
             drive += h * (command - drive) / LAG
             friction = ROTOR_FRICTION * np.tanh(rotor_rate / 5e-3)
             rotor_rate += h * (drive - spring - friction) / ROTOR
@@ -275,9 +278,7 @@ def _light_rest(floor: bool, duration: float = 0.3) -> tuple[np.ndarray, np.ndar
         command = LIGHT_LOAD + servo.feedback(observation, deflection)
         last_rotor = rotor.copy()
         for _ in range(SUBSTEPS):
-            twist = rotor - arm
-            beyond = twist - np.clip(twist, -half, half)
-            spring = np.where(beyond != 0.0, STIFFNESS * beyond + DAMPING * (rotor_rate - arm_rate), 0.0)
+            spring = _gearhead(rotor - arm, rotor_rate - arm_rate)
             drive += h * (command - drive) / LAG
             net = drive - spring
             sliding = rotor_rate != 0.0
