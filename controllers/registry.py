@@ -343,13 +343,15 @@ def build_controller(
 
 
 def fault_monitor(setup: ControllerSetup) -> FaultMonitor:
-    """A fault monitor on the identified model (MId+F+R) of the robot of ``setup``, with its drive and encoders."""
+    """A fault monitor on the identified model (MId+F+R) of the robot of ``setup``, with its drive, encoders and
+    gearheads' backlash."""
     return FaultMonitor(
         estimation_model(setup),
         setup.drive.peak_torque,
         drive_lag=setup.drive_lag,
         encoder_step=None if setup.encoder_bits is None else encoder_resolution(setup.encoder_bits),
         torque_delay=setup.torque_delay,
+        drive_backlash=setup.compliance is not None and any(setup.compliance.resolved_backlash > 0.0),
     )
 
 

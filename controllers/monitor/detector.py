@@ -71,6 +71,10 @@ class FaultMonitor:
         torque_delay: How much older (s) a torque reading is than its encoder sample: the plant's physics step
             (:data:`~delta_env.sensors.MEASURED_TORQUE_DELAY` by default), for the current loop's prediction and the
             model checks' state at the torque's instant.
+        drive_backlash: Whether the drives' gearheads have backlash (as identified): inside the band a rotor, which
+            the encoders read, turns against its own inertia alone, beyond the rigid model's bounds of its
+            acceleration, so the stuck check does not take a turning joint's repeats against those bounds
+            (docs/design.md section 6, "Encoders", case (c)).
 
     Attributes:
         events: The faults detected since the reset, in time order.
@@ -85,6 +89,7 @@ class FaultMonitor:
         drive_lag: Sequence[float] | None = None,
         encoder_step: float | None = None,
         torque_delay: float = MEASURED_TORQUE_DELAY,
+        drive_backlash: bool = False,
     ) -> None:
         require_positive("peak_torque", peak_torque, unit="N m")
         require_torque_age(torque_delay)
@@ -106,6 +111,7 @@ class FaultMonitor:
         arm_inertia = dynamics.parameters.rho1 * dynamics.inertia
         initial["jump_bound"] = ACCELERATION_FACTOR * peak_torque / arm_inertia * CONTROL_PERIOD**2 + 2.0 * step
         initial["stuck_step"] = max(STUCK_COUNTS * step, 1e-9)
+        initial["turn_check"] = not drive_backlash
         initial["loop_response"] = loop_response(lags, age)
         initial["slowest_response"] = loop_response([SLOWEST_LAG_FACTOR * lag for lag in lags], age)
         initial["peak_torque"] = self.peak_torque

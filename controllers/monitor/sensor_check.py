@@ -71,6 +71,9 @@ SENSOR_FIELDS = [
     ("turn_replaced", np.uint8, (TURN_HISTORY + 2, 3)),
     ("turn_torques", np.float64, (TURN_HISTORY + 1, 3)),
     ("turn_samples", np.int64),
+    # whether (c) may run: not on drives with backlash, whose rotors turn inside the band against their own inertia,
+    # beyond the model's bounds
+    ("turn_check", np.uint8),
     ("after_stuck", np.uint8, (3,)),  # flags (numba has no boolean subarrays)
     ("encoder_bad", np.uint8, (3,)),
     ("glitch_active", np.uint8, (3,)),
@@ -479,7 +482,7 @@ def clean_encoders(
                 # smoother's lag behind, learns later (a 10 kg object released read as the joint's torque gone
                 # astray), so nothing while it is open and nothing across a switch within the readings it takes
                 switched = state.sample - state.gripper_changed <= TURN_HISTORY + 2
-                if others_move and not switched:
+                if others_move and not switched and state.turn_check != 0:
                     if not (commanded and turn_mass == pushing_mass):
                         low, high = _acceleration_bounds(
                             state, model_constants, last, before, delivered, joint, turn_mass
