@@ -675,8 +675,10 @@ def test_episode_seeds_may_not_reach_the_tare_seeds(module: str, capsys: pytest.
 
 
 def test_bound_check_names_a_controller_that_places_closer_than_the_oracle() -> None:
-    """The bound is a bound on the place error too (the oracle runs the rows' servo layer): a mean place error below
-    the bound's is named; rows without a place error (no release) are not checked."""
+    """The bound is a bound on the place error too (the oracle runs the rows' servo layer): a mean place error
+    significantly below the bound's on the same episodes is named; a difference within the scatter that the encoders'
+    quantization gives both, or on a single episode, is not; rows without a place error (no release) are not
+    checked."""
     bound = "Oracle+PD (bound)"
 
     def placed(label: str, seed: int, tracking: float, place: float) -> dict[str, object]:
@@ -684,8 +686,20 @@ def test_bound_check_names_a_controller_that_places_closer_than_the_oracle() -> 
 
     rows = [placed(bound, 0, 0.01, 0.006), placed(bound, 1, 0.01, 0.008), placed("A", 0, 0.05, 0.02)]
     assert bound_violations(rows, bound) == []
-    rows += [placed("B", 0, 0.05, 0.004), placed("B", 1, 0.06, 0.006)]
+    rows += [placed("B", 0, 0.05, 0.004), placed("B", 1, 0.06, 0.006)]  # closer by 2 µm on both: no scatter
     assert bound_violations(rows, bound) == [
-        f"- B places at 0.005 mm on average, closer than {bound} at 0.007 mm: the bound does not hold"
+        f"- B places at 0.005 mm on average, closer than {bound} at 0.007 mm on the same 2 episodes (one-sided "
+        "paired t-test, p = 0): the bound does not hold"
     ]
+    single = [placed(bound, 0, 0.01, 0.006), placed("C", 0, 0.05, 0.005)]  # a quarter count on one episode
+    assert bound_violations(single, bound) == []
+    rng = np.random.default_rng(0)
+    bound_places = rng.uniform(0.004, 0.012, 10)
+    scattered = [placed(bound, seed, 0.01, place) for seed, place in enumerate(bound_places)]
+    noise = [placed("D", seed, 0.05, place + rng.normal(0.0, 0.003)) for seed, place in enumerate(bound_places)]
+    noise[0]["place_error_mean_mm"] = bound_places[0] - 0.004  # its mean below the bound's, within the scatter
+    assert bound_violations(scattered + noise, bound) == []
+    closer = [placed("E", seed, 0.05, place - 0.003 + rng.normal(0, 0.001)) for seed, place in enumerate(bound_places)]
+    (line,) = bound_violations(scattered + closer, bound)
+    assert line.startswith("- E places at") and "same 10 episodes" in line
     assert bound_violations([bound_row(bound, 0, 0.01), bound_row("C", 0, 0.02)], bound) == []
