@@ -68,9 +68,8 @@ DROP_VARIANCE = 0.01
 INNOVATION_GATE = 3.0
 """Normalized innovation (:meth:`~controllers.estimation.PayloadRLS.normalized_innovation`, standard deviations)
 within which a carry's equation agrees with the estimate, after a disturbance (:meth:`PayloadEstimator.hold_out`):
-99.7 % of the samples of a normal law. On fault-free carries 99 % lay within 2.2-2.5 (the RLS row, nominal) and
-3.0-3.6 (RLS(ref), nominal and ``randomized``), against up to 290 in a servo's recovery from a push
-(docs/measurements.md, "A push's recovery, the estimate at the place and the pick's blind spot")."""
+99.7 % of the samples of a normal law, where a servo's recovery from a push lies two orders of magnitude out
+(measured in docs/measurements.md, "A push's recovery, the estimate at the place and the pick's blind spot")."""
 
 CONSISTENT_SAMPLES = SMOOTHER_WINDOW
 """Equations in a row within :data:`INNOVATION_GATE` that end a hold-out: as long as the fault monitor's collision
