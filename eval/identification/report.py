@@ -105,6 +105,8 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
         "|---|---|---|---|---|" + ("---|---|" if true else ""),
     ]
     for index, (name, unit) in enumerate(zip(COMPLIANCE_PARAMETER_NAMES, COMPLIANCE_UNITS, strict=True)):
+        if name not in fit["estimate"]:
+            continue  # the backlash, from the motor side alone
         scale = 1.0 / ARCMIN if name == "backlash" else 1.0
         values = scale * np.array(fit["estimate"][name])
         errors = scale * np.array(fit["standard_errors"][name])

@@ -33,7 +33,6 @@ from controllers.base import PDController
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
-    COMPLIANCE_PARAMETER_NAMES,
     FRICTION_VELOCITY_THRESHOLD,
     REST_VELOCITY,
     RHO1_GRID,
@@ -255,28 +254,23 @@ def run_identification(
         max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
         torque_delay=plant.timestep,
     )
-    if drives is not None:
-        return _with_compliance(run, *drives)
-    if plant.realism.compliance is None:
-        return run
-    logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
-    provenance = {**run.result.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
-    return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
+    return run if drives is None else _with_compliance(run, *drives)
 
 
 def _drive_compliance(
     plant: PlantConfig, seed: int, workers: int
 ) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict] | None:
-    """The compliance fit of :func:`eval.identification.compliance.identify_compliance` for a plant whose compliant
-    drives carry a load-side encoder, else None (rigid drives, or no encoder to identify them with)."""
-    compliance = plant.realism.compliance
-    if compliance is None or compliance.load_encoder_bits is None:
+    """The compliance fit of :func:`eval.identification.compliance.identify_compliance` for a plant with compliant
+    drives (from the load side with a load-side encoder, else from the motor side alone), None for rigid drives."""
+    if plant.realism.compliance is None:
         return None
     return identify_compliance(plant, seed, workers)
 
 
 NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
-"""The provenance's ``compliance.method`` of a compliant plant whose drives could not be identified."""
+"""The provenance's ``compliance.method`` of a compliant plant whose drives an identification before the motor-side
+fit left unidentified: such a cached file is outdated
+(:func:`eval.identification.parameter_files.outdated`)."""
 
 
 def _with_compliance(
@@ -285,9 +279,11 @@ def _with_compliance(
     """``run`` with the drives' compliance identified: in the result, its standard errors and provenance."""
     errors = {
         f"compliance.{name}_{joint + 1}": float(fit.standard_errors[joint, index])
-        for index, name in enumerate(COMPLIANCE_PARAMETER_NAMES)
+        for index, name in enumerate(fit.parameter_names)
         for joint in range(3)
     }
+    if fit.arm_inertia_scale is not None:
+        errors["compliance.arm_inertia_scale"] = fit.arm_inertia_scale[1]
     result = dataclasses.replace(
         run.result,
         compliance=fit.compliance,
