@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from controllers.compliance import DriveCompliance, first_mode
+from controllers.compliance import SMALLEST_BACKLASH, DriveCompliance, first_mode
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.identification import (
     DriveLog,
@@ -21,7 +21,12 @@ from controllers.identification import (
     save_result,
     write_log,
 )
-from controllers.identification.compliance import MOTOR_SIDE_PARAMETER_NAMES, fit_compliance, fit_motor_side_compliance
+from controllers.identification.compliance import (
+    MOTOR_SIDE_PARAMETER_NAMES,
+    UnexplainedTorqueError,
+    fit_compliance,
+    fit_motor_side_compliance,
+)
 from controllers.servo import ResonanceNotch
 from delta_env import kinematics
 from delta_env.config import ARCMIN, RATED_PAYLOAD, PlantConfig
@@ -45,8 +50,8 @@ COMPLIANT = preset("compliant").plant
 
 
 def _plant(**gearhead: object) -> PlantConfig:
-    """The compliant preset with a 20-bit load-side encoder and the gearhead changed as given."""
-    compliance = replace(COMPLIANT.realism.compliance, load_encoder_bits=20, **gearhead)
+    """The compliant preset with a 20-bit load-side encoder (unless given) and the gearhead changed as given."""
+    compliance = replace(COMPLIANT.realism.compliance, **{"load_encoder_bits": 20, **gearhead})
     return replace(COMPLIANT, realism=replace(COMPLIANT.realism, compliance=compliance))
 
 
@@ -236,11 +241,24 @@ def test_known_stiffness_is_identified_from_the_motor_side_alone(known_plant_log
         fit_motor_side_compliance(logs, inertias[:2], torque_delay=plant.timestep)
 
 
-@pytest.mark.slow
+def test_the_motor_side_fit_refuses_drives_behind_a_backlash() -> None:
+    """Behind the smallest backlash the controllers act on (0.1 arcmin) the two-mass model leaves about 0.2 of the
+    torque unexplained (the stiffness would come out 11 to 13 % low); the fit refuses rather than report it (about
+    6 s)."""
+    plant = _plant(backlash=SMALLEST_BACKLASH, load_encoder_bits=None)
+    logs = [
+        run_compliance_excitation(ComplianceExcitationSpec(seed=n, pose=pose), plant)
+        for n, pose in enumerate(COMPLIANCE_POSES)
+    ]
+    inertias = [pose_arm_inertia(plant, pose) for pose in COMPLIANCE_POSES]
+    with pytest.raises(UnexplainedTorqueError, match=r"not two linear masses \(a backlash\?\)"):
+        fit_motor_side_compliance(logs, inertias, torque_delay=plant.timestep)
+
+
 def test_without_a_load_encoder_the_drives_are_identified_from_the_motor_side(tmp_path) -> None:
     """Compliant drives read by motor encoders only (stiffness 1.5 / 0.6 / 1.0 times the SP+ 140's, damping 0.5 / 2 /
     1 times): the identification fits them from the motor side (measured: stiffness +0.5, -1.6, -0.3 %), the report
-    lists them without a backlash row and maps their first mode (about 20 s)."""
+    lists them without a backlash row and maps their first mode (about 9 s)."""
     motor_only = replace(
         COMPLIANT.realism.compliance,
         load_encoder_bits=None,

@@ -333,6 +333,17 @@ MOTOR_SIDE_START_DAMPING_RATIO = 0.05
 (a few per cent is usual for a geared drive)."""
 
 
+MOTOR_SIDE_MAX_UNEXPLAINED = 0.15
+"""Largest share of the fitted torque's RMS the motor-side fit may leave in its residual per joint: on drives without
+backlash the motor's Stribeck friction and ripple leave 0.08 to 0.12, a backlash of 0.1 arcmin (the smallest the
+controllers act on, :data:`controllers.compliance.SMALLEST_BACKLASH`) 0.20 to 0.21 with the stiffness 11 to 13 % low
+(docs/measurements.md)."""
+
+
+class UnexplainedTorqueError(ValueError):
+    """The motor-side fit leaves more of the torque unexplained than :data:`MOTOR_SIDE_MAX_UNEXPLAINED`."""
+
+
 MOTOR_SIDE_SCALE_RANGE = (0.5, 2.0)
 """Range of the arm inertia's scale the motor-side fit searches (the datasheet model's arm against the robot's)."""
 
@@ -500,6 +511,8 @@ def fit_motor_side_compliance(
     Raises:
         ValueError: without logs, for an inertia per log missing or not (3, 3), on logs too short, or if the fit's
             rotor inertia or stiffness is not positive.
+        UnexplainedTorqueError: if the fit leaves more than :data:`MOTOR_SIDE_MAX_UNEXPLAINED` of a joint's torque
+            unexplained.
     """
     samples = _samples_per_period(logs, period)
     if len(arm_inertias) != len(logs) or any(np.shape(m) != (3, 3) for m in arm_inertias):
@@ -532,9 +545,20 @@ def fit_motor_side_compliance(
             "that is not positive: the logs do not excite the drives' mode"
         )
     lines = sum(len(b.omega) for b in blocks)
-    # Parseval: a line's torque (N m s) over the period's samples is its amplitude; RMS over the period's samples
-    amplitude = residual[:lines] + 1j * residual[lines:]
-    residual_rms = np.sqrt(2.0 * np.sum(np.abs(amplitude) ** 2, axis=0)) / samples
+
+    def rms(amplitude: NDArray[np.complex128]) -> NDArray[np.float64]:
+        """Per joint the RMS over a period (N m) of signals given by their lines (N m s), mean square over the logs
+        (Parseval: each line below the Nyquist rate holds twice its share)."""
+        return np.sqrt(2.0 * np.sum(np.abs(amplitude) ** 2, axis=0) / len(blocks)) / samples
+
+    residual_rms = rms(residual[:lines] + 1j * residual[lines:])
+    unexplained = residual_rms / rms(np.concatenate([b.torque.mean(axis=0) for b in blocks]))
+    if np.any(unexplained > MOTOR_SIDE_MAX_UNEXPLAINED):
+        raise UnexplainedTorqueError(
+            f"the two-mass model leaves {np.round(unexplained, 3).tolist()} of the fitted torque per joint unexplained "
+            f"(at most {MOTOR_SIDE_MAX_UNEXPLAINED:g}): the drives are not two linear masses (a backlash?), and the "
+            "motor side alone does not identify them"
+        )
     return ComplianceFit(
         compliance=DriveCompliance(tuple(rotor_inertia), tuple(stiffness), tuple(np.maximum(damping, 0.0))),
         estimate=estimate[:, :5],

@@ -87,8 +87,7 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
         return ["Rigid drives: no compliance."]
     if result.compliance is None:
         return [
-            f"{result.provenance['compliance']['method'].capitalize()} (the stiffness needs the arm's angle, "
-            "docs/design.md section 7).",
+            f"{result.provenance['compliance']['method'].capitalize()} (docs/design.md section 7).",
             "",
             *_mode_map_lines(run, DriveCompliance.nominal(), "the data sheet's drives"),
         ]

@@ -56,6 +56,7 @@ from controllers.identification import (
     read_log,
 )
 from controllers.identification.bags import BagTopics, is_bag, read_bag
+from controllers.identification.compliance import UnexplainedTorqueError
 from controllers.identification.logs import read_table_log
 from controllers.servo import ResonanceNotch
 from delta_env.config import PlantConfig
@@ -225,7 +226,12 @@ def run_identification(
 
     # Compliant drives are identified first, at rest poses: the excitation's PD then notches their modes, as a servo
     # drive's resonance filter is set before it moves the robot far and fast (docs/design.md section 7).
-    drives = _drive_compliance(plant, seed, workers)
+    unidentified = MOTOR_SIDE_UNIDENTIFIED
+    try:
+        drives = _drive_compliance(plant, seed, workers)
+    except UnexplainedTorqueError as error:
+        logger.warning("compliant drives not identified: %s", error)
+        drives, unidentified = None, f"{MOTOR_SIDE_UNIDENTIFIED}: {error}"
     notch = (
         None if drives is None else ResonanceNotch(drives[0].compliance.rotor_inertia, drives[0].compliance.stiffness)
     )
@@ -254,7 +260,12 @@ def run_identification(
         max_loop_gap=max(record.max_loop_gap for record, _, _ in runs),
         torque_delay=plant.timestep,
     )
-    return run if drives is None else _with_compliance(run, *drives)
+    if drives is not None:
+        return _with_compliance(run, *drives)
+    if plant.realism.compliance is None:
+        return run
+    provenance = {**run.result.provenance, "compliance": {"method": unidentified}}
+    return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
 
 
 def _drive_compliance(
@@ -266,6 +277,12 @@ def _drive_compliance(
         return None
     return identify_compliance(plant, seed, workers)
 
+
+MOTOR_SIDE_UNIDENTIFIED = (
+    "not identified: compliant drives without a load-side encoder that the motor side alone does not fit"
+)
+"""The provenance's ``compliance.method`` (with the fit's reason) of compliant drives whose motor-side fit left too
+much torque unexplained (:class:`~controllers.identification.compliance.UnexplainedTorqueError`: a backlash)."""
 
 NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
 """The provenance's ``compliance.method`` of a compliant plant whose drives an identification before the motor-side
