@@ -279,7 +279,8 @@ def test_without_a_load_encoder_the_drives_are_identified_from_the_motor_side(tm
 
 
 def test_compliant_drives_are_identified_from_log_files(known_plant_logs, tmp_path) -> None:
-    """The compliance excitation's logs written as files and read back identify the same drives as the arrays."""
+    """The compliance excitation's logs written as files and read back identify the same drives as the arrays; without
+    their load-side columns they identify them from the motor side alone (stiffness within 2 %); a mix is refused."""
     plant, logs = known_plant_logs
     paths = [write_log(log, tmp_path / f"compliance_{n:02d}.csv") for n, log in enumerate(logs)]
     rigid = [tmp_path / "excitation_01.csv", tmp_path / "validation.csv"]
@@ -294,6 +295,17 @@ def test_compliant_drives_are_identified_from_log_files(known_plant_logs, tmp_pa
     assert len(from_files.result.provenance["compliance"]["logs"]) == len(paths)
     with pytest.raises(ValueError, match=r"compliance log .*a\.mcap is a ROS 2 bag"):
         identify_logs(rigid, robot, compliance_paths=[tmp_path / "a.mcap"])
+    # without the load-side columns, from the motor side alone, on the inertia at each log's mean angles
+    motor_only = [
+        write_log(replace(log, load_angles=None), tmp_path / "motor" / f"compliance_{n:02d}.csv")
+        for n, log in enumerate(logs)
+    ]
+    from_motor = identify_logs(rigid, robot, compliance_paths=motor_only, torque_delay=plant.timestep)
+    truth = plant.realism.compliance.stiffness_per_joint
+    np.testing.assert_allclose(from_motor.result.compliance.stiffness, truth, rtol=0.02)
+    assert "from the motor side alone" in from_motor.result.provenance["compliance"]["method"]
+    with pytest.raises(ValueError, match=r"all have load_angle columns or none"):
+        identify_logs(rigid, robot, compliance_paths=[*paths[:1], *motor_only[1:]], torque_delay=plant.timestep)
 
 
 @pytest.mark.slow
