@@ -329,9 +329,8 @@ MOTOR_SIDE_STIFFNESS_GRID = np.geomspace(1e4, 1e7, 7)
 the preset's rotor and arms, around the multisine's band."""
 
 MOTOR_SIDE_START_DAMPING_RATIO = 0.05
-"""Damping ratio c / (2 sqrt(k J_m)) of the motor-side fit's start, with the rotor inertia of the rigid response
-(a few per cent is usual for a geared drive)."""
-
+"""Damping ratio c / (2 sqrt(k J_m)) of the motor-side fit's starts, J_m solved at each start's stiffness (a few per
+cent is usual for a geared drive)."""
 
 MOTOR_SIDE_MAX_UNEXPLAINED = 0.15
 """Largest share of the fitted torque's RMS the motor-side fit may leave in its residual per joint: on drives without
