@@ -362,11 +362,16 @@ def mode_map_lines(modes: ModeMap) -> list[str]:
     return lines
 
 
-COMPLIANCE_METHOD = (
+_EXCITATION_METHOD = (
     "per compliance excitation pose: a joint PD (kp {kp:g} N m/rad, kd {kd:g} N m s/rad) on the motor encoders plus "
     "MKH's gravity torque holds the pose, a random-phase multisine ({low:g} to {high:g} Hz, {rms:g} N m RMS per "
     "drive, period {period:g} s) drives the rotors, the drive's trace recorded at the physics step; after {settle} "
-    "period(s), per joint least squares of the motor "
+    "period(s), "
+)
+"""What both fits' provenance says of the excitation."""
+
+COMPLIANCE_METHOD = _EXCITATION_METHOD + (
+    "per joint least squares of the motor "
     "side's tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta - dead band) + c (phi_dot - "
     "theta_dot) + b on the periods' mean (the dead band and the friction's sign: the mean of each period's), rates "
     "from the DFT (lines up to {top:g} Hz), torques {delay:g} s older than their angles, the backlash searched; "
@@ -374,11 +379,8 @@ COMPLIANCE_METHOD = (
 )
 """How the compliance was identified (the provenance's ``compliance.method``)."""
 
-MOTOR_SIDE_METHOD = (
-    "per compliance excitation pose: a joint PD (kp {kp:g} N m/rad, kd {kd:g} N m s/rad) on the motor encoders plus "
-    "MKH's gravity torque holds the pose, a random-phase multisine ({low:g} to {high:g} Hz, {rms:g} N m RMS per "
-    "drive, period {period:g} s) drives the rotors, the drive's trace recorded at the physics step; after {settle} "
-    "period(s), from the motor side alone (no load-side encoder): per DFT line up to {top:g} Hz of the periods' mean, "
+MOTOR_SIDE_METHOD = _EXCITATION_METHOD + (
+    "from the motor side alone (no load-side encoder): per DFT line up to {top:g} Hz of the periods' mean, "
     "tau = (-w^2 J_m + i w f_v) phi + f_c S(sign phi_dot) - w^2 G (G - w^2 s M)^-1 s M phi with G = k + i w c and M "
     "the datasheet model's arm-side joint inertia (rod forearms) at each pose, k, c and the scale s by nonlinear "
     "least squares (J_m, f_v, f_c linear inside), torques {delay:g} s older than their angles; the backlash not "
