@@ -60,22 +60,31 @@ def robot_knowledge(
 
 def require_known_drives(plant: PlantConfig, setup: ControllerSetup) -> None:
     """Refuse the servo layer (``setup.servo == "servo"``) on compliant drives it does not know: without the drives'
-    compliance (``setup.compliance`` None, as the identification leaves it on a plant without a load-side encoder)
-    the model rows run the rigid servo, without notch, deflection or backlash band, which the compliant plant drives
-    unstable (docs/design.md section 6, "Backlash").
+    compliance (``setup.compliance`` None, as a parameter file of rigid drives leaves it) the model rows run the
+    rigid servo, without notch, deflection or backlash band, which the compliant plant drives unstable; and on a
+    gearhead with backlash without a load-side encoder, whose band the motor side's identification does not see
+    and whose crossing the servo handles on the measured twist only (docs/design.md section 6, "Backlash").
 
     Raises:
         UsageError: naming the plant's ``load_encoder_bits`` and backlash.
     """
     drives = plant.realism.compliance
-    if drives is None or setup.compliance is not None or setup.servo != "servo":
+    if drives is None or setup.servo != "servo":
         return
-    raise UsageError(
-        f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = {drives.load_encoder_bits}: "
-        "without a load-side encoder their stiffness, damping and backlash are not identified, and the model rows' "
-        "servo, rigid without them, drives the gearheads unstable; fit one (PlantRealism.compliance."
-        "load_encoder_bits, as the compliant preset does) or give a parameter file with the drives' compliance"
-    )
+    if setup.compliance is None:
+        raise UsageError(
+            f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = "
+            f"{drives.load_encoder_bits}: the parameter file holds no drive compliance, and the model rows' servo, "
+            "rigid without it, drives the gearheads unstable; give a parameter file with the drives' compliance "
+            "(the robot's own identification fits it)"
+        )
+    if drives.load_encoder_bits is None and drives.backlash > 0.0:
+        raise UsageError(
+            f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = None: the motor side "
+            "alone does not identify the backlash, and the servo crosses the band on the measured twist only; fit a "
+            "load-side encoder (PlantRealism.compliance.load_encoder_bits, as the compliant preset does) or run "
+            "with --servo pd"
+        )
 
 
 def kept_tares(scenario: Scenario, runs_dir: str | Path | None = None) -> Path:

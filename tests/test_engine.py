@@ -188,14 +188,18 @@ def _without_load_encoder(backlash: float):
     return dataclasses.replace(plant, realism=dataclasses.replace(plant.realism, compliance=drives))
 
 
-@pytest.mark.parametrize("backlash", [2.908882e-4, 0.0])
-def test_the_servo_layer_on_drives_it_does_not_know_is_refused_naming_the_encoder(backlash: float) -> None:
-    """Compliant drives without a load encoder leave the compliance unidentified (setup.compliance None): the servo
-    layer is refused, naming the encoder and the backlash; with the drives known, with the paper's PD, or on rigid
-    drives it is not."""
-    plant = _without_load_encoder(backlash)
-    with pytest.raises(UsageError, match=rf"backlash {backlash:.4g} rad and load_encoder_bits = None"):
-        require_known_drives(plant, SETUP)
-    require_known_drives(plant, dataclasses.replace(SETUP, compliance=DriveCompliance.nominal()))
-    require_known_drives(plant, dataclasses.replace(SETUP, servo="pd"))
+def test_the_servo_layer_on_drives_it_does_not_know_is_refused_naming_the_encoder() -> None:
+    """Without the drives' compliance (a parameter file of rigid drives) the servo layer is refused on compliant
+    drives; without a load encoder it is refused behind a backlash (which the motor side does not identify) and
+    allowed without one; with the paper's PD, or on rigid drives, it is never refused."""
+    known = dataclasses.replace(SETUP, compliance=DriveCompliance.nominal())
+    for backlash in (2.908882e-4, 0.0):
+        plant = _without_load_encoder(backlash)
+        with pytest.raises(UsageError, match=rf"backlash {backlash:.4g} rad and load_encoder_bits = None"):
+            require_known_drives(plant, SETUP)
+        require_known_drives(plant, dataclasses.replace(SETUP, servo="pd"))
+    with pytest.raises(UsageError, match=r"backlash 0.0002909 rad and load_encoder_bits = None: the motor side"):
+        require_known_drives(_without_load_encoder(2.908882e-4), known)
+    require_known_drives(_without_load_encoder(0.0), known)
+    require_known_drives(preset("compliant").plant, known)
     require_known_drives(preset("nominal").plant, SETUP)

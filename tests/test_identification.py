@@ -38,7 +38,7 @@ from delta_env.sensors import ENCODER_RESOLUTION
 from eval.identification import parameter_files
 from eval.identification.excitation import ExcitationSpec, collect_excitation_data
 from eval.identification.parameter_files import identify_robot, load_or_identify, outdated, parameter_path, robot_setup
-from eval.identification.run import IDENTIFICATION_VERSION, identify
+from eval.identification.run import IDENTIFICATION_VERSION, NO_LOAD_ENCODER, identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
@@ -423,6 +423,9 @@ def test_a_cache_of_another_identification_version_is_identified_again(tmp_path,
     current, older = versioned(IDENTIFICATION_VERSION), versioned(IDENTIFICATION_VERSION - 1)
     from_logs = dataclasses.replace(RESULT, provenance={"plant": {"source": "logs"}})
     assert outdated(older) and outdated(RESULT) and not outdated(current) and not outdated(from_logs)
+    # compliant drives left unidentified before the motor-side fit are identified again
+    unidentified = {**current.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
+    assert outdated(dataclasses.replace(current, provenance=unidentified))
     path = save_result(older, parameter_path(plant, tmp_path))
     monkeypatch.setattr(parameter_files, "identify", lambda **kwargs: current)
     monkeypatch.setattr(parameter_files, "check_identity", lambda *args: None)

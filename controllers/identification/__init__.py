@@ -17,7 +17,12 @@ is ``eval.identification.run``, its excitation runs ``eval.identification.excita
 - :mod:`~controllers.identification.bags`: ROS 2 bags (MCAP, sqlite3) of a robot's joint states as drive logs.
 """
 
-from controllers.identification.compliance import COMPLIANCE_PARAMETER_NAMES, ComplianceFit, fit_compliance
+from controllers.identification.compliance import (
+    COMPLIANCE_PARAMETER_NAMES,
+    ComplianceFit,
+    fit_compliance,
+    fit_motor_side_compliance,
+)
 from controllers.identification.data import (
     REST_VELOCITY,
     TRIM_SAMPLES,
@@ -95,6 +100,7 @@ __all__ = [
     "fit_friction_per_joint",
     "fit_joint_least_squares",
     "fit_least_squares",
+    "fit_motor_side_compliance",
     "fit_paper_method",
     "fit_rho_least_squares",
     "fit_stribeck",

@@ -1,5 +1,6 @@
 """Identification of compliant drives: the rotor's inertia and friction, the gearhead's stiffness and damping per
-joint, from logs of a periodic excitation with the load-side angle (docs/design.md section 7, "Compliant drives").
+joint, from logs of a periodic excitation with the load-side angle, or from the motor side alone with the arm side's
+inertia from a model (docs/design.md section 7, "Compliant drives").
 
 Per joint the motor side's equation (section 4, "The two-mass model") is linear in its parameters,
 
@@ -31,11 +32,15 @@ from numpy.typing import NDArray
 from controllers.compliance import DriveCompliance
 from controllers.identification.data import REST_VELOCITY
 from controllers.identification.logs import DriveLog
+from delta_env.config import MAX_STIFFNESS, MAX_VISCOUS
 from delta_env.excitation import MULTISINE_PERIOD
 from delta_env.sensors import MEASURED_TORQUE_DELAY
 
 COMPLIANCE_PARAMETER_NAMES = ("rotor_inertia", "viscous", "coulomb", "stiffness", "damping", "backlash")
 """The motor side's parameters per joint (J_m, f_v, f_c, k, c, b; SI units)."""
+
+MOTOR_SIDE_PARAMETER_NAMES = COMPLIANCE_PARAMETER_NAMES[:5]
+"""What the motor side alone identifies per joint (:func:`fit_motor_side_compliance`): all but the backlash."""
 
 _REGRESSOR_NAMES = ("rotor_inertia", "viscous", "coulomb", "stiffness", "damping", "offset")
 """What the regressor's columns multiply."""
@@ -67,6 +72,10 @@ class ComplianceFit:
         residual_rms: RMS torque residual per joint (N m) on the periods' mean, ``(3,)``.
         periods: Periods averaged per log.
         logs: Logs fitted.
+        parameter_names: What the columns of ``estimate`` are: :data:`COMPLIANCE_PARAMETER_NAMES`, or
+            :data:`MOTOR_SIDE_PARAMETER_NAMES` from the motor side alone (the backlash not identified, taken as 0).
+        arm_inertia_scale: From the motor side alone, the factor on the model's arm-side inertia the fit found, and
+            its standard error; None with the load side.
     """
 
     compliance: DriveCompliance
@@ -75,24 +84,32 @@ class ComplianceFit:
     residual_rms: NDArray[np.float64]
     periods: int
     logs: int
+    parameter_names: tuple[str, ...] = COMPLIANCE_PARAMETER_NAMES
+    arm_inertia_scale: tuple[float, float] | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready estimates, standard errors and residuals per joint."""
-        return {
-            "estimate": {name: self.estimate[:, i].tolist() for i, name in enumerate(COMPLIANCE_PARAMETER_NAMES)},
+        summary = {
+            "estimate": {name: self.estimate[:, i].tolist() for i, name in enumerate(self.parameter_names)},
             "standard_errors": {
-                name: self.standard_errors[:, i].tolist() for i, name in enumerate(COMPLIANCE_PARAMETER_NAMES)
+                name: self.standard_errors[:, i].tolist() for i, name in enumerate(self.parameter_names)
             },
             "residual_rms_per_joint": self.residual_rms.tolist(),
             "periods_per_log": self.periods,
             "logs": self.logs,
         }
+        if self.arm_inertia_scale is not None:
+            summary["arm_inertia_scale"] = {
+                "estimate": self.arm_inertia_scale[0],
+                "standard_error": self.arm_inertia_scale[1],
+            }
+        return summary
 
 
-def _periods(log: DriveLog, samples: int, settle: int) -> tuple[NDArray[np.float64], ...]:
-    """Motor-side angles, load-side angles and torques of the log's whole periods after ``settle`` (the last
-    ``n * samples`` rows), each ``(n, samples, 3)``."""
-    if log.load_angles is None:
+def _periods(log: DriveLog, samples: int, settle: int, *, load_side: bool = True) -> tuple[NDArray[np.float64], ...]:
+    """Motor-side angles, load-side angles (with ``load_side``) and torques of the log's whole periods after
+    ``settle`` (the last ``n * samples`` rows), each ``(n, samples, 3)``."""
+    if load_side and log.load_angles is None:
         raise ValueError(
             "a compliant drive's stiffness needs the load-side angle: the log has no load_angle_1..3 columns"
         )
@@ -103,10 +120,23 @@ def _periods(log: DriveLog, samples: int, settle: int) -> tuple[NDArray[np.float
             f"{settle + 2} (settling {settle}, then 2 to compare)"
         )
     kept = slice(len(log) - count * samples, len(log))
-    return tuple(
-        np.reshape(values[kept], (count, samples, 3))
-        for values in (log.motor_side_angles, log.load_angles, log.torques)
+    signals = (
+        (log.motor_side_angles, log.load_angles, log.torques) if load_side else (log.motor_side_angles, log.torques)
     )
+    return tuple(np.reshape(values[kept], (count, samples, 3)) for values in signals)
+
+
+def _samples_per_period(logs: Sequence[DriveLog], period: float) -> int:
+    """Samples in one ``period`` (s) of the logs, which must share one sample period that divides it."""
+    if not logs:
+        raise ValueError("need at least one log")
+    dt = logs[0].dt
+    samples = round(period / dt)
+    if samples < 3 or abs(samples * dt - period) > 1e-9 * period:
+        raise ValueError(f"period must be a whole number (>= 3) of the logs' {dt:g} s samples, got {period!r} s")
+    if any(abs(log.dt - dt) > 1e-12 for log in logs):
+        raise ValueError(f"the logs must share one sample period, got {sorted({log.dt for log in logs})} s")
+    return samples
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,14 +293,8 @@ def fit_compliance(
         ValueError: without logs, without load-side angles, on logs too short, or if the data do not excite a
             parameter.
     """
-    if not logs:
-        raise ValueError("need at least one log")
+    samples = _samples_per_period(logs, period)
     dt = logs[0].dt
-    samples = round(period / dt)
-    if samples < 3 or abs(samples * dt - period) > 1e-9 * period:
-        raise ValueError(f"period must be a whole number (>= 3) of the logs' {dt:g} s samples, got {period!r} s")
-    if any(abs(log.dt - dt) > 1e-12 for log in logs):
-        raise ValueError(f"the logs must share one sample period, got {sorted({log.dt for log in logs})} s")
     blocks = [_periods(log, samples, settle_periods) for log in logs]
     periods = min(len(motor) for motor, _, _ in blocks)
 
@@ -297,4 +321,250 @@ def fit_compliance(
         residual_rms=np.sqrt(np.mean(residual**2, axis=0)),
         periods=periods,
         logs=len(logs),
+    )
+
+
+MOTOR_SIDE_STIFFNESS_GRID = np.geomspace(1e4, 1e7, 7)
+"""Stiffnesses (N m/rad), shared by the joints, the motor-side fit starts from: modes of about 25 Hz to 1.6 kHz on
+the preset's rotor and arms, around the multisine's band."""
+
+MOTOR_SIDE_START_DAMPING_RATIO = 0.05
+"""Damping ratio c / (2 sqrt(k J_m)) of the motor-side fit's starts, J_m solved at each start's stiffness (a few per
+cent is usual for a geared drive)."""
+
+MOTOR_SIDE_MAX_UNEXPLAINED = 0.15
+"""Largest share of the fitted torque's RMS the motor-side fit may leave in its residual per joint: on drives without
+backlash the motor's Stribeck friction and ripple leave 0.08 to 0.12, a backlash of 0.1 arcmin (the smallest the
+controllers act on, :data:`controllers.compliance.SMALLEST_BACKLASH`) 0.20 to 0.21 with the stiffness 11 to 13 % low
+(docs/measurements.md)."""
+
+
+class UnexplainedTorqueError(ValueError):
+    """The motor-side fit leaves more of the torque unexplained than :data:`MOTOR_SIDE_MAX_UNEXPLAINED`."""
+
+
+MOTOR_SIDE_SCALE_RANGE = (0.5, 2.0)
+"""Range of the arm inertia's scale the motor-side fit searches (the datasheet model's arm against the robot's)."""
+
+_BOUNDS = (
+    np.array([math.log(0.1 * MOTOR_SIDE_STIFFNESS_GRID[0])] * 3 + [0.0] * 3 + [math.log(MOTOR_SIDE_SCALE_RANGE[0])]),
+    np.array([math.log(MAX_STIFFNESS)] * 3 + [MAX_VISCOUS] * 3 + [math.log(MOTOR_SIDE_SCALE_RANGE[1])]),
+)
+"""Bounds of the motor-side fit's log k, c and log s: a tenth of the stiffness grid's lowest to the plant's highest,
+the damping in the plant's range."""
+
+
+@dataclass(frozen=True, eq=False)
+class _MotorLines:
+    """One log's periods on the fitted DFT lines, the angles taken at the torques' instants.
+
+    Attributes:
+        omega: The lines' angular frequencies (rad/s), ``(L,)``.
+        angle: Each period's motor-side angle per line (rad s), ``(n, L, 3)``.
+        torque: Each period's torque per line (N m s), ``(n, L, 3)``.
+        sliding: Each period's sign of the rotor's rate (0 at rest) per line, ``(n, L, 3)``.
+        arm_inertia: The model's arm-side joint inertia at the log's pose (kg m^2), ``(3, 3)``.
+    """
+
+    omega: NDArray[np.float64]
+    angle: NDArray[np.complex128]
+    torque: NDArray[np.complex128]
+    sliding: NDArray[np.complex128]
+    arm_inertia: NDArray[np.float64]
+
+    def periods(self, chosen: slice) -> _MotorLines:
+        """These lines with only the ``chosen`` periods."""
+        return _MotorLines(self.omega, self.angle[chosen], self.torque[chosen], self.sliding[chosen], self.arm_inertia)
+
+
+def _motor_lines(
+    motor: NDArray[np.float64],
+    torque: NDArray[np.float64],
+    arm_inertia: NDArray[np.float64],
+    dt: float,
+    delay: float,
+    highest: float,
+) -> _MotorLines:
+    """The lines above 0 and up to ``highest`` (Hz) of ``n`` periods of motor-side angles (rad) and torques (N m),
+    ``(n, P, 3)`` each, the angles taken ``delay`` (s) earlier (a phase e^{-i omega d}); the Nyquist line left out."""
+    samples = motor.shape[1]
+    omega = 2.0 * np.pi * np.fft.rfftfreq(samples, dt)
+    angle = np.fft.rfft(motor, axis=1) * np.exp(-1j * omega * delay)[:, None]
+    rates = np.fft.irfft(1j * omega[:, None] * angle, n=samples, axis=1)
+    sliding = np.where(np.abs(rates) > REST_VELOCITY, np.sign(rates), 0.0)
+    fitted = (omega > 0.0) & (omega <= 2.0 * np.pi * highest)
+    if samples % 2 == 0:
+        fitted[-1] = False
+    return _MotorLines(
+        omega[fitted],
+        angle[:, fitted],
+        np.fft.rfft(torque, axis=1)[:, fitted],
+        np.fft.rfft(sliding, axis=1)[:, fitted],
+        np.asarray(arm_inertia, dtype=float),
+    )
+
+
+def _gearhead_torque(
+    lines: _MotorLines,
+    angle: NDArray[np.complex128],
+    stiffness: NDArray[np.float64],
+    damping: NDArray[np.float64],
+    scale: float,
+) -> NDArray[np.complex128]:
+    """The torque (N m s) the gearheads take from the rotors on each line, ``(L, 3)``, for the rotor angles ``angle``
+    ``(L, 3)``: with G = K + i omega C and the arm side -omega^2 s M at rest, the arm's angle is
+    theta = (G - omega^2 s M)^-1 G phi, so G (phi - theta) = -omega^2 G (G - omega^2 s M)^-1 s M phi."""
+    omega = lines.omega[:, None, None]
+    gearhead = np.diag(stiffness)[None] + 1j * omega * np.diag(damping)[None]
+    arm = -(omega**2) * scale * lines.arm_inertia[None]
+    twist = np.linalg.solve(gearhead + arm, (arm @ angle[:, :, None]))
+    return (gearhead @ twist)[..., 0]
+
+
+def _motor_side_solution(
+    blocks: Sequence[_MotorLines], nonlinear: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Given log k (3), c (3) and log s, the least squares of the rotor's linear parameters (J_m, f_v, f_c per
+    joint, ``(3, 3)``) and the residuals, real and imaginary parts stacked per joint, ``(2 L_total, 3)``."""
+    stiffness, damping, scale = np.exp(nonlinear[:3]), nonlinear[3:6], float(np.exp(nonlinear[6]))
+    columns, remainders = [], []
+    for lines in blocks:
+        angle = lines.angle.mean(axis=0)
+        remainders.append(lines.torque.mean(axis=0) - _gearhead_torque(lines, angle, stiffness, damping, scale))
+        omega = lines.omega[:, None]
+        columns.append(np.stack([-(omega**2) * angle, 1j * omega * angle, lines.sliding.mean(axis=0)], axis=-1))
+    rows, remainder = np.concatenate(columns), np.concatenate(remainders)
+    linear, residual = np.empty((3, 3)), np.empty((2 * len(remainder), 3))
+    for joint in range(3):
+        real_rows = np.vstack([rows[:, joint].real, rows[:, joint].imag])
+        real_torque = np.concatenate([remainder[:, joint].real, remainder[:, joint].imag])
+        linear[joint] = np.linalg.lstsq(real_rows, real_torque, rcond=None)[0]
+        residual[:, joint] = real_torque - real_rows @ linear[joint]
+    return linear, residual
+
+
+def _fit_motor_side(blocks: Sequence[_MotorLines], start: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The nonlinear least squares over log k, c and log s from ``start`` (variable projection: the rotor's linear
+    parameters solved inside)."""
+    found = scipy.optimize.least_squares(
+        lambda x: _motor_side_solution(blocks, x)[1].ravel(), start, x_scale="jac", method="trf", bounds=_BOUNDS
+    )
+    return found.x
+
+
+def _motor_side_starts(blocks: Sequence[_MotorLines]) -> list[NDArray[np.float64]]:
+    """Where the motor-side fit starts: each stiffness of :data:`MOTOR_SIDE_STIFFNESS_GRID` shared by the joints,
+    the model's arm inertia unscaled, the damping at :data:`MOTOR_SIDE_START_DAMPING_RATIO` against the rotor
+    inertia solved at that stiffness."""
+
+    def start_at(stiffness: float) -> NDArray[np.float64]:
+        x = np.concatenate([np.full(3, math.log(stiffness)), np.zeros(3), [0.0]])
+        rotor = np.clip(_motor_side_solution(blocks, x)[0][:, 0], 1e-6, None)
+        x[3:6] = np.clip(2.0 * MOTOR_SIDE_START_DAMPING_RATIO * np.sqrt(stiffness * rotor), 0.0, MAX_VISCOUS)
+        return x
+
+    return [start_at(float(k)) for k in MOTOR_SIDE_STIFFNESS_GRID]
+
+
+def _best_motor_side_fit(blocks: Sequence[_MotorLines]) -> NDArray[np.float64]:
+    """The least squares from every start (:func:`_motor_side_starts`) with the least squared residual: a mode put
+    at the wrong frequency fits worse than none, so the cost between the starts is no guide to the basin."""
+    fits = [_fit_motor_side(blocks, start) for start in _motor_side_starts(blocks)]
+    return fits[int(np.argmin([np.sum(_motor_side_solution(blocks, x)[1] ** 2) for x in fits]))]
+
+
+def fit_motor_side_compliance(
+    logs: Sequence[DriveLog],
+    arm_inertias: Sequence[NDArray[np.float64]],
+    period: float = MULTISINE_PERIOD,
+    torque_delay: float = MEASURED_TORQUE_DELAY,
+    settle_periods: int = SETTLE_PERIODS,
+    highest_line: float = FIT_BAND_TOP,
+) -> ComplianceFit:
+    """Fit the two-mass drives to periodic excitation logs of the motor side alone (docs/design.md section 7,
+    "From the motor side alone").
+
+    Per DFT line omega of the periods' mean the measured torque is the rotor's and the gearheads',
+
+        tau = (-omega^2 J_m + i omega F_v) phi + F_c S - omega^2 G (G - omega^2 s M)^-1 s M phi,
+
+    G = K + i omega C, M each log's arm-side joint inertia from the model and s one scale on it for every pose (the
+    model's arm is a few per cent off the robot's), S the line of sign(phi_dot). The motor-side response to torque
+    has its antiresonances where det(G - omega^2 s M) = 0 and its resonances above them; low lines see
+    J_m + s M, high ones J_m. K, C and s are found by nonlinear least squares (J_m, F_v, F_c, linear, solved inside),
+    from several shared stiffnesses, the best kept. The backlash is not identified (taken as 0).
+
+    Args:
+        logs: Logs of a periodic excitation at rest poses (motor-side angles and torques), each at least
+            ``settle_periods + 2`` periods long, all with the same sample period.
+        arm_inertias: The model's arm-side joint inertia M (kg m^2, ``(3, 3)``, no rotor in it) at each log's pose.
+        period: The excitation's period (s), a whole number of samples.
+        torque_delay: Age of a torque reading relative to its angle sample (s).
+        settle_periods: Periods at each log's start left out.
+        highest_line: Highest DFT line fitted (Hz).
+
+    Returns:
+        The fit, its columns :data:`MOTOR_SIDE_PARAMETER_NAMES`, with the arm inertia's scale; standard errors from
+        the fits to single periods, as :func:`fit_compliance`'s.
+
+    Raises:
+        ValueError: without logs, for an inertia per log missing or not (3, 3), on logs too short, or if the fit's
+            rotor inertia or stiffness is not positive.
+        UnexplainedTorqueError: if the fit leaves more than :data:`MOTOR_SIDE_MAX_UNEXPLAINED` of a joint's torque
+            unexplained.
+    """
+    samples = _samples_per_period(logs, period)
+    if len(arm_inertias) != len(logs) or any(np.shape(m) != (3, 3) for m in arm_inertias):
+        raise ValueError(
+            f"need one (3, 3) arm-side inertia per log ({len(logs)}), got shapes {[np.shape(m) for m in arm_inertias]}"
+        )
+    dt = logs[0].dt
+    blocks = [
+        _motor_lines(*_periods(log, samples, settle_periods, load_side=False), inertia, dt, torque_delay, highest_line)
+        for log, inertia in zip(logs, arm_inertias, strict=True)
+    ]
+    periods = min(len(lines.angle) for lines in blocks)
+    nonlinear = _best_motor_side_fit(blocks)
+    linear, residual = _motor_side_solution(blocks, nonlinear)
+
+    def estimate_of(x: NDArray[np.float64], solved: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.column_stack([solved, np.exp(x[:3]), x[3:6], np.full(3, np.exp(x[6]))])
+
+    estimate = estimate_of(nonlinear, linear)
+    per_period = []
+    for n in range(periods):
+        single = [lines.periods(slice(n, n + 1)) for lines in blocks]
+        x = _fit_motor_side(single, nonlinear)
+        per_period.append(estimate_of(x, _motor_side_solution(single, x)[0]))
+    standard_errors = np.std(per_period, axis=0, ddof=1) / np.sqrt(periods)
+    rotor_inertia, stiffness, damping = estimate[:, 0], estimate[:, 3], estimate[:, 4]
+    if np.any(rotor_inertia <= 0.0) or np.any(stiffness <= 0.0):
+        raise ValueError(
+            f"the fit gave a rotor inertia {rotor_inertia.tolist()} kg m^2 or a stiffness {stiffness.tolist()} N m/rad "
+            "that is not positive: the logs do not excite the drives' mode"
+        )
+    lines = sum(len(b.omega) for b in blocks)
+
+    def rms(amplitude: NDArray[np.complex128]) -> NDArray[np.float64]:
+        """Per joint the RMS over a period (N m) of signals given by their lines (N m s), mean square over the logs
+        (Parseval: each line below the Nyquist rate holds twice its share)."""
+        return np.sqrt(2.0 * np.sum(np.abs(amplitude) ** 2, axis=0) / len(blocks)) / samples
+
+    residual_rms = rms(residual[:lines] + 1j * residual[lines:])
+    unexplained = residual_rms / rms(np.concatenate([b.torque.mean(axis=0) for b in blocks]))
+    if np.any(unexplained > MOTOR_SIDE_MAX_UNEXPLAINED):
+        raise UnexplainedTorqueError(
+            f"the two-mass model leaves {np.round(unexplained, 3).tolist()} of the fitted torque per joint unexplained "
+            f"(at most {MOTOR_SIDE_MAX_UNEXPLAINED:g}): the drives are not two linear masses (a backlash?), and the "
+            "motor side alone does not identify them"
+        )
+    return ComplianceFit(
+        compliance=DriveCompliance(tuple(rotor_inertia), tuple(stiffness), tuple(np.maximum(damping, 0.0))),
+        estimate=estimate[:, :5],
+        standard_errors=standard_errors[:, :5],
+        residual_rms=residual_rms,
+        periods=periods,
+        logs=len(logs),
+        parameter_names=MOTOR_SIDE_PARAMETER_NAMES,
+        arm_inertia_scale=(float(estimate[0, 5]), float(standard_errors[0, 5])),
     )

@@ -273,9 +273,9 @@ def argument_parser() -> CommandParser:
         nargs="+",
         default=None,
         metavar="FILE",
-        help="with --log: the compliance excitation's logs (CSV or Parquet with load_angle columns; --save-logs "
-        "writes them as compliance_NN for a compliant plant with an arm encoder), to identify the drives' stiffness "
-        "and damping on, read at their own sample period",
+        help="with --log: the compliance excitation's logs (CSV or Parquet, all with load_angle columns or all "
+        "without them, then from the motor side alone; --save-logs writes them as compliance_NN for a compliant "
+        "plant), to identify the drives' stiffness and damping on, read at their own sample period",
     )
     parser.add_argument(
         "--torque-age",
@@ -394,8 +394,8 @@ def save_logs(
     run: IdentificationRun, geometry: DeltaGeometry, masses: DeltaMasses, folder: Path, suffix: str
 ) -> tuple[Path, list[Path]]:
     """Write the run's logs as a robot's logger would (excitation_01 ... and, last, validation), the compliance
-    excitation's (compliance_01 ..., for compliant drives with an arm encoder: CSV when ``suffix`` is a bag's, which
-    holds no load-side angle) and the robot file ``robot.toml``, what ``--log``, ``--compliance-log`` and
+    excitation's (compliance_01 ..., for identified compliant drives: CSV when ``suffix`` is a bag's, which holds one
+    angle per joint) and the robot file ``robot.toml``, what ``--log``, ``--compliance-log`` and
     ``--robot`` read; returns the robot file and the compliance logs."""
     *excitation, validation = run.logs
     digits = max(2, len(str(len(excitation))))  # the names sort in run order, the held-out one last

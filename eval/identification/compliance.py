@@ -8,8 +8,8 @@ motor-side angles read, the modes found where the response peaks; it judges the 
 The excitation holds the robot at rest poses (a soft joint PD on the motor encoders plus MKH's gravity torque, stiff
 enough to hold, soft enough that the gearhead mode leaves it stable) and adds a random-phase multisine torque per
 drive (:func:`delta_env.excitation.multisine_torques`); the drive's trace records the motor-side encoders, the
-load-side encoders and the measured torques at the physics step (:class:`~controllers.identification.DriveLog`
-with ``load_angles``).
+load-side encoders where the drives have them and the measured torques at the physics step
+(:class:`~controllers.identification.DriveLog`, with ``load_angles`` or without).
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.compliance import DriveCompliance, first_mode_map
+from controllers.compliance import DriveCompliance, first_mode_map, joint_space_inertia
 from controllers.dynamics import DeltaDynamics
 from controllers.identification import ComplianceFit, DriveLog, fit_compliance
-from controllers.identification.compliance import FIT_BAND_TOP, SETTLE_PERIODS
+from controllers.identification.compliance import FIT_BAND_TOP, SETTLE_PERIODS, fit_motor_side_compliance
 from delta_env import kinematics
 from delta_env.config import RATED_PAYLOAD, PlantConfig, PlantRealism
 from delta_env.env import DIVERGENCE_LOOP_GAP, encoder_steps
@@ -86,18 +86,16 @@ def run_compliance_excitation(spec: ComplianceExcitationSpec, plant: PlantConfig
 
     Returns:
         The trace, a :class:`~controllers.identification.DriveLog` at the plant's physics step with
-        ``motor_angles`` and ``load_angles``.
+        ``motor_angles``, and ``load_angles`` where the drives have a load-side encoder.
 
     Raises:
-        ValueError: if the plant has no compliant drives or no load-side encoder.
+        ValueError: if the plant has no compliant drives.
         RuntimeError: if the plant diverges.
     """
     compliance = plant.realism.compliance
-    if compliance is None or compliance.load_encoder_bits is None:
-        raise ValueError(
-            "the compliance excitation needs compliant drives with a load-side encoder "
-            "(PlantRealism.compliance.load_encoder_bits)"
-        )
+    if compliance is None:
+        raise ValueError("the compliance excitation needs compliant drives (PlantRealism.compliance)")
+    load_side = compliance.load_encoder_bits is not None
     motor_step, load_step = encoder_steps(plant.realism)
     theta = kinematics.inverse(plant.geometry, np.asarray(spec.pose, dtype=float))
     samples_per_period = round(spec.period / CONTROL_PERIOD)
@@ -123,14 +121,17 @@ def run_compliance_excitation(spec: ComplianceExcitationSpec, plant: PlantConfig
         for _ in range(substeps):
             simulated.step(action, 1)
             motor[row] = read(simulated.rotor_angle_values(), motor_step)
-            load[row] = read(simulated.joint_angle_values(), load_step)
+            if load_side:
+                load[row] = read(simulated.joint_angle_values(), load_step)
             torque[row] = simulated.data.actuator_force + rng.normal(0.0, plant.realism.torque_noise_std, 3)
             command[row] = action
             row += 1
         if not simulated.loop_gap() <= DIVERGENCE_LOOP_GAP:
             raise RuntimeError(f"the plant diverged at step {step + 1} of compliance excitation seed {spec.seed}")
     # command k is the one sent with sample k and held until sample k + 1: the action of the step after row k
-    return DriveLog(motor, torque, command[1:], plant.timestep, motor_angles=motor, load_angles=load)
+    return DriveLog(
+        motor, torque, command[1:], plant.timestep, motor_angles=motor, load_angles=load if load_side else None
+    )
 
 
 RESPONSE_BAND = (100.0, 450.0)
@@ -361,11 +362,16 @@ def mode_map_lines(modes: ModeMap) -> list[str]:
     return lines
 
 
-COMPLIANCE_METHOD = (
+_EXCITATION_METHOD = (
     "per compliance excitation pose: a joint PD (kp {kp:g} N m/rad, kd {kd:g} N m s/rad) on the motor encoders plus "
     "MKH's gravity torque holds the pose, a random-phase multisine ({low:g} to {high:g} Hz, {rms:g} N m RMS per "
     "drive, period {period:g} s) drives the rotors, the drive's trace recorded at the physics step; after {settle} "
-    "period(s), per joint least squares of the motor "
+    "period(s), "
+)
+"""What both fits' provenance says of the excitation."""
+
+COMPLIANCE_METHOD = _EXCITATION_METHOD + (
+    "per joint least squares of the motor "
     "side's tau = J_m phi_ddot + f_v phi_dot + f_c sign(phi_dot) + k (phi - theta - dead band) + c (phi_dot - "
     "theta_dot) + b on the periods' mean (the dead band and the friction's sign: the mean of each period's), rates "
     "from the DFT (lines up to {top:g} Hz), torques {delay:g} s older than their angles, the backlash searched; "
@@ -373,25 +379,50 @@ COMPLIANCE_METHOD = (
 )
 """How the compliance was identified (the provenance's ``compliance.method``)."""
 
+MOTOR_SIDE_METHOD = _EXCITATION_METHOD + (
+    "from the motor side alone (no load-side encoder): per DFT line up to {top:g} Hz of the periods' mean, "
+    "tau = (-w^2 J_m + i w f_v) phi + f_c S(sign phi_dot) - w^2 G (G - w^2 s M)^-1 s M phi with G = k + i w c and M "
+    "the datasheet model's arm-side joint inertia (rod forearms) at each pose, k, c and the scale s by nonlinear "
+    "least squares (J_m, f_v, f_c linear inside), torques {delay:g} s older than their angles; the backlash not "
+    "identified (taken as 0); standard errors from the spread of the fits to single periods"
+)
+"""How the compliance was identified without a load-side encoder (the provenance's ``compliance.method``)."""
+
+
+def pose_arm_inertia(plant: PlantConfig, pose: tuple[float, float, float]) -> NDArray[np.float64]:
+    """The arm-side joint inertia (kg m^2), ``(3, 3)``, at the platform position ``pose`` (m) of the datasheet model
+    with rod forearms (the rotor not in it: its rho1 is 1): what the motor-side fit scales (docs/design.md
+    section 7, "From the motor side alone")."""
+    theta = kinematics.inverse(plant.geometry, np.asarray(pose, dtype=float))
+    return joint_space_inertia(robot_model(plant, forearm_rods=True), theta)
+
 
 def identify_compliance(
     plant: PlantConfig, seed: int, workers: int = 1
 ) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict]:
     """Run the compliance excitation at :data:`COMPLIANCE_POSES` on ``plant`` (``workers`` processes of the one
-    executor, :func:`eval.processes.run_jobs`) and fit its drives.
+    executor, :func:`eval.processes.run_jobs`) and fit its drives: with the load-side angles where the drives have a
+    load-side encoder (:func:`~controllers.identification.fit_compliance`), else from the motor side alone on the
+    datasheet model's arm (:func:`~controllers.identification.compliance.fit_motor_side_compliance`,
+    :func:`pose_arm_inertia`).
 
     Returns:
         The fit, the logs and the provenance (method, poses, seeds, the fit's summary).
 
     Raises:
-        ValueError: without compliant drives with a load-side encoder.
+        ValueError: without compliant drives.
     """
     seeds = [int(s) for s in np.random.SeedSequence([seed, 36]).generate_state(len(COMPLIANCE_POSES))]
     specs = [ComplianceExcitationSpec(seed=s, pose=pose) for s, pose in zip(seeds, COMPLIANCE_POSES, strict=True)]
     logs = tuple(run_jobs(functools.partial(run_compliance_excitation, plant=plant), specs, workers=workers))
-    fit = fit_compliance(logs, torque_delay=plant.timestep)
+    if all(log.load_angles is not None for log in logs):
+        fit, method = fit_compliance(logs, torque_delay=plant.timestep), COMPLIANCE_METHOD
+    else:
+        inertias = [pose_arm_inertia(plant, spec.pose) for spec in specs]
+        fit = fit_motor_side_compliance(logs, inertias, torque_delay=plant.timestep)
+        method = MOTOR_SIDE_METHOD
     spec = specs[0]
-    method = COMPLIANCE_METHOD.format(
+    method = method.format(
         kp=HOLD_KP,
         kd=HOLD_KD,
         low=spec.band[0],

@@ -87,8 +87,7 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
         return ["Rigid drives: no compliance."]
     if result.compliance is None:
         return [
-            f"{result.provenance['compliance']['method'].capitalize()} (the stiffness needs the arm's angle, "
-            "docs/design.md section 7).",
+            f"{result.provenance['compliance']['method'].capitalize()} (docs/design.md section 7).",
             "",
             *_mode_map_lines(run, DriveCompliance.nominal(), "the data sheet's drives"),
         ]
@@ -105,6 +104,8 @@ def _compliance_lines(run: IdentificationRun, truth: dict[str, Any] | None) -> l
         "|---|---|---|---|---|" + ("---|---|" if true else ""),
     ]
     for index, (name, unit) in enumerate(zip(COMPLIANCE_PARAMETER_NAMES, COMPLIANCE_UNITS, strict=True)):
+        if name not in fit["estimate"]:
+            continue  # the backlash, from the motor side alone
         scale = 1.0 / ARCMIN if name == "backlash" else 1.0
         values = scale * np.array(fit["estimate"][name])
         errors = scale * np.array(fit["standard_errors"][name])

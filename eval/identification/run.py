@@ -30,10 +30,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import PDController
+from controllers.compliance import joint_space_inertia
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
-    COMPLIANCE_PARAMETER_NAMES,
     FRICTION_VELOCITY_THRESHOLD,
     REST_VELOCITY,
     RHO1_GRID,
@@ -57,6 +57,7 @@ from controllers.identification import (
     read_log,
 )
 from controllers.identification.bags import BagTopics, is_bag, read_bag
+from controllers.identification.compliance import UnexplainedTorqueError, fit_motor_side_compliance
 from controllers.identification.logs import read_table_log
 from controllers.servo import ResonanceNotch
 from delta_env.config import PlantConfig
@@ -226,7 +227,12 @@ def run_identification(
 
     # Compliant drives are identified first, at rest poses: the excitation's PD then notches their modes, as a servo
     # drive's resonance filter is set before it moves the robot far and fast (docs/design.md section 7).
-    drives = _drive_compliance(plant, seed, workers)
+    unidentified = MOTOR_SIDE_UNIDENTIFIED
+    try:
+        drives = _drive_compliance(plant, seed, workers)
+    except UnexplainedTorqueError as error:
+        logger.warning("compliant drives not identified: %s", error)
+        drives, unidentified = None, f"{MOTOR_SIDE_UNIDENTIFIED}: {error}"
     notch = (
         None if drives is None else ResonanceNotch(drives[0].compliance.rotor_inertia, drives[0].compliance.stiffness)
     )
@@ -259,24 +265,30 @@ def run_identification(
         return _with_compliance(run, *drives)
     if plant.realism.compliance is None:
         return run
-    logger.warning("compliant drives without a load-side encoder: their stiffness and damping are not identified")
-    provenance = {**run.result.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
+    provenance = {**run.result.provenance, "compliance": {"method": unidentified}}
     return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
 
 
 def _drive_compliance(
     plant: PlantConfig, seed: int, workers: int
 ) -> tuple[ComplianceFit, tuple[DriveLog, ...], dict] | None:
-    """The compliance fit of :func:`eval.identification.compliance.identify_compliance` for a plant whose compliant
-    drives carry a load-side encoder, else None (rigid drives, or no encoder to identify them with)."""
-    compliance = plant.realism.compliance
-    if compliance is None or compliance.load_encoder_bits is None:
+    """The compliance fit of :func:`eval.identification.compliance.identify_compliance` for a plant with compliant
+    drives (from the load side with a load-side encoder, else from the motor side alone), None for rigid drives."""
+    if plant.realism.compliance is None:
         return None
     return identify_compliance(plant, seed, workers)
 
 
+MOTOR_SIDE_UNIDENTIFIED = (
+    "not identified: compliant drives without a load-side encoder that the motor side alone does not fit"
+)
+"""The provenance's ``compliance.method`` (with the fit's reason) of compliant drives whose motor-side fit left too
+much torque unexplained (:class:`~controllers.identification.compliance.UnexplainedTorqueError`: a backlash)."""
+
 NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
-"""The provenance's ``compliance.method`` of a compliant plant whose drives could not be identified."""
+"""The provenance's ``compliance.method`` of a compliant plant whose drives an identification before the motor-side
+fit left unidentified: such a cached file is outdated
+(:func:`eval.identification.parameter_files.outdated`)."""
 
 
 def _with_compliance(
@@ -285,9 +297,11 @@ def _with_compliance(
     """``run`` with the drives' compliance identified: in the result, its standard errors and provenance."""
     errors = {
         f"compliance.{name}_{joint + 1}": float(fit.standard_errors[joint, index])
-        for index, name in enumerate(COMPLIANCE_PARAMETER_NAMES)
+        for index, name in enumerate(fit.parameter_names)
         for joint in range(3)
     }
+    if fit.arm_inertia_scale is not None:
+        errors["compliance.arm_inertia_scale"] = fit.arm_inertia_scale[1]
     result = dataclasses.replace(
         run.result,
         compliance=fit.compliance,
@@ -334,16 +348,18 @@ def identify_logs(
         topics: What to read from the bags; None: joint states on ``/joint_states``, the first three joints, no
             commands.
         compliance_paths: Logs of the compliance excitation (:mod:`eval.identification.compliance`: the multisine
-            at rest poses, with ``load_angle`` columns), CSV or Parquet tables, to identify compliant drives on; none
-            for rigid drives.
+            at rest poses), CSV or Parquet tables, to identify compliant drives on: all with ``load_angle`` columns,
+            or none (then from the motor side alone); none for rigid drives.
         compliance_period: The sample period (s) those logs are resampled onto; None: their own (the median step
             of the first one's times; a simulated trace's is the physics step), which keeps the drive mode's band.
         torque_delay: Age of every log's torque readings against their angles (s): the drive's timing (a simulated
             drive's is its physics step, :data:`~delta_env.sensors.MEASURED_TORQUE_DELAY` by default).
 
     Raises:
-        ValueError: for fewer than 2 logs or a compliance log that is a ROS 2 bag (a JointState carries no load-side
-            angle); LogFileError for a bad log; ValueError naming the robot file for a bad one.
+        ValueError: for fewer than 2 logs, a compliance log that is a ROS 2 bag (a JointState carries no load-side
+            angle), or compliance logs of which only some have load-side angles; LogFileError for a bad log;
+            ValueError naming the robot file for a bad one; UnexplainedTorqueError from the motor side alone on drives
+            it does not fit (a backlash).
     """
     start = time.perf_counter()
     paths = [Path(path) for path in paths]
@@ -390,10 +406,25 @@ def identify_logs(
         return run
     first = read_table_log(Path(compliance_paths[0]), compliance_period)
     compliance_logs = (first, *(read_table_log(Path(path), first.dt) for path in compliance_paths[1:]))
-    fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
+    load_side = [log.load_angles is not None for log in compliance_logs]
+    if all(load_side):
+        fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
+        method = "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance)"
+    elif not any(load_side):
+        arm = DeltaDynamics.of_robot(geometry, masses, forearm_rods=True)
+        inertias = [joint_space_inertia(arm, log.motor_side_angles.mean(axis=0)) for log in compliance_logs]
+        fit = fit_motor_side_compliance(compliance_logs, inertias, torque_delay=torque_delay)
+        method = (
+            "from the motor side alone (controllers.identification.compliance.fit_motor_side_compliance), the arm's "
+            "inertia the robot file's datasheet model with rod forearms at each log's mean angles"
+        )
+    else:
+        raise ValueError(
+            "the compliance logs must all have load_angle columns or none, got them in "
+            f"{[str(path) for path, has in zip(compliance_paths, load_side, strict=True) if has]} only"
+        )
     provenance = {
-        "method": "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance) "
-        f"on the logs' whole periods; torques {torque_delay:g} s older than their angles",
+        "method": f"{method} on the logs' whole periods; torques {torque_delay:g} s older than their angles",
         "logs": [{"path": str(path), "sha256": _sha256(Path(path))} for path in compliance_paths],
         "fit": fit.summary(),
     }
