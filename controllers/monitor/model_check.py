@@ -62,6 +62,7 @@ from controllers.monitor.tuning import (
     HELD_MASS_STD,
     SCATTER_RATE,
     SLIP_EVIDENCE,
+    SLIP_MASS_CONFIDENCE,
     SLIP_MIN_MASS,
     SLIP_PRECISION,
     SLIP_SETTLE,
@@ -348,11 +349,12 @@ def _check_payload(
     testing = False
     if (check.sample - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
         held = check.held_moment / check.held_information
-        if check.held_information**-0.5 < HELD_MASS_STD:
+        held_std = check.held_information**-0.5
+        if held_std < HELD_MASS_STD:
             check.held_mass = held
             check.held_known = True
         # test "gone" against "held" once the mass held is known well enough to tell them apart
-        if held >= SLIP_MIN_MASS and check.held_information**-0.5 < SLIP_PRECISION * held:
+        if held + SLIP_MASS_CONFIDENCE * held_std >= SLIP_MIN_MASS and held_std < SLIP_PRECISION * held:
             testing = True
             ratio = held * (0.5 * held * information - moment)
             cap = SLIP_EVIDENCE / check.onset_samples

@@ -93,6 +93,12 @@ motion: within [0, b] on the motion's side (docs/design.md section 6, "Fault mon
 SLIP_MIN_MASS = 0.3
 """Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
 
+SLIP_MASS_CONFIDENCE = 2.0
+"""Standard errors of the mass held by which its estimate may fall short of :data:`SLIP_MIN_MASS` and the loss still
+be looked for: the check starts once the upper confidence bound held + 2 sigma (one-sided 97.7 %) reaches it, so that
+an object of the lightest mass is tested although its estimate, a random variable about its true mass, falls below
+it about half the time (docs/design.md section 6, "Slips")."""
+
 HELD_MASS_STD = 0.05
 """Standard error (kg) below which the mass held is taken out of the collision check's residual (before, the part
 along phi that a mass the cup can hold explains is left out): 0.05 kg times phi is about 1 N m."""
