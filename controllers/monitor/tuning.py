@@ -135,7 +135,9 @@ the CUSUM's."""
 
 CORRELATION_RATE = 0.002
 """Weight of each sample in the running means from which the slip check measures its residual's correlation (a
-memory of about 500 samples); the window statistic waits for that many samples after a reset."""
+memory of about 500 samples, about 10 windows of :data:`SLIP_WINDOW` samples); the window statistic weighs a window
+of n samples once n / (CORRELATION_RATE SLIP_WINDOW) samples have been learned after a reset, as many windows of its
+length."""
 
 SLIP_SETTLE = 0.03
 """Time after the pick (s) before the mass held is trusted as a reference."""
