@@ -91,7 +91,8 @@ holds any torque up to its breakaway: at 3 g this friction made most of the heal
 motion: within [0, b] on the motion's side (docs/design.md section 6, "Fault monitor")."""
 
 SLIP_MIN_MASS = 0.3
-"""Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
+"""Lightest mass held (kg) whose loss the consistency check looks for, asked of the mass's upper confidence bound
+(:data:`SLIP_MASS_CONFIDENCE`); below, the torque noise hides it."""
 
 SLIP_MASS_CONFIDENCE = 2.0
 """Standard errors of the mass held by which its estimate may fall short of :data:`SLIP_MIN_MASS` and the loss still
