@@ -636,6 +636,26 @@ def _pd_on_a_randomized_plant(setup: ControllerSetup, fault: FaultSpec, seed: in
     return record, injected
 
 
+def test_the_loss_of_an_object_just_above_the_lightest_tested_mass_estimated_below_it_is_found(
+    controller_setup: ControllerSetup,
+) -> None:
+    # A 0.301 kg object lost mid-carry under RLS(ref) on a randomized plant: its mass held came out just under
+    # SLIP_MIN_MASS (0.3 kg), so the check tested nothing and the loss was never found. The check now starts on the
+    # mass's upper confidence bound (SLIP_MASS_CONFIDENCE standard errors above the estimate): found in 13 ms.
+    from delta_env.scenario import preset
+    from eval.faults.__main__ import with_faults
+    from eval.work import timed_controller
+
+    scenario = with_faults(preset("randomized"), (FaultSpec("slip", carry_fraction=(0.3, 0.7)),))
+    scenario = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, payload_mass_range=(0.3, 0.4)))
+    env = DeltaPickPlaceEnv(scenario=scenario)
+    record = run_episode(env, timed_controller(env, "mid_f_rls_ref", controller_setup), 409)
+    (injected,) = env.injected_faults
+    assert 0.3 <= injected.size <= 0.31
+    assert [fault.kind for fault in record.detected_faults] == ["slip"]
+    assert 0.0 <= record.detected_faults[0].time_s - injected.start_s <= 0.026  # twice the 13 ms measured
+
+
 @pytest.mark.parametrize(("seed", "withheld"), [(15, 6.7), (16, 7.9)])
 def test_a_drive_that_withholds_a_few_n_m_from_a_pd_is_a_drive_fault(
     controller_setup: ControllerSetup, seed: int, withheld: float

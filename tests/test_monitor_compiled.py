@@ -407,7 +407,16 @@ def test_the_window_statistic_is_the_largest_window_ratio_over_the_measured_vari
             *(np.minimum(ratios[SLIP_WINDOW - n :] / inflation[n - 1], cap).sum() for n in range(1, run_samples + 1)),
         )
         assert _window_evidence(state, cap) == pytest.approx(expected, rel=1e-12)
-    state.learned_samples = int(1.0 / CORRELATION_RATE) - 1  # not yet learned: no evidence
+    # a window of n samples waits for n / (CORRELATION_RATE SLIP_WINDOW) learned samples (10 n): after 100, the
+    # windows of up to 10 samples; after none, no evidence
+    state.learned_samples = 100
+    longest = int(100 * CORRELATION_RATE * SLIP_WINDOW)
+    assert longest == 10
+    expected = max(
+        0.0, *(np.minimum(ratios[SLIP_WINDOW - n :] / inflation[n - 1], cap).sum() for n in range(1, longest + 1))
+    )
+    assert _window_evidence(state, cap) == pytest.approx(expected, rel=1e-12)
+    state.learned_samples = 0
     assert _window_evidence(state, cap) == 0.0
 
 

@@ -62,6 +62,7 @@ from controllers.monitor.tuning import (
     HELD_MASS_STD,
     SCATTER_RATE,
     SLIP_EVIDENCE,
+    SLIP_MASS_CONFIDENCE,
     SLIP_MIN_MASS,
     SLIP_PRECISION,
     SLIP_SETTLE,
@@ -261,12 +262,13 @@ def _window_evidence(check: np.record, cap: float) -> float:
     """The window statistic: the largest log-likelihood ratio of "gone" over the current run's last n samples,
     n up to :data:`SLIP_WINDOW`, each sum of the run's terms (the CUSUM's, of the corrected residual) divided by the
     window's variance inflation kappa_n = E[(sum of deviations)^2] / E[sum of information] that the residual's
-    correlation gives (1 for white samples); each term capped at ``cap``. 0 until the correlation has been learned
-    over 1 / :data:`CORRELATION_RATE` samples."""
-    if check.learned_samples * CORRELATION_RATE < 1.0:
-        return 0.0
+    correlation gives (1 for white samples); each term capped at ``cap``. A window of n samples waits until
+    n / (:data:`CORRELATION_RATE` :data:`SLIP_WINDOW`) samples have been learned: as many windows of its length as
+    the running means' memory (1 / :data:`CORRELATION_RATE` samples) holds of the longest one."""
     best = 0.0
     for length in range(1, check.run_samples + 1):
+        if check.learned_samples * CORRELATION_RATE * SLIP_WINDOW < length:
+            break
         information = check.information_sums[length - 1]
         if not information > 0.0:  # no run of this length learned yet (numba raises on a division by zero)
             continue
@@ -348,11 +350,12 @@ def _check_payload(
     testing = False
     if (check.sample - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
         held = check.held_moment / check.held_information
-        if check.held_information**-0.5 < HELD_MASS_STD:
+        held_std = check.held_information**-0.5
+        if held_std < HELD_MASS_STD:
             check.held_mass = held
             check.held_known = True
         # test "gone" against "held" once the mass held is known well enough to tell them apart
-        if held >= SLIP_MIN_MASS and check.held_information**-0.5 < SLIP_PRECISION * held:
+        if held + SLIP_MASS_CONFIDENCE * held_std >= SLIP_MIN_MASS and held_std < SLIP_PRECISION * held:
             testing = True
             ratio = held * (0.5 * held * information - moment)
             cap = SLIP_EVIDENCE / check.onset_samples

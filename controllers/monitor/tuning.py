@@ -91,7 +91,14 @@ holds any torque up to its breakaway: at 3 g this friction made most of the heal
 motion: within [0, b] on the motion's side (docs/design.md section 6, "Fault monitor")."""
 
 SLIP_MIN_MASS = 0.3
-"""Lightest mass held (kg) whose loss the consistency check looks for; below, the torque noise hides it."""
+"""Lightest mass held (kg) whose loss the consistency check looks for, asked of the mass's upper confidence bound
+(:data:`SLIP_MASS_CONFIDENCE`); below, the torque noise hides it."""
+
+SLIP_MASS_CONFIDENCE = 2.0
+"""Standard errors of the mass held by which its estimate may fall short of :data:`SLIP_MIN_MASS` and the loss still
+be looked for: the check starts once the upper confidence bound held + 2 sigma (one-sided 97.7 %) reaches it, so that
+an object of the lightest mass is tested although its estimate, a random variable about its true mass, falls below
+it about half the time (docs/design.md section 6, "Slips")."""
 
 HELD_MASS_STD = 0.05
 """Standard error (kg) below which the mass held is taken out of the collision check's residual (before, the part
@@ -129,7 +136,9 @@ the CUSUM's."""
 
 CORRELATION_RATE = 0.002
 """Weight of each sample in the running means from which the slip check measures its residual's correlation (a
-memory of about 500 samples); the window statistic waits for that many samples after a reset."""
+memory of about 500 samples, about 10 windows of :data:`SLIP_WINDOW` samples); the window statistic weighs a window
+of n samples once n / (CORRELATION_RATE SLIP_WINDOW) samples have been learned after a reset, as many windows of its
+length."""
 
 SLIP_SETTLE = 0.03
 """Time after the pick (s) before the mass held is trusted as a reference."""
