@@ -528,8 +528,9 @@ def check_sample(
         state.collision_samples = 0
         return found | (COLLIDING if state.collision else 0)
     explained = held_then and other_magnitude <= FORCE_REFERENCE
-    # nothing moves: the reference still at the checked sample and every joint slower than REST_RATE
-    still = not np.any(state.pending_reference[head, 1:])
+    # nothing moves: the reference still at the checked sample, every joint slower than REST_RATE, and no load let go
+    # within the smoothing window (a place: the arm springs back from the weight its drives held)
+    still = not np.any(state.pending_reference[head, 1:]) and not (straddles and not holding)
     for joint in range(3):
         still = still and abs(terms[2, joint]) < REST_RATE
     found |= _check_force(state, force, magnitude, explained, quiet_then, still)
