@@ -51,6 +51,7 @@ from controllers.monitor.tuning import (
     MONITOR_JERK_STD,
     PLANT_STEP_LAG,
     PUSH_SHOWN_SHARE,
+    REST_FORCE_REFERENCE,
     REST_RATE,
     SENSOR_QUIET,
     SLIP_WINDOW,
@@ -901,6 +902,33 @@ def test_a_known_force_on_the_moving_platform_is_estimated_and_found_when_its_cu
     samples = math.floor(FORCE_EVIDENCE / (found - FORCE_REFERENCE)) + 1 if found > FORCE_REFERENCE else None
     expected = [] if samples is None else [("collision", None, 40 + SMOOTHER_LAG + samples - 1 + 3)]
     assert _found(monitor, collisions=True) == expected
+
+
+@pytest.mark.parametrize(("seen", "found"), [(32.0, False), (50.0, True)])
+def test_a_steady_force_on_the_resting_arm_counts_over_the_resting_drift(seen: float, found: bool) -> None:
+    # A force on the platform of the resting arm, scaled so that the check sees ``seen`` N of it beyond what the
+    # joints' friction at rest may hold (+-b_i, the smoothed rates nil): where nothing moves the CUSUM forgives
+    # REST_FORCE_REFERENCE (40 N) a sample, not the moving arm's FORCE_REFERENCE (60 N), so 50 N is a collision (over
+    # the moving arm's drift it never was) and 32 N is not.
+    assert 32.0 < REST_FORCE_REFERENCE < 50.0 < FORCE_REFERENCE
+    direction = np.array([0.6, -0.48, 0.64]) / np.linalg.norm([0.6, -0.48, 0.64])
+    pose = 0.4 + ERROR
+    _, _, force_map = DYNAMICS.torque_regressor_and_force_map(pose, np.zeros(3), np.zeros(3))
+    joint_torque = np.linalg.solve(force_map, direction)  # per N along the direction
+    breakaway = BREAKAWAY_FACTOR * np.array(PARAMETERS.coulomb)
+
+    def seen_force(size: float) -> float:
+        torque = size * joint_torque
+        return float(np.linalg.norm(force_map @ (torque - np.clip(torque, -breakaway, breakaway))))
+
+    low, high = 0.0, 1000.0
+    for _ in range(60):  # bisection: the seen force grows with the size
+        low, high = ((low + high) / 2, high) if seen_force((low + high) / 2) < seen else (low, (low + high) / 2)
+    observations = _stream(120, AT_REST, low * direction, force_from=40)
+    monitor = _monitor()
+    _run(monitor, observations)
+    assert np.linalg.norm(monitor.force) == pytest.approx(seen, rel=0.01)
+    assert [event.kind for event in monitor.events] == (["collision"] if found else [])
 
 
 def test_a_push_that_repeats_a_moving_joints_reading_once_is_found_as_soon_as_without_the_repeat() -> None:

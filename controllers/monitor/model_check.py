@@ -60,6 +60,8 @@ from controllers.monitor.tuning import (
     FORCE_EVIDENCE,
     FORCE_REFERENCE,
     HELD_MASS_STD,
+    REST_FORCE_REFERENCE,
+    REST_RATE,
     SCATTER_RATE,
     SLIP_EVIDENCE,
     SLIP_MASS_CONFIDENCE,
@@ -398,9 +400,12 @@ def _check_payload(
 
 
 @numba.njit(cache=True)
-def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float, explained: bool, quiet: bool) -> int:
-    """The collision check: a CUSUM over :data:`FORCE_REFERENCE` of the platform ``force`` (N, its norm
-    ``magnitude``) the residual leaves with the mass held (:func:`check_sample`). It finds a collision once over
+def _check_force(
+    check: np.record, force: NDArray[np.float64], magnitude: float, explained: bool, quiet: bool, still: bool
+) -> int:
+    """The collision check: a CUSUM over :data:`FORCE_REFERENCE` (:data:`REST_FORCE_REFERENCE` on a sample where
+    nothing moves, ``still``) of the platform ``force`` (N, its norm ``magnitude``) the residual leaves with the mass
+    held (:func:`check_sample`). It finds a collision once over
     :data:`FORCE_EVIDENCE` on a sample that the other mass the cup may hold does not explain (``explained``: with
     it, the force is under the reference): such a sample may be the object's loss, which the slip check decides
     (a slip clears this CUSUM). Once found, the CUSUM is capped at :data:`FORCE_EVIDENCE`, and the collision is
@@ -411,7 +416,7 @@ def _check_force(check: np.record, force: NDArray[np.float64], magnitude: float,
         return 0
     check.force[:] = force
     check.force_magnitude = magnitude
-    evidence = check.force_evidence + magnitude - FORCE_REFERENCE
+    evidence = check.force_evidence + magnitude - (REST_FORCE_REFERENCE if still else FORCE_REFERENCE)
     if check.collision and evidence > FORCE_EVIDENCE:  # a detection's worth: the collision can end after the force
         evidence = FORCE_EVIDENCE
     check.force_evidence = evidence if evidence > 0.0 else 0.0
@@ -526,5 +531,10 @@ def check_sample(
         state.collision_samples = 0
         return found | (COLLIDING if state.collision else 0)
     explained = held_then and other_magnitude <= FORCE_REFERENCE
-    found |= _check_force(state, force, magnitude, explained, quiet_then)
+    # nothing moves: the reference still at the checked sample, every joint slower than REST_RATE, and no load let go
+    # within the smoothing window (a place: the arm springs back from the weight its drives held)
+    still = not np.any(state.pending_reference[head, 1:]) and not (straddles and not holding)
+    for joint in range(3):
+        still = still and abs(terms[2, joint]) < REST_RATE
+    found |= _check_force(state, force, magnitude, explained, quiet_then, still)
     return found | (COLLIDING if state.collision else 0)
