@@ -32,7 +32,6 @@ from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.payload import FRICTION_VELOCITY, EmptyMoveSums, PayloadEstimator
 from controllers.servo import (
     DEFAULT_FRICTION_WIDTH,
-    PAYLOAD_NOTCH_QUALITY,
     JointServo,
     ServoGains,
     compliant_servo,
@@ -385,7 +384,6 @@ class OracleController:
             rate_window=window,
             period=period,
             rotor_friction=self.oracle.coulomb,
-            quality=PAYLOAD_NOTCH_QUALITY,
         )
 
     def set_payload_masses(self, masses: Sequence[float]) -> None:

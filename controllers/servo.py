@@ -82,12 +82,6 @@ DEFAULT_NOTCH_QUALITY = 0.7
 stiffness 10 % off or the damping halved, and with an arm side up to five times the one the notch is placed on (a
 payload it does not know; docs/design.md section 6)."""
 
-PAYLOAD_NOTCH_QUALITY = 1.0
-"""Quality factor Q of the notch of a servo whose notch follows the payload (a row that estimates it, the bound that
-knows it): the linear analysis keeps Q = 1 stable where the notch knows the payload, and its narrower band takes
-less phase at the crossover, so the loop's bandwidth rises about a quarter at the same margin (docs/design.md
-section 6, "The notch's width"). On the 0.7-times gearheads the waits after arrival halve (docs/measurements.md)."""
-
 
 @dataclass(frozen=True)
 class ServoGains:
@@ -381,16 +375,14 @@ def compliant_servo(
     rate_window: float = CONTROL_PERIOD,
     period: float = CONTROL_PERIOD,
     rotor_friction: ArrayLike = 0.0,
-    quality: float = DEFAULT_NOTCH_QUALITY,
 ) -> JointServo:
-    """The servo layer on compliant drives (docs/design.md section 6): a notch of quality ``quality`` at each joint's
-    drive mode (:data:`PAYLOAD_NOTCH_QUALITY` where the notch follows the payload), gains
+    """The servo layer on compliant drives (docs/design.md section 6): a notch at each joint's drive mode, gains
     placed on each joint's ``inertia`` (kg m^2, rotor included) with the margin kept through the drive lag
     ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, the gains on the rotor
     alone inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
     ``rotor_friction`` (N m). The model rows build it on the identified ``compliance``, the bound on the plant's
     own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
-    notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness, quality)
+    notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
     gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
     return JointServo(
         gains,

@@ -21,15 +21,7 @@ from controllers.compliance import DriveCompliance
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.feedforward import FeedforwardController, LagCompensatedController, model_controller
 from controllers.payload import EmptyMoveSums
-from controllers.servo import (
-    DEFAULT_FRICTION_WIDTH,
-    DEFAULT_NOTCH_QUALITY,
-    PAYLOAD_NOTCH_QUALITY,
-    JointServo,
-    compliant_servo,
-    joint_inertia,
-    servo_gains,
-)
+from controllers.servo import DEFAULT_FRICTION_WIDTH, JointServo, compliant_servo, joint_inertia, servo_gains
 from delta_env.drive import MAX_TIME_CONSTANT, DriveLimits
 from delta_env.geometry import NOMINAL_GEOMETRY, NOMINAL_MASSES, TORQUE_LIMIT, DeltaGeometry, DeltaMasses
 from delta_env.records import content_hash, from_table, to_table
@@ -183,7 +175,7 @@ def model_row(
         raise ValueError(f"{key!r} needs the identified drive lag; ControllerSetup.drive_lag is None")
     parameters = row.model_parameters(setup)
     dynamics = DeltaDynamics.of_robot(setup.geometry, setup.masses, parameters, forearm_rods=row.forearm_rods)
-    servo = row_servo(setup, dynamics, knows_payload=row.regressor is not None)
+    servo = row_servo(setup, dynamics)
     return model_controller(
         parameters,
         forearm_rods=row.forearm_rods,
@@ -200,14 +192,13 @@ def model_row(
     )
 
 
-def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics, knows_payload: bool = False) -> JointFeedback:
+def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics) -> JointFeedback:
     """The feedback of a model row with model ``dynamics``: the servo layer on that model and the identified drive lag
     (``setup.servo == "servo"``), or the paper's PD with ``setup.pd_gains``. The servo pushes at rest the breakaway
     torque of the model's friction: its Coulomb friction plus the identified Stribeck excess (none for a model
     without friction). With compliant drives (``setup.compliance``) it notches its torque at each joint's drive mode
-    (:class:`~controllers.servo.ResonanceNotch`; of :data:`~controllers.servo.PAYLOAD_NOTCH_QUALITY` for a row
-    that ``knows_payload``, whose notch follows its estimate) and places its gains on the rotor alone inside a
-    backlash's band (:attr:`~controllers.compliance.DriveCompliance.resolved_backlash`).
+    (:class:`~controllers.servo.ResonanceNotch`) and places its gains on the rotor alone inside a backlash's band
+    (:attr:`~controllers.compliance.DriveCompliance.resolved_backlash`).
 
     Raises:
         ValueError: for the servo layer without an identified drive lag.
@@ -235,5 +226,4 @@ def row_servo(setup: ControllerSetup, dynamics: DeltaDynamics, knows_payload: bo
         friction_width=step,
         rate_window=window,
         rotor_friction=coulomb,
-        quality=PAYLOAD_NOTCH_QUALITY if knows_payload else DEFAULT_NOTCH_QUALITY,
     )

@@ -18,10 +18,8 @@ from controllers.dynamics import DeltaDynamics
 from controllers.registry import controller_entry
 from controllers.servo import (
     CROSSOVER_RATIO,
-    DEFAULT_NOTCH_QUALITY,
     DEFAULT_PHASE_MARGIN,
     NOTCHED_PHASE_MARGIN,
-    PAYLOAD_NOTCH_QUALITY,
     UNDELAYED_PHASE_MARGIN,
     JointServo,
     ResonanceNotch,
@@ -30,7 +28,7 @@ from controllers.servo import (
     servo_bandwidth,
     servo_gains,
 )
-from controllers.setup import model_row, row_servo
+from controllers.setup import row_servo
 from controllers.shaping import (
     JerkLimitedTiming,
     ReferenceHistory,
@@ -159,36 +157,6 @@ def test_the_servo_notches_only_a_compliant_setup(controller_setup) -> None:
     # placed through the notch's lag: about three quarters of the rigid loop's bandwidth (kd is proportional to it)
     np.testing.assert_allclose(np.array(notched.gains.kd) / np.array(rigid.gains.kd), 0.76, atol=0.04)
     assert np.all((notched.notch_frequency > 200.0) & (notched.notch_frequency < 270.0))
-
-
-@pytest.mark.parametrize(("key", "quality"), [("mid_f_r", DEFAULT_NOTCH_QUALITY), ("mid_f_rls", PAYLOAD_NOTCH_QUALITY)])
-def test_a_row_whose_notch_follows_its_payload_estimate_takes_the_narrower_notch(
-    controller_setup, key, quality
-) -> None:
-    """A row without an estimate notches at Q 0.7 (stable with a payload its notch does not know); an RLS row, whose
-    notch follows its estimate, at Q 1, and its bandwidth is placed higher through the narrower notch's smaller lag."""
-    servo = model_row(key, replace(controller_setup, compliance=IDENTIFIED)).servo
-    assert servo.notch.quality == quality
-    wide = servo_gains(servo.gains.inertia, 0.0, controller_setup.drive_lag, notch=replace(servo.notch, quality=0.7))
-    ratio = np.array(servo.gains.kd) / np.array(wide.kd)
-    np.testing.assert_allclose(ratio, 1.0 if quality == DEFAULT_NOTCH_QUALITY else 1.26, atol=0.05)
-
-
-@pytest.mark.parametrize("arm_inertia", [0.195, 0.45, 1.0])
-def test_the_narrower_notch_keeps_the_joint_stable_where_it_knows_the_payload(arm_inertia: float) -> None:
-    """The one-joint linear model under gains placed through the Q = 1 notch centred on the loaded joint's mode: every
-    pole inside |z| 0.98, the loop's pair damped at least 0.18 (0.21-0.23 measured), the bandwidth about a quarter
-    above Q = 0.7's."""
-    inertia = np.full(3, GEARHEAD.rotor_inertia + arm_inertia)
-    narrow = ResonanceNotch((GEARHEAD.rotor_inertia,) * 3, (GEARHEAD.stiffness,) * 3, PAYLOAD_NOTCH_QUALITY)
-    gains = servo_gains(inertia, 0.0, 1e-3, notch=narrow)
-    wide = servo_gains(inertia, 0.0, 1e-3, notch=replace(narrow, quality=DEFAULT_NOTCH_QUALITY))
-    assert 1.15 < gains.kd[0] / wide.kd[0] < 1.4
-    poles = _joint_loop_poles(arm_inertia, (gains.kp[0], gains.kd[0], gains.ki[0]), narrow)
-    assert np.max(np.abs(poles)) < 0.98
-    s = np.log(poles.astype(complex)) / 1e-3
-    pair = (np.abs(s.imag) > 2.0 * np.pi * 20.0) & (np.abs(s.imag) < 2.0 * np.pi * 120.0)
-    assert pair.any() and np.min(-s.real[pair] / np.abs(s[pair])) > 0.18
 
 
 @pytest.mark.slow
