@@ -700,43 +700,6 @@ def test_an_encoder_stuck_as_its_joint_turns_through_a_reversal_is_stuck_within_
     assert (kind, joint) == ("encoder_stuck", 0) and 50 + STUCK_SAMPLES - 1 <= sample <= 53
 
 
-def _turning_at(turn: float, acceleration: float) -> Callable[[float], np.ndarray]:
-    """An arm whose joint 0 turns back through a reversal at sample ``turn`` at ``acceleration`` (rad/s^2) while
-    joints 1 and 2 run on at 1 and -0.8 rad/s."""
-
-    def arm(k: float) -> np.ndarray:
-        t = (k - turn) * CONTROL_PERIOD
-        accelerations, rates = np.array([acceleration, 0.0, 0.0]), np.array([0.0, 1.0, -0.8])
-        return np.stack((0.4 + rates * t + 0.5 * accelerations * t**2, rates + accelerations * t, accelerations))
-
-    return arm
-
-
-@pytest.mark.parametrize("stuck", [True, False], ids=["stuck", "healthy"])
-def test_an_encoder_stuck_at_its_joints_very_turn_is_stuck_within_five_samples(stuck: bool) -> None:
-    # Joint 0 turns at 40 rad/s^2 (0.83 counts/ms^2), its reading sticking at sample 50, 0.3 samples before the turn:
-    # the joint is at 0.25 counts/ms there and its torque bounds its acceleration to 0.1-1.2, then 0.5-1.6
-    # counts/ms^2, so only the readings taken together tell, each within half a count of the joint (the encoders
-    # round), its states held to all of them at once: stuck at sample 55 (5 ms). Bounding its speed from pairs of
-    # readings with the last new one alone (a difference within a count) found it at sample 58. Healthy, the turn
-    # repeats its reading for two samples and raises nothing (docs/design.md section 6, "Encoders", case (c)).
-    step = ENCODER_RESOLUTION
-    observations = _joint_stream(100, _turning_at(50.3, 40.0), _turning_at(50.3, 40.0))
-    for observation in observations:
-        observation["joint_angles"] = np.round(observation["joint_angles"] / step) * step
-    if stuck:
-        frozen = observations[49]["joint_angles"][0]
-        for observation in observations[50:80]:
-            observation["joint_angles"] = np.array([frozen, *observation["joint_angles"][1:]])
-    monitor = _monitor(encoder_step=step)
-    _run(monitor, observations)
-    if not stuck:
-        assert monitor.events == []
-        return
-    ((kind, joint, sample),) = _found(monitor, collisions=True)
-    assert (kind, joint) == ("encoder_stuck", 0) and 50 + STUCK_SAMPLES - 1 <= sample <= 55
-
-
 def test_on_drives_with_backlash_a_turning_joints_repeats_are_not_held_to_the_models_bounds() -> None:
     # The stream above, on drives whose gearheads have backlash: inside the band the rotor, which the encoder reads,
     # turns against its own inertia alone, beyond the rigid model's bounds of its acceleration (3 healthy turns named

@@ -39,19 +39,6 @@ SENSOR_NAN, ENCODER_GLITCH, ENCODER_STUCK, TORQUE_GLITCH, DRIVE_FAULT = (
 ANGLES_REPLACED, RATES_REPLACED, TORQUES_REPLACED = 1, 2, 4
 """Bits of the checks' results: the clean row differs from the sample's reading (a new array is due)."""
 
-TURN_VERTICES = 64
-"""Capacity of the polygon of the states a repeating joint may be in (case (c)): a period adds at most six vertices
-(:data:`TURN_CORNERS`) and a reading's cuts two, and the counts cut most away again; a run that would outgrow it
-ends the check of that run (nothing is detected from it)."""
-
-TURN_CORNERS = np.array([[0.0, 0.0], [0.25, 0.0], [0.75, 0.25], [1.0, 0.5], [0.75, 0.5], [0.25, 0.25]])
-"""The corners (s, share) of the hexagon that holds a period's change of state under a bounded acceleration, in the
-units of :func:`_advance_states`."""
-
-TURN_SPEED_BOUND = 1.0
-"""Travel (rad) in a period that bounds a joint's speed before any reading does (1000 rad/s, far beyond any drive's):
-the polygon of case (c) starts as the first reading's count times this band, and the readings' counts narrow it."""
-
 SENSOR_FIELDS = [
     # the encoders: the last three clean readings (how many there are, up to 3), the last raw one (if any) and the
     # last good tracking error (rad); per joint, repeated readings in a suspect run, a stuck spell whose readings are
@@ -70,12 +57,13 @@ SENSOR_FIELDS = [
     ("rest_error", np.float64, (3,)),
     ("rest_speed", np.float64, (3,)),
     ("rest_travel", np.float64, (3,)),
-    # per joint, over the same repeats: the bounds (rad/s^2) of its acceleration at the last sample, and the convex
-    # polygon of the states it may have been in there (its vertices: the position, rad, from the repeated reading,
-    # and the travel of a period at its speed, rad) and how many vertices it has; whether they are known
+    # per joint, over the same repeats: the bounds (rad/s^2) of its acceleration at the last sample, the speed
+    # (rad/s) it may have had where its reading stopped changing, and the bounds of what its acceleration since has
+    # added to its speed (rad/s) and to its travel (rad) beyond that speed's; whether those bounds are known
     ("turn_acceleration", np.float64, (3, 2)),
-    ("turn_states", np.float64, (3, TURN_VERTICES, 2)),
-    ("turn_vertices", np.int64, (3,)),
+    ("turn_speed", np.float64, (3, 2)),
+    ("turn_speed_change", np.float64, (3, 2)),
+    ("turn_travel", np.float64, (3, 2)),
     ("turn_known", np.uint8, (3,)),
     # the last TURN_HISTORY + 2 clean angles (rad) and whether each was replaced, and the last TURN_HISTORY + 1
     # torques (N m) the drives delivered (oldest first), how many there are
@@ -320,142 +308,15 @@ def _speeds_before(
 
 
 @numba.njit(cache=True)
-def _turns_left(origin: NDArray[np.float64], end: NDArray[np.float64], x: float, w: float) -> bool:
-    """Whether the point (``x``, ``w``) lies strictly left of the line from ``origin`` to ``end`` (2-vectors)."""
-    return (end[0] - origin[0]) * (w - origin[1]) - (end[1] - origin[1]) * (x - origin[0]) > 0.0
-
-
-@numba.njit(cache=True)
-def _convex_hull(points: NDArray[np.float64], hull: NDArray[np.float64]) -> int:
-    """The convex hull of ``points`` ((n, 2), n >= 1) into ``hull`` ((2 n, 2) at least), counter-clockwise (Andrew's
-    monotone chain); returns its vertex count."""
-    n = points.shape[0]
-    order = np.argsort(points[:, 1], kind="mergesort")
-    order = order[np.argsort(points[order, 0], kind="mergesort")]
-    if n == 1:
-        hull[0, 0], hull[0, 1] = points[order[0], 0], points[order[0], 1]
-        return 1
-    size = lower = 0
-    for rank in range(2 * n - 1):  # the lower chain left to right, then the upper one back
-        index = order[rank] if rank < n else order[2 * n - 2 - rank]
-        x, w = points[index, 0], points[index, 1]
-        floor = 2 if rank < n else lower + 1
-        while size >= floor and not _turns_left(hull[size - 2], hull[size - 1], x, w):
-            size -= 1
-        hull[size, 0], hull[size, 1] = x, w
-        size += 1
-        if rank == n - 1:
-            lower = size
-    return size - 1  # the last vertex is the first again
-
-
-@numba.njit(cache=True)
-def _advance_states(polygon: NDArray[np.float64], count: int, low: float, high: float) -> int:
-    """Move the polygon of (position, travel at the speed over a period) states (rad; ``count`` vertices of
-    ``polygon``, in place) on by one period under an acceleration within [``low``, ``high``] (rad/s^2); returns its
-    new vertex count, -1 if it and the cuts of a reading (:func:`_clip_states`, one vertex each) could outgrow
-    :data:`TURN_VERTICES`.
-
-    Over a period T an acceleration a(u) within the bounds changes the speed's travel w by T integral a and the
-    position by w + T integral (T - u) a. With d = high - low, a mean low + s d gives the travel (low + s d) T^2 and
-    the position's share between (low / 2 + d s^2 / 2) T^2 (low first, then high) and (low / 2 + d (s - s^2 / 2))
-    T^2 (high first), two parabolas; their tangents at s = 0, 1/2 and 1 bound them, a hexagon at most d T^2 / 32
-    beyond, whose corners TURN_CORNERS lists as (s, share). The new states lie in the polygon, moved on at its
-    speeds, plus that hexagon (docs/design.md section 6, "Encoders", case (c))."""
-    corners = TURN_CORNERS.shape[0]
-    if count + corners + 2 > TURN_VERTICES:  # room for the two cuts of the reading that follows
-        return -1
-    squared = CONTROL_PERIOD**2
-    spread = high - low
-    points = np.empty((corners * count, 2))
-    for vertex in range(count):
-        x, w = polygon[vertex, 0] + polygon[vertex, 1], polygon[vertex, 1]
-        for corner in range(corners):
-            row = corners * vertex + corner
-            points[row, 0] = x + (0.5 * low + spread * TURN_CORNERS[corner, 1]) * squared
-            points[row, 1] = w + (low + spread * TURN_CORNERS[corner, 0]) * squared
-    hull = np.empty((2 * corners * count, 2))
-    size = _convex_hull(points, hull)
-    polygon[:size] = hull[:size]
-    return size
-
-
-@numba.njit(cache=True)
-def _clip_states(polygon: NDArray[np.float64], count: int, low: float, high: float) -> int:
-    """Cut the polygon of states (``count`` vertices of ``polygon``, in place) to positions within [``low``,
-    ``high``] (rad: a reading's count); returns the vertex count left (0: no state reads so)."""
-    for side in range(2):
-        bound, sign = (low, -1.0) if side == 0 else (high, 1.0)  # keep sign * x <= sign * bound
-        kept = np.empty((count + 2, 2))
-        size = 0
-        for vertex in range(count):
-            a, b = polygon[vertex], polygon[(vertex + 1) % count]
-            inside_a = sign * (a[0] - bound) <= 0.0
-            inside_b = sign * (b[0] - bound) <= 0.0
-            if inside_a:
-                kept[size] = a
-                size += 1
-            if inside_a != inside_b:
-                share = (bound - a[0]) / (b[0] - a[0])
-                kept[size, 0] = bound
-                kept[size, 1] = a[1] + share * (b[1] - a[1])
-                size += 1
-        polygon[:size] = kept[:size]
-        count = size
-        if count == 0:
-            break
-    return count
-
-
-@numba.njit(cache=True)
 def _start_turn(
     state: np.record, model_constants: NDArray[np.uint8], joint: int, mass: float, low: float, high: float
-) -> bool:
-    """At the first repeat of ``joint``'s reading, the states (position and speed) it may have been in at its last
-    new reading (whose acceleration bounds are ``low`` and ``high``, rad/s^2), ``mass`` (kg) held throughout: from
-    every speed and a position within that reading's count, narrowed forwards through its readings before, each
-    period's acceleration within the hull of the bounds at its ends and each reading's count cutting the states.
-    Back to :data:`~controllers.monitor.tuning.TURN_HISTORY` samples, and only over readings that were not replaced
-    (docs/design.md section 6, "Encoders", case (c)). Returns whether the polygon fits its capacity."""
-    half = 0.5 * state.stuck_step / STUCK_COUNTS
-    angles, replaced, torques = state.turn_angles, state.turn_replaced, state.turn_torques
-    newest = angles.shape[0] - 1
-    reach = min(TURN_HISTORY, state.turn_samples - 2)
-    bounds = np.empty((TURN_HISTORY + 1, 2))
-    bounds[0, 0], bounds[0, 1] = low, high
-    depth = 0
-    for back in range(1, reach + 1):
-        row = newest - back
-        if replaced[newest, joint] != 0 or replaced[row, joint] != 0:
-            break
-        earlier_low, earlier_high = _acceleration_bounds(
-            state, model_constants, angles[row], angles[row - 1], torques[torques.shape[0] - 1 - back], joint, mass
-        )
-        if math.isnan(earlier_low):
-            break
-        bounds[back, 0], bounds[back, 1] = earlier_low, earlier_high
-        depth = back
-    # positions from the repeated reading (the last raw one): the clean readings before it taken are raw ones
-    repeated = state.raw_previous[joint]
-    polygon = state.turn_states[joint]
-    first = angles[newest - depth, joint] - repeated if depth > 0 else 0.0
-    polygon[0, 0], polygon[0, 1] = first - half, -TURN_SPEED_BOUND
-    polygon[1, 0], polygon[1, 1] = first + half, -TURN_SPEED_BOUND
-    polygon[2, 0], polygon[2, 1] = first + half, TURN_SPEED_BOUND
-    polygon[3, 0], polygon[3, 1] = first - half, TURN_SPEED_BOUND
-    count = 4
-    for back in range(depth, 0, -1):
-        period_low = min(bounds[back, 0], bounds[back - 1, 0])
-        period_high = max(bounds[back, 1], bounds[back - 1, 1])
-        count = _advance_states(polygon, count, period_low, period_high)
-        if count < 0:
-            return False
-        reading = angles[newest - back + 1, joint] - repeated
-        count = _clip_states(polygon, count, reading - half, reading + half)
-        if count == 0:
-            break
-    state.turn_vertices[joint] = count
-    return True
+) -> None:
+    """At the first repeat of ``joint``'s reading, the speeds it may have had at its last new reading
+    (:func:`_speeds_before`), and nothing added since."""
+    lowest, highest = _speeds_before(state, model_constants, joint, mass, low, high)
+    state.turn_speed[joint, 0], state.turn_speed[joint, 1] = lowest, highest
+    state.turn_speed_change[joint, 0] = state.turn_speed_change[joint, 1] = 0.0
+    state.turn_travel[joint, 0] = state.turn_travel[joint, 1] = 0.0
 
 
 @numba.njit(cache=True)
@@ -480,21 +341,21 @@ def _others_follow_torques(state: np.record, model_constants: NDArray[np.uint8],
 @numba.njit(cache=True)
 def _extend_turn(state: np.record, joint: int, low: float, high: float) -> None:
     """Add the period before the last sample to ``joint``'s repeats: its acceleration within the hull of the bounds
-    at its ends (the last sample's ``low`` and ``high``, rad/s^2, and the one's before), and keep the states that
-    still read the repeated count there (docs/design.md section 6, "Encoders", case (c)). A polygon that outgrows
-    its capacity ends the run's check."""
-    half = 0.5 * state.stuck_step / STUCK_COUNTS
-    count = state.turn_vertices[joint]
-    if count == 0:
-        return
-    period_low = min(state.turn_acceleration[joint, 0], low)
-    period_high = max(state.turn_acceleration[joint, 1], high)
-    polygon = state.turn_states[joint]
-    count = _advance_states(polygon, count, period_low, period_high)
-    if count < 0:
-        state.turn_known[joint] = False
-        return
-    state.turn_vertices[joint] = _clip_states(polygon, count, -half, half)
+    at its ends (the last sample's ``low`` and ``high``, rad/s^2, and the one's before), and narrow the speeds it may
+    have had where its reading stopped changing to those that keep it within a count of where it was there at the last
+    sample too (docs/design.md section 6, "Encoders", case (c)).
+
+    With the speed v_0 there and the travel bounds D since, x_n - x_0 lies within v_0 n T + [D_low, D_high], and both
+    readings lie in one count q, so -q < x_n - x_0 < q: v_0 < (q - D_low) / (n T) and v_0 > (-q - D_high) / (n T)."""
+    count = state.stuck_step / STUCK_COUNTS
+    period = CONTROL_PERIOD
+    bounds = (min(state.turn_acceleration[joint, 0], low), max(state.turn_acceleration[joint, 1], high))
+    for side in range(2):
+        state.turn_travel[joint, side] += state.turn_speed_change[joint, side] * period + 0.5 * bounds[side] * period**2
+        state.turn_speed_change[joint, side] += bounds[side] * period
+    elapsed = (state.rest_repeats[joint] - 1) * period  # the last sample's time since the reading stopped changing
+    state.turn_speed[joint, 1] = min(state.turn_speed[joint, 1], (count - state.turn_travel[joint, 0]) / elapsed)
+    state.turn_speed[joint, 0] = max(state.turn_speed[joint, 0], (-count - state.turn_travel[joint, 1]) / elapsed)
 
 
 @numba.njit(cache=True)
@@ -516,8 +377,8 @@ def clean_encoders(
     """Check encoder readings (rad) and their rates (rad/s) against the last clean readings and write the clean
     ones into ``state.clean`` rows 0 and 1: a NaN or inf, an implausible jump (a second difference beyond
     ``jump_bound``), a suspect repeat and a stuck run (of a moving joint; of one that left rest: its measured
-    torque, with the model's inertia from ``model_constants``, moved it a count; or of one that no motion under the
-    accelerations its torque allows reads as its readings before and its repeats) are detected and replaced by the
+    torque, with the model's inertia from ``model_constants``, moved it a count; or of one that no speed its readings
+    before allow keeps within a count under the accelerations its torque allows) are detected and replaced by the
     reference plus the joint's last good tracking error, their rates by the reference's; a rate next to a replaced
     reading, or missing, is the clean backward difference. Returns :data:`ANGLES_REPLACED` and
     :data:`RATES_REPLACED` bits."""
@@ -579,8 +440,8 @@ def clean_encoders(
             state.rest_repeats[joint] = state.rest_repeats[joint] + 1 if repeated else 0
             # a joint whose reading repeats while its reference runs is stuck once its drive's torque beyond what
             # holds it still and what rest absorbs (the friction's whole swing) has moved it, with the model's
-            # inertia, by more than a count along the reference's run (b), or once no motion under the accelerations
-            # its torque allows reads as its readings before and its repeats, each within half a count (c),
+            # inertia, by more than a count along the reference's run (b), or once no speed it may have had where its
+            # reading stopped changing keeps it within that count under the accelerations its torque allows (c),
             # unless a force on the platform (a collision under way) may hold it (docs/design.md section 6,
             # "Encoders"): the repeats are then replaced from the error held where it stopped, as a stuck spell's
             # are. Where the joint lies against the reference does not matter: a PD ahead of its reference still
@@ -628,7 +489,8 @@ def clean_encoders(
                         )
                     bounded = not math.isnan(low)
                 if bounded and state.rest_repeats[joint] == 1:
-                    state.turn_known[joint] = _start_turn(state, model_constants, joint, turn_mass, low, high)
+                    _start_turn(state, model_constants, joint, turn_mass, low, high)
+                    state.turn_known[joint] = True
                 elif bounded and state.turn_known[joint] != 0:
                     _extend_turn(state, joint, low, high)
                 if bounded:
@@ -645,7 +507,7 @@ def clean_encoders(
                 state.stuck[joint] = STUCK_SAMPLES - 1
                 state.error[joint] = state.rest_error[joint]
             # (c): the readings cannot have repeated so far; the repeats already read count towards the stuck spell
-            turned = state.turn_known[joint] != 0 and state.turn_vertices[joint] == 0
+            turned = state.turn_known[joint] != 0 and state.turn_speed[joint, 0] >= state.turn_speed[joint, 1]
             # and the others moved as their torques allow: a push that stops the joint at its turn acts on them too
             # (a 661 N push, nominal seed 19, was named a stuck encoder and the collision found 40 ms late)
             turned = turned and _others_follow_torques(state, model_constants, joint, turn_mass)
