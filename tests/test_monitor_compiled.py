@@ -904,13 +904,9 @@ def test_a_known_force_on_the_moving_platform_is_estimated_and_found_when_its_cu
     assert _found(monitor, collisions=True) == expected
 
 
-@pytest.mark.parametrize(("seen", "found"), [(32.0, False), (50.0, True)])
-def test_a_steady_force_on_the_resting_arm_counts_over_the_resting_drift(seen: float, found: bool) -> None:
-    # A force on the platform of the resting arm, scaled so that the check sees ``seen`` N of it beyond what the
-    # joints' friction at rest may hold (+-b_i, the smoothed rates nil): where nothing moves the CUSUM forgives
-    # REST_FORCE_REFERENCE (40 N) a sample, not the moving arm's FORCE_REFERENCE (60 N), so 50 N is a collision (over
-    # the moving arm's drift it never was) and 32 N is not.
-    assert 32.0 < REST_FORCE_REFERENCE < 50.0 < FORCE_REFERENCE
+def _resting_push(seen: float) -> np.ndarray:
+    """The force (N) along a fixed direction that the collision check sees as ``seen`` N on the resting arm at the
+    streams' pose, beyond what the joints' friction at rest may hold (+-b_i, the smoothed rates nil)."""
     direction = np.array([0.6, -0.48, 0.64]) / np.linalg.norm([0.6, -0.48, 0.64])
     pose = 0.4 + ERROR
     _, _, force_map = DYNAMICS.torque_regressor_and_force_map(pose, np.zeros(3), np.zeros(3))
@@ -924,11 +920,51 @@ def test_a_steady_force_on_the_resting_arm_counts_over_the_resting_drift(seen: f
     low, high = 0.0, 1000.0
     for _ in range(60):  # bisection: the seen force grows with the size
         low, high = ((low + high) / 2, high) if seen_force((low + high) / 2) < seen else (low, (low + high) / 2)
-    observations = _stream(120, AT_REST, low * direction, force_from=40)
+    return low * direction
+
+
+@pytest.mark.parametrize(("seen", "found"), [(32.0, False), (50.0, True)])
+def test_a_steady_force_on_the_resting_arm_counts_over_the_resting_drift(seen: float, found: bool) -> None:
+    # Where nothing moves the CUSUM forgives REST_FORCE_REFERENCE (40 N) a sample, not the moving arm's
+    # FORCE_REFERENCE (60 N), so 50 N is a collision (over the moving arm's drift it never was) and 32 N is not.
+    assert 32.0 < REST_FORCE_REFERENCE < 50.0 < FORCE_REFERENCE
+    observations = _stream(120, AT_REST, _resting_push(seen), force_from=40)
     monitor = _monitor()
     _run(monitor, observations)
     assert np.linalg.norm(monitor.force) == pytest.approx(seen, rel=0.01)
     assert [event.kind for event in monitor.events] == (["collision"] if found else [])
+
+
+def test_the_resting_drift_waits_for_a_place_to_leave_the_smoothing_window() -> None:
+    # The gripper lets go at sample 40 (an empty cup: the drives' torque unchanged) as a steady 50 N comes on. A
+    # place springs the arm back from the weight its drives held, so within the smoother's window of the gripper's
+    # change the moving arm's 60 N drift holds, and the evidence starts once the place has left the window.
+    push = _resting_push(50.0)
+
+    def first_collision(place: bool) -> int:
+        observations = _stream(160, AT_REST, push, force_from=40)
+        for observation in observations[:40] if place else ():
+            observation["gripper"] = np.ones(1)
+        monitor = _monitor()
+        _run(monitor, observations)
+        (found,) = _found(monitor, collisions=True)
+        assert found[0] == "collision"
+        return found[2]
+
+    window_end = 40 + SMOOTHER_WINDOW  # the first sample whose smoothing window no longer holds the place
+    assert first_collision(place=False) < window_end < first_collision(place=True)
+
+
+def test_the_resting_drift_needs_a_still_reference() -> None:
+    # The joints creep at 0.05 rad/s, a quarter of REST_RATE, on a reference that moves: the model's errors of motion
+    # are the moving arm's, so the 60 N drift holds and a force the check sees at 40-60 N is no collision.
+    creep = ((0.05, 0.05, 0.05), (0.0, 0.0, 0.0))
+    assert max(creep[0]) < REST_RATE
+    observations = _stream(120, creep, _resting_push(50.0), force_from=40)
+    monitor = _monitor()
+    _run(monitor, observations)
+    assert REST_FORCE_REFERENCE < np.linalg.norm(monitor.force) < FORCE_REFERENCE
+    assert monitor.events == []
 
 
 def test_a_push_that_repeats_a_moving_joints_reading_once_is_found_as_soon_as_without_the_repeat() -> None:

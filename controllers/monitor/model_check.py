@@ -407,7 +407,8 @@ def _check_force(
     nothing moves, ``still``) of the platform ``force`` (N, its norm ``magnitude``) the residual leaves with the mass
     held (:func:`check_sample`). It finds a collision once over
     :data:`FORCE_EVIDENCE` on a sample that the other mass the cup may hold does not explain (``explained``: with
-    it, the force is under the reference): such a sample may be the object's loss, which the slip check decides
+    it, the force is under :data:`FORCE_REFERENCE`, still or not: a loss at rest springs the arm back from the weight
+    as a place does): such a sample may be the object's loss, which the slip check decides
     (a slip clears this CUSUM). Once found, the CUSUM is capped at :data:`FORCE_EVIDENCE`, and the collision is
     over when it has stayed at zero for the smoother's window. Returns :data:`COLLIDED` or 0."""
     if quiet:
