@@ -63,9 +63,8 @@ and take more of a slow loop's transients; on fault-free work at 3-15 g, the tim
 excess stayed at 7.2 N m at most on the rows measured (docs/measurements.md)."""
 
 FORCE_REFERENCE = 60.0
-"""Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work (at most
-38 N, 26 N in 99.9 % of the samples, on 20 fault-free episodes at 6 g on randomized plants with up to 6 kg; at most
-47 N on moves timed to the drive's envelope, 74 N for one sample where the residual policy steps its torque)."""
+"""Platform force (N) the collision CUSUM forgives per sample: above the model's residual on healthy work, the
+fastest timings and the residual policy's torque steps included (measured in docs/measurements.md, "Faults")."""
 
 REST_FORCE_REFERENCE = 40.0
 """Platform force (N) the collision CUSUM forgives per sample where nothing moves: the checked sample's reference
@@ -73,14 +72,14 @@ still (no planned rate or acceleration), every joint slower than :data:`REST_RAT
 smoothing window (the arm springs back from the weight its drives held). There the model's errors of motion that
 :data:`FORCE_REFERENCE` covers (inertia, the smoother's acceleration error at the motion's steps) are nil and the
 joints' unknown friction has its own allowance, so what is left is the gravity model's error and the torque sensor's
-noise: a fraction of this on fault-free episodes of 0-10 kg (docs/measurements.md, "Pushes just after the
-grip"). A push on a resting arm shows in the residual only as fast as the smoother shows the acceleration it causes
-(a third of it at the onset's sample, all of it 4-5 samples later), so the lower drift gathers the evidence 1-4
-samples sooner (docs/design.md section 6, "Fault monitor")."""
+noise, a fraction of this (docs/measurements.md, "Pushes just after the grip"). A push on a resting arm shows in the
+residual only as fast as the smoother shows the acceleration it causes, so the lower drift gathers its evidence
+sooner (docs/design.md section 6, "Fault monitor")."""
 
 FORCE_EVIDENCE = 60.0
-"""Accumulated force beyond :data:`FORCE_REFERENCE` (N, summed over samples) that makes a collision: one sample of
-120 N, or two of 90 N."""
+"""Accumulated force beyond the drift (:data:`FORCE_REFERENCE`, or :data:`REST_FORCE_REFERENCE` where nothing moves;
+N, summed over samples) that makes a collision: on a moving arm one sample of 120 N or two of 90 N, at rest one of
+100 N or two of 70 N."""
 
 PLANT_STEP_LAG = 2
 """Samples within which the plant's acceleration follows a step of the reference's: the current loop's time constant
