@@ -23,13 +23,22 @@ from delta_env.trajectories import WORKING_HEIGHT, Segment, Trajectory
 from eval import metrics
 from eval.comparison.__main__ import main
 from eval.comparison.run import TABLE2_KEY, table2_statistics
-from eval.comparison.tables import BOUND_HOLDS, bound_violations, controller_table, residual_gain
+from eval.comparison.tables import (
+    BOUND_HOLDS,
+    bound_violations,
+    controller_table,
+    place_check_words,
+    residual_gain,
+)
 from eval.episodes import EpisodeRecord, run_episode
 from eval.fault_tables import FAULT_COLUMNS
 from eval.identification.parameter_files import load_or_identify
 from tests.conftest import pd_episode
 
 DT = 1e-3
+
+UNPLACED = "; the place error needs two episodes to be checked (paired, one-sided t-test)"
+"""What the bound check says of rows without a place error."""
 
 
 def estimate_with_excursions(mass: float, inside_from: int, excursion: tuple[int, int], length: int = 100) -> list:
@@ -549,7 +558,7 @@ def test_bound_check_names_every_controller_below_the_oracle_and_ignores_diverge
 
     bound = "Oracle+PD (bound)"
     holds = [row(bound, 0, 0.03), row(bound, 1, 0.05), row("PD", 0, 6.0), row("MId+F+R+RLS+lag+PD", 1, 0.051)]
-    holds_line = BOUND_HOLDS.format(bound=bound)
+    holds_line = BOUND_HOLDS.format(bound=bound, places=UNPLACED)
     assert bound_section(holds) == [holds_line, ""]
     # Mean 0.035 < 0.04: a violation, and so is its episode 1 (0.04 < 0.05); a diverged episode's short record
     # counts neither in the mean nor as an episode.
@@ -585,7 +594,7 @@ def test_bound_check_skips_the_oracle_episodes_the_drive_limited() -> None:
         f"Not a bound on episode(s) 1, 2: the drive clipped {bound}'s command on 12, 0 steps and a joint was beyond "
         "the drive's maximum speed on 0, 3 steps; the bound check skips these episodes."
     )
-    holds = BOUND_HOLDS.format(bound=bound)
+    holds = BOUND_HOLDS.format(bound=bound, places=UNPLACED)
     assert bound_section(rows) == [note, "", holds, ""]
     rows[3] = bound_row("A", 0, 0.02)  # episode 0 is still checked
     assert bound_section(rows)[2] == "## Bound violated"
@@ -616,7 +625,7 @@ def test_bound_check_skips_the_oracle_episodes_with_an_injected_fault() -> None:
         f"Not a bound on episode(s) 1: 2 fault(s) were injected, and {bound} knows the fault-free plant and the "
         "payloads; the bound check skips these episodes."
     )
-    holds = BOUND_HOLDS.format(bound=bound)
+    holds = BOUND_HOLDS.format(bound=bound, places=UNPLACED)
     assert bound_section(rows) == [clipped, "", faulted, "", holds, ""]
     assert bound_section(rows[1:2]) == [faulted, ""]  # no episode left to check
 
@@ -693,6 +702,8 @@ def test_bound_check_names_a_controller_that_places_closer_than_the_oracle() -> 
     ]
     single = [placed(bound, 0, 0.01, 0.006), placed("C", 0, 0.05, 0.005)]  # a quarter count on one episode
     assert bound_violations(single, bound) == []
+    assert place_check_words(single, bound) == UNPLACED  # and the summary says it was not checked
+    assert place_check_words(rows, bound).startswith(", nor places closer on average")
     rng = np.random.default_rng(0)
     bound_places = rng.uniform(0.004, 0.012, 10)
     scattered = [placed(bound, seed, 0.01, place) for seed, place in enumerate(bound_places)]

@@ -13,6 +13,7 @@ from eval.comparison.tables import (
     bound_violations,
     payload_target_table,
     pick_rate_table,
+    place_check_words,
     residual_gain,
     unbounded_episodes,
 )
@@ -61,7 +62,7 @@ def _bound_check(episode_rows: list[dict[str, Any]], key: str) -> list[str]:
     violations = bound_violations(episode_rows, bound)
     if violations:
         return [*note, "## Bound violated", "", *violations, ""]
-    return [*note, BOUND_HOLDS.format(bound=bound), ""]
+    return [*note, BOUND_HOLDS.format(bound=bound, places=place_check_words(episode_rows, bound)), ""]
 
 
 def fault_section(fault_rows: list[dict[str, Any]], labels: list[str]) -> list[str]:

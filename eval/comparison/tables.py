@@ -193,11 +193,9 @@ FEEDBACK_LINES = {
 }
 """The summaries' line on what feedback the model rows ran, per :data:`controllers.setup.SERVOS` value."""
 
-BOUND_HOLDS = (
-    "Bound check: no controller tracks better than {bound}, in the mean or on any episode, nor places closer on "
-    "average (paired over two or more episodes, at 5 % significance)."
-)
-"""The summary's line when :func:`bound_violations` finds none (``{bound}``: the bound's label)."""
+BOUND_HOLDS = "Bound check: no controller tracks better than {bound}, in the mean or on any episode{places}."
+"""The summary's line when :func:`bound_violations` finds none (``{bound}``: the bound's label; ``{places}``:
+:func:`place_check_words`)."""
 
 
 def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> list[str]:
@@ -240,6 +238,26 @@ PLACE_BOUND_SIGNIFICANCE = 0.05
 than this significance is within what the encoders' quantization scatters (one count is tens of µm at the platform)."""
 
 
+def place_check_words(episode_rows: list[dict[str, Any]], bound_label: str) -> str:
+    """What :data:`BOUND_HOLDS` says of the place check: that no row places significantly closer, or, on fewer than
+    two of the bound's episodes with a place, that the check needs two."""
+    skipped = {row["seed"] for row in unbounded_episodes(episode_rows, bound_label)}
+    placed = [
+        row
+        for row in episode_rows
+        if row["controller"] == bound_label
+        and not row["diverged"]
+        and row["seed"] not in skipped
+        and math.isfinite(row.get("place_error_mean_mm", math.nan))
+    ]
+    if len(placed) < 2:
+        return "; the place error needs two episodes to be checked (paired, one-sided t-test)"
+    return (
+        ", nor places closer on average (paired over the episodes, one-sided t-test at "
+        f"{PLACE_BOUND_SIGNIFICANCE:.0%} significance)"
+    )
+
+
 def closer_places(
     groups: dict[str, list[dict[str, Any]]], bound_label: str
 ) -> dict[str, tuple[float, float, int, float]]:
@@ -248,8 +266,8 @@ def closer_places(
 
     A place error below an encoder count at the platform is set by where within a count each arm rests, on the bound
     and the rows alike: a difference of means on a few places is noise. The check pairs the episodes (same seed,
-    same objects) and names a row when a one-sided paired t-test finds it closer at :data:`PLACE_BOUND_SIGNIFICANCE`;
-    it needs two episodes at least, or every episode closer by the same amount (no scatter).
+    same objects) and names a row when, over two episodes at least, a one-sided paired t-test finds it closer at
+    :data:`PLACE_BOUND_SIGNIFICANCE`, or every episode is closer by the same amount (no scatter).
     """
     bound_places = {
         row["seed"]: row["place_error_mean_mm"]
