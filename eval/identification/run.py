@@ -367,8 +367,9 @@ def identify_logs(
     Raises:
         ValueError: for fewer than 2 logs, a compliance log that is a ROS 2 bag (a JointState carries no load-side
             angle), or compliance logs of which only some have load-side angles; LogFileError for a bad log;
-            ValueError naming the robot file for a bad one; UnexplainedTorqueError from the motor side alone on drives
-            it does not fit (a backlash).
+            ValueError naming the robot file for a bad one; from the motor side alone UnexplainedTorqueError on drives
+            the two-mass model does not explain (as behind a backlash) and UnseenModeError on logs that do not show
+            the mode.
     """
     start = time.perf_counter()
     paths = [Path(path) for path in paths]
