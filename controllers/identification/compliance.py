@@ -342,9 +342,9 @@ identification")."""
 
 MOTOR_SIDE_CHECK_TOP = 200.0
 """Highest DFT line (Hz) on which the residual is judged against :data:`MOTOR_SIDE_MAX_UNEXPLAINED`: a dead band's
-error lies about the mode, while the lines near the band's top carry, on stiff drives whose mode sits there, a
-residual of the simulated arm that the rigid arm inertia M leaves out and that grows with the stiffness
-(docs/measurements.md, "Motor-side identification: the refusal")."""
+error lies about the mode, while on the lines near the band's top, on stiff drives whose antiresonances reach them,
+the model leaves a residual that grows with the stiffness without any backlash (docs/measurements.md, "Motor-side
+identification: the refusal")."""
 
 MOTOR_SIDE_BOUND_TOLERANCE = 1e-3
 """How near a bound of :data:`_BOUNDS` (in log k) a fitted stiffness counts as on it: the fit then did not find it."""
@@ -597,10 +597,9 @@ def fit_motor_side_compliance(
     def estimate_of(x: NDArray[np.float64], solved: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.column_stack([solved, np.exp(x[:3]), x[3:6], np.full(3, np.exp(x[6]))])
 
-    rotor_inertia = linear[:, 0]
-    if np.any(rotor_inertia <= 0.0):
+    if np.any(linear[:, 0] <= 0.0):
         raise ValueError(
-            f"the fit gave a rotor inertia {rotor_inertia.tolist()} kg m^2 that is not positive: the logs do not "
+            f"the fit gave a rotor inertia {linear[:, 0].tolist()} kg m^2 that is not positive: the logs do not "
             "excite the drives' mode"
         )
     _require_seen_mode(blocks, nonlinear, highest_line)
