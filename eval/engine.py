@@ -54,36 +54,43 @@ def robot_knowledge(
     parameter_file, identification = robot_identification(scenario.plant, parameters, identification_root(runs_dir))
     fields = {"fault_reaction": scenario.task.fault_reaction, **setup_fields}
     setup = robot_setup(scenario.plant, identification, **fields)
-    require_known_drives(scenario.plant, setup)
+    require_known_drives(scenario.plant, setup, identification)
     return parameter_file, identification, setup
 
 
-def require_known_drives(plant: PlantConfig, setup: ControllerSetup) -> None:
-    """Refuse the servo layer (``setup.servo == "servo"``) on compliant drives it does not know: without the drives'
-    compliance (``setup.compliance`` None, as a parameter file of rigid drives leaves it) the model rows run the
-    rigid servo, without notch, deflection or backlash band, which the compliant plant drives unstable; and on a
-    gearhead with backlash without a load-side encoder, whose band the motor side's identification does not see
-    and whose crossing the servo handles on the measured twist only (docs/design.md section 6, "Backlash").
+def require_known_drives(plant: PlantConfig, setup: ControllerSetup, identification: IdentificationResult) -> None:
+    """Refuse the servo layer (``setup.servo == "servo"``) on compliant drives it does not know: on a gearhead with
+    backlash without a load-side encoder, whose band the motor side's identification does not see and whose crossing
+    the servo handles on the measured twist only (docs/design.md section 6, "Backlash"); and without the drives'
+    compliance (``setup.compliance`` None: a parameter file of rigid drives, or an identification that left the
+    drives unidentified, its reason in ``identification``'s provenance, ``compliance.method``), where the model rows
+    run the rigid servo, without notch, deflection or backlash band, which the compliant plant drives unstable.
 
     Raises:
-        UsageError: naming the plant's ``load_encoder_bits`` and backlash.
+        UsageError: naming the plant's ``load_encoder_bits`` and backlash, and why the drives are not known.
     """
     drives = plant.realism.compliance
     if drives is None or setup.servo != "servo":
         return
-    if setup.compliance is None:
-        raise UsageError(
-            f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = "
-            f"{drives.load_encoder_bits}: the parameter file holds no drive compliance, and the model rows' servo, "
-            "rigid without it, drives the gearheads unstable; give a parameter file with the drives' compliance "
-            "(the robot's own identification fits it)"
-        )
     if drives.load_encoder_bits is None and drives.backlash > 0.0:
         raise UsageError(
             f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = None: the motor side "
             "alone does not identify the backlash, and the servo crosses the band on the measured twist only; fit a "
             "load-side encoder (PlantRealism.compliance.load_encoder_bits, as the compliant preset does) or run "
             "with --servo pd"
+        )
+    if setup.compliance is None:
+        reason = identification.provenance.get("compliance", {}).get("method")
+        why = (
+            "rigid drives: leave --parameters out for the robot's own identification"
+            if reason is None
+            else f"its identification: {reason}"
+        )
+        raise UsageError(
+            f"compliant drives with backlash {drives.backlash:.4g} rad and load_encoder_bits = "
+            f"{drives.load_encoder_bits}: the parameter file holds no drive compliance ({why}), and the model rows' "
+            "servo, rigid without it, drives the gearheads unstable; give a parameter file with the drives' "
+            "compliance or run with --servo pd"
         )
 
 

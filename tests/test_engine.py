@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from controllers.compliance import DriveCompliance
+from controllers.dynamics import ModelParameters
+from controllers.identification import IdentificationResult
 from controllers.payload import EmptyMoveSums
 from controllers.setup import ControllerSetup
 from delta_env.records import content_hash
@@ -189,17 +191,27 @@ def _without_load_encoder(backlash: float):
 
 
 def test_the_servo_layer_on_drives_it_does_not_know_is_refused_naming_the_encoder() -> None:
-    """Without the drives' compliance (a parameter file of rigid drives) the servo layer is refused on compliant
-    drives; without a load encoder it is refused behind a backlash (which the motor side does not identify) and
-    allowed without one; with the paper's PD, or on rigid drives, it is never refused."""
+    """Behind a backlash without a load encoder the servo layer is refused for the backlash first, whatever the
+    parameter file holds (the motor-side fit refuses such drives, so the file holds none); without the drives'
+    compliance it is refused naming why (rigid drives in the file, or the identification's reason); with the drives
+    known and no backlash it is allowed; with the paper's PD, or on rigid drives, it is never refused."""
     known = dataclasses.replace(SETUP, compliance=DriveCompliance.nominal())
-    for backlash in (2.908882e-4, 0.0):
-        plant = _without_load_encoder(backlash)
-        with pytest.raises(UsageError, match=rf"backlash {backlash:.4g} rad and load_encoder_bits = None"):
-            require_known_drives(plant, SETUP)
-        require_known_drives(plant, dataclasses.replace(SETUP, servo="pd"))
-    with pytest.raises(UsageError, match=r"backlash 0.0002909 rad and load_encoder_bits = None: the motor side"):
-        require_known_drives(_without_load_encoder(2.908882e-4), known)
-    require_known_drives(_without_load_encoder(0.0), known)
-    require_known_drives(preset("compliant").plant, known)
-    require_known_drives(preset("nominal").plant, SETUP)
+    refused = "not identified: the two-mass model does not explain the drive"
+    rigid_file = IdentificationResult(*(ModelParameters(),) * 5, None, None, None, {}, {})
+    unidentified = dataclasses.replace(rigid_file, provenance={"compliance": {"method": refused}})
+    backlash = _without_load_encoder(2.908882e-4)
+    for setup, identification in ((SETUP, unidentified), (SETUP, rigid_file), (known, rigid_file)):
+        with pytest.raises(UsageError, match=r"backlash 0.0002909 rad and load_encoder_bits = None: the motor side"):
+            require_known_drives(backlash, setup, identification)
+    without_backlash = _without_load_encoder(0.0)
+    with pytest.raises(UsageError, match=rf"no drive compliance \(its identification: {refused}\)"):
+        require_known_drives(without_backlash, SETUP, unidentified)
+    with pytest.raises(UsageError, match=r"no drive compliance \(rigid drives: leave --parameters out"):
+        require_known_drives(without_backlash, SETUP, rigid_file)
+    with pytest.raises(UsageError, match=r"load_encoder_bits = 20: the parameter file holds no drive compliance"):
+        require_known_drives(preset("compliant").plant, SETUP, rigid_file)
+    for plant in (backlash, without_backlash):
+        require_known_drives(plant, dataclasses.replace(SETUP, servo="pd"), unidentified)
+    require_known_drives(without_backlash, known, rigid_file)
+    require_known_drives(preset("compliant").plant, known, rigid_file)
+    require_known_drives(preset("nominal").plant, SETUP, rigid_file)

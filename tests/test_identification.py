@@ -38,7 +38,7 @@ from delta_env.sensors import ENCODER_RESOLUTION
 from eval.identification import parameter_files
 from eval.identification.excitation import ExcitationSpec, collect_excitation_data
 from eval.identification.parameter_files import identify_robot, load_or_identify, outdated, parameter_path, robot_setup
-from eval.identification.run import IDENTIFICATION_VERSION, NO_LOAD_ENCODER, identify
+from eval.identification.run import COMPLIANCE_VERSION, IDENTIFICATION_VERSION, MOTOR_SIDE_UNIDENTIFIED, identify
 
 TRUTH = ModelParameters(rho1=1.77, rho2=0.93, viscous=(2.0, 2.4, 1.7), coulomb=(4.0, 3.4, 4.6))
 OFF_GRID = ModelParameters(rho1=1.2345, rho2=1.1111, viscous=(0.3, 5.0, 1.1), coulomb=(0.5, 8.0, 2.2))
@@ -413,8 +413,9 @@ def test_load_or_identify_never_replaces_a_corrupt_file(tmp_path, monkeypatch) -
 
 def test_a_cache_of_another_identification_version_is_identified_again(tmp_path, monkeypatch) -> None:
     """The cache key (the robot's identity) does not change with the identification's code: a robot's file written
-    by another version, or before the version was recorded, is identified again and replaced; a current one and one
-    from logs are read as they are."""
+    by another version, or before the version was recorded, is identified again and replaced, and so is one whose
+    compliant drives (fitted or refused) another version of their identification made; a current one and one from
+    logs are read as they are."""
     plant = preset("compliant").plant
 
     def versioned(version: object) -> IdentificationResult:
@@ -423,9 +424,16 @@ def test_a_cache_of_another_identification_version_is_identified_again(tmp_path,
     current, older = versioned(IDENTIFICATION_VERSION), versioned(IDENTIFICATION_VERSION - 1)
     from_logs = dataclasses.replace(RESULT, provenance={"plant": {"source": "logs"}})
     assert outdated(older) and outdated(RESULT) and not outdated(current) and not outdated(from_logs)
-    # compliant drives left unidentified before the motor-side fit are identified again
-    unidentified = {**current.provenance, "compliance": {"method": NO_LOAD_ENCODER}}
-    assert outdated(dataclasses.replace(current, provenance=unidentified))
+
+    def with_drives(compliance: dict) -> IdentificationResult:
+        return dataclasses.replace(current, provenance={**current.provenance, "compliance": compliance})
+
+    refused = f"{MOTOR_SIDE_UNIDENTIFIED}: the two-mass model does not explain the drive"
+    assert not outdated(with_drives({"method": refused, "version": COMPLIANCE_VERSION}))
+    assert not outdated(with_drives({"method": "fitted", "version": COMPLIANCE_VERSION}))
+    # a refusal by an older criterion, and drives left unidentified before the motor-side fit, are identified again
+    assert outdated(with_drives({"method": refused, "version": COMPLIANCE_VERSION - 1}))
+    assert outdated(with_drives({"method": "not identified: compliant drives without a load-side encoder"}))
     path = save_result(older, parameter_path(plant, tmp_path))
     monkeypatch.setattr(parameter_files, "identify", lambda **kwargs: current)
     monkeypatch.setattr(parameter_files, "check_identity", lambda *args: None)

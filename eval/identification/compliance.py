@@ -29,6 +29,7 @@ from delta_env import kinematics
 from delta_env.config import RATED_PAYLOAD, PlantConfig, PlantRealism
 from delta_env.env import DIVERGENCE_LOOP_GAP, encoder_steps
 from delta_env.excitation import MULTISINE_BAND, MULTISINE_PERIOD, multisine_torques
+from delta_env.geometry import DeltaGeometry, DeltaMasses
 from delta_env.plant import DeltaPlant
 from delta_env.sensors import CONTROL_PERIOD
 from delta_env.trajectories import WORKING_HEIGHT
@@ -389,12 +390,16 @@ MOTOR_SIDE_METHOD = _EXCITATION_METHOD + (
 """How the compliance was identified without a load-side encoder (the provenance's ``compliance.method``)."""
 
 
+def arm_inertia(geometry: DeltaGeometry, masses: DeltaMasses, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The arm-side joint inertia (kg m^2), ``(3, 3)``, at the joint angles ``theta`` (rad) of the datasheet model of
+    ``geometry`` (m) and ``masses`` (kg) with rod forearms (the rotor not in it: its rho1 is 1): what the motor-side fit
+    scales (docs/design.md section 7, "From the motor side alone")."""
+    return joint_space_inertia(DeltaDynamics.of_robot(geometry, masses, forearm_rods=True), theta)
+
+
 def pose_arm_inertia(plant: PlantConfig, pose: tuple[float, float, float]) -> NDArray[np.float64]:
-    """The arm-side joint inertia (kg m^2), ``(3, 3)``, at the platform position ``pose`` (m) of the datasheet model
-    with rod forearms (the rotor not in it: its rho1 is 1): what the motor-side fit scales (docs/design.md
-    section 7, "From the motor side alone")."""
-    theta = kinematics.inverse(plant.geometry, np.asarray(pose, dtype=float))
-    return joint_space_inertia(robot_model(plant, forearm_rods=True), theta)
+    """:func:`arm_inertia` of the robot ``plant`` builds at the platform position ``pose`` (m)."""
+    return arm_inertia(plant.geometry, plant.masses, kinematics.inverse(plant.geometry, np.asarray(pose, dtype=float)))
 
 
 def identify_compliance(

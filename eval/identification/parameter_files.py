@@ -29,7 +29,7 @@ from controllers.registry import ControllerSetup
 from delta_env.config import PlantConfig
 from delta_env.scenario import datasheet_identity, plant_identity
 from eval.identification.excitation import DEFAULT_DURATION, VALIDATION_DURATION
-from eval.identification.run import DEFAULT_TRAJECTORIES, IDENTIFICATION_VERSION, NO_LOAD_ENCODER, identify
+from eval.identification.run import COMPLIANCE_VERSION, DEFAULT_TRAJECTORIES, IDENTIFICATION_VERSION, identify
 from eval.run_folder import runs_root
 
 logger = logging.getLogger(__name__)
@@ -194,16 +194,17 @@ def check_identity(result: IdentificationResult, plant: PlantConfig, path: str |
 def outdated(result: IdentificationResult) -> bool:
     """Whether ``result``, a cached simulated identification, was written by another version of the identification
     than this code's (:data:`~eval.identification.run.IDENTIFICATION_VERSION`; a file written before the version was
-    recorded has none). The cache key, the robot's identity, does not change with the code, so such a file would be
-    read as it is. An identification from logs is never outdated: it is the user's, from data this code cannot
-    make again. A compliant plant's file that left its drives unidentified for want of a load-side encoder
-    (:data:`~eval.identification.run.NO_LOAD_ENCODER`) is outdated too: the drives are now identified from the motor
-    side."""
+    recorded has none), or holds compliant drives (fitted or refused) of another version of their identification
+    (:data:`~eval.identification.run.COMPLIANCE_VERSION`). The cache key, the robot's identity, does not change with
+    the code, so such a file would be read as it is. An identification from logs is never outdated: it is the user's,
+    from data this code cannot make again."""
     provenance = result.provenance
     if provenance.get("plant", {}).get("source") == "logs":
         return False
-    unidentified = provenance.get("compliance", {}).get("method") == NO_LOAD_ENCODER
-    return unidentified or provenance.get("method", {}).get("version") != IDENTIFICATION_VERSION
+    compliance = provenance.get("compliance")
+    if compliance is not None and compliance.get("version") != COMPLIANCE_VERSION:
+        return True
+    return provenance.get("method", {}).get("version") != IDENTIFICATION_VERSION
 
 
 def identify_robot(

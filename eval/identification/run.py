@@ -30,7 +30,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controllers.base import PDController
-from controllers.compliance import joint_space_inertia
 from controllers.dynamics import DeltaDynamics
 from controllers.estimation import ENCODER_NOISE_STD, SMOOTHER_JERK_STD
 from controllers.identification import (
@@ -57,7 +56,11 @@ from controllers.identification import (
     read_log,
 )
 from controllers.identification.bags import BagTopics, is_bag, read_bag
-from controllers.identification.compliance import UnexplainedTorqueError, fit_motor_side_compliance
+from controllers.identification.compliance import (
+    UnexplainedTorqueError,
+    UnseenModeError,
+    fit_motor_side_compliance,
+)
 from controllers.identification.logs import read_table_log
 from controllers.servo import ResonanceNotch
 from delta_env.config import PlantConfig
@@ -67,7 +70,7 @@ from delta_env.scene import build_mjcf
 from delta_env.sensors import CONTROL_PERIOD, MEASURED_TORQUE_DELAY
 from delta_env.validation import require_count
 from eval.console import progress_bar
-from eval.identification.compliance import identify_compliance
+from eval.identification.compliance import arm_inertia, identify_compliance
 from eval.identification.excitation import (
     DEFAULT_DURATION,
     NOMINAL_REGION,
@@ -90,7 +93,16 @@ IDENTIFICATION_VERSION = 2
 """Version of the simulated identification, recorded in its provenance (``method.version``). Raise it with every
 change of this code that changes the numbers it writes: the cache of a robot's identification is keyed by the robot
 alone, and a cached file of another version (or of none, written before the version was recorded) is identified again
-(:func:`eval.identification.parameter_files.outdated`)."""
+(:func:`eval.identification.parameter_files.outdated`). The exception: a change of the compliant drives'
+identification alone (their fit or its refusals) raises :data:`COMPLIANCE_VERSION` instead, so that it re-identifies
+the robots with compliant drives and leaves the rigid robots' files as they are."""
+
+COMPLIANCE_VERSION = 2
+"""Version of the compliant drives' identification and of its refusals, recorded in the provenance's
+``compliance.version`` (fitted or refused). Raise it with every change of the drives' fit or of what it refuses: a
+cached file with compliant drives of another version (or of none: 1 was never recorded) is identified again
+(:func:`eval.identification.parameter_files.outdated`). 2: the motor-side fit's refusal judged up to
+:data:`~controllers.identification.compliance.MOTOR_SIDE_CHECK_TOP` and the unseen mode refused."""
 
 _Output = TypeVar("_Output")
 
@@ -227,12 +239,11 @@ def run_identification(
 
     # Compliant drives are identified first, at rest poses: the excitation's PD then notches their modes, as a servo
     # drive's resonance filter is set before it moves the robot far and fast (docs/design.md section 7).
-    unidentified = MOTOR_SIDE_UNIDENTIFIED
     try:
-        drives = _drive_compliance(plant, seed, workers)
-    except UnexplainedTorqueError as error:
+        drives, refusal = _drive_compliance(plant, seed, workers), None
+    except (UnexplainedTorqueError, UnseenModeError) as error:
         logger.warning("compliant drives not identified: %s", error)
-        drives, unidentified = None, f"{MOTOR_SIDE_UNIDENTIFIED}: {error}"
+        drives, refusal = None, error
     notch = (
         None if drives is None else ResonanceNotch(drives[0].compliance.rotor_inertia, drives[0].compliance.stiffness)
     )
@@ -265,7 +276,8 @@ def run_identification(
         return _with_compliance(run, *drives)
     if plant.realism.compliance is None:
         return run
-    provenance = {**run.result.provenance, "compliance": {"method": unidentified}}
+    compliance = {"method": f"{MOTOR_SIDE_UNIDENTIFIED}: {refusal}", "version": COMPLIANCE_VERSION}
+    provenance = {**run.result.provenance, "compliance": compliance}
     return dataclasses.replace(run, result=dataclasses.replace(run.result, provenance=provenance))
 
 
@@ -282,13 +294,10 @@ def _drive_compliance(
 MOTOR_SIDE_UNIDENTIFIED = (
     "not identified: compliant drives without a load-side encoder that the motor side alone does not fit"
 )
-"""The provenance's ``compliance.method`` (with the fit's reason) of compliant drives whose motor-side fit left too
-much torque unexplained (:class:`~controllers.identification.compliance.UnexplainedTorqueError`: a backlash)."""
-
-NO_LOAD_ENCODER = "not identified: compliant drives without a load-side encoder"
-"""The provenance's ``compliance.method`` of a compliant plant whose drives an identification before the motor-side
-fit left unidentified: such a cached file is outdated
-(:func:`eval.identification.parameter_files.outdated`)."""
+"""The provenance's ``compliance.method`` (with the fit's reason) of compliant drives whose motor-side fit was refused
+(:class:`~controllers.identification.compliance.UnexplainedTorqueError`: the two-mass model does not explain the drive,
+as behind a backlash; :class:`~controllers.identification.compliance.UnseenModeError`: the logs do not show the
+mode)."""
 
 
 def _with_compliance(
@@ -306,7 +315,7 @@ def _with_compliance(
         run.result,
         compliance=fit.compliance,
         standard_errors={**run.result.standard_errors, **errors},
-        provenance={**run.result.provenance, "compliance": provenance},
+        provenance={**run.result.provenance, "compliance": {**provenance, "version": COMPLIANCE_VERSION}},
     )
     return dataclasses.replace(run, result=result, compliance_logs=logs)
 
@@ -358,8 +367,9 @@ def identify_logs(
     Raises:
         ValueError: for fewer than 2 logs, a compliance log that is a ROS 2 bag (a JointState carries no load-side
             angle), or compliance logs of which only some have load-side angles; LogFileError for a bad log;
-            ValueError naming the robot file for a bad one; UnexplainedTorqueError from the motor side alone on drives
-            it does not fit (a backlash).
+            ValueError naming the robot file for a bad one; from the motor side alone UnexplainedTorqueError on drives
+            the two-mass model does not explain (as behind a backlash) and UnseenModeError on logs that do not show
+            the mode.
     """
     start = time.perf_counter()
     paths = [Path(path) for path in paths]
@@ -411,8 +421,7 @@ def identify_logs(
         fit = fit_compliance(compliance_logs, torque_delay=torque_delay)
         method = "the motor side's least squares per joint (controllers.identification.compliance.fit_compliance)"
     elif not any(load_side):
-        arm = DeltaDynamics.of_robot(geometry, masses, forearm_rods=True)
-        inertias = [joint_space_inertia(arm, log.motor_side_angles.mean(axis=0)) for log in compliance_logs]
+        inertias = [arm_inertia(geometry, masses, log.motor_side_angles.mean(axis=0)) for log in compliance_logs]
         fit = fit_motor_side_compliance(compliance_logs, inertias, torque_delay=torque_delay)
         method = (
             "from the motor side alone (controllers.identification.compliance.fit_motor_side_compliance), the arm's "
