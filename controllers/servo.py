@@ -14,7 +14,8 @@ backward-difference rate). The integral term is clamped (anti-windup: |ki integr
 a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
 and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess
 met on the way out of rest); the servo then pushes with the identified breakaway torque in the direction of the
-error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
+error, saturating at ``friction_width`` (one encoder step; behind a compliant drive's notch, wider:
+:func:`notched_push_width`), which closes the stick band.
 
 The gains are placed on one inertia, the arm's empty at home; the joint's inertia grows with the pose (1.4 times at
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
@@ -29,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.optimize
@@ -378,20 +379,31 @@ def compliant_servo(
 ) -> JointServo:
     """The servo layer on compliant drives (docs/design.md section 6): a notch at each joint's drive mode, gains
     placed on each joint's ``inertia`` (kg m^2, rotor included) with the margin kept through the drive lag
-    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, the gains on the rotor
-    alone inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
+    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest and saturating at
+    :func:`notched_push_width` (at least ``friction_width``, the encoder's step in rad), the gains on the rotor alone
+    inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
     ``rotor_friction`` (N m). The model rows build it on the identified ``compliance``, the bound on the plant's
-    own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
+    own; ``rate_window`` (s) as :class:`JointServo`'s."""
     notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
     gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
     return JointServo(
-        gains,
+        replace(gains, friction_width=max(friction_width, notched_push_width(gains))),
         period,
         rate_window=rate_window,
         notch=notch,
         backlash=compliance.resolved_backlash,
         rotor_friction=rotor_friction,
+        encoder_step=friction_width,
     )
+
+
+def notched_push_width(gains: ServoGains) -> float:
+    """The error (rad) at which a notched servo's push at rest saturates: the one at which the push's small-signal gain
+    b_j / w is no larger than the loop's kp_j on any joint, max_j b_j / kp_j (docs/design.md section 6, "The push at
+    rest behind the notch"). The notched loop has a gain margin of about 2 on its proportional term, and the push
+    saturating at one encoder step acts as ten times kp on an error of a few steps: at rest after a stop it rang the
+    loop's own pair at 34 to 47 Hz."""
+    return float(np.max(np.asarray(gains.breakaway) / np.maximum(np.asarray(gains.kp), 1e-300)))
 
 
 class JointServo:
@@ -413,6 +425,8 @@ class JointServo:
             (whose rotor inertia and stiffness it takes).
         rotor_friction: The rotors' Coulomb friction per joint (N m), (3,) or a scalar: what a sliding rotor meets
             in :meth:`flank_floor`.
+        encoder_step: The encoder's step (rad) at the joint: a rotor slides (:meth:`flank_floor`) above two steps
+            over ``rate_window``. None: the gains' ``friction_width`` (the push saturating at one step).
     """
 
     def __init__(
@@ -423,6 +437,7 @@ class JointServo:
         notch: ResonanceNotch | None = None,
         backlash: ArrayLike | None = None,
         rotor_friction: ArrayLike = 0.0,
+        encoder_step: float | None = None,
     ) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
@@ -437,8 +452,13 @@ class JointServo:
         self.rotor_friction = require_joint_vector(
             "rotor_friction", np.broadcast_to(np.asarray(rotor_friction, dtype=float), (3,)), 0.0, unit="N m"
         )
+        step = (
+            gains.friction_width
+            if encoder_step is None
+            else require_in("encoder_step", encoder_step, 0.0, unit="rad", low_open=True)
+        )
         # the rotor's rate (rad/s) above which it slides: two encoder steps over the rate window
-        self._sliding_rate = 2.0 * gains.friction_width / rate_window
+        self._sliding_rate = 2.0 * step / rate_window
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]  # the biquad's two delays per joint (N m)
         self._notch_coefficients: list[tuple[float, float, float, float, float]] = []
         self.reference_rate = MeasuredReferenceRate(rate_window, period)

@@ -18,12 +18,14 @@ from controllers.dynamics import DeltaDynamics
 from controllers.registry import controller_entry
 from controllers.servo import (
     CROSSOVER_RATIO,
+    DEFAULT_FRICTION_WIDTH,
     DEFAULT_PHASE_MARGIN,
     NOTCHED_PHASE_MARGIN,
     UNDELAYED_PHASE_MARGIN,
     JointServo,
     ResonanceNotch,
     ServoGains,
+    compliant_servo,
     phase_margin,
     servo_bandwidth,
     servo_gains,
@@ -172,6 +174,29 @@ def test_the_notched_servo_places_on_the_compliant_plant(controller_setup) -> No
         assert metrics["tracking_rms_mm"] < 0.2
         assert metrics["place_error_max_mm"] < 0.08
         assert metrics["envelope_violations"] == 0 and metrics["settle_timeouts"] == 0
+
+
+@pytest.mark.parametrize("arm_inertia", [0.195, 0.45, 1.0])
+def test_the_push_at_rest_keeps_the_notched_loop_stable(arm_inertia: float) -> None:
+    """The push at rest, b sat(e / w), acts on an error of a few widths w as a proportional gain b / w beside kp (its
+    describing function falls from b / w as 4 b / (pi A) at amplitudes A >> w). One notched joint's linear model with
+    that gain added: saturating at one encoder step (b / w about ten times kp) its loop is unstable, at twice the
+    notched servo's gain too; at the notched servo's width (b / w at most kp on every joint) it stays stable."""
+    inertia = np.full(3, GEARHEAD.rotor_inertia + arm_inertia)
+    servo = compliant_servo(inertia, (4.0, 5.0, 5.0), 1e-3, IDENTIFIED)
+    gains = servo.gains
+    assert gains.friction_width == pytest.approx(max(b / k for b, k in zip(gains.breakaway, gains.kp, strict=True)))
+    kp, kd, ki = gains.kp[2], gains.kd[2], gains.ki[2]
+    push = gains.breakaway[2] / gains.friction_width
+    assert push == pytest.approx(kp)
+
+    def largest_pole(extra_gain: float) -> float:
+        return float(np.max(np.abs(_joint_loop_poles(arm_inertia, (kp + extra_gain, kd, ki), servo.notch))))
+
+    assert largest_pole(0.0) < 0.97
+    assert largest_pole(push) < 0.995
+    assert largest_pole(2.0 * push) > 1.0
+    assert largest_pole(gains.breakaway[2] / DEFAULT_FRICTION_WIDTH) > 1.02
 
 
 def test_gains_on_the_inertia_matrix_give_every_direction_its_triple_pole() -> None:
