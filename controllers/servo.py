@@ -77,6 +77,12 @@ negative damping; the arm, two to four times the rotor's inertia behind the gap,
 40, 55 and 80 Hz, the one at which the 3-arcmin plant ran fastest (docs/measurements.md); below it the damping is the
 rotor's, as the loop was designed."""
 
+NOTCHED_PUSH_GAIN = 2.0
+"""Largest small-signal gain of a notched servo's push at rest, b / w, over its kp (:func:`notched_push_width`): of
+0.5, 1, 2 and about 2.5 (five encoder steps; one step is 10 or more), the one at which the 0.7-times gearheads ran
+fastest at 0.1 and 1 kg without a time-out (0.5 timed out at 1 kg and 1 at 0.1 kg: the rotor's stick band,
+|e| < b / ((1 + gain) kp), too wide for the integral to close in time; docs/measurements.md)."""
+
 DEFAULT_NOTCH_QUALITY = 0.7
 """Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
 0.7 and 1, the one that a linear analysis of a compliant joint under the scheduled servo keeps stable with the
@@ -386,24 +392,25 @@ def compliant_servo(
     own; ``rate_window`` (s) as :class:`JointServo`'s."""
     notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
     gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
+    if not compliance.resolved_backlash.any():
+        gains = replace(gains, friction_width=max(friction_width, notched_push_width(gains)))
     return JointServo(
-        replace(gains, friction_width=max(friction_width, notched_push_width(gains))),
+        gains,
         period,
         rate_window=rate_window,
         notch=notch,
         backlash=compliance.resolved_backlash,
         rotor_friction=rotor_friction,
-        encoder_step=friction_width,
     )
 
 
 def notched_push_width(gains: ServoGains) -> float:
     """The error (rad) at which a notched servo's push at rest saturates: the one at which the push's small-signal gain
-    b_j / w is no larger than the loop's kp_j on any joint, max_j b_j / kp_j (docs/design.md section 6, "The push at
-    rest behind the notch"). The notched loop has a gain margin of about 2 on its proportional term, and the push
-    saturating at one encoder step acts as ten times kp on an error of a few steps: at rest after a stop it rang the
-    loop's own pair at 34 to 47 Hz."""
-    return float(np.max(np.asarray(gains.breakaway) / np.maximum(np.asarray(gains.kp), 1e-300)))
+    b_j / w is no larger than :data:`NOTCHED_PUSH_GAIN` times the loop's kp_j on any joint, max_j b_j / (2 kp_j)
+    (docs/design.md section 6, "The push at rest behind the notch"). The notched loop has a gain margin of about 1.7
+    on its proportional term, and the push saturating at one encoder step acts as ten times kp on an error of a few
+    steps: at rest after a stop it rang the loop's own pair at 34 to 47 Hz."""
+    return float(np.max(np.asarray(gains.breakaway) / (NOTCHED_PUSH_GAIN * np.asarray(gains.kp))))
 
 
 class JointServo:
@@ -425,8 +432,6 @@ class JointServo:
             (whose rotor inertia and stiffness it takes).
         rotor_friction: The rotors' Coulomb friction per joint (N m), (3,) or a scalar: what a sliding rotor meets
             in :meth:`flank_floor`.
-        encoder_step: The encoder's step (rad) at the joint: a rotor slides (:meth:`flank_floor`) above two steps
-            over ``rate_window``. None: the gains' ``friction_width`` (the push saturating at one step).
     """
 
     def __init__(
@@ -437,7 +442,6 @@ class JointServo:
         notch: ResonanceNotch | None = None,
         backlash: ArrayLike | None = None,
         rotor_friction: ArrayLike = 0.0,
-        encoder_step: float | None = None,
     ) -> None:
         self.gains = gains
         self.period = require_in("period", period, 0.0, unit="s", low_open=True)
@@ -452,13 +456,8 @@ class JointServo:
         self.rotor_friction = require_joint_vector(
             "rotor_friction", np.broadcast_to(np.asarray(rotor_friction, dtype=float), (3,)), 0.0, unit="N m"
         )
-        step = (
-            gains.friction_width
-            if encoder_step is None
-            else require_in("encoder_step", encoder_step, 0.0, unit="rad", low_open=True)
-        )
         # the rotor's rate (rad/s) above which it slides: two encoder steps over the rate window
-        self._sliding_rate = 2.0 * step / rate_window
+        self._sliding_rate = 2.0 * gains.friction_width / rate_window
         self._notch_state = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]  # the biquad's two delays per joint (N m)
         self._notch_coefficients: list[tuple[float, float, float, float, float]] = []
         self.reference_rate = MeasuredReferenceRate(rate_window, period)

@@ -21,6 +21,7 @@ from controllers.servo import (
     DEFAULT_FRICTION_WIDTH,
     DEFAULT_PHASE_MARGIN,
     NOTCHED_PHASE_MARGIN,
+    NOTCHED_PUSH_GAIN,
     UNDELAYED_PHASE_MARGIN,
     JointServo,
     ResonanceNotch,
@@ -177,26 +178,30 @@ def test_the_notched_servo_places_on_the_compliant_plant(controller_setup) -> No
 
 
 @pytest.mark.parametrize("arm_inertia", [0.195, 0.45, 1.0])
-def test_the_push_at_rest_keeps_the_notched_loop_stable(arm_inertia: float) -> None:
-    """The push at rest, b sat(e / w), acts on an error of a few widths w as a proportional gain b / w beside kp (its
-    describing function falls from b / w as 4 b / (pi A) at amplitudes A >> w). One notched joint's linear model with
-    that gain added: saturating at one encoder step (b / w about ten times kp) its loop is unstable, at twice the
-    notched servo's gain too; at the notched servo's width (b / w at most kp on every joint) it stays stable."""
+def test_the_notched_push_at_rest_adds_at_most_twice_kp(arm_inertia: float) -> None:
+    """The push at rest, b sat(e / w), acts on errors within w as a proportional gain b / w beside kp (and on a swing
+    of amplitude A >> w as 4 b / (pi A)). One notched joint's frictionless linear model with that gain added: at one
+    encoder step (b / w 4.5 to 19 times kp) its loop grows 3 to 17 % a sample; at the notched servo's width (b / w
+    twice kp) at most 2 %, which the rotor's friction, a large damper on small swings, holds; at half that width
+    (four times kp) 3 to 6 %. With a backlash the band's own law at rest keeps the push at one step."""
     inertia = np.full(3, GEARHEAD.rotor_inertia + arm_inertia)
     servo = compliant_servo(inertia, (4.0, 5.0, 5.0), 1e-3, IDENTIFIED)
     gains = servo.gains
-    assert gains.friction_width == pytest.approx(max(b / k for b, k in zip(gains.breakaway, gains.kp, strict=True)))
+    widths = [b / (NOTCHED_PUSH_GAIN * k) for b, k in zip(gains.breakaway, gains.kp, strict=True)]
+    assert gains.friction_width == pytest.approx(max(widths))
     kp, kd, ki = gains.kp[2], gains.kd[2], gains.ki[2]
     push = gains.breakaway[2] / gains.friction_width
-    assert push == pytest.approx(kp)
+    assert push == pytest.approx(2.0 * kp)
 
     def largest_pole(extra_gain: float) -> float:
         return float(np.max(np.abs(_joint_loop_poles(arm_inertia, (kp + extra_gain, kd, ki), servo.notch))))
 
-    assert largest_pole(0.0) < 0.97
-    assert largest_pole(push) < 0.995
-    assert largest_pole(2.0 * push) > 1.0
-    assert largest_pole(gains.breakaway[2] / DEFAULT_FRICTION_WIDTH) > 1.02
+    assert largest_pole(0.0) < 0.96
+    assert largest_pole(push) < 1.02
+    assert largest_pole(2.0 * push) > 1.025
+    assert largest_pole(gains.breakaway[2] / DEFAULT_FRICTION_WIDTH) > 1.03
+    backlash = replace(IDENTIFIED, backlash=(3e-4,) * 3)
+    assert compliant_servo(inertia, (4.0, 5.0, 5.0), 1e-3, backlash).gains.friction_width == DEFAULT_FRICTION_WIDTH
 
 
 def test_gains_on_the_inertia_matrix_give_every_direction_its_triple_pole() -> None:
