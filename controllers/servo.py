@@ -14,8 +14,7 @@ backward-difference rate). The integral term is clamped (anti-windup: |ki integr
 a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
 and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess
 met on the way out of rest); the servo then pushes with the identified breakaway torque in the direction of the
-error, saturating at ``friction_width`` (one encoder step; behind a compliant drive's notch, wider:
-:func:`notched_push_width`), which closes the stick band.
+error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
 
 The gains are placed on one inertia, the arm's empty at home; the joint's inertia grows with the pose (1.4 times at
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
@@ -30,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.optimize
@@ -76,12 +75,6 @@ more (the rotor on the gearhead's spring, slowed by the band), where the loop's 
 negative damping; the arm, two to four times the rotor's inertia behind the gap, hardly follows it. Of 10, 20, 30, 35,
 40, 55 and 80 Hz, the one at which the 3-arcmin plant ran fastest (docs/measurements.md); below it the damping is the
 rotor's, as the loop was designed."""
-
-NOTCHED_PUSH_GAIN = 2.0
-"""Largest small-signal gain of a notched servo's push at rest, b / w, over its kp (:func:`notched_push_width`): of
-0.5, 1, 2 and about 2.5 (five encoder steps; one step is 10 or more), the one at which the 0.7-times gearheads ran
-fastest at 0.1 and 1 kg without a time-out (0.5 timed out at 1 kg and 1 at 0.1 kg: the rotor's stick band,
-|e| < b / ((1 + gain) kp), too wide for the integral to close in time; docs/measurements.md)."""
 
 DEFAULT_NOTCH_QUALITY = 0.7
 """Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
@@ -385,15 +378,12 @@ def compliant_servo(
 ) -> JointServo:
     """The servo layer on compliant drives (docs/design.md section 6): a notch at each joint's drive mode, gains
     placed on each joint's ``inertia`` (kg m^2, rotor included) with the margin kept through the drive lag
-    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest and saturating at
-    :func:`notched_push_width` (at least ``friction_width``, the encoder's step in rad), the gains on the rotor alone
-    inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
+    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, the gains on the rotor
+    alone inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
     ``rotor_friction`` (N m). The model rows build it on the identified ``compliance``, the bound on the plant's
-    own; ``rate_window`` (s) as :class:`JointServo`'s."""
+    own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
     notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
     gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
-    if not compliance.resolved_backlash.any():
-        gains = replace(gains, friction_width=max(friction_width, notched_push_width(gains)))
     return JointServo(
         gains,
         period,
@@ -402,15 +392,6 @@ def compliant_servo(
         backlash=compliance.resolved_backlash,
         rotor_friction=rotor_friction,
     )
-
-
-def notched_push_width(gains: ServoGains) -> float:
-    """The error (rad) at which a notched servo's push at rest saturates: the one at which the push's small-signal gain
-    b_j / w is no larger than :data:`NOTCHED_PUSH_GAIN` times the loop's kp_j on any joint, max_j b_j / (2 kp_j)
-    (docs/design.md section 6, "The push at rest behind the notch"). The notched loop has a gain margin of about 1.7
-    on its proportional term, and the push saturating at one encoder step acts as ten times kp on an error of a few
-    steps: at rest after a stop it rang the loop's own pair at 34 to 47 Hz."""
-    return float(np.max(np.asarray(gains.breakaway) / (NOTCHED_PUSH_GAIN * np.asarray(gains.kp))))
 
 
 class JointServo:

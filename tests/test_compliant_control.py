@@ -18,15 +18,12 @@ from controllers.dynamics import DeltaDynamics
 from controllers.registry import controller_entry
 from controllers.servo import (
     CROSSOVER_RATIO,
-    DEFAULT_FRICTION_WIDTH,
     DEFAULT_PHASE_MARGIN,
     NOTCHED_PHASE_MARGIN,
-    NOTCHED_PUSH_GAIN,
     UNDELAYED_PHASE_MARGIN,
     JointServo,
     ResonanceNotch,
     ServoGains,
-    compliant_servo,
     phase_margin,
     servo_bandwidth,
     servo_gains,
@@ -175,33 +172,6 @@ def test_the_notched_servo_places_on_the_compliant_plant(controller_setup) -> No
         assert metrics["tracking_rms_mm"] < 0.2
         assert metrics["place_error_max_mm"] < 0.08
         assert metrics["envelope_violations"] == 0 and metrics["settle_timeouts"] == 0
-
-
-@pytest.mark.parametrize("arm_inertia", [0.195, 0.45, 1.0])
-def test_the_notched_push_at_rest_adds_at_most_twice_kp(arm_inertia: float) -> None:
-    """The push at rest, b sat(e / w), acts on errors within w as a proportional gain b / w beside kp (and on a swing
-    of amplitude A >> w as 4 b / (pi A)). One notched joint's frictionless linear model with that gain added: at one
-    encoder step (b / w 4.5 to 19 times kp) its loop grows 3 to 17 % a sample; at the notched servo's width (b / w
-    twice kp) at most 2 %, which the rotor's friction, a large damper on small swings, holds; at half that width
-    (four times kp) 3 to 6 %. With a backlash the band's own law at rest keeps the push at one step."""
-    inertia = np.full(3, GEARHEAD.rotor_inertia + arm_inertia)
-    servo = compliant_servo(inertia, (4.0, 5.0, 5.0), 1e-3, IDENTIFIED)
-    gains = servo.gains
-    widths = [b / (NOTCHED_PUSH_GAIN * k) for b, k in zip(gains.breakaway, gains.kp, strict=True)]
-    assert gains.friction_width == pytest.approx(max(widths))
-    kp, kd, ki = gains.kp[2], gains.kd[2], gains.ki[2]
-    push = gains.breakaway[2] / gains.friction_width
-    assert push == pytest.approx(2.0 * kp)
-
-    def largest_pole(extra_gain: float) -> float:
-        return float(np.max(np.abs(_joint_loop_poles(arm_inertia, (kp + extra_gain, kd, ki), servo.notch))))
-
-    assert largest_pole(0.0) < 0.96
-    assert largest_pole(push) < 1.02
-    assert largest_pole(2.0 * push) > 1.025
-    assert largest_pole(gains.breakaway[2] / DEFAULT_FRICTION_WIDTH) > 1.03
-    backlash = replace(IDENTIFIED, backlash=(3e-4,) * 3)
-    assert compliant_servo(inertia, (4.0, 5.0, 5.0), 1e-3, backlash).gains.friction_width == DEFAULT_FRICTION_WIDTH
 
 
 def test_gains_on_the_inertia_matrix_give_every_direction_its_triple_pole() -> None:
