@@ -2,6 +2,8 @@
 
 import dataclasses
 import math
+import tomllib
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -69,6 +71,21 @@ def test_integers_in_a_file_mean_the_same_floats() -> None:
     written = Scenario.from_toml('name = "n"\n[plant.realism]\ncoulomb = 4\n[task]\npayload_mass_range = [0, 4]\n')
     assert written.content_hash == Scenario().content_hash
     assert isinstance(written.plant.realism.coulomb, float)
+
+
+SCENARIO_FILES = sorted((Path(__file__).parents[1] / "docs" / "scenarios").glob("*.toml"))
+"""The files docs/scenarios ships: scenarios (the compliant plants of docs/measurements.md) and geometry files
+(``--geometry``, a ``[geometry]`` table)."""
+
+
+@pytest.mark.parametrize("path", SCENARIO_FILES, ids=[path.stem for path in SCENARIO_FILES])
+def test_every_file_the_docs_ship_loads(path: Path) -> None:
+    if "geometry" in tomllib.loads(path.read_text()):
+        assert scenario_module.load_geometry(path).l2 > 0.0
+        return
+    scenario = resolve_scenario(str(path))
+    assert scenario.name == path.stem
+    assert Scenario.from_toml(scenario.to_toml()) == scenario
 
 
 def test_a_file_without_a_name_is_named_after_its_stem(tmp_path) -> None:
