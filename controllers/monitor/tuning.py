@@ -23,9 +23,9 @@ TURN_HISTORY = 4
 """Readings before a run of repeats from which the stuck check bounds the joint's speed where its reading stopped
 changing (docs/design.md section 6, "Encoders", case (c)): going back m samples narrows the count's share of the
 bound, q / (m T), while the acceleration's share, about its bounds' width times m T / 2, grows; with the width of
-4 b_i / S_i (b_i the breakaway, S_i the joint's inertia: 0.55-0.8 counts/ms^2 on the campaigns' reversals) the two
-meet at about two samples. Each m adds a bound (the speed lies within all of them), so going further costs only one
-model evaluation per sample once per run of repeats."""
+4 b_i / S_i (b_i the breakaway, S_i the joint's inertia; its size on the campaigns' reversals is in
+docs/measurements.md) the two meet at about two samples. Each m adds a bound (the speed lies within all of them),
+so going further costs only one model evaluation per sample once per run of repeats."""
 
 TORQUE_MARGIN = 6.0
 """How far (N m) a measured torque may lie outside the span of the last torque and the commands held since (the one
