@@ -204,9 +204,7 @@ def bound_violations(episode_rows: list[dict[str, Any]], bound_label: str) -> li
     place error (at release) significantly below the bound's (:func:`closer_places`). Diverged episodes do not
     count, nor do the episodes (seeds) on which the bound was not a bound (:func:`unbounded_episodes`),
     for any controller."""
-    skipped = {row["seed"] for row in unbounded_episodes(episode_rows, bound_label)}
-    kept = [row for row in episode_rows if not row["diverged"] and row["seed"] not in skipped]
-    groups = metrics.group_by(kept, "controller")
+    groups = checked_groups(episode_rows, bound_label)
     if bound_label not in groups:
         return []
     means = {label: metrics.mean_std([row["tracking_rms_mm"] for row in group])[0] for label, group in groups.items()}
@@ -238,19 +236,27 @@ PLACE_BOUND_SIGNIFICANCE = 0.05
 than this significance is within what the encoders' quantization scatters (one count is tens of µm at the platform)."""
 
 
+def checked_groups(episode_rows: list[dict[str, Any]], bound_label: str) -> dict[str, list[dict[str, Any]]]:
+    """The episode rows the bound check compares, by controller: not diverged, and not on an episode (seed) on which
+    the bound was not a bound (:func:`unbounded_episodes`)."""
+    skipped = {row["seed"] for row in unbounded_episodes(episode_rows, bound_label)}
+    kept = [row for row in episode_rows if not row["diverged"] and row["seed"] not in skipped]
+    return metrics.group_by(kept, "controller")
+
+
+def _places(group: list[dict[str, Any]]) -> dict[int, float]:
+    """Mean place error (mm) by seed of the rows of ``group`` that placed."""
+    return {
+        row["seed"]: row["place_error_mean_mm"]
+        for row in group
+        if math.isfinite(row.get("place_error_mean_mm", math.nan))
+    }
+
+
 def place_check_words(episode_rows: list[dict[str, Any]], bound_label: str) -> str:
     """What :data:`BOUND_HOLDS` says of the place check: that no row places significantly closer, or, on fewer than
     two of the bound's episodes with a place, that the check needs two."""
-    skipped = {row["seed"] for row in unbounded_episodes(episode_rows, bound_label)}
-    placed = [
-        row
-        for row in episode_rows
-        if row["controller"] == bound_label
-        and not row["diverged"]
-        and row["seed"] not in skipped
-        and math.isfinite(row.get("place_error_mean_mm", math.nan))
-    ]
-    if len(placed) < 2:
+    if len(_places(checked_groups(episode_rows, bound_label).get(bound_label, []))) < 2:
         return "; the place error needs two episodes to be checked (paired, one-sided t-test)"
     return (
         ", nor places closer on average (paired over the episodes, one-sided t-test at "
@@ -269,32 +275,24 @@ def closer_places(
     same objects) and names a row when, over two episodes at least, a one-sided paired t-test finds it closer at
     :data:`PLACE_BOUND_SIGNIFICANCE`, or every episode is closer by the same amount (no scatter).
     """
-    bound_places = {
-        row["seed"]: row["place_error_mean_mm"]
-        for row in groups[bound_label]
-        if math.isfinite(row.get("place_error_mean_mm", math.nan))
-    }
+    bound_places = _places(groups[bound_label])
     closer = {}
     for label, group in groups.items():
-        pairs = [
-            (row["place_error_mean_mm"], bound_places[row["seed"]])
-            for row in group
-            if label != bound_label
-            and row["seed"] in bound_places
-            and math.isfinite(row.get("place_error_mean_mm", math.nan))
-        ]
-        if not pairs:
+        places = _places(group)
+        seeds = [seed for seed in places if seed in bound_places]
+        if label == bound_label or len(seeds) < 2:
             continue
-        row_places, bound_of_row = (np.array(column) for column in zip(*pairs, strict=True))
+        row_places = np.array([places[seed] for seed in seeds])
+        bound_of_row = np.array([bound_places[seed] for seed in seeds])
         differences = row_places - bound_of_row
-        if len(pairs) < 2 or np.mean(differences) >= 0.0:
+        if np.mean(differences) >= 0.0:
             continue
         if np.ptp(differences) == 0.0:
             p_value = 0.0
         else:
             p_value = float(stats.ttest_rel(row_places, bound_of_row, alternative="less").pvalue)
         if p_value < PLACE_BOUND_SIGNIFICANCE:
-            closer[label] = (float(np.mean(row_places)), float(np.mean(bound_of_row)), len(pairs), p_value)
+            closer[label] = (float(np.mean(row_places)), float(np.mean(bound_of_row)), len(seeds), p_value)
     return closer
 
 
