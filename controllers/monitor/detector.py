@@ -127,7 +127,7 @@ class FaultMonitor:
         initial["static_friction"] = dynamics.parameters.coulomb
         initial["reference_before"] = math.nan
         initial["half_count"] = max(0.5 * step, 1e-9)
-        initial["sample"] = initial["quiet_until"] = initial["held_since"] = -1
+        initial["sample"] = initial["quiet_until"] = initial["held_since"] = initial["empty_since"] = -1
         initial["held_glitch"] = math.nan
         initial["gripper_changed"] = -SMOOTHER_WINDOW
         initial["scatter"] = INITIAL_RESIDUAL_STD**2

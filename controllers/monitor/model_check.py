@@ -126,6 +126,11 @@ MODEL_CHECK_FIELDS = [
     ("held_moment", np.float64),
     ("pending_information", np.float64),
     ("pending_moment", np.float64),
+    # on an empty move: the sample since which, and the sums from which, its apparent mass along phi is measured (as
+    # the mass held since a pick), the reference of the deviations it teaches the window statistic
+    ("empty_since", np.int64),
+    ("empty_information", np.float64),
+    ("empty_moment", np.float64),
     ("evidence", np.float64),
     ("slip_armed", np.bool_),
     ("slip_mass", np.float64),
@@ -140,6 +145,12 @@ MODEL_CHECK_FIELDS = [
     ("information_sums", np.float64, (SLIP_WINDOW,)),
     ("learned_samples", np.int64),
     ("window_ratios", np.float64, (SLIP_WINDOW,)),
+    # the samples not yet learned: the last SLIP_WINDOW samples' deviations, information and whether each may be
+    # learned (False: it breaks the run), oldest first, and how many of the rows hold samples
+    ("unlearned_deviations", np.float64, (SLIP_WINDOW,)),
+    ("unlearned_informations", np.float64, (SLIP_WINDOW,)),
+    ("unlearned_valid", np.uint8, (SLIP_WINDOW,)),
+    ("unlearned_count", np.int64),
     ("run_samples", np.int64),
 ]
 """The fields of the monitor's record that :func:`check_sample` keeps, beside ``sample`` (the sample's index since
@@ -232,6 +243,48 @@ def _restart_held(check: np.record) -> None:
     check.evidence = 0.0
     check.held_known = False
     check.run_samples = 0
+    check.empty_since = -1
+
+
+@numba.njit(cache=True)
+def _measured_mass(since: int, sample: int, information: float) -> bool:
+    """Whether a mass measured along phi from sample ``since`` on, with ``information`` (kg^-2) summed into it, may
+    serve as the reference of the slip check's deviations at ``sample``: :data:`SLIP_SETTLE` has passed and its
+    standard error is under :data:`HELD_MASS_STD`."""
+    return (sample - since) * CONTROL_PERIOD >= SLIP_SETTLE and information > 0.0 and information**-0.5 < HELD_MASS_STD
+
+
+@numba.njit(cache=True)
+def _learn_empty(
+    check: np.record,
+    terms: NDArray[np.float64],
+    corrected: NDArray[np.float64],
+    band: NDArray[np.float64],
+    jerk_variance: NDArray[np.float64],
+) -> None:
+    """Teach the window statistic an empty move's sample: its deviation from the move's apparent mass along phi,
+    measured as the mass held is on a carry (the raw residual ``terms``, weighted with the torque steps' variance
+    ``jerk_variance``, from the move's start on), once known; a collision's samples and those before break the
+    run. The check tests a carry against the mass measured on that carry, which takes in any offset of the model
+    along phi that persists over the move; measured from 0 instead, an empty move's offset (on the first, before
+    the model's corrections are fitted, 0.17 kg on a ``randomized`` plant) entered every window's sum and made
+    kappa_n grow with n (docs/design.md section 6, "Light slips: the residual's correlation")."""
+    if check.empty_since < 0:
+        check.empty_since = check.sample
+        check.empty_information = 0.0
+        check.empty_moment = 0.0
+    if check.force_evidence != 0.0 or check.collision:  # a collision's force is no model error
+        _defer(check, 0.0, 0.0, False)
+        return
+    if _measured_mass(check.empty_since, check.sample, check.empty_information):
+        apparent = check.empty_moment / check.empty_information
+        window_information, window_moment = slip_moments(corrected, band, check.scatter)
+        _defer(check, window_moment - apparent * window_information, window_information, True)
+    else:
+        _defer(check, 0.0, 0.0, False)
+    information, moment = slip_moments(terms, band, check.scatter + jerk_variance)
+    check.empty_information += information
+    check.empty_moment += moment
 
 
 @numba.njit(cache=True)
@@ -240,6 +293,37 @@ def _shift_scalar(values: NDArray[np.float64], value: float) -> None:
     for row in range(len(values) - 1):
         values[row] = values[row + 1]
     values[len(values) - 1] = value
+
+
+@numba.njit(cache=True)
+def _defer(check: np.record, deviation: float, information: float, valid: bool) -> None:
+    """Hold one sample's ``deviation`` and ``information`` (:func:`_learn_correlation`; ``valid`` False for a sample
+    that breaks the run of consecutive samples) back from the window statistic's running means for
+    :data:`SLIP_WINDOW` samples, and learn the sample that falls out: the samples a window weighs are never the
+    ones its variance was learned from (a loss's own deviations taught kappa_n that the residual is correlated, and
+    slowed their own test)."""
+    oldest_deviation, oldest_information = check.unlearned_deviations[0], check.unlearned_informations[0]
+    oldest_valid = check.unlearned_valid[0] != 0
+    full = check.unlearned_count == SLIP_WINDOW
+    for row in range(SLIP_WINDOW - 1):
+        check.unlearned_valid[row] = check.unlearned_valid[row + 1]
+    check.unlearned_valid[SLIP_WINDOW - 1] = 1 if valid else 0
+    _shift_scalar(check.unlearned_deviations, deviation)
+    _shift_scalar(check.unlearned_informations, information)
+    check.unlearned_count = min(check.unlearned_count + 1, SLIP_WINDOW)
+    if full:
+        if oldest_valid:
+            _learn_correlation(check, oldest_deviation, oldest_information)
+        else:
+            check.chain = 0
+
+
+@numba.njit(cache=True)
+def _forget_unlearned(check: np.record) -> None:
+    """Drop the samples not yet learned (a slip's: the loss's own) and break the run."""
+    for row in range(SLIP_WINDOW):
+        check.unlearned_valid[row] = 0
+    check.chain = 0
 
 
 @numba.njit(cache=True)
@@ -318,7 +402,7 @@ def _check_payload(
     known mass (:func:`_learn_correlation`): either over :data:`SLIP_EVIDENCE` makes a slip.
     Returns :data:`SLIPPED` or 0."""
     if quiet:
-        check.chain = 0
+        _defer(check, 0.0, 0.0, False)
         if holding:
             check.run_samples = 0
             if check.held_since < 0:
@@ -333,17 +417,13 @@ def _check_payload(
         check.held_since = -1
         check.held_known = False
         learn_scatter(check.scatter, terms, 0.0, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
-        if check.force_evidence == 0.0 and not check.collision:  # a collision's force is no model error
-            window_information, window_moment = slip_moments(corrected, band, check.scatter)
-            _learn_correlation(check, window_moment, window_information)
-        else:
-            check.chain = 0
+        _learn_empty(check, terms, corrected, band, jerk_variance)
         return 0
     if check.held_since < 0:
         _restart_held(check)
         check.slip_armed = True
     if not check.slip_armed:
-        check.chain = 0
+        _defer(check, 0.0, 0.0, False)
         return 0
     if check.held_known:
         learn_scatter(check.scatter, terms, check.held_mass, FRICTION_VELOCITY, SCATTER_RATE, RESIDUAL_STD**2)
@@ -353,7 +433,7 @@ def _check_payload(
     if (check.sample - check.held_since) * CONTROL_PERIOD >= SLIP_SETTLE and check.held_information > 0.0:
         held = check.held_moment / check.held_information
         held_std = check.held_information**-0.5
-        if held_std < HELD_MASS_STD:
+        if _measured_mass(check.held_since, check.sample, check.held_information):
             check.held_mass = held
             check.held_known = True
         # test "gone" against "held" once the mass held is known well enough to tell them apart
@@ -371,7 +451,8 @@ def _check_payload(
                 check.run_samples = 0
                 window = 0.0
             if check.evidence > SLIP_EVIDENCE or window > SLIP_EVIDENCE:
-                check.run_samples = check.chain = 0
+                check.run_samples = 0
+                _forget_unlearned(check)
                 check.pending_information = check.pending_moment = 0.0
                 check.slip_mass = held
                 check.slip_armed = False
@@ -383,9 +464,9 @@ def _check_payload(
         check.run_samples = 0
     # a collision's force is no model error
     if check.held_known and check.force_evidence == 0.0 and not check.collision:
-        _learn_correlation(check, window_moment - check.held_mass * window_information, window_information)
+        _defer(check, window_moment - check.held_mass * window_information, window_information, True)
     else:
-        check.chain = 0
+        _defer(check, 0.0, 0.0, False)
     if check.force_evidence == 0.0 and not check.collision:  # a collision's samples stay out of the mass held
         # while the CUSUM runs, its samples may be the loss's: they wait outside the mass held, which they would
         # drag towards "gone" (a light object's held mass fell below SLIP_MIN_MASS and its loss was never found),
