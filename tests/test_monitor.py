@@ -676,6 +676,33 @@ def test_the_loss_of_an_object_just_above_the_lightest_tested_mass_estimated_bel
     assert 0.0 <= record.detected_faults[0].time_s - injected.start_s <= 0.026  # twice the 13 ms measured
 
 
+def test_a_light_slip_in_the_first_carry_is_found_within_thirty_ms_and_its_twin_raises_nothing(
+    controller_setup: ControllerSetup,
+) -> None:
+    # A 0.307 kg object lost 0.15 s into the first carry on a randomized plant (seed 406), where the joint carrying
+    # most of the payload regressor turns. The window statistic's correlation had been learned on the first empty
+    # move against 0 kg, before the model's corrections were fitted: an offset of 0.17 kg along phi made kappa_52
+    # about 13, and PD's monitor took 54 ms. Learned against the move's own apparent mass, and a window after the
+    # samples it tests: 15 ms (docs/design.md section 6, "Light slips: the residual's correlation"). The fault-free
+    # twin raises nothing.
+    from delta_env.scenario import preset
+    from eval.faults.__main__ import with_faults
+    from eval.work import timed_controller
+
+    light = preset("randomized")
+    light = dataclasses.replace(light, task=dataclasses.replace(light.task, payload_mass_range=(0.3, 0.4)))
+    for faults in ((FaultSpec("slip", carry_fraction=(0.3, 0.7)),), ()):
+        env = DeltaPickPlaceEnv(scenario=with_faults(light, faults))
+        record = run_episode(env, timed_controller(env, "pd", controller_setup), 406)
+        if not faults:
+            assert record.detected_faults == []
+            continue
+        (injected,) = env.injected_faults
+        assert 0.30 <= injected.size <= 0.31
+        assert [fault.kind for fault in record.detected_faults] == ["slip"]
+        assert 0.0 <= record.detected_faults[0].time_s - injected.start_s <= 0.030
+
+
 @pytest.mark.parametrize(("seed", "withheld"), [(15, 6.7), (16, 7.9)])
 def test_a_drive_that_withholds_a_few_n_m_from_a_pd_is_a_drive_fault(
     controller_setup: ControllerSetup, seed: int, withheld: float

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from controllers.dynamics import DeltaDynamics, ModelParameters
 from controllers.estimation import SMOOTHER_LAG, SMOOTHER_WINDOW, JointStateSmoother
@@ -29,7 +30,10 @@ from controllers.monitor.compiled import (
 )
 from controllers.monitor.detector import loop_response
 from controllers.monitor.model_check import (
+    _defer,
+    _forget_unlearned,
     _learn_correlation,
+    _learn_empty,
     _sliding,
     _slip_band,
     _window_evidence,
@@ -419,6 +423,58 @@ def test_the_window_statistic_is_the_largest_window_ratio_over_the_measured_vari
     assert _window_evidence(state, cap) == pytest.approx(expected, rel=1e-12)
     state.learned_samples = 0
     assert _window_evidence(state, cap) == 0.0
+
+
+def test_the_window_statistic_learns_each_sample_a_window_late_and_a_slip_drops_the_samples_still_waiting() -> None:
+    # Deviations 1, 2, 3, ... with a break at the fifth: nothing is learned over the first SLIP_WINDOW samples, then
+    # each sample exactly SLIP_WINDOW samples after it came (the break too); a slip's drop leaves none of the waiting
+    # samples to be learned.
+    state = np.zeros(1, dtype=MONITOR)[0]
+    for sample in range(SLIP_WINDOW):
+        _defer(state, float(sample + 1), 1.0, sample != 4)
+        assert state.learned_samples == 0
+    _defer(state, 100.0, 1.0, True)
+    assert state.learned_samples == 1 and state.window_deviations[-1] == 1.0
+    for _ in range(4):
+        _defer(state, 100.0, 1.0, True)
+    assert state.learned_samples == 4 and state.chain == 0  # the fifth sample's break, learned in its turn
+    _defer(state, 100.0, 1.0, True)
+    assert state.learned_samples == 5 and state.window_deviations[-1] == 6.0 and state.chain == 1
+    _forget_unlearned(state)
+    for _ in range(SLIP_WINDOW):
+        _defer(state, 100.0, 1.0, True)
+    assert state.learned_samples == 5 and state.chain == 0
+    _defer(state, 7.0, 1.0, True)
+    assert state.learned_samples == 6 and state.window_deviations[-1] == 100.0  # the first sample after the drop
+
+
+def test_an_empty_moves_offset_along_phi_does_not_inflate_the_window_statistics_correlation() -> None:
+    # White residuals r = offset phi + e (e ~ N(0, 1) N m, the scatter 1 N^2 m^2, no friction band): about the move's
+    # apparent mass the deviations are e's whatever the offset, so kappa_n is white samples' 1 (within the running
+    # means' scatter) for every n. Measured from 0, as before, a 0.2 kg offset entered every window's sum and made
+    # kappa_52 about 1 + 52 offset^2 I = 9.3.
+    def learned(offset: float, from_zero: bool) -> NDArray[np.float64]:
+        rng = np.random.default_rng(3)
+        state = np.zeros(1, dtype=MONITOR)[0]
+        state.empty_since = -1
+        state.scatter[:] = 1.0
+        for sample in range(6000):
+            state.sample = sample
+            terms = np.zeros((6, 3))
+            terms[1] = rng.uniform(1.0, 1.6, size=3) * rng.choice((-1.0, 1.0), size=3)
+            terms[0] = offset * terms[1] + rng.normal(size=3)
+            terms[2] = 3.0
+            if from_zero:
+                _learn_correlation(state, float(terms[0] @ terms[1]), float(terms[1] @ terms[1]))
+            else:
+                _learn_empty(state, terms, terms, np.zeros(3), np.zeros(3))
+        return state.squared_sums / state.information_sums
+
+    white = learned(0.0, from_zero=False)
+    np.testing.assert_allclose(learned(0.2, from_zero=False), white, rtol=1e-9)
+    assert white[0] == pytest.approx(1.0, abs=0.25)
+    assert white[SLIP_WINDOW - 1] < 2.5
+    assert learned(0.2, from_zero=True)[SLIP_WINDOW - 1] > 6.0
 
 
 def test_loop_output_is_the_first_order_loop_sampled_half_a_period_late() -> None:

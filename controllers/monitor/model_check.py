@@ -399,7 +399,8 @@ def _check_payload(
     loss of a heavy object) makes a slip. Beside the CUSUM, a window statistic (:func:`_window_evidence`) weighs the
     run's last samples with the correlation of the residual ``corrected`` (``terms`` with the smoother's error at the
     torque's steps taken off, weighted without the torque steps' variance), measured on this robot's samples with a
-    known mass (:func:`_learn_correlation`): either over :data:`SLIP_EVIDENCE` makes a slip.
+    known mass (:func:`_learn_correlation`), a window late (:func:`_defer`): either over :data:`SLIP_EVIDENCE` makes a
+    slip.
     Returns :data:`SLIPPED` or 0."""
     if quiet:
         _defer(check, 0.0, 0.0, False)
