@@ -146,7 +146,7 @@ MODEL_CHECK_FIELDS = [
     ("learned_samples", np.int64),
     ("window_ratios", np.float64, (SLIP_WINDOW,)),
     # the samples not yet learned: the last SLIP_WINDOW samples' deviations, information and whether each may be
-    # learned (False: it breaks the run), oldest first, and how many of the rows hold samples
+    # learned (0: it breaks the run), oldest first, and how many of the rows hold samples
     ("unlearned_deviations", np.float64, (SLIP_WINDOW,)),
     ("unlearned_informations", np.float64, (SLIP_WINDOW,)),
     ("unlearned_valid", np.uint8, (SLIP_WINDOW,)),
@@ -264,11 +264,11 @@ def _learn_empty(
 ) -> None:
     """Teach the window statistic an empty move's sample: its deviation from the move's apparent mass along phi,
     measured as the mass held is on a carry (the raw residual ``terms``, weighted with the torque steps' variance
-    ``jerk_variance``, from the move's start on), once known; a collision's samples and those before break the
-    run. The check tests a carry against the mass measured on that carry, which takes in any offset of the model
-    along phi that persists over the move; measured from 0 instead, an empty move's offset (on the first, before
-    the model's corrections are fitted, 0.17 kg on a ``randomized`` plant) entered every window's sum and made
-    kappa_n grow with n (docs/design.md section 6, "Light slips: the residual's correlation")."""
+    ``jerk_variance``, from the move's start on), once known; a collision's samples, and those before the mass is
+    known, break the run. The check tests a carry against the mass measured on that carry, which takes in any
+    offset of the model along phi that persists over the move; measured from 0 instead, an empty move's offset (on
+    the first, before the model's corrections are fitted, 0.17 kg on a ``randomized`` plant) entered every window's
+    sum and made kappa_n grow with n (docs/design.md section 6, "Light slips: the residual's correlation")."""
     if check.empty_since < 0:
         check.empty_since = check.sample
         check.empty_information = 0.0
