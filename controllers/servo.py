@@ -14,7 +14,9 @@ backward-difference rate). The integral term is clamped (anti-windup: |ki integr
 a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
 and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess
 met on the way out of rest); the servo then pushes with the identified breakaway torque in the direction of the
-error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
+error, saturating at ``friction_width`` (one encoder step), which closes the stick band. Behind the notch of compliant
+drives, once a joint has passed its target at rest, only on a rotor that is still or moves away from its target
+(:meth:`JointServo._pushes`): pushed on one already moving towards it, it drives the notched loop's own ring.
 
 The gains are placed on one inertia, the arm's empty at home; the joint's inertia grows with the pose (1.4 times at
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled

@@ -26,8 +26,8 @@ the plant's nominal joint friction."""
 BREAKAWAY = COULOMB + STRIBECK_EXCESS
 """What holds a stuck rotor (N m), and what the servo pushes at rest."""
 
-MOTOR_STEP = encoder_resolution(ENCODER_BITS) / 21.0
-"""The motor encoder's step at the joint (rad): 17 bits on the motor shaft behind 1:21."""
+MOTOR_STEP = encoder_resolution(ENCODER_BITS) / GEARHEAD.gear_ratio
+"""The motor encoder's step at the joint (rad): 17 bits on the motor shaft behind the gearhead."""
 
 SUBSTEPS = 20
 """Integration steps per control period."""
