@@ -14,9 +14,7 @@ backward-difference rate). The integral term is clamped (anti-windup: |ki integr
 a blocked joint cannot wind it up. While the reference is at rest the model's Coulomb term fc sign(thd_ref) is zero,
 and static friction would hold any error with |kp e| below the breakaway torque fb (Coulomb plus the Stribeck excess
 met on the way out of rest); the servo then pushes with the identified breakaway torque in the direction of the
-error, saturating at ``friction_width`` (one encoder step), which closes the stick band. Behind the notch of compliant
-drives, once a joint has passed its target at rest, only on a rotor that is still or moves away from its target
-(:meth:`JointServo._pushes`): pushed on one already moving towards it, it drives the notched loop's own ring.
+error, saturating at ``friction_width`` (one encoder step), which closes the stick band.
 
 The gains are placed on one inertia, the arm's empty at home; the joint's inertia grows with the pose (1.4 times at
 the conveyors) and the payload (fourfold with 4 kg there), which slows the loop and takes phase margin. A scheduled
@@ -451,8 +449,6 @@ class JointServo:
         self._deflections: list[list[float]] = []  # the last two samples' rotor deflections (rad), newest last
         self._load_angles: list[float] | None = None  # the last sample's load encoder angles (rad), for band_rates
         self._twist_rate_error = [0.0, 0.0, 0.0]  # the low-passed twist rate error of band_rates (rad/s)
-        self._rest_side = [0.0, 0.0, 0.0]  # the sign of the last nonzero error at rest per joint, 0 in motion
-        self._passed = [False, False, False]  # per joint, whether its error changed sign since its reference rested
         self._samples = 0  # samples since the reset, for follow_inertia
         self._unscheduled()
 
@@ -559,8 +555,6 @@ class JointServo:
         self._deflections = []
         self._load_angles = None
         self._twist_rate_error = [0.0, 0.0, 0.0]
-        self._rest_side = [0.0, 0.0, 0.0]
-        self._passed = [False, False, False]
         self.reference_rate.reset()
         self._unscheduled()
 
@@ -587,7 +581,6 @@ class JointServo:
         limit, width = gains.integral_limit, gains.friction_width
         reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
         reference_rates, rates = observation["reference_velocities"].tolist(), observation["joint_velocities"].tolist()
-        rotor_rates = rates  # the drive encoders' rates, which band_rates may replace in the derivative term
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
         measured_reference_rates = self.reference_rate.rates(observation)
@@ -606,12 +599,10 @@ class JointServo:
                 # A rotor free of its arm: the loop's gains on the inertia it drives now (docs/design.md section 6).
                 band_gains = self._gains_on(self.band_inertia(in_band))
                 return self._matrix_feedback(
-                    reference, angles, reference_rates, rates, rotor_rates, measured_reference_rates, band_gains
+                    reference, angles, reference_rates, rates, measured_reference_rates, band_gains
                 )
         if self._gain_matrices is not None:
-            return self._matrix_feedback(
-                reference, angles, reference_rates, rates, rotor_rates, measured_reference_rates
-            )
+            return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
         # Per joint in Python floats: at three values, cheaper than NumPy's operations.
         for joint in range(3):
@@ -622,7 +613,7 @@ class JointServo:
             integral = min(max(self._integral[joint] + ki[joint] * error * period, -limit), limit)
             self._integral[joint] = integral
             value = kp[joint] * error + kd[joint] * rate_error + integral
-            if self._pushes(joint, error, reference_rates[joint], rotor_rates[joint]):
+            if reference_rates[joint] == 0.0:
                 # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
                 value += gains.breakaway[joint] * min(max(error / width, -1.0), 1.0)
             torque[joint] = value
@@ -630,25 +621,6 @@ class JointServo:
             for joint in range(3):
                 torque[joint] = notch_sample(self._notch_coefficients[joint], self._notch_state[joint], torque[joint])
         return np.array(torque)
-
-    def _pushes(self, joint: int, error: float, reference_rate: float, rotor_rate: float) -> bool:
-        """Whether ``joint`` gets the push at rest this sample, given its ``error`` e (rad), its reference's rate and
-        its drive encoder's rate (rad/s); call it every sample (it follows the joint's rest). Only while the
-        reference rests; on a rigid drive then always. Behind the notch, once the joint has passed its target since
-        its reference came to rest (e changed sign), only where the push cannot feed the loop's own ring: on a rotor
-        the encoder reads still (rate 0) or that moves away from its target (sign(rate) != sign(e)), where it opposes
-        the motion; before that, always, the approach's friction compensation (docs/design.md section 6, "A push at
-        rest that feeds no ring")."""
-        if reference_rate != 0.0:
-            self._rest_side[joint], self._passed[joint] = 0.0, False
-            return False
-        if self.notch is None:
-            return True
-        side = math.copysign(1.0, error) if error != 0.0 else 0.0
-        if side != 0.0:
-            self._passed[joint] = self._passed[joint] or side == -self._rest_side[joint]
-            self._rest_side[joint] = side
-        return not self._passed[joint] or rotor_rate == 0.0 or rotor_rate * error < 0.0
 
     def _deflection_rate(self, deflection: list[float]) -> list[float]:
         """The mean rate (rad/s) of the rotors' ``deflection`` (rad) over the measured rate's window w ending now, from
@@ -782,7 +754,6 @@ class JointServo:
         angles: list[float],
         reference_rates: list[float],
         rates: list[float],
-        rotor_rates: list[float],
         measured_reference_rates: ArrayLike,
         gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
     ) -> NDArray[np.float64]:
@@ -796,9 +767,9 @@ class JointServo:
         integral = np.clip(np.array(self._integral) + (ki @ error) * self.period, -limit, limit)
         self._integral = integral.tolist()
         torque = kp @ error + kd @ rate_error + integral
-        pushes = [self._pushes(j, float(error[j]), reference_rates[j], rotor_rates[j]) for j in range(3)]
+        at_rest = np.array(reference_rates) == 0.0
         push = np.asarray(gains.breakaway) * np.clip(error / gains.friction_width, -1.0, 1.0)
-        torque = torque + np.where(pushes, push, 0.0)
+        torque = torque + np.where(at_rest, push, 0.0)
         if self.notch is not None:
             torque = np.array(
                 [notch_sample(self._notch_coefficients[j], self._notch_state[j], float(torque[j])) for j in range(3)]
