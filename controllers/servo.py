@@ -76,19 +76,6 @@ negative damping; the arm, two to four times the rotor's inertia behind the gap,
 40, 55 and 80 Hz, the one at which the 3-arcmin plant ran fastest (docs/measurements.md); below it the damping is the
 rotor's, as the loop was designed."""
 
-PUSH_RAMP_PERIODS = 2.0
-"""Periods of a notched servo's own pair (at its crossover, :data:`CROSSOVER_RATIO` w0) over which its push at rest
-ramps up to the breakaway after the error last changed sign (:meth:`JointServo.push_at_rest`): on a swing of
-amplitude A the ramped push's in-phase gain is b / (pi n A) for n periods (the plain relay's 4 b / (pi A) over 4 n),
-at most half the loop's kp (its pair then keeps about half its damping) for swings above (2 / pi n) b / kp, a third
-of the stick band at n = 2 (docs/design.md section 6, "The push at rest behind the notch")."""
-
-STUCK_PERIOD_SHARE = 0.25
-"""Share of a notched servo's pair period for which a rotor encoder that reads no motion at rest marks the rotor
-stuck, and its push at rest the whole breakaway at once (:meth:`JointServo.push_at_rest`; 6 ms at 40 Hz): a swing of
-A encoder counts dwells within a count of its peak for acos(1 - 1 / A) / pi of the period, a quarter for swings of
-up to 3.4 counts (160 urad at 17 bit)."""
-
 DEFAULT_NOTCH_QUALITY = 0.7
 """Quality factor Q of the notch on the servo torque at a compliant drive's mode (its -3 dB width is f0 / Q): of 0.5,
 0.7 and 1, the one that a linear analysis of a compliant joint under the scheduled servo keeps stable with the
@@ -463,20 +450,6 @@ class JointServo:
         self._load_angles: list[float] | None = None  # the last sample's load encoder angles (rad), for band_rates
         self._twist_rate_error = [0.0, 0.0, 0.0]  # the low-passed twist rate error of band_rates (rad/s)
         self._samples = 0  # samples since the reset, for follow_inertia
-        # behind a notch, the push at rest's share of the breakaway per joint (0 to 1), its rise per sample over
-        # PUSH_RAMP_PERIODS of the loop's pair (w0 = kp / kd, whatever the schedule), and the last error at rest
-        self._push_share = [0.0, 0.0, 0.0]
-        self._push_rise = [1.0, 1.0, 1.0]
-        self._stuck_samples = [1, 1, 1]
-        if notch is not None:
-            pair_periods = [
-                2.0 * math.pi * kd / (CROSSOVER_RATIO * kp) if kp > 0.0 else 0.0
-                for kp, kd in zip(gains.kp, gains.kd, strict=True)
-            ]
-            self._push_rise = [min(1.0, period / (PUSH_RAMP_PERIODS * p)) if p > 0.0 else 1.0 for p in pair_periods]
-            self._stuck_samples = [max(1, round(STUCK_PERIOD_SHARE * p / period)) for p in pair_periods]
-        self._rest_error = [0.0, 0.0, 0.0]
-        self._still = [0, 0, 0]  # samples at rest in a row whose rotor rate read 0
         self._unscheduled()
 
     @property
@@ -582,9 +555,6 @@ class JointServo:
         self._deflections = []
         self._load_angles = None
         self._twist_rate_error = [0.0, 0.0, 0.0]
-        self._push_share = [0.0, 0.0, 0.0]
-        self._rest_error = [0.0, 0.0, 0.0]
-        self._still = [0, 0, 0]
         self.reference_rate.reset()
         self._unscheduled()
 
@@ -608,10 +578,9 @@ class JointServo:
     def _loop_torque(self, observation: Observation, deflection: ArrayLike | None) -> NDArray[np.float64]:
         """:meth:`feedback`'s loop: PID, the push at rest, the band's gains and rates, the notch."""
         gains, period, kp, ki, kd = self.gains, self.period, self._kp, self._ki, self._kd
-        limit = gains.integral_limit
+        limit, width = gains.integral_limit, gains.friction_width
         reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
         reference_rates, rates = observation["reference_velocities"].tolist(), observation["joint_velocities"].tolist()
-        rotor_rates = rates
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
         measured_reference_rates = self.reference_rate.rates(observation)
@@ -630,12 +599,10 @@ class JointServo:
                 # A rotor free of its arm: the loop's gains on the inertia it drives now (docs/design.md section 6).
                 band_gains = self._gains_on(self.band_inertia(in_band))
                 return self._matrix_feedback(
-                    reference, angles, reference_rates, rates, measured_reference_rates, rotor_rates, band_gains
+                    reference, angles, reference_rates, rates, measured_reference_rates, band_gains
                 )
         if self._gain_matrices is not None:
-            return self._matrix_feedback(
-                reference, angles, reference_rates, rates, measured_reference_rates, rotor_rates
-            )
+            return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
         # Per joint in Python floats: at three values, cheaper than NumPy's operations.
         for joint in range(3):
@@ -646,40 +613,14 @@ class JointServo:
             integral = min(max(self._integral[joint] + ki[joint] * error * period, -limit), limit)
             self._integral[joint] = integral
             value = kp[joint] * error + kd[joint] * rate_error + integral
-            # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
-            value += self.push_at_rest(joint, error, reference_rates[joint] == 0.0, rotor_rates[joint] == 0.0)
+            if reference_rates[joint] == 0.0:
+                # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
+                value += gains.breakaway[joint] * min(max(error / width, -1.0), 1.0)
             torque[joint] = value
         if self.notch is not None:
             for joint in range(3):
                 torque[joint] = notch_sample(self._notch_coefficients[joint], self._notch_state[joint], torque[joint])
         return np.array(torque)
-
-    def push_at_rest(self, joint: int, error: float, at_rest: bool, rotor_still: bool) -> float:
-        """The friction push at rest (N m) of ``joint`` at this sample's ``error`` (rad), 0 while its reference moves:
-        the breakaway b in the error's direction, b sat(e / w) with w the friction width. Behind a notch (compliant
-        drives) only a share s of it: 0 at the stop and at every change of the error's sign, rising from there by a
-        sample's share of :data:`PUSH_RAMP_PERIODS` periods of the loop's pair up to 1, and 1 once the rotor's
-        encoder (``rotor_still``: its measured rate 0) has read no motion for :data:`STUCK_PERIOD_SHARE` of the
-        pair's period. On the pair's swings the push then stays a few tenths of kp
-        instead of 2 to 19 times it, while a rotor stuck off the reference gets the whole breakaway (docs/design.md
-        section 6, "The push at rest behind the notch")."""
-        if not at_rest:
-            self._push_share[joint], self._rest_error[joint], self._still[joint] = 0.0, 0.0, 0
-            return 0.0
-        push = self.gains.breakaway[joint] * min(max(error / self.gains.friction_width, -1.0), 1.0)
-        if self.notch is None:
-            return push
-        self._still[joint] = self._still[joint] + 1 if rotor_still else 0
-        if error * self._rest_error[joint] < 0.0:
-            share = 0.0
-        elif self._still[joint] >= self._stuck_samples[joint]:
-            share = 1.0
-        else:
-            share = min(self._push_share[joint] + self._push_rise[joint], 1.0)
-        self._push_share[joint] = share
-        if error != 0.0:
-            self._rest_error[joint] = error
-        return share * push
 
     def _deflection_rate(self, deflection: list[float]) -> list[float]:
         """The mean rate (rad/s) of the rotors' ``deflection`` (rad) over the measured rate's window w ending now, from
@@ -814,24 +755,21 @@ class JointServo:
         reference_rates: list[float],
         rates: list[float],
         measured_reference_rates: ArrayLike,
-        rotor_rates: list[float],
         gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
     ) -> NDArray[np.float64]:
         """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix, or ``gain_matrices``): the same
-        law, its P, I and D terms coupled; ``rotor_rates`` (rad/s) are the motor encoders' measured rates, for
-        :meth:`push_at_rest`."""
+        law, its P, I and D terms coupled."""
         kp, ki, kd = self._gain_matrices if gain_matrices is None else gain_matrices
-        limit = self.gains.integral_limit
+        gains, limit = self.gains, self.gains.integral_limit
         error = np.array(reference) - np.array(angles)
         rate_error = np.asarray(measured_reference_rates, dtype=float) - np.array(rates)
         self._error, self._rate_error = error.tolist(), rate_error.tolist()
         integral = np.clip(np.array(self._integral) + (ki @ error) * self.period, -limit, limit)
         self._integral = integral.tolist()
         torque = kp @ error + kd @ rate_error + integral
-        push = [
-            self.push_at_rest(j, float(error[j]), reference_rates[j] == 0.0, rotor_rates[j] == 0.0) for j in range(3)
-        ]
-        torque = torque + np.array(push)
+        at_rest = np.array(reference_rates) == 0.0
+        push = np.asarray(gains.breakaway) * np.clip(error / gains.friction_width, -1.0, 1.0)
+        torque = torque + np.where(at_rest, push, 0.0)
         if self.notch is not None:
             torque = np.array(
                 [notch_sample(self._notch_coefficients[j], self._notch_state[j], float(torque[j])) for j in range(3)]
