@@ -30,6 +30,8 @@ from controllers.monitor.compiled import (
 )
 from controllers.monitor.detector import loop_response
 from controllers.monitor.model_check import (
+    SLIPPED,
+    _check_payload,
     _defer,
     _forget_unlearned,
     _learn_correlation,
@@ -58,6 +60,7 @@ from controllers.monitor.tuning import (
     REST_FORCE_REFERENCE,
     REST_RATE,
     SENSOR_QUIET,
+    SLIP_SETTLE,
     SLIP_WINDOW,
     SLOWEST_LAG_FACTOR,
     STUCK_SAMPLES,
@@ -451,8 +454,8 @@ def test_the_window_statistic_learns_each_sample_a_window_late_and_a_slip_drops_
 def test_an_empty_moves_offset_along_phi_does_not_inflate_the_window_statistics_correlation() -> None:
     # White residuals r = offset phi + e (e ~ N(0, 1) N m, the scatter 1 N^2 m^2, no friction band): about the move's
     # apparent mass the deviations are e's whatever the offset, so kappa_n is white samples' 1 (within the running
-    # means' scatter) for every n. Measured from 0, as before, a 0.2 kg offset entered every window's sum and made
-    # kappa_52 about 1 + 52 offset^2 I = 9.3.
+    # means' scatter) for every n. Measured from 0, a 0.2 kg offset enters every window's sum and makes kappa_52
+    # about 1 + 52 offset^2 I, about 12 with the mean information I about 5 kg^-2 of these phi.
     def learned(offset: float, from_zero: bool) -> NDArray[np.float64]:
         rng = np.random.default_rng(3)
         state = np.zeros(1, dtype=MONITOR)[0]
@@ -475,6 +478,39 @@ def test_an_empty_moves_offset_along_phi_does_not_inflate_the_window_statistics_
     assert white[0] == pytest.approx(1.0, abs=0.25)
     assert white[SLIP_WINDOW - 1] < 2.5
     assert learned(0.2, from_zero=True)[SLIP_WINDOW - 1] > 6.0
+
+
+def test_a_slip_found_within_a_window_teaches_the_window_statistic_none_of_the_losss_samples() -> None:
+    # A carry of 2 kg (r = 2 phi + e), then the object gone (r = e) until the check finds the slip: every sample
+    # learned by then came before the loss (its deviation about the mass held is e's, small; a loss sample's is
+    # -2 phi^T W phi, at least 2 kg^-1 here), and none of the loss's is learned after it either.
+    rng = np.random.default_rng(5)
+    state = np.zeros(1, dtype=MONITOR)[0]
+    state.held_since = state.empty_since = -1
+    state.scatter[:] = 1.0
+    state.onset_samples = 4
+    loss = 400
+
+    def carry(sample: int) -> int:
+        state.sample = sample
+        terms = np.zeros((6, 3))
+        terms[1] = rng.uniform(1.0, 1.6, size=3) * rng.choice((-1.0, 1.0), size=3)
+        terms[0] = (2.0 if sample < loss else 0.0) * terms[1] + 0.1 * rng.normal(size=3)
+        terms[2] = 3.0
+        return _check_payload(state, terms, terms, True, False, np.zeros(3), 0.0)
+
+    assert not any(carry(sample) for sample in range(loss))
+    learned_before = state.learned_samples
+    # learned: the carry's samples from the one the mass held was known at (after SLIP_SETTLE) to a window ago
+    assert 0 < learned_before <= loss - SLIP_WINDOW - round(SLIP_SETTLE / CONTROL_PERIOD)
+    found = next(sample for sample in range(loss, loss + SLIP_WINDOW) if carry(sample) == SLIPPED)
+    assert found < loss + SLIP_WINDOW // 2
+    learned = state.learned_samples - learned_before
+    assert learned == found - loss  # those that came a window before each sample, all before the loss
+    assert np.all(state.window_deviations[SLIP_WINDOW - learned :] > -1.0)
+    for sample in range(found + 1, found + 2 * SLIP_WINDOW):
+        carry(sample)
+    assert state.learned_samples == learned_before + learned
 
 
 def test_loop_output_is_the_first_order_loop_sampled_half_a_period_late() -> None:
