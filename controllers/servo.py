@@ -378,11 +378,10 @@ def compliant_servo(
 ) -> JointServo:
     """The servo layer on compliant drives (docs/design.md section 6): a notch at each joint's drive mode, gains
     placed on each joint's ``inertia`` (kg m^2, rotor included) with the margin kept through the drive lag
-    ``drive_lag`` (s) and the notch's lag, at rest the ``breakaway`` torque (N m) pushed on a still rotor and the
-    rotors' Coulomb ``rotor_friction`` (N m) compensated on a moving one (:meth:`JointServo.rest_push`), the gains on
-    the rotor alone inside the backlash's band, and at rest the torque held on the loaded flank against that
-    friction. The model rows build it on the identified ``compliance`` and friction, the bound on the plant's own;
-    ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
+    ``drive_lag`` (s) and the notch's lag, the ``breakaway`` torque (N m) pushed at rest, the gains on the rotor
+    alone inside the backlash's band, and at rest the torque held on the loaded flank against the rotors' Coulomb
+    ``rotor_friction`` (N m). The model rows build it on the identified ``compliance``, the bound on the plant's
+    own; ``rate_window`` (s) and ``friction_width`` (rad) as :class:`JointServo` and :class:`ServoGains`."""
     notch = ResonanceNotch(compliance.rotor_inertia, compliance.stiffness)
     gains = servo_gains(inertia, breakaway, drive_lag, period=period, friction_width=friction_width, notch=notch)
     return JointServo(
@@ -413,7 +412,7 @@ class JointServo:
             pull the rotor off its loaded flank (:meth:`flank_floor`). None or zeros: none. It needs the notch
             (whose rotor inertia and stiffness it takes).
         rotor_friction: The rotors' Coulomb friction per joint (N m), (3,) or a scalar: what a sliding rotor meets
-            in :meth:`flank_floor`, and behind the notch what :meth:`rest_push` compensates on a moving rotor at rest.
+            in :meth:`flank_floor`.
     """
 
     def __init__(
@@ -579,10 +578,9 @@ class JointServo:
     def _loop_torque(self, observation: Observation, deflection: ArrayLike | None) -> NDArray[np.float64]:
         """:meth:`feedback`'s loop: PID, the push at rest, the band's gains and rates, the notch."""
         gains, period, kp, ki, kd = self.gains, self.period, self._kp, self._ki, self._kd
-        limit = gains.integral_limit
+        limit, width = gains.integral_limit, gains.friction_width
         reference, angles = observation["reference_angles"].tolist(), observation["joint_angles"].tolist()
         reference_rates, rates = observation["reference_velocities"].tolist(), observation["joint_velocities"].tolist()
-        rotor_rates = rates  # the drive encoders' rates, on which the push at rest acts (band_rates may replace rates)
         # Like rates: the measured rate is a mean over the window, so the reference's is taken over the same window
         # (the instantaneous one would leave kd w thdd_ref / 2 of torque on the reference itself).
         measured_reference_rates = self.reference_rate.rates(observation)
@@ -601,12 +599,10 @@ class JointServo:
                 # A rotor free of its arm: the loop's gains on the inertia it drives now (docs/design.md section 6).
                 band_gains = self._gains_on(self.band_inertia(in_band))
                 return self._matrix_feedback(
-                    reference, angles, reference_rates, rates, rotor_rates, measured_reference_rates, band_gains
+                    reference, angles, reference_rates, rates, measured_reference_rates, band_gains
                 )
         if self._gain_matrices is not None:
-            return self._matrix_feedback(
-                reference, angles, reference_rates, rates, rotor_rates, measured_reference_rates
-            )
+            return self._matrix_feedback(reference, angles, reference_rates, rates, measured_reference_rates)
         torque = [0.0, 0.0, 0.0]
         # Per joint in Python floats: at three values, cheaper than NumPy's operations.
         for joint in range(3):
@@ -618,24 +614,13 @@ class JointServo:
             self._integral[joint] = integral
             value = kp[joint] * error + kd[joint] * rate_error + integral
             if reference_rates[joint] == 0.0:
-                # At rest the model's fc sign(thd_ref) is 0: the push at rest instead.
-                value += self.rest_push(joint, error, rotor_rates[joint])
+                # At rest the model's fc sign(thd_ref) is 0: push the breakaway torque in the error's direction.
+                value += gains.breakaway[joint] * min(max(error / width, -1.0), 1.0)
             torque[joint] = value
         if self.notch is not None:
             for joint in range(3):
                 torque[joint] = notch_sample(self._notch_coefficients[joint], self._notch_state[joint], torque[joint])
         return np.array(torque)
-
-    def rest_push(self, joint: int, error: float, rotor_rate: float) -> float:
-        """The push at rest (N m) of ``joint`` while its reference rests, for its error e (rad) and its drive
-        encoder's rate (rad/s): on a rigid drive, and on a rotor the encoder reads still (no count in the window), the
-        breakaway b sat(e / e_f), which frees a stuck joint. Behind the notch a moving rotor instead gets its Coulomb
-        friction fc (``rotor_friction``) compensated in the direction of its motion, towards its target or away from
-        it: no term in e, so no gain on the notched loop's pair, and never more than the rotor meets at any rate
-        (docs/design.md section 6, "Friction in motion at rest")."""
-        if self.notch is None or rotor_rate == 0.0:
-            return self.gains.breakaway[joint] * min(max(error / self.gains.friction_width, -1.0), 1.0)
-        return math.copysign(float(self.rotor_friction[joint]), rotor_rate)
 
     def _deflection_rate(self, deflection: list[float]) -> list[float]:
         """The mean rate (rad/s) of the rotors' ``deflection`` (rad) over the measured rate's window w ending now, from
@@ -769,24 +754,22 @@ class JointServo:
         angles: list[float],
         reference_rates: list[float],
         rates: list[float],
-        rotor_rates: list[float],
         measured_reference_rates: ArrayLike,
         gain_matrices: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
     ) -> NDArray[np.float64]:
         """:meth:`feedback` with gain matrices (:meth:`schedule` on an inertia matrix, or ``gain_matrices``): the same
         law, its P, I and D terms coupled."""
         kp, ki, kd = self._gain_matrices if gain_matrices is None else gain_matrices
-        limit = self.gains.integral_limit
+        gains, limit = self.gains, self.gains.integral_limit
         error = np.array(reference) - np.array(angles)
         rate_error = np.asarray(measured_reference_rates, dtype=float) - np.array(rates)
         self._error, self._rate_error = error.tolist(), rate_error.tolist()
         integral = np.clip(np.array(self._integral) + (ki @ error) * self.period, -limit, limit)
         self._integral = integral.tolist()
         torque = kp @ error + kd @ rate_error + integral
-        push = [
-            self.rest_push(j, float(error[j]), rotor_rates[j]) if reference_rates[j] == 0.0 else 0.0 for j in range(3)
-        ]
-        torque = torque + np.array(push)
+        at_rest = np.array(reference_rates) == 0.0
+        push = np.asarray(gains.breakaway) * np.clip(error / gains.friction_width, -1.0, 1.0)
+        torque = torque + np.where(at_rest, push, 0.0)
         if self.notch is not None:
             torque = np.array(
                 [notch_sample(self._notch_coefficients[j], self._notch_state[j], float(torque[j])) for j in range(3)]
