@@ -288,7 +288,7 @@ def _learn_empty(
 
 
 @numba.njit(cache=True)
-def _shift_scalar(values: NDArray[np.float64], value: float) -> None:
+def _shift_scalar(values: NDArray[np.float64] | NDArray[np.uint8], value: float) -> None:
     """Shift ``value`` into ``values`` (oldest first), in place."""
     for row in range(len(values) - 1):
         values[row] = values[row + 1]
@@ -305,9 +305,7 @@ def _defer(check: np.record, deviation: float, information: float, valid: bool) 
     oldest_deviation, oldest_information = check.unlearned_deviations[0], check.unlearned_informations[0]
     oldest_valid = check.unlearned_valid[0] != 0
     full = check.unlearned_count == SLIP_WINDOW
-    for row in range(SLIP_WINDOW - 1):
-        check.unlearned_valid[row] = check.unlearned_valid[row + 1]
-    check.unlearned_valid[SLIP_WINDOW - 1] = 1 if valid else 0
+    _shift_scalar(check.unlearned_valid, 1 if valid else 0)
     _shift_scalar(check.unlearned_deviations, deviation)
     _shift_scalar(check.unlearned_informations, information)
     check.unlearned_count = min(check.unlearned_count + 1, SLIP_WINDOW)
